@@ -1,0 +1,255 @@
+"""Pinhole cameras with OpenCV distortion, and rigs of them.
+
+Conventions: world coordinates in millimetres, world Z up. A camera maps a world point ``X`` to
+camera coordinates ``x_c = R @ X + t`` (camera looks along +z_c, x_c right, y_c down in the
+image), then to normalized ``(x_c/z_c, y_c/z_c)``, then applies OpenCV's radial/tangential
+distortion ``(k1, k2, p1, p2, k3)`` and the intrinsics ``K``. Pixel ``(0, 0)`` is the centre of
+the top-left pixel, as in OpenCV.
+
+Rig file (TOML)::
+
+    units = "mm"          # translations are in millimetres
+    world = "Z up"
+    [[camera]]
+    name = "cam1"
+    size = [2448, 1600]   # width, height in pixels
+    fx = 2400.0
+    fy = 2400.0
+    cx = 1223.5
+    cy = 799.5
+    distortion = [k1, k2, p1, p2, k3]
+    rotation = [[r11, r12, r13], [r21, r22, r23], [r31, r32, r33]]   # world -> camera
+    translation = [tx, ty, tz]                                        # world -> camera, mm
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Iterator, Sequence
+
+import cv2
+import numpy as np
+
+from .fileio import InputError, read_toml, write_toml
+
+
+@dataclass
+class Camera:
+    """One calibrated camera. ``K`` (3, 3); ``dist`` (5,) = k1 k2 p1 p2 k3; ``R`` (3, 3) and
+    ``t`` (3,) in mm map world to camera; ``size`` = (width, height) in pixels."""
+
+    name: str
+    K: np.ndarray
+    dist: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    size: tuple[int, int]
+
+    def __post_init__(self) -> None:
+        self.K = np.asarray(self.K, dtype=float).reshape(3, 3)
+        d = np.zeros(5)
+        src = np.asarray(self.dist, dtype=float).ravel()
+        d[: min(5, src.size)] = src[:5]
+        self.dist = d
+        self.R = np.asarray(self.R, dtype=float).reshape(3, 3)
+        self.t = np.asarray(self.t, dtype=float).reshape(3)
+        self.size = (int(self.size[0]), int(self.size[1]))
+        if not np.allclose(self.R @ self.R.T, np.eye(3), atol=1e-6) or np.linalg.det(self.R) < 0:
+            raise ValueError(f"camera {self.name!r}: rotation is not a proper rotation matrix")
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def look_at(
+        cls,
+        name: str,
+        position_mm: Sequence[float],
+        target_mm: Sequence[float],
+        size: tuple[int, int],
+        focal_px: float,
+        up: Sequence[float] = (0.0, 0.0, 1.0),
+        dist: Sequence[float] = (0, 0, 0, 0, 0),
+        principal_point: tuple[float, float] | None = None,
+    ) -> "Camera":
+        """A camera at ``position_mm`` looking at ``target_mm`` with world ``up`` pointing up in
+        the image. ``principal_point`` defaults to the image centre."""
+        position = np.asarray(position_mm, float)
+        forward = np.asarray(target_mm, float) - position
+        forward /= np.linalg.norm(forward)
+        right = np.cross(forward, np.asarray(up, float))
+        if np.linalg.norm(right) < 1e-9:
+            raise ValueError(f"camera {name!r}: viewing direction is parallel to 'up'")
+        right /= np.linalg.norm(right)
+        down = np.cross(forward, right)
+        R = np.stack([right, down, forward])
+        w, h = size
+        cx, cy = principal_point if principal_point is not None else ((w - 1) / 2, (h - 1) / 2)
+        K = np.array([[focal_px, 0, cx], [0, focal_px, cy], [0, 0, 1]], float)
+        return cls(name, K, np.asarray(dist, float), R, -R @ position, size)
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def center(self) -> np.ndarray:
+        """Camera centre in world coordinates (mm)."""
+        return -self.R.T @ self.t
+
+    @property
+    def projection_matrix(self) -> np.ndarray:
+        """(3, 4) ``K [R | t]`` for undistorted pixel coordinates."""
+        return self.K @ np.hstack([self.R, self.t[:, None]])
+
+    @property
+    def rvec(self) -> np.ndarray:
+        return cv2.Rodrigues(self.R)[0].ravel()
+
+    def to_camera(self, points_mm: np.ndarray) -> np.ndarray:
+        """(N, 3) world points -> (N, 3) camera coordinates (mm)."""
+        return np.asarray(points_mm, float).reshape(-1, 3) @ self.R.T + self.t
+
+    def depth(self, points_mm: np.ndarray) -> np.ndarray:
+        """(N,) z_c of world points (mm); positive in front of the camera."""
+        return self.to_camera(points_mm)[:, 2]
+
+    def distort(self, normalized: np.ndarray) -> np.ndarray:
+        """Apply the distortion model to (N, 2) normalized image coordinates."""
+        x, y = normalized[:, 0], normalized[:, 1]
+        k1, k2, p1, p2, k3 = self.dist
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        return np.column_stack([xd, yd])
+
+    def project(self, points_mm: np.ndarray, distort: bool = True) -> np.ndarray:
+        """(N, 3) world points -> (N, 2) pixels. Points behind the camera give NaN."""
+        pc = self.to_camera(points_mm)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            normalized = pc[:, :2] / pc[:, 2:3]
+        normalized[pc[:, 2] <= 1e-9] = np.nan
+        if distort:
+            normalized = self.distort(normalized)
+        return normalized @ self.K[:2, :2].T + self.K[:2, 2]
+
+    def undistort_points(self, pixels: np.ndarray, normalized: bool = False) -> np.ndarray:
+        """(N, 2) distorted pixels -> undistorted pixels (or normalized coordinates)."""
+        pixels = np.asarray(pixels, float).reshape(-1, 2)
+        if pixels.size == 0:
+            return pixels.copy()
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
+        und = cv2.undistortPoints(
+            pixels.reshape(-1, 1, 2), self.K, self.dist, criteria=criteria
+        ).reshape(-1, 2)
+        if normalized:
+            return und
+        return und @ self.K[:2, :2].T + self.K[:2, 2]
+
+    def rays(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Back-project (N, 2) pixels: returns origin (3,) and (N, 3) unit directions, world."""
+        xy = self.undistort_points(pixels, normalized=True)
+        dirs_cam = np.column_stack([xy, np.ones(len(xy))])
+        dirs = dirs_cam @ self.R  # R^T applied to each row
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        return self.center, dirs
+
+    def in_image(self, pixels: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """(N,) bool: pixel lies inside the image (minus ``margin`` px)."""
+        w, h = self.size
+        u, v = pixels[:, 0], pixels[:, 1]
+        with np.errstate(invalid="ignore"):
+            return (u >= -0.5 + margin) & (u <= w - 0.5 - margin) & (v >= -0.5 + margin) & (v <= h - 0.5 - margin)
+
+    # ------------------------------------------------------------------ serialisation
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "size": list(self.size),
+            "fx": float(self.K[0, 0]),
+            "fy": float(self.K[1, 1]),
+            "cx": float(self.K[0, 2]),
+            "cy": float(self.K[1, 2]),
+            "skew": float(self.K[0, 1]),
+            "distortion": [float(v) for v in self.dist],
+            "rotation": [[float(v) for v in row] for row in self.R],
+            "translation": [float(v) for v in self.t],
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str | None = None) -> "Camera":
+        required = ("name", "size", "fx", "fy", "cx", "cy", "rotation", "translation")
+        missing = [k for k in required if k not in data]
+        if missing:
+            raise InputError(source, f"camera entry {data.get('name', '?')!r} lacks {missing}")
+        K = np.array(
+            [[data["fx"], data.get("skew", 0.0), data["cx"]], [0, data["fy"], data["cy"]], [0, 0, 1]],
+            float,
+        )
+        try:
+            return cls(
+                str(data["name"]), K, data.get("distortion", [0] * 5),
+                data["rotation"], data["translation"], tuple(data["size"]),
+            )
+        except ValueError as exc:
+            raise InputError(source, str(exc)) from exc
+
+
+@dataclass
+class Rig:
+    """An ordered set of synchronized cameras with unique names."""
+
+    cameras: list[Camera] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        names = [c.name for c in self.cameras]
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            raise ValueError(f"rig has duplicate camera names {dupes}")
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    def __iter__(self) -> Iterator[Camera]:
+        return iter(self.cameras)
+
+    def __getitem__(self, key: int | str) -> Camera:
+        if isinstance(key, str):
+            for cam in self.cameras:
+                if cam.name == key:
+                    return cam
+            raise KeyError(f"no camera named {key!r} in rig (cameras: {self.names})")
+        return self.cameras[key]
+
+    @property
+    def names(self) -> list[str]:
+        return [c.name for c in self.cameras]
+
+    def subset(self, names: Sequence[str]) -> "Rig":
+        return Rig([self[n] for n in names])
+
+    def project(self, points_mm: np.ndarray) -> np.ndarray:
+        """(N, 3) world points -> (C, N, 2) distorted pixels in every camera."""
+        return np.stack([cam.project(points_mm) for cam in self.cameras])
+
+    def to_dict(self) -> dict:
+        return {"units": "mm", "world": "Z up", "camera": [c.to_dict() for c in self.cameras]}
+
+    def to_toml(self, path: str | os.PathLike) -> None:
+        write_toml(path, self.to_dict())
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str | None = None) -> "Rig":
+        units = data.get("units", "mm")
+        if units != "mm":
+            raise InputError(source, f"rig units {units!r} not supported (expected 'mm')")
+        entries = data.get("camera")
+        if not entries:
+            raise InputError(source, "rig file has no [[camera]] entries")
+        try:
+            return cls([Camera.from_dict(e, source) for e in entries])
+        except ValueError as exc:
+            if isinstance(exc, InputError):
+                raise
+            raise InputError(source, str(exc)) from exc
+
+    @classmethod
+    def from_toml(cls, path: str | os.PathLike) -> "Rig":
+        return cls.from_dict(read_toml(path), source=str(path))

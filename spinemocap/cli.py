@@ -1,0 +1,65 @@
+"""Command-line entry point ``spinemocap``.
+
+Each sub-command lives in its own module under :mod:`spinemocap.commands`. A module defines
+``register(subparsers)`` to add top-level commands and/or ``register_bench(subparsers)`` to add
+``spinemocap bench NAME`` benchmarks; the handler is stored as ``func`` on the parser defaults
+and returns an exit code (or None for 0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import pkgutil
+import sys
+from typing import Sequence
+
+from . import __version__, commands
+from .fileio import InputError
+
+log = logging.getLogger("spinemocap")
+
+
+def _command_modules():
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if not info.name.startswith("_"):
+            yield importlib.import_module(f"{commands.__name__}.{info.name}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="spinemocap",
+        description="3D spine motion capture from perforated kinesiology tape.",
+    )
+    parser.add_argument("--version", action="version", version=f"spinemocap {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    bench = sub.add_parser("bench", help="benchmarks that print and save speed/accuracy numbers")
+    bench_sub = bench.add_subparsers(dest="benchmark", metavar="BENCHMARK", required=True)
+    for module in _command_modules():
+        if hasattr(module, "register"):
+            module.register(sub)
+        if hasattr(module, "register_bench"):
+            module.register_bench(bench_sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except InputError as exc:
+        print(f"spinemocap: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("spinemocap: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

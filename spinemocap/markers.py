@@ -1,0 +1,165 @@
+"""The marker table: labelled 3D marker trajectories in long form, with pandas at its heart.
+
+One row per (frame, label): ``frame`` (int, 0-based), ``time`` (s), ``label`` (str), ``x, y, z``
+(mm, world frame, Z up; NaN when missing), ``status`` (``observed`` | ``inferred`` |
+``missing``), ``n_views`` (cameras that saw the marker), ``residual`` (mean reprojection error in
+px for tracked data; for imported C3D data the file's residual; NaN when unknown).
+
+Metadata travels in :attr:`MarkerTable.meta` (``fps``, ``units``, ``subject``, ``source`` ...).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from .fileio import InputError
+
+STATUSES = ("observed", "inferred", "missing")
+COLUMNS = ("frame", "time", "label", "x", "y", "z", "status", "n_views", "residual")
+
+
+@dataclass
+class MarkerTable:
+    """Long-form marker table. Build with :meth:`from_arrays`; read back with :meth:`to_arrays`."""
+
+    data: pd.DataFrame
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.meta.setdefault("units", "mm")
+        self.data = self._normalise(self.data, self.meta.get("source"))
+
+    # ------------------------------------------------------------------ validation
+    @staticmethod
+    def _normalise(df: pd.DataFrame, source: str | None) -> pd.DataFrame:
+        missing = [c for c in COLUMNS if c not in df.columns]
+        if missing:
+            raise InputError(source, f"marker table lacks columns {missing}")
+        df = df.loc[:, list(COLUMNS)].copy()
+        df["frame"] = df["frame"].astype(np.int64)
+        df["label"] = df["label"].astype(str)
+        for c in ("time", "x", "y", "z", "residual"):
+            df[c] = pd.to_numeric(df[c], errors="raise").astype(float)
+        df["n_views"] = pd.to_numeric(df["n_views"]).fillna(0).astype(np.int64)
+        bad = set(df["status"].astype(str)) - set(STATUSES)
+        if bad:
+            raise InputError(source, f"unknown marker status {sorted(bad)}; expected {STATUSES}")
+        df["status"] = pd.Categorical(df["status"].astype(str), categories=STATUSES)
+        if df.duplicated(["frame", "label"]).any():
+            dup = df.loc[df.duplicated(["frame", "label"]), ["frame", "label"]].iloc[0]
+            raise InputError(source, f"duplicate row for frame {dup['frame']} label {dup['label']}")
+        return df.sort_values(["frame", "label"], kind="stable").reset_index(drop=True)
+
+    # ------------------------------------------------------------------ array views
+    @classmethod
+    def from_arrays(
+        cls,
+        labels: Sequence[str],
+        positions_mm: np.ndarray,
+        fps: float,
+        status: np.ndarray | None = None,
+        n_views: np.ndarray | None = None,
+        residual: np.ndarray | None = None,
+        first_frame: int = 0,
+        meta: dict | None = None,
+    ) -> "MarkerTable":
+        """Build from (F, D, 3) positions; ``status`` (F, D) of str (default: observed where
+        finite, missing elsewhere), ``n_views`` (F, D) int, ``residual`` (F, D) px."""
+        positions_mm = np.asarray(positions_mm, float)
+        F, D = positions_mm.shape[:2]
+        if len(labels) != D:
+            raise ValueError(f"{len(labels)} labels for {D} markers")
+        finite = np.isfinite(positions_mm).all(axis=2)
+        if status is None:
+            status = np.where(finite, "observed", "missing")
+        status = np.where(finite, np.asarray(status, dtype=object), "missing")
+        frames = np.repeat(np.arange(F) + first_frame, D)
+        df = pd.DataFrame(
+            {
+                "frame": frames,
+                "time": frames / float(fps),
+                "label": np.tile(np.asarray(labels, dtype=object), F),
+                "x": positions_mm[..., 0].ravel(),
+                "y": positions_mm[..., 1].ravel(),
+                "z": positions_mm[..., 2].ravel(),
+                "status": status.ravel(),
+                "n_views": (np.zeros((F, D), int) if n_views is None else np.asarray(n_views)).ravel(),
+                "residual": (np.full((F, D), np.nan) if residual is None else np.asarray(residual, float)).ravel(),
+            }
+        )
+        meta = dict(meta or {})
+        meta["fps"] = float(fps)
+        meta.setdefault("labels", list(labels))
+        return cls(df, meta)
+
+    @property
+    def fps(self) -> float:
+        if "fps" in self.meta:
+            return float(self.meta["fps"])
+        frames = self.frames
+        if len(frames) > 1:
+            times = self.data.groupby("frame")["time"].first()
+            return float((frames[-1] - frames[0]) / (times.iloc[-1] - times.iloc[0]))
+        raise ValueError("frame rate unknown")
+
+    @property
+    def labels(self) -> list[str]:
+        """Marker labels in their declared order (``meta['labels']``) or first-seen order."""
+        declared = self.meta.get("labels")
+        present = list(dict.fromkeys(self.data["label"]))
+        if declared and set(declared) == set(present):
+            return list(declared)
+        return present
+
+    @property
+    def frames(self) -> np.ndarray:
+        return np.unique(self.data["frame"].to_numpy())
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.frames)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Dense arrays: ``frames`` (F,), ``time`` (F,), ``labels`` (D,), ``positions`` (F, D, 3)
+        mm (NaN where missing), ``status`` (F, D) str, ``n_views`` (F, D), ``residual`` (F, D)."""
+        labels = self.labels
+        frames = self.frames
+        fi = np.searchsorted(frames, self.data["frame"].to_numpy())
+        li = pd.Index(labels).get_indexer(self.data["label"])
+        F, D = len(frames), len(labels)
+        pos = np.full((F, D, 3), np.nan)
+        pos[fi, li] = self.data[["x", "y", "z"]].to_numpy()
+        status = np.full((F, D), "missing", dtype=object)
+        status[fi, li] = self.data["status"].astype(str).to_numpy()
+        n_views = np.zeros((F, D), np.int64)
+        n_views[fi, li] = self.data["n_views"].to_numpy()
+        residual = np.full((F, D), np.nan)
+        residual[fi, li] = self.data["residual"].to_numpy()
+        time = np.full(F, np.nan)
+        time[fi] = self.data["time"].to_numpy()
+        return {"frames": frames, "time": time, "labels": np.array(labels), "positions": pos,
+                "status": status, "n_views": n_views, "residual": residual}
+
+    def positions(self) -> np.ndarray:
+        """(F, D, 3) positions in mm, NaN where missing, labels in :attr:`labels` order."""
+        return self.to_arrays()["positions"]
+
+    def select(self, labels: Sequence[str] | None = None, frames: Sequence[int] | None = None) -> "MarkerTable":
+        df = self.data
+        if labels is not None:
+            df = df[df["label"].isin(labels)]
+        if frames is not None:
+            df = df[df["frame"].isin(frames)]
+        meta = dict(self.meta)
+        if labels is not None:
+            meta["labels"] = [l for l in self.labels if l in set(labels)]
+        return MarkerTable(df, meta)
+
+    def completeness(self) -> dict[str, float]:
+        """Share of marker-frames per status (0..1)."""
+        counts = self.data["status"].value_counts(normalize=True)
+        return {s: float(counts.get(s, 0.0)) for s in STATUSES}

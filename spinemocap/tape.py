@@ -1,0 +1,229 @@
+"""The perforated kinesiology tape: its dot layout (:class:`TapeSpec`) and graph (:class:`TapeGraph`).
+
+Tape frame (2D, millimetres, on the flattened tape): ``v`` runs along the tape from the sacral
+end (row 1 at ``v = 0``), ``u`` runs across it, positive toward the subject's right. Columns are
+named from the subject's point of view: ``L`` (u < 0), ``C`` (u = 0), ``R`` (u > 0). Rows
+alternate 2 and 3 dots, starting and ending with a 2-dot row, so the row count is odd.
+
+Labels: ``R{row:02d}{column}``, rows counted from the sacral end: ``R01L``, ``R01R``, ``R02L``,
+``R02C``, ``R02R``, ...
+
+Graph (paper Fig. 2):
+- solid transverse edges: neighbouring dots within a row (L-C, C-R; L-R in a 2-dot row);
+- solid longitudinal edges: every dot to every dot of the adjacent rows (2 x 3 = 6 per row pair).
+  The paper's target edge count (Eq. 1) counts exactly these six per row pair and its neighbour
+  bounds 6..12 (Eq. 4-5) hold only for this graph, so "nearest dots of the adjacent rows" is read
+  as the whole adjacent row (the two far diagonals are ~30 % longer than the near ones);
+- dashed (long, anti-folding) edges: same column two rows apart, and L-R across the centre of a
+  3-dot row.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import asdict, dataclass, field, fields
+from functools import cached_property
+
+import numpy as np
+
+from .fileio import InputError, read_toml, write_toml
+
+
+@dataclass(frozen=True)
+class TapeSpec:
+    """Physical layout of a perforated tape strip. Lengths in millimetres.
+
+    Defaults follow the paper: 50 mm wide tape, ~10 mm dots, 9 rows (22 dots on 20 x 5 cm).
+    ``stretch_tolerance`` is the relative skin stretch accepted when matching dot distances.
+    """
+
+    n_rows: int = 9
+    width_mm: float = 50.0
+    dot_diameter_mm: float = 10.0
+    row_pitch_mm: float = 25.0
+    column_spacing_mm: float = 15.0
+    end_margin_mm: float = 12.5
+    stretch_tolerance: float = 0.15
+
+    def __post_init__(self) -> None:
+        if self.n_rows < 1 or self.n_rows % 2 == 0:
+            raise ValueError(
+                f"n_rows must be odd and >= 1 (rows alternate 2/3 dots and start and end with a "
+                f"2-dot row); got {self.n_rows}"
+            )
+        for name in ("width_mm", "dot_diameter_mm", "row_pitch_mm", "column_spacing_mm"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be positive; got {getattr(self, name)}")
+        if 2 * self.column_spacing_mm + self.dot_diameter_mm > self.width_mm:
+            raise ValueError("the three dots of a row do not fit across the tape width")
+        if self.dot_diameter_mm >= self.column_spacing_mm:
+            raise ValueError("dot_diameter_mm must be smaller than column_spacing_mm")
+        if not 0 <= self.stretch_tolerance < 1:
+            raise ValueError("stretch_tolerance must lie in [0, 1)")
+
+    # ------------------------------------------------------------------ construction / IO
+    @classmethod
+    def from_dict(cls, data: dict, source: str | None = None) -> "TapeSpec":
+        known = {f.name for f in fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise InputError(source, f"unknown tape settings {sorted(unknown)}; known: {sorted(known)}")
+        try:
+            return cls(**data)
+        except (TypeError, ValueError) as exc:
+            raise InputError(source, f"invalid tape spec: {exc}") from exc
+
+    @classmethod
+    def from_toml(cls, path: str | os.PathLike) -> "TapeSpec":
+        """Load from a TOML file holding the fields at top level or under ``[tape]``."""
+        data = read_toml(path)
+        return cls.from_dict(data.get("tape", data), source=str(path))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def to_toml(self, path: str | os.PathLike) -> None:
+        write_toml(path, {"tape": self.to_dict()})
+
+    # ------------------------------------------------------------------ derived quantities
+    @property
+    def row_sizes(self) -> list[int]:
+        """Dots per row from the sacral end: 2, 3, 2, ..., 2."""
+        return [2 if r % 2 == 0 else 3 for r in range(self.n_rows)]
+
+    @property
+    def n_dots(self) -> int:
+        return sum(self.row_sizes)
+
+    @property
+    def length_mm(self) -> float:
+        return (self.n_rows - 1) * self.row_pitch_mm + 2 * self.end_margin_mm
+
+    @property
+    def n_target_edges(self) -> int:
+        """Paper Eq. 1: floor(n/2)*2 + ceil(n/2) + (n-1)*6 solid edges."""
+        n = self.n_rows
+        return (n // 2) * 2 + math.ceil(n / 2) + (n - 1) * 6
+
+    @cached_property
+    def graph(self) -> "TapeGraph":
+        return TapeGraph.build(self)
+
+    @property
+    def labels(self) -> list[str]:
+        return list(self.graph.labels)
+
+
+def _row_columns(size: int) -> list[tuple[str, float]]:
+    return [("L", -0.5), ("R", 0.5)] if size == 2 else [("L", -1.0), ("C", 0.0), ("R", 1.0)]
+
+
+@dataclass(frozen=True)
+class TapeGraph:
+    """Dots and edges of a tape. Arrays are indexed by dot (D) or edge (E).
+
+    ``edges``: (E, 2) dot indices, solid edges first; ``solid``/``transverse``: (E,) bool;
+    ``rest_length_mm``: (E,) distances on the unstretched tape.
+    """
+
+    labels: tuple[str, ...]
+    row: np.ndarray  # (D,) 0-based row index from the sacral end
+    column: tuple[str, ...]  # (D,) 'L' | 'C' | 'R'
+    uv_mm: np.ndarray  # (D, 2) (u across, v along) in the flat tape frame
+    edges: np.ndarray  # (E, 2)
+    solid: np.ndarray  # (E,) bool
+    transverse: np.ndarray  # (E,) bool
+    rest_length_mm: np.ndarray  # (E,)
+    spec: TapeSpec = field(repr=False)
+
+    @classmethod
+    def build(cls, spec: TapeSpec) -> "TapeGraph":
+        labels, rows, cols, uv = [], [], [], []
+        row_members: list[list[int]] = []
+        for r, size in enumerate(spec.row_sizes):
+            members = []
+            for name, offset in _row_columns(size):
+                members.append(len(labels))
+                labels.append(f"R{r + 1:02d}{name}")
+                rows.append(r)
+                cols.append(name)
+                uv.append((offset * spec.column_spacing_mm, r * spec.row_pitch_mm))
+            row_members.append(members)
+
+        solid: list[tuple[int, int, bool]] = []  # (i, j, transverse)
+        for members in row_members:  # neighbouring dots within a row
+            solid += [(a, b, True) for a, b in zip(members[:-1], members[1:])]
+        for lower, upper in zip(row_members[:-1], row_members[1:]):  # adjacent rows, all pairs
+            solid += [(a, b, False) for a in lower for b in upper]
+        dashed: list[tuple[int, int, bool]] = []
+        for members in row_members:  # across the centre of a 3-dot row
+            if len(members) == 3:
+                dashed.append((members[0], members[2], True))
+        for lower, upper in zip(row_members[:-2], row_members[2:]):  # same column two rows apart
+            for a in lower:
+                for b in upper:
+                    if cols[a] == cols[b]:
+                        dashed.append((a, b, False))
+
+        all_edges = solid + dashed
+        edges = np.array([(i, j) for i, j, _ in all_edges], dtype=np.int64).reshape(-1, 2)
+        uv_arr = np.array(uv, dtype=float)
+        return cls(
+            labels=tuple(labels),
+            row=np.array(rows, dtype=np.int64),
+            column=tuple(cols),
+            uv_mm=uv_arr,
+            edges=edges,
+            solid=np.array([True] * len(solid) + [False] * len(dashed)),
+            transverse=np.array([t for _, _, t in all_edges], dtype=bool),
+            rest_length_mm=np.linalg.norm(uv_arr[edges[:, 0]] - uv_arr[edges[:, 1]], axis=1),
+            spec=spec,
+        )
+
+    @property
+    def n_dots(self) -> int:
+        return len(self.labels)
+
+    @property
+    def solid_edges(self) -> np.ndarray:
+        return self.edges[self.solid]
+
+    @property
+    def dashed_edges(self) -> np.ndarray:
+        return self.edges[~self.solid]
+
+    def index(self, label: str) -> int:
+        try:
+            return self.labels.index(label)
+        except ValueError:
+            raise KeyError(f"no dot labelled {label!r} on a {self.spec.n_rows}-row tape") from None
+
+    def solid_length_bounds_mm(self) -> tuple[float, float]:
+        """(th3, th4): the range of solid-edge lengths widened by the stretch tolerance."""
+        lengths = self.rest_length_mm[self.solid]
+        tol = self.spec.stretch_tolerance
+        return float(lengths.min() * (1 - tol)), float(lengths.max() * (1 + tol))
+
+    def edge_neighbours(self, edges: np.ndarray | None = None) -> list[np.ndarray]:
+        """Omega_e for each edge: indices of the other edges sharing an endpoint with it."""
+        return edge_neighbour_sets(self.solid_edges if edges is None else edges)
+
+    def positions_on_plane_mm(self) -> np.ndarray:
+        """(D, 3) rest positions in a tape-local 3D frame: x = u, y = v, z = 0."""
+        return np.column_stack([self.uv_mm, np.zeros(self.n_dots)])
+
+
+def edge_neighbour_sets(edges: np.ndarray) -> list[np.ndarray]:
+    """For each edge (row of ``edges``), the indices of the other edges sharing an endpoint."""
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    by_node: dict[int, list[int]] = {}
+    for e, (i, j) in enumerate(edges):
+        by_node.setdefault(int(i), []).append(e)
+        by_node.setdefault(int(j), []).append(e)
+    out = []
+    for e, (i, j) in enumerate(edges):
+        members = set(by_node[int(i)]) | set(by_node[int(j)])
+        members.discard(e)
+        out.append(np.array(sorted(members), dtype=np.int64))
+    return out

@@ -1,0 +1,83 @@
+import numpy as np
+import pytest
+
+from spinemocap.camera import Camera, Rig
+from spinemocap.capture import Capture, read_image
+from spinemocap.fileio import InputError, atomic_write
+from spinemocap.markers import MarkerTable
+from spinemocap.tape import TapeSpec
+
+
+def test_marker_table_array_round_trip():
+    rng = np.random.default_rng(0)
+    pos = rng.normal(size=(4, 3, 3)) * 100
+    pos[1, 2] = np.nan
+    status = np.full((4, 3), "observed", dtype=object)
+    status[2, 0] = "inferred"
+    table = MarkerTable.from_arrays(["R01L", "R01R", "R02L"], pos, fps=100, status=status,
+                                    n_views=np.full((4, 3), 3))
+    arr = table.to_arrays()
+    assert list(arr["labels"]) == ["R01L", "R01R", "R02L"]
+    assert np.allclose(arr["positions"], pos, equal_nan=True)
+    assert arr["status"][1, 2] == "missing" and arr["status"][2, 0] == "inferred"
+    assert np.allclose(arr["time"], np.arange(4) / 100)
+    assert table.completeness()["missing"] == pytest.approx(1 / 12)
+
+
+def test_marker_table_rejects_duplicates_and_bad_status():
+    t = MarkerTable.from_arrays(["A"], np.zeros((2, 1, 3)), fps=10)
+    df = t.data.copy()
+    df.loc[1, "frame"] = 0
+    with pytest.raises(InputError, match="duplicate"):
+        MarkerTable(df, {"source": "x.csv"})
+    df = t.data.copy()
+    df["status"] = df["status"].astype(str)
+    df.loc[0, "status"] = "seen"
+    with pytest.raises(InputError, match="x.csv.*unknown marker status"):
+        MarkerTable(df, {"source": "x.csv"})
+
+
+def test_atomic_write_keeps_old_file_on_failure(tmp_path):
+    target = tmp_path / "out.txt"
+    target.write_text("old")
+    with pytest.raises(RuntimeError):
+        with atomic_write(target) as f:
+            f.write("half")
+            raise RuntimeError("boom")
+    assert target.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+
+
+def _write_capture(root, n_frames=2):
+    rig = Rig([Camera.look_at(f"cam{i}", (i * 500.0, -2000, 1200), (0, 0, 1100), (32, 24), 40) for i in range(2)])
+    cap = Capture(root=root, name="t", fps=50.0, n_frames=n_frames, rig=rig, tape=TapeSpec(n_rows=5),
+                  subject={"id": "S1", "up": [0, 0, 1]})
+    cap.save()
+    import cv2
+
+    for cam in rig.names:
+        for f in range(n_frames):
+            p = root / cap.image_pattern.format(camera=cam, frame=f)
+            p.parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(p), np.full((24, 32, 3), f * 10, np.uint8))
+    return cap
+
+
+def test_capture_open_and_read(tmp_path):
+    _write_capture(tmp_path)
+    cap = Capture.open(tmp_path)
+    assert cap.camera_names == ["cam0", "cam1"] and cap.tape.n_rows == 5 and cap.fps == 50
+    frames = cap.frame_source().read(1)
+    assert len(frames) == 2 and frames[0].shape == (24, 32, 3) and frames[0].max() == 10
+
+
+def test_capture_errors_name_the_problem(tmp_path):
+    with pytest.raises(InputError, match="not a capture folder"):
+        Capture.open(tmp_path)
+    cap = _write_capture(tmp_path)
+    (tmp_path / "images/cam1/000001.png").unlink()
+    with pytest.raises(InputError, match="cam1.*1 images.*n_frames = 2"):
+        Capture.open(tmp_path).frame_source()
+    (tmp_path / "images/cam0/000001.png").write_bytes(b"not a png")
+    with pytest.raises(InputError, match="000001.png.*corrupt"):
+        read_image(tmp_path / "images/cam0/000001.png")
