@@ -1,0 +1,92 @@
+"""Data passed between tracker stages. World coordinates in mm, image coordinates in px."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class ViewDots:
+    """Dots detected in one camera image for one frame.
+
+    ``uv``: (N, 2) distorted pixel centres; ``confidence``: (N,) in [0, 1];
+    ``mask``: tape mask (H, W) bool or None; ``image``: the grey image (H, W) uint8 or None
+    (kept for MRF2's image evidence)."""
+
+    camera: int
+    uv: np.ndarray
+    confidence: np.ndarray
+    mask: np.ndarray | None = None
+    image: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.uv)
+
+
+@dataclass
+class CandidateCloud:
+    """3D candidate points (paper: the point cloud P).
+
+    ``points``: (N, 3) mm; ``normals``: (N, 3) unit, negative mean viewing direction of the
+    cameras used; ``blob_ids``: (N, C) index of the blob used in each camera, -1 where the camera
+    did not contribute; ``residual``: (N,) RMS reprojection error in px over contributing views."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    blob_ids: np.ndarray
+    residual: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    @property
+    def n_views(self) -> np.ndarray:
+        return (self.blob_ids >= 0).sum(axis=1)
+
+
+@dataclass
+class EdgeCloud:
+    """Point pairs whose length lies in (th3, th4): ``edges`` (M, 2) indices into the candidate
+    points, ``lengths`` (M,) mm."""
+
+    edges: np.ndarray
+    lengths: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.edges)
+
+
+@dataclass
+class FeasibleSet:
+    """The LP's selected edges and the points they touch (paper: the feasibility set F).
+
+    ``points``/``normals``: (K, 3); ``edges``: (L, 2) indices into ``points``; ``source_index``:
+    (K,) index of each point in the candidate cloud; ``n_target``: edge count finally required
+    (after relaxation); ``n_target_initial``: Eq. 1's value."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    edges: np.ndarray
+    source_index: np.ndarray
+    n_target: int
+    n_target_initial: int
+    status: str = "optimal"
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+@dataclass
+class MRFResult:
+    """Output of an MRF stage: ``positions`` (D, 3) mm in tape-label order; ``energy_history``
+    per iteration (lower is better); ``extra`` stage-specific arrays (e.g. MRF1's ``d``)."""
+
+    positions: np.ndarray
+    energy_history: list[float] = field(default_factory=list)
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def energy(self) -> float:
+        return self.energy_history[-1] if self.energy_history else float("nan")
