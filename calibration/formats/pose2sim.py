@@ -1,0 +1,66 @@
+"""Pose2Sim / Anipose calibration TOML (read and write).
+
+One table per camera (``[cam_01]`` ...) with ``name``, ``size = [w, h]`` (px), ``matrix`` (3x3 K,
+px), ``distortions`` (OpenCV k1 k2 p1 p2 [k3]), ``rotation`` (Rodrigues vector, world -> camera),
+``translation`` (world -> camera, **metres**) and ``fisheye = false``; plus ``[metadata]``.
+Pose2Sim's world is Z up like ours, so only the length unit changes (mm <-> m). k3 is written
+only when non-zero (Pose2Sim writes four coefficients; both tools pass the list to OpenCV).
+"""
+
+from __future__ import annotations
+
+import os
+
+import cv2
+import numpy as np
+
+from spinemocap.camera import Camera, Rig
+from spinemocap.fileio import InputError, read_toml, write_toml
+
+
+def is_pose2sim(data: dict) -> bool:
+    return any(isinstance(v, dict) and "matrix" in v for v in data.values())
+
+
+def rig_from_pose2sim(data: dict, source: str | os.PathLike | None = None) -> Rig:
+    cameras = []
+    for key, entry in data.items():
+        if not (isinstance(entry, dict) and "matrix" in entry):
+            continue
+        try:
+            if entry.get("fisheye", False):
+                raise InputError(source, f"[{key}] is a fisheye camera; only the pinhole model is supported")
+            R = cv2.Rodrigues(np.asarray(entry["rotation"], float).reshape(3, 1))[0]
+            cameras.append(Camera(
+                str(entry.get("name", key)), np.asarray(entry["matrix"], float), entry.get("distortions", []),
+                R, np.asarray(entry["translation"], float) * 1000.0,
+                tuple(int(round(float(v))) for v in entry["size"]),
+            ))
+        except (KeyError, ValueError, TypeError) as exc:
+            if isinstance(exc, InputError):
+                raise
+            raise InputError(source, f"[{key}]: missing or bad field ({exc})") from exc
+    if not cameras:
+        raise InputError(source, "no camera tables with a 'matrix' entry (not a Pose2Sim/Anipose calibration)")
+    return Rig(cameras)
+
+
+def read_pose2sim(path: str | os.PathLike) -> Rig:
+    return rig_from_pose2sim(read_toml(path), path)
+
+
+def write_pose2sim(rig: Rig, path: str | os.PathLike, error_px: float = 0.0) -> None:
+    data = {}
+    for i, cam in enumerate(rig, start=1):
+        dist = [float(v) for v in (cam.dist if cam.dist[4] != 0 else cam.dist[:4])]
+        data[f"cam_{i:02d}"] = {
+            "name": cam.name,
+            "size": [float(cam.size[0]), float(cam.size[1])],
+            "matrix": [[float(v) for v in row] for row in cam.K],
+            "distortions": dist,
+            "rotation": [float(v) for v in cam.rvec],
+            "translation": [float(v) / 1000.0 for v in cam.t],
+            "fisheye": False,
+        }
+    data["metadata"] = {"adjusted": False, "error": float(error_px)}
+    write_toml(path, data)

@@ -1,0 +1,71 @@
+"""Qualisys QTM calibration export (``.qca.txt``, XML), read only.
+
+Mapping (as Pose2Sim converts it; distortion checked against our own board calibration):
+
+* Intrinsics are in sensor sub-pixel units. The sensor spans ``sensorMaxU`` x ``sensorMaxV``
+  units over the full ``fov_video_max`` image, so ``px = units * width_px / sensorMaxU`` (about
+  1/64; Pose2Sim divides by 64). The principal point is then shifted by the ``fov_video``
+  window's ``left``/``top``.
+* Distortion ``radialDistortion1..3`` and ``tangentalDistortion1..2`` are used as OpenCV
+  k1 k2 k3 / p1 p2 unchanged. Pose2Sim also divides them by 64; an intrinsic calibration of the
+  demo studio's own checkerboard photos gives k1 = -0.048, k2 = 0.12..0.15, matching the file's
+  raw values (-0.046, 0.14), not the divided ones, so they are dimensionless here.
+* ``transform``: ``x y z`` is the camera centre in the world (mm); the matrix ``r11..r33`` read
+  row-wise is the world -> camera rotation of QTM's camera frame, whose y and z axes point
+  opposite to OpenCV's (image up, looking along -z). OpenCV pose: ``R = diag(1, -1, -1) @ M``,
+  ``t = -R @ centre`` (Pose2Sim: transpose twice, then rotate by pi about the camera x axis).
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from spinemocap.camera import Camera, Rig
+from spinemocap.fileio import InputError
+
+QTM_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
+
+
+def read_qca(path: str | os.PathLike) -> Rig:
+    """Read every camera of a ``.qca.txt`` file as a :class:`Rig` (mm, world as in QTM)."""
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError) as exc:
+        raise InputError(path, f"not a readable Qualisys .qca.txt XML file ({exc})") from exc
+    cameras = []
+    for node in root.findall("cameras/camera"):
+        try:
+            cameras.append(_camera(node))
+        except (TypeError, KeyError, ValueError, AttributeError) as exc:
+            raise InputError(path, f"camera {node.get('serial')!r}: missing or bad field ({exc})") from exc
+    if not cameras:
+        raise InputError(path, "no <cameras><camera> entries")
+    return Rig(cameras)
+
+
+def _camera(node: ET.Element) -> Camera:
+    fov = node.find("fov_video")
+    fov_max = node.find("fov_video_max") if node.find("fov_video_max") is not None else fov
+    intr, pose = node.find("intrinsic").attrib, node.find("transform").attrib
+    width = int(fov.get("right")) - int(fov.get("left")) + 1
+    height = int(fov.get("bottom")) - int(fov.get("top")) + 1
+    full_w = int(fov_max.get("right")) - int(fov_max.get("left")) + 1
+    full_h = int(fov_max.get("bottom")) - int(fov_max.get("top")) + 1
+    su = full_w / (float(intr["sensorMaxU"]) - float(intr.get("sensorMinU", 0)))
+    sv = full_h / (float(intr["sensorMaxV"]) - float(intr.get("sensorMinV", 0)))
+    K = np.array([
+        [float(intr["focalLengthU"]) * su, float(intr.get("skew", 0)) * su, float(intr["centerPointU"]) * su - int(fov.get("left"))],
+        [0.0, float(intr["focalLengthV"]) * sv, float(intr["centerPointV"]) * sv - int(fov.get("top"))],
+        [0.0, 0.0, 1.0],
+    ])
+    dist = [float(intr.get(k, 0)) for k in ("radialDistortion1", "radialDistortion2", "tangentalDistortion1",
+                                             "tangentalDistortion2", "radialDistortion3")]
+    M = np.array([[float(pose[f"r{i}{j}"]) for j in (1, 2, 3)] for i in (1, 2, 3)])
+    centre = np.array([float(pose[k]) for k in ("x", "y", "z")])
+    R = QTM_TO_OPENCV @ M
+    U, _, Vt = np.linalg.svd(R)  # re-orthonormalize the 16-digit text values
+    R = U @ Vt
+    return Camera(node.get("serial") or f"cam{len(dist)}", K, dist, R, -R @ centre, (width, height))
