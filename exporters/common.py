@@ -1,0 +1,100 @@
+"""Helpers every format shares: units, dense arrays in and out of a :class:`MarkerTable`,
+and the warnings for questionable but readable data (NaN-only markers, duplicate labels)."""
+
+from __future__ import annotations
+
+import os
+import warnings
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from spinemocap.fileio import InputError
+from spinemocap.markers import MarkerTable
+
+UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+
+
+class ExportWarning(UserWarning):
+    """Data that can be written or read but deserves a look (the message names the file)."""
+
+
+def mm_per_unit(units: str, source: str | os.PathLike | None) -> float:
+    """Millimetres per ``units`` (mm, cm, m); :class:`InputError` for anything else."""
+    key = str(units).strip().lower()
+    if key not in UNITS_TO_MM:
+        raise InputError(source, f"unknown length units {units!r}; expected one of {sorted(UNITS_TO_MM)}")
+    return UNITS_TO_MM[key]
+
+
+def dense_mm(table: MarkerTable, source: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
+    """:meth:`MarkerTable.to_arrays` with positions converted to mm from ``meta['units']``."""
+    arrays = table.to_arrays()
+    arrays["positions"] = arrays["positions"] * mm_per_unit(table.meta.get("units", "mm"), source)
+    if len(arrays["frames"]) == 0:
+        raise InputError(source, "marker table has no frames to write")
+    return arrays
+
+
+def warn_empty_markers(labels: Sequence[str], positions: np.ndarray, source: str | os.PathLike) -> None:
+    """Warn about markers that have no finite sample at all (positions (F, D, 3))."""
+    empty = [label for label, ok in zip(labels, np.isfinite(positions).all(axis=2).any(axis=0)) if not ok]
+    if empty:
+        warnings.warn(f"{source}: markers with no valid sample in any frame (all NaN): {empty}",
+                      ExportWarning, stacklevel=3)
+
+
+def deduplicate_labels(labels: Sequence[str], source: str | os.PathLike) -> list[str]:
+    """Keep every column of a file whose labels repeat: the 2nd ``X`` becomes ``X_2`` (warned)."""
+    seen: dict[str, int] = {}
+    out = []
+    for label in labels:
+        if label in seen:
+            seen[label] += 1
+            new = f"{label}_{seen[label]}"
+            while new in seen:
+                seen[label] += 1
+                new = f"{label}_{seen[label]}"
+            warnings.warn(f"{source}: duplicate marker label {label!r}; this column is read as {new!r}",
+                          ExportWarning, stacklevel=3)
+            seen[new] = 1
+            out.append(new)
+        else:
+            seen[label] = 1
+            out.append(label)
+    return out
+
+
+def table_from_dense(
+    labels: Sequence[str],
+    frames: np.ndarray,
+    times: np.ndarray,
+    positions_mm: np.ndarray,
+    meta: dict,
+    status: np.ndarray | None = None,
+    n_views: np.ndarray | None = None,
+    residual: np.ndarray | None = None,
+) -> MarkerTable:
+    """Build a :class:`MarkerTable` from dense (F, D, ...) arrays with the file's own frame
+    numbers and times. ``status`` defaults to observed where finite, missing elsewhere."""
+    F, D = positions_mm.shape[:2]
+    finite = np.isfinite(positions_mm).all(axis=2)
+    if status is None:
+        status = np.where(finite, "observed", "missing")
+    status = np.where(finite, np.asarray(status, dtype=object), "missing")
+    df = pd.DataFrame({
+        "frame": np.repeat(np.asarray(frames, np.int64), D),
+        "time": np.repeat(np.asarray(times, float), D),
+        "label": np.tile(np.asarray(labels, dtype=object), F),
+        "x": positions_mm[..., 0].ravel(),
+        "y": positions_mm[..., 1].ravel(),
+        "z": positions_mm[..., 2].ravel(),
+        "status": status.ravel(),
+        "n_views": (np.zeros((F, D), np.int64) if n_views is None else np.asarray(n_views)).ravel(),
+        "residual": (np.full((F, D), np.nan) if residual is None else np.asarray(residual, float)).ravel(),
+    })
+    meta = dict(meta)
+    meta["units"] = "mm"
+    meta["labels"] = list(labels)
+    return MarkerTable(df, meta)

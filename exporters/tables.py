@@ -1,0 +1,124 @@
+"""The full marker table as CSV or Parquet: one row per (frame, label) with
+``frame, time, label, x, y, z, status, n_views, residual`` (mm, s, px), nothing lost.
+
+CSV is plain (no comment lines, so any spreadsheet or ``pandas.read_csv`` opens it); floats are
+written with full precision. The frame rate is recovered from the time column; other metadata
+(subject, source ...) travels only in Parquet, in the schema metadata key ``spinemocap``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pandas as pd
+
+from spinemocap.fileio import InputError, atomic_path
+from spinemocap.markers import COLUMNS, MarkerTable
+
+from .common import dense_mm, mm_per_unit, warn_empty_markers
+from .registry import Exporter
+
+META_KEY = b"spinemocap"
+
+
+def _mm_frame(table: MarkerTable, path: Path) -> pd.DataFrame:
+    """The table's rows with coordinates in mm (whatever ``meta['units']`` said)."""
+    arrays = dense_mm(table, path)
+    warn_empty_markers(list(arrays["labels"]), arrays["positions"], path)
+    df = table.data.loc[:, list(COLUMNS)].copy()
+    df[["x", "y", "z"]] *= mm_per_unit(table.meta.get("units", "mm"), path)
+    df["status"] = df["status"].astype(str)
+    return df
+
+
+def _table(df: pd.DataFrame, path: Path, meta: dict) -> MarkerTable:
+    missing = [c for c in COLUMNS if c not in df.columns]
+    if missing:
+        raise InputError(path, f"marker table lacks columns {missing} (found {list(df.columns)})")
+    if df.empty:
+        raise InputError(path, "marker table has no rows")
+    df = df.copy()
+    df["status"] = df["status"].fillna("missing")
+    meta = {**meta, "source": str(path), "units": "mm"}
+    try:
+        table = MarkerTable(df, meta)
+    except (ValueError, TypeError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(path, f"bad values in marker table: {exc}") from exc
+    if "fps" not in table.meta and table.n_frames > 1:
+        table.meta["fps"] = round(table.fps, 9)
+    arrays = table.to_arrays()
+    warn_empty_markers(list(arrays["labels"]), arrays["positions"], path)
+    return table
+
+
+def write_csv(table: MarkerTable, path: str | os.PathLike) -> Path:
+    """Write the full long table as CSV (atomically)."""
+    path = Path(path)
+    df = _mm_frame(table, path)
+    with atomic_path(path) as tmp:
+        df.to_csv(tmp, index=False)
+    return path
+
+
+def read_csv(path: str | os.PathLike) -> MarkerTable:
+    path = Path(path)
+    try:
+        df = pd.read_csv(path, dtype={"label": str})
+    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"cannot read CSV: {exc}") from exc
+    return _table(df, path, {})
+
+
+def write_parquet(table: MarkerTable, path: str | os.PathLike) -> Path:
+    """Write the full long table as Parquet with ``meta`` as JSON in the schema (atomically)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = Path(path)
+    arrow = pa.Table.from_pandas(_mm_frame(table, path), preserve_index=False)
+    meta = {**table.meta, "units": "mm"}
+    arrow = arrow.replace_schema_metadata({**(arrow.schema.metadata or {}),
+                                           META_KEY: json.dumps(meta, default=str).encode()})
+    with atomic_path(path) as tmp:
+        pq.write_table(arrow, tmp)
+    return path
+
+
+def read_parquet(path: str | os.PathLike) -> MarkerTable:
+    import pyarrow.parquet as pq
+
+    path = Path(path)
+    try:
+        arrow = pq.read_table(path)
+    except Exception as exc:  # pyarrow raises several types for corrupt files
+        raise InputError(path, f"cannot read Parquet: {exc}") from exc
+    meta = json.loads((arrow.schema.metadata or {}).get(META_KEY, b"{}"))
+    return _table(arrow.to_pandas(), path, meta)
+
+
+class CsvExporter(Exporter):
+    name = "csv"
+    extensions = (".csv",)
+    description = "full marker table (frame, time, label, x, y, z, status, n_views, residual) as CSV"
+
+    def write(self, table: MarkerTable, path: str | os.PathLike, **options) -> Path:
+        return write_csv(table, path, **options)
+
+    def read(self, path: str | os.PathLike) -> MarkerTable:
+        return read_csv(path)
+
+
+class ParquetExporter(Exporter):
+    name = "parquet"
+    extensions = (".parquet", ".pq")
+    description = "full marker table as Parquet, with metadata"
+
+    def write(self, table: MarkerTable, path: str | os.PathLike, **options) -> Path:
+        return write_parquet(table, path, **options)
+
+    def read(self, path: str | os.PathLike) -> MarkerTable:
+        return read_parquet(path)

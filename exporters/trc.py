@@ -1,0 +1,206 @@
+"""OpenSim TRC (track row column) marker files: writer and reader.
+
+Layout (tab separated), as OpenSim's ``TRCFileAdapter`` reads it::
+
+    PathFileType  4  (X/Y/Z)  markers.trc  axes: <statement>
+    DataRate  CameraRate  NumFrames  NumMarkers  Units  OrigDataRate  OrigDataStartFrame  OrigNumFrames
+    100       100         548        32          mm     100           1                   548
+    Frame#  Time  R01L  <tab>  <tab>  R01R ...
+                  X1    Y1     Z1     X2   ...
+    <blank line>
+    1       0.000000   12.34560  ...   NaN  NaN  NaN
+
+Missing samples are written as ``NaN`` (OpenSim rejects rows with empty trailing fields). The
+axes statement on the first line says which frame the numbers are in; OpenSim keeps that line
+as the table's ``header`` metadata. Frame numbers in the file are 1-based (table frame + 1).
+
+TRC carries positions only: status, view counts and residuals are not stored; on reading,
+finite samples are ``observed`` and NaN samples ``missing``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from spinemocap.fileio import InputError, atomic_write
+from spinemocap.markers import MarkerTable
+
+from .common import dense_mm, deduplicate_labels, mm_per_unit, table_from_dense, warn_empty_markers
+from .registry import Exporter
+
+HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units",
+               "OrigDataRate", "OrigDataStartFrame", "OrigNumFrames")
+LAB_AXES = "axes: lab frame, Z up (as captured)"
+AXES_PATTERN = re.compile(r"axes: OpenSim Y up, rotated from lab Z up: X=([+-][xyz]), Y=([+-][xyz]), Z=([+-][xyz])")
+# OpenSim: X forward, Y up, Z = X x Y (to the subject's right). Lab: Z up; "forward" names the
+# lab axis the subject faces. Each entry gives the OpenSim (X, Y, Z) as signed lab axes.
+OPENSIM_FROM_LAB = {
+    "+x": ("+x", "+z", "-y"),
+    "-x": ("-x", "+z", "+y"),
+    "+y": ("+y", "+z", "+x"),
+    "-y": ("-y", "+z", "-x"),
+}
+
+
+def _signed_axes(spec: tuple[str, str, str]) -> tuple[np.ndarray, np.ndarray]:
+    """("+x", "+z", "-y") -> source axis indices and signs (an exact signed permutation)."""
+    index = np.array(["xyz".index(s[1]) for s in spec])
+    sign = np.array([1.0 if s[0] == "+" else -1.0 for s in spec])
+    return index, sign
+
+
+def lab_to_opensim(positions: np.ndarray, forward: str = "+x") -> np.ndarray:
+    """Rotate (..., 3) lab Z-up coordinates into OpenSim's Y-up frame (exact: permutation + signs)."""
+    index, sign = _signed_axes(OPENSIM_FROM_LAB[forward.lower()])
+    return positions[..., index] * sign
+
+
+def opensim_to_lab(positions: np.ndarray, spec: tuple[str, str, str]) -> np.ndarray:
+    """Inverse of :func:`lab_to_opensim` for the axes statement ``spec`` read from a file."""
+    index, sign = _signed_axes(spec)
+    out = np.empty_like(positions)
+    out[..., index] = positions * sign
+    return out
+
+
+def axes_statement(forward: str | None) -> str:
+    if forward is None:
+        return LAB_AXES
+    X, Y, Z = OPENSIM_FROM_LAB[forward.lower()]
+    return f"axes: OpenSim Y up, rotated from lab Z up: X={X}, Y={Y}, Z={Z}"
+
+
+def _fmt(value: float, decimals: int) -> str:
+    return "NaN" if not np.isfinite(value) else f"{value:.{decimals}f}"
+
+
+def write_trc(table: MarkerTable, path: str | os.PathLike, units: str = "mm", opensim_axes: bool = False,
+              forward: str = "+x", decimals: int | None = None, name: str | None = None) -> Path:
+    """Write ``table`` as an OpenSim TRC file (atomically).
+
+    ``units``: ``mm`` or ``m`` (``cm`` also accepted). ``opensim_axes``: rotate from our Z-up lab
+    frame to OpenSim's Y-up frame, with the subject facing lab axis ``forward`` (+x, -x, +y, -y);
+    the first header line states the rotation either way. ``decimals``: digits after the point
+    (default 1 µm resolution: 3 in mm, 6 in m). ``name``: file name written in the header.
+    """
+    path = Path(path)
+    units = units.lower()
+    scale = mm_per_unit(units, path)
+    if forward.lower() not in OPENSIM_FROM_LAB:
+        raise InputError(path, f"unknown forward axis {forward!r}; expected one of {sorted(OPENSIM_FROM_LAB)}")
+    if decimals is None:
+        decimals = max(0, int(round(np.log10(scale))) + 3)
+    arrays = dense_mm(table, path)
+    labels = [str(l) for l in arrays["labels"]]
+    bad = [l for l in labels if not l or "\t" in l or "\n" in l]
+    if bad:
+        raise InputError(path, f"marker labels unusable in a TRC file (empty or containing tabs/newlines): {bad}")
+    positions = arrays["positions"] / scale
+    warn_empty_markers(labels, positions, path)
+    if opensim_axes:
+        positions = lab_to_opensim(positions, forward)
+    fps = float(table.fps)
+    frames, times = arrays["frames"], arrays["time"]
+    if not np.isfinite(times).all():
+        times = frames / fps
+    F, D = positions.shape[:2]
+    first = int(frames[0]) + 1
+    lines = [
+        "\t".join(["PathFileType", "4", "(X/Y/Z)", name or path.name,
+                   axes_statement(forward if opensim_axes else None)]),
+        "\t".join(HEADER_KEYS),
+        "\t".join([f"{fps:g}", f"{float(table.meta.get('camera_rate', fps)):g}", str(F), str(D), units,
+                   f"{fps:g}", str(first), str(F)]),
+        "\t".join(["Frame#", "Time"] + [f"{l}\t\t" for l in labels]),
+        "\t".join(["", ""] + [f"X{i}\tY{i}\tZ{i}" for i in range(1, D + 1)]),
+        "",
+    ]
+    flat = positions.reshape(F, 3 * D)
+    rows = ["\t".join([str(int(f) + 1), f"{t:.6f}"] + [_fmt(v, decimals) for v in row])
+            for f, t, row in zip(frames, times, flat)]
+    with atomic_write(path, "w", newline="\n", encoding="utf-8") as handle:
+        handle.write("\n".join(lines + rows) + "\n")
+    return path
+
+
+def _split(line: str) -> list[str]:
+    return line.rstrip("\r\n").split("\t")
+
+
+def read_trc(path: str | os.PathLike) -> MarkerTable:
+    """Read a TRC file into a :class:`MarkerTable` in mm, lab frame (Z up).
+
+    A file whose first line carries our OpenSim axes statement is rotated back to the lab frame;
+    other files are taken as they are (``meta['trc_axes']`` records which). Empty fields and
+    ``NaN`` read as missing samples; rows whose column count differs from the header's raise
+    :class:`InputError` naming the line.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig", errors="strict")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"cannot read TRC text: {exc}") from exc
+    lines = text.splitlines()
+    if len(lines) < 5 or not lines[0].startswith("PathFileType"):
+        raise InputError(path, "not a TRC file (expected 'PathFileType' header and 5 header lines)")
+    keys, values = _split(lines[1]), _split(lines[2])
+    header = {k.strip(): v.strip() for k, v in zip(keys, values)}
+    for key in ("DataRate", "NumMarkers", "Units"):
+        if key not in header:
+            raise InputError(path, f"TRC header lacks {key} (keys found: {keys})")
+    try:
+        fps = float(header["DataRate"])
+        n_markers = int(header["NumMarkers"])
+    except ValueError as exc:
+        raise InputError(path, f"bad DataRate/NumMarkers in TRC header: {exc}") from exc
+    scale = mm_per_unit(header["Units"], path)
+    names = [n.strip() for n in _split(lines[3])[2:] if n.strip()]
+    if len(names) != n_markers:
+        raise InputError(path, f"header declares NumMarkers={n_markers} but the names row has {len(names)} "
+                               f"marker names")
+    labels = deduplicate_labels(names, path)
+    n_cols = 2 + 3 * n_markers
+    frames, times, rows = [], [], []
+    for number, line in enumerate(lines[5:], start=6):
+        if not line.strip():
+            continue
+        fields = _split(line)
+        while len(fields) > n_cols and fields[-1] == "":  # tolerate a trailing tab
+            fields.pop()
+        if len(fields) != n_cols:
+            raise InputError(path, f"line {number} has {len(fields)} columns; the header's {n_markers} markers "
+                                   f"need {n_cols} (Frame#, Time, X/Y/Z per marker)")
+        try:
+            frames.append(int(float(fields[0])) - 1)
+            times.append(float(fields[1]))
+            rows.append([float(v) if v.strip() else np.nan for v in fields[2:]])
+        except ValueError as exc:
+            raise InputError(path, f"line {number}: not a number ({exc})") from exc
+    if not rows:
+        raise InputError(path, "TRC file has no data rows")
+    positions = np.asarray(rows, float).reshape(len(rows), n_markers, 3)
+    match = AXES_PATTERN.search(lines[0])
+    if match:
+        positions = opensim_to_lab(positions, match.groups())
+    positions = positions * scale
+    warn_empty_markers(labels, positions, path)
+    meta = {"fps": fps, "source": str(path), "file_units": header["Units"],
+            "trc_axes": "opensim" if match else "as in file",
+            "camera_rate": float(header.get("CameraRate", fps) or fps)}
+    return table_from_dense(labels, np.asarray(frames), np.asarray(times), positions, meta)
+
+
+class TrcExporter(Exporter):
+    name = "trc"
+    extensions = (".trc",)
+    description = "OpenSim TRC marker trajectories (mm or m, optional Y-up rotation)"
+
+    def write(self, table: MarkerTable, path: str | os.PathLike, **options) -> Path:
+        return write_trc(table, path, **options)
+
+    def read(self, path: str | os.PathLike) -> MarkerTable:
+        return read_trc(path)
