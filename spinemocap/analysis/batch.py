@@ -1,0 +1,452 @@
+"""Batch processing of a study: find every trial, get its markers, compute angles, write results.
+
+Study layout (either)::
+
+    ROOT/<subject>/<session or condition>/<trial>/capture.toml ...    (folders)
+    manifest.csv with columns path[, subject, condition, trial, levels, c3d]  (paths relative to it)
+
+Per trial, in ``OUT/<subject>/<condition>/<trial>/``:
+
+- ``markers.csv`` -- the tracker's output (``--source tracked``; reused while newer than the
+  capture's inputs);
+- ``angles.csv`` -- per-frame angles (:mod:`spinemocap.analysis.angles`);
+- ``summary.json`` -- written last, atomically, like every file here: the trial's status (``ok``
+  or ``failed`` with the reason), peaks, ranges, completeness and the reasons for NaN angles.
+
+A trial is skipped when its ``summary.json`` says ``ok`` and is newer than every input (capture
+manifest, rig, media or ground truth, level map, pelvis C3D); so an interrupted batch resumes
+where it stopped, and a changed input is processed again. A failing trial is recorded with its
+reason and never stops the others. Trials run on a local process pool (``workers``) or on a
+Dask distributed cluster (``scheduler`` = ``tcp://HOST:PORT``), with a progress bar.
+
+Row-to-level maps, first found wins: the manifest's ``levels`` column, ``levels.toml`` in the
+trial folder, a ``[levels]`` table in ``capture.toml``, ``levels.toml`` in the subject folder,
+the batch-wide ``levels`` file, and for synthetic captures the ground truth's ``row_levels``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+import pandas as pd
+from tqdm import tqdm
+
+from ..capture import MANIFEST, Capture
+from ..fileio import InputError, atomic_write, read_toml
+from ..markers import MarkerTable
+from .angles import AngleSettings, compute_angles
+from .frames import pelvis_frame_from_markers, read_pelvis_c3d
+from .levels import LevelMap
+
+log = logging.getLogger("spinemocap.batch")
+
+SOURCES = ("tracked", "groundtruth")
+SUMMARY = "summary.json"
+ANGLES = "angles.csv"
+MARKERS = "markers.csv"
+
+
+@dataclass
+class Trial:
+    """One trial of a study. ``problem`` is set when discovery already knows it cannot run."""
+
+    subject: str
+    condition: str
+    trial: str
+    capture_dir: str
+    levels_file: str | None = None
+    c3d_file: str | None = None
+    problem: str | None = None
+
+    @property
+    def key(self) -> str:
+        return "/".join(p for p in (self.subject, self.condition, self.trial) if p)
+
+
+@dataclass
+class TrialJob:
+    """Everything a worker needs for one trial (plain data: it travels to other processes)."""
+
+    trial: Trial
+    out_dir: str
+    source: str = "tracked"
+    levels_file: str | None = None
+    settings: AngleSettings = field(default_factory=AngleSettings)
+    force: bool = False
+
+
+# ---------------------------------------------------------------------------------- discovery
+def discover(root: str | os.PathLike) -> list[Trial]:
+    """Trials under a study folder, or listed in a CSV manifest when ``root`` is a ``.csv``."""
+    root = Path(root)
+    if root.is_file() and root.suffix.lower() == ".csv":
+        return _from_manifest(root)
+    if not root.is_dir():
+        raise InputError(root, "study folder not found")
+    trials = []
+    for manifest in sorted(root.rglob(MANIFEST)):
+        parts = manifest.parent.relative_to(root).parts
+        if any(p.startswith(".") for p in parts):
+            continue
+        trials.append(_trial_from_parts(parts, manifest.parent))
+    # subject/session/trial folders without a capture are trials that cannot run: say so.
+    captured = {Path(t.capture_dir) for t in trials}
+    for folder in sorted(p for p in root.glob("*/*/*") if p.is_dir()):
+        rel = folder.relative_to(root).parts
+        if any(p.startswith(".") for p in rel) or folder in captured:
+            continue
+        if any(c in folder.parents or folder in c.parents for c in captured):
+            continue
+        trials.append(_trial_from_parts(rel, folder, problem=f"no {MANIFEST} in this trial folder (not a capture)"))
+    if not trials:
+        raise InputError(root, f"no captures found (no {MANIFEST} below this folder)")
+    return trials
+
+
+def _trial_from_parts(parts: tuple[str, ...], folder: Path, problem: str | None = None) -> Trial:
+    subject = parts[0] if len(parts) >= 2 else ""
+    condition = "/".join(parts[1:-1]) if len(parts) >= 3 else ""
+    return Trial(subject, condition, parts[-1] if parts else folder.name, str(folder), problem=problem)
+
+
+def _from_manifest(path: Path) -> list[Trial]:
+    try:
+        table = pd.read_csv(path, dtype=str, keep_default_na=False)
+    except (OSError, ValueError, pd.errors.ParserError) as exc:
+        raise InputError(path, f"cannot read the manifest ({exc})") from exc
+    if "path" not in table.columns:
+        raise InputError(path, f"manifest needs a 'path' column; it has {list(table.columns)}")
+    trials = []
+    for _, row in table.iterrows():
+        folder = (path.parent / row["path"]).resolve()
+        get = lambda name: str(row.get(name, "") or "")
+        trial = Trial(
+            subject=get("subject"), condition=get("condition") or get("session"),
+            trial=get("trial") or folder.name, capture_dir=str(folder),
+            levels_file=str(path.parent / get("levels")) if get("levels") else None,
+            c3d_file=str(path.parent / get("c3d")) if get("c3d") else None,
+        )
+        if not (folder / MANIFEST).is_file():
+            trial.problem = f"no {MANIFEST} in {folder} (manifest {path.name})"
+        trials.append(trial)
+    if not trials:
+        raise InputError(path, "the manifest lists no trials")
+    return trials
+
+
+# ---------------------------------------------------------------------------------- one trial
+def process_trial(job: TrialJob) -> dict:
+    """Run one trial; never raises for bad data: returns (and writes) its summary dict."""
+    out = Path(job.out_dir)
+    started = time.perf_counter()
+    base = {"key": job.trial.key, "subject": job.trial.subject, "condition": job.trial.condition,
+            "trial": job.trial.trial, "capture": job.trial.capture_dir, "source": job.source}
+    try:
+        if job.trial.problem:
+            raise InputError(job.trial.capture_dir, job.trial.problem)
+        inputs = _input_files(job)
+        summary_path = out / SUMMARY
+        if not job.force and _up_to_date(summary_path, inputs):
+            cached = json.loads(summary_path.read_text())
+            return {**cached, "skipped": True}
+        summary = {**base, **_analyse(job, inputs)}
+    except Exception as exc:  # one bad trial never stops the batch: record why it failed
+        reason = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
+        summary = {**base, "status": "failed", "reason": reason}
+    summary["elapsed_s"] = round(time.perf_counter() - started, 3)
+    with atomic_write(out / SUMMARY) as handle:
+        json.dump(summary, handle, indent=1, default=_json_default)
+    return {**summary, "skipped": False}
+
+
+def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
+    out = Path(job.out_dir)
+    capture = Capture.open(job.trial.capture_dir)
+    markers = _markers(job, capture, inputs)
+    levels, levels_from = _levels(job, capture)
+    pelvis = _pelvis_frames(job.trial.c3d_file, markers) if job.trial.c3d_file else None
+    result = compute_angles(markers, capture.tape, levels, up=capture.up,
+                            facing=capture.subject.get("facing", (0.0, -1.0, 0.0)),
+                            settings=job.settings, pelvis_frames=pelvis)
+    with atomic_write(out / ANGLES) as handle:
+        result.table.to_csv(handle, index=False, float_format="%.4f")
+    fps = markers.fps
+    return {
+        "status": "ok", "reason": "",
+        "n_frames": int(len(result.table)), "fps": fps,
+        "duration_s": float(len(result.table) / fps),
+        "completeness_pct": 100.0 * result.completeness,
+        "levels": levels.rows, "levels_from": levels_from,
+        "pelvis_from": "c3d" if pelvis is not None else "tape",
+        "notes": result.notes,
+        "stats": result.summary(),
+    }
+
+
+def _input_files(job: TrialJob) -> list[Path]:
+    """Files whose modification makes a trial's results stale."""
+    folder = Path(job.trial.capture_dir)
+    files = [folder / MANIFEST]
+    manifest = read_toml(folder / MANIFEST)
+    files.append(folder / manifest.get("capture", {}).get("rig", "rig.toml"))
+    if job.source == "groundtruth":
+        files.append(folder / "groundtruth.npz")
+    else:
+        for media in ("images", "videos"):
+            if (folder / media).is_dir():
+                files += [p for p in (folder / media).rglob("*") if p.is_file()]
+    files += [Path(p) for p in (job.trial.levels_file, job.levels_file, job.trial.c3d_file) if p]
+    files += [folder / "levels.toml", folder.parent.parent / "levels.toml"]
+    return [p for p in files if p.is_file()]
+
+
+def _up_to_date(result: Path, inputs: Iterable[Path]) -> bool:
+    if not result.is_file():
+        return False
+    try:
+        if json.loads(result.read_text()).get("status") != "ok":
+            return False
+    except (OSError, ValueError):
+        return False
+    newest = max((p.stat().st_mtime for p in inputs), default=0.0)
+    return result.stat().st_mtime > newest
+
+
+def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable:
+    if job.source == "groundtruth":
+        return groundtruth_markers(capture)
+    if job.source != "tracked":
+        raise InputError(None, f"unknown marker source {job.source!r}; expected one of {SOURCES}")
+    path = Path(job.out_dir) / MARKERS
+    if job.force or not _newer_than(path, inputs):
+        try:
+            from ..track.pipeline import track_capture
+        except ImportError as exc:
+            raise InputError(capture.root, f"the tracker is not available in this installation ({exc}); "
+                             "use --source groundtruth for synthetic captures") from exc
+        track_capture(capture.root, Path(job.out_dir), mode="sequence")
+    return read_markers_csv(path)
+
+
+def _newer_than(path: Path, inputs: Iterable[Path]) -> bool:
+    return path.is_file() and path.stat().st_mtime > max((p.stat().st_mtime for p in inputs), default=0.0)
+
+
+def groundtruth_markers(capture: Capture) -> MarkerTable:
+    """The synthetic studio's exact dot positions (``groundtruth.npz``: ``labels`` (D,),
+    ``dots`` (F, D, 3) mm) as a marker table; every dot counts as observed."""
+    path = capture.groundtruth_path
+    if not path.is_file():
+        raise InputError(path, "no ground truth (groundtruth.npz) in this capture; "
+                         "only synthetic captures have it -- use --source tracked")
+    with np.load(path, allow_pickle=False) as data:
+        if "dots" not in data or "labels" not in data:
+            raise InputError(path, "ground truth lacks 'dots' or 'labels'")
+        labels = [str(l) for l in data["labels"]]
+        dots = np.asarray(data["dots"], float)
+    return MarkerTable.from_arrays(labels, dots, fps=capture.fps,
+                                   meta={"source": str(path), "subject": capture.subject.get("id", "")})
+
+
+def read_markers_csv(path: str | os.PathLike) -> MarkerTable:
+    """A marker table from the CSV the tracker writes (columns of :data:`markers.COLUMNS`)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "marker table not found")
+    try:
+        from exporters import read  # the exporters package's reader, where installed
+    except ImportError:
+        read = None
+    if read is not None:
+        return read(path)
+    try:
+        df = pd.read_csv(path)
+    except (OSError, ValueError, pd.errors.ParserError) as exc:
+        raise InputError(path, f"cannot read marker table ({exc})") from exc
+    table = MarkerTable(df, {"source": str(path)})
+    table.meta["fps"] = table.fps
+    return table
+
+
+def _levels(job: TrialJob, capture: Capture) -> tuple[LevelMap, str]:
+    n_rows = capture.tape.n_rows
+    folder = capture.root
+    candidates = [job.trial.levels_file, folder / "levels.toml"]
+    for path in candidates[:2]:
+        if path and Path(path).is_file():
+            return LevelMap.from_toml(path, n_rows), str(path)
+    section = read_toml(folder / MANIFEST).get("levels")
+    if section:
+        return LevelMap(dict(section), n_rows, source=str(folder / MANIFEST)), str(folder / MANIFEST)
+    for path in (folder.parent.parent / "levels.toml", job.levels_file):
+        if path and Path(path).is_file():
+            return LevelMap.from_toml(path, n_rows), str(path)
+    if capture.groundtruth_path.is_file():
+        with np.load(capture.groundtruth_path, allow_pickle=False) as data:
+            if "row_levels" in data:
+                return (LevelMap.from_row_levels([str(x) for x in data["row_levels"]], n_rows,
+                                                 source=str(capture.groundtruth_path)),
+                        f"{capture.groundtruth_path} (row_levels)")
+    raise InputError(folder, "no row-to-level map: put levels.toml in the trial or subject "
+                     "folder, a [levels] table in capture.toml, or pass --levels")
+
+
+def _pelvis_frames(c3d_file: str, markers: MarkerTable) -> np.ndarray:
+    """Pelvis frames from a C3D's LASI/RASI/LPSI/RPSI, resampled onto the marker table's times."""
+    times, traj = read_pelvis_c3d(c3d_file)
+    t = markers.to_arrays()["time"]
+    if t[-1] > times[-1] + 1e-6:
+        raise InputError(c3d_file, f"C3D covers {times[-1]:.2f} s, the markers {t[-1]:.2f} s")
+    resampled = {name: np.column_stack([np.interp(t, times, xyz[:, k]) for k in range(3)])
+                 for name, xyz in traj.items()}
+    return pelvis_frame_from_markers(resampled, source=c3d_file)[1]
+
+
+def _json_default(value):
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+# ---------------------------------------------------------------------------------- the batch
+@dataclass
+class BatchResult:
+    """Summaries of every trial (the dicts :func:`process_trial` returns)."""
+
+    trials: list[dict]
+
+    @property
+    def failed(self) -> list[dict]:
+        return [t for t in self.trials if t["status"] != "ok"]
+
+    @property
+    def processed(self) -> list[dict]:
+        return [t for t in self.trials if not t.get("skipped")]
+
+
+def trial_out_dir(out: Path, trial: Trial) -> Path:
+    return out.joinpath(*[p for p in (trial.subject, trial.condition, trial.trial) if p])
+
+
+def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = "tracked",
+              workers: int = 2, scheduler: str | None = None, levels_file: str | None = None,
+              settings: AngleSettings = AngleSettings(), force: bool = False,
+              progress: bool = True) -> BatchResult:
+    """Process every trial under ``root`` into ``out`` (see the module docstring).
+
+    ``workers``: local processes (1 = in this process); ``scheduler``: a Dask distributed
+    scheduler address (``tcp://HOST:PORT``) -- then the cluster's workers run the trials.
+    """
+    if source not in SOURCES:
+        raise InputError(None, f"unknown marker source {source!r}; expected one of {SOURCES}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    trials = discover(root)
+    jobs = [TrialJob(t, str(trial_out_dir(out, t)), source, levels_file, settings, force) for t in trials]
+    handler = logging.FileHandler(out / "batch.log")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
+    log.addHandler(handler)
+    log.info("batch of %d trials from %s (source %s, %s)", len(jobs), root, source,
+             f"scheduler {scheduler}" if scheduler else f"{workers} local workers")
+    results: list[dict] = []
+    bar = tqdm(total=len(jobs), desc="trials", unit="trial", disable=not progress)
+    try:
+        for result in _execute(jobs, workers, scheduler):
+            results.append(result)
+            _log_result(result)
+            failed = sum(r["status"] != "ok" for r in results)
+            bar.set_postfix(done=len(results) - failed, failed=failed, remaining=len(jobs) - len(results))
+            bar.update()
+    finally:
+        bar.close()
+        log.removeHandler(handler)
+        handler.close()
+    order = {j.trial.key: k for k, j in enumerate(jobs)}
+    results.sort(key=lambda r: order.get(r["key"], 0))
+    with atomic_write(out / "batch.json") as handle:
+        json.dump({"root": str(root), "source": source, "trials": results}, handle, indent=1,
+                  default=_json_default)
+    return BatchResult(results)
+
+
+def _log_result(result: dict) -> None:
+    if result["status"] != "ok":
+        log.error("%s failed: %s", result["key"], result["reason"])
+        return
+    for group, reasons in result.get("notes", {}).items():
+        for reason, count in reasons.items():
+            log.warning("%s: %s angles NaN in %d frames: %s", result["key"], group, count, reason)
+    log.info("%s %s", result["key"], "up to date, skipped" if result.get("skipped") else "done")
+
+
+def _execute(jobs: list[TrialJob], workers: int, scheduler: str | None) -> Iterator[dict]:
+    if scheduler:
+        yield from _execute_dask(jobs, scheduler)
+    elif workers <= 1:
+        for job in jobs:
+            yield process_trial(job)
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = {pool.submit(process_trial, job): job for job in jobs}
+            try:
+                for future in as_completed(futures):
+                    yield _result_or_failure(future, futures[future])
+            except BaseException:
+                for future in futures:
+                    future.cancel()
+                raise
+
+
+def _execute_dask(jobs: list[TrialJob], scheduler: str) -> Iterator[dict]:
+    from distributed import Client
+    from distributed import as_completed as dask_completed
+
+    try:
+        client = Client(scheduler, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise InputError(scheduler, f"cannot reach the Dask scheduler ({exc})") from exc
+    try:
+        futures = client.map(process_trial, jobs, pure=False, key=[f"trial-{j.trial.key}-{id(j)}" for j in jobs])
+        by_key = {f.key: j for f, j in zip(futures, jobs)}
+        for future in dask_completed(futures):
+            yield _result_or_failure(future, by_key[future.key])
+    finally:
+        client.close()
+
+
+def _result_or_failure(future, job: TrialJob) -> dict:
+    """A finished future's summary; a worker that died (not a bad trial) becomes a failure too."""
+    try:
+        return future.result()
+    except Exception as exc:
+        return {"key": job.trial.key, "subject": job.trial.subject, "condition": job.trial.condition,
+                "trial": job.trial.trial, "capture": job.trial.capture_dir, "source": job.source,
+                "status": "failed", "reason": f"worker failed: {type(exc).__name__}: {exc}", "skipped": False}
+
+
+def load_results(out: str | os.PathLike) -> list[dict]:
+    """Every trial summary under a batch output folder, sorted by trial key."""
+    out = Path(out)
+    if not out.is_dir():
+        raise InputError(out, "batch output folder not found")
+    summaries = []
+    for path in sorted(out.rglob(SUMMARY)):
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise InputError(path, f"unreadable trial summary ({exc})") from exc
+        data["out_dir"] = str(path.parent)
+        summaries.append(data)
+    if not summaries:
+        raise InputError(out, f"no trial results ({SUMMARY}) found: run `spinemocap batch` first")
+    return sorted(summaries, key=lambda d: d["key"])

@@ -1,0 +1,55 @@
+"""An analytic tape on a bending rod: exact dot positions for a prescribed spine motion.
+
+The reference for the angle definitions that needs no body model: the tape's midline is a rod
+whose local frame (a, s, r) -- see :mod:`frames` -- turns at given rates per millimetre of
+length: flexion about ``r`` (positive = forward), lateral bending about ``a`` (positive =
+toward the right), axial twist about ``s`` (positive = toward the left). Integrating the rates
+between two levels gives exactly the angles :func:`frames.cardan_angles` must report for a
+single-axis motion, so tests can check the whole angle pipeline against closed-form numbers.
+Dots sit at ``u`` along the rod's ``r`` axis (a flat strip, no skin curvature).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..tape import TapeSpec
+from .frames import neutral_frame
+
+Rates = Callable[[np.ndarray], np.ndarray]
+
+
+def bent_tape_dots(tape: TapeSpec, rates_deg_per_mm: Rates, up=(0.0, 0.0, 1.0),
+                   facing=(0.0, -1.0, 0.0), origin_mm=(0.0, 0.0, 1000.0),
+                   step_mm: float = 0.25) -> np.ndarray:
+    """(D, 3) dot positions in mm (world). ``rates_deg_per_mm(v)`` maps rest positions ``v``
+    (n,) along the tape to (n, 3) turning rates (flexion, lateral, twist) in deg/mm.
+    Row 1 starts at ``origin_mm`` with the neutral frame of ``up``/``facing``."""
+    graph = tape.graph
+    v = np.arange(0.0, graph.uv_mm[:, 1].max() + step_mm, step_mm)
+    rates = np.asarray(rates_deg_per_mm(v[:-1]), float).reshape(-1, 3) * step_mm
+    increments = Rotation.from_euler("ZXY", np.column_stack([-rates[:, 0], rates[:, 1], rates[:, 2]]),
+                                     degrees=True).as_matrix()
+    frames = np.empty((len(v), 3, 3))
+    frames[0] = neutral_frame(np.asarray(up, float), np.asarray(facing, float))
+    for k, inc in enumerate(increments):
+        frames[k + 1] = frames[k] @ inc
+    points = np.asarray(origin_mm, float) + np.concatenate([[np.zeros(3)], np.cumsum(frames[:-1, :, 1] * step_mm, axis=0)])
+    k = np.clip(np.rint(graph.uv_mm[:, 1] / step_mm).astype(int), 0, len(v) - 1)
+    return points[k] + frames[k][:, :, 2] * graph.uv_mm[:, :1]
+
+
+def uniform_bend(v_from: float, v_to: float, angles_deg: np.ndarray,
+                 background: np.ndarray = np.zeros(3)) -> Rates:
+    """Rates that turn the rod by ``angles_deg`` (flexion, lateral, twist) spread evenly over
+    ``v_from..v_to`` mm, on top of a constant ``background`` rate (deg/mm) everywhere."""
+    angles = np.asarray(angles_deg, float)
+
+    def rates(v: np.ndarray) -> np.ndarray:
+        inside = ((v >= v_from) & (v < v_to)).astype(float)[:, None]
+        return np.asarray(background, float) + inside * angles / (v_to - v_from)
+
+    return rates
