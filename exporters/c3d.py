@@ -9,6 +9,10 @@ What we write (float data, Intel byte order), parameters filled the way Vicon Ne
   ``DESCRIPTIONS`` (100 wide, same split).
 - ``TRIAL``: ``ACTUAL_START_FIELD``/``ACTUAL_END_FIELD`` (1-based frame numbers as two 16-bit
   words, so any length works), ``CAMERA_RATE``, ``X/Y/Z_DIRECTION``.
+- Beyond 65534 frames the header's frame fields saturate at 65535, ``POINT:FRAMES`` stays a
+  16-bit integer (ezc3d rejects a float ``FRAMES``), ``POINT:LONG_FRAMES`` (float) and the TRIAL
+  fields carry the count, and the last data block is not padded (ezc3d then counts frames from
+  the file size).
 - ``SUBJECTS``: ``USED``, ``IS_STATIC``, ``USES_PREFIXES``, ``NAMES``, ``MARKER_SETS``.
 - ``MANUFACTURER``: ``COMPANY``, ``SOFTWARE``, ``VERSION_LABEL``.
 
@@ -36,6 +40,7 @@ residuals and camera masks of float files do not.
 
 from __future__ import annotations
 
+import inspect
 import os
 import warnings
 from pathlib import Path
@@ -145,7 +150,10 @@ class _BlockWriter(c3dlib.Writer):
     def _write_frames(self, handle) -> None:
         assert handle.tell() == 512 * (int(self._header.data_block) - 1)
         handle.write(self._block.tobytes())
-        self._pad_block(handle)
+        if len(self._block) < 65535:
+            self._pad_block(handle)
+        # else: no padding. With the header's frame fields saturated, ezc3d counts frames from
+        # the file size and would read the padding as extra frames at the origin.
 
 
 def _set_strings(group, name: str, values: Sequence[str], width: int) -> None:
@@ -348,6 +356,7 @@ def _table_from_reader(reader: c3dlib.Reader, data: np.ndarray, path: Path) -> M
 class C3dExporter(Exporter):
     name = "c3d"
     extensions = (".c3d",)
+    options = tuple(inspect.signature(write_c3d).parameters)[2:]
     description = "C3D (Vicon Nexus, Mokka, Visual3D ...): float points, residuals, camera masks"
 
     def write(self, table: MarkerTable, path: str | os.PathLike, **options) -> Path:

@@ -41,11 +41,13 @@ BUILTIN = {
 class Exporter:
     """Base class for a marker file format. Subclasses set :attr:`name`, :attr:`extensions`
     and implement :meth:`write` (atomically, e.g. through :func:`spinemocap.fileio.atomic_path`)
-    and :meth:`read` where the format can be read back."""
+    and :meth:`read` where the format can be read back. :attr:`options` names the keyword
+    options ``write`` takes (the CLI checks its flags against it; None: not declared)."""
 
     name: str = ""
     extensions: tuple[str, ...] = ()
     description: str = ""
+    options: tuple[str, ...] | None = None
 
     def write(self, table: MarkerTable, path: str | os.PathLike, **options: Any) -> Path:
         raise NotImplementedError

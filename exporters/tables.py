@@ -103,6 +103,7 @@ def read_parquet(path: str | os.PathLike) -> MarkerTable:
 class CsvExporter(Exporter):
     name = "csv"
     extensions = (".csv",)
+    options = ()
     description = "full marker table (frame, time, label, x, y, z, status, n_views, residual) as CSV"
 
     def write(self, table: MarkerTable, path: str | os.PathLike, **options) -> Path:
@@ -115,6 +116,7 @@ class CsvExporter(Exporter):
 class ParquetExporter(Exporter):
     name = "parquet"
     extensions = (".parquet", ".pq")
+    options = ()
     description = "full marker table as Parquet, with metadata"
 
     def write(self, table: MarkerTable, path: str | os.PathLike, **options) -> Path:

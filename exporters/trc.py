@@ -20,6 +20,7 @@ finite samples are ``observed`` and NaN samples ``missing``.
 
 from __future__ import annotations
 
+import inspect
 import os
 import re
 from pathlib import Path
@@ -197,6 +198,7 @@ def read_trc(path: str | os.PathLike) -> MarkerTable:
 class TrcExporter(Exporter):
     name = "trc"
     extensions = (".trc",)
+    options = tuple(inspect.signature(write_trc).parameters)[2:]
     description = "OpenSim TRC marker trajectories (mm or m, optional Y-up rotation)"
 
     def write(self, table: MarkerTable, path: str | os.PathLike, **options) -> Path:
