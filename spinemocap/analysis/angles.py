@@ -13,7 +13,8 @@ All angles in degrees, columns of :attr:`SpineAngles.table`:
   transverse axis between the levels, positive toward the subject's left (counter-clockwise
   seen from above). This is the relative lumbar angle IMU systems report from sensors at T12
   and S2, but measured on the skin curve itself.
-- ``thoracic_*``: the same between ``T12/L1`` and the upper thoracic level (default ``T7``).
+- ``thoracic_*``: the same between ``T12/L1`` and the upper thoracic level (default: the most
+  cranial level of the subject's level map, e.g. ``T7``).
 - ``lordosis``, ``kyphosis``: curvature-based angles from the inflection tangent. In the lower
   level's sagittal plane the tangent's flexion angle theta(v) falls through the lordotic part
   and rises through the kyphotic part; the inflection is where it is smallest. lordosis =
@@ -30,7 +31,7 @@ level, a level the map does not reach, ...). :attr:`SpineAngles.notes` counts th
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -39,7 +40,7 @@ from ..markers import MarkerTable
 from ..tape import TapeSpec
 from .curve import MIN_ROWS, MidlineCurve, RowTracks, fit_midline, row_tracks
 from .frames import cardan_angles, check_facing, frame_from_axes, neutral_frame, pelvis_frame_from_tape
-from .levels import LevelMap
+from .levels import LevelMap, vertebra_index
 
 ANGLE_GROUPS = {
     "lumbar": ("lumbar_flexion", "lumbar_lateral", "lumbar_rotation"),
@@ -63,7 +64,7 @@ class AngleSettings:
 
     lower: str = "S1"
     thoracolumbar: str = "T12/L1"
-    upper: str = "T7"
+    upper: str | None = None  # None: the most cranial level in the level map
     max_gap_s: float = 0.1
     level_reach_rows: float = 1.0
     smoothing: float | None = None
@@ -111,6 +112,8 @@ def compute_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
     (:func:`frames.pelvis_frame_from_markers`) aligned to the marker table's frames; without
     them the pelvis comes from the tape's lowest level.
     """
+    if settings.upper is None:
+        settings = replace(settings, upper=list(levels.rows)[-1])
     arrays = markers.to_arrays()
     F = len(arrays["frames"])
     rows = row_tracks(arrays["positions"], list(arrays["labels"]), tape, markers.fps,
@@ -145,7 +148,11 @@ def compute_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
 def _level_positions(levels: LevelMap, tape: TapeSpec, settings: AngleSettings) -> tuple[dict[str, float], dict[str, str]]:
     """Rest positions (mm) of the settings' levels, and a reason for each level not mapped."""
     found, missing = {}, {}
+    if vertebra_index(settings.upper) >= vertebra_index(settings.thoracolumbar):
+        missing[settings.upper] = f"the level map names no level above {settings.thoracolumbar}"
     for name in dict.fromkeys((settings.lower, settings.thoracolumbar, settings.upper)):
+        if name in missing:
+            continue
         try:
             found[name] = levels.v_of(name, tape.row_pitch_mm)
         except KeyError as exc:

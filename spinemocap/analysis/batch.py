@@ -257,23 +257,13 @@ def groundtruth_markers(capture: Capture) -> MarkerTable:
 
 
 def read_markers_csv(path: str | os.PathLike) -> MarkerTable:
-    """A marker table from the CSV the tracker writes (columns of :data:`markers.COLUMNS`)."""
+    """A marker table from the CSV the tracker writes (read by the exporters package)."""
+    import exporters
+
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "marker table not found")
-    try:
-        from exporters import read  # the exporters package's reader, where installed
-    except ImportError:
-        read = None
-    if read is not None:
-        return read(path)
-    try:
-        df = pd.read_csv(path)
-    except (OSError, ValueError, pd.errors.ParserError) as exc:
-        raise InputError(path, f"cannot read marker table ({exc})") from exc
-    table = MarkerTable(df, {"source": str(path)})
-    table.meta["fps"] = table.fps
-    return table
+    return exporters.read(path)
 
 
 def _levels(job: TrialJob, capture: Capture) -> tuple[LevelMap, str]:

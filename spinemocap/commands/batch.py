@@ -1,0 +1,52 @@
+"""``spinemocap batch ROOT --out DIR``: spine angles for every trial of a study."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+
+log = logging.getLogger("spinemocap.batch")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "batch", help="track (if needed) and compute spine angles for every trial of a study",
+        description="Find every capture under ROOT (subject/session/trial folders with capture.toml, "
+                    "or a CSV manifest with a 'path' column), get its markers, compute spine angles and "
+                    "write per-trial results to OUT. Up-to-date trials are skipped; a failing trial is "
+                    "recorded with its reason and the others go on.")
+    p.add_argument("root", help="study folder or CSV manifest")
+    p.add_argument("--out", required=True, help="output folder (per-trial results, batch.log, batch.json)")
+    p.add_argument("--source", choices=("tracked", "groundtruth"), default="tracked",
+                   help="markers from the tracker (default) or the synthetic studio's ground truth")
+    p.add_argument("--workers", type=int, default=min(4, os.cpu_count() or 1),
+                   help="local worker processes (default: min(4, CPUs); 1 = in this process)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="run the trials on this Dask distributed scheduler's workers instead")
+    p.add_argument("--levels", help="row-to-level map (TOML) for trials that carry none of their own")
+    p.add_argument("--force", action="store_true", help="redo trials whose results are up to date")
+    p.add_argument("--lowpass-hz", type=float, default=10.0,
+                   help="low-pass cut-off for the tape's row tracks, Hz (0 = off; default 10)")
+    p.add_argument("--report", action="store_true", help="write the HTML/CSV/XLSX report afterwards")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..analysis.angles import AngleSettings
+    from ..analysis.batch import run_batch
+
+    settings = AngleSettings(lowpass_hz=args.lowpass_hz or None)
+    result = run_batch(args.root, args.out, source=args.source, workers=args.workers,
+                       scheduler=args.scheduler, levels_file=args.levels, settings=settings,
+                       force=args.force, progress=not args.quiet)
+    skipped = sum(bool(t.get("skipped")) for t in result.trials)
+    print(f"{len(result.trials)} trials: {len(result.trials) - len(result.failed)} ok "
+          f"({skipped} up to date), {len(result.failed)} failed; results in {args.out}")
+    for trial in result.failed:
+        print(f"  FAILED {trial['key']}: {trial['reason']}")
+    if args.report:
+        from ..analysis.report import write_report
+
+        print(f"report: {write_report(args.out)['html']}")
+    return 1 if result.failed else 0
