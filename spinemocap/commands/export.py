@@ -83,7 +83,11 @@ def _options(args: argparse.Namespace, fmt: str, source: Path) -> dict:
 def run_export(args: argparse.Namespace) -> int:
     if args.list_formats:
         for name in exporters.available():
-            exporter = exporters.get(name)
+            try:
+                exporter = exporters.get(name)
+            except InputError as exc:
+                print(f"{name:10s} (cannot load: {exc.problem})")
+                continue
             print(f"{name:10s} {' '.join(getattr(exporter, 'extensions', ()))}  {getattr(exporter, 'description', '')}")
         return 0
     if args.results is None:
