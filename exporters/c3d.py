@@ -53,8 +53,8 @@ from spinemocap import __version__
 from spinemocap.fileio import InputError, atomic_path
 from spinemocap.markers import MarkerTable
 
-from .common import ExportWarning, dense_mm, deduplicate_labels, mm_per_unit, table_from_dense, \
-    warn_empty_markers
+from .common import (ExportWarning, dense_mm, deduplicate_labels, frame_rate, mm_per_unit, table_from_dense,
+                     warn_empty_markers)
 from .registry import Exporter
 
 LABEL_WIDTH = 30         # POINT:LABELS element width Vicon Nexus writes
@@ -242,7 +242,7 @@ def write_c3d(table: MarkerTable, path: str | os.PathLike, units: str = "mm", re
     valid = word >= 0
     block[..., :3][valid] = positions[valid] / factor
     block[..., 3] = word
-    fps = float(table.fps)
+    fps = frame_rate(table, path)
     writer = _BlockWriter(block, point_rate=fps, point_scale=-float(residual_scale), point_units=units)
     _fill_groups(writer, fit_labels(labels, LABEL_WIDTH, path), fit_labels_desc(descriptions), units, fps,
                  int(arrays["frames"][0]) + 1, str(subject or table.meta.get("subject") or "subject"),

@@ -29,12 +29,25 @@ def mm_per_unit(units: str, source: str | os.PathLike | None) -> float:
 
 
 def dense_mm(table: MarkerTable, source: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
-    """:meth:`MarkerTable.to_arrays` with positions converted to mm from ``meta['units']``."""
+    """:meth:`MarkerTable.to_arrays` with positions converted to mm from ``meta['units']`` and
+    NaN wherever the status says ``missing``."""
     arrays = table.to_arrays()
-    arrays["positions"] = arrays["positions"] * mm_per_unit(table.meta.get("units", "mm"), source)
     if len(arrays["frames"]) == 0:
         raise InputError(source, "marker table has no frames to write")
+    arrays["positions"] = arrays["positions"] * mm_per_unit(table.meta.get("units", "mm"), source)
+    arrays["positions"][arrays["status"] == "missing"] = np.nan
     return arrays
+
+
+def frame_rate(table: MarkerTable, source: str | os.PathLike | None = None) -> float:
+    """The table's frame rate in Hz; :class:`InputError` when it is unknown or not positive."""
+    try:
+        fps = float(table.fps)
+    except ValueError as exc:
+        raise InputError(source, "frame rate unknown: set meta['fps'] (one frame and no rate)") from exc
+    if not np.isfinite(fps) or fps <= 0:
+        raise InputError(source, f"frame rate must be positive, got {fps}")
+    return fps
 
 
 def warn_empty_markers(labels: Sequence[str], positions: np.ndarray, source: str | os.PathLike) -> None:

@@ -30,7 +30,8 @@ import numpy as np
 from spinemocap.fileio import InputError, atomic_write
 from spinemocap.markers import MarkerTable
 
-from .common import dense_mm, deduplicate_labels, mm_per_unit, table_from_dense, warn_empty_markers
+from .common import (dense_mm, deduplicate_labels, frame_rate, mm_per_unit, table_from_dense,
+                     warn_empty_markers)
 from .registry import Exporter
 
 HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units",
@@ -104,7 +105,7 @@ def write_trc(table: MarkerTable, path: str | os.PathLike, units: str = "mm", op
     warn_empty_markers(labels, positions, path)
     if opensim_axes:
         positions = lab_to_opensim(positions, forward)
-    fps = float(table.fps)
+    fps = frame_rate(table, path)
     frames, times = arrays["frames"], arrays["time"]
     if not np.isfinite(times).all():
         times = frames / fps
@@ -114,8 +115,8 @@ def write_trc(table: MarkerTable, path: str | os.PathLike, units: str = "mm", op
         "\t".join(["PathFileType", "4", "(X/Y/Z)", name or path.name,
                    axes_statement(forward if opensim_axes else None)]),
         "\t".join(HEADER_KEYS),
-        "\t".join([f"{fps:g}", f"{float(table.meta.get('camera_rate', fps)):g}", str(F), str(D), units,
-                   f"{fps:g}", str(first), str(F)]),
+        "\t".join([f"{fps:.10g}", f"{float(table.meta.get('camera_rate', fps)):.10g}", str(F), str(D), units,
+                   f"{fps:.10g}", str(first), str(F)]),
         "\t".join(["Frame#", "Time"] + [f"{l}\t\t" for l in labels]),
         "\t".join(["", ""] + [f"X{i}\tY{i}\tZ{i}" for i in range(1, D + 1)]),
         "",
@@ -156,8 +157,11 @@ def read_trc(path: str | os.PathLike) -> MarkerTable:
     try:
         fps = float(header["DataRate"])
         n_markers = int(header["NumMarkers"])
+        camera_rate = float(header.get("CameraRate") or fps)
     except ValueError as exc:
-        raise InputError(path, f"bad DataRate/NumMarkers in TRC header: {exc}") from exc
+        raise InputError(path, f"bad number in TRC header: {exc}") from exc
+    if not fps > 0 or n_markers < 1:
+        raise InputError(path, f"TRC header needs DataRate > 0 and NumMarkers >= 1 (got {fps}, {n_markers})")
     scale = mm_per_unit(header["Units"], path)
     names = [n.strip() for n in _split(lines[3])[2:] if n.strip()]
     if len(names) != n_markers:
@@ -191,7 +195,7 @@ def read_trc(path: str | os.PathLike) -> MarkerTable:
     warn_empty_markers(labels, positions, path)
     meta = {"fps": fps, "source": str(path), "file_units": header["Units"],
             "trc_axes": "opensim" if match else "as in file",
-            "camera_rate": float(header.get("CameraRate", fps) or fps)}
+            "camera_rate": camera_rate}
     return table_from_dense(labels, np.asarray(frames), np.asarray(times), positions, meta)
 
 

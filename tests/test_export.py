@@ -1,7 +1,6 @@
 """Exporters checked by the real consumers: OpenSim's TRC reader, the c3d package and ezc3d.
 Plus exact round trips, bad input and atomic writes."""
 
-import struct
 import warnings
 
 import c3d as c3dlib
@@ -72,6 +71,24 @@ def test_trc_round_trip_is_exact_to_written_precision(tmp_path, options):
     arrays = table.to_arrays()
     assert set(arrays["status"][np.isnan(arrays["positions"][..., 0])]) == {"missing"}
     assert set(arrays["status"][~np.isnan(arrays["positions"][..., 0])]) == {"observed"}
+
+
+def test_we_read_trc_written_by_opensim(tmp_path):
+    osim = pytest.importorskip("opensim")
+    table = osim.TimeSeriesTableVec3()
+    table.setColumnLabels(osim.StdVectorString(["C7", "T10"]))
+    for i in range(3):
+        row = osim.RowVectorVec3(2)
+        row[0] = osim.Vec3(0.1 * i, 0.2, 1.3)
+        row[1] = osim.Vec3(float("nan"), float("nan"), float("nan")) if i == 1 else osim.Vec3(0.4, 0.5, 1.1)
+        table.appendRow(0.01 * i, row)
+    table.addTableMetaDataString("DataRate", "100")
+    table.addTableMetaDataString("Units", "m")
+    osim.TRCFileAdapter.write(table, str(tmp_path / "osim.trc"))   # trailing tabs, 'nan'
+    ours = exporters.read(tmp_path / "osim.trc")
+    assert ours.labels == ["C7", "T10"] and ours.fps == 100.0 and ours.meta["trc_axes"] == "as in file"
+    assert np.allclose(ours.positions()[:, 0], [[0, 200, 1300], [100, 200, 1300], [200, 200, 1300]])
+    assert np.isnan(ours.positions()[1, 1]).all() and ours.to_arrays()["status"][1, 1] == "missing"
 
 
 def test_opensim_axes_are_a_proper_rotation():
