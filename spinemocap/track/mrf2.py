@@ -1,0 +1,318 @@
+"""MRF2: refine the dots on the camera images (paper Sec. 3.3, Eq. 10-11).
+
+State: 3D position per dot (mm, world), solid edges only. Energy:
+
+- unary (Eq. 10): ``sum_c I_c(Phi_c(x_s))`` over the cameras that see the dot: it projects inside
+  the image and its outward normal faces the camera (self-occlusion test; normals from the
+  labelled dots' local tape frames unless given);
+- pairwise (Eq. 11), ``p = x_s - x_t``, ``x_st`` the midpoint:
+  ``theta5 sum_c (I_c(x_s) + I_c(x_t) - 2 I_c(x_st))`` (dots bright, tape between them dark)
+  ``+ theta6 <p, n_st>^2 + theta7 <p, alpha_st>^2 + theta8 (|p| - L)^2``. ``alpha_st`` is the
+  in-plane direction perpendicular to where the edge should point given the current tape frame
+  (for a transverse edge: the longitudinal axis, as in the paper); ``L`` the rest length.
+
+Minimised by the particle BP of :mod:`spinemocap.track.pbp`, then (beyond the paper, switchable
+with ``polish``) by a short L-BFGS descent on the same energy with autograd, which moves the dots
+continuously into the evidence minima (sub-pixel; particles alone stop at their sampling grain).
+The energy terms are written once in torch and serve both.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Iterator, Sequence
+
+import numpy as np
+import torch
+
+from ..camera import Rig
+from ..tape import TapeGraph
+from .evidence import EvidenceImage, EvidenceStack
+from .pbp import PBPConfig, ParticleBP, mrf_energy
+from .template import tape_frames
+from .types import MRFResult
+
+
+@dataclass
+class MRF2Config:
+    """MRF2 weights and solver settings. Image costs are in [0, ~1] per camera; lengths in mm."""
+
+    theta5: float = 0.25  # bright dots vs dark midpoint
+    theta6: float = 0.002  # edge orthogonal to the tape normal
+    theta7: float = 0.002  # edge along its expected in-plane direction
+    theta8: float = 0.002  # edge length vs rest length
+    facing_cos: float = 0.05  # a camera sees a dot when cos(normal, dot->camera) exceeds this
+    image_margin_px: float = 2.0
+    particles: int = 6
+    slice_particles: int = 6
+    iterations: int = 8
+    sweeps: int = 5
+    damping: float = 0.3
+    slice_width_mm: float = 3.0
+    width_decay: float = 0.8
+    temperature: float = 0.05
+    mobility: bool = False  # neighbours' positions are rarely good refinement proposals
+    knn: int = 2  # nearest feasible points as proposals, when feasible points are given
+    polish: bool = True  # beyond the paper: L-BFGS on the same energy after particle BP
+    polish_steps: int = 3
+    polish_max_step_mm: float = 3.0  # per-dot move limit of the polish from the PBP result
+
+    def pbp(self) -> PBPConfig:
+        return PBPConfig(
+            n_particles=self.particles,
+            n_slice=self.slice_particles,
+            iterations=self.iterations,
+            sweeps=self.sweeps,
+            damping=self.damping,
+            slice_width=(self.slice_width_mm,) * 3,
+            width_decay=self.width_decay,
+            temperature=self.temperature,
+            mobility=self.mobility,
+            mobility_dims=(0, 1, 2),
+            init_spread=(self.slice_width_mm / 3,) * 3,
+        )
+
+
+class _TorchRig:
+    """Batched projection of world points (..., 3) mm into C cameras -> (C, ..., 2) px, with
+    OpenCV distortion, in torch so it is differentiable."""
+
+    def __init__(self, rig: Rig):
+        self.R = torch.tensor(np.stack([c.R for c in rig]), dtype=torch.float64)
+        self.t = torch.tensor(np.stack([c.t for c in rig]), dtype=torch.float64)
+        self.K = torch.tensor(np.stack([c.K for c in rig]), dtype=torch.float64)
+        self.dist = torch.tensor(np.stack([c.dist for c in rig]), dtype=torch.float64)
+        self.centers = np.stack([c.center for c in rig])
+        self.sizes = [c.size for c in rig]
+
+    def project(self, x: torch.Tensor) -> torch.Tensor:
+        c = self.R.shape[0]
+        shape = x.shape[:-1]
+        flat = x.reshape(1, -1, 3)
+        xc = flat @ self.R.transpose(1, 2) + self.t[:, None, :]  # (C, N, 3)
+        z = xc[..., 2].clamp(min=1e-6)
+        xn, yn = xc[..., 0] / z, xc[..., 1] / z
+        k1, k2, p1, p2, k3 = (self.dist[:, i, None] for i in range(5))
+        r2 = xn * xn + yn * yn
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = xn * radial + 2 * p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
+        yd = yn * radial + p1 * (r2 + 2 * yn * yn) + 2 * p2 * xn * yn
+        u = self.K[:, 0, 0, None] * xd + self.K[:, 0, 1, None] * yd + self.K[:, 0, 2, None]
+        v = self.K[:, 1, 1, None] * yd + self.K[:, 1, 2, None]
+        behind = xc[..., 2] <= 1e-6
+        u = torch.where(behind, torch.full_like(u, float("nan")), u)
+        return torch.stack([u, v], dim=-1).reshape(c, *shape, 2)
+
+
+class RefinementMRF:
+    """The MRF2 energy as a :class:`~spinemocap.track.pbp.PairwiseModel` (states (x, y, z))."""
+
+    def __init__(
+        self,
+        tape: TapeGraph,
+        rig: Rig,
+        evidence: Sequence[EvidenceImage | None],
+        config: MRF2Config,
+        normals: np.ndarray | None = None,
+        feasible_points: np.ndarray | None = None,
+    ):
+        if len(evidence) != len(rig):
+            raise ValueError(f"{len(evidence)} evidence images for {len(rig)} cameras")
+        self.tape = tape
+        self.config = config
+        self.cams = _TorchRig(rig)
+        self.rig = rig
+        self.evidence = list(evidence)
+        self.stack = EvidenceStack(self.evidence)
+        self.edges = tape.solid_edges
+        solid = tape.solid
+        self.rest = torch.tensor(tape.rest_length_mm[solid], dtype=torch.float64)
+        duv = tape.uv_mm[self.edges[:, 0]] - tape.uv_mm[self.edges[:, 1]]  # expected p in tape frame
+        self.duv = duv / np.linalg.norm(duv, axis=1, keepdims=True)
+        self.fixed_normals = None if normals is None else np.asarray(normals, dtype=float)
+        self.points = None if feasible_points is None or len(feasible_points) == 0 else np.asarray(feasible_points, float)
+        n_cam = len(rig)
+        self.visible = torch.zeros((tape.n_dots, n_cam), dtype=torch.float64)
+        self.edge_visible = torch.zeros((len(self.edges), n_cam), dtype=torch.float64)
+        self.edge_normal = torch.zeros((len(self.edges), 3), dtype=torch.float64)
+        self.edge_alpha = torch.zeros((len(self.edges), 3), dtype=torch.float64)
+
+    # ------------------------------------------------------------------ state-dependent parts
+    def prepare(self, state: np.ndarray) -> None:
+        normal, across, along = tape_frames(state, self.tape)
+        if self.fixed_normals is not None:
+            normal = self.fixed_normals
+        self.visible = torch.from_numpy(self.visibility(state, normal).astype(np.float64))
+        e0, e1 = self.edges[:, 0], self.edges[:, 1]
+        self.edge_visible = self.visible[e0] * self.visible[e1]
+        n_e = normal[e0] + normal[e1]
+        n_e /= np.maximum(np.linalg.norm(n_e, axis=1, keepdims=True), 1e-12)
+        expected = self.duv[:, :1] * (across[e0] + across[e1]) + self.duv[:, 1:] * (along[e0] + along[e1])
+        alpha = np.cross(n_e, expected)
+        alpha /= np.maximum(np.linalg.norm(alpha, axis=1, keepdims=True), 1e-12)
+        self.edge_normal = torch.from_numpy(n_e)
+        self.edge_alpha = torch.from_numpy(alpha)
+
+    def visibility(self, positions: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """(D, C) bool: the dot projects inside camera c's image, camera c has evidence, and the
+        dot's outward normal faces the camera (cosine above ``facing_cos``)."""
+        out = np.zeros((len(positions), len(self.rig)), dtype=bool)
+        for c, (cam, ev) in enumerate(zip(self.rig, self.evidence)):
+            if ev is None:
+                continue
+            to_cam = cam.center[None, :] - positions
+            cos = (to_cam * normals).sum(axis=1) / np.maximum(np.linalg.norm(to_cam, axis=1), 1e-9)
+            uv = cam.project(positions)
+            out[:, c] = (cos > self.config.facing_cos) & cam.in_image(uv, margin=self.config.image_margin_px)
+        return out
+
+    # ------------------------------------------------------------------ energy terms (torch)
+    def image_costs(self, x: torch.Tensor) -> torch.Tensor:
+        """(C, ...) evidence cost of points x (..., 3) in every camera (0 where none)."""
+        uv = self.cams.project(x)  # (C, ..., 2)
+        return self.stack.sample_torch(uv.reshape(uv.shape[0], -1, 2)).reshape(uv.shape[:-1])
+
+    def unary_t(self, x: torch.Tensor) -> torch.Tensor:
+        """x (D, Q, 3) -> (D, Q)."""
+        costs = self.image_costs(x)  # (C, D, Q)
+        return (costs * self.visible.T[:, :, None]).sum(dim=0)
+
+    def pairwise_t(self, xs: torch.Tensor, xt: torch.Tensor, edge_index: torch.Tensor) -> torch.Tensor:
+        """xs (M, Qs, 3), xt (M, Qt, 3) -> (M, Qs, Qt)."""
+        c = self.config
+        vis = self.edge_visible[edge_index].T  # (C, M)
+        p = xs[:, :, None, :] - xt[:, None, :, :]
+        mid = 0.5 * (xs[:, :, None, :] + xt[:, None, :, :])
+        i_s = self.image_costs(xs)[:, :, :, None]
+        i_t = self.image_costs(xt)[:, :, None, :]
+        i_m = self.image_costs(mid)
+        contrast = ((i_s + i_t - 2 * i_m) * vis[:, :, None, None]).sum(dim=0)
+        length = torch.sqrt((p * p).sum(dim=3) + 1e-12)
+        along_normal = (p * self.edge_normal[edge_index][:, None, None, :]).sum(dim=3)
+        off_axis = (p * self.edge_alpha[edge_index][:, None, None, :]).sum(dim=3)
+        rest = self.rest[edge_index][:, None, None]
+        return (
+            c.theta5 * contrast
+            + c.theta6 * along_normal**2
+            + c.theta7 * off_axis**2
+            + c.theta8 * (length - rest) ** 2
+        )
+
+    def energy_t(self, x: torch.Tensor) -> torch.Tensor:
+        """Eq. 6 at positions x (D, 3) as a differentiable scalar."""
+        e0, e1 = torch.from_numpy(self.edges[:, 0]), torch.from_numpy(self.edges[:, 1])
+        pair = self.pairwise_t(x[e0][:, None], x[e1][:, None], torch.arange(len(self.edges)))
+        return self.unary_t(x[:, None]).sum() + pair.sum()
+
+    # ------------------------------------------------------------------ PairwiseModel (numpy)
+    def unary(self, x: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.unary_t(torch.from_numpy(np.ascontiguousarray(x, dtype=np.float64))).numpy()
+
+    def pairwise(self, xs: np.ndarray, xt: np.ndarray, edge_index: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.pairwise_t(
+                torch.from_numpy(np.ascontiguousarray(xs, dtype=np.float64)),
+                torch.from_numpy(np.ascontiguousarray(xt, dtype=np.float64)),
+                torch.from_numpy(np.asarray(edge_index)),
+            ).numpy()
+
+    def extra_proposals(self, state: np.ndarray) -> np.ndarray | None:
+        """P_knn: the nearest feasible points (when given) within a dot radius of the estimate."""
+        k = self.config.knn
+        if self.points is None or k <= 0:
+            return None
+        dist = np.linalg.norm(state[:, None, :] - self.points[None, :, :], axis=2)
+        idx = np.argsort(dist, axis=1)[:, :k]
+        near = np.take_along_axis(dist, idx, axis=1) < self.tape.spec.dot_diameter_mm
+        return np.where(near[:, :, None], self.points[idx], state[:, None, :])
+
+    # ------------------------------------------------------------------ continuous polish
+    def polish(self, positions: np.ndarray, steps: int, max_step_mm: float) -> tuple[np.ndarray, list[float]]:
+        """L-BFGS on the MRF2 energy from ``positions`` (D, 3); each dot stays within
+        ``max_step_mm`` of its start (a trust region: the evidence is only locally informative).
+        Returns the best positions and the energy after each step."""
+        self.prepare(positions)
+        start = torch.from_numpy(positions.copy())
+        delta = torch.zeros_like(start, requires_grad=True)
+        opt = torch.optim.LBFGS([delta], lr=1.0, max_iter=10, line_search_fn="strong_wolfe")
+
+        def bounded(d):
+            return max_step_mm * torch.tanh(d / max_step_mm)
+
+        def closure():
+            opt.zero_grad()
+            energy = self.energy_t(start + bounded(delta))
+            energy.backward()
+            return energy
+
+        best = positions.copy()
+        with torch.no_grad():
+            best_energy = float(self.energy_t(start))
+        history = []
+        for _ in range(steps):
+            opt.step(closure)
+            with torch.no_grad():
+                x = start + bounded(delta)
+                energy = float(self.energy_t(x))
+            if energy < best_energy:
+                best, best_energy = x.numpy().copy(), energy
+            history.append(best_energy)
+        return best, history
+
+
+@contextmanager
+def _torch_single_thread() -> Iterator[None]:
+    """MRF2's tensors are small (thousands of elements): torch's intra-op thread pool costs far
+    more than it gains there (20x slower measured on a busy 2-core VM), so run single-threaded."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def refine_mrf2(
+    positions: np.ndarray,
+    tape: TapeGraph,
+    rig: Rig,
+    evidence: Sequence[EvidenceImage | None],
+    config: MRF2Config | None = None,
+    normals: np.ndarray | None = None,
+    rng: np.random.Generator | None = None,
+    feasible_points: np.ndarray | None = None,
+) -> MRFResult:
+    """Refine labelled dot positions (D, 3) mm on the camera images.
+
+    ``evidence``: one :class:`EvidenceImage` per rig camera (None where a camera has no image).
+    ``normals`` (D, 3): outward dot normals for the facing test; default: from the dots' tape
+    frames. ``feasible_points`` (K, 3): optional P_knn proposals. ``energy_history``: the energy
+    after each PBP iteration, then after each polish step. ``extra``: ``visible`` (D, C) bool
+    (cameras used per dot), ``pbp_positions`` (D, 3), ``polish_history``."""
+    with _torch_single_thread():
+        return _refine(positions, tape, rig, evidence, config or MRF2Config(), normals, rng, feasible_points)
+
+
+def _refine(positions, tape, rig, evidence, config, normals, rng, feasible_points) -> MRFResult:
+    init = np.asarray(positions, dtype=float).reshape(tape.n_dots, 3)
+    model = RefinementMRF(tape, rig, evidence, config, normals=normals, feasible_points=feasible_points)
+    result = ParticleBP(model, config.pbp(), rng).run(init)
+    state, history = result.state, list(result.energy_history)
+    pbp_state = state.copy()
+    polish_history: list[float] = []
+    if config.polish and config.polish_steps > 0:
+        state, polish_history = model.polish(state, config.polish_steps, config.polish_max_step_mm)
+        history += polish_history
+    model.prepare(state)
+    return MRFResult(
+        positions=state,
+        energy_history=history,
+        extra={
+            "visible": model.visible.numpy() > 0,
+            "pbp_positions": pbp_state,
+            "polish_history": polish_history,
+            "final_energy": mrf_energy(model, state),
+        },
+    )

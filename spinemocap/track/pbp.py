@@ -1,0 +1,305 @@
+"""Max-product particle belief propagation (min-sum form) for pairwise MRFs with continuous states.
+
+Used by both tracker MRFs (paper Sec. 3.2-3.3, after Pacheco et al. and Hachmann et al.). Each node
+``s`` holds a set of particles (candidate states); one outer iteration
+
+1. proposes new particles per node by slice sampling its current belief (Mueller et al.), starting
+   from the node's best particles;
+2. augments the set (paper Eq. 9): ``P_aug = P_kept U P_slice U P_mobility U P_extra``, where
+   ``P_mobility`` copies the neighbours' current positions and ``P_extra`` is model-supplied
+   (MRF1: the k nearest feasible points);
+3. evaluates all unary costs ``(D, Pa)`` and pairwise costs ``(E, Pa, Pa)`` in one batch and runs a
+   few flooding sweeps of min-sum messages on the augmented sets;
+4. picks a joint labelling on the augmented sets: the belief minimisers, improved by
+   iterated conditional modes (ICM: each node in turn takes its best particle given its
+   neighbours; nodes of one graph colour at once); the same ICM from the current estimate is the
+   fallback, so the estimate's energy never rises (loopy-BP belief minimisers alone are often
+   mutually inconsistent on the tape's triangle-rich graph);
+5. keeps the ``P`` lowest-belief distinct particles per node for the next iteration.
+
+Everything is vectorised over nodes, edges and particles; Python loops run over iterations,
+sweeps, state dimensions and slice-shrink steps only. Energies are costs (lower is better); the
+slice sampler targets ``exp(-belief / temperature)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+
+class PairwiseModel(Protocol):
+    """What the engine needs from an MRF. States are rows of ``S`` floats.
+
+    ``edges``: (E, 2) node indices. ``unary(x)``: x (D, Q, S) -> (D, Q) costs.
+    ``pairwise(xs, xt, edge_index)``: xs (M, Qs, S) states of the edges' first nodes, xt (M, Qt, S)
+    of their second nodes, for the M edges ``edge_index`` -> (M, Qs, Qt) costs.
+    ``prepare(state)``: refresh state-dependent parameters (normals, directions) from the current
+    estimate (D, S) before an iteration. ``extra_proposals(state)``: (D, K, S) or None."""
+
+    edges: np.ndarray
+
+    def unary(self, x: np.ndarray) -> np.ndarray: ...
+
+    def pairwise(self, xs: np.ndarray, xt: np.ndarray, edge_index: np.ndarray) -> np.ndarray: ...
+
+    def prepare(self, state: np.ndarray) -> None: ...
+
+    def extra_proposals(self, state: np.ndarray) -> np.ndarray | None: ...
+
+
+@dataclass
+class PBPConfig:
+    """Engine settings. ``slice_width`` (S,) is the slice sampler's initial bracket per state
+    dimension (state units, e.g. mm); ``width_decay`` shrinks it each iteration (1 = constant);
+    ``mobility_dims`` are the state dimensions copied from neighbours for ``P_mobility`` (the others
+    keep the node's own value); ``init_spread`` (S,) is the std of the initial particle cloud."""
+
+    n_particles: int = 8
+    n_slice: int = 8
+    iterations: int = 15
+    sweeps: int = 6
+    damping: float = 0.3
+    slice_width: tuple[float, ...] = (4.0, 4.0, 4.0)
+    slice_steps: int = 5
+    width_decay: float = 1.0
+    temperature: float = 1.0
+    mobility: bool = True
+    mobility_dims: tuple[int, ...] = (0, 1, 2)
+    init_spread: tuple[float, ...] = (2.0, 2.0, 2.0)
+
+
+@dataclass
+class PBPResult:
+    """``state`` (D, S) the lowest-energy estimate; ``energy_history`` its energy after each
+    iteration (index 0: the initial state); ``particles`` (D, P, S) and ``beliefs`` (D, P) at the end."""
+
+    state: np.ndarray
+    energy_history: list[float]
+    particles: np.ndarray
+    beliefs: np.ndarray
+    accepted: list[bool] = field(default_factory=list)
+
+
+def mrf_energy(model: PairwiseModel, state: np.ndarray) -> float:
+    """Eq. 6: sum of unary costs plus the pairwise cost of every edge, at one state (D, S)."""
+    edges = model.edges
+    unary = model.unary(state[:, None, :]).sum()
+    if len(edges) == 0:
+        return float(unary)
+    pair = model.pairwise(state[edges[:, 0], None, :], state[edges[:, 1], None, :], np.arange(len(edges)))
+    return float(unary + pair.sum())
+
+
+class _Graph:
+    """Directed-edge bookkeeping: message i runs src[i] -> dst[i]; rev[i] is its opposite."""
+
+    def __init__(self, edges: np.ndarray, n_nodes: int):
+        e = len(edges)
+        self.n_edges = e
+        self.src = np.concatenate([edges[:, 0], edges[:, 1]])
+        self.dst = np.concatenate([edges[:, 1], edges[:, 0]])
+        self.rev = np.concatenate([np.arange(e, 2 * e), np.arange(e)])
+        self.incidence = np.zeros((n_nodes, 2 * e))  # sums incoming messages per node
+        self.incidence[self.dst, np.arange(2 * e)] = 1.0
+        self.colours = _greedy_colouring(edges, n_nodes)
+        degree = np.bincount(self.dst, minlength=n_nodes)
+        self.max_degree = int(degree.max()) if n_nodes else 0
+        # neighbour table (D, max_degree), padded with the node itself
+        self.neighbours = np.tile(np.arange(n_nodes)[:, None], (1, max(self.max_degree, 1)))
+        slot = np.zeros(n_nodes, dtype=int)
+        for s, t in zip(self.src, self.dst):
+            self.neighbours[t, slot[t]] = s
+            slot[t] += 1
+
+
+def _greedy_colouring(edges: np.ndarray, n_nodes: int) -> list[np.ndarray]:
+    """Node groups with no edge inside a group (greedy, highest degree first)."""
+    adjacency = [set() for _ in range(n_nodes)]
+    for a, b in edges:
+        adjacency[a].add(int(b))
+        adjacency[b].add(int(a))
+    colour = np.full(n_nodes, -1)
+    for node in sorted(range(n_nodes), key=lambda i: -len(adjacency[i])):
+        used = {colour[j] for j in adjacency[node]}
+        colour[node] = next(c for c in range(n_nodes + 1) if c not in used)
+    return [np.flatnonzero(colour == c) for c in range(colour.max() + 1)] if n_nodes else []
+
+
+def _labelling_energy(graph: _Graph, unary: np.ndarray, cost_dir: np.ndarray, labels: np.ndarray) -> float:
+    """Energy of choosing particle labels[s] at every node, from the precomputed tables."""
+    e = graph.n_edges
+    pair = cost_dir[np.arange(e), labels[graph.src[:e]], labels[graph.dst[:e]]].sum()
+    return float(unary[np.arange(len(labels)), labels].sum() + pair)
+
+
+def _icm(graph: _Graph, unary: np.ndarray, cost_dir: np.ndarray, labels: np.ndarray, max_sweeps: int = 10) -> np.ndarray:
+    """Iterated conditional modes over colour classes; never raises the labelling's energy."""
+    labels = labels.copy()
+    for _ in range(max_sweeps):
+        changed = False
+        for group in graph.colours:
+            # cost of each particle of each node given its neighbours' current labels
+            local = np.zeros_like(unary)
+            local += unary
+            local += graph.incidence @ cost_dir[np.arange(len(graph.src)), labels[graph.src], :]
+            best = local[group].argmin(axis=1)
+            keep = local[group, best] < local[group, labels[group]] - 1e-12
+            if keep.any():
+                labels[group[keep]] = best[keep]
+                changed = True
+        if not changed:
+            break
+    return labels
+
+
+def _min_sum_sweeps(graph: _Graph, unary: np.ndarray, cost_dir: np.ndarray, sweeps: int, damping: float):
+    """Flooding min-sum on fixed particle sets. unary (D, Pa); cost_dir (2E, Pa, Pa) indexed
+    [message, source particle, target particle]. Returns beliefs (D, Pa) and the messages'
+    'pre' terms (2E, Pa) = belief of the source minus the opposite message."""
+    msgs = np.zeros((2 * graph.n_edges, unary.shape[1]))
+    for _ in range(sweeps):
+        belief = unary + graph.incidence @ msgs
+        pre = belief[graph.src] - msgs[graph.rev]
+        new = (pre[:, :, None] + cost_dir).min(axis=1)
+        new -= new.min(axis=1, keepdims=True)
+        msgs = damping * msgs + (1.0 - damping) * new
+    belief = unary + graph.incidence @ msgs
+    pre = belief[graph.src] - msgs[graph.rev]
+    return belief, pre
+
+
+class ParticleBP:
+    """Min-sum particle BP on ``model`` starting from ``init`` (D, S). See the module docstring."""
+
+    def __init__(self, model: PairwiseModel, config: PBPConfig, rng: np.random.Generator | None = None):
+        self.model = model
+        self.config = config
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.edges = np.asarray(model.edges, dtype=np.int64).reshape(-1, 2)
+
+    # ------------------------------------------------------------------ batch costs
+    def _directed_costs(self, particles: np.ndarray) -> np.ndarray:
+        """(2E, Pa, Pa) pairwise costs for messages in both directions."""
+        e0, e1 = self.edges[:, 0], self.edges[:, 1]
+        cost = self.model.pairwise(particles[e0], particles[e1], np.arange(len(self.edges)))
+        return np.concatenate([cost, cost.transpose(0, 2, 1)], axis=0)
+
+    def _belief_at(self, points: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph) -> np.ndarray:
+        """Belief of every node at new points (D, Q, S): unary plus, for each neighbour, the min
+        over its kept particles (D, P, S) of pre + pairwise. ``pre`` (2E, P) as from the sweeps."""
+        belief = self.model.unary(points)
+        if graph.n_edges == 0:
+            return belief
+        e0, e1 = self.edges[:, 0], self.edges[:, 1]
+        e = graph.n_edges
+        all_edges = np.arange(e)
+        # messages e0 -> e1 evaluated at new states of e1
+        to_second = (pre[:e, :, None] + self.model.pairwise(kept[e0], points[e1], all_edges)).min(axis=1)
+        # messages e1 -> e0 evaluated at new states of e0
+        to_first = (pre[e:, None, :] + self.model.pairwise(points[e0], kept[e1], all_edges)).min(axis=2)
+        return belief + graph.incidence @ np.concatenate([to_second, to_first], axis=0)
+
+    def _slice_sample(self, start: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph, width: np.ndarray):
+        """One hyper-rectangle slice-sampling step (Neal 2003, Sec. 5.1: a randomly placed box of
+        side ``width`` around the start, shrunk toward it after each rejection) for all nodes and
+        chains at once; one belief evaluation per shrink step. start (D, Q, S) -> samples."""
+        cfg, rng = self.config, self.rng
+        x = start
+        b = self._belief_at(x, kept, pre, graph)
+        level = b + cfg.temperature * rng.exponential(size=b.shape)
+        lo = x - width * rng.random(x.shape)
+        hi = lo + width
+        done = np.zeros(b.shape, dtype=bool)
+        new_x = x.copy()
+        for _ in range(cfg.slice_steps):
+            cand = lo + (hi - lo) * rng.random(x.shape)
+            ok = (self._belief_at(cand, kept, pre, graph) < level) & ~done
+            new_x[ok] = cand[ok]
+            done |= ok
+            if done.all():
+                break
+            left = cand < x
+            open_ = ~done[..., None]
+            lo = np.where(open_ & left, cand, lo)
+            hi = np.where(open_ & ~left, cand, hi)
+        return new_x
+
+    # ------------------------------------------------------------------ proposals
+    def _mobility(self, state: np.ndarray, graph: _Graph) -> np.ndarray:
+        """(D, max_degree, S): the node's state with ``mobility_dims`` taken from each neighbour."""
+        prop = np.repeat(state[:, None, :], graph.neighbours.shape[1], axis=1)
+        dims = list(self.config.mobility_dims)
+        prop[:, :, dims] = state[graph.neighbours][:, :, dims]
+        return prop
+
+    @staticmethod
+    def _distinct_best(beliefs: np.ndarray, particles: np.ndarray, n: int) -> np.ndarray:
+        """(D, n) indices of the n lowest-belief particles per node, duplicates pushed last."""
+        same = np.all(np.isclose(particles[:, :, None, :], particles[:, None, :, :], rtol=0, atol=1e-9), axis=3)
+        earlier = np.tril(np.ones(same.shape[1:], dtype=bool), k=-1)
+        duplicate = np.any(same & earlier[None], axis=2)
+        ranked = np.where(duplicate, np.inf, beliefs)
+        return np.argsort(ranked, axis=1, kind="stable")[:, :n]
+
+    # ------------------------------------------------------------------ main loop
+    def run(self, init: np.ndarray, iterations: int | None = None) -> PBPResult:
+        cfg, rng, model = self.config, self.rng, self.model
+        state = np.asarray(init, dtype=float).copy()
+        n_nodes, dim = state.shape
+        graph = _Graph(self.edges, n_nodes)
+        width = np.broadcast_to(np.asarray(cfg.slice_width, dtype=float), (dim,)).copy()
+        spread = np.broadcast_to(np.asarray(cfg.init_spread, dtype=float), (dim,))
+
+        model.prepare(state)
+        energy = mrf_energy(model, state)
+        history, accepted = [energy], []
+        kept = state[:, None, :] + rng.normal(size=(n_nodes, cfg.n_particles, dim)) * spread
+        kept[:, 0] = state
+        cost = self._directed_costs(kept)
+        beliefs, pre = _min_sum_sweeps(graph, model.unary(kept), cost, cfg.sweeps, cfg.damping)
+
+        for _ in range(cfg.iterations if iterations is None else iterations):
+            model.prepare(state)
+            order = np.argsort(beliefs, axis=1)[:, : min(cfg.n_slice, kept.shape[1])]
+            start = np.take_along_axis(kept, order[:, :, None], axis=1)
+            groups = [kept, state[:, None, :]]
+            if cfg.n_slice > 0:
+                groups.append(self._slice_sample(start, kept, pre, graph, width))
+            if cfg.mobility and graph.n_edges:
+                groups.append(self._mobility(state, graph))
+            extra = model.extra_proposals(state)
+            if extra is not None and extra.size:
+                groups.append(extra)
+            aug = np.concatenate(groups, axis=1)
+
+            cost = self._directed_costs(aug)
+            unary = model.unary(aug)
+            beliefs_aug, pre_aug = _min_sum_sweeps(graph, unary, cost, cfg.sweeps, cfg.damping)
+            candidates = [
+                _icm(graph, unary, cost, beliefs_aug.argmin(axis=1)),
+                _icm(graph, unary, cost, np.full(n_nodes, kept.shape[1])),  # from the current state
+            ]
+            scores = [_labelling_energy(graph, unary, cost, lab) for lab in candidates]
+            labels = candidates[int(np.argmin(scores))]
+            new_energy = min(scores)
+            took = new_energy < energy - 1e-9 * max(1.0, abs(energy))
+            if took:
+                state, energy = aug[np.arange(n_nodes), labels], new_energy
+            history.append(energy)
+            accepted.append(bool(took))
+
+            keep = self._distinct_best(beliefs_aug, aug, cfg.n_particles)
+            kept = np.take_along_axis(aug, keep[:, :, None], axis=1)
+            beliefs = np.take_along_axis(beliefs_aug, keep, axis=1)
+            pre = np.take_along_axis(pre_aug, keep[graph.src], axis=1)
+            width *= cfg.width_decay
+
+        return PBPResult(state=state, energy_history=history, particles=kept, beliefs=beliefs, accepted=accepted)
+
+
+def minimise(model: PairwiseModel, init: np.ndarray, config: PBPConfig, rng: np.random.Generator | None = None) -> PBPResult:
+    """Run particle BP on ``model`` from ``init`` (D, S); see :class:`ParticleBP`."""
+    return ParticleBP(model, config, rng).run(init)

@@ -1,0 +1,129 @@
+"""Image evidence and MRF2 (refinement on the images) on a small rendered scene."""
+
+import cv2
+import numpy as np
+import pytest
+
+from spinemocap.camera import Camera, Rig
+from spinemocap.tape import TapeSpec
+from spinemocap.track.evidence import build_evidence
+from spinemocap.track.mrf2 import MRF2Config, RefinementMRF, refine_mrf2
+
+TAPE = TapeSpec(n_rows=13).graph
+
+
+def surface(u, v):
+    """Tape on a back curved both ways: runs along +Z, outward normal ~ +Y, subject's right -X."""
+    theta, phi = (v - 150) / 600.0, u / 150.0
+    return np.stack([-150 * np.sin(phi), -600 * (1 - np.cos(theta)) - 150 * (1 - np.cos(phi)),
+                     900 + 600 * np.sin(theta)], axis=-1)
+
+
+def normal_at(u, v, eps=0.5):
+    n = np.cross(surface(u + eps, v) - surface(u - eps, v), surface(u, v + eps) - surface(u, v - eps))
+    return n / np.linalg.norm(n)
+
+
+def rig_behind(size=(640, 480), focal=1000.0):
+    target = surface(0.0, 150.0)
+    cams = [Camera.look_at(f"cam{i}", target + 1500 * np.array([np.sin(a), np.cos(a), 0.15]), target, size, focal)
+            for i, a in enumerate(np.radians([-50, -15, 15, 50]))]
+    return Rig(cams)
+
+
+def _paint(img, cam, outline, value):
+    h, w = img.shape
+    layer = np.zeros((h, w), np.uint8)
+    cv2.fillPoly(layer, [np.round(cam.project(outline) * 16).astype(np.int32)], 255, cv2.LINE_AA, shift=4)
+    alpha = layer.astype(np.float32) / 255
+    return img * (1 - alpha) + value * alpha
+
+
+def render(rig, skin=170.0, tape_grey=45.0, dot=205.0, noise=3.0, seed=0):
+    """Grey images (dark tape on skin, bright anti-aliased dot holes) and tape masks."""
+    spec, rng = TAPE.spec, np.random.default_rng(seed)
+    vs = np.linspace(-spec.end_margin_mm, TAPE.uv_mm[:, 1].max() + spec.end_margin_mm, 60)
+    half = spec.width_mm / 2
+    outline = np.concatenate([surface(-half + 0 * vs, vs), surface(half + 0 * vs, vs)[::-1]])
+    ring = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    radius = spec.dot_diameter_mm / 2
+    images, masks = [], []
+    for cam in rig:
+        w, h = cam.size
+        img = _paint(np.full((h, w), skin, np.float32), cam, outline, tape_grey)
+        mask = np.zeros((h, w), np.uint8)
+        cv2.fillPoly(mask, [np.round(cam.project(outline) * 16).astype(np.int32)], 1, cv2.LINE_8, shift=4)
+        for u, v in TAPE.uv_mm:
+            if (cam.center - surface(u, v)) @ normal_at(u, v) > 0:
+                img = _paint(img, cam, surface(u + radius * np.cos(ring), v + radius * np.sin(ring)), dot)
+        images.append(np.clip(img + rng.normal(scale=noise, size=img.shape), 0, 255).astype(np.uint8))
+        masks.append(mask > 0)
+    return images, masks
+
+
+@pytest.fixture(scope="module")
+def scene():
+    rig = rig_behind()
+    images, masks = render(rig)
+    truth = surface(TAPE.uv_mm[:, 0], TAPE.uv_mm[:, 1])
+    return rig, images, masks, truth
+
+
+def test_evidence_is_low_on_dots_high_between_and_grows_off_the_tape(scene):
+    rig, images, masks, truth = scene
+    cam = rig[1]
+    ev = build_evidence(images[1], masks[1])
+    at_dots = ev.sample(cam.project(truth))
+    mids = 0.5 * (truth[TAPE.solid_edges[:, 0]] + truth[TAPE.solid_edges[:, 1]])
+    between = ev.sample(cam.project(mids))
+    assert at_dots.max() < 0.2 and np.median(between) > 0.6
+    # a dot's centre is the bottom of its bowl: 2 px away the cost is clearly higher
+    assert np.all(ev.sample(cam.project(truth) + [2.0, 0.0]) > at_dots + 0.03)
+    # off the tape: above 1 and increasing with the distance to the mask
+    centre = cam.project(surface(0.0, 150.0)[None])[0]
+    off = ev.sample(np.array([centre + [60.0, 0], centre + [120.0, 0], centre + [200.0, 0]]))
+    assert off[0] > 1.0 and off[0] < off[1] < off[2]
+    # bilinear sampling reproduces the cost image at pixel centres
+    assert ev.sample(np.array([[10.0, 20.0]]))[0] == pytest.approx(ev.cost[20, 10], abs=1e-6)
+
+
+def test_evidence_downscale_keeps_dots(scene):
+    rig, images, masks, truth = scene
+    half = build_evidence(images[2], masks[2], downscale=0.5)
+    assert half.cost.shape == (images[2].shape[0] // 2, images[2].shape[1] // 2)
+    assert np.median(half.sample(rig[2].project(truth))) < 0.2
+
+
+def test_visibility_uses_the_facing_test(scene):
+    rig, images, masks, truth = scene
+    front = Camera.look_at("front", surface(0.0, 150.0) + [0, -1500, 200], surface(0.0, 150.0), (640, 480), 1000.0)
+    rig5 = Rig(list(rig) + [front])
+    evidence = [build_evidence(i, m) for i, m in zip(images, masks)] + [build_evidence(images[0], masks[0])]
+    model = RefinementMRF(TAPE, rig5, evidence, MRF2Config())
+    model.prepare(truth)
+    assert model.visible[:, :4].numpy().all()  # the four cameras behind see every dot
+    assert not model.visible[:, 4].numpy().any()  # the camera in front of the subject sees none
+
+
+def test_mrf2_pulls_perturbed_dots_onto_the_images(scene):
+    rig, images, masks, truth = scene
+    evidence = [build_evidence(i, m) for i, m in zip(images, masks)]
+    start = truth + np.random.default_rng(5).normal(scale=2.0, size=truth.shape)
+    start_err = np.linalg.norm(start - truth, axis=1).mean()
+    result = refine_mrf2(start, TAPE, rig, evidence, MRF2Config(), rng=np.random.default_rng(0))
+    err = np.linalg.norm(result.positions - truth, axis=1)
+    pbp_err = np.linalg.norm(result.extra["pbp_positions"] - truth, axis=1)
+    assert start_err > 2.5
+    assert pbp_err.mean() < 0.5 * start_err  # particle BP alone
+    assert err.mean() < 0.8 and err.max() < 2.0  # with the continuous polish
+    hist = np.array(result.energy_history)
+    n_pbp = MRF2Config().iterations + 1
+    assert np.all(np.diff(hist[:n_pbp]) <= 0) and np.all(np.diff(hist[n_pbp:]) <= 0)
+    assert hist[-1] < hist[0]
+    assert result.extra["visible"].shape == (TAPE.n_dots, 4)
+
+
+def test_mrf2_rejects_mismatched_evidence(scene):
+    rig, images, masks, truth = scene
+    with pytest.raises(ValueError, match="evidence images for 4 cameras"):
+        refine_mrf2(truth, TAPE, rig, [None, None])
