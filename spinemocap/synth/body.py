@@ -1,0 +1,174 @@
+"""The synthetic athlete: an ``anny`` body with a chosen phenotype, posed through its spine bones.
+
+World frame of the studio (mm, Z up): the subject stands with the feet on ``z = 0``, the pelvis
+above the origin, facing ``-Y`` (so the back, and the tape, face ``+Y``); the subject's left is
+``+X``. These are anny's own axes, translated so the soles touch the floor.
+
+Spine motion is applied to ``spine05`` ... ``spine01`` (sacral to thoracic) with anny's
+``local-ref`` pose parameterisation, where each bone's delta rotation is expressed in world-aligned
+axes about the bone's head. Each of the five bones takes one fifth of the commanded angles; the
+angles recorded as ground truth are measured back from the posed skeleton (see
+:func:`spine_angles_from_rotation`), so they are exact even where the per-bone split composes to
+slightly different totals.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+SPINE_BONES = ("spine05", "spine04", "spine03", "spine02", "spine01")
+PHENOTYPE_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")
+ANGLE_NAMES = ("flexion", "lateral_bending", "axial_rotation")
+
+# Vertebral levels from the sacrum (S1) to the cervico-thoracic junction (C7), with typical
+# adult segment heights (vertebral body + disc, mm) used only as relative weights to place the
+# levels along anny's spine chain between the spine05 head (taken as S1) and the neck01 head
+# (taken as C7/T1). Approximate by design: anny has five trunk bones, not 17 vertebrae.
+LEVELS = ("S1", "L5", "L4", "L3", "L2", "L1", "T12", "T11", "T10", "T9", "T8", "T7", "T6",
+          "T5", "T4", "T3", "T2", "T1", "C7")
+_SEGMENT_MM = (38, 38, 37, 36, 35, 31, 29, 28, 27, 26, 25, 24, 23, 22, 21, 20, 19, 18)
+
+
+@functools.lru_cache(maxsize=1)
+def anny_model():
+    """The anny model, loaded once per process (the first load ever compiles kernels, ~40 s)."""
+    import anny
+
+    log.info("loading the anny body model")
+    return anny.Anny()
+
+
+def rotation_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def rotation_y(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def rotation_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def rotation_from_spine_angles(angles_deg) -> np.ndarray:
+    """World rotation for [flexion, lateral bending, axial rotation] in degrees.
+
+    Cardan sequence X-Y-Z in the body frame (X = subject's left, Y = backward, Z = up):
+    flexion about X (positive bends the head forward, toward -Y), lateral bending about Y with its
+    sign flipped (positive bends toward the subject's right, -X), axial rotation about Z (positive
+    turns to the subject's left, counter-clockwise seen from above).
+    """
+    f, lat, r = np.radians(np.asarray(angles_deg, float))
+    return rotation_x(f) @ rotation_y(-lat) @ rotation_z(r)
+
+
+def spine_angles_from_rotation(R: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`rotation_from_spine_angles`: (3, 3) rotation -> (3,) degrees."""
+    # R = Rx(a) Ry(b) Rz(c): R[0,2] = sin b, R[1,2] = -sin a cos b, R[2,2] = cos a cos b,
+    # R[0,1] = -cos b sin c, R[0,0] = cos b cos c.
+    b = math.asin(max(-1.0, min(1.0, R[0, 2])))
+    a = math.atan2(-R[1, 2], R[2, 2])
+    c = math.atan2(-R[0, 1], R[0, 0])
+    return np.degrees([a, -b, c])
+
+
+class Body:
+    """An anny body of one phenotype: rest mesh, spine chain and posing. Lengths in mm."""
+
+    def __init__(self, phenotype: dict[str, float] | None = None):
+        import torch
+
+        self.model = anny_model()
+        self.phenotype = {k: 0.5 for k in PHENOTYPE_KEYS}
+        self.phenotype.update(phenotype or {})
+        self.bone_labels = list(self.model.bone_labels)
+        self._spine_index = [self.bone_labels.index(b) for b in SPINE_BONES]
+        self._torch = torch
+        self._top = self.bone_labels.index(SPINE_BONES[-1])
+        # The neutral pose (identity deltas = anny's reference pose, arms down) is the "rest"
+        # pose of the studio: the tape is laid on it and angles are measured from it.
+        with torch.no_grad():
+            out = self._forward(np.zeros((1, 3)))
+        neutral = out["vertices"][0].double().numpy() * 1000.0
+        self.floor_offset = np.array([0.0, 0.0, -neutral[:, 2].min()])
+        self.rest_vertices = neutral + self.floor_offset  # (V, 3) mm
+        self.faces = np.asarray(self.model.faces.numpy(), dtype=np.int64)  # (T, 3)
+        heads = out["bone_poses"][0, :, :3, 3].double().numpy() * 1000.0 + self.floor_offset
+        self.rest_bone_heads = {name: heads[i] for i, name in enumerate(self.bone_labels)}
+        self._neutral_top = out["bone_poses"][0, self._top, :3, :3].double().numpy()
+
+    # ------------------------------------------------------------------ posing
+    def _pose_parameters(self, angles_deg: np.ndarray):
+        """(F, 3) commanded spine angles -> (F, B, 4, 4) local-ref deltas."""
+        F = len(angles_deg)
+        P = np.tile(np.eye(4), (F, len(self.bone_labels), 1, 1))
+        share = np.asarray(angles_deg, float) / len(SPINE_BONES)
+        for f in range(F):
+            D = rotation_from_spine_angles(share[f])
+            for i in self._spine_index:
+                P[f, i, :3, :3] = D
+        return self._torch.as_tensor(P, dtype=self._torch.float32)
+
+    def _forward(self, angles_deg: np.ndarray):
+        pheno = {k: self._torch.tensor([float(v)]) for k, v in self.phenotype.items()}
+        return self.model(
+            pose_parameters=self._pose_parameters(angles_deg),
+            phenotype_kwargs=pheno,
+            pose_parameterization="local-ref",
+        )
+
+    def pose(self, angles_deg: np.ndarray, batch: int = 64) -> tuple[np.ndarray, np.ndarray]:
+        """Pose the body for (F, 3) commanded [flexion, lateral, rotation] angles (degrees).
+
+        Returns ``vertices`` (F, V, 3) float32 mm in the studio frame and the applied angles
+        (F, 3) degrees measured from the posed skeleton: the rotation of ``spine01`` from its
+        neutral orientation (the pelvis does not move), decomposed as in :func:`rotation_from_spine_angles`.
+        """
+        angles_deg = np.atleast_2d(np.asarray(angles_deg, float))
+        verts, applied = [], []
+        with self._torch.no_grad():
+            for start in range(0, len(angles_deg), batch):
+                out = self._forward(angles_deg[start : start + batch])
+                v = out["vertices"].double().numpy() * 1000.0 + self.floor_offset
+                verts.append(v.astype(np.float32))
+                W = out["bone_poses"][:, self._top, :3, :3].double().numpy()
+                for Wf in W:
+                    applied.append(spine_angles_from_rotation(Wf @ self._neutral_top.T))
+        return np.concatenate(verts), np.array(applied)
+
+    # ------------------------------------------------------------------ anatomy
+    def spine_chain(self) -> np.ndarray:
+        """(K, 3) rest positions (mm) of the spine joints from S1 (spine05 head) to C7 (neck01)."""
+        names = list(SPINE_BONES) + ["neck01"]
+        return np.array([self.rest_bone_heads[n] for n in names])
+
+    def level_heights(self) -> dict[str, float]:
+        """Rest height z (mm) of each vertebral level in :data:`LEVELS` (approximate, see module)."""
+        chain = self.spine_chain()
+        z0, z1 = chain[0, 2], chain[-1, 2]
+        cum = np.concatenate([[0.0], np.cumsum(_SEGMENT_MM)]) / sum(_SEGMENT_MM)
+        return {name: float(z0 + c * (z1 - z0)) for name, c in zip(LEVELS, cum)}
+
+    def nearest_level(self, z_mm: float) -> str:
+        heights = self.level_heights()
+        return min(heights, key=lambda name: abs(heights[name] - z_mm))
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(V, 3) area-weighted unit vertex normals of a triangle mesh (outward for anny)."""
+    v = np.asarray(vertices, float)
+    tri = v[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(n, faces[:, k], fn)
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)

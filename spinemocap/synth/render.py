@@ -1,0 +1,220 @@
+"""Offscreen rendering of one camera with pyvista/VTK, matching the OpenCV camera model exactly.
+
+VTK renders an ideal pinhole image whose projection matrix is set explicitly from the camera's
+intrinsics (off-centre principal point, fx != fy), on a canvas with a margin around the image.
+Lens distortion is then applied by resampling: every output (distorted) pixel looks up the
+undistorted canvas position of its ray (:meth:`Camera.undistort_points`). Pixel ``(0, 0)`` is
+the centre of the top-left pixel, as in OpenCV.
+
+Each camera keeps one ``Plotter`` for the whole sequence; per frame only the vertex arrays change.
+The tape mask comes from a second, unlit pass of the same scene: tape strip (without holes)
+white, everything else black, so the body and occluders hide the tape in the mask exactly as in
+the image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..camera import Camera
+
+NEAR_MM, FAR_MM = 50.0, 50_000.0
+
+
+def faces_to_vtk(faces: np.ndarray) -> np.ndarray:
+    return np.column_stack([np.full(len(faces), 3), faces]).ravel()
+
+
+def opengl_projection(K: np.ndarray, width: int, height: int, near: float = NEAR_MM, far: float = FAR_MM) -> np.ndarray:
+    """4x4 OpenGL projection (eye coordinates, camera looking down -z, y up) reproducing the
+    pinhole ``K`` on a ``width`` x ``height`` pixel window with OpenCV's pixel-centre convention."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    return np.array([
+        [2 * fx / width, 0.0, 1 - 2 * (cx + 0.5) / width, 0.0],
+        [0.0, 2 * fy / height, 2 * (cy + 0.5) / height - 1, 0.0],
+        [0.0, 0.0, -(far + near) / (far - near), -2 * far * near / (far - near)],
+        [0.0, 0.0, -1.0, 0.0],
+    ])
+
+
+@dataclass
+class Appearance:
+    """Colours (RGB 0..1) and lighting of a scene."""
+
+    skin_rgb: tuple[float, float, float]
+    tape_rgb: tuple[float, float, float] = (0.08, 0.08, 0.10)
+    background_rgb: tuple[float, float, float] = (0.35, 0.36, 0.38)
+    band_rgb: tuple[float, float, float] = (0.15, 0.25, 0.55)
+    light_position: tuple[float, float, float] = (0.0, 3000.0, 3000.0)
+    light_intensity: float = 0.9
+    fill_intensity: float = 0.35
+
+
+@dataclass
+class SceneMeshes:
+    """Posed geometry of one instant, all in world mm."""
+
+    body_vertices: np.ndarray
+    body_normals: np.ndarray
+    tape_vertices: np.ndarray
+    occluders: "pv.PolyData | None" = None  # noqa: F821
+    band_vertices: np.ndarray | None = None
+
+
+class CameraRenderer:
+    """Renders a scene as seen by one camera: BGR image and tape mask, both distorted."""
+
+    def __init__(self, camera: Camera, body_faces: np.ndarray, tape_faces_holes: np.ndarray,
+                 tape_faces_solid: np.ndarray, appearance: Appearance,
+                 band_faces: np.ndarray | None = None, supersample: int = 1):
+        import pyvista as pv
+
+        self.camera = camera
+        self.supersample = int(supersample)
+        self._build_lookup()
+        W, H = self.canvas_size
+        s = self.supersample
+        self.plotter = pv.Plotter(off_screen=True, window_size=(W * s, H * s), lighting="none")
+        self.plotter.set_background(appearance.background_rgb)
+        self.appearance = appearance
+
+        n_body = int(body_faces.max()) + 1
+        self.body = pv.PolyData(np.zeros((n_body, 3)), faces_to_vtk(body_faces))
+        n_tape = int(max(tape_faces_holes.max(), tape_faces_solid.max())) + 1
+        self.tape = pv.PolyData(np.zeros((n_tape, 3)), faces_to_vtk(tape_faces_holes))
+        self.tape_solid = pv.PolyData(np.zeros((n_tape, 3)), faces_to_vtk(tape_faces_solid))
+        skin = dict(color=appearance.skin_rgb, smooth_shading=False, ambient=0.15, diffuse=0.85,
+                    specular=0.08, specular_power=10)
+        self.body_actor = self.plotter.add_mesh(self.body, **skin)
+        self.body_actor.GetProperty().SetInterpolationToGouraud()  # uses the per-frame normals
+        self.tape_actor = self.plotter.add_mesh(self.tape, color=appearance.tape_rgb, ambient=0.2,
+                                                diffuse=0.8, specular=0.25, specular_power=20)
+        self.tape_solid_actor = self.plotter.add_mesh(self.tape_solid, color="white")
+        self.band = self.band_actor = None
+        if band_faces is not None and len(band_faces):
+            self.band = pv.PolyData(np.zeros((n_body, 3)), faces_to_vtk(band_faces))
+            self.band_actor = self.plotter.add_mesh(self.band, color=appearance.band_rgb,
+                                                    ambient=0.2, diffuse=0.8)
+        self.occluder_actor = None
+        self._skin = skin
+        self._add_lights(pv, appearance)
+        self._set_camera()
+
+    # ------------------------------------------------------------------ set-up
+    def _build_lookup(self) -> None:
+        """Per output pixel, the undistorted canvas position of its ray (cv2.remap maps)."""
+        cam = self.camera
+        w, h = cam.size
+        uu, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        undistorted = cam.undistort_points(np.column_stack([uu.ravel(), vv.ravel()]))
+        lo = np.floor(undistorted.min(axis=0)).astype(int)
+        hi = np.ceil(undistorted.max(axis=0)).astype(int)
+        margin_x = int(max(0, -lo[0], hi[0] - (w - 1))) + 2
+        margin_y = int(max(0, -lo[1], hi[1] - (h - 1))) + 2
+        self.margin = (margin_x, margin_y)
+        self.canvas_size = (w + 2 * margin_x, h + 2 * margin_y)
+        self.map_x = (undistorted[:, 0] + margin_x).reshape(h, w).astype(np.float32)
+        self.map_y = (undistorted[:, 1] + margin_y).reshape(h, w).astype(np.float32)
+
+    def _set_camera(self) -> None:
+        import vtk
+
+        cam = self.camera
+        s = self.supersample
+        K = cam.K.copy()
+        K[0, 2] += self.margin[0]
+        K[1, 2] += self.margin[1]
+        # supersampled canvas: pixel centres scale as (x + 0.5) * s - 0.5
+        K[:2, :] *= s
+        K[0, 2] += (s - 1) / 2
+        K[1, 2] += (s - 1) / 2
+        W, H = self.canvas_size
+        proj = opengl_projection(K, W * s, H * s)
+        vcam = self.plotter.camera
+        center = cam.center
+        vcam.SetPosition(*center)
+        vcam.SetFocalPoint(*(center + cam.R[2] * 1000.0))
+        vcam.SetViewUp(*(-cam.R[1]))
+        matrix = vtk.vtkMatrix4x4()
+        for i in range(4):
+            for j in range(4):
+                matrix.SetElement(i, j, proj[i, j])
+        vcam.SetExplicitProjectionTransformMatrix(matrix)
+        vcam.SetUseExplicitProjectionTransformMatrix(True)
+        self.plotter.camera_set = True
+
+    def _add_lights(self, pv, appearance: Appearance) -> None:
+        key = pv.Light(position=appearance.light_position, focal_point=(0, 0, 1000),
+                       intensity=appearance.light_intensity, light_type="scene light")
+        fill = pv.Light(position=tuple(self.camera.center), focal_point=(0, 0, 1000),
+                        intensity=appearance.fill_intensity, light_type="scene light")
+        self.plotter.add_light(key)
+        self.plotter.add_light(fill)
+
+    # ------------------------------------------------------------------ rendering
+    def _update(self, meshes: SceneMeshes) -> None:
+        self.body.points = meshes.body_vertices
+        self.body.point_data["Normals"] = meshes.body_normals
+        self.body.point_data.active_normals = meshes.body_normals
+        self.tape.points = meshes.tape_vertices
+        self.tape_solid.points = meshes.tape_vertices
+        if self.band is not None and meshes.band_vertices is not None:
+            self.band.points = meshes.band_vertices
+        if self.occluder_actor is not None:
+            self.plotter.remove_actor(self.occluder_actor, render=False)
+            self.occluder_actor = None
+        if meshes.occluders is not None and meshes.occluders.n_points:
+            self.occluder_actor = self.plotter.add_mesh(meshes.occluders, color=self.appearance.skin_rgb,
+                                                        ambient=0.15, diffuse=0.85, render=False)
+
+    def _snapshot(self) -> np.ndarray:
+        self.plotter.render()
+        rgb = self.plotter.screenshot(return_img=True)
+        if self.supersample > 1:
+            W, H = self.canvas_size
+            rgb = cv2.resize(rgb, (W, H), interpolation=cv2.INTER_AREA)
+        return cv2.remap(rgb, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    def _actors(self):
+        return [a for a in (self.body_actor, self.tape_actor, self.band_actor, self.occluder_actor) if a is not None]
+
+    def render(self, meshes: SceneMeshes, with_mask: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """Colour image (H, W, 3) RGB uint8 and tape mask (H, W) bool (None if not asked)."""
+        self._update(meshes)
+        self.tape_solid_actor.SetVisibility(False)
+        rgb = self._snapshot()
+        if not with_mask:
+            return rgb, None
+        # mask pass: unlit, tape silhouette white, everything that can hide it black
+        saved = []
+        for actor in self._actors():
+            prop = actor.GetProperty()
+            saved.append((prop, prop.GetColor(), prop.GetAmbient(), prop.GetDiffuse(), prop.GetSpecular()))
+            prop.SetColor(0, 0, 0)
+            prop.SetAmbient(1.0)
+            prop.SetDiffuse(0.0)
+            prop.SetSpecular(0.0)
+        self.tape_actor.SetVisibility(False)
+        self.tape_solid_actor.SetVisibility(True)
+        solid = self.tape_solid_actor.GetProperty()
+        solid.SetAmbient(1.0)
+        solid.SetDiffuse(0.0)
+        solid.SetSpecular(0.0)
+        background = self.plotter.background_color
+        self.plotter.set_background("black")
+        mask = self._snapshot()[..., 1] > 127
+        self.plotter.set_background(background)
+        self.tape_solid_actor.SetVisibility(False)
+        self.tape_actor.SetVisibility(True)
+        for prop, color, ambient, diffuse, specular in saved:
+            prop.SetColor(color)
+            prop.SetAmbient(ambient)
+            prop.SetDiffuse(diffuse)
+            prop.SetSpecular(specular)
+        return rgb, mask
+
+    def close(self) -> None:
+        self.plotter.close()

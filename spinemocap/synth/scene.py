@@ -1,0 +1,377 @@
+"""The synthetic studio: configuration, scene assembly, ground truth and rendering.
+
+Pipeline of :func:`build_scene`: phenotype -> anny body -> tape laid on the rest skin (bound by
+barycentric coordinates) -> motion sampled at the frame times -> posed meshes -> camera rig
+around the tape -> occluders. Ground truth (dots, normals, keypoints, projections, visibility,
+applied angles) is computed on first access of :attr:`Scene.groundtruth`; images are rendered
+on demand per frame (:meth:`Scene.render`, :meth:`Scene.frame_source`).
+
+Everything random (lens imperfections, balls, lighting, skin tone, sensor noise) derives from
+``config.seed``, so a seed reproduces a capture exactly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import logging
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import cv2
+import numpy as np
+
+from ..camera import Rig
+from ..tape import TapeSpec
+from .body import ANGLE_NAMES, LEVELS, PHENOTYPE_KEYS, Body, vertex_normals
+from .motions import MOTIONS, spine_motion
+from .occluders import (BAND_OFFSET_MM, OCCLUSION_LEVELS, FallingBalls, balls_for, band_faces,
+                        sphere_mesh)
+from .render import Appearance, CameraRenderer, SceneMeshes
+from .rigs import LAYOUTS, arc_rig
+from .tape_on_skin import TapeOnSkin
+from .visibility import MeshRayCaster, dot_visibility
+
+log = logging.getLogger(__name__)
+
+SKIN_LIGHT = np.array([0.93, 0.78, 0.68])
+SKIN_DARK = np.array([0.42, 0.28, 0.20])
+
+_PRESETS: dict[str, dict] = {
+    "tiny": dict(frames=4, fps=4.0, cameras=3, size=(480, 360), rows=5, motion="mixed"),
+    "artificial": dict(frames=548, fps=100.0, cameras=4, size=(1024, 768), rows=13, motion="mixed"),
+    "studio": dict(frames=300, fps=100.0, cameras=6, size=(2448, 1600), rows=13, motion="mixed"),
+}
+
+
+@dataclass
+class SynthConfig:
+    """Everything that defines a synthetic capture. Lengths mm, times s, sizes (width, height) px.
+
+    ``occlusion`` names a ball rate (``none``/``light``/``heavy``, see
+    :mod:`spinemocap.synth.occluders`); ``balls`` overrides the number of balls released over the
+    sequence. ``blur`` is the exposure as a fraction of the frame interval (0 = sharp);
+    ``noise`` the sensor noise standard deviation in 8-bit grey levels; ``distortion`` scales
+    the random lens distortion (0 = ideal pinhole); ``skin_tone`` runs from 0 (light) to 1
+    (dark), None picks one from the seed; ``phenotype`` holds anny's parameters in [0, 1]
+    (gender 0 = female .. 1 = male, age, muscle, weight, height, proportions; ``sex`` is an
+    alias of gender). ``tape_start`` is the vertebral level of the tape's first row.
+    """
+
+    layout: str = "tiny"  # the preset whose camera layout is used (rigs.LAYOUTS)
+    frames: int = 4
+    fps: float = 100.0
+    cameras: int = 3
+    size: tuple[int, int] = (480, 360)
+    rows: int = 5
+    motion: str = "mixed"
+    occlusion: str = "none"
+    balls: int | None = None
+    band: bool = False
+    band_level: str = "T9"
+    seed: int = 0
+    phenotype: dict = field(default_factory=dict)
+    skin_tone: float | None = None
+    blur: float = 0.0
+    noise: float = 2.0
+    distortion: float = 1.0
+    tape_start: str = "L4"
+    supersample: int = 1
+    video: bool = False
+    name: str = "synthetic"
+
+    def __post_init__(self) -> None:
+        self.size = (int(self.size[0]), int(self.size[1]))
+        self.phenotype = dict(self.phenotype)
+        if "sex" in self.phenotype:
+            self.phenotype["gender"] = self.phenotype.pop("sex")
+        problems = []
+        if self.layout not in LAYOUTS:
+            problems.append(f"unknown camera layout {self.layout!r} (choose from {sorted(LAYOUTS)})")
+        if self.frames < 1:
+            problems.append(f"frames must be >= 1 (got {self.frames})")
+        if not self.fps > 0:
+            problems.append(f"fps must be positive (got {self.fps})")
+        if self.cameras < 1:
+            problems.append(f"cameras must be >= 1 (got {self.cameras})")
+        if min(self.size) < 16:
+            problems.append(f"image size {self.size} is too small (min 16 px)")
+        if self.rows < 1 or self.rows % 2 == 0:
+            problems.append(f"rows must be odd and >= 1: rows alternate 2/3 dots and start and end with a 2-dot row (got {self.rows})")
+        if self.motion not in MOTIONS:
+            problems.append(f"unknown motion {self.motion!r} (choose from {sorted(MOTIONS)})")
+        if self.occlusion not in OCCLUSION_LEVELS:
+            problems.append(f"unknown occlusion level {self.occlusion!r} (choose from {list(OCCLUSION_LEVELS)})")
+        if self.balls is not None and self.balls < 0:
+            problems.append(f"balls must be >= 0 (got {self.balls})")
+        if not 0 <= self.blur <= 1:
+            problems.append(f"blur (exposure / frame interval) must lie in [0, 1] (got {self.blur})")
+        if self.noise < 0 or self.distortion < 0:
+            problems.append("noise and distortion must be >= 0")
+        if self.skin_tone is not None and not 0 <= self.skin_tone <= 1:
+            problems.append(f"skin_tone must lie in [0, 1] (got {self.skin_tone})")
+        unknown = set(self.phenotype) - set(PHENOTYPE_KEYS)
+        if unknown:
+            problems.append(f"unknown phenotype keys {sorted(unknown)} (known: {list(PHENOTYPE_KEYS)} and 'sex')")
+        if any(not 0 <= float(v) <= 1 for v in self.phenotype.values()):
+            problems.append("phenotype values must lie in [0, 1]")
+        for name in ("tape_start", "band_level"):
+            if getattr(self, name) not in LEVELS:
+                problems.append(f"{name} {getattr(self, name)!r} is not a vertebral level (choose from {list(LEVELS)})")
+        if self.supersample < 1:
+            problems.append("supersample must be >= 1")
+        if problems:
+            raise ValueError("invalid synthetic studio settings: " + "; ".join(problems))
+
+    @classmethod
+    def preset(cls, name: str, /, **overrides) -> "SynthConfig":
+        """A named preset (``tiny``, ``artificial``, ``studio``) with fields overridden."""
+        if name not in _PRESETS:
+            raise ValueError(f"unknown preset {name!r}; choose from {sorted(_PRESETS)}")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(overrides) - known
+        if unknown:
+            raise ValueError(f"unknown synthetic studio settings {sorted(unknown)}; known: {sorted(known)}")
+        values = dict(_PRESETS[name], layout=name)
+        values.update({k: v for k, v in overrides.items() if v is not None or k in ("balls", "skin_tone")})
+        return cls(**values)
+
+    @property
+    def duration_s(self) -> float:
+        return self.frames / self.fps
+
+    @property
+    def n_balls(self) -> int:
+        return self.balls if self.balls is not None else balls_for(self.occlusion, self.duration_s)
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["size"] = list(self.size)
+        return {k: v for k, v in d.items() if v is not None}
+
+
+@dataclass
+class RenderedFrame:
+    """One rendered instant: ``images`` BGR uint8 (H, W, 3) and ``masks`` (H, W) bool tape
+    silhouettes, one per camera in rig order."""
+
+    images: list[np.ndarray]
+    masks: list[np.ndarray]
+
+
+class SceneFrameSource:
+    """In-process :class:`spinemocap.capture.FrameSource`: renders frames on demand."""
+
+    def __init__(self, scene: "Scene"):
+        self.scene = scene
+        self.camera_names = scene.rig.names
+        self.n_frames = scene.n_frames
+
+    def read(self, frame: int) -> list[np.ndarray]:
+        if not 0 <= frame < self.n_frames:
+            raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
+        return self.scene.render(frame).images
+
+
+@functools.lru_cache(maxsize=4)
+def cached_body(phenotype: tuple) -> Body:
+    """One :class:`Body` per phenotype and process (posing is cheap, building is not)."""
+    return Body(dict(phenotype))
+
+
+@functools.lru_cache(maxsize=8)
+def cached_tape_on_skin(phenotype: tuple, rows: int, start_level: str) -> TapeOnSkin:
+    """The tape laid on a body, cached: laying casts ~20k rays (seconds)."""
+    return TapeOnSkin(cached_body(phenotype), TapeSpec(n_rows=rows), start_level)
+
+
+class Scene:
+    """A built synthetic scene. See the module docstring; use :func:`build_scene`."""
+
+    def __init__(self, config: SynthConfig):
+        self.config = config
+        self.rng_seed = int(config.seed)
+        rng = np.random.default_rng([self.rng_seed, 1])
+        self.body = cached_body(tuple(sorted(config.phenotype.items())))
+        self.tape = TapeSpec(n_rows=config.rows)
+        self.tape_on_skin = cached_tape_on_skin(tuple(sorted(config.phenotype.items())), config.rows, config.tape_start)
+        self.labels: list[str] = list(self.tape.labels)
+        self.fps = float(config.fps)
+        self.n_frames = int(config.frames)
+        self.times = np.arange(self.n_frames) / self.fps
+        self.vertices, self.angles_deg = self.body.pose(spine_motion(config.motion, self.times))
+        rest_dots = self.tape_on_skin.dot_positions(self.body.rest_vertices)
+        self.target = rest_dots.mean(axis=0)
+        self.rig: Rig = arc_rig(LAYOUTS[config.layout], config.cameras, config.size, self.target,
+                                config.distortion, rng)
+        self.balls = FallingBalls.generate(config.n_balls, config.duration_s, self.target, rng)
+        self.band_faces = None
+        if config.band:
+            z = self.body.level_heights()[config.band_level]
+            self.band_faces = band_faces(self.body, z)
+        tone = config.skin_tone if config.skin_tone is not None else rng.uniform(0.0, 0.8)
+        skin = (1 - tone) * SKIN_LIGHT + tone * SKIN_DARK
+        self.appearance = Appearance(
+            skin_rgb=tuple(float(c) for c in skin),
+            light_position=(float(rng.uniform(-1500, 1500)), float(rng.uniform(2000, 3500)), float(rng.uniform(2200, 3200))),
+            light_intensity=float(rng.uniform(0.75, 1.0)),
+            fill_intensity=float(rng.uniform(0.25, 0.45)),
+        )
+        self.skin_tone = float(tone)
+        self._renderers: list[CameraRenderer] | None = None
+
+    # ------------------------------------------------------------------ geometry per instant
+    def _posed(self, frame: int | None = None, time_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        if time_s is None:
+            v = self.vertices[frame].astype(float)
+        else:
+            v = self.body.pose(spine_motion(self.config.motion, [time_s]))[0][0].astype(float)
+        return v, vertex_normals(v, self.body.faces)
+
+    def _band_vertices(self, vertices: np.ndarray, normals: np.ndarray) -> np.ndarray | None:
+        if self.band_faces is None:
+            return None
+        return vertices + BAND_OFFSET_MM * normals
+
+    def meshes(self, frame: int | None = None, time_s: float | None = None) -> SceneMeshes:
+        """Posed geometry at a frame (or any instant ``time_s``)."""
+        t = self.times[frame] if time_s is None else time_s
+        v, n = self._posed(frame, time_s)
+        centres, radii = self.balls.at(t)
+        return SceneMeshes(
+            body_vertices=v, body_normals=n,
+            tape_vertices=self.tape_on_skin.strip_vertices(v, n),
+            occluders=sphere_mesh(centres, radii) if len(centres) else None,
+            band_vertices=self._band_vertices(v, n),
+        )
+
+    def _occluding_mesh(self, v: np.ndarray, n: np.ndarray) -> MeshRayCaster:
+        if self.band_faces is None:
+            return MeshRayCaster(v, self.body.faces)
+        band_v = self._band_vertices(v, n)
+        faces = np.concatenate([self.body.faces, self.band_faces + len(v)])
+        return MeshRayCaster(np.concatenate([v, band_v]), faces)
+
+    def frame_groundtruth(self, frame: int) -> dict[str, np.ndarray]:
+        """Ground truth of one frame (see :attr:`groundtruth` for the keys and units)."""
+        v, n = self._posed(frame)
+        tos = self.tape_on_skin
+        dots = tos.dot_positions(v, n)
+        normals = tos.dots.normals(n, self.body.faces)
+        uv = self.rig.project(dots)
+        centres, radii = self.balls.at(self.times[frame])
+        visible = dot_visibility(self.rig, dots, normals, uv, self._occluding_mesh(v, n), centres, radii,
+                                 self.tape.dot_diameter_mm / 2)
+        return {
+            "dots": dots, "dot_normals": normals, "uv": uv, "visible": visible,
+            "keypoints": tos.keypoints.points(v, self.body.faces),
+        }
+
+    @cached_property
+    def groundtruth(self) -> dict[str, np.ndarray]:
+        """Exact ground truth, same keys as ``groundtruth.npz``:
+
+        ``labels`` (D,) str; ``dots`` (F, D, 3) mm; ``dot_normals`` (F, D, 3) outward unit normals;
+        ``visible`` (F, C, D) bool; ``uv`` (F, C, D, 2) distorted pixels; ``fps``; ``times`` (F,) s;
+        ``angles_deg`` (F, 3) applied [flexion, lateral bending, axial rotation] (signs in
+        :mod:`spinemocap.synth.motions`), ``angle_names``; ``keypoints`` (F, 8, 3) mm: skin
+        points 55 mm left and right of the midline at 4 levels spanning the tape (order:
+        level 1 left, level 1 right, level 2 left, ...); ``keypoint_names``; ``row_levels``
+        (n_rows,) str vertebral level nearest each row (approximate, see
+        :mod:`spinemocap.synth.body`); ``camera_names``.
+        """
+        from tqdm import tqdm
+
+        frames = [self.frame_groundtruth(f) for f in tqdm(range(self.n_frames), desc="ground truth",
+                                                          unit="frame", disable=self.n_frames < 50, leave=False)]
+        gt = {key: np.stack([fr[key] for fr in frames]) for key in frames[0]}
+        levels = len(gt["keypoints"][0]) // 2
+        gt.update(
+            labels=np.array(self.labels),
+            fps=np.array(self.fps),
+            times=self.times.copy(),
+            angles_deg=self.angles_deg.copy(),
+            angle_names=np.array(ANGLE_NAMES),
+            keypoint_names=np.array([f"K{k + 1}{side}" for k in range(levels) for side in "LR"]),
+            row_levels=np.array(self.tape_on_skin.row_levels),
+            camera_names=np.array(self.rig.names),
+        )
+        return gt
+
+    # ------------------------------------------------------------------ rendering
+    @property
+    def renderers(self) -> list[CameraRenderer]:
+        if self._renderers is None:
+            strip = self.tape_on_skin.strip
+            self._renderers = [
+                CameraRenderer(cam, self.body.faces, strip.faces_holes, strip.faces_solid, self.appearance,
+                               band_faces=self.band_faces, supersample=self.config.supersample)
+                for cam in self.rig
+            ]
+        return self._renderers
+
+    def render(self, frame: int, with_masks: bool = True) -> RenderedFrame:
+        """Render one frame in every camera: BGR images (with blur and noise) and tape masks."""
+        if not 0 <= frame < self.n_frames:
+            raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
+        instants = self._exposure_instants(frame)
+        meshes = [self.meshes(frame)] + [self.meshes(time_s=t) for t in instants[1:]]
+        images, masks = [], []
+        for c, renderer in enumerate(self.renderers):
+            rgb, mask = renderer.render(meshes[0], with_mask=with_masks)
+            if len(meshes) > 1:
+                acc = rgb.astype(np.float32)
+                for m in meshes[1:]:
+                    acc += renderer.render(m, with_mask=False)[0]
+                rgb = acc / len(meshes)
+            images.append(self._sensor(rgb, frame, c))
+            masks.append(mask)
+        return RenderedFrame(images, masks)
+
+    def _exposure_instants(self, frame: int) -> list[float]:
+        """The frame time first, then sub-frame instants spread over the exposure (motion blur)."""
+        t = float(self.times[frame])
+        if self.config.blur <= 0:
+            return [t]
+        half = 0.5 * self.config.blur / self.fps
+        return [t] + [float(x) for x in np.linspace(t - half, t + half, 5) if abs(x - t) > 1e-12]
+
+    def _sensor(self, rgb: np.ndarray, frame: int, camera: int) -> np.ndarray:
+        """Sensor noise (seeded per frame and camera) and conversion to BGR uint8."""
+        image = rgb.astype(np.float32)
+        if self.config.noise > 0:
+            rng = np.random.default_rng([self.rng_seed, 2, frame, camera])
+            image += rng.normal(0.0, self.config.noise, image.shape).astype(np.float32)
+        return cv2.cvtColor(np.clip(image + 0.5, 0, 255).astype(np.uint8), cv2.COLOR_RGB2BGR)
+
+    def frame_source(self) -> SceneFrameSource:
+        """A :class:`spinemocap.capture.FrameSource` that renders frames on demand."""
+        return SceneFrameSource(self)
+
+    def subject(self) -> dict:
+        """The ``[subject]`` table of capture.toml."""
+        return {
+            "id": f"anny-seed{self.rng_seed}",
+            "up": [0.0, 0.0, 1.0],
+            "facing": [0.0, -1.0, 0.0],
+            "phenotype": {k: float(v) for k, v in self.body.phenotype.items()},
+            "skin_tone": self.skin_tone,
+            "tape_start": self.config.tape_start,
+        }
+
+    def close(self) -> None:
+        for r in self._renderers or []:
+            r.close()
+        self._renderers = None
+
+
+def build_scene(config: SynthConfig) -> Scene:
+    """Assemble a scene; raises ``ValueError`` when no camera sees the tape in the first frame."""
+    scene = Scene(config)
+    first = scene.frame_groundtruth(0)
+    if not first["visible"].any():
+        raise ValueError(
+            f"no camera sees the tape in the first frame ({config.cameras} cameras, layout "
+            f"{config.layout!r}, size {config.size}); use more cameras or another layout"
+        )
+    return scene
