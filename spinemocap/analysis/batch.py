@@ -355,8 +355,8 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = 
             results.append(result)
             _log_result(result)
             failed = sum(r["status"] != "ok" for r in results)
-            bar.set_postfix(done=len(results) - failed, failed=failed, remaining=len(jobs) - len(results))
             bar.update()
+            bar.set_postfix(done=len(results) - failed, failed=failed, remaining=len(jobs) - len(results))
     finally:
         bar.close()
         log.removeHandler(handler)

@@ -90,10 +90,10 @@ def group_table(trials: pd.DataFrame, by: str) -> pd.DataFrame:
 
 def problem_table(results: list[dict]) -> pd.DataFrame:
     """Failed trials and NaN-angle reasons, one row per (trial, what, reason)."""
-    rows = []
+    rows = [{"key": r["key"], "what": "trial failed", "frames": np.nan, "reason": r.get("reason", "")}
+            for r in results if r["status"] != "ok"]
     for r in results:
         if r["status"] != "ok":
-            rows.append({"key": r["key"], "what": "trial failed", "frames": np.nan, "reason": r.get("reason", "")})
             continue
         for group, reasons in r.get("notes", {}).items():
             for reason, count in reasons.items():
@@ -109,8 +109,8 @@ def _png(fig) -> str:
     return base64.b64encode(buffer.getvalue()).decode("ascii")
 
 
-def _trial_plot(angles: pd.DataFrame, title: str) -> str:
-    fig, axes = plt.subplots(1, 3, figsize=(13, 2.6), sharex=True)
+def _trial_plot(angles: pd.DataFrame) -> str:
+    fig, axes = plt.subplots(1, 3, figsize=(13, 2.4), sharex=True)
     t = angles["time"].to_numpy()
     for ax, (column, label) in zip(axes, PLOTTED):
         values = angles[column].to_numpy(float)
@@ -127,7 +127,7 @@ def _trial_plot(angles: pd.DataFrame, title: str) -> str:
         ax.set_xlabel("time (s)", fontsize=8)
         ax.tick_params(labelsize=7)
     axes[0].set_ylabel("deg", fontsize=8)
-    fig.suptitle(title, fontsize=10, x=0.01, ha="left")
+    fig.tight_layout()
     return _png(fig)
 
 
@@ -156,7 +156,7 @@ body{font-family:system-ui,sans-serif;margin:24px;color:#222;max-width:1400px}
 h1{font-size:22px}h2{font-size:18px;margin-top:28px;border-bottom:1px solid #ccc}
 table{border-collapse:collapse;font-size:12px;margin:8px 0}
 td,th{border:1px solid #ddd;padding:3px 6px;text-align:right}th{background:#f3f3f3}
-td:first-child,th:first-child{text-align:left}
+td.text,th{text-align:left}.scroll{overflow-x:auto}h3{font-size:14px;margin:14px 0 2px}
 .bad{background:#fde8e8}.warn{background:#fff6dd}.ok{color:#2a7a2a}.note{color:#555;font-size:13px}
 img{max-width:100%}
 """
@@ -167,9 +167,13 @@ def _html_table(df: pd.DataFrame, row_class=None) -> str:
     body = []
     for _, row in df.iterrows():
         cls = f' class="{row_class(row)}"' if row_class else ""
-        cells = "".join(f"<td>{html.escape(_fmt(v))}</td>" for v in row)
+        cells = "".join(f"<td{'' if _numeric(v) else ' class=text'}>{html.escape(_fmt(v))}</td>" for v in row)
         body.append(f"<tr{cls}>{cells}</tr>")
-    return f"<table><tr>{head}</tr>{''.join(body)}</table>"
+    return f"<div class='scroll'><table><tr>{head}</tr>{''.join(body)}</table></div>"
+
+
+def _numeric(value) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
 
 
 def _fmt(value) -> str:
@@ -193,6 +197,7 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
              f"Generated {_dt.datetime.now():%Y-%m-%d %H:%M}. Angles in degrees: lumbar = T12/L1 "
              "relative to S1 on the tape's midline; flexion positive forward, lateral bending "
              "positive to the subject's right, axial rotation positive to the subject's left. "
+             "Peak extension is the smallest flexion angle (negative = extended). "
              "Tables: summary.csv, summary_by_subject.csv, summary_by_condition.csv, summary.xlsx.</p>"]
     parts.append("<h2>Problems</h2>")
     if problems.empty:
@@ -213,8 +218,9 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
             parts.append(f"<p class='bad'><b>{html.escape(r['key'])}</b>: failed: {html.escape(r.get('reason', ''))}</p>")
             continue
         angles = pd.read_csv(Path(r["out_dir"]) / ANGLES)
-        label = f"{r['key']}  ({r.get('completeness_pct', float('nan')):.0f}% dots observed)"
-        parts.append(f"<img alt='{html.escape(r['key'])}' src='data:image/png;base64,{_trial_plot(angles, label)}'>")
+        parts.append(f"<h3>{html.escape(r['key'])} <span class='note'>"
+                     f"({r.get('completeness_pct', float('nan')):.0f}% of dots observed)</span></h3>")
+        parts.append(f"<img alt='{html.escape(r['key'])}' src='data:image/png;base64,{_trial_plot(angles)}'>")
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title or out.name)}</title>"
             f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
     with atomic_write(out / "report.html") as handle:
