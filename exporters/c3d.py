@@ -298,20 +298,43 @@ def read_c3d(path: str | os.PathLike) -> MarkerTable:
             reader = _Reader(handle)
             n_points = int(reader.point_used)
             expected = int(reader.last_frame) - int(reader.first_frame) + 1
-            blocks = [points for _, points, _ in reader.read_frames(copy=True, check_nan=True)]
+            if n_points == 0:
+                raise InputError(path, "C3D file holds no 3D points (POINT:USED = 0)")
+            if float(reader.point_scale) < 0 and not reader._dtypes.is_dec:
+                data = _float_points(reader, handle, expected)
+            else:  # integer or DEC data: the c3d package's frame-by-frame decoder
+                data = np.stack([p for _, p, _ in reader.read_frames(copy=True, check_nan=True)] or
+                                [np.zeros((n_points, 5), np.float32)])[:expected]
         except InputError:
             raise
         except Exception as exc:  # struct.error, ValueError, KeyError ... from a damaged file
             raise InputError(path, f"not a readable C3D file ({type(exc).__name__}: {exc})") from exc
-    if n_points == 0:
-        raise InputError(path, "C3D file holds no 3D points (POINT:USED = 0)")
-    if len(blocks) != expected:
-        raise InputError(path, f"truncated C3D: the header declares {expected} frames but the file holds "
-                               f"{len(blocks)}")
     eof = [str(w.message) for w in caught if "end of file" in str(w.message).lower()]
-    if eof:
-        raise InputError(path, f"truncated C3D: {eof[0].split(chr(10))[0]}")
-    return _table_from_reader(reader, np.stack(blocks), path)
+    if len(data) != expected or eof:
+        found = len(data) if not eof else "fewer"
+        raise InputError(path, f"truncated C3D: the parameters declare {expected} frames but the file holds "
+                               f"{found}")
+    return _table_from_reader(reader, data, path)
+
+
+def _float_points(reader: c3dlib.Reader, handle, n_frames: int) -> np.ndarray:
+    """All frames of a float (Intel or MIPS) file at once, decoded as ``c3d.Reader.read_frames``
+    does: (F, D, 5) = x, y, z, residual (-1 invalid), camera mask. Fewer rows if truncated."""
+    n_points = int(reader.point_used)
+    n_analog = int(reader.analog_used) * int(reader.analog_per_frame)
+    words = 4 * n_points + n_analog
+    handle.seek((int(reader.header.data_block) - 1) * 512)
+    raw = handle.read(4 * words * n_frames)
+    complete = len(raw) // (4 * words)
+    block = np.frombuffer(raw[: complete * 4 * words], dtype=reader._dtypes.float32)
+    block = block.reshape(complete, words)[:, : 4 * n_points].reshape(complete, n_points, 4)
+    fourth = block[..., 3].astype(np.int32)
+    invalid = (fourth < 0) | ~np.isfinite(block).all(axis=2)
+    out = np.zeros((complete, n_points, 5), np.float32)
+    out[..., :3] = np.where(invalid[..., None], 0.0, block[..., :3])
+    out[..., 3] = np.where(invalid, -1.0, (fourth & 0xFF) * np.float32(abs(reader.point_scale)))
+    out[..., 4] = (fourth & 0x7F00) >> 8
+    return out
 
 
 def _table_from_reader(reader: c3dlib.Reader, data: np.ndarray, path: Path) -> MarkerTable:

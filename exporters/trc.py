@@ -76,10 +76,6 @@ def axes_statement(forward: str | None) -> str:
     return f"axes: OpenSim Y up, rotated from lab Z up: X={X}, Y={Y}, Z={Z}"
 
 
-def _fmt(value: float, decimals: int) -> str:
-    return "NaN" if not np.isfinite(value) else f"{value:.{decimals}f}"
-
-
 def write_trc(table: MarkerTable, path: str | os.PathLike, units: str = "mm", opensim_axes: bool = False,
               forward: str = "+x", decimals: int | None = None, name: str | None = None) -> Path:
     """Write ``table`` as an OpenSim TRC file (atomically).
@@ -121,9 +117,10 @@ def write_trc(table: MarkerTable, path: str | os.PathLike, units: str = "mm", op
         "\t".join(["", ""] + [f"X{i}\tY{i}\tZ{i}" for i in range(1, D + 1)]),
         "",
     ]
-    flat = positions.reshape(F, 3 * D)
-    rows = ["\t".join([str(int(f) + 1), f"{t:.6f}"] + [_fmt(v, decimals) for v in row])
-            for f, t, row in zip(frames, times, flat)]
+    row_format = "\t".join(["%d", "%.6f"] + [f"%.{decimals}f"] * (3 * D))
+    table_rows = np.column_stack([frames + 1, times, positions.reshape(F, 3 * D)]).tolist()
+    # one %-format per row is ~10x faster than per value; OpenSim wants NaN, Python writes nan
+    rows = [(row_format % tuple(row)).replace("nan", "NaN") for row in table_rows]
     with atomic_write(path, "w", newline="\n", encoding="utf-8") as handle:
         handle.write("\n".join(lines + rows) + "\n")
     return path

@@ -96,3 +96,16 @@ def test_vicon_markers_to_opensim_trc_with_gaps(tmp_path):
     values = np.array(matrix.to_numpy(), copy=True).reshape(trc.getNumRows(), -1, 3)
     assert np.array_equal(np.isnan(values), np.isnan(markers.positions()))
     assert np.isnan(values).any()
+
+
+def test_vectorised_decoder_matches_c3d_package_with_analog_data():
+    from exporters.c3d import _float_points
+
+    path = vicon_file("walking01_plugin_gait_lower.c3d")   # 30 analog channels x 10 per frame
+    with open(path, "rb") as handle, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reader = c3dlib.Reader(handle)
+        assert reader.analog_used > 0
+        slow = np.stack([p for _, p, _ in reader.read_frames(check_nan=True)])
+        fast = _float_points(reader, handle, len(slow))
+    assert np.array_equal(fast, slow)
