@@ -244,7 +244,7 @@ def write_c3d(table: MarkerTable, path: str | os.PathLike, units: str = "mm", re
     block[..., 3] = word
     fps = frame_rate(table, path)
     writer = _BlockWriter(block, point_rate=fps, point_scale=-float(residual_scale), point_units=units)
-    _fill_groups(writer, fit_labels(labels, LABEL_WIDTH, path), fit_labels_desc(descriptions), units, fps,
+    _fill_groups(writer, fit_labels(labels, LABEL_WIDTH, path), fit_descriptions(descriptions), units, fps,
                  int(arrays["frames"][0]) + 1, str(subject or table.meta.get("subject") or "subject"),
                  str(marker_set or table.meta.get("marker_set") or "spinemocap tape"))
     if not np.array_equal(arrays["frames"], np.arange(arrays["frames"][0], arrays["frames"][0] + F)):
@@ -256,7 +256,7 @@ def write_c3d(table: MarkerTable, path: str | os.PathLike, units: str = "mm", re
     return path
 
 
-def fit_labels_desc(descriptions: Sequence[str]) -> list[str]:
+def fit_descriptions(descriptions: Sequence[str]) -> list[str]:
     """Descriptions as C3D holds them: ASCII, cut to the Nexus width (no uniqueness needed)."""
     return [d.encode("ascii", "replace").decode()[:DESCRIPTION_WIDTH] for d in descriptions]
 

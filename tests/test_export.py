@@ -333,3 +333,23 @@ def test_failing_write_keeps_previous_file_and_leaves_no_temp(tmp_path, monkeypa
         exporters.write(sample_table(seed=1), path)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["markers.c3d"]
+
+
+def test_integer_c3d_from_other_writers_reads_like_ezc3d(tmp_path):
+    ezc3d = pytest.importorskip("ezc3d")
+    writer = c3dlib.Writer(point_rate=50.0, point_scale=0.1)       # 16-bit integer data
+    writer.set_point_labels(["A", "B"])
+    frames = []
+    for i in range(20):
+        points = np.zeros((2, 5), np.float32)
+        points[:, :3] = [[i, 2, 3], [4, 5, 6]]
+        points[:, 3] = 0.3 if i != 4 else -1
+        frames.append((points, np.zeros(0)))
+    writer.add_frames(frames)
+    with open(tmp_path / "int.c3d", "wb") as handle, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        writer.write(handle)
+    ours = exporters.read(tmp_path / "int.c3d").positions()
+    theirs = ezc3d.c3d(str(tmp_path / "int.c3d"))["data"]["points"][:3].transpose(2, 1, 0)
+    assert np.array_equal(np.isnan(ours), np.isnan(theirs)) and np.isnan(ours[4]).all()
+    assert np.allclose(ours, theirs, rtol=1e-6, equal_nan=True)
