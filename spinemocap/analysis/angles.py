@@ -121,7 +121,8 @@ def compute_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
     curves = [fit_midline(rows.v, rows.centre[f], rows.v[-1], settings.smoothing) for f in range(F)]
 
     level_v, missing_level = _level_positions(levels, tape, settings)
-    at = {name: _frames_at_level(rows, curves, v, settings, name) for name, v in level_v.items()}
+    names = _roles(settings)
+    at = {role: _frames_at_level(rows, curves, v, settings, names[role]) for role, v in level_v.items()}
 
     table = pd.DataFrame({"frame": arrays["frames"], "time": arrays["time"]})
     notes: dict[str, dict[str, int]] = {}
@@ -132,8 +133,8 @@ def compute_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
         table[f"{group}_note"] = note
         notes[group] = dict(Counter(n for n in note if n))
 
-    for group, (lo, hi) in {"lumbar": (settings.lower, settings.thoracolumbar),
-                            "thoracic": (settings.thoracolumbar, settings.upper)}.items():
+    for group, (lo, hi) in {"lumbar": ("lower", "thoracolumbar"),
+                            "thoracic": ("thoracolumbar", "upper")}.items():
         values, note = _relative(at, missing_level, lo, hi, F)
         put(group, values, note)
     put("curvature", *_curvature(at, curves, level_v, missing_level, settings, F))
@@ -145,18 +146,25 @@ def compute_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
     return SpineAngles(table=table, notes=notes, completeness=float(np.mean(status == "observed")))
 
 
+def _roles(settings: AngleSettings) -> dict[str, str]:
+    return {"lower": settings.lower, "thoracolumbar": settings.thoracolumbar, "upper": settings.upper}
+
+
 def _level_positions(levels: LevelMap, tape: TapeSpec, settings: AngleSettings) -> tuple[dict[str, float], dict[str, str]]:
-    """Rest positions (mm) of the settings' levels, and a reason for each level not mapped."""
+    """Rest positions (mm) of the levels by role (lower, thoracolumbar, upper), and a reason
+    for each role whose level the map does not place."""
     found, missing = {}, {}
-    if vertebra_index(settings.upper) >= vertebra_index(settings.thoracolumbar):
-        missing[settings.upper] = f"the level map names no level above {settings.thoracolumbar}"
-    for name in dict.fromkeys((settings.lower, settings.thoracolumbar, settings.upper)):
-        if name in missing:
-            continue
+    for role, name in _roles(settings).items():
         try:
-            found[name] = levels.v_of(name, tape.row_pitch_mm)
+            found[role] = levels.v_of(name, tape.row_pitch_mm)
         except KeyError as exc:
-            missing[name] = exc.args[0]
+            missing[role] = exc.args[0]
+    for low, high in (("lower", "thoracolumbar"), ("thoracolumbar", "upper")):
+        a, b = _roles(settings)[low], _roles(settings)[high]
+        if high not in missing and vertebra_index(b) >= vertebra_index(a):
+            missing[high] = f"the level map names no level above {a}" if high == "upper" else \
+                f"{b} is not above {a}"
+            found.pop(high, None)
     return found, missing
 
 
@@ -197,7 +205,7 @@ def _relative(at: dict[str, _LevelFrames], missing_level: dict[str, str], lo: st
 def _curvature(at: dict[str, _LevelFrames], curves: list[MidlineCurve | None],
                level_v: dict[str, float], missing_level: dict[str, str], settings: AngleSettings,
                F: int) -> tuple[np.ndarray, np.ndarray]:
-    lo, hi = settings.lower, settings.upper
+    lo, hi = "lower", "upper"
     values = np.full((F, 2), np.nan)
     for name in (lo, hi):
         if name in missing_level:
@@ -212,7 +220,7 @@ def _curvature(at: dict[str, _LevelFrames], curves: list[MidlineCurve | None],
         theta = np.degrees(np.arctan2(t[:, 0], t[:, 1]))
         k = int(np.argmin(theta))
         if not grid[0] + margin < grid[k] < grid[-1] - margin:
-            note[f] = f"no inflection between {lo} and {hi} (spine curve not S-shaped here)"
+            note[f] = f"no inflection between {settings.lower} and {settings.upper} (spine curve not S-shaped here)"
             continue
         values[f] = theta[0] - theta[k], theta[-1] - theta[k]
     return values, note
@@ -224,10 +232,10 @@ def _pelvis(at: dict[str, _LevelFrames], missing_level: dict[str, str], settings
     if pelvis_frames is not None:
         frames = np.asarray(pelvis_frames, float)
         note = np.where(np.isfinite(frames).all(axis=(1, 2)), "", "pelvis markers missing").astype(object)
-    elif settings.lower in missing_level:
-        return np.full((F, 3), np.nan), np.full(F, missing_level[settings.lower], dtype=object)
+    elif "lower" in missing_level:
+        return np.full((F, 3), np.nan), np.full(F, missing_level["lower"], dtype=object)
     else:
-        sacral = at[settings.lower]
+        sacral = at["lower"]
         check_facing(sacral.frames, np.asarray(facing, float), source)
         frames = pelvis_frame_from_tape(sacral.frames, np.asarray(up, float), np.asarray(facing, float))
         note = sacral.notes.copy()

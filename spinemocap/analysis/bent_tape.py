@@ -30,9 +30,7 @@ def bent_tape_dots(tape: TapeSpec, rates_deg_per_mm: Rates, up=(0.0, 0.0, 1.0),
     Row 1 starts at ``origin_mm`` with the neutral frame of ``up``/``facing``."""
     graph = tape.graph
     v = np.arange(0.0, graph.uv_mm[:, 1].max() + step_mm, step_mm)
-    rates = np.asarray(rates_deg_per_mm(v[:-1]), float).reshape(-1, 3) * step_mm
-    increments = Rotation.from_euler("ZXY", np.column_stack([-rates[:, 0], rates[:, 1], rates[:, 2]]),
-                                     degrees=True).as_matrix()
+    increments = _increments(rates_deg_per_mm, v[:-1], step_mm)
     frames = np.empty((len(v), 3, 3))
     frames[0] = neutral_frame(np.asarray(up, float), np.asarray(facing, float))
     for k, inc in enumerate(increments):
@@ -40,6 +38,24 @@ def bent_tape_dots(tape: TapeSpec, rates_deg_per_mm: Rates, up=(0.0, 0.0, 1.0),
     points = np.asarray(origin_mm, float) + np.concatenate([[np.zeros(3)], np.cumsum(frames[:-1, :, 1] * step_mm, axis=0)])
     k = np.clip(np.rint(graph.uv_mm[:, 1] / step_mm).astype(int), 0, len(v) - 1)
     return points[k] + frames[k][:, :, 2] * graph.uv_mm[:, :1]
+
+
+def _increments(rates_deg_per_mm: Rates, v: np.ndarray, step_mm: float) -> np.ndarray:
+    """(n, 3, 3) local turns of the rod over the steps starting at ``v``."""
+    rates = np.asarray(rates_deg_per_mm(v), float).reshape(-1, 3) * step_mm
+    return Rotation.from_euler("ZXY", np.column_stack([-rates[:, 0], rates[:, 1], rates[:, 2]]),
+                               degrees=True).as_matrix()
+
+
+def relative_turn(rates_deg_per_mm: Rates, v_from: float, v_to: float, step_mm: float = 0.25) -> np.ndarray:
+    """(3, 3) rotation of the rod's frame at ``v_to`` relative to its frame at ``v_from``, in the
+    lower frame's (a, s, r) axes: what :func:`frames.cardan_angles` of the two frames decomposes.
+    (Turning about an axis that itself turns couples the axes: a laterally bent lordotic rod
+    also twists, so a single-axis rate does not give a single-axis relative angle.)"""
+    out = np.eye(3)
+    for inc in _increments(rates_deg_per_mm, np.arange(v_from, v_to - 1e-9, step_mm), step_mm):
+        out = out @ inc
+    return out
 
 
 def uniform_bend(v_from: float, v_to: float, angles_deg: np.ndarray,
@@ -51,5 +67,21 @@ def uniform_bend(v_from: float, v_to: float, angles_deg: np.ndarray,
     def rates(v: np.ndarray) -> np.ndarray:
         inside = ((v >= v_from) & (v < v_to)).astype(float)[:, None]
         return np.asarray(background, float) + inside * angles / (v_to - v_from)
+
+    return rates
+
+
+def smooth_bend(v_from: float, v_to: float, angles_deg: np.ndarray,
+                background: np.ndarray = np.zeros(3)) -> Rates:
+    """Rates that turn the rod by ``angles_deg`` in total over ``v_from..v_to`` mm with a
+    raised-cosine profile (zero at both ends, most in the middle), plus a constant
+    ``background`` rate: a bend without curvature steps, like a spine's."""
+    angles = np.asarray(angles_deg, float)
+    length = v_to - v_from
+
+    def rates(v: np.ndarray) -> np.ndarray:
+        x = np.clip((v - v_from) / length, 0.0, 1.0)
+        weight = ((v >= v_from) & (v < v_to)) * (1 - np.cos(2 * np.pi * x)) / length
+        return np.asarray(background, float) + weight[:, None] * angles
 
     return rates
