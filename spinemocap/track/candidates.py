@@ -1,0 +1,230 @@
+"""Stage 1: 3D candidate points from per-view blobs (paper section 3, the point cloud P).
+
+Blobs of every camera pair are matched along epipolar lines (fundamental matrices on undistorted
+pixels), triangulated, and kept when their reprojection error is below ``th1`` px in both views.
+Points closer than ``th2`` mm are then merged, round after round, when the merged point (re-
+triangulated from the union of their blobs) still reprojects below ``th1`` in every camera; this
+repeats until nothing merges. A dot seen by k cameras thus ends as one point with k views, while
+ghost points (wrong blob pairings along an epipolar line) usually keep only two.
+
+Deviation from the paper: a merged point is re-triangulated from all its blobs instead of taking
+the midpoint ``(p1 + p2) / 2``; with three or more views this is the more accurate estimate.
+Two points whose blobs differ in a camera they share are never merged (one blob is one dot).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..camera import Rig
+from .types import CandidateCloud, ViewDots
+
+
+@dataclass
+class CandidateConfig:
+    """``th1_px``: max reprojection error (undistorted px) of a candidate in each of its views;
+    ``th2_mm``: merge distance; ``epipolar_px``: max symmetric epipolar distance of a blob pair
+    before triangulation (a cheap pre-filter; ``None`` = 2 * th1); ``max_merge_rounds`` caps the
+    merge loop (it normally stops far earlier, when nothing merges); ``suppress_dominated``: drop a
+    point when one of its blobs also belongs to a point seen by more cameras (see
+    :func:`suppress_dominated`)."""
+
+    th1_px: float = 2.0
+    th2_mm: float = 6.0
+    epipolar_px: float | None = None
+    max_merge_rounds: int = 20
+    suppress_dominated: bool = True
+
+
+def fundamental_matrix(P1: np.ndarray, P2: np.ndarray) -> np.ndarray:
+    """F with ``x2^T F x1 = 0`` for (3, 4) projection matrices on undistorted pixels."""
+    _, _, vt = np.linalg.svd(P1)
+    c1 = vt[-1]  # camera-1 centre, homogeneous (null vector of P1)
+    e2 = P2 @ c1
+    e2x = np.array([[0, -e2[2], e2[1]], [e2[2], 0, -e2[0]], [-e2[1], e2[0], 0]])
+    return e2x @ P2 @ np.linalg.pinv(P1)
+
+
+def epipolar_distance(F: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """(N1, N2) symmetric epipolar distance (px, the larger of both directions) between undistorted
+    pixels ``x1`` (N1, 2) of camera 1 and ``x2`` (N2, 2) of camera 2."""
+    h1 = np.column_stack([x1, np.ones(len(x1))])
+    h2 = np.column_stack([x2, np.ones(len(x2))])
+    lines2 = h1 @ F.T  # (N1, 3) epipolar lines in image 2
+    lines1 = h2 @ F  # (N2, 3) epipolar lines in image 1
+    algebraic = h1 @ F.T @ h2.T  # (N1, N2) x2^T F x1
+    d2 = np.abs(algebraic) / np.linalg.norm(lines2[:, :2], axis=1, keepdims=True)
+    d1 = np.abs(algebraic) / np.linalg.norm(lines1[:, :2], axis=1)[None, :]
+    return np.maximum(d1, d2)
+
+
+def triangulate(P: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
+    """Batched linear (DLT) triangulation.
+
+    ``P`` (C, 3, 4) projection matrices; ``uv`` (N, C, 2) undistorted pixels; ``used`` (N, C) bool.
+    Returns (N, 3) world points (mm). Unused cameras contribute zero rows."""
+    rows_u = uv[:, :, 0:1] * P[None, :, 2, :] - P[None, :, 0, :]  # (N, C, 4)
+    rows_v = uv[:, :, 1:2] * P[None, :, 2, :] - P[None, :, 1, :]
+    A = np.concatenate([rows_u, rows_v], axis=1) * np.tile(used, (1, 2))[:, :, None]
+    # Scale rows for conditioning: world mm and pixels differ by orders of magnitude.
+    A /= np.maximum(np.linalg.norm(A, axis=2, keepdims=True), 1e-12)
+    _, _, vt = np.linalg.svd(A)
+    X = vt[:, -1, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return X[:, :3] / X[:, 3:4]
+
+
+def reprojection_errors(P: np.ndarray, points: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
+    """(N, C) reprojection error in undistorted px (NaN where unused or behind the camera)."""
+    Xh = np.column_stack([points, np.ones(len(points))])
+    proj = np.einsum("cij,nj->nci", P, Xh)  # (N, C, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        px = proj[:, :, :2] / proj[:, :, 2:3]
+        err = np.linalg.norm(px - uv, axis=2)
+    err[(proj[:, :, 2] <= 0) | ~used] = np.nan
+    return err
+
+
+class _Views:
+    """Undistorted blobs of all cameras of one frame, addressable by (camera, blob id)."""
+
+    def __init__(self, rig: Rig, views: Sequence[ViewDots]):
+        self.P = np.stack([cam.projection_matrix for cam in rig])
+        self.centers = np.stack([cam.center for cam in rig])
+        self.uv = [cam.undistort_points(v.uv) if len(v) else np.zeros((0, 2)) for cam, v in zip(rig, views)]
+        self.n_cameras = len(rig)
+
+    def gather(self, blob_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N, C) blob ids -> undistorted pixels (N, C, 2) and the used mask (N, C)."""
+        used = blob_ids >= 0
+        uv = np.zeros(blob_ids.shape + (2,))
+        for c in range(self.n_cameras):
+            rows = used[:, c]
+            if rows.any():
+                uv[rows, c] = self.uv[c][blob_ids[rows, c]]
+        return uv, used
+
+    def solve(self, blob_ids: np.ndarray, th1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Triangulate each row of blob ids; returns points (N, 3), RMS residual (N,) and a
+        validity mask (N,) = finite, in front of all used cameras, max error below th1."""
+        uv, used = self.gather(blob_ids)
+        points = triangulate(self.P, uv, used)
+        err = reprojection_errors(self.P, points, uv, used)
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(points).all(axis=1) & ~(np.isnan(err) & used).any(axis=1)
+            ok &= np.nanmax(np.where(used, err, 0.0), axis=1) < th1
+            rms = np.sqrt(np.nanmean(np.where(used, err**2, np.nan), axis=1))
+        return points, rms, ok
+
+    def normals(self, points: np.ndarray, blob_ids: np.ndarray) -> np.ndarray:
+        """Negative mean viewing direction of the contributing cameras (unit, toward them)."""
+        to_point = points[:, None, :] - self.centers[None, :, :]
+        to_point /= np.linalg.norm(to_point, axis=2, keepdims=True)
+        mean = -(to_point * (blob_ids >= 0)[:, :, None]).sum(axis=1)
+        return mean / np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
+
+
+def _pairwise_points(views: _Views, config: CandidateConfig) -> np.ndarray:
+    """Blob-id rows (N, C) of all two-view triangulations passing epipolar and th1 checks."""
+    epi_tol = config.epipolar_px if config.epipolar_px is not None else 2.0 * config.th1_px
+    rows = []
+    C = views.n_cameras
+    for a in range(C):
+        for b in range(a + 1, C):
+            if not len(views.uv[a]) or not len(views.uv[b]):
+                continue
+            F = fundamental_matrix(views.P[a], views.P[b])
+            ia, ib = np.nonzero(epipolar_distance(F, views.uv[a], views.uv[b]) < epi_tol)
+            ids = np.full((len(ia), C), -1, dtype=np.int64)
+            ids[:, a], ids[:, b] = ia, ib
+            rows.append(ids)
+    if not rows:
+        return np.zeros((0, C), dtype=np.int64)
+    ids = np.concatenate(rows)
+    _, _, ok = views.solve(ids, config.th1_px)
+    return ids[ok]
+
+
+def _merge_round(views: _Views, ids: np.ndarray, points: np.ndarray, config: CandidateConfig):
+    """One merge round: among point pairs closer than th2 without conflicting blobs and whose
+    merged point passes th1, merge every pair that is each endpoint's closest valid partner.
+    Returns the new (ids, points) and the number of merges."""
+    pairs = cKDTree(points).query_pairs(config.th2_mm, output_type="ndarray")
+    if not len(pairs):
+        return ids, points, 0
+    bi, bj = ids[pairs[:, 0]], ids[pairs[:, 1]]
+    conflict = ((bi >= 0) & (bj >= 0) & (bi != bj)).any(axis=1)
+    pairs, bi, bj = pairs[~conflict], bi[~conflict], bj[~conflict]
+    if not len(pairs):
+        return ids, points, 0
+    union = np.where(bi >= 0, bi, bj)
+    merged, _, ok = views.solve(union, config.th1_px)
+    pairs, union, merged = pairs[ok], union[ok], merged[ok]
+    if not len(pairs):
+        return ids, points, 0
+    # Mutual-best matching, vectorised: each point's closest valid partner.
+    dist = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
+    n = len(points)
+    best = np.full(n, np.inf)
+    np.minimum.at(best, pairs[:, 0], dist)
+    np.minimum.at(best, pairs[:, 1], dist)
+    take = (dist <= best[pairs[:, 0]]) & (dist <= best[pairs[:, 1]])
+    # Equal distances could let a point join two pairs; keep the first pair per point.
+    chosen = np.nonzero(take)[0]
+    endpoint_owner = np.full(n, -1)
+    for k in chosen[::-1]:  # reverse so the first pair wins; loop over chosen merges only
+        endpoint_owner[pairs[k]] = k
+    chosen = chosen[(endpoint_owner[pairs[chosen, 0]] == chosen) & (endpoint_owner[pairs[chosen, 1]] == chosen)]
+    keep = np.ones(n, dtype=bool)
+    keep[pairs[chosen].ravel()] = False
+    new_ids = np.concatenate([ids[keep], union[chosen]])
+    new_points = np.concatenate([points[keep], merged[chosen]])
+    return new_ids, new_points, len(chosen)
+
+
+def _unique_rows(ids: np.ndarray) -> np.ndarray:
+    return np.unique(ids, axis=0) if len(ids) else ids
+
+
+def suppress_dominated(ids: np.ndarray) -> np.ndarray:
+    """(N,) bool keep-mask: False for points sharing a blob with a point of more views.
+
+    One blob images one dot, so of two points using the same blob at most one is real; the one
+    confirmed by more cameras wins. This removes most two-view ghosts (wrong pairings along an
+    epipolar line) before the LP, which then only arbitrates between equals. A dot seen by only
+    two cameras keeps its point: its blobs belong to no better-supported point."""
+    n_views = (ids >= 0).sum(axis=1)
+    keep = np.ones(len(ids), dtype=bool)
+    for c in range(ids.shape[1]):
+        used = ids[:, c] >= 0
+        if not used.any():
+            continue
+        best = np.zeros(ids[:, c].max() + 1, dtype=np.int64)
+        np.maximum.at(best, ids[used, c], n_views[used])
+        keep[used] &= n_views[used] >= best[ids[used, c]]
+    return keep
+
+
+def build_candidates(rig: Rig, views: Sequence[ViewDots], config: CandidateConfig | None = None) -> CandidateCloud:
+    """The candidate cloud P of one frame: points (mm), normals, blob ids per camera, residuals."""
+    config = config or CandidateConfig()
+    if len(views) != len(rig):
+        raise ValueError(f"{len(views)} views for a rig of {len(rig)} cameras")
+    v = _Views(rig, views)
+    ids = _unique_rows(_pairwise_points(v, config))
+    points, _, _ = v.solve(ids, config.th1_px)
+    for _ in range(config.max_merge_rounds):
+        ids, points, n_merged = _merge_round(v, ids, points, config)
+        if n_merged == 0:
+            break
+        ids = _unique_rows(ids)
+        points, _, _ = v.solve(ids, config.th1_px)
+    if config.suppress_dominated and len(ids):
+        ids = ids[suppress_dominated(ids)]
+    points, residual, _ = v.solve(ids, config.th1_px) if len(ids) else (np.zeros((0, 3)), np.zeros(0), None)
+    normals = v.normals(points, ids) if len(ids) else np.zeros((0, 3))
+    return CandidateCloud(points=points.reshape(-1, 3), normals=normals, blob_ids=ids, residual=residual)

@@ -1,0 +1,127 @@
+"""One tracker configuration, composed of one section per pipeline stage, loadable from TOML.
+
+Example ``tracker.toml`` (every key optional; unknown keys are an error)::
+
+    [candidates]
+    th1_px = 2.0
+    th2_mm = 6.0
+    [edges]
+    drop_shared_blob = true
+    [lp]
+    time_limit_s = 10.0
+    [mrf1]
+    iterations = 12
+    [mrf2]
+    polish = true
+    [status]
+    observe_radius_mm = 7.0
+    [sequence]
+    skip_lp = true
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+
+from ..fileio import InputError, read_toml
+from .candidates import CandidateConfig
+from .edges import EdgeConfig
+from .lp import LPConfig
+from .mrf1 import MRF1Config
+from .mrf2 import MRF2Config
+
+
+@dataclass
+class EvidenceConfig:
+    """MRF2's image evidence: ``downscale`` of the cost images (1 = full resolution)."""
+
+    downscale: float = 1.0
+
+
+@dataclass
+class StatusConfig:
+    """Per-dot status: a model dot is ``observed`` when a candidate point of >= ``min_views``
+    cameras lies within ``observe_radius_mm``; its output position is that triangulated point when
+    ``use_triangulated`` (the blobs are the most direct measurement), else the model's."""
+
+    observe_radius_mm: float = 7.0
+    min_views: int = 2
+    use_triangulated: bool = True
+
+
+@dataclass
+class SequenceConfig:
+    """Beyond the paper: frame-to-frame tracking (``mode = "sequence"``).
+
+    ``skip_lp``: when the previous frame's dots, moved by their velocity, find candidate points
+    within ``match_radius_mm`` for at least ``min_explained`` of the dots, the LP and MRF1 are
+    skipped for that frame; ``refine_skipped`` runs MRF2 on such frames when dots are occluded;
+    ``warm_start``: MRF1 starts from the previous frame instead of the cubic template (off by
+    default: after a fast move the previous dots are too far for particle BP to travel); ``gap_fill_frames``: frames without a
+    solution between solved ones are interpolated in time up to this gap length;
+    ``smooth_inferred``: window (frames, odd) of a moving average over inferred stretches."""
+
+    skip_lp: bool = True
+    match_radius_mm: float = 8.0
+    min_explained: float = 0.75
+    refine_skipped: bool = True
+    warm_start: bool = False
+    gap_fill_frames: int = 10
+    smooth_inferred: int = 3
+
+
+_SECTIONS = {
+    "candidates": CandidateConfig,
+    "edges": EdgeConfig,
+    "lp": LPConfig,
+    "mrf1": MRF1Config,
+    "mrf2": MRF2Config,
+    "evidence": EvidenceConfig,
+    "status": StatusConfig,
+    "sequence": SequenceConfig,
+}
+
+
+@dataclass
+class TrackerConfig:
+    """All tracker thresholds and weights, one section per stage (see module docstring)."""
+
+    candidates: CandidateConfig = field(default_factory=CandidateConfig)
+    edges: EdgeConfig = field(default_factory=EdgeConfig)
+    lp: LPConfig = field(default_factory=LPConfig)
+    mrf1: MRF1Config = field(default_factory=MRF1Config)
+    mrf2: MRF2Config = field(default_factory=MRF2Config)
+    evidence: EvidenceConfig = field(default_factory=EvidenceConfig)
+    status: StatusConfig = field(default_factory=StatusConfig)
+    sequence: SequenceConfig = field(default_factory=SequenceConfig)
+    seed: int = 0
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str | None = None) -> "TrackerConfig":
+        unknown = set(data) - set(_SECTIONS) - {"seed"}
+        if unknown:
+            raise InputError(source, f"unknown tracker config sections {sorted(unknown)}; known: {sorted(_SECTIONS)}")
+        sections = {}
+        for name, kind in _SECTIONS.items():
+            values = data.get(name, {})
+            if not isinstance(values, dict):
+                raise InputError(source, f"[{name}] must be a table")
+            known = {f.name for f in dataclasses.fields(kind)}
+            bad = set(values) - known
+            if bad:
+                raise InputError(source, f"unknown keys {sorted(bad)} in [{name}]; known: {sorted(known)}")
+            values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+            try:
+                sections[name] = kind(**values)
+            except (TypeError, ValueError) as exc:
+                raise InputError(source, f"invalid [{name}] settings: {exc}") from exc
+        return cls(**sections, seed=int(data.get("seed", 0)))
+
+    @classmethod
+    def from_toml(cls, path: str | os.PathLike) -> "TrackerConfig":
+        return cls.from_dict(read_toml(path), source=str(path))
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)

@@ -1,0 +1,174 @@
+"""Sequence tracking, beyond the paper (its own future work): carry identities and state from
+frame to frame.
+
+Per frame (``mode = "sequence"``):
+1. predict every dot from the last two solved frames (constant velocity);
+2. if the predicted dots find candidate points (>= 2 views) within ``match_radius_mm`` for at
+   least ``min_explained`` of the dots, and the matched dots keep tape-like solid-edge lengths,
+   the previous solution "explains" the frame: the LP and MRF1 are skipped, matched dots take
+   their triangulated points and the others move with their observed tape neighbours
+   (displacements interpolated in the flat tape frame), then MRF2 refines on the images;
+3. otherwise the full per-frame pipeline runs with the previous dots handed to MRF1, which
+   orients the template by them (labels survive handstands) and warm-starts from them.
+After the sequence, short gaps (frames without a solution) are interpolated in time and
+inferred stretches smoothed (:func:`fill_and_smooth`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .config import SequenceConfig
+from .edges import edge_bounds
+from .pipeline import FrameResult, FrameTracker, _Timer, match_points
+from .types import CandidateCloud, ViewDots
+
+
+class SequenceTracker:
+    """Stateful wrapper around a :class:`FrameTracker`; call :meth:`step` once per frame."""
+
+    def __init__(self, tracker: FrameTracker):
+        self.tracker = tracker
+        self.config: SequenceConfig = tracker.config.sequence
+        self.last: np.ndarray | None = None  # (D, 3) dots of the last solved frame
+        self.before_last: np.ndarray | None = None
+        self.uv = tracker.graph.uv_mm
+        self.solid = tracker.graph.solid_edges
+        self.bounds = edge_bounds(tracker.tape, tracker.config.edges)
+
+    def predict(self) -> np.ndarray:
+        """Constant-velocity prediction (mm) from the last two solved frames."""
+        if self.before_last is None:
+            return self.last.copy()
+        velocity = np.nan_to_num(self.last - self.before_last)
+        return self.last + velocity
+
+    def step(self, views: list[ViewDots], stage_ms: dict) -> FrameResult:
+        timer = _Timer(stage_ms)
+        with timer("candidates"):
+            cloud = self.tracker.candidates(views)
+        result = None
+        if self.last is not None and self.config.skip_lp:
+            result = self._carry(views, cloud, timer)
+        if result is None:
+            result = self._solve_full(views, cloud, stage_ms)
+        result.stage_ms = stage_ms
+        self._remember(result)
+        return result
+
+    # ------------------------------------------------------------------ routes
+    def _solve_full(self, views, cloud: CandidateCloud, stage_ms: dict) -> FrameResult:
+        tracker = self.tracker
+        if self.last is None or not self.config.warm_start:
+            return tracker.solve(views, previous=self.last, cloud=cloud, stage_ms=stage_ms)
+        base = tracker.config
+        tracker.config = dataclasses.replace(base, mrf1=dataclasses.replace(base.mrf1, warm_start=True))
+        try:
+            return tracker.solve(views, previous=self.last, cloud=cloud, stage_ms=stage_ms)
+        finally:
+            tracker.config = base
+
+    def _carry(self, views, cloud: CandidateCloud, timer: _Timer) -> FrameResult | None:
+        """The previous solution moved onto this frame's points, or None if it does not fit."""
+        with timer("status"):
+            predicted = self.predict()
+            usable = np.nonzero(cloud.n_views >= 2)[0] if len(cloud) else np.zeros(0, np.int64)
+            match = match_points(predicted, cloud.points[usable], self.config.match_radius_mm)
+            seen = match >= 0
+            if seen.mean() < self.config.min_explained:
+                return None
+            positions = predicted.copy()
+            positions[seen] = cloud.points[usable[match[seen]]]
+            if not self._tape_like(positions, seen):
+                return None
+            positions[~seen] = self._follow_neighbours(positions, predicted, seen)
+        if (~seen).any() and self.config.refine_skipped:
+            with timer("mrf2"):
+                positions = self.tracker.refine(positions, views, cloud.points[usable])
+        with timer("status"):
+            result = self.tracker.assign_status(positions, cloud)
+        result.route, result.lp_status = "carried", "skipped"
+        return result
+
+    def _tape_like(self, positions: np.ndarray, seen: np.ndarray) -> bool:
+        """Solid edges between matched dots all have lengths within (th3, th4)."""
+        both = seen[self.solid[:, 0]] & seen[self.solid[:, 1]]
+        if not both.any():
+            return False
+        e = self.solid[both]
+        lengths = np.linalg.norm(positions[e[:, 0]] - positions[e[:, 1]], axis=1)
+        return bool(((lengths > self.bounds[0]) & (lengths < self.bounds[1])).all())
+
+    def _follow_neighbours(self, positions, predicted, seen, sigma_mm: float = 30.0) -> np.ndarray:
+        """Unmatched dots: prediction plus the matched dots' corrections, Gaussian-weighted by
+        distance on the flat tape (mm)."""
+        correction = positions[seen] - predicted[seen]
+        d2 = ((self.uv[~seen][:, None, :] - self.uv[seen][None, :, :]) ** 2).sum(axis=2)
+        w = np.exp(-0.5 * d2 / sigma_mm**2)
+        w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
+        return predicted[~seen] + w @ correction
+
+    def _remember(self, result: FrameResult) -> None:
+        if not result.solved:
+            self.before_last = None  # velocity across a gap is unknown
+            return
+        self.before_last = self.last
+        self.last = result.positions.copy()
+
+
+def fill_and_smooth(positions: np.ndarray, status: np.ndarray, config: SequenceConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Post-process a tracked sequence (F, D, 3) / (F, D): interpolate gaps of up to
+    ``gap_fill_frames`` frames linearly in time (status ``inferred``), then replace inferred
+    samples by a centred moving average of width ``smooth_inferred`` over the finite samples."""
+    positions, status = positions.copy(), status.copy()
+    F = len(positions)
+    frames = np.arange(F)
+    for d in range(positions.shape[1]):
+        finite = np.isfinite(positions[:, d]).all(axis=1)
+        if finite.sum() < 2 or finite.all():
+            continue
+        gaps = _short_gaps(finite, config.gap_fill_frames)
+        if gaps.any():
+            for k in range(3):
+                positions[gaps, d, k] = np.interp(frames[gaps], frames[finite], positions[finite, d, k])
+            status[gaps, d] = "inferred"
+    w = int(config.smooth_inferred)
+    if w >= 3 and F >= w:
+        positions = _smooth_inferred(positions, status, w)
+    return positions, status
+
+
+def _short_gaps(finite: np.ndarray, max_len: int) -> np.ndarray:
+    """(F,) bool: non-finite frames inside runs of <= max_len bounded by finite frames."""
+    out = np.zeros_like(finite)
+    F, f = len(finite), 0
+    while f < F:
+        if finite[f]:
+            f += 1
+            continue
+        start = f
+        while f < F and not finite[f]:
+            f += 1
+        if start > 0 and f < F and f - start <= max_len:
+            out[start:f] = True
+    return out
+
+
+def _smooth_inferred(positions: np.ndarray, status: np.ndarray, w: int) -> np.ndarray:
+    half = w // 2
+    padded = np.pad(positions, ((half, half), (0, 0), (0, 0)), mode="edge")
+    finite = np.isfinite(padded).all(axis=2, keepdims=True)
+    csum = np.cumsum(np.where(finite, padded, 0.0), axis=0)
+    ccount = np.cumsum(finite, axis=0)
+    csum = np.concatenate([np.zeros_like(csum[:1]), csum])
+    ccount = np.concatenate([np.zeros_like(ccount[:1]), ccount])
+    total = csum[w:] - csum[:-w]
+    count = ccount[w:] - ccount[:-w]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = total / count
+    out = positions.copy()
+    pick = (status == "inferred") & np.isfinite(mean).all(axis=2)
+    out[pick] = mean[pick]
+    return out
