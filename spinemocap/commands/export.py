@@ -104,3 +104,20 @@ def run_export(args: argparse.Namespace) -> int:
     print(f"{written}: {table.n_frames} frames x {len(table.labels)} markers at {table.fps:g} Hz "
           f"({share['observed']:.0%} observed, {share['inferred']:.0%} inferred, {share['missing']:.0%} missing)")
     return 0
+
+
+def register_bench(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "export", help="exporters: TRC/C3D/CSV/Parquet write and read times, against OpenSim and ezc3d")
+    p.add_argument("--frames", type=int, default=548, help="frames (paper's artificial sequence: 548)")
+    p.add_argument("--markers", type=int, default=32, help="markers (paper's tape: 32 dots)")
+    p.add_argument("--repeat", type=int, default=5, help="timed repetitions (median reported)")
+    p.add_argument("--out", type=Path, default=Path("bench_out/export"), help="folder for the JSON numbers")
+    p.set_defaults(func=run_bench_export)
+
+
+def run_bench_export(args: argparse.Namespace) -> int:
+    from exporters.benchmark import run_export_benchmark
+
+    run_export_benchmark(args.frames, args.markers, args.repeat, args.out)
+    return 0
