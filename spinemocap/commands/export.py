@@ -66,6 +66,8 @@ def _accepted(exporter) -> set[str] | None:
 
 def _options(args: argparse.Namespace, fmt: str, source: Path) -> dict:
     """The options the user gave, checked against what the chosen exporter accepts."""
+    if args.forward and not args.opensim_axes:
+        raise InputError(source, "--forward only applies with --opensim-axes")
     given = {"units": args.units, "opensim_axes": args.opensim_axes or None, "forward": args.forward,
              "reference": args.reference}
     given = {k: v for k, v in given.items() if v is not None}
