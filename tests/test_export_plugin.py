@@ -90,7 +90,7 @@ def test_cli_export_with_plugin_and_bad_flags(lab_plugin, tmp_path, capsys):
     assert (tmp_path / "markers.labjson").is_file()
     assert main(["export", str(src), "--format", "c3d", "--opensim-axes"]) == 2
     assert "--opensim-axes does not apply to the c3d format" in capsys.readouterr().err
-    assert main(["export", str(src), "--format", "trc", "--forward", "-y"]) == 2
+    assert main(["export", str(src), "--format", "trc", "--forward=-y"]) == 2
     assert "--forward only applies with --opensim-axes" in capsys.readouterr().err
     assert main(["export", str(tmp_path / "nothing")]) == 2
     assert main(["export", "--list-formats"]) == 0

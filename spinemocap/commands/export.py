@@ -28,7 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--opensim-axes", action="store_true",
                    help="TRC: rotate from our Z-up lab frame to OpenSim's Y-up frame (stated in the header)")
     p.add_argument("--forward", default=None, choices=("+x", "-x", "+y", "-y"),
-                   help="with --opensim-axes: lab axis the subject faces, becomes OpenSim +X (default +x)")
+                   help="with --opensim-axes: lab axis the subject faces, becomes OpenSim +X "
+                        "(default +x; write --forward=-y)")
     p.add_argument("--reference", type=Path, default=None,
                    help="C3D: reference/ground-truth marker file written alongside with a label prefix")
     p.add_argument("--reference-prefix", default="REF_", help="label prefix of --reference markers")
