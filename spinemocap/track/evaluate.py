@@ -1,0 +1,116 @@
+"""Tracking accuracy against ground truth (synthetic studio), and the paper's plane baselines.
+
+Errors are Euclidean distances (mm) between tracked and true dot centres, split by status
+(``observed`` / ``inferred``). A *label swap* is a tracked dot-frame that lies nearer another
+dot's true position than its own (and more than half the smallest dot spacing from its own):
+its label is wrong, whatever the geometry. *Frames without a solution* have every dot missing.
+
+Plane baselines (paper experiment 1, Table 1): planes fitted (least squares) to the 8 skin
+keypoints beside the spine (4 levels x left/right, ordered from the sacral end):
+1 plane = all 8; 2 planes = lower and upper 4 (levels 1-2, 3-4); 3 planes = levels 1-2, 2-3 and
+3-4 (overlapping thirds: a plane needs 3+ non-collinear points, and two levels give four).
+Each true dot is measured to the plane of its segment along the spine (the segment whose
+keypoint centroid is nearest), as a point-to-plane distance; the mean over dot-frames is the
+one-sided Hausdorff distance the paper reports.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..markers import MarkerTable
+
+PLANE_GROUPS = {
+    1: [[0, 1, 2, 3, 4, 5, 6, 7]],
+    2: [[0, 1, 2, 3], [4, 5, 6, 7]],
+    3: [[0, 1, 2, 3], [2, 3, 4, 5], [4, 5, 6, 7]],
+}
+
+
+def _stats(values: np.ndarray) -> dict[str, float]:
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return {"n": 0, "mean": float("nan"), "median": float("nan"), "p95": float("nan"), "max": float("nan")}
+    return {"n": int(len(values)), "mean": float(values.mean()), "median": float(np.median(values)),
+            "p95": float(np.percentile(values, 95)), "max": float(values.max())}
+
+
+def label_swaps(positions: np.ndarray, truth: np.ndarray, min_spacing_mm: float) -> np.ndarray:
+    """(F, D) bool: tracked dot nearer another true dot than its own and > spacing/2 from it."""
+    d = np.linalg.norm(positions[:, :, None, :] - truth[:, None, :, :], axis=3)  # (F, D, D)
+    own = np.einsum("fdd->fd", d)
+    d_other = d.copy()
+    idx = np.arange(d.shape[1])
+    d_other[:, idx, idx] = np.inf
+    with np.errstate(invalid="ignore"):
+        return (np.nanmin(np.where(np.isfinite(d_other), d_other, np.inf), axis=2) < own) & (own > min_spacing_mm / 2)
+
+
+def fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares plane through (N, 3) points: (centroid, unit normal)."""
+    c = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - c)
+    return c, vt[-1]
+
+
+def plane_baseline(dots: np.ndarray, keypoints: np.ndarray, n_planes: int) -> np.ndarray:
+    """(F, D) distances (mm) of the true dots to the ``n_planes`` keypoint planes (see module)."""
+    groups = PLANE_GROUPS[n_planes]
+    F, D = dots.shape[:2]
+    out = np.full((F, D), np.nan)
+    for f in range(F):
+        planes = [fit_plane(keypoints[f, g]) for g in groups]
+        centroids = np.stack([c for c, _ in planes])
+        seg = np.argmin(np.linalg.norm(dots[f][:, None, :] - centroids[None], axis=2), axis=1)
+        for k, (c, n) in enumerate(planes):
+            on = seg == k
+            out[f, on] = np.abs((dots[f, on] - c) @ n)
+    return out
+
+
+def views_histogram(visible: np.ndarray) -> dict[str, int]:
+    """(F, C, D) visibility -> dot-frames seen by exactly C, C-1, ..., 0 cameras."""
+    count = visible.sum(axis=1)
+    C = visible.shape[1]
+    return {f"{k} cameras": int((count == k).sum()) for k in range(C, -1, -1)}
+
+
+def evaluate_tracking(table: MarkerTable, groundtruth: dict, tape_min_spacing_mm: float,
+                      stage_ms: dict[str, float] | None = None) -> dict:
+    """All accuracy numbers of a tracked sequence vs the ground truth dict of the synthetic
+    studio (``dots`` (F, D, 3), ``visible`` (F, C, D), optional ``keypoints`` (F, 8, 3)); the
+    table's frames index the ground truth. Keys are the JSON keys of ``spinemocap bench track``."""
+    arrays = table.to_arrays()
+    frames = arrays["frames"]
+    labels = list(arrays["labels"])
+    gt_labels = [str(x) for x in groundtruth.get("labels", labels)]
+    order = [gt_labels.index(lab) for lab in labels]
+    truth = np.asarray(groundtruth["dots"], float)[frames][:, order]
+    pos, status = arrays["positions"], arrays["status"]
+    err = np.linalg.norm(pos - truth, axis=2)
+    tracked = status != "missing"
+    swaps = label_swaps(pos, truth, tape_min_spacing_mm) & tracked
+    result = {
+        "frames": int(len(frames)),
+        "dots": int(len(labels)),
+        "mean_error_mm": _stats(err[tracked])["mean"],
+        "median_error_mm": _stats(err[tracked])["median"],
+        "p95_error_mm": _stats(err[tracked])["p95"],
+        "max_error_mm": _stats(err[tracked])["max"],
+        "observed": _stats(err[status == "observed"]),
+        "inferred": _stats(err[status == "inferred"]),
+        "status_counts": {s: int((status == s).sum()) for s in ("observed", "inferred", "missing")},
+        "label_swaps": int(swaps.sum()),
+        "frames_with_swaps": int(swaps.any(axis=1).sum()),
+        "frames_without_solution": int((~tracked).all(axis=1).sum()),
+    }
+    if "visible" in groundtruth:
+        result["visibility_histogram"] = views_histogram(np.asarray(groundtruth["visible"])[frames][:, :, order])
+    if "keypoints" in groundtruth:
+        kp = np.asarray(groundtruth["keypoints"], float)[frames]
+        result["plane_baselines_mm"] = {f"{n}-plane": float(np.nanmean(plane_baseline(truth, kp, n)))
+                                        for n in (1, 2, 3)}
+    if stage_ms is not None:
+        result["stage_ms"] = {k: float(v) for k, v in stage_ms.items()}
+        result["total_ms_per_frame"] = float(sum(stage_ms.values()))
+    return result
