@@ -110,7 +110,7 @@ class MarkerTable:
     def labels(self) -> list[str]:
         """Marker labels in their declared order (``meta['labels']``) or first-seen order."""
         declared = self.meta.get("labels")
-        present = list(dict.fromkeys(self.data["label"]))
+        present = list(pd.unique(self.data["label"]))
         if declared and set(declared) == set(present):
             return list(declared)
         return present
