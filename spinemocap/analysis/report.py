@@ -194,8 +194,8 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
     n_ok = int((trials["status"] == "ok").sum())
     parts = [f"<h1>{html.escape(title or 'Spine angles: ' + out.name)}</h1>",
              f"<p class='note'>{len(trials)} trials, {n_ok} analysed, {len(trials) - n_ok} failed. "
-             f"Generated {_dt.datetime.now():%Y-%m-%d %H:%M}. Angles in degrees: lumbar = T12/L1 "
-             "relative to S1 on the tape's midline; flexion positive forward, lateral bending "
+             f"Generated {_dt.datetime.now():%Y-%m-%d %H:%M}. Angles in degrees: lumbar = "
+             f"{html.escape(_lumbar_levels(results))} on the tape's midline; flexion positive forward, lateral bending "
              "positive to the subject's right, axial rotation positive to the subject's left. "
              "Peak extension is the smallest flexion angle (negative = extended). "
              "Tables: summary.csv, summary_by_subject.csv, summary_by_condition.csv, summary.xlsx.</p>"]
@@ -229,6 +229,11 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
     return paths
 
 
+def _lumbar_levels(results: list[dict]) -> str:
+    pairs = {tuple(r["lumbar_levels"]) for r in results if r.get("lumbar_levels")}
+    return "; ".join(f"{hi} relative to {lo}" for lo, hi in sorted(pairs)) or "T12/L1 relative to S1"
+
+
 def _write_tables(out: Path, trials: pd.DataFrame, by_subject: pd.DataFrame, by_condition: pd.DataFrame,
                   problems: pd.DataFrame) -> dict[str, Path]:
     paths = {"csv": out / "summary.csv", "by_subject": out / "summary_by_subject.csv",
@@ -243,3 +248,36 @@ def _write_tables(out: Path, trials: pd.DataFrame, by_subject: pd.DataFrame, by_
             by_condition.to_excel(writer, sheet_name="by_condition", index=False)
             problems.to_excel(writer, sheet_name="problems", index=False)
     return paths
+
+
+def report_capture(capture_dir: str | os.PathLike, out: str | os.PathLike,
+                   markers_csv: str | os.PathLike | None = None, progress: bool = False) -> dict[str, Path]:
+    """Angles and report for a single capture (``spinemocap demo``'s last step).
+
+    Uses ``markers_csv`` (the tracker's output) when given, else the capture's ground truth.
+    The lumbar angle runs from the lowest level the level map places on the tape (S1 when the
+    tape starts there) to T12/L1."""
+    import shutil
+
+    from .angles import AngleSettings
+    from .batch import MARKERS, discover, run_batch, trial_out_dir
+    from .levels import LevelMap
+
+    out = Path(out)
+    (trial,) = discover(capture_dir)
+    source = "groundtruth"
+    if markers_csv is not None and Path(markers_csv).is_file():
+        target = trial_out_dir(out, trial) / MARKERS
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(markers_csv, target)  # newer than the capture: the batch reuses it
+        os.utime(target)
+        source = "tracked"
+    lower = "S1"
+    gt = Path(capture_dir) / "groundtruth.npz"
+    if gt.is_file():
+        with np.load(gt, allow_pickle=False) as data:
+            if "row_levels" in data:
+                names = [str(x) for x in data["row_levels"]]
+                lower = next(iter(LevelMap.from_row_levels(names, len(names)).rows))
+    run_batch(capture_dir, out, source=source, workers=1, settings=AngleSettings(lower=lower), progress=progress)
+    return write_report(out, title=f"Spine angles: {Path(capture_dir).name}")

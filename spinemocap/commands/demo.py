@@ -47,8 +47,19 @@ def step_synthesize(ctx: DemoContext) -> None:
     ctx.report("ground truth", ctx.capture_dir / "groundtruth.npz")
 
 
+def step_report(ctx: DemoContext) -> None:
+    """Spine angles and their report (HTML with plots, CSV, XLSX) for the capture."""
+    from spinemocap.analysis.report import report_capture
+
+    tracked = next((p for _, p in reversed(ctx.outputs) if p.name == "markers.csv"), None)
+    paths = report_capture(ctx.capture_dir, ctx.out / "report", markers_csv=tracked)
+    ctx.report("angle report", paths["html"])
+    ctx.report("angle tables", paths["xlsx"])
+
+
 STEPS: list[Callable[[DemoContext], None]] = [
     step_synthesize,
+    step_report,  # last: reports on the markers of the steps before
 ]
 
 
