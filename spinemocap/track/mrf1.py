@@ -45,7 +45,7 @@ class MRF1Config:
     d_bounds: tuple[float, float] = (0.7, 1.4)  # plausible local stretch
     particles: int = 8
     slice_particles: int = 6
-    iterations: int = 12
+    iterations: int = 8
     sweeps: int = 6
     damping: float = 0.3
     knn: int = 3

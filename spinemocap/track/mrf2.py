@@ -44,9 +44,9 @@ class MRF2Config:
     theta8: float = 0.002  # edge length vs rest length
     facing_cos: float = 0.05  # a camera sees a dot when cos(normal, dot->camera) exceeds this
     image_margin_px: float = 2.0
-    particles: int = 6
-    slice_particles: int = 6
-    iterations: int = 8
+    particles: int = 4
+    slice_particles: int = 4
+    iterations: int = 4
     sweeps: int = 5
     damping: float = 0.3
     slice_width_mm: float = 3.0
@@ -57,6 +57,10 @@ class MRF2Config:
     polish: bool = True  # beyond the paper: L-BFGS on the same energy after particle BP
     polish_steps: int = 3
     polish_max_step_mm: float = 3.0  # per-dot move limit of the polish from the PBP result
+    # The images show the holes' rims on the tape's top surface; the dot a user wants (and the
+    # synthetic ground truth) is the skin point underneath, one tape thickness further in.
+    # Set to the tape's thickness (the synthetic studio's tape: 0.8 mm) to report skin points.
+    tape_thickness_mm: float = 0.0
 
     def pbp(self) -> PBPConfig:
         return PBPConfig(
@@ -134,6 +138,7 @@ class RefinementMRF:
         self.points = None if feasible_points is None or len(feasible_points) == 0 else np.asarray(feasible_points, float)
         n_cam = len(rig)
         self.visible = torch.zeros((tape.n_dots, n_cam), dtype=torch.float64)
+        self.unary_weight = torch.zeros((tape.n_dots, n_cam), dtype=torch.float64)
         self.edge_visible = torch.zeros((len(self.edges), n_cam), dtype=torch.float64)
         self.edge_normal = torch.zeros((len(self.edges), 3), dtype=torch.float64)
         self.edge_alpha = torch.zeros((len(self.edges), 3), dtype=torch.float64)
@@ -146,6 +151,12 @@ class RefinementMRF:
         self.visible = torch.from_numpy(self.visibility(state, normal).astype(np.float64))
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
         self.edge_visible = self.visible[e0] * self.visible[e1]
+        # theta5's I(x_s) + I(x_t) depend on one node each: they are summed into the unary
+        # weights (same energy, and the pairwise tables then only sample the midpoints)
+        contrast = torch.zeros_like(self.visible)
+        contrast.index_add_(0, torch.from_numpy(e0), self.edge_visible)
+        contrast.index_add_(0, torch.from_numpy(e1), self.edge_visible)
+        self.unary_weight = self.visible + self.config.theta5 * contrast
         n_e = normal[e0] + normal[e1]
         n_e /= np.maximum(np.linalg.norm(n_e, axis=1, keepdims=True), 1e-12)
         expected = self.duv[:, :1] * (across[e0] + across[e1]) + self.duv[:, 1:] * (along[e0] + along[e1])
@@ -174,20 +185,18 @@ class RefinementMRF:
         return self.stack.sample_torch(uv.reshape(uv.shape[0], -1, 2)).reshape(uv.shape[:-1])
 
     def unary_t(self, x: torch.Tensor) -> torch.Tensor:
-        """x (D, Q, 3) -> (D, Q)."""
+        """x (D, Q, 3) -> (D, Q): Eq. 10 plus theta5's per-node part of Eq. 11."""
         costs = self.image_costs(x)  # (C, D, Q)
-        return (costs * self.visible.T[:, :, None]).sum(dim=0)
+        return (costs * self.unary_weight.T[:, :, None]).sum(dim=0)
 
     def pairwise_t(self, xs: torch.Tensor, xt: torch.Tensor, edge_index: torch.Tensor) -> torch.Tensor:
-        """xs (M, Qs, 3), xt (M, Qt, 3) -> (M, Qs, Qt)."""
+        """xs (M, Qs, 3), xt (M, Qt, 3) -> (M, Qs, Qt). The theta5 terms at the nodes themselves
+        live in :meth:`unary_t`; here only the midpoint's ``-2 theta5 I_c(x_st)``."""
         c = self.config
         vis = self.edge_visible[edge_index].T  # (C, M)
         p = xs[:, :, None, :] - xt[:, None, :, :]
         mid = 0.5 * (xs[:, :, None, :] + xt[:, None, :, :])
-        i_s = self.image_costs(xs)[:, :, :, None]
-        i_t = self.image_costs(xt)[:, :, None, :]
-        i_m = self.image_costs(mid)
-        contrast = ((i_s + i_t - 2 * i_m) * vis[:, :, None, None]).sum(dim=0)
+        contrast = -2.0 * (self.image_costs(mid) * vis[:, :, None, None]).sum(dim=0)
         length = torch.sqrt((p * p).sum(dim=3) + 1e-12)
         along_normal = (p * self.edge_normal[edge_index][:, None, None, :]).sum(dim=3)
         off_axis = (p * self.edge_alpha[edge_index][:, None, None, :]).sum(dim=3)
@@ -288,9 +297,11 @@ def refine_mrf2(
 
     ``evidence``: one :class:`EvidenceImage` per rig camera (None where a camera has no image).
     ``normals`` (D, 3): outward dot normals for the facing test; default: from the dots' tape
-    frames. ``feasible_points`` (K, 3): optional P_knn proposals. ``energy_history``: the energy
-    after each PBP iteration, then after each polish step. ``extra``: ``visible`` (D, C) bool
-    (cameras used per dot), ``pbp_positions`` (D, 3), ``polish_history``."""
+    frames. ``feasible_points`` (K, 3): optional P_knn proposals. Returned positions are moved
+    ``config.tape_thickness_mm`` inward along the dots' normals (tape surface -> skin).
+    ``energy_history``: the energy after each PBP iteration, then after each polish step.
+    ``extra``: ``visible`` (D, C) bool (cameras used per dot), ``pbp_positions`` (D, 3, on the
+    tape surface), ``polish_history``."""
     with _torch_single_thread():
         return _refine(positions, tape, rig, evidence, config or MRF2Config(), normals, rng, feasible_points)
 
@@ -306,8 +317,9 @@ def _refine(positions, tape, rig, evidence, config, normals, rng, feasible_point
         state, polish_history = model.polish(state, config.polish_steps, config.polish_max_step_mm)
         history += polish_history
     model.prepare(state)
+    skin = state - config.tape_thickness_mm * tape_frames(state, tape)[0]
     return MRFResult(
-        positions=state,
+        positions=skin,
         energy_history=history,
         extra={
             "visible": model.visible.numpy() > 0,
