@@ -185,6 +185,7 @@ def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
         "duration_s": float(len(result.table) / fps),
         "completeness_pct": 100.0 * result.completeness,
         "levels": levels.rows, "levels_from": levels_from,
+        "lumbar_levels": [job.settings.lower, job.settings.thoracolumbar],
         "pelvis_from": "c3d" if pelvis is not None else "tape",
         "notes": result.notes,
         "stats": result.summary(),
@@ -232,7 +233,7 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
         except ImportError as exc:
             raise InputError(capture.root, f"the tracker is not available in this installation ({exc}); "
                              "use --source groundtruth for synthetic captures") from exc
-        track_capture(capture.root, Path(job.out_dir), mode="sequence")
+        track_capture(capture.root, Path(job.out_dir), mode="sequence", progress=False)
     return read_markers_csv(path)
 
 

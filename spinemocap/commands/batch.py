@@ -28,6 +28,9 @@ def register(subparsers) -> None:
     p.add_argument("--force", action="store_true", help="redo trials whose results are up to date")
     p.add_argument("--lowpass-hz", type=float, default=10.0,
                    help="low-pass cut-off for the tape's row tracks, Hz (0 = off; default 10)")
+    p.add_argument("--lumbar", nargs=2, metavar=("LOWER", "UPPER"), default=("S1", "T12/L1"),
+                   help="levels bounding the lumbar angles (default S1 T12/L1)")
+    p.add_argument("--upper-level", help="top of the thoracic angles (default: the level map's top level)")
     p.add_argument("--report", action="store_true", help="write the HTML/CSV/XLSX report afterwards")
     p.set_defaults(func=run)
 
@@ -36,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
     from ..analysis.angles import AngleSettings
     from ..analysis.batch import run_batch
 
-    settings = AngleSettings(lowpass_hz=args.lowpass_hz or None)
+    settings = AngleSettings(lower=args.lumbar[0], thoracolumbar=args.lumbar[1], upper=args.upper_level,
+                             lowpass_hz=args.lowpass_hz or None)
     result = run_batch(args.root, args.out, source=args.source, workers=args.workers,
                        scheduler=args.scheduler, levels_file=args.levels, settings=settings,
                        force=args.force, progress=not args.quiet)
