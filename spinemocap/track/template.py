@@ -76,7 +76,8 @@ class SpineCurve:
 @dataclass
 class Template:
     """Template dot positions (D, 3) mm in label order, with its outward normals (D, 3), the
-    curve, the orientation (+1: row 1 at the curve's low-arc end) and the offset ``s0`` (mm)."""
+    curve, the orientation (+1: row 1 at the curve's low-arc end; 0: carried from a complete
+    previous frame without a curve) and the offset ``s0`` (mm)."""
 
     positions: np.ndarray
     normals: np.ndarray
@@ -139,8 +140,13 @@ def build_template(
 
     ``up`` (3,): the subject's up direction (used when ``previous`` is None; default world +Z).
     ``previous`` (D, 3): the last frame's labelled dots (NaN rows allowed); it fixes the
-    orientation, and with ``warm_start`` its finite rows are used as the template directly."""
+    orientation, and with ``warm_start`` its finite rows, rigidly aligned to the points
+    (:func:`align_rigidly`), are the template."""
     points = np.asarray(points, dtype=float).reshape(-1, 3)
+    if warm_start and previous is not None and np.isfinite(previous).all():
+        # identity and shape are carried whole: no curve needed (orientation 0 = carried)
+        positions = align_rigidly(np.asarray(previous, dtype=float), points)
+        return Template(positions, tape_frames(positions, tape)[0], None, 0, float("nan"))
     field = field if field is not None else NormalField(points, normals)
     span = float(tape.uv_mm[:, 1].max())
     curve = SpineCurve(points, extension_mm=span + 50.0)
@@ -164,9 +170,39 @@ def build_template(
     if prev_ok and warm_start:
         finite = np.isfinite(previous).all(axis=1)
         positions = positions.copy()
-        positions[finite] = previous[finite]
+        positions[finite] = align_rigidly(previous[finite], points)
         node_normals = tape_frames(positions, tape)[0]
     return Template(positions=positions, normals=node_normals, curve=curve, orientation=orientation, offset_mm=s0)
+
+
+def _kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R and translation t minimising |R src + t - dst|^2 (rows are points)."""
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    u, _, vt = np.linalg.svd((src - cs).T @ (dst - cd))
+    flip = np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
+    rot = vt.T @ flip @ u.T
+    return rot, cd - rot @ cs
+
+
+def align_rigidly(dots: np.ndarray, points: np.ndarray, iterations: int = 12, inlier_mm: float = 12.0) -> np.ndarray:
+    """Move labelled dots (N, 3) rigidly onto the feasible points (K, 3) by trimmed ICP: each
+    iteration pairs every dot with its nearest point, keeps pairs closer than a threshold that
+    shrinks to ``inlier_mm``, and solves the rigid fit (translation only with < 3 pairs). The
+    last frame's dots thus follow the body's motion before MRF1 refines them."""
+    tree = cKDTree(points)
+    rot, shift = np.eye(3), np.zeros(3)
+    for it in range(iterations):
+        moved = dots @ rot.T + shift
+        dist, idx = tree.query(moved)
+        limit = max(inlier_mm, 4 * inlier_mm * (1 - it / max(iterations - 1, 1)))
+        pairs = dist < limit
+        if pairs.sum() == 0:
+            break
+        if pairs.sum() < 3:
+            shift = shift + (points[idx[pairs]] - moved[pairs]).mean(axis=0)
+            continue
+        rot, shift = _kabsch(dots[pairs], points[idx[pairs]])
+    return dots @ rot.T + shift
 
 
 def tape_frames(positions: np.ndarray, tape: TapeGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
