@@ -144,8 +144,11 @@ def _group_plot(trials: pd.DataFrame) -> str | None:
         ax.set_title(label, fontsize=9)
         ax.set_xlabel("")
         ax.tick_params(labelsize=8)
-    if axes[0].get_legend():
-        axes[0].legend(title="condition", fontsize=7, title_fontsize=7)
+    handles, labels = axes[0].get_legend_handles_labels()
+    if any(label.strip() for label in labels):
+        axes[0].legend(handles, labels, title="condition", fontsize=7, title_fontsize=7)
+    elif axes[0].get_legend():
+        axes[0].get_legend().remove()
     fig.tight_layout()
     return _png(fig)
 
