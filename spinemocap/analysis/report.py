@@ -133,7 +133,7 @@ def _trial_plot(angles: pd.DataFrame) -> str:
 
 def _group_plot(trials: pd.DataFrame) -> str | None:
     ok = trials[trials["status"] == "ok"]
-    if ok.empty:
+    if len(ok) < 2:  # nothing to compare
         return None
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.2))
     for ax, column, label in zip(axes, ("flexion_rom_deg", "peak_flexion_deg", "completeness_pct"),
