@@ -145,8 +145,9 @@ def detect_board(image: np.ndarray, board: BoardSpec) -> BoardDetection | None:
         if ids is None or len(ids) < 4:
             return None
         pixels = corners.reshape(-1, 2).astype(np.float32)
-        # Refine to sub-pixel with a window a bit smaller than the projected square.
-        win = int(np.clip(0.25 * _median_spacing(pixels), 2, 11))
+        # Refine to sub-pixel with a small window (0.15 of the corner spacing): larger windows
+        # reach the ArUco markers' edges and bias the corner by tenths of a pixel.
+        win = int(np.clip(0.15 * _median_spacing(pixels), 2, 11))
         crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
         pixels = cv2.cornerSubPix(gray, pixels.reshape(-1, 1, 2), (win, win), (-1, -1), crit).reshape(-1, 2)
         pixels = pixels.astype(float)
@@ -185,6 +186,18 @@ def edge_blur_sigma(gray: np.ndarray, corners: np.ndarray) -> float:
     return float(np.median(sigmas)) if sigmas else float("inf")
 
 
+def _foreshortening(H: np.ndarray, at_xy: np.ndarray) -> float:
+    """Ratio of the smaller to the larger singular value of the homography's local Jacobian at
+    board point ``at_xy`` (about cos of the viewing angle from the board normal)."""
+    x, y = at_xy
+    w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+    u = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w
+    v = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
+    J = np.array([[H[0, 0] - u * H[2, 0], H[0, 1] - u * H[2, 1]], [H[1, 0] - v * H[2, 0], H[1, 1] - v * H[2, 1]]]) / w
+    sv = np.linalg.svd(J, compute_uv=False)
+    return float(sv[1] / sv[0])
+
+
 def view_problem(detection: BoardDetection | None, board: BoardSpec, image_size: tuple[int, int],
                  max_blur_px: float = MAX_BLUR_SIGMA_PX) -> str | None:
     """Why a detected view is unusable for calibration, or None if it is fine."""
@@ -211,6 +224,9 @@ def view_problem(detection: BoardDetection | None, board: BoardSpec, image_size:
     extent = float(np.ptp(detection.pixels, axis=0).max())
     if misfit > 0.01 * extent + 0.5:
         return f"corners do not fit the board's layout (homography misfit {misfit:.1f} px; mis-ordered detection)"
+    # Strong foreshortening (board seen > 65 deg from its normal) gives biased corners.
+    if _foreshortening(H, obj.mean(axis=0)) < np.cos(np.radians(65.0)):
+        return "board seen too obliquely (> 65 deg from its normal)"
     hull_area = cv2.contourArea(cv2.convexHull(detection.pixels.astype(np.float32)))
     if hull_area < 0.002 * image_size[0] * image_size[1]:
         return "board too small in the image"

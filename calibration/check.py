@@ -1,0 +1,140 @@
+"""Quality check of a rig: per-camera table and reprojection-error plot.
+
+Residuals come either from the bundle adjustment (saved beside the rig as
+``<rig>.residuals.npz`` by ``spinemocap calibrate extrinsics``) or from fresh synchronized board
+views: each frame's board pose is fitted to all cameras at once (robust least squares on
+reprojection error), so every camera is judged against the others.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Hashable
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+from spinemocap.camera import Rig
+from spinemocap.fileio import InputError, atomic_path, atomic_write
+
+from .boards import BoardDetection, BoardSpec
+
+Residuals = dict[str, np.ndarray]  # camera -> (N, 4): observed u v, residual du dv (px)
+
+
+def residuals_path(rig_path: str | os.PathLike) -> Path:
+    return Path(str(rig_path) + ".residuals.npz")
+
+
+def save_residuals(rig_path: str | os.PathLike, residuals: Residuals) -> Path:
+    path = residuals_path(rig_path)
+    with atomic_write(path, "wb") as handle:
+        np.savez_compressed(handle, **{name: r for name, r in residuals.items()})
+    return path
+
+
+def load_residuals(rig_path: str | os.PathLike) -> Residuals | None:
+    path = residuals_path(rig_path)
+    if not path.is_file():
+        return None
+    with np.load(path) as data:
+        return {name: data[name] for name in data.files}
+
+
+def residuals_from_views(rig: Rig, board: BoardSpec, views: dict[str, dict[Hashable, BoardDetection]]) -> Residuals:
+    """Fit each frame's board pose to all cameras that see it; return every corner's residual."""
+    model = board.object_points()
+    frames: dict[Hashable, dict[str, BoardDetection]] = {}
+    for name, per_frame in views.items():
+        for f, det in per_frame.items():
+            frames.setdefault(f, {})[name] = det
+    out: dict[str, list[np.ndarray]] = {cam.name: [] for cam in rig}
+    for f, dets in frames.items():
+        start = max(dets, key=lambda n: len(dets[n]))
+        cam0, det0 = rig[start], dets[start]
+        ok, rvec, tvec = cv2.solvePnP(model[det0.ids], det0.pixels, cam0.K, cam0.dist, flags=cv2.SOLVEPNP_IPPE)
+        if not ok:
+            continue
+        R0 = cam0.R.T @ cv2.Rodrigues(rvec)[0]  # board -> world
+        x0 = np.concatenate([cv2.Rodrigues(R0)[0].ravel(), cam0.R.T @ (tvec.ravel() - cam0.t)])
+
+        def res(x: np.ndarray) -> np.ndarray:
+            R = cv2.Rodrigues(x[:3])[0]
+            return np.concatenate([(rig[n].project(model[d.ids] @ R.T + x[3:]) - d.pixels).ravel()
+                                   for n, d in dets.items()])
+
+        fit = least_squares(res, x0, loss="huber", f_scale=1.0)
+        R, t = cv2.Rodrigues(fit.x[:3])[0], fit.x[3:]
+        for n, d in dets.items():
+            out[n].append(np.column_stack([d.pixels, rig[n].project(model[d.ids] @ R.T + t) - d.pixels]))
+    return {n: np.concatenate(v) if v else np.zeros((0, 4)) for n, v in out.items()}
+
+
+def camera_table(rig: Rig, residuals: Residuals | None = None) -> str:
+    """Per-camera text table: intrinsics, centre (mm), viewing direction and residual stats (px)."""
+    head = f"{'camera':<10}{'size':>11}{'fx':>9}{'fy':>9}{'cx':>8}{'cy':>8}{'k1':>8}{'centre x,y,z (mm)':>25}{'looks along':>20}"
+    if residuals is not None:
+        head += f"{'obs':>6}{'RMS':>7}{'p95':>7}{'max':>7}"
+    lines = [head]
+    for cam in rig:
+        c, d = cam.center, cam.R[2]
+        row = (f"{cam.name:<10}{f'{cam.size[0]}x{cam.size[1]}':>11}{cam.K[0, 0]:>9.1f}{cam.K[1, 1]:>9.1f}"
+               f"{cam.K[0, 2]:>8.1f}{cam.K[1, 2]:>8.1f}{cam.dist[0]:>8.4f}"
+               f"{f'{c[0]:.0f},{c[1]:.0f},{c[2]:.0f}':>25}{f'{d[0]:+.2f},{d[1]:+.2f},{d[2]:+.2f}':>20}")
+        if residuals is not None:
+            r = residuals.get(cam.name, np.zeros((0, 4)))
+            norm = np.linalg.norm(r[:, 2:], axis=1)
+            if len(norm):
+                row += f"{len(norm):>6}{np.sqrt(np.mean(norm ** 2)):>7.3f}{np.percentile(norm, 95):>7.3f}{norm.max():>7.3f}"
+            else:
+                row += f"{0:>6}{'-':>7}{'-':>7}{'-':>7}"
+        lines.append(row)
+    if residuals is not None:
+        lines.append("residuals in px (reprojection error of board corners)")
+    return "\n".join(lines)
+
+
+def plot_residuals(rig: Rig, residuals: Residuals, path: str | os.PathLike, arrow_gain: float = 50.0) -> None:
+    """PNG: per camera, residual vectors over the image (magnified ``arrow_gain`` times) and a
+    histogram of residual lengths (px)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(rig)
+    fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.6), squeeze=False)
+    for k, cam in enumerate(rig):
+        r = residuals.get(cam.name, np.zeros((0, 4)))
+        ax = axes[0, k]
+        ax.set_title(cam.name, fontsize=9)
+        ax.set_xlim(0, cam.size[0])
+        ax.set_ylim(cam.size[1], 0)
+        ax.set_aspect("equal")
+        if len(r):
+            ax.quiver(r[:, 0], r[:, 1], r[:, 2] * arrow_gain, -r[:, 3] * arrow_gain, np.linalg.norm(r[:, 2:], axis=1),
+                      angles="xy", scale_units="xy", scale=1, width=0.004, cmap="viridis")
+        ax.tick_params(labelsize=6)
+        hist = axes[1, k]
+        norm = np.linalg.norm(r[:, 2:], axis=1)
+        if len(norm):
+            hist.hist(norm, bins=30, color="tab:blue")
+            hist.set_title(f"RMS {np.sqrt(np.mean(norm ** 2)):.3f} px", fontsize=8)
+        hist.set_xlabel("reprojection error (px)", fontsize=7)
+        hist.tick_params(labelsize=6)
+    axes[0, 0].set_ylabel(f"residuals x{arrow_gain:g}", fontsize=8)
+    fig.suptitle("Reprojection error per camera", fontsize=10)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+
+
+def require_residuals(rig_path: str | os.PathLike) -> Residuals:
+    found = load_residuals(rig_path)
+    if found is None:
+        raise InputError(rig_path, f"no stored residuals ({residuals_path(rig_path).name}); pass synchronized "
+                         "board views with --views and --board to measure them")
+    return found

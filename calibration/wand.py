@@ -1,0 +1,385 @@
+"""Vicon wand co-registration: put a calibrated RGB rig into the Vicon frame.
+
+Pipeline: detect the wand's bright markers in every RGB frame -> identify them from the wand's
+geometry (two collinear triples meeting at the T junction) -> triangulate with the rig ->
+read the Vicon C3D of the same wave -> coarse time offset by cross-correlating the wand's speed
+-> joint refinement of offset and similarity transform (Umeyama start, robust least squares
+with the Vicon trajectory spline-interpolated at RGB times) -> rig in the Vicon frame.
+
+Clocks: RGB frame i is at ``t_rgb = i / fps``; Vicon frame j at ``t_vicon = j / rate``; the
+offset is defined by ``t_vicon = t_rgb + offset``. Similarity: ``X_vicon = s R X_rig + t`` (mm).
+
+Wand layout (:class:`WandSpec`, defaults): a 5-marker T-wand in the style of Vicon's 5-marker
+calibration wand, 14 mm markers, all in one plane (wand frame, mm)::
+
+    WAND2 (-120, 0) ---- WAND1 (0, 0) ------------ WAND3 (240, 0)     cross bar
+                           |
+                         WAND4 (0, -160)                             stem
+                           |
+                         WAND5 (0, -400)
+
+WAND1 (the junction) lies on both lines; on the cross bar it lies between the others, with the
+short side (120 mm) to WAND2; on the stem it is an end, WAND4 lies between WAND1 and WAND5.
+In Nexus, label the wand's markers WAND1..WAND5 in this layout before exporting the C3D.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Iterator, Sequence
+
+import cv2
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
+
+from spinemocap.camera import Rig
+from spinemocap.fileio import InputError
+
+from .geometry import rigid_fit, transform_rig, triangulate, umeyama
+
+
+@dataclass(frozen=True)
+class WandSpec:
+    """Marker layout of a planar 5-marker T-wand (see module doc), mm."""
+
+    labels: tuple[str, ...] = ("WAND1", "WAND2", "WAND3", "WAND4", "WAND5")
+    points_mm: np.ndarray = field(default_factory=lambda: np.array(
+        [[0, 0, 0], [-120, 0, 0], [240, 0, 0], [0, -160, 0], [0, -400, 0]], float))
+    marker_diameter_mm: float = 14.0
+
+    @property
+    def distances(self) -> np.ndarray:
+        p = self.points_mm
+        return np.linalg.norm(p[:, None] - p[None], axis=2)
+
+
+# ---------------------------------------------------------------------- 2D detection
+def detect_blobs(image: np.ndarray, min_area: int = 4, max_area: int = 5000) -> np.ndarray:
+    """(N, 2) sub-pixel centroids of bright round blobs (intensity-weighted above background)."""
+    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+    background = float(np.median(gray[::8, ::8]))
+    peak = float(gray.max())
+    if peak - background < 40:
+        return np.zeros((0, 2))
+    level = (background + peak) / 2
+    mask = gray > level
+    ys, xs = np.nonzero(mask)
+    # Work in the bounding box of the bright pixels (markers are a tiny part of the image).
+    pad = 12
+    oy, ox = max(int(ys.min()) - pad, 0), max(int(xs.min()) - pad, 0)
+    gray = gray[oy:int(ys.max()) + pad + 1, ox:int(xs.max()) + pad + 1]
+    mask = mask[oy:int(ys.max()) + pad + 1, ox:int(xs.max()) + pad + 1]
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    weights = np.clip(gray.astype(np.float32) - background, 0, None)
+    centres = []
+    for k in range(1, n):
+        x, y, w, h, area = stats[k]
+        if not min_area <= area <= max_area or max(w, h) > 2.5 * min(w, h):
+            continue
+        pad = max(2, int(0.5 * max(w, h)))
+        y0, y1, x0, x1 = max(y - pad, 0), y + h + pad, max(x - pad, 0), x + w + pad
+        patch = weights[y0:y1, x0:x1] * (cv2.dilate((labels[y0:y1, x0:x1] == k).astype(np.uint8),
+                                                    np.ones((3, 3), np.uint8), iterations=pad) > 0)
+        total = patch.sum()
+        vv, uu = np.mgrid[y0:y0 + patch.shape[0], x0:x0 + patch.shape[1]]
+        centres.append([ox + (uu * patch).sum() / total, oy + (vv * patch).sum() / total])
+    return np.asarray(centres, float).reshape(-1, 2)
+
+
+def identify_wand(blobs: np.ndarray, wand: WandSpec, max_line_error: float = 0.02) -> np.ndarray | None:
+    """Order 5 image blobs as the wand's markers (rows in :attr:`WandSpec.labels` order), or
+    None when the view is ambiguous. Uses only projective facts (collinearity, betweenness) plus
+    the cross bar's 1:2 side ratio."""
+    if len(blobs) != 5:
+        return None
+    scores = []
+    for triple in itertools.combinations(range(5), 3):
+        p = blobs[list(triple)]
+        d = np.linalg.norm(p[:, None] - p[None], axis=2)
+        i, j = np.unravel_index(np.argmax(d), d.shape)
+        middle = 3 - i - j
+        span = d[i, j]
+        line = (p[j] - p[i]) / span
+        off = abs(np.cross(line, p[middle] - p[i])) / span
+        scores.append((off, triple, (triple[i], triple[middle], triple[j])))
+    scores.sort(key=lambda s: s[0])
+    (off1, t1, o1), (off2, t2, o2) = scores[0], scores[1]
+    if off2 > max_line_error or scores[2][0] < 3 * off2 or len(set(t1) & set(t2)) != 1:
+        return None
+    junction = (set(t1) & set(t2)).pop()
+    cross, stem = (o1, o2) if o1[1] == junction else (o2, o1)
+    if cross[1] != junction or stem[1] == junction:
+        return None
+    # Cross bar: short side (WAND2) vs long side (WAND3); a ratio near 1 is too ambiguous.
+    a, b = cross[0], cross[2]
+    da, db = np.linalg.norm(blobs[a] - blobs[junction]), np.linalg.norm(blobs[b] - blobs[junction])
+    if max(da, db) < 1.3 * min(da, db):
+        return None
+    short, long_ = (a, b) if da < db else (b, a)
+    near = stem[1]
+    far = stem[0] if stem[2] == junction else stem[2]
+    return blobs[[junction, short, long_, near, far]]
+
+
+# ---------------------------------------------------------------------- 3D from the rig
+def triangulate_wand(rig: Rig, frames: Iterable[Sequence[np.ndarray]], wand: WandSpec,
+                     max_fit_mm: float = 3.0, progress: bool = True) -> np.ndarray:
+    """(F, 5, 3) wand markers in the rig frame for ``frames[f][c]`` = image of camera c at frame
+    f (any iterable, e.g. streamed videos); NaN where fewer than two cameras identified the wand
+    or the triangulated shape is more than ``max_fit_mm`` RMS from the wand's."""
+    out = []
+    for images in tqdm(frames, desc="wand markers", unit=" frames", disable=not progress, leave=False):
+        out.append(np.full((5, 3), np.nan))
+        views = [identify_wand(detect_blobs(img), wand) for img in images]
+        cams = [c for c, v in enumerate(views) if v is not None]
+        if len(cams) < 2:
+            continue
+        pts = np.stack([triangulate([rig[c] for c in cams], np.stack([views[c][k] for c in cams]))
+                        for k in range(5)])
+        _, _, rms = rigid_fit(wand.points_mm, pts)
+        if rms <= max_fit_mm:
+            out[-1] = pts
+    return np.asarray(out).reshape(-1, 5, 3)
+
+
+def synchronized_frames(sources: Sequence[str | os.PathLike], n_cameras: int
+                        ) -> tuple[Iterator[list[np.ndarray]], float]:
+    """Stream synchronized frames from one video (or image folder) per camera; returns the
+    iterator of per-frame image lists (rig order) and the first video's frame rate (0 if unknown).
+    Stops at the shortest source."""
+    if len(sources) != n_cameras:
+        raise InputError("--videos", f"{len(sources)} videos for a rig of {n_cameras} cameras; give one per camera")
+    from .intrinsics import iter_images
+
+    fps = 0.0
+    first = Path(sources[0])
+    if first.is_file():
+        cap = cv2.VideoCapture(str(first))
+        fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        cap.release()
+    streams = [iter_images(src, max_video_frames=10 ** 9) for src in sources]
+
+    def frames() -> Iterator[list[np.ndarray]]:
+        for items in zip(*streams):
+            yield [image for _, image in items]
+
+    return frames(), fps
+
+
+# ---------------------------------------------------------------------- Vicon C3D
+@dataclass
+class ViconWand:
+    """Wand markers from Vicon: ``points_mm`` (J, 5, 3) NaN where missing; ``rate`` Hz."""
+
+    points_mm: np.ndarray
+    rate: float
+    source: str
+
+
+def read_vicon_wand(path: str | os.PathLike, wand: WandSpec) -> ViconWand:
+    """Read the wand markers from a Vicon C3D (labels as in ``wand.labels``, case-insensitive,
+    subject prefixes like ``Wand:WAND1`` accepted)."""
+    table = _read_c3d_points(path)
+    labels, points, rate = table
+    simple = [lab.split(":")[-1].strip().upper() for lab in labels]
+    index = []
+    missing = []
+    for lab in wand.labels:
+        if lab.upper() in simple:
+            index.append(simple.index(lab.upper()))
+        else:
+            missing.append(lab)
+    if missing:
+        raise InputError(path, f"wand markers {missing} not in the C3D (it has {labels[:12]}). Label the "
+                         f"wand's markers {list(wand.labels)} in Nexus (layout in calibration/wand.py) and "
+                         "export the wand wave again")
+    pts = points[:, index]
+    valid = np.all(np.isfinite(pts), axis=(1, 2))
+    if valid.sum() < 20:
+        raise InputError(path, f"only {int(valid.sum())} frames with all wand markers; capture a longer "
+                         "wand wave with the wand in view of the Vicon cameras")
+    return ViconWand(pts, rate, str(path))
+
+
+def _read_c3d_points(path: str | os.PathLike) -> tuple[list[str], np.ndarray, float]:
+    """(labels, (J, N, 3) mm with NaN for missing, rate) from a C3D, via exporters.read when the
+    exporters package exists, else the ``c3d`` package."""
+    try:
+        from exporters import read as exporters_read  # type: ignore
+    except ImportError:
+        exporters_read = None
+    if exporters_read is not None:
+        table = exporters_read(path)
+        arrays = table.to_arrays()
+        frames = np.asarray(arrays["frames"], int)
+        # Dense over the C3D's frame range (frames absent from the table become NaN gaps).
+        points = np.full((frames[-1] - frames[0] + 1, len(arrays["labels"]), 3), np.nan)
+        points[frames - frames[0]] = arrays["positions"]
+        return [str(lab) for lab in arrays["labels"]], points, float(table.fps)
+    import c3d
+
+    if not os.path.isfile(path):
+        raise InputError(path, "file not found")
+    try:
+        with open(path, "rb") as handle:
+            reader = c3d.Reader(handle)
+            labels = [str(lab).strip() for lab in reader.point_labels]
+            rate = float(reader.point_rate)
+            units = reader.get("POINT:UNITS").string_value.strip().lower() if reader.get("POINT:UNITS") else "mm"
+            frames = []
+            for _, points, _ in reader.read_frames():
+                xyz = points[:, :3].astype(float).copy()
+                xyz[points[:, 3] < 0] = np.nan
+                frames.append(xyz)
+    except (ValueError, AssertionError, struct_error(), OSError) as exc:
+        raise InputError(path, f"not a readable C3D file ({exc})") from exc
+    scale = {"mm": 1.0, "m": 1000.0, "cm": 10.0}.get(units, 1.0)
+    return labels, np.asarray(frames) * scale, rate
+
+
+def struct_error():
+    import struct
+
+    return struct.error
+
+
+# ---------------------------------------------------------------------- time + transform
+@dataclass
+class WandRegistration:
+    """Rig -> Vicon: ``X_v = scale R X_rig + t`` (mm) and ``t_vicon = t_rgb + offset_s``;
+    per-marker RMS residuals (mm) over ``n_frames`` matched frames."""
+
+    R: np.ndarray
+    t: np.ndarray
+    scale: float
+    offset_s: float
+    residual_mm: dict[str, float]
+    n_frames: int
+    rig_in_vicon: Rig | None = None
+
+    def summary(self) -> str:
+        angles = Rotation.from_matrix(self.R).as_euler("xyz", degrees=True)
+        lines = [
+            f"time offset (t_vicon - t_rgb): {1000 * self.offset_s:+.2f} ms over {self.n_frames} frames",
+            f"rotation (xyz Euler): {np.array2string(angles, precision=3)} deg; translation "
+            f"{np.array2string(self.t, precision=2)} mm; scale {self.scale:.5f}"
+            + ("  <-- rig scale differs from Vicon by more than 0.5 %: check the board's square size"
+               if abs(self.scale - 1) > 0.005 else ""),
+        ]
+        lines += [f"  {lab}: residual RMS {res:.2f} mm" for lab, res in self.residual_mm.items()]
+        return "\n".join(lines)
+
+
+def speed(points: np.ndarray, dt: float) -> np.ndarray:
+    """(T,) speed (mm/s) of the markers' centroid, central differences; NaN where unknown."""
+    centroid = points.mean(axis=1)
+    v = np.full(len(points), np.nan)
+    v[1:-1] = np.linalg.norm(centroid[2:] - centroid[:-2], axis=1) / (2 * dt)
+    return v
+
+
+def coarse_offset(rgb: np.ndarray, fps: float, vicon: np.ndarray, rate: float,
+                  max_offset_s: float = 2.0, step_s: float = 0.001) -> tuple[float, float]:
+    """Offset (s) maximizing the correlation of the wand's speed in both systems; returns
+    (offset, correlation). Speed is invariant to the unknown rigid transform."""
+    s_rgb, s_vic = speed(rgb, 1 / fps), speed(vicon, 1 / rate)
+    t_rgb = np.arange(len(rgb)) / fps
+    t_vic = np.arange(len(vicon)) / rate
+    ok_vic = np.isfinite(s_vic)
+    best = (0.0, -np.inf)
+    for tau in np.arange(-max_offset_s, max_offset_s + step_s / 2, step_s):
+        query = t_rgb + tau
+        inside = np.isfinite(s_rgb) & (query >= t_vic[ok_vic][0]) & (query <= t_vic[ok_vic][-1])
+        if inside.sum() < 20:
+            continue
+        other = np.interp(query[inside], t_vic[ok_vic], s_vic[ok_vic])
+        r = np.corrcoef(s_rgb[inside], other)[0, 1]
+        if r > best[1]:
+            best = (float(tau), float(r))
+    if not np.isfinite(best[1]):
+        raise InputError("wand", "RGB and Vicon wand recordings do not overlap in time within "
+                         f"+-{max_offset_s} s; record both systems during the same wave")
+    return best
+
+
+def register_wand(rig_points: np.ndarray, fps: float, vicon: ViconWand, wand: WandSpec,
+                  max_offset_s: float = 2.0) -> WandRegistration:
+    """Time offset and similarity transform from wand markers in the rig frame (F, 5, 3) at
+    ``fps`` and the Vicon wand (see module doc)."""
+    n_rgb = int(np.all(np.isfinite(rig_points), axis=(1, 2)).sum())
+    if n_rgb < 20:
+        raise InputError("wand videos", f"the wand was identified in only {n_rgb} frames (need 20): wave "
+                         "it slowly through the volume seen by at least two cameras, markers unoccluded")
+    tau0, corr = coarse_offset(rig_points, fps, vicon.points_mm, vicon.rate, max_offset_s)
+    spline, t_lo, t_hi = _vicon_spline(vicon)
+    t_rgb = np.arange(len(rig_points)) / fps
+    # Frames matched throughout the refinement: inside the Vicon recording with a 50 ms margin.
+    ok = (np.all(np.isfinite(rig_points), axis=(1, 2)) & (t_rgb + tau0 >= t_lo + 0.05)
+          & (t_rgb + tau0 <= t_hi - 0.05))
+    source = rig_points[ok].reshape(-1, 3)
+    R0, t0, s0 = umeyama(source, spline(t_rgb[ok] + tau0).reshape(-1, 3))
+    x0 = np.concatenate([[0.0], Rotation.from_matrix(R0).as_rotvec(), t0, [np.log(s0)]])
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        pred = np.exp(x[7]) * source @ Rotation.from_rotvec(x[1:4]).as_matrix().T + x[4:7]
+        return (pred - spline(t_rgb[ok] + tau0 + x[0]).reshape(-1, 3)).ravel()
+
+    fit = least_squares(residuals, x0, loss="soft_l1", f_scale=2.0,
+                        x_scale=[1e-3, 1e-3, 1e-3, 1e-3, 1.0, 1.0, 1.0, 1e-3])
+    offset = tau0 + fit.x[0]
+    R, t, s = Rotation.from_rotvec(fit.x[1:4]).as_matrix(), fit.x[4:7], float(np.exp(fit.x[7]))
+    err = np.linalg.norm(residuals(fit.x).reshape(-1, 5, 3), axis=2)
+    residual = {lab: float(np.sqrt(np.mean(err[:, k] ** 2))) for k, lab in enumerate(wand.labels)}
+    return WandRegistration(R, t, s, float(offset), residual, int(ok.sum()))
+
+
+def _vicon_spline(vicon: ViconWand):
+    """Cubic spline of the Vicon markers over time (gaps bridged only inside valid stretches)."""
+    t = np.arange(len(vicon.points_mm)) / vicon.rate
+    ok = np.all(np.isfinite(vicon.points_mm), axis=(1, 2))
+    spline = CubicSpline(t[ok], vicon.points_mm[ok].reshape(ok.sum(), -1), axis=0)
+    return spline, float(t[ok][0]), float(t[ok][-1])
+
+
+def coregister(rig: Rig, frames: Iterable[Sequence[np.ndarray]], fps: float, vicon_c3d: str | os.PathLike,
+               wand: WandSpec | None = None, max_offset_s: float = 2.0, progress: bool = True) -> WandRegistration:
+    """Whole pipeline: RGB frames (``frames[f][c]``, rig camera order) + Vicon C3D -> registration
+    with ``rig_in_vicon`` filled in."""
+    wand = wand or WandSpec()
+    if not fps or fps <= 0:
+        raise InputError("--fps", "unknown RGB frame rate; pass --fps")
+    vicon = read_vicon_wand(vicon_c3d, wand)
+    points = triangulate_wand(rig, frames, wand, progress=progress)
+    result = register_wand(points, fps, vicon, wand, max_offset_s)
+    result.rig_in_vicon = transform_rig(rig, result.R, result.t, result.scale)
+    return result
+
+
+def write_vicon_wand_c3d(path: str | os.PathLike, points_mm: np.ndarray, rate: float, wand: WandSpec) -> None:
+    """Write wand markers (J, 5, 3) mm as a C3D (as Nexus would export a labelled wand wave)."""
+    import c3d
+
+    from spinemocap.fileio import atomic_write
+
+    writer = c3d.Writer(point_rate=float(rate), point_units="mm  ")
+    frames = []
+    for frame in points_mm:
+        rows = np.zeros((len(frame), 5), np.float32)
+        rows[:, :3] = np.nan_to_num(frame)
+        rows[:, 3] = np.where(np.all(np.isfinite(frame), axis=1), 0.0, -1.0)
+        frames.append((rows, np.zeros((0, 0), np.float32)))
+    writer.add_frames(frames)
+    writer.set_point_labels(list(wand.labels))
+    with atomic_write(path, "wb") as handle:
+        writer.write(handle)
+
+
+__all__ = ["WandSpec", "WandRegistration", "ViconWand", "detect_blobs", "identify_wand", "triangulate_wand",
+           "read_vicon_wand", "coarse_offset", "register_wand", "coregister", "write_vicon_wand_c3d",
+           "synchronized_frames"]

@@ -1,0 +1,194 @@
+"""``spinemocap calibrate intrinsics|extrinsics|wand|convert|check`` and
+``spinemocap bench calibration``: the :mod:`calibration` package on the command line."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser("calibrate", help="calibrate cameras: boards, bundle adjustment, Vicon wand, formats")
+    sub = parser.add_subparsers(dest="calibrate_command", metavar="STEP", required=True)
+
+    p = sub.add_parser("intrinsics", help="one camera's intrinsics from board images or a video")
+    p.add_argument("images", nargs="+", help="image files, a folder of images, or a video")
+    p.add_argument("--board", required=True, help="checkerboard:COLSxROWS:SQUARE_MM (inner corners) or "
+                   "charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]] (squares)")
+    p.add_argument("--out", required=True, help="rig TOML (one camera, identity pose) or .xcp / Pose2Sim .toml")
+    p.add_argument("--name", help="camera name (default: the folder or file name)")
+    p.add_argument("--k3", action="store_true", help="also estimate the k3 radial term (wide-angle lenses)")
+    p.add_argument("--max-frames", type=int, default=60, help="frames sampled from a video (default 60)")
+    p.set_defaults(func=_intrinsics)
+
+    p = sub.add_parser("extrinsics", help="all cameras' poses from synchronized ChArUco views + bundle adjustment")
+    p.add_argument("--intrinsics", nargs="+", required=True, help="rig/intrinsics files giving the cameras in order")
+    p.add_argument("--views", nargs="+", required=True,
+                   help="one folder of synchronized images (or a video) per camera, in the cameras' order")
+    p.add_argument("--board", required=True, help="charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]]")
+    p.add_argument("--floor-frames", type=int, nargs="*", default=[0],
+                   help="frame indices where the board lies face up on the floor (world Z up; default 0)")
+    p.add_argument("--fixed-intrinsics", action="store_true", help="do not refine intrinsics in the adjustment")
+    p.add_argument("--out", required=True, help="output rig (.toml ours, --format pose2sim, or .xcp)")
+    p.add_argument("--format", choices=["spinemocap", "pose2sim"], help="TOML flavour of --out")
+    p.add_argument("--plot", help="reprojection-error PNG (default: OUT.residuals.png)")
+    p.set_defaults(func=_extrinsics)
+
+    p = sub.add_parser("wand", help="express a calibrated rig in the Vicon frame from a wand wave")
+    p.add_argument("--rig", required=True, help="calibrated rig (any supported format)")
+    p.add_argument("--videos", nargs="+", required=True, help="one video (or image folder) per rig camera, in order")
+    p.add_argument("--vicon", required=True, help="Vicon C3D of the same wave with markers WAND1..WAND5")
+    p.add_argument("--fps", type=float, help="RGB frame rate (default: from the first video)")
+    p.add_argument("--max-offset", type=float, default=2.0, help="largest clock offset searched, s (default 2)")
+    p.add_argument("--out", required=True, help="rig in the Vicon frame (.toml / .xcp)")
+    p.set_defaults(func=_wand)
+
+    p = sub.add_parser("convert", help="convert a calibration file (format by extension)")
+    p.add_argument("input", help=".toml (ours / Pose2Sim / Anipose), .qca.txt (Qualisys) or .xcp (Vicon)")
+    p.add_argument("output", help=".toml or .xcp")
+    p.add_argument("--format", choices=["spinemocap", "pose2sim"], help="TOML flavour of the output (default ours)")
+    p.set_defaults(func=_convert)
+
+    p = sub.add_parser("check", help="per-camera table and reprojection-error plot of a rig")
+    p.add_argument("rig", help="rig file (any supported format)")
+    p.add_argument("--views", nargs="+", help="synchronized board image folders, one per camera (in order)")
+    p.add_argument("--board", help="board of --views")
+    p.add_argument("--plot", help="PNG path (default: RIG.check.png)")
+    p.set_defaults(func=_check)
+
+
+def register_bench(subparsers) -> None:
+    p = subparsers.add_parser("calibration", help="synthetic 6-camera board calibration + wand co-registration")
+    p.add_argument("--size", type=int, default=1024, help="image width in px (height = 3/4; default 1024)")
+    p.add_argument("--intrinsic-views", type=int, default=20)
+    p.add_argument("--frames", type=int, default=24)
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--out", default="bench_calibration.json", help="JSON with the numbers")
+    p.set_defaults(func=_bench)
+
+
+# ---------------------------------------------------------------------- handlers
+def _intrinsics(args: argparse.Namespace) -> int:
+    from calibration.boards import BoardSpec
+    from calibration.formats import write_rig
+    from calibration.intrinsics import calibrate_intrinsics, iter_images
+    from spinemocap.camera import Rig
+
+    board = BoardSpec.parse(args.board)
+    source = args.images[0] if len(args.images) == 1 else args.images
+    name = args.name or Path(args.images[0]).stem
+    result = calibrate_intrinsics(iter_images(source, args.max_frames), board, name, source=str(args.images[0]),
+                                  fix_k3=not args.k3)
+    print(result.summary())
+    write_rig(Rig([result.camera]), args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def load_view_detections(folders: list[str], names: list[str], sizes: list[tuple[int, int]], board) -> dict:
+    """Detect the board in every camera's synchronized frames; frame key = frame index."""
+    from calibration.boards import detect_board, view_problem
+    from calibration.intrinsics import iter_images
+    from spinemocap.fileio import InputError
+
+    if len(folders) != len(names):
+        raise InputError("--views", f"{len(folders)} view folders for {len(names)} cameras; give one per camera")
+    detections = {}
+    for folder, name, size in zip(folders, names, sizes):
+        per_frame = {}
+        for index, (label, image) in enumerate(iter_images(folder, max_video_frames=100000)):
+            if (image.shape[1], image.shape[0]) != tuple(size):
+                raise InputError(f"{folder}/{label}", f"image is {image.shape[1]}x{image.shape[0]} px but camera "
+                                 f"{name!r} was calibrated at {size[0]}x{size[1]}; use the same resolution "
+                                 "for intrinsics and extrinsics")
+            det = detect_board(image, board)
+            if det is not None and view_problem(det, board, size) is None:
+                per_frame[index] = det
+        detections[name] = per_frame
+    return detections
+
+
+def _read_cameras(paths: list[str]):
+    from calibration.formats import read_rig
+    from spinemocap.camera import Rig
+
+    cameras = [cam for path in paths for cam in read_rig(path)]
+    return Rig(cameras)
+
+
+def _extrinsics(args: argparse.Namespace) -> int:
+    from calibration.boards import BoardSpec
+    from calibration.check import camera_table, plot_residuals, save_residuals
+    from calibration.extrinsics import calibrate_extrinsics
+    from calibration.formats import write_rig
+
+    board = BoardSpec.parse(args.board)
+    intrinsics = _read_cameras(args.intrinsics)
+    detections = load_view_detections(args.views, intrinsics.names, [c.size for c in intrinsics], board)
+    floor = args.floor_frames if args.floor_frames else None
+    result = calibrate_extrinsics(intrinsics, board, detections, floor_frame=floor,
+                                  refine_intrinsics=not args.fixed_intrinsics)
+    print(result.summary())
+    write_rig(result.rig, args.out, args.format)
+    save_residuals(args.out, result.residuals)
+    plot = args.plot or f"{args.out}.residuals.png"
+    plot_residuals(result.rig, result.residuals, plot)
+    print(camera_table(result.rig, result.residuals))
+    print(f"wrote {args.out} and {plot}")
+    return 0
+
+
+def _wand(args: argparse.Namespace) -> int:
+    from calibration.formats import read_rig, write_rig
+    from calibration.wand import coregister, synchronized_frames
+
+    rig = read_rig(args.rig)
+    frames, fps = synchronized_frames(args.videos, len(rig))
+    result = coregister(rig, frames, args.fps or fps, args.vicon, max_offset_s=args.max_offset)
+    print(result.summary())
+    write_rig(result.rig_in_vicon, args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _convert(args: argparse.Namespace) -> int:
+    from calibration.formats import read_rig, write_rig
+
+    rig = read_rig(args.input)
+    write_rig(rig, args.output, args.format)
+    print(f"converted {len(rig)} cameras: {args.input} -> {args.output}")
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    from calibration.boards import BoardSpec
+    from calibration.check import camera_table, plot_residuals, require_residuals, residuals_from_views
+    from calibration.formats import read_rig
+    from spinemocap.fileio import InputError
+
+    rig = read_rig(args.rig)
+    if args.views:
+        if not args.board:
+            raise InputError("--views", "--board is needed to detect the board in --views")
+        board = BoardSpec.parse(args.board)
+        detections = load_view_detections(args.views, rig.names, [c.size for c in rig], board)
+        residuals = residuals_from_views(rig, board, detections)
+    else:
+        residuals = require_residuals(args.rig)
+    print(camera_table(rig, residuals))
+    plot = args.plot or f"{args.rig}.check.png"
+    plot_residuals(rig, residuals, plot)
+    print(f"wrote {plot}")
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from calibration.benchmark import run_benchmark
+
+    run_benchmark(args.size, args.intrinsic_views, args.frames, args.seeds, args.out)
+    return 0
