@@ -10,10 +10,8 @@ import pandas as pd
 import pytest
 
 from spinemocap.analysis.batch import discover, run_batch
-from spinemocap.analysis.bent_tape import bent_tape_dots, uniform_bend
+from spinemocap.analysis.bent_tape import write_bent_capture
 from spinemocap.analysis.report import write_report
-from spinemocap.camera import Camera, Rig
-from spinemocap.capture import Capture
 from spinemocap.cli import main
 from spinemocap.tape import TapeSpec
 
@@ -21,20 +19,12 @@ TAPE = TapeSpec(n_rows=9)
 LEVELS_TOML = '[levels]\nS1 = 1\n"T12/L1" = 7\nT10 = 9\n'
 
 
-def _write_trial(folder: Path, peak_flexion: float, n_frames: int = 30, gap_rows=None) -> None:
-    """A capture with exact tape dots (groundtruth.npz) for a lumbar flexion of ``peak_flexion``
-    spread over S1..T12/L1 (rows 1..7, 0..150 mm), and a 10 deg/100 mm kyphotic background."""
-    rig = Rig([Camera.look_at(f"cam{i}", (i * 800.0 - 400, 2000, 1200), (0, 0, 1100), (64, 48), 80)
-               for i in range(2)])
-    Capture(root=folder, name=folder.name, fps=50.0, n_frames=n_frames, rig=rig, tape=TAPE,
-            subject={"id": folder.parts[-3], "up": [0, 0, 1], "facing": [0, -1, 0]}).save()
-    amplitude = peak_flexion * np.sin(np.linspace(0, np.pi, n_frames))
-    dots = np.array([bent_tape_dots(TAPE, uniform_bend(0, 150, np.array([a, 0, 0]), np.array([0.1, 0, 0])))
-                     for a in amplitude])
-    if gap_rows is not None:  # a long occlusion of the rows around T12/L1
-        cols = [k for k, label in enumerate(TAPE.labels) if int(label[1:3]) in gap_rows]
-        dots[5:25, cols] = np.nan
-    np.savez(folder / "groundtruth.npz", labels=np.array(TAPE.labels), dots=dots)
+def _write_trial(folder: Path, peak_flexion: float, n_frames: int = 30, gap_rows=()) -> None:
+    """Exact tape dots (groundtruth.npz) for a lumbar flexion of ``peak_flexion`` over
+    S1..T12/L1 (rows 1..7, 0..150 mm) on a 10 deg/100 mm kyphotic background; ``gap_rows``
+    hidden in frames 5..24 (a long occlusion)."""
+    write_bent_capture(folder, TAPE, peak_flexion, n_frames, fps=50.0, hidden_rows=tuple(gap_rows),
+                       hidden_frames=slice(5, 25))
 
 
 @pytest.fixture()

@@ -81,6 +81,7 @@ class TrialJob:
     levels_file: str | None = None
     settings: AngleSettings = field(default_factory=AngleSettings)
     force: bool = False
+    detector: str = "net"
 
 
 # ---------------------------------------------------------------------------------- discovery
@@ -233,7 +234,7 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
         except ImportError as exc:
             raise InputError(capture.root, f"the tracker is not available in this installation ({exc}); "
                              "use --source groundtruth for synthetic captures") from exc
-        track_capture(capture.root, Path(job.out_dir), mode="sequence", progress=False)
+        track_capture(capture.root, Path(job.out_dir), mode="sequence", detector=job.detector, progress=False)
     return read_markers_csv(path)
 
 
@@ -332,18 +333,19 @@ def trial_out_dir(out: Path, trial: Trial) -> Path:
 def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = "tracked",
               workers: int = 2, scheduler: str | None = None, levels_file: str | None = None,
               settings: AngleSettings = AngleSettings(), force: bool = False,
-              progress: bool = True) -> BatchResult:
+              detector: str = "net", progress: bool = True) -> BatchResult:
     """Process every trial under ``root`` into ``out`` (see the module docstring).
 
     ``workers``: local processes (1 = in this process); ``scheduler``: a Dask distributed
     scheduler address (``tcp://HOST:PORT``) -- then the cluster's workers run the trials.
+    ``detector``: the tracker's dot detector for ``source="tracked"`` (net, classical, mask).
     """
     if source not in SOURCES:
         raise InputError(None, f"unknown marker source {source!r}; expected one of {SOURCES}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     trials = discover(root)
-    jobs = [TrialJob(t, str(trial_out_dir(out, t)), source, levels_file, settings, force) for t in trials]
+    jobs = [TrialJob(t, str(trial_out_dir(out, t)), source, levels_file, settings, force, detector) for t in trials]
     handler = logging.FileHandler(out / "batch.log")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
     log.addHandler(handler)

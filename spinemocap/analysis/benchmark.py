@@ -135,3 +135,41 @@ def bench_analytic(frames: int = 60, rows: int = 13) -> dict:
         table = compute_angles(markers, tape, levels, settings=AngleSettings(lower=LOW, thoracolumbar=HIGH)).table
         results[motion] = _score(table, exact - exact[0], axis)
     return results
+
+
+def bench_batch(trials: int = 16, frames: int = 300, workers: int = 2, progress: bool = False) -> dict:
+    """Wall time of one batch (analytic-rod captures, ground-truth source) run three ways on the
+    same study: in this process, on a local process pool of ``workers``, and on a Dask
+    ``LocalCluster`` of ``workers`` single-threaded worker processes. Every run starts from an
+    empty output folder (``force``), so all three do the same work."""
+    import tempfile
+    from pathlib import Path
+
+    from distributed import LocalCluster
+
+    from .bent_tape import write_bent_capture
+    from .batch import run_batch
+
+    tape = TapeSpec(n_rows=13)
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) / "study"
+        for k in range(trials):
+            folder = root / f"S{k % 4 + 1:02d}" / ("pre" if k % 2 else "post") / f"trial{k:02d}"
+            write_bent_capture(folder, tape, 20.0 + k, n_frames=frames, fps=100.0)
+            (folder / "levels.toml").write_text('S1 = 1\n"T12/L1" = 7\nT9 = 13\n')
+        timings = {}
+
+        def timed(name: str, **kwargs) -> None:
+            start = time.perf_counter()
+            result = run_batch(root, Path(tmp) / name, source="groundtruth", force=True, progress=progress, **kwargs)
+            assert not result.failed, result.failed
+            timings[name] = time.perf_counter() - start
+
+        timed("serial", workers=1)
+        timed("process_pool", workers=workers)
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+            timed("dask_localcluster", scheduler=cluster.scheduler_address)
+    return {"trials": trials, "frames": frames, "workers": workers,
+            "seconds": {k: round(v, 2) for k, v in timings.items()},
+            "trials_per_s": {k: round(trials / v, 2) for k, v in timings.items()},
+            "speedup_vs_serial": {k: round(timings["serial"] / v, 2) for k, v in timings.items()}}

@@ -85,3 +85,34 @@ def smooth_bend(v_from: float, v_to: float, angles_deg: np.ndarray,
         return np.asarray(background, float) + weight[:, None] * angles
 
     return rates
+
+
+def write_bent_capture(folder, tape: TapeSpec, peak_flexion_deg: float, n_frames: int = 30,
+                       fps: float = 50.0, lumbar_span_mm: tuple[float, float] = (0.0, 150.0),
+                       background=(0.1, 0.0, 0.0), hidden_rows: tuple[int, ...] = (),
+                       hidden_frames: slice = slice(0)) -> None:
+    """A capture folder whose ``groundtruth.npz`` holds this rod's exact dots: a flexion rising
+    to ``peak_flexion_deg`` and back (half a sine) spread over ``lumbar_span_mm`` on top of a
+    constant ``background`` rate (deg/mm). ``hidden_rows`` (1-based) are NaN over
+    ``hidden_frames`` (an occlusion). Two placeholder cameras make it a valid capture; it has no
+    images, so only ``--source groundtruth`` can analyse it. For tests and benchmarks of the
+    batch machinery."""
+    from pathlib import Path
+
+    from ..camera import Camera, Rig
+    from ..capture import Capture
+
+    folder = Path(folder)
+    rig = Rig([Camera.look_at(f"cam{i}", (i * 800.0 - 400, 2000, 1200), (0, 0, 1100), (64, 48), 80)
+               for i in range(2)])
+    subject = folder.parts[-3] if len(folder.parts) >= 3 else folder.name
+    Capture(root=folder, name=folder.name, fps=fps, n_frames=n_frames, rig=rig, tape=tape,
+            subject={"id": subject, "up": [0, 0, 1], "facing": [0, -1, 0]}).save()
+    amplitude = peak_flexion_deg * np.sin(np.linspace(0, np.pi, n_frames))
+    dots = np.array([bent_tape_dots(tape, uniform_bend(*lumbar_span_mm, np.array([a, 0.0, 0.0]),
+                                                       np.asarray(background, float)))
+                     for a in amplitude])
+    columns = [k for k, label in enumerate(tape.labels) if int(label[1:3]) in hidden_rows]
+    if columns:
+        dots[hidden_frames, columns] = np.nan
+    np.savez(folder / "groundtruth.npz", labels=np.array(tape.labels), dots=dots)

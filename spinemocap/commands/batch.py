@@ -20,6 +20,8 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output folder (per-trial results, batch.log, batch.json)")
     p.add_argument("--source", choices=("tracked", "groundtruth"), default="tracked",
                    help="markers from the tracker (default) or the synthetic studio's ground truth")
+    p.add_argument("--detector", choices=("net", "classical", "mask"), default="net",
+                   help="the tracker's dot detector (mask: inside the synthetic captures' exact tape masks)")
     p.add_argument("--workers", type=int, default=min(4, os.cpu_count() or 1),
                    help="local worker processes (default: min(4, CPUs); 1 = in this process)")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
@@ -35,6 +37,34 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+def register_bench(subparsers) -> None:
+    p = subparsers.add_parser(
+        "batch", help="batch wall time: in-process vs local process pool vs Dask LocalCluster",
+        description="Times the same synthetic study (analytic-rod captures, ground-truth markers) "
+                    "processed serially, on a process pool and on a Dask LocalCluster.")
+    p.add_argument("--trials", type=int, default=16)
+    p.add_argument("--frames", type=int, default=300, help="frames per trial (default 300 = 3 s at 100 fps)")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--json", help="write the numbers here")
+    p.set_defaults(func=run_bench)
+
+
+def run_bench(args: argparse.Namespace) -> int:
+    import json
+
+    from ..analysis.benchmark import bench_batch
+    from ..fileio import atomic_write
+
+    result = bench_batch(args.trials, args.frames, args.workers)
+    for name, seconds in result["seconds"].items():
+        print(f"{name:<20}{seconds:>8.2f} s  {result['trials_per_s'][name]:>6.2f} trials/s  "
+              f"x{result['speedup_vs_serial'][name]:.2f} vs serial")
+    if args.json:
+        with atomic_write(args.json) as handle:
+            json.dump(result, handle, indent=1)
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from ..analysis.angles import AngleSettings
     from ..analysis.batch import run_batch
@@ -43,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
                              lowpass_hz=args.lowpass_hz or None)
     result = run_batch(args.root, args.out, source=args.source, workers=args.workers,
                        scheduler=args.scheduler, levels_file=args.levels, settings=settings,
-                       force=args.force, progress=not args.quiet)
+                       force=args.force, detector=args.detector, progress=not args.quiet)
     skipped = sum(bool(t.get("skipped")) for t in result.trials)
     print(f"{len(result.trials)} trials: {len(result.trials) - len(result.failed)} ok "
           f"({skipped} up to date), {len(result.failed)} failed; results in {args.out}")
