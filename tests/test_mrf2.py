@@ -110,14 +110,15 @@ def test_mrf2_pulls_perturbed_dots_onto_the_images(scene):
     evidence = [build_evidence(i, m) for i, m in zip(images, masks)]
     start = truth + np.random.default_rng(5).normal(scale=2.0, size=truth.shape)
     start_err = np.linalg.norm(start - truth, axis=1).mean()
-    result = refine_mrf2(start, TAPE, rig, evidence, MRF2Config(), rng=np.random.default_rng(0))
+    config = MRF2Config(polish=True)
+    result = refine_mrf2(start, TAPE, rig, evidence, config, rng=np.random.default_rng(0))
     err = np.linalg.norm(result.positions - truth, axis=1)
     pbp_err = np.linalg.norm(result.extra["pbp_positions"] - truth, axis=1)
     assert start_err > 2.5
     assert pbp_err.mean() < 0.5 * start_err  # particle BP alone
     assert err.mean() < 0.8 and err.max() < 2.0  # with the continuous polish
     hist = np.array(result.energy_history)
-    n_pbp = MRF2Config().iterations + 1
+    n_pbp = config.iterations + 1
     assert np.all(np.diff(hist[:n_pbp]) <= 0) and np.all(np.diff(hist[n_pbp:]) <= 0)
     assert hist[-1] < hist[0]
     assert result.extra["visible"].shape == (TAPE.n_dots, 4)
@@ -127,3 +128,13 @@ def test_mrf2_rejects_mismatched_evidence(scene):
     rig, images, masks, truth = scene
     with pytest.raises(ValueError, match="evidence images for 4 cameras"):
         refine_mrf2(truth, TAPE, rig, [None, None])
+
+
+def test_mrf2_reports_skin_points_under_the_tape(scene):
+    rig, images, masks, truth = scene
+    evidence = [build_evidence(i, m) for i, m in zip(images, masks)]
+    config = MRF2Config(iterations=0, tape_thickness_mm=0.8)  # no search: only the offset acts
+    result = refine_mrf2(truth, TAPE, rig, evidence, config)
+    shift = result.positions - truth
+    np.testing.assert_allclose(np.linalg.norm(shift, axis=1), 0.8, atol=1e-9)
+    assert np.all(shift[:, 1] < -0.75)  # inward: against the outward normal (+Y here)
