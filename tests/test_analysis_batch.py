@@ -132,3 +132,23 @@ def test_manifest_discovery_and_cli(study, tmp_path, capsys):
     assert code == 1 and "2 ok" in text and "FAILED C/slow/nowhere" in text
     assert (out / "report.html").is_file() and (out / "A/fast/trial01/angles.csv").is_file()
     assert main(["report", str(tmp_path / "missing")]) == 2  # clean InputError, no traceback
+
+
+def test_pelvis_from_a_vicon_c3d_named_in_the_manifest(tmp_path):
+    c3d = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "vicon" / "walking01_plugin_gait_lower.c3d"
+    if not c3d.is_file():
+        pytest.skip("shared Vicon data not available")
+    _write_trial(tmp_path / "study" / "S01" / "walk" / "trial01", 20.0)
+    (tmp_path / "study" / "S01" / "levels.toml").write_text(LEVELS_TOML)
+    manifest = tmp_path / "manifest.csv"
+    manifest.write_text(f"path,subject,condition,c3d\nstudy/S01/walk/trial01,S01,walk,{c3d}\n")
+    result = run_batch(manifest, tmp_path / "out", source="groundtruth", workers=1, progress=False)
+    (trial,) = result.trials
+    assert trial["status"] == "ok" and trial["pelvis_from"] == "c3d"
+    angles = pd.read_csv(tmp_path / "out" / "S01/walk/trial01/angles.csv")
+    # the subject walks into the volume: the trial's first samples lack pelvis markers -> NaN
+    # with the reason; afterwards the pelvis angles exist and move with the gait
+    missing = angles["pelvis_tilt"].isna()
+    assert 0 < missing.sum() < len(angles) and (angles.loc[missing, "pelvis_note"] == "pelvis markers missing").all()
+    assert trial["notes"]["pelvis"] == {"pelvis markers missing": int(missing.sum())}
+    assert np.ptp(angles.loc[~missing, "pelvis_rotation"]) > 0.5

@@ -389,15 +389,16 @@ def _execute(jobs: list[TrialJob], workers: int, scheduler: str | None) -> Itera
         for job in jobs:
             yield process_trial(job)
     else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        pool = ProcessPoolExecutor(max_workers=workers)
+        finished = False
+        try:
             futures = {pool.submit(process_trial, job): job for job in jobs}
-            try:
-                for future in as_completed(futures):
-                    yield _result_or_failure(future, futures[future])
-            except BaseException:
-                for future in futures:
-                    future.cancel()
-                raise
+            for future in as_completed(futures):
+                yield _result_or_failure(future, futures[future])
+            finished = True
+        finally:
+            # interrupted: drop queued trials at once; finished ones are already on disk
+            pool.shutdown(wait=finished, cancel_futures=not finished)
 
 
 def _execute_dask(jobs: list[TrialJob], scheduler: str) -> Iterator[dict]:
