@@ -152,3 +152,21 @@ def test_pelvis_from_a_vicon_c3d_named_in_the_manifest(tmp_path):
     assert 0 < missing.sum() < len(angles) and (angles.loc[missing, "pelvis_note"] == "pelvis markers missing").all()
     assert trial["notes"]["pelvis"] == {"pelvis markers missing": int(missing.sum())}
     assert np.ptp(angles.loc[~missing, "pelvis_rotation"]) > 0.5
+
+
+def test_angles_command_on_one_marker_file(tmp_path, capsys):
+    import exporters
+
+    from spinemocap.markers import MarkerTable
+
+    _write_trial(tmp_path / "S01" / "x" / "t1", 30.0, gap_rows=(6, 7, 8))
+    with np.load(tmp_path / "S01/x/t1/groundtruth.npz") as data:
+        table = MarkerTable.from_arrays(list(data["labels"]), data["dots"], fps=50.0)
+    exporters.write(table, tmp_path / "trial.trc")
+    (tmp_path / "levels.toml").write_text(LEVELS_TOML)
+    assert main(["angles", str(tmp_path / "trial.trc"), "--levels", str(tmp_path / "levels.toml")]) == 0
+    text = capsys.readouterr().out
+    assert "lumbar angles NaN in 20 frames: tape rows near T12/L1" in text
+    angles = pd.read_csv(tmp_path / "trial_angles.csv")
+    assert np.nanmax(angles["lumbar_flexion"]) - np.nanmin(angles["lumbar_flexion"]) > 10
+    assert (tmp_path / "trial_angles.png").stat().st_size > 1000

@@ -103,10 +103,16 @@ def problem_table(results: list[dict]) -> pd.DataFrame:
 
 # ---------------------------------------------------------------------------------- plots
 def _png(fig) -> str:
+    """The figure as base64 PNG text (for data: URLs); closes it."""
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=80, bbox_inches="tight")
     plt.close(fig)
     return base64.b64encode(buffer.getvalue()).decode("ascii")
+
+
+def angles_plot_png(angles: pd.DataFrame) -> bytes:
+    """PNG of lumbar flexion, lateral bending and axial rotation over time (an angles table)."""
+    return base64.b64decode(_trial_plot(angles))
 
 
 def _trial_plot(angles: pd.DataFrame) -> str:

@@ -1,4 +1,5 @@
-"""``spinemocap bench angles``: do the tape's spine angles follow the studio's applied motion?"""
+"""``spinemocap angles MARKERS``: spine angles of one marker file; ``spinemocap bench angles``:
+do the tape's spine angles follow the synthetic studio's applied motion?"""
 
 from __future__ import annotations
 
@@ -9,6 +10,54 @@ import time
 from pathlib import Path
 
 from ..fileio import atomic_write
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "angles", help="spine angles of one labelled marker file (CSV/TRC/C3D/Parquet) to CSV + plot",
+        description="Compute lumbar/thoracic flexion, lateral bending, axial rotation, lordosis/kyphosis "
+                    "and pelvis angles for every frame of a tape marker file (labels R01L...). For whole "
+                    "studies use `spinemocap batch`.")
+    p.add_argument("markers", type=Path, help="marker file readable by the exporters (csv, trc, c3d, parquet)")
+    p.add_argument("--levels", type=Path, required=True, help="row-to-level map (TOML)")
+    p.add_argument("--out", type=Path, help="angles CSV (default: beside the markers, *_angles.csv); "
+                                            "a PNG plot goes beside it")
+    p.add_argument("--lumbar", nargs=2, metavar=("LOWER", "UPPER"), default=("S1", "T12/L1"))
+    p.add_argument("--up", type=float, nargs=3, default=(0.0, 0.0, 1.0), help="subject's up (world)")
+    p.add_argument("--facing", type=float, nargs=3, default=(0.0, -1.0, 0.0), help="subject's facing (world)")
+    p.set_defaults(func=run_angles)
+
+
+def run_angles(args: argparse.Namespace) -> int:
+    import exporters
+
+    from ..analysis.angles import AngleSettings, compute_angles
+    from ..analysis.levels import LevelMap
+    from ..analysis.report import angles_plot_png
+    from ..fileio import InputError
+    from ..tape import TapeSpec
+
+    markers = exporters.read(args.markers)
+    rows = [int(label[1:3]) for label in markers.labels if len(label) == 4 and label[0] == "R" and label[1:3].isdigit()]
+    if not rows:
+        raise InputError(args.markers, "no tape labels (R01L, R02C, ...) in this marker file")
+    tape = TapeSpec(n_rows=max(rows) if max(rows) % 2 else max(rows) + 1)
+    levels = LevelMap.from_toml(args.levels, tape.n_rows)
+    settings = AngleSettings(lower=args.lumbar[0], thoracolumbar=args.lumbar[1])
+    result = compute_angles(markers, tape, levels, up=args.up, facing=args.facing, settings=settings)
+    out = args.out or args.markers.with_name(args.markers.stem + "_angles.csv")
+    with atomic_write(out) as handle:
+        result.table.to_csv(handle, index=False, float_format="%.4f")
+    with atomic_write(out.with_suffix(".png"), "wb") as handle:
+        handle.write(angles_plot_png(result.table))
+    stats = result.summary()
+    print(f"{len(result.table)} frames, {100 * result.completeness:.0f}% of dots observed; lumbar flexion "
+          f"{stats['lumbar_flexion_min']:.1f}..{stats['lumbar_flexion_max']:.1f} deg (ROM {stats['lumbar_flexion_rom']:.1f})")
+    for group, reasons in result.notes.items():
+        for reason, count in reasons.items():
+            print(f"  {group} angles NaN in {count} frames: {reason}")
+    print(f"angles: {out}\nplot:   {out.with_suffix('.png')}")
+    return 0
 
 
 def register_bench(subparsers) -> None:
