@@ -1,0 +1,21 @@
+"""The synthetic-study example runs end to end (renders 12 small captures: slow)."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+
+@pytest.mark.slow
+def test_synthetic_study_example(tmp_path):
+    script = Path(__file__).resolve().parents[1] / "examples" / "synthetic_study.py"
+    subprocess.run([sys.executable, str(script), "--out", str(tmp_path), "--frames", "4", "--fps", "2"],
+                   check=True, timeout=1800)
+    summary = pd.read_csv(tmp_path / "results" / "summary.csv")
+    assert len(summary) == 12 and (summary["status"] == "ok").all()
+    assert set(summary["subject"]) == {"S01", "S02", "S03"} and set(summary["condition"]) == {"flexion", "forehand"}
+    flexion = summary[summary["condition"] == "flexion"]["flexion_rom_deg"]
+    assert (flexion > 5).all()  # the flexion trials bend the lumbar spine
+    assert "data:image/png;base64," in (tmp_path / "results" / "report.html").read_text()
