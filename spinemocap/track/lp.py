@@ -10,12 +10,17 @@ Variables ``x_e`` in {0, 1} per edge of the edge cloud, ``y_p`` in {0, 1} per ca
                                                                      only; M_e = |Omega_e| - 12)
           x_e <= y_i,  x_e <= y_j            for e = (i, j)
           sum_{p uses blob b of camera c} y_p <= 1    for every blob used by >= 2 points
+          sum_{e touches p} x_e >= k y_p     (k = min_point_degree, default 3)
 
 Deviations from the paper's literal text (which is degenerate, see DESIGN.md): ``sum x = n``
 instead of ``<= n``; neighbour bounds only on selected edges. The ghost rule is written per blob
 (a clique over all points triangulated from that blob) instead of per edge pair: it implies the
 paper's "two edges whose endpoints come from the same blobs of one camera cannot both be
-selected" and is much smaller. The bounds 6 and 12 are checked against the tape's solid graph
+selected" and is much smaller. The point-degree rule is ours: the paper's model lets a
+clutter point hang on the tape by a single edge (a pendant edge at a well-connected dot is even
+cheap, its Omega being large); every dot of a tape has >= 4 tape edges (>= 3 with one neighbour
+occluded), so requiring 3 removes such pendants. ``min_point_degree = 0`` restores the paper's
+model. The bounds 6 and 12 are checked against the tape's solid graph
 by :func:`neighbour_bounds` (min 6 at the end rows, max 12 in the middle).
 
 Relaxation: when the program is infeasible (occluded dots, missed blobs) ``n`` is lowered by one
@@ -45,7 +50,8 @@ logging.getLogger("pyomo.contrib.appsi.solvers.highs").setLevel(logging.WARNING)
 class LPConfig:
     """``solver``: Pyomo solver name (``appsi_highs`` or ``highs``); ``time_limit_s`` per solve;
     ``min_neighbours``/``max_neighbours``: Eq. 4-5 bounds (``None``: from the tape graph);
-    ``mip_rel_gap``: HiGHS optimality gap; ``max_step_relaxations``: unit decrements of n before one cardinality solve finds the largest
+    ``mip_rel_gap``: HiGHS optimality gap; ``min_point_degree``: selected edges a used point
+    needs (0 = the paper's model, see module docstring); ``max_step_relaxations``: unit decrements of n before one cardinality solve finds the largest
     feasible n; ``min_target``: give up below this many edges (no tape in the frame)."""
 
     solver: str = "appsi_highs"
@@ -55,6 +61,8 @@ class LPConfig:
     max_step_relaxations: int = 3
     min_target: int = 6
     mip_rel_gap: float = 1e-4
+    min_point_degree: int = 3
+    limit_points: bool = True
 
 
 def neighbour_bounds(tape: TapeSpec) -> tuple[int, int]:
@@ -102,6 +110,15 @@ class EdgeSelectionProgram:
         )
         m.use_i = pyo.Constraint(m.E, rule=lambda m, e: m.x[e] <= m.y[int(edges[e, 0])])
         m.use_j = pyo.Constraint(m.E, rule=lambda m, e: m.x[e] <= m.y[int(edges[e, 1])])
+        k = self.config.min_point_degree
+        if k > 0:
+            incident: dict[int, list[int]] = {}
+            for e, (i, j) in enumerate(edges.tolist()):
+                incident.setdefault(i, []).append(e)
+                incident.setdefault(j, []).append(e)
+            m.degree = pyo.Constraint(m.P, rule=lambda m, p: sum(m.x[e] for e in incident[p]) >= k * m.y[p])
+        if self.config.limit_points:
+            m.points = pyo.Constraint(expr=sum(m.y[p] for p in m.P) <= self.tape.n_dots)
         cliques = self._blob_cliques(points)
         m.ghost = pyo.ConstraintList()
         for members in cliques:

@@ -6,8 +6,8 @@ Per frame (``mode = "sequence"``):
 2. if the predicted dots find candidate points (>= 2 views) within ``match_radius_mm`` for at
    least ``min_explained`` of the dots, and the matched dots keep tape-like solid-edge lengths,
    the previous solution "explains" the frame: the LP and MRF1 are skipped, matched dots take
-   their triangulated points and the others move with their observed tape neighbours
-   (displacements interpolated in the flat tape frame), then MRF2 refines on the images;
+   their triangulated points and the others follow their observed tape neighbours (a locally
+   weighted affine map from the flat tape to 3D), then MRF2 refines them on the images;
 3. otherwise the full per-frame pipeline runs with the previous dots handed to MRF1, which
    orients the template by them (labels survive handstands) and warm-starts from them.
 After the sequence, short gaps (frames without a solution) are interpolated in time and
@@ -102,13 +102,20 @@ class SequenceTracker:
         return bool(((lengths > self.bounds[0]) & (lengths < self.bounds[1])).all())
 
     def _follow_neighbours(self, positions, predicted, seen, sigma_mm: float = 30.0) -> np.ndarray:
-        """Unmatched dots: prediction plus the matched dots' corrections, Gaussian-weighted by
-        distance on the flat tape (mm)."""
-        correction = positions[seen] - predicted[seen]
-        d2 = ((self.uv[~seen][:, None, :] - self.uv[seen][None, :, :]) ** 2).sum(axis=2)
-        w = np.exp(-0.5 * d2 / sigma_mm**2)
-        w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
-        return predicted[~seen] + w @ correction
+        """Unmatched dots from this frame's matched dots alone (no drift from earlier frames): a
+        weighted affine map from the flat tape (u, v) to 3D, fitted per unmatched dot to the matched
+        dots with Gaussian weights on their tape distance (mm), evaluated at the dot's (u, v)."""
+        uv_seen = np.column_stack([self.uv[seen], np.ones(seen.sum())])  # (S, 3)
+        xyz_seen = positions[seen]
+        out = predicted[~seen].copy()
+        for k, uv in enumerate(self.uv[~seen]):
+            w = np.exp(-0.5 * ((self.uv[seen] - uv) ** 2).sum(axis=1) / sigma_mm**2)
+            if (w > 1e-3).sum() < 3:
+                w = np.ones_like(w)  # far from every match: fall back to a global affine fit
+            sw = np.sqrt(w)[:, None]
+            A, *_ = np.linalg.lstsq(uv_seen * sw, xyz_seen * sw, rcond=None)
+            out[k] = np.append(uv, 1.0) @ A
+        return out
 
     def _remember(self, result: FrameResult) -> None:
         if not result.solved:
