@@ -82,7 +82,10 @@ def test_mrf1_recovers_the_tape_pose_with_missing_dots():
     assert err[~keep].mean() < 4.0
     hist = np.array(result.energy_history)
     assert len(hist) == MRF1Config().iterations + 1
-    assert np.all(np.diff(hist) <= 0) and hist[-1] < 0.8 * hist[0]
+    # every step lowers the energy it is judged by (parameters such as the edge normals follow
+    # the estimate, so consecutive history entries may differ by that refresh alone)
+    assert np.all(hist[1:] <= np.array(result.extra["energy_baselines"]))
+    assert np.all(np.diff(hist) < 0.01 * hist[0]) and hist[-1] < 0.8 * hist[0]
     assert result.extra["d"].shape == (TAPE.n_dots,)
 
 

@@ -52,6 +52,7 @@ def test_pbp_lowers_energy_towards_the_chain_optimum():
     result = ParticleBP(model, config, np.random.default_rng(0)).run(init)
     hist = np.array(result.energy_history)
     assert np.all(np.diff(hist) <= 1e-12), "the estimate's energy must never rise"
+    np.testing.assert_allclose(result.baselines, hist[:-1])  # nothing state-dependent to refresh
     best = model.optimum()
     e_opt = mrf_energy(model, best[:, None])
     assert hist[0] - e_opt > 50  # the start is far from the optimum

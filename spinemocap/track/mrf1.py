@@ -141,7 +141,8 @@ def fit_mrf1(
     ``previous`` (D, 3): last frame's labelled dots (NaN rows allowed); it decides the orientation
     (identity carried through handstands) and, with ``config.warm_start``, the start positions.
     Returns positions (D, 3) in label order; ``extra``: ``d`` (D,), ``template`` (D, 3),
-    ``normals`` (D, 3) at the template, ``orientation``. Raises ValueError for < 2 feasible points."""
+    ``normals`` (D, 3) at the template, ``orientation``, ``energy_baselines`` (see
+    :class:`~spinemocap.track.pbp.PBPResult`). Raises ValueError for < 2 feasible points."""
     config = config or MRF1Config()
     points = np.asarray(feasible.points, dtype=float).reshape(-1, 3)
     if len(points) < 2:
@@ -161,5 +162,6 @@ def fit_mrf1(
             "template": template.positions,
             "normals": template.normals,
             "orientation": template.orientation,
+            "energy_baselines": result.baselines,
         },
     )

@@ -327,6 +327,7 @@ def _refine(positions, tape, rig, evidence, config, normals, rng, feasible_point
         extra={
             "visible": model.visible.numpy() > 0,
             "pbp_positions": pbp_state,
+            "energy_baselines": result.baselines,
             "polish_history": polish_history,
             "final_energy": mrf_energy(model, state),
         },

@@ -13,7 +13,7 @@ Used by both tracker MRFs (paper Sec. 3.2-3.3, after Pacheco et al. and Hachmann
 4. picks a joint labelling on the augmented sets: the belief minimisers, improved by
    iterated conditional modes (ICM: each node in turn takes its best particle given its
    neighbours; nodes of one graph colour at once); the same ICM from the current estimate is the
-   fallback, so the estimate's energy never rises (loopy-BP belief minimisers alone are often
+   fallback, so a step never raises the energy (loopy-BP belief minimisers alone are often
    mutually inconsistent on the tape's triangle-rich graph);
 5. keeps the ``P`` lowest-belief distinct particles per node for the next iteration.
 
@@ -73,14 +73,18 @@ class PBPConfig:
 
 @dataclass
 class PBPResult:
-    """``state`` (D, S) the lowest-energy estimate; ``energy_history`` its energy after each
-    iteration (index 0: the initial state); ``particles`` (D, P, S) and ``beliefs`` (D, P) at the end."""
+    """``state`` (D, S) the final estimate; ``energy_history`` its energy after each iteration
+    (index 0: the initial state); ``baselines[i]``: the energy before step i under that
+    iteration's prepared parameters (``energy_history[i + 1] <= baselines[i]`` always; the two
+    differ from ``energy_history[i]`` only when ``prepare`` moved state-dependent parameters);
+    ``particles`` (D, P, S) and ``beliefs`` (D, P) at the end."""
 
     state: np.ndarray
     energy_history: list[float]
     particles: np.ndarray
     beliefs: np.ndarray
     accepted: list[bool] = field(default_factory=list)
+    baselines: list[float] = field(default_factory=list)
 
 
 def mrf_energy(model: PairwiseModel, state: np.ndarray) -> float:
@@ -255,7 +259,7 @@ class ParticleBP:
 
         model.prepare(state)
         energy = mrf_energy(model, state)
-        history, accepted = [energy], []
+        history, accepted, baselines = [energy], [], []
         kept = state[:, None, :] + rng.normal(size=(n_nodes, cfg.n_particles, dim)) * spread
         kept[:, 0] = state
         cost = self._directed_costs(kept)
@@ -285,6 +289,10 @@ class ParticleBP:
             scores = [_labelling_energy(graph, unary, cost, lab) for lab in candidates]
             labels = candidates[int(np.argmin(scores))]
             new_energy = min(scores)
+            # the current state's energy under this iteration's prepared parameters (normals,
+            # visibility may have moved with the state): the step is judged against it
+            energy = _labelling_energy(graph, unary, cost, np.full(n_nodes, kept.shape[1]))
+            baselines.append(energy)
             took = new_energy < energy - 1e-9 * max(1.0, abs(energy))
             if took:
                 state, energy = aug[np.arange(n_nodes), labels], new_energy
@@ -297,7 +305,8 @@ class ParticleBP:
             pre = np.take_along_axis(pre_aug, keep[graph.src], axis=1)
             width *= cfg.width_decay
 
-        return PBPResult(state=state, energy_history=history, particles=kept, beliefs=beliefs, accepted=accepted)
+        return PBPResult(state=state, energy_history=history, particles=kept, beliefs=beliefs,
+                         accepted=accepted, baselines=baselines)
 
 
 def minimise(model: PairwiseModel, init: np.ndarray, config: PBPConfig, rng: np.random.Generator | None = None) -> PBPResult:
