@@ -145,9 +145,11 @@ def detect_board(image: np.ndarray, board: BoardSpec) -> BoardDetection | None:
         if ids is None or len(ids) < 4:
             return None
         pixels = corners.reshape(-1, 2).astype(np.float32)
-        # Refine to sub-pixel with a small window (0.15 of the corner spacing): larger windows
-        # reach the ArUco markers' edges and bias the corner by tenths of a pixel.
-        win = int(np.clip(0.15 * _median_spacing(pixels), 2, 11))
+        # Refine to sub-pixel. The window's half-size must stay inside the white margin between
+        # a corner and the nearest ArUco marker ((square - marker) / 2), else the marker's edges
+        # pull the corner by tenths of a pixel.
+        margin = 0.5 * (1.0 - board.marker_mm / board.square_mm)
+        win = int(np.clip(0.8 * margin * _median_spacing(pixels), 2, 11))
         crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
         pixels = cv2.cornerSubPix(gray, pixels.reshape(-1, 1, 2), (win, win), (-1, -1), crit).reshape(-1, 2)
         pixels = pixels.astype(float)

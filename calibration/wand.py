@@ -106,7 +106,8 @@ def identify_wand(blobs: np.ndarray, wand: WandSpec, max_line_error: float = 0.0
         middle = 3 - i - j
         span = d[i, j]
         line = (p[j] - p[i]) / span
-        off = abs(np.cross(line, p[middle] - p[i])) / span
+        rel = p[middle] - p[i]
+        off = abs(line[0] * rel[1] - line[1] * rel[0]) / span
         scores.append((off, triple, (triple[i], triple[middle], triple[j])))
     scores.sort(key=lambda s: s[0])
     (off1, t1, o1), (off2, t2, o2) = scores[0], scores[1]

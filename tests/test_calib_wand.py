@@ -1,0 +1,61 @@
+"""Vicon wand co-registration on a rendered wand wave with a known Vicon transform and clock
+offset; marker identification; bad Vicon files."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from calibration.wand import (WandSpec, coregister, identify_wand, read_vicon_wand, write_vicon_wand_c3d)
+from spinemocap.fileio import InputError
+from spinemocap.synth.calibration_scenes import make_ring_rig, render_wand_wave
+
+
+@pytest.fixture(scope="module")
+def wave():
+    return render_wand_wave(make_ring_rig(6, size=(800, 600), seed=0), duration_s=3.0, fps=50.0,
+                            vicon_rate=100.0, offset_s=0.0237, seed=3)
+
+
+def test_recovers_vicon_transform_and_offset(wave, tmp_path):
+    c3d_path = tmp_path / "wand.c3d"
+    write_vicon_wand_c3d(c3d_path, wave.vicon_mm, wave.vicon_rate, wave.wand)
+    frames = ([wave.images[c.name][f] for c in wave.rig] for f in range(len(wave.world_mm)))
+    result = coregister(wave.rig, frames, wave.fps, c3d_path, progress=False)
+    assert abs(result.offset_s - wave.offset_s) < 0.001
+    assert np.degrees(Rotation.from_matrix(result.R @ wave.R.T).magnitude()) < 0.1
+    assert np.linalg.norm(result.t - wave.t) < 1.0
+    assert abs(result.scale - 1) < 0.001
+    assert result.n_frames > 100
+    assert set(result.residual_mm) == set(wave.wand.labels)
+    assert all(r < 1.0 for r in result.residual_mm.values())
+    # the rig in the Vicon frame projects Vicon-frame points where the original projects rig points
+    moved = result.rig_in_vicon
+    world = wave.world_mm[40]
+    in_vicon = world @ wave.R.T + wave.t
+    assert np.max(np.abs(moved.project(in_vicon) - wave.rig.project(world))) < 0.5
+    assert "ms" in result.summary()
+
+
+def test_identify_wand_is_order_free_and_rejects_ambiguity():
+    wand = WandSpec()
+    pixels = wand.points_mm[:, :2] * np.array([0.8, -0.7]) + [400, 300]
+    rng = np.random.default_rng(1)
+    shuffled = pixels[rng.permutation(5)]
+    np.testing.assert_allclose(identify_wand(shuffled, wand), pixels)
+    assert identify_wand(pixels[:4], wand) is None
+    line = np.column_stack([np.linspace(0, 400, 5), np.full(5, 100.0)])
+    assert identify_wand(line, wand) is None
+
+
+def test_vicon_c3d_without_wand_markers(tmp_path):
+    other = WandSpec(labels=("A", "B", "C", "D", "E"))
+    path = tmp_path / "bad.c3d"
+    write_vicon_wand_c3d(path, np.zeros((50, 5, 3)) + np.arange(5)[:, None], 100.0, other)
+    with pytest.raises(InputError, match=r"wand markers \['WAND1'.*Label the wand's markers"):
+        read_vicon_wand(path, WandSpec())
+    with pytest.raises(InputError):
+        read_vicon_wand(tmp_path / "missing.c3d", WandSpec())
+    short = tmp_path / "short.c3d"
+    write_vicon_wand_c3d(short, np.zeros((10, 5, 3)) + np.arange(5)[:, None], 100.0, WandSpec())
+    with pytest.raises(InputError, match="only 10 frames"):
+        read_vicon_wand(short, WandSpec())
