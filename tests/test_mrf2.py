@@ -72,7 +72,7 @@ def scene():
 def test_evidence_is_low_on_dots_high_between_and_grows_off_the_tape(scene):
     rig, images, masks, truth = scene
     cam = rig[1]
-    ev = build_evidence(images[1], masks[1])
+    ev = build_evidence(images[1], masks[1], crop_margin_px=None)  # the whole image
     at_dots = ev.sample(cam.project(truth))
     mids = 0.5 * (truth[TAPE.solid_edges[:, 0]] + truth[TAPE.solid_edges[:, 1]])
     between = ev.sample(cam.project(mids))
@@ -85,11 +85,17 @@ def test_evidence_is_low_on_dots_high_between_and_grows_off_the_tape(scene):
     assert off[0] > 1.0 and off[0] < off[1] < off[2]
     # bilinear sampling reproduces the cost image at pixel centres
     assert ev.sample(np.array([[10.0, 20.0]]))[0] == pytest.approx(ev.cost[20, 10], abs=1e-6)
+    # the default crop to the tape's box (+ margin) agrees inside it and is high beyond it
+    cropped = build_evidence(images[1], masks[1], crop_margin_px=40)
+    assert cropped.cost.size < 0.5 * ev.cost.size
+    near = np.concatenate([cam.project(truth), cam.project(mids), [centre + [60.0, 0]]])
+    np.testing.assert_allclose(cropped.sample(near), ev.sample(near), atol=1e-5)
+    assert cropped.sample(np.array([centre + [200.0, 0]]))[0] >= off[0]
 
 
 def test_evidence_downscale_keeps_dots(scene):
     rig, images, masks, truth = scene
-    half = build_evidence(images[2], masks[2], downscale=0.5)
+    half = build_evidence(images[2], masks[2], downscale=0.5, crop_margin_px=None)
     assert half.cost.shape == (images[2].shape[0] // 2, images[2].shape[1] // 2)
     assert np.median(half.sample(rig[2].project(truth))) < 0.2
 

@@ -19,43 +19,24 @@ import torch
 
 @dataclass
 class EvidenceImage:
-    """Cost image ``cost`` (h, w) float32 where pixel (i, j) covers full-resolution pixel
-    ``(j / scale, i / scale)``; ``outside_cost`` is returned for points off the image."""
+    """Cost image ``cost`` (h, w) float32 covering a window of the camera image: cost pixel
+    (i, j) is full-resolution pixel ``(origin[0] + j / scale, origin[1] + i / scale)``. Points
+    outside the window read ``outside_cost`` (at least the window's largest cost)."""
 
     cost: np.ndarray
     scale: float
     outside_cost: float
-
-    def __post_init__(self) -> None:
-        self._tensor = torch.from_numpy(np.ascontiguousarray(self.cost, dtype=np.float32)).double()
+    origin: tuple[float, float] = (0.0, 0.0)
 
     @property
     def shape(self) -> tuple[int, int]:
         return self.cost.shape
 
-    def sample_torch(self, uv: torch.Tensor) -> torch.Tensor:
-        """Bilinear cost at (..., 2) full-resolution pixel coordinates (differentiable in uv)."""
-        h, w = self.cost.shape
-        x = uv[..., 0] * self.scale
-        y = uv[..., 1] * self.scale
-        inside = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1) & torch.isfinite(x) & torch.isfinite(y)
-        xc = torch.where(inside, x, torch.zeros_like(x)).clamp(0, w - 1)
-        yc = torch.where(inside, y, torch.zeros_like(y)).clamp(0, h - 1)
-        x0 = xc.detach().floor().clamp(max=w - 2).long() if w > 1 else xc.detach().floor().long()
-        y0 = yc.detach().floor().clamp(max=h - 2).long() if h > 1 else yc.detach().floor().long()
-        fx, fy = xc - x0, yc - y0
-        x1, y1 = (x0 + 1).clamp(max=w - 1), (y0 + 1).clamp(max=h - 1)
-        img = self._tensor
-        top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
-        bottom = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
-        value = top * (1 - fy) + bottom * fy
-        return torch.where(inside, value, torch.full_like(value, self.outside_cost))
-
     def sample(self, uv: np.ndarray) -> np.ndarray:
-        """Bilinear cost at (N, 2) full-resolution pixel coordinates; ``outside_cost`` off-image."""
-        uv = np.asarray(uv, dtype=float)
+        """Bilinear cost at (N, 2) full-resolution pixel coordinates."""
+        uv = torch.from_numpy(np.asarray(uv, dtype=np.float64).reshape(1, -1, 2))
         with torch.no_grad():
-            return self.sample_torch(torch.from_numpy(uv)).numpy()
+            return EvidenceStack([self]).sample_torch(uv)[0].numpy()
 
 
 class EvidenceStack:
@@ -69,24 +50,26 @@ class EvidenceStack:
         h = max((e.shape[0] for e in present), default=1) + 2
         w = max((e.shape[1] for e in present), default=1) + 2
         canvas = np.zeros((len(evidence), 1, h, w), dtype=np.float64)
-        self.scale = np.ones(len(evidence))
+        scale, origin = np.ones(len(evidence)), np.zeros((len(evidence), 2))
         for c, e in enumerate(evidence):
             if e is None:
                 continue
             canvas[c, 0] = e.outside_cost
             canvas[c, 0, 1 : 1 + e.shape[0], 1 : 1 + e.shape[1]] = e.cost
-            self.scale[c] = e.scale
+            scale[c], origin[c] = e.scale, e.origin
         self.shape = (h, w)
         self._flat = torch.from_numpy(canvas.reshape(-1))
         self._base = torch.arange(len(evidence))[:, None] * (h * w)
-        self._scale = torch.from_numpy(self.scale)[:, None]
+        self._scale = torch.from_numpy(scale)[:, None]
+        self._origin = torch.from_numpy(origin)[:, None, :]
 
     def sample_torch(self, uv: torch.Tensor) -> torch.Tensor:
         """uv (C, N, 2) full-resolution pixels, camera c in row c -> (C, N) bilinear costs,
         differentiable in uv; points off the canvas read the border (the outside cost)."""
         h, w = self.shape
-        x = torch.nan_to_num((uv[..., 0] * self._scale + 1.0), nan=-1.0).clamp(0, w - 1)
-        y = torch.nan_to_num((uv[..., 1] * self._scale + 1.0), nan=-1.0).clamp(0, h - 1)
+        local = uv - self._origin
+        x = torch.nan_to_num((local[..., 0] * self._scale + 1.0), nan=-1.0).clamp(0, w - 1)
+        y = torch.nan_to_num((local[..., 1] * self._scale + 1.0), nan=-1.0).clamp(0, h - 1)
         x0 = x.detach().floor().clamp(max=w - 2)
         y0 = y.detach().floor().clamp(max=h - 2)
         fx, fy = x - x0, y - y0
@@ -115,6 +98,7 @@ def build_evidence(
     blur_sigma_px: float | None = None,
     outside_slope: float = 0.05,
     dot_to_width: float = 0.2,
+    crop_margin_px: float | None = 64.0,
 ) -> EvidenceImage:
     """Cost image of one camera view.
 
@@ -122,7 +106,9 @@ def build_evidence(
     (whole image counts as tape). Inside the mask the cost is ``1 - normalised brightness`` in
     [0, 1] (1st/99.5th brightness percentiles inside the mask, after the blur, map to 1/0); outside it is
     ``1 + outside_slope * distance_px``. ``blur_sigma_px`` (full-resolution px) defaults to 0.6 of
-    the dot radius estimated from the mask width."""
+    the dot radius estimated from the mask width. With ``crop_margin_px`` the cost is built only
+    in the mask's bounding box grown by that margin (the rest reads the outside cost): the tape
+    fills a small part of a frame, so this saves most of the work; None keeps the whole image."""
     if image.ndim == 3:
         grey = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY)
     else:
@@ -132,6 +118,15 @@ def build_evidence(
     tape = np.ones((h, w), dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
     if tape.shape != (h, w):
         raise ValueError(f"mask shape {tape.shape} differs from image shape {(h, w)}")
+    origin = (0.0, 0.0)
+    if crop_margin_px is not None and mask is not None and tape.any():
+        rows, cols = np.flatnonzero(tape.any(axis=1)), np.flatnonzero(tape.any(axis=0))
+        m = int(np.ceil(crop_margin_px))
+        y0, y1 = max(rows[0] - m, 0), min(rows[-1] + m + 1, h)
+        x0, x1 = max(cols[0] - m, 0), min(cols[-1] + m + 1, w)
+        grey, tape = grey[y0:y1, x0:x1], tape[y0:y1, x0:x1]
+        h, w = grey.shape
+        origin = (float(x0), float(y0))
     if blur_sigma_px is None:
         blur_sigma_px = 0.6 * estimate_dot_radius_px(tape, dot_to_width) if mask is not None else 1.5
     if downscale != 1.0:
@@ -155,4 +150,5 @@ def build_evidence(
         outside = cv2.distanceTransform((~tape).astype(np.uint8), cv2.DIST_L2, 5) / downscale
         cost = np.where(tape, cost, 1.0 + outside_slope * outside)
     outside_cost = float(cost.max()) if cost.size else 1.0
-    return EvidenceImage(cost=cost.astype(np.float32), scale=float(downscale), outside_cost=outside_cost)
+    return EvidenceImage(cost=cost.astype(np.float32), scale=float(downscale), outside_cost=outside_cost,
+                         origin=origin)
