@@ -47,6 +47,24 @@ def step_synthesize(ctx: DemoContext) -> None:
     ctx.report("ground truth", ctx.capture_dir / "groundtruth.npz")
 
 
+def step_track(ctx: DemoContext) -> None:
+    """Track the tape dots (LP + MRFs, sequence mode) and compare with the ground truth."""
+    from spinemocap.commands.track import accuracy_summary
+    from spinemocap.track.pipeline import track_capture
+
+    try:  # the trained tape detector when installed, else dots inside the renderer's tape masks
+        from spinemocap.detect import Detector  # noqa: F401
+        detector = "net"
+    except ImportError:
+        detector = "mask"
+    out = ctx.out / "tracked"
+    table = track_capture(ctx.capture_dir, out, mode="sequence", detector=detector)
+    print(f"    detector {detector}; " + accuracy_summary(table, ctx.capture_dir))
+    ctx.report("tracked markers (table)", out / "markers.csv")
+    ctx.report("tracked markers (OpenSim)", out / "markers.trc")
+    ctx.report("tracked markers (C3D)", out / "markers.c3d")
+
+
 def step_report(ctx: DemoContext) -> None:
     """Spine angles and their report (HTML with plots, CSV, XLSX) for the capture."""
     from spinemocap.analysis.report import report_capture
@@ -59,6 +77,7 @@ def step_report(ctx: DemoContext) -> None:
 
 STEPS: list[Callable[[DemoContext], None]] = [
     step_synthesize,
+    step_track,
     step_report,  # last: reports on the markers of the steps before
 ]
 
