@@ -168,7 +168,7 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     v = np.asarray(vertices, float)
     tri = v[faces]
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, faces[:, k], fn)
+    idx = faces.ravel()
+    weights = np.repeat(fn, 3, axis=0)  # each face normal once per corner, in faces.ravel() order
+    n = np.column_stack([np.bincount(idx, weights[:, d], minlength=len(v)) for d in range(3)])
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)

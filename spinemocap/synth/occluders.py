@@ -7,8 +7,9 @@ passes through the body (no collisions: a ball overlapping a dot hides it from e
 source of the paper's all-camera occlusions). Release times are uniform over the sequence
 (starting one fall time early so the first frame already has balls in the air).
 
-Occlusion levels give a ball *rate*: ``light`` releases 5000 and ``heavy`` 10000 balls over the
-paper's 548 frames at 100 fps (5.48 s), scaled with the sequence's duration. The ball size and
+Occlusion levels give a ball *density*: ``light`` releases 5000 and ``heavy`` 10000 balls for the
+paper's 548 frames at 100 fps (5.48 s); other durations get as many balls as keep the same
+density in the air (:func:`balls_for`). The ball size and
 box were tuned (``spinemocap bench render``) so the share of dot-frames seen by 4/3/2/1/0 cameras
 on the ``artificial`` preset matches the paper's Table 2.
 """
@@ -25,16 +26,25 @@ PAPER_DURATION_S = 548 / 100.0
 OCCLUSION_LEVELS = {"none": 0, "light": 5000, "heavy": 10000}  # balls per PAPER_DURATION_S
 # Tuned against Table 2 (see module docstring): radius range and the box, relative to the tape's
 # rest centre (x across, y from the back toward the cameras).
-BALL_RADIUS_MM = (25.0, 45.0)
+BALL_RADIUS_MM = (9.0, 20.0)
 BOX_X_MM = (-450.0, 450.0)
 BOX_Y_MM = (-60.0, 900.0)
+BOX_Y_POWER = 1.5
+
+
+def fall_time_s() -> float:
+    """Longest time a ball is in the air (released at the drop height, gone below the floor)."""
+    return float(np.sqrt(2 * (DROP_HEIGHT_MM + BALL_RADIUS_MM[1]) / G_MM_S2))
 
 
 def balls_for(level: str, duration_s: float) -> int:
-    """Number of balls an occlusion level releases over ``duration_s`` seconds."""
+    """Number of balls an occlusion level releases for a sequence of ``duration_s`` seconds:
+    balls are released over ``[-fall time, duration]``, so the count scales with that window to
+    keep the density of balls in the air equal to the paper's 548-frame sequence."""
     if level not in OCCLUSION_LEVELS:
         raise ValueError(f"unknown occlusion level {level!r}; choose from {list(OCCLUSION_LEVELS)}")
-    return int(round(OCCLUSION_LEVELS[level] * duration_s / PAPER_DURATION_S))
+    window = (duration_s + fall_time_s()) / (PAPER_DURATION_S + fall_time_s())
+    return int(round(OCCLUSION_LEVELS[level] * window))
 
 
 @dataclass
@@ -47,10 +57,12 @@ class FallingBalls:
 
     @classmethod
     def generate(cls, n: int, duration_s: float, target_mm: np.ndarray, rng: np.random.Generator) -> "FallingBalls":
-        fall_s = np.sqrt(2 * (DROP_HEIGHT_MM + BALL_RADIUS_MM[1]) / G_MM_S2)
+        fall_s = fall_time_s()
         radius = rng.uniform(*BALL_RADIUS_MM, size=n)
         x = target_mm[0] + rng.uniform(*BOX_X_MM, size=n)
-        y = target_mm[1] + rng.uniform(*BOX_Y_MM, size=n)
+        # denser near the back (BOX_Y_POWER > 1): balls brushing the skin hide a dot from every
+        # camera at once, the paper's bursts of all-camera occlusion
+        y = target_mm[1] + BOX_Y_MM[0] + (BOX_Y_MM[1] - BOX_Y_MM[0]) * rng.uniform(size=n) ** BOX_Y_POWER
         release = rng.uniform(-fall_s, duration_s, size=n)
         return cls(radius, np.column_stack([x, y]), release)
 

@@ -170,7 +170,8 @@ class CameraRenderer:
             self.occluder_actor = self.plotter.add_mesh(meshes.occluders, color=self.appearance.skin_rgb,
                                                         ambient=0.15, diffuse=0.85, render=False)
 
-    def _snapshot(self) -> np.ndarray:
+    def snapshot(self) -> np.ndarray:
+        """Render what the plotter holds now, through the lens: distorted RGB (H, W, 3) uint8."""
         self.plotter.render()
         rgb = self.plotter.screenshot(return_img=True)
         if self.supersample > 1:
@@ -185,7 +186,7 @@ class CameraRenderer:
         """Colour image (H, W, 3) RGB uint8 and tape mask (H, W) bool (None if not asked)."""
         self._update(meshes)
         self.tape_solid_actor.SetVisibility(False)
-        rgb = self._snapshot()
+        rgb = self.snapshot()
         if not with_mask:
             return rgb, None
         # mask pass: unlit, tape silhouette white, everything that can hide it black
@@ -205,7 +206,7 @@ class CameraRenderer:
         solid.SetSpecular(0.0)
         background = self.plotter.background_color
         self.plotter.set_background("black")
-        mask = self._snapshot()[..., 1] > 127
+        mask = self.snapshot()[..., 1] > 127
         self.plotter.set_background(background)
         self.tape_solid_actor.SetVisibility(False)
         self.tape_actor.SetVisibility(True)

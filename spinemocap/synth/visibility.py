@@ -30,18 +30,18 @@ class MeshRayCaster:
         import vtk
 
         mesh = pv.PolyData(np.asarray(vertices, float), np.column_stack([np.full(len(faces), 3), faces]).ravel())
-        self._tree = vtk.vtkOBBTree()
-        self._tree.SetDataSet(mesh)
-        self._tree.BuildLocator()
-        self._points = vtk.vtkPoints()
-        self._ids = vtk.vtkIdList()
+        # a static cell locator builds ~10x faster than an OBB tree and we rebuild every frame
+        self._locator = vtk.vtkStaticCellLocator()
+        self._locator.SetDataSet(mesh)
+        self._locator.BuildLocator()
+        self._t, self._x, self._pc = vtk.reference(0.0), [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+        self._sub, self._cell = vtk.reference(0), vtk.reference(0)
 
     def blocked(self, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
         """(S,) bool: does the segment ``starts[s] -> ends[s]`` cross the mesh?"""
         out = np.zeros(len(starts), dtype=bool)
         for s, (a, b) in enumerate(zip(starts, ends)):
-            self._tree.IntersectWithLine(a, b, self._points, self._ids)
-            out[s] = self._points.GetNumberOfPoints() > 0
+            out[s] = bool(self._locator.IntersectWithLine(a, b, 0.0, self._t, self._x, self._pc, self._sub, self._cell))
         return out
 
 
@@ -75,9 +75,24 @@ def dot_visibility(rig: Rig, dots: np.ndarray, normals: np.ndarray, uv: np.ndarr
         lifted = dots[idx] + RAY_LIFT_MM * normals[idx]
         ok_body = ~caster.blocked(lifted, np.repeat(centre[None], len(idx), axis=0))
         samples = np.concatenate([dots[idx, None, :], rims[idx]], axis=1).reshape(-1, 3)  # (n*5, 3)
+        near = _balls_near_view(centre, samples, ball_centres, ball_radii)
         hidden = segments_blocked_by_spheres(
-            np.repeat(centre[None], len(samples), axis=0), samples, ball_centres, ball_radii
+            np.repeat(centre[None], len(samples), axis=0), samples, ball_centres[near], ball_radii[near]
         ).reshape(len(idx), 5)
         ok_balls = ~hidden[:, 0] & (hidden[:, 1:].sum(axis=1) <= 1)
         visible[c, idx] = ok_body & ok_balls
     return visible
+
+
+def _balls_near_view(camera_centre: np.ndarray, samples: np.ndarray, centres: np.ndarray,
+                     radii: np.ndarray) -> np.ndarray:
+    """(B,) bool: balls that can touch any segment camera -> sample (a cheap cone pre-filter:
+    distance to the segment camera -> sample centroid below radius + samples' spread)."""
+    if len(centres) == 0:
+        return np.zeros(0, dtype=bool)
+    mid = samples.mean(axis=0)
+    spread = np.linalg.norm(samples - mid, axis=1).max()
+    d = mid - camera_centre
+    s = np.clip((centres - camera_centre) @ d / (d @ d), 0.0, 1.0)
+    dist = np.linalg.norm(camera_centre + s[:, None] * d - centres, axis=1)
+    return dist < radii + spread + 1.0

@@ -1,0 +1,122 @@
+"""``spinemocap bench render``: render speed at the studio resolution and the occlusion table.
+
+Two measurements:
+1. render time per camera-frame of the ``studio`` preset (2448x1600, image + tape mask pass),
+   and the ground-truth (visibility ray casting) time per frame;
+2. the share of dot-frames seen by 4/3/2/1/0 cameras on the ``artificial`` preset for the
+   occlusion levels none/light/heavy, next to the paper's Table 2 (0, 5000, 10000 balls).
+   Visibility is purely geometric, so this needs no rendering.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..fileio import atomic_write
+from .scene import SynthConfig, build_scene
+
+# Paper Table 2: dot-frames of the 548-frame, 32-dot Artificial sequence seen by 4/3/2/1/0 cameras.
+PAPER_TABLE2 = {
+    "none": np.array([17536, 0, 0, 0, 0]),
+    "light": np.array([11197, 5328, 825, 83, 103]),
+    "heavy": np.array([6846, 6812, 2764, 607, 507]),
+}
+PAPER_BALLS = {"none": 0, "light": 5000, "heavy": 10000}
+
+
+def views_histogram(visible: np.ndarray) -> np.ndarray:
+    """(F, C, D) visibility -> counts of dot-frames seen by C, C-1, ..., 0 cameras."""
+    n_views = visible.sum(axis=1).ravel()
+    C = visible.shape[1]
+    return np.array([(n_views == k).sum() for k in range(C, -1, -1)])
+
+
+def visibility_table(frames: int = 548, seed: int = 0, progress: bool = True) -> dict[str, np.ndarray]:
+    """Histograms of views per dot-frame on the artificial preset for each occlusion level."""
+    table = {}
+    for level in PAPER_TABLE2:
+        scene = build_scene(SynthConfig.preset("artificial", frames=frames, occlusion=level, seed=seed))
+        table[level] = views_histogram(scene.groundtruth["visible"])
+    return table
+
+
+def time_studio_render(frames: int = 3) -> dict[str, float]:
+    """Seconds per camera-frame (image + mask) at 2448x1600, and ground truth per frame."""
+    scene = build_scene(SynthConfig.preset("studio", frames=max(frames, 2) + 1))
+    t0 = time.perf_counter()
+    scene.render(0)  # warm-up: creates the plotters and distortion maps
+    setup = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for f in range(1, frames + 1):
+        scene.render(f)
+    per_camera_frame = (time.perf_counter() - t0) / (frames * len(scene.rig))
+    t0 = time.perf_counter()
+    for f in range(1, frames + 1):
+        scene.frame_groundtruth(f)
+    gt_per_frame = (time.perf_counter() - t0) / frames
+    t0 = time.perf_counter()
+    for f in range(1, frames + 1):
+        scene.render(f, with_masks=False)
+    image_only = (time.perf_counter() - t0) / (frames * len(scene.rig))
+    scene.close()
+    return {"setup_s": setup, "render_s_per_camera_frame": per_camera_frame,
+            "image_only_s_per_camera_frame": image_only, "groundtruth_s_per_frame": gt_per_frame,
+            "cameras": len(scene.rig), "size": list(scene.rig[0].size)}
+
+
+def plot_table(table: dict[str, np.ndarray], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(11, 3.4), sharey=True)
+    x = np.arange(5)
+    for ax, level in zip(axes, table):
+        ours = table[level] / table[level].sum() * 100
+        paper = PAPER_TABLE2[level] / PAPER_TABLE2[level].sum() * 100
+        ax.bar(x - 0.2, paper, 0.4, label="paper Table 2")
+        ax.bar(x + 0.2, ours, 0.4, label="synthetic studio")
+        ax.set_xticks(x, ["4", "3", "2", "1", "0"])
+        ax.set_xlabel("cameras seeing the dot")
+        ax.set_title(f"{level} ({PAPER_BALLS[level]} balls)")
+    axes[0].set_ylabel("% of dot-frames")
+    axes[0].legend()
+    fig.tight_layout()
+    with atomic_write(path, "wb") as handle:
+        fig.savefig(handle, format="png", dpi=120)
+    plt.close(fig)
+
+
+def run_render_benchmark(frames: int, visibility_frames: int, out: Path) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"timing studio renders ({frames} frames x 6 cameras at 2448x1600) ...")
+    timing = time_studio_render(frames)
+    print(f"  render (image + mask): {timing['render_s_per_camera_frame']:.2f} s per camera-frame")
+    print(f"  render (image only):   {timing['image_only_s_per_camera_frame']:.2f} s per camera-frame")
+    print(f"  ground truth:          {timing['groundtruth_s_per_frame'] * 1000:.0f} ms per frame (6 cameras)")
+    print(f"visibility table on the artificial preset ({visibility_frames} frames) ...")
+    table = visibility_table(visibility_frames)
+    rows = []
+    print(f"  {'level':<6} {'balls':>6} | " + " ".join(f"{k} cams".rjust(15) for k in (4, 3, 2, 1, 0)))
+    for level, counts in table.items():
+        share = counts / counts.sum() * 100
+        paper = PAPER_TABLE2[level] / PAPER_TABLE2[level].sum() * 100
+        cells = " ".join(f"{s:5.1f}% ({p:4.1f}%)".rjust(15) for s, p in zip(share, paper))
+        print(f"  {level:<6} {PAPER_BALLS[level]:>6} | {cells}")
+        rows.append({"level": level, "counts": counts.tolist(), "share_percent": share.round(2).tolist(),
+                     "paper_share_percent": paper.round(2).tolist(),
+                     "max_abs_diff_points": float(np.abs(share - paper).max())})
+    print("  (paper's Table 2 shares in brackets)")
+    plot_table(table, out / "visibility_table.png")
+    result = {"machine": f"{platform.machine()} {platform.processor()}".strip(), "timing": timing,
+              "visibility_frames": visibility_frames, "visibility": rows}
+    with atomic_write(out / "render_benchmark.json", "w") as handle:
+        json.dump(result, handle, indent=2)
+    print(f"wrote {out / 'render_benchmark.json'} and {out / 'visibility_table.png'}")
+    return result
