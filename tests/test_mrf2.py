@@ -7,7 +7,9 @@ import pytest
 from spinemocap.camera import Camera, Rig
 from spinemocap.tape import TapeSpec
 from spinemocap.track.evidence import build_evidence
-from spinemocap.track.mrf2 import MRF2Config, RefinementMRF, refine_mrf2
+from spinemocap.track.mrf1 import MRF1Config, fit_mrf1
+from spinemocap.track.mrf2 import MRF2Config, RefinementMRF, TemplateEvidenceScore, refine_mrf2
+from spinemocap.track.types import FeasibleSet
 
 TAPE = TapeSpec(n_rows=13).graph
 
@@ -145,3 +147,21 @@ def test_mrf2_reports_skin_points_under_the_tape(scene):
     shift = result.positions - truth
     np.testing.assert_allclose(np.linalg.norm(shift, axis=1), 0.8, atol=1e-9)
     assert np.all(shift[:, 1] < -0.75)  # inward: against the outward normal (+Y here)
+
+
+def test_template_evidence_score_breaks_the_two_row_tie(scene):
+    rig, images, masks, truth = scene
+    evidence = [build_evidence(i, m) for i, m in zip(images, masks)]
+    score = TemplateEvidenceScore(rig, evidence, TAPE)
+    u, v = TAPE.uv_mm[:, 0], TAPE.uv_mm[:, 1]
+    shifted = [surface(u, v + 50.0), surface(u, v - 50.0)]  # same dot pattern, two rows along
+    costs = score(np.stack([truth] + shifted))
+    assert costs[0] < 0.5 * costs[1:].min()
+    # MRF1 on a feasible set missing both ends of the tape (rows 1-3 and 11-13) places it right
+    # only with the images' help
+    middle = (TAPE.row >= 3) & (TAPE.row <= 9)
+    fs = FeasibleSet(points=truth[middle], normals=np.tile([0.0, 1.0, 0.0], (middle.sum(), 1)),
+                     edges=np.zeros((0, 2), int), source_index=np.arange(middle.sum()), n_target=0,
+                     n_target_initial=0)
+    helped = fit_mrf1(fs, TAPE, MRF1Config(), up=np.array([0, 0, 1.0]), template_score=score)
+    assert np.linalg.norm(helped.positions - truth, axis=1)[middle].max() < 2.0

@@ -18,6 +18,7 @@ The paper writes ``d_target`` for the fourth term: "measured tape distances", i.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -134,12 +135,16 @@ def fit_mrf1(
     up: np.ndarray | None = None,
     previous: np.ndarray | None = None,
     rng: np.random.Generator | None = None,
+    template_score: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> MRFResult:
     """Align the tape template to ``feasible`` (world mm) by particle BP on the MRF1 energy.
 
     ``up`` (3,): the subject's up direction for the first frame (row 1 = lower end; default +Z).
     ``previous`` (D, 3): last frame's labelled dots (NaN rows allowed); it decides the orientation
     (identity carried through handstands) and, with ``config.warm_start``, the start positions.
+    ``template_score`` (beyond the paper): scores candidate templates (C, D, 3) -> (C,), lower
+    is better; it decides between offsets along the tape that fit a partial feasible set equally
+    well (e.g. :class:`~spinemocap.track.mrf2.TemplateEvidenceScore` on the camera images).
     Returns positions (D, 3) in label order; ``extra``: ``d`` (D,), ``template`` (D, 3),
     ``normals`` (D, 3) at the template, ``orientation``, ``energy_baselines`` (see
     :class:`~spinemocap.track.pbp.PBPResult`). Raises ValueError for < 2 feasible points."""
@@ -149,7 +154,8 @@ def fit_mrf1(
         raise ValueError(f"MRF1 needs at least 2 feasible points; got {len(points)}")
     field = NormalField(points, feasible.normals, radius_mm=config.normal_radius_mm)
     template = build_template(
-        points, feasible.normals, tape, up=up, previous=previous, warm_start=config.warm_start, field=field
+        points, feasible.normals, tape, up=up, previous=previous, warm_start=config.warm_start, field=field,
+        template_score=template_score,
     )
     model = AlignmentMRF(points, field, tape, config)
     init = np.column_stack([template.positions, np.ones(tape.n_dots)])

@@ -43,6 +43,10 @@ class MRF2Config:
     theta7: float = 0.002  # edge along its expected in-plane direction
     theta8: float = 0.002  # edge length vs rest length
     facing_cos: float = 0.05  # a camera sees a dot when cos(normal, dot->camera) exceeds this
+    # beyond the paper: per-view image cost capped here (None: uncapped, the paper's growing
+    # distance transform). An occluder in front of a dot makes its view look "off the tape"; a cap
+    # keeps that view from dragging the dot to the nearest visible tape.
+    cost_cap: float | None = 1.0
     image_margin_px: float = 2.0
     particles: int = 4
     slice_particles: int = 4
@@ -185,7 +189,8 @@ class RefinementMRF:
     def image_costs(self, x: torch.Tensor) -> torch.Tensor:
         """(C, ...) evidence cost of points x (..., 3) in every camera (0 where none)."""
         uv = self.cams.project(x)  # (C, ..., 2)
-        return self.stack.sample_torch(uv.reshape(uv.shape[0], -1, 2)).reshape(uv.shape[:-1])
+        cost = self.stack.sample_torch(uv.reshape(uv.shape[0], -1, 2)).reshape(uv.shape[:-1])
+        return cost if self.config.cost_cap is None else cost.clamp(max=self.config.cost_cap)
 
     def unary_t(self, x: torch.Tensor) -> torch.Tensor:
         """x (D, Q, 3) -> (D, Q): Eq. 10 plus theta5's per-node part of Eq. 11."""
@@ -272,6 +277,38 @@ class RefinementMRF:
                 best, best_energy = x.numpy().copy(), energy
             history.append(best_energy)
         return best, history
+
+
+class TemplateEvidenceScore:
+    """Mean image cost of candidate tape templates, for MRF1's offset choice (beyond the paper).
+
+    A template shifted along the tape by two rows fits a partial feasible set as well as the
+    right one, but puts its end rows off the tape in the images (high outside-mask cost) or
+    its dots on dark tape. Call with templates (C, D, 3) mm -> (C,) mean cost over the dots'
+    facing, in-image cameras (Eq. 10 per dot-view)."""
+
+    def __init__(self, rig: Rig, evidence: Sequence[EvidenceImage | None], tape: TapeGraph,
+                 facing_cos: float = 0.05, margin_px: float = 2.0):
+        self.rig, self.tape = rig, tape
+        self.cams = _TorchRig(rig)
+        self.stack = EvidenceStack(list(evidence))
+        self.has_image = np.array([e is not None for e in evidence])
+        self.facing_cos, self.margin_px = facing_cos, margin_px
+
+    def __call__(self, templates: np.ndarray) -> np.ndarray:
+        templates = np.asarray(templates, dtype=float)
+        out = np.zeros(len(templates))
+        with _torch_single_thread(), torch.no_grad():
+            for i, pos in enumerate(templates):
+                normal = tape_frames(pos, self.tape)[0]
+                use = np.zeros((len(self.rig), len(pos)), dtype=bool)
+                for c, cam in enumerate(self.rig):
+                    to_cam = cam.center - pos
+                    cos = (to_cam * normal).sum(axis=1) / np.maximum(np.linalg.norm(to_cam, axis=1), 1e-9)
+                    use[c] = self.has_image[c] & (cos > self.facing_cos) & cam.in_image(cam.project(pos), self.margin_px)
+                cost = self.stack.sample_torch(self.cams.project(torch.from_numpy(pos))).numpy()
+                out[i] = cost[use].mean() if use.any() else 0.0
+        return out
 
 
 @contextmanager

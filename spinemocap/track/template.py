@@ -113,7 +113,12 @@ def _chamfer(templates: np.ndarray, points: np.ndarray, cap_mm: float) -> np.nda
     return dots_to_points + points_to_dots
 
 
-def _best_offset(curve, field, tape, orientation, points, cap_mm, step_mm) -> float:
+def _best_offset(curve, field, tape, orientation, points, cap_mm, step_mm, score_fn=None,
+                 ambiguity_mm: float = 1.5, score_weight_mm: float = 5.0) -> float:
+    """Offset s0 with the best chamfer match. Several offsets can tie when only part of the tape
+    was triangulated (the 2/3-dot pattern repeats every two rows); ``score_fn`` (templates
+    (C, D, 3) -> (C,) extra cost, e.g. image evidence) then decides among the chamfer's local
+    minima within ``ambiguity_mm`` of the best, weighted by ``score_weight_mm`` per unit."""
     span = float(tape.uv_mm[:, 1].max())
     s_data = curve.arc_of(points)
     lo, hi = s_data.min(), s_data.max()
@@ -121,8 +126,18 @@ def _best_offset(curve, field, tape, orientation, points, cap_mm, step_mm) -> fl
         candidates = np.arange(lo - span, hi + step_mm, step_mm)
     else:
         candidates = np.arange(lo, hi + span + step_mm, step_mm)
-    scores = _chamfer(lay_along(curve, field, tape, orientation, candidates)[0], points, cap_mm)
-    return float(candidates[int(np.argmin(scores))])
+    templates = lay_along(curve, field, tape, orientation, candidates)[0]
+    scores = _chamfer(templates, points, cap_mm)
+    best = int(np.argmin(scores))
+    if score_fn is None or len(scores) < 3:
+        return float(candidates[best])
+    padded = np.concatenate([[np.inf], scores, [np.inf]])
+    local_min = (scores <= padded[:-2]) & (scores <= padded[2:])
+    tied = np.flatnonzero(local_min & (scores <= scores[best] + ambiguity_mm))
+    if len(tied) < 2:
+        return float(candidates[best])
+    total = scores[tied] + score_weight_mm * np.asarray(score_fn(templates[tied]), dtype=float)
+    return float(candidates[tied[int(np.argmin(total))]])
 
 
 def build_template(
@@ -135,13 +150,16 @@ def build_template(
     field: NormalField | None = None,
     cap_mm: float = 15.0,
     step_mm: float = 2.5,
+    template_score=None,
 ) -> Template:
     """Initial template for MRF1 from the feasible points (K, 3) and their normals (K, 3).
 
     ``up`` (3,): the subject's up direction (used when ``previous`` is None; default world +Z).
     ``previous`` (D, 3): the last frame's labelled dots (NaN rows allowed); it fixes the
     orientation, and with ``warm_start`` its finite rows, rigidly aligned to the points
-    (:func:`align_rigidly`), are the template."""
+    (:func:`align_rigidly`), are the template. ``template_score``: optional callable scoring
+    candidate templates (C, D, 3) -> (C,) (lower is better, e.g. image evidence) that breaks ties
+    between offsets along the tape (see :func:`_best_offset`)."""
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     if warm_start and previous is not None and np.isfinite(previous).all():
         # identity and shape are carried whole: no curve needed (orientation 0 = carried)
@@ -152,7 +170,7 @@ def build_template(
     curve = SpineCurve(points, extension_mm=span + 50.0)
     options = {}
     for o in (+1, -1):
-        s0 = _best_offset(curve, field, tape, o, points, cap_mm, step_mm)
+        s0 = _best_offset(curve, field, tape, o, points, cap_mm, step_mm, score_fn=template_score)
         options[o] = (*lay_along(curve, field, tape, o, s0), s0)
 
     prev_ok = previous is not None and np.isfinite(previous).all(axis=1).sum() >= 3
