@@ -59,3 +59,34 @@ def test_vicon_c3d_without_wand_markers(tmp_path):
     write_vicon_wand_c3d(short, np.zeros((10, 5, 3)) + np.arange(5)[:, None], 100.0, WandSpec())
     with pytest.raises(InputError, match="only 10 frames"):
         read_vicon_wand(short, WandSpec())
+
+
+def test_wand_cli_on_image_folders(tmp_path, capsys):
+    import cv2
+
+    from spinemocap.camera import Rig
+    from spinemocap.cli import main
+
+    wave = render_wand_wave(make_ring_rig(3, size=(640, 480), seed=4), duration_s=2.0, fps=50.0, offset_s=-0.0412, seed=7)
+    wave.rig.to_toml(tmp_path / "rig.toml")
+    write_vicon_wand_c3d(tmp_path / "wand.c3d", wave.vicon_mm, wave.vicon_rate, wave.wand)
+    for cam in wave.rig:
+        (tmp_path / cam.name).mkdir()
+        for f, image in enumerate(wave.images[cam.name]):
+            cv2.imwrite(str(tmp_path / cam.name / f"{f:04d}.png"), image)
+    out = tmp_path / "rig_vicon.xcp"
+    code = main(["calibrate", "wand", "--rig", str(tmp_path / "rig.toml"), "--videos",
+                 *[str(tmp_path / c.name) for c in wave.rig], "--vicon", str(tmp_path / "wand.c3d"),
+                 "--fps", "50", "--out", str(out)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "-41." in printed and "WAND5" in printed
+    from calibration.formats import read_rig
+
+    moved = read_rig(out)
+    world = wave.world_mm[30]
+    assert np.max(np.abs(moved.project(world @ wave.R.T + wave.t) - wave.rig.project(world))) < 0.5
+    # a rig/video count mismatch is a clear error
+    assert main(["calibrate", "wand", "--rig", str(tmp_path / "rig.toml"), "--videos", str(tmp_path / "cam1"),
+                 "--vicon", str(tmp_path / "wand.c3d"), "--fps", "50", "--out", str(out)]) == 2
+    assert "one per camera" in capsys.readouterr().err
