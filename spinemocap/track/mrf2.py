@@ -288,12 +288,12 @@ class TemplateEvidenceScore:
     facing, in-image cameras (Eq. 10 per dot-view)."""
 
     def __init__(self, rig: Rig, evidence: Sequence[EvidenceImage | None], tape: TapeGraph,
-                 facing_cos: float = 0.05, margin_px: float = 2.0):
+                 facing_cos: float = 0.05, margin_px: float = 2.0, cost_cap: float | None = 1.0):
         self.rig, self.tape = rig, tape
         self.cams = _TorchRig(rig)
         self.stack = EvidenceStack(list(evidence))
         self.has_image = np.array([e is not None for e in evidence])
-        self.facing_cos, self.margin_px = facing_cos, margin_px
+        self.facing_cos, self.margin_px, self.cost_cap = facing_cos, margin_px, cost_cap
 
     def __call__(self, templates: np.ndarray) -> np.ndarray:
         templates = np.asarray(templates, dtype=float)
@@ -307,6 +307,8 @@ class TemplateEvidenceScore:
                     cos = (to_cam * normal).sum(axis=1) / np.maximum(np.linalg.norm(to_cam, axis=1), 1e-9)
                     use[c] = self.has_image[c] & (cos > self.facing_cos) & cam.in_image(cam.project(pos), self.margin_px)
                 cost = self.stack.sample_torch(self.cams.project(torch.from_numpy(pos))).numpy()
+                if self.cost_cap is not None:
+                    cost = np.minimum(cost, self.cost_cap)
                 out[i] = cost[use].mean() if use.any() else 0.0
         return out
 
