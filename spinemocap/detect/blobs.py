@@ -1,0 +1,238 @@
+"""Dot detection: bright, roughly round blobs inside the tape mask, with sub-pixel centres.
+
+The dots of perforated tape are holes through which skin shows, so each dot is a bright disc
+(an ellipse when seen obliquely) on the darker tape. The detector works only in regions of
+interest around the mask's connected components, so a full 2448x1600 frame costs little more
+than its tape does.
+
+Per region:
+1. fill the mask's holes (a mask may or may not include the dots) and grow it by a small margin;
+2. remove the slowly varying tape shading with a white top-hat whose kernel is larger than a dot;
+3. estimate the dot contrast from the top-hat inside the mask, threshold at half of it;
+4. keep components whose area, elongation and fill fit a dot of the expected diameter;
+5. centre = centroid of the top-hat intensity, clipped at the dot contrast, over the blob grown
+   by a pixel or two (anti-aliased rim pixels count with partial weight: a sub-pixel estimate);
+6. merge blobs closer than half a dot diameter, so one dot never yields two blobs.
+
+Coordinates: pixel centres at integer positions (OpenCV convention), ``uv = (x, y)`` in px.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+# Tape dot diameter / tape width (10 mm dots on 50 mm tape): used to guess the dot size from the
+# mask width when the caller does not know it.
+DEFAULT_DOT_TO_WIDTH = 0.2
+
+
+@dataclass
+class BlobParams:
+    """Tuning of :func:`find_dots`; sizes are fractions of the expected dot diameter ``d``."""
+
+    margin: float = 0.3            # mask grown by margin * d (dots on the mask's edge count)
+    min_area: float = 0.15         # blob area in units of the expected dot area pi d^2 / 4
+    max_area: float = 2.2
+    max_major: float = 1.7         # longest ellipse axis <= max_major * d
+    min_axis_ratio: float = 0.25   # minor / major axis (oblique views flatten dots)
+    min_fill: float = 0.65         # area / ellipse area from moments (rejects ragged shapes)
+    merge_distance: float = 0.5    # centres closer than merge_distance * d are one dot
+    min_ring_on_tape: float = 0.6  # share of the ring around a blob that must lie on the tape
+    min_contrast: float = 8.0      # grey levels; weaker "dots" are noise
+    dot_to_width: float = DEFAULT_DOT_TO_WIDTH
+
+
+def to_grey(image: np.ndarray) -> np.ndarray:
+    """BGR or grey uint8 image -> grey uint8 (H, W)."""
+    if image.ndim == 2:
+        return image
+    if image.ndim == 3 and image.shape[2] == 3:
+        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if image.ndim == 3 and image.shape[2] == 1:
+        return image[:, :, 0]
+    raise ValueError(f"expected a BGR or grey image, got shape {image.shape}")
+
+
+def fill_holes(mask: np.ndarray) -> np.ndarray:
+    """Fill the holes of every component of a bool mask (the dots, if the mask excludes them)."""
+    m = mask.astype(np.uint8)
+    contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    filled = np.zeros_like(m)
+    cv2.drawContours(filled, contours, -1, 1, thickness=cv2.FILLED)
+    return filled.astype(bool)
+
+
+def estimate_dot_diameter(mask: np.ndarray, dot_to_width: float = DEFAULT_DOT_TO_WIDTH) -> float | None:
+    """Guess the dot diameter in px from the width of a (filled) tape mask: in a stripe of width w
+    the distance-to-edge values spread evenly over [0, w/2], so w ~ 2 x their 98th percentile."""
+    if not mask.any():
+        return None
+    dist = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
+    width = 2.0 * float(np.percentile(dist[dist > 0], 98))
+    return max(width * dot_to_width, 2.0)
+
+
+def _disc(diameter: float) -> np.ndarray:
+    k = max(3, int(round(diameter)) | 1)
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+
+
+def _regions(mask: np.ndarray, pad: int, stride: int = 8) -> list[tuple[slice, slice]]:
+    """Padded bounding boxes of the mask's components, found on a ``stride``-times smaller copy
+    (a full-frame labelling would cost more than all the dot work together)."""
+    h, w = mask.shape
+    hs, ws = -(-h // stride), -(-w // stride)
+    coarse = (cv2.resize(mask.view(np.uint8), (ws, hs), interpolation=cv2.INTER_AREA) > 0).view(np.uint8)
+    n, _, stats, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
+    boxes = []
+    for x, y, bw, bh, _area in stats[1:]:
+        y0, x0 = y * stride - pad, x * stride - pad
+        y1, x1 = (y + bh) * stride + pad, (x + bw) * stride + pad
+        boxes.append((slice(max(0, y0), min(h, y1)), slice(max(0, x0), min(w, x1))))
+    return boxes
+
+
+def _region_dots(
+    grey: np.ndarray, filled: np.ndarray, region: np.ndarray, d: float, p: BlobParams, touches_border
+) -> tuple[np.ndarray, np.ndarray]:
+    """Dots in one region of interest: ``grey`` float32 crop, ``filled`` the hole-filled mask
+    crop, ``region`` the mask grown by the margin (where dot pixels may lie); ``touches_border``
+    tells whether a crop box (y, x, h, w) touches the frame border (a cut dot's centre is wrong)."""
+    # The top-hat keeps bright structures smaller than its kernel: the dots. Skin around the tape
+    # is a large bright area and vanishes, so it never merges with a dot at the tape's edge.
+    # A square kernel: OpenCV decomposes it into two 1D passes (a disc costs ~10x more).
+    k = int(round(1.4 * d + 2)) | 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    tophat = cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, kernel)
+    smooth = cv2.GaussianBlur(tophat, (0, 0), max(0.5, d / 10.0))
+    contrast = float(np.percentile(smooth[filled], 99.5))
+    if contrast < p.min_contrast:
+        return np.zeros((0, 2)), np.zeros(0)
+    binary = ((smooth > 0.5 * contrast) & region).astype(np.uint8)
+    # Top-hat of plain tape is noise-positive: measure that floor on tape pixels, subtract it.
+    tape_px = filled & (binary == 0)
+    floor = float(np.median(tophat[tape_px])) if tape_px.any() else 0.0
+    scale = max(contrast - floor, 1e-3)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
+    dot_area = math.pi * d * d / 4.0
+    rim = max(2, int(math.ceil(0.3 * d)))
+    grow = _disc(2 * rim - 1)
+    centres, scores = [], []
+    for i in range(1, n):
+        x, y, bw, bh, area = stats[i]
+        if not p.min_area * dot_area <= area <= p.max_area * dot_area:
+            continue
+        ys, xs = slice(max(0, y - rim), y + bh + rim), slice(max(0, x - rim), x + bw + rim)
+        window = labels[ys, xs]
+        blob = window == i
+        shape = _ellipse_shape(blob)
+        if shape is None:
+            continue
+        major, minor = shape
+        fill = area / (math.pi * major * minor / 4.0)
+        if major > p.max_major * d or minor < p.min_axis_ratio * major or fill < p.min_fill:
+            continue
+        # A dot is a hole in the tape: its surrounding ring lies on the tape. Bright slivers of
+        # skin beside the tape's end or cut off by the frame border fail this.
+        support = cv2.dilate(blob.astype(np.uint8), grow).astype(bool) & ((window == 0) | blob)
+        ring = support & ~blob
+        if ring.any() and filled[ys, xs][ring].mean() < p.min_ring_on_tape:
+            continue
+        if touches_border(y, x, bh, bw):
+            continue
+        # Sub-pixel centre: top-hat intensity (floor removed, clipped at the contrast) over the
+        # blob plus a rim, so partially covered edge pixels weigh in proportion to coverage.
+        weights = np.clip((tophat[ys, xs] - floor) / scale, 0.0, 1.0) * support
+        total = float(weights.sum())
+        if total <= 0:
+            continue
+        gy, gx = np.mgrid[ys.start:ys.start + blob.shape[0], xs.start:xs.start + blob.shape[1]]
+        centres.append((float((weights * gx).sum() / total), float((weights * gy).sum() / total)))
+        mean_contrast = (float(smooth[ys, xs][blob].mean()) - floor) / scale
+        scores.append(_confidence(area / dot_area, minor / major, fill, mean_contrast / 0.8))
+    if not centres:
+        return np.zeros((0, 2)), np.zeros(0)
+    return _merge_close(np.asarray(centres, float), np.asarray(scores, float), p.merge_distance * d)
+
+
+def _ellipse_shape(blob: np.ndarray) -> tuple[float, float] | None:
+    """Full major/minor axis lengths (px) of the ellipse with the blob's second moments."""
+    m = cv2.moments(blob.astype(np.uint8), binaryImage=True)
+    if m["m00"] <= 0:
+        return None
+    mu20, mu02, mu11 = m["mu20"] / m["m00"], m["mu02"] / m["m00"], m["mu11"] / m["m00"]
+    common = math.sqrt(max(0.0, 4 * mu11 * mu11 + (mu20 - mu02) ** 2))
+    l1 = (mu20 + mu02 + common) / 2
+    l2 = (mu20 + mu02 - common) / 2
+    # Pixel quantisation: a single pixel has variance 1/12 per axis.
+    return 4 * math.sqrt(max(l1, 1 / 12)), 4 * math.sqrt(max(l2, 1 / 12))
+
+
+def _confidence(area_ratio: float, axis_ratio: float, fill: float, contrast_ratio: float) -> float:
+    """In [0, 1]: 1 for a full-contrast disc of the expected size, lower for odd ones."""
+    size = math.exp(-(math.log(max(area_ratio, 1e-3)) ** 2) / (2 * 0.6 ** 2))
+    round_ = min(1.0, axis_ratio / 0.6)
+    solid = min(1.0, max(0.0, (fill - 0.5) / 0.4))
+    bright = min(1.0, max(0.0, contrast_ratio))
+    return float(size * round_ * solid * bright) ** 0.5
+
+
+def _merge_close(uv: np.ndarray, score: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy: keep the best-scoring blob, drop others within ``radius`` of a kept one."""
+    order = np.argsort(-score)
+    keep: list[int] = []
+    for i in order:
+        if all(np.hypot(*(uv[i] - uv[j])) >= radius for j in keep):
+            keep.append(i)
+    keep.sort(key=lambda i: (uv[i, 1], uv[i, 0]))
+    return uv[keep], score[keep]
+
+
+def find_dots(
+    image: np.ndarray,
+    mask: np.ndarray,
+    expected_dot_px: float | None = None,
+    params: BlobParams | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bright round dots inside ``mask``.
+
+    ``image``: BGR or grey uint8 (H, W[, 3]); ``mask``: (H, W) bool tape mask (holes allowed);
+    ``expected_dot_px``: dot diameter in px, estimated from the mask width when None.
+    Returns ``uv`` (N, 2) float px sub-pixel centres (x, y) and ``confidence`` (N,) in [0, 1].
+    """
+    p = params or BlobParams()
+    grey = to_grey(image)
+    mask = np.asarray(mask, bool)
+    if mask.shape != grey.shape:
+        raise ValueError(f"mask shape {mask.shape} differs from image shape {grey.shape}")
+    empty = (np.zeros((0, 2)), np.zeros(0))
+    H, W = grey.shape
+    if not mask.any():
+        return empty
+    uvs, confs = [], []
+    # Coarse boxes first (cheap on the whole frame); all further work happens inside them.
+    d_global = expected_dot_px
+    pad = int(math.ceil(p.margin * (d_global or 8.0))) + 4
+    for ys, xs in _regions(mask, pad):
+        filled = fill_holes(mask[ys, xs])
+        d = d_global or estimate_dot_diameter(filled, p.dot_to_width)
+        if d is None or filled.sum() < 0.5 * math.pi * d * d / 4:
+            continue
+        region = cv2.dilate(filled.astype(np.uint8), _disc(2 * p.margin * d + 1)).astype(bool)
+        def touches_border(y, x, bh, bw, ys=ys, xs=xs):
+            return ys.start + y <= 0 or xs.start + x <= 0 or ys.start + y + bh >= H or xs.start + x + bw >= W
+
+        uv, conf = _region_dots(grey[ys, xs].astype(np.float32), filled, region, d, p, touches_border)
+        if len(uv):
+            uvs.append(uv + [xs.start, ys.start])
+            confs.append(conf)
+    if not uvs:
+        return empty
+    uv, conf = np.concatenate(uvs), np.concatenate(confs)
+    if len(uvs) > 1:  # regions may overlap: a dot must not be reported twice
+        uv, conf = _merge_close(uv, conf, p.merge_distance * (d_global or 4.0))
+    return uv, conf
