@@ -183,16 +183,18 @@ def project_batch(K: np.ndarray, dist: np.ndarray, points_cam: np.ndarray) -> np
     return np.column_stack([K[:, 0] * xd + K[:, 2], K[:, 1] * yd + K[:, 3]])
 
 
-def bundle_adjust(intrinsics: Rig, board: BoardSpec, detections: Detections,
+def bundle_adjust(intrinsics: Rig, board: BoardSpec | np.ndarray, detections: Detections,
                   poses: list[tuple[np.ndarray, np.ndarray]], boards: dict[Hashable, tuple[np.ndarray, np.ndarray]],
                   reference: int = 0, refine_intrinsics: bool = True, loss_scale_px: float = 1.0,
                   progress: bool = True) -> tuple[Rig, dict[Hashable, tuple[np.ndarray, np.ndarray]], Observations]:
-    """Refine all camera poses, board poses and (optionally) intrinsics; see module doc."""
+    """Refine all camera poses, board poses and (optionally) intrinsics; see module doc.
+    ``board`` may also be the (N, 3) model points of any rigid target (e.g. the Vicon wand),
+    indexed by the detections' ids."""
     names = intrinsics.names
     n_cam = len(names)
     frames = list(boards)
     obs = _observations(names, detections, frames)
-    model = board.object_points()
+    model = board.object_points() if isinstance(board, BoardSpec) else np.asarray(board, float)
     n_ci = 6 + (N_INTRINSICS if refine_intrinsics else 0)
     k3 = np.array([cam.dist[4] for cam in intrinsics])
 

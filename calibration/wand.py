@@ -5,6 +5,8 @@ geometry (two collinear triples meeting at the T junction) -> triangulate with t
 read the Vicon C3D of the same wave -> coarse time offset by cross-correlating the wand's speed
 -> joint refinement of offset and similarity transform (Umeyama start, robust least squares
 with the Vicon trajectory spline-interpolated at RGB times) -> rig in the Vicon frame.
+Optionally the rig's camera poses are first bundle-adjusted with the wand as a rigid target
+(:func:`refine_rig_with_wand`).
 
 Clocks: RGB frame i is at ``t_rgb = i / fps``; Vicon frame j at ``t_vicon = j / rate``; the
 offset is defined by ``t_vicon = t_rgb + offset``. Similarity: ``X_vicon = s R X_rig + t`` (mm).
@@ -129,24 +131,60 @@ def identify_wand(blobs: np.ndarray, wand: WandSpec, max_line_error: float = 0.0
 
 
 # ---------------------------------------------------------------------- 3D from the rig
-def triangulate_wand(rig: Rig, frames: Iterable[Sequence[np.ndarray]], wand: WandSpec,
-                     max_fit_mm: float = 3.0, progress: bool = True) -> np.ndarray:
-    """(F, 5, 3) wand markers in the rig frame for ``frames[f][c]`` = image of camera c at frame
-    f (any iterable, e.g. streamed videos); NaN where fewer than two cameras identified the wand
-    or the triangulated shape is more than ``max_fit_mm`` RMS from the wand's."""
-    out = []
-    for images in tqdm(frames, desc="wand markers", unit=" frames", disable=not progress, leave=False):
-        out.append(np.full((5, 3), np.nan))
-        views = [identify_wand(detect_blobs(img), wand) for img in images]
-        cams = [c for c, v in enumerate(views) if v is not None]
+WandViews = list[list[np.ndarray | None]]  # [frame][camera] -> (5, 2) identified pixels or None
+
+
+def detect_wand_views(frames: Iterable[Sequence[np.ndarray]], wand: WandSpec, progress: bool = True) -> WandViews:
+    """Identified wand markers per frame and camera for ``frames[f][c]`` = image of camera c at
+    frame f (any iterable, e.g. streamed videos)."""
+    return [[identify_wand(detect_blobs(img), wand) for img in images]
+            for images in tqdm(frames, desc="wand markers", unit=" frames", disable=not progress, leave=False)]
+
+
+def triangulate_wand_views(rig: Rig, views: WandViews, wand: WandSpec, max_fit_mm: float = 3.0) -> np.ndarray:
+    """(F, 5, 3) wand markers in the rig frame; NaN where fewer than two cameras identified the
+    wand or the triangulated shape is more than ``max_fit_mm`` RMS from the wand's."""
+    out = np.full((len(views), 5, 3), np.nan)
+    for f, per_cam in enumerate(views):
+        cams = [c for c, v in enumerate(per_cam) if v is not None]
         if len(cams) < 2:
             continue
-        pts = np.stack([triangulate([rig[c] for c in cams], np.stack([views[c][k] for c in cams]))
+        pts = np.stack([triangulate([rig[c] for c in cams], np.stack([per_cam[c][k] for c in cams]))
                         for k in range(5)])
-        _, _, rms = rigid_fit(wand.points_mm, pts)
-        if rms <= max_fit_mm:
-            out[-1] = pts
-    return np.asarray(out).reshape(-1, 5, 3)
+        if rigid_fit(wand.points_mm, pts)[2] <= max_fit_mm:
+            out[f] = pts
+    return out
+
+
+def triangulate_wand(rig: Rig, frames: Iterable[Sequence[np.ndarray]], wand: WandSpec,
+                     max_fit_mm: float = 3.0, progress: bool = True) -> np.ndarray:
+    """Detect, identify and triangulate: (F, 5, 3) wand markers in the rig frame (see above)."""
+    return triangulate_wand_views(rig, detect_wand_views(frames, wand, progress), wand, max_fit_mm)
+
+
+def refine_rig_with_wand(rig: Rig, views: WandViews, points: np.ndarray, wand: WandSpec,
+                         reference: int = 0, progress: bool = True) -> Rig:
+    """Bundle-adjust the camera poses (intrinsics fixed, ``reference`` camera fixed) with the wand
+    as a rigid target of known geometry: every identified marker in every camera is an
+    observation, each wand pose a free 6-dof body started from the triangulated markers."""
+    from .boards import BoardDetection
+    from .extrinsics import bundle_adjust
+
+    detections: dict = {cam.name: {} for cam in rig}
+    poses = {}
+    for f, per_cam in enumerate(views):
+        if not np.all(np.isfinite(points[f])):
+            continue
+        R, t, _ = rigid_fit(wand.points_mm, points[f])
+        poses[f] = (R, t)
+        for cam, pix in zip(rig, per_cam):
+            if pix is not None:
+                detections[cam.name][f] = BoardDetection(np.arange(5), pix)
+    if len(poses) < 20:
+        raise InputError("wand videos", f"only {len(poses)} triangulated wand frames; cannot refine the rig")
+    refined, _, _ = bundle_adjust(rig, wand.points_mm, detections, [(c.R, c.t) for c in rig], poses,
+                                  reference, refine_intrinsics=False, progress=progress)
+    return refined
 
 
 def synchronized_frames(sources: Sequence[str | os.PathLike], n_cameras: int
@@ -349,14 +387,20 @@ def _vicon_spline(vicon: ViconWand):
 
 
 def coregister(rig: Rig, frames: Iterable[Sequence[np.ndarray]], fps: float, vicon_c3d: str | os.PathLike,
-               wand: WandSpec | None = None, max_offset_s: float = 2.0, progress: bool = True) -> WandRegistration:
+               wand: WandSpec | None = None, max_offset_s: float = 2.0, refine_extrinsics: bool = False,
+               progress: bool = True) -> WandRegistration:
     """Whole pipeline: RGB frames (``frames[f][c]``, rig camera order) + Vicon C3D -> registration
-    with ``rig_in_vicon`` filled in."""
+    with ``rig_in_vicon`` filled in. ``refine_extrinsics`` first bundle-adjusts the rig's poses
+    with the wand's markers (:func:`refine_rig_with_wand`)."""
     wand = wand or WandSpec()
     if not fps or fps <= 0:
         raise InputError("--fps", "unknown RGB frame rate; pass --fps")
     vicon = read_vicon_wand(vicon_c3d, wand)
-    points = triangulate_wand(rig, frames, wand, progress=progress)
+    views = detect_wand_views(frames, wand, progress)
+    points = triangulate_wand_views(rig, views, wand)
+    if refine_extrinsics:
+        rig = refine_rig_with_wand(rig, views, points, wand, progress=progress)
+        points = triangulate_wand_views(rig, views, wand)
     result = register_wand(points, fps, vicon, wand, max_offset_s)
     result.rig_in_vicon = transform_rig(rig, result.R, result.t, result.scale)
     return result
@@ -382,5 +426,6 @@ def write_vicon_wand_c3d(path: str | os.PathLike, points_mm: np.ndarray, rate: f
 
 
 __all__ = ["WandSpec", "WandRegistration", "ViconWand", "detect_blobs", "identify_wand", "triangulate_wand",
+           "detect_wand_views", "triangulate_wand_views", "refine_rig_with_wand",
            "read_vicon_wand", "coarse_offset", "register_wand", "coregister", "write_vicon_wand_c3d",
            "synchronized_frames"]

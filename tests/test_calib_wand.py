@@ -90,3 +90,26 @@ def test_wand_cli_on_image_folders(tmp_path, capsys):
     assert main(["calibrate", "wand", "--rig", str(tmp_path / "rig.toml"), "--videos", str(tmp_path / "cam1"),
                  "--vicon", str(tmp_path / "wand.c3d"), "--fps", "50", "--out", str(out)]) == 2
     assert "one per camera" in capsys.readouterr().err
+
+
+def test_wand_refines_perturbed_extrinsics(wave):
+    from calibration.wand import detect_wand_views, refine_rig_with_wand, triangulate_wand_views
+    from spinemocap.camera import Camera, Rig
+
+    rng = np.random.default_rng(0)
+    perturbed = [wave.rig[0]]
+    for cam in list(wave.rig)[1:]:
+        dR = Rotation.from_rotvec(rng.normal(0, 1, 3) * np.radians(0.3) / np.sqrt(3)).as_matrix()
+        R = dR @ cam.R
+        centre = cam.center + rng.normal(0, 4.0, 3)
+        perturbed.append(Camera(cam.name, cam.K, cam.dist, R, -R @ centre, cam.size))
+    perturbed = Rig(perturbed)
+    frames = ([wave.images[c.name][f] for c in wave.rig] for f in range(len(wave.world_mm)))
+    views = detect_wand_views(frames, wave.wand, progress=False)
+    refined = refine_rig_with_wand(perturbed, views, triangulate_wand_views(perturbed, views, wave.wand, 10.0),
+                                   wave.wand, progress=False)
+    for true, before, after in zip(wave.rig, perturbed, refined):
+        err_after = np.linalg.norm(after.center - true.center)
+        assert err_after < 2.0
+        assert np.degrees(Rotation.from_matrix(after.R @ true.R.T).magnitude()) < 0.1
+        assert err_after <= np.linalg.norm(before.center - true.center) + 1e-6

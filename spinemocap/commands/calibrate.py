@@ -45,6 +45,8 @@ def register(subparsers) -> None:
     p.add_argument("--vicon", required=True, help="Vicon C3D of the same wave with markers WAND1..WAND5")
     p.add_argument("--fps", type=float, help="RGB frame rate (default: from the first video)")
     p.add_argument("--max-offset", type=float, default=2.0, help="largest clock offset searched, s (default 2)")
+    p.add_argument("--refine-extrinsics", action="store_true",
+                   help="bundle-adjust the camera poses with the wand markers before registering")
     p.add_argument("--out", required=True, help="rig in the Vicon frame (.toml / .xcp)")
     p.set_defaults(func=_wand)
 
@@ -149,7 +151,8 @@ def _wand(args: argparse.Namespace) -> int:
 
     rig = read_rig(args.rig)
     frames, fps = synchronized_frames(args.videos, len(rig))
-    result = coregister(rig, frames, args.fps or fps, args.vicon, max_offset_s=args.max_offset)
+    result = coregister(rig, frames, args.fps or fps, args.vicon, max_offset_s=args.max_offset,
+                        refine_extrinsics=args.refine_extrinsics)
     print(result.summary())
     write_rig(result.rig_in_vicon, args.out)
     print(f"wrote {args.out}")

@@ -266,13 +266,23 @@ def render_wand_frame(cam: Camera, markers_mm: np.ndarray, radius_mm: float, noi
     depth = cam.depth(markers_mm)
     centres = cam.project(markers_mm)
     fx = cam.K[0, 0]
-    shift = 4
+    w, h = cam.size
+    sub = (np.arange(8) + 0.5) / 8 - 0.5  # 8x8 supersamples per pixel: exact area coverage
     for k in np.argsort(-depth):
         if depth[k] <= radius_mm or not np.all(np.isfinite(centres[k])):
             continue
         r_px = fx * radius_mm / np.sqrt(depth[k] ** 2 - radius_mm ** 2)
-        centre = tuple(int(round((c + 0.0) * (1 << shift))) for c in centres[k])
-        cv2.circle(image, centre, int(round(r_px * (1 << shift))), 235.0, -1, cv2.LINE_AA, shift)
+        (u, v), reach = centres[k], int(np.ceil(r_px)) + 1
+        u0, u1 = max(int(np.floor(u)) - reach, 0), min(int(np.ceil(u)) + reach + 1, w)
+        v0, v1 = max(int(np.floor(v)) - reach, 0), min(int(np.ceil(v)) + reach + 1, h)
+        if u0 >= u1 or v0 >= v1:
+            continue
+        su = (np.arange(u0, u1)[:, None] + sub[None]).ravel()
+        sv = (np.arange(v0, v1)[:, None] + sub[None]).ravel()
+        inside = ((sv[:, None] - v) ** 2 + (su[None] - u) ** 2) <= r_px ** 2
+        cover = inside.reshape(v1 - v0, 8, u1 - u0, 8).mean(axis=(1, 3))
+        patch = image[v0:v1, u0:u1]
+        patch[:] = patch * (1 - cover) + 235.0 * cover
     image = cv2.GaussianBlur(image, (0, 0), 0.5) + noise
     return np.clip(np.round(image), 0, 255).astype(np.uint8)
 
