@@ -12,7 +12,7 @@ from calibration.intrinsics import calibrate_intrinsics, iter_images
 from calibration.formats.qualisys import read_qca
 from spinemocap.cli import main
 from spinemocap.fileio import InputError
-from spinemocap.synth.calibration_scenes import BoardRenderer, make_ring_rig, render_intrinsic_views
+from spinemocap.synth.calibration_scenes import make_ring_rig, render_intrinsic_views
 
 DEMO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "calibration" / "pose2sim_demo"
 

@@ -4,12 +4,7 @@
 from __future__ import annotations
 
 import argparse
-import logging
 from pathlib import Path
-
-import numpy as np
-
-log = logging.getLogger(__name__)
 
 
 def register(subparsers) -> None:
