@@ -36,7 +36,7 @@ class MRF1Config:
 
     theta1_longitudinal: float = 0.05  # |p| vs the local stretch d
     theta1_transverse: float = 0.1
-    theta2: float = 0.02  # orthogonality of edges to the normal field
+    theta2: float = 0.005  # orthogonality to the normal field (camera-biased normals: 0.02 measured worse)
     theta3: float = 1.0  # minimum-distance barrier
     theta4_longitudinal: float = 0.02  # |p| vs the rest length
     theta4_transverse: float = 0.05
@@ -53,7 +53,7 @@ class MRF1Config:
     slice_width_mm: float = 4.0
     slice_width_d: float = 0.05
     width_decay: float = 0.9
-    temperature: float = 2.0
+    temperature: float = 1.0
     normal_radius_mm: float = 30.0
     warm_start: bool = False  # start from `previous` (its finite rows) instead of the cubic template
 
