@@ -17,7 +17,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from spinemocap.camera import Rig
-from spinemocap.fileio import InputError, atomic_path, atomic_write
+from spinemocap.fileio import atomic_path, atomic_write
 
 from .boards import BoardDetection, BoardSpec
 
@@ -130,11 +130,3 @@ def plot_residuals(rig: Rig, residuals: Residuals, path: str | os.PathLike, arro
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110)
     plt.close(fig)
-
-
-def require_residuals(rig_path: str | os.PathLike) -> Residuals:
-    found = load_residuals(rig_path)
-    if found is None:
-        raise InputError(rig_path, f"no stored residuals ({residuals_path(rig_path).name}); pass synchronized "
-                         "board views with --views and --board to measure them")
-    return found

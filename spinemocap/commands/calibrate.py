@@ -165,7 +165,7 @@ def _convert(args: argparse.Namespace) -> int:
 
 def _check(args: argparse.Namespace) -> int:
     from calibration.boards import BoardSpec
-    from calibration.check import camera_table, plot_residuals, require_residuals, residuals_from_views
+    from calibration.check import camera_table, load_residuals, plot_residuals, residuals_from_views, residuals_path
     from calibration.formats import read_rig
     from spinemocap.fileio import InputError
 
@@ -177,7 +177,12 @@ def _check(args: argparse.Namespace) -> int:
         detections = load_view_detections(args.views, rig.names, [c.size for c in rig], board)
         residuals = residuals_from_views(rig, board, detections)
     else:
-        residuals = require_residuals(args.rig)
+        residuals = load_residuals(args.rig)
+    if residuals is None:
+        print(camera_table(rig))
+        print(f"no reprojection residuals: {residuals_path(args.rig).name} is absent (written by "
+              "'calibrate extrinsics'); pass synchronized board views with --views and --board to measure them")
+        return 0
     print(camera_table(rig, residuals))
     plot = args.plot or f"{args.rig}.check.png"
     plot_residuals(rig, residuals, plot)
