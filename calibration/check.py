@@ -96,15 +96,19 @@ def camera_table(rig: Rig, residuals: Residuals | None = None) -> str:
     return "\n".join(lines)
 
 
-def plot_residuals(rig: Rig, residuals: Residuals, path: str | os.PathLike, arrow_gain: float = 50.0) -> None:
-    """PNG: per camera, residual vectors over the image (magnified ``arrow_gain`` times) and a
-    histogram of residual lengths (px)."""
+def plot_residuals(rig: Rig, residuals: Residuals, path: str | os.PathLike, arrow_gain: float | None = None) -> None:
+    """PNG: per camera, residual vectors over the image (magnified ``arrow_gain`` times; by
+    default so that the 95th-percentile residual spans 4 % of the image width) and a histogram
+    of residual lengths (px)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     n = len(rig)
+    if arrow_gain is None:
+        lengths = np.concatenate([np.linalg.norm(r[:, 2:], axis=1) for r in residuals.values()] + [np.zeros(1)])
+        arrow_gain = float(0.04 * max(c.size[0] for c in rig) / max(np.percentile(lengths, 95), 1e-6))
     fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.6), squeeze=False)
     for k, cam in enumerate(rig):
         r = residuals.get(cam.name, np.zeros((0, 4)))
@@ -115,7 +119,7 @@ def plot_residuals(rig: Rig, residuals: Residuals, path: str | os.PathLike, arro
         ax.set_aspect("equal")
         if len(r):
             ax.quiver(r[:, 0], r[:, 1], r[:, 2] * arrow_gain, -r[:, 3] * arrow_gain, np.linalg.norm(r[:, 2:], axis=1),
-                      angles="xy", scale_units="xy", scale=1, width=0.004, cmap="viridis")
+                      angles="xy", scale_units="xy", scale=1, width=0.006, cmap="viridis")
         ax.tick_params(labelsize=6)
         hist = axes[1, k]
         norm = np.linalg.norm(r[:, 2:], axis=1)
@@ -124,7 +128,7 @@ def plot_residuals(rig: Rig, residuals: Residuals, path: str | os.PathLike, arro
             hist.set_title(f"RMS {np.sqrt(np.mean(norm ** 2)):.3f} px", fontsize=8)
         hist.set_xlabel("reprojection error (px)", fontsize=7)
         hist.tick_params(labelsize=6)
-    axes[0, 0].set_ylabel(f"residuals x{arrow_gain:g}", fontsize=8)
+    axes[0, 0].set_ylabel(f"residuals x{arrow_gain:.0f}", fontsize=8)
     fig.suptitle("Reprojection error per camera", fontsize=10)
     fig.tight_layout()
     with atomic_path(path) as tmp:
