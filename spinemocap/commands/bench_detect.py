@@ -1,0 +1,245 @@
+"""``spinemocap bench detect``: tape masks and dots on held-out synthetic renders, with a peer.
+
+Test sets (bodies, seeds and so lighting never used in training: seeds from
+``HELD_OUT_SEED_BASE``, phenotypes from a separate random stream):
+
+- ``studio``: the paper's studio, 6 cameras at 2448x1600, sharp, no occluders;
+- ``blur+balls``: the artificial layout (4 cameras, 1024x768) with motion blur and falling balls.
+
+Methods: ``net`` and ``classical`` (:class:`spinemocap.detect.Detector`, dot size estimated from
+the mask, as the tracker calls it), ``blobs in exact mask`` (our dot detector given the true
+mask: dot detection alone), and the peer ``SimpleBlobDetector`` (OpenCV, whole frame, told the
+true dot size), also with its blobs kept only inside the net's mask.
+
+Ground truth: each visible dot's centre on the tape surface (the studio floats the tape
+``TAPE_OFFSET_MM`` above the skin; the holes the camera sees are in that surface), projected
+with the camera model; dots within half a dot of the frame border are left out. Matching is one
+to one within 2 px. A detection near a dot the studio marks occluded counts neither way (a
+partly hidden dot may or may not be found).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import platform
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+MATCH_PX = 2.0
+
+
+@dataclass
+class TestSet:
+    name: str
+    preset: str
+    scenes: int
+    frames: int
+    blur: float
+    occlusion: str
+
+
+TEST_SETS = {
+    "studio": TestSet("studio", "studio", scenes=2, frames=1, blur=0.0, occlusion="none"),
+    "blur+balls": TestSet("blur+balls", "artificial", scenes=1, frames=2, blur=0.5, occlusion="heavy"),
+    "tiny": TestSet("tiny", "tiny", scenes=1, frames=1, blur=0.0, occlusion="none"),  # quick check only
+}
+DEFAULT_SETS = ["studio", "blur+balls"]
+
+
+def register_bench(subparsers) -> None:
+    p = subparsers.add_parser("detect", help="tape IoU, dot recall/precision/centroid error, time; peer: SimpleBlobDetector")
+    p.add_argument("--json", type=Path, required=True, help="results file")
+    p.add_argument("--sets", nargs="+", choices=sorted(TEST_SETS), default=DEFAULT_SETS)
+    p.add_argument("--scenes", type=int, help="override scenes per test set")
+    p.add_argument("--weights", type=Path, help="network weights (default: shipped)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads for the network (1 = one core per camera)")
+    p.set_defaults(func=run)
+
+
+# ---------------------------------------------------------------------------------- scoring
+def match(pred: np.ndarray, gt: np.ndarray, radius: float = MATCH_PX) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one matching within ``radius``: index pairs (pred_i, gt_j) minimising total distance."""
+    from scipy.optimize import linear_sum_assignment
+
+    if len(pred) == 0 or len(gt) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    d = np.linalg.norm(pred[:, None] - gt[None], axis=2)
+    cost = np.where(d <= radius, d, 1e6)
+    i, j = linear_sum_assignment(cost)
+    ok = d[i, j] <= radius
+    return i[ok], j[ok]
+
+
+class DotScore:
+    """Accumulates true/false positives, misses and centroid errors over images."""
+
+    def __init__(self):
+        self.tp = self.fp = self.fn = 0
+        self.errors: list[float] = []
+
+    def add(self, pred: np.ndarray, gt_visible: np.ndarray, gt_hidden: np.ndarray) -> None:
+        i, j = match(pred, gt_visible)
+        self.tp += len(i)
+        self.fn += len(gt_visible) - len(j)
+        self.errors += list(np.linalg.norm(pred[i] - gt_visible[j], axis=1))
+        rest = np.setdiff1d(np.arange(len(pred)), i)
+        if len(rest) and len(gt_hidden):
+            near_hidden = np.linalg.norm(pred[rest][:, None] - gt_hidden[None], axis=2).min(axis=1) <= MATCH_PX
+            rest = rest[~near_hidden]
+        self.fp += len(rest)
+
+    def summary(self) -> dict:
+        e = np.asarray(self.errors)
+        return {
+            "recall": self.tp / max(self.tp + self.fn, 1),
+            "precision": self.tp / max(self.tp + self.fp, 1),
+            "centroid_rms_px": float(np.sqrt(np.mean(e ** 2))) if len(e) else float("nan"),
+            "centroid_p95_px": float(np.percentile(e, 95)) if len(e) else float("nan"),
+            "true_positives": self.tp, "false_positives": self.fp, "missed": self.fn,
+        }
+
+
+class Timer:
+    def __init__(self):
+        self.seconds: dict[str, list[float]] = {}
+
+    def add(self, key: str, seconds: float) -> None:
+        self.seconds.setdefault(key, []).append(seconds)
+
+    def summary(self) -> dict:
+        return {f"{k}_ms_per_camera_frame": 1000 * float(np.mean(v)) for k, v in self.seconds.items()}
+
+
+def simple_blob_detector(dot_px: float):
+    """OpenCV's SimpleBlobDetector set up for bright dots of diameter ``dot_px`` (given the truth)."""
+    import cv2
+
+    area = np.pi * dot_px ** 2 / 4
+    p = cv2.SimpleBlobDetector_Params()
+    p.blobColor = 255
+    p.minThreshold, p.maxThreshold, p.thresholdStep = 10, 240, 10
+    p.filterByArea, p.minArea, p.maxArea = True, 0.15 * area, 2.2 * area
+    p.filterByCircularity, p.minCircularity = True, 0.5
+    p.filterByInertia, p.minInertiaRatio = True, 0.25
+    p.filterByConvexity, p.minConvexity = True, 0.8
+    p.minDistBetweenBlobs = 0.5 * dot_px
+    return cv2.SimpleBlobDetector_create(p)
+
+
+# ---------------------------------------------------------------------------------- data
+def held_out_scene(test: TestSet, k: int):
+    from ..detect.dataset import HELD_OUT_SEED_BASE
+    from ..synth import SynthConfig, build_scene
+
+    seed = HELD_OUT_SEED_BASE + 100 * k + sorted(TEST_SETS).index(test.name)
+    rng = np.random.default_rng([seed, 99])
+    phenotype = {key: float(rng.uniform(0.1, 0.9)) for key in ("gender", "age", "muscle", "weight", "height")}
+    cfg = SynthConfig.preset(test.preset, frames=max(test.frames, 4), seed=seed, phenotype=phenotype,
+                             blur=test.blur, occlusion=test.occlusion, skin_tone=float(rng.uniform(0, 1)))
+    return build_scene(cfg), cfg
+
+
+def surface_uv(scene, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(C, D, 2) projections of dot centres on the tape surface, (C, D) visibility, (C,) dot px."""
+    from ..synth.tape_on_skin import TAPE_OFFSET_MM
+
+    gt = scene.frame_groundtruth(frame)
+    surface = gt["dots"] + TAPE_OFFSET_MM * gt["dot_normals"]
+    uv = np.stack([cam.project(surface) for cam in scene.rig])
+    dot_px = np.array([cam.K[0, 0] * scene.tape.dot_diameter_mm / np.median(cam.depth(surface)) for cam in scene.rig])
+    return uv, gt["visible"], dot_px
+
+
+# ---------------------------------------------------------------------------------- run
+def run(args) -> int:
+    import cv2
+    from tqdm import tqdm
+
+    from ..detect import Detector
+    from ..detect.blobs import find_dots
+    from ..fileio import atomic_write
+
+    options = {"threads": args.threads}
+    if args.weights:
+        options["weights"] = args.weights
+    detectors = {"net": Detector("net", **options), "classical": Detector("classical")}
+    results = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "sets": {}}
+    for set_name in args.sets:
+        test = TEST_SETS[set_name]
+        n_scenes = args.scenes or test.scenes
+        scores = {k: DotScore() for k in ("net", "classical", "blobs in exact mask", "SimpleBlobDetector",
+                                           "SimpleBlobDetector in net mask")}
+        iou = {k: [0, 0] for k in detectors}
+        timer = Timer()
+        n_images = 0
+        bar = tqdm(total=n_scenes * test.frames, desc=f"bench detect [{set_name}]", unit="frame")
+        for k in range(n_scenes):
+            scene, cfg = held_out_scene(test, k)
+            for f in range(test.frames):
+                rendered = scene.render(f)
+                uv_all, visible, dot_px = surface_uv(scene, f)
+                for c, (image, true_mask) in enumerate(zip(rendered.images, rendered.masks)):
+                    h, w = true_mask.shape
+                    border = dot_px[c] / 2
+                    inside = ((uv_all[c, :, 0] >= border) & (uv_all[c, :, 0] < w - border)
+                              & (uv_all[c, :, 1] >= border) & (uv_all[c, :, 1] < h - border))
+                    gt_vis = uv_all[c][visible[c] & inside]
+                    gt_hidden = uv_all[c][~(visible[c] & inside)]
+                    n_images += 1
+                    for name, det in detectors.items():
+                        t = time.perf_counter()
+                        dots = det.detect(image, camera=c)
+                        timer.add(f"{name}_total", time.perf_counter() - t)
+                        timer.add(f"{name}_segment", det.last_timings["segment_s"])
+                        timer.add(f"{name}_dots", det.last_timings["dots_s"])
+                        scores[name].add(dots.uv, gt_vis, gt_hidden)
+                        iou[name][0] += int((dots.mask & true_mask).sum())
+                        iou[name][1] += int((dots.mask | true_mask).sum())
+                        if name == "net":
+                            net_mask = dots.mask
+                    t = time.perf_counter()
+                    uv, _ = find_dots(image, true_mask)
+                    timer.add("blobs in exact mask", time.perf_counter() - t)
+                    scores["blobs in exact mask"].add(uv, gt_vis, gt_hidden)
+                    t = time.perf_counter()
+                    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+                    keypoints = simple_blob_detector(dot_px[c]).detect(grey)
+                    timer.add("SimpleBlobDetector_total", time.perf_counter() - t)
+                    peer = np.array([kp.pt for kp in keypoints], float).reshape(-1, 2)
+                    scores["SimpleBlobDetector"].add(peer, gt_vis, gt_hidden)
+                    if len(peer):
+                        iu = np.clip(np.round(peer).astype(int), 0, [w - 1, h - 1])
+                        peer = peer[net_mask[iu[:, 1], iu[:, 0]]]
+                    scores["SimpleBlobDetector in net mask"].add(peer, gt_vis, gt_hidden)
+                bar.update(1)
+            scene.close()
+        bar.close()
+        summary = {
+            "images": n_images, "image_size": list(cfg.size), "preset": test.preset, "blur": test.blur,
+            "occlusion": test.occlusion, "scenes": n_scenes, "frames_per_scene": test.frames,
+            "mask_iou": {name: i / max(u, 1) for name, (i, u) in iou.items()},
+            "dots": {name: s.summary() for name, s in scores.items()},
+            "time": timer.summary(),
+        }
+        results["sets"][set_name] = summary
+        print_set(set_name, summary)
+    with atomic_write(args.json) as handle:
+        json.dump(results, handle, indent=2)
+    print(f"results: {args.json}")
+    return 0
+
+
+def print_set(name: str, s: dict) -> None:
+    print(f"\n== {name}: {s['images']} camera images {s['image_size'][0]}x{s['image_size'][1]}, "
+          f"blur {s['blur']}, occlusion {s['occlusion']}")
+    print("mask IoU: " + ", ".join(f"{k} {v:.3f}" for k, v in s["mask_iou"].items()))
+    print(f"{'dots':32s} {'recall':>7s} {'precision':>9s} {'RMS px':>7s} {'p95 px':>7s}")
+    for k, d in s["dots"].items():
+        print(f"{k:32s} {d['recall']:7.4f} {d['precision']:9.4f} {d['centroid_rms_px']:7.3f} {d['centroid_p95_px']:7.3f}")
+    print("time per camera-frame: " + ", ".join(f"{k.replace('_ms_per_camera_frame', '')} {v:.1f} ms" for k, v in s["time"].items()))

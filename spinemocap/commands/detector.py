@@ -1,0 +1,142 @@
+"""``spinemocap detector train|finetune|run``: train the tape network, adapt it to a lab, apply it.
+
+    spinemocap detector train --out runs/tape                   # render studio data, train
+    spinemocap detector finetune --images lab/images --masks lab/masks --out runs/lab
+    spinemocap detector finetune --images lab/images --coco lab/tape.json --out runs/lab
+    spinemocap detector run img1.png img2.png --out dots/       # dots CSV + overlay per image
+
+Training is resumable: run the same command again with the same ``--out``. Use the result with
+``Detector("net", weights="runs/tape/weights.pt")``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import shlex
+import sys
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def _train_options(p: argparse.ArgumentParser, epochs: int, lr: float) -> None:
+    from ..detect.train import TrainSettings
+
+    d = TrainSettings()
+    p.add_argument("--out", type=Path, required=True, help="output folder (checkpoint, weights.pt, weights.json, plot)")
+    p.add_argument("--epochs", type=int, default=epochs)
+    p.add_argument("--steps", type=int, default=d.steps, help="batches per epoch")
+    p.add_argument("--batch", type=int, default=d.batch)
+    p.add_argument("--crop", type=int, default=d.crop, help="training window side (px, working resolution)")
+    p.add_argument("--lr", type=float, default=lr, help="peak learning rate (one-cycle)")
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--threads", type=int, default=d.threads)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("detector", help="train / fine-tune / apply the tape detector")
+    sub = p.add_subparsers(dest="detector_command", metavar="ACTION", required=True)
+
+    t = sub.add_parser("train", help="render synthetic-studio training data (if needed) and train the network")
+    _train_options(t, epochs=12, lr=3e-3)
+    t.add_argument("--data", type=Path, help="training shards folder (default OUT/data; rendered there if empty)")
+    t.add_argument("--scenes", type=int, default=48, help="synthetic scenes to render")
+    t.add_argument("--frames-per-scene", type=int, default=2)
+    t.add_argument("--data-seed", type=int, default=0, help="studio seeds data_seed*1000 + scene")
+    t.set_defaults(func=_train)
+
+    f = sub.add_parser("finetune", help="fine-tune on a lab's labelled images (PNG masks or COCO polygons)")
+    _train_options(f, epochs=8, lr=1e-3)
+    f.add_argument("--images", type=Path, required=True, help="folder of images")
+    group = f.add_mutually_exclusive_group(required=True)
+    group.add_argument("--masks", type=Path, help="folder of mask PNGs named like the images")
+    group.add_argument("--coco", type=Path, help="COCO JSON with polygon segmentations")
+    f.add_argument("--weights", type=Path, help="starting weights (default: the shipped ones)")
+    f.add_argument("--val-fraction", type=float, default=0.24, help="share of images for validation (paper: 631/2619)")
+    f.set_defaults(func=_finetune)
+
+    r = sub.add_parser("run", help="detect tape and dots in image files")
+    r.add_argument("images", type=Path, nargs="+")
+    r.add_argument("--name", choices=["net", "classical"], default="net")
+    r.add_argument("--weights", type=Path, help="network weights (default: shipped)")
+    r.add_argument("--dot-px", type=float, help="expected dot diameter in px (default: from the mask width)")
+    r.add_argument("--out", type=Path, help="folder for <stem>_dots.csv and <stem>_overlay.png")
+    r.set_defaults(func=_run)
+
+
+def _settings(args):
+    from ..detect.train import TrainSettings
+
+    return TrainSettings(epochs=args.epochs, steps=args.steps, batch=args.batch, crop=args.crop, lr=args.lr,
+                         seed=args.seed, threads=args.threads)
+
+
+def _command() -> str:
+    return "spinemocap " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+
+
+def _train(args) -> int:
+    from ..detect.dataset import SynthDataSettings, generate_synthetic, load_shards
+    from ..detect.train import train
+
+    data = args.data or args.out / "data"
+    synth = SynthDataSettings(scenes=args.scenes, frames_per_scene=args.frames_per_scene, seed=args.data_seed)
+    generate_synthetic(data, synth)
+    train_views, val_views = load_shards(data)
+    log.info("%d training views, %d validation views from %s", len(train_views), len(val_views), data)
+    meta = train(train_views, val_views, args.out, _settings(args),
+                 provenance={"command": _command(), "data": {"kind": "synthetic studio", **synth.to_dict(),
+                                                             "train_views": len(train_views), "val_views": len(val_views)}})
+    print(f"best epoch {meta['best_epoch']}: validation IoU {meta['val_iou']:.4f}; weights: {args.out / 'weights.pt'}")
+    return 0
+
+
+def _finetune(args) -> int:
+    from ..detect.dataset import import_labelled, load_shards
+    from ..detect.detector import shipped_weights_path
+    from ..detect.train import train
+
+    data = args.out / "data"
+    n_train, n_val = import_labelled(data, args.images, masks=args.masks, coco=args.coco,
+                                     val_fraction=args.val_fraction, seed=args.seed)
+    train_views, val_views = load_shards(data)
+    init = args.weights or shipped_weights_path()
+    meta = train(train_views, val_views, args.out, _settings(args), init_weights=init,
+                 provenance={"command": _command(), "data": {"kind": "lab", "images": str(args.images),
+                                                             "masks": str(args.masks) if args.masks else None,
+                                                             "coco": str(args.coco) if args.coco else None,
+                                                             "train_images": n_train, "val_images": n_val}})
+    print(f"{n_train} training / {n_val} validation images; best epoch {meta['best_epoch']}: "
+          f"validation IoU {meta['val_iou']:.4f}; weights: {args.out / 'weights.pt'}")
+    return 0
+
+
+def _run(args) -> int:
+    import cv2
+    import numpy as np
+
+    from ..capture import read_image
+    from ..detect import Detector
+    from ..fileio import atomic_path, atomic_write
+
+    options = {"weights": args.weights} if args.name == "net" and args.weights else {}
+    detector = Detector(args.name, **options)
+    for path in args.images:
+        image = read_image(path)
+        dots = detector.detect(image, expected_dot_px=args.dot_px)
+        print(f"{path}: {len(dots)} dots, tape mask {int(dots.mask.sum())} px")
+        if args.out is None:
+            continue
+        with atomic_write(args.out / f"{path.stem}_dots.csv") as handle:
+            handle.write("u_px,v_px,confidence\n")
+            for (u, v), c in zip(dots.uv, dots.confidence):
+                handle.write(f"{u:.3f},{v:.3f},{c:.3f}\n")
+        overlay = image.copy()
+        contours, _ = cv2.findContours(dots.mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        cv2.drawContours(overlay, contours, -1, (0, 255, 0), 1)
+        for u, v in dots.uv:
+            cv2.drawMarker(overlay, (int(round(u)), int(round(v))), (0, 0, 255), cv2.MARKER_CROSS, 7, 1)
+        with atomic_path(args.out / f"{path.stem}_overlay.png") as tmp:
+            cv2.imwrite(str(tmp), overlay)
+    return 0

@@ -1,0 +1,65 @@
+"""Classical tape segmentation (baseline and fallback): darkness + morphology + perforation test.
+
+The tape is darker than the skin around it and perforated: a dark region with several small
+bright holes. Steps, on the frame reduced to at most ``work_width`` px wide:
+
+1. dark pixels: grey below Otsu's threshold (computed on the whole frame);
+2. open lightly (noise), then fill each dark component's holes: the dots join their tape;
+3. keep components that look perforated: at least ``min_holes`` enclosed bright holes making up
+   a plausible share (``hole_share``) of the filled area; a plain dark background, hair or a
+   dark garment has no such regular holes;
+4. scale back to full resolution (bilinear on the 0/1 mask, threshold 0.5).
+
+No training, no weights; it fails where the background itself is dark and perforated, and it
+needs the holes to be resolved at ``work_width``.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .blobs import to_grey
+
+
+def segment_classical(
+    image: np.ndarray,
+    work_width: int = 1024,
+    min_holes: int = 3,
+    hole_share: tuple[float, float] = (0.03, 0.45),
+) -> np.ndarray:
+    """Tape mask (H, W) bool of a BGR/grey uint8 image."""
+    grey = to_grey(image)
+    h, w = grey.shape
+    s = min(1.0, work_width / w)
+    small = cv2.resize(grey, (max(8, int(w * s)), max(8, int(h * s))), interpolation=cv2.INTER_AREA) if s < 1 else grey
+    small = cv2.GaussianBlur(small, (3, 3), 0)
+    threshold, _ = cv2.threshold(small, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    dark = (small < threshold).astype(np.uint8)
+    dark = cv2.morphologyEx(dark, cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))
+    contours, hierarchy = cv2.findContours(dark, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    keep = np.zeros_like(dark)
+    if hierarchy is None:
+        return np.zeros((h, w), bool)
+    hierarchy = hierarchy[0]
+    for i, (nxt, prev, child, parent) in enumerate(hierarchy):
+        if parent != -1:
+            continue
+        outer = cv2.contourArea(contours[i])
+        holes = []
+        c = child
+        while c != -1:
+            holes.append(cv2.contourArea(contours[c]))
+            c = hierarchy[c][0]
+        holes = np.asarray([a for a in holes if a >= 1.0])
+        if len(holes) < min_holes or outer <= 0:
+            continue
+        # Dots are alike: count holes within a factor 3 of the median hole.
+        median = np.median(holes)
+        alike = holes[(holes > median / 3) & (holes < median * 3)]
+        share = alike.sum() / outer
+        if len(alike) >= min_holes and hole_share[0] <= share <= hole_share[1]:
+            cv2.drawContours(keep, contours, i, 1, thickness=cv2.FILLED)
+    if s < 1:
+        keep = cv2.resize(keep.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR) >= 0.5
+    return keep.astype(bool)

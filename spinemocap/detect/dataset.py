@@ -1,0 +1,317 @@
+"""Training data for the tape segmentation network: synthetic-studio renders and labelled lab images.
+
+Every labelled image (BGR + bool tape mask at full resolution) becomes two *views* at working
+resolution, the two inputs the detector feeds its network (see :mod:`spinemocap.detect.detector`):
+
+- the whole frame reduced to ``WORK_WIDTH`` px wide (stage 1: where is the tape?);
+- a crop around the tape, padded and reduced so its longer side is ``WORK_WIDTH`` px (stage 2:
+  the tape's exact outline).
+
+Views are stored as ``.npz`` shards (``image_###`` uint8 (h, w, 3), ``mask_###`` bool (h, w),
+``split`` 'train'/'val'), one shard per synthetic scene or per lab image batch, so generation
+is resumable shard by shard.
+
+Lab data, as in the paper's 1988/631 train/val split idea: a folder ``images/`` with masks either
+as PNGs in ``masks/`` (same file stem, any non-zero pixel is tape) or as a COCO JSON with polygon
+segmentations. Each image goes to validation when a hash of its stem falls below
+``val_fraction`` (stable when images are added later).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..capture import read_image
+from ..fileio import InputError, atomic_path
+
+log = logging.getLogger(__name__)
+
+WORK_WIDTH = 256          # stage-1 frame width and stage-2 crop long side, px
+CROP_PAD = 0.5            # stage-2 crop: tape box grown by this fraction of its size on each side
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+
+# ---------------------------------------------------------------------------------- views
+def frame_view(image: np.ndarray, mask: np.ndarray | None = None, width: int = WORK_WIDTH):
+    """The whole frame at ``width`` px wide (area averaging); mask reduced by majority."""
+    h, w = image.shape[:2]
+    size = (width, max(8, int(round(h * width / w))))
+    small = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    if mask is None:
+        return small, None
+    return small, cv2.resize(mask.astype(np.float32), size, interpolation=cv2.INTER_AREA) >= 0.5
+
+
+def crop_box(mask: np.ndarray, pad: float = CROP_PAD, min_side: int = 32) -> tuple[slice, slice] | None:
+    """Box around a mask's pixels grown by ``pad`` x its size per side (at least ``min_side``)."""
+    ys, xs = np.nonzero(mask)
+    if len(ys) == 0:
+        return None
+    h, w = mask.shape
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    py = max(pad * (y1 - y0), (min_side - (y1 - y0)) / 2, 4)
+    px = max(pad * (x1 - x0), (min_side - (x1 - x0)) / 2, 4)
+    return (slice(max(0, int(y0 - py)), min(h, int(np.ceil(y1 + py)))),
+            slice(max(0, int(x0 - px)), min(w, int(np.ceil(x1 + px)))))
+
+
+def crop_scale(box: tuple[slice, slice], long_side: int = WORK_WIDTH) -> float:
+    """Factor that brings a box's longer side to ``long_side`` (never enlarges)."""
+    ys, xs = box
+    return min(1.0, long_side / max(ys.stop - ys.start, xs.stop - xs.start))
+
+
+def crop_view(image: np.ndarray, mask: np.ndarray, box: tuple[slice, slice], long_side: int = WORK_WIDTH):
+    """The crop ``box`` of image and mask, reduced so its longer side is at most ``long_side``."""
+    s = crop_scale(box, long_side)
+    img, m = image[box], mask[box].astype(np.float32)
+    size = (max(8, int(round(img.shape[1] * s))), max(8, int(round(img.shape[0] * s))))
+    return (cv2.resize(img, size, interpolation=cv2.INTER_AREA),
+            cv2.resize(m, size, interpolation=cv2.INTER_AREA) >= 0.5)
+
+
+def views_of(image: np.ndarray, mask: np.ndarray, rng: np.random.Generator | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The stage-1 and (if the tape is visible) stage-2 views of one labelled image. With ``rng``
+    the crop padding varies, so the network does not learn one fixed framing."""
+    views = [frame_view(image, mask)]
+    pad = CROP_PAD if rng is None else float(rng.uniform(0.2, 0.9))
+    box = crop_box(mask, pad)
+    if box is not None:
+        views.append(crop_view(image, mask, box))
+    return views
+
+
+# ---------------------------------------------------------------------------------- shards
+def save_shard(path: Path, views: list[tuple[np.ndarray, np.ndarray]], split: str, info: dict) -> None:
+    arrays = {}
+    for i, (img, m) in enumerate(views):
+        arrays[f"image_{i:03d}"] = img
+        arrays[f"mask_{i:03d}"] = m
+    arrays["split"] = np.array(split)
+    arrays["info"] = np.array(json.dumps(info))
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, **arrays)
+
+
+@dataclass
+class ViewSet:
+    """Views in memory: lists of uint8 BGR images and bool masks at working resolution."""
+
+    images: list[np.ndarray]
+    masks: list[np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def extend(self, other: "ViewSet") -> None:
+        self.images += other.images
+        self.masks += other.masks
+
+
+def load_shards(folder: Path) -> tuple[ViewSet, ViewSet]:
+    """All shards of a folder, split into (train, val)."""
+    folder = Path(folder)
+    files = sorted(folder.glob("*.npz"))
+    if not files:
+        raise InputError(folder, "no training data shards (*.npz) found")
+    train, val = ViewSet([], []), ViewSet([], [])
+    for f in files:
+        try:
+            with np.load(f) as data:
+                target = val if str(data["split"]) == "val" else train
+                n = sum(1 for k in data.files if k.startswith("image_"))
+                for i in range(n):
+                    target.images.append(data[f"image_{i:03d}"])
+                    target.masks.append(data[f"mask_{i:03d}"].astype(bool))
+        except (OSError, KeyError, ValueError) as exc:
+            raise InputError(f, f"damaged training data shard ({exc})") from exc
+    return train, val
+
+
+# ---------------------------------------------------------------------------------- synthetic
+@dataclass
+class SynthDataSettings:
+    """How synthetic training data is drawn. Scene ``k`` uses studio seed ``seed * 1000 + k``;
+    scenes whose index falls in the last ``val_fraction`` go to validation. Benchmarks use seeds
+    from :data:`HELD_OUT_SEED_BASE` on, never touched here."""
+
+    scenes: int = 60
+    frames_per_scene: int = 2
+    seed: int = 0
+    val_fraction: float = 0.15
+    layouts: tuple[str, ...] = ("tiny", "artificial", "studio")
+    scale: float = 0.5   # render size relative to the layout's reference size (focal scales along)
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["layouts"] = list(self.layouts)
+        return d
+
+
+HELD_OUT_SEED_BASE = 900_000
+_REFERENCE_SIZE = {"tiny": (480, 360), "artificial": (1024, 768), "studio": (2448, 1600)}
+_CAMERAS = {"tiny": 3, "artificial": 4, "studio": 6}
+
+
+def random_scene_config(rng: np.random.Generator, seed: int, layouts=("tiny", "artificial", "studio"), scale: float = 0.5):
+    """A synthetic-studio configuration with a random body, skin tone, motion, blur, noise and
+    occluders (lighting follows from the seed inside the studio)."""
+    from ..synth import SynthConfig
+    from ..synth.motions import MOTIONS
+
+    layout = str(rng.choice(list(layouts)))
+    w, h = _REFERENCE_SIZE[layout]
+    s = 1.0 if layout == "tiny" else scale
+    phenotype = {k: float(rng.uniform(0.05, 0.95)) for k in ("gender", "age", "muscle", "weight", "height")}
+    return SynthConfig.preset(
+        layout, frames=int(rng.integers(8, 40)), seed=seed, size=(int(w * s), int(h * s)),
+        cameras=_CAMERAS[layout], phenotype=phenotype, skin_tone=float(rng.uniform(0, 1)),
+        motion=str(rng.choice(sorted(MOTIONS))), blur=float(rng.choice([0.0, 0.0, 0.0, 0.4])),
+        noise=float(rng.uniform(0.5, 5.0)), occlusion=str(rng.choice(["none", "none", "light", "heavy"])),
+        band=bool(rng.random() < 0.2), rows=int(rng.choice([9, 11, 13])),
+    )
+
+
+def vary_appearance(scene, rng: np.random.Generator) -> None:
+    """Random background and tape colours (dark tapes of several hues) before the first render."""
+    background = tuple(float(c) for c in rng.uniform(0.05, 0.9, 3))
+    tape = tuple(float(c) for c in rng.uniform(0.02, 0.25, 3))
+    scene.appearance = dataclasses.replace(scene.appearance, background_rgb=background, tape_rgb=tape)
+
+
+def generate_synthetic(out: Path, settings: SynthDataSettings, progress: bool = True) -> Path:
+    """Render ``settings.scenes`` scenes into shards under ``out`` (existing shards are kept:
+    an interrupted run resumes where it stopped). Writes ``settings.json`` beside them."""
+    from tqdm import tqdm
+
+    from ..synth import build_scene
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out / "settings.json") as tmp:
+        tmp.write_text(json.dumps(settings.to_dict(), indent=2))
+    n_val = max(1, int(round(settings.scenes * settings.val_fraction)))
+    for k in tqdm(range(settings.scenes), desc="rendering training scenes", unit="scene", disable=not progress):
+        path = out / f"synth_{k:04d}.npz"
+        if path.exists():
+            continue
+        seed = settings.seed * 1000 + k
+        rng = np.random.default_rng([seed, 77])
+        cfg = random_scene_config(rng, seed, settings.layouts, settings.scale)
+        try:
+            scene = build_scene(cfg)
+        except ValueError as exc:  # no camera sees the tape: draw another time
+            log.info("scene %d skipped: %s", k, exc)
+            save_shard(path, [], "train", {"seed": seed, "skipped": str(exc)})
+            continue
+        vary_appearance(scene, rng)
+        views = []
+        for f in rng.choice(cfg.frames, size=min(settings.frames_per_scene, cfg.frames), replace=False):
+            rendered = scene.render(int(f))
+            for img, m in zip(rendered.images, rendered.masks):
+                views += views_of(img, m, rng)
+        scene.close()
+        split = "val" if k >= settings.scenes - n_val else "train"
+        save_shard(path, views, split, {"seed": seed, "config": cfg.to_dict()})
+    return out
+
+
+# ---------------------------------------------------------------------------------- lab data
+def split_of(stem: str, val_fraction: float) -> str:
+    """'val' or 'train', stable per file stem (crc32 hash)."""
+    return "val" if (zlib.crc32(stem.encode()) % 10_000) < val_fraction * 10_000 else "train"
+
+
+def _images_in(folder: Path) -> list[Path]:
+    if not folder.is_dir():
+        raise InputError(folder, "image folder not found")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise InputError(folder, "no images (png/jpg/bmp/tif) in folder")
+    return files
+
+
+def read_mask_png(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """A label PNG: any non-zero pixel is tape. Must match the image size."""
+    if not path.is_file():
+        raise InputError(path, "mask file not found (expected the image's stem with .png in the masks folder)")
+    m = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if m is None:
+        raise InputError(path, "mask file is corrupt or not an image")
+    if m.ndim == 3:
+        m = m.max(axis=2)
+    if m.shape != shape:
+        raise InputError(path, f"mask size {m.shape[::-1]} differs from its image {shape[::-1]}")
+    return m > 0
+
+
+def read_coco_masks(path: Path) -> dict[str, list[list[np.ndarray]]]:
+    """COCO JSON -> {file name: [polygons per annotation]} (polygons (K, 2) px). Only polygon
+    segmentations are read; RLE annotations raise an InputError naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "COCO annotation file not found")
+    try:
+        data = json.loads(path.read_text())
+        names = {img["id"]: img["file_name"] for img in data["images"]}
+        out: dict[str, list[list[np.ndarray]]] = {Path(n).name: [] for n in names.values()}
+        for ann in data.get("annotations", []):
+            seg = ann["segmentation"]
+            if isinstance(seg, dict):
+                raise InputError(path, f"annotation {ann.get('id')} uses RLE; export polygons instead")
+            polys = [np.asarray(p, float).reshape(-1, 2) for p in seg if len(p) >= 6]
+            out[Path(names[ann["image_id"]]).name].append(polys)
+    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise InputError(path, f"not a COCO annotation file ({exc.__class__.__name__}: {exc})") from exc
+    return out
+
+
+def rasterize_polygons(polygons: list[list[np.ndarray]], shape: tuple[int, int]) -> np.ndarray:
+    """Fill every polygon of every annotation into one bool mask (H, W)."""
+    m = np.zeros(shape, np.uint8)
+    for polys in polygons:
+        for p in polys:
+            cv2.fillPoly(m, [np.round(p * 16).astype(np.int32)], 1, cv2.LINE_8, 4)
+    return m.astype(bool)
+
+
+def labelled_images(images: Path, masks: Path | None = None, coco: Path | None = None):
+    """Yield (stem, image BGR, mask bool) for a lab data set (PNG masks or COCO polygons)."""
+    if (masks is None) == (coco is None):
+        raise ValueError("give exactly one of masks (PNG folder) or coco (JSON file)")
+    polygons = read_coco_masks(coco) if coco is not None else None
+    for path in _images_in(Path(images)):
+        image = read_image(path)
+        if polygons is not None:
+            if path.name not in polygons:
+                log.warning("%s: not in %s, skipped", path, coco)
+                continue
+            mask = rasterize_polygons(polygons[path.name], image.shape[:2])
+        else:
+            mask = read_mask_png(Path(masks) / f"{path.stem}.png", image.shape[:2])
+        yield path.stem, image, mask
+
+
+def import_labelled(out: Path, images: Path, masks: Path | None = None, coco: Path | None = None,
+                    val_fraction: float = 0.24, seed: int = 0) -> tuple[int, int]:
+    """Turn a lab data set into shards under ``out`` (one per image). The default split, 24 % to
+    validation, is the paper's 631 of 2619. Returns (n_train, n_val) images."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    counts = {"train": 0, "val": 0}
+    for stem, image, mask in labelled_images(images, masks, coco):
+        split = split_of(stem, val_fraction)
+        rng = np.random.default_rng([seed, zlib.crc32(stem.encode())])
+        save_shard(out / f"lab_{stem}.npz", views_of(image, mask, rng), split, {"source": stem})
+        counts[split] += 1
+    if counts["train"] == 0:
+        raise InputError(images, "no labelled image landed in the training split (too few images?)")
+    return counts["train"], counts["val"]

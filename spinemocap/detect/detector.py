@@ -1,0 +1,155 @@
+"""The detector the tracker calls: tape mask (instances) and dots, per camera image.
+
+``Detector(name="net")`` (default) segments with the shipped network in two stages, never at full
+resolution:
+
+1. the whole frame reduced to 256 px wide -> coarse tape mask -> boxes around its components;
+2. each box, padded by half its size and reduced to <= 256 px on its long side -> logits,
+   bilinearly upsampled to the box at full resolution -> the mask's exact outline.
+
+``Detector(name="classical")`` uses :mod:`spinemocap.detect.classical` instead. Either way the
+dots come from :func:`spinemocap.detect.blobs.find_dots` inside the mask.
+
+``last_timings`` holds the seconds spent per stage in the latest call (for the benchmark).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from importlib import resources
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from ..capture import read_image
+from ..fileio import InputError
+from ..track.types import ViewDots
+from .blobs import BlobParams, find_dots, to_grey
+from .classical import segment_classical
+from .dataset import CROP_PAD, WORK_WIDTH, crop_scale, frame_view
+from .instances import split_instances, union
+from .segnet import TapeUNet, load_weights, pad_to_multiple, to_tensor
+
+SHIPPED_WEIGHTS = "tape_unet.pt"
+NAMES = ("net", "classical")
+
+
+def shipped_weights_path() -> Path:
+    """Path of the weights shipped inside the package (spinemocap/detect/weights/)."""
+    return Path(str(resources.files("spinemocap.detect").joinpath("weights", SHIPPED_WEIGHTS)))
+
+
+class NetSegmenter:
+    """Two-stage segmentation with :class:`TapeUNet` (see the module docstring)."""
+
+    def __init__(self, weights: str | os.PathLike | None = None, refine: bool = True, threads: int | None = None,
+                 min_area_work_px: int = 4):
+        self.weights_path = Path(weights) if weights else shipped_weights_path()
+        self.model, self.metadata = load_weights(self.weights_path)
+        self.refine = refine
+        self.threads = threads
+        self.min_area_work_px = min_area_work_px
+
+    def _logits(self, view: np.ndarray) -> np.ndarray:
+        padded, (h, w) = pad_to_multiple(view, self.model.stride)
+        with torch.inference_mode():
+            return self.model(to_tensor(padded))[0, 0, :h, :w].numpy()
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        if self.threads:
+            torch.set_num_threads(self.threads)
+        h, w = image.shape[:2]
+        view, _ = frame_view(image)
+        coarse_logits = self._logits(view)
+        coarse = coarse_logits > 0
+        if not self.refine:
+            return cv2.resize(coarse_logits, (w, h), interpolation=cv2.INTER_LINEAR) > 0
+        mask = np.zeros((h, w), bool)
+        n, _, stats, _ = cv2.connectedComponentsWithStats(coarse.astype(np.uint8), connectivity=8)
+        sx, sy = w / view.shape[1], h / view.shape[0]
+        for x, y, bw, bh, area in stats[1:]:
+            if area < self.min_area_work_px:
+                continue
+            box = _padded_box(x * sx, y * sy, (x + bw) * sx, (y + bh) * sy, (h, w))
+            crop = image[box]
+            s = crop_scale(box, WORK_WIDTH)
+            ch, cw = crop.shape[:2]
+            small = cv2.resize(crop, (max(8, int(round(cw * s))), max(8, int(round(ch * s)))), interpolation=cv2.INTER_AREA) if s < 1 else crop
+            logits = self._logits(small)
+            mask[box] |= cv2.resize(logits, (cw, ch), interpolation=cv2.INTER_LINEAR) > 0
+        return mask
+
+
+def _padded_box(x0: float, y0: float, x1: float, y1: float, shape: tuple[int, int]) -> tuple[slice, slice]:
+    """Box grown like the training crops (:data:`CROP_PAD` x its size per side), clipped."""
+    h, w = shape
+    px, py = max(CROP_PAD * (x1 - x0), 8), max(CROP_PAD * (y1 - y0), 8)
+    return (slice(max(0, int(y0 - py)), min(h, int(np.ceil(y1 + py)))),
+            slice(max(0, int(x0 - px)), min(w, int(np.ceil(x1 + px)))))
+
+
+class Detector:
+    """Tape and dot detector for single camera images (BGR uint8, any size).
+
+    ``name``: ``"net"`` (options: ``weights`` path, ``refine`` two-stage on/off, ``threads``) or
+    ``"classical"`` (options: ``work_width``); ``blob_params``: :class:`BlobParams` for the dots;
+    ``dot_to_width``: dot diameter / tape width, used to guess the dot size from the mask when
+    :meth:`detect` gets no ``expected_dot_px``."""
+
+    def __init__(self, name: str = "net", blob_params: BlobParams | None = None, **options):
+        if name not in NAMES:
+            raise ValueError(f"unknown detector {name!r}; choose from {list(NAMES)}")
+        self.name = name
+        self.blob_params = blob_params or BlobParams()
+        if name == "net":
+            self._segment = NetSegmenter(**options)
+        else:
+            work_width = int(options.pop("work_width", 1024))
+            if options:
+                raise TypeError(f"unknown options for the classical detector: {sorted(options)}")
+            self._segment = lambda image: segment_classical(image, work_width=work_width)
+        self.last_timings: dict[str, float] = {}
+
+    # -------------------------------------------------------------------- masks
+    def instances(self, image_bgr: np.ndarray) -> list[np.ndarray]:
+        """Tape instances: one (H, W) bool mask per separate stripe piece, largest first."""
+        t = time.perf_counter()
+        raw = self._segment(_check_image(image_bgr))
+        out = split_instances(raw)
+        self.last_timings["segment_s"] = time.perf_counter() - t
+        return out
+
+    def segment(self, image_bgr: np.ndarray) -> np.ndarray:
+        """Tape mask (H, W) bool at full resolution: the union of :meth:`instances`."""
+        return union(self.instances(image_bgr), image_bgr.shape[:2])
+
+    # -------------------------------------------------------------------- dots
+    def find_dots(self, image_bgr: np.ndarray, mask: np.ndarray, expected_dot_px: float | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """Dots inside ``mask``: ``uv`` (N, 2) sub-pixel px (x, y) and ``confidence`` (N,)."""
+        t = time.perf_counter()
+        out = find_dots(image_bgr, mask, expected_dot_px, self.blob_params)
+        self.last_timings["dots_s"] = time.perf_counter() - t
+        return out
+
+    def detect(self, image_bgr: np.ndarray, camera: int = 0, expected_dot_px: float | None = None) -> ViewDots:
+        """Mask + dots of one camera image as :class:`ViewDots` (with the grey image for MRF2).
+        ``expected_dot_px``: dot diameter in px; estimated from the mask width when None."""
+        image_bgr = _check_image(image_bgr)
+        mask = self.segment(image_bgr)
+        uv, conf = self.find_dots(image_bgr, mask, expected_dot_px)
+        return ViewDots(camera=camera, uv=uv, confidence=conf, mask=mask, image=to_grey(image_bgr))
+
+    def detect_file(self, path: str | os.PathLike, camera: int = 0, expected_dot_px: float | None = None) -> ViewDots:
+        """:meth:`detect` on an image file; a missing or corrupt file raises InputError naming it."""
+        return self.detect(read_image(path), camera, expected_dot_px)
+
+
+def _check_image(image: np.ndarray) -> np.ndarray:
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise InputError(None, f"expected a BGR uint8 image (H, W, 3), got {image.dtype} {image.shape}")
+    return image

@@ -1,0 +1,85 @@
+"""Dot detection on drawn images with exact sub-pixel centres (no network, no studio)."""
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from spinemocap.detect.blobs import estimate_dot_diameter, fill_holes, find_dots
+from spinemocap.detect.drawn import draw_sample
+
+
+def _score(sample, uv):
+    """Recall, precision (2 px) and RMS error against dots fully inside the frame."""
+    h, w = sample.mask.shape
+    m = sample.dot_px / 2 + 1
+    gt = sample.uv[(sample.uv[:, 0] > m) & (sample.uv[:, 1] > m) & (sample.uv[:, 0] < w - m) & (sample.uv[:, 1] < h - m)]
+    d_gt, _ = cKDTree(uv).query(gt)
+    d_pred, _ = cKDTree(gt).query(uv)
+    ok = d_gt < 2
+    return ok.mean(), (d_pred < 2).mean(), float(np.sqrt(np.mean(d_gt[ok] ** 2)))
+
+
+@pytest.mark.parametrize("noise, blur, max_rms", [(0.0, 0.0, 0.03), (4.0, 1.0, 0.1)])
+def test_centres_match_exact_drawn_centres(noise, blur, max_rms):
+    for seed in range(4):
+        sample = draw_sample(np.random.default_rng(seed), px_per_mm=1.2, noise=noise, blur=blur)
+        uv, conf = find_dots(sample.image, sample.mask, expected_dot_px=sample.dot_px)
+        recall, precision, rms = _score(sample, uv)
+        assert recall == 1.0 and precision == 1.0
+        assert rms < max_rms
+        assert np.all((conf > 0) & (conf <= 1))
+
+
+def test_dot_size_estimated_from_mask_width_when_not_given():
+    sample = draw_sample(np.random.default_rng(7), px_per_mm=1.0)
+    assert estimate_dot_diameter(sample.mask) == pytest.approx(sample.dot_px, rel=0.2)
+    uv, _ = find_dots(sample.image, sample.mask)
+    recall, precision, rms = _score(sample, uv)
+    assert recall == 1.0 and precision == 1.0 and rms < 0.05
+
+
+def test_mask_with_holes_is_filled():
+    sample = draw_sample(np.random.default_rng(3), px_per_mm=1.2)
+    grey = cv2.cvtColor(sample.image, cv2.COLOR_BGR2GRAY)
+    tape_only = sample.mask & (grey < 100)  # the physical tape: dots are holes in the mask
+    assert fill_holes(tape_only).sum() > tape_only.sum()
+    uv, _ = find_dots(sample.image, tape_only, expected_dot_px=sample.dot_px)
+    assert _score(sample, uv)[:2] == (1.0, 1.0)
+
+
+def test_a_dot_cut_by_a_dark_line_gives_one_blob():
+    sample = draw_sample(np.random.default_rng(5), px_per_mm=1.5, size=(360, 300))
+    u, v = sample.uv[len(sample.uv) // 2]
+    image = sample.image.copy()
+    cv2.line(image, (int(u) - 10, int(round(v))), (int(u) + 10, int(round(v))), (30, 30, 30), 1)
+    uv, _ = find_dots(image, sample.mask, expected_dot_px=sample.dot_px)
+    near = np.linalg.norm(uv - [u, v], axis=1) < sample.dot_px
+    assert near.sum() == 1
+
+
+def test_no_tape_no_dots_and_no_error():
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 255, (240, 320, 3), dtype=np.uint8)
+    uv, conf = find_dots(image, np.zeros((240, 320), bool))
+    assert uv.shape == (0, 2) and conf.shape == (0,)
+    # A dark stripe without perforation: a mask, but nothing to find.
+    plain = np.full((240, 320, 3), 180, np.uint8)
+    mask = np.zeros((240, 320), bool)
+    mask[40:200, 130:190] = True
+    plain[mask] = 40
+    noisy = np.clip(plain + rng.normal(0, 2, plain.shape), 0, 255).astype(np.uint8)
+    uv, conf = find_dots(noisy, mask)
+    assert len(uv) == 0
+
+
+def test_full_resolution_frame():
+    sample = draw_sample(np.random.default_rng(1), size=(2448, 1600), px_per_mm=1.2, n_rows=13, supersample=2, noise=2)
+    uv, _ = find_dots(sample.image, sample.mask)
+    recall, precision, rms = _score(sample, uv)
+    assert recall == 1.0 and precision == 1.0 and rms < 0.1
+
+
+def test_mask_shape_mismatch_is_an_error():
+    with pytest.raises(ValueError, match="mask shape"):
+        find_dots(np.zeros((10, 10, 3), np.uint8), np.zeros((10, 11), bool))

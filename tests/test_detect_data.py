@@ -1,0 +1,98 @@
+"""Training data (PNG masks, COCO polygons, shards) and the training loop, on drawn images."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from spinemocap.detect.dataset import (ViewSet, import_labelled, load_shards, read_coco_masks, split_of,
+                                       views_of)
+from spinemocap.detect.drawn import draw_sample
+from spinemocap.detect.segnet import load_weights
+from spinemocap.detect.train import TrainSettings, train
+from spinemocap.fileio import InputError
+
+
+def _lab_folder(tmp_path, n=8):
+    images, masks = tmp_path / "images", tmp_path / "masks"
+    images.mkdir()
+    masks.mkdir()
+    coco = {"images": [], "annotations": [], "categories": [{"id": 1, "name": "tape"}]}
+    truth = {}
+    for i in range(n):
+        s = draw_sample(np.random.default_rng(i), size=(200, 160), px_per_mm=0.7, supersample=2)
+        name = f"img{i:02d}.png"
+        cv2.imwrite(str(images / name), s.image)
+        cv2.imwrite(str(masks / name), s.mask.astype(np.uint8) * 255)
+        truth[name] = s.mask
+        contours, _ = cv2.findContours(s.mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        coco["images"].append({"id": i, "file_name": name, "width": 200, "height": 160})
+        for c in contours:
+            coco["annotations"].append({"id": len(coco["annotations"]), "image_id": i, "category_id": 1,
+                                        "segmentation": [c.reshape(-1).astype(float).tolist()]})
+    (tmp_path / "tape.json").write_text(json.dumps(coco))
+    return images, masks, tmp_path / "tape.json", truth
+
+
+def test_png_and_coco_labels_give_the_same_views(tmp_path):
+    images, masks, coco, truth = _lab_folder(tmp_path)
+    n_png = import_labelled(tmp_path / "png", images, masks=masks, val_fraction=0.3)
+    n_coco = import_labelled(tmp_path / "coco", images, coco=coco, val_fraction=0.3)
+    assert n_png == n_coco and sum(n_png) == 8 and n_png[1] == sum(split_of(f"img{i:02d}", 0.3) == "val" for i in range(8))
+    png_train, png_val = load_shards(tmp_path / "png")
+    coco_train, coco_val = load_shards(tmp_path / "coco")
+    assert len(png_train) == 2 * n_png[0] and len(png_val) == 2 * n_png[1]  # frame view + crop view each
+    for a, b in zip(png_train.masks, coco_train.masks):
+        iou = (a & b).sum() / (a | b).sum()
+        assert iou > 0.9  # polygon outline vs pixel mask: differ by the boundary pixels only
+
+
+def test_bad_labels_name_the_file(tmp_path):
+    images, masks, coco, _ = _lab_folder(tmp_path, n=2)
+    (tmp_path / "bad.json").write_text("{not json")
+    with pytest.raises(InputError, match="bad.json"):
+        read_coco_masks(tmp_path / "bad.json")
+    cv2.imwrite(str(masks / "img00.png"), np.zeros((10, 10), np.uint8))
+    with pytest.raises(InputError, match="img00.png.*differs"):
+        import_labelled(tmp_path / "out", images, masks=masks)
+    (images / "img01.png").write_bytes(b"not a png")
+    with pytest.raises(InputError, match="img01.png"):
+        import_labelled(tmp_path / "out2", images, coco=coco)
+
+
+def test_training_loop_learns_resumes_and_exports(tmp_path):
+    rng = np.random.default_rng(0)
+    train_views, val_views = ViewSet([], []), ViewSet([], [])
+    for i in range(10):
+        s = draw_sample(rng, size=(192, 144), px_per_mm=0.6, supersample=2)
+        target = val_views if i >= 8 else train_views
+        for img, m in views_of(s.image, s.mask, rng):
+            target.images.append(img)
+            target.masks.append(m)
+    settings = TrainSettings(epochs=2, steps=12, batch=6, crop=64, lr=1e-2, channels=(8, 12, 16), threads=1)
+    out = tmp_path / "run"
+    meta = train(train_views, val_views, out, dataclass_replace(settings, epochs=1), provenance={"command": "test"}, progress=False)
+    assert len(meta["history"]) == 1
+    meta = train(train_views, val_views, out, settings, provenance={"command": "test"}, progress=False)
+    assert [h["epoch"] for h in meta["history"]] == [1, 2]  # resumed, not restarted
+    assert meta["history"][1]["loss"] < meta["history"][0]["loss"]
+    assert meta["val_iou"] > 0.5  # a dark stripe on skin is learnt within two tiny epochs
+    model, stored = load_weights(out / "weights.pt")
+    assert stored["command"] == "test" and json.loads((out / "weights.json").read_text())["best_epoch"] in (1, 2)
+    assert (out / "training.png").is_file()
+
+
+def dataclass_replace(obj, **changes):
+    import dataclasses
+
+    return dataclasses.replace(obj, **changes)
+
+
+def test_damaged_weights_file_is_named(tmp_path):
+    bad = tmp_path / "w.pt"
+    bad.write_bytes(b"garbage")
+    with pytest.raises(InputError, match="w.pt"):
+        load_weights(bad)
+    with pytest.raises(InputError, match="not found"):
+        load_weights(tmp_path / "missing.pt")
