@@ -239,3 +239,15 @@ def test_cli_synth_writes_capture_and_reports_bad_settings(tmp_path, capsys):
     assert Capture.open(tmp_path / "c").rig[0].size == (320, 240)
     assert main(["synth", str(tmp_path / "d"), "--rows", "0"]) == 2
     assert "rows must be odd" in capsys.readouterr().err
+
+
+def test_video_capture_round_trips_losslessly(tmp_path):
+    config = SynthConfig.preset("tiny", frames=2, size=(320, 240), video=True, noise=0.0)
+    out = write_capture(config, tmp_path / "v", progress=False)
+    capture = Capture.open(out)
+    assert capture.media == "video" and (out / "videos" / "cam1.mkv").is_file()
+    assert not (out / "images").exists()
+    frames = capture.frame_source().read(1)
+    scene = build_scene(config)
+    np.testing.assert_array_equal(frames[2], scene.render(1).images[2])  # FFV1 is lossless
+    scene.close()

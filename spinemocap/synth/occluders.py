@@ -92,7 +92,7 @@ def segments_blocked_by_spheres(origins: np.ndarray, ends: np.ndarray, centres: 
     return (dist2 < radii[None] ** 2).any(axis=1)
 
 
-def sphere_mesh(centres: np.ndarray, radii: np.ndarray, resolution: int = 14):
+def sphere_mesh(centres: np.ndarray, radii: np.ndarray, resolution: int = 16):
     """One pyvista PolyData holding all spheres (empty PolyData when there are none)."""
     import pyvista as pv
 
@@ -104,15 +104,49 @@ def sphere_mesh(centres: np.ndarray, radii: np.ndarray, resolution: int = 14):
     n = len(centres)
     pts = (base_pts[None] * radii[:, None, None] + centres[:, None, :]).reshape(-1, 3)
     faces = (base_faces[None] + (np.arange(n) * len(base_pts))[:, None, None]).reshape(-1, 3)
-    return pv.PolyData(pts, np.column_stack([np.full(len(faces), 3), faces]).ravel())
+    mesh = pv.PolyData(pts, np.column_stack([np.full(len(faces), 3), faces]).ravel())
+    mesh.point_data.active_normals = np.tile(base_pts, (n, 1))  # unit sphere: normal = position
+    return mesh
 
 
-def band_faces(body, level_z_mm: float, width_mm: float = 60.0, torso_half_width_mm: float = 175.0) -> np.ndarray:
-    """Faces of the rest mesh forming a sports-bra band: a ``width_mm`` high ring around the torso
-    centred at height ``level_z_mm`` (arms excluded by ``|x| < torso_half_width_mm``)."""
-    centroid = body.rest_vertices[body.faces].mean(axis=1)
-    keep = (np.abs(centroid[:, 2] - level_z_mm) < width_mm / 2) & (np.abs(centroid[:, 0]) < torso_half_width_mm)
-    return body.faces[keep]
+class SportsBraBand:
+    """A band around the chest (the paper's jogging-bra occlusion), bound to the skin.
+
+    Built on the rest mesh: the torso (arms excluded by ``|x| < torso_half_width_mm``) is clipped
+    to a ``width_mm`` high slab centred at ``level_z_mm``, giving straight band edges; every band
+    vertex is bound to the body triangle it lies on (barycentric coordinates) and floated
+    ``BAND_OFFSET_MM`` off the skin, so the band moves and stretches with the body.
+    """
+
+    def __init__(self, body, level_z_mm: float, width_mm: float = 60.0, torso_half_width_mm: float = 175.0):
+        import pyvista as pv
+
+        from .tape_on_skin import SkinBinding, barycentric
+
+        faces_vtk = np.column_stack([np.full(len(body.faces), 3), body.faces]).ravel()
+        mesh = pv.PolyData(body.rest_vertices, faces_vtk)
+        centroid = body.rest_vertices[body.faces].mean(axis=1)
+        near = (np.abs(centroid[:, 2] - level_z_mm) < width_mm) & (np.abs(centroid[:, 0]) < torso_half_width_mm)
+        torso = mesh.extract_cells(np.flatnonzero(near)).extract_surface(algorithm=None)
+        torso["body_face"] = np.flatnonzero(near)[torso.cell_data["vtkOriginalCellIds"]]
+        slab = torso.clip("z", origin=(0, 0, level_z_mm + width_mm / 2), invert=True)
+        slab = slab.clip("-z", origin=(0, 0, level_z_mm - width_mm / 2), invert=True).triangulate()
+        slab = slab.extract_surface(algorithm=None).triangulate()
+        if slab.n_cells == 0:
+            raise ValueError(f"the sports-bra band at height {level_z_mm:.0f} mm misses the torso")
+        self.faces = slab.faces.reshape(-1, 4)[:, 1:]
+        points = np.asarray(slab.points, float)
+        # every band vertex lies on the body triangle of the cell it came from
+        owner = np.full(len(points), -1)
+        for cell, tri in zip(np.asarray(slab.cell_data["body_face"]), self.faces):
+            owner[tri] = cell
+        self.binding = SkinBinding(owner, barycentric(body.rest_vertices[body.faces[owner]], points))
+        self._body_faces = body.faces
+
+    def vertices(self, body_vertices: np.ndarray, body_normals: np.ndarray) -> np.ndarray:
+        """(N, 3) posed band vertices, ``BAND_OFFSET_MM`` off the skin."""
+        p = self.binding.surface_points(body_vertices, self._body_faces)
+        return p + BAND_OFFSET_MM * self.binding.normals(body_normals, self._body_faces)
 
 
 BAND_OFFSET_MM = 8.0  # the band stands off the skin (fabric thickness + it bridges the tape)

@@ -25,8 +25,7 @@ from ..camera import Rig
 from ..tape import TapeSpec
 from .body import ANGLE_NAMES, LEVELS, PHENOTYPE_KEYS, Body, vertex_normals
 from .motions import MOTIONS, spine_motion
-from .occluders import (BAND_OFFSET_MM, OCCLUSION_LEVELS, FallingBalls, balls_for, band_faces,
-                        sphere_mesh)
+from .occluders import OCCLUSION_LEVELS, FallingBalls, SportsBraBand, balls_for, sphere_mesh
 from .render import Appearance, CameraRenderer, SceneMeshes
 from .rigs import LAYOUTS, arc_rig
 from .tape_on_skin import TapeOnSkin
@@ -205,10 +204,7 @@ class Scene:
         self.rig: Rig = arc_rig(LAYOUTS[config.layout], config.cameras, config.size, self.target,
                                 config.distortion, rng)
         self.balls = FallingBalls.generate(config.n_balls, config.duration_s, self.target, rng)
-        self.band_faces = None
-        if config.band:
-            z = self.body.level_heights()[config.band_level]
-            self.band_faces = band_faces(self.body, z)
+        self.band = SportsBraBand(self.body, self.body.level_heights()[config.band_level]) if config.band else None
         tone = config.skin_tone if config.skin_tone is not None else rng.uniform(0.0, 0.8)
         skin = (1 - tone) * SKIN_LIGHT + tone * SKIN_DARK
         self.appearance = Appearance(
@@ -229,9 +225,7 @@ class Scene:
         return v, vertex_normals(v, self.body.faces)
 
     def _band_vertices(self, vertices: np.ndarray, normals: np.ndarray) -> np.ndarray | None:
-        if self.band_faces is None:
-            return None
-        return vertices + BAND_OFFSET_MM * normals
+        return None if self.band is None else self.band.vertices(vertices, normals)
 
     def meshes(self, frame: int | None = None, time_s: float | None = None) -> SceneMeshes:
         """Posed geometry at a frame (or any instant ``time_s``)."""
@@ -246,10 +240,10 @@ class Scene:
         )
 
     def _occluding_mesh(self, v: np.ndarray, n: np.ndarray) -> MeshRayCaster:
-        if self.band_faces is None:
+        if self.band is None:
             return MeshRayCaster(v, self.body.faces)
         band_v = self._band_vertices(v, n)
-        faces = np.concatenate([self.body.faces, self.band_faces + len(v)])
+        faces = np.concatenate([self.body.faces, self.band.faces + len(v)])
         return MeshRayCaster(np.concatenate([v, band_v]), faces)
 
     def frame_groundtruth(self, frame: int) -> dict[str, np.ndarray]:
@@ -305,7 +299,7 @@ class Scene:
             strip = self.tape_on_skin.strip
             self._renderers = [
                 CameraRenderer(cam, self.body.faces, strip.faces_holes, strip.faces_solid, self.appearance,
-                               band_faces=self.band_faces, supersample=self.config.supersample)
+                               band_faces=None if self.band is None else self.band.faces, supersample=self.config.supersample)
                 for cam in self.rig
             ]
         return self._renderers
@@ -334,7 +328,7 @@ class Scene:
         if self.config.blur <= 0:
             return [t]
         half = 0.5 * self.config.blur / self.fps
-        return [t] + [float(x) for x in np.linspace(t - half, t + half, 5) if abs(x - t) > 1e-12]
+        return [t] + [float(x) for x in np.linspace(t - half, t + half, 7) if abs(x - t) > 1e-12]
 
     def _sensor(self, rgb: np.ndarray, frame: int, camera: int) -> np.ndarray:
         """Sensor noise (seeded per frame and camera) and conversion to BGR uint8."""
