@@ -50,6 +50,7 @@ class MRF1Config:
     sweeps: int = 6
     damping: float = 0.3
     knn: int = 3
+    mobility: bool = True  # P_mobility: neighbours' positions as proposals (Eq. 9)
     slice_width_mm: float = 4.0
     slice_width_d: float = 0.05
     width_decay: float = 0.9
@@ -67,7 +68,7 @@ class MRF1Config:
             slice_width=(self.slice_width_mm,) * 3 + (self.slice_width_d,),
             width_decay=self.width_decay,
             temperature=self.temperature,
-            mobility=True,
+            mobility=self.mobility,
             mobility_dims=(0, 1, 2),
             init_spread=(self.slice_width_mm / 2,) * 3 + (self.slice_width_d / 2,),
         )
