@@ -93,3 +93,19 @@ def test_intrinsics_cli_writes_rig(camera, tmp_path, capsys):
     rig = Rig.from_toml(out)
     assert rig.names == ["camA"]
     assert abs(rig[0].K[0, 0] / camera.K[0, 0] - 1) < 0.01
+
+
+def test_intrinsics_from_a_video(camera, tmp_path):
+    board = BoardSpec.parse("charuco:6x5:120")
+    images = render_intrinsic_views(camera, board, 6, seed=8)
+    path = tmp_path / "board.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, camera.size)
+    assert writer.isOpened()
+    for image in images:
+        writer.write(cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    frames = list(iter_images(path, max_video_frames=4))
+    assert [name for name, _ in frames] == ["board.avi#0", "board.avi#2", "board.avi#3", "board.avi#5"]
+    result = calibrate_intrinsics(iter_images(path), board, progress=False)
+    assert len(result.views) == 6
+    assert abs(result.camera.K[0, 0] / camera.K[0, 0] - 1) < 0.01
