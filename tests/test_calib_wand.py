@@ -113,3 +113,21 @@ def test_wand_refines_perturbed_extrinsics(wave):
         assert err_after < 2.0
         assert np.degrees(Rotation.from_matrix(after.R @ true.R.T).magnitude()) < 0.1
         assert err_after <= np.linalg.norm(before.center - true.center) + 1e-6
+
+
+def test_c3d_fallback_reader_matches_exporters(tmp_path, monkeypatch):
+    """Without the exporters package the wand C3D is read with the c3d package directly."""
+    import sys
+
+    from calibration.wand import _read_c3d_points
+
+    points = np.random.default_rng(2).uniform(-500, 500, (30, 5, 3))
+    points[4, 2] = np.nan
+    write_vicon_wand_c3d(tmp_path / "w.c3d", points, 200.0, WandSpec())
+    labels_a, pts_a, rate_a = _read_c3d_points(tmp_path / "w.c3d")
+    monkeypatch.setitem(sys.modules, "exporters", None)
+    labels_b, pts_b, rate_b = _read_c3d_points(tmp_path / "w.c3d")
+    assert labels_a == labels_b == list(WandSpec().labels)
+    assert rate_a == rate_b == 200.0
+    np.testing.assert_allclose(pts_b, points, atol=1e-3)
+    np.testing.assert_allclose(pts_a, pts_b, atol=1e-3)
