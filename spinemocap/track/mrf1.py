@@ -47,6 +47,7 @@ class MRF1Config:
     particles: int = 8
     slice_particles: int = 6
     iterations: int = 8
+    slice_steps: int = 5  # shrink steps of the slice sampler per iteration
     sweeps: int = 6
     damping: float = 0.3
     knn: int = 3
@@ -64,6 +65,7 @@ class MRF1Config:
             n_slice=self.slice_particles,
             iterations=self.iterations,
             sweeps=self.sweeps,
+            slice_steps=self.slice_steps,
             damping=self.damping,
             slice_width=(self.slice_width_mm,) * 3 + (self.slice_width_d,),
             width_decay=self.width_decay,

@@ -51,6 +51,7 @@ class MRF2Config:
     particles: int = 4
     slice_particles: int = 4
     iterations: int = 4
+    slice_steps: int = 5  # shrink steps of the slice sampler per iteration
     sweeps: int = 5
     damping: float = 0.3
     slice_width_mm: float = 3.0
@@ -77,6 +78,7 @@ class MRF2Config:
             n_slice=self.slice_particles,
             iterations=self.iterations,
             sweeps=self.sweeps,
+            slice_steps=self.slice_steps,
             damping=self.damping,
             slice_width=(self.slice_width_mm,) * 3,
             width_decay=self.width_decay,
