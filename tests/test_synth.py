@@ -251,3 +251,30 @@ def test_video_capture_round_trips_losslessly(tmp_path):
     scene = build_scene(config)
     np.testing.assert_array_equal(frames[2], scene.render(1).images[2])  # FFV1 is lossless
     scene.close()
+
+
+def test_demo_synthesis_step_reports_a_readable_capture(tmp_path, capsys):
+    from spinemocap.commands.demo import DemoContext, step_synthesize
+
+    ctx = DemoContext(out=tmp_path, quick=True)
+    step_synthesize(ctx)
+    capture = Capture.open(ctx.capture_dir)
+    assert capture.n_frames == 4 and len(capture.rig) == 4
+    assert all(path.exists() for _, path in ctx.outputs)
+    assert str(ctx.capture_dir / "groundtruth.npz") in capsys.readouterr().out
+
+
+def test_motions_start_neutral_and_have_their_character():
+    from spinemocap.synth.motions import MOTIONS, spine_motion
+
+    t = np.arange(0, 6.0, 0.01)
+    for name in MOTIONS:
+        np.testing.assert_allclose(spine_motion(name, [0.0])[0], 0.0, atol=1e-9)
+    peak = {name: np.abs(spine_motion(name, t)).max(axis=0) for name in MOTIONS}
+    assert peak["flexion"][0] > 40 and peak["flexion"][1:].max() == 0
+    assert peak["lateral"][1] > 25 and peak["rotation"][2] > 30
+    assert (peak["mixed"] > 20).all()  # all three planes at once, large amplitude
+    speed = np.abs(np.diff(spine_motion("forehand", t)[:, 2])) / 0.01
+    assert speed.max() > 500  # deg/s: a fast axial swing
+    with pytest.raises(ValueError, match="unknown motion"):
+        spine_motion("moonwalk", t)

@@ -46,7 +46,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--distortion", type=float, help="lens distortion scale (0 = ideal pinhole, 1 = mild)")
     p.add_argument("--skin-tone", type=float, help="0 (light) .. 1 (dark); default from the seed")
     p.add_argument("--phenotype", action="append", default=[], metavar="KEY=VALUE",
-                   help="anny phenotype value in [0, 1]: gender (or sex), age, muscle, weight, height, proportions")
+                   help="anny phenotype value in [0, 1] (repeatable): gender (or sex; 0 male, 1 female), age "
+                        "(0 newborn, 0.5 young adult, 1 old), muscle, weight, height, proportions")
     p.add_argument("--supersample", type=int, help="render at N x resolution and downsample (anti-aliasing)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--video", action="store_true", help="write lossless videos instead of PNG images")

@@ -53,8 +53,8 @@ class SynthConfig:
     ``noise`` the sensor noise standard deviation in 8-bit grey levels; ``distortion`` scales
     the random lens distortion (0 = ideal pinhole); ``skin_tone`` runs from 0 (light) to 1
     (dark), None picks one from the seed; ``phenotype`` holds anny's parameters in [0, 1]
-    (gender 0 = female .. 1 = male, age, muscle, weight, height, proportions; ``sex`` is an
-    alias of gender). ``tape_start`` is the vertebral level of the tape's first row.
+    (anny's convention: gender 0 = male .. 1 = female; age 0 = newborn .. 0.5 = young adult ..
+    1 = old; muscle, weight, height, proportions; ``sex`` is an alias of gender). ``tape_start`` is the vertebral level of the tape's first row.
     """
 
     layout: str = "tiny"  # the preset whose camera layout is used (rigs.LAYOUTS)
