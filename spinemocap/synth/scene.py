@@ -33,6 +33,7 @@ from .visibility import MeshRayCaster, dot_visibility
 
 log = logging.getLogger(__name__)
 
+POSE_CHUNK = 64  # frames posed together (anny is batched) and kept in memory
 SKIN_LIGHT = np.array([0.93, 0.78, 0.68])
 SKIN_DARK = np.array([0.42, 0.28, 0.20])
 
@@ -152,14 +153,15 @@ class SynthConfig:
 @dataclass
 class RenderedFrame:
     """One rendered instant: ``images`` BGR uint8 (H, W, 3) and ``masks`` (H, W) bool tape
-    silhouettes, one per camera in rig order."""
+    silhouettes (None when rendered without masks), one per camera in rig order."""
 
     images: list[np.ndarray]
     masks: list[np.ndarray]
 
 
 class SceneFrameSource:
-    """In-process :class:`spinemocap.capture.FrameSource`: renders frames on demand."""
+    """In-process :class:`spinemocap.capture.FrameSource`: renders frames on demand (images only;
+    ``scene.render(i)`` also gives the tape masks)."""
 
     def __init__(self, scene: "Scene"):
         self.scene = scene
@@ -169,7 +171,7 @@ class SceneFrameSource:
     def read(self, frame: int) -> list[np.ndarray]:
         if not 0 <= frame < self.n_frames:
             raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
-        return self.scene.render(frame).images
+        return self.scene.render(frame, with_masks=False).images
 
 
 @functools.lru_cache(maxsize=4)
@@ -198,7 +200,16 @@ class Scene:
         self.fps = float(config.fps)
         self.n_frames = int(config.frames)
         self.times = np.arange(self.n_frames) / self.fps
-        self.vertices, self.angles_deg = self.body.pose(spine_motion(config.motion, self.times))
+        self.commanded_deg = spine_motion(config.motion, self.times)
+        # posed meshes are kept one chunk of frames at a time (a long sequence would need GBs);
+        # this first pass records the applied angles
+        self._chunk: tuple[int, np.ndarray] | None = None
+        applied = []
+        for start in range(0, self.n_frames, POSE_CHUNK):
+            vertices, angles = self.body.pose(self.commanded_deg[start : start + POSE_CHUNK])
+            applied.append(angles)
+            self._chunk = (start // POSE_CHUNK, vertices)
+        self.angles_deg = np.concatenate(applied)
         rest_dots = self.tape_on_skin.dot_positions(self.body.rest_vertices)
         self.target = rest_dots.mean(axis=0)
         self.rig: Rig = arc_rig(LAYOUTS[config.layout], config.cameras, config.size, self.target,
@@ -219,10 +230,18 @@ class Scene:
     # ------------------------------------------------------------------ geometry per instant
     def _posed(self, frame: int | None = None, time_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         if time_s is None:
-            v = self.vertices[frame].astype(float)
+            v = self.frame_vertices(frame)
         else:
             v = self.body.pose(spine_motion(self.config.motion, [time_s]))[0][0].astype(float)
         return v, vertex_normals(v, self.body.faces)
+
+    def frame_vertices(self, frame: int) -> np.ndarray:
+        """(V, 3) posed body vertices (mm) at a frame."""
+        index = frame // POSE_CHUNK
+        if self._chunk is None or self._chunk[0] != index:
+            start = index * POSE_CHUNK
+            self._chunk = (index, self.body.pose(self.commanded_deg[start : start + POSE_CHUNK])[0])
+        return self._chunk[1][frame - index * POSE_CHUNK].astype(float)
 
     def _band_vertices(self, vertices: np.ndarray, normals: np.ndarray) -> np.ndarray | None:
         return None if self.band is None else self.band.vertices(vertices, normals)
