@@ -16,6 +16,7 @@ normal points out of the back). Two choices remain and decide the labels:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from numpy.polynomial import polynomial as npoly
@@ -86,7 +87,9 @@ class Template:
     offset_mm: float
 
 
-def lay_along(curve: SpineCurve, field: NormalField, tape: TapeGraph, orientation: int, offset_mm):
+def lay_along(
+    curve: SpineCurve, field: NormalField, tape: TapeGraph, orientation: int, offset_mm: float | np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Positions and normals of the flat tape laid along ``curve``: (D, 3) each for a scalar
     ``offset_mm``, (C, D, 3) for C offsets at once."""
     u, v = tape.uv_mm[:, 0], tape.uv_mm[:, 1]
@@ -150,7 +153,7 @@ def build_template(
     field: NormalField | None = None,
     cap_mm: float = 15.0,
     step_mm: float = 2.5,
-    template_score=None,
+    template_score: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Template:
     """Initial template for MRF1 from the feasible points (K, 3) and their normals (K, 3).
 
