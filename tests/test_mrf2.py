@@ -165,3 +165,15 @@ def test_template_evidence_score_breaks_the_two_row_tie(scene):
                      n_target_initial=0)
     helped = fit_mrf1(fs, TAPE, MRF1Config(), up=np.array([0, 0, 1.0]), template_score=score)
     assert np.linalg.norm(helped.positions - truth, axis=1)[middle].max() < 2.0
+
+
+def test_mrf2_holds_dots_that_no_view_informs(scene):
+    rig, images, masks, truth = scene
+    # every view at the cost cap (as behind an occluder): no dot is seen, each stays at its start
+    blank = [build_evidence(np.zeros_like(i), m) for i, m in zip(images, masks)]
+    start = truth + np.random.default_rng(1).normal(scale=1.0, size=truth.shape)
+    held = refine_mrf2(start, TAPE, rig, blank, MRF2Config(), rng=np.random.default_rng(0))
+    assert not held.extra["visible"].any()
+    assert np.linalg.norm(held.positions - start, axis=1).mean() < 0.3
+    free = refine_mrf2(start, TAPE, rig, blank, MRF2Config(anchor_unseen=0.0), rng=np.random.default_rng(0))
+    assert np.linalg.norm(free.positions - start, axis=1).mean() > 0.6  # the shape terms alone let them drift

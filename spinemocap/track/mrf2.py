@@ -67,6 +67,11 @@ class MRF2Config:
     polish: bool = False
     polish_steps: int = 3
     polish_max_step_mm: float = 3.0  # per-dot move limit of the polish from the PBP result
+    # beyond the paper: a dot no camera sees (no facing view below the cost cap) has no image
+    # term, and the weak Eq. 11 shape terms let the sampler wander (measured: unseen dots
+    # 2.6 -> 3.5 mm). Such dots are held to their start (MRF1, which keeps the dashed
+    # anti-folding edges) by anchor_unseen * |x - x_start|^2.
+    anchor_unseen: float = 0.1
     # The images show the holes' rims on the tape's top surface; the dot a user wants (and the
     # synthetic ground truth) is the skin point underneath, one tape thickness further in.
     # Set to the tape's thickness (the synthetic studio's tape: 0.8 mm) to report skin points.
@@ -150,6 +155,8 @@ class RefinementMRF:
         n_cam = len(rig)
         self.visible = torch.zeros((tape.n_dots, n_cam), dtype=torch.float64)
         self.unary_weight = torch.zeros((tape.n_dots, n_cam), dtype=torch.float64)
+        self.unseen = torch.zeros(tape.n_dots, dtype=torch.bool)
+        self.start = torch.zeros((tape.n_dots, 3), dtype=torch.float64)  # set by refine_mrf2
         self.edge_visible = torch.zeros((len(self.edges), n_cam), dtype=torch.float64)
         self.edge_normal = torch.zeros((len(self.edges), 3), dtype=torch.float64)
         self.edge_alpha = torch.zeros((len(self.edges), 3), dtype=torch.float64)
@@ -159,7 +166,14 @@ class RefinementMRF:
         normal, across, along = tape_frames(state, self.tape)
         if self.fixed_normals is not None:
             normal = self.fixed_normals
-        self.visible = torch.from_numpy(self.visibility(state, normal).astype(np.float64))
+        visible = self.visibility(state, normal)
+        if self.config.cost_cap is not None:
+            # a view whose cost is already at the cap (an occluder, or off the tape) carries no
+            # information about this dot: it does not count as seeing it
+            with torch.no_grad():
+                at_cap = self.image_costs(torch.from_numpy(state)).numpy().T >= self.config.cost_cap - 1e-9
+            visible &= ~at_cap
+        self.visible = torch.from_numpy(visible.astype(np.float64))
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
         self.edge_visible = self.visible[e0] * self.visible[e1]
         # theta5's I(x_s) + I(x_t) depend on one node each: they are summed into the unary
@@ -168,6 +182,7 @@ class RefinementMRF:
         contrast.index_add_(0, torch.from_numpy(e0), self.edge_visible)
         contrast.index_add_(0, torch.from_numpy(e1), self.edge_visible)
         self.unary_weight = self.visible + self.config.theta5 * contrast
+        self.unseen = torch.from_numpy(~(self.visible.numpy() > 0).any(axis=1))
         n_e = normal[e0] + normal[e1]
         n_e /= np.maximum(np.linalg.norm(n_e, axis=1, keepdims=True), 1e-12)
         expected = self.duv[:, :1] * (across[e0] + across[e1]) + self.duv[:, 1:] * (along[e0] + along[e1])
@@ -197,9 +212,14 @@ class RefinementMRF:
         return cost if self.config.cost_cap is None else cost.clamp(max=self.config.cost_cap)
 
     def unary_t(self, x: torch.Tensor) -> torch.Tensor:
-        """x (D, Q, 3) -> (D, Q): Eq. 10 plus theta5's per-node part of Eq. 11."""
+        """x (D, Q, 3) -> (D, Q): Eq. 10 plus theta5's per-node part of Eq. 11 (plus the anchor of
+        unseen dots)."""
         costs = self.image_costs(x)  # (C, D, Q)
-        return (costs * self.unary_weight.T[:, :, None]).sum(dim=0)
+        image = (costs * self.unary_weight.T[:, :, None]).sum(dim=0)
+        if not self.config.anchor_unseen or not bool(self.unseen.any()):
+            return image
+        pull = ((x - self.start[:, None, :]) ** 2).sum(dim=2)
+        return image + self.config.anchor_unseen * self.unseen[:, None] * pull
 
     def pairwise_t(self, xs: torch.Tensor, xt: torch.Tensor, edge_index: torch.Tensor) -> torch.Tensor:
         """xs (M, Qs, 3), xt (M, Qt, 3) -> (M, Qs, Qt). The theta5 terms at the nodes themselves
@@ -355,6 +375,7 @@ def refine_mrf2(
 def _refine(positions, tape, rig, evidence, config, normals, rng, feasible_points) -> MRFResult:
     init = np.asarray(positions, dtype=float).reshape(tape.n_dots, 3)
     model = RefinementMRF(tape, rig, evidence, config, normals=normals, feasible_points=feasible_points)
+    model.start = torch.from_numpy(init.copy())
     result = ParticleBP(model, config.pbp(), rng).run(init)
     state, history = result.state, list(result.energy_history)
     pbp_state = state.copy()
