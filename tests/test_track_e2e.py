@@ -23,7 +23,8 @@ def capture(tmp_path_factory):
 @pytest.fixture(scope="module")
 def tracked(capture, tmp_path_factory):
     out = tmp_path_factory.mktemp("track_out")
-    code = main(["track", str(capture), "--out", str(out), "--detector", "mask", "--no-progress"])
+    # the classical tape detector: real segmentation and dot finding from the rendered images
+    code = main(["track", str(capture), "--out", str(out), "--detector", "classical", "--no-progress"])
     assert code == 0
     return out
 
