@@ -289,7 +289,10 @@ def run_tracking(
         stage_ms = {"detect": detect_ms}
         try:
             result = carry.step(views, stage_ms) if carry else tracker.solve(views, stage_ms=stage_ms)
-        except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:  # never crash on one frame
+        except InputError:
+            raise
+        except Exception as exc:  # one unsolvable frame must not end the sequence: report it missing
+            log.debug("frame %d failed", frame, exc_info=True)
             result = FrameResult.missing(tracker.n_dots, stage_ms, f"{type(exc).__name__}: {exc}")
         if not result.solved:
             warnings.warn(f"frame {frame}: tape not found ({result.note}); dots reported missing",
