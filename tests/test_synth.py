@@ -88,6 +88,17 @@ def test_tape_masks_cover_visible_dots_and_tape_is_dark(occluded_scene):
         assert tape_gray < image[~mask].mean()
 
 
+def test_mask_rendered_around_the_tape_equals_a_full_canvas_mask(occluded_scene, monkeypatch):
+    renderer = occluded_scene.renderers[1]
+    meshes = occluded_scene.meshes(1)
+    cropped = renderer._render_mask(meshes)
+    assert renderer._mask_size[0] < renderer.canvas_size[0]  # the mask window really is smaller
+    monkeypatch.setattr(renderer, "_tape_region", lambda tape_vertices: (0, 0, *renderer.canvas_size))
+    full = renderer._render_mask(meshes)
+    assert cropped.sum() > 500
+    np.testing.assert_array_equal(cropped, full)
+
+
 # ---------------------------------------------------------------------- tape on skin
 def test_tape_rest_spacing_matches_spec_and_stretches_plausibly_in_motion():
     from spinemocap.synth.scene import cached_tape_on_skin

@@ -7,9 +7,10 @@ undistorted canvas position of its ray (:meth:`Camera.undistort_points`). Pixel 
 the centre of the top-left pixel, as in OpenCV.
 
 Each camera keeps one ``Plotter`` for the whole sequence; per frame only the vertex arrays change.
-The tape mask comes from a second, unlit pass of the same scene: tape strip (without holes)
-white, everything else black, so the body and occluders hide the tape in the mask exactly as in
-the image.
+The tape mask comes from a second, unlit window showing the same geometry: tape strip (without
+holes) white, body, band and occluders black, so they hide the tape in the mask exactly as in the
+image. That window covers only the tape's bounding box on the canvas (exact shifted projection),
+which makes the mask pass cheap at high resolution.
 """
 
 from __future__ import annotations
@@ -92,16 +93,20 @@ class CameraRenderer:
         self.body_actor.GetProperty().SetInterpolationToGouraud()  # uses the per-frame normals
         self.tape_actor = self.plotter.add_mesh(self.tape, color=appearance.tape_rgb, ambient=0.2,
                                                 diffuse=0.8, specular=0.25, specular_power=20)
-        self.tape_solid_actor = self.plotter.add_mesh(self.tape_solid, color="white")
         self.band = self.band_actor = None
         if band_faces is not None and len(band_faces):
             self.band = pv.PolyData(np.zeros((int(band_faces.max()) + 1, 3)), faces_to_vtk(band_faces))
             self.band_actor = self.plotter.add_mesh(self.band, color=appearance.band_rgb,
                                                     ambient=0.2, diffuse=0.8)
         self.occluder_actor = None
-        self._skin = skin
         self._add_lights(pv, appearance)
-        self._set_camera()
+        self._point_camera(self.plotter)
+        self._show_canvas_region(self.plotter, 0, 0, *self.canvas_size)
+        self.plotter.camera_set = True
+        # the tape mask is rendered in a second, unlit window that shows only the tape's
+        # neighbourhood of the canvas (created on first use, grown when the tape needs more room)
+        self.mask_plotter = None
+        self._mask_occluder_actor = None
 
     # ------------------------------------------------------------------ set-up
     def _build_lookup(self) -> None:
@@ -129,32 +134,36 @@ class CameraRenderer:
         self.map_x = (undistorted[:, 0] + margin_x).reshape(h, w).astype(np.float32)
         self.map_y = (undistorted[:, 1] + margin_y).reshape(h, w).astype(np.float32)
 
-    def _set_camera(self) -> None:
-        import vtk
-
+    def _point_camera(self, plotter) -> None:
         cam = self.camera
-        s = self.supersample
-        K = cam.K.copy()
-        K[0, 2] += self.margin[0]
-        K[1, 2] += self.margin[1]
-        # supersampled canvas: pixel centres scale as (x + 0.5) * s - 0.5
-        K[:2, :] *= s
-        K[0, 2] += (s - 1) / 2
-        K[1, 2] += (s - 1) / 2
-        W, H = self.canvas_size
-        proj = opengl_projection(K, W * s, H * s)
-        vcam = self.plotter.camera
+        vcam = plotter.camera
         center = cam.center
         vcam.SetPosition(*center)
         vcam.SetFocalPoint(*(center + cam.R[2] * 1000.0))
         vcam.SetViewUp(*(-cam.R[1]))
+
+    def _show_canvas_region(self, plotter, x0: int, y0: int, width: int, height: int) -> None:
+        """Make ``plotter``'s window (``width`` x ``height`` canvas pixels times the supersampling
+        factor) show the undistorted canvas pixels [x0, x0 + width) x [y0, y0 + height): an exact
+        pinhole projection of that sub-rectangle."""
+        import vtk
+
+        s = self.supersample
+        K = self.camera.K.copy()
+        K[0, 2] += self.margin[0] - x0
+        K[1, 2] += self.margin[1] - y0
+        # supersampled canvas: pixel centres scale as (x + 0.5) * s - 0.5
+        K[:2, :] *= s
+        K[0, 2] += (s - 1) / 2
+        K[1, 2] += (s - 1) / 2
+        proj = opengl_projection(K, width * s, height * s)
         matrix = vtk.vtkMatrix4x4()
         for i in range(4):
             for j in range(4):
                 matrix.SetElement(i, j, proj[i, j])
+        vcam = plotter.camera
         vcam.SetExplicitProjectionTransformMatrix(matrix)
         vcam.SetUseExplicitProjectionTransformMatrix(True)
-        self.plotter.camera_set = True
 
     def _add_lights(self, pv, appearance: Appearance) -> None:
         key = pv.Light(position=appearance.light_position, focal_point=(0, 0, 1000),
@@ -181,52 +190,89 @@ class CameraRenderer:
                                                         ambient=0.15, diffuse=0.85, render=False)
             self.occluder_actor.GetProperty().SetInterpolationToGouraud()
 
+    def _canvas_snapshot(self, plotter=None) -> np.ndarray:
+        """Render a window as it is set now: undistorted RGB at canvas resolution."""
+        plotter = plotter or self.plotter
+        plotter.render()
+        rgb = plotter.screenshot(return_img=True)
+        if self.supersample > 1:
+            h, w = rgb.shape[:2]
+            rgb = cv2.resize(rgb, (w // self.supersample, h // self.supersample), interpolation=cv2.INTER_AREA)
+        return rgb
+
+    def _through_lens(self, canvas: np.ndarray) -> np.ndarray:
+        return cv2.remap(canvas, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
     def snapshot(self) -> np.ndarray:
         """Render what the plotter holds now, through the lens: distorted RGB (H, W, 3) uint8."""
-        self.plotter.render()
-        rgb = self.plotter.screenshot(return_img=True)
-        if self.supersample > 1:
-            W, H = self.canvas_size
-            rgb = cv2.resize(rgb, (W, H), interpolation=cv2.INTER_AREA)
-        return cv2.remap(rgb, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return self._through_lens(self._canvas_snapshot())
 
-    def _actors(self):
-        return [a for a in (self.body_actor, self.tape_actor, self.band_actor, self.occluder_actor) if a is not None]
+    def _tape_region(self, tape_vertices: np.ndarray, pad: int = 4) -> tuple[int, int, int, int] | None:
+        """Canvas rectangle (x0, y0, width, height) holding the tape's projection, or None."""
+        uv = self.camera.project(tape_vertices, distort=False)
+        uv = uv[np.isfinite(uv).all(axis=1)] + np.array(self.margin)
+        if len(uv) == 0:
+            return None
+        W, H = self.canvas_size
+        x0, y0 = np.maximum(np.floor(uv.min(axis=0)).astype(int) - pad, 0)
+        x1, y1 = np.minimum(np.ceil(uv.max(axis=0)).astype(int) + pad + 1, (W, H))
+        if x1 <= x0 or y1 <= y0:
+            return None
+        return int(x0), int(y0), int(x1 - x0), int(y1 - y0)
 
     def render(self, meshes: SceneMeshes, with_mask: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """Colour image (H, W, 3) RGB uint8 and tape mask (H, W) bool (None if not asked)."""
         self._update(meshes)
-        self.tape_solid_actor.SetVisibility(False)
         rgb = self.snapshot()
         if not with_mask:
             return rgb, None
-        # mask pass: unlit, tape silhouette white, everything that can hide it black
-        saved = []
-        for actor in self._actors():
-            prop = actor.GetProperty()
-            saved.append((prop, prop.GetColor(), prop.GetAmbient(), prop.GetDiffuse(), prop.GetSpecular()))
-            prop.SetColor(0, 0, 0)
-            prop.SetAmbient(1.0)
-            prop.SetDiffuse(0.0)
-            prop.SetSpecular(0.0)
-        self.tape_actor.SetVisibility(False)
-        self.tape_solid_actor.SetVisibility(True)
-        solid = self.tape_solid_actor.GetProperty()
-        solid.SetAmbient(1.0)
-        solid.SetDiffuse(0.0)
-        solid.SetSpecular(0.0)
-        background = self.plotter.background_color
-        self.plotter.set_background("black")
-        mask = self.snapshot()[..., 1] > 127
-        self.plotter.set_background(background)
-        self.tape_solid_actor.SetVisibility(False)
-        self.tape_actor.SetVisibility(True)
-        for prop, color, ambient, diffuse, specular in saved:
-            prop.SetColor(color)
-            prop.SetAmbient(ambient)
-            prop.SetDiffuse(diffuse)
-            prop.SetSpecular(specular)
-        return rgb, mask
+        return rgb, self._render_mask(meshes)
+
+    def _mask_window(self, width: int, height: int):
+        """The unlit mask plotter, at least ``width`` x ``height`` canvas pixels large."""
+        import pyvista as pv
+
+        W, H = self.canvas_size
+        s = self.supersample
+        if self.mask_plotter is not None:
+            cw, ch = self._mask_size
+            if width <= cw and height <= ch:
+                return self.mask_plotter
+            self.mask_plotter.close()
+        size = (min(W, int(width * 1.25) + 8), min(H, int(height * 1.25) + 8))
+        plotter = pv.Plotter(off_screen=True, window_size=(size[0] * s, size[1] * s), lighting="none")
+        plotter.set_background("black")
+        plotter.add_mesh(self.body, color="black", lighting=False)
+        plotter.add_mesh(self.tape_solid, color="white", lighting=False)
+        if self.band is not None:
+            plotter.add_mesh(self.band, color="black", lighting=False)
+        self._point_camera(plotter)
+        plotter.camera_set = True
+        self.mask_plotter, self._mask_size, self._mask_occluder_actor = plotter, size, None
+        return plotter
+
+    def _render_mask(self, meshes: SceneMeshes) -> np.ndarray:
+        """(H, W) bool tape silhouette, hidden by the body, band and occluders like the image."""
+        canvas = np.zeros((self.canvas_size[1], self.canvas_size[0], 3), np.uint8)
+        region = self._tape_region(meshes.tape_vertices)
+        if region is not None:
+            x0, y0, w, h = region
+            plotter = self._mask_window(w, h)
+            cw, ch = self._mask_size
+            W, H = self.canvas_size
+            wx = int(np.clip(x0 - (cw - w) // 2, 0, W - cw))  # window origin on the canvas
+            wy = int(np.clip(y0 - (ch - h) // 2, 0, H - ch))
+            self._show_canvas_region(plotter, wx, wy, cw, ch)
+            if self._mask_occluder_actor is not None:
+                plotter.remove_actor(self._mask_occluder_actor, render=False)
+                self._mask_occluder_actor = None
+            if meshes.occluders is not None and meshes.occluders.n_points:
+                self._mask_occluder_actor = plotter.add_mesh(meshes.occluders, color="black", lighting=False,
+                                                             render=False)
+            canvas[wy : wy + ch, wx : wx + cw] = self._canvas_snapshot(plotter)
+        return self._through_lens(canvas)[..., 1] > 127
 
     def close(self) -> None:
         self.plotter.close()
+        if self.mask_plotter is not None:
+            self.mask_plotter.close()
