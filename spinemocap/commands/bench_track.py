@@ -43,6 +43,9 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
                    help="dot detector; 'mask' (default) finds dots inside the renderer's exact tape masks")
     p.add_argument("--config", type=Path, help="tracker settings (TOML)")
     p.add_argument("--seed", type=int, default=0, help="synthetic scene seed")
+    p.add_argument("--tape-thickness", type=float, default=None, metavar="MM",
+                   help="tape thickness handed to the tracker ([mrf2] tape_thickness_mm: triangulated "
+                        "hole rims -> skin); default: the studio's tape thickness, 0 keeps the rims")
     p.add_argument("--json", type=Path, help="write all numbers to this JSON file (+ a .png plot beside it)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_bench_track)
@@ -63,7 +66,11 @@ def run_bench_track(args: argparse.Namespace) -> int:
     from spinemocap.track.evaluate import evaluate_tracking
     from spinemocap.track.pipeline import TrackingWarning, make_detector, run_tracking
 
+    from spinemocap.synth.tape_on_skin import TAPE_OFFSET_MM
+
     config = TrackerConfig.from_toml(args.config) if args.config else TrackerConfig()
+    # The tape's thickness is a physical property of the tape, known like its dot spacing.
+    config.mrf2.tape_thickness_mm = TAPE_OFFSET_MM if args.tape_thickness is None else args.tape_thickness
     synth = SynthConfig.preset(args.preset, occlusion=args.occlusion, seed=args.seed,
                                **({"frames": args.frames} if args.frames else {}))
     print(f"building the {args.preset} scene ({synth.frames} frames, {synth.cameras} cameras, "
@@ -83,6 +90,7 @@ def run_bench_track(args: argparse.Namespace) -> int:
     ev.update(
         preset=args.preset, occlusion=args.occlusion, balls=synth.n_balls, mode=args.mode,
         detector=args.detector, cameras=len(scene.rig), rows=synth.rows, wall_s=wall,
+        tape_thickness_mm=config.mrf2.tape_thickness_mm,
         routes=result.routes(), lp_relaxed_frames=sum(f.lp_status == "relaxed" for f in result.frames),
         paper={"error_mm": PAPER_ERROR_MM[args.occlusion], "plane_baselines_mm": PAPER_PLANES_MM,
                "visibility_histogram": PAPER_VISIBILITY[args.occlusion]},
@@ -113,7 +121,7 @@ def format_report(ev: dict) -> str:
     occ = ev["occlusion"]
     planes = ev.get("plane_baselines_mm", {})
     lines = [f"\nTable 1 (Artificial, mean error mm)   [{ev['frames']} frames x {ev['dots']} dots, "
-             f"mode {ev['mode']}, detector {ev['detector']}]",
+             f"mode {ev['mode']}, detector {ev['detector']}, tape thickness {ev['tape_thickness_mm']} mm]",
              f"  {'':<34}{'paper':>12}{'ours':>12}"]
     for name in ("1-plane", "2-plane", "3-plane"):
         lines.append(_row(f"{name} keypoint baseline", PAPER_PLANES_MM[name], planes.get(name)))

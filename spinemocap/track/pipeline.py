@@ -32,7 +32,8 @@ from .edges import build_edges
 from .evidence import build_evidence
 from .lp import select_edges
 from .mrf1 import fit_mrf1
-from .mrf2 import refine_mrf2
+from .mrf2 import TemplateEvidenceScore, refine_mrf2
+from .template import tape_frames
 from .types import CandidateCloud, FeasibleSet, ViewDots
 
 log = logging.getLogger(__name__)
@@ -131,13 +132,19 @@ class FrameTracker:
         with timer("lp"):
             return select_edges(cloud, edge_cloud, self.tape, self.config.lp)
 
-    def refine(self, positions: np.ndarray, views: Sequence[ViewDots],
-               feasible_points: np.ndarray | None = None) -> np.ndarray:
-        """MRF2 on the camera images; returns ``positions`` unchanged when no view has an image."""
+    def evidence(self, views: Sequence[ViewDots]) -> list | None:
+        """MRF2's per-camera cost images (None when no view has an image)."""
         if not any(v.image is not None for v in views):
+            return None
+        return [build_evidence(v.image, v.mask, downscale=self.config.evidence.downscale)
+                if v.image is not None else None for v in views]
+
+    def refine(self, positions: np.ndarray, views: Sequence[ViewDots],
+               feasible_points: np.ndarray | None = None, evidence: list | None = None) -> np.ndarray:
+        """MRF2 on the camera images; returns ``positions`` unchanged when no view has an image."""
+        evidence = evidence if evidence is not None else self.evidence(views)
+        if evidence is None:
             return positions
-        evidence = [build_evidence(v.image, v.mask, downscale=self.config.evidence.downscale)
-                    if v.image is not None else None for v in views]
         result = refine_mrf2(positions, self.graph, self.rig, evidence, self.config.mrf2,
                              rng=self.rng, feasible_points=feasible_points)
         return result.positions
@@ -153,6 +160,11 @@ class FrameTracker:
         positions = model.copy()
         if cfg.use_triangulated:
             positions[seen] = cloud.points[src]
+            thickness = self.config.mrf2.tape_thickness_mm
+            if thickness and np.isfinite(model).all():
+                # triangulated points lie on the tape's top surface (the holes' rims), MRF2 reports
+                # the skin underneath: move them in by the same tape thickness
+                positions[seen] -= thickness * tape_frames(model, self.graph)[0][seen]
         status = np.where(seen, "observed", "inferred").astype(object)
         status[~np.isfinite(positions).all(axis=1)] = "missing"
         n_views = np.zeros(self.n_dots, np.int64)
@@ -176,13 +188,16 @@ class FrameTracker:
         if feasible is None or len(feasible) < 4:
             return FrameResult.missing(self.n_dots, stage_ms, "no tape-like edge set")
         with timer("mrf1"):
+            evidence = self.evidence(views)
+            # the images break the two-row offset tie of a partial feasible set
+            score = TemplateEvidenceScore(self.rig, evidence, self.graph) if evidence is not None else None
             try:
                 mrf1 = fit_mrf1(feasible, self.graph, self.config.mrf1, up=self.up, previous=previous,
-                                rng=self.rng)
+                                rng=self.rng, template_score=score)
             except ValueError as exc:
                 return FrameResult.missing(self.n_dots, stage_ms, f"MRF1 failed: {exc}")
         with timer("mrf2"):
-            model = self.refine(mrf1.positions, views, feasible.points)
+            model = self.refine(mrf1.positions, views, feasible.points, evidence=evidence)
         with timer("status"):
             result = self.assign_status(model, cloud)
         result.stage_ms, result.lp_status = stage_ms, feasible.status
