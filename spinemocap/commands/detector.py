@@ -29,7 +29,7 @@ def _train_options(p: argparse.ArgumentParser, epochs: int, lr: float) -> None:
     p.add_argument("--steps", type=int, default=d.steps, help="batches per epoch")
     p.add_argument("--batch", type=int, default=d.batch)
     p.add_argument("--crop", type=int, default=d.crop, help="training window side (px, working resolution)")
-    p.add_argument("--lr", type=float, default=lr, help="peak learning rate (one-cycle)")
+    p.add_argument("--lr", type=float, default=lr, help="peak learning rate (10 %% warm-up, then cosine decay)")
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--threads", type=int, default=d.threads)
 
@@ -39,7 +39,7 @@ def register(subparsers) -> None:
     sub = p.add_subparsers(dest="detector_command", metavar="ACTION", required=True)
 
     t = sub.add_parser("train", help="render synthetic-studio training data (if needed) and train the network")
-    _train_options(t, epochs=12, lr=3e-3)
+    _train_options(t, epochs=15, lr=3e-3)
     t.add_argument("--data", type=Path, help="training shards folder (default OUT/data; rendered there if empty)")
     t.add_argument("--scenes", type=int, default=48, help="synthetic scenes to render")
     t.add_argument("--frames-per-scene", type=int, default=2)

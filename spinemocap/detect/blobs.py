@@ -43,6 +43,7 @@ class BlobParams:
     merge_distance: float = 0.5    # centres closer than merge_distance * d are one dot
     min_ring_on_tape: float = 0.6  # share of the ring around a blob that must lie on the tape
     min_contrast: float = 8.0      # grey levels; weaker "dots" are noise
+    min_contrast_to_texture: float = 5.0  # dot contrast / median top-hat over the tape
     dot_to_width: float = DEFAULT_DOT_TO_WIDTH
 
 
@@ -110,7 +111,10 @@ def _region_dots(
     tophat = cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, kernel)
     smooth = cv2.GaussianBlur(tophat, (0, 0), max(0.5, d / 10.0))
     contrast = float(np.percentile(smooth[filled], 99.5))
-    if contrast < p.min_contrast:
+    # Dots must stand out from the tape's own texture/noise (the median of the top-hat over the
+    # tape, which dots cover only in small part): pure noise has no such outliers.
+    texture = float(np.median(smooth[filled]))
+    if contrast < max(p.min_contrast, p.min_contrast_to_texture * texture):
         return np.zeros((0, 2)), np.zeros(0)
     binary = ((smooth > 0.5 * contrast) & region).astype(np.uint8)
     # Top-hat of plain tape is noise-positive: measure that floor on tape pixels, subtract it.
@@ -144,14 +148,18 @@ def _region_dots(
             continue
         if touches_border(y, x, bh, bw):
             continue
-        # Sub-pixel centre: top-hat intensity (floor removed, clipped at the contrast) over the
-        # blob plus a rim, so partially covered edge pixels weigh in proportion to coverage.
-        weights = np.clip((tophat[ys, xs] - floor) / scale, 0.0, 1.0) * support
+        # Sub-pixel centre: top-hat intensity (floor removed, clipped) over the blob plus a rim,
+        # so partially covered edge pixels weigh in proportion to their coverage.
+        # Scale by this blob's own interior level, so its inside saturates at 1 and shading
+        # across the dot (a gradient of skin brightness) cannot pull the centre.
+        level = float(np.percentile(tophat[ys, xs][blob], 60)) - floor
+        weights = np.clip((tophat[ys, xs] - floor) / max(level, 1e-3), 0.0, 1.0) * support
         total = float(weights.sum())
         if total <= 0:
             continue
-        gy, gx = np.mgrid[ys.start:ys.start + blob.shape[0], xs.start:xs.start + blob.shape[1]]
-        centres.append((float((weights * gx).sum() / total), float((weights * gy).sum() / total)))
+        cx = float(weights.sum(axis=0) @ np.arange(xs.start, xs.start + blob.shape[1])) / total
+        cy = float(weights.sum(axis=1) @ np.arange(ys.start, ys.start + blob.shape[0])) / total
+        centres.append((cx, cy))
         mean_contrast = (float(smooth[ys, xs][blob].mean()) - floor) / scale
         scores.append(_confidence(area / dot_area, minor / major, fill, mean_contrast / 0.8))
     if not centres:

@@ -27,7 +27,7 @@ import torch
 from ..capture import read_image
 from ..fileio import InputError
 from ..track.types import ViewDots
-from .blobs import BlobParams, find_dots, to_grey
+from .blobs import BlobParams, fill_holes, find_dots, to_grey
 from .classical import segment_classical
 from .dataset import CROP_PAD, WORK_WIDTH, crop_scale, frame_view
 from .instances import split_instances, union
@@ -45,7 +45,7 @@ def shipped_weights_path() -> Path:
 class NetSegmenter:
     """Two-stage segmentation with :class:`TapeUNet` (see the module docstring)."""
 
-    def __init__(self, weights: str | os.PathLike | None = None, refine: bool = True, threads: int | None = None,
+    def __init__(self, weights: str | os.PathLike | None = None, refine: bool = True, threads: int | None = 1,
                  min_area_work_px: int = 4):
         self.weights_path = Path(weights) if weights else shipped_weights_path()
         self.model, self.metadata = load_weights(self.weights_path)
@@ -79,7 +79,8 @@ class NetSegmenter:
             ch, cw = crop.shape[:2]
             small = cv2.resize(crop, (max(8, int(round(cw * s))), max(8, int(round(ch * s)))), interpolation=cv2.INTER_AREA) if s < 1 else crop
             logits = self._logits(small)
-            mask[box] |= cv2.resize(logits, (cw, ch), interpolation=cv2.INTER_LINEAR) > 0
+            # The tape's mask covers its dots: fill any holes the network leaves at them.
+            mask[box] |= fill_holes(cv2.resize(logits, (cw, ch), interpolation=cv2.INTER_LINEAR) > 0)
         return mask
 
 
@@ -94,7 +95,9 @@ def _padded_box(x0: float, y0: float, x1: float, y1: float, shape: tuple[int, in
 class Detector:
     """Tape and dot detector for single camera images (BGR uint8, any size).
 
-    ``name``: ``"net"`` (options: ``weights`` path, ``refine`` two-stage on/off, ``threads``) or
+    ``name``: ``"net"`` (options: ``weights`` path, ``refine`` two-stage on/off, ``threads`` torch
+    threads, default 1: a working-resolution image gains little from more, and the tracker runs
+    cameras or frames in parallel processes; ``None`` leaves torch's setting alone) or
     ``"classical"`` (options: ``work_width``); ``blob_params``: :class:`BlobParams` for the dots;
     ``dot_to_width``: dot diameter / tape width, used to guess the dot size from the mask when
     :meth:`detect` gets no ``expected_dot_px``."""
@@ -107,7 +110,7 @@ class Detector:
         if name == "net":
             self._segment = NetSegmenter(**options)
         else:
-            work_width = int(options.pop("work_width", 1024))
+            work_width = int(options.pop("work_width", 1600))
             if options:
                 raise TypeError(f"unknown options for the classical detector: {sorted(options)}")
             self._segment = lambda image: segment_classical(image, work_width=work_width)

@@ -11,13 +11,23 @@ def split_instances(mask: np.ndarray, min_area_px: float = 0.0, min_share: float
 
     Components smaller than ``min_area_px`` or than ``min_share`` of the largest one are dropped
     (specks of false positives)."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(np.asarray(mask, np.uint8), connectivity=8)
-    if n <= 1:
+    mask = np.asarray(mask, bool)
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if len(rows) == 0:
         return []
+    # Label only the box holding the tape: a full-frame labelling costs more than the rest.
+    box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask[box].view(np.uint8), connectivity=8)
     areas = stats[1:, cv2.CC_STAT_AREA]
     floor = max(min_area_px, min_share * areas.max())
-    order = [i + 1 for i in np.argsort(-areas) if areas[i] >= floor]
-    return [labels == k for k in order]
+    out = []
+    for i in np.argsort(-areas):
+        if areas[i] < floor:
+            break
+        instance = np.zeros(mask.shape, bool)
+        instance[box] = labels == i + 1
+        out.append(instance)
+    return out
 
 
 def union(instances: list[np.ndarray], shape: tuple[int, int]) -> np.ndarray:

@@ -38,16 +38,16 @@ log = logging.getLogger(__name__)
 class TrainSettings:
     """Hyper-parameters. ``steps`` batches per epoch; ``crop`` training window side in px."""
 
-    epochs: int = 12
+    epochs: int = 15
     steps: int = 60
-    batch: int = 12
-    crop: int = 128
+    batch: int = 10
+    crop: int = 112
     lr: float = 3e-3
     weight_decay: float = 1e-4
     seed: int = 0
     channels: tuple[int, ...] = (12, 16, 32, 48)
     tape_centred: float = 0.7   # share of windows centred on a tape pixel
-    threads: int = 2
+    threads: int = 1   # small convolutions gain little from threads; on a shared CPU they lose
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
