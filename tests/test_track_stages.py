@@ -293,3 +293,15 @@ def test_tracker_config_from_toml(tmp_path):
     path.write_text("[lp]\ntime_limt = 2.0\n")
     with pytest.raises(InputError, match="time_limt"):
         TrackerConfig.from_toml(path)
+
+
+def test_observed_dots_move_in_by_the_tape_thickness(scene):
+    rig, dots = scene
+    views = blobs(rig, dots, seed=6)
+    plain = FrameTracker(rig, SPEC).solve(views)
+    config = TrackerConfig()
+    config.mrf2.tape_thickness_mm = 1.0
+    thick = FrameTracker(rig, SPEC, config).solve(views)
+    shift = thick.positions - plain.positions
+    assert np.allclose(np.linalg.norm(shift, axis=1), 1.0, atol=1e-6)
+    assert (shift[:, 1] < -0.9).all()  # into the body: the back faces +Y, toward the cameras
