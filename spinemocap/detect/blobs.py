@@ -98,11 +98,13 @@ def _regions(mask: np.ndarray, pad: int, stride: int = 8) -> list[tuple[slice, s
 
 
 def _region_dots(
-    grey: np.ndarray, filled: np.ndarray, region: np.ndarray, d: float, p: BlobParams, touches_border
+    grey: np.ndarray, filled: np.ndarray, region: np.ndarray, d: float, p: BlobParams, touches_border,
+    size_from_blobs: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Dots in one region of interest: ``grey`` float32 crop, ``filled`` the hole-filled mask
     crop, ``region`` the mask grown by the margin (where dot pixels may lie); ``touches_border``
-    tells whether a crop box (y, x, h, w) touches the frame border (a cut dot's centre is wrong)."""
+    tells whether a crop box (y, x, h, w) touches the frame border (a cut dot's centre is wrong).
+    ``size_from_blobs``: ``d`` is only a guess from the mask width; measure it on the blobs."""
     # The top-hat keeps bright structures smaller than its kernel: the dots. Skin around the tape
     # is a large bright area and vanishes, so it never merges with a dot at the tape's edge.
     # A square kernel: OpenCV decomposes it into two 1D passes (a disc costs ~10x more).
@@ -122,6 +124,8 @@ def _region_dots(
     floor = float(np.median(tophat[tape_px])) if tape_px.any() else 0.0
     scale = max(contrast - floor, 1e-3)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
+    if size_from_blobs:
+        d = _typical_diameter(labels, stats, d)
     dot_area = math.pi * d * d / 4.0
     rim = max(2, int(math.ceil(0.3 * d)))
     grow = _disc(2 * rim - 1)
@@ -165,6 +169,20 @@ def _region_dots(
     if not centres:
         return np.zeros((0, 2)), np.zeros(0)
     return _merge_close(np.asarray(centres, float), np.asarray(scores, float), p.merge_distance * d)
+
+
+def _typical_diameter(labels: np.ndarray, stats: np.ndarray, d_guess: float) -> float:
+    """Median longest axis of the blobs plausibly dots. Seen obliquely, the tape (and the width
+    guess) shrinks across but not along the tape, so the dots' long axis keeps the true size."""
+    guess_area = math.pi * d_guess * d_guess / 4.0
+    majors = []
+    for i in range(1, len(stats)):
+        x, y, bw, bh, area = stats[i]
+        if 0.3 * guess_area <= area <= 6 * guess_area:
+            shape = _ellipse_shape(labels[y:y + bh, x:x + bw] == i)
+            if shape is not None:
+                majors.append(shape[0])
+    return max(d_guess, float(np.median(majors))) if len(majors) >= 3 else d_guess
 
 
 def _ellipse_shape(blob: np.ndarray) -> tuple[float, float] | None:
@@ -234,7 +252,8 @@ def find_dots(
         def touches_border(y, x, bh, bw, ys=ys, xs=xs):
             return ys.start + y <= 0 or xs.start + x <= 0 or ys.start + y + bh >= H or xs.start + x + bw >= W
 
-        uv, conf = _region_dots(grey[ys, xs].astype(np.float32), filled, region, d, p, touches_border)
+        uv, conf = _region_dots(grey[ys, xs].astype(np.float32), filled, region, d, p, touches_border,
+                                size_from_blobs=d_global is None)
         if len(uv):
             uvs.append(uv + [xs.start, ys.start])
             confs.append(conf)
