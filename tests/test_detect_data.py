@@ -96,3 +96,19 @@ def test_damaged_weights_file_is_named(tmp_path):
         load_weights(bad)
     with pytest.raises(InputError, match="not found"):
         load_weights(tmp_path / "missing.pt")
+
+
+def test_cli_finetune_from_shipped_weights_on_coco_labels(tmp_path, capsys):
+    from spinemocap.cli import main
+    from spinemocap.detect import Detector
+
+    images, _, coco, truth = _lab_folder(tmp_path, n=6)
+    out = tmp_path / "lab"
+    assert main(["detector", "finetune", "--images", str(images), "--coco", str(coco), "--out", str(out),
+                 "--epochs", "1", "--steps", "2", "--batch", "2", "--crop", "64", "--val-fraction", "0.3"]) == 0
+    assert "validation IoU" in capsys.readouterr().out
+    meta = json.loads((out / "weights.json").read_text())
+    assert meta["init_weights"].endswith("tape_unet.pt") and meta["data"]["kind"] == "lab"
+    assert meta["command"].startswith("spinemocap detector finetune") and "--epochs 1" in meta["command"]
+    det = Detector("net", weights=out / "weights.pt")
+    assert det.segment(cv2.imread(str(images / "img00.png"))).shape == truth["img00.png"].shape

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import logging
 import shlex
-import sys
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -72,8 +71,14 @@ def _settings(args):
                          seed=args.seed, threads=args.threads)
 
 
-def _command() -> str:
-    return "spinemocap " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+def _command(args) -> str:
+    """The command line with every option spelt out (defaults included), for the provenance."""
+    parts = ["spinemocap", "detector", args.detector_command]
+    for key, value in sorted(vars(args).items()):
+        if key in ("func", "command", "detector_command", "verbose", "quiet") or value is None:
+            continue
+        parts += [f"--{key.replace('_', '-')}", shlex.quote(str(value))]
+    return " ".join(parts)
 
 
 def _train(args) -> int:
@@ -86,7 +91,7 @@ def _train(args) -> int:
     train_views, val_views = load_shards(data)
     log.info("%d training views, %d validation views from %s", len(train_views), len(val_views), data)
     meta = train(train_views, val_views, args.out, _settings(args),
-                 provenance={"command": _command(), "data": {"kind": "synthetic studio", **synth.to_dict(),
+                 provenance={"command": _command(args), "data": {"kind": "synthetic studio", **synth.to_dict(),
                                                              "train_views": len(train_views), "val_views": len(val_views)}})
     print(f"best epoch {meta['best_epoch']}: validation IoU {meta['val_iou']:.4f}; weights: {args.out / 'weights.pt'}")
     return 0
@@ -103,7 +108,7 @@ def _finetune(args) -> int:
     train_views, val_views = load_shards(data)
     init = args.weights or shipped_weights_path()
     meta = train(train_views, val_views, args.out, _settings(args), init_weights=init,
-                 provenance={"command": _command(), "data": {"kind": "lab", "images": str(args.images),
+                 provenance={"command": _command(args), "data": {"kind": "lab", "images": str(args.images),
                                                              "masks": str(args.masks) if args.masks else None,
                                                              "coco": str(args.coco) if args.coco else None,
                                                              "train_images": n_train, "val_images": n_val}})
