@@ -7,12 +7,17 @@ than its tape does.
 
 Per region:
 1. fill the mask's holes (a mask may or may not include the dots) and grow it by a small margin;
-2. remove the slowly varying tape shading with a white top-hat whose kernel is larger than a dot;
-3. estimate the dot contrast from the top-hat inside the mask, threshold at half of it;
-4. keep components whose area, elongation and fill fit a dot of the expected diameter;
-5. centre = centroid of the top-hat intensity, clipped at the dot contrast, over the blob grown
-   by a pixel or two (anti-aliased rim pixels count with partial weight: a sub-pixel estimate);
-6. merge blobs closer than half a dot diameter, so one dot never yields two blobs.
+2. white top-hat with a square kernel larger than a dot: keeps the dots, removes the tape's
+   shading and the large bright skin around the tape (so it never merges with an edge dot);
+3. dot contrast = 99.5th percentile of the smoothed top-hat on the tape; no dots when it is weak
+   or not well above the tape's own texture (median top-hat); threshold at half the contrast;
+4. dot size: given, or the blobs' median long axis (the mask-width guess shrinks in oblique views);
+5. keep blobs whose area, axes and fill fit a dot, whose surrounding ring lies on the tape, and
+   which do not touch the frame border;
+6. centre = centroid of the top-hat over the blob plus a rim, scaled by the blob's own interior
+   level and clipped to [0, 1]: the inside weighs 1 (shading cannot pull it), anti-aliased rim
+   pixels weigh their coverage (the sub-pixel part);
+7. merge blobs closer than half a dot diameter, so one dot never yields two blobs.
 
 Coordinates: pixel centres at integer positions (OpenCV convention), ``uv = (x, y)`` in px.
 """
