@@ -82,8 +82,8 @@ def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0
     config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed)
     scene = build_scene(config)
     faces = scene.body.faces
-    dots = np.array([scene.tape_on_skin.dot_positions(v.astype(float), vertex_normals(v.astype(float), faces))
-                     for v in scene.vertices])
+    vertices = (scene.frame_vertices(f) for f in range(scene.n_frames))
+    dots = np.array([scene.tape_on_skin.dot_positions(v, vertex_normals(v, faces)) for v in vertices])
     graph = scene.tape.graph
     row_z = np.array([dots[0][graph.row == r, 2].mean() for r in range(rows)])
     lo, hi, joints = mid_bone_rows(row_z, scene.body.spine_chain()[:, 2])
