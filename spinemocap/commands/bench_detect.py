@@ -35,6 +35,7 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 MATCH_PX = 2.0
+SEQUENCE_FRAMES = 200  # 2 s of the 'mixed' motion; test frames are spread over it (varied poses)
 
 
 @dataclass
@@ -49,7 +50,7 @@ class TestSet:
 
 
 TEST_SETS = {
-    "studio": TestSet("studio", "studio", scenes=2, frames=1, blur=0.0, occlusion="none"),
+    "studio": TestSet("studio", "studio", scenes=3, frames=1, blur=0.0, occlusion="none"),
     "blur+balls": TestSet("blur+balls", "artificial", scenes=1, frames=2, blur=0.5, occlusion="heavy"),
     "tiny": TestSet("tiny", "tiny", scenes=1, frames=1, blur=0.0, occlusion="none", supersample=3),  # quick check only
 }
@@ -148,7 +149,7 @@ def held_out_scene(test: TestSet, k: int, attempts: int = 5):
         seed = HELD_OUT_SEED_BASE + 100 * k + 10 * attempt + sorted(TEST_SETS).index(test.name)
         rng = np.random.default_rng([seed, 99])
         phenotype = {key: float(rng.uniform(0.1, 0.9)) for key in ("gender", "age", "muscle", "weight", "height")}
-        cfg = SynthConfig.preset(test.preset, frames=max(test.frames, 4), seed=seed, phenotype=phenotype,
+        cfg = SynthConfig.preset(test.preset, frames=SEQUENCE_FRAMES, seed=seed, phenotype=phenotype,
                                  blur=test.blur, occlusion=test.occlusion, skin_tone=float(rng.uniform(0, 1)),
                                  supersample=test.supersample)
         try:
@@ -156,6 +157,11 @@ def held_out_scene(test: TestSet, k: int, attempts: int = 5):
         except ValueError as exc:
             log.warning("held-out scene seed %d unusable (%s); trying the next seed", seed, exc)
     raise RuntimeError(f"no usable held-out scene for {test.name} after {attempts} seeds")
+
+
+def frames_of(test: TestSet) -> list[int]:
+    """Frame indices spread evenly inside the sequence (not its neutral start)."""
+    return [int((i + 1) * SEQUENCE_FRAMES / (test.frames + 1)) for i in range(test.frames)]
 
 
 def surface_uv(scene, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -194,7 +200,7 @@ def run(args) -> int:
         bar = tqdm(total=n_scenes * test.frames, desc=f"bench detect [{set_name}]", unit="frame")
         for k in range(n_scenes):
             scene, cfg = held_out_scene(test, k)
-            for f in range(test.frames):
+            for f in frames_of(test):
                 rendered = scene.render(f)
                 uv_all, visible, dot_px = surface_uv(scene, f)
                 for c, (image, true_mask) in enumerate(zip(rendered.images, rendered.masks)):

@@ -39,7 +39,10 @@ def register(subparsers) -> None:
 
     t = sub.add_parser("train", help="render synthetic-studio training data (if needed) and train the network")
     _train_options(t, epochs=15, lr=3e-3)
-    t.add_argument("--data", type=Path, help="training shards folder (default OUT/data; rendered there if empty)")
+    t.add_argument("--data", type=Path, nargs="+",
+                   help="training shards folders (default OUT/data); the studio renders into the first, "
+                        "the others are used as they are (e.g. an earlier data set)")
+    t.add_argument("--weights", type=Path, help="start from these weights instead of random ones")
     t.add_argument("--scenes", type=int, default=48, help="synthetic scenes to render")
     t.add_argument("--frames-per-scene", type=int, default=2)
     t.add_argument("--data-seed", type=int, default=0, help="studio seeds data_seed*1000 + scene")
@@ -85,13 +88,18 @@ def _train(args) -> int:
     from ..detect.dataset import SynthDataSettings, generate_synthetic, load_shards
     from ..detect.train import train
 
-    data = args.data or args.out / "data"
+    folders = args.data or [args.out / "data"]
     synth = SynthDataSettings(scenes=args.scenes, frames_per_scene=args.frames_per_scene, seed=args.data_seed)
-    generate_synthetic(data, synth)
-    train_views, val_views = load_shards(data)
-    log.info("%d training views, %d validation views from %s", len(train_views), len(val_views), data)
-    meta = train(train_views, val_views, args.out, _settings(args),
+    generate_synthetic(folders[0], synth)
+    train_views, val_views = load_shards(folders[0])
+    for extra in folders[1:]:
+        more_train, more_val = load_shards(extra)
+        train_views.extend(more_train)
+        val_views.extend(more_val)
+    log.info("%d training views, %d validation views from %s", len(train_views), len(val_views), folders)
+    meta = train(train_views, val_views, args.out, _settings(args), init_weights=args.weights,
                  provenance={"command": _command(args), "data": {"kind": "synthetic studio", **synth.to_dict(),
+                                                             "folders": [str(f) for f in folders],
                                                              "train_views": len(train_views), "val_views": len(val_views)}})
     print(f"best epoch {meta['best_epoch']}: validation IoU {meta['val_iou']:.4f}; weights: {args.out / 'weights.pt'}")
     return 0

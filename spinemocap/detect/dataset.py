@@ -149,6 +149,7 @@ class SynthDataSettings:
     val_fraction: float = 0.15
     layouts: tuple[str, ...] = ("tiny", "artificial", "studio")
     scale: float = 0.5   # render size relative to the layout's reference size (focal scales along)
+    sequence_frames: int = 200  # frames are drawn from 2 s of motion at 100 fps (bent, twisted poses)
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -161,7 +162,8 @@ _REFERENCE_SIZE = {"tiny": (480, 360), "artificial": (1024, 768), "studio": (244
 _CAMERAS = {"tiny": 3, "artificial": 4, "studio": 6}
 
 
-def random_scene_config(rng: np.random.Generator, seed: int, layouts=("tiny", "artificial", "studio"), scale: float = 0.5):
+def random_scene_config(rng: np.random.Generator, seed: int, layouts=("tiny", "artificial", "studio"), scale: float = 0.5,
+                        sequence_frames: int = 200):
     """A synthetic-studio configuration with a random body, skin tone, motion, blur, noise and
     occluders (lighting follows from the seed inside the studio)."""
     from ..synth import SynthConfig
@@ -172,7 +174,7 @@ def random_scene_config(rng: np.random.Generator, seed: int, layouts=("tiny", "a
     s = 1.0 if layout == "tiny" else scale
     phenotype = {k: float(rng.uniform(0.05, 0.95)) for k in ("gender", "age", "muscle", "weight", "height")}
     return SynthConfig.preset(
-        layout, frames=int(rng.integers(8, 40)), seed=seed, size=(int(w * s), int(h * s)),
+        layout, frames=int(sequence_frames), seed=seed, size=(int(w * s), int(h * s)),
         cameras=_CAMERAS[layout], phenotype=phenotype, skin_tone=float(rng.uniform(0, 1)),
         motion=str(rng.choice(sorted(MOTIONS))), blur=float(rng.choice([0.0, 0.0, 0.0, 0.4])),
         noise=float(rng.uniform(0.5, 5.0)), occlusion=str(rng.choice(["none", "none", "light", "heavy"])),
@@ -205,7 +207,7 @@ def generate_synthetic(out: Path, settings: SynthDataSettings, progress: bool = 
             continue
         seed = settings.seed * 1000 + k
         rng = np.random.default_rng([seed, 77])
-        cfg = random_scene_config(rng, seed, settings.layouts, settings.scale)
+        cfg = random_scene_config(rng, seed, settings.layouts, settings.scale, settings.sequence_frames)
         try:
             scene = build_scene(cfg)
         except ValueError as exc:  # no camera sees the tape: draw another time

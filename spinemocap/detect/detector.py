@@ -46,12 +46,14 @@ class NetSegmenter:
     """Two-stage segmentation with :class:`TapeUNet` (see the module docstring)."""
 
     def __init__(self, weights: str | os.PathLike | None = None, refine: bool = True, threads: int | None = 1,
-                 min_area_work_px: int = 4):
+                 min_area_work_px: int = 4, box_logit: float = -1.0, max_grow: int = 3):
         self.weights_path = Path(weights) if weights else shipped_weights_path()
         self.model, self.metadata = load_weights(self.weights_path)
         self.refine = refine
         self.threads = threads
         self.min_area_work_px = min_area_work_px
+        self.box_logit = box_logit  # stage-1 logit threshold for boxes (-1: p > 0.27)
+        self.max_grow = max_grow    # times a box may grow to follow the tape out of it
 
     def _logits(self, view: np.ndarray) -> np.ndarray:
         padded, (h, w) = pad_to_multiple(view, self.model.stride)
@@ -64,9 +66,11 @@ class NetSegmenter:
         h, w = image.shape[:2]
         view, _ = frame_view(image)
         coarse_logits = self._logits(view)
-        coarse = coarse_logits > 0
         if not self.refine:
             return cv2.resize(coarse_logits, (w, h), interpolation=cv2.INTER_LINEAR) > 0
+        # Boxes come from a generous threshold: a thin stripe may be faint at 256 px, and stage 2
+        # decides anyway.
+        coarse = coarse_logits > self.box_logit
         mask = np.zeros((h, w), bool)
         n, _, stats, _ = cv2.connectedComponentsWithStats(coarse.astype(np.uint8), connectivity=8)
         sx, sy = w / view.shape[1], h / view.shape[0]
@@ -74,14 +78,39 @@ class NetSegmenter:
             if area < self.min_area_work_px:
                 continue
             box = _padded_box(x * sx, y * sy, (x + bw) * sx, (y + bh) * sy, (h, w))
-            crop = image[box]
-            s = crop_scale(box, WORK_WIDTH)
-            ch, cw = crop.shape[:2]
-            small = cv2.resize(crop, (max(8, int(round(cw * s))), max(8, int(round(ch * s)))), interpolation=cv2.INTER_AREA) if s < 1 else crop
-            logits = self._logits(small)
-            # The tape's mask covers its dots: fill any holes the network leaves at them.
-            mask[box] |= fill_holes(cv2.resize(logits, (cw, ch), interpolation=cv2.INTER_LINEAR) > 0)
+            for _ in range(self.max_grow + 1):
+                part = self._refine(image, box)
+                grown = _grown_box(part, box, (h, w))
+                if grown is None:
+                    break
+                box = grown  # the tape runs out of the box: follow it
+            mask[box] |= part
         return mask
+
+    def _refine(self, image: np.ndarray, box: tuple[slice, slice]) -> np.ndarray:
+        """Stage 2: tape mask (bool, box size) of one full-resolution box."""
+        crop = image[box]
+        s = crop_scale(box, WORK_WIDTH)
+        ch, cw = crop.shape[:2]
+        small = cv2.resize(crop, (max(8, int(round(cw * s))), max(8, int(round(ch * s)))), interpolation=cv2.INTER_AREA) if s < 1 else crop
+        logits = self._logits(small)
+        # The tape's mask covers its dots: fill any holes the network leaves at them.
+        return fill_holes(cv2.resize(logits, (cw, ch), interpolation=cv2.INTER_LINEAR) > 0)
+
+
+def _grown_box(part: np.ndarray, box: tuple[slice, slice], shape: tuple[int, int]) -> tuple[slice, slice] | None:
+    """A larger box when the mask ``part`` touches an edge of ``box`` inside the frame, else None."""
+    h, w = shape
+    ys, xs = box
+    touches = ((ys.start > 0 and part[0].any()) or (ys.stop < h and part[-1].any())
+               or (xs.start > 0 and part[:, 0].any()) or (xs.stop < w and part[:, -1].any()))
+    if not touches:
+        return None
+    rows, cols = np.flatnonzero(part.any(axis=1)), np.flatnonzero(part.any(axis=0))
+    grown = _padded_box(xs.start + cols[0], ys.start + rows[0], xs.start + cols[-1] + 1, ys.start + rows[-1] + 1, shape)
+    union = (slice(min(ys.start, grown[0].start), max(ys.stop, grown[0].stop)),
+             slice(min(xs.start, grown[1].start), max(xs.stop, grown[1].stop)))
+    return None if union == box else union
 
 
 def _padded_box(x0: float, y0: float, x1: float, y1: float, shape: tuple[int, int]) -> tuple[slice, slice]:
