@@ -36,6 +36,9 @@ class TapeSpec:
 
     Defaults follow the paper: 50 mm wide tape, ~10 mm dots, 9 rows (22 dots on 20 x 5 cm).
     ``stretch_tolerance`` is the relative skin stretch accepted when matching dot distances.
+    ``thickness_mm``: the cameras see the holes' rims on the tape's top surface; the tracker
+    reports the skin point one thickness further in (kinesiology tape: about 0.5-1 mm; 0 reports
+    the tape surface).
     """
 
     n_rows: int = 9
@@ -45,6 +48,7 @@ class TapeSpec:
     column_spacing_mm: float = 15.0
     end_margin_mm: float = 12.5
     stretch_tolerance: float = 0.15
+    thickness_mm: float = 0.0
 
     def __post_init__(self) -> None:
         if self.n_rows < 1 or self.n_rows % 2 == 0:
@@ -59,6 +63,8 @@ class TapeSpec:
             raise ValueError("the three dots of a row do not fit across the tape width")
         if self.dot_diameter_mm >= self.column_spacing_mm:
             raise ValueError("dot_diameter_mm must be smaller than column_spacing_mm")
+        if self.thickness_mm < 0:
+            raise ValueError(f"thickness_mm must be >= 0; got {self.thickness_mm}")
         if not 0 <= self.stretch_tolerance < 1:
             raise ValueError("stretch_tolerance must lie in [0, 1)")
 

@@ -142,8 +142,9 @@ def test_mrf2_rejects_mismatched_evidence(scene):
 def test_mrf2_reports_skin_points_under_the_tape(scene):
     rig, images, masks, truth = scene
     evidence = [build_evidence(i, m) for i, m in zip(images, masks)]
-    config = MRF2Config(iterations=0, tape_thickness_mm=0.8)  # no search: only the offset acts
-    result = refine_mrf2(truth, TAPE, rig, evidence, config)
+    thick_tape = TapeSpec(n_rows=13, thickness_mm=0.8).graph
+    config = MRF2Config(iterations=0)  # no search: only the offset acts
+    result = refine_mrf2(truth, thick_tape, rig, evidence, config)
     shift = result.positions - truth
     np.testing.assert_allclose(np.linalg.norm(shift, axis=1), 0.8, atol=1e-9)
     assert np.all(shift[:, 1] < -0.75)  # inward: against the outward normal (+Y here)

@@ -6,6 +6,7 @@ relaxation, sequence carry through a 180 degree flip, gap filling, evaluation me
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -299,9 +300,7 @@ def test_observed_dots_move_in_by_the_tape_thickness(scene):
     rig, dots = scene
     views = blobs(rig, dots, seed=6)
     plain = FrameTracker(rig, SPEC).solve(views)
-    config = TrackerConfig()
-    config.mrf2.tape_thickness_mm = 1.0
-    thick = FrameTracker(rig, SPEC, config).solve(views)
+    thick = FrameTracker(rig, dataclasses.replace(SPEC, thickness_mm=1.0)).solve(views)
     shift = thick.positions - plain.positions
     assert np.allclose(np.linalg.norm(shift, axis=1), 1.0, atol=1e-6)
     assert (shift[:, 1] < -0.9).all()  # into the body: the back faces +Y, toward the cameras

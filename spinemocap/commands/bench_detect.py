@@ -15,7 +15,7 @@ mask: dot detection alone), and the peer ``SimpleBlobDetector`` (OpenCV, whole f
 true dot size), also with its blobs kept only inside the net's mask.
 
 Ground truth: each visible dot's centre on the tape surface (the studio floats the tape
-``TAPE_OFFSET_MM`` above the skin; the holes the camera sees are in that surface), projected
+one tape thickness (``TapeSpec.thickness_mm``) above the skin; the holes the camera sees are in that surface), projected
 with the camera model; dots within half a dot of the frame border are left out. Matching is one
 to one within 2 px. A detection near a dot the studio marks occluded counts neither way (a
 partly hidden dot may or may not be found).
@@ -166,10 +166,8 @@ def frames_of(test: TestSet) -> list[int]:
 
 def surface_uv(scene, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(C, D, 2) projections of dot centres on the tape surface, (C, D) visibility, (C,) dot px."""
-    from ..synth.tape_on_skin import TAPE_OFFSET_MM
-
     gt = scene.frame_groundtruth(frame)
-    surface = gt["dots"] + TAPE_OFFSET_MM * gt["dot_normals"]
+    surface = gt["dots"] + scene.tape.thickness_mm * gt["dot_normals"]
     uv = np.stack([cam.project(surface) for cam in scene.rig])
     dot_px = np.array([cam.K[0, 0] * scene.tape.dot_diameter_mm / np.median(cam.depth(surface)) for cam in scene.rig])
     return uv, gt["visible"], dot_px

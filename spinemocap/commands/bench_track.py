@@ -39,13 +39,11 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--occlusion", default="none", choices=("none", "light", "heavy"))
     p.add_argument("--frames", type=int, default=None, help="frames to render and track (default: the preset's)")
     p.add_argument("--mode", choices=("sequence", "paper"), default="sequence")
-    p.add_argument("--detector", choices=("net", "classical", "mask"), default="mask",
-                   help="dot detector; 'mask' (default) finds dots inside the renderer's exact tape masks")
+    p.add_argument("--detector", choices=("net", "classical", "mask"), default="net",
+                   help="tape/dot detector (default: the shipped network); 'mask' finds dots inside the "
+                        "renderer's exact tape masks, isolating the tracker from tape segmentation")
     p.add_argument("--config", type=Path, help="tracker settings (TOML)")
     p.add_argument("--seed", type=int, default=0, help="synthetic scene seed")
-    p.add_argument("--tape-thickness", type=float, default=None, metavar="MM",
-                   help="tape thickness handed to the tracker ([mrf2] tape_thickness_mm: triangulated "
-                        "hole rims -> skin); default: the studio's tape thickness, 0 keeps the rims")
     p.add_argument("--json", type=Path, help="write all numbers to this JSON file (+ a .png plot beside it)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_bench_track)
@@ -66,11 +64,7 @@ def run_bench_track(args: argparse.Namespace) -> int:
     from spinemocap.track.evaluate import evaluate_tracking
     from spinemocap.track.pipeline import TrackingWarning, make_detector, run_tracking
 
-    from spinemocap.synth.tape_on_skin import TAPE_OFFSET_MM
-
     config = TrackerConfig.from_toml(args.config) if args.config else TrackerConfig()
-    # The tape's thickness is a physical property of the tape, known like its dot spacing.
-    config.mrf2.tape_thickness_mm = TAPE_OFFSET_MM if args.tape_thickness is None else args.tape_thickness
     synth = SynthConfig.preset(args.preset, occlusion=args.occlusion, seed=args.seed,
                                **({"frames": args.frames} if args.frames else {}))
     print(f"building the {args.preset} scene ({synth.frames} frames, {synth.cameras} cameras, "
@@ -90,7 +84,7 @@ def run_bench_track(args: argparse.Namespace) -> int:
     ev.update(
         preset=args.preset, occlusion=args.occlusion, balls=synth.n_balls, mode=args.mode,
         detector=args.detector, cameras=len(scene.rig), rows=synth.rows, wall_s=wall,
-        tape_thickness_mm=config.mrf2.tape_thickness_mm,
+        tape_thickness_mm=scene.tape.thickness_mm,
         routes=result.routes(), frames_failed_before_gap_fill=result.routes().get("failed", 0),
         lp_relaxed_frames=sum(f.lp_status == "relaxed" for f in result.frames),
         paper={"error_mm": PAPER_ERROR_MM[args.occlusion], "plane_baselines_mm": PAPER_PLANES_MM,

@@ -52,18 +52,9 @@ def step_track(ctx: DemoContext) -> None:
     from spinemocap.commands.track import accuracy_summary
     from spinemocap.track.pipeline import track_capture
 
-    try:  # the trained tape detector when installed, else dots inside the renderer's tape masks
-        from spinemocap.detect import Detector  # noqa: F401
-        detector = "net"
-    except ImportError:
-        detector = "mask"
-    from spinemocap.synth.tape_on_skin import TAPE_OFFSET_MM
-    from spinemocap.track.config import TrackerConfig
-
-    config = TrackerConfig()
-    config.mrf2.tape_thickness_mm = TAPE_OFFSET_MM  # the studio's tape thickness (dots lie on the skin)
+    detector = "net"  # the shipped tape segmentation network
     out = ctx.out / "tracked"
-    table = track_capture(ctx.capture_dir, out, mode="sequence", config=config, detector=detector)
+    table = track_capture(ctx.capture_dir, out, mode="sequence", detector=detector)
     print(f"    detector {detector}; " + accuracy_summary(table, ctx.capture_dir))
     ctx.report("tracked markers (table)", out / "markers.csv")
     ctx.report("tracked markers (OpenSim)", out / "markers.trc")

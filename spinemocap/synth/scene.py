@@ -28,7 +28,7 @@ from .motions import MOTIONS, spine_motion
 from .occluders import OCCLUSION_LEVELS, FallingBalls, SportsBraBand, balls_for, sphere_mesh
 from .render import Appearance, CameraRenderer, SceneMeshes
 from .rigs import LAYOUTS, arc_rig
-from .tape_on_skin import TapeOnSkin
+from .tape_on_skin import SYNTH_TAPE_THICKNESS_MM, TapeOnSkin
 from .visibility import MeshRayCaster, dot_visibility
 
 log = logging.getLogger(__name__)
@@ -183,7 +183,7 @@ def cached_body(phenotype: tuple) -> Body:
 @functools.lru_cache(maxsize=8)
 def cached_tape_on_skin(phenotype: tuple, rows: int, start_level: str) -> TapeOnSkin:
     """The tape laid on a body, cached: laying casts ~20k rays (seconds)."""
-    return TapeOnSkin(cached_body(phenotype), TapeSpec(n_rows=rows), start_level)
+    return TapeOnSkin(cached_body(phenotype), TapeSpec(n_rows=rows, thickness_mm=SYNTH_TAPE_THICKNESS_MM), start_level)
 
 
 class Scene:
@@ -194,7 +194,7 @@ class Scene:
         self.rng_seed = int(config.seed)
         rng = np.random.default_rng([self.rng_seed, 1])
         self.body = cached_body(tuple(sorted(config.phenotype.items())))
-        self.tape = TapeSpec(n_rows=config.rows)
+        self.tape = TapeSpec(n_rows=config.rows, thickness_mm=SYNTH_TAPE_THICKNESS_MM)
         self.tape_on_skin = cached_tape_on_skin(tuple(sorted(config.phenotype.items())), config.rows, config.tape_start)
         self.labels: list[str] = list(self.tape.labels)
         self.fps = float(config.fps)

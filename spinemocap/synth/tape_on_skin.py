@@ -10,7 +10,7 @@ barycentric weights, so in any pose it is the same convex combination of the pos
 corners: the tape stretches and bends with the skin (as kinesiology tape does).
 
 The rendered tape is a fine strip mesh (1 mm grid) with the dots cut out as holes (hole edges
-snapped onto the circles), floated ``TAPE_OFFSET_MM`` above the skin along the surface normal so
+snapped onto the circles), floated the tape's thickness (``TapeSpec.thickness_mm``) above the skin along the surface normal so
 the skin shows through the holes. Ground-truth dot centres are the bound skin points under the
 dots' centres.
 """
@@ -24,7 +24,7 @@ import numpy as np
 from ..tape import TapeSpec
 from .body import Body, vertex_normals
 
-TAPE_OFFSET_MM = 0.8  # tape thickness above the skin (avoids depth fighting, keeps holes visible)
+SYNTH_TAPE_THICKNESS_MM = 0.8  # studio tape thickness: holes' rims this far above the skin
 KEYPOINT_LATERAL_MM = 55.0  # skin keypoints left/right of the spine for the plane baselines
 N_KEYPOINT_LEVELS = 4
 
@@ -255,11 +255,11 @@ class TapeOnSkin:
         return self.dots.points(vertices, self.body.faces, normals)
 
     def strip_vertices(self, vertices: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
-        """(N, 3) tape strip vertices floated ``TAPE_OFFSET_MM`` above their bound points."""
+        """(N, 3) tape strip vertices floated one tape thickness above their bound points."""
         if normals is None:
             normals = vertex_normals(vertices, self.body.faces)
         p = self.strip_binding.points(vertices, self.body.faces, normals)
-        return p + TAPE_OFFSET_MM * self.strip_binding.normals(normals, self.body.faces)
+        return p + self.spec.thickness_mm * self.strip_binding.normals(normals, self.body.faces)
 
 
 def _outer_envelope(u: np.ndarray, depth: np.ndarray) -> np.ndarray:

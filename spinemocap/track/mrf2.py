@@ -72,10 +72,6 @@ class MRF2Config:
     # 2.6 -> 3.5 mm). Such dots are held to their start (MRF1, which keeps the dashed
     # anti-folding edges) by anchor_unseen * |x - x_start|^2.
     anchor_unseen: float = 0.1
-    # The images show the holes' rims on the tape's top surface; the dot a user wants (and the
-    # synthetic ground truth) is the skin point underneath, one tape thickness further in.
-    # Set to the tape's thickness (the synthetic studio's tape: 0.8 mm) to report skin points.
-    tape_thickness_mm: float = 0.0
 
     def pbp(self) -> PBPConfig:
         return PBPConfig(
@@ -364,7 +360,7 @@ def refine_mrf2(
     ``evidence``: one :class:`EvidenceImage` per rig camera (None where a camera has no image).
     ``normals`` (D, 3): outward dot normals for the facing test; default: from the dots' tape
     frames. ``feasible_points`` (K, 3): optional P_knn proposals. Returned positions are moved
-    ``config.tape_thickness_mm`` inward along the dots' normals (tape surface -> skin).
+    ``tape.spec.thickness_mm`` inward along the dots' normals (tape surface -> skin).
     ``energy_history``: the energy after each PBP iteration, then after each polish step.
     ``extra``: ``visible`` (D, C) bool (cameras used per dot), ``pbp_positions`` (D, 3, on the
     tape surface), ``polish_history``."""
@@ -384,7 +380,8 @@ def _refine(positions, tape, rig, evidence, config, normals, rng, feasible_point
         state, polish_history = model.polish(state, config.polish_steps, config.polish_max_step_mm)
         history += polish_history
     model.prepare(state)
-    skin = state - config.tape_thickness_mm * tape_frames(state, tape)[0]
+    # the images show the holes' rims on the tape's top surface; report the skin underneath
+    skin = state - tape.spec.thickness_mm * tape_frames(state, tape)[0]
     return MRFResult(
         positions=skin,
         energy_history=history,

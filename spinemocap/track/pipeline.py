@@ -160,7 +160,7 @@ class FrameTracker:
         positions = model.copy()
         if cfg.use_triangulated:
             positions[seen] = cloud.points[src]
-            thickness = self.config.mrf2.tape_thickness_mm
+            thickness = self.graph.spec.thickness_mm
             if thickness and np.isfinite(model).all():
                 # triangulated points lie on the tape's top surface (the holes' rims), MRF2 reports
                 # the skin underneath: move them in by the same tape thickness
