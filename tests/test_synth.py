@@ -10,6 +10,8 @@ from spinemocap.camera import Camera
 from spinemocap.capture import Capture, FrameSource
 from spinemocap.synth import SynthConfig, build_scene, write_capture
 from spinemocap.synth.benchmark import PAPER_TABLE2, views_histogram
+from spinemocap.synth.body import vertex_normals
+from spinemocap.synth.tape_on_skin import KEYPOINT_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -227,9 +229,29 @@ def test_write_capture_opens_with_capture_and_groundtruth_has_documented_shapes(
     assert float(gt["fps"]) == config.fps
     # uv is the camera model's projection of the dots (distorted pixels)
     np.testing.assert_allclose(gt["uv"][1], capture.rig.project(gt["dots"][1]), atol=1e-6)
-    # keypoints sit beside the spine: ~55 mm left (+X) and right (-X) of the tape's midline
-    kp = gt["keypoints"][0]
-    assert np.all(kp[0::2, 0] > 40) and np.all(kp[1::2, 0] < -40)
+    assert list(gt["keypoint_names"]) == list(KEYPOINT_NAMES)
+
+
+def test_keypoints_are_back_landmarks_left_and_right_of_the_spine(occluded_scene):
+    """Hips, waist, shoulder-blade angles, shoulders: on the back skin, paired left (+X) and right
+    (-X) of the spine at their anatomical heights, and they move with the body."""
+    body, tos = occluded_scene.body, occluded_scene.tape_on_skin
+    rest = tos.keypoints.points(body.rest_vertices, body.faces)
+    levels = body.level_heights()
+    left, right = rest[0::2], rest[1::2]
+    np.testing.assert_allclose(left[:, [1, 2]], right[:, [1, 2]], atol=2.0)  # anny is symmetric
+    assert np.all(left[:, 0] > 60) and np.all(right[:, 0] < -60)
+    np.testing.assert_allclose(left[:, 2], [body.rest_bone_heads["upperleg01.L"][2], levels["L1"], levels["T7"],
+                                            body.rest_bone_heads["shoulder01.L"][2]], atol=1.0)
+    # on the back: the skin there faces backwards (+Y), and the points are on the skin surface
+    normals = tos.keypoints.normals(vertex_normals(body.rest_vertices, body.faces), body.faces)
+    assert np.all(normals[:, 1] > 0.3)
+    assert np.all(rest[:, 1] > body.rest_bone_heads["spine03"][1])
+    # bound to the skin: the ground truth follows the posed body
+    gt = occluded_scene.frame_groundtruth(2)
+    v, _ = occluded_scene._posed(2)
+    np.testing.assert_allclose(gt["keypoints"], tos.keypoints.points(v, body.faces))
+    assert gt["keypoints"].shape == (8, 3)
 
 
 def test_frame_source_renders_in_process(occluded_scene):

@@ -20,7 +20,7 @@ from spinemocap.track.candidates import (
 )
 from spinemocap.track.config import SequenceConfig, TrackerConfig
 from spinemocap.track.edges import build_edges
-from spinemocap.track.evaluate import label_swaps, plane_baseline
+from spinemocap.track.evaluate import label_swaps, plane_baseline, plane_baselines
 from spinemocap.track.lp import LPConfig, neighbour_bounds, select_edges
 from spinemocap.track.pipeline import FrameTracker, TrackingWarning, run_tracking
 from spinemocap.track.sequence import fill_and_smooth
@@ -284,6 +284,32 @@ def test_plane_baseline_measures_distance_to_the_keypoint_planes():
     dots = np.column_stack([rng.uniform(-20, 20, 5), rng.uniform(0, 300, 5), np.full(5, 7.0)])[None]
     for n in (1, 2, 3):
         assert np.allclose(plane_baseline(dots, kp, n), 7.0)
+
+
+def test_plane_baseline_follows_a_curved_back_closer_with_more_planes():
+    """A back curved in the sagittal plane (y = -(z - 150)^2 / 300): keypoint pairs at x = +-100
+    at z = 0 (hips), 100 (waist), 200 (shoulder-blade angles), 300 (shoulders); dots on the
+    midline. Each dot's distance is to the chord plane of its own segment."""
+    def back(z):
+        return -((z - 150.0) ** 2) / 300.0
+
+    kz = np.repeat([0.0, 100.0, 200.0, 300.0], 2)
+    kp = np.column_stack([np.tile([100.0, -100.0], 4), back(kz), kz])[None]
+    z = np.linspace(5.0, 295.0, 30)
+    dots = np.column_stack([np.zeros_like(z), back(z), z])[None]
+
+    def chord_distance(z0, z1):
+        slope = (back(z1) - back(z0)) / (z1 - z0)
+        return np.abs(back(z) - back(z0) - slope * (z - z0)) / np.hypot(1.0, slope)
+
+    seg3 = np.digitize(z, [100.0, 200.0])
+    expected3 = np.choose(seg3, [chord_distance(0, 100), chord_distance(100, 200), chord_distance(200, 300)])
+    np.testing.assert_allclose(plane_baseline(dots, kp, 3)[0], expected3, atol=1e-9)
+    expected2 = np.where(z < 100, chord_distance(0, 100), chord_distance(100, 300))
+    np.testing.assert_allclose(plane_baseline(dots, kp, 2)[0], expected2, atol=1e-9)
+    np.testing.assert_allclose(plane_baseline(dots, kp, 1)[0], chord_distance(0, 300), atol=1e-9)
+    means = plane_baselines(dots, kp)
+    assert means["1-plane"] > means["2-plane"] > means["3-plane"] > 0
 
 
 def test_tracker_config_from_toml(tmp_path):

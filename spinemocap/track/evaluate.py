@@ -5,13 +5,22 @@ Errors are Euclidean distances (mm) between tracked and true dot centres, split 
 dot's true position than its own (and more than half the smallest dot spacing from its own):
 its label is wrong, whatever the geometry. *Frames without a solution* have every dot missing.
 
-Plane baselines (paper experiment 1, Table 1): planes fitted (least squares) to the 8 skin
-keypoints beside the spine (4 levels x left/right, ordered from the sacral end):
-1 plane = all 8; 2 planes = lower and upper 4 (levels 1-2, 3-4); 3 planes = levels 1-2, 2-3 and
-3-4 (overlapping thirds: a plane needs 3+ non-collinear points, and two levels give four).
-Each true dot is measured to the plane of its segment along the spine (the segment whose
-keypoint centroid is nearest), as a point-to-plane distance; the mean over dot-frames is the
-one-sided Hausdorff distance the paper reports.
+Plane baselines (paper experiment 1, Table 1): planes fitted (least squares) to skin keypoints
+that a keypoint tracker (pose-estimator style) follows left and right of the spine. The 8
+keypoints (see :data:`spinemocap.synth.tape_on_skin.KEYPOINT_NAMES`) are ordered from the
+sacral end, left before right: hips (posterior pelvis) 0-1, waist (lower ribs, L1) 2-3,
+shoulder-blade angles (T7) 4-5, shoulders (scapulae) 6-7. As in the paper, 1 plane uses 4
+keypoints, 2 planes 6 and 3 planes 8:
+
+- 1 plane: hips + shoulders (0, 1, 6, 7);
+- 2 planes: hips + waist (0-3) and waist + shoulders (2, 3, 6, 7);
+- 3 planes: hips + waist, waist + shoulder-blade angles, shoulder-blade angles + shoulders.
+
+Each true dot is measured to the plane of its segment along the back: dots and keypoints are
+projected on the hip-to-shoulder axis (midpoints of the left/right pairs); a plane's span is the
+interval its keypoints cover there and a dot goes to the plane whose span contains it (or lies
+nearest). The distance is point-to-plane; the mean over dot-frames is the one-sided Hausdorff
+distance the paper reports.
 """
 
 from __future__ import annotations
@@ -21,8 +30,8 @@ import numpy as np
 from ..markers import MarkerTable
 
 PLANE_GROUPS = {
-    1: [[0, 1, 2, 3, 4, 5, 6, 7]],
-    2: [[0, 1, 2, 3], [4, 5, 6, 7]],
+    1: [[0, 1, 6, 7]],
+    2: [[0, 1, 2, 3], [2, 3, 6, 7]],
     3: [[0, 1, 2, 3], [2, 3, 4, 5], [4, 5, 6, 7]],
 }
 
@@ -53,19 +62,37 @@ def fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return c, vt[-1]
 
 
+def plane_segments(dots: np.ndarray, keypoints: np.ndarray, groups: list[list[int]]) -> np.ndarray:
+    """(D,) index of the plane group each dot (D, 3) belongs to along the back, for one frame's
+    keypoints (8, 3): see module."""
+    bottom, top = keypoints[0:2].mean(axis=0), keypoints[-2:].mean(axis=0)
+    axis = (top - bottom) / np.linalg.norm(top - bottom)
+    t_dots = (dots - bottom) @ axis
+    t_kp = (keypoints - bottom) @ axis
+    lo = np.array([t_kp[g].min() for g in groups])
+    hi = np.array([t_kp[g].max() for g in groups])
+    outside = np.maximum(lo[None] - t_dots[:, None], 0.0) + np.maximum(t_dots[:, None] - hi[None], 0.0)
+    return np.argmin(outside, axis=1)
+
+
 def plane_baseline(dots: np.ndarray, keypoints: np.ndarray, n_planes: int) -> np.ndarray:
-    """(F, D) distances (mm) of the true dots to the ``n_planes`` keypoint planes (see module)."""
+    """(F, D) distances (mm) of the dots (F, D, 3) to the ``n_planes`` planes fitted to the
+    keypoints (F, 8, 3) (see module)."""
     groups = PLANE_GROUPS[n_planes]
     F, D = dots.shape[:2]
     out = np.full((F, D), np.nan)
     for f in range(F):
-        planes = [fit_plane(keypoints[f, g]) for g in groups]
-        centroids = np.stack([c for c, _ in planes])
-        seg = np.argmin(np.linalg.norm(dots[f][:, None, :] - centroids[None], axis=2), axis=1)
-        for k, (c, n) in enumerate(planes):
+        seg = plane_segments(dots[f], keypoints[f], groups)
+        for k, g in enumerate(groups):
+            c, n = fit_plane(keypoints[f, g])
             on = seg == k
             out[f, on] = np.abs((dots[f, on] - c) @ n)
     return out
+
+
+def plane_baselines(dots: np.ndarray, keypoints: np.ndarray) -> dict[str, float]:
+    """Mean dot-to-plane distance (mm) of the 1-, 2- and 3-plane baselines: ``{"1-plane": ...}``."""
+    return {f"{n}-plane": float(np.nanmean(plane_baseline(dots, keypoints, n))) for n in PLANE_GROUPS}
 
 
 def views_histogram(visible: np.ndarray) -> dict[str, int]:
@@ -108,8 +135,7 @@ def evaluate_tracking(table: MarkerTable, groundtruth: dict, tape_min_spacing_mm
         result["visibility_histogram"] = views_histogram(np.asarray(groundtruth["visible"])[frames][:, :, order])
     if "keypoints" in groundtruth:
         kp = np.asarray(groundtruth["keypoints"], float)[frames]
-        result["plane_baselines_mm"] = {f"{n}-plane": float(np.nanmean(plane_baseline(truth, kp, n)))
-                                        for n in (1, 2, 3)}
+        result["plane_baselines_mm"] = plane_baselines(truth, kp)
     if stage_ms is not None:
         result["stage_ms"] = {k: float(v) for k, v in stage_ms.items()}
         result["total_ms_per_frame"] = float(sum(stage_ms.values()))
