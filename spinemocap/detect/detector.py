@@ -5,7 +5,10 @@ resolution:
 
 1. the whole frame reduced to 256 px wide -> coarse tape mask -> boxes around its components;
 2. each box, padded by half its size and reduced to <= 256 px on its long side -> logits,
-   bilinearly upsampled to the box at full resolution -> the mask's exact outline.
+   bilinearly upsampled to the box at full resolution -> the mask's exact outline; the box grows
+   while the mask runs out of it; dark perforated (classical) components inside the box that
+   overlap the network's mask are added (``classical_assist``: the network can stop short where
+   the tape bends sharply).
 
 ``Detector(name="classical")`` uses :mod:`spinemocap.detect.classical` instead. Either way the
 dots come from :func:`spinemocap.detect.blobs.find_dots` inside the mask.
@@ -46,7 +49,8 @@ class NetSegmenter:
     """Two-stage segmentation with :class:`TapeUNet` (see the module docstring)."""
 
     def __init__(self, weights: str | os.PathLike | None = None, refine: bool = True, threads: int | None = 1,
-                 min_area_work_px: int = 4, box_logit: float = -1.0, max_grow: int = 3):
+                 min_area_work_px: int = 4, box_logit: float = -1.0, max_grow: int = 3,
+                 classical_assist: bool = True):
         self.weights_path = Path(weights) if weights else shipped_weights_path()
         self.model, self.metadata = load_weights(self.weights_path)
         self.refine = refine
@@ -54,6 +58,7 @@ class NetSegmenter:
         self.min_area_work_px = min_area_work_px
         self.box_logit = box_logit  # stage-1 logit threshold for boxes (-1: p > 0.27)
         self.max_grow = max_grow    # times a box may grow to follow the tape out of it
+        self.classical_assist = classical_assist  # add overlapping classical components (see _refine)
 
     def _logits(self, view: np.ndarray) -> np.ndarray:
         padded, (h, w) = pad_to_multiple(view, self.model.stride)
@@ -95,7 +100,23 @@ class NetSegmenter:
         small = cv2.resize(crop, (max(8, int(round(cw * s))), max(8, int(round(ch * s)))), interpolation=cv2.INTER_AREA) if s < 1 else crop
         logits = self._logits(small)
         # The tape's mask covers its dots: fill any holes the network leaves at them.
-        return fill_holes(cv2.resize(logits, (cw, ch), interpolation=cv2.INTER_LINEAR) > 0)
+        part = fill_holes(cv2.resize(logits, (cw, ch), interpolation=cv2.INTER_LINEAR) > 0)
+        if self.classical_assist and part.any():
+            part |= _perforated_touching(crop, part)
+        return part
+
+
+def _perforated_touching(crop: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """Classical tape components (dark, perforated) in the crop that overlap the network's mask.
+    The network sometimes stops short of the tape's end where it bends sharply (a shape it saw
+    rarely in training); inside a box around the tape the classical test is reliable, and
+    requiring overlap keeps it from adding anything the network did not already point at."""
+    classical = segment_classical(crop, work_width=crop.shape[1])
+    if not classical.any():
+        return classical
+    n, labels = cv2.connectedComponents(classical.view(np.uint8), connectivity=8)
+    hit = np.unique(labels[part & classical])
+    return np.isin(labels, hit[hit > 0])
 
 
 def _grown_box(part: np.ndarray, box: tuple[slice, slice], shape: tuple[int, int]) -> tuple[slice, slice] | None:
