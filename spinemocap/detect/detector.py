@@ -83,13 +83,14 @@ class NetSegmenter:
             if area < self.min_area_work_px:
                 continue
             box = _padded_box(x * sx, y * sy, (x + bw) * sx, (y + bh) * sy, (h, w))
-            for _ in range(self.max_grow + 1):
-                part = self._refine(image, box)
+            part = self._refine(image, box)
+            for _ in range(self.max_grow):
                 grown = _grown_box(part, box, (h, w))
                 if grown is None:
                     break
                 box = grown  # the tape runs out of the box: follow it
-            mask[box] |= part
+                part = self._refine(image, box)
+            mask[box] |= part  # part always belongs to the final box
         return mask
 
     def _refine(self, image: np.ndarray, box: tuple[slice, slice]) -> np.ndarray:
