@@ -80,7 +80,8 @@ def _command(args) -> str:
     for key, value in sorted(vars(args).items()):
         if key in ("func", "command", "detector_command", "verbose", "quiet") or value is None:
             continue
-        parts += [f"--{key.replace('_', '-')}", shlex.quote(str(value))]
+        values = value if isinstance(value, list) else [value]
+        parts += [f"--{key.replace('_', '-')}"] + [shlex.quote(str(v)) for v in values]
     return " ".join(parts)
 
 
