@@ -112,3 +112,31 @@ def test_cli_run_writes_dots_and_overlay(tmp_path):
 def test_unknown_detector_name():
     with pytest.raises(ValueError, match="unknown detector"):
         Detector("maskrcnn-please")
+
+
+def test_growing_stage2_box_pastes_the_mask_of_the_final_box(monkeypatch):
+    """A tape running out of every box makes the box grow max_grow times; the mask pasted into
+    the frame must be the one computed for the final box (regression: it was the previous
+    box's, a broadcast error on bent tapes)."""
+    from spinemocap.detect.detector import NetSegmenter
+
+    seg = NetSegmenter(max_grow=1)
+
+    def coarse_logits(view):  # one small tape component in the middle of the working view
+        logits = np.full(view.shape[:2], -5.0, np.float32)
+        h, w = logits.shape
+        logits[h // 2 - 2: h // 2 + 2, w // 2 - 2: w // 2 + 2] = 5.0
+        return logits
+
+    refined_boxes = []
+
+    def refine_everything(image, box):  # stage 2 says: tape everywhere in the box (touches its edges)
+        refined_boxes.append(box)
+        return np.ones((box[0].stop - box[0].start, box[1].stop - box[1].start), bool)
+
+    monkeypatch.setattr(seg, "_logits", coarse_logits)
+    monkeypatch.setattr(seg, "_refine", refine_everything)
+    mask = seg(np.zeros((960, 1280, 3), np.uint8))
+    final = refined_boxes[-1]
+    assert len(refined_boxes) == 2  # the first box, then one growth
+    assert mask[final].all() and mask.sum() == mask[final].size
