@@ -5,13 +5,14 @@
 1. The synthetic studio (tiny preset: 3 cameras, small images) renders 12 captures of anny
    bodies of three phenotypes (the subjects) doing two movements (the conditions: slow forward
    flexion, and a tennis forehand), two trials each with different seeds. A 13-row tape runs
-   from S1, so the lumbar angle S1 -> T12/L1 lies on it. Existing captures are kept.
+   from L4 (the lowest start at which it lies flat on anny: lower ones fold into the gluteal
+   cleft), so the lumbar angle is measured L4 -> T12/L1. Existing captures are kept.
 2. ``run_batch`` computes the spine angles of every trial, on the studio's ground-truth markers
    by default (``--source tracked`` runs the tracker first), on a local process pool.
 3. ``write_report`` writes study_out/results/report.html plus CSV/XLSX tables.
 
 Same as the command line: ``spinemocap batch study_out/study --out study_out/results --source
-groundtruth --report``.
+groundtruth --lumbar L4 T12/L1 --report``.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from spinemocap.analysis.angles import AngleSettings
 from spinemocap.analysis.batch import run_batch
 from spinemocap.analysis.report import write_report
 from spinemocap.synth import SynthConfig, write_capture
@@ -30,6 +32,7 @@ SUBJECTS = {  # anny phenotypes in [0, 1]
 }
 CONDITIONS = {"flexion": "flexion", "forehand": "forehand"}  # condition -> studio motion
 TRIALS = 2
+TAPE_START = "L4"  # vertebral level of the tape's first row (and the lumbar angle's lower end)
 
 
 def make_study(root: Path, frames: int, fps: float) -> None:
@@ -41,7 +44,7 @@ def make_study(root: Path, frames: int, fps: float) -> None:
                     continue
                 print(f"synthesizing {folder}")
                 config = SynthConfig.preset("tiny", motion=motion, frames=frames, fps=fps, rows=13,
-                                            tape_start="S1", phenotype=phenotype, seed=10 * s + trial,
+                                            tape_start=TAPE_START, phenotype=phenotype, seed=10 * s + trial,
                                             name=f"{subject}-{condition}-{trial}")
                 write_capture(config, folder, progress=False)
 
@@ -56,7 +59,8 @@ def main() -> None:
     args = parser.parse_args()
 
     make_study(args.out / "study", args.frames, args.fps)
-    result = run_batch(args.out / "study", args.out / "results", source=args.source, workers=args.workers)
+    result = run_batch(args.out / "study", args.out / "results", source=args.source, workers=args.workers,
+                       settings=AngleSettings(lower=TAPE_START))
     for trial in result.failed:
         print(f"FAILED {trial['key']}: {trial['reason']}")
     paths = write_report(args.out / "results", title="Synthetic study: lumbar angles")

@@ -311,3 +311,10 @@ def test_motions_start_neutral_and_have_their_character():
     assert speed.max() > 500  # deg/s: a fast axial swing
     with pytest.raises(ValueError, match="unknown motion"):
         spine_motion("moonwalk", t)
+
+
+def test_tape_that_cannot_lie_flat_is_refused():
+    """Laid from S1, anny's gluteal cleft would squeeze the first row's dots together: refused with
+    a message naming the start, the dots and the distortion; the default start lies flat."""
+    with pytest.raises(ValueError, match=r"starting at S1 does not lie flat.*R01L-R01R.*% off"):
+        build_scene(SynthConfig.preset("tiny", rows=13, tape_start="S1"))
