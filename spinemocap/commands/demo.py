@@ -37,8 +37,9 @@ def step_synthesize(ctx: DemoContext) -> None:
     from spinemocap.synth import SynthConfig, write_capture
 
     frames = 4 if ctx.quick else 12
-    config = SynthConfig.preset("artificial", frames=frames, size=(640, 480), rows=9, occlusion="light",
-                                name="demo")
+    # 25 fps so the few frames span half a second of the motion (the report shows the spine moving)
+    config = SynthConfig.preset("artificial", frames=frames, fps=25.0, size=(640, 480), rows=9,
+                                occlusion="light", name="demo")
     ctx.capture_dir = write_capture(config, ctx.out / "capture", progress=True)
     ctx.report("capture (tracker input)", ctx.capture_dir / "capture.toml")
     ctx.report("camera rig", ctx.capture_dir / "rig.toml")
