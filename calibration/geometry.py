@@ -7,6 +7,7 @@ from typing import Sequence
 import numpy as np
 
 from spinemocap.camera import Camera, Rig
+from spinemocap.geometry import triangulate_dlt, umeyama  # noqa: F401  (umeyama: re-exported)
 
 
 def rodrigues(rvecs: np.ndarray) -> np.ndarray:
@@ -34,16 +35,9 @@ def _skew(v: np.ndarray) -> np.ndarray:
 def triangulate(cameras: Sequence[Camera], pixels: np.ndarray) -> np.ndarray:
     """One 3D point (mm) from its distorted pixels (C, 2) in ``cameras``: linear least squares
     (DLT) on undistorted normalized coordinates."""
-    rows = []
-    for cam, px in zip(cameras, pixels):
-        x, y = cam.undistort_points(px[None], normalized=True)[0]
-        P = np.hstack([cam.R, cam.t[:, None]])
-        rows += [x * P[2] - P[0], y * P[2] - P[1]]
-    A = np.asarray(rows)
-    A /= np.linalg.norm(A[:, :3], axis=1, keepdims=True)
-    _, _, vt = np.linalg.svd(A)
-    X = vt[-1]
-    return X[:3] / X[3]
+    P = np.stack([np.hstack([cam.R, cam.t[:, None]]) for cam in cameras])
+    uv = np.stack([cam.undistort_points(px[None], normalized=True)[0] for cam, px in zip(cameras, pixels)])
+    return triangulate_dlt(P, uv[None], np.ones((1, len(cameras)), bool))[0]
 
 
 def rigid_fit(model: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -51,20 +45,6 @@ def rigid_fit(model: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.n
     R, t, _ = umeyama(model, observed, with_scale=False)
     rms = float(np.sqrt(np.mean(np.sum((model @ R.T + t - observed) ** 2, axis=1))))
     return R, t, rms
-
-
-def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
-    """Similarity (R, t, s) minimizing |s R source + t - target|^2 (Umeyama 1991)."""
-    source, target = np.asarray(source, float), np.asarray(target, float)
-    mu_s, mu_t = source.mean(axis=0), target.mean(axis=0)
-    a, b = source - mu_s, target - mu_t
-    U, S, Vt = np.linalg.svd(b.T @ a / len(a))
-    D = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        D[2, 2] = -1
-    R = U @ D @ Vt
-    s = float(np.trace(np.diag(S) @ D) / np.mean(np.sum(a * a, axis=1))) if with_scale else 1.0
-    return R, mu_t - s * R @ mu_s, s
 
 
 def transform_rig(rig: Rig, R: np.ndarray, t: np.ndarray, scale: float = 1.0) -> Rig:

@@ -21,6 +21,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..camera import Rig
+from ..geometry import triangulate_dlt
 from .types import CandidateCloud, ViewDots
 
 
@@ -62,22 +63,6 @@ def epipolar_distance(F: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarr
     return np.maximum(d1, d2)
 
 
-def triangulate(P: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
-    """Batched linear (DLT) triangulation.
-
-    ``P`` (C, 3, 4) projection matrices; ``uv`` (N, C, 2) undistorted pixels; ``used`` (N, C) bool.
-    Returns (N, 3) world points (mm). Unused cameras contribute zero rows."""
-    rows_u = uv[:, :, 0:1] * P[None, :, 2, :] - P[None, :, 0, :]  # (N, C, 4)
-    rows_v = uv[:, :, 1:2] * P[None, :, 2, :] - P[None, :, 1, :]
-    A = np.concatenate([rows_u, rows_v], axis=1) * np.tile(used, (1, 2))[:, :, None]
-    # Scale rows for conditioning: world mm and pixels differ by orders of magnitude.
-    A /= np.maximum(np.linalg.norm(A, axis=2, keepdims=True), 1e-12)
-    _, _, vt = np.linalg.svd(A)
-    X = vt[:, -1, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return X[:, :3] / X[:, 3:4]
-
-
 def reprojection_errors(P: np.ndarray, points: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
     """(N, C) reprojection error in undistorted px (NaN where unused or behind the camera)."""
     Xh = np.column_stack([points, np.ones(len(points))])
@@ -112,7 +97,7 @@ class _Views:
         """Triangulate each row of blob ids; returns points (N, 3), RMS residual (N,) and a
         validity mask (N,) = finite, in front of all used cameras, max error below th1."""
         uv, used = self.gather(blob_ids)
-        points = triangulate(self.P, uv, used)
+        points = triangulate_dlt(self.P, uv, used)
         err = reprojection_errors(self.P, points, uv, used)
         with np.errstate(invalid="ignore"):
             ok = np.isfinite(points).all(axis=1) & ~(np.isnan(err) & used).any(axis=1)

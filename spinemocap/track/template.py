@@ -22,6 +22,7 @@ import numpy as np
 from numpy.polynomial import polynomial as npoly
 from scipy.spatial import cKDTree
 
+from ..geometry import umeyama
 from ..tape import TapeGraph
 from .normals import NormalField, _unit
 
@@ -196,15 +197,6 @@ def build_template(
     return Template(positions=positions, normals=node_normals, curve=curve, orientation=orientation, offset_mm=s0)
 
 
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation R and translation t minimising |R src + t - dst|^2 (rows are points)."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    u, _, vt = np.linalg.svd((src - cs).T @ (dst - cd))
-    flip = np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
-    rot = vt.T @ flip @ u.T
-    return rot, cd - rot @ cs
-
-
 def align_rigidly(dots: np.ndarray, points: np.ndarray, iterations: int = 12, inlier_mm: float = 12.0) -> np.ndarray:
     """Move labelled dots (N, 3) rigidly onto the feasible points (K, 3) by trimmed ICP: each
     iteration pairs every dot with its nearest point, keeps pairs closer than a threshold that
@@ -222,7 +214,7 @@ def align_rigidly(dots: np.ndarray, points: np.ndarray, iterations: int = 12, in
         if pairs.sum() < 3:
             shift = shift + (points[idx[pairs]] - moved[pairs]).mean(axis=0)
             continue
-        rot, shift = _kabsch(dots[pairs], points[idx[pairs]])
+        rot, shift, _ = umeyama(dots[pairs], points[idx[pairs]], with_scale=False)
     return dots @ rot.T + shift
 
 

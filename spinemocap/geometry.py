@@ -1,0 +1,36 @@
+"""Geometry shared by the tracker and the calibration package: linear triangulation and the
+least-squares similarity between point sets. Millimetres in, millimetres out."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def triangulate_dlt(P: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
+    """Batched linear (DLT) triangulation.
+
+    ``P`` (C, 3, 4) projection matrices; ``uv`` (N, C, 2) undistorted pixels; ``used`` (N, C) bool.
+    Returns (N, 3) world points (mm). Unused cameras contribute zero rows."""
+    rows_u = uv[:, :, 0:1] * P[None, :, 2, :] - P[None, :, 0, :]  # (N, C, 4)
+    rows_v = uv[:, :, 1:2] * P[None, :, 2, :] - P[None, :, 1, :]
+    A = np.concatenate([rows_u, rows_v], axis=1) * np.tile(used, (1, 2))[:, :, None]
+    # Scale rows for conditioning: world mm and pixels differ by orders of magnitude.
+    A /= np.maximum(np.linalg.norm(A, axis=2, keepdims=True), 1e-12)
+    _, _, vt = np.linalg.svd(A)
+    X = vt[:, -1, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return X[:, :3] / X[:, 3:4]
+
+
+def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
+    """Similarity (R, t, s) minimizing |s R source + t - target|^2 (Umeyama 1991)."""
+    source, target = np.asarray(source, float), np.asarray(target, float)
+    mu_s, mu_t = source.mean(axis=0), target.mean(axis=0)
+    a, b = source - mu_s, target - mu_t
+    U, S, Vt = np.linalg.svd(b.T @ a / len(a))
+    D = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        D[2, 2] = -1
+    R = U @ D @ Vt
+    s = float(np.trace(np.diag(S) @ D) / np.mean(np.sum(a * a, axis=1))) if with_scale else 1.0
+    return R, mu_t - s * R @ mu_s, s
