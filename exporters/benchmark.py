@@ -19,6 +19,7 @@ from typing import Callable
 
 import numpy as np
 
+from spinemocap.fileio import atomic_write
 from spinemocap.markers import MarkerTable
 
 from . import read, write
@@ -95,5 +96,6 @@ def run_export_benchmark(n_frames: int = 548, n_markers: int = 32, repeat: int =
             print(f"{key:14s} {value['write_ms']:9.1f} {value['read_ms']:9.1f}")
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "export_bench.json").write_text(json.dumps(results, indent=2))
+        with atomic_write(out / "export_bench.json") as handle:
+            json.dump(results, handle, indent=2)
     return results

@@ -16,6 +16,7 @@ from typing import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..fileio import atomic_write
 from ..tape import TapeSpec
 from .frames import neutral_frame
 
@@ -115,4 +116,5 @@ def write_bent_capture(folder, tape: TapeSpec, peak_flexion_deg: float, n_frames
     columns = [k for k, label in enumerate(tape.labels) if int(label[1:3]) in hidden_rows]
     if columns:
         dots[hidden_frames, columns] = np.nan
-    np.savez(folder / "groundtruth.npz", labels=np.array(tape.labels), dots=dots)
+    with atomic_write(folder / "groundtruth.npz", "wb") as handle:
+        np.savez(handle, labels=np.array(tape.labels), dots=dots)
