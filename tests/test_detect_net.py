@@ -130,12 +130,12 @@ def test_growing_stage2_box_pastes_the_mask_of_the_final_box(monkeypatch):
 
     refined_boxes = []
 
-    def refine_everything(image, box):  # stage 2 says: tape everywhere in the box (touches its edges)
+    def net_says_everything(image, box):  # stage 2 says: tape everywhere in the box (touches its edges)
         refined_boxes.append(box)
         return np.ones((box[0].stop - box[0].start, box[1].stop - box[1].start), bool)
 
     monkeypatch.setattr(seg, "_logits", coarse_logits)
-    monkeypatch.setattr(seg, "_refine", refine_everything)
+    monkeypatch.setattr(seg, "_net_mask", net_says_everything)
     mask = seg(np.zeros((960, 1280, 3), np.uint8))
     final = refined_boxes[-1]
     assert len(refined_boxes) == 2  # the first box, then one growth

@@ -5,10 +5,12 @@ resolution:
 
 1. the whole frame reduced to 256 px wide -> coarse tape mask -> boxes around its components;
 2. each box, padded by half its size and reduced to <= 256 px on its long side -> logits,
-   bilinearly upsampled to the box at full resolution -> the mask's exact outline; the box grows
-   while the mask runs out of it; optionally (``classical_assist=True``, off by default) dark
-   perforated (classical) components inside the box that overlap the network's mask are added
-   (the network can stop short where the tape bends sharply).
+   bilinearly upsampled to the box at full resolution;
+3. at full resolution (``refine=True``, :mod:`spinemocap.detect.refine`): components without a
+   dot are dropped, dark dotted regions that continue the tape are added (the network can stop
+   short where the tape bends or lies in shadow), and while the mask runs out of its box the
+   box grows and steps 2-3 repeat, keeping only the network's answer that touches the tape
+   followed so far; finally the outline is snapped onto the tape's edge.
 
 ``Detector(name="classical")`` uses :mod:`spinemocap.detect.classical` instead. Either way the
 dots come from :func:`spinemocap.detect.blobs.find_dots` inside the mask.
@@ -34,6 +36,7 @@ from .blobs import BlobParams, fill_holes, find_dots, to_grey
 from .classical import segment_classical
 from .dataset import CROP_PAD, WORK_WIDTH, crop_scale, frame_view
 from .instances import split_instances, union
+from .refine import RefineParams, extend_along_tape, snap_to_edges
 from .segnet import TapeUNet, load_weights, pad_to_multiple, to_tensor
 
 SHIPPED_WEIGHTS = "tape_unet.pt"
@@ -50,18 +53,15 @@ class NetSegmenter:
 
     def __init__(self, weights: str | os.PathLike | None = None, refine: bool = True, threads: int | None = 1,
                  min_area_work_px: int = 4, box_logit: float = -1.0, max_grow: int = 3,
-                 classical_assist: bool = False):
+                 refine_params: RefineParams | None = None):
         self.weights_path = Path(weights) if weights else shipped_weights_path()
         self.model, self.metadata = load_weights(self.weights_path)
-        self.refine = refine
+        self.refine = refine  # False: stage 1 only, upsampled (a quick look; no boxes)
         self.threads = threads
         self.min_area_work_px = min_area_work_px
         self.box_logit = box_logit  # stage-1 logit threshold for boxes (-1: p > 0.27)
         self.max_grow = max_grow    # times a box may grow to follow the tape out of it
-        # Off by default: under occlusion it adds skin-coloured balls touching the tape to the mask,
-        # and their blobs cost the tracker label swaps (bench track heavy, 100 frames: 0.37 mm and
-        # 0 swaps without it, 2.40 mm and 111 swapped dot-frames with it).
-        self.classical_assist = classical_assist  # add overlapping classical components (see _refine)
+        self.refine_params = refine_params or RefineParams()
 
     def _logits(self, view: np.ndarray) -> np.ndarray:
         padded, (h, w) = pad_to_multiple(view, self.model.stride)
@@ -86,40 +86,41 @@ class NetSegmenter:
             if area < self.min_area_work_px:
                 continue
             box = _padded_box(x * sx, y * sy, (x + bw) * sx, (y + bh) * sy, (h, w))
-            part = self._refine(image, box)
+            part = extend_along_tape(image[box], self._net_mask(image, box), self.refine_params)
             for _ in range(self.max_grow):
                 grown = _grown_box(part, box, (h, w))
                 if grown is None:
                     break
-                box = grown  # the tape runs out of the box: follow it
-                part = self._refine(image, box)
-            mask[box] |= part  # part always belongs to the final box
+                so_far = _moved(part, box, grown)  # the tape runs out of the box: follow it
+                seen = _touching(self._net_mask(image, grown), so_far)
+                part = extend_along_tape(image[grown], so_far | seen, self.refine_params)
+                box = grown
+            mask[box] |= snap_to_edges(image[box], part, self.refine_params)  # part belongs to the final box
         return mask
 
-    def _refine(self, image: np.ndarray, box: tuple[slice, slice]) -> np.ndarray:
-        """Stage 2: tape mask (bool, box size) of one full-resolution box."""
+    def _net_mask(self, image: np.ndarray, box: tuple[slice, slice]) -> np.ndarray:
+        """Stage 2: the network's tape mask (bool, box size, holes filled) of one box."""
         crop = image[box]
         s = crop_scale(box, WORK_WIDTH)
         ch, cw = crop.shape[:2]
         small = cv2.resize(crop, (max(8, int(round(cw * s))), max(8, int(round(ch * s)))), interpolation=cv2.INTER_AREA) if s < 1 else crop
         logits = self._logits(small)
         # The tape's mask covers its dots: fill any holes the network leaves at them.
-        part = fill_holes(cv2.resize(logits, (cw, ch), interpolation=cv2.INTER_LINEAR) > 0)
-        if self.classical_assist and part.any():
-            part |= _perforated_touching(crop, part)
-        return part
+        return fill_holes(cv2.resize(logits, (cw, ch), interpolation=cv2.INTER_LINEAR) > 0)
 
 
-def _perforated_touching(crop: np.ndarray, part: np.ndarray) -> np.ndarray:
-    """Classical tape components (dark, perforated) in the crop that overlap the network's mask.
-    The network sometimes stops short of the tape's end where it bends sharply (a shape it saw
-    rarely in training); inside a box around the tape the classical test is reliable, and
-    requiring overlap keeps it from adding anything the network did not already point at."""
-    classical = segment_classical(crop, work_width=crop.shape[1])
-    if not classical.any():
-        return classical
-    n, labels = cv2.connectedComponents(classical.view(np.uint8), connectivity=8)
-    hit = np.unique(labels[part & classical])
+def _moved(part: np.ndarray, box: tuple[slice, slice], grown: tuple[slice, slice]) -> np.ndarray:
+    """``part`` (mask of ``box``) placed into a mask of the larger box ``grown``."""
+    out = np.zeros((grown[0].stop - grown[0].start, grown[1].stop - grown[1].start), bool)
+    out[box[0].start - grown[0].start:box[0].stop - grown[0].start,
+        box[1].start - grown[1].start:box[1].stop - grown[1].start] = part
+    return out
+
+
+def _touching(mask: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """The components of ``mask`` that overlap ``reference`` (both bool, same shape)."""
+    n, labels = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
+    hit = np.unique(labels[mask & reference])
     return np.isin(labels, hit[hit > 0])
 
 

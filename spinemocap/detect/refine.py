@@ -1,0 +1,169 @@
+"""Full-resolution clean-up of the network's tape mask inside one stage-2 box.
+
+The network sees each box at <= 256 px, so its outline, upsampled to full resolution, runs
+~1-2 px outside the tape's edge, and it can stop short of the tape where the tape bends or lies
+in shadow, or answer weakly along body silhouettes. Each step below tests what tape *is* (dark,
+perforated by dots at the tape's own density, no wider than the tape) on the full-resolution
+pixels of the box:
+
+1. :func:`keep_dotted`: mask components that carry no dot are dropped;
+2. :func:`extend_along_tape`: dark regions touching the mask join it when they look like more
+   of the same tape (dots not yet found, at the tape's density, mostly dark, no wider than it).
+   Skin-coloured occluders (balls, arms) are not dark, and dark background or shaded skin has
+   no dots at the tape's density, so neither joins;
+3. :func:`snap_to_edges`: pixels within a few px of the outline are re-decided by a local
+   threshold midway between the tape's level and the skin's level just outside it.
+
+All functions take the box crop (BGR or grey uint8, (h, w[, 3])) and a bool mask of the same
+size, and return a bool mask; px are full-resolution image pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .blobs import estimate_dot_diameter, fill_holes, find_dots, to_grey
+
+
+@dataclass
+class RefineParams:
+    """Tuning of the mask clean-up (sizes in full-resolution px unless stated)."""
+
+    band_px: int = 3                # snap: outline pixels re-decided within this distance
+    level_sigma_px: float = 12.0    # snap: smoothing of the local tape / skin levels
+    min_new_dots: int = 2           # extend: a region must show at least this many new dots
+    min_density_ratio: float = 0.4  # extend: its dots per px >= this x the tape's
+    min_dark_share: float = 0.6     # extend: share of its pixels darker than the threshold
+    max_width_ratio: float = 1.3    # extend: its width <= this x the tape's width
+    max_area_per_dot: float = 3.0   # extend: its area <= this x (new dots + 1) x tape area per dot
+
+
+def _disc(radius: int) -> np.ndarray:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+
+
+def _grow(mask: np.ndarray, radius: int) -> np.ndarray:
+    return cv2.dilate(mask.view(np.uint8), _disc(radius)).view(bool)
+
+
+def _shrink(mask: np.ndarray, radius: int) -> np.ndarray:
+    return cv2.erode(mask.view(np.uint8), _disc(radius)).view(bool)
+
+
+def _levels(grey: np.ndarray, mask: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Pixels that sample the tape (inside the mask, away from its edge, darker than the median
+    there, i.e. not a dot) and the skin (a ring just outside the mask); None when either is thin."""
+    inner = _shrink(mask, band + 1)
+    ring = _grow(mask, 3 * band + 1) & ~_grow(mask, band + 1)
+    if inner.sum() < 20 or ring.sum() < 20:
+        return None
+    tape = inner & (grey <= np.median(grey[inner]))
+    return tape, ring
+
+
+def dark_threshold(grey: np.ndarray, mask: np.ndarray, band: int = 3) -> float | None:
+    """Grey level midway between the tape (median of its dark pixels) and the skin around it."""
+    samples = _levels(grey, mask, band)
+    if samples is None:
+        return None
+    tape, ring = samples
+    return 0.5 * (float(np.median(grey[tape])) + float(np.median(grey[ring])))
+
+
+def _local_mean(grey: np.ndarray, weight: np.ndarray, sigma: float, fallback: float) -> np.ndarray:
+    """Weighted Gaussian mean of ``grey`` over the pixels in ``weight``; computed on a 4x
+    smaller grid (the levels vary slowly) and ``fallback`` where no weight is near."""
+    h, w = grey.shape
+    small = (max(1, w // 4), max(1, h // 4))
+    g = cv2.resize(grey * weight, small, interpolation=cv2.INTER_AREA)
+    wt = cv2.resize(weight, small, interpolation=cv2.INTER_AREA)
+    s = max(sigma / 4, 0.5)
+    num, den = cv2.GaussianBlur(g, (0, 0), s), cv2.GaussianBlur(wt, (0, 0), s)
+    mean = np.where(den > 1e-3, num / np.maximum(den, 1e-6), fallback).astype(np.float32)
+    return cv2.resize(mean, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
+def snap_to_edges(crop: np.ndarray, mask: np.ndarray, params: RefineParams | None = None) -> np.ndarray:
+    """``mask`` with its outline moved onto the tape's edge (pixels within ``band_px`` of it are
+    tape when darker than midway between the local tape and skin levels)."""
+    p = params or RefineParams()
+    if not mask.any():
+        return mask
+    grey = to_grey(crop).astype(np.float32)
+    samples = _levels(grey, mask, p.band_px)
+    if samples is None:
+        return mask
+    tape, ring = samples
+    tape_level = _local_mean(grey, tape.astype(np.float32), p.level_sigma_px, float(np.median(grey[tape])))
+    skin_level = _local_mean(grey, ring.astype(np.float32), p.level_sigma_px, float(np.median(grey[ring])))
+    band = _grow(mask, p.band_px) & ~_shrink(mask, p.band_px)
+    snapped = (mask & ~band) | (band & (grey < 0.5 * (tape_level + skin_level)))
+    return fill_holes(snapped)
+
+
+def keep_dotted(crop: np.ndarray, mask: np.ndarray, dots_uv: np.ndarray) -> np.ndarray:
+    """The components of ``mask`` that contain at least one of ``dots_uv`` ((N, 2) px, x y)."""
+    n, labels = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
+    if n <= 2 and len(dots_uv):
+        return mask
+    ij = np.clip(np.round(dots_uv).astype(int), 0, [mask.shape[1] - 1, mask.shape[0] - 1])
+    hit = np.unique(labels[ij[:, 1], ij[:, 0]]) if len(ij) else np.zeros(0, int)
+    return np.isin(labels, hit[hit > 0])
+
+
+def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams | None = None) -> np.ndarray:
+    """``mask`` (hole-filled), less its dot-less components, plus the dark regions touching it that
+    look like more of the same tape (see the module docstring). Unchanged when the mask shows
+    fewer than two dots (nothing to measure the tape by)."""
+    p = params or RefineParams()
+    base = fill_holes(mask)
+    if base.sum() < 50:
+        return base
+    dots, _ = find_dots(crop, base)
+    if len(dots) < 2:
+        return base
+    base = keep_dotted(crop, base, dots)
+    grey = to_grey(crop).astype(np.float32)
+    threshold = dark_threshold(grey, base, p.band_px)
+    if threshold is None:
+        return base
+    d = estimate_dot_diameter(base) or 4.0
+    width = 2.0 * float(np.percentile(cv2.distanceTransform(base.view(np.uint8), cv2.DIST_L2, 5)[base], 98))
+    area_per_dot = base.sum() / len(dots)
+    dark = grey < threshold
+    # Candidate regions: dark pixels outside the mask that touch it, with what they enclose.
+    n, labels = cv2.connectedComponents((dark & ~base).view(np.uint8), connectivity=8)
+    touching = np.unique(labels[_grow(base, 1) & ~base])
+    pieces = np.isin(labels, touching[touching > 0])
+    candidates = fill_holes(base | pieces) & ~base
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(candidates.view(np.uint8), connectivity=8)
+    out = base.copy()
+    for i in range(1, n):
+        x, y, w, h, area = stats[i]
+        if area < 0.5 * area_per_dot:
+            continue
+        box = (slice(y, y + h), slice(x, x + w))
+        region = labels[box] == i
+        if _looks_like_tape(crop[box], region, dark[box], dots - [x, y], d, width, area_per_dot, p):
+            out[box] |= region
+    return out
+
+
+def _looks_like_tape(crop: np.ndarray, region: np.ndarray, dark: np.ndarray, known_dots: np.ndarray, d: float,
+                     width: float, area_per_dot: float, p: RefineParams) -> bool:
+    """Does ``region`` (bool, crop-sized) look like more of the tape? ``known_dots``: dots already
+    found on the tape, in this crop's px; ``d``, ``width``, ``area_per_dot``: the tape's dot
+    diameter, width and area per dot, px."""
+    area = float(region.sum())
+    if (dark & region).sum() < p.min_dark_share * area:
+        return False
+    if 2.0 * cv2.distanceTransform(region.view(np.uint8), cv2.DIST_L2, 5).max() > p.max_width_ratio * width:
+        return False
+    new, _ = find_dots(crop, region)
+    if len(new) and len(known_dots):  # dots on the known tape's edge are found again: skip them
+        new = new[np.linalg.norm(new[:, None] - known_dots[None], axis=2).min(axis=1) > 0.5 * d]
+    return (len(new) >= p.min_new_dots and len(new) / area >= p.min_density_ratio / area_per_dot
+            and area <= p.max_area_per_dot * (len(new) + 1) * area_per_dot)

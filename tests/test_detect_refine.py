@@ -1,0 +1,70 @@
+"""Full-resolution mask clean-up (spinemocap.detect.refine) on drawn tapes with exact masks."""
+
+import cv2
+import numpy as np
+import pytest
+
+from spinemocap.detect.blobs import find_dots
+from spinemocap.detect.drawn import draw_sample
+from spinemocap.detect.refine import extend_along_tape, keep_dotted, snap_to_edges
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / (a | b).sum())
+
+
+@pytest.fixture(scope="module")
+def drawn():
+    """A vertical-ish 9-row tape, dots ~14 px, on skin; grey background."""
+    sample = draw_sample(np.random.default_rng(3), size=(480, 640), px_per_mm=1.4, n_rows=9)
+    skin = np.median(sample.image[~sample.mask], axis=0)
+    tape = np.median(sample.image[sample.mask], axis=0)
+    assert skin.mean() > tape.mean() + 40  # the drawing is what the tests assume
+    return sample
+
+
+@pytest.mark.parametrize("grow", [2, -2])
+def test_snap_moves_a_too_wide_or_too_narrow_outline_onto_the_edge(drawn, grow):
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * abs(grow) + 1,) * 2)
+    off = (cv2.dilate if grow > 0 else cv2.erode)(drawn.mask.astype(np.uint8), k).astype(bool)
+    before = iou(off, drawn.mask)
+    after = iou(snap_to_edges(drawn.image, off), drawn.mask)
+    assert before < 0.95 and after > 0.98
+
+
+def test_extension_restores_a_tape_the_mask_stops_short_of(drawn):
+    ys = np.flatnonzero(drawn.mask.any(axis=1))
+    cut = drawn.mask.copy()
+    cut[: ys[0] + (ys[-1] - ys[0]) // 2] = False  # the network saw only the lower half
+    assert iou(cut, drawn.mask) < 0.6
+    out = extend_along_tape(drawn.image, cut)
+    assert iou(snap_to_edges(drawn.image, out), drawn.mask) > 0.97
+    assert len(find_dots(drawn.image, out)[0]) == len(drawn.uv)
+
+
+def test_extension_ignores_dark_regions_without_dots_and_skin_coloured_occluders(drawn):
+    image = drawn.image.copy()
+    tape_colour = np.median(drawn.image[drawn.mask], axis=0)
+    skin_colour = np.median(drawn.image[~drawn.mask & (np.arange(640)[:, None] > 100)], axis=0)
+    ys, xs = np.nonzero(drawn.mask)
+    # a dark patch as wide as the tape beside it (shadow, hair, garment), touching the tape ...
+    patch = np.zeros_like(drawn.mask)
+    patch[ys.mean().astype(int) - 60: ys.mean().astype(int) + 60, xs.max() - 5: xs.max() + 60] = True
+    patch &= ~drawn.mask
+    image[patch] = tape_colour
+    # ... and a skin-coloured ball over the tape's middle, outside the mask
+    ball = np.zeros_like(drawn.mask)
+    cv2.circle(ball.view(np.uint8), (int(xs.mean()), int(ys.min() + 60)), 30, 1, -1)
+    image[ball] = skin_colour
+    mask = drawn.mask & ~ball
+    out = extend_along_tape(image, mask)
+    assert not (out & patch).any()
+    assert (out & ball).sum() < 0.1 * ball.sum()  # only what the filled tape outline encloses
+
+
+def test_components_without_dots_are_dropped(drawn):
+    stray = np.zeros_like(drawn.mask)
+    stray[10:40, 10:200] = True  # e.g. a weak answer along a body silhouette
+    dots, _ = find_dots(drawn.image, drawn.mask)
+    out = keep_dotted(drawn.image, drawn.mask | stray, dots)
+    assert not (out & stray).any() and (out == drawn.mask).all()
