@@ -130,7 +130,7 @@ class DotScore:
             "recall": self.tp / max(self.tp + self.fn, 1),
             "recall_unoccluded": self.unoccluded[0] / max(self.unoccluded[1], 1),
             "unoccluded_dots": self.unoccluded[1],
-            "recall_by_view_angle": {f"{edges[k]}-{edges[k + 1]} deg": {"recall": f / max(n, 1), "dots": int(n)}
+            "recall_by_view_angle": {f"{edges[k]}-{edges[k + 1]} deg": {"recall": f / n if n else None, "dots": int(n)}
                                      for k, (f, n) in enumerate(self.by_angle)},
             "precision": self.tp / max(self.tp + self.fp, 1),
             "centroid_rms_px": float(np.sqrt(np.mean(e ** 2))) if len(e) else float("nan"),
@@ -326,7 +326,7 @@ def plot(results: dict, path: Path) -> None:
     from ..fileio import atomic_path
 
     sets = results["sets"]
-    fig, axes = plt.subplots(len(sets), 3, figsize=(15, 4 * len(sets)), squeeze=False)
+    fig, axes = plt.subplots(len(sets), 3, figsize=(16, 4.4 * len(sets)), squeeze=False)
     for row, (name, s) in zip(axes, sets.items()):
         methods = list(s["dots"])
         y = np.arange(len(methods))
@@ -336,7 +336,7 @@ def plot(results: dict, path: Path) -> None:
         lowest = min(d[key] for d in s["dots"].values() for key in bars.values())
         row[0].set_xlim(min(0.9, lowest) - 0.01, 1.0)
         row[0].axvline(0.99, color="k", lw=0.8, ls="--")
-        row[0].legend(loc="lower left")
+        row[0].legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=3, fontsize=8)
         row[1].barh(y, [s["dots"][m]["centroid_rms_px"] for m in methods], 0.6)
         row[1].axvline(0.2, color="k", lw=0.8, ls="--")
         row[1].set_xlabel("centroid error RMS (px)")
@@ -347,7 +347,7 @@ def plot(results: dict, path: Path) -> None:
         row[2].barh(np.arange(len(times)), list(times.values()), 0.6)
         row[2].set_yticks(np.arange(len(times)), list(times))
         row[2].set_xlabel("ms per camera-frame (mask + dots)")
-        row[2].set_title("mask IoU: " + ", ".join(f"{k} {v:.3f}" for k, v in s["mask_iou"].items()))
+        row[2].set_title("mask IoU: " + ", ".join(f"{k} {v:.3f}" for k, v in s["mask_iou"].items()), fontsize=10)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90)
