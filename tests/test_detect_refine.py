@@ -68,3 +68,12 @@ def test_components_without_dots_are_dropped(drawn):
     dots, _ = find_dots(drawn.image, drawn.mask)
     out = keep_dotted(drawn.image, drawn.mask | stray, dots)
     assert not (out & stray).any() and (out == drawn.mask).all()
+
+
+def test_a_tape_lighter_than_the_skin_is_left_to_the_network(drawn):
+    light = 255 - drawn.image  # light tape, dark dots and skin
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    off = cv2.dilate(drawn.mask.astype(np.uint8), k).astype(bool)
+    assert (snap_to_edges(light, off) == off).all()
+    half = drawn.mask & (np.arange(drawn.mask.shape[0])[:, None] > drawn.mask.shape[0] // 2)
+    assert (extend_along_tape(light, half) == half).all()

@@ -14,6 +14,10 @@ pixels of the box:
 3. :func:`snap_to_edges`: pixels within a few px of the outline are re-decided by a local
    threshold midway between the tape's level and the skin's level just outside it.
 
+The tests assume a tape darker than the skin around it (the paper's black tape); where the tape
+is not clearly darker (a light tape, fine-tuned weights for another tape), every step leaves the
+network's mask as it is.
+
 All functions take the box crop (BGR or grey uint8, (h, w[, 3])) and a bool mask of the same
 size, and return a bool mask; px are full-resolution image pixels.
 """
@@ -39,6 +43,7 @@ class RefineParams:
     min_dark_share: float = 0.6     # extend: share of its pixels darker than the threshold
     max_width_ratio: float = 1.3    # extend: its width <= this x the tape's width
     max_area_per_dot: float = 3.0   # extend: its area <= this x (new dots + 1) x tape area per dot
+    min_contrast: float = 20.0      # grey levels the tape must be darker than the skin, else no change
 
 
 def _disc(radius: int) -> np.ndarray:
@@ -53,20 +58,24 @@ def _shrink(mask: np.ndarray, radius: int) -> np.ndarray:
     return cv2.erode(mask.view(np.uint8), _disc(radius)).view(bool)
 
 
-def _levels(grey: np.ndarray, mask: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray] | None:
+def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float) -> tuple[np.ndarray, np.ndarray] | None:
     """Pixels that sample the tape (inside the mask, away from its edge, darker than the median
-    there, i.e. not a dot) and the skin (a ring just outside the mask); None when either is thin."""
+    there, i.e. not a dot) and the skin (a ring just outside the mask). None when either is thin
+    or the tape is not clearly darker than the skin (a light tape, a wrong mask): the steps
+    that use them then leave the mask alone."""
     inner = _shrink(mask, band + 1)
     ring = _grow(mask, 3 * band + 1) & ~_grow(mask, band + 1)
     if inner.sum() < 20 or ring.sum() < 20:
         return None
     tape = inner & (grey <= np.median(grey[inner]))
+    if np.median(grey[ring]) - np.median(grey[tape]) < min_contrast:
+        return None
     return tape, ring
 
 
-def dark_threshold(grey: np.ndarray, mask: np.ndarray, band: int = 3) -> float | None:
+def dark_threshold(grey: np.ndarray, mask: np.ndarray, band: int = 3, min_contrast: float = 20.0) -> float | None:
     """Grey level midway between the tape (median of its dark pixels) and the skin around it."""
-    samples = _levels(grey, mask, band)
+    samples = _levels(grey, mask, band, min_contrast)
     if samples is None:
         return None
     tape, ring = samples
@@ -93,7 +102,7 @@ def snap_to_edges(crop: np.ndarray, mask: np.ndarray, params: RefineParams | Non
     if not mask.any():
         return mask
     grey = to_grey(crop).astype(np.float32)
-    samples = _levels(grey, mask, p.band_px)
+    samples = _levels(grey, mask, p.band_px, p.min_contrast)
     if samples is None:
         return mask
     tape, ring = samples
@@ -127,7 +136,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
         return base
     base = keep_dotted(crop, base, dots)
     grey = to_grey(crop).astype(np.float32)
-    threshold = dark_threshold(grey, base, p.band_px)
+    threshold = dark_threshold(grey, base, p.band_px, p.min_contrast)
     if threshold is None:
         return base
     d = estimate_dot_diameter(base) or 4.0
