@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 
 from ..tape import TapeGraph
 from .normals import NormalField
-from .pbp import PBPConfig, ParticleBP
+from .pbp import PBPConfig, ParticleBP, pbp_config
 from .template import build_template
 from .types import FeasibleSet, MRFResult
 
@@ -60,20 +60,7 @@ class MRF1Config:
     warm_start: bool = False  # start from `previous` (its finite rows) instead of the cubic template
 
     def pbp(self) -> PBPConfig:
-        return PBPConfig(
-            n_particles=self.particles,
-            n_slice=self.slice_particles,
-            iterations=self.iterations,
-            sweeps=self.sweeps,
-            slice_steps=self.slice_steps,
-            damping=self.damping,
-            slice_width=(self.slice_width_mm,) * 3 + (self.slice_width_d,),
-            width_decay=self.width_decay,
-            temperature=self.temperature,
-            mobility=self.mobility,
-            mobility_dims=(0, 1, 2),
-            init_spread=(self.slice_width_mm / 2,) * 3 + (self.slice_width_d / 2,),
-        )
+        return pbp_config(self, slice_width=(self.slice_width_mm,) * 3 + (self.slice_width_d,), init_spread=(self.slice_width_mm / 2,) * 3 + (self.slice_width_d / 2,))
 
 
 class AlignmentMRF:

@@ -29,7 +29,7 @@ import torch
 from ..camera import Rig
 from ..tape import TapeGraph
 from .evidence import EvidenceImage, EvidenceStack
-from .pbp import PBPConfig, ParticleBP, mrf_energy
+from .pbp import PBPConfig, ParticleBP, mrf_energy, pbp_config
 from .template import tape_frames
 from .types import MRFResult
 
@@ -74,20 +74,7 @@ class MRF2Config:
     anchor_unseen: float = 0.1
 
     def pbp(self) -> PBPConfig:
-        return PBPConfig(
-            n_particles=self.particles,
-            n_slice=self.slice_particles,
-            iterations=self.iterations,
-            sweeps=self.sweeps,
-            slice_steps=self.slice_steps,
-            damping=self.damping,
-            slice_width=(self.slice_width_mm,) * 3,
-            width_decay=self.width_decay,
-            temperature=self.temperature,
-            mobility=self.mobility,
-            mobility_dims=(0, 1, 2),
-            init_spread=(self.slice_width_mm / 3,) * 3,
-        )
+        return pbp_config(self, slice_width=(self.slice_width_mm,) * 3, init_spread=(self.slice_width_mm / 3,) * 3)
 
 
 class _TorchRig:

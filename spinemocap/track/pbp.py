@@ -71,6 +71,18 @@ class PBPConfig:
     init_spread: tuple[float, ...] = (2.0, 2.0, 2.0)
 
 
+def pbp_config(settings, slice_width: tuple[float, ...], init_spread: tuple[float, ...]) -> PBPConfig:
+    """Engine settings from an MRF's config (MRF1Config / MRF2Config: ``particles``,
+    ``slice_particles``, ``iterations``, ``sweeps``, ``slice_steps``, ``damping``, ``width_decay``,
+    ``temperature``, ``mobility``); the MRFs differ only in their state's brackets and spreads."""
+    return PBPConfig(
+        n_particles=settings.particles, n_slice=settings.slice_particles, iterations=settings.iterations,
+        sweeps=settings.sweeps, slice_steps=settings.slice_steps, damping=settings.damping,
+        slice_width=slice_width, width_decay=settings.width_decay, temperature=settings.temperature,
+        mobility=settings.mobility, mobility_dims=(0, 1, 2), init_spread=init_spread,
+    )
+
+
 @dataclass
 class PBPResult:
     """``state`` (D, S) the final estimate; ``energy_history`` its energy after each iteration
