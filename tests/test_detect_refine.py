@@ -66,7 +66,7 @@ def test_components_without_dots_are_dropped(drawn):
     stray = np.zeros_like(drawn.mask)
     stray[10:40, 10:200] = True  # e.g. a weak answer along a body silhouette
     dots, _ = find_dots(drawn.image, drawn.mask)
-    out = keep_dotted(drawn.image, drawn.mask | stray, dots)
+    out = keep_dotted(drawn.mask | stray, dots)
     assert not (out & stray).any() and (out == drawn.mask).all()
 
 

@@ -192,9 +192,10 @@ def frames_of(test: TestSet) -> list[int]:
     return [int((i + 1) * SEQUENCE_FRAMES / (test.frames + 1)) for i in range(test.frames)]
 
 
-def surface_uv(scene, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(C, D, 2) projections of dot centres on the tape surface, (C, D) visibility, (C,) dot px."""
-    gt = scene.frame_groundtruth(frame)
+def surface_uv(scene, frame: int, gt: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(C, D, 2) projections of dot centres on the tape surface, (C, D) visibility, (C,) dot px.
+    ``gt``: the frame's ground truth when the caller has it already."""
+    gt = gt if gt is not None else scene.frame_groundtruth(frame)
     surface = gt["dots"] + scene.tape.thickness_mm * gt["dot_normals"]
     uv = np.stack([cam.project(surface) for cam in scene.rig])
     dot_px = np.array([cam.K[0, 0] * scene.tape.dot_diameter_mm / np.median(cam.depth(surface)) for cam in scene.rig])
@@ -210,13 +211,12 @@ def hole_open_share(view_angle_deg: np.ndarray, thickness_mm: float, dot_diamete
     return lens / (np.pi * r * r)
 
 
-def dot_view_conditions(scene, frame: int) -> tuple[np.ndarray, np.ndarray]:
+def dot_view_conditions(scene, frame: int, gt: dict) -> tuple[np.ndarray, np.ndarray]:
     """(C, D) view angle from face-on (deg) and (C, D) bool: no ball over any of the four rim
-    points the studio's visibility test samples."""
+    points the studio's visibility test samples; ``gt``: the frame's ground truth."""
     from ..synth.occluders import segments_blocked_by_spheres
     from ..synth.visibility import rim_points
 
-    gt = scene.frame_groundtruth(frame)
     dots, normals = gt["dots"], gt["dot_normals"]
     rims = rim_points(dots, normals, scene.tape.dot_diameter_mm / 2).reshape(-1, 3)
     centres, radii = scene.balls.at(scene.times[frame])
@@ -257,8 +257,9 @@ def run(args) -> int:
             scene, cfg = held_out_scene(test, k)
             for f in frames_of(test):
                 rendered = scene.render(f)
-                uv_all, visible, dot_px = surface_uv(scene, f)
-                view_angle, rim_clear = dot_view_conditions(scene, f)
+                gt = scene.frame_groundtruth(f)
+                uv_all, visible, dot_px = surface_uv(scene, f, gt)
+                view_angle, rim_clear = dot_view_conditions(scene, f, gt)
                 open_share = hole_open_share(view_angle, scene.tape.thickness_mm, scene.tape.dot_diameter_mm)
                 for c, (image, true_mask) in enumerate(zip(rendered.images, rendered.masks)):
                     h, w = true_mask.shape

@@ -36,7 +36,7 @@ from .blobs import BlobParams, fill_holes, find_dots, to_grey
 from .classical import segment_classical
 from .dataset import CROP_PAD, WORK_WIDTH, crop_scale, frame_view
 from .instances import split_instances, union
-from .refine import RefineParams, extend_along_tape, snap_to_edges
+from .refine import RefineParams, components_touching, extend_along_tape, snap_to_edges
 from .segnet import TapeUNet, load_weights, pad_to_multiple, to_tensor
 
 SHIPPED_WEIGHTS = "tape_unet.pt"
@@ -95,7 +95,7 @@ class NetSegmenter:
                 if grown is None:
                     break
                 so_far = _moved(part, box, grown)  # the tape runs out of the box: follow it
-                seen = _touching(self._net_mask(image, grown), so_far)
+                seen = components_touching(self._net_mask(image, grown), so_far)
                 part = extend_along_tape(image[grown], so_far | seen, self.refine_params)
                 box = grown
             mask[box] |= snap_to_edges(image[box], part, self.refine_params)  # part belongs to the final box
@@ -118,13 +118,6 @@ def _moved(part: np.ndarray, box: tuple[slice, slice], grown: tuple[slice, slice
     out[box[0].start - grown[0].start:box[0].stop - grown[0].start,
         box[1].start - grown[1].start:box[1].stop - grown[1].start] = part
     return out
-
-
-def _touching(mask: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """The components of ``mask`` that overlap ``reference`` (both bool, same shape)."""
-    n, labels = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
-    hit = np.unique(labels[mask & reference])
-    return np.isin(labels, hit[hit > 0])
 
 
 def _grown_box(part: np.ndarray, box: tuple[slice, slice], shape: tuple[int, int]) -> tuple[slice, slice] | None:

@@ -73,9 +73,9 @@ def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float) 
     return tape, ring
 
 
-def dark_threshold(grey: np.ndarray, mask: np.ndarray, band: int = 3, min_contrast: float = 20.0) -> float | None:
+def dark_threshold(grey: np.ndarray, mask: np.ndarray, params: RefineParams) -> float | None:
     """Grey level midway between the tape (median of its dark pixels) and the skin around it."""
-    samples = _levels(grey, mask, band, min_contrast)
+    samples = _levels(grey, mask, params.band_px, params.min_contrast)
     if samples is None:
         return None
     tape, ring = samples
@@ -113,14 +113,19 @@ def snap_to_edges(crop: np.ndarray, mask: np.ndarray, params: RefineParams | Non
     return fill_holes(snapped)
 
 
-def keep_dotted(crop: np.ndarray, mask: np.ndarray, dots_uv: np.ndarray) -> np.ndarray:
-    """The components of ``mask`` that contain at least one of ``dots_uv`` ((N, 2) px, x y)."""
-    n, labels = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
-    if n <= 2 and len(dots_uv):
-        return mask
-    ij = np.clip(np.round(dots_uv).astype(int), 0, [mask.shape[1] - 1, mask.shape[0] - 1])
-    hit = np.unique(labels[ij[:, 1], ij[:, 0]]) if len(ij) else np.zeros(0, int)
+def components_touching(mask: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """The components of ``mask`` (8-connected) that overlap ``reference`` (both bool, same shape)."""
+    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    hit = np.unique(labels[mask & reference])
     return np.isin(labels, hit[hit > 0])
+
+
+def keep_dotted(mask: np.ndarray, dots_uv: np.ndarray) -> np.ndarray:
+    """The components of ``mask`` that contain at least one of ``dots_uv`` ((N, 2) px, x y)."""
+    at_dots = np.zeros_like(mask)
+    ij = np.clip(np.round(dots_uv).astype(int), 0, [mask.shape[1] - 1, mask.shape[0] - 1]).reshape(-1, 2)
+    at_dots[ij[:, 1], ij[:, 0]] = True
+    return components_touching(mask, at_dots)
 
 
 def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams | None = None) -> np.ndarray:
@@ -134,9 +139,9 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     dots, _ = find_dots(crop, base)
     if len(dots) < 2:
         return base
-    base = keep_dotted(crop, base, dots)
+    base = keep_dotted(base, dots)
     grey = to_grey(crop).astype(np.float32)
-    threshold = dark_threshold(grey, base, p.band_px, p.min_contrast)
+    threshold = dark_threshold(grey, base, p)
     if threshold is None:
         return base
     d = estimate_dot_diameter(base) or 4.0
