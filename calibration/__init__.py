@@ -1,6 +1,8 @@
 """Camera calibration: boards, intrinsics, extrinsics with bundle adjustment, Vicon wand
-co-registration and calibration file formats. Depends only on :mod:`spinemocap.camera`,
-:mod:`spinemocap.fileio` (and :mod:`exporters` for reading the Vicon C3D when present).
+co-registration and calibration file formats. Depends only on spinemocap's core modules
+(:mod:`spinemocap.camera`, :mod:`spinemocap.geometry`, :mod:`spinemocap.markers`,
+:mod:`spinemocap.fileio`, ...); the Vicon C3D is read by the application layer
+(:mod:`spinemocap.app.c3d_inputs`, with ``exporters.read``) and handed in as a marker table.
 
 Pipeline (one module per step):
 
@@ -11,8 +13,8 @@ Pipeline (one module per step):
 * :mod:`calibration.formats` — ours, Pose2Sim/Anipose TOML, Qualisys .qca.txt, Vicon .xcp;
 * :mod:`calibration.check` — per-camera table and reprojection-error plot;
 * :mod:`calibration.geometry` — triangulation, Umeyama, rig transforms (shared helpers);
-* :mod:`calibration.benchmark` — ``spinemocap bench calibration``.
 
-Synthetic renders of boards and a wand wave for tests live in
-:mod:`spinemocap.synth.calibration_scenes`.
+The benchmark (``spinemocap bench calibration``) and the synthetic renders of boards and a wand
+wave it and the tests use live in the application layer: :mod:`spinemocap.bench.calibration`,
+:mod:`spinemocap.bench.calibration_scenes`.
 """

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from spinemocap.capture import to_grey
 from spinemocap.fileio import InputError
 
 #: Largest accepted blur (Gaussian sigma of the board edges, px) before a view is rejected.
@@ -101,7 +102,7 @@ class BoardSpec:
         return cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_mm, self.marker_mm, dictionary)
 
     def texture(self, px_per_mm: float) -> np.ndarray:
-        """Gray uint8 image of the printed pattern, texture pixel = mm * px_per_mm - 0.5 (no margin)."""
+        """Grey uint8 image of the printed pattern, texture pixel = mm * px_per_mm - 0.5 (no margin)."""
         w_mm, h_mm = self.size_mm
         size = (int(round(w_mm * px_per_mm)), int(round(h_mm * px_per_mm)))
         if self.kind == "charuco":
@@ -125,30 +126,26 @@ class BoardDetection:
         return len(self.ids)
 
 
-def to_gray(image: np.ndarray) -> np.ndarray:
-    return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
-
-
 def detect_board(image: np.ndarray, board: BoardSpec) -> BoardDetection | None:
-    """Find the board's corners (sub-pixel) in a BGR or gray image; None when not found."""
-    gray = to_gray(image)
+    """Find the board's corners (sub-pixel) in a BGR or grey image; None when not found."""
+    grey = to_grey(image)
     if board.kind == "checkerboard":
         # The sector-based detector; its ACCURACY mode costs ~5x, so corners are refined with
         # cornerSubPix instead (no markers to avoid: the window may span a third of a square).
-        found, corners = cv2.findChessboardCornersSB(gray, (board.cols, board.rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
+        found, corners = cv2.findChessboardCornersSB(grey, (board.cols, board.rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
         if not found:
             found, corners = cv2.findChessboardCornersSB(
-                gray, (board.cols, board.rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
+                grey, (board.cols, board.rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
         if not found:
             return None
         corners = corners.reshape(-1, 2).astype(np.float32)
         win = int(np.clip(0.3 * _median_spacing(corners), 2, 15))
         crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
-        pixels = cv2.cornerSubPix(gray, corners.reshape(-1, 1, 2), (win, win), (-1, -1), crit).reshape(-1, 2).astype(float)
+        pixels = cv2.cornerSubPix(grey, corners.reshape(-1, 1, 2), (win, win), (-1, -1), crit).reshape(-1, 2).astype(float)
         ids = np.arange(len(pixels))
     else:
         detector = cv2.aruco.CharucoDetector(board.charuco_board())
-        corners, ids, _, _ = detector.detectBoard(gray)
+        corners, ids, _, _ = detector.detectBoard(grey)
         if ids is None or len(ids) < 4:
             return None
         pixels = corners.reshape(-1, 2).astype(np.float32)
@@ -158,10 +155,10 @@ def detect_board(image: np.ndarray, board: BoardSpec) -> BoardDetection | None:
         margin = 0.5 * (1.0 - board.marker_mm / board.square_mm)
         win = int(np.clip(0.8 * margin * _median_spacing(pixels), 2, 11))
         crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
-        pixels = cv2.cornerSubPix(gray, pixels.reshape(-1, 1, 2), (win, win), (-1, -1), crit).reshape(-1, 2)
+        pixels = cv2.cornerSubPix(grey, pixels.reshape(-1, 1, 2), (win, win), (-1, -1), crit).reshape(-1, 2)
         pixels = pixels.astype(float)
         ids = ids.ravel().astype(int)
-    return BoardDetection(ids, pixels, edge_blur_sigma(gray, pixels))
+    return BoardDetection(ids, pixels, edge_blur_sigma(grey, pixels))
 
 
 def _median_spacing(pixels: np.ndarray) -> float:
@@ -172,16 +169,16 @@ def _median_spacing(pixels: np.ndarray) -> float:
     return float(np.median(d.min(axis=1)))
 
 
-def edge_blur_sigma(gray: np.ndarray, corners: np.ndarray) -> float:
+def edge_blur_sigma(grey: np.ndarray, corners: np.ndarray) -> float:
     """Blur of the board edges as a Gaussian sigma (px): a step of contrast C blurred by sigma
     has peak gradient C / (sigma sqrt(2 pi)), so sigma = C / (peak gradient sqrt(2 pi)).
     Measured in patches around the corners (median over patches)."""
     half = int(np.clip(0.4 * _median_spacing(corners), 4, 30))
-    img = gray.astype(np.float32)
+    img = grey.astype(np.float32)
     gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3) / 8.0
     gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3) / 8.0
     mag = np.hypot(gx, gy)
-    h, w = gray.shape
+    h, w = grey.shape
     sigmas = []
     for u, v in np.round(corners).astype(int):
         y0, y1, x0, x1 = max(v - half, 0), min(v + half + 1, h), max(u - half, 0), min(u + half + 1, w)

@@ -51,7 +51,7 @@ def residuals_from_views(rig: Rig, board: BoardSpec, views: dict[str, dict[Hasha
         for f, det in per_frame.items():
             frames.setdefault(f, {})[name] = det
     out: dict[str, list[np.ndarray]] = {cam.name: [] for cam in rig}
-    for f, dets in frames.items():
+    for dets in frames.values():
         start = max(dets, key=lambda n: len(dets[n]))
         cam0, det0 = rig[start], dets[start]
         ok, rvec, tvec = cv2.solvePnP(model[det0.ids], det0.pixels, cam0.K, cam0.dist, flags=cv2.SOLVEPNP_IPPE)
@@ -60,7 +60,7 @@ def residuals_from_views(rig: Rig, board: BoardSpec, views: dict[str, dict[Hasha
         R0 = cam0.R.T @ cv2.Rodrigues(rvec)[0]  # board -> world
         x0 = np.concatenate([cv2.Rodrigues(R0)[0].ravel(), cam0.R.T @ (tvec.ravel() - cam0.t)])
 
-        def res(x: np.ndarray) -> np.ndarray:
+        def res(x: np.ndarray, dets: dict = dets) -> np.ndarray:
             R = cv2.Rodrigues(x[:3])[0]
             return np.concatenate([(rig[n].project(model[d.ids] @ R.T + x[3:]) - d.pixels).ravel()
                                    for n, d in dets.items()])

@@ -345,7 +345,7 @@ def _check_sizes(rig: Rig) -> None:
 def _report(rig: Rig, board: BoardSpec, detections: Detections, board_poses, obs: Observations) -> ExtrinsicsResult:
     model = board.object_points()
     residuals: dict[str, list] = defaultdict(list)
-    for c, cam in enumerate(rig):
+    for cam in rig:
         for f, det in detections.get(cam.name, {}).items():
             if f not in board_poses:
                 continue

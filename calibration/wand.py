@@ -42,6 +42,7 @@ from tqdm import tqdm
 
 from spinemocap.camera import Rig
 from spinemocap.fileio import InputError
+from spinemocap.markers import MarkerTable
 
 from .geometry import rigid_fit, transform_rig, triangulate, umeyama
 
@@ -64,21 +65,21 @@ class WandSpec:
 # ---------------------------------------------------------------------- 2D detection
 def detect_blobs(image: np.ndarray, min_area: int = 4, max_area: int = 5000) -> np.ndarray:
     """(N, 2) sub-pixel centroids of bright round blobs (intensity-weighted above background)."""
-    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
-    background = float(np.median(gray[::8, ::8]))
-    peak = float(gray.max())
+    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+    background = float(np.median(grey[::8, ::8]))
+    peak = float(grey.max())
     if peak - background < 40:
         return np.zeros((0, 2))
     level = (background + peak) / 2
-    mask = gray > level
+    mask = grey > level
     ys, xs = np.nonzero(mask)
     # Work in the bounding box of the bright pixels (markers are a tiny part of the image).
     pad = 12
     oy, ox = max(int(ys.min()) - pad, 0), max(int(xs.min()) - pad, 0)
-    gray = gray[oy:int(ys.max()) + pad + 1, ox:int(xs.max()) + pad + 1]
+    grey = grey[oy:int(ys.max()) + pad + 1, ox:int(xs.max()) + pad + 1]
     mask = mask[oy:int(ys.max()) + pad + 1, ox:int(xs.max()) + pad + 1]
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
-    weights = np.clip(gray.astype(np.float32) - background, 0, None)
+    weights = np.clip(grey.astype(np.float32) - background, 0, None)
     centres = []
     for k in range(1, n):
         x, y, w, h, area = stats[k]
@@ -112,7 +113,7 @@ def identify_wand(blobs: np.ndarray, wand: WandSpec, max_line_error: float = 0.0
         off = abs(line[0] * rel[1] - line[1] * rel[0]) / span
         scores.append((off, triple, (triple[i], triple[middle], triple[j])))
     scores.sort(key=lambda s: s[0])
-    (off1, t1, o1), (off2, t2, o2) = scores[0], scores[1]
+    (_, t1, o1), (off2, t2, o2) = scores[0], scores[1]
     if off2 > max_line_error or scores[2][0] < 3 * off2 or len(set(t1) & set(t2)) != 1:
         return None
     junction = (set(t1) & set(t2)).pop()
@@ -221,11 +222,14 @@ class ViconWand:
     source: str
 
 
-def read_vicon_wand(path: str | os.PathLike, wand: WandSpec) -> ViconWand:
-    """Read the wand markers from a Vicon C3D (labels as in ``wand.labels``, case-insensitive,
-    subject prefixes like ``Wand:WAND1`` accepted)."""
-    table = _read_c3d_points(path)
-    labels, points, rate = table
+def vicon_wand_from_table(table: MarkerTable, wand: WandSpec, source: str | os.PathLike | None = None) -> ViconWand:
+    """The wand markers of a Vicon marker table (read from its C3D by the application layer with
+    ``exporters.read``; labels as in ``wand.labels``, case-insensitive, subject prefixes like
+    ``Wand:WAND1`` accepted). ``source`` names the file in errors."""
+    labels = [str(lab) for lab in table.labels]
+    _, points = table.dense()
+    rate = float(table.fps)
+    path = source
     simple = [lab.split(":")[-1].strip().upper() for lab in labels]
     index = []
     missing = []
@@ -244,48 +248,6 @@ def read_vicon_wand(path: str | os.PathLike, wand: WandSpec) -> ViconWand:
         raise InputError(path, f"only {int(valid.sum())} frames with all wand markers; capture a longer "
                          "wand wave with the wand in view of the Vicon cameras")
     return ViconWand(pts, rate, str(path))
-
-
-def _read_c3d_points(path: str | os.PathLike) -> tuple[list[str], np.ndarray, float]:
-    """(labels, (J, N, 3) mm with NaN for missing, rate) from a C3D, via exporters.read when the
-    exporters package exists, else the ``c3d`` package."""
-    try:
-        from exporters import read as exporters_read  # type: ignore
-    except ImportError:
-        exporters_read = None
-    if exporters_read is not None:
-        table = exporters_read(path)
-        arrays = table.to_arrays()
-        frames = np.asarray(arrays["frames"], int)
-        # Dense over the C3D's frame range (frames absent from the table become NaN gaps).
-        points = np.full((frames[-1] - frames[0] + 1, len(arrays["labels"]), 3), np.nan)
-        points[frames - frames[0]] = arrays["positions"]
-        return [str(lab) for lab in arrays["labels"]], points, float(table.fps)
-    import c3d
-
-    if not os.path.isfile(path):
-        raise InputError(path, "file not found")
-    try:
-        with open(path, "rb") as handle:
-            reader = c3d.Reader(handle)
-            labels = [str(lab).strip() for lab in reader.point_labels]
-            rate = float(reader.point_rate)
-            units = reader.get("POINT:UNITS").string_value.strip().lower() if reader.get("POINT:UNITS") else "mm"
-            frames = []
-            for _, points, _ in reader.read_frames():
-                xyz = points[:, :3].astype(float).copy()
-                xyz[points[:, 3] < 0] = np.nan
-                frames.append(xyz)
-    except (ValueError, AssertionError, struct_error(), OSError) as exc:
-        raise InputError(path, f"not a readable C3D file ({exc})") from exc
-    scale = {"mm": 1.0, "m": 1000.0, "cm": 10.0}.get(units, 1.0)
-    return labels, np.asarray(frames) * scale, rate
-
-
-def struct_error():
-    import struct
-
-    return struct.error
 
 
 # ---------------------------------------------------------------------- time + transform
@@ -386,16 +348,16 @@ def _vicon_spline(vicon: ViconWand):
     return spline, float(t[ok][0]), float(t[ok][-1])
 
 
-def coregister(rig: Rig, frames: Iterable[Sequence[np.ndarray]], fps: float, vicon_c3d: str | os.PathLike,
+def coregister(rig: Rig, frames: Iterable[Sequence[np.ndarray]], fps: float, vicon: ViconWand,
                wand: WandSpec | None = None, max_offset_s: float = 2.0, refine_extrinsics: bool = False,
                progress: bool = True) -> WandRegistration:
-    """Whole pipeline: RGB frames (``frames[f][c]``, rig camera order) + Vicon C3D -> registration
+    """Whole pipeline: RGB frames (``frames[f][c]``, rig camera order) + the Vicon wand markers
+    (:func:`vicon_wand_from_table`) -> registration
     with ``rig_in_vicon`` filled in. ``refine_extrinsics`` first bundle-adjusts the rig's poses
     with the wand's markers (:func:`refine_rig_with_wand`)."""
     wand = wand or WandSpec()
     if not fps or fps <= 0:
         raise InputError("--fps", "unknown RGB frame rate; pass --fps")
-    vicon = read_vicon_wand(vicon_c3d, wand)
     views = detect_wand_views(frames, wand, progress)
     points = triangulate_wand_views(rig, views, wand)
     if refine_extrinsics:
@@ -406,26 +368,7 @@ def coregister(rig: Rig, frames: Iterable[Sequence[np.ndarray]], fps: float, vic
     return result
 
 
-def write_vicon_wand_c3d(path: str | os.PathLike, points_mm: np.ndarray, rate: float, wand: WandSpec) -> None:
-    """Write wand markers (J, 5, 3) mm as a C3D (as Nexus would export a labelled wand wave)."""
-    import c3d
-
-    from spinemocap.fileio import atomic_write
-
-    writer = c3d.Writer(point_rate=float(rate), point_units="mm  ")
-    frames = []
-    for frame in points_mm:
-        rows = np.zeros((len(frame), 5), np.float32)
-        rows[:, :3] = np.nan_to_num(frame)
-        rows[:, 3] = np.where(np.all(np.isfinite(frame), axis=1), 0.0, -1.0)
-        frames.append((rows, np.zeros((0, 0), np.float32)))
-    writer.add_frames(frames)
-    writer.set_point_labels(list(wand.labels))
-    with atomic_write(path, "wb") as handle:
-        writer.write(handle)
-
-
 __all__ = ["WandSpec", "WandRegistration", "ViconWand", "detect_blobs", "identify_wand", "triangulate_wand",
            "detect_wand_views", "triangulate_wand_views", "refine_rig_with_wand",
-           "read_vicon_wand", "coarse_offset", "register_wand", "coregister", "write_vicon_wand_c3d",
+           "vicon_wand_from_table", "coarse_offset", "register_wand", "coregister",
            "synchronized_frames"]

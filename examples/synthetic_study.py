@@ -21,8 +21,8 @@ import argparse
 from pathlib import Path
 
 from spinemocap.analysis.angles import AngleSettings
-from spinemocap.analysis.batch import run_batch
-from spinemocap.analysis.report import write_report
+from spinemocap.app.batch import run_batch
+from spinemocap.app.report import write_report
 from spinemocap.synth import SynthConfig, write_capture
 
 SUBJECTS = {  # anny phenotypes in [0, 1]

@@ -1,6 +1,6 @@
 """Marker writers and readers: TRC (OpenSim), C3D (Vicon Nexus & co), tables, and a plugin
-registry (entry-point group ``spinemocap.exporters``). Depends only on :mod:`spinemocap.markers`
-(the marker table and its metadata), never on the tracker.
+registry (entry-point group ``spinemocap.exporters``). Depends only on spinemocap's core modules
+(:mod:`spinemocap.markers`, :mod:`spinemocap.fileio`), never on the tracker.
 
     import exporters
     exporters.write(table, "out/markers.trc")                      # format from the extension

@@ -53,8 +53,15 @@ from spinemocap import __version__
 from spinemocap.fileio import InputError, atomic_path
 from spinemocap.markers import MarkerTable
 
-from .common import (ExportWarning, dense_mm, deduplicate_labels, frame_rate, mm_per_unit, table_from_dense,
-                     warn_empty_markers)
+from .common import (
+    ExportWarning,
+    deduplicate_labels,
+    dense_mm,
+    frame_rate,
+    mm_per_unit,
+    table_from_dense,
+    warn_empty_markers,
+)
 from .registry import Exporter
 
 LABEL_WIDTH = 30         # POINT:LABELS element width Vicon Nexus writes

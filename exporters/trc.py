@@ -30,8 +30,7 @@ import numpy as np
 from spinemocap.fileio import InputError, atomic_write
 from spinemocap.markers import MarkerTable
 
-from .common import (dense_mm, deduplicate_labels, frame_rate, mm_per_unit, table_from_dense,
-                     warn_empty_markers)
+from .common import deduplicate_labels, dense_mm, frame_rate, mm_per_unit, table_from_dense, warn_empty_markers
 from .registry import Exporter
 
 HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units",

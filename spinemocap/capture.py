@@ -71,6 +71,17 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     return image
 
 
+def to_grey(image: np.ndarray) -> np.ndarray:
+    """BGR or grey uint8 image -> grey uint8 (H, W)."""
+    if image.ndim == 2:
+        return image
+    if image.ndim == 3 and image.shape[2] == 3:
+        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if image.ndim == 3 and image.shape[2] == 1:
+        return image[:, :, 0]
+    raise ValueError(f"expected a BGR or grey image, got shape {image.shape}")
+
+
 class ImageFolderSource:
     """Frames stored as one image file per camera and frame."""
 
@@ -171,6 +182,31 @@ class Capture:
     @property
     def groundtruth_path(self) -> Path:
         return self.root / "groundtruth.npz"
+
+    @property
+    def has_groundtruth(self) -> bool:
+        return self.groundtruth_path.is_file()
+
+    def groundtruth(self) -> dict[str, np.ndarray]:
+        """The synthetic studio's exact answers (``groundtruth.npz``; keys as
+        :attr:`spinemocap.synth.Scene.groundtruth`: ``labels`` (D,), ``dots`` (F, D, 3) mm,
+        ``visible`` (F, C, D), ``keypoints``, ``row_levels``, ...). The one reader of that file."""
+        path = self.groundtruth_path
+        if not path.is_file():
+            raise InputError(path, "no ground truth (groundtruth.npz) in this capture; "
+                             "only synthetic captures have it -- use --source tracked")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                return {k: data[k] for k in data.files}
+        except (OSError, ValueError) as exc:
+            raise InputError(path, f"unreadable ground truth ({exc})") from exc
+
+    def row_levels(self) -> list[str] | None:
+        """The vertebral level under each tape row from the ground truth (synthetic captures), else None."""
+        if not self.has_groundtruth:
+            return None
+        gt = self.groundtruth()
+        return [str(x) for x in gt["row_levels"]] if "row_levels" in gt else None
 
     def frame_source(self) -> FrameSource:
         if self.media == "images":

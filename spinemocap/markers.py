@@ -144,6 +144,17 @@ class MarkerTable:
         return {"frames": frames, "time": time, "labels": np.array(labels), "positions": pos,
                 "status": status, "n_views": n_views, "residual": residual}
 
+    def dense(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(frames (F,), positions (F, D, 3) mm)`` over every frame from the first to the last
+        (a frame absent from the table is a NaN row), labels in :attr:`labels` order."""
+        arrays = self.to_arrays()
+        frames = np.asarray(arrays["frames"], int)
+        if not len(frames):
+            return frames, np.zeros((0, len(arrays["labels"]), 3))
+        points = np.full((frames[-1] - frames[0] + 1, len(arrays["labels"]), 3), np.nan)
+        points[frames - frames[0]] = arrays["positions"]
+        return np.arange(frames[0], frames[-1] + 1), points
+
     def positions(self) -> np.ndarray:
         """(F, D, 3) positions in mm, NaN where missing, labels in :attr:`labels` order."""
         return self.to_arrays()["positions"]

@@ -8,9 +8,9 @@ import pytest
 from spinemocap.analysis.angles import AngleSettings, compute_angles
 from spinemocap.analysis.bent_tape import bent_tape_dots, uniform_bend
 from spinemocap.analysis.curve import fit_midline, row_tracks
-from spinemocap.analysis.frames import (cardan_angles, frame_from_axes, neutral_frame,
-                                        pelvis_frame_from_markers, read_pelvis_c3d)
+from spinemocap.analysis.frames import cardan_angles, frame_from_axes, neutral_frame, pelvis_frame_from_markers
 from spinemocap.analysis.levels import LevelMap, canonical_level, vertebra_index
+from spinemocap.app.c3d_inputs import read_pelvis_c3d
 from spinemocap.fileio import InputError
 from spinemocap.markers import MarkerTable
 from spinemocap.tape import TapeSpec

@@ -9,9 +9,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from spinemocap.analysis.batch import discover, run_batch
 from spinemocap.analysis.bent_tape import write_bent_capture
-from spinemocap.analysis.report import write_report
+from spinemocap.app.batch import discover, run_batch
+from spinemocap.app.report import write_report
 from spinemocap.cli import main
 from spinemocap.tape import TapeSpec
 
@@ -156,7 +156,6 @@ def test_pelvis_from_a_vicon_c3d_named_in_the_manifest(tmp_path):
 
 def test_angles_command_on_one_marker_file(tmp_path, capsys):
     import exporters
-
     from spinemocap.markers import MarkerTable
 
     _write_trial(tmp_path / "S01" / "x" / "t1", 30.0, gap_rows=(6, 7, 8))

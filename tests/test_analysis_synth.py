@@ -1,11 +1,10 @@
 """Angles on the synthetic studio's ground truth follow the applied spine motion (issue goal:
 RMSE <= 2 deg, R^2 >= 0.98) and the angles a motion should not move stay flat."""
 
-import pytest
-
-from spinemocap.analysis.benchmark import bench_analytic, bench_studio, mid_bone_rows
 
 import numpy as np
+
+from spinemocap.bench.analysis import bench_analytic, bench_studio, mid_bone_rows
 
 
 def test_pipeline_is_exact_on_the_analytic_rod():

@@ -11,10 +11,10 @@ from calibration.boards import BoardSpec, detect_board
 from calibration.check import load_residuals
 from calibration.extrinsics import calibrate_extrinsics
 from calibration.intrinsics import calibrate_from_detections
+from spinemocap.bench.calibration_scenes import make_ring_rig, render_board_capture, render_calibration_session
 from spinemocap.camera import Rig
 from spinemocap.cli import main
 from spinemocap.fileio import InputError
-from spinemocap.synth.calibration_scenes import make_ring_rig, render_board_capture, render_calibration_session
 
 BOARD = BoardSpec.parse("charuco:6x5:120")
 
@@ -111,7 +111,7 @@ def test_extrinsics_and_check_cli(tmp_path, capsys):
 def test_full_size_sessions_meet_the_bounds_for_several_seeds(seed):
     """1024x768 cameras, 20 intrinsic views each and 24 synchronized frames (the benchmark's
     set-up): the bounds hold for every seed, not only for the default test's."""
-    from calibration.benchmark import board_stage
+    from spinemocap.bench.calibration import board_stage
 
     result = board_stage(1024, 20, 24, seed)["ours_ba"]
     assert result["focal_pct"] < 0.2

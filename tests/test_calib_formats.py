@@ -8,9 +8,9 @@ import pytest
 
 from calibration.formats import read_rig, write_rig
 from calibration.formats.qualisys import read_qca
+from spinemocap.bench.calibration_scenes import make_ring_rig
 from spinemocap.cli import main
 from spinemocap.fileio import InputError
-from spinemocap.synth.calibration_scenes import make_ring_rig
 
 QCA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "calibration" / "pose2sim_demo" / "Calib.qca.txt"
 

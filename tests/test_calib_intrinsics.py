@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from calibration.boards import BoardSpec, detect_board, view_problem
-from calibration.intrinsics import calibrate_intrinsics, iter_images
 from calibration.formats.qualisys import read_qca
+from calibration.intrinsics import calibrate_intrinsics, iter_images
+from spinemocap.bench.calibration_scenes import make_ring_rig, render_intrinsic_views
 from spinemocap.cli import main
 from spinemocap.fileio import InputError
-from spinemocap.synth.calibration_scenes import make_ring_rig, render_intrinsic_views
 
 DEMO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "calibration" / "pose2sim_demo"
 

@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calibration.wand import (WandSpec, coregister, identify_wand, read_vicon_wand, write_vicon_wand_c3d)
+from calibration.wand import WandSpec, coregister, identify_wand
+from spinemocap.app.c3d_inputs import read_vicon_wand, write_vicon_wand_c3d
+from spinemocap.bench.calibration_scenes import make_ring_rig, render_wand_wave
 from spinemocap.fileio import InputError
-from spinemocap.synth.calibration_scenes import make_ring_rig, render_wand_wave
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +21,7 @@ def test_recovers_vicon_transform_and_offset(wave, tmp_path):
     c3d_path = tmp_path / "wand.c3d"
     write_vicon_wand_c3d(c3d_path, wave.vicon_mm, wave.vicon_rate, wave.wand)
     frames = ([wave.images[c.name][f] for c in wave.rig] for f in range(len(wave.world_mm)))
-    result = coregister(wave.rig, frames, wave.fps, c3d_path, progress=False)
+    result = coregister(wave.rig, frames, wave.fps, read_vicon_wand(c3d_path, wave.wand), progress=False)
     assert abs(result.offset_s - wave.offset_s) < 0.001
     assert np.degrees(Rotation.from_matrix(result.R @ wave.R.T).magnitude()) < 0.1
     assert np.linalg.norm(result.t - wave.t) < 1.0
@@ -64,7 +65,6 @@ def test_vicon_c3d_without_wand_markers(tmp_path):
 def test_wand_cli_on_image_folders(tmp_path, capsys):
     import cv2
 
-    from spinemocap.camera import Rig
     from spinemocap.cli import main
 
     wave = render_wand_wave(make_ring_rig(3, size=(640, 480), seed=4), duration_s=2.0, fps=50.0, offset_s=-0.0412, seed=7)
@@ -115,19 +115,12 @@ def test_wand_refines_perturbed_extrinsics(wave):
         assert err_after <= np.linalg.norm(before.center - true.center) + 1e-6
 
 
-def test_c3d_fallback_reader_matches_exporters(tmp_path, monkeypatch):
-    """Without the exporters package the wand C3D is read with the c3d package directly."""
-    import sys
-
-    from calibration.wand import _read_c3d_points
-
+def test_wand_c3d_round_trip_through_the_one_reader(tmp_path):
+    """The wand C3D is written and read by exporters' C3D (the one reader): markers, gaps and rate survive."""
     points = np.random.default_rng(2).uniform(-500, 500, (30, 5, 3))
     points[4, 2] = np.nan
     write_vicon_wand_c3d(tmp_path / "w.c3d", points, 200.0, WandSpec())
-    labels_a, pts_a, rate_a = _read_c3d_points(tmp_path / "w.c3d")
-    monkeypatch.setitem(sys.modules, "exporters", None)
-    labels_b, pts_b, rate_b = _read_c3d_points(tmp_path / "w.c3d")
-    assert labels_a == labels_b == list(WandSpec().labels)
-    assert rate_a == rate_b == 200.0
-    np.testing.assert_allclose(pts_b, points, atol=1e-3)
-    np.testing.assert_allclose(pts_a, pts_b, atol=1e-3)
+    vicon = read_vicon_wand(tmp_path / "w.c3d", WandSpec())
+    assert vicon.rate == 200.0
+    assert np.isnan(vicon.points_mm[4, 2]).all()
+    np.testing.assert_allclose(vicon.points_mm, points, atol=1e-3)

@@ -6,8 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from spinemocap.detect.dataset import (ViewSet, import_labelled, load_shards, read_coco_masks, split_of,
-                                       views_of)
+from spinemocap.detect.dataset import ViewSet, import_labelled, load_shards, read_coco_masks, split_of, views_of
 from spinemocap.detect.drawn import draw_sample
 from spinemocap.detect.segnet import load_weights
 from spinemocap.detect.train import TrainSettings, train

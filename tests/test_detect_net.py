@@ -14,8 +14,8 @@ from spinemocap.fileio import InputError
 @pytest.fixture(scope="module")
 def tiny_render():
     """A tiny studio capture with a body, seed and lighting never used for training."""
-    from spinemocap.commands.bench_detect import surface_uv
-    from spinemocap.detect.dataset import HELD_OUT_SEED_BASE
+    from spinemocap.app.training_data import HELD_OUT_SEED_BASE
+    from spinemocap.bench.detect import surface_uv
     from spinemocap.synth import SynthConfig, build_scene
 
     scene = build_scene(SynthConfig.preset("tiny", frames=1, seed=HELD_OUT_SEED_BASE + 7,

@@ -74,7 +74,7 @@ def test_capture_open_and_read(tmp_path):
 def test_capture_errors_name_the_problem(tmp_path):
     with pytest.raises(InputError, match="not a capture folder"):
         Capture.open(tmp_path)
-    cap = _write_capture(tmp_path)
+    _write_capture(tmp_path)
     (tmp_path / "images/cam1/000001.png").unlink()
     with pytest.raises(InputError, match="cam1.*1 images.*n_frames = 2"):
         Capture.open(tmp_path).frame_source()

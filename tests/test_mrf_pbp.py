@@ -4,7 +4,7 @@ import itertools
 
 import numpy as np
 
-from spinemocap.track.pbp import PBPConfig, ParticleBP, mrf_energy
+from spinemocap.track.pbp import ParticleBP, PBPConfig, mrf_energy
 
 
 class QuadraticChain:

@@ -12,19 +12,25 @@ import logging
 import numpy as np
 import pytest
 
+from spinemocap.app.run import TrackingWarning, run_tracking
 from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import InputError
 from spinemocap.tape import TapeSpec
 from spinemocap.track.candidates import (
-    CandidateConfig, build_candidates, epipolar_distance, fundamental_matrix, suppress_dominated,
+    CandidateConfig,
+    build_candidates,
+    epipolar_distance,
+    fundamental_matrix,
+    suppress_dominated,
 )
 from spinemocap.track.config import SequenceConfig, TrackerConfig
 from spinemocap.track.edges import build_edges
 from spinemocap.track.evaluate import label_swaps, plane_baseline, plane_baselines
 from spinemocap.track.lp import LPConfig, neighbour_bounds, select_edges
-from spinemocap.track.pipeline import FrameTracker, TrackingWarning, run_tracking
+from spinemocap.track.pipeline import FrameTracker
 from spinemocap.track.sequence import fill_and_smooth
-from spinemocap.track.types import CandidateCloud, ViewDots
+from spinemocap.track.types import CandidateCloud
+from spinemocap.views import ViewDots
 
 SPEC = TapeSpec(n_rows=13)  # the paper's artificial tape: 32 dots, 91 target edges
 

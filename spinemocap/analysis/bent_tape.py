@@ -11,7 +11,7 @@ Dots sit at ``u`` along the rod's ``r`` axis (a flat strip, no skin curvature).
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -60,7 +60,7 @@ def relative_turn(rates_deg_per_mm: Rates, v_from: float, v_to: float, step_mm: 
 
 
 def uniform_bend(v_from: float, v_to: float, angles_deg: np.ndarray,
-                 background: np.ndarray = np.zeros(3)) -> Rates:
+                 background: Sequence[float] = (0.0, 0.0, 0.0)) -> Rates:
     """Rates that turn the rod by ``angles_deg`` (flexion, lateral, twist) spread evenly over
     ``v_from..v_to`` mm, on top of a constant ``background`` rate (deg/mm) everywhere."""
     angles = np.asarray(angles_deg, float)
@@ -73,7 +73,7 @@ def uniform_bend(v_from: float, v_to: float, angles_deg: np.ndarray,
 
 
 def smooth_bend(v_from: float, v_to: float, angles_deg: np.ndarray,
-                background: np.ndarray = np.zeros(3)) -> Rates:
+                background: Sequence[float] = (0.0, 0.0, 0.0)) -> Rates:
     """Rates that turn the rod by ``angles_deg`` in total over ``v_from..v_to`` mm with a
     raised-cosine profile (zero at both ends, most in the middle), plus a constant
     ``background`` rate: a bend without curvature steps, like a spine's."""

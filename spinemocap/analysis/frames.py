@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..fileio import InputError
+from ..markers import MarkerTable
 
 PELVIS_MARKERS = ("LASI", "RASI", "LPSI", "RPSI")
 
@@ -111,34 +112,18 @@ def pelvis_frame_from_markers(markers: dict[str, np.ndarray], source: str | None
     return mid_asis, np.stack([a, s, r], axis=-1)
 
 
-def read_pelvis_c3d(path: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Pelvis marker trajectories from a C3D file: (time (F,) s, {name: (F, 3) mm}).
+def pelvis_markers(table: MarkerTable, source: str | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Pelvis marker trajectories from a marker table (e.g. a Vicon C3D read with
+    ``exporters.read``): (time (F,) s from the first frame, {name: (F, 3) mm}).
 
-    Missing samples (negative residual) are NaN; marker names are matched case-insensitively
-    after stripping a ``Subject:`` prefix. Raises :class:`InputError` if any is absent."""
-    import c3d
-
-    try:
-        with open(path, "rb") as handle:
-            reader = c3d.Reader(handle)
-            labels = [str(l).strip().split(":")[-1].upper() for l in reader.point_labels]
-            rate = float(reader.point_rate)
-            scale = 1.0
-            units = reader.get("POINT:UNITS")
-            if units is not None and str(units.string_value).strip().lower() == "m":
-                scale = 1000.0
-            frames = []
-            for _, points, _ in reader.read_frames():
-                xyz = points[:, :3].astype(float) * scale
-                xyz[points[:, 3] < 0] = np.nan
-                frames.append(xyz)
-    except (OSError, ValueError, AssertionError, KeyError) as exc:
-        raise InputError(path, f"cannot read C3D ({exc})") from exc
-    data = np.stack(frames)
+    Missing samples are NaN; marker names are matched case-insensitively after stripping a
+    ``Subject:`` prefix. Raises :class:`InputError` naming ``source`` if any is absent."""
+    labels = [str(lab).strip().split(":")[-1].upper() for lab in table.labels]
+    frames, data = table.dense()
     found = {name: data[:, labels.index(name)] for name in PELVIS_MARKERS if name in labels}
     if len(found) < len(PELVIS_MARKERS):
-        raise InputError(path, f"C3D lacks pelvis markers {sorted(set(PELVIS_MARKERS) - set(found))}")
-    return np.arange(len(data)) / rate, found
+        raise InputError(source, f"C3D lacks pelvis markers {sorted(set(PELVIS_MARKERS) - set(found))}")
+    return (frames - frames[0]) / float(table.fps), found
 
 
 def check_facing(frames: np.ndarray, facing: np.ndarray, source: str | None = None) -> None:

@@ -33,7 +33,7 @@ def run_angles(args: argparse.Namespace) -> int:
 
     from ..analysis.angles import AngleSettings, compute_angles
     from ..analysis.levels import LevelMap
-    from ..analysis.report import angles_plot_png
+    from ..app.report import angles_plot_png
     from ..fileio import InputError
     from ..tape import TapeSpec
 
@@ -76,7 +76,7 @@ def register_bench(subparsers) -> None:
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    from ..analysis.benchmark import bench_analytic, bench_studio
+    from ..bench.analysis import bench_analytic, bench_studio
 
     started = time.time()
     results = {

@@ -52,7 +52,7 @@ def register_bench(subparsers) -> None:
 def run_bench(args: argparse.Namespace) -> int:
     import json
 
-    from ..analysis.benchmark import bench_batch
+    from ..bench.analysis import bench_batch
     from ..fileio import atomic_write
 
     result = bench_batch(args.trials, args.frames, args.workers)
@@ -67,7 +67,7 @@ def run_bench(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from ..analysis.angles import AngleSettings
-    from ..analysis.batch import run_batch
+    from ..app.batch import run_batch
 
     settings = AngleSettings(lower=args.lumbar[0], thoracolumbar=args.lumbar[1], upper=args.upper_level,
                              lowpass_hz=args.lowpass_hz or None)
@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     for trial in result.failed:
         print(f"  FAILED {trial['key']}: {trial['reason']}")
     if args.report:
-        from ..analysis.report import write_report
+        from ..app.report import write_report
 
         print(f"report: {write_report(args.out)['html']}")
     return 1 if result.failed else 0

@@ -142,11 +142,13 @@ def _extrinsics(args: argparse.Namespace) -> int:
 
 def _wand(args: argparse.Namespace) -> int:
     from calibration.formats import read_rig, write_rig
-    from calibration.wand import coregister, synchronized_frames
+    from calibration.wand import WandSpec, coregister, synchronized_frames
+
+    from ..app.c3d_inputs import read_vicon_wand
 
     rig = read_rig(args.rig)
     frames, fps = synchronized_frames(args.videos, len(rig))
-    result = coregister(rig, frames, args.fps or fps, args.vicon, max_offset_s=args.max_offset,
+    result = coregister(rig, frames, args.fps or fps, read_vicon_wand(args.vicon, WandSpec()), max_offset_s=args.max_offset,
                         refine_extrinsics=args.refine_extrinsics)
     print(result.summary())
     write_rig(result.rig_in_vicon, args.out)
@@ -191,7 +193,7 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from calibration.benchmark import run_benchmark
+    from ..bench.calibration import run_benchmark
 
     run_benchmark(args.size, args.intrinsic_views, args.frames, args.seeds, args.out)
     return 0

@@ -50,8 +50,8 @@ def step_synthesize(ctx: DemoContext) -> None:
 
 def step_track(ctx: DemoContext) -> None:
     """Track the tape dots (LP + MRFs, sequence mode) and compare with the ground truth."""
+    from spinemocap.app.run import track_capture
     from spinemocap.commands.track import accuracy_summary
-    from spinemocap.track.pipeline import track_capture
 
     detector = "net"  # the shipped tape segmentation network
     out = ctx.out / "tracked"
@@ -64,7 +64,7 @@ def step_track(ctx: DemoContext) -> None:
 
 def step_report(ctx: DemoContext) -> None:
     """Spine angles and their report (HTML with plots, CSV, XLSX) for the capture."""
-    from spinemocap.analysis.report import report_capture
+    from spinemocap.app.report import report_capture
 
     tracked = next((p for _, p in reversed(ctx.outputs) if p.name == "markers.csv"), None)
     paths = report_capture(ctx.capture_dir, ctx.out / "report", markers_csv=tracked)

@@ -86,7 +86,8 @@ def _command(args) -> str:
 
 
 def _train(args) -> int:
-    from ..detect.dataset import SynthDataSettings, generate_synthetic, load_shards
+    from ..app.training_data import SynthDataSettings, generate_synthetic
+    from ..detect.dataset import load_shards
     from ..detect.train import train
 
     folders = args.data or [args.out / "data"]

@@ -120,7 +120,7 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_bench_export(args: argparse.Namespace) -> int:
-    from exporters.benchmark import run_export_benchmark
+    from ..bench.exporters import run_export_benchmark
 
     run_export_benchmark(args.frames, args.markers, args.repeat, args.out)
     return 0

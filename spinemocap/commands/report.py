@@ -17,7 +17,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..analysis.report import write_report
+    from ..app.report import write_report
 
     paths = write_report(args.dir, title=args.title)
     for name, path in paths.items():

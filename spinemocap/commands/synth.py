@@ -117,7 +117,7 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_bench_render(args: argparse.Namespace) -> int:
-    from spinemocap.synth.benchmark import run_render_benchmark
+    from spinemocap.bench.synth import run_render_benchmark
 
     run_render_benchmark(args.frames, args.visibility_frames, args.out)
     return 0

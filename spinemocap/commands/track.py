@@ -8,6 +8,8 @@ import time
 import warnings
 from pathlib import Path
 
+from spinemocap.capture import Capture
+
 log = logging.getLogger(__name__)
 
 
@@ -31,8 +33,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_track(args: argparse.Namespace) -> int:
+    from spinemocap.app.run import TrackingWarning, track_capture
     from spinemocap.track.config import TrackerConfig
-    from spinemocap.track.pipeline import TrackingWarning, track_capture
 
     config = TrackerConfig.from_toml(args.config) if args.config else None
     start = time.perf_counter()
@@ -47,24 +49,18 @@ def run_track(args: argparse.Namespace) -> int:
     print(f"tracked {table.n_frames} frames in {elapsed:.1f} s ({table.n_frames / elapsed:.2f} frames/s): "
           + ", ".join(f"{counts.get(s, 0)} {s}" for s in ("observed", "inferred", "missing")))
     print(f"markers written to {Path(args.out) / 'markers.csv'} (+ .trc, .c3d)")
-    gt_path = Path(args.capture) / "groundtruth.npz"
-    if gt_path.is_file():
+    if Capture.open(args.capture).has_groundtruth:
         print(accuracy_summary(table, args.capture))
     return 0
 
 
 def accuracy_summary(table, capture_dir: Path) -> str:
     """One paragraph of accuracy vs a synthetic capture's ground truth (groundtruth.npz)."""
-    import numpy as np
-
-    from spinemocap.capture import Capture
     from spinemocap.track.evaluate import evaluate_tracking
 
     capture = Capture.open(capture_dir)
     groundtruth_path = capture.groundtruth_path
-    with np.load(groundtruth_path, allow_pickle=False) as data:
-        gt = {k: data[k] for k in data.files}
-    ev = evaluate_tracking(table, gt, min_dot_spacing_mm(capture.tape))
+    ev = evaluate_tracking(table, capture.groundtruth(), min_dot_spacing_mm(capture.tape))
     obs, inf = ev["observed"], ev["inferred"]
     return (f"accuracy vs ground truth ({groundtruth_path.name}): mean {ev['mean_error_mm']:.2f} mm, "
             f"median {ev['median_error_mm']:.2f} mm, p95 {ev['p95_error_mm']:.2f} mm; "

@@ -11,6 +11,18 @@ drawn makes 2D test images with exact answers.
 """
 
 from .blobs import BlobParams, find_dots
-from .detector import Detector, shipped_weights_path
+
+# The detector loads torch: imported on first use so that ``spinemocap.detect.find_dots`` (and the
+# CLI) start fast.
+_LAZY = {"Detector": "detector", "shipped_weights_path": "detector"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        from importlib import import_module
+
+        return getattr(import_module(f"{__name__}.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["Detector", "BlobParams", "find_dots", "shipped_weights_path"]

@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..capture import to_grey
+
 # Tape dot diameter / tape width (10 mm dots on 50 mm tape): used to guess the dot size from the
 # mask width when the caller does not know it.
 DEFAULT_DOT_TO_WIDTH = 0.2
@@ -50,17 +52,6 @@ class BlobParams:
     min_contrast: float = 8.0      # grey levels; weaker "dots" are noise
     min_contrast_to_texture: float = 5.0  # dot contrast / median top-hat over the tape
     dot_to_width: float = DEFAULT_DOT_TO_WIDTH
-
-
-def to_grey(image: np.ndarray) -> np.ndarray:
-    """BGR or grey uint8 image -> grey uint8 (H, W)."""
-    if image.ndim == 2:
-        return image
-    if image.ndim == 3 and image.shape[2] == 3:
-        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    if image.ndim == 3 and image.shape[2] == 1:
-        return image[:, :, 0]
-    raise ValueError(f"expected a BGR or grey image, got shape {image.shape}")
 
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:

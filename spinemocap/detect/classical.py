@@ -20,7 +20,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .blobs import to_grey
+from ..capture import to_grey
 
 
 def _dark_thresholds(grey: np.ndarray, levels: int = 2) -> list[float]:

@@ -19,7 +19,6 @@ segmentations. Each image goes to validation when a hash of its stem falls below
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import zlib
@@ -137,96 +136,6 @@ def load_shards(folder: Path) -> tuple[ViewSet, ViewSet]:
 
 
 # ---------------------------------------------------------------------------------- synthetic
-@dataclass
-class SynthDataSettings:
-    """How synthetic training data is drawn. Scene ``k`` uses studio seed ``seed * 1000 + k``;
-    scenes whose index falls in the last ``val_fraction`` go to validation. Benchmarks use seeds
-    from :data:`HELD_OUT_SEED_BASE` on, never touched here."""
-
-    scenes: int = 60
-    frames_per_scene: int = 2
-    seed: int = 0
-    val_fraction: float = 0.15
-    layouts: tuple[str, ...] = ("tiny", "artificial", "studio")
-    scale: float = 0.5   # render size relative to the layout's reference size (focal scales along)
-    sequence_frames: int = 200  # frames are drawn from 2 s of motion at 100 fps (bent, twisted poses)
-
-    def to_dict(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["layouts"] = list(self.layouts)
-        return d
-
-
-HELD_OUT_SEED_BASE = 900_000
-_REFERENCE_SIZE = {"tiny": (480, 360), "artificial": (1024, 768), "studio": (2448, 1600)}
-_CAMERAS = {"tiny": 3, "artificial": 4, "studio": 6}
-
-
-def random_scene_config(rng: np.random.Generator, seed: int, layouts=("tiny", "artificial", "studio"), scale: float = 0.5,
-                        sequence_frames: int = 200):
-    """A synthetic-studio configuration with a random body, skin tone, motion, blur, noise and
-    occluders (lighting follows from the seed inside the studio)."""
-    from ..synth import SynthConfig
-    from ..synth.motions import MOTIONS
-
-    layout = str(rng.choice(list(layouts)))
-    w, h = _REFERENCE_SIZE[layout]
-    s = 1.0 if layout == "tiny" else scale
-    phenotype = {k: float(rng.uniform(0.05, 0.95)) for k in ("gender", "age", "muscle", "weight", "height")}
-    return SynthConfig.preset(
-        layout, frames=int(sequence_frames), seed=seed, size=(int(w * s), int(h * s)),
-        cameras=_CAMERAS[layout], phenotype=phenotype, skin_tone=float(rng.uniform(0, 1)),
-        motion=str(rng.choice(sorted(MOTIONS))), blur=float(rng.choice([0.0, 0.0, 0.0, 0.4])),
-        noise=float(rng.uniform(0.5, 5.0)), occlusion=str(rng.choice(["none", "none", "light", "heavy"])),
-        band=bool(rng.random() < 0.2), rows=int(rng.choice([9, 11, 13])),
-    )
-
-
-def vary_appearance(scene, rng: np.random.Generator) -> None:
-    """Random background and tape colours (dark tapes of several hues) before the first render."""
-    background = tuple(float(c) for c in rng.uniform(0.05, 0.9, 3))
-    tape = tuple(float(c) for c in rng.uniform(0.02, 0.25, 3))
-    scene.appearance = dataclasses.replace(scene.appearance, background_rgb=background, tape_rgb=tape)
-
-
-def generate_synthetic(out: Path, settings: SynthDataSettings, progress: bool = True) -> Path:
-    """Render ``settings.scenes`` scenes into shards under ``out`` (existing shards are kept:
-    an interrupted run resumes where it stopped). Writes ``settings.json`` beside them."""
-    from tqdm import tqdm
-
-    from ..synth import build_scene
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out / "settings.json") as tmp:
-        tmp.write_text(json.dumps(settings.to_dict(), indent=2))
-    n_val = max(1, int(round(settings.scenes * settings.val_fraction)))
-    for k in tqdm(range(settings.scenes), desc="rendering training scenes", unit="scene", disable=not progress):
-        path = out / f"synth_{k:04d}.npz"
-        if path.exists():
-            continue
-        seed = settings.seed * 1000 + k
-        rng = np.random.default_rng([seed, 77])
-        cfg = random_scene_config(rng, seed, settings.layouts, settings.scale, settings.sequence_frames)
-        try:
-            scene = build_scene(cfg)
-        except ValueError as exc:  # no camera sees the tape: draw another time
-            log.info("scene %d skipped: %s", k, exc)
-            save_shard(path, [], "train", {"seed": seed, "skipped": str(exc)})
-            continue
-        vary_appearance(scene, rng)
-        views = []
-        for f in rng.choice(cfg.frames, size=min(settings.frames_per_scene, cfg.frames), replace=False):
-            rendered = scene.render(int(f))
-            for img, m in zip(rendered.images, rendered.masks):
-                views += views_of(img, m, rng)
-        scene.close()
-        split = "val" if k >= settings.scenes - n_val else "train"
-        save_shard(path, views, split, {"seed": seed, "config": cfg.to_dict()})
-    return out
-
-
-# ---------------------------------------------------------------------------------- lab data
 def split_of(stem: str, val_fraction: float) -> str:
     """'val' or 'train', stable per file stem (crc32 hash)."""
     return "val" if (zlib.crc32(stem.encode()) % 10_000) < val_fraction * 10_000 else "train"

@@ -29,15 +29,15 @@ import cv2
 import numpy as np
 import torch
 
-from ..capture import read_image
+from ..capture import read_image, to_grey
 from ..fileio import InputError
-from ..track.types import ViewDots
-from .blobs import BlobParams, fill_holes, find_dots, to_grey
+from ..views import ViewDots
+from .blobs import BlobParams, fill_holes, find_dots
 from .classical import segment_classical
 from .dataset import CROP_PAD, WORK_WIDTH, crop_scale, frame_view
 from .instances import split_instances, union
 from .refine import RefineParams, components_touching, extend_along_tape, snap_to_edges
-from .segnet import TapeUNet, load_weights, pad_to_multiple, to_tensor
+from .segnet import load_weights, pad_to_multiple, to_tensor
 
 SHIPPED_WEIGHTS = "tape_unet.pt"
 NAMES = ("net", "classical")

@@ -29,7 +29,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .blobs import estimate_dot_diameter, fill_holes, find_dots, to_grey
+from ..capture import to_grey
+from .blobs import estimate_dot_diameter, fill_holes, find_dots
 
 
 @dataclass

@@ -65,7 +65,7 @@ def write_capture(config: SynthConfig, out_dir: str | os.PathLike, progress: boo
                 else:
                     _write_png(root / capture.image_pattern.format(camera=cam, frame=frame), image)
                 _write_png(root / "masks" / cam / f"{frame:06d}.png", mask.astype(np.uint8) * 255)
-        for cam, (writer, context) in writers.items():
+        for writer, context in writers.values():
             writer.release()
             context.__exit__(None, None, None)  # rename the finished video into place
         writers = {}

@@ -22,7 +22,8 @@ from scipy.spatial import cKDTree
 
 from ..camera import Rig
 from ..geometry import triangulate_dlt
-from .types import CandidateCloud, ViewDots
+from ..views import ViewDots
+from .types import CandidateCloud
 
 
 @dataclass

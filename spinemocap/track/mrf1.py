@@ -17,7 +17,7 @@ The paper writes ``d_target`` for the fourth term: "measured tape distances", i.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 
 from ..tape import TapeGraph
 from .normals import NormalField
-from .pbp import PBPConfig, ParticleBP, pbp_config
+from .pbp import ParticleBP, PBPConfig, pbp_config
 from .template import build_template
 from .types import FeasibleSet, MRFResult
 

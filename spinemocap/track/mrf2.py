@@ -29,7 +29,7 @@ import torch
 from ..camera import Rig
 from ..tape import TapeGraph
 from .evidence import EvidenceImage, EvidenceStack
-from .pbp import PBPConfig, ParticleBP, mrf_energy, pbp_config
+from .pbp import ParticleBP, PBPConfig, mrf_energy, pbp_config
 from .template import tape_frames
 from .types import MRFResult
 

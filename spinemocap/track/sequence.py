@@ -16,14 +16,14 @@ inferred stretches smoothed (:func:`fill_and_smooth`).
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
+from ..timing import StageTimer
+from ..views import ViewDots
 from .config import SequenceConfig
 from .edges import edge_bounds
-from .pipeline import FrameResult, FrameTracker, _Timer, match_points
-from .types import CandidateCloud, ViewDots
+from .pipeline import FrameResult, FrameTracker, match_points
+from .types import CandidateCloud
 
 
 class SequenceTracker:
@@ -46,7 +46,7 @@ class SequenceTracker:
         return self.last + velocity
 
     def step(self, views: list[ViewDots], stage_ms: dict) -> FrameResult:
-        timer = _Timer(stage_ms)
+        timer = StageTimer(stage_ms)
         with timer("candidates"):
             cloud = self.tracker.candidates(views)
         result = None
@@ -60,17 +60,11 @@ class SequenceTracker:
 
     # ------------------------------------------------------------------ routes
     def _solve_full(self, views, cloud: CandidateCloud, stage_ms: dict) -> FrameResult:
-        tracker = self.tracker
-        if self.last is None or not self.config.warm_start:
-            return tracker.solve(views, previous=self.last, cloud=cloud, stage_ms=stage_ms)
-        base = tracker.config
-        tracker.config = dataclasses.replace(base, mrf1=dataclasses.replace(base.mrf1, warm_start=True))
-        try:
-            return tracker.solve(views, previous=self.last, cloud=cloud, stage_ms=stage_ms)
-        finally:
-            tracker.config = base
+        warm_start = self.last is not None and self.config.warm_start
+        return self.tracker.solve(views, previous=self.last, cloud=cloud, stage_ms=stage_ms,
+                                  warm_start=warm_start)
 
-    def _carry(self, views, cloud: CandidateCloud, timer: _Timer) -> FrameResult | None:
+    def _carry(self, views, cloud: CandidateCloud, timer: StageTimer) -> FrameResult | None:
         """The previous solution moved onto this frame's points, or None if it does not fit."""
         with timer("status"):
             predicted = self.predict()

@@ -8,24 +8,6 @@ import numpy as np
 
 
 @dataclass
-class ViewDots:
-    """Dots detected in one camera image for one frame.
-
-    ``uv``: (N, 2) distorted pixel centres; ``confidence``: (N,) in [0, 1];
-    ``mask``: tape mask (H, W) bool or None; ``image``: the grey image (H, W) uint8 or None
-    (kept for MRF2's image evidence)."""
-
-    camera: int
-    uv: np.ndarray
-    confidence: np.ndarray
-    mask: np.ndarray | None = None
-    image: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return len(self.uv)
-
-
-@dataclass
 class CandidateCloud:
     """3D candidate points (paper: the point cloud P).
 

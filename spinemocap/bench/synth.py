@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..fileio import atomic_write
-from .scene import SynthConfig, build_scene
+from ..synth.scene import SynthConfig, build_scene
 
 # Paper Table 2: dot-frames of the 548-frame, 32-dot Artificial sequence seen by 4/3/2/1/0 cameras.
 PAPER_TABLE2 = {

@@ -76,7 +76,7 @@ class BoardRenderer:
 
     def render(self, cam: Camera, R_wb: np.ndarray, t_wb: np.ndarray, rng: np.random.Generator,
                blur_sigma_px: float = 0.6, noise_sigma: float = 2.0, background: float = 90.0) -> np.ndarray:
-        """Gray uint8 image of the board at pose (R_wb, t_wb) seen by ``cam``."""
+        """Grey uint8 image of the board at pose (R_wb, t_wb) seen by ``cam``."""
         rays = self._camera_rays(cam)
         # Board frame expressed in camera coordinates: X_c = R_cb X_b + t_cb.
         R_cb = cam.R @ R_wb
@@ -136,7 +136,7 @@ def random_board_pose(board: BoardSpec, rng: np.random.Generator, centre_mm, fac
 
 @dataclass
 class BoardCapture:
-    """Synchronized board frames: ``images[cam][frame]`` (gray uint8), ``poses[frame]``."""
+    """Synchronized board frames: ``images[cam][frame]`` (grey uint8), ``poses[frame]``."""
 
     rig: Rig
     board: BoardSpec
@@ -224,7 +224,7 @@ def render_calibration_session(rig: Rig, board: BoardSpec, n_intrinsic: int = 15
 # ---------------------------------------------------------------------- wand wave
 @dataclass
 class WandWave:
-    """A rendered wand wave: ``images[cam][frame]`` (gray uint8) at ``fps`` on the RGB clock,
+    """A rendered wand wave: ``images[cam][frame]`` (grey uint8) at ``fps`` on the RGB clock,
     true marker positions ``world_mm`` (F, 5, 3) at those frames, and the Vicon side
     ``vicon_mm`` (J, 5, 3) at ``vicon_rate`` Hz on the Vicon clock. Truth: ``X_v = scale R X_w +
     t``, ``t_vicon = t_rgb + offset_s``."""
@@ -259,7 +259,7 @@ def wand_trajectory(times_s: np.ndarray, wand: WandSpec, seed: int, centre_mm) -
 
 def render_wand_frame(cam: Camera, markers_mm: np.ndarray, radius_mm: float, noise: np.ndarray,
                       background: float = 25.0) -> np.ndarray:
-    """Dark gray image with each marker sphere as a bright anti-aliased disc of the exact
+    """Dark grey image with each marker sphere as a bright anti-aliased disc of the exact
     projected radius, nearer spheres drawn last, plus the sensor ``noise`` field (H, W)."""
     w, h = cam.size
     image = np.full((h, w), background, np.float32)

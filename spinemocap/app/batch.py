@@ -31,7 +31,7 @@ import logging
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Iterator
 
@@ -39,12 +39,13 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from ..analysis.angles import AngleSettings, compute_angles
+from ..analysis.frames import pelvis_frame_from_markers
+from ..analysis.levels import LevelMap
 from ..capture import MANIFEST, Capture
 from ..fileio import InputError, atomic_write, read_toml
 from ..markers import MarkerTable
-from .angles import AngleSettings, compute_angles
-from .frames import pelvis_frame_from_markers, read_pelvis_c3d
-from .levels import LevelMap
+from .c3d_inputs import read_pelvis_c3d
 
 log = logging.getLogger("spinemocap.batch")
 
@@ -128,7 +129,10 @@ def _from_manifest(path: Path) -> list[Trial]:
     trials = []
     for _, row in table.iterrows():
         folder = (path.parent / row["path"]).resolve()
-        get = lambda name: str(row.get(name, "") or "")
+
+        def get(name: str, row: pd.Series = row) -> str:
+            return str(row.get(name, "") or "")
+
         trial = Trial(
             subject=get("subject"), condition=get("condition") or get("session"),
             trial=get("trial") or folder.name, capture_dir=str(folder),
@@ -230,7 +234,7 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
     path = Path(job.out_dir) / MARKERS
     if job.force or not _newer_than(path, inputs):
         try:
-            from ..track.pipeline import track_capture
+            from ..app.run import track_capture
         except ImportError as exc:
             raise InputError(capture.root, f"the tracker is not available in this installation ({exc}); "
                              "use --source groundtruth for synthetic captures") from exc
@@ -246,14 +250,11 @@ def groundtruth_markers(capture: Capture) -> MarkerTable:
     """The synthetic studio's exact dot positions (``groundtruth.npz``: ``labels`` (D,),
     ``dots`` (F, D, 3) mm) as a marker table; every dot counts as observed."""
     path = capture.groundtruth_path
-    if not path.is_file():
-        raise InputError(path, "no ground truth (groundtruth.npz) in this capture; "
-                         "only synthetic captures have it -- use --source tracked")
-    with np.load(path, allow_pickle=False) as data:
-        if "dots" not in data or "labels" not in data:
-            raise InputError(path, "ground truth lacks 'dots' or 'labels'")
-        labels = [str(l) for l in data["labels"]]
-        dots = np.asarray(data["dots"], float)
+    data = capture.groundtruth()
+    if "dots" not in data or "labels" not in data:
+        raise InputError(path, "ground truth lacks 'dots' or 'labels'")
+    labels = [str(lab) for lab in data["labels"]]
+    dots = np.asarray(data["dots"], float)
     return MarkerTable.from_arrays(labels, dots, fps=capture.fps,
                                    meta={"source": str(path), "subject": capture.subject.get("id", "")})
 
@@ -281,12 +282,10 @@ def _levels(job: TrialJob, capture: Capture) -> tuple[LevelMap, str]:
     for path in (folder.parent.parent / "levels.toml", job.levels_file):
         if path and Path(path).is_file():
             return LevelMap.from_toml(path, n_rows), str(path)
-    if capture.groundtruth_path.is_file():
-        with np.load(capture.groundtruth_path, allow_pickle=False) as data:
-            if "row_levels" in data:
-                return (LevelMap.from_row_levels([str(x) for x in data["row_levels"]], n_rows,
-                                                 source=str(capture.groundtruth_path)),
-                        f"{capture.groundtruth_path} (row_levels)")
+    row_levels = capture.row_levels()
+    if row_levels is not None:
+        return (LevelMap.from_row_levels(row_levels, n_rows, source=str(capture.groundtruth_path)),
+                f"{capture.groundtruth_path} (row_levels)")
     raise InputError(folder, "no row-to-level map: put levels.toml in the trial or subject "
                      "folder, a [levels] table in capture.toml, or pass --levels")
 
@@ -332,7 +331,7 @@ def trial_out_dir(out: Path, trial: Trial) -> Path:
 
 def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = "tracked",
               workers: int = 2, scheduler: str | None = None, levels_file: str | None = None,
-              settings: AngleSettings = AngleSettings(), force: bool = False,
+              settings: AngleSettings | None = None, force: bool = False,
               detector: str = "net", progress: bool = True) -> BatchResult:
     """Process every trial under ``root`` into ``out`` (see the module docstring).
 
@@ -345,6 +344,7 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     trials = discover(root)
+    settings = settings or AngleSettings()
     jobs = [TrialJob(t, str(trial_out_dir(out, t)), source, levels_file, settings, force, detector) for t in trials]
     handler = logging.FileHandler(out / "batch.log")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))

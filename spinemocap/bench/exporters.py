@@ -19,10 +19,9 @@ from typing import Callable
 
 import numpy as np
 
+from exporters import read, write
 from spinemocap.fileio import atomic_write
 from spinemocap.markers import MarkerTable
-
-from . import read, write
 
 
 def synthetic_table(n_frames: int, n_markers: int, fps: float = 100.0, gap_share: float = 0.05,
@@ -83,8 +82,8 @@ def run_export_benchmark(n_frames: int = 548, n_markers: int = 32, repeat: int =
         folder = Path(tmp)
         for fmt in ("trc", "c3d", "csv", "parquet"):
             path = folder / f"ours.{fmt}"
-            results[f"ours_{fmt}"] = {"write_ms": _median_ms(lambda: write(table, path), repeat),
-                                     "read_ms": _median_ms(lambda: read(path), repeat),
+            results[f"ours_{fmt}"] = {"write_ms": _median_ms(lambda path=path: write(table, path), repeat),
+                                     "read_ms": _median_ms(lambda path=path: read(path), repeat),
                                      "bytes": path.stat().st_size}
         results["ezc3d_c3d"] = _ezc3d_peer(table, folder, repeat)
         with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:

@@ -22,12 +22,15 @@ import time
 
 import numpy as np
 
+from ..analysis.angles import AngleSettings, compute_angles
+from ..analysis.bent_tape import bent_tape_dots, relative_turn, smooth_bend, write_bent_capture
+from ..analysis.frames import cardan_angles
+from ..analysis.levels import LevelMap
+from ..app.batch import run_batch
 from ..markers import MarkerTable
+from ..synth import SynthConfig, build_scene
+from ..synth.body import SPINE_BONES, vertex_normals
 from ..tape import TapeSpec
-from .angles import AngleSettings, compute_angles
-from .bent_tape import bent_tape_dots, relative_turn, smooth_bend
-from .frames import cardan_angles
-from .levels import LevelMap
 
 MOTIONS = ("flexion", "lateral", "rotation")
 COLUMNS = ("lumbar_flexion", "lumbar_lateral", "lumbar_rotation")
@@ -76,8 +79,6 @@ def mid_bone_rows(row_heights: np.ndarray, joint_heights: np.ndarray) -> tuple[i
 
 def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0) -> dict:
     """Ground-truth dots of a studio motion (no rendering), the applied angles and the levels."""
-    from ..synth import SynthConfig, build_scene
-    from ..synth.body import SPINE_BONES, vertex_normals
 
     config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed)
     scene = build_scene(config)
@@ -147,8 +148,6 @@ def bench_batch(trials: int = 16, frames: int = 300, workers: int = 2, progress:
 
     from distributed import LocalCluster
 
-    from .bent_tape import write_bent_capture
-    from .batch import run_batch
 
     tape = TapeSpec(n_rows=13)
     with tempfile.TemporaryDirectory() as tmp:

@@ -31,6 +31,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from ..capture import Capture  # noqa: E402
 from ..fileio import atomic_path, atomic_write  # noqa: E402
 from .batch import ANGLES, load_results  # noqa: E402
 
@@ -268,9 +269,9 @@ def report_capture(capture_dir: str | os.PathLike, out: str | os.PathLike,
     tape starts there) to T12/L1."""
     import shutil
 
-    from .angles import AngleSettings
+    from ..analysis.angles import AngleSettings
+    from ..analysis.levels import LevelMap
     from .batch import MARKERS, discover, run_batch, trial_out_dir
-    from .levels import LevelMap
 
     out = Path(out)
     (trial,) = discover(capture_dir)
@@ -282,11 +283,8 @@ def report_capture(capture_dir: str | os.PathLike, out: str | os.PathLike,
         os.utime(target)
         source = "tracked"
     lower = "S1"
-    gt = Path(capture_dir) / "groundtruth.npz"
-    if gt.is_file():
-        with np.load(gt, allow_pickle=False) as data:
-            if "row_levels" in data:
-                names = [str(x) for x in data["row_levels"]]
-                lower = next(iter(LevelMap.from_row_levels(names, len(names)).rows))
+    names = Capture.open(capture_dir).row_levels()
+    if names is not None:
+        lower = next(iter(LevelMap.from_row_levels(names, len(names)).rows))
     run_batch(capture_dir, out, source=source, workers=1, settings=AngleSettings(lower=lower), progress=progress)
     return write_report(out, title=f"Spine angles: {Path(capture_dir).name}")

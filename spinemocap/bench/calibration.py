@@ -17,14 +17,16 @@ from datetime import date
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from calibration.boards import BoardSpec, detect_board
+from calibration.extrinsics import calibrate_extrinsics, floor_world_transform, initial_poses
+from calibration.geometry import transform_rig
+from calibration.intrinsics import calibrate_from_detections
+from calibration.wand import coarse_offset, register_wand, triangulate_wand
 from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import atomic_write
 
-from .boards import BoardSpec, detect_board
-from .extrinsics import calibrate_extrinsics, floor_world_transform, initial_poses
-from .geometry import transform_rig
-from .intrinsics import calibrate_from_detections
-from .wand import coarse_offset, read_vicon_wand, register_wand, triangulate_wand, write_vicon_wand_c3d
+from ..app.c3d_inputs import read_vicon_wand, write_vicon_wand_c3d
+from .calibration_scenes import make_ring_rig, render_calibration_session, render_wand_wave
 
 BOARD = "charuco:6x5:120"
 
@@ -38,7 +40,6 @@ def rig_errors(truth: Rig, estimate: Rig) -> dict[str, float]:
 
 
 def board_stage(size: int, n_intrinsic: int, n_frames: int, seed: int) -> dict:
-    from spinemocap.synth.calibration_scenes import make_ring_rig, render_calibration_session
 
     board = BoardSpec.parse(BOARD)
     truth = make_ring_rig(6, size=(size, size * 3 // 4), seed=seed)
@@ -70,7 +71,6 @@ def board_stage(size: int, n_intrinsic: int, n_frames: int, seed: int) -> dict:
 
 
 def wand_stage(seed: int, tmp_c3d: str) -> dict:
-    from spinemocap.synth.calibration_scenes import make_ring_rig, render_wand_wave
 
     wave = render_wand_wave(make_ring_rig(6, size=(800, 600), seed=seed), duration_s=4.0, seed=seed + 3,
                             offset_s=0.0137 + 0.01 * seed)
