@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 from collections import defaultdict
 from dataclasses import dataclass, field
-from typing import Hashable
+from typing import Hashable, cast
 
 import cv2
 import numpy as np
@@ -34,6 +34,7 @@ from tqdm import tqdm
 
 from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import InputError
+from spinemocap.geometry import distort
 
 from .boards import BoardDetection, BoardSpec
 from .geometry import rigid_fit, rodrigues, transform_rig, triangulate
@@ -146,13 +147,14 @@ def initial_poses(intrinsics: Rig, board: BoardSpec, detections: Detections, ref
         R_pc, t_pc = _mean_rotation(rel_R), np.median(rel_t, axis=0)
         Rp_ref, tp_ref = poses[p]
         poses[c] = (R_pc @ Rp_ref, R_pc @ tp_ref + t_pc)
-    boards: dict[Hashable, tuple[np.ndarray, np.ndarray]] = {}
+    boards: dict[Hashable, tuple[np.ndarray, np.ndarray, int]] = {}  # pose and corners seen
     for c in range(n):
         Rc, tc = poses[c]
         for f, (Rb, tb) in pnp[c].items():
             if f not in boards or len(detections[names[c]][f]) > boards[f][2]:
                 boards[f] = (Rc.T @ Rb, Rc.T @ (tb - tc), len(detections[names[c]][f]))
-    return poses, {f: (R, t) for f, (R, t, _) in boards.items()}
+    # the spanning tree reached every camera: no pose is None any more
+    return cast(list[tuple[np.ndarray, np.ndarray]], poses), {f: (R, t) for f, (R, t, _) in boards.items()}
 
 
 # ---------------------------------------------------------------------- step 3: bundle adjustment
@@ -173,13 +175,7 @@ def _observations(names: list[str], detections: Detections, frames: list[Hashabl
 
 def project_batch(K: np.ndarray, dist: np.ndarray, points_cam: np.ndarray) -> np.ndarray:
     """Distorted pixels of camera-frame points; K (N, 4) fx fy cx cy, dist (N, 5), points (N, 3)."""
-    x = points_cam[:, 0] / points_cam[:, 2]
-    y = points_cam[:, 1] / points_cam[:, 2]
-    k1, k2, p1, p2, k3 = dist.T
-    r2 = x * x + y * y
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    xd, yd = distort(points_cam[:, :2] / points_cam[:, 2:3], dist).T
     return np.column_stack([K[:, 0] * xd + K[:, 2], K[:, 1] * yd + K[:, 3]])
 
 

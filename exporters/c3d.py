@@ -49,7 +49,7 @@ from typing import Sequence
 import c3d as c3dlib
 import numpy as np
 
-from spinemocap import __version__
+from spinemocap._version import __version__
 from spinemocap.fileio import InputError, atomic_path
 from spinemocap.markers import MarkerTable
 

@@ -1,18 +1,55 @@
 """spinemocap: 3D spine motion capture from perforated kinesiology tape.
 
-Pipeline (one sub-package or module per stage, in the order data flows):
+Public API (loaded on first use, so ``import spinemocap`` stays light)::
 
-    synth/        synthetic studio: bodies, tape, cameras, occluders, renders, ground truth
-    detect/       tape segmentation and dot (blob) detection per image
-    track/        candidates -> edge cloud -> LP -> MRF1 -> MRF2 -> labels/sequence
-    analysis/     spine curve, angles, batch processing and reports
+    import spinemocap
+    table = spinemocap.track_capture("capture/", "out/")   # markers.csv/.trc/.c3d, MarkerTable (mm)
+    capture = spinemocap.Capture.open("capture/")          # rig, tape, frames, ground truth
+    rig = spinemocap.Rig.from_toml("rig.toml")
+    result = spinemocap.run_batch("study/", "results/")    # every trial of a study
 
-Core types shared with the ``calibration`` and ``exporters`` packages live in small modules
-at this level: :mod:`spinemocap.tape`, :mod:`spinemocap.camera`, :mod:`spinemocap.markers`,
-:mod:`spinemocap.capture`, :mod:`spinemocap.fileio`.
+Layers (docs/ARCHITECTURE.md): core types in this package's top-level modules (:mod:`camera`,
+:mod:`tape`, :mod:`markers`, :mod:`capture`, :mod:`views`, :mod:`geometry`, :mod:`fileio`,
+:mod:`timing`) <- domain packages (:mod:`detect`, :mod:`track`, :mod:`synth`, :mod:`analysis`,
+and the top-level ``calibration`` and ``exporters``) <- the application layer (:mod:`app`,
+:mod:`bench`, :mod:`commands`).
 
 Conventions: millimetres, world Z up, seconds, pixels; cameras are OpenCV pinhole models with
 world->camera pose ``x_c = R x_w + t``.
 """
 
-__version__ = "0.1.0"
+from __future__ import annotations
+
+from importlib import import_module
+from typing import Any
+
+from ._version import __version__
+
+# public name -> module that defines it (imported on first access)
+_PUBLIC = {
+    "Camera": "spinemocap.camera",
+    "Rig": "spinemocap.camera",
+    "TapeSpec": "spinemocap.tape",
+    "MarkerTable": "spinemocap.markers",
+    "Capture": "spinemocap.capture",
+    "ViewDots": "spinemocap.views",
+    "InputError": "spinemocap.fileio",
+    "TrackerConfig": "spinemocap.track.config",
+    "FrameTracker": "spinemocap.track.pipeline",
+    "track_capture": "spinemocap.app.run",
+    "run_tracking": "spinemocap.app.run",
+    "run_batch": "spinemocap.app.batch",
+    "write_report": "spinemocap.app.report",
+}
+
+__all__ = ["__version__", *_PUBLIC]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _PUBLIC:
+        return getattr(import_module(_PUBLIC[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_PUBLIC))

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from .fileio import InputError, read_toml, write_toml
+from .geometry import distort
 
 
 @dataclass
@@ -112,13 +113,7 @@ class Camera:
 
     def distort(self, normalized: np.ndarray) -> np.ndarray:
         """Apply the distortion model to (N, 2) normalized image coordinates."""
-        x, y = normalized[:, 0], normalized[:, 1]
-        k1, k2, p1, p2, k3 = self.dist
-        r2 = x * x + y * y
-        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        return np.column_stack([xd, yd])
+        return distort(normalized, self.dist)
 
     def project(self, points_mm: np.ndarray, distort: bool = True) -> np.ndarray:
         """(N, 3) world points -> (N, 2) pixels. Points behind the camera give NaN."""

@@ -15,7 +15,8 @@ import pkgutil
 import sys
 from typing import Sequence
 
-from . import __version__, commands
+from . import commands
+from ._version import __version__
 from .fileio import InputError
 
 log = logging.getLogger("spinemocap")

@@ -1,9 +1,23 @@
-"""Geometry shared by the tracker and the calibration package: linear triangulation and the
-least-squares similarity between point sets. Millimetres in, millimetres out."""
+"""Geometry shared by the tracker and the calibration package: the lens distortion model, linear
+triangulation and the least-squares similarity between point sets. Millimetres in, millimetres out.
+The one implementation of each (``Camera.distort`` and calibration's bundle adjustment use
+:func:`distort`; the tracker's candidates and calibration's ``triangulate`` use :func:`triangulate_dlt`)."""
 
 from __future__ import annotations
 
 import numpy as np
+
+
+def distort(normalized: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """OpenCV's 5-parameter distortion (k1, k2, p1, p2, k3) applied to (N, 2) normalized image
+    coordinates. ``dist``: (5,) for one camera or (N, 5), one row per point (batched cameras)."""
+    x, y = normalized[:, 0], normalized[:, 1]
+    k1, k2, p1, p2, k3 = np.asarray(dist).T
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.column_stack([xd, yd])
 
 
 def triangulate_dlt(P: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:

@@ -25,6 +25,7 @@ millimetre noise: 1 mm of noise tilts a tangent by ~2 degrees.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.interpolate import CubicSpline, make_smoothing_spline
@@ -153,7 +154,7 @@ class MidlineCurve:
     deformed curve (mm from row 1). ``support`` holds the ``v`` of the rows the fit used.
     """
 
-    spline: object
+    spline: Any  # scipy spline: callable, with .derivative()
     v_grid: np.ndarray
     s_grid: np.ndarray
     support: np.ndarray

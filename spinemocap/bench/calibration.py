@@ -13,6 +13,7 @@ import json
 import platform
 import time
 from datetime import date
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -97,7 +98,7 @@ def wand_stage(seed: int, tmp_c3d: str) -> dict:
 def run_benchmark(size: int, n_intrinsic: int, n_frames: int, seeds: list[int], out: str) -> dict:
     import tempfile
 
-    results = {"machine": f"{platform.processor() or platform.machine()}, {date.today()}", "board": BOARD,
+    results: dict[str, Any] = {"machine": f"{platform.processor() or platform.machine()}, {date.today()}", "board": BOARD,
                "boards": [], "wand": []}
     for seed in seeds:
         b = board_stage(size, n_intrinsic, n_frames, seed)

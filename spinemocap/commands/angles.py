@@ -8,6 +8,7 @@ import json
 import platform
 import time
 from pathlib import Path
+from typing import Any
 
 from ..fileio import atomic_write
 
@@ -79,7 +80,7 @@ def run_bench(args: argparse.Namespace) -> int:
     from ..bench.analysis import bench_analytic, bench_studio
 
     started = time.time()
-    results = {
+    results: dict[str, Any] = {
         "command": f"spinemocap bench angles --frames {args.frames} --fps {args.fps} --rows {args.rows}",
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
         "date": time.strftime("%Y-%m-%d"),

@@ -47,12 +47,12 @@ def _keep_perforated(dark: np.ndarray, keep: np.ndarray, min_holes: int, hole_sh
         if parent != -1:
             continue
         outer = cv2.contourArea(contours[i])
-        holes = []
+        hole_areas = []
         c = child
         while c != -1:
-            holes.append(cv2.contourArea(contours[c]))
+            hole_areas.append(cv2.contourArea(contours[c]))
             c = hierarchy[c][0]
-        holes = np.asarray([a for a in holes if a >= 1.0])
+        holes = np.asarray([a for a in hole_areas if a >= 1.0])
         if len(holes) < min_holes or outer <= 0:
             continue
         # Dots are alike: count holes within a factor 3 of the median hole.

@@ -45,7 +45,7 @@ NAMES = ("net", "classical")
 
 def shipped_weights_path() -> Path:
     """Path of the weights shipped inside the package (spinemocap/detect/weights/)."""
-    return Path(str(resources.files("spinemocap.detect").joinpath("weights", SHIPPED_WEIGHTS)))
+    return Path(str(resources.files("spinemocap.detect").joinpath("weights").joinpath(SHIPPED_WEIGHTS)))
 
 
 class NetSegmenter:

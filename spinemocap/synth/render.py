@@ -16,6 +16,7 @@ which makes the mask pass cheap at high resolution.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -61,7 +62,7 @@ class SceneMeshes:
     body_vertices: np.ndarray
     body_normals: np.ndarray
     tape_vertices: np.ndarray
-    occluders: "pv.PolyData | None" = None  # noqa: F821
+    occluders: Any = None  # pyvista.PolyData or None
     band_vertices: np.ndarray | None = None
 
 
@@ -98,7 +99,7 @@ class CameraRenderer:
             self.band = pv.PolyData(np.zeros((int(band_faces.max()) + 1, 3)), faces_to_vtk(band_faces))
             self.band_actor = self.plotter.add_mesh(self.band, color=appearance.band_rgb,
                                                     ambient=0.2, diffuse=0.8)
-        self.occluder_actor = None
+        self.occluder_actor: Any = None
         self._add_lights(pv, appearance)
         self._point_camera(self.plotter)
         self._show_canvas_region(self.plotter, 0, 0, *self.canvas_size)
@@ -106,7 +107,7 @@ class CameraRenderer:
         # the tape mask is rendered in a second, unlit window that shows only the tape's
         # neighbourhood of the canvas (created on first use, grown when the tape needs more room)
         self.mask_plotter = None
-        self._mask_occluder_actor = None
+        self._mask_occluder_actor: Any = None
 
     # ------------------------------------------------------------------ set-up
     def _build_lookup(self) -> None:

@@ -85,7 +85,8 @@ def _open_videos(root: Path, capture: Capture, scene: Scene) -> dict:
     for cam in scene.rig:
         context = atomic_path(root / capture.video_pattern.format(camera=cam.name))
         tmp = context.__enter__()
-        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*VIDEO_FOURCC), scene.fps, cam.size)
+        fourcc = cv2.VideoWriter_fourcc(*VIDEO_FOURCC)  # type: ignore[attr-defined]
+        writer = cv2.VideoWriter(str(tmp), fourcc, scene.fps, cam.size)
         if not writer.isOpened():
             context.__exit__(RuntimeError, RuntimeError("codec"), None)
             raise RuntimeError(f"OpenCV cannot write {VIDEO_FOURCC} video to {tmp}")

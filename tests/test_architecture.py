@@ -1,0 +1,188 @@
+"""The layers of docs/ARCHITECTURE.md, checked on the source: every import statement (module level
+and inside functions) of the three top-level packages is read with ``ast`` and must go in an
+allowed direction; the module graph must have no cycle.
+
+    core   <-   domain packages (never sideways)   <-   application (app, bench, commands, cli)
+
+A new domain package (e.g. ``spinemocap.bodymodel``, ``spinemocap.opensim``) only needs an entry in
+``UNITS`` (it then may import core only); a new core module goes into ``CORE``.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("spinemocap", "calibration", "exporters")
+
+# core: small modules of shared types and helpers; they import only each other
+CORE = {f"spinemocap.{name}" for name in
+        ("_version", "camera", "tape", "markers", "capture", "views", "geometry", "fileio", "timing")}
+# unit (module prefix) -> layer
+UNITS = {
+    "spinemocap.detect": "domain",
+    "spinemocap.track": "domain",
+    "spinemocap.synth": "domain",
+    "spinemocap.analysis": "domain",
+    "spinemocap.bodymodel": "domain",  # planned
+    "spinemocap.opensim": "domain",  # planned
+    "calibration": "domain",
+    "exporters": "domain",
+    "spinemocap.app": "app",
+    "spinemocap.bench": "app",
+    "spinemocap.commands": "app",
+    "spinemocap.cli": "app",
+    "spinemocap.__main__": "app",
+}
+# the package root re-exports the public API lazily: it may name anything, nobody imports it
+API = "spinemocap"
+
+
+def unit_of(module: str) -> str:
+    if module == API:
+        return API
+    if module in CORE:
+        return "core"
+    for prefix in sorted(UNITS, key=len, reverse=True):
+        if module == prefix or module.startswith(prefix + "."):
+            return prefix
+    raise AssertionError(f"{module} is in no layer: add it to CORE or UNITS in tests/test_architecture.py")
+
+
+def layer_of(unit: str) -> str:
+    return {API: "api", "core": "core"}.get(unit) or UNITS[unit]
+
+
+def allowed(src_unit: str, dst_unit: str) -> bool:
+    """May code in ``src_unit`` import ``dst_unit``?"""
+    if src_unit == dst_unit:
+        return True
+    src, dst = layer_of(src_unit), layer_of(dst_unit)
+    if dst == "api":
+        return False  # import the defining module instead
+    if src == "api":
+        return True
+    if src == "core":
+        return dst == "core"
+    if src == "domain":
+        return dst == "core"  # domain packages never import each other
+    return dst in ("core", "domain", "app")  # the application layer uses everything below
+
+
+def module_files() -> dict[str, Path]:
+    out = {}
+    for package in PACKAGES:
+        for path in (ROOT / package).rglob("*.py"):
+            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(parts)] = path
+    return out
+
+
+MODULES = module_files()
+
+
+def imports_of(module: str, path: Path) -> list[tuple[str, int]]:
+    """(imported module of ours, line) for every import statement in the file, at any depth."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found += [(alias.name, node.lineno) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            for alias in node.names:  # ``from pkg import submodule`` imports the submodule
+                sub = f"{target}.{alias.name}"
+                found.append((sub if sub in MODULES else target, node.lineno))
+    ours = []
+    for name, line in found:
+        if name.split(".")[0] not in PACKAGES:
+            continue
+        while name not in MODULES and "." in name:  # ``import a.b.c`` of a name inside a module
+            name = name.rpartition(".")[0]
+        ours.append((name, line))
+    return ours
+
+
+GRAPH = {module: imports_of(module, path) for module, path in MODULES.items()}
+
+
+def test_every_module_has_a_layer():
+    for module in MODULES:
+        unit_of(module)
+
+
+def test_imports_follow_the_layers():
+    wrong = []
+    for module, imports in GRAPH.items():
+        for target, line in imports:
+            src, dst = unit_of(module), unit_of(target)
+            if not allowed(src, dst):
+                wrong.append(f"{MODULES[module].relative_to(ROOT)}:{line}: {module} ({layer_of(src)}) "
+                             f"imports {target} ({layer_of(dst)})")
+    assert not wrong, "imports against the layers (docs/ARCHITECTURE.md):\n" + "\n".join(wrong)
+
+
+def test_no_import_cycles():
+    """Tarjan's strongly connected components over the module graph (function-level imports too)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w, _ in GRAPH[v]:
+            if w == v:
+                continue
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for module in GRAPH:
+        if module not in index:
+            visit(module)
+    assert not cycles, f"import cycles: {cycles}"
+
+
+@pytest.mark.parametrize("src,dst,ok", [
+    ("spinemocap.detect", "core", True),
+    ("spinemocap.detect", "spinemocap.track", False),
+    ("calibration", "exporters", False),
+    ("spinemocap.bodymodel", "spinemocap.synth", False),
+    ("core", "spinemocap.track", False),
+    ("spinemocap.app", "spinemocap.track", True),
+    ("spinemocap.commands", "spinemocap.bench", True),
+    ("spinemocap.track", API, False),
+])
+def test_the_rules_themselves(src, dst, ok):
+    assert allowed(src, dst) is ok
+
+
+def test_the_checker_sees_function_level_imports(tmp_path):
+    path = tmp_path / "probe.py"
+    path.write_text("def f():\n    from ..track.pipeline import FrameTracker\n")
+    assert imports_of("spinemocap.detect.probe", path) == [("spinemocap.track.pipeline", 2)]
