@@ -18,3 +18,29 @@ The benchmark (``spinemocap bench calibration``) and the synthetic renders of bo
 wave it and the tests use live in the application layer: :mod:`spinemocap.bench.calibration`,
 :mod:`spinemocap.bench.calibration_scenes`.
 """
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import Any
+
+# public name -> defining module (imported on first access: OpenCV and SciPy load only when used)
+_PUBLIC = {
+    "BoardSpec": "calibration.boards",
+    "detect_board": "calibration.boards",
+    "calibrate_intrinsics": "calibration.intrinsics",
+    "calibrate_extrinsics": "calibration.extrinsics",
+    "WandSpec": "calibration.wand",
+    "coregister": "calibration.wand",
+    "vicon_wand_from_table": "calibration.wand",
+    "read_rig": "calibration.formats",
+    "write_rig": "calibration.formats",
+}
+
+__all__ = list(_PUBLIC)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _PUBLIC:
+        return getattr(import_module(_PUBLIC[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
