@@ -84,6 +84,12 @@ class TrialJob:
     force: bool = False
     detector: str = "net"
 
+    def summary_head(self) -> dict:
+        """The keys every trial summary starts with (ok, failed or lost with its worker)."""
+        t = self.trial
+        return {"key": t.key, "subject": t.subject, "condition": t.condition, "trial": t.trial,
+                "capture": t.capture_dir, "source": self.source}
+
 
 # ---------------------------------------------------------------------------------- discovery
 def discover(root: str | os.PathLike) -> list[Trial]:
@@ -152,8 +158,7 @@ def process_trial(job: TrialJob) -> dict:
     """Run one trial; never raises for bad data: returns (and writes) its summary dict."""
     out = Path(job.out_dir)
     started = time.perf_counter()
-    base = {"key": job.trial.key, "subject": job.trial.subject, "condition": job.trial.condition,
-            "trial": job.trial.trial, "capture": job.trial.capture_dir, "source": job.source}
+    base = job.summary_head()
     try:
         if job.trial.problem:
             raise InputError(job.trial.capture_dir, job.trial.problem)
@@ -423,9 +428,8 @@ def _result_or_failure(future, job: TrialJob) -> dict:
     try:
         return future.result()
     except Exception as exc:
-        return {"key": job.trial.key, "subject": job.trial.subject, "condition": job.trial.condition,
-                "trial": job.trial.trial, "capture": job.trial.capture_dir, "source": job.source,
-                "status": "failed", "reason": f"worker failed: {type(exc).__name__}: {exc}", "skipped": False}
+        return {**job.summary_head(), "status": "failed",
+                "reason": f"worker failed: {type(exc).__name__}: {exc}", "skipped": False}
 
 
 def load_results(out: str | os.PathLike) -> list[dict]:

@@ -85,7 +85,7 @@ def run_track_benchmark(preset: str = "artificial", occlusion: str = "none", fra
     wall = time.perf_counter() - start
     gt = scene.groundtruth
     min_spacing = float(scene.tape.graph.rest_length_mm.min())
-    ev = evaluate_tracking(result.table, gt, min_spacing, result.stage_ms())
+    ev = evaluate_tracking(result.table, gt, min_spacing, result.stage_ms()).to_dict()
     ev.update(
         preset=preset, occlusion=occlusion, balls=synth.n_balls, mode=mode,
         detector=detector, cameras=len(scene.rig), rows=synth.rows, wall_s=wall,

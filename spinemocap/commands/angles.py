@@ -68,7 +68,7 @@ def register_bench(subparsers) -> None:
         description="Runs the studio's flexion, lateral and rotation motions (ground-truth dots, no "
                     "rendering) and an analytic bent rod through the angle pipeline; prints and saves "
                     "RMSE (deg), R^2 and crosstalk of the change from neutral. See "
-                    "spinemocap/analysis/benchmark.py for how the expected angles are derived.")
+                    "spinemocap/bench/analysis.py for how the expected angles are derived.")
     p.add_argument("--frames", type=int, default=60, help="frames per motion (default 60)")
     p.add_argument("--fps", type=float, default=20.0, help="frame rate (default 20: 3 s of motion)")
     p.add_argument("--rows", type=int, default=13, help="tape rows (default 13, the paper's tape)")

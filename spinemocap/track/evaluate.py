@@ -25,6 +25,9 @@ distance the paper reports.
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..markers import MarkerTable
@@ -102,11 +105,39 @@ def views_histogram(visible: np.ndarray) -> dict[str, int]:
     return {f"{k} cameras": int((count == k).sum()) for k in range(C, -1, -1)}
 
 
+@dataclass
+class TrackingAccuracy:
+    """Accuracy of a tracked sequence against the ground truth (errors in mm). ``observed`` /
+    ``inferred``: ``{n, mean, median, p95, max}`` over dots of that status; optional parts are
+    None when the ground truth (or the caller) lacks them. :meth:`to_dict` gives the JSON of
+    ``spinemocap bench track``."""
+
+    frames: int
+    dots: int
+    mean_error_mm: float
+    median_error_mm: float
+    p95_error_mm: float
+    max_error_mm: float
+    observed: dict[str, float]
+    inferred: dict[str, float]
+    status_counts: dict[str, int]
+    label_swaps: int
+    frames_with_swaps: int
+    frames_without_solution: int
+    visibility_histogram: dict[str, int] | None = None
+    plane_baselines_mm: dict[str, float] | None = None
+    stage_ms: dict[str, float] | None = None
+    total_ms_per_frame: float | None = None
+
+    def to_dict(self) -> dict:
+        return {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
+
+
 def evaluate_tracking(table: MarkerTable, groundtruth: dict, tape_min_spacing_mm: float,
-                      stage_ms: dict[str, float] | None = None) -> dict:
+                      stage_ms: dict[str, float] | None = None) -> TrackingAccuracy:
     """All accuracy numbers of a tracked sequence vs the ground truth dict of the synthetic
     studio (``dots`` (F, D, 3), ``visible`` (F, C, D), optional ``keypoints`` (F, 8, 3)); the
-    table's frames index the ground truth. Keys are the JSON keys of ``spinemocap bench track``."""
+    table's frames index the ground truth."""
     arrays = table.to_arrays()
     frames = arrays["frames"]
     labels = list(arrays["labels"])
@@ -117,26 +148,27 @@ def evaluate_tracking(table: MarkerTable, groundtruth: dict, tape_min_spacing_mm
     err = np.linalg.norm(pos - truth, axis=2)
     tracked = status != "missing"
     swaps = label_swaps(pos, truth, tape_min_spacing_mm) & tracked
-    result = {
-        "frames": int(len(frames)),
-        "dots": int(len(labels)),
-        "mean_error_mm": _stats(err[tracked])["mean"],
-        "median_error_mm": _stats(err[tracked])["median"],
-        "p95_error_mm": _stats(err[tracked])["p95"],
-        "max_error_mm": _stats(err[tracked])["max"],
-        "observed": _stats(err[status == "observed"]),
-        "inferred": _stats(err[status == "inferred"]),
-        "status_counts": {s: int((status == s).sum()) for s in ("observed", "inferred", "missing")},
-        "label_swaps": int(swaps.sum()),
-        "frames_with_swaps": int(swaps.any(axis=1).sum()),
-        "frames_without_solution": int((~tracked).all(axis=1).sum()),
-    }
+    overall = _stats(err[tracked])
+    result = TrackingAccuracy(
+        frames=int(len(frames)),
+        dots=int(len(labels)),
+        mean_error_mm=overall["mean"],
+        median_error_mm=overall["median"],
+        p95_error_mm=overall["p95"],
+        max_error_mm=overall["max"],
+        observed=_stats(err[status == "observed"]),
+        inferred=_stats(err[status == "inferred"]),
+        status_counts={s: int((status == s).sum()) for s in ("observed", "inferred", "missing")},
+        label_swaps=int(swaps.sum()),
+        frames_with_swaps=int(swaps.any(axis=1).sum()),
+        frames_without_solution=int((~tracked).all(axis=1).sum()),
+    )
     if "visible" in groundtruth:
-        result["visibility_histogram"] = views_histogram(np.asarray(groundtruth["visible"])[frames][:, :, order])
+        result.visibility_histogram = views_histogram(np.asarray(groundtruth["visible"])[frames][:, :, order])
     if "keypoints" in groundtruth:
         kp = np.asarray(groundtruth["keypoints"], float)[frames]
-        result["plane_baselines_mm"] = plane_baselines(truth, kp)
+        result.plane_baselines_mm = plane_baselines(truth, kp)
     if stage_ms is not None:
-        result["stage_ms"] = {k: float(v) for k, v in stage_ms.items()}
-        result["total_ms_per_frame"] = float(sum(stage_ms.values()))
+        result.stage_ms = {k: float(v) for k, v in stage_ms.items()}
+        result.total_ms_per_frame = float(sum(stage_ms.values()))
     return result
