@@ -43,8 +43,9 @@ from __future__ import annotations
 import inspect
 import os
 import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Sequence
 
 import c3d as c3dlib
 import numpy as np
@@ -269,13 +270,61 @@ def fit_descriptions(descriptions: Sequence[str]) -> list[str]:
 
 
 # ---------------------------------------------------------------------------------- reading
-class _Reader(c3dlib.Reader):
-    """``c3d.Reader`` with the start frame decoded as an unsigned 32-bit number."""
+MAX_ABS_MM = 1.0e6       # a marker more than 1 km from the lab origin is a damaged sample, not data
+MAX_ABS_OTHER = 1.0e9    # the same for non-marker points (angles, forces, moments ...) in their own units
+SATURATED = 65535        # 16-bit frame fields (header, POINT:FRAMES) hold this beyond 65534 frames
+PROCESSORS = {84: "Intel", 85: "DEC", 86: "SGI/MIPS"}
+PRIMARY_FIELDS = ("POINT:FRAMES", "header first/last frame")
 
-    @property
-    def first_frame(self) -> int:
-        param = self.get("TRIAL:ACTUAL_START_FIELD")
-        return _decode_frame_field(param) if param is not None else int(self.header.first_frame)
+
+class _Reader(c3dlib.Reader):
+    """``c3d.Reader`` used for the header and the parameters only. Its consistency checks are
+    asserts that refuse files every other reader opens (header and parameters disagree in many
+    real files); :func:`read_c3d` decides between them itself."""
+
+    def _check_metadata(self) -> None:
+        pass
+
+
+def _param(reader: c3dlib.Reader, key: str):
+    """The parameter ``GROUP:NAME``, or None when absent or empty."""
+    param = reader.get(key)
+    return param if param is not None and len(param.bytes) > 0 else None
+
+
+def _number(reader: c3dlib.Reader, key: str) -> float | None:
+    """The first value of a numeric parameter (4-byte elements read as float, 2-byte as unsigned
+    16-bit, 1-byte as unsigned 8-bit), or None when absent, empty or of another kind."""
+    param = _param(reader, key)
+    size = abs(int(param.bytes_per_element)) if param is not None else 0
+    if param is None or len(param.bytes) < size:
+        return None
+    if size == 4:
+        return _float32(param.bytes[:4], reader._dtypes)
+    if size == 2:
+        return int(param.uint16_value)
+    return int(param.uint8_value) if size == 1 else None
+
+
+def _float32(raw: bytes, dtypes) -> float:
+    """One 32-bit float in the file's format (the ``c3d`` package's scalar DEC conversion turns
+    0 into -1.7e38; its array conversion is right)."""
+    if dtypes.is_dec:
+        return float(c3dlib.c3d.DEC_to_IEEE_BYTES(raw)[0])
+    return float(np.frombuffer(raw, dtypes.float32, count=1)[0])
+
+
+def _frame_field(reader: c3dlib.Reader, key: str) -> int | None:
+    """TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD: a frame number stored as two 16-bit words
+    (low, high); one word or a 4-byte element are read too."""
+    param = _param(reader, key)
+    if param is None:
+        return None
+    if abs(int(param.bytes_per_element)) == 4 and len(param.bytes) >= 4:
+        value = _float32(param.bytes[:4], reader._dtypes)
+        return int(value) if np.isfinite(value) and 0 <= value < 2 ** 32 else None
+    words = param.uint16_array.ravel() if param.dimensions else [param.uint16_value]
+    return int(words[0]) + (65536 * int(words[1]) if len(words) > 1 else 0)
 
 
 def _strings(reader: c3dlib.Reader, group: str, name: str) -> list[str]:
@@ -289,63 +338,282 @@ def _strings(reader: c3dlib.Reader, group: str, name: str) -> list[str]:
     return out
 
 
+@dataclass(frozen=True)
+class C3dLayout:
+    """Where the frames of a C3D file lie: per frame ``4 * points`` point words, then
+    ``analog_words`` analog samples (all channels); words are 4-byte floats (POINT:SCALE < 0) or
+    16-bit integers. Frames run from byte ``data_start`` to at most ``data_end`` (the end of
+    the file, or the start of a rotation section)."""
+
+    points: int
+    analog_words: int
+    word_bytes: int
+    data_start: int
+    data_end: int
+
+    @property
+    def frame_bytes(self) -> int:
+        return self.word_bytes * (4 * self.points + self.analog_words)
+
+    @property
+    def available(self) -> int:
+        """Complete frames the file holds (padding of the last 512-byte block included)."""
+        return max(self.data_end - self.data_start, 0) // self.frame_bytes
+
+    def holds_exactly(self, count: int) -> bool:
+        """True when ``count`` frames fill the data section up to its 512-byte padding."""
+        return count <= self.available and (self.available - count) * self.frame_bytes < 512
+
+
+@dataclass(frozen=True)
+class DeclaredFrames:
+    """What one set of C3D fields says about the frames: ``first`` (1-based frame number, None
+    when not given) and ``count`` (None when not given or saturated at 65535; then
+    ``at_least`` is the lower bound it still implies)."""
+
+    fields: str
+    text: str
+    first: int | None = None
+    count: int | None = None
+    at_least: int = 0
+
+    def __str__(self) -> str:
+        return f"{self.fields} {self.text}"
+
+
+def declared_frames(reader: c3dlib.Reader) -> list[DeclaredFrames]:
+    """The frame fields of a C3D file, most trusted first: POINT:FRAMES (what ezc3d follows),
+    the header's first/last frame, POINT:LONG_FRAMES, TRIAL:ACTUAL_START/END_FIELD."""
+    out = []
+    frames = _number(reader, "POINT:FRAMES")
+    if frames is not None and np.isfinite(frames) and frames >= 1:
+        size = abs(int(reader.get("POINT:FRAMES").bytes_per_element))
+        saturated = size == 2 and frames == SATURATED
+        out.append(DeclaredFrames("POINT:FRAMES", f"= {frames:g}", count=None if saturated else int(frames),
+                                  at_least=SATURATED if saturated else 0))
+    first, last = int(reader.header.first_frame), int(reader.header.last_frame)
+    header = DeclaredFrames(PRIMARY_FIELDS[1], f"{first}..{last}", first=max(first, 1))
+    if last == SATURATED:
+        header = replace(header, at_least=SATURATED - max(first, 1) + 1)
+    elif last >= max(first, 1):
+        header = replace(header, count=last - max(first, 1) + 1)
+    out.append(header)
+    long_frames = _number(reader, "POINT:LONG_FRAMES")
+    if long_frames is not None and np.isfinite(long_frames) and long_frames >= 1:
+        out.append(DeclaredFrames("POINT:LONG_FRAMES", f"= {long_frames:g}", count=int(long_frames)))
+    start, end = _frame_field(reader, "TRIAL:ACTUAL_START_FIELD"), _frame_field(reader, "TRIAL:ACTUAL_END_FIELD")
+    if start is not None:
+        count = end - start + 1 if end is not None and end >= start else None
+        out.append(DeclaredFrames("TRIAL:ACTUAL_START_FIELD/ACTUAL_END_FIELD", f"{start}..{end}",
+                                  first=start, count=count))
+    return out
+
+
+def _truncated(path: Path, fields: Sequence[DeclaredFrames], count: int, layout: C3dLayout) -> InputError:
+    names = ", ".join(str(d) for d in fields)
+    return InputError(path, f"truncated C3D: {names} declare{'s' if len(fields) == 1 else ''} {count} frames "
+                            f"but the file holds {layout.available}")
+
+
+def frame_count(declared: Sequence[DeclaredFrames], layout: C3dLayout,
+                path: Path) -> tuple[int, list[DeclaredFrames]]:
+    """How many frames to read, and the fields that say so.
+
+    When the header and POINT:FRAMES agree, that is the count (the C3D specification; a file
+    holding fewer frames is truncated). Otherwise the first field (in the order of
+    :func:`declared_frames`) whose count the data fills exactly, else the first the data holds;
+    when every field declares more than the file holds, it is truncated. Without usable fields
+    (saturated 16-bit fields, nothing else) the data decides, as in ezc3d."""
+    given = [d for d in declared if d.count is not None]
+    at_least = max((d.at_least for d in declared), default=0)
+    primary = [d for d in given if d.fields in PRIMARY_FIELDS]
+    if len(primary) == 2 and primary[0].count == primary[1].count:
+        count = int(primary[0].count or 0)
+        if count > layout.available:
+            raise _truncated(path, primary, count, layout)
+        return count, primary
+    for fits in (layout.holds_exactly, lambda n: n <= layout.available):
+        for d in given:
+            if d.count is not None and d.count >= at_least and fits(d.count):
+                return d.count, [e for e in given if e.count == d.count]
+    if given:
+        raise _truncated(path, given[:1], int(given[0].count or 0), layout)
+    if at_least > layout.available:
+        raise _truncated(path, [d for d in declared if d.at_least][:1], at_least, layout)
+    return layout.available, []
+
+
+def first_frame(declared: Sequence[DeclaredFrames], chosen: Sequence[DeclaredFrames]) -> int:
+    """The 1-based number of the first frame: the header's (as ezc3d), unless it is saturated
+    or the count came from the TRIAL fields alone; then TRIAL:ACTUAL_START_FIELD."""
+    header = next(d for d in declared if d.fields == PRIMARY_FIELDS[1])
+    trial = next((d for d in declared if d.fields.startswith("TRIAL") and d.first is not None), None)
+    use_trial = trial is not None and (header.first == SATURATED or (trial in chosen and header not in chosen))
+    return int(trial.first if use_trial and trial is not None else header.first or 1)
+
+
+def _warn_disagreement(path: Path, declared: Sequence[DeclaredFrames], count: int, first: int,
+                       chosen: Sequence[DeclaredFrames], layout: C3dLayout) -> None:
+    """Warn (naming the file and the fields) when a field disagrees with the frames read."""
+    odd = [d for d in declared if (d.count is not None and d.count != count) or count < d.at_least or
+           (d.first is not None and d.first != first and not (d.first == SATURATED and first > SATURATED))]
+    if not odd:
+        return
+    data = ("the data section holds exactly these" if layout.holds_exactly(count) else
+            f"the data section has room for {layout.available}")
+    basis = f"as {' and '.join(d.fields for d in chosen)} say" if chosen else "as the file's size says"
+    warnings.warn(f"{path}: C3D frame fields disagree ({'; '.join(str(d) for d in declared)}): "
+                  f"{', '.join(d.fields for d in odd)} do not match. Read {count} frames from frame {first}, "
+                  f"{basis}; {data}", ExportWarning, stacklevel=3)
+
+
+def _layout(reader: c3dlib.Reader, n_points: int, rate: float, file_size: int, path: Path) -> C3dLayout:
+    """The frame layout from the parameters (ANALOG:USED channels x ANALOG:RATE / POINT:RATE
+    samples, as ezc3d; the header's samples per frame when the rates are missing)."""
+    channels = int(_number(reader, "ANALOG:USED") or 0)
+    analog_rate = _number(reader, "ANALOG:RATE")
+    if channels and analog_rate is not None and np.isfinite(analog_rate) and analog_rate > 0:
+        ratio = analog_rate / rate
+        per_frame = round(ratio) if abs(ratio - round(ratio)) < 1e-4 * max(ratio, 1.0) else int(ratio)
+    else:
+        per_frame = int(reader.header.analog_per_frame)
+    scale = _point_scale(reader)
+    data_block = int(reader.header.data_block)
+    if data_block < 2:
+        data_block = int(_number(reader, "POINT:DATA_START") or 0)
+        if data_block < 2:
+            raise InputError(path, f"C3D data start block {data_block} is not after the header")
+    data_end = file_size
+    rotation_block = _number(reader, "ROTATION:DATA_START") if reader.get("ROTATION") is not None else None
+    if rotation_block is not None and rotation_block > data_block:
+        data_end = min(file_size, 512 * (int(rotation_block) - 1))
+    return C3dLayout(n_points, channels * per_frame, 4 if scale < 0 else 2, 512 * (data_block - 1), data_end)
+
+
+def _decode_points(raw: bytes, layout: C3dLayout, dtypes, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """The point words of whole frames: coordinates (F, P, 3) in file units (float64) and the
+    fourth word (F, P) as an integer, negative where a sample is invalid. Float data: a negative
+    (sign bit set, as ezc3d reads it) or non-finite fourth word is invalid; integer data: the
+    16-bit word is negative."""
+    F, P = len(raw) // layout.frame_bytes, layout.points
+    words = layout.frame_bytes // layout.word_bytes
+    if layout.word_bytes == 4:
+        values = c3dlib.c3d.DEC_to_IEEE_BYTES(raw) if dtypes.is_dec else np.frombuffer(raw, dtypes.float32)
+        block = values.reshape(F, words)[:, :4 * P].reshape(F, P, 4).astype(np.float64)
+        fourth = block[..., 3]
+        bad = np.signbit(fourth) | ~np.isfinite(fourth) | (fourth >= 2.0 ** 31)
+        word = np.where(bad, -1, np.trunc(np.where(bad, 0.0, fourth))).astype(np.int64)
+        return block[..., :3], word
+    ints = np.frombuffer(raw, dtypes.int16).reshape(F, words)[:, :4 * P].reshape(F, P, 4)
+    return ints[..., :3].astype(np.float64) * abs(scale), ints[..., 3].astype(np.int64)
+
+
+def _header_float(reader: c3dlib.Reader, offset: int) -> float:
+    """The float at byte ``offset`` of the header (12: scale factor, 20: frame rate)."""
+    reader._handle.seek(offset)
+    return _float32(reader._handle.read(4), reader._dtypes)
+
+
+def _point_scale(reader: c3dlib.Reader) -> float:
+    """POINT:SCALE (negative: float data), else the header's scale factor."""
+    scale = _number(reader, "POINT:SCALE")
+    return _header_float(reader, 12) if scale is None else scale
+
+
+def _point_rate(reader: c3dlib.Reader, path: Path) -> float:
+    """POINT:RATE (Hz), else the header's rate; InputError when neither is positive and finite."""
+    for source, rate in (("POINT:RATE", _number(reader, "POINT:RATE")),
+                         ("header frame rate", _header_float(reader, 20))):
+        if rate is not None and np.isfinite(rate) and rate > 0:
+            if source != "POINT:RATE":
+                warnings.warn(f"{path}: POINT:RATE missing or not positive; using the {source} {rate:g} Hz",
+                              ExportWarning, stacklevel=4)
+            return float(rate)
+    raise InputError(path, "C3D frame rate unknown: POINT:RATE and the header rate are not positive numbers")
+
+
+def _open_reader(handle, path: Path) -> c3dlib.Reader:
+    """Header and parameters; InputError for anything that is not a C3D file of a known processor."""
+    head = handle.read(512)
+    if len(head) < 512 or head[1] != 0x50:
+        raise InputError(path, "not a C3D file (no C3D header: too short or wrong key byte)")
+    handle.seek(512 * (max(head[0], 1) - 1) + 3)
+    processor = handle.read(1)
+    if not processor or processor[0] not in PROCESSORS:
+        raise InputError(path, f"not a readable C3D file: processor type {processor[0] if processor else None} "
+                               f"is none of {PROCESSORS}")
+    handle.seek(0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")      # the c3d package's remarks on missing optional parameters
+        return _Reader(handle)
+
+
 def read_c3d(path: str | os.PathLike) -> MarkerTable:
     """Read the 3D points of a C3D file into a :class:`MarkerTable` (mm, frames 0-based:
-    C3D frame 1 is frame 0). Invalid samples are NaN/``missing``; see the module docstring for
-    status, n_views and residual. Non-marker points (Vicon angles, forces ...) are read too, in
-    their own units and unconverted; ``meta['point_types']`` names them."""
+    C3D frame 1 is frame 0).
+
+    Any file ezc3d reads: integer or float data, Intel, DEC or SGI/MIPS processor, analog
+    channels and rotation sections beside the points, more than 65535 frames. The frame range
+    follows :func:`frame_count` / :func:`first_frame`; when the header, POINT:FRAMES and the
+    TRIAL fields disagree the file's data decides and an :class:`ExportWarning` names the fields.
+    Invalid samples are NaN/``missing``; samples with non-finite or absurd coordinates (beyond
+    ``MAX_ABS_MM``) too, with a warning saying how many. See the module docstring for status,
+    n_views and residual. Non-marker points (Vicon angles, forces ...) are read in their own
+    units, unconverted; ``meta['point_types']`` names them. A file without 3D points (analog or
+    rotation data only) is an :class:`InputError`."""
     path = Path(path)
     try:
-        handle = open(path, "rb")
+        handle = open(path, "rb")  # noqa: SIM115 (closed by the with below; only open's error is caught here)
     except OSError as exc:
         raise InputError(path, f"cannot open: {exc}") from exc
-    with handle, warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with handle:
         try:
-            reader = _Reader(handle)
-            n_points = int(reader.point_used)
-            expected = int(reader.last_frame) - int(reader.first_frame) + 1
+            reader = _open_reader(handle, path)
+            n_points = int(_number(reader, "POINT:USED") if reader.get("POINT:USED") is not None
+                           else reader.header.point_count)
             if n_points == 0:
-                raise InputError(path, "C3D file holds no 3D points (POINT:USED = 0)")
-            if float(reader.point_scale) < 0 and not reader._dtypes.is_dec:
-                data = _float_points(reader, handle, expected)
-            else:  # integer or DEC data: the c3d package's frame-by-frame decoder
-                data = np.stack([p for _, p, _ in reader.read_frames(copy=True, check_nan=True)] or
-                                [np.zeros((n_points, 5), np.float32)])[:expected]
+                raise InputError(path, f"C3D file holds no 3D points (POINT:USED = 0){_other_data(reader)}")
+            rate = _point_rate(reader, path)
+            scale = _point_scale(reader)
+            layout = _layout(reader, n_points, rate, os.fstat(handle.fileno()).st_size, path)
+            declared = declared_frames(reader)
+            count, chosen = frame_count(declared, layout, path)
+            first = first_frame(declared, chosen)
+            _warn_disagreement(path, declared, count, first, chosen, layout)
+            handle.seek(layout.data_start)
+            xyz, word = _decode_points(handle.read(count * layout.frame_bytes), layout, reader._dtypes, scale)
+            return _table_from_reader(reader, xyz, word, abs(scale), rate, first, path)
         except InputError:
             raise
         except Exception as exc:  # struct.error, ValueError, KeyError ... from a damaged file
             raise InputError(path, f"not a readable C3D file ({type(exc).__name__}: {exc})") from exc
-    eof = [str(w.message) for w in caught if "end of file" in str(w.message).lower()]
-    if len(data) != expected or eof:
-        found = len(data) if not eof else "fewer"
-        raise InputError(path, f"truncated C3D: the parameters declare {expected} frames but the file holds "
-                               f"{found}")
-    return _table_from_reader(reader, data, path)
 
 
-def _float_points(reader: c3dlib.Reader, handle, n_frames: int) -> np.ndarray:
-    """All frames of a float (Intel or MIPS) file at once, decoded as ``c3d.Reader.read_frames``
-    does: (F, D, 5) = x, y, z, residual (-1 invalid), camera mask. Fewer rows if truncated."""
-    n_points = int(reader.point_used)
-    n_analog = int(reader.analog_used) * int(reader.analog_per_frame)
-    words = 4 * n_points + n_analog
-    handle.seek((int(reader.header.data_block) - 1) * 512)
-    raw = handle.read(4 * words * n_frames)
-    complete = len(raw) // (4 * words)
-    block = np.frombuffer(raw[: complete * 4 * words], dtype=reader._dtypes.float32)
-    block = block.reshape(complete, words)[:, : 4 * n_points].reshape(complete, n_points, 4)
-    fourth = block[..., 3].astype(np.int32)
-    invalid = (fourth < 0) | ~np.isfinite(block).all(axis=2)
-    out = np.zeros((complete, n_points, 5), np.float32)
-    out[..., :3] = np.where(invalid[..., None], 0.0, block[..., :3])
-    out[..., 3] = np.where(invalid, -1.0, (fourth & 0xFF) * np.float32(abs(reader.point_scale)))
-    out[..., 4] = (fourth & 0x7F00) >> 8
-    return out
+def _other_data(reader: c3dlib.Reader) -> str:
+    """What a file without 3D points holds instead, for the error message."""
+    held = [f"{int(_number(reader, key) or 0)} {what}" for key, what in
+            (("ANALOG:USED", "analog channels"), ("ROTATION:USED", "rotations")) if _number(reader, key)]
+    return f"; it holds {' and '.join(held)} only" if held else ""
 
 
-def _table_from_reader(reader: c3dlib.Reader, data: np.ndarray, path: Path) -> MarkerTable:
-    n_points = data.shape[1]
+def _mark_implausible(positions: np.ndarray, invalid: np.ndarray, is_marker: np.ndarray, path: Path) -> None:
+    """Samples with non-finite coordinates or beyond ``MAX_ABS_MM`` (markers, in mm) /
+    ``MAX_ABS_OTHER`` (other points) become invalid (in place), with a warning saying how many."""
+    bound = np.where(is_marker, MAX_ABS_MM, MAX_ABS_OTHER)[None, :]
+    with np.errstate(invalid="ignore"):
+        absurd = ~invalid & ~(np.abs(positions).max(axis=2, initial=0.0) <= bound)
+    if absurd.any():
+        warnings.warn(f"{path}: {int(absurd.sum())} of {absurd.size} C3D samples have non-finite or absurd "
+                      f"coordinates (beyond {MAX_ABS_MM:g} mm for markers); read as missing",
+                      ExportWarning, stacklevel=4)
+        invalid |= absurd
+
+
+def _table_from_reader(reader: c3dlib.Reader, xyz: np.ndarray, word: np.ndarray, scale: float, fps: float,
+                       first: int, path: Path) -> MarkerTable:
+    """The marker table from decoded point words (see :func:`_decode_points`); ``first`` is the
+    1-based number of the first frame, ``scale`` |POINT:SCALE| (residual units per count)."""
+    n_frames, n_points = word.shape
     labels = _strings(reader, "POINT", "LABELS")
     if len(labels) < n_points:
         warnings.warn(f"{path}: POINT:LABELS names {len(labels)} of {n_points} points; the rest are "
@@ -353,31 +621,30 @@ def _table_from_reader(reader: c3dlib.Reader, data: np.ndarray, path: Path) -> M
         labels += [f"POINT_{i + 1}" for i in range(len(labels), n_points)]
     labels = deduplicate_labels(labels[:n_points], path)
     units_param = reader.get("POINT:UNITS")
-    units = units_param.string_value.strip() if units_param is not None else "mm"
-    factor = mm_per_unit(units, path)
+    units = units_param.string_value.strip() if units_param is not None and units_param.bytes else "mm"
+    factor = mm_per_unit(units or "mm", path)
     point_types = {label: kind for group, kind in NON_MARKER_LISTS.items()
                    for label in _strings(reader, "POINT", group) if label in labels}
     is_marker = np.array([label not in point_types for label in labels])
 
-    word = data[..., 3]
     invalid = word < 0
-    positions = data[..., :3].astype(float)
-    positions[invalid] = np.nan
+    positions = xyz.copy()
     positions[:, is_marker] *= factor
-    residual = np.where(invalid, np.nan, word.astype(float))
-    cameras = data[..., 4].astype(np.int64)
-    n_views = np.where(invalid, 0, np.array([bin(c).count("1") for c in range(128)])[cameras & 0x7F])
-    status = np.where(invalid, "missing", np.where(residual == 0, "inferred", "observed"))
+    _mark_implausible(positions, invalid, is_marker, path)
+    positions[invalid] = np.nan
+    residual = np.where(invalid, np.nan, (word & 0xFF) * scale)
+    cameras = (word >> 8) & 0x7F
+    n_views = np.where(invalid, 0, np.array([c.bit_count() for c in range(128)])[cameras])
+    status = np.where(invalid, "missing", np.where((word & 0xFF) == 0, "inferred", "observed"))
     warn_empty_markers([l for l, m in zip(labels, is_marker) if m], positions[:, is_marker], path)
 
-    first = int(reader.first_frame) - 1
-    fps = float(reader.point_rate)
-    frames = np.arange(first, first + len(data))
+    frames = np.arange(first - 1, first - 1 + n_frames)
     subject = _strings(reader, "SUBJECTS", "NAMES")
     software = _strings(reader, "MANUFACTURER", "SOFTWARE")
     meta = {"fps": fps, "source": str(path), "file_units": units, "point_types": point_types,
             "subject": subject[0] if subject else None,
             "software": software[0] if software else None,
+            "processor": PROCESSORS.get(int(reader._dtypes._proc_type)),
             "descriptions": {l: d for l, d in zip(labels, _strings(reader, "POINT", "DESCRIPTIONS")) if d}}
     return table_from_dense(labels, frames, frames / fps, positions, meta, status=status, n_views=n_views,
                             residual=residual)

@@ -156,16 +156,10 @@ def test_c3d_round_trip_keeps_status_views_and_residuals(tmp_path):
     assert back["residual"][arrays["status"] == "inferred"].max() == 0.0
 
 
-def test_vectorised_float_decoder_matches_c3d_package(tmp_path):
-    from exporters.c3d import _float_points
+def test_vectorised_decoder_matches_c3d_package(tmp_path):
+    from c3d_corpus import assert_matches_c3d_package
 
-    path = exporters.write(sample_table(), tmp_path / "m.c3d")
-    reader, frames = _c3d_package_frames(path)
-    with open(path, "rb") as handle:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            fast = _float_points(c3dlib.Reader(handle), handle, len(frames))
-    assert np.array_equal(fast, frames)
+    assert_matches_c3d_package(exporters.write(sample_table(), tmp_path / "m.c3d"))
 
 
 def test_c3d_beyond_65535_frames(tmp_path):
