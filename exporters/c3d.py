@@ -395,8 +395,8 @@ def declared_frames(reader: c3dlib.Reader) -> list[DeclaredFrames]:
     header = DeclaredFrames(PRIMARY_FIELDS[1], f"{first}..{last}", first=max(first, 1))
     if last == SATURATED:
         header = replace(header, at_least=SATURATED - max(first, 1) + 1)
-    elif last >= max(first, 1):
-        header = replace(header, count=last - max(first, 1) + 1)
+    elif last >= first and last > 0:        # a first frame of 0: a 0-based writer (ezc3d reads it so too)
+        header = replace(header, count=last - first + 1)
     out.append(header)
     long_frames = _number(reader, "POINT:LONG_FRAMES")
     if long_frames is not None and np.isfinite(long_frames) and long_frames >= 1:
@@ -499,7 +499,8 @@ def _decode_points(raw: bytes, layout: C3dLayout, dtypes, scale: float) -> tuple
     words = layout.frame_bytes // layout.word_bytes
     if layout.word_bytes == 4:
         values = c3dlib.c3d.DEC_to_IEEE_BYTES(raw) if dtypes.is_dec else np.frombuffer(raw, dtypes.float32)
-        block = values.reshape(F, words)[:, :4 * P].reshape(F, P, 4).astype(np.float64)
+        with np.errstate(invalid="ignore"):     # signalling NaNs in damaged files; validated later
+            block = values.reshape(F, words)[:, :4 * P].reshape(F, P, 4).astype(np.float64)
         fourth = block[..., 3]
         bad = np.signbit(fourth) | ~np.isfinite(fourth) | (fourth >= 2.0 ** 31)
         word = np.where(bad, -1, np.trunc(np.where(bad, 0.0, fourth))).astype(np.int64)
@@ -578,6 +579,8 @@ def read_c3d(path: str | os.PathLike) -> MarkerTable:
             layout = _layout(reader, n_points, rate, os.fstat(handle.fileno()).st_size, path)
             declared = declared_frames(reader)
             count, chosen = frame_count(declared, layout, path)
+            if count == 0:
+                raise InputError(path, "C3D file holds no frames")
             first = first_frame(declared, chosen)
             _warn_disagreement(path, declared, count, first, chosen, layout)
             handle.seek(layout.data_start)

@@ -46,6 +46,7 @@ CORPUS = {
     "rotations-analog-int": (lambda: _raw(integer=True, scale=0.1, analog=_analog(30, 2, 2) * 0,
                                           analog_rate=200.0, rotations=np.tile(np.eye(4), (30, 1, 1, 1))), None),
     "first-frame-199": (lambda: _raw(first_frame=199, trial=(199, 228)), None),
+    "header-0-based": (lambda: _raw(header_first=0, header_last=29), None),
     "unpadded": (lambda: _raw(n_frames=31, pad_data=False), None),
     "no-points-frames": (lambda: _raw(point_frames=None), None),
     # issue 19's NDI Optotrak export: 54 points, 29 frames at 30 Hz, TRIAL fields counted otherwise
