@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo lint test test-slow bench clean
+.PHONY: demo lint test test-slow fuzz-c3d bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -28,6 +28,10 @@ test: $(STAMP) lint
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -m slow
+
+# C3D reader fuzzing at scale (issue 12): 10,000 damaged small files + 500 damaged Nexus files
+fuzz-c3d: $(STAMP)
+	$(PY) -m pytest -m slow -s tests/test_c3d_fuzz.py
 
 clean:
 	rm -rf $(VENV) demo_out

@@ -541,12 +541,16 @@ def _open_reader(handle, path: Path) -> c3dlib.Reader:
     handle.seek(512 * (max(head[0], 1) - 1) + 3)
     processor = handle.read(1)
     if not processor or processor[0] not in PROCESSORS:
-        raise InputError(path, f"not a readable C3D file: processor type {processor[0] if processor else None} "
-                               f"is none of {PROCESSORS}")
+        raise InputError(path, f"not a readable C3D file: the parameter section (block {head[0]}) names processor "
+                               f"type {processor[0] if processor else None}, none of {PROCESSORS}")
     handle.seek(0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")      # the c3d package's remarks on missing optional parameters
-        return _Reader(handle)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")      # the c3d package's remarks on missing optional parameters
+            return _Reader(handle)
+    except Exception as exc:  # struct.error, KeyError (a parameter twice), ValueError ...
+        raise InputError(path, f"not a readable C3D file: damaged or cut parameter section "
+                               f"({type(exc).__name__}: {exc})") from exc
 
 
 def read_c3d(path: str | os.PathLike) -> MarkerTable:
@@ -570,8 +574,8 @@ def read_c3d(path: str | os.PathLike) -> MarkerTable:
     with handle:
         try:
             reader = _open_reader(handle, path)
-            n_points = int(_number(reader, "POINT:USED") if reader.get("POINT:USED") is not None
-                           else reader.header.point_count)
+            used = _number(reader, "POINT:USED")
+            n_points = int(reader.header.point_count if used is None else used)
             if n_points == 0:
                 raise InputError(path, f"C3D file holds no 3D points (POINT:USED = 0){_other_data(reader)}")
             rate = _point_rate(reader, path)
