@@ -229,7 +229,7 @@ def marker_table_problems(table, max_abs_mm: float = 1e6, max_abs_other: float =
         out.append(f"{int((~np.isfinite(pos[~missing])).sum())} non-finite coordinates in samples not missing")
     if not np.isnan(pos[missing]).all():
         out.append("missing samples with coordinates")
-    others = set((table.meta.get("point_types") or {}))
+    others = set(table.meta.get("point_types") or {})
     bound = np.array([max_abs_other if label in others else max_abs_mm for label in table.labels])
     with np.errstate(invalid="ignore"):
         beyond = (np.abs(pos) > bound[None, :, None]).any(axis=2) & ~missing

@@ -11,12 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from c3d_corpus import RawC3d, sample_points
+from fuzzing import FuzzReport, case_count, cases, marker_table_problems, run_fuzz
 
 import exporters
-from c3d_corpus import RawC3d, sample_points
 from exporters import ExportWarning
 from exporters.c3d import MAX_ABS_MM, MAX_ABS_OTHER, read_c3d
-from fuzzing import FuzzReport, case_count, cases, marker_table_problems, run_fuzz
 
 SHARED = Path(os.environ.get("SPINEMOCAP_SHARED", Path(__file__).resolve().parents[2] / "shared"))
 NEXUS = SHARED / "data" / "vicon" / "walking01_plugin_gait_lower.c3d"
@@ -108,3 +108,20 @@ def test_damaged_scale_of_an_integer_file_leaves_every_sample_missing_with_warni
     assert re.search(r"scale\.c3d: 20 of 20 C3D samples have non-finite or absurd", messages)
     assert re.search(r"scale\.c3d: markers with no valid sample", messages)
     assert set(table.to_arrays()["status"].ravel()) == {"missing"} and _problems(table) == []
+
+
+def test_cli_refuses_a_cut_c3d_naming_it_and_flags_absurd_samples(tmp_path, capsys):
+    from spinemocap.cli import main
+
+    points, invalid = sample_points(200, 3)
+    data = RawC3d(points, invalid=invalid).to_bytes()
+    (tmp_path / "cut.c3d").write_bytes(data[: len(data) // 2])
+    assert main(["-q", "export", str(tmp_path / "cut.c3d"), "--format", "csv", "--out", str(tmp_path / "a.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "cut.c3d: truncated C3D" in err and "Traceback" not in err and not (tmp_path / "a.csv").exists()
+    points[50:60, 0] = 1e38
+    RawC3d(points, invalid=invalid).write(tmp_path / "absurd.c3d")
+    with pytest.warns(ExportWarning, match=r"absurd\.c3d: 10 of 600 C3D samples have non-finite or absurd"):
+        assert main(["-q", "export", str(tmp_path / "absurd.c3d"), "--format", "csv",
+                     "--out", str(tmp_path / "b.csv")]) == 0
+    assert np.isnan(exporters.read(tmp_path / "b.csv").positions()[50:60, 0]).all()
