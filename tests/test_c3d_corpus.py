@@ -8,6 +8,7 @@ fields that disagree. Every file is also exported to CSV through the CLI."""
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
 import c3d as c3dlib
 import numpy as np
@@ -17,6 +18,7 @@ from c3d_corpus import RawC3d, sample_points
 
 import exporters
 from exporters import ExportWarning
+from exporters.c3d import C3dLayout, DeclaredFrames, frame_count
 from spinemocap.cli import main
 from spinemocap.fileio import InputError
 
@@ -236,3 +238,43 @@ def test_export_of_a_file_without_points_exits_2_naming_it(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "emg.c3d: C3D file holds no 3D points" in err and "Traceback" not in err
     assert not (tmp_path / "x.csv").exists()
+
+
+# ------------------------------------------------------------------------------- the frame-count rule
+def _fields(point_frames=None, header=None, trial=None, saturated=False):
+    out = []
+    if point_frames is not None:
+        out.append(DeclaredFrames("POINT:FRAMES", f"= {point_frames}", count=point_frames))
+    if saturated:
+        out.append(DeclaredFrames("header first/last frame", "1..65535", first=1, at_least=65535))
+    else:
+        out.append(DeclaredFrames("header first/last frame", f"1..{header}", first=1, count=header))
+    if trial is not None:
+        out.append(DeclaredFrames("TRIAL:ACTUAL_START_FIELD/ACTUAL_END_FIELD", f"1..{trial}", first=1, count=trial))
+    return out
+
+
+@pytest.mark.parametrize("fields,frames_in_file,expected", [
+    (dict(point_frames=29, header=29, trial=1149), 29, 29),      # header and POINT:FRAMES agree
+    (dict(point_frames=40, header=32), 32, 32),                  # the header is what the data fills
+    (dict(point_frames=32, header=50), 32, 32),                  # POINT:FRAMES is
+    (dict(point_frames=10, header=29), 29, 29),                  # read what the file holds (ezc3d: 10)
+    (dict(point_frames=10, header=20, trial=29), 29, 29),        # the TRIAL fields match the data
+    (dict(point_frames=None, header=30), 30, 30),
+    (dict(saturated=True, trial=70_000), 70_000, 70_000),
+    (dict(saturated=True), 70_001, 70_001),                      # nothing but saturated fields: the data
+])
+def test_frame_count_rule(fields, frames_in_file, expected):
+    layout = C3dLayout(points=4, analog_words=0, word_bytes=4, data_start=0, data_end=64 * frames_in_file)
+    assert frame_count(_fields(**fields), layout, Path("x.c3d"))[0] == expected
+
+
+@pytest.mark.parametrize("fields,frames_in_file", [
+    (dict(point_frames=200, header=200, trial=150), 150),        # the fields that agree win: cut
+    (dict(point_frames=200, header=300), 150),
+    (dict(saturated=True), 60_000),
+])
+def test_frame_count_rule_refuses_cut_data(fields, frames_in_file):
+    layout = C3dLayout(points=4, analog_words=0, word_bytes=4, data_start=0, data_end=64 * frames_in_file)
+    with pytest.raises(InputError, match=rf"x\.c3d: truncated C3D: .* but the file holds {frames_in_file}"):
+        frame_count(_fields(**fields), layout, Path("x.c3d"))
