@@ -467,7 +467,8 @@ def _warn_disagreement(path: Path, declared: Sequence[DeclaredFrames], count: in
                   f"{basis}; {data}", ExportWarning, stacklevel=3)
 
 
-def _layout(reader: c3dlib.Reader, n_points: int, rate: float, file_size: int, path: Path) -> C3dLayout:
+def _layout(reader: c3dlib.Reader, n_points: int, rate: float, scale: float, file_size: int,
+            path: Path) -> C3dLayout:
     """The frame layout from the parameters (ANALOG:USED channels x ANALOG:RATE / POINT:RATE
     samples, as ezc3d; the header's samples per frame when the rates are missing)."""
     channels = int(_number(reader, "ANALOG:USED") or 0)
@@ -477,7 +478,6 @@ def _layout(reader: c3dlib.Reader, n_points: int, rate: float, file_size: int, p
         per_frame = round(ratio) if abs(ratio - round(ratio)) < 1e-4 * max(ratio, 1.0) else int(ratio)
     else:
         per_frame = int(reader.header.analog_per_frame)
-    scale = _point_scale(reader)
     data_block = int(reader.header.data_block)
     if data_block < 2:
         data_block = int(_number(reader, "POINT:DATA_START") or 0)
@@ -580,7 +580,7 @@ def read_c3d(path: str | os.PathLike) -> MarkerTable:
                 raise InputError(path, f"C3D file holds no 3D points (POINT:USED = 0){_other_data(reader)}")
             rate = _point_rate(reader, path)
             scale = _point_scale(reader)
-            layout = _layout(reader, n_points, rate, os.fstat(handle.fileno()).st_size, path)
+            layout = _layout(reader, n_points, rate, scale, os.fstat(handle.fileno()).st_size, path)
             declared = declared_frames(reader)
             count, chosen = frame_count(declared, layout, path)
             if count == 0:
