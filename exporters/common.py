@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from spinemocap.fileio import InputError
-from spinemocap.markers import MarkerTable
+from spinemocap.markers import MAX_ABS_MM, MarkerTable
 
 UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 
@@ -77,6 +77,59 @@ def deduplicate_labels(labels: Sequence[str], source: str | os.PathLike) -> list
             seen[label] = 1
             out.append(label)
     return out
+
+
+def drop_implausible(positions_mm: np.ndarray, source: str | os.PathLike,
+                     max_abs_mm: float = MAX_ABS_MM) -> np.ndarray:
+    """(F, D, 3) positions with every sample that is not all-NaN (a missing sample) but has a
+    non-finite coordinate or one beyond ``max_abs_mm`` set to NaN, with a warning naming the
+    file and how many."""
+    with np.errstate(invalid="ignore"):
+        given = ~np.isnan(positions_mm).all(axis=2)
+        absurd = given & ~(np.abs(positions_mm) <= max_abs_mm).all(axis=2)
+    if absurd.any():
+        positions_mm = positions_mm.copy()
+        positions_mm[absurd] = np.nan
+        warnings.warn(f"{source}: {int(absurd.sum())} of {absurd.size} samples have non-finite or absurd "
+                      f"coordinates (beyond {max_abs_mm:g} mm); read as missing", ExportWarning, stacklevel=3)
+    return positions_mm
+
+
+def checked_table(table: MarkerTable, source: str | os.PathLike, max_abs_mm: float = MAX_ABS_MM) -> MarkerTable:
+    """A reader's last step: a frame rate that is not finite and positive or a non-finite time
+    is an :class:`InputError`; samples not ``missing`` whose coordinates are non-finite or beyond
+    ``max_abs_mm`` become ``missing`` (NaN), negative view counts 0 and impossible residuals NaN,
+    with one warning naming the file and how many. The result passes :meth:`MarkerTable.validate`."""
+    fps = table.meta.get("fps")
+    if not isinstance(fps, (int, float, np.number)) or isinstance(fps, bool) or not np.isfinite(fps) or fps <= 0:
+        raise InputError(source, f"frame rate {fps!r} must be a finite positive number")
+    table.meta["fps"] = float(fps)
+    df = table.data
+    if not np.isfinite(df["time"].to_numpy()).all():
+        raise InputError(source, f"{int((~np.isfinite(df['time'].to_numpy())).sum())} rows have a non-finite time")
+    xyz = df[["x", "y", "z"]].to_numpy()
+    missing = (df["status"] == "missing").to_numpy()
+    with np.errstate(invalid="ignore"):
+        absurd = ~missing & ~(np.abs(xyz) <= max_abs_mm).all(axis=1)
+        residual = df["residual"].to_numpy()
+        bad_residual = ~np.isnan(residual) & ~(np.isfinite(residual) & (residual >= 0))
+    negative_views = df["n_views"].to_numpy() < 0
+    fixes = []
+    if absurd.any():
+        df.loc[absurd, "status"] = "missing"
+        fixes.append(f"{int(absurd.sum())} of {len(df)} samples have non-finite or absurd coordinates "
+                     f"(beyond {max_abs_mm:g} mm) and are read as missing")
+    missing = (df["status"] == "missing").to_numpy()
+    df.loc[missing, ["x", "y", "z"]] = np.nan
+    if negative_views.any():
+        df.loc[negative_views, "n_views"] = 0
+        fixes.append(f"{int(negative_views.sum())} negative view counts read as 0")
+    if bad_residual.any():
+        df.loc[bad_residual, "residual"] = np.nan
+        fixes.append(f"{int(bad_residual.sum())} negative or infinite residuals read as unknown")
+    if fixes:
+        warnings.warn(f"{source}: " + "; ".join(fixes), ExportWarning, stacklevel=3)
+    return table.validate(str(source), max_abs_mm)
 
 
 def table_from_dense(

@@ -12,12 +12,13 @@ import json
 import os
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
-from spinemocap.fileio import InputError, atomic_path
+from spinemocap.fileio import InputError, atomic_path, reading
 from spinemocap.markers import COLUMNS, MarkerTable
 
-from .common import dense_mm, mm_per_unit, warn_empty_markers
+from .common import checked_table, dense_mm, mm_per_unit, warn_empty_markers
 from .registry import Exporter
 
 META_KEY = b"spinemocap"
@@ -42,15 +43,12 @@ def _table(df: pd.DataFrame, path: Path, meta: dict) -> MarkerTable:
     df = df.copy()
     df["status"] = df["status"].fillna("missing")
     meta = {**meta, "source": str(path), "units": "mm"}
-    try:
+    with reading(path, "marker table"), np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         table = MarkerTable(df, meta)
-    except (ValueError, TypeError) as exc:
-        if isinstance(exc, InputError):
-            raise
-        raise InputError(path, f"bad values in marker table: {exc}") from exc
-    if "fps" not in table.meta and table.n_frames > 1:
-        table.meta["fps"] = round(table.fps, 9)
-    arrays = table.to_arrays()
+        if "fps" not in table.meta and table.n_frames > 1:
+            table.meta["fps"] = round(table.fps, 9)
+        table = checked_table(table, path)
+        arrays = table.to_arrays()
     warn_empty_markers(list(arrays["labels"]), arrays["positions"], path)
     return table
 
@@ -71,7 +69,8 @@ def read_csv(path: str | os.PathLike) -> MarkerTable:
     path = Path(path)
     try:
         df = pd.read_csv(path, dtype={"label": str})
-    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeError, ValueError,
+            OverflowError, MemoryError) as exc:
         raise InputError(path, f"cannot read CSV: {exc}") from exc
     return _table(df, path, {})
 
@@ -99,8 +98,12 @@ def read_parquet(path: str | os.PathLike) -> MarkerTable:
         arrow = pq.read_table(path)
     except Exception as exc:  # pyarrow raises several types for corrupt files
         raise InputError(path, f"cannot read Parquet: {exc}") from exc
-    meta = json.loads((arrow.schema.metadata or {}).get(META_KEY, b"{}"))
-    return _table(arrow.to_pandas(), path, meta)
+    with reading(path, "Parquet marker table"):
+        meta = json.loads((arrow.schema.metadata or {}).get(META_KEY, b"{}"))
+        if not isinstance(meta, dict):
+            raise InputError(path, f"the {META_KEY.decode()} metadata must be a JSON object")
+        df = arrow.to_pandas()
+    return _table(df, path, meta)
 
 
 class CsvExporter(Exporter):

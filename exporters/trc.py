@@ -27,10 +27,19 @@ from pathlib import Path
 
 import numpy as np
 
-from spinemocap.fileio import InputError, atomic_write
-from spinemocap.markers import MarkerTable
+from spinemocap.fileio import InputError, atomic_write, reading
+from spinemocap.markers import MAX_FRAME, MarkerTable
 
-from .common import deduplicate_labels, dense_mm, frame_rate, mm_per_unit, table_from_dense, warn_empty_markers
+from .common import (
+    checked_table,
+    deduplicate_labels,
+    dense_mm,
+    drop_implausible,
+    frame_rate,
+    mm_per_unit,
+    table_from_dense,
+    warn_empty_markers,
+)
 from .registry import Exporter
 
 HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units",
@@ -130,6 +139,13 @@ def _split(line: str) -> list[str]:
 
 
 def read_trc(path: str | os.PathLike) -> MarkerTable:
+    """Read a TRC file into a :class:`MarkerTable` in mm, lab frame (Z up); see :func:`_read_trc`.
+    Any failure is an :class:`InputError` naming the file."""
+    with reading(path, "TRC file"):
+        return _read_trc(Path(path))
+
+
+def _read_trc(path: Path) -> MarkerTable:
     """Read a TRC file into a :class:`MarkerTable` in mm, lab frame (Z up).
 
     A file whose first line carries our OpenSim axes statement is rotated back to the lab frame;
@@ -137,7 +153,6 @@ def read_trc(path: str | os.PathLike) -> MarkerTable:
     ``NaN`` read as missing samples; rows whose column count differs from the header's raise
     :class:`InputError` naming the line.
     """
-    path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig", errors="strict")
     except (OSError, UnicodeDecodeError) as exc:
@@ -156,8 +171,10 @@ def read_trc(path: str | os.PathLike) -> MarkerTable:
         camera_rate = float(header.get("CameraRate") or fps)
     except ValueError as exc:
         raise InputError(path, f"bad number in TRC header: {exc}") from exc
-    if not fps > 0 or n_markers < 1:
-        raise InputError(path, f"TRC header needs DataRate > 0 and NumMarkers >= 1 (got {fps}, {n_markers})")
+    if not (np.isfinite(fps) and fps > 0) or n_markers < 1:
+        raise InputError(path, f"TRC header needs a finite DataRate > 0 and NumMarkers >= 1 (got {fps}, {n_markers})")
+    if not np.isfinite(camera_rate) or camera_rate <= 0:
+        camera_rate = fps
     scale = mm_per_unit(header["Units"], path)
     names = [n.strip() for n in _split(lines[3])[2:] if n.strip()]
     if len(names) != n_markers:
@@ -176,10 +193,13 @@ def read_trc(path: str | os.PathLike) -> MarkerTable:
             raise InputError(path, f"line {number} has {len(fields)} columns; the header's {n_markers} markers "
                                    f"need {n_cols} (Frame#, Time, X/Y/Z per marker)")
         try:
-            frames.append(int(float(fields[0])) - 1)
+            frame = float(fields[0])
+            if not (np.isfinite(frame) and frame == int(frame) and abs(frame) <= MAX_FRAME):
+                raise ValueError(f"Frame# {fields[0]!r} is not a whole frame number")
+            frames.append(int(frame) - 1)
             times.append(float(fields[1]))
             rows.append([float(v) if v.strip() else np.nan for v in fields[2:]])
-        except ValueError as exc:
+        except (ValueError, OverflowError) as exc:
             raise InputError(path, f"line {number}: not a number ({exc})") from exc
     if not rows:
         raise InputError(path, "TRC file has no data rows")
@@ -187,12 +207,13 @@ def read_trc(path: str | os.PathLike) -> MarkerTable:
     match = AXES_PATTERN.search(lines[0])
     if match:
         positions = opensim_to_lab(positions, match.groups())
-    positions = positions * scale
+    with np.errstate(over="ignore", invalid="ignore"):
+        positions = drop_implausible(positions * scale, path)
     warn_empty_markers(labels, positions, path)
     meta = {"fps": fps, "source": str(path), "file_units": header["Units"],
             "trc_axes": "opensim" if match else "as in file",
             "camera_rate": camera_rate}
-    return table_from_dense(labels, np.asarray(frames), np.asarray(times), positions, meta)
+    return checked_table(table_from_dense(labels, np.asarray(frames), np.asarray(times), positions, meta), path)
 
 
 class TrcExporter(Exporter):

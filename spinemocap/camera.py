@@ -31,8 +31,85 @@ from typing import Iterator, Sequence
 import cv2
 import numpy as np
 
-from .fileio import InputError, read_toml, write_toml
+from .fileio import InputError, read_toml, reading, write_toml
 from .geometry import distort
+
+ROTATION_TOLERANCE = 1e-5   # |R R^T - I| and |det R - 1| allowed (text files round); beyond: not a rotation
+MAX_FOCAL_PX = 1e6          # a focal length beyond this is a damaged file, not a lens
+MAX_SIZE_PX = 100_000       # image width / height
+MAX_ABS_POSE_MM = 1e7       # camera translations / centres beyond 10 km are damaged values
+MAX_ABS_DISTORTION = 1e4    # OpenCV coefficients are O(1); beyond this the model is meaningless
+
+
+def _matrix(value, shape: tuple[int, ...], camera: str, what: str) -> np.ndarray:
+    """``value`` as a float array of ``shape``; ValueError naming the camera otherwise."""
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ValueError(f"camera {camera!r}: {what} is not numeric ({exc})") from None
+    if shape == (-1,):
+        return array.ravel()
+    if array.size != int(np.prod(shape)):
+        raise ValueError(f"camera {camera!r}: {what} needs {int(np.prod(shape))} numbers, got {array.size}")
+    return array.reshape(shape)
+
+
+def _image_size(value, camera: str) -> tuple[int, int]:
+    """``[width, height]`` in whole pixels, each 1..MAX_SIZE_PX; ValueError otherwise."""
+    try:
+        width, height = (float(v) for v in value)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"camera {camera!r}: size must be [width, height] in pixels, got {value!r}") from None
+    for v in (width, height):
+        if not (np.isfinite(v) and v == int(v) and 1 <= v <= MAX_SIZE_PX):
+            raise ValueError(f"camera {camera!r}: size {value!r} must be two whole numbers of pixels "
+                             f"in 1..{MAX_SIZE_PX}")
+    return int(width), int(height)
+
+
+def rotation_problem(R: np.ndarray, tolerance: float = ROTATION_TOLERANCE) -> str | None:
+    """Why (3, 3) ``R`` is not a proper rotation within ``tolerance`` (None when it is). A matrix
+    that is not a rotation is an error, never something to repair."""
+    R = np.asarray(R, float)
+    if R.shape != (3, 3) or not np.isfinite(R).all():
+        return "rotation must be a finite 3x3 matrix"
+    orthogonality = float(np.abs(R @ R.T - np.eye(3)).max())
+    det = float(np.linalg.det(R))
+    if orthogonality > tolerance or abs(det - 1.0) > tolerance:
+        return (f"rotation is not a proper rotation matrix (|R R^T - I| = {orthogonality:.2g}, det = {det:.6g}; "
+                f"tolerance {tolerance:g})")
+    return None
+
+
+def camera_problems(camera: "Camera") -> list[str]:
+    """Everything impossible about a camera: intrinsics finite with positive focal lengths below
+    ``MAX_FOCAL_PX``, ``K``'s last row (0, 0, 1), finite principal point and skew, finite
+    distortion, a rotation within ``ROTATION_TOLERANCE``, a finite translation and centre within
+    ``MAX_ABS_POSE_MM``, a non-empty name. The one camera check every reader and writer uses."""
+    out = []
+    K, name = camera.K, camera.name
+    if not isinstance(name, str) or not name.strip():
+        out.append("camera name must be a non-empty string")
+    if not np.isfinite(K).all():
+        out.append(f"intrinsics must be finite (fx={K[0, 0]}, fy={K[1, 1]}, cx={K[0, 2]}, cy={K[1, 2]})")
+    else:
+        for label, value in (("fx", K[0, 0]), ("fy", K[1, 1])):
+            if not 0 < value <= MAX_FOCAL_PX:
+                out.append(f"{label} = {value:g} px must be positive and at most {MAX_FOCAL_PX:g}")
+        if K[1, 0] != 0 or not np.array_equal(K[2], [0.0, 0.0, 1.0]):
+            out.append(f"K must be upper triangular with last row (0, 0, 1), got {K.tolist()}")
+        if max(abs(K[0, 2]), abs(K[1, 2]), abs(K[0, 1])) > MAX_FOCAL_PX:
+            out.append(f"principal point / skew beyond {MAX_FOCAL_PX:g} px")
+    if not (np.isfinite(camera.dist).all() and np.abs(camera.dist).max() <= MAX_ABS_DISTORTION):
+        out.append(f"distortion must be finite and within {MAX_ABS_DISTORTION:g}, got {camera.dist.tolist()}")
+    problem = rotation_problem(camera.R)
+    if problem:
+        out.append(problem)
+    if not (np.isfinite(camera.t).all() and np.abs(camera.t).max() <= MAX_ABS_POSE_MM):
+        out.append(f"translation must be finite and within {MAX_ABS_POSE_MM:g} mm, got {camera.t.tolist()}")
+    elif problem is None and np.abs(camera.R.T @ camera.t).max() > MAX_ABS_POSE_MM:
+        out.append(f"camera centre beyond {MAX_ABS_POSE_MM:g} mm")
+    return out
 
 
 @dataclass
@@ -48,16 +125,26 @@ class Camera:
     size: tuple[int, int]
 
     def __post_init__(self) -> None:
-        self.K = np.asarray(self.K, dtype=float).reshape(3, 3)
+        self.K = _matrix(self.K, (3, 3), self.name, "K")
         d = np.zeros(5)
-        src = np.asarray(self.dist, dtype=float).ravel()
+        src = _matrix(self.dist, (-1,), self.name, "distortion") if np.size(self.dist) else d
         d[: min(5, src.size)] = src[:5]
         self.dist = d
-        self.R = np.asarray(self.R, dtype=float).reshape(3, 3)
-        self.t = np.asarray(self.t, dtype=float).reshape(3)
-        self.size = (int(self.size[0]), int(self.size[1]))
-        if not np.allclose(self.R @ self.R.T, np.eye(3), atol=1e-6) or np.linalg.det(self.R) < 0:
-            raise ValueError(f"camera {self.name!r}: rotation is not a proper rotation matrix")
+        self.R = _matrix(self.R, (3, 3), self.name, "rotation")
+        self.t = _matrix(self.t, (3,), self.name, "translation")
+        self.size = _image_size(self.size, self.name)
+        self.validate()
+
+    def problems(self) -> list[str]:
+        """Why this camera is impossible (empty list: it is valid). See :func:`camera_problems`."""
+        return camera_problems(self)
+
+    def validate(self) -> None:
+        """Raise ValueError naming the camera and every problem (see :func:`camera_problems`);
+        readers turn it into :class:`InputError` naming their file."""
+        found = self.problems()
+        if found:
+            raise ValueError(f"camera {self.name!r}: " + "; ".join(found))
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -170,20 +257,29 @@ class Camera:
 
     @classmethod
     def from_dict(cls, data: dict, source: str | None = None) -> "Camera":
+        """A camera from a rig file's ``[[camera]]`` table; :class:`InputError` naming ``source``
+        for a missing, mistyped or impossible value."""
+        if not isinstance(data, dict):
+            raise InputError(source, f"a [[camera]] entry must be a table, got {data!r}")
         required = ("name", "size", "fx", "fy", "cx", "cy", "rotation", "translation")
         missing = [k for k in required if k not in data]
         if missing:
             raise InputError(source, f"camera entry {data.get('name', '?')!r} lacks {missing}")
+        name = data["name"]
+        if not isinstance(name, (str, int)) or isinstance(name, bool):
+            raise InputError(source, f"camera name must be a string, got {name!r}")
+        for key in ("fx", "fy", "cx", "cy", "skew"):
+            value = data.get(key, 0.0)
+            if not isinstance(value, (int, float)) or isinstance(value, bool):
+                raise InputError(source, f"camera {name!r}: {key} must be a number, got {value!r}")
         K = np.array(
             [[data["fx"], data.get("skew", 0.0), data["cx"]], [0, data["fy"], data["cy"]], [0, 0, 1]],
             float,
         )
         try:
-            return cls(
-                str(data["name"]), K, data.get("distortion", [0] * 5),
-                data["rotation"], data["translation"], tuple(data["size"]),
-            )
-        except ValueError as exc:
+            return cls(str(name), K, data.get("distortion", [0] * 5), data["rotation"], data["translation"],
+                       data["size"])
+        except (ValueError, TypeError, OverflowError) as exc:
             raise InputError(source, str(exc)) from exc
 
 
@@ -198,6 +294,17 @@ class Rig:
         dupes = sorted({n for n in names if names.count(n) > 1})
         if dupes:
             raise ValueError(f"rig has duplicate camera names {dupes}")
+
+    def validate(self, source: str | os.PathLike | None = None) -> "Rig":
+        """Check every camera again (:func:`camera_problems`) and the names' uniqueness;
+        :class:`InputError` naming ``source`` otherwise. Writers call it before writing."""
+        try:
+            for camera in self.cameras:
+                camera.validate()
+            self.__post_init__()
+        except ValueError as exc:
+            raise InputError(source, str(exc)) from exc
+        return self
 
     def __len__(self) -> int:
         return len(self.cameras)
@@ -228,7 +335,7 @@ class Rig:
         return {"units": "mm", "world": "Z up", "camera": [c.to_dict() for c in self.cameras]}
 
     def to_toml(self, path: str | os.PathLike) -> None:
-        write_toml(path, self.to_dict())
+        write_toml(path, self.validate(path).to_dict())
 
     @classmethod
     def from_dict(cls, data: dict, source: str | None = None) -> "Rig":
@@ -238,12 +345,10 @@ class Rig:
         entries = data.get("camera")
         if not entries:
             raise InputError(source, "rig file has no [[camera]] entries")
-        try:
+        if not isinstance(entries, list):
+            raise InputError(source, "cameras must be an array of tables ([[camera]]), not a single [camera] table")
+        with reading(source, "rig"):
             return cls([Camera.from_dict(e, source) for e in entries])
-        except ValueError as exc:
-            if isinstance(exc, InputError):
-                raise
-            raise InputError(source, str(exc)) from exc
 
     @classmethod
     def from_toml(cls, path: str | os.PathLike) -> "Rig":

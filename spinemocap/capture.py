@@ -43,10 +43,12 @@ import cv2
 import numpy as np
 
 from .camera import Rig
-from .fileio import InputError, read_toml, write_toml
+from .fileio import InputError, read_toml, reading, write_toml
 from .tape import TapeSpec
 
 MANIFEST = "capture.toml"
+MEDIA = ("images", "video")
+MAX_FPS = 1e5
 
 
 @runtime_checkable
@@ -82,14 +84,27 @@ def to_grey(image: np.ndarray) -> np.ndarray:
     raise ValueError(f"expected a BGR or grey image, got shape {image.shape}")
 
 
-class ImageFolderSource:
-    """Frames stored as one image file per camera and frame."""
+def check_image_size(image: np.ndarray, size: tuple[int, int] | None, camera: str,
+                     source: str | os.PathLike) -> np.ndarray:
+    """``image`` unchanged when it is ``size`` = (width, height) px (the rig's), else
+    :class:`InputError` naming ``source``: a calibration of another sensor or crop is wrong data."""
+    if size is not None and (image.shape[1], image.shape[0]) != tuple(size):
+        raise InputError(source, f"image is {image.shape[1]}x{image.shape[0]} px but the rig says camera "
+                                 f"{camera!r} is {size[0]}x{size[1]} px")
+    return image
 
-    def __init__(self, root: Path, camera_names: Sequence[str], n_frames: int, pattern: str):
+
+class ImageFolderSource:
+    """Frames stored as one image file per camera and frame. ``sizes``: the rig's (width,
+    height) per camera; every image read is checked against it."""
+
+    def __init__(self, root: Path, camera_names: Sequence[str], n_frames: int, pattern: str,
+                 sizes: Sequence[tuple[int, int]] | None = None):
         self.root = Path(root)
         self.camera_names = list(camera_names)
         self.n_frames = int(n_frames)
         self.pattern = pattern
+        self.sizes = list(sizes) if sizes is not None else [None] * len(self.camera_names)
         for cam in self.camera_names:
             folder = (self.root / pattern.format(camera=cam, frame=0)).parent
             if not folder.is_dir():
@@ -104,16 +119,19 @@ class ImageFolderSource:
     def read(self, frame: int) -> list[np.ndarray]:
         if not 0 <= frame < self.n_frames:
             raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
-        return [read_image(self.path(cam, frame)) for cam in self.camera_names]
+        return [check_image_size(read_image(self.path(cam, frame)), size, cam, self.path(cam, frame))
+                for cam, size in zip(self.camera_names, self.sizes)]
 
 
 class VideoSource:
     """Frames stored as one video per camera; sequential reads are cheap, jumps seek."""
 
-    def __init__(self, root: Path, camera_names: Sequence[str], n_frames: int, pattern: str):
+    def __init__(self, root: Path, camera_names: Sequence[str], n_frames: int, pattern: str,
+                 sizes: Sequence[tuple[int, int]] | None = None):
         self.root = Path(root)
         self.camera_names = list(camera_names)
         self.n_frames = int(n_frames)
+        self.sizes = list(sizes) if sizes is not None else [None] * len(camera_names)
         self.paths = [self.root / pattern.format(camera=cam) for cam in self.camera_names]
         self._captures: list[cv2.VideoCapture | None] = [None] * len(self.paths)
         self._next = [0] * len(self.paths)
@@ -139,7 +157,7 @@ class VideoSource:
         if not ok or image is None:
             raise InputError(self.paths[k], f"cannot decode frame {frame}")
         self._next[k] = frame + 1
-        return image
+        return check_image_size(image, self.sizes[k], self.camera_names[k], self.paths[k])
 
     def read(self, frame: int) -> list[np.ndarray]:
         if not 0 <= frame < self.n_frames:
@@ -180,6 +198,12 @@ class Capture:
         return v / np.linalg.norm(v)
 
     @property
+    def facing(self) -> np.ndarray:
+        """Unit world direction the subject's front faces in the first frame."""
+        v = np.asarray(self.subject.get("facing", (0.0, -1.0, 0.0)), float)
+        return v / np.linalg.norm(v)
+
+    @property
     def groundtruth_path(self) -> Path:
         return self.root / "groundtruth.npz"
 
@@ -209,14 +233,18 @@ class Capture:
         return [str(x) for x in gt["row_levels"]] if "row_levels" in gt else None
 
     def frame_source(self) -> FrameSource:
+        """The capture's frames; every image is checked against its camera's size in the rig."""
+        sizes = [cam.size for cam in self.rig]
         if self.media == "images":
-            return ImageFolderSource(self.root, self.camera_names, self.n_frames, self.image_pattern)
+            return ImageFolderSource(self.root, self.camera_names, self.n_frames, self.image_pattern, sizes)
         if self.media == "video":
-            return VideoSource(self.root, self.camera_names, self.n_frames, self.video_pattern)
+            return VideoSource(self.root, self.camera_names, self.n_frames, self.video_pattern, sizes)
         raise InputError(self.root / MANIFEST, f"unknown media {self.media!r} (expected 'images' or 'video')")
 
     @classmethod
     def open(cls, root: str | os.PathLike) -> "Capture":
+        """Open a capture folder; :class:`InputError` naming the file for anything missing,
+        mistyped or impossible in ``capture.toml`` or the rig (see :func:`capture_settings`)."""
         root = Path(root)
         manifest = root / MANIFEST
         if not root.is_dir():
@@ -224,34 +252,18 @@ class Capture:
         if not manifest.is_file():
             raise InputError(root, f"not a capture folder (no {MANIFEST})")
         data = read_toml(manifest)
-        section = data.get("capture")
-        if section is None:
-            raise InputError(manifest, "missing [capture] table")
-        for key in ("fps", "n_frames", "cameras"):
-            if key not in section:
-                raise InputError(manifest, f"[capture] lacks {key!r}")
-        rig_file = section.get("rig", "rig.toml")
-        rig = Rig.from_toml(root / rig_file)
-        cameras = [str(c) for c in section["cameras"]]
-        absent = [c for c in cameras if c not in rig.names]
+        with reading(manifest, MANIFEST):
+            settings = capture_settings(data, manifest)
+        rig = Rig.from_toml(root / settings["rig_file"])
+        absent = [c for c in settings["cameras"] if c not in rig.names]
         if absent:
-            raise InputError(manifest, f"cameras {absent} are not in the rig file {rig_file} (rig has {rig.names})")
-        tape = TapeSpec.from_dict(data.get("tape", {}), source=str(manifest))
-        if float(section["fps"]) <= 0 or int(section["n_frames"]) < 1:
-            raise InputError(manifest, "fps must be positive and n_frames >= 1")
-        return cls(
-            root=root,
-            name=str(section.get("name", root.name)),
-            fps=float(section["fps"]),
-            n_frames=int(section["n_frames"]),
-            rig=rig.subset(cameras),
-            tape=tape,
-            subject=dict(data.get("subject", {})),
-            media=str(section.get("media", "images")),
-            image_pattern=str(section.get("image_pattern", cls.image_pattern)),
-            video_pattern=str(section.get("video_pattern", cls.video_pattern)),
-            rig_file=rig_file,
-        )
+            raise InputError(manifest, f"cameras {absent} are not in the rig file {settings['rig_file']} "
+                                       f"(rig has {rig.names})")
+        tape = data.get("tape", {})
+        if not isinstance(tape, dict):
+            raise InputError(manifest, "[tape] must be a table")
+        return cls(root=root, rig=rig.subset(settings.pop("cameras")),
+                   tape=TapeSpec.from_dict(tape, source=str(manifest)), **settings)
 
     def save(self) -> None:
         """Write ``capture.toml`` and the rig file into :attr:`root` (atomically)."""
@@ -269,3 +281,89 @@ class Capture:
                 "subject": self.subject,
             },
         )
+
+
+# ---------------------------------------------------------------------------------- validation
+def _typed(section: dict, key: str, kinds: tuple[type, ...], default=None, table: str = "capture"):
+    value = section.get(key, default)
+    if not isinstance(value, kinds) or isinstance(value, bool):
+        names = " or ".join(k.__name__.replace("str", "string").replace("float", "number") for k in kinds)
+        raise InputError(None, f"[{table}] {key} must be a {names}, got {value!r}")
+    return value
+
+
+def unit_direction(value, what: str) -> np.ndarray:
+    """A non-zero finite 3-vector, normalised; ValueError naming ``what`` otherwise."""
+    try:
+        v = np.asarray(value, dtype=float).reshape(3)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{what} must be three numbers, got {value!r}") from None
+    norm = float(np.linalg.norm(v)) if np.isfinite(v).all() else float("nan")
+    if not (np.isfinite(norm) and norm > 1e-9 * max(float(np.abs(v).max()), 1.0) and norm > 0):
+        raise ValueError(f"{what} = {value!r} must be a finite, non-zero direction")
+    return v / norm
+
+
+def subject_problems(subject: dict) -> list[str]:
+    """``[subject]``: ``up`` and ``facing`` finite, non-zero and not parallel (the angles'
+    neutral frame needs both); ``id`` a string."""
+    out = []
+    if not isinstance(subject, dict):
+        return ["[subject] must be a table"]
+    directions = {}
+    for key, default in (("up", (0.0, 0.0, 1.0)), ("facing", (0.0, -1.0, 0.0))):
+        try:
+            directions[key] = unit_direction(subject.get(key, default), f"[subject] {key}")
+        except ValueError as exc:
+            out.append(str(exc))
+    if len(directions) == 2 and abs(float(directions["up"] @ directions["facing"])) > 0.99:
+        out.append("[subject] up and facing must not be parallel")
+    if not isinstance(subject.get("id", ""), (str, int)):
+        out.append(f"[subject] id must be a string, got {subject.get('id')!r}")
+    return out
+
+
+def capture_settings(data: dict, manifest: Path) -> dict:
+    """The checked ``[capture]`` and ``[subject]`` values of a ``capture.toml`` as
+    :class:`Capture` fields (plus ``cameras``): types, a whole positive frame count, a finite
+    positive frame rate, unique camera names, known media, usable file patterns, sane subject
+    directions. :class:`InputError` naming ``manifest`` otherwise."""
+    section = data.get("capture")
+    if not isinstance(section, dict):
+        raise InputError(manifest, "missing [capture] table")
+    for key in ("fps", "n_frames", "cameras"):
+        if key not in section:
+            raise InputError(manifest, f"[capture] lacks {key!r}")
+    try:
+        fps = float(_typed(section, "fps", (int, float)))
+        n_frames = _typed(section, "n_frames", (int, float))
+        cameras = _typed(section, "cameras", (list,))
+        rig_file = _typed(section, "rig", (str,), "rig.toml")
+        media = _typed(section, "media", (str,), "images")
+        name = _typed(section, "name", (str, int), manifest.parent.name)
+        patterns = {key: _typed(section, key, (str,), getattr(Capture, key))
+                    for key in ("image_pattern", "video_pattern")}
+    except InputError as exc:
+        raise InputError(manifest, exc.problem) from None
+    problems = []
+    if not (np.isfinite(fps) and 0 < fps <= MAX_FPS):
+        problems.append(f"fps = {fps} must be finite, positive and at most {MAX_FPS:g}")
+    if not (float(n_frames).is_integer() and n_frames >= 1):
+        problems.append(f"n_frames = {n_frames!r} must be a whole number >= 1")
+    if not cameras or not all(isinstance(c, str) and c for c in cameras):
+        problems.append(f"cameras must be a non-empty list of camera names, got {cameras!r}")
+    elif len(set(cameras)) != len(cameras):
+        problems.append(f"cameras lists a name twice: {cameras}")
+    if media not in MEDIA:
+        problems.append(f"unknown media {media!r} (expected one of {MEDIA})")
+    for key, pattern in patterns.items():
+        try:
+            pattern.format(camera="cam", frame=0)
+        except (KeyError, IndexError, ValueError, AttributeError) as exc:
+            problems.append(f"{key} {pattern!r} is not a usable file pattern ({type(exc).__name__}: {exc}); "
+                            "use the fields {camera} and {frame}")
+    problems += subject_problems(data.get("subject", {}))
+    if problems:
+        raise InputError(manifest, "; ".join(problems))
+    return {"name": str(name), "fps": fps, "n_frames": int(n_frames), "cameras": list(cameras),
+            "subject": dict(data.get("subject", {})), "media": media, "rig_file": rig_file, **patterns}

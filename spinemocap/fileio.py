@@ -1,17 +1,34 @@
-"""Small I/O helpers every package uses: one error type for bad input, atomic writes.
+"""Small I/O helpers every package uses: one error type for bad input, the boundary that turns
+a reader's failures into it, and atomic writes.
 
 Outputs are always written to a temporary file beside the target and renamed into place, so
 an interrupted or failing export never leaves a half-written file and never destroys the
-previous version.
+previous version. The temporary file is flushed and fsynced before the rename, gets the mode a
+plain ``open`` would give (``0o666`` minus the umask, or the replaced file's mode), and is named
+``.~<target name>.<pid>.<random><suffix>``: one left behind by a killed process is removed the
+next time the same target is written (:func:`clean_stale_temps`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
+import secrets
+import stat
 import tempfile
 from pathlib import Path
 from typing import IO, Iterator
+
+TEMP_PREFIX = ".~"
+_TEMP_NAME = re.compile(r"^\.~(?P<target>.+)\.(?P<pid>\d+)\.[0-9a-f]{8}(\.[^.]*)?$")
+
+# What a reader's parsing code raises on damaged input; :func:`reading` converts these into
+# :class:`InputError` naming the file. (InputError itself is a ValueError.)
+READ_ERRORS: tuple[type[BaseException], ...] = (
+    ValueError, TypeError, IndexError, KeyError, LookupError, OverflowError, ZeroDivisionError,
+    UnicodeError, AttributeError, OSError, EOFError, ArithmeticError, MemoryError, RecursionError,
+)
 
 
 class InputError(ValueError):
@@ -24,21 +41,126 @@ class InputError(ValueError):
 
 
 @contextlib.contextmanager
-def atomic_write(path: str | os.PathLike, mode: str = "w", **open_kwargs) -> Iterator[IO]:
-    """Open a temporary file beside ``path``; on success rename it over ``path``.
+def reading(path: str | os.PathLike | None, what: str = "file") -> Iterator[None]:
+    """The boundary of a reader: any parsing failure inside becomes :class:`InputError` naming
+    ``path`` ("cannot read <what>: <exception>"). An InputError that already names a file passes
+    unchanged; one without a file gets ``path``."""
+    try:
+        yield
+    except InputError as exc:
+        if exc.source is None and path is not None:
+            raise InputError(path, exc.problem) from exc
+        raise
+    except READ_ERRORS as exc:
+        detail = str(exc) or type(exc).__name__
+        if isinstance(exc, (KeyError, LookupError)) and not isinstance(exc, UnicodeError):
+            detail = f"{type(exc).__name__} {detail}"
+        raise InputError(path, f"cannot read {what}: {detail}") from exc
 
-    On any exception the temporary file is removed and ``path`` is left untouched.
-    """
+
+# ---------------------------------------------------------------------------------- writing
+def _creation_mode(target: Path) -> int:
+    """The permission bits a new file at ``target`` should get: the replaced file's, else
+    ``0o666`` minus the process umask (what ``open(..., 'w')`` gives; mkstemp's 0o600 is not)."""
+    with contextlib.suppress(OSError):
+        return stat.S_IMODE(target.stat().st_mode)
+    return 0o666 & ~_umask()
+
+
+def _umask() -> int:
+    try:  # Linux: read it without changing it (os.umask would, for every thread, for a moment)
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def clean_stale_temps(folder: str | os.PathLike, target: str | None = None) -> list[Path]:
+    """Remove temporary files (and staging folders) that a killed process left in ``folder``
+    (only those of ``target`` when given): names ``.~NAME.PID.RANDOM[.ext]`` whose PID is not a
+    live process. Returns what was removed."""
+    import shutil
+
+    removed: list[Path] = []
+    folder = Path(folder)
+    if not folder.is_dir():
+        return removed
+    for entry in folder.iterdir():
+        match = _TEMP_NAME.match(entry.name)
+        if not match or (target is not None and match["target"] != target) or _pid_alive(int(match["pid"])):
+            continue
+        with contextlib.suppress(OSError):
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+            removed.append(entry)
+    return removed
+
+
+def temp_name(path: Path, suffix: str | None = None) -> Path:
+    """A fresh temporary name beside ``path`` (see the module docstring)."""
+    suffix = path.suffix if suffix is None else suffix
+    return path.parent / f"{TEMP_PREFIX}{path.name}.{os.getpid()}.{secrets.token_hex(4)}{suffix}"
+
+
+def _fsync_file(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def fsync_dir(folder: Path) -> None:
+    """Make a rename inside ``folder`` durable (no-op where directories cannot be opened)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _commit(tmp: Path, path: Path) -> None:
+    """chmod to the normal creation mode, fsync, rename over ``path``, fsync the folder."""
+    os.chmod(tmp, _creation_mode(path))
+    _fsync_file(tmp)
+    os.replace(tmp, path)
+    fsync_dir(path.parent)
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike, mode: str = "w", **open_kwargs) -> Iterator[IO]:
+    """Open a temporary file beside ``path``; on success fsync it and rename it over ``path``.
+
+    On any exception (KeyboardInterrupt included) the temporary file is removed and ``path`` is
+    left untouched."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
+    clean_stale_temps(path.parent, path.name)
+    tmp = temp_name(path, ".tmp")
     try:
-        with open(tmp, mode, **open_kwargs) as handle:
+        with open(tmp, "x" + mode.replace("w", ""), **open_kwargs) as handle:
             yield handle
             handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
+        _commit(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
@@ -48,22 +170,35 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", **open_kwargs) -> Ite
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path (same folder, same suffix) for libraries that write by file name;
-    rename it over ``path`` on success, delete it on failure."""
+    fsync it and rename it over ``path`` on success, delete it on failure."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
+    clean_stale_temps(path.parent, path.name)
+    tmp = temp_name(path)
     try:
-        yield Path(tmp)
-        os.replace(tmp, path)
+        yield tmp
+        _commit(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
 
 
+def check_writable(folder: str | os.PathLike, what: str = "output folder") -> Path:
+    """Create ``folder`` if needed and prove a file can be written there, before any long work;
+    :class:`InputError` naming the folder otherwise."""
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise InputError(folder, f"cannot write to the {what} ({exc.strerror or exc})") from exc
+    return folder
+
+
 def read_toml(path: str | os.PathLike) -> dict:
-    """Read a TOML file, turning syntax errors and absence into :class:`InputError`."""
+    """Read a TOML file, turning syntax errors, bad UTF-8 and absence into :class:`InputError`."""
     import tomllib
 
     path = Path(path)
@@ -74,6 +209,10 @@ def read_toml(path: str | os.PathLike) -> dict:
             return tomllib.load(handle)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(path, f"not valid TOML ({exc})") from exc
+    except UnicodeDecodeError as exc:
+        raise InputError(path, f"not valid UTF-8 text ({exc})") from exc
+    except (OSError, RecursionError, MemoryError) as exc:
+        raise InputError(path, f"cannot read TOML ({exc})") from exc
 
 
 def write_toml(path: str | os.PathLike, data: dict) -> None:

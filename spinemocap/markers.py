@@ -19,6 +19,8 @@ import pandas as pd
 from .fileio import InputError
 
 STATUSES = ("observed", "inferred", "missing")
+MAX_ABS_MM = 1.0e6      # a marker more than 1 km from the lab origin is a damaged sample, not data
+MAX_FRAME = 2**31 - 1   # frame numbers beyond this are damaged values (C3D and TRC count in 32 bits at most)
 COLUMNS = ("frame", "time", "label", "x", "y", "z", "status", "n_views", "residual")
 
 
@@ -40,7 +42,10 @@ class MarkerTable:
         if missing:
             raise InputError(source, f"marker table lacks columns {missing}")
         df = df.loc[:, list(COLUMNS)].copy()
-        df["frame"] = df["frame"].astype(np.int64)
+        frames = pd.to_numeric(df["frame"], errors="coerce")
+        if frames.isna().any() or not (frames.abs() <= MAX_FRAME).all() or not (frames == frames.round()).all():
+            raise InputError(source, f"frame numbers must be whole numbers within +-{MAX_FRAME}")
+        df["frame"] = frames.astype(np.int64)
         df["label"] = df["label"].astype(str)
         for c in ("time", "x", "y", "z", "residual"):
             df[c] = pd.to_numeric(df[c], errors="raise").astype(float)
@@ -170,7 +175,51 @@ class MarkerTable:
             meta["labels"] = [l for l in self.labels if l in set(labels)]
         return MarkerTable(df, meta)
 
+    def problems(self, max_abs_mm: float = MAX_ABS_MM) -> list[str]:
+        """Why this table is not valid data (empty list: it is). See :func:`marker_table_problems`."""
+        return marker_table_problems(self, max_abs_mm)
+
+    def validate(self, source: str | None = None, max_abs_mm: float = MAX_ABS_MM) -> "MarkerTable":
+        """Raise :class:`InputError` naming ``source`` (default ``meta['source']``) with every
+        problem of :meth:`problems`; return the table when it has none."""
+        found = self.problems(max_abs_mm)
+        if found:
+            raise InputError(source or self.meta.get("source"), "invalid marker data: " + "; ".join(found))
+        return self
+
     def completeness(self) -> dict[str, float]:
         """Share of marker-frames per status (0..1)."""
         counts = self.data["status"].value_counts(normalize=True)
         return {s: float(counts.get(s, 0.0)) for s in STATUSES}
+
+
+def marker_table_problems(table: MarkerTable, max_abs_mm: float = MAX_ABS_MM) -> list[str]:
+    """The one check of marker data: finite frame rate > 0, finite times, coordinates finite and
+    within ``max_abs_mm`` (in mm; ``meta['units']`` converted; points listed in
+    ``meta['point_types']`` are exempt from the bound) wherever the status is not ``missing``,
+    NaN wherever it is, non-negative view counts, residuals NaN or finite >= 0."""
+    out = []
+    data = table.data
+    fps = table.meta.get("fps")
+    if not isinstance(fps, (int, float, np.number)) or isinstance(fps, bool) or not np.isfinite(fps) or fps <= 0:
+        out.append(f"frame rate {fps!r} must be a finite positive number")
+    if not np.isfinite(data["time"].to_numpy()).all():
+        out.append("non-finite times")
+    scale = {"mm": 1.0, "cm": 10.0, "m": 1000.0}.get(str(table.meta.get("units", "mm")), 1.0)
+    xyz = data[["x", "y", "z"]].to_numpy() * scale
+    missing = (data["status"] == "missing").to_numpy()
+    others = set(table.meta.get("point_types") or {})
+    bounded = ~data["label"].isin(others).to_numpy() if others else np.ones(len(data), bool)
+    with np.errstate(invalid="ignore"):
+        bad = ~missing & (~np.isfinite(xyz).all(axis=1) | (bounded & (np.abs(xyz) > max_abs_mm).any(axis=1)))
+    if bad.any():
+        out.append(f"{int(bad.sum())} samples not missing with non-finite coordinates or beyond {max_abs_mm:g} mm")
+    if not np.isnan(xyz[missing]).all():
+        out.append(f"{int((~np.isnan(xyz[missing])).any(axis=1).sum())} missing samples with coordinates")
+    if (data["n_views"].to_numpy() < 0).any():
+        out.append("negative view counts")
+    residual = data["residual"].to_numpy()
+    with np.errstate(invalid="ignore"):
+        if not (np.isnan(residual) | (np.isfinite(residual) & (residual >= 0))).all():
+            out.append("residuals neither NaN nor finite and >= 0")
+    return out

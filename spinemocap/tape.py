@@ -29,6 +29,8 @@ import numpy as np
 
 from .fileio import InputError, read_toml, write_toml
 
+MAX_ROWS = 99  # labels carry two row digits (R01 ... R99)
+
 
 @dataclass(frozen=True)
 class TapeSpec:
@@ -51,6 +53,12 @@ class TapeSpec:
     thickness_mm: float = 0.0
 
     def __post_init__(self) -> None:
+        if not isinstance(self.n_rows, (int, np.integer)) or isinstance(self.n_rows, bool) or self.n_rows > MAX_ROWS:
+            raise ValueError(f"n_rows must be a whole number up to {MAX_ROWS}; got {self.n_rows!r}")
+        for f in fields(self)[1:]:
+            value = getattr(self, f.name)
+            if not isinstance(value, (int, float, np.number)) or isinstance(value, bool) or not math.isfinite(value):
+                raise ValueError(f"{f.name} must be a finite number; got {value!r}")
         if self.n_rows < 1 or self.n_rows % 2 == 0:
             raise ValueError(
                 f"n_rows must be odd and >= 1 (rows alternate 2/3 dots and start and end with a "

@@ -16,7 +16,7 @@ import os
 from pathlib import Path
 
 from spinemocap.camera import Rig
-from spinemocap.fileio import InputError, read_toml
+from spinemocap.fileio import InputError, read_toml, reading
 
 from .pose2sim import is_pose2sim, read_pose2sim, rig_from_pose2sim, write_pose2sim
 from .qualisys import read_qca
@@ -40,12 +40,13 @@ def detect_format(path: str | os.PathLike) -> str:
 def read_rig(path: str | os.PathLike) -> Rig:
     """Read any supported calibration file as a :class:`Rig` (mm, world -> camera)."""
     fmt = detect_format(path)
-    if fmt == "qualisys":
-        return read_qca(path)
-    if fmt == "vicon":
-        return read_xcp(path)
-    data = read_toml(path)
-    return rig_from_pose2sim(data, path) if is_pose2sim(data) else Rig.from_dict(data, source=str(path))
+    with reading(path, "calibration"):
+        if fmt == "qualisys":
+            return read_qca(path)
+        if fmt == "vicon":
+            return read_xcp(path)
+        data = read_toml(path)
+        return rig_from_pose2sim(data, path) if is_pose2sim(data) else Rig.from_dict(data, source=str(path))
 
 
 def write_rig(rig: Rig, path: str | os.PathLike, fmt: str | None = None) -> None:

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from spinemocap.camera import Camera, Rig
-from spinemocap.fileio import InputError, read_toml, write_toml
+from spinemocap.fileio import InputError, read_toml, reading, write_toml
 
 
 def is_pose2sim(data: dict) -> bool:
@@ -23,6 +23,11 @@ def is_pose2sim(data: dict) -> bool:
 
 
 def rig_from_pose2sim(data: dict, source: str | os.PathLike | None = None) -> Rig:
+    with reading(source, "Pose2Sim calibration"):
+        return _rig(data, source)
+
+
+def _rig(data: dict, source: str | os.PathLike | None) -> Rig:
     cameras = []
     for key, entry in data.items():
         if not (isinstance(entry, dict) and "matrix" in entry):
@@ -30,13 +35,18 @@ def rig_from_pose2sim(data: dict, source: str | os.PathLike | None = None) -> Ri
         try:
             if entry.get("fisheye", False):
                 raise InputError(source, f"[{key}] is a fisheye camera; only the pinhole model is supported")
-            R = cv2.Rodrigues(np.asarray(entry["rotation"], float).reshape(3, 1))[0]
+            rvec = np.asarray(entry["rotation"], float).reshape(3, 1)
+            if not np.isfinite(rvec).all():
+                raise ValueError(f"rotation {rvec.ravel().tolist()} must be finite")
+            R = cv2.Rodrigues(rvec)[0]
+            size = [float(v) for v in entry["size"]]
+            if len(size) != 2 or not all(np.isfinite(v) and abs(v - round(v)) < 1e-6 for v in size):
+                raise ValueError(f"size {entry['size']!r} must be two whole numbers of pixels")
             cameras.append(Camera(
                 str(entry.get("name", key)), np.asarray(entry["matrix"], float), entry.get("distortions", []),
-                R, np.asarray(entry["translation"], float) * 1000.0,
-                tuple(int(round(float(v))) for v in entry["size"]),
+                R, np.asarray(entry["translation"], float) * 1000.0, tuple(int(round(v)) for v in size),
             ))
-        except (KeyError, ValueError, TypeError) as exc:
+        except (KeyError, ValueError, TypeError, IndexError, ArithmeticError, cv2.error) as exc:
             if isinstance(exc, InputError):
                 raise
             raise InputError(source, f"[{key}]: missing or bad field ({exc})") from exc
@@ -50,6 +60,7 @@ def read_pose2sim(path: str | os.PathLike) -> Rig:
 
 
 def write_pose2sim(rig: Rig, path: str | os.PathLike, error_px: float = 0.0) -> None:
+    rig.validate(path)
     data = {}
     for i, cam in enumerate(rig, start=1):
         dist = [float(v) for v in (cam.dist if cam.dist[4] != 0 else cam.dist[:4])]

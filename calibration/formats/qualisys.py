@@ -23,8 +23,8 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from spinemocap.camera import Camera, Rig
-from spinemocap.fileio import InputError
+from spinemocap.camera import MAX_ABS_POSE_MM, Camera, Rig, rotation_problem
+from spinemocap.fileio import InputError, reading
 
 QTM_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
 
@@ -33,29 +33,40 @@ def read_qca(path: str | os.PathLike) -> Rig:
     """Read every camera of a ``.qca.txt`` file as a :class:`Rig` (mm, world as in QTM)."""
     try:
         root = ET.parse(path).getroot()
-    except (ET.ParseError, OSError) as exc:
+    except (ET.ParseError, OSError, LookupError, ValueError) as exc:
         raise InputError(path, f"not a readable Qualisys .qca.txt XML file ({exc})") from exc
     cameras = []
-    for node in root.findall("cameras/camera"):
-        try:
-            cameras.append(_camera(node))
-        except (TypeError, KeyError, ValueError, AttributeError) as exc:
-            raise InputError(path, f"camera {node.get('serial')!r}: missing or bad field ({exc})") from exc
-    if not cameras:
-        raise InputError(path, "no <cameras><camera> entries")
-    return Rig(cameras)
+    with reading(path, "Qualisys calibration"):
+        for index, node in enumerate(root.findall("cameras/camera"), start=1):
+            try:
+                cameras.append(_camera(node, index))
+            except (TypeError, KeyError, ValueError, AttributeError, ArithmeticError) as exc:
+                raise InputError(path, f"camera {node.get('serial')!r}: missing or bad field ({exc})") from exc
+        if not cameras:
+            raise InputError(path, "no <cameras><camera> entries")
+        return Rig(cameras)
 
 
-def _camera(node: ET.Element) -> Camera:
+def _span(node: ET.Element, low: str, high: str) -> int:
+    """Pixels from ``low`` to ``high`` inclusive (a fov element's left/right or top/bottom)."""
+    return int(node.get(high)) - int(node.get(low)) + 1
+
+
+def _scale(pixels: int, intr: dict, axis: str) -> float:
+    """Pixels per sensor unit along ``axis`` (U or V)."""
+    units = float(intr[f"sensorMax{axis}"]) - float(intr.get(f"sensorMin{axis}", 0))
+    if not (np.isfinite(units) and units > 0):
+        raise ValueError(f"sensorMax{axis} - sensorMin{axis} = {units} must be positive")
+    return pixels / units
+
+
+def _camera(node: ET.Element, index: int) -> Camera:
     fov = node.find("fov_video")
     fov_max = node.find("fov_video_max") if node.find("fov_video_max") is not None else fov
     intr, pose = node.find("intrinsic").attrib, node.find("transform").attrib
-    width = int(fov.get("right")) - int(fov.get("left")) + 1
-    height = int(fov.get("bottom")) - int(fov.get("top")) + 1
-    full_w = int(fov_max.get("right")) - int(fov_max.get("left")) + 1
-    full_h = int(fov_max.get("bottom")) - int(fov_max.get("top")) + 1
-    su = full_w / (float(intr["sensorMaxU"]) - float(intr.get("sensorMinU", 0)))
-    sv = full_h / (float(intr["sensorMaxV"]) - float(intr.get("sensorMinV", 0)))
+    width, height = _span(fov, "left", "right"), _span(fov, "top", "bottom")
+    su = _scale(_span(fov_max, "left", "right"), intr, "U")
+    sv = _scale(_span(fov_max, "top", "bottom"), intr, "V")
     K = np.array([
         [float(intr["focalLengthU"]) * su, float(intr.get("skew", 0)) * su, float(intr["centerPointU"]) * su - int(fov.get("left"))],
         [0.0, float(intr["focalLengthV"]) * sv, float(intr["centerPointV"]) * sv - int(fov.get("top"))],
@@ -66,6 +77,11 @@ def _camera(node: ET.Element) -> Camera:
     M = np.array([[float(pose[f"r{i}{j}"]) for j in (1, 2, 3)] for i in (1, 2, 3)])
     centre = np.array([float(pose[k]) for k in ("x", "y", "z")])
     R = QTM_TO_OPENCV @ M
-    U, _, Vt = np.linalg.svd(R)  # re-orthonormalize the 16-digit text values
+    problem = rotation_problem(R)
+    if problem:  # never repaired: a matrix that is not a rotation is a damaged file
+        raise ValueError(problem)
+    U, _, Vt = np.linalg.svd(R)  # remove the text's rounding (within the tolerance just checked)
     R = U @ Vt
-    return Camera(node.get("serial") or f"cam{len(dist)}", K, dist, R, -R @ centre, (width, height))
+    if not np.isfinite(centre).all() or np.abs(centre).max() > MAX_ABS_POSE_MM:
+        raise ValueError(f"camera position {centre.tolist()} must be finite and within {MAX_ABS_POSE_MM:g} mm")
+    return Camera(node.get("serial") or f"cam{index}", K, dist, R, -R @ centre, (width, height))

@@ -32,8 +32,10 @@ import xml.etree.ElementTree as ET
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from spinemocap.camera import Camera, Rig
-from spinemocap.fileio import InputError, atomic_write
+from spinemocap.camera import MAX_ABS_POSE_MM, Camera, Rig
+from spinemocap.fileio import InputError, atomic_write, reading
+
+QUATERNION_TOLERANCE = 1e-5  # |q| - 1 allowed (text rounding); beyond: not a rotation, never renormalised
 
 
 def _floats(text: str | None, n: int, what: str) -> list[float]:
@@ -48,18 +50,19 @@ def _floats(text: str | None, n: int, what: str) -> list[float]:
 def read_xcp(path: str | os.PathLike) -> Rig:
     try:
         root = ET.parse(path).getroot()
-    except (ET.ParseError, OSError) as exc:
+    except (ET.ParseError, OSError, LookupError, ValueError) as exc:
         raise InputError(path, f"not a readable Vicon .xcp XML file ({exc})") from exc
     cameras = []
-    for node in root.iter("Camera"):
-        name = node.get("NAME") or node.get("DEVICEID") or f"cam{len(cameras) + 1}"
-        try:
-            cameras.append(_camera(node, name))
-        except (KeyError, ValueError, AttributeError) as exc:
-            raise InputError(path, f"camera {name!r}: missing or bad field {exc}") from exc
-    if not cameras:
-        raise InputError(path, "no <Camera> entries")
-    return Rig(cameras)
+    with reading(path, "Vicon calibration"):
+        for node in root.iter("Camera"):
+            name = node.get("NAME") or node.get("DEVICEID") or f"cam{len(cameras) + 1}"
+            try:
+                cameras.append(_camera(node, name))
+            except (KeyError, ValueError, TypeError, AttributeError, ArithmeticError) as exc:
+                raise InputError(path, f"camera {name!r}: missing or bad field {exc}") from exc
+        if not cameras:
+            raise InputError(path, "no <Camera> entries")
+        return Rig(cameras)
 
 
 def _camera(node: ET.Element, name: str) -> Camera:
@@ -68,7 +71,10 @@ def _camera(node: ET.Element, name: str) -> Camera:
         raise KeyError("KeyFrames/KeyFrame")
     w, h = _floats(node.get("SENSOR_SIZE"), 2, "SENSOR_SIZE")[:2]
     fx = _floats(key.get("FOCAL_LENGTH"), 1, "FOCAL_LENGTH")[0]
-    fy = fx / float(node.get("PIXEL_ASPECT_RATIO", "1"))
+    aspect = float(node.get("PIXEL_ASPECT_RATIO", "1"))
+    if not (np.isfinite(aspect) and aspect > 0):
+        raise ValueError(f"PIXEL_ASPECT_RATIO = {aspect} must be finite and positive")
+    fy = fx / aspect
     cx, cy = _floats(key.get("PRINCIPAL_POINT"), 2, "PRINCIPAL_POINT")[:2]
     skew = float(node.get("SKEW", "0"))
     if key.get("SPINEMOCAP_DISTORTION"):
@@ -76,14 +82,19 @@ def _camera(node: ET.Element, name: str) -> Camera:
     else:
         k1, k2 = (_floats(key.get("VICON_RADIAL"), 2, "VICON_RADIAL") if key.get("VICON_RADIAL") else [0, 0])[:2]
         dist = [k1, k2, 0.0, 0.0, 0.0]
-    q = _floats(key.get("ORIENTATION"), 4, "ORIENTATION")[:4]
+    q = np.array(_floats(key.get("ORIENTATION"), 4, "ORIENTATION")[:4])
+    if not (np.isfinite(q).all() and abs(np.linalg.norm(q) - 1.0) <= QUATERNION_TOLERANCE):
+        raise ValueError(f"ORIENTATION {q.tolist()} is not a unit quaternion (norm {np.linalg.norm(q):.6g})")
     R = Rotation.from_quat(q).as_matrix().T
     centre = np.array(_floats(key.get("POSITION"), 3, "POSITION")[:3])
+    if not np.isfinite(centre).all() or np.abs(centre).max() > MAX_ABS_POSE_MM:
+        raise ValueError(f"POSITION {centre.tolist()} must be finite and within {MAX_ABS_POSE_MM:g} mm")
     K = np.array([[fx, skew, cx], [0, fy, cy], [0, 0, 1]])
     return Camera(name, K, dist, R, -R @ centre, (int(round(w)), int(round(h))))
 
 
 def write_xcp(rig: Rig, path: str | os.PathLike, image_error_px: dict[str, float] | None = None) -> None:
+    rig.validate(path)
     root = ET.Element("Cameras", VERSION="1.0")
     for i, cam in enumerate(rig, start=1):
         node = ET.SubElement(root, "Camera", {
