@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ import pandas as pd
 from spinemocap.fileio import InputError, atomic_path, reading
 from spinemocap.markers import COLUMNS, MarkerTable
 
-from .common import checked_table, dense_mm, mm_per_unit, warn_empty_markers
+from .common import ExportWarning, checked_table, dense_mm, mm_per_unit, table_from_dense, warn_empty_markers
 from .registry import Exporter
 
 META_KEY = b"spinemocap"
@@ -49,8 +50,20 @@ def _table(df: pd.DataFrame, path: Path, meta: dict) -> MarkerTable:
             table.meta["fps"] = round(table.fps, 9)
         table = checked_table(table, path)
         arrays = table.to_arrays()
+        table = _complete(table, arrays, path)
     warn_empty_markers(list(arrays["labels"]), arrays["positions"], path)
     return table
+
+
+def _complete(table: MarkerTable, arrays: dict, path: Path) -> MarkerTable:
+    """The table with a ``missing`` row for every (frame, label) the file lacks (warned)."""
+    F, D = arrays["positions"].shape[:2]
+    absent = F * D - len(table.data)
+    if not absent:
+        return table
+    warnings.warn(f"{path}: {absent} (frame, label) rows are absent; read as missing", ExportWarning, stacklevel=4)
+    return table_from_dense(list(arrays["labels"]), arrays["frames"], arrays["time"], arrays["positions"],
+                            table.meta, arrays["status"], arrays["n_views"], arrays["residual"])
 
 
 def write_csv(table: MarkerTable, path: str | os.PathLike) -> Path:

@@ -177,12 +177,13 @@ class FuzzReport:
 
 
 def run_fuzz(all_cases: Iterator[Case], folder: Path, suffix: str, read: Callable[[Path], object],
-             problems: Callable[[object], Sequence[str]], allowed_warnings: tuple[type[Warning], ...] = ()
-             ) -> FuzzReport:
+             problems: Callable[[object], Sequence[str]], allowed_warnings: tuple[type[Warning], ...] = (),
+             file_name: str | None = None) -> FuzzReport:
     """Read every case from a file in ``folder``; sort the outcomes (see the module docstring).
-    ``allowed_warnings``: warning classes a reader may give for damaged data (others fail)."""
+    ``allowed_warnings``: warning classes a reader may give for damaged data (others fail).
+    ``file_name``: the damaged file's name (default ``fuzz<suffix>``), for formats found by name."""
     report = FuzzReport()
-    path = folder / f"fuzz{suffix}"
+    path = folder / (file_name or f"fuzz{suffix}")
     for case in all_cases:
         path.write_bytes(case.data)
         with warnings.catch_warnings(record=True) as caught:
@@ -247,4 +248,116 @@ def marker_table_problems(table, max_abs_mm: float = 1e6, max_abs_other: float =
     residual = arrays["residual"]
     if not (np.isnan(residual) | (np.isfinite(residual) & (residual >= 0))).all():
         out.append("residuals neither NaN nor finite non-negative")
+    return out
+
+
+# ---------------------------------------------------------------------------------- text formats
+# Values a hand-edited or damaged settings file holds where a number or a list belongs.
+WRONG_VALUES = (b'"fast"', b"[4]", b"[]", b"true", b"{}", b"nan", b"-inf", b"inf", b"0", b"-1", b"4.7",
+                b"1e400", b"1e23", b"[0, 0, 0]", b'""', b"-0.0", b"[[1, 2], [3]]")
+
+
+def toml_value(data: bytes, rng: np.random.Generator) -> bytes:
+    """Replace the value of one ``key = value`` line (or one array element) of a TOML file."""
+    import re
+
+    spots = list(re.finditer(rb"(?m)(=\s*)([^\n#]*)", data)) + list(re.finditer(rb"[-+0-9.eE]+(?=[,\]])", data))
+    if not spots:
+        return data
+    match = spots[int(rng.integers(len(spots)))]
+    start = match.start(2) if match.re.groups >= 2 else match.start()
+    end = match.end(2) if match.re.groups >= 2 else match.end()
+    return data[:start] + WRONG_VALUES[int(rng.integers(len(WRONG_VALUES)))] + data[end:]
+
+
+def xml_attribute(data: bytes, rng: np.random.Generator) -> bytes:
+    """Replace one XML attribute value (or one of its space-separated numbers)."""
+    import re
+
+    spots = list(re.finditer(rb'="([^"]*)"', data))
+    if not spots:
+        return data
+    match = spots[int(rng.integers(len(spots)))]
+    value = match.group(1)
+    parts = value.split(b" ")
+    new = (b"nan", b"inf", b"-inf", b"0", b"-1", b"1e400", b"1e38", b"", b"x", b"0 0", b"1 2 3 4 5")[
+        int(rng.integers(11))]
+    if len(parts) > 1 and rng.random() < 0.6:
+        parts[int(rng.integers(len(parts)))] = new
+        new = b" ".join(parts)
+    return data[:match.start(1)] + new + data[match.end(1):]
+
+
+def invalid_utf8(data: bytes, rng: np.random.Generator) -> bytes:
+    """Insert bytes that are not valid UTF-8 (a Latin-1 export, a damaged sector)."""
+    at = _position(data, rng)
+    return data[:at] + (b"\xff\xfe", b"\xe9", b"\xc3\x28", b"\x00")[int(rng.integers(4))] + data[at:]
+
+
+TOML_MUTATORS: dict[str, Mutator] = {**TEXT_MUTATORS, "toml_value": toml_value, "invalid_utf8": invalid_utf8}
+XML_MUTATORS: dict[str, Mutator] = {**TEXT_MUTATORS, "xml_attribute": xml_attribute, "invalid_utf8": invalid_utf8}
+TABLE_TEXT_MUTATORS: dict[str, Mutator] = {**TEXT_MUTATORS, "invalid_utf8": invalid_utf8}
+
+
+# ---------------------------------------------------------------------------------- validation
+def camera_rig_problems(rig) -> list[str]:
+    """Why a :class:`Rig` is not a valid calibration, checked here from the numbers (not through
+    the package's own validation): finite positive focal lengths, finite K, distortion, pose,
+    K's last row (0, 0, 1), R a rotation (|R R^T - I| and |det - 1| <= 1e-5), positive whole
+    image sizes, unique non-empty names, at least one camera."""
+    out = []
+    names = [cam.name for cam in rig]
+    if not names:
+        out.append("no cameras")
+    if len(set(names)) != len(names):
+        out.append(f"duplicate names {names}")
+    for cam in rig:
+        K, R, t = np.asarray(cam.K), np.asarray(cam.R), np.asarray(cam.t)
+        where = f"camera {cam.name!r}: "
+        if not (isinstance(cam.name, str) and cam.name.strip()):
+            out.append(where + "empty name")
+        if not (np.isfinite(K).all() and K[0, 0] > 0 and K[1, 1] > 0 and list(K[2]) == [0, 0, 1]):
+            out.append(where + f"bad K {K.tolist()}")
+        if not np.isfinite(cam.dist).all():
+            out.append(where + "non-finite distortion")
+        if not (np.isfinite(R).all() and np.abs(R @ R.T - np.eye(3)).max() <= 1e-5 and abs(np.linalg.det(R) - 1) <= 1e-5):
+            out.append(where + "R is not a rotation")
+        if not np.isfinite(t).all():
+            out.append(where + "non-finite translation")
+        w, h = cam.size
+        if not (isinstance(w, int) and isinstance(h, int) and w > 0 and h > 0):
+            out.append(where + f"bad size {cam.size}")
+    return out
+
+
+def capture_problems(capture) -> list[str]:
+    """Why an opened :class:`Capture` is not valid: its rig (above), a finite positive frame
+    rate, a whole frame count >= 1, finite non-zero up/facing directions, known media."""
+    out = camera_rig_problems(capture.rig)
+    if not (isinstance(capture.fps, float) and np.isfinite(capture.fps) and capture.fps > 0):
+        out.append(f"fps {capture.fps!r}")
+    if not (isinstance(capture.n_frames, int) and capture.n_frames >= 1):
+        out.append(f"n_frames {capture.n_frames!r}")
+    for name in ("up", "facing"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            v = np.asarray(getattr(capture, name), float)
+        if not (v.shape == (3,) and np.isfinite(v).all() and abs(np.linalg.norm(v) - 1) < 1e-9):
+            out.append(f"{name} {v}")
+    if capture.media not in ("images", "video"):
+        out.append(f"media {capture.media!r}")
+    return out
+
+
+def level_map_problems(levels, n_rows: int) -> list[str]:
+    """Why a :class:`LevelMap` is not valid: >= 2 levels, rows finite floats within 1..n_rows,
+    increasing from the sacral end."""
+    rows = list(levels.rows.values())
+    out = []
+    if len(rows) < 2:
+        out.append("fewer than two levels")
+    if not all(isinstance(r, float) and np.isfinite(r) and 1 <= r <= n_rows for r in rows):
+        out.append(f"rows {rows} outside 1..{n_rows}")
+    if any(b <= a for a, b in zip(rows[:-1], rows[1:])):
+        out.append(f"rows {rows} not increasing")
     return out
