@@ -19,6 +19,14 @@ where it stopped, and a changed input is processed again. A failing trial is rec
 reason and never stops the others. Trials run on a local process pool (``workers``) or on a
 Dask distributed cluster (``scheduler`` = ``tcp://HOST:PORT``), with a progress bar.
 
+Interrupts: Ctrl-C (SIGINT; SIGTERM from ``spinemocap batch`` too) cancels the queued trials at
+once, stops the running ones (a local worker gets SIGINT and abandons its trial, removing its
+temporary files; on a Dask cluster the trial stops at its next frame through a distributed
+Event), records every unfinished trial as ``interrupted`` in ``batch.log`` and ``batch.json``
+and exits; a rerun resumes (finished trials are up to date). Local workers exit when the main
+process dies (they watch their parent), so killing it leaves no orphans; a Dask cluster's
+workers belong to the cluster, and the scheduler drops the dead client's queued trials.
+
 Row-to-level maps, first found wins: the manifest's ``levels`` column, ``levels.toml`` in the
 trial folder, a ``[levels]`` table in ``capture.toml``, ``levels.toml`` in the subject folder,
 the batch-wide ``levels`` file, and for synthetic captures the ground truth's ``row_levels``.
@@ -26,14 +34,18 @@ the batch-wide ``levels`` file, and for synthetic captures the ground truth's ``
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
+import signal
+import threading
 import time
+import uuid
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator
 
 import numpy as np
 import pandas as pd
@@ -43,9 +55,10 @@ from ..analysis.angles import AngleSettings, compute_angles
 from ..analysis.frames import pelvis_frame_from_markers
 from ..analysis.levels import LevelMap
 from ..capture import MANIFEST, Capture
-from ..fileio import InputError, atomic_write, read_toml
+from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, read_toml
 from ..markers import MarkerTable
 from .c3d_inputs import read_pelvis_c3d
+from .results import TrackingStopped, results_run_id
 
 log = logging.getLogger("spinemocap.batch")
 
@@ -53,6 +66,7 @@ SOURCES = ("tracked", "groundtruth")
 SUMMARY = "summary.json"
 ANGLES = "angles.csv"
 MARKERS = "markers.csv"
+INTERRUPTED = "interrupted"
 
 
 @dataclass
@@ -83,6 +97,7 @@ class TrialJob:
     settings: AngleSettings = field(default_factory=AngleSettings)
     force: bool = False
     detector: str = "net"
+    stop_event: str | None = None  # name of a Dask distributed Event that asks the trial to stop
 
     def summary_head(self) -> dict:
         """The keys every trial summary starts with (ok, failed or lost with its worker)."""
@@ -168,6 +183,8 @@ def process_trial(job: TrialJob) -> dict:
             cached = json.loads(summary_path.read_text())
             return {**cached, "skipped": True}
         summary = {**base, **_analyse(job, inputs)}
+    except TrackingStopped:  # the batch is being interrupted: no summary, a rerun redoes the trial
+        return {**base, "status": INTERRUPTED, "reason": "interrupted (stopped while running)", "skipped": False}
     except Exception as exc:  # one bad trial never stops the batch: record why it failed
         reason = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
         summary = {**base, "status": "failed", "reason": reason}
@@ -184,7 +201,7 @@ def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
     levels, levels_from = _levels(job, capture)
     pelvis = _pelvis_frames(job.trial.c3d_file, markers) if job.trial.c3d_file else None
     result = compute_angles(markers, capture.tape, levels, up=capture.up,
-                            facing=capture.subject.get("facing", (0.0, -1.0, 0.0)),
+                            facing=capture.facing,
                             settings=job.settings, pelvis_frames=pelvis)
     with atomic_write(out / ANGLES) as handle:
         result.table.to_csv(handle, index=False, float_format="%.4f")
@@ -237,14 +254,35 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
     if job.source != "tracked":
         raise InputError(None, f"unknown marker source {job.source!r}; expected one of {SOURCES}")
     path = Path(job.out_dir) / MARKERS
-    if job.force or not _newer_than(path, inputs):
+    if job.force or not _newer_than(path, inputs) or not _complete_results(path.parent):
         try:
             from ..app.run import track_capture
         except ImportError as exc:
             raise InputError(capture.root, f"the tracker is not available in this installation ({exc}); "
                              "use --source groundtruth for synthetic captures") from exc
-        track_capture(capture.root, Path(job.out_dir), mode="sequence", detector=job.detector, progress=False)
+        track_capture(capture.root, Path(job.out_dir), mode="sequence", detector=job.detector, progress=False,
+                      stop=_stop_check(job.stop_event))
     return read_markers_csv(path)
+
+
+def _complete_results(folder: Path) -> bool:
+    """True when the marker files in ``folder`` are one complete set (else they are redone)."""
+    try:
+        results_run_id(folder)
+    except InputError as exc:
+        log.info("%s", exc)
+        return False
+    return True
+
+
+def _stop_check(event_name: str | None) -> Callable[[], bool] | None:
+    """On a Dask worker: a function telling whether the batch's stop Event is set."""
+    if event_name is None:
+        return None
+    from distributed import Event, get_client
+
+    event = Event(event_name, client=get_client())
+    return event.is_set
 
 
 def _newer_than(path: Path, inputs: Iterable[Path]) -> bool:
@@ -346,8 +384,8 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = 
     """
     if source not in SOURCES:
         raise InputError(None, f"unknown marker source {source!r}; expected one of {SOURCES}")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_writable(out)
+    clean_stale_temps(out)
     trials = discover(root)
     settings = settings or AngleSettings()
     jobs = [TrialJob(t, str(trial_out_dir(out, t)), source, levels_file, settings, force, detector) for t in trials]
@@ -358,23 +396,48 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = 
              f"scheduler {scheduler}" if scheduler else f"{workers} local workers")
     results: list[dict] = []
     bar = tqdm(total=len(jobs), desc="trials", unit="trial", disable=not progress)
+    running = _execute(jobs, workers, scheduler)
     try:
-        for result in _execute(jobs, workers, scheduler):
+        for result in running:
             results.append(result)
             _log_result(result)
             failed = sum(r["status"] != "ok" for r in results)
             bar.update()
             bar.set_postfix(done=len(results) - failed, failed=failed, remaining=len(jobs) - len(results))
+    except KeyboardInterrupt:
+        running.close()  # stops the workers (if the interrupt came while this loop was not waiting)
+        _record_interrupted(jobs, results, out, root, source)
+        raise
     finally:
         bar.close()
         log.removeHandler(handler)
         handler.close()
+    _write_batch_json(out, root, source, jobs, results)
+    return BatchResult(results)
+
+
+def _record_interrupted(jobs: list[TrialJob], results: list[dict], out: Path, root, source: str) -> None:
+    """Every trial without a final result becomes ``interrupted`` in batch.log and batch.json."""
+    finished = {r["key"] for r in results if r["status"] != INTERRUPTED}
+    stopped = {r["key"]: r for r in results if r["status"] == INTERRUPTED}
+    results[:] = [r for r in results if r["status"] != INTERRUPTED]
+    for job in jobs:
+        key = job.trial.key
+        if key in finished:
+            continue
+        reason = stopped[key]["reason"] if key in stopped else "interrupted (not finished)"
+        results.append({**job.summary_head(), "status": INTERRUPTED, "reason": reason, "skipped": False})
+        log.warning("%s %s; a rerun processes it", key, reason)
+    log.warning("batch interrupted: %d of %d trials finished", len(finished), len(jobs))
+    _write_batch_json(out, root, source, jobs, results)
+
+
+def _write_batch_json(out: Path, root, source: str, jobs: list[TrialJob], results: list[dict]) -> None:
     order = {j.trial.key: k for k, j in enumerate(jobs)}
     results.sort(key=lambda r: order.get(r["key"], 0))
     with atomic_write(out / "batch.json") as handle:
         json.dump({"root": str(root), "source": source, "trials": results}, handle, indent=1,
                   default=_json_default)
-    return BatchResult(results)
 
 
 def _log_result(result: dict) -> None:
@@ -394,31 +457,96 @@ def _execute(jobs: list[TrialJob], workers: int, scheduler: str | None) -> Itera
         for job in jobs:
             yield process_trial(job)
     else:
-        pool = ProcessPoolExecutor(max_workers=workers)
-        finished = False
-        try:
-            futures = {pool.submit(process_trial, job): job for job in jobs}
-            for future in as_completed(futures):
-                yield _result_or_failure(future, futures[future])
-            finished = True
-        finally:
-            # interrupted: drop queued trials at once; finished ones are already on disk
-            pool.shutdown(wait=finished, cancel_futures=not finished)
+        yield from _execute_pool(jobs, workers)
 
 
+# ---------------------------------------------------------------------------------- local pool
+STOP_GRACE_S = 10.0     # how long stopped workers get to abandon their trial before they are killed
+_TRIAL_RUNNING = False  # in a worker: a trial is being processed (SIGINT then interrupts it)
+
+
+def _worker_init(parent_pid: int) -> None:
+    """In each local worker: exit when the batch's process dies (no orphans), and on SIGINT
+    interrupt the running trial (KeyboardInterrupt: its atomic writes remove their temporary
+    files) or, when idle, exit quietly."""
+    signal.signal(signal.SIGINT, _worker_sigint)
+    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
+
+
+def _watch_parent(parent_pid: int) -> None:
+    while os.getppid() == parent_pid:
+        time.sleep(0.5)
+    os._exit(1)  # the batch is gone: stop now; the next run removes this trial's temporary files
+
+
+def _worker_sigint(signum, frame) -> None:
+    if _TRIAL_RUNNING:
+        raise KeyboardInterrupt
+    os._exit(0)
+
+
+def _process_in_worker(job: TrialJob) -> dict:
+    global _TRIAL_RUNNING
+    _TRIAL_RUNNING = True
+    try:
+        return process_trial(job)
+    finally:
+        _TRIAL_RUNNING = False
+
+
+def _execute_pool(jobs: list[TrialJob], workers: int) -> Iterator[dict]:
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init, initargs=(os.getpid(),))
+    futures: dict = {}
+    try:
+        futures = {pool.submit(_process_in_worker, job): job for job in jobs}
+        for future in as_completed(futures):
+            yield _result_or_failure(future, futures[future])
+    except BaseException:  # KeyboardInterrupt, or the consumer closed us (GeneratorExit)
+        _stop_pool(pool, list(futures))
+        raise
+    pool.shutdown(wait=True)
+
+
+def _stop_pool(pool: ProcessPoolExecutor, futures: list) -> None:
+    """Cancel queued trials at once, SIGINT the workers (their running trial stops), wait up to
+    ``STOP_GRACE_S`` for them to exit, kill what is left."""
+    for future in futures:
+        future.cancel()
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            os.kill(process.pid, signal.SIGINT)
+    deadline = time.monotonic() + STOP_GRACE_S
+    for process in processes:
+        process.join(max(deadline - time.monotonic(), 0.0))
+        if process.is_alive():
+            process.kill()
+            process.join(1.0)
+    pool.shutdown(wait=False, cancel_futures=True)
+
+
+# ---------------------------------------------------------------------------------- Dask
 def _execute_dask(jobs: list[TrialJob], scheduler: str) -> Iterator[dict]:
-    from distributed import Client
+    from distributed import Client, Event
     from distributed import as_completed as dask_completed
 
     try:
         client = Client(scheduler, timeout="10s")
     except (OSError, TimeoutError) as exc:
         raise InputError(scheduler, f"cannot reach the Dask scheduler ({exc})") from exc
+    stop = Event(f"spinemocap-stop-{uuid.uuid4().hex}", client=client)
+    futures: list = []
     try:
+        jobs = [replace(job, stop_event=stop.name) for job in jobs]
         futures = client.map(process_trial, jobs, pure=False, key=[f"trial-{j.trial.key}-{id(j)}" for j in jobs])
         by_key = {f.key: j for f, j in zip(futures, jobs)}
         for future in dask_completed(futures):
             yield _result_or_failure(future, by_key[future.key])
+    except BaseException:  # interrupted: drop queued trials, ask running ones to stop at their next frame
+        with contextlib.suppress(Exception):
+            stop.set()
+            client.cancel(futures)
+        raise
     finally:
         client.close()
 

@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from ..capture import Capture  # noqa: E402
-from ..fileio import atomic_path, atomic_write  # noqa: E402
+from ..fileio import atomic_path, atomic_write, check_writable  # noqa: E402
 from .batch import ANGLES, load_results  # noqa: E402
 
 #: Per-trial numbers: (column name in the tables, angle statistic key in summary.json).
@@ -102,6 +102,16 @@ def problem_table(results: list[dict]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["key", "what", "frames", "reason"])
 
 
+def empty_column_problems(trials: pd.DataFrame) -> pd.DataFrame:
+    """A problem row for every plotted summary column without a single value (all NaN)."""
+    ok = trials[trials["status"] == "ok"]
+    rows = [{"key": "all trials", "what": f"{column} NaN", "frames": np.nan,
+             "reason": "no analysed trial has this value (e.g. the level maps do not reach the lumbar "
+                       "levels); its plot is empty"}
+            for column in ("flexion_rom_deg", "peak_flexion_deg") if len(ok) and ok[column].isna().all()]
+    return pd.DataFrame(rows, columns=["key", "what", "frames", "reason"])
+
+
 # ---------------------------------------------------------------------------------- plots
 def _png(fig) -> str:
     """The figure as base64 PNG text (for data: URLs); closes it."""
@@ -145,10 +155,14 @@ def _group_plot(trials: pd.DataFrame) -> str | None:
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.2))
     for ax, column, label in zip(axes, ("flexion_rom_deg", "peak_flexion_deg", "completeness_pct"),
                                  ("lumbar flexion ROM (deg)", "peak lumbar flexion (deg)", "observed dots (%)")):
-        pivot = ok.pivot_table(index="subject", columns="condition", values=column, aggfunc="mean")
-        spread = ok.pivot_table(index="subject", columns="condition", values=column, aggfunc="std")
-        pivot.plot.bar(ax=ax, yerr=spread.reindex_like(pivot), capsize=2, rot=0, legend=ax is axes[0])
+        pivot = ok.pivot_table(index="subject", columns="condition", values=column, aggfunc="mean", dropna=False)
+        spread = ok.pivot_table(index="subject", columns="condition", values=column, aggfunc="std", dropna=False)
         ax.set_title(label, fontsize=9)
+        if not np.isfinite(pivot.to_numpy(float)).any():  # e.g. no trial's level map reaches S1
+            ax.text(0.5, 0.5, "no value in any trial\n(see Problems)", ha="center", va="center",
+                    transform=ax.transAxes, color="tab:red", fontsize=9)
+            continue
+        pivot.plot.bar(ax=ax, yerr=spread.reindex_like(pivot), capsize=2, rot=0, legend=ax is axes[0])
         ax.set_xlabel("")
         ax.tick_params(labelsize=8)
     handles, labels = axes[0].get_legend_handles_labels()
@@ -196,9 +210,10 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
     """Write the report and summary tables into the batch folder ``out``; returns their paths."""
     out = Path(out)
     results = load_results(out)
+    check_writable(out, "batch output folder")
     trials = trial_table(results)
     by_subject, by_condition = group_table(trials, "subject"), group_table(trials, "condition")
-    problems = problem_table(results)
+    problems = pd.concat([problem_table(results), empty_column_problems(trials)], ignore_index=True)
     paths = _write_tables(out, trials, by_subject, by_condition, problems)
 
     n_ok = int((trials["status"] == "ok").sum())
@@ -230,7 +245,10 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
         angles = pd.read_csv(Path(r["out_dir"]) / ANGLES)
         parts.append(f"<h3>{html.escape(r['key'])} <span class='note'>"
                      f"({r.get('completeness_pct', float('nan')):.0f}% of dots observed)</span></h3>")
-        parts.append(f"<img alt='{html.escape(r['key'])}' src='data:image/png;base64,{_trial_plot(angles)}'>")
+        try:
+            parts.append(f"<img alt='{html.escape(r['key'])}' src='data:image/png;base64,{_trial_plot(angles)}'>")
+        except (KeyError, TypeError, ValueError) as exc:  # the page is written anyway, saying why
+            parts.append(f"<p class='bad'>no plot: {html.escape(f'{type(exc).__name__}: {exc}')}</p>")
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title or out.name)}</title>"
             f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
     with atomic_write(out / "report.html") as handle:

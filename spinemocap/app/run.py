@@ -19,18 +19,17 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 from tqdm import tqdm
 
-import exporters
-
 from ..camera import Rig
 from ..capture import Capture, read_image, to_grey
 from ..detect import find_dots
-from ..fileio import InputError
+from ..fileio import InputError, check_writable
 from ..markers import MarkerTable
 from ..tape import TapeSpec
 from ..track.config import TrackerConfig
 from ..track.pipeline import STAGES, FrameResult, FrameTracker
 from ..track.sequence import SequenceTracker, fill_and_smooth
 from ..views import ViewDots
+from .results import TrackingStopped, write_markers
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +38,8 @@ MODES = ("sequence", "paper")
 
 class TrackingWarning(UserWarning):
     """A frame could not be solved (its dots are reported missing)."""
+
+
 
 
 # ---------------------------------------------------------------------- dot detection
@@ -113,11 +114,13 @@ def run_tracking(
     progress: bool = True,
     n_frames: int | None = None,
     meta: dict | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> TrackResult:
     """Track a sequence. ``views_per_frame`` yields ``(frame, views, detect_ms)``.
 
     Returns the table (frames numbered as yielded) and the per-frame results. A frame without a
-    solution gives ``missing`` rows and a :class:`TrackingWarning`, never an exception."""
+    solution gives ``missing`` rows and a :class:`TrackingWarning`, never an exception.
+    ``stop``: asked before every frame; True ends the run with :class:`TrackingStopped`."""
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}; choose from {MODES}")
     config = config or TrackerConfig()
@@ -126,6 +129,8 @@ def run_tracking(
     results, frame_ids = [], []
     bar = tqdm(views_per_frame, total=n_frames, desc=f"tracking ({mode})", unit="frame", disable=not progress)
     for frame, views, detect_ms in bar:
+        if stop is not None and stop():
+            raise TrackingStopped(f"tracking stopped before frame {frame}")
         stage_ms = {"detect": detect_ms}
         try:
             result = carry.step(views, stage_ms) if carry else tracker.solve(views, stage_ms=stage_ms)
@@ -191,11 +196,15 @@ def track_capture(
     detector: str = "net",
     frames: str | range | None = None,
     progress: bool = True,
+    stop: Callable[[], bool] | None = None,
 ) -> MarkerTable:
-    """Track a capture folder and write ``out_dir/markers.csv`` plus ``.trc`` and ``.c3d``.
+    """Track a capture folder and write ``out_dir/markers.csv`` plus ``.trc`` and ``.c3d`` as one
+    set (:func:`write_markers`). ``out_dir`` is checked for writing before any work.
 
-    ``frames``: ``"A:B"`` or a range (default: all). Returns the marker table (mm, world Z up)."""
+    ``frames``: ``"A:B"`` or a range (default: all); ``stop``: see :func:`run_tracking`.
+    Returns the marker table (mm, world Z up)."""
     capture = Capture.open(capture_dir)
+    check_writable(out_dir)
     if mode not in MODES:
         raise InputError(capture_dir, f"unknown tracking mode {mode!r}; choose from {MODES}")
     frame_range = frames if isinstance(frames, range) else parse_frames(frames, capture.n_frames)
@@ -204,18 +213,7 @@ def track_capture(
         _capture_views(capture, frame_range, detect), capture.rig, capture.tape, capture.fps,
         up=capture.up, mode=mode, config=config, progress=progress, n_frames=len(frame_range),
         meta={"subject": capture.subject.get("id", ""), "source": str(capture.root), "detector": detector},
+        stop=stop,
     )
     write_markers(result.table, out_dir)
     return result.table
-
-
-def write_markers(table: MarkerTable, out_dir: str | Path) -> list[Path]:
-    """``markers.csv``, ``markers.trc`` and ``markers.c3d`` in ``out_dir`` (atomic writes)."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for ext in ("csv", "trc", "c3d"):
-        path = out / f"markers.{ext}"
-        exporters.write(table, path)
-        paths.append(path)
-    return paths

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import signal
+import sys
 
 log = logging.getLogger("spinemocap.batch")
 
@@ -65,15 +67,27 @@ def run_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _terminate_as_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
 def run(args: argparse.Namespace) -> int:
     from ..analysis.angles import AngleSettings
     from ..app.batch import run_batch
 
     settings = AngleSettings(lower=args.lumbar[0], thoracolumbar=args.lumbar[1], upper=args.upper_level,
                              lowpass_hz=args.lowpass_hz or None)
-    result = run_batch(args.root, args.out, source=args.source, workers=args.workers,
-                       scheduler=args.scheduler, levels_file=args.levels, settings=settings,
-                       force=args.force, detector=args.detector, progress=not args.quiet)
+    previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)  # kill PID stops as cleanly as Ctrl-C
+    try:
+        result = run_batch(args.root, args.out, source=args.source, workers=args.workers,
+                           scheduler=args.scheduler, levels_file=args.levels, settings=settings,
+                           force=args.force, detector=args.detector, progress=not args.quiet)
+    except KeyboardInterrupt:
+        print(f"spinemocap: batch interrupted; unfinished trials are listed in {args.out}/batch.log; "
+              "run the same command again to resume", file=sys.stderr)
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     skipped = sum(bool(t.get("skipped")) for t in result.trials)
     print(f"{len(result.trials)} trials: {len(result.trials) - len(result.failed)} ok "
           f"({skipped} up to date), {len(result.failed)} failed; results in {args.out}")

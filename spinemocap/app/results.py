@@ -1,0 +1,91 @@
+"""The results folder of a tracked capture (application layer, light to import): the marker
+files written as one consistent set with a manifest, and the signal that stops a tracking run.
+
+``markers.csv``, ``markers.trc`` and ``markers.c3d`` come from one run or the folder says it is
+incomplete: :func:`write_markers` stages all three, then swaps them in and writes
+``markers.manifest.json`` (run id, size and SHA-256 per file) last; :func:`results_run_id`
+checks a folder against its manifest.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import time
+import uuid
+from pathlib import Path
+
+import exporters
+
+from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, fsync_dir, temp_name
+from ..markers import MarkerTable
+
+RESULTS_MANIFEST = "markers.manifest.json"
+RESULT_FILES = ("markers.csv", "markers.trc", "markers.c3d")
+
+
+class TrackingStopped(Exception):
+    """The caller asked the tracking to stop (a batch being interrupted); nothing was written."""
+
+
+def write_markers(table: MarkerTable, out_dir: str | Path) -> list[Path]:
+    """``markers.csv``, ``markers.trc`` and ``markers.c3d`` in ``out_dir``, consistent as a set.
+
+    All three are written into a staging folder first (a failing writer leaves the previous set
+    untouched); then the manifest ``markers.manifest.json`` is removed, the files are renamed
+    into place and a new manifest (run id, size and SHA-256 of each file) is written last. A kill
+    in between leaves no manifest or one that does not match: :func:`results_run_id` tells.
+    Staging folders and temporary files of a killed run are removed here."""
+    out = check_writable(out_dir)
+    clean_stale_temps(out)
+    staging = temp_name(out / "markers", suffix="")
+    staging.mkdir()
+    try:
+        staged = []
+        for name in RESULT_FILES:
+            exporters.write(table, staging / name)
+            staged.append(staging / name)
+        manifest = {"run_id": uuid.uuid4().hex, "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                    "files": {p.name: {"bytes": p.stat().st_size, "sha256": _sha256(p)} for p in staged}}
+        (out / RESULTS_MANIFEST).unlink(missing_ok=True)
+        fsync_dir(out)
+        for path in staged:
+            os.replace(path, out / path.name)
+        fsync_dir(out)
+        with atomic_write(out / RESULTS_MANIFEST) as handle:
+            json.dump(manifest, handle, indent=1)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return [out / name for name in RESULT_FILES]
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def results_run_id(out_dir: str | Path) -> str:
+    """The run id of the marker files in ``out_dir`` when they form one complete set written by
+    :func:`write_markers` (every file present with the manifest's size and SHA-256);
+    :class:`InputError` naming the folder otherwise (an interrupted write, files of two runs)."""
+    out = Path(out_dir)
+    manifest_path = out / RESULTS_MANIFEST
+    try:
+        manifest = json.loads(manifest_path.read_text())
+        files = manifest["files"]
+        for name in RESULT_FILES:
+            path = out / name
+            if path.stat().st_size != files[name]["bytes"] or _sha256(path) != files[name]["sha256"]:
+                raise InputError(out, f"{name} does not belong to the run in {RESULTS_MANIFEST}: "
+                                      "the result files are from different runs")
+        return str(manifest["run_id"])
+    except InputError:
+        raise
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(out, f"incomplete set of marker files (no valid {RESULTS_MANIFEST}: {exc}); "
+                              "the run that wrote them was interrupted") from exc
