@@ -490,6 +490,8 @@ def _process_in_worker(job: TrialJob) -> dict:
     _TRIAL_RUNNING = True
     try:
         return process_trial(job)
+    except KeyboardInterrupt:  # stopped: the trial's temporary files are gone; take no further trial
+        os._exit(130)
     finally:
         _TRIAL_RUNNING = False
 

@@ -1,0 +1,114 @@
+"""Issue 12: Ctrl-C during a real `spinemocap batch` subprocess stops it within seconds, records
+the unfinished trials as interrupted, leaves no worker behind, and a rerun resumes; killing the
+batch process (SIGKILL) leaves no orphan worker either."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+
+from spinemocap.analysis.bent_tape import write_bent_capture
+from spinemocap.tape import TapeSpec
+
+ROOT = Path(__file__).resolve().parents[1]
+N_TRIALS = 4
+FRAMES = 900  # ~1-3 s of angle computation per trial on the 2-core CI machine
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory) -> Path:
+    """A CSV manifest of N_TRIALS trials sharing one long ground-truth capture (a short bent-tape
+    capture with its motion repeated, so that writing it is quick)."""
+    root = tmp_path_factory.mktemp("study")
+    capture = root / "capture"
+    write_bent_capture(capture, TapeSpec(n_rows=9), 20.0, 30, fps=100.0)
+    with np.load(capture / "groundtruth.npz") as data:
+        gt = {k: data[k] for k in data.files}
+    gt["dots"] = np.concatenate([gt["dots"], gt["dots"][::-1]] * (FRAMES // 60))
+    np.savez(capture / "groundtruth.npz", **gt)
+    manifest = (capture / "capture.toml").read_text()
+    (capture / "capture.toml").write_text(manifest.replace("n_frames = 30", f"n_frames = {len(gt['dots'])}"))
+    (root / "levels.toml").write_text('[levels]\nS1 = 1\n"T12/L1" = 7\nT10 = 9\n')
+    rows = "".join(f"capture,S{k:02d},t1,levels.toml\n" for k in range(N_TRIALS))
+    (root / "manifest.csv").write_text("path,subject,trial,levels\n" + rows)
+    return root
+
+
+def _start(study: Path, out: Path, *extra: str) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
+           "OMP_NUM_THREADS": "1"}
+    return subprocess.Popen([sys.executable, "-m", "spinemocap", "-q", "batch", str(study / "manifest.csv"),
+                             "--out", str(out), "--source", "groundtruth", "--workers", "2", *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def _wait_for(condition, timeout: float, proc: subprocess.Popen) -> None:
+    end = time.monotonic() + timeout
+    while not condition():
+        assert proc.poll() is None, f"batch ended early: {proc.communicate()}"
+        assert time.monotonic() < end, "timed out waiting for the batch"
+        time.sleep(0.05)
+
+
+def _alive(pids: list[int]) -> list[int]:
+    out = []
+    for pid in pids:
+        try:
+            if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
+                out.append(pid)
+        except psutil.NoSuchProcess:
+            pass
+    return out
+
+
+def _summaries(out: Path) -> list[Path]:
+    return sorted(out.rglob("summary.json"))
+
+
+def test_ctrl_c_stops_batch_within_seconds_records_interrupted_and_rerun_resumes(study, tmp_path):
+    out = tmp_path / "out"
+    proc = _start(study, out)
+    _wait_for(lambda: len(_summaries(out)) >= 1, 120, proc)  # one trial done, others running or queued
+    workers = [c.pid for c in psutil.Process(proc.pid).children(recursive=True)]
+    assert workers, "the batch runs its trials in worker processes"
+    sent = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    stopped_s = time.monotonic() - sent
+    assert proc.returncode == 130 and stopped_s < 5.0, (proc.returncode, stopped_s, err)
+    assert "Traceback" not in err and "interrupted" in err
+    time.sleep(0.5)
+    assert _alive(workers) == []
+    finished = len(_summaries(out))
+    assert 1 <= finished < N_TRIALS
+    log = (out / "batch.log").read_text()
+    assert log.count(" interrupted") >= N_TRIALS - finished and "batch interrupted" in log
+    assert not [p for p in out.rglob(".~*")], "temporary files left behind"
+
+    proc = _start(study, out)  # resume: finished trials are up to date, the rest are processed
+    stdout, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert f"{N_TRIALS} ok ({finished} up to date)" in stdout
+    assert len(_summaries(out)) == N_TRIALS
+
+
+def test_killing_the_batch_process_leaves_no_orphan_worker(study, tmp_path):
+    out = tmp_path / "out"
+    proc = _start(study, out)
+    _wait_for(lambda: len(psutil.Process(proc.pid).children(recursive=True)) >= 2, 120, proc)
+    time.sleep(0.5)
+    workers = [c.pid for c in psutil.Process(proc.pid).children(recursive=True)]
+    proc.kill()
+    proc.communicate(timeout=10)
+    end = time.monotonic() + 5.0
+    while _alive(workers) and time.monotonic() < end:
+        time.sleep(0.1)
+    assert _alive(workers) == [], "workers outlived the killed batch"
