@@ -287,8 +287,9 @@ class Capture:
 def _typed(section: dict, key: str, kinds: tuple[type, ...], default=None, table: str = "capture"):
     value = section.get(key, default)
     if not isinstance(value, kinds) or isinstance(value, bool):
-        names = " or ".join(k.__name__.replace("str", "string").replace("float", "number") for k in kinds)
-        raise InputError(None, f"[{table}] {key} must be a {names}, got {value!r}")
+        names = {int: "number", float: "number", str: "string", list: "list"}
+        wanted = " or ".join(dict.fromkeys(names.get(k, k.__name__) for k in kinds))
+        raise InputError(None, f"[{table}] {key} must be a {wanted}, got {value!r}")
     return value
 
 
