@@ -45,7 +45,7 @@ import uuid
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+from typing import Callable, Generator, Iterable, Iterator
 
 import numpy as np
 import pandas as pd
@@ -450,7 +450,7 @@ def _log_result(result: dict) -> None:
     log.info("%s %s", result["key"], "up to date, skipped" if result.get("skipped") else "done")
 
 
-def _execute(jobs: list[TrialJob], workers: int, scheduler: str | None) -> Iterator[dict]:
+def _execute(jobs: list[TrialJob], workers: int, scheduler: str | None) -> Generator[dict, None, None]:
     if scheduler:
         yield from _execute_dask(jobs, scheduler)
     elif workers <= 1:
