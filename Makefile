@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo lint test test-slow fuzz-c3d bench clean
+.PHONY: demo lint test test-slow fuzz fuzz-c3d bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -28,6 +28,10 @@ test: $(STAMP) lint
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -m slow
+
+# Every reader fuzzed at scale (issue 12): >= 10,000 damaged files per format (SPINEMOCAP_FUZZ_CASES for more)
+fuzz: $(STAMP)
+	$(PY) -m pytest -m slow -s tests/test_fuzz_readers.py tests/test_c3d_fuzz.py
 
 # C3D reader fuzzing at scale (issue 12): 10,000 damaged small files + 500 damaged Nexus files
 fuzz-c3d: $(STAMP)

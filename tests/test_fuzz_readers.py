@@ -9,6 +9,7 @@ independent validation (tests/fuzzing.py). ``make fuzz`` runs >= 10,000 cases pe
 from __future__ import annotations
 
 import os
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -109,10 +110,6 @@ LEVEL_SEEDS = {
 }
 
 
-def _fuzz_calibration(tmp_path, suffix, seeds, n, seed, read=read_rig, mutators=TOML_MUTATORS):
-    return run_fuzz(cases(seeds, n, seed, mutators), tmp_path, suffix, read, camera_rig_problems)
-
-
 def _table_problems(table) -> list[str]:
     return marker_table_problems(table)
 
@@ -129,10 +126,12 @@ FORMATS = {
                      "capture.toml"),
     "levels_toml": (".toml", lambda d: LEVEL_SEEDS, TOML_MUTATORS, lambda p: LevelMap.from_toml(p, N_ROWS),
                     lambda m: level_map_problems(m, N_ROWS), None),
-    "trc": (".trc", lambda d: seeds_tables(d, ".trc"), TABLE_TEXT_MUTATORS, exporters.read, _table_problems, None),
-    "csv": (".csv", lambda d: seeds_tables(d, ".csv"), TABLE_TEXT_MUTATORS, exporters.read, _table_problems, None),
-    "parquet": (".parquet", lambda d: seeds_tables(d, ".parquet"), BINARY_MUTATORS, exporters.read, _table_problems,
-                None),
+    "trc": (".trc", lambda d: seeds_tables(d, ".trc"), TABLE_TEXT_MUTATORS, partial(exporters.read, format="trc"),
+            _table_problems, None),
+    "csv": (".csv", lambda d: seeds_tables(d, ".csv"), TABLE_TEXT_MUTATORS, partial(exporters.read, format="csv"),
+            _table_problems, None),
+    "parquet": (".parquet", lambda d: seeds_tables(d, ".parquet"), BINARY_MUTATORS,
+                partial(exporters.read, format="parquet"), _table_problems, None),
 }
 
 
