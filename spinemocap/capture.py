@@ -222,8 +222,8 @@ class Capture:
         try:
             with np.load(path, allow_pickle=False) as data:
                 return {k: data[k] for k in data.files}
-        except (OSError, ValueError) as exc:
-            raise InputError(path, f"unreadable ground truth ({exc})") from exc
+        except Exception as exc:  # zipfile, pickle and numpy raise many types for a damaged file
+            raise InputError(path, f"unreadable ground truth ({type(exc).__name__}: {exc})") from exc
 
     def row_levels(self) -> list[str] | None:
         """The vertebral level under each tape row from the ground truth (synthetic captures), else None."""

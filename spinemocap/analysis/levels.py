@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..fileio import InputError, read_toml
+from ..fileio import InputError, read_toml, reading
 
 _REGIONS = {"C": (0, 7), "T": (7, 12), "L": (19, 5), "S": (24, 5)}
 _NAME = re.compile(r"^([CTLS])(\d{1,2})$")
@@ -95,7 +95,11 @@ class LevelMap:
     @classmethod
     def from_toml(cls, path: str | os.PathLike, n_rows: int) -> "LevelMap":
         data = read_toml(path)
-        return cls(dict(data.get("levels", data)), n_rows, source=str(path))
+        with reading(path, "level map"):
+            levels = data.get("levels", data)
+            if not isinstance(levels, dict):
+                raise InputError(path, f"[levels] must be a table of level = row, got {levels!r}")
+            return cls(dict(levels), n_rows, source=str(path))
 
     @classmethod
     def from_row_levels(cls, row_levels: list[str], n_rows: int, source: str | None = None) -> "LevelMap":

@@ -20,7 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..camera import Rig
-from ..capture import Capture, read_image, to_grey
+from ..capture import Capture, check_image_size, read_image, to_grey
 from ..detect import find_dots
 from ..fileio import InputError, check_writable
 from ..markers import MarkerTable
@@ -183,7 +183,8 @@ def _capture_views(capture: Capture, frames: range, detect: DotDetector):
         images = source.read(frame)
         masks = None
         if mask_dir.is_dir():
-            masks = [read_image(mask_dir / cam / f"{frame:06d}.png")[:, :, 0] > 127 for cam in capture.camera_names]
+            masks = [check_image_size(read_image(path), cam.size, cam.name, path)[:, :, 0] > 127
+                     for cam in capture.rig for path in [mask_dir / cam.name / f"{frame:06d}.png"]]
         views = detect(frame, images, masks)
         yield frame, views, 1000 * (time.perf_counter() - t0)
 
