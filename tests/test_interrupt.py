@@ -100,6 +100,7 @@ def test_ctrl_c_stops_batch_within_seconds_records_interrupted_and_rerun_resumes
     assert len(_summaries(out)) == N_TRIALS
 
 
+@pytest.mark.slow
 def test_killing_the_batch_process_leaves_no_orphan_worker(study, tmp_path):
     out = tmp_path / "out"
     proc = _start(study, out)
@@ -112,3 +113,24 @@ def test_killing_the_batch_process_leaves_no_orphan_worker(study, tmp_path):
     while _alive(workers) and time.monotonic() < end:
         time.sleep(0.1)
     assert _alive(workers) == [], "workers outlived the killed batch"
+
+
+@pytest.mark.slow
+def test_interrupting_a_dask_batch_cancels_its_queued_trials(study, tmp_path):
+    """On a Dask cluster the interrupted batch cancels every queued trial at once and sets the
+    stop Event the running trials check; here one worker thread, trials one at a time."""
+    from distributed import LocalCluster
+
+    from spinemocap.analysis.angles import AngleSettings
+    from spinemocap.app.batch import TrialJob, _execute_dask, discover, trial_out_dir
+
+    out = tmp_path / "out"
+    trials = discover(study / "manifest.csv")
+    jobs = [TrialJob(t, str(trial_out_dir(out, t)), "groundtruth", None, AngleSettings()) for t in trials]
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        running = _execute_dask(jobs, cluster.scheduler_address)
+        first = next(running)
+        assert first["status"] == "ok"
+        running.close()  # what run_batch does on Ctrl-C
+        time.sleep(3.0)  # a running trial (no frame loop with ground truth) may still finish
+    assert len(_summaries(out)) <= 2 < N_TRIALS
