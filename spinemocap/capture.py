@@ -254,6 +254,8 @@ class Capture:
         data = read_toml(manifest)
         with reading(manifest, MANIFEST):
             settings = capture_settings(data, manifest)
+        if not (root / settings["rig_file"]).is_file():
+            raise InputError(manifest, f"rig = {settings['rig_file']!r}: no such file in {root}")
         rig = Rig.from_toml(root / settings["rig_file"])
         absent = [c for c in settings["cameras"] if c not in rig.names]
         if absent:
