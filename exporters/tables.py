@@ -107,16 +107,17 @@ def read_parquet(path: str | os.PathLike) -> MarkerTable:
     import pyarrow.parquet as pq
 
     path = Path(path)
-    try:
+    try:  # pyarrow raises several types for corrupt files, some only while converting columns
         arrow = pq.read_table(path)
-    except Exception as exc:  # pyarrow raises several types for corrupt files
-        raise InputError(path, f"cannot read Parquet: {exc}") from exc
-    with reading(path, "Parquet marker table"):
-        meta = json.loads((arrow.schema.metadata or {}).get(META_KEY, b"{}"))
-        if not isinstance(meta, dict):
-            raise InputError(path, f"the {META_KEY.decode()} metadata must be a JSON object")
-        df = arrow.to_pandas()
-    return _table(df, path, meta)
+        with reading(path, "Parquet marker table"):
+            meta = json.loads((arrow.schema.metadata or {}).get(META_KEY, b"{}"))
+            if not isinstance(meta, dict):
+                raise InputError(path, f"the {META_KEY.decode()} metadata must be a JSON object")
+            return _table(arrow.to_pandas(), path, meta)
+    except InputError:
+        raise
+    except Exception as exc:
+        raise InputError(path, f"cannot read Parquet: {type(exc).__name__}: {exc}") from exc
 
 
 class CsvExporter(Exporter):
