@@ -110,3 +110,21 @@ def test_a_failing_writer_leaves_the_previous_set_whole(tmp_path, monkeypatch):
     with pytest.raises(OSError, match="disk full"):
         write_markers(_table(3.0), out)
     assert results_run_id(out) == before and not list(out.glob(".~*"))
+
+
+def test_report_of_one_capture_reuses_a_complete_tracked_set(tmp_path):
+    """`spinemocap demo`'s report step hands the tracked set to the batch, which must reuse it
+    (this capture has no images: tracking again would fail)."""
+    from spinemocap.analysis.bent_tape import write_bent_capture
+    from spinemocap.app.batch import groundtruth_markers, load_results
+    from spinemocap.app.report import report_capture
+    from spinemocap.capture import Capture
+    from spinemocap.tape import TapeSpec
+
+    capture = tmp_path / "cap"
+    write_bent_capture(capture, TapeSpec(n_rows=9), 20.0, 12, fps=50.0)
+    (capture / "levels.toml").write_text('[levels]\nS1 = 1\n"T12/L1" = 7\nT10 = 9\n')
+    tracked = write_markers(groundtruth_markers(Capture.open(capture)), tmp_path / "tracked")
+    report_capture(capture, tmp_path / "report", markers_csv=tracked[0])
+    (result,) = load_results(tmp_path / "report")
+    assert result["status"] == "ok" and result["source"] == "tracked", result

@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from ..capture import Capture  # noqa: E402
-from ..fileio import atomic_path, atomic_write, check_writable  # noqa: E402
+from ..fileio import InputError, atomic_path, atomic_write, check_writable  # noqa: E402
 from .batch import ANGLES, load_results  # noqa: E402
 
 #: Per-trial numbers: (column name in the tables, angle statistic key in summary.json).
@@ -278,6 +278,16 @@ def _write_tables(out: Path, trials: pd.DataFrame, by_subject: pd.DataFrame, by_
     return paths
 
 
+def _complete(folder: Path) -> bool:
+    from .results import results_run_id
+
+    try:
+        results_run_id(folder)
+    except InputError:
+        return False
+    return True
+
+
 def report_capture(capture_dir: str | os.PathLike, out: str | os.PathLike,
                    markers_csv: str | os.PathLike | None = None, progress: bool = False) -> dict[str, Path]:
     """Angles and report for a single capture (``spinemocap demo``'s last step).
@@ -287,18 +297,25 @@ def report_capture(capture_dir: str | os.PathLike, out: str | os.PathLike,
     tape starts there) to T12/L1."""
     import shutil
 
+    import exporters
+
     from ..analysis.angles import AngleSettings
     from ..analysis.levels import LevelMap
     from .batch import MARKERS, discover, run_batch, trial_out_dir
+    from .results import RESULT_FILES, RESULTS_MANIFEST, write_markers
 
     out = Path(out)
     (trial,) = discover(capture_dir)
     source = "groundtruth"
     if markers_csv is not None and Path(markers_csv).is_file():
-        target = trial_out_dir(out, trial) / MARKERS
-        target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(markers_csv, target)  # newer than the capture: the batch reuses it
-        os.utime(target)
+        target = trial_out_dir(out, trial)
+        target.mkdir(parents=True, exist_ok=True)
+        for name in (*RESULT_FILES, RESULTS_MANIFEST):  # the whole set: the batch reuses only a complete one
+            if (Path(markers_csv).parent / name).is_file():
+                shutil.copy2(Path(markers_csv).parent / name, target / name)
+                os.utime(target / name)  # newer than the capture
+        if Path(markers_csv).name != MARKERS or not _complete(target):
+            write_markers(exporters.read(markers_csv), target)
         source = "tracked"
     lower = "S1"
     names = Capture.open(capture_dir).row_levels()
