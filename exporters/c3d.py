@@ -134,13 +134,6 @@ class _FrameView:
         return len(self._block) > 0
 
 
-def _decode_frame_field(param) -> int:
-    """TRIAL:ACTUAL_*_FIELD: an unsigned 32-bit frame number stored as two 16-bit words.
-    (``c3d`` 0.6 multiplies the high word by 65535, not 65536, for the start field.)"""
-    lo, hi = param.uint16_array[:2]
-    return int(lo) + 65536 * int(hi)
-
-
 class _BlockWriter(c3dlib.Writer):
     """``c3d.Writer`` that writes the whole (F, D, 4) float32 point block at once (and writes
     invalid samples as 0, 0, 0, -1 instead of reusing a stale buffer)."""
@@ -152,8 +145,9 @@ class _BlockWriter(c3dlib.Writer):
 
     @property
     def first_frame(self) -> int:
-        param = self.get("TRIAL:ACTUAL_START_FIELD")
-        return _decode_frame_field(param) if param is not None else int(self.header.first_frame)
+        # (``c3d`` 0.6 multiplies the start field's high word by 65535, not 65536)
+        start = _frame_field(self, "TRIAL:ACTUAL_START_FIELD")
+        return start if start is not None else int(self.header.first_frame)
 
     def _write_frames(self, handle) -> None:
         assert handle.tell() == 512 * (int(self._header.data_block) - 1)
@@ -314,7 +308,7 @@ def _float32(raw: bytes, dtypes) -> float:
     return float(np.frombuffer(raw, dtypes.float32, count=1)[0])
 
 
-def _frame_field(reader: c3dlib.Reader, key: str) -> int | None:
+def _frame_field(reader: c3dlib.Manager, key: str) -> int | None:
     """TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD: a frame number stored as two 16-bit words
     (low, high); one word or a 4-byte element are read too."""
     param = _param(reader, key)

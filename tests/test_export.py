@@ -345,3 +345,9 @@ def test_integer_c3d_from_other_writers_reads_like_ezc3d(tmp_path):
     theirs = ezc3d.c3d(str(tmp_path / "int.c3d"))["data"]["points"][:3].transpose(2, 1, 0)
     assert np.array_equal(np.isnan(ours), np.isnan(theirs)) and np.isnan(ours[4]).all()
     assert np.allclose(ours, theirs, rtol=1e-6, equal_nan=True)
+
+
+def test_c3d_first_frame_beyond_65535_round_trips(tmp_path):
+    table = MarkerTable.from_arrays(["A"], np.ones((5, 1, 3)), fps=100, first_frame=100_000)
+    back = exporters.read(exporters.write(table, tmp_path / "late.c3d"))
+    assert list(back.frames) == list(range(100_000, 100_005))
