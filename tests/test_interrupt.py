@@ -20,7 +20,7 @@ from spinemocap.tape import TapeSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 N_TRIALS = 4
-FRAMES = 900  # ~1-3 s of angle computation per trial on the 2-core CI machine
+FRAMES = 600  # ~1-2 s of angle computation per trial on the 2-core CI machine
 
 
 @pytest.fixture(scope="module")
