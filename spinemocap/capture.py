@@ -102,9 +102,14 @@ class ImageFolderSource:
         return self.root / self.pattern.format(camera=camera, frame=frame)
 
     def read(self, frame: int) -> list[np.ndarray]:
+        return [self.read_camera(k, frame) for k in range(len(self.camera_names))]
+
+    def read_camera(self, camera: int, frame: int) -> np.ndarray:
+        """One camera's image (``camera``: index in rig order); cameras may be read from
+        different threads at once."""
         if not 0 <= frame < self.n_frames:
             raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
-        return [read_image(self.path(cam, frame)) for cam in self.camera_names]
+        return read_image(self.path(self.camera_names[camera], frame))
 
 
 class VideoSource:
@@ -127,6 +132,13 @@ class VideoSource:
             cap.release()
             if count and count != self.n_frames:
                 raise InputError(path, f"video has {count} frames, capture.toml says n_frames = {self.n_frames}")
+
+    def read_camera(self, camera: int, frame: int) -> np.ndarray:
+        """One camera's image (``camera``: index in rig order). Each camera has its own decoder,
+        so different cameras may be read from different threads at once (one thread per camera)."""
+        if not 0 <= frame < self.n_frames:
+            raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
+        return self._read_one(camera, frame)
 
     def _read_one(self, k: int, frame: int) -> np.ndarray:
         cap = self._captures[k]

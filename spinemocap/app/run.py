@@ -22,8 +22,7 @@ from tqdm import tqdm
 import exporters
 
 from ..camera import Rig
-from ..capture import Capture, read_image, to_grey
-from ..detect import find_dots
+from ..capture import Capture
 from ..fileio import InputError
 from ..markers import MarkerTable
 from ..tape import TapeSpec
@@ -31,6 +30,7 @@ from ..track.config import TrackerConfig
 from ..track.pipeline import STAGES, FrameResult, FrameTracker
 from ..track.sequence import SequenceTracker, fill_and_smooth
 from ..views import ViewDots
+from .streaming import CaptureDetector, SpeedOptions, prefetched_frames
 
 log = logging.getLogger(__name__)
 
@@ -45,41 +45,14 @@ class TrackingWarning(UserWarning):
 DotDetector = Callable[[int, list[np.ndarray], list[np.ndarray] | None], list[ViewDots]]
 
 
-def make_detector(name: str) -> DotDetector:
-    """A function ``(frame, images, masks) -> [ViewDots per camera]``.
+def make_detector(name: str, rig: Rig | None = None, speed: SpeedOptions | None = None) -> CaptureDetector:
+    """A function ``(frame, images, masks) -> [ViewDots per camera]`` (a :class:`CaptureDetector`).
 
     ``net`` / ``classical``: :class:`spinemocap.detect.Detector` (tape mask + dots from the image);
     ``mask``: dots found inside given tape masks (synthetic captures ship exact masks; this
-    isolates the tracker from tape-segmentation errors)."""
-    if name == "mask":
-        def detect_in_masks(frame, images, masks):
-            if masks is None:
-                raise InputError(None, "detector 'mask' needs tape masks (synthetic captures have masks/)")
-            out = []
-            for c, (image, mask) in enumerate(zip(images, masks)):
-                uv, conf = find_dots(image, mask)
-                out.append(ViewDots(c, uv, conf, mask=mask, image=to_grey(image)))
-            return out
-
-        return detect_in_masks
-    if name in ("net", "classical"):
-        try:  # the network detector loads torch: imported only when chosen
-            from ..detect import Detector
-        except ImportError as exc:
-            raise InputError(None, f"detector {name!r} is not available in this installation ({exc})") from exc
-        detector = Detector(name=name)
-
-        def detect_images(frame, images, masks):
-            out = []
-            for c, image in enumerate(images):
-                dots = detector.detect(image, camera=c)
-                if dots.image is None:
-                    dots.image = to_grey(image)
-                out.append(dots)
-            return out
-
-        return detect_images
-    raise InputError(None, f"unknown detector {name!r} (choose net, classical or mask)")
+    isolates the tracker from tape-segmentation errors). ``rig`` enables detection by
+    prediction in sequence mode; ``speed``: threads, prefetching, prediction (default: all on)."""
+    return CaptureDetector(name, rig, speed)
 
 
 # ---------------------------------------------------------------------- sequences
@@ -113,11 +86,14 @@ def run_tracking(
     progress: bool = True,
     n_frames: int | None = None,
     meta: dict | None = None,
+    on_frame: Callable[[int, FrameResult], None] | None = None,
 ) -> TrackResult:
     """Track a sequence. ``views_per_frame`` yields ``(frame, views, detect_ms)``.
 
     Returns the table (frames numbered as yielded) and the per-frame results. A frame without a
-    solution gives ``missing`` rows and a :class:`TrackingWarning`, never an exception."""
+    solution gives ``missing`` rows and a :class:`TrackingWarning`, never an exception.
+    ``on_frame(frame, result)`` is called after each frame, before the next is asked for
+    (detection by prediction learns the dots there)."""
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}; choose from {MODES}")
     config = config or TrackerConfig()
@@ -139,6 +115,8 @@ def run_tracking(
                           TrackingWarning, stacklevel=2)
         results.append(result)
         frame_ids.append(frame)
+        if on_frame is not None:
+            on_frame(frame, result)
     positions = np.stack([r.positions for r in results]) if results else np.zeros((0, tracker.n_dots, 3))
     status = np.stack([r.status for r in results]) if results else np.zeros((0, tracker.n_dots), object)
     n_views = np.stack([r.n_views for r in results]) if results else np.zeros((0, tracker.n_dots), int)
@@ -170,17 +148,21 @@ def parse_frames(spec: str | None, n_frames: int, source: str = "--frames") -> r
     return range(start, stop)
 
 
-def _capture_views(capture: Capture, frames: range, detect: DotDetector):
-    source = capture.frame_source()
+def capture_views(capture: Capture, frames: range, detect: CaptureDetector, speed: SpeedOptions | None = None):
+    """Yield ``(frame, views, detect_ms)`` for :func:`run_tracking`: images decoded once (cameras
+    in parallel, prefetched), ground-truth masks read only for the ``mask`` detector.
+    ``detect_ms`` is the time the tracker waited for the frame (reading not hidden by the
+    prefetching, plus detection)."""
+    speed = speed or SpeedOptions()
     mask_dir = capture.root / "masks"
-    for frame in frames:
-        t0 = time.perf_counter()
-        images = source.read(frame)
-        masks = None
-        if mask_dir.is_dir():
-            masks = [read_image(mask_dir / cam / f"{frame:06d}.png")[:, :, 0] > 127 for cam in capture.camera_names]
-        views = detect(frame, images, masks)
+    read_masks = (detect.needs_masks or speed.masks_always) and mask_dir.is_dir()
+    frames_in = prefetched_frames(capture.frame_source(), frames, mask_dir if read_masks else None,
+                                  workers=speed.n_workers(len(capture.camera_names)), prefetch=speed.prefetch)
+    t0 = time.perf_counter()
+    for frame, images, masks in frames_in:
+        views = detect(frame, images, masks if detect.needs_masks else None)
         yield frame, views, 1000 * (time.perf_counter() - t0)
+        t0 = time.perf_counter()
 
 
 def track_capture(
@@ -191,22 +173,45 @@ def track_capture(
     detector: str = "net",
     frames: str | range | None = None,
     progress: bool = True,
+    speed: SpeedOptions | None = None,
 ) -> MarkerTable:
     """Track a capture folder and write ``out_dir/markers.csv`` plus ``.trc`` and ``.c3d``.
 
-    ``frames``: ``"A:B"`` or a range (default: all). Returns the marker table (mm, world Z up)."""
+    ``frames``: ``"A:B"`` or a range (default: all); ``speed``: reading and detection options
+    (:class:`~spinemocap.app.streaming.SpeedOptions`; ``streaming.LEGACY`` is the pre-issue-15
+    path). Returns the marker table (mm, world Z up)."""
+    return track_capture_result(capture_dir, out_dir, mode, config, detector, frames, progress, speed).table
+
+
+def track_capture_result(
+    capture_dir: str | Path,
+    out_dir: str | Path | None,
+    mode: str = "sequence",
+    config: TrackerConfig | None = None,
+    detector: str = "net",
+    frames: str | range | None = None,
+    progress: bool = True,
+    speed: SpeedOptions | None = None,
+) -> TrackResult:
+    """:func:`track_capture` returning the whole :class:`TrackResult` (per-frame stage times and
+    routes); ``out_dir`` None writes nothing."""
     capture = Capture.open(capture_dir)
     if mode not in MODES:
         raise InputError(capture_dir, f"unknown tracking mode {mode!r}; choose from {MODES}")
     frame_range = frames if isinstance(frames, range) else parse_frames(frames, capture.n_frames)
-    detect = make_detector(detector)
-    result = run_tracking(
-        _capture_views(capture, frame_range, detect), capture.rig, capture.tape, capture.fps,
-        up=capture.up, mode=mode, config=config, progress=progress, n_frames=len(frame_range),
-        meta={"subject": capture.subject.get("id", ""), "source": str(capture.root), "detector": detector},
-    )
-    write_markers(result.table, out_dir)
-    return result.table
+    detect = make_detector(detector, capture.rig if mode == "sequence" else None, speed)
+    try:
+        result = run_tracking(
+            capture_views(capture, frame_range, detect, speed), capture.rig, capture.tape, capture.fps,
+            up=capture.up, mode=mode, config=config, progress=progress, n_frames=len(frame_range),
+            meta={"subject": capture.subject.get("id", ""), "source": str(capture.root), "detector": detector},
+            on_frame=lambda frame, r: detect.observe(frame, r.positions if r.solved else None),
+        )
+    finally:
+        detect.close()
+    if out_dir is not None:
+        write_markers(result.table, out_dir)
+    return result
 
 
 def write_markers(table: MarkerTable, out_dir: str | Path) -> list[Path]:
