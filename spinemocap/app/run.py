@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
@@ -22,7 +22,7 @@ from tqdm import tqdm
 import exporters
 
 from ..camera import Rig
-from ..capture import Capture
+from ..capture import Capture, FrameSource
 from ..fileio import InputError
 from ..markers import MarkerTable
 from ..tape import TapeSpec
@@ -62,6 +62,7 @@ class TrackResult:
 
     table: MarkerTable
     frames: list[FrameResult]
+    detector_searches: dict[str, int] = field(default_factory=dict)  # camera images per detection route
 
     def stage_ms(self) -> dict[str, float]:
         """Mean time per stage per frame (ms), over all frames."""
@@ -148,21 +149,52 @@ def parse_frames(spec: str | None, n_frames: int, source: str = "--frames") -> r
     return range(start, stop)
 
 
-def capture_views(capture: Capture, frames: range, detect: CaptureDetector, speed: SpeedOptions | None = None):
+def source_views(source: FrameSource, frames: Sequence[int], detect: CaptureDetector,
+                 speed: SpeedOptions | None = None, mask_dir: Path | None = None):
     """Yield ``(frame, views, detect_ms)`` for :func:`run_tracking`: images decoded once (cameras
-    in parallel, prefetched), ground-truth masks read only for the ``mask`` detector.
-    ``detect_ms`` is the time the tracker waited for the frame (reading not hidden by the
-    prefetching, plus detection)."""
+    in parallel, prefetched), ground-truth masks (``mask_dir``) read only for the ``mask``
+    detector (or always with ``speed.masks_always``, the legacy path). ``detect_ms`` is the time
+    the tracker waited for the frame: reading not hidden by the prefetching, plus detection."""
     speed = speed or SpeedOptions()
-    mask_dir = capture.root / "masks"
-    read_masks = (detect.needs_masks or speed.masks_always) and mask_dir.is_dir()
-    frames_in = prefetched_frames(capture.frame_source(), frames, mask_dir if read_masks else None,
-                                  workers=speed.n_workers(len(capture.camera_names)), prefetch=speed.prefetch)
+    read_masks = (detect.needs_masks or speed.masks_always) and mask_dir is not None and mask_dir.is_dir()
+    frames_in = prefetched_frames(source, frames, mask_dir if read_masks else None,
+                                  workers=speed.n_workers(len(source.camera_names)), prefetch=speed.prefetch)
     t0 = time.perf_counter()
     for frame, images, masks in frames_in:
         views = detect(frame, images, masks if detect.needs_masks else None)
         yield frame, views, 1000 * (time.perf_counter() - t0)
         t0 = time.perf_counter()
+
+
+def track_source(
+    source: FrameSource,
+    rig: Rig,
+    tape: TapeSpec,
+    fps: float,
+    frames: Sequence[int] | None = None,
+    up: Sequence[float] = (0.0, 0.0, 1.0),
+    mode: str = "sequence",
+    config: TrackerConfig | None = None,
+    detector: str = "net",
+    progress: bool = True,
+    speed: SpeedOptions | None = None,
+    mask_dir: Path | None = None,
+    meta: dict | None = None,
+) -> TrackResult:
+    """Detect and track the frames of any :class:`~spinemocap.capture.FrameSource` (a capture's
+    images or videos, the synthetic studio's, frames held in memory); see :func:`track_capture`."""
+    frames = range(source.n_frames) if frames is None else frames
+    detect = make_detector(detector, rig if mode == "sequence" else None, speed)
+    try:
+        result = run_tracking(
+            source_views(source, frames, detect, speed, mask_dir), rig, tape, fps, up=up, mode=mode,
+            config=config, progress=progress, n_frames=len(frames), meta={**(meta or {}), "detector": detector},
+            on_frame=lambda frame, r: detect.observe(frame, r.positions if r.solved else None),
+        )
+    finally:
+        detect.close()
+    result.detector_searches = dict(detect.searches)
+    return result
 
 
 def track_capture(
@@ -199,16 +231,10 @@ def track_capture_result(
     if mode not in MODES:
         raise InputError(capture_dir, f"unknown tracking mode {mode!r}; choose from {MODES}")
     frame_range = frames if isinstance(frames, range) else parse_frames(frames, capture.n_frames)
-    detect = make_detector(detector, capture.rig if mode == "sequence" else None, speed)
-    try:
-        result = run_tracking(
-            capture_views(capture, frame_range, detect, speed), capture.rig, capture.tape, capture.fps,
-            up=capture.up, mode=mode, config=config, progress=progress, n_frames=len(frame_range),
-            meta={"subject": capture.subject.get("id", ""), "source": str(capture.root), "detector": detector},
-            on_frame=lambda frame, r: detect.observe(frame, r.positions if r.solved else None),
-        )
-    finally:
-        detect.close()
+    result = track_source(capture.frame_source(), capture.rig, capture.tape, capture.fps, frame_range,
+                          up=capture.up, mode=mode, config=config, detector=detector, progress=progress,
+                          speed=speed, mask_dir=capture.root / "masks",
+                          meta={"subject": capture.subject.get("id", ""), "source": str(capture.root)})
     if out_dir is not None:
         write_markers(result.table, out_dir)
     return result

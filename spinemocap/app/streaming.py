@@ -49,6 +49,7 @@ class SpeedOptions:
     previous frame's dots in its camera, else that camera is searched in full; ``box_margin_px``:
     predicted dots' box grown by this before the training crops' padding;
     ``batch``: stage 1 of all cameras in one network pass (else one pass per camera);
+    ``device``: where the network runs (``auto``: CUDA when torch sees it, else CPU);
     ``masks_always``: read ``masks/`` even when the detector does not use them (legacy only)."""
 
     workers: int = 0
@@ -58,13 +59,14 @@ class SpeedOptions:
     min_dot_share: float = 0.8
     box_margin_px: float = 40.0
     batch: bool = True
+    device: str = "auto"
     masks_always: bool = False
 
     def n_workers(self, n_cameras: int) -> int:
         return max(1, min(n_cameras, self.workers or os.cpu_count() or 1))
 
 
-LEGACY = SpeedOptions(workers=1, prefetch=0, predict=False, batch=False, masks_always=True)
+LEGACY = SpeedOptions(workers=1, prefetch=0, predict=False, batch=False, device="cpu", masks_always=True)
 
 
 # ---------------------------------------------------------------------- reading
@@ -150,8 +152,7 @@ class CaptureDetector:
     inside given tape masks). Call :meth:`observe` with each frame's solved dots (mm, world) to
     enable prediction; :meth:`close` ends the thread pool."""
 
-    def __init__(self, name: str, rig: Rig | None = None, options: SpeedOptions | None = None,
-                 device: str = "auto"):
+    def __init__(self, name: str, rig: Rig | None = None, options: SpeedOptions | None = None):
         self.name = name
         self.rig = rig
         self.options = options or SpeedOptions()
@@ -161,7 +162,7 @@ class CaptureDetector:
                 from ..detect import Detector
             except ImportError as exc:
                 raise InputError(None, f"detector {name!r} is not available in this installation ({exc})") from exc
-            self.detector = Detector(name=name, device=device) if name == "net" else Detector(name=name)
+            self.detector = Detector(name=name, device=self.options.device) if name == "net" else Detector(name=name)
         elif name != "mask":
             raise InputError(None, f"unknown detector {name!r} (choose net, classical or mask)")
         n = self.options.n_workers(len(rig) if rig is not None else 1)
@@ -200,6 +201,7 @@ class CaptureDetector:
         if not self.predicts:
             if self.detector is not None and self.detector.searches_boxes and self.options.batch:
                 return self._full(images, range(len(images)))
+            self.searches["full"] += len(images)
             return self._map(lambda c: self._detect(c, images[c], None), range(len(images)))
         predicted = self._predicted_boxes(images)
         if predicted is None:
