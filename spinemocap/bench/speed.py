@@ -124,6 +124,77 @@ def video_copy(png_capture: Path, out: Path) -> Path:
     return out
 
 
+def replay_order(n_source: int, n_frames: int) -> list[int]:
+    """Source frame indices that play ``n_source`` frames forward, backward, forward ... for
+    ``n_frames`` frames (0 1 2 1 0 1 2 ...): a long, continuous sequence from a few frames."""
+    if n_source < 2:
+        return [0] * n_frames
+    period = 2 * (n_source - 1)
+    return [k if k < n_source else period - k for k in (f % period for f in range(n_frames))]
+
+
+def with_sensor_noise(images: list[np.ndarray], sigma: float, seed: int) -> list[np.ndarray]:
+    """Images plus Gaussian sensor noise (``sigma`` grey levels, seeded), as the studio's sensor
+    adds it: for captures rendered without noise to keep them small (``--sensor-noise``)."""
+    if sigma <= 0:
+        return images
+    out = []
+    for c, image in enumerate(images):
+        rng = np.random.default_rng([seed, 2, c])
+        noisy = image.astype(np.float32) + rng.normal(0.0, sigma, image.shape).astype(np.float32)
+        out.append(np.clip(noisy + 0.5, 0, 255).astype(np.uint8))
+    return out
+
+
+def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence", detector: str = "net",
+                         legacy: bool = True, speed: SpeedOptions | None = None, sensor_noise: float = 0.0,
+                         progress: bool = True, say: Callable[[str], None] = print) -> dict:
+    """In-memory speed of an existing synthetic capture (e.g. a few frames carried to a machine
+    that cannot render): its frames played forward and backward (:func:`replay_order`) for
+    ``frames`` frames, the ground truth replayed alike; the new pipeline and the legacy peer."""
+    import torch
+
+    speed = speed or SpeedOptions()
+    capture = Capture.open(capture_dir)
+    source = capture.frame_source()
+    decoded = [with_sensor_noise(source.read(f), sensor_noise, f) for f in range(capture.n_frames)]
+    order = replay_order(capture.n_frames, frames)
+    replayed = MemorySource([decoded[i] for i in order], capture.camera_names)
+    gt = dict(capture.groundtruth())
+    for key in ("dots", "visible", "dot_normals", "keypoints"):
+        if key in gt:
+            gt[key] = np.asarray(gt[key])[order]
+    say("warming up (2 frames, not timed) ...")
+    for options in (speed, LEGACY) if legacy else (speed,):
+        _timed_run(replayed, capture, options, mode, detector, False, range(2))
+    runs = []
+    for name, options in (("in_memory", speed), ("in_memory_legacy", LEGACY))[: 2 if legacy else 1]:
+        say(f"tracking: {name} ...")
+        result, wall, peak = _timed_run(replayed, capture, options, mode, detector, progress)
+        runs.append(_summary(name, result, wall, peak, capture, gt))
+        say(f"  {runs[-1]['fps']:.2f} frames/s, mean error {runs[-1]['mean_error_mm']:.3f} mm")
+    new, peer = runs[0], (runs[1] if legacy else None)
+    cuda = torch.cuda.is_available()
+    return {
+        "preset": f"capture {capture.name} replayed", "source_frames": capture.n_frames, "frames": frames,
+        "sensor_noise": sensor_noise, "cameras": len(capture.rig), "image_size": list(capture.rig[0].size),
+        "mode": mode, "detector": detector,
+        "machine": {"cpu_cores": os.cpu_count(), "load_average_1min": os.getloadavg()[0],
+                    "torch_threads": torch.get_num_threads(),
+                    "gpu": torch.cuda.get_device_name(0) if cuda else None},
+        "speed_options": asdict(speed), "fps_in_memory": new["fps"], "fps_png": None, "fps_video": None,
+        "speedup_vs_previous": new["fps"] / peer["fps"] if peer else None,
+        "accuracy_not_worse": _not_worse(new, peer) if peer else None,
+        "accuracy_tolerance_mm": ACCURACY_TOLERANCE_MM, "runs": runs, "goals_fps": GOALS_FPS,
+    }
+
+
+def _not_worse(new: dict, peer: dict) -> bool:
+    return (new["mean_error_mm"] <= peer["mean_error_mm"] + ACCURACY_TOLERANCE_MM
+            and new["label_swaps"] <= peer["label_swaps"]
+            and new["frames_without_solution"] <= peer["frames_without_solution"])
+
+
 def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode: str, detector: str,
                progress: bool, frames: range | None = None) -> tuple[TrackResult, float, float]:
     with warnings.catch_warnings(), PeakMemory() as memory:
@@ -136,8 +207,9 @@ def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode:
     return result, wall, memory.peak_mib
 
 
-def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, capture: Capture) -> dict:
-    gt = capture.groundtruth()
+def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, capture: Capture,
+             gt: dict | None = None) -> dict:
+    gt = gt if gt is not None else capture.groundtruth()
     acc = evaluate_tracking(result.table, gt, float(capture.tape.graph.rest_length_mm.min()), result.stage_ms())
     n = len(result.frames)
     return {
@@ -217,9 +289,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
         "fps_video": vid["fps"] if vid else None,
         "fps_in_memory": mem["fps"] if mem else None,
         "speedup_vs_previous": png["fps"] / peer["fps"] if peer else None,
-        "accuracy_not_worse": (png["mean_error_mm"] <= peer["mean_error_mm"] + ACCURACY_TOLERANCE_MM
-                               and png["label_swaps"] <= peer["label_swaps"]
-                               and png["frames_without_solution"] <= peer["frames_without_solution"]) if peer else None,
+        "accuracy_not_worse": _not_worse(png, peer) if peer else None,
         "accuracy_tolerance_mm": ACCURACY_TOLERANCE_MM,
         "runs": runs,
         "goals_fps": GOALS_FPS,

@@ -24,6 +24,12 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-video", action="store_true", help="skip the video run")
     p.add_argument("--no-memory", action="store_true", help="skip the in-memory runs")
     p.add_argument("--workdir", type=Path, help="keep the rendered captures here (reused when present)")
+    p.add_argument("--capture", type=Path, help="instead of rendering: a synthetic capture folder whose frames are "
+                                                 "replayed forward and backward in memory for --frames frames "
+                                                 "(for a machine that cannot render)")
+    p.add_argument("--sensor-noise", type=float, default=0.0,
+                   help="with --capture: add this sensor noise (grey levels) to a capture rendered without it")
+    p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA if torch sees it), cpu, cuda")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, help="write all numbers to this JSON file")
     p.add_argument("--no-progress", action="store_true")
@@ -32,12 +38,17 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..app.streaming import SpeedOptions
-    from ..bench.speed import format_report, run_speed_benchmark, save
+    from ..bench.speed import format_report, run_replay_benchmark, run_speed_benchmark, save
 
-    speed = SpeedOptions(workers=args.workers, refresh_every=args.refresh_every, predict=not args.no_predict)
-    numbers = run_speed_benchmark(args.preset, args.frames, args.occlusion, args.mode, args.detector, args.seed,
-                                  args.workdir, legacy=not args.no_legacy, video=not args.no_video,
-                                  in_memory=not args.no_memory, speed=speed, progress=not args.no_progress)
+    speed = SpeedOptions(workers=args.workers, refresh_every=args.refresh_every, predict=not args.no_predict,
+                         device=args.device)
+    if args.capture:
+        numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_legacy,
+                                       speed, args.sensor_noise, progress=not args.no_progress)
+    else:
+        numbers = run_speed_benchmark(args.preset, args.frames, args.occlusion, args.mode, args.detector, args.seed,
+                                      args.workdir, legacy=not args.no_legacy, video=not args.no_video,
+                                      in_memory=not args.no_memory, speed=speed, progress=not args.no_progress)
     print(format_report(numbers))
     if args.json:
         save(numbers, args.json)
