@@ -59,8 +59,8 @@ def test_prediction_finds_the_full_search_dots_on_the_studio():
 
 
 def test_prediction_finds_the_full_search_dots_on_a_small_studio():
-    # the studio's six cameras at a ninth of the pixels, two frames (the default suite's version)
-    scene, images = _rendered("studio", 2, size=(816, 534))
+    # the studio's six cameras at a quarter of the pixels, two frames (the default suite's version)
+    scene, images = _rendered("studio", 2, size=(1224, 800))
     worst, searches = _prediction_vs_full(scene, images)
     assert searches["full"] == len(scene.rig)            # only the first frame searched in full
     assert searches["predicted"] == len(scene.rig) and searches["fallback"] == 0
