@@ -207,6 +207,17 @@ def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode:
     return result, wall, memory.peak_mib
 
 
+def decode_fps(source: FrameSource, n_frames: int, workers: int) -> float:
+    """Frames per second of decoding alone (every camera's image of each frame, cameras in
+    ``workers`` threads, no detection): the ceiling the source sets on tracking speed."""
+    from ..app.streaming import prefetched_frames
+
+    start = time.perf_counter()
+    for _ in prefetched_frames(source, range(n_frames), workers=workers, prefetch=0):
+        pass
+    return n_frames / (time.perf_counter() - start)
+
+
 def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, capture: Capture,
              gt: dict | None = None) -> dict:
     gt = gt if gt is not None else capture.groundtruth()
@@ -257,6 +268,8 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
         say("warming up (2 frames, not timed: model loading, first-call set-up) ...")
         for options in (speed, LEGACY):
             _timed_run(capture.frame_source(), capture, options, mode, detector, False, range(min(2, frames)))
+        workers = speed.n_workers(len(capture.camera_names))
+        decoding = {"png": decode_fps(capture.frame_source(), capture.n_frames, workers)}
         png = run("png", capture.frame_source(), speed)
         peer = run("png_legacy", capture.frame_source(), LEGACY) if legacy else None
         vid = None
@@ -265,6 +278,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
             if not (video_dir / "capture.toml").is_file():
                 say("encoding the frames as lossless FFV1 video (not timed) ...")
                 video_copy(png_dir, video_dir)
+            decoding["video"] = decode_fps(Capture.open(video_dir).frame_source(), capture.n_frames, workers)
             vid = run("video", Capture.open(video_dir).frame_source(), speed)
         mem = None
         if in_memory:
@@ -291,6 +305,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
         "speedup_vs_previous": png["fps"] / peer["fps"] if peer else None,
         "accuracy_not_worse": _not_worse(png, peer) if peer else None,
         "accuracy_tolerance_mm": ACCURACY_TOLERANCE_MM,
+        "decode_only_fps": decoding,
         "runs": runs,
         "goals_fps": GOALS_FPS,
     }
@@ -314,6 +329,9 @@ def format_report(numbers: dict) -> str:
     for r in numbers["runs"]:
         lines.append(f"  {r['run']:<18}{r['fps']:>7.2f}{r['peak_memory_mib']:>10.0f}{r['mean_error_mm']:>8.3f}"
                      f"{r['label_swaps']:>6}  " + " ".join(f"{r['stage_ms'][s]:>10.0f}" for s in stages))
+    if numbers.get("decode_only_fps"):
+        lines.append("  decoding alone (no detection), frames/s: "
+                     + ", ".join(f"{k} {v:.2f}" for k, v in numbers["decode_only_fps"].items()))
     if numbers["speedup_vs_previous"] is not None:
         lines.append(f"  speedup vs the previous pipeline (PNG): {numbers['speedup_vs_previous']:.2f}x; "
                      f"accuracy not worse: {numbers['accuracy_not_worse']}")
