@@ -199,11 +199,13 @@ def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode:
                progress: bool, frames: range | None = None) -> tuple[TrackResult, float, float]:
     with warnings.catch_warnings(), PeakMemory() as memory:
         warnings.simplefilter("ignore", TrackingWarning)
+        cpu_start = time.process_time()
         start = time.perf_counter()
         result = track_source(source, capture.rig, capture.tape, capture.fps, frames, up=capture.up, mode=mode,
                               detector=detector, progress=progress, speed=speed,
                               mask_dir=capture.root / "masks")
         wall = time.perf_counter() - start
+        result.cpu_s = time.process_time() - cpu_start  # type: ignore[attr-defined]
     return result, wall, memory.peak_mib
 
 
@@ -225,6 +227,9 @@ def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, captu
     n = len(result.frames)
     return {
         "run": name, "frames": n, "wall_s": wall, "fps": n / wall if wall > 0 else float("nan"),
+        # CPU seconds of this process (all threads) per frame: less sensitive than wall time to
+        # other programs on a shared machine; cores / this = fps on an idle machine at best
+        "cpu_s_per_frame": getattr(result, "cpu_s", float("nan")) / max(n, 1),
         "stage_ms": result.stage_ms(), "peak_memory_mib": peak_mib, "routes": result.routes(),
         "detector_searches": result.detector_searches,
         "mean_error_mm": acc.mean_error_mm, "p95_error_mm": acc.p95_error_mm,
@@ -321,13 +326,13 @@ def save(numbers: dict, path: Path) -> None:
 def format_report(numbers: dict) -> str:
     """A table of the runs: fps, per-stage ms, peak memory, accuracy."""
     stages = list(numbers["runs"][0]["stage_ms"]) if numbers["runs"] else []
-    head = f"  {'run':<18}{'fps':>7}{'peak MiB':>10}{'err mm':>8}{'swaps':>6}  " + " ".join(f"{s:>10}" for s in stages)
+    head = f"  {'run':<18}{'fps':>7}{'cpu s/f':>8}{'peak MiB':>10}{'err mm':>8}{'swaps':>6}  " + " ".join(f"{s:>10}" for s in stages)
     lines = [f"\nspeed: {numbers['preset']} x {numbers['frames']} frames, {numbers['cameras']} cameras "
              f"{numbers['image_size'][0]}x{numbers['image_size'][1]}, mode {numbers['mode']}, detector "
              f"{numbers['detector']}; {numbers['machine']['cpu_cores']} CPU cores (load {numbers['machine']['load_average_1min']:.1f}), "
              f"GPU {numbers['machine']['gpu'] or 'none'}", head]
     for r in numbers["runs"]:
-        lines.append(f"  {r['run']:<18}{r['fps']:>7.2f}{r['peak_memory_mib']:>10.0f}{r['mean_error_mm']:>8.3f}"
+        lines.append(f"  {r['run']:<18}{r['fps']:>7.2f}{r['cpu_s_per_frame']:>8.2f}{r['peak_memory_mib']:>10.0f}{r['mean_error_mm']:>8.3f}"
                      f"{r['label_swaps']:>6}  " + " ".join(f"{r['stage_ms'][s]:>10.0f}" for s in stages))
     if numbers.get("decode_only_fps"):
         lines.append("  decoding alone (no detection), frames/s: "
