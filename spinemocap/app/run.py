@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
@@ -184,7 +184,10 @@ def track_source(
     """Detect and track the frames of any :class:`~spinemocap.capture.FrameSource` (a capture's
     images or videos, the synthetic studio's, frames held in memory); see :func:`track_capture`."""
     frames = range(source.n_frames) if frames is None else frames
-    detect = make_detector(detector, rig if mode == "sequence" else None, speed)
+    speed = speed or SpeedOptions()
+    if mode != "sequence":  # every frame on its own: no prediction from earlier frames
+        speed = replace(speed, predict=False)
+    detect = make_detector(detector, rig, speed)
     try:
         result = run_tracking(
             source_views(source, frames, detect, speed, mask_dir), rig, tape, fps, up=up, mode=mode,

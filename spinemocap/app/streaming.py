@@ -165,7 +165,7 @@ class CaptureDetector:
             self.detector = Detector(name=name, device=self.options.device) if name == "net" else Detector(name=name)
         elif name != "mask":
             raise InputError(None, f"unknown detector {name!r} (choose net, classical or mask)")
-        n = self.options.n_workers(len(rig) if rig is not None else 1)
+        n = self.options.n_workers(len(rig) if rig is not None else os.cpu_count() or 1)
         self._pool = ThreadPoolExecutor(n, thread_name_prefix="detect") if n > 1 else None
         self._last: np.ndarray | None = None        # (D, 3) dots of the last solved frame
         self._before_last: np.ndarray | None = None
