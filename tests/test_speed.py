@@ -86,22 +86,22 @@ def test_parallel_path_gives_the_serial_output():
 
 
 def test_masks_are_read_only_for_the_mask_detector(tmp_path):
+    from spinemocap.app.run import track_capture
     from spinemocap.synth import SynthConfig, write_capture
 
     root = write_capture(SynthConfig.preset("tiny", frames=2), tmp_path / "capture", progress=False)
-    from spinemocap.app.run import track_capture_result
 
     # damaged ground-truth masks: the net detector never opens them ...
     for png in (root / "masks").rglob("*.png"):
         png.write_bytes(b"not a png")
-    result = track_capture_result(root, None, detector="net", progress=False)
-    assert np.isfinite(result.table.to_arrays()["positions"]).any()
+    table = track_capture(root, tmp_path / "out", detector="net", progress=False)
+    assert np.isfinite(table.to_arrays()["positions"]).any()
     # ... the mask detector needs them and says which file is bad
     with pytest.raises(InputError, match="corrupt"):
-        track_capture_result(root, None, detector="mask", progress=False)
+        track_capture(root, tmp_path / "out", detector="mask", progress=False)
     shutil.rmtree(root / "masks")
     with pytest.raises(InputError, match="needs tape masks"):
-        track_capture_result(root, None, detector="mask", progress=False)
+        track_capture(root, tmp_path / "out", detector="mask", progress=False)
 
 
 def test_prefetching_reader_raises_the_readers_error_and_stops():

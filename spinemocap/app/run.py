@@ -215,21 +215,6 @@ def track_capture(
     ``frames``: ``"A:B"`` or a range (default: all); ``speed``: reading and detection options
     (:class:`~spinemocap.app.streaming.SpeedOptions`; ``streaming.LEGACY`` is the pre-issue-15
     path). Returns the marker table (mm, world Z up)."""
-    return track_capture_result(capture_dir, out_dir, mode, config, detector, frames, progress, speed).table
-
-
-def track_capture_result(
-    capture_dir: str | Path,
-    out_dir: str | Path | None,
-    mode: str = "sequence",
-    config: TrackerConfig | None = None,
-    detector: str = "net",
-    frames: str | range | None = None,
-    progress: bool = True,
-    speed: SpeedOptions | None = None,
-) -> TrackResult:
-    """:func:`track_capture` returning the whole :class:`TrackResult` (per-frame stage times and
-    routes); ``out_dir`` None writes nothing."""
     capture = Capture.open(capture_dir)
     if mode not in MODES:
         raise InputError(capture_dir, f"unknown tracking mode {mode!r}; choose from {MODES}")
@@ -238,9 +223,8 @@ def track_capture_result(
                           up=capture.up, mode=mode, config=config, detector=detector, progress=progress,
                           speed=speed, mask_dir=capture.root / "masks",
                           meta={"subject": capture.subject.get("id", ""), "source": str(capture.root)})
-    if out_dir is not None:
-        write_markers(result.table, out_dir)
-    return result
+    write_markers(result.table, out_dir)
+    return result.table
 
 
 def write_markers(table: MarkerTable, out_dir: str | Path) -> list[Path]:
