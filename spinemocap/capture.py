@@ -117,10 +117,16 @@ class ImageFolderSource:
         return self.root / self.pattern.format(camera=camera, frame=frame)
 
     def read(self, frame: int) -> list[np.ndarray]:
+        return [self.read_camera(k, frame) for k in range(len(self.camera_names))]
+
+    def read_camera(self, camera: int, frame: int) -> np.ndarray:
+        """One camera's image (``camera``: index in rig order); cameras may be read from
+        different threads at once."""
         if not 0 <= frame < self.n_frames:
             raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
-        return [check_image_size(read_image(self.path(cam, frame)), size, cam, self.path(cam, frame))
-                for cam, size in zip(self.camera_names, self.sizes)]
+        name = self.camera_names[camera]
+        path = self.path(name, frame)
+        return check_image_size(read_image(path), self.sizes[camera], name, path)
 
 
 class VideoSource:
@@ -145,6 +151,13 @@ class VideoSource:
             cap.release()
             if count and count != self.n_frames:
                 raise InputError(path, f"video has {count} frames, capture.toml says n_frames = {self.n_frames}")
+
+    def read_camera(self, camera: int, frame: int) -> np.ndarray:
+        """One camera's image (``camera``: index in rig order). Each camera has its own decoder,
+        so different cameras may be read from different threads at once (one thread per camera)."""
+        if not 0 <= frame < self.n_frames:
+            raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
+        return self._read_one(camera, frame)
 
     def _read_one(self, k: int, frame: int) -> np.ndarray:
         cap = self._captures[k]

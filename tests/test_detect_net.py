@@ -122,10 +122,10 @@ def test_growing_stage2_box_pastes_the_mask_of_the_final_box(monkeypatch):
 
     seg = NetSegmenter(max_grow=1)
 
-    def coarse_logits(view):  # one small tape component in the middle of the working view
-        logits = np.full(view.shape[:2], -5.0, np.float32)
-        h, w = logits.shape
-        logits[h // 2 - 2: h // 2 + 2, w // 2 - 2: w // 2 + 2] = 5.0
+    def coarse_logits(views):  # stage 1 (batched): one small tape component in the middle of each view
+        logits = np.full(views.shape[:3], -5.0, np.float32)
+        h, w = logits.shape[1:]
+        logits[:, h // 2 - 2: h // 2 + 2, w // 2 - 2: w // 2 + 2] = 5.0
         return logits
 
     refined_boxes = []
@@ -134,7 +134,7 @@ def test_growing_stage2_box_pastes_the_mask_of_the_final_box(monkeypatch):
         refined_boxes.append(box)
         return np.ones((box[0].stop - box[0].start, box[1].stop - box[1].start), bool)
 
-    monkeypatch.setattr(seg, "_logits", coarse_logits)
+    monkeypatch.setattr(seg, "_logits_batch", coarse_logits)
     monkeypatch.setattr(seg, "_net_mask", net_says_everything)
     mask = seg(np.zeros((960, 1280, 3), np.uint8))
     final = refined_boxes[-1]

@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
@@ -20,8 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..camera import Rig
-from ..capture import Capture, check_image_size, read_image, to_grey
-from ..detect import find_dots
+from ..capture import Capture, FrameSource
 from ..fileio import InputError, check_writable
 from ..markers import MarkerTable
 from ..tape import TapeSpec
@@ -30,6 +29,7 @@ from ..track.pipeline import STAGES, FrameResult, FrameTracker
 from ..track.sequence import SequenceTracker, fill_and_smooth
 from ..views import ViewDots
 from .results import TrackingStopped, write_markers
+from .streaming import CaptureDetector, SpeedOptions, prefetched_frames
 
 log = logging.getLogger(__name__)
 
@@ -46,41 +46,14 @@ class TrackingWarning(UserWarning):
 DotDetector = Callable[[int, list[np.ndarray], list[np.ndarray] | None], list[ViewDots]]
 
 
-def make_detector(name: str) -> DotDetector:
-    """A function ``(frame, images, masks) -> [ViewDots per camera]``.
+def make_detector(name: str, rig: Rig | None = None, speed: SpeedOptions | None = None) -> CaptureDetector:
+    """A function ``(frame, images, masks) -> [ViewDots per camera]`` (a :class:`CaptureDetector`).
 
     ``net`` / ``classical``: :class:`spinemocap.detect.Detector` (tape mask + dots from the image);
     ``mask``: dots found inside given tape masks (synthetic captures ship exact masks; this
-    isolates the tracker from tape-segmentation errors)."""
-    if name == "mask":
-        def detect_in_masks(frame, images, masks):
-            if masks is None:
-                raise InputError(None, "detector 'mask' needs tape masks (synthetic captures have masks/)")
-            out = []
-            for c, (image, mask) in enumerate(zip(images, masks)):
-                uv, conf = find_dots(image, mask)
-                out.append(ViewDots(c, uv, conf, mask=mask, image=to_grey(image)))
-            return out
-
-        return detect_in_masks
-    if name in ("net", "classical"):
-        try:  # the network detector loads torch: imported only when chosen
-            from ..detect import Detector
-        except ImportError as exc:
-            raise InputError(None, f"detector {name!r} is not available in this installation ({exc})") from exc
-        detector = Detector(name=name)
-
-        def detect_images(frame, images, masks):
-            out = []
-            for c, image in enumerate(images):
-                dots = detector.detect(image, camera=c)
-                if dots.image is None:
-                    dots.image = to_grey(image)
-                out.append(dots)
-            return out
-
-        return detect_images
-    raise InputError(None, f"unknown detector {name!r} (choose net, classical or mask)")
+    isolates the tracker from tape-segmentation errors). ``rig`` enables detection by
+    prediction in sequence mode; ``speed``: threads, prefetching, prediction (default: all on)."""
+    return CaptureDetector(name, rig, speed)
 
 
 # ---------------------------------------------------------------------- sequences
@@ -90,6 +63,7 @@ class TrackResult:
 
     table: MarkerTable
     frames: list[FrameResult]
+    detector_searches: dict[str, int] = field(default_factory=dict)  # camera images per detection route
 
     def stage_ms(self) -> dict[str, float]:
         """Mean time per stage per frame (ms), over all frames."""
@@ -115,12 +89,15 @@ def run_tracking(
     n_frames: int | None = None,
     meta: dict | None = None,
     stop: Callable[[], bool] | None = None,
+    on_frame: Callable[[int, FrameResult], None] | None = None,
 ) -> TrackResult:
     """Track a sequence. ``views_per_frame`` yields ``(frame, views, detect_ms)``.
 
     Returns the table (frames numbered as yielded) and the per-frame results. A frame without a
     solution gives ``missing`` rows and a :class:`TrackingWarning`, never an exception.
-    ``stop``: asked before every frame; True ends the run with :class:`TrackingStopped`."""
+    ``stop``: asked before every frame; True ends the run with :class:`TrackingStopped`.
+    ``on_frame(frame, result)`` is called after each frame, before the next is asked for
+    (detection by prediction learns the dots there)."""
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}; choose from {MODES}")
     config = config or TrackerConfig()
@@ -144,6 +121,8 @@ def run_tracking(
                           TrackingWarning, stacklevel=2)
         results.append(result)
         frame_ids.append(frame)
+        if on_frame is not None:
+            on_frame(frame, result)
     positions = np.stack([r.positions for r in results]) if results else np.zeros((0, tracker.n_dots, 3))
     status = np.stack([r.status for r in results]) if results else np.zeros((0, tracker.n_dots), object)
     n_views = np.stack([r.n_views for r in results]) if results else np.zeros((0, tracker.n_dots), int)
@@ -175,18 +154,56 @@ def parse_frames(spec: str | None, n_frames: int, source: str = "--frames") -> r
     return range(start, stop)
 
 
-def _capture_views(capture: Capture, frames: range, detect: DotDetector):
-    source = capture.frame_source()
-    mask_dir = capture.root / "masks"
-    for frame in frames:
-        t0 = time.perf_counter()
-        images = source.read(frame)
-        masks = None
-        if mask_dir.is_dir():
-            masks = [check_image_size(read_image(path), cam.size, cam.name, path)[:, :, 0] > 127
-                     for cam in capture.rig for path in [mask_dir / cam.name / f"{frame:06d}.png"]]
-        views = detect(frame, images, masks)
+def source_views(source: FrameSource, frames: Sequence[int], detect: CaptureDetector,
+                 speed: SpeedOptions | None = None, mask_dir: Path | None = None):
+    """Yield ``(frame, views, detect_ms)`` for :func:`run_tracking`: images decoded once (cameras
+    in parallel, prefetched), ground-truth masks (``mask_dir``) read only for the ``mask``
+    detector (or always with ``speed.masks_always``, the legacy path). ``detect_ms`` is the time
+    the tracker waited for the frame: reading not hidden by the prefetching, plus detection."""
+    speed = speed or SpeedOptions()
+    read_masks = (detect.needs_masks or speed.masks_always) and mask_dir is not None and mask_dir.is_dir()
+    frames_in = prefetched_frames(source, frames, mask_dir if read_masks else None,
+                                  workers=speed.n_workers(len(source.camera_names)), prefetch=speed.prefetch)
+    t0 = time.perf_counter()
+    for frame, images, masks in frames_in:
+        views = detect(frame, images, masks if detect.needs_masks else None)
         yield frame, views, 1000 * (time.perf_counter() - t0)
+        t0 = time.perf_counter()
+
+
+def track_source(
+    source: FrameSource,
+    rig: Rig,
+    tape: TapeSpec,
+    fps: float,
+    frames: Sequence[int] | None = None,
+    up: Sequence[float] = (0.0, 0.0, 1.0),
+    mode: str = "sequence",
+    config: TrackerConfig | None = None,
+    detector: str = "net",
+    progress: bool = True,
+    speed: SpeedOptions | None = None,
+    mask_dir: Path | None = None,
+    meta: dict | None = None,
+    stop: Callable[[], bool] | None = None,
+) -> TrackResult:
+    """Detect and track the frames of any :class:`~spinemocap.capture.FrameSource` (a capture's
+    images or videos, the synthetic studio's, frames held in memory); see :func:`track_capture`."""
+    frames = range(source.n_frames) if frames is None else frames
+    speed = speed or SpeedOptions()
+    if mode != "sequence":  # every frame on its own: no prediction from earlier frames
+        speed = replace(speed, predict=False)
+    detect = make_detector(detector, rig, speed)
+    try:
+        result = run_tracking(
+            source_views(source, frames, detect, speed, mask_dir), rig, tape, fps, up=up, mode=mode,
+            config=config, progress=progress, n_frames=len(frames), meta={**(meta or {}), "detector": detector},
+            on_frame=lambda frame, r: detect.observe(frame, r.positions if r.solved else None), stop=stop,
+        )
+    finally:
+        detect.close()
+    result.detector_searches = dict(detect.searches)
+    return result
 
 
 def track_capture(
@@ -198,23 +215,23 @@ def track_capture(
     frames: str | range | None = None,
     progress: bool = True,
     stop: Callable[[], bool] | None = None,
+    speed: SpeedOptions | None = None,
 ) -> MarkerTable:
     """Track a capture folder and write ``out_dir/markers.csv`` plus ``.trc`` and ``.c3d`` as one
     set (:func:`write_markers`). ``out_dir`` is checked for writing before any work.
 
-    ``frames``: ``"A:B"`` or a range (default: all); ``stop``: see :func:`run_tracking`.
-    Returns the marker table (mm, world Z up)."""
+    ``frames``: ``"A:B"`` or a range (default: all); ``stop``: see :func:`run_tracking`;
+    ``speed``: reading and detection options (:class:`~spinemocap.app.streaming.SpeedOptions`;
+    ``streaming.LEGACY`` is the pre-issue-15 path). Returns the marker table (mm, world Z up)."""
     capture = Capture.open(capture_dir)
     check_writable(out_dir)
     if mode not in MODES:
         raise InputError(capture_dir, f"unknown tracking mode {mode!r}; choose from {MODES}")
     frame_range = frames if isinstance(frames, range) else parse_frames(frames, capture.n_frames)
-    detect = make_detector(detector)
-    result = run_tracking(
-        _capture_views(capture, frame_range, detect), capture.rig, capture.tape, capture.fps,
-        up=capture.up, mode=mode, config=config, progress=progress, n_frames=len(frame_range),
-        meta={"subject": capture.subject.get("id", ""), "source": str(capture.root), "detector": detector},
-        stop=stop,
-    )
+    result = track_source(capture.frame_source(), capture.rig, capture.tape, capture.fps, frame_range,
+                          up=capture.up, mode=mode, config=config, detector=detector, progress=progress,
+                          speed=speed, mask_dir=capture.root / "masks",
+                          meta={"subject": capture.subject.get("id", ""), "source": str(capture.root)},
+                          stop=stop)
     write_markers(result.table, out_dir)
     return result.table

@@ -28,20 +28,29 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="tape/dot detector; 'mask' finds dots inside the capture's masks/ (synthetic captures)")
     p.add_argument("--config", type=Path, help="tracker settings (TOML, see spinemocap.track.config)")
     p.add_argument("--frames", help="frame range A:B (B exclusive), default all")
+    p.add_argument("--workers", type=int, default=0, help="threads for the cameras (default 0: one per CPU core)")
+    p.add_argument("--refresh-every", type=int, default=10,
+                   help="sequence mode: frames between full tape searches (between them the detector searches "
+                        "only the tape box predicted from the previous frames)")
+    p.add_argument("--legacy", action="store_true",
+                   help="the pipeline before issue 15 (one camera after the other, no prefetching, full tape "
+                        "search in every frame): for comparisons")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_track)
 
 
 def run_track(args: argparse.Namespace) -> int:
     from spinemocap.app.run import TrackingWarning, track_capture
+    from spinemocap.app.streaming import LEGACY, SpeedOptions
     from spinemocap.track.config import TrackerConfig
 
     config = TrackerConfig.from_toml(args.config) if args.config else None
+    speed = LEGACY if args.legacy else SpeedOptions(workers=args.workers, refresh_every=args.refresh_every)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TrackingWarning)
         table = track_capture(args.capture, args.out, mode=args.mode, config=config, detector=args.detector,
-                              frames=args.frames, progress=not args.no_progress)
+                              frames=args.frames, progress=not args.no_progress, speed=speed)
     for w in caught:
         log.warning("%s", w.message)
     elapsed = time.perf_counter() - start

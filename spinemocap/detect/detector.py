@@ -53,7 +53,7 @@ class NetSegmenter:
 
     def __init__(self, weights: str | os.PathLike | None = None, refine: bool = True, threads: int | None = 1,
                  min_area_work_px: int = 4, box_logit: float = -1.0, max_grow: int = 3,
-                 refine_params: RefineParams | None = None):
+                 refine_params: RefineParams | None = None, device: str = "auto"):
         self.weights_path = Path(weights) if weights else shipped_weights_path()
         self.model, self.metadata = load_weights(self.weights_path)
         # Channels-last weights match the layout of to_tensor's input (NHWC pixels viewed as NCHW),
@@ -65,30 +65,64 @@ class NetSegmenter:
         self.box_logit = box_logit  # stage-1 logit threshold for boxes (-1: p > 0.27)
         self.max_grow = max_grow    # times a box may grow to follow the tape out of it
         self.refine_params = refine_params or RefineParams()
+        self.device = torch.device(resolve_device(device))
+        self.model = self.model.to(self.device)
 
     def _logits(self, view: np.ndarray) -> np.ndarray:
-        padded, (h, w) = pad_to_multiple(view, self.model.stride)
+        return self._logits_batch(view[None])[0]
+
+    def _logits_batch(self, views: np.ndarray) -> np.ndarray:
+        """Logits (B, h, w) of equally sized BGR views (B, h, w, 3) in one network pass."""
+        padded, (h, w) = pad_to_multiple(np.moveaxis(views, 0, 2), self.model.stride)
+        padded = np.moveaxis(padded, 2, 0)
         with torch.inference_mode():
-            return self.model(to_tensor(padded))[0, 0, :h, :w].numpy()
+            out = self.model(to_tensor(padded).to(self.device, non_blocking=True))[:, 0, :h, :w]
+            return out.float().cpu().numpy()
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
         if self.threads:
             torch.set_num_threads(self.threads)
-        h, w = image.shape[:2]
-        view, _ = frame_view(image)
-        coarse_logits = self._logits(view)
         if not self.refine:
-            return cv2.resize(coarse_logits, (w, h), interpolation=cv2.INTER_LINEAR) > 0
+            h, w = image.shape[:2]
+            view, _ = frame_view(image)
+            return cv2.resize(self._logits(view), (w, h), interpolation=cv2.INTER_LINEAR) > 0
+        return self.segment_boxes(image, self.tape_boxes([image])[0])
+
+    def tape_boxes(self, images: list[np.ndarray]) -> list[list[tuple[slice, slice]]]:
+        """Stage 1 on several images at once (one batched network pass per image size): per
+        image, the padded full-resolution boxes around the coarse mask's components."""
+        if self.threads:
+            torch.set_num_threads(self.threads)
+        views = [frame_view(image)[0] for image in images]
+        out: list[list[tuple[slice, slice]]] = [[] for _ in images]
+        by_shape: dict[tuple, list[int]] = {}
+        for i, view in enumerate(views):
+            by_shape.setdefault(view.shape, []).append(i)
+        for idx in by_shape.values():
+            logits = self._logits_batch(np.stack([views[i] for i in idx]))
+            for i, coarse_logits in zip(idx, logits):
+                out[i] = self._coarse_boxes(coarse_logits, images[i].shape[:2])
+        return out
+
+    def _coarse_boxes(self, coarse_logits: np.ndarray, shape: tuple[int, int]) -> list[tuple[slice, slice]]:
         # Boxes come from a generous threshold: a thin stripe may be faint at 256 px, and stage 2
         # decides anyway.
+        h, w = shape
         coarse = coarse_logits > self.box_logit
-        mask = np.zeros((h, w), bool)
         n, _, stats, _ = cv2.connectedComponentsWithStats(coarse.astype(np.uint8), connectivity=8)
-        sx, sy = w / view.shape[1], h / view.shape[0]
-        for x, y, bw, bh, area in stats[1:]:
-            if area < self.min_area_work_px:
-                continue
-            box = _padded_box(x * sx, y * sy, (x + bw) * sx, (y + bh) * sy, (h, w))
+        sx, sy = w / coarse.shape[1], h / coarse.shape[0]
+        return [padded_box(x * sx, y * sy, (x + bw) * sx, (y + bh) * sy, (h, w))
+                for x, y, bw, bh, area in stats[1:] if area >= self.min_area_work_px]
+
+    def segment_boxes(self, image: np.ndarray, boxes: list[tuple[slice, slice]]) -> np.ndarray:
+        """Stages 2-3 (network per box, growth, full-resolution clean-up) in the given boxes:
+        the tape mask (H, W) bool. Stage 1's boxes give the full search; a box predicted from
+        earlier frames skips stage 1 (sequence mode)."""
+        if self.threads:
+            torch.set_num_threads(self.threads)
+        h, w = image.shape[:2]
+        mask = np.zeros((h, w), bool)
+        for box in boxes:
             part = extend_along_tape(image[box], self._net_mask(image, box), self.refine_params)
             for _ in range(self.max_grow):
                 grown = _grown_box(part, box, (h, w))
@@ -112,6 +146,13 @@ class NetSegmenter:
         return fill_holes(cv2.resize(logits, (cw, ch), interpolation=cv2.INTER_LINEAR) > 0)
 
 
+def resolve_device(device: str = "auto") -> str:
+    """``auto`` -> ``cuda`` when torch sees a CUDA GPU, else ``cpu``; other names pass through."""
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    return device
+
+
 def _moved(part: np.ndarray, box: tuple[slice, slice], grown: tuple[slice, slice]) -> np.ndarray:
     """``part`` (mask of ``box``) placed into a mask of the larger box ``grown``."""
     out = np.zeros((grown[0].stop - grown[0].start, grown[1].stop - grown[1].start), bool)
@@ -129,13 +170,13 @@ def _grown_box(part: np.ndarray, box: tuple[slice, slice], shape: tuple[int, int
     if not touches:
         return None
     rows, cols = np.flatnonzero(part.any(axis=1)), np.flatnonzero(part.any(axis=0))
-    grown = _padded_box(xs.start + cols[0], ys.start + rows[0], xs.start + cols[-1] + 1, ys.start + rows[-1] + 1, shape)
+    grown = padded_box(xs.start + cols[0], ys.start + rows[0], xs.start + cols[-1] + 1, ys.start + rows[-1] + 1, shape)
     union = (slice(min(ys.start, grown[0].start), max(ys.stop, grown[0].stop)),
              slice(min(xs.start, grown[1].start), max(xs.stop, grown[1].stop)))
     return None if union == box else union
 
 
-def _padded_box(x0: float, y0: float, x1: float, y1: float, shape: tuple[int, int]) -> tuple[slice, slice]:
+def padded_box(x0: float, y0: float, x1: float, y1: float, shape: tuple[int, int]) -> tuple[slice, slice]:
     """Box grown like the training crops (:data:`CROP_PAD` x its size per side), clipped."""
     h, w = shape
     px, py = max(CROP_PAD * (x1 - x0), 8), max(CROP_PAD * (y1 - y0), 8)
@@ -176,26 +217,49 @@ class Detector:
         self.last_timings["segment_s"] = time.perf_counter() - t
         return out
 
-    def segment(self, image_bgr: np.ndarray) -> np.ndarray:
-        """Tape mask (H, W) bool at full resolution: the union of :meth:`instances`."""
-        return union(self.instances(image_bgr), image_bgr.shape[:2])
+    def segment(self, image_bgr: np.ndarray, boxes: list[tuple[slice, slice]] | None = None) -> np.ndarray:
+        """Tape mask (H, W) bool at full resolution: the union of :meth:`instances`.
+        ``boxes`` (``net`` only): search only these full-resolution boxes (skips stage 1)."""
+        if boxes is None:
+            return union(self.instances(image_bgr), image_bgr.shape[:2])
+        if not isinstance(self._segment, NetSegmenter):
+            raise ValueError("only the 'net' detector searches given boxes")
+        t = time.perf_counter()
+        out = union(split_instances(self._segment.segment_boxes(_check_image(image_bgr), boxes)), image_bgr.shape[:2])
+        self.last_timings["segment_s"] = time.perf_counter() - t
+        return out
+
+    @property
+    def searches_boxes(self) -> bool:
+        """True when :meth:`segment` and :meth:`detect` accept ``boxes`` (the ``net`` detector)."""
+        return isinstance(self._segment, NetSegmenter) and self._segment.refine
+
+    def tape_boxes(self, images_bgr: list[np.ndarray]) -> list[list[tuple[slice, slice]]]:
+        """Stage 1 of the ``net`` detector for several images in one batched network pass:
+        per image the full-resolution boxes that :meth:`detect` then searches (``boxes=``)."""
+        if not self.searches_boxes:
+            raise ValueError("only the 'net' detector with refine=True finds tape boxes")
+        return self._segment.tape_boxes([_check_image(image) for image in images_bgr])
 
     # -------------------------------------------------------------------- dots
     def find_dots(self, image_bgr: np.ndarray, mask: np.ndarray, expected_dot_px: float | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
-        """Dots inside ``mask``: ``uv`` (N, 2) sub-pixel px (x, y) and ``confidence`` (N,)."""
+        """Dots inside ``mask`` (``image_bgr`` may also be the grey image): ``uv`` (N, 2) sub-pixel px (x, y) and ``confidence`` (N,)."""
         t = time.perf_counter()
         out = find_dots(image_bgr, mask, expected_dot_px, self.blob_params)
         self.last_timings["dots_s"] = time.perf_counter() - t
         return out
 
-    def detect(self, image_bgr: np.ndarray, camera: int = 0, expected_dot_px: float | None = None) -> ViewDots:
+    def detect(self, image_bgr: np.ndarray, camera: int = 0, expected_dot_px: float | None = None,
+               boxes: list[tuple[slice, slice]] | None = None) -> ViewDots:
         """Mask + dots of one camera image as :class:`ViewDots` (with the grey image for MRF2).
-        ``expected_dot_px``: dot diameter in px; estimated from the mask width when None."""
+        ``expected_dot_px``: dot diameter in px; estimated from the mask width when None.
+        ``boxes``: search only there (``net``; from :meth:`tape_boxes` or predicted), else the whole image."""
         image_bgr = _check_image(image_bgr)
-        mask = self.segment(image_bgr)
-        uv, conf = self.find_dots(image_bgr, mask, expected_dot_px)
-        return ViewDots(camera=camera, uv=uv, confidence=conf, mask=mask, image=to_grey(image_bgr))
+        mask = self.segment(image_bgr, boxes)
+        grey = to_grey(image_bgr)  # once: the dots and MRF2 both use it
+        uv, conf = self.find_dots(grey, mask, expected_dot_px)
+        return ViewDots(camera=camera, uv=uv, confidence=conf, mask=mask, image=grey)
 
     def detect_file(self, path: str | os.PathLike, camera: int = 0, expected_dot_px: float | None = None) -> ViewDots:
         """:meth:`detect` on an image file; a missing or corrupt file raises InputError naming it."""

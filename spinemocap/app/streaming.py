@@ -1,0 +1,322 @@
+"""Reading and detecting a capture's frames fast (issue 15): a prefetching reader, cameras in
+parallel, and detection by prediction in sequence mode.
+
+- :func:`prefetched_frames` decodes each camera's image once, the cameras in parallel threads,
+  in a background thread that stays ``prefetch`` frames ahead of the tracker (a bounded queue:
+  memory stays flat however long the sequence). Ground-truth tape masks are read only when the
+  detector uses them (``mask``).
+- :class:`CaptureDetector` runs the detector on all cameras of a frame in a thread pool (OpenCV
+  and torch release the GIL) with stage 1 of the ``net`` detector batched across cameras. In
+  sequence mode it is told each solved frame (:meth:`CaptureDetector.observe`): the dots, moved
+  on by their velocity, are projected into every camera and the network searches only that
+  predicted tape box (stage 1, the whole-frame pass, is skipped). A camera falls back to the full
+  two-stage search when its box finds fewer than ``min_dot_share`` of the dots it found in the
+  previous frame, and every camera does every ``refresh_every`` frames.
+
+:data:`LEGACY` reproduces the pipeline before issue 15 (one camera after the other, no
+prefetching, masks read whenever the capture has them, the full search in every frame): the
+speed benchmark's peer.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import queue
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+
+from ..camera import Rig
+from ..capture import FrameSource, check_image_size, read_image, to_grey
+from ..detect import find_dots
+from ..fileio import InputError
+from ..views import ViewDots
+
+Box = tuple[slice, slice]
+
+
+@dataclass(frozen=True)
+class SpeedOptions:
+    """How a capture is read and detected. ``workers``: threads for the cameras (0: one per CPU
+    core, at most one per camera); ``prefetch``: frames decoded ahead of the tracker (0: read
+    when needed); ``predict``: sequence mode searches the predicted tape box; ``refresh_every``:
+    frames between full searches; ``min_dot_share``: a predicted box must find this share of the
+    previous frame's dots in its camera, else that camera is searched in full; ``box_margin_px``:
+    predicted dots' box grown by this before the training crops' padding;
+    ``batch``: stage 1 of all cameras in one network pass (else one pass per camera);
+    ``device``: where the network runs (``auto``: CUDA when torch sees it, else CPU);
+    ``masks_always``: read ``masks/`` even when the detector does not use them (legacy only)."""
+
+    workers: int = 0
+    prefetch: int = 2
+    predict: bool = True
+    refresh_every: int = 10
+    min_dot_share: float = 0.8
+    box_margin_px: float = 40.0
+    batch: bool = True
+    device: str = "auto"
+    masks_always: bool = False
+
+    def n_workers(self, n_cameras: int) -> int:
+        return max(1, min(n_cameras, self.workers or os.cpu_count() or 1))
+
+
+LEGACY = SpeedOptions(workers=1, prefetch=0, predict=False, batch=False, device="cpu", masks_always=True)
+
+
+# ---------------------------------------------------------------------- reading
+def read_masks(mask_dir: Path, camera_names: Sequence[str], frame: int,
+               images: Sequence[np.ndarray] | None = None) -> list[np.ndarray]:
+    """The synthetic studio's ground-truth tape masks of one frame (``masks/<cam>/NNNNNN.png``),
+    each checked against the size of its camera's image when ``images`` are given."""
+    masks = []
+    for k, cam in enumerate(camera_names):
+        path = mask_dir / cam / f"{frame:06d}.png"
+        mask = read_image(path)
+        if images is not None:
+            height, width = images[k].shape[:2]
+            check_image_size(mask, (width, height), cam, path)
+        masks.append(mask[:, :, 0] > 127)
+    return masks
+
+
+def _read_frame(source: FrameSource, frame: int, pool: ThreadPoolExecutor | None) -> list[np.ndarray]:
+    read_camera = getattr(source, "read_camera", None)
+    if pool is None or read_camera is None:
+        return source.read(frame)
+    return list(pool.map(lambda k: read_camera(k, frame), range(len(source.camera_names))))
+
+
+def prefetched_frames(source: FrameSource, frames: Sequence[int], mask_dir: Path | None = None,
+                      workers: int = 1, prefetch: int = 2
+                      ) -> Iterator[tuple[int, list[np.ndarray], list[np.ndarray] | None]]:
+    """Yield ``(frame, images, masks)`` (BGR uint8 per camera; masks only from ``mask_dir``,
+    else None). Cameras are decoded by ``workers`` threads; with ``prefetch`` > 0 a background
+    thread keeps up to that many frames decoded ahead. Errors of the reader are raised here."""
+    pool = ThreadPoolExecutor(workers, thread_name_prefix="read") if workers > 1 else None
+
+    def load(frame: int):
+        images = _read_frame(source, frame, pool)
+        masks = read_masks(mask_dir, source.camera_names, frame, images) if mask_dir is not None else None
+        return frame, images, masks
+
+    try:
+        if prefetch <= 0:
+            for frame in frames:
+                yield load(frame)
+            return
+        yield from _in_background(load, frames, prefetch)
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
+
+
+def _in_background(load, frames: Sequence[int], depth: int):
+    done = object()
+    buffer: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                buffer.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def work() -> None:
+        try:
+            for frame in frames:
+                if not put(load(frame)):
+                    return
+            put(done)
+        except BaseException as exc:  # handed to the consumer, raised there
+            put(exc)
+
+    thread = threading.Thread(target=work, name="prefetch", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item = buffer.get()
+            if item is done:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        thread.join()
+
+
+# ---------------------------------------------------------------------- detection
+class CaptureDetector:
+    """``(frame, images, masks) -> [ViewDots per camera]`` for one rig (see the module docstring).
+
+    ``name``: ``net`` / ``classical`` (:class:`spinemocap.detect.Detector`) or ``mask`` (dots
+    inside given tape masks). Call :meth:`observe` with each frame's solved dots (mm, world) to
+    enable prediction; :meth:`close` ends the thread pool."""
+
+    def __init__(self, name: str, rig: Rig | None = None, options: SpeedOptions | None = None):
+        self.name = name
+        self.rig = rig
+        self.options = options or SpeedOptions()
+        self.detector = None
+        if name in ("net", "classical"):
+            try:  # the network detector loads torch: imported only when chosen
+                from ..detect import Detector
+            except ImportError as exc:
+                raise InputError(None, f"detector {name!r} is not available in this installation ({exc})") from exc
+            self.detector = Detector(name=name, device=self.options.device) if name == "net" else Detector(name=name)
+        elif name != "mask":
+            raise InputError(None, f"unknown detector {name!r} (choose net, classical or mask)")
+        n = self.options.n_workers(len(rig) if rig is not None else os.cpu_count() or 1)
+        self._pool = ThreadPoolExecutor(n, thread_name_prefix="detect") if n > 1 else None
+        self._last: np.ndarray | None = None        # (D, 3) dots of the last solved frame
+        self._before_last: np.ndarray | None = None
+        self._boxes: dict[int, Box] = {}             # camera -> last frame's tape box
+        self._counts: dict[int, int] = {}            # camera -> dots found in the last frame
+        self._since_full = 0
+        self.searches = {"full": 0, "predicted": 0, "fallback": 0}  # camera images per route
+
+    @property
+    def needs_masks(self) -> bool:
+        """Does detection read the capture's ground-truth masks (``mask`` detector)?"""
+        return self.name == "mask"
+
+    @property
+    def predicts(self) -> bool:
+        return (self.options.predict and self.rig is not None and self.detector is not None
+                and self.detector.searches_boxes)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    def _map(self, fn, items):
+        return list(self._pool.map(fn, items)) if self._pool is not None else [fn(x) for x in items]
+
+    # ------------------------------------------------------------------ per frame
+    def __call__(self, frame: int, images: list[np.ndarray], masks: list[np.ndarray] | None) -> list[ViewDots]:
+        if self.name == "mask":
+            if masks is None:
+                raise InputError(None, "detector 'mask' needs tape masks (synthetic captures have masks/)")
+            return self._map(lambda c: _dots_in_mask(c, images[c], masks[c]), range(len(images)))
+        if not self.predicts:
+            if self.detector is not None and self.detector.searches_boxes and self.options.batch:
+                return self._full(images, range(len(images)))
+            self.searches["full"] += len(images)
+            return self._map(lambda c: self._detect(c, images[c], None), range(len(images)))
+        predicted = self._predicted_boxes(images)
+        if predicted is None:
+            return self._full(images, range(len(images)))
+        views = self._map(lambda c: self._detect(c, images[c], _listed(predicted[c])), range(len(images)))
+        self.searches["predicted"] += len(images)
+        redo = [c for c, v in enumerate(views) if len(v) < self.options.min_dot_share * self._counts.get(c, 0)]
+        if redo:
+            self.searches["fallback"] += len(redo)
+            for c, v in zip(redo, self._full(images, redo)):
+                views[c] = v
+        self._since_full += 1
+        self._remember(views)
+        return views
+
+    def _full(self, images: list[np.ndarray], cameras: Sequence[int]) -> list[ViewDots]:
+        """Full two-stage search of the given cameras (stage 1 batched over them)."""
+        cameras = list(cameras)
+        boxes = self.detector.tape_boxes([images[c] for c in cameras])
+        views = self._map(lambda k: self._detect(cameras[k], images[cameras[k]], boxes[k]), range(len(cameras)))
+        self.searches["full"] += len(cameras)
+        if len(cameras) == len(images):
+            self._since_full = 0
+            self._remember(views)
+        return views
+
+    def _detect(self, camera: int, image: np.ndarray, boxes: list[Box] | None) -> ViewDots:
+        dots = self.detector.detect(image, camera=camera, boxes=boxes)
+        if dots.image is None:
+            dots.image = to_grey(image)
+        return dots
+
+    def _remember(self, views: list[ViewDots]) -> None:
+        for v in views:
+            self._counts[v.camera] = len(v)
+            box = _mask_box(v.mask)
+            if box is None:
+                self._boxes.pop(v.camera, None)
+            else:
+                self._boxes[v.camera] = box
+
+    # ------------------------------------------------------------------ prediction
+    def observe(self, frame: int, positions: np.ndarray | None) -> None:
+        """The tracker's dots of ``frame`` (D, 3) mm, world (None or all-NaN: not solved)."""
+        if positions is None or not np.isfinite(positions).any():
+            self._last = self._before_last = None
+            return
+        self._before_last, self._last = self._last, np.asarray(positions, float).copy()
+
+    def _predicted_boxes(self, images: list[np.ndarray]) -> list[Box | None] | None:
+        """Per camera the box to search (None: the camera saw no tape in the last frame or no
+        predicted dot falls into its image; nothing to search), or None when the whole frame needs the full search (no solved previous frame,
+        or a refresh is due)."""
+        if self._last is None or self._since_full + 1 >= self.options.refresh_every:
+            return None
+        last = self._last
+        velocity = np.nan_to_num(last - self._before_last) if self._before_last is not None else 0.0
+        predicted = last + velocity
+        ok = np.isfinite(predicted).all(axis=1)
+        out: list[Box | None] = [None] * len(images)
+        for c, (cam, image) in enumerate(zip(self.rig, images)):
+            shape = image.shape[:2]
+            now, before = cam.project(predicted[ok]), cam.project(last[ok])
+            inside = cam.in_image(now) & np.isfinite(before).all(axis=1)
+            if c not in self._boxes or not inside.any():
+                # no tape here in the last frame, or predicted outside the image: nothing to
+                # search (a tape coming into view is found by the next full search)
+                continue
+            x0, x1 = now[inside, 0].min(), now[inside, 0].max()
+            y0, y1 = now[inside, 1].min(), now[inside, 1].max()
+            shift = np.median(now[inside] - before[inside], axis=0)  # last frame's outline moved with the dots
+            ys, xs = self._boxes[c]
+            x0, x1 = min(x0, xs.start + shift[0]), max(x1, xs.stop + shift[0])
+            y0, y1 = min(y0, ys.start + shift[1]), max(y1, ys.stop + shift[1])
+            m = self.options.box_margin_px
+            out[c] = _training_padded_box(x0 - m, y0 - m, x1 + m, y1 + m, shape)
+        return out
+
+
+def _training_padded_box(x0: float, y0: float, x1: float, y1: float, shape: tuple[int, int]) -> Box:
+    from ..detect.detector import padded_box
+
+    return padded_box(max(0.0, x0), max(0.0, y0), min(float(shape[1]), x1), min(float(shape[0]), y1), shape)
+
+
+def _listed(box: Box | None) -> list[Box]:
+    return [] if box is None else [box]
+
+
+def _mask_box(mask: np.ndarray | None) -> Box | None:
+    """Bounding box of a bool mask's pixels, or None when empty."""
+    if mask is None:
+        return None
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not len(rows):
+        return None
+    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
+
+
+def _dots_in_mask(camera: int, image: np.ndarray, mask: np.ndarray) -> ViewDots:
+    uv, conf = find_dots(image, mask)
+    return ViewDots(camera, uv, conf, mask=mask, image=to_grey(image))
+
+
+def search_share(searches: dict[str, int]) -> float:
+    """Share of camera images searched by prediction alone (no fallback)."""
+    total = searches["full"] + searches["predicted"]
+    return (searches["predicted"] - searches["fallback"]) / total if total else math.nan

@@ -1,0 +1,343 @@
+"""The speed benchmark (``spinemocap bench speed``, issue 15): end-to-end frames per second of
+tracking the synthetic studio, from frames held in memory, from PNG images and from lossless
+video, with the previous pipeline (:data:`spinemocap.app.streaming.LEGACY`) as the peer in the
+same run.
+
+The scene is rendered once into a capture folder of PNG images (``write_capture``) and copied
+into lossless FFV1 videos; rendering is not timed. Each run tracks the same frames with the
+shipped network detector and reports frames/s (wall time of detection + tracking, reading
+included, writing the outputs excluded), the mean time per stage per frame, the peak resident
+memory during the run above the memory before it (sampled every 20 ms), the detector's routes
+(predicted box / full search) and the accuracy against the ground truth, so a faster run that got
+worse shows it. ``speedup_vs_previous`` is the new pipeline's fps over the legacy one's on the
+same frames and source (PNG, the capture's own format).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import threading
+import time
+import warnings
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from ..app.run import TrackingWarning, TrackResult, track_source
+from ..app.streaming import LEGACY, SpeedOptions
+from ..capture import Capture, FrameSource
+from ..fileio import atomic_write, read_toml, write_toml
+from ..track.evaluate import evaluate_tracking
+
+# "Not worse": mean error within this of the peer's (sub-pixel differences of the predicted
+# boxes' masks move a few dot centres by ~0.01 px), and no more swaps or unsolved frames.
+ACCURACY_TOLERANCE_MM = 0.01
+GOALS_FPS = {"in_memory_cpu2": 10.0, "video_cpu2": 5.0, "gpu": 100.0}
+
+
+class MemorySource:
+    """A :class:`~spinemocap.capture.FrameSource` over frames already decoded in memory
+    (``frames[i]``: one BGR uint8 image per camera)."""
+
+    def __init__(self, frames: list[list[np.ndarray]], camera_names: list[str]):
+        self.frames = frames
+        self.camera_names = list(camera_names)
+        self.n_frames = len(frames)
+
+    def read(self, frame: int) -> list[np.ndarray]:
+        return list(self.frames[frame])
+
+    def read_camera(self, camera: int, frame: int) -> np.ndarray:
+        return self.frames[frame][camera]
+
+
+class PeakMemory:
+    """Peak resident memory (MiB) of this process while in the ``with`` block, above the
+    resident memory at its start; sampled every ``interval_s`` from /proc (Linux; NaN elsewhere)."""
+
+    def __init__(self, interval_s: float = 0.02):
+        self.interval_s = interval_s
+        self.peak_mib = float("nan")
+
+    @staticmethod
+    def rss_mib() -> float:
+        try:
+            with open("/proc/self/statm") as fh:
+                return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+        except (OSError, ValueError, IndexError):
+            return float("nan")
+
+    def __enter__(self) -> "PeakMemory":
+        self._start = self.rss_mib()
+        self._peak = self._start
+        self._stop = threading.Event()
+
+        def sample() -> None:
+            while not self._stop.wait(self.interval_s):
+                self._peak = max(self._peak, self.rss_mib())
+
+        self._thread = threading.Thread(target=sample, daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+        self._peak = max(self._peak, self.rss_mib())
+        self.peak_mib = self._peak - self._start
+
+
+def video_copy(png_capture: Path, out: Path) -> Path:
+    """The PNG capture ``png_capture`` as a capture of lossless FFV1 videos (one per camera) in
+    ``out``, with the same rig, manifest and ground truth."""
+    from ..synth.writer import VIDEO_FOURCC
+
+    capture = Capture.open(png_capture)
+    source = capture.frame_source()
+    out.mkdir(parents=True, exist_ok=True)
+    writers = []
+    for cam in capture.rig:
+        path = out / capture.video_pattern.format(camera=cam.name)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*VIDEO_FOURCC), capture.fps, cam.size)  # type: ignore[attr-defined]
+        if not writer.isOpened():
+            raise RuntimeError(f"OpenCV cannot write {VIDEO_FOURCC} video to {path}")
+        writers.append(writer)
+    try:
+        for frame in range(capture.n_frames):
+            for writer, image in zip(writers, source.read(frame)):
+                writer.write(image)
+    finally:
+        for writer in writers:
+            writer.release()
+    for name in (capture.rig_file, "groundtruth.npz"):
+        shutil.copy2(png_capture / name, out / name)
+    manifest = read_toml(png_capture / "capture.toml")
+    manifest["capture"]["media"] = "video"
+    write_toml(out / "capture.toml", manifest)
+    return out
+
+
+def replay_order(n_source: int, n_frames: int) -> list[int]:
+    """Source frame indices that play ``n_source`` frames forward, backward, forward ... for
+    ``n_frames`` frames (0 1 2 1 0 1 2 ...): a long, continuous sequence from a few frames."""
+    if n_source < 2:
+        return [0] * n_frames
+    period = 2 * (n_source - 1)
+    return [k if k < n_source else period - k for k in (f % period for f in range(n_frames))]
+
+
+def with_sensor_noise(images: list[np.ndarray], sigma: float, seed: int) -> list[np.ndarray]:
+    """Images plus Gaussian sensor noise (``sigma`` grey levels, seeded), as the studio's sensor
+    adds it: for captures rendered without noise to keep them small (``--sensor-noise``)."""
+    if sigma <= 0:
+        return images
+    out = []
+    for c, image in enumerate(images):
+        rng = np.random.default_rng([seed, 2, c])
+        noisy = image.astype(np.float32) + rng.normal(0.0, sigma, image.shape).astype(np.float32)
+        out.append(np.clip(noisy + 0.5, 0, 255).astype(np.uint8))
+    return out
+
+
+def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence", detector: str = "net",
+                         legacy: bool = True, speed: SpeedOptions | None = None, sensor_noise: float = 0.0,
+                         progress: bool = True, say: Callable[[str], None] = print) -> dict:
+    """In-memory speed of an existing synthetic capture (e.g. a few frames carried to a machine
+    that cannot render): its frames played forward and backward (:func:`replay_order`) for
+    ``frames`` frames, the ground truth replayed alike; the new pipeline and the legacy peer."""
+    import torch
+
+    speed = speed or SpeedOptions()
+    capture = Capture.open(capture_dir)
+    source = capture.frame_source()
+    decoded = [with_sensor_noise(source.read(f), sensor_noise, f) for f in range(capture.n_frames)]
+    order = replay_order(capture.n_frames, frames)
+    replayed = MemorySource([decoded[i] for i in order], capture.camera_names)
+    gt = dict(capture.groundtruth())
+    for key in ("dots", "visible", "dot_normals", "keypoints"):
+        if key in gt:
+            gt[key] = np.asarray(gt[key])[order]
+    say("warming up (2 frames, not timed) ...")
+    for options in (speed, LEGACY) if legacy else (speed,):
+        _timed_run(replayed, capture, options, mode, detector, False, range(2))
+    runs = []
+    for name, options in (("in_memory", speed), ("in_memory_legacy", LEGACY))[: 2 if legacy else 1]:
+        say(f"tracking: {name} ...")
+        result, wall, peak = _timed_run(replayed, capture, options, mode, detector, progress)
+        runs.append(_summary(name, result, wall, peak, capture, gt))
+        say(f"  {runs[-1]['fps']:.2f} frames/s, mean error {runs[-1]['mean_error_mm']:.3f} mm")
+    new, peer = runs[0], (runs[1] if legacy else None)
+    cuda = torch.cuda.is_available()
+    return {
+        "preset": f"capture {capture.name} replayed", "source_frames": capture.n_frames, "frames": frames,
+        "sensor_noise": sensor_noise, "cameras": len(capture.rig), "image_size": list(capture.rig[0].size),
+        "mode": mode, "detector": detector,
+        "machine": {"cpu_cores": os.cpu_count(), "load_average_1min": os.getloadavg()[0],
+                    "torch_threads": torch.get_num_threads(),
+                    "gpu": torch.cuda.get_device_name(0) if cuda else None},
+        "speed_options": asdict(speed), "fps_in_memory": new["fps"], "fps_png": None, "fps_video": None,
+        "speedup_vs_previous": new["fps"] / peer["fps"] if peer else None,
+        "accuracy_not_worse": _not_worse(new, peer) if peer else None,
+        "accuracy_tolerance_mm": ACCURACY_TOLERANCE_MM, "runs": runs, "goals_fps": GOALS_FPS,
+    }
+
+
+def _not_worse(new: dict, peer: dict) -> bool:
+    return (new["mean_error_mm"] <= peer["mean_error_mm"] + ACCURACY_TOLERANCE_MM
+            and new["label_swaps"] <= peer["label_swaps"]
+            and new["frames_without_solution"] <= peer["frames_without_solution"])
+
+
+def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode: str, detector: str,
+               progress: bool, frames: range | None = None) -> tuple[TrackResult, float, float]:
+    with warnings.catch_warnings(), PeakMemory() as memory:
+        warnings.simplefilter("ignore", TrackingWarning)
+        cpu_start = time.process_time()
+        start = time.perf_counter()
+        result = track_source(source, capture.rig, capture.tape, capture.fps, frames, up=capture.up, mode=mode,
+                              detector=detector, progress=progress, speed=speed,
+                              mask_dir=capture.root / "masks")
+        wall = time.perf_counter() - start
+        result.cpu_s = time.process_time() - cpu_start  # type: ignore[attr-defined]
+    return result, wall, memory.peak_mib
+
+
+def decode_fps(source: FrameSource, n_frames: int, workers: int) -> float:
+    """Frames per second of decoding alone (every camera's image of each frame, cameras in
+    ``workers`` threads, no detection): the ceiling the source sets on tracking speed."""
+    from ..app.streaming import prefetched_frames
+
+    start = time.perf_counter()
+    for _ in prefetched_frames(source, range(n_frames), workers=workers, prefetch=0):
+        pass
+    return n_frames / (time.perf_counter() - start)
+
+
+def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, capture: Capture,
+             gt: dict | None = None) -> dict:
+    gt = gt if gt is not None else capture.groundtruth()
+    acc = evaluate_tracking(result.table, gt, float(capture.tape.graph.rest_length_mm.min()), result.stage_ms())
+    n = len(result.frames)
+    return {
+        "run": name, "frames": n, "wall_s": wall, "fps": n / wall if wall > 0 else float("nan"),
+        # CPU seconds of this process (all threads) per frame: less sensitive than wall time to
+        # other programs on a shared machine; cores / this = fps on an idle machine at best
+        "cpu_s_per_frame": getattr(result, "cpu_s", float("nan")) / max(n, 1),
+        "stage_ms": result.stage_ms(), "peak_memory_mib": peak_mib, "routes": result.routes(),
+        "detector_searches": result.detector_searches,
+        "mean_error_mm": acc.mean_error_mm, "p95_error_mm": acc.p95_error_mm,
+        "label_swaps": acc.label_swaps, "frames_without_solution": acc.frames_without_solution,
+    }
+
+
+def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: str = "none",
+                        mode: str = "sequence", detector: str = "net", seed: int = 0,
+                        workdir: Path | None = None, legacy: bool = True, video: bool = True,
+                        in_memory: bool = True, speed: SpeedOptions | None = None, progress: bool = True,
+                        say: Callable[[str], None] = print) -> dict:
+    """Render ``frames`` frames of the synthetic ``preset`` and time tracking them (see the module
+    docstring). ``legacy``: also run the previous pipeline (the peer); ``workdir``: where the
+    capture folders go (a temporary folder, removed afterwards, when None)."""
+    import torch
+
+    from ..synth import SynthConfig, write_capture
+
+    speed = speed or SpeedOptions()
+    config = SynthConfig.preset(preset, frames=frames, occlusion=occlusion, seed=seed)
+    tmp = None if workdir is not None else tempfile.mkdtemp(prefix="spinemocap-speed-")
+    root = Path(workdir) if workdir is not None else Path(tmp)  # type: ignore[arg-type]
+    try:
+        png_dir = root / "png"
+        if not (png_dir / "capture.toml").is_file():
+            say(f"rendering the {preset} scene ({frames} frames, {config.cameras} cameras {config.size[0]}x{config.size[1]}) "
+                f"to PNG (not timed) ...")
+            write_capture(config, png_dir, progress=progress)
+        capture = Capture.open(png_dir)
+        runs = []
+
+        def run(name: str, source: FrameSource, options: SpeedOptions) -> dict:
+            say(f"tracking: {name} ...")
+            result, wall, peak = _timed_run(source, capture, options, mode, detector, progress)
+            summary = _summary(name, result, wall, peak, capture)
+            runs.append(summary)
+            say(f"  {summary['fps']:.2f} frames/s, mean error {summary['mean_error_mm']:.3f} mm")
+            return summary
+
+        say("warming up (2 frames, not timed: model loading, first-call set-up) ...")
+        for options in (speed, LEGACY):
+            _timed_run(capture.frame_source(), capture, options, mode, detector, False, range(min(2, frames)))
+        workers = speed.n_workers(len(capture.camera_names))
+        decoding = {"png": decode_fps(capture.frame_source(), capture.n_frames, workers)}
+        png = run("png", capture.frame_source(), speed)
+        peer = run("png_legacy", capture.frame_source(), LEGACY) if legacy else None
+        vid = None
+        if video:
+            video_dir = root / "video"
+            if not (video_dir / "capture.toml").is_file():
+                say("encoding the frames as lossless FFV1 video (not timed) ...")
+                video_copy(png_dir, video_dir)
+            decoding["video"] = decode_fps(Capture.open(video_dir).frame_source(), capture.n_frames, workers)
+            vid = run("video", Capture.open(video_dir).frame_source(), speed)
+        mem = None
+        if in_memory:
+            source = capture.frame_source()
+            frames_in_memory = [source.read(f) for f in range(capture.n_frames)]
+            mem = run("in_memory", MemorySource(frames_in_memory, capture.camera_names), speed)
+            if legacy:
+                run("in_memory_legacy", MemorySource(frames_in_memory, capture.camera_names), replace(LEGACY))
+            del frames_in_memory
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    cuda = torch.cuda.is_available()
+    numbers = {
+        "preset": preset, "frames": frames, "cameras": config.cameras, "image_size": list(config.size),
+        "occlusion": occlusion, "mode": mode, "detector": detector,
+        "machine": {"cpu_cores": os.cpu_count(), "load_average_1min": os.getloadavg()[0],
+                    "torch_threads": torch.get_num_threads(),
+                    "gpu": torch.cuda.get_device_name(0) if cuda else None},
+        "speed_options": asdict(speed),
+        "fps_png": png["fps"],
+        "fps_video": vid["fps"] if vid else None,
+        "fps_in_memory": mem["fps"] if mem else None,
+        "speedup_vs_previous": png["fps"] / peer["fps"] if peer else None,
+        "accuracy_not_worse": _not_worse(png, peer) if peer else None,
+        "accuracy_tolerance_mm": ACCURACY_TOLERANCE_MM,
+        "decode_only_fps": decoding,
+        "runs": runs,
+        "goals_fps": GOALS_FPS,
+    }
+    return numbers
+
+
+def save(numbers: dict, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(path) as fh:
+        json.dump(numbers, fh, indent=2, default=float)
+
+
+def format_report(numbers: dict) -> str:
+    """A table of the runs: fps, per-stage ms, peak memory, accuracy."""
+    stages = list(numbers["runs"][0]["stage_ms"]) if numbers["runs"] else []
+    head = f"  {'run':<18}{'fps':>7}{'cpu s/f':>8}{'peak MiB':>10}{'err mm':>8}{'swaps':>6}  " + " ".join(f"{s:>10}" for s in stages)
+    lines = [f"\nspeed: {numbers['preset']} x {numbers['frames']} frames, {numbers['cameras']} cameras "
+             f"{numbers['image_size'][0]}x{numbers['image_size'][1]}, mode {numbers['mode']}, detector "
+             f"{numbers['detector']}; {numbers['machine']['cpu_cores']} CPU cores (load {numbers['machine']['load_average_1min']:.1f}), "
+             f"GPU {numbers['machine']['gpu'] or 'none'}", head]
+    for r in numbers["runs"]:
+        lines.append(f"  {r['run']:<18}{r['fps']:>7.2f}{r['cpu_s_per_frame']:>8.2f}{r['peak_memory_mib']:>10.0f}{r['mean_error_mm']:>8.3f}"
+                     f"{r['label_swaps']:>6}  " + " ".join(f"{r['stage_ms'][s]:>10.0f}" for s in stages))
+    if numbers.get("decode_only_fps"):
+        lines.append("  decoding alone (no detection), frames/s: "
+                     + ", ".join(f"{k} {v:.2f}" for k, v in numbers["decode_only_fps"].items()))
+    if numbers["speedup_vs_previous"] is not None:
+        lines.append(f"  speedup vs the previous pipeline (PNG): {numbers['speedup_vs_previous']:.2f}x; "
+                     f"accuracy not worse: {numbers['accuracy_not_worse']}")
+    return "\n".join(lines)

@@ -1,0 +1,56 @@
+"""``spinemocap bench speed``: arguments and printing; the benchmark is :mod:`spinemocap.bench.speed`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register_bench(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "speed", help="end-to-end tracking frames/s (in memory, PNG, video) vs the previous pipeline",
+        description="Render the synthetic studio once (not timed), then track it from frames in memory, from "
+                    "PNG images and from lossless video with the current pipeline, and from PNG and memory with "
+                    "the previous one (the peer): frames/s, time per stage, peak memory and accuracy per run.")
+    p.add_argument("--preset", default="studio", choices=("tiny", "artificial", "studio"))
+    p.add_argument("--frames", type=int, default=100, help="frames to render and track (default 100)")
+    p.add_argument("--occlusion", default="none", choices=("none", "light", "heavy"))
+    p.add_argument("--mode", choices=("sequence", "paper"), default="sequence")
+    p.add_argument("--detector", choices=("net", "classical", "mask"), default="net")
+    p.add_argument("--workers", type=int, default=0, help="threads for the cameras (0: one per CPU core)")
+    p.add_argument("--refresh-every", type=int, default=10, help="frames between full detector searches")
+    p.add_argument("--no-predict", action="store_true", help="full detector search in every frame")
+    p.add_argument("--no-legacy", action="store_true", help="skip the previous pipeline (the peer)")
+    p.add_argument("--no-video", action="store_true", help="skip the video run")
+    p.add_argument("--no-memory", action="store_true", help="skip the in-memory runs")
+    p.add_argument("--workdir", type=Path, help="keep the rendered captures here (reused when present)")
+    p.add_argument("--capture", type=Path, help="instead of rendering: a synthetic capture folder whose frames are "
+                                                 "replayed forward and backward in memory for --frames frames "
+                                                 "(for a machine that cannot render)")
+    p.add_argument("--sensor-noise", type=float, default=0.0,
+                   help="with --capture: add this sensor noise (grey levels) to a capture rendered without it")
+    p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA if torch sees it), cpu, cuda")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", type=Path, help="write all numbers to this JSON file")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..app.streaming import SpeedOptions
+    from ..bench.speed import format_report, run_replay_benchmark, run_speed_benchmark, save
+
+    speed = SpeedOptions(workers=args.workers, refresh_every=args.refresh_every, predict=not args.no_predict,
+                         device=args.device)
+    if args.capture:
+        numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_legacy,
+                                       speed, args.sensor_noise, progress=not args.no_progress)
+    else:
+        numbers = run_speed_benchmark(args.preset, args.frames, args.occlusion, args.mode, args.detector, args.seed,
+                                      args.workdir, legacy=not args.no_legacy, video=not args.no_video,
+                                      in_memory=not args.no_memory, speed=speed, progress=not args.no_progress)
+    print(format_report(numbers))
+    if args.json:
+        save(numbers, args.json)
+        print(f"numbers written to {args.json}")
+    return 0
