@@ -158,7 +158,7 @@ class SpineGeometry:
     mapped: list[str]
     scale: float
     row_body: np.ndarray
-    depth: np.ndarray
+    depth: np.ndarray  # (N,) mm, skin to body centre
 
     def index(self, name: str) -> int:
         return self.names.index(name)
@@ -237,15 +237,20 @@ def level_arcs(levels: LevelRows, rows: RowFrames, source: str | None = None) ->
     return arcs, scale
 
 
-def spine_geometry(rows: RowFrames, levels: LevelRows, source: str | None = None) -> SpineGeometry:
-    """Vertebral centres and frames of the subject in the static posture; see the module docstring."""
+def spine_geometry(rows: RowFrames, levels: LevelRows, depth_scale: float = 1.0,
+                   source: str | None = None) -> SpineGeometry:
+    """Vertebral centres and frames of the subject in the static posture; see the module docstring.
+
+    ``depth_scale`` multiplies the published skin-to-body-centre depths: 1 = anatomical; the
+    pipeline can fit it to the trial (the effective centre of the skin's rotation, see
+    :func:`spinemocap.opensim.pipeline.fit_depth_scale`)."""
     arcs, scale = level_arcs(levels, rows, source)
     names = list(CHAIN) + [HEAD_NECK]
     arc = np.array([arcs[n] for n in names])
     midline = _Midline(rows)
     skin = midline.point(arc)
     frames = np.array([_sagittal_frame(t) for t in midline.tangent(arc)])
-    depth = scale * np.array([skin_depth(n if n in ANATOMY else "T1") for n in names])
+    depth = depth_scale * scale * np.array([skin_depth(n if n in ANATOMY else "T1") for n in names])
     centre = skin + depth[:, None] * frames[:, :, 0]
     # the vertebra under each row: nearest level by skin arc length (the pelvis carries S1)
     row_body = np.argmin(np.abs(rows.arc[:, None] - arc[None, :]), axis=1)

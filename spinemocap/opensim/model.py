@@ -15,11 +15,12 @@ parent L5) with three body-fixed rotations in the order Z, X, Y:
 Zero is the static trial's posture (the model is built in it). Only joints the tape can drive
 carry coordinates: a joint gets them when tape markers sit on bodies both below and above it;
 the others are ``WeldJoint`` s (a locked coordinate still costs IK time; a weld costs nothing).
-Per region (lumbar: L5/S1 ... T12/L1; thoracic: T11/T12 ... C7/T1) the lateral bending and axial
-rotation of every driven joint are coupled to the region's lowest driven joint by
-``CoordinateCouplerConstraint`` s with the ratios of the published ranges of motion
-(:mod:`spinemocap.opensim.anatomy`): per-level lateral/axial motion from skin markers is
-ill-conditioned; flexion/extension stays free per level.
+Coupling (``CoordinateCouplerConstraint`` s with the ratios of the published ranges of motion,
+:mod:`spinemocap.opensim.anatomy`), see :func:`plan_model`: by default only a vertebra the tape
+cannot resolve on its own (no full row of dots over it) has its rotations coupled to its
+neighbour's; ``coupling="region"`` couples every level's lateral bending and axial rotation per
+region (lumbar: L5/S1 ... T12/L1; thoracic: T11/T12 ... C7/T1) as the published lumbar and
+thoracolumbar models do.
 """
 
 from __future__ import annotations
@@ -91,23 +92,49 @@ class ModelPlan:
         return [j for j in self.joints if j.driven]
 
 
-def plan_model(geometry: SpineGeometry, marker_bodies: np.ndarray) -> ModelPlan:
-    """Which joints the tape drives (markers on bodies below and above) and how the lateral and
-    axial rotations are coupled; ``marker_bodies``: chain index of each placed marker."""
+COUPLINGS = ("rows", "region")
+
+
+def plan_model(geometry: SpineGeometry, marker_bodies: np.ndarray, row_bodies: np.ndarray,
+               coupling: str = "rows") -> ModelPlan:
+    """Which joints the tape drives (markers on bodies below and above) and which coordinates
+    are coupled. ``marker_bodies``: chain index of each placed marker; ``row_bodies``: chain
+    indices of the vertebrae that carry a full tape row (L and R dots) in the static trial.
+
+    ``coupling="rows"``: a vertebra with a full row of its own shows its lateral bending and
+    axial rotation directly (the tilt and twist of the L->R axis), so its joint stays free; a
+    driven vertebra without one gets all three rotations coupled to the nearest vertebra below
+    (else above) that has a row, with the published range ratios. ``"region"``: as the
+    published models, every driven joint's lateral bending and axial rotation coupled to the
+    region's lowest driven joint (flexion/extension free per level)."""
+    if coupling not in COUPLINGS:
+        raise ValueError(f"unknown coupling {coupling!r}; choose from {COUPLINGS}")
     lo, hi = int(marker_bodies.min()), int(marker_bodies.max())
     joints = []
     for k in range(1, len(geometry.names)):
-        child = geometry.names[k]
-        rom = _rom(child)
-        joints.append(JointPlan(child, geometry.names[k - 1], k, lo <= k - 1 and k <= hi, rom))
+        joints.append(JointPlan(geometry.names[k], geometry.names[k - 1], k, lo <= k - 1 and k <= hi,
+                                _rom(geometry.names[k])))
     plan = ModelPlan(joints)
-    for region in ("lumbar", "thoracic"):
-        members = [j for j in plan.driven if j.region == region]
-        for j in members[1:]:
-            for axis, dof in ((1, "lateral_bending"), (2, "axial_rotation")):
-                ratio = j.rom_deg[axis] / members[0].rom_deg[axis]
-                plan.couplers.append((j.coordinate(dof), members[0].coordinate(dof), ratio))
+    if coupling == "region":
+        for region in ("lumbar", "thoracic"):
+            members = [j for j in plan.driven if j.region == region]
+            for j in members[1:]:
+                _couple(plan, j, members[0], (1, 2))
+        return plan
+    with_rows = [j for j in plan.driven if j.index in set(int(b) for b in row_bodies)]
+    for j in plan.driven:
+        if j in with_rows or not with_rows:
+            continue
+        below = [a for a in with_rows if a.index < j.index]
+        anchor = below[-1] if below else min(with_rows, key=lambda a: a.index)
+        _couple(plan, j, anchor, (0, 1, 2))
     return plan
+
+
+def _couple(plan: ModelPlan, dependent: JointPlan, independent: JointPlan, axes: tuple[int, ...]) -> None:
+    for axis in axes:
+        ratio = dependent.rom_deg[axis] / independent.rom_deg[axis]
+        plan.couplers.append((dependent.coordinate(DOF[axis]), independent.coordinate(DOF[axis]), ratio))
 
 
 def _rom(child: str) -> tuple[float, float, float]:

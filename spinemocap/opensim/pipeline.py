@@ -73,10 +73,17 @@ PROJECT_NAME = {"extension": "flexion", "lateral_bending": "lateral", "axial_rot
 @dataclass(frozen=True)
 class OpenSimSettings:
     """``static_frames``: frames from the start averaged as the static trial (when no static file);
-    ``accuracy``: IK solver accuracy (OpenSim's default 1e-5)."""
+    ``accuracy``: IK solver accuracy (OpenSim's default 1e-5); ``depth_scale``: factor on the
+    published skin-to-vertebral-body depths, None = fit it to the trial (:func:`fit_depth_scale`,
+    golden section on ``depth_bounds`` to ``depth_tolerance`` over ``fit_frames`` frames)."""
 
     static_frames: int = 10
     accuracy: float = 1e-5
+    depth_scale: float | None = None  # None: fitted (fit_depth_scale); 1.0: published depths
+    depth_bounds: tuple[float, float] = (0.25, 1.25)
+    depth_tolerance: float = 0.05
+    fit_frames: int = 24
+    coupling: str = "rows"  # see spinemocap.opensim.model.plan_model
 
 
 @dataclass
@@ -126,6 +133,113 @@ def tape_markers(markers: MarkerTable, tape: TapeSpec, axes: np.ndarray, source:
     return TapeMarkers(labels, np.asarray(times, float), to_opensim(positions, axes), status, fps)
 
 
+@dataclass
+class _Static:
+    """The static trial: median positions (D, 3) mm, its markers for the TRC and time range."""
+
+    positions: np.ndarray
+    markers: TapeMarkers
+    time_range: tuple[float, float]
+
+
+def _static(data: TapeMarkers, static: MarkerTable | None, tape: TapeSpec, axes: np.ndarray,
+            settings: OpenSimSettings, source: str | None) -> _Static:
+    if static is not None:
+        st = tape_markers(static, tape, axes, source)
+    else:
+        n = max(1, min(settings.static_frames, len(data.times)))
+        st = TapeMarkers(data.labels, data.times[:n], data.positions[:n], data.status[:n], data.fps)
+    return _Static(static_positions(st.positions), st, (float(st.times[0]), float(st.times[-1])))
+
+
+@dataclass
+class _Placed:
+    geometry: SpineGeometry
+    plan: ModelPlan
+    labels: list[str]
+    placed: np.ndarray  # tape dot indices in the model
+    expected: np.ndarray  # (len(placed), 3) anatomical places, mm
+    placement: dict
+
+
+def _build_and_place(work: Path, rows, levels: LevelRows, tape: TapeSpec, static: _Static, depth_scale: float,
+                     coupling: str, source: str | None) -> _Placed:
+    """Build ``model_generic.osim`` in ``work`` and run MarkerPlacer (``setup_scale.xml``) to
+    ``model.osim``; the placement is checked against the anatomy."""
+    geometry = spine_geometry(rows, levels, depth_scale, source)
+    graph = tape.graph
+    placed = np.flatnonzero(np.isfinite(static.positions).all(axis=1))
+    bodies = geometry.row_body[graph.row]
+    expected = expected_marker_locations(geometry, rows, tape)
+    row_bodies = geometry.row_body[np.flatnonzero(rows.seen)]
+    plan = plan_model(geometry, bodies[placed], row_bodies, coupling)
+    if not plan.driven:
+        raise InputError(source, "all tape rows lie over one vertebra: no joint for the tape to drive")
+    labels = [static.markers.labels[d] for d in placed]
+    model = build_model(geometry, plan, [(labels[i], int(bodies[d]), expected[d]) for i, d in enumerate(placed)])
+    model.printToXML(str(work / "model_generic.osim"))
+    st = static.markers
+    write_trc(work / "markers_static.trc", labels, st.times, st.positions[:, placed], st.fps)
+    setup = write_scale_setup(work, "model_generic.osim", "markers_static.trc", static.time_range, labels,
+                              np.ones(len(labels)), "model.osim", "static_pose.mot")
+    run_scale(setup)
+    placement = check_placement(work / "model.osim", labels, expected[placed], source)
+    return _Placed(geometry, plan, labels, placed, expected[placed], placement)
+
+
+def _inverse_kinematics(work: Path, placed: _Placed, data: TapeMarkers, frames: np.ndarray,
+                        accuracy: float) -> float:
+    """``markers_opensim.trc`` (the given frames), ``setup_ik.xml``, ``ik.mot`` and
+    ``ik_marker_errors.sto`` in ``work``; returns IK seconds."""
+    positions = data.positions[frames][:, placed.placed]
+    write_trc(work / "markers_opensim.trc", placed.labels, data.times[frames], positions, data.fps)
+    weights = marker_weights(data.status[frames][:, placed.placed])
+    setup = write_ik_setup(work, "model.osim", "markers_opensim.trc",
+                           (float(data.times[frames[0]]), float(data.times[frames[-1]])), placed.labels,
+                           weights, "ik.mot", accuracy)
+    started = time.perf_counter()
+    run_ik(setup)
+    seconds = time.perf_counter() - started
+    os.replace(work / "spinemocap_ik_marker_errors.sto", work / "ik_marker_errors.sto")
+    return seconds
+
+
+def fit_depth_scale(rows, levels: LevelRows, tape: TapeSpec, static: _Static, data: TapeMarkers,
+                    settings: OpenSimSettings, folder: Path, source: str | None = None) -> tuple[float, dict]:
+    """Functional calibration of the depth of the joint centres under the skin: the factor on
+    the published depths that minimises the mean IK marker RMS over up to
+    ``settings.fit_frames`` frames spread over the trial (golden-section search on
+    ``settings.depth_bounds``). Skin does not move rigidly with the vertebral bodies (it slides
+    and stretches: DESIGN section 8), so the centres that explain its motion best lie at an
+    effective depth; a fit at a bound is flagged. Returns (factor, {factor: RMS mm})."""
+    frames = np.unique(np.linspace(0, len(data.times) - 1, min(settings.fit_frames, len(data.times))).astype(int))
+    tried: dict[float, float] = {}
+
+    def rms(factor: float) -> float:
+        key = round(factor, 4)
+        if key not in tried:
+            work = Path(tempfile.mkdtemp(prefix="depth.", dir=folder))
+            placed = _build_and_place(work, rows, levels, tape, static, factor, settings.coupling, source)
+            _inverse_kinematics(work, placed, data, frames, settings.accuracy)
+            _, labels, err, _ = read_storage(work / "ik_marker_errors.sto")
+            tried[key] = float(1000.0 * np.mean(err[:, labels.index("marker_error_RMS")]))
+        return tried[key]
+
+    lo, hi = settings.depth_bounds
+    golden = (np.sqrt(5.0) - 1.0) / 2.0
+    a, b = lo, hi
+    c, d = b - golden * (b - a), a + golden * (b - a)
+    while b - a > settings.depth_tolerance:
+        if rms(c) < rms(d):
+            b, d = d, c
+            c = b - golden * (b - a)
+        else:
+            a, c = c, d
+            d = a + golden * (b - a)
+    best = min(tried, key=tried.get)
+    return float(best), dict(sorted(tried.items()))
+
+
 def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Sequence[float],
                 facing: Sequence[float], out_dir: str | os.PathLike, static: MarkerTable | None = None,
                 settings: OpenSimSettings = OpenSimSettings(), source: str | None = None) -> OpenSimResult:
@@ -135,56 +249,34 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Seq
     out_dir = Path(out_dir)
     axes = opensim_axes(up, facing, source)
     data = tape_markers(markers, tape, axes, source)
-    if static is not None:
-        static_mm = static_positions(tape_markers(static, tape, axes, source).positions)
-        static_times = (0.0, 0.0)
-    else:
-        n = max(1, min(settings.static_frames, len(data.times)))
-        static_mm = static_positions(data.positions[:n])
-        static_times = (float(data.times[0]), float(data.times[n - 1]))
-    rows = row_frames(static_mm, tape, source)
+    st = _static(data, static, tape, axes, settings, source)
+    rows = row_frames(st.positions, tape, source)
     facing_error = check_facing(rows, axes, source)
-    geometry = spine_geometry(rows, levels, source)
-    graph = tape.graph
-    placed = np.flatnonzero(np.isfinite(static_mm).all(axis=1))
-    bodies = geometry.row_body[graph.row]
-    expected = expected_marker_locations(geometry, rows, tape)
-    plan = plan_model(geometry, bodies[placed])
-    if not plan.driven:
-        raise InputError(source, "all tape rows lie over one vertebra: no joint for the tape to drive")
-    labels = [data.labels[d] for d in placed]
-    model = build_model(geometry, plan, [(data.labels[d], int(bodies[d]), expected[d]) for d in placed])
-    weights = marker_weights(data.status[:, placed])
-
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
-        model.printToXML(str(work / "model_generic.osim"))
-        write_trc(work / "markers_opensim.trc", labels, data.times, data.positions[:, placed], data.fps)
-        if static is not None:
-            st = tape_markers(static, tape, axes, source)
-            write_trc(work / "markers_static.trc", labels, st.times, st.positions[:, placed], st.fps)
-            static_times = (float(st.times[0]), float(st.times[-1]))
-        else:
-            n = max(1, min(settings.static_frames, len(data.times)))
-            write_trc(work / "markers_static.trc", labels, data.times[:n], data.positions[:n][:, placed], data.fps)
-        scale_setup = write_scale_setup(work, "model_generic.osim", "markers_static.trc", static_times, labels,
-                                        np.where(np.isfinite(static_mm[placed]).all(axis=1), 1.0, 0.0),
-                                        "model.osim", "static_pose.mot")
-        run_scale(scale_setup)
-        placement = check_placement(work / "model.osim", labels, expected[placed], source)
-        ik_setup = write_ik_setup(work, "model.osim", "markers_opensim.trc",
-                                  (float(data.times[0]), float(data.times[-1])), labels, weights, "ik.mot",
-                                  settings.accuracy)
-        started = time.perf_counter()
-        run_ik(ik_setup)
-        ik_seconds = time.perf_counter() - started
-        os.replace(work / "spinemocap_ik_marker_errors.sto", work / "ik_marker_errors.sto")
-        angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", plan, data)
-        summary = _summary(data, plan, geometry, angles, flags, ik_seconds, placement, facing_error,
-                           weights, labels, settings, osim)
+        depth_fit: dict[float, float] = {}
+        depth_scale = settings.depth_scale
+        if depth_scale is None:
+            depth_scale, depth_fit = fit_depth_scale(rows, levels, tape, st, data, settings, work, source)
+            for sub in work.iterdir():
+                shutil.rmtree(sub, ignore_errors=True)
+        placed = _build_and_place(work, rows, levels, tape, st, depth_scale, settings.coupling, source)
+        ik_seconds = _inverse_kinematics(work, placed, data, np.arange(len(data.times)), settings.accuracy)
+        angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
+        weights = marker_weights(data.status[:, placed.placed])
+        summary = _summary(data, placed, angles, flags, ik_seconds, facing_error, weights, settings, osim)
+        summary["depth_scale"] = {"value": depth_scale, "fitted": settings.depth_scale is None,
+                                  "bounds": list(settings.depth_bounds), "marker_rms_mm_tried": {
+                                      f"{k:g}": v for k, v in depth_fit.items()},
+                                  "at_bound": bool(depth_fit) and min(abs(depth_scale - b) for b in
+                                                                      settings.depth_bounds) < settings.depth_tolerance,
+                                  "depth_mm": {n: round(float(x), 1) for n, x in
+                                               zip(placed.geometry.names, placed.geometry.depth)}}
+        if summary["depth_scale"]["at_bound"]:
+            summary["warnings"].append(f"fitted joint-centre depth at the search bound ({depth_scale:.2f} x published)")
         with atomic_write(work / "spine_angles.csv") as handle:
-            handle.write(_angles_header(plan))
+            handle.write(_angles_header(placed.plan))
             angles.to_csv(handle, index=False, float_format="%.4f")
         from .plot import angles_plot_png
 
@@ -195,7 +287,7 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Seq
         files = _publish(work, out_dir)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    return OpenSimResult(out_dir, angles, summary, plan, geometry, files)
+    return OpenSimResult(out_dir, angles, summary, placed.plan, placed.geometry, files)
 
 
 def _publish(work: Path, out_dir: Path) -> dict[str, Path]:
@@ -276,19 +368,19 @@ def _angles_header(plan: ModelPlan) -> str:
             "(empty = fine).\n")
 
 
-def _summary(data: TapeMarkers, plan: ModelPlan, geometry: SpineGeometry, angles: pd.DataFrame,
-             flags: np.ndarray, ik_seconds: float, placement: dict, facing_error: float,
-             weights: np.ndarray, labels: list[str], settings: OpenSimSettings, osim) -> dict:
+def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np.ndarray, ik_seconds: float,
+             facing_error: float, weights: np.ndarray, settings: OpenSimSettings, osim) -> dict:
+    geometry, plan, labels = placed.geometry, placed.plan, placed.labels
     rms = angles["marker_rms"].to_numpy()
     flagged = np.flatnonzero(flags != "")
     reasons: dict[str, int] = {}
     for text in flags[flagged]:
         for why in str(text).split("; "):
             reasons[why] = reasons.get(why, 0) + 1
-    bodies = {body_name(geometry.names[k]): [] for k in range(len(geometry.names))}
-    graph_rows = {label: geometry.names[geometry.row_body[int(label[1:3]) - 1]] for label in labels}
-    for label, name in graph_rows.items():
-        bodies[body_name(name)].append(label)
+    bodies: dict[str, list[str]] = {}
+    for label, d in zip(labels, placed.placed):
+        name = body_name(geometry.names[geometry.row_body[int(label[1:3]) - 1]])
+        bodies.setdefault(name, []).append(label)
     ranges = {c: [float(np.nanmin(angles[c])), float(np.nanmax(angles[c]))]
               for c in angles.columns if c.startswith(("lumbar_", "thoracic_"))}
     return {
@@ -300,16 +392,18 @@ def _summary(data: TapeMarkers, plan: ModelPlan, geometry: SpineGeometry, angles
         "ms_per_frame": 1000.0 * ik_seconds / max(len(angles), 1),
         "flagged_frames": [int(f) for f in flagged],
         "flag_reasons": reasons,
+        "warnings": [],
         "driven_joints": [j.name for j in plan.driven],
         "welded_joints": [j.name for j in plan.joints if not j.driven],
         "couplers": [{"dependent": d, "independent": i, "ratio": round(r, 4)} for d, i, r in plan.couplers],
         "coordinates": plan.coordinates,
-        "markers_by_body": {k: v for k, v in bodies.items() if v},
+        "markers_by_body": bodies,
+        "markers_not_placed": [label for label in data.labels if label not in set(labels)],
         "marker_weights": {label: round(float(w), 3) for label, w in zip(labels, weights)},
         "levels_mapped": geometry.mapped,
         "scale_to_generic": geometry.scale,
         "facing_error_deg": facing_error,
-        "placement": placement,
+        "placement": placed.placement,
         "region_ranges_deg": ranges,
         "ik_accuracy": settings.accuracy,
         "opensim_version": str(osim.GetVersion()),
