@@ -275,16 +275,24 @@ def read_markers_csv(path: str | os.PathLike) -> MarkerTable:
 
 
 def _levels(job: TrialJob, capture: Capture) -> tuple[LevelMap, str]:
+    return find_level_map(capture, job.trial.levels_file, job.levels_file)
+
+
+def find_level_map(capture: Capture, trial_file: str | os.PathLike | None = None,
+                   batch_file: str | os.PathLike | None = None) -> tuple[LevelMap, str]:
+    """The capture's row-to-level map and where it came from, first found wins: ``trial_file``,
+    ``levels.toml`` in the capture folder, ``[levels]`` in capture.toml, ``levels.toml`` two
+    folders up (the subject's), ``batch_file``, the synthetic ground truth's ``row_levels``."""
     n_rows = capture.tape.n_rows
     folder = capture.root
-    candidates = [job.trial.levels_file, folder / "levels.toml"]
+    candidates = [trial_file, folder / "levels.toml"]
     for path in candidates[:2]:
         if path and Path(path).is_file():
             return LevelMap.from_toml(path, n_rows), str(path)
     section = read_toml(folder / MANIFEST).get("levels")
     if section:
         return LevelMap(dict(section), n_rows, source=str(folder / MANIFEST)), str(folder / MANIFEST)
-    for path in (folder.parent.parent / "levels.toml", job.levels_file):
+    for path in (folder.parent.parent / "levels.toml", batch_file):
         if path and Path(path).is_file():
             return LevelMap.from_toml(path, n_rows), str(path)
     row_levels = capture.row_levels()

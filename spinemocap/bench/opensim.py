@@ -47,6 +47,8 @@ def register_bench(subparsers) -> None:
     p.add_argument("--sources", nargs="+", default=["groundtruth", "tracked"], choices=("groundtruth", "tracked"))
     p.add_argument("--tracked-frames", type=int, help="frames to render and track per motion (default: --frames)")
     p.add_argument("--json", type=Path, help="write the numbers here")
+    p.add_argument("--cache", type=Path, help="keep the tracked markers here (markers_<motion>_<frames>.csv) and "
+                                              "reuse them on the next run instead of rendering and tracking again")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_bench)
 
@@ -63,7 +65,8 @@ def run_bench(args: argparse.Namespace) -> int:
     jobs = [(m, s) for m in args.motions for s in args.sources]
     for motion, source in tqdm(jobs, desc="motions x sources", disable=args.no_progress):
         frames = args.tracked_frames or args.frames if source == "tracked" else args.frames
-        results[source][motion] = bench_motion(motion, source, frames, args.fps, args.rows, not args.no_progress)
+        results[source][motion] = bench_motion(motion, source, frames, args.fps, args.rows, not args.no_progress,
+                                               args.cache)
     report = {
         "command": "spinemocap bench opensim " + " ".join(
             [f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
@@ -101,7 +104,8 @@ def headline(results: dict) -> dict:
     return out
 
 
-def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, progress: bool) -> dict:
+def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, progress: bool,
+                 cache: Path | None = None) -> dict:
     """One studio motion from one marker source: IK and geometric angles scored."""
     from ..analysis.angles import AngleSettings, compute_angles
     from ..analysis.benchmark import HIGH, LOW, studio_motion
@@ -112,7 +116,7 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     data = studio_motion(motion, frames, fps, rows)
     tape = data["tape"]
     if source == "tracked":
-        markers = tracked_markers(data["scene"], progress)
+        markers = tracked_markers(data["scene"], progress, cache and cache / f"markers_{motion}_{frames}_{fps:.4g}.csv")
     else:
         markers = MarkerTable.from_arrays(data["labels"], data["dots"], fps=fps)
     applied = data["applied"] - data["applied"][0]
@@ -173,9 +177,15 @@ def score(measured: np.ndarray, expected_change: np.ndarray, axes: list[int]) ->
     return out
 
 
-def tracked_markers(scene, progress: bool):
-    """Render the scene and track it with the shipped detector (sequence mode)."""
+def tracked_markers(scene, progress: bool, cache: Path | None = None):
+    """Render the scene and track it with the shipped detector (sequence mode); with ``cache``,
+    read the markers from there when present, else write them there."""
+    import exporters
+
     from ..track.pipeline import TrackingWarning, make_detector, run_tracking
+
+    if cache is not None and cache.is_file():
+        return exporters.read(cache)
 
     detect = make_detector("net")
 
@@ -189,12 +199,15 @@ def tracked_markers(scene, progress: bool):
         warnings.simplefilter("ignore", TrackingWarning)
         result = run_tracking(views(), scene.rig, scene.tape, scene.fps, up=scene.subject()["up"],
                               progress=progress, n_frames=scene.n_frames)
+    if cache is not None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        exporters.write(result.table, cache)
     return result.table
 
 
 def format_table(results: dict) -> str:
-    lines = [f"{'source':<13}{'motion':<10}{'method':<11}{'flex RMSE':>10}{'lat RMSE':>9}{'rot RMSE':>9}"
-             f"{'R2 (scored)':>12}{'xtalk':>7}{'mkr RMS mm':>11}{'ms/frame':>9}"]
+    lines = [(f"{'source':<13}{'motion':<10}{'method':<11}{'flex RMSE':>10}{'lat RMSE':>9}{'rot RMSE':>9}"
+              f"{'R2 (scored)':>12}{'xtalk':>7}{'mkr RMS mm':>11}{'ms/frame':>9}")]
     for source, runs in results.items():
         for motion, run in runs.items():
             for method in ("ik", "geometric"):

@@ -179,8 +179,13 @@ def _build_and_place(work: Path, rows, levels: LevelRows, tape: TapeSpec, static
     model = build_model(geometry, plan, [(labels[i], int(bodies[d]), expected[d]) for i, d in enumerate(placed)])
     model.printToXML(str(work / "model_generic.osim"))
     st = static.markers
-    write_trc(work / "markers_static.trc", labels, st.times, st.positions[:, placed], st.fps)
-    setup = write_scale_setup(work, "model_generic.osim", "markers_static.trc", static.time_range, labels,
+    times, positions, time_range = st.times, st.positions[:, placed], static.time_range
+    if len(times) == 1:  # MarkerPlacer averages over a time range: a one-frame trial is written twice
+        times = np.array([times[0], times[0] + 1.0 / st.fps])
+        positions = np.repeat(positions, 2, axis=0)
+        time_range = (float(times[0]), float(times[1]))
+    write_trc(work / "markers_static.trc", labels, times, positions, st.fps)
+    setup = write_scale_setup(work, "model_generic.osim", "markers_static.trc", time_range, labels,
                               np.ones(len(labels)), "model.osim", "static_pose.mot")
     run_scale(setup)
     placement = check_placement(work / "model.osim", labels, expected[placed], source)
