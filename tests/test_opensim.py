@@ -99,6 +99,8 @@ def test_markers_land_on_the_vertebra_of_the_level_map(studio, tmp_path):
 
 
 def test_ik_on_a_studio_capture_meets_the_marker_rms_bound(studio, tmp_path):
+    from spinemocap.opensim.tools import read_storage
+
     result = _run(studio, tmp_path, depth_scale=None, fit_frames=FRAMES)
     s = result.summary
     assert s["marker_rms_mm"] <= 2.0 and s["marker_rms_mm_max"] <= 3.0
@@ -110,8 +112,7 @@ def test_ik_on_a_studio_capture_meets_the_marker_rms_bound(studio, tmp_path):
     assert total.iloc[0] == pytest.approx(0.0, abs=1.0) and total.max() > 5.0
     header = (result.out_dir / "spine_angles.csv").read_text().splitlines()[0]
     assert "angles deg" in header and "mm" in header
-    times, labels, values, degrees = __import__("spinemocap.opensim.tools", fromlist=["x"]).read_storage(
-        result.out_dir / "ik.mot")
+    times, _, _, degrees = read_storage(result.out_dir / "ik.mot")
     assert degrees and len(times) == FRAMES
     assert (result.out_dir / "spine_angles.png").stat().st_size > 10_000
 

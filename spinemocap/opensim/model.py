@@ -121,7 +121,7 @@ def plan_model(geometry: SpineGeometry, marker_bodies: np.ndarray, row_bodies: n
             for j in members[1:]:
                 _couple(plan, j, members[0], (1, 2))
         return plan
-    with_rows = [j for j in plan.driven if j.index in set(int(b) for b in row_bodies)]
+    with_rows = [j for j in plan.driven if j.index in {int(b) for b in row_bodies}]
     for j in plan.driven:
         if j in with_rows or not with_rows:
             continue
