@@ -36,8 +36,8 @@ osim = pytest.importorskip("opensim")
 def studio():
     import torch
 
-    from spinemocap.analysis.benchmark import studio_motion
     from spinemocap.analysis.levels import LevelMap
+    from spinemocap.bench.analysis import studio_motion
 
     torch.set_num_threads(1)
     data = studio_motion("mixed", FRAMES, FPS, 13)

@@ -16,12 +16,11 @@ two rows with :func:`spinemocap.analysis.angles.compute_angles`.
 
 from __future__ import annotations
 
-import argparse
-import json
 import platform
 import tempfile
 import time
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -32,46 +31,23 @@ GOALS = {"marker_rms_mm": 2.0, "flexion_rmse_deg": 2.0, "lateral_rmse_deg": 3.0,
          "ik_frames_per_s": 20.0}
 
 
-def register_bench(subparsers) -> None:
-    p = subparsers.add_parser(
-        "opensim", help="OpenSim IK spine angles vs the studio's applied motion (RMSE, R^2, marker RMS), "
-                        "geometric angles as the peer",
-        description="Runs the studio's flexion, lateral, rotation and mixed motions through `spinemocap "
-                    "opensim` (model, MarkerPlacer, IK) on ground-truth and tracked markers and scores the "
-                    "IK angles between two tape levels against the applied ones, beside the geometric "
-                    "angles of the same markers. See spinemocap/commands/bench_opensim.py.")
-    p.add_argument("--frames", type=int, default=100, help="frames per motion (default 100)")
-    p.add_argument("--fps", type=float, default=100 / 3, help="frame rate (default 33.3: 3 s of motion)")
-    p.add_argument("--rows", type=int, default=13, help="tape rows (default 13)")
-    p.add_argument("--motions", nargs="+", default=list(MOTIONS), choices=MOTIONS)
-    p.add_argument("--sources", nargs="+", default=["groundtruth", "tracked"], choices=("groundtruth", "tracked"))
-    p.add_argument("--tracked-frames", type=int, help="frames to render and track per motion (default: --frames)")
-    p.add_argument("--json", type=Path, help="write the numbers here")
-    p.add_argument("--cache", type=Path, help="keep the tracked markers here (markers_<motion>_<frames>.csv) and "
-                                              "reuse them on the next run instead of rendering and tracking again")
-    p.add_argument("--no-progress", action="store_true")
-    p.set_defaults(func=run_bench)
-
-
-def run_bench(args: argparse.Namespace) -> int:
+def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[str] = ("groundtruth", "tracked"),
+                          frames: int = 100, fps: float = 100 / 3, rows: int = 13, tracked_frames: int | None = None,
+                          cache: Path | None = None, progress: bool = True) -> dict:
+    """Every (motion, source) pair scored (see the module docstring), the headline numbers and
+    the goals; ``cache``: folder to keep and reuse the tracked markers."""
     from tqdm import tqdm
 
-    from ..fileio import atomic_write
     from ..opensim import require_opensim
 
     require_opensim()
     started = time.time()
-    results: dict = {source: {} for source in args.sources}
-    jobs = [(m, s) for m in args.motions for s in args.sources]
-    for motion, source in tqdm(jobs, desc="motions x sources", disable=args.no_progress):
-        frames = args.tracked_frames or args.frames if source == "tracked" else args.frames
-        results[source][motion] = bench_motion(motion, source, frames, args.fps, args.rows, not args.no_progress,
-                                               args.cache)
-    report = {
-        "command": "spinemocap bench opensim " + " ".join(
-            [f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
-             "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources)]
-            + ([f"--tracked-frames {args.tracked_frames}"] if args.tracked_frames else [])),
+    results: dict = {source: {} for source in sources}
+    jobs = [(m, s) for m in motions for s in sources]
+    for motion, source in tqdm(jobs, desc="motions x sources", disable=not progress):
+        n = (tracked_frames or frames) if source == "tracked" else frames
+        results[source][motion] = bench_motion(motion, source, n, fps, rows, progress, cache)
+    return {
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
         "date": time.strftime("%Y-%m-%d"),
         "goals": GOALS,
@@ -79,12 +55,6 @@ def run_bench(args: argparse.Namespace) -> int:
         "sources": results,
         "wall_s": round(time.time() - started, 1),
     }
-    print(format_table(results))
-    if args.json:
-        with atomic_write(args.json) as handle:
-            json.dump(report, handle, indent=1, default=float)
-        print(f"numbers: {args.json}")
-    return 0
 
 
 def headline(results: dict) -> dict:
@@ -108,10 +78,10 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
                  cache: Path | None = None) -> dict:
     """One studio motion from one marker source: IK and geometric angles scored."""
     from ..analysis.angles import AngleSettings, compute_angles
-    from ..analysis.benchmark import HIGH, LOW, studio_motion
     from ..analysis.levels import LevelMap
     from ..markers import MarkerTable
     from ..opensim import run_opensim
+    from .analysis import HIGH, LOW, studio_motion
 
     data = studio_motion(motion, frames, fps, rows)
     tape = data["tape"]
@@ -163,7 +133,7 @@ def ik_angles(result, lo: int, hi: int) -> np.ndarray:
 def score(measured: np.ndarray, expected_change: np.ndarray, axes: list[int]) -> dict:
     """RMSE, R^2 and gain of the change from frame 0 on the scored ``axes``; crosstalk (RMS, deg)
     on the others (single-axis motions)."""
-    from ..analysis.benchmark import fit_stats
+    from .analysis import fit_stats
 
     change = measured - measured[0]
     out: dict = {}
@@ -182,7 +152,7 @@ def tracked_markers(scene, progress: bool, cache: Path | None = None):
     read the markers from there when present, else write them there."""
     import exporters
 
-    from ..track.pipeline import TrackingWarning, make_detector, run_tracking
+    from ..app.run import TrackingWarning, make_detector, run_tracking
 
     if cache is not None and cache.is_file():
         return exporters.read(cache)

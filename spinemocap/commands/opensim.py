@@ -1,10 +1,12 @@
 """``spinemocap opensim RESULTS --capture CAPTURE --out DIR``: a multi-segment spine model carrying
 the tape's markers, placed on a static trial by OpenSim's MarkerPlacer and solved by its
-InverseKinematicsTool (see :mod:`spinemocap.opensim`)."""
+InverseKinematicsTool (see :mod:`spinemocap.opensim`); ``spinemocap bench opensim``: arguments and
+printing, the benchmark is :mod:`spinemocap.bench.opensim`."""
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 
@@ -61,8 +63,8 @@ def run_opensim_command(args: argparse.Namespace) -> int:
     from ..opensim import OpenSimSettings, require_opensim, run_opensim
 
     require_opensim()
-    from ..analysis.batch import find_level_map
     from ..analysis.levels import LevelMap
+    from ..app.batch import find_level_map
     from ..capture import Capture
     from ..fileio import InputError
 
@@ -104,4 +106,47 @@ def run_opensim_command(args: argparse.Namespace) -> int:
                  "ik_marker_errors.sto", "spine_angles.csv", "spine_angles.png", "summary.json"):
         if (args.out / name).is_file():
             print(f"  {args.out / name}")
+    return 0
+
+
+def register_bench(subparsers) -> None:
+    p = subparsers.add_parser(
+        "opensim", help="OpenSim IK spine angles vs the studio's applied motion (RMSE, R^2, marker RMS), "
+                        "geometric angles as the peer",
+        description="Runs the studio's flexion, lateral, rotation and mixed motions through `spinemocap "
+                    "opensim` (model, MarkerPlacer, IK) on ground-truth and tracked markers and scores the "
+                    "IK angles between two tape levels against the applied ones, beside the geometric "
+                    "angles of the same markers. See spinemocap/bench/opensim.py.")
+    p.add_argument("--frames", type=int, default=100, help="frames per motion (default 100)")
+    p.add_argument("--fps", type=float, default=100 / 3, help="frame rate (default 33.3: 3 s of motion)")
+    p.add_argument("--rows", type=int, default=13, help="tape rows (default 13)")
+    p.add_argument("--motions", nargs="+", default=["flexion", "lateral", "rotation", "mixed"],
+                   choices=("flexion", "lateral", "rotation", "mixed"))
+    p.add_argument("--sources", nargs="+", default=["groundtruth", "tracked"], choices=("groundtruth", "tracked"))
+    p.add_argument("--tracked-frames", type=int, help="frames to render and track per motion (default: --frames)")
+    p.add_argument("--cache", type=Path, help="keep the tracked markers here (markers_<motion>_<frames>_<fps>.csv) "
+                                              "and reuse them instead of rendering and tracking again")
+    p.add_argument("--json", type=Path, help="write the numbers here")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=run_bench)
+
+
+def run_bench(args: argparse.Namespace) -> int:
+    from ..bench.opensim import format_table, run_opensim_benchmark
+    from ..fileio import atomic_write
+
+    report = run_opensim_benchmark(args.motions, args.sources, args.frames, args.fps, args.rows,
+                                   args.tracked_frames, args.cache, not args.no_progress)
+    report["command"] = " ".join(
+        ["spinemocap bench opensim", f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
+         "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources)]
+        + ([f"--tracked-frames {args.tracked_frames}"] if args.tracked_frames else []))
+    print(format_table(report["sources"]))
+    print("headline (" + report["headline_source"] + "): " + ", ".join(
+        f"{k} {report[k]:.2f}" for k in ("flexion_rmse_deg", "lateral_rmse_deg", "rotation_rmse_deg",
+                                         "marker_rms_mm", "ik_ms_per_frame") if k in report))
+    if args.json:
+        with atomic_write(args.json) as handle:
+            json.dump(report, handle, indent=1, default=float)
+        print(f"numbers: {args.json}")
     return 0

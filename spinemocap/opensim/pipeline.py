@@ -383,7 +383,7 @@ def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np
         for why in str(text).split("; "):
             reasons[why] = reasons.get(why, 0) + 1
     bodies: dict[str, list[str]] = {}
-    for label, d in zip(labels, placed.placed):
+    for label in labels:
         name = body_name(geometry.names[geometry.row_body[int(label[1:3]) - 1]])
         bodies.setdefault(name, []).append(label)
     ranges = {c: [float(np.nanmin(angles[c])), float(np.nanmax(angles[c]))]
