@@ -160,3 +160,25 @@ def test_missing_samples_are_excluded_not_zero(studio, tmp_path):
     ik = ET.parse(result.out_dir / "setup_ik.xml").getroot()
     task = next(t for t in ik.iter("IKMarkerTask") if t.get("name") == studio["labels"][12])
     assert float(task.find("weight").text) == pytest.approx(weights[studio["labels"][12]], abs=1e-3)
+
+
+def test_markers_on_a_lab_model(studio, base_run, tmp_path):
+    from spinemocap.opensim.labmodel import run_lab_model
+
+    lab = osim.Model(str(base_run.out_dir / "model_generic.osim"))  # stands in for a lab's model
+    lab.updMarkerSet().clearAndDestroy()
+    lab.setName("lab_spine")
+    lab.printToXML(str(tmp_path / "lab.osim"))
+    (tmp_path / "bodies.toml").write_text("[bodies]\nL4 = 'L4'\nL2 = 'L2'\nL1 = 'L1'\nT12 = 'T12'\nT10 = 'T10'\n"
+                                          "T8 = 'T8'\nT6 = 'T6'\n")
+    result = run_lab_model(studio["markers"], studio["tape"], studio["levels"], studio["up"], studio["facing"],
+                           tmp_path / "out", tmp_path / "lab.osim", tmp_path / "bodies.toml")
+    s = result.summary
+    assert s["marker_rms_mm"] <= 2.0
+    # rows over unmapped vertebrae go to the nearest mapped one: L3's rows onto L4 or L2, T11's onto T12/T10
+    assert set(s["markers_by_body"]) == {"L4", "L2", "L1", "T12", "T10", "T8", "T6"}
+    assert "L2_L3_extension" in result.angles.columns and (tmp_path / "out" / "setup_ik.xml").is_file()
+    with pytest.raises(InputError, match="not in"):
+        (tmp_path / "bad.toml").write_text("L4 = 'no_such_body'\n")
+        run_lab_model(studio["markers"], studio["tape"], studio["levels"], studio["up"], studio["facing"],
+                      tmp_path / "out2", tmp_path / "lab.osim", tmp_path / "bad.toml")

@@ -33,6 +33,7 @@ from ..markers import MarkerTable
 from ..tape import TapeSpec
 from .geometry import (
     LevelRows,
+    RowFrames,
     SpineGeometry,
     check_facing,
     expected_marker_locations,
@@ -93,7 +94,7 @@ class OpenSimResult:
     out_dir: Path
     angles: pd.DataFrame
     summary: dict
-    plan: ModelPlan
+    plan: ModelPlan | None  # None on a lab's own model
     geometry: SpineGeometry
     files: dict[str, Path] = field(default_factory=dict)
 
@@ -134,7 +135,7 @@ def tape_markers(markers: MarkerTable, tape: TapeSpec, axes: np.ndarray, source:
 
 
 @dataclass
-class _Static:
+class StaticTrial:
     """The static trial: median positions (D, 3) mm, its markers for the TRC and time range."""
 
     positions: np.ndarray
@@ -143,13 +144,13 @@ class _Static:
 
 
 def _static(data: TapeMarkers, static: MarkerTable | None, tape: TapeSpec, axes: np.ndarray,
-            settings: OpenSimSettings, source: str | None) -> _Static:
+            settings: OpenSimSettings, source: str | None) -> StaticTrial:
     if static is not None:
         st = tape_markers(static, tape, axes, source)
     else:
         n = max(1, min(settings.static_frames, len(data.times)))
         st = TapeMarkers(data.labels, data.times[:n], data.positions[:n], data.status[:n], data.fps)
-    return _Static(static_positions(st.positions), st, (float(st.times[0]), float(st.times[-1])))
+    return StaticTrial(static_positions(st.positions), st, (float(st.times[0]), float(st.times[-1])))
 
 
 @dataclass
@@ -162,7 +163,7 @@ class _Placed:
     placement: dict
 
 
-def _build_and_place(work: Path, rows, levels: LevelRows, tape: TapeSpec, static: _Static, depth_scale: float,
+def _build_and_place(work: Path, rows, levels: LevelRows, tape: TapeSpec, static: StaticTrial, depth_scale: float,
                      coupling: str, source: str | None) -> _Placed:
     """Build ``model_generic.osim`` in ``work`` and run MarkerPlacer (``setup_scale.xml``) to
     ``model.osim``; the placement is checked against the anatomy."""
@@ -178,6 +179,15 @@ def _build_and_place(work: Path, rows, levels: LevelRows, tape: TapeSpec, static
     labels = [static.markers.labels[d] for d in placed]
     model = build_model(geometry, plan, [(labels[i], int(bodies[d]), expected[d]) for i, d in enumerate(placed)])
     model.printToXML(str(work / "model_generic.osim"))
+    place_markers(work, labels, placed, static)
+    placement = check_placement(work / "model.osim", labels, expected[placed], source)
+    return _Placed(geometry, plan, labels, placed, expected[placed], placement)
+
+
+def place_markers(work: Path, labels: list[str], placed: np.ndarray, static: StaticTrial) -> None:
+    """``markers_static.trc`` and ``setup_scale.xml`` in ``work``; MarkerPlacer moves the markers
+    of ``model_generic.osim`` onto the static trial and writes ``model.osim`` (+ ``static_pose.mot``,
+    radians)."""
     st = static.markers
     times, positions, time_range = st.times, st.positions[:, placed], static.time_range
     if len(times) == 1:  # MarkerPlacer averages over a time range: a one-frame trial is written twice
@@ -188,19 +198,18 @@ def _build_and_place(work: Path, rows, levels: LevelRows, tape: TapeSpec, static
     setup = write_scale_setup(work, "model_generic.osim", "markers_static.trc", time_range, labels,
                               np.ones(len(labels)), "model.osim", "static_pose.mot")
     run_scale(setup)
-    placement = check_placement(work / "model.osim", labels, expected[placed], source)
-    return _Placed(geometry, plan, labels, placed, expected[placed], placement)
 
 
-def _inverse_kinematics(work: Path, placed: _Placed, data: TapeMarkers, frames: np.ndarray,
-                        accuracy: float) -> float:
-    """``markers_opensim.trc`` (the given frames), ``setup_ik.xml``, ``ik.mot`` and
-    ``ik_marker_errors.sto`` in ``work``; returns IK seconds."""
-    positions = data.positions[frames][:, placed.placed]
-    write_trc(work / "markers_opensim.trc", placed.labels, data.times[frames], positions, data.fps)
-    weights = marker_weights(data.status[frames][:, placed.placed])
+def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: TapeMarkers, frames: np.ndarray,
+                       accuracy: float) -> float:
+    """``markers_opensim.trc`` (the given frames, the ``placed`` dots named ``labels``),
+    ``setup_ik.xml`` on ``model.osim``, ``ik.mot`` and ``ik_marker_errors.sto`` in ``work``;
+    returns IK seconds."""
+    positions = data.positions[frames][:, placed]
+    write_trc(work / "markers_opensim.trc", labels, data.times[frames], positions, data.fps)
+    weights = marker_weights(data.status[frames][:, placed])
     setup = write_ik_setup(work, "model.osim", "markers_opensim.trc",
-                           (float(data.times[frames[0]]), float(data.times[frames[-1]])), placed.labels,
+                           (float(data.times[frames[0]]), float(data.times[frames[-1]])), labels,
                            weights, "ik.mot", accuracy)
     started = time.perf_counter()
     run_ik(setup)
@@ -209,7 +218,7 @@ def _inverse_kinematics(work: Path, placed: _Placed, data: TapeMarkers, frames: 
     return seconds
 
 
-def fit_depth_scale(rows, levels: LevelRows, tape: TapeSpec, static: _Static, data: TapeMarkers,
+def fit_depth_scale(rows, levels: LevelRows, tape: TapeSpec, static: StaticTrial, data: TapeMarkers,
                     settings: OpenSimSettings, folder: Path, source: str | None = None) -> tuple[float, dict]:
     """Functional calibration of the depth of the joint centres under the skin: the factor on
     the published depths that minimises the mean IK marker RMS over up to
@@ -225,7 +234,7 @@ def fit_depth_scale(rows, levels: LevelRows, tape: TapeSpec, static: _Static, da
         if key not in tried:
             work = Path(tempfile.mkdtemp(prefix="depth.", dir=folder))
             placed = _build_and_place(work, rows, levels, tape, static, factor, settings.coupling, source)
-            _inverse_kinematics(work, placed, data, frames, settings.accuracy)
+            inverse_kinematics(work, placed.labels, placed.placed, data, frames, settings.accuracy)
             _, labels, err, _ = read_storage(work / "ik_marker_errors.sto")
             tried[key] = float(1000.0 * np.mean(err[:, labels.index("marker_error_RMS")]))
         return tried[key]
@@ -245,20 +254,32 @@ def fit_depth_scale(rows, levels: LevelRows, tape: TapeSpec, static: _Static, da
     return float(best), dict(sorted(tried.items()))
 
 
+def prepare(markers: MarkerTable, tape: TapeSpec, up: Sequence[float], facing: Sequence[float],
+            static: MarkerTable | None, settings: OpenSimSettings,
+            source: str | None) -> tuple[TapeMarkers, StaticTrial, RowFrames, float]:
+    """The tape markers in OpenSim axes, the static trial, its rows and the facing check."""
+    quiet_opensim()
+    axes = opensim_axes(up, facing, source)
+    data = tape_markers(markers, tape, axes, source)
+    st = _static(data, static, tape, axes, settings, source)
+    rows = row_frames(st.positions, tape, source)
+    return data, st, rows, check_facing(rows, axes, source)
+
+
+def work_folder(out_dir: Path) -> Path:
+    """A temporary folder beside ``out_dir`` where a run builds its files (see :func:`publish`)."""
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+
+
 def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Sequence[float],
                 facing: Sequence[float], out_dir: str | os.PathLike, static: MarkerTable | None = None,
                 settings: OpenSimSettings = OpenSimSettings(), source: str | None = None) -> OpenSimResult:
     """Build, place and solve; see the module docstring. ``source`` names the input in errors."""
     osim = require_opensim()
-    quiet_opensim()
+    data, st, rows, facing_error = prepare(markers, tape, up, facing, static, settings, source)
     out_dir = Path(out_dir)
-    axes = opensim_axes(up, facing, source)
-    data = tape_markers(markers, tape, axes, source)
-    st = _static(data, static, tape, axes, settings, source)
-    rows = row_frames(st.positions, tape, source)
-    facing_error = check_facing(rows, axes, source)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    work = work_folder(out_dir)
     try:
         depth_fit: dict[float, float] = {}
         depth_scale = settings.depth_scale
@@ -267,7 +288,8 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Seq
             for sub in work.iterdir():
                 shutil.rmtree(sub, ignore_errors=True)
         placed = _build_and_place(work, rows, levels, tape, st, depth_scale, settings.coupling, source)
-        ik_seconds = _inverse_kinematics(work, placed, data, np.arange(len(data.times)), settings.accuracy)
+        ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
+                                        settings.accuracy)
         angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
         weights = marker_weights(data.status[:, placed.placed])
         summary = _summary(data, placed, angles, flags, ik_seconds, facing_error, weights, settings, osim)
@@ -289,13 +311,13 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Seq
             handle.write(angles_plot_png(angles, summary))
         with atomic_write(work / "summary.json") as handle:
             json.dump(summary, handle, indent=1)
-        files = _publish(work, out_dir)
+        files = publish(work, out_dir)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return OpenSimResult(out_dir, angles, summary, placed.plan, placed.geometry, files)
 
 
-def _publish(work: Path, out_dir: Path) -> dict[str, Path]:
+def publish(work: Path, out_dir: Path) -> dict[str, Path]:
     """Rename every finished file from the work folder into ``out_dir`` (replacing old ones)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {}
