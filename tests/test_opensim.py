@@ -182,3 +182,22 @@ def test_markers_on_a_lab_model(studio, base_run, tmp_path):
         (tmp_path / "bad.toml").write_text("L4 = 'no_such_body'\n")
         run_lab_model(studio["markers"], studio["tape"], studio["levels"], studio["up"], studio["facing"],
                       tmp_path / "out2", tmp_path / "lab.osim", tmp_path / "bad.toml")
+
+
+def test_batch_with_opensim_shows_ik_beside_the_tape_angles(tmp_path):
+    from spinemocap.analysis.bent_tape import write_bent_capture
+    from spinemocap.app.batch import run_batch
+    from spinemocap.app.report import write_report
+    from spinemocap.tape import TapeSpec
+
+    root = tmp_path / "study"
+    write_bent_capture(root / "S01" / "pre" / "trial01", TapeSpec(n_rows=13), 30.0, n_frames=12, fps=12.0)
+    (root / "S01" / "levels.toml").write_text('[levels]\nS1 = 1\n"T12/L1" = 7\nT9 = 13\n')
+    result = run_batch(root, tmp_path / "out", source="groundtruth", workers=1, progress=False, opensim=True)
+    trial = result.trials[0]
+    assert trial["status"] == "ok" and trial["opensim"]["status"] == "ok", trial
+    assert trial["opensim"]["marker_rms_mm"] <= 2.0
+    ik = (tmp_path / "out" / "S01" / "pre" / "trial01" / "opensim" / "spine_angles.csv").read_text()
+    assert "lumbar_flexion" in ik
+    page = write_report(tmp_path / "out")["html"].read_text()
+    assert "OpenSim IK: marker RMS" in page

@@ -53,6 +53,7 @@ SOURCES = ("tracked", "groundtruth")
 SUMMARY = "summary.json"
 ANGLES = "angles.csv"
 MARKERS = "markers.csv"
+OPENSIM_DIR = "opensim"  # spinemocap opensim's outputs per trial (run_batch(opensim=True))
 
 
 @dataclass
@@ -83,6 +84,7 @@ class TrialJob:
     settings: AngleSettings = field(default_factory=AngleSettings)
     force: bool = False
     detector: str = "net"
+    opensim: bool = False  # also run spinemocap opensim into <trial out>/opensim
 
     def summary_head(self) -> dict:
         """The keys every trial summary starts with (ok, failed or lost with its worker)."""
@@ -166,7 +168,8 @@ def process_trial(job: TrialJob) -> dict:
         summary_path = out / SUMMARY
         if not job.force and _up_to_date(summary_path, inputs):
             cached = json.loads(summary_path.read_text())
-            return {**cached, "skipped": True}
+            if not job.opensim or "opensim" in cached:
+                return {**cached, "skipped": True}
         summary = {**base, **_analyse(job, inputs)}
     except Exception as exc:  # one bad trial never stops the batch: record why it failed
         reason = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
@@ -189,7 +192,9 @@ def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
     with atomic_write(out / ANGLES) as handle:
         result.table.to_csv(handle, index=False, float_format="%.4f")
     fps = markers.fps
+    extra = {"opensim": _opensim(markers, capture, levels, out / OPENSIM_DIR)} if job.opensim else {}
     return {
+        **extra,
         "status": "ok", "reason": "",
         "n_frames": int(len(result.table)), "fps": fps,
         "duration_s": float(len(result.table) / fps),
@@ -200,6 +205,22 @@ def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
         "notes": result.notes,
         "stats": result.summary(),
     }
+
+
+def _opensim(markers: MarkerTable, capture: Capture, levels: LevelMap, out: Path) -> dict:
+    """spinemocap opensim on the trial's markers; a trial OpenSim cannot solve keeps its geometric
+    angles and records why."""
+    from ..opensim import run_opensim
+
+    try:
+        result = run_opensim(markers, capture.tape, levels, capture.up,
+                             capture.subject.get("facing", (0.0, -1.0, 0.0)), out, source=str(capture.root))
+    except InputError as exc:
+        return {"status": "failed", "reason": str(exc)}
+    s = result.summary
+    return {"status": "ok", "marker_rms_mm": s["marker_rms_mm"], "marker_rms_mm_max": s["marker_rms_mm_max"],
+            "ms_per_frame": s["ms_per_frame"], "flagged_frames": len(s["flagged_frames"]),
+            "driven_joints": s["driven_joints"], "out_dir": str(out)}
 
 
 def _input_files(job: TrialJob) -> list[Path]:
@@ -345,12 +366,13 @@ def trial_out_dir(out: Path, trial: Trial) -> Path:
 def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = "tracked",
               workers: int = 2, scheduler: str | None = None, levels_file: str | None = None,
               settings: AngleSettings | None = None, force: bool = False,
-              detector: str = "net", progress: bool = True) -> BatchResult:
+              detector: str = "net", progress: bool = True, opensim: bool = False) -> BatchResult:
     """Process every trial under ``root`` into ``out`` (see the module docstring).
 
     ``workers``: local processes (1 = in this process); ``scheduler``: a Dask distributed
     scheduler address (``tcp://HOST:PORT``) -- then the cluster's workers run the trials.
     ``detector``: the tracker's dot detector for ``source="tracked"`` (net, classical, mask).
+    ``opensim``: also solve each trial with ``spinemocap opensim`` (into ``<trial>/opensim``).
     """
     if source not in SOURCES:
         raise InputError(None, f"unknown marker source {source!r}; expected one of {SOURCES}")
@@ -358,7 +380,8 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = 
     out.mkdir(parents=True, exist_ok=True)
     trials = discover(root)
     settings = settings or AngleSettings()
-    jobs = [TrialJob(t, str(trial_out_dir(out, t)), source, levels_file, settings, force, detector) for t in trials]
+    jobs = [TrialJob(t, str(trial_out_dir(out, t)), source, levels_file, settings, force, detector, opensim)
+            for t in trials]
     handler = logging.FileHandler(out / "batch.log")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
     log.addHandler(handler)
@@ -447,6 +470,8 @@ def load_results(out: str | os.PathLike) -> list[dict]:
         raise InputError(out, "batch output folder not found")
     summaries = []
     for path in sorted(out.rglob(SUMMARY)):
+        if path.parent.name == OPENSIM_DIR:  # spinemocap opensim's own summary inside a trial
+            continue
         try:
             data = json.loads(path.read_text())
         except (OSError, ValueError) as exc:
