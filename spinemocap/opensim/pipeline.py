@@ -12,6 +12,14 @@ renamed into place at the end):
   (flexion = forward bending positive = -OpenSim extension; lateral bending toward the right
   positive; axial rotation toward the left positive), zero = the static posture,
 - ``summary.json`` and ``spine_angles.png``.
+
+Steps: the static trial (first frames, or a separate trial) fixes the tape's rows; the declared
+facing is checked against the tape (:func:`geometry.check_facing`); the depth of the joint
+centres under the skin is fitted unless given (:func:`fit_depth_scale`); the model is built
+(:mod:`model`), MarkerPlacer moves its markers onto the static trial and the placement is checked
+against the anatomy (:func:`check_placement`); IK solves every frame. Missing samples stay NaN
+(OpenSim skips them per frame); frames the result cannot vouch for are flagged in the CSV, the
+summary and the plot.
 """
 
 from __future__ import annotations
