@@ -9,8 +9,11 @@ back with OpenSim's own readers and converted explicitly.
 
 from __future__ import annotations
 
+import contextlib
 import os
-from collections.abc import Sequence
+import sys
+import tempfile
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -130,12 +133,35 @@ def write_ik_setup(folder: Path, model_file: str, trc: str, time_range: tuple[fl
     return path
 
 
+@contextlib.contextmanager
+def _tool_output(setup: Path, tool: str) -> Iterator[None]:
+    """Hold back what OpenSim's tools print on the C++ side (model summaries, "Model is not
+    scaled" for a MarkerPlacer-only ScaleTool); on failure raise :class:`InputError` with it."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with tempfile.TemporaryFile(mode="w+b") as captured:
+        os.dup2(captured.fileno(), 1)
+        failure: BaseException | None = None
+        try:
+            yield
+        except (RuntimeError, InputError) as exc:
+            failure = exc
+        finally:
+            sys.stdout.flush()
+            os.dup2(saved, 1)
+            os.close(saved)
+        if failure is not None:
+            captured.seek(0)
+            text = captured.read().decode("utf-8", "replace").strip()[-2000:]
+            raise InputError(setup, f"OpenSim's {tool} failed: {failure}\n{text}") from None
+
+
 def run_scale(setup: Path) -> None:
     """Run a ScaleTool setup file (paths inside resolve against its folder)."""
     osim = require_opensim()
-    tool = osim.ScaleTool(str(setup))
-    if not tool.run():
-        raise InputError(setup, "OpenSim's ScaleTool (MarkerPlacer) failed; see the messages above")
+    with _tool_output(setup, "ScaleTool (MarkerPlacer)"):
+        if not osim.ScaleTool(str(setup)).run():
+            raise RuntimeError("run() returned false")
 
 
 def run_ik(setup: Path) -> None:
@@ -144,9 +170,9 @@ def run_ik(setup: Path) -> None:
     cwd = os.getcwd()
     os.chdir(setup.parent)
     try:
-        tool = osim.InverseKinematicsTool(setup.name)
-        if not tool.run():
-            raise InputError(setup, "OpenSim's InverseKinematicsTool failed; see the messages above")
+        with _tool_output(setup, "InverseKinematicsTool"):
+            if not osim.InverseKinematicsTool(setup.name).run():
+                raise RuntimeError("run() returned false")
     finally:
         os.chdir(cwd)
 
