@@ -93,6 +93,7 @@ class OpenSimSettings:
     depth_tolerance: float = 0.05
     fit_frames: int = 24
     coupling: str = "rows"  # see spinemocap.opensim.model.plan_model
+    prior_weight: float = 0.0  # IK weight (per rad^2) of the lateral/axial prior toward the static posture
 
 
 @dataclass
@@ -209,7 +210,7 @@ def place_markers(work: Path, labels: list[str], placed: np.ndarray, static: Sta
 
 
 def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: TapeMarkers, frames: np.ndarray,
-                       accuracy: float) -> float:
+                       accuracy: float, priors: dict[str, float] | None = None) -> float:
     """``markers_opensim.trc`` (the given frames, the ``placed`` dots named ``labels``),
     ``setup_ik.xml`` on ``model.osim``, ``ik.mot`` and ``ik_marker_errors.sto`` in ``work``;
     returns IK seconds."""
@@ -218,12 +219,22 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
     weights = marker_weights(data.status[frames][:, placed])
     setup = write_ik_setup(work, "model.osim", "markers_opensim.trc",
                            (float(data.times[frames[0]]), float(data.times[frames[-1]])), labels,
-                           weights, "ik.mot", accuracy)
+                           weights, "ik.mot", accuracy, priors)
     started = time.perf_counter()
     run_ik(setup)
     seconds = time.perf_counter() - started
     os.replace(work / "spinemocap_ik_marker_errors.sto", work / "ik_marker_errors.sto")
     return seconds
+
+
+def _priors(plan: ModelPlan, settings: OpenSimSettings) -> dict[str, float]:
+    """Weak coordinate tasks toward the static posture on every independent per-level lateral
+    bending and axial rotation: they choose among the distributions the markers cannot tell apart."""
+    if settings.prior_weight <= 0:
+        return {}
+    dependent = {d for d, _, _ in plan.couplers}
+    return {j.coordinate(dof): settings.prior_weight for j in plan.driven
+            for dof in ("lateral_bending", "axial_rotation") if j.coordinate(dof) not in dependent}
 
 
 def fit_depth_scale(rows, levels: LevelRows, tape: TapeSpec, static: StaticTrial, data: TapeMarkers,
@@ -242,7 +253,8 @@ def fit_depth_scale(rows, levels: LevelRows, tape: TapeSpec, static: StaticTrial
         if key not in tried:
             work = Path(tempfile.mkdtemp(prefix="depth.", dir=folder))
             placed = _build_and_place(work, rows, levels, tape, static, factor, settings.coupling, source)
-            inverse_kinematics(work, placed.labels, placed.placed, data, frames, settings.accuracy)
+            inverse_kinematics(work, placed.labels, placed.placed, data, frames, settings.accuracy,
+                               _priors(placed.plan, settings))
             _, labels, err, _ = read_storage(work / "ik_marker_errors.sto")
             tried[key] = float(1000.0 * np.mean(err[:, labels.index("marker_error_RMS")]))
         return tried[key]
@@ -297,7 +309,7 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Seq
                 shutil.rmtree(sub, ignore_errors=True)
         placed = _build_and_place(work, rows, levels, tape, st, depth_scale, settings.coupling, source)
         ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
-                                        settings.accuracy)
+                                        settings.accuracy, _priors(placed.plan, settings))
         angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
         weights = marker_weights(data.status[:, placed.placed])
         summary = _summary(data, placed, angles, flags, ik_seconds, facing_error, weights, settings, osim)

@@ -113,8 +113,10 @@ def write_scale_setup(folder: Path, generic_model: str, static_trc: str, time_ra
 
 
 def write_ik_setup(folder: Path, model_file: str, trc: str, time_range: tuple[float, float],
-                   labels: Sequence[str], weights: np.ndarray, output_motion: str, accuracy: float) -> Path:
-    """``setup_ik.xml``: one marker task per label; errors reported to ``<name>_ik_marker_errors.sto``."""
+                   labels: Sequence[str], weights: np.ndarray, output_motion: str, accuracy: float,
+                   priors: dict[str, float] | None = None) -> Path:
+    """``setup_ik.xml``: one marker task per label; errors reported to ``<name>_ik_marker_errors.sto``.
+    ``priors``: {coordinate: weight} of coordinate tasks pulling toward the default value (0)."""
     osim = require_opensim()
     tool = osim.InverseKinematicsTool()
     tool.setName("spinemocap")
@@ -127,7 +129,15 @@ def write_ik_setup(folder: Path, model_file: str, trc: str, time_range: tuple[fl
     tool.set_results_directory(".")
     tool.set_accuracy(float(accuracy))
     # get_IKTaskSet().cloneAndAppend() silently adds nothing from Python: use the upd_ accessor
-    _task_set(osim, labels, weights, tool.upd_IKTaskSet())
+    tasks = tool.upd_IKTaskSet()
+    _task_set(osim, labels, weights, tasks)
+    for coordinate, weight in (priors or {}).items():
+        task = osim.IKCoordinateTask()
+        task.setName(coordinate)
+        task.setApply(True)
+        task.setWeight(float(weight))
+        task.setValueType(osim.IKCoordinateTask.DefaultValue)
+        tasks.cloneAndAppend(task)
     path = folder / "setup_ik.xml"
     tool.printToXML(str(path))
     return path
