@@ -35,6 +35,10 @@ def register(subparsers) -> None:
                    help="rows: couple a vertebra's rotations to its neighbour's only when no tape row lies over "
                         "it (default); region: couple lateral bending and axial rotation over each region, as "
                         "the published lumbar models")
+    p.add_argument("--prior-weight", type=float, default=0.0,
+                   help="IK weight of a prior pulling every level's lateral bending and axial rotation toward the "
+                        "static posture (per rad^2; 0 = off, the default; ~1e-5 makes the per-level split stable "
+                        "against the solver accuracy at some cost in range, see docs/BENCHMARKS.md)")
     p.add_argument("--accuracy", type=float, default=1e-5, help="IK solver accuracy (default 1e-5)")
     p.add_argument("--model", type=Path, help="attach the markers to this lab model (.osim) instead of building one")
     p.add_argument("--bodies", type=Path, help="with --model: TOML mapping vertebrae to the model's bodies, "
@@ -82,7 +86,7 @@ def run_opensim_command(args: argparse.Namespace) -> int:
                          "comes from it (e.g. facing = [0.0, -1.0, 0.0])")
     static = read_results(args.static) if args.static else None
     settings = OpenSimSettings(static_frames=args.static_frames, accuracy=args.accuracy,
-                               depth_scale=args.depth_scale, coupling=args.coupling)
+                               depth_scale=args.depth_scale, coupling=args.coupling, prior_weight=args.prior_weight)
     if args.model is not None:
         from ..opensim.labmodel import run_lab_model
 
