@@ -84,7 +84,9 @@ class OpenSimSettings:
     """``static_frames``: frames from the start averaged as the static trial (when no static file);
     ``accuracy``: IK solver accuracy (OpenSim's default 1e-5); ``depth_scale``: factor on the
     published skin-to-vertebral-body depths, None = fit it to the trial (:func:`fit_depth_scale`,
-    golden section on ``depth_bounds`` to ``depth_tolerance`` over ``fit_frames`` frames)."""
+    golden section on ``depth_bounds`` to ``depth_tolerance`` over ``fit_frames`` frames);
+    ``coupling``: see :func:`spinemocap.opensim.model.plan_model`; ``prior_weight``: the
+    regularising prior on per-level lateral bending and axial rotation (:func:`_priors`)."""
 
     static_frames: int = 10
     accuracy: float = 1e-5
@@ -93,7 +95,10 @@ class OpenSimSettings:
     depth_tolerance: float = 0.05
     fit_frames: int = 24
     coupling: str = "rows"  # see spinemocap.opensim.model.plan_model
-    prior_weight: float = 0.0  # IK weight (per rad^2) of the lateral/axial prior toward the static posture
+    # IK weight (per rad^2, beside marker errors in m^2) of the prior toward the static posture on every
+    # level's lateral bending and axial rotation: 2e-6 keeps the per-level split from depending on the
+    # solver accuracy at a small cost in range (docs/BENCHMARKS.md); 0 = off
+    prior_weight: float = 2e-6
 
 
 @dataclass
