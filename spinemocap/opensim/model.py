@@ -20,8 +20,9 @@ Coupling (``CoordinateCouplerConstraint`` s with the ratios of the published ran
 cannot resolve on its own (no full row of dots over it) has its rotations coupled to its
 neighbour's; ``coupling="region"`` couples every level's lateral bending and axial rotation per
 region (lumbar: L5/S1 ... T12/L1; thoracic: T11/T12 ... C7/T1) as the published lumbar and
-thoracolumbar models do. The free per-level lateral bending and axial rotation also get a weak
-prior toward the static posture in the IK set-up (:func:`spinemocap.opensim.pipeline._priors`).
+thoracolumbar models do. On request the free per-level lateral bending and axial rotation also
+get a weak prior toward the static posture in the IK set-up
+(:func:`spinemocap.opensim.pipeline._priors`).
 """
 
 from __future__ import annotations

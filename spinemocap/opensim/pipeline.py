@@ -95,10 +95,10 @@ class OpenSimSettings:
     depth_tolerance: float = 0.05
     fit_frames: int = 24
     coupling: str = "rows"  # see spinemocap.opensim.model.plan_model
-    # IK weight (per rad^2, beside marker errors in m^2) of the prior toward the static posture on every
-    # level's lateral bending and axial rotation: 2e-6 keeps the per-level split from depending on the
-    # solver accuracy at a small cost in range (docs/BENCHMARKS.md); 0 = off
-    prior_weight: float = 2e-6
+    # IK weight (per rad^2, beside marker errors in m^2) of a prior toward the static posture on every
+    # level's lateral bending and axial rotation; 0 = off (default: on the studio it cost range and did
+    # not make the summed ranges independent of the solver accuracy, see docs/BENCHMARKS.md)
+    prior_weight: float = 0.0
 
 
 @dataclass
