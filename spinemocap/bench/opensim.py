@@ -112,7 +112,8 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
         "observed_share": completeness["observed"],
         "ik": {**score(ik, expected, axes), "marker_rms_mm": s["marker_rms_mm"],
                "marker_rms_mm_max": s["marker_rms_mm_max"], "ms_per_frame": s["ms_per_frame"],
-               "flagged_frames": len(s["flagged_frames"]), "driven_joints": len(s["driven_joints"])},
+               "flagged_frames": len(s["flagged_frames"]), "driven_joints": len(s["driven_joints"]),
+               "depth_scale": s["depth_scale"]["value"]},
         "geometric": {**score(peer, expected, axes), "ms_per_frame": geometric_ms},
     }
 
