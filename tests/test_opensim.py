@@ -132,6 +132,13 @@ def test_turning_the_capture_about_the_vertical_leaves_the_angles_unchanged(stud
     assert turned.summary["marker_rms_mm"] == pytest.approx(base.summary["marker_rms_mm"], abs=0.01)
 
 
+def test_a_subject_standing_a_little_turned_gets_its_own_sagittal_plane(studio, base_run, tmp_path):
+    turned = _run(studio, tmp_path, facing=_turn(studio["facing"], 30.0))  # declared 30 deg off the data
+    assert turned.summary["facing_error_deg"] == pytest.approx(30.0, abs=1.0)
+    columns = [c for c in base_run.angles.columns if c.startswith(("lumbar_", "thoracic_"))]
+    np.testing.assert_allclose(turned.angles[columns].to_numpy(), base_run.angles[columns].to_numpy(), atol=0.3)
+
+
 @pytest.mark.parametrize("facing", [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0)])
 def test_a_facing_wrong_for_the_data_is_a_clear_error(studio, tmp_path, facing):
     with pytest.raises(InputError, match=r"facing does not match the data.*subject faces about \[-?0\.0\d, -1\.00"):

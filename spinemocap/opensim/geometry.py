@@ -10,9 +10,12 @@ continued along the midline's end tangent with the generic centre spacings of
 :mod:`spinemocap.opensim.anatomy`, scaled by the ratio of the tape's arc length between the
 outermost mapped vertebrae to the generic spacing between them. Each vertebral body centre sits
 ``skin_depth x scale`` in front of its skin point, along the anterior axis of the subject's
-sagittal plane (from ``facing``, never from the data: a wrong facing then shows as markers beside
-the spine, which :func:`check_facing` and the placement check catch). A vertebra's frame is the
-ISB triple (X anterior, Y superior along the midline's sagittal tangent, Z right).
+sagittal plane. That plane is the tape's own (:func:`tape_front`: tangent x L->R, horizontal),
+once :func:`check_facing` has found it within :data:`FACING_LIMIT_DEG` of the declared ``facing``
+(further off is an error): a subject standing a little turned still gets joint axes that match
+its spine (with the declared plane, 40 deg off, pure flexion read 2.6 deg of lateral bending). A
+vertebra's frame is the ISB triple (X anterior, Y superior along the midline's sagittal tangent,
+Z right).
 """
 
 from __future__ import annotations
@@ -116,18 +119,26 @@ def row_frames(static: np.ndarray, tape: TapeSpec, source: str | None = None) ->
     return RowFrames(centre, right, out - out[0])
 
 
+def tape_front(rows: RowFrames) -> np.ndarray:
+    """Unit horizontal direction (OpenSim ground, Y up) the subject faces by the static tape: the
+    median over rows of the midline tangent x the L->R axis, made horizontal."""
+    idx = np.flatnonzero(rows.seen)
+    tangent = _unit(np.gradient(rows.centre[idx], rows.arc[idx], axis=0))
+    front = np.median(_unit(np.cross(tangent, rows.right[idx])), axis=0)
+    return _unit(np.array([front[0], 0.0, front[2]]))
+
+
 def check_facing(rows: RowFrames, axes: np.ndarray, source: str | None = None) -> float:
     """Angle (deg) between the tape's front (midline tangent x L->R axis, in OpenSim ground) and
     OpenSim's X (the declared facing). Raises :class:`InputError` naming the facing the data shows
     when it exceeds :data:`FACING_LIMIT_DEG`, or when the tape does not run upward."""
     idx = np.flatnonzero(rows.seen)
     tangent = _unit(np.gradient(rows.centre[idx], rows.arc[idx], axis=0))
-    front = np.median(_unit(np.cross(tangent, rows.right[idx])), axis=0)
     up = float(np.median(tangent[:, 1]))
     if up < 0.3:
         raise InputError(source, f"the tape does not run upward in the static trial (median tangent . up = {up:.2f}): "
                                  "check [subject] up in capture.toml or the row labels (R01 at the sacral end)")
-    horizontal = np.array([front[0], 0.0, front[2]])
+    horizontal = tape_front(rows)
     angle = float(np.degrees(np.arctan2(abs(horizontal[2]), horizontal[0])))
     if angle > FACING_LIMIT_DEG:
         lab = axes.T @ _unit(horizontal)
@@ -198,10 +209,11 @@ class _Midline:
         return inside + below + above
 
 
-def _sagittal_frame(tangent: np.ndarray) -> np.ndarray:
-    """(3, 3) columns (anterior, superior, right): superior = the tangent in the X-Y plane."""
-    s = _unit(np.array([tangent[0], tangent[1], 0.0]))
-    r = np.array([0.0, 0.0, 1.0])
+def _sagittal_frame(tangent: np.ndarray, front: np.ndarray) -> np.ndarray:
+    """(3, 3) columns (anterior, superior, right): right = horizontal, perpendicular to the
+    subject's ``front``; superior = the tangent in the sagittal plane."""
+    r = _unit(np.cross(front, np.array([0.0, 1.0, 0.0])))
+    s = _unit(tangent - np.dot(tangent, r) * r)
     return np.stack([np.cross(s, r), s, r], axis=-1)
 
 
@@ -249,7 +261,8 @@ def spine_geometry(rows: RowFrames, levels: LevelRows, depth_scale: float = 1.0,
     arc = np.array([arcs[n] for n in names])
     midline = _Midline(rows)
     skin = midline.point(arc)
-    frames = np.array([_sagittal_frame(t) for t in midline.tangent(arc)])
+    front = tape_front(rows)
+    frames = np.array([_sagittal_frame(t, front) for t in midline.tangent(arc)])
     depth = depth_scale * scale * np.array([skin_depth(n if n in ANATOMY else "T1") for n in names])
     centre = skin + depth[:, None] * frames[:, :, 0]
     # the vertebra under each row: nearest level by skin arc length (the pelvis carries S1)
