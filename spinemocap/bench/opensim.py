@@ -80,7 +80,7 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     from ..analysis.angles import AngleSettings, compute_angles
     from ..analysis.levels import LevelMap
     from ..markers import MarkerTable
-    from ..opensim import run_opensim
+    from ..opensim import OpenSimSettings, run_opensim
     from .analysis import HIGH, LOW, studio_motion
 
     data = studio_motion(motion, frames, fps, rows)
@@ -96,7 +96,9 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     lo, hi = data["rows"]
     levels = LevelMap.from_row_levels(data["row_levels"], tape.n_rows)
     with tempfile.TemporaryDirectory() as tmp:
-        result = run_opensim(markers, tape, levels, data["up"], data["facing"], Path(tmp) / "opensim")
+        # the static trial is the neutral first frame: the studio's motions start moving at once
+        result = run_opensim(markers, tape, levels, data["up"], data["facing"], Path(tmp) / "opensim",
+                             settings=OpenSimSettings(static_frames=1))
         ik = ik_angles(result, lo, hi)
     completeness = markers.completeness()
     t0 = time.perf_counter()
