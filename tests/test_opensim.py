@@ -29,7 +29,11 @@ def test_missing_opensim_says_how_to_install(monkeypatch, tmp_path):
         run_opensim_command(args)
 
 
-osim = pytest.importorskip("opensim")
+try:
+    import opensim as osim
+except ImportError:  # the extra is optional: everything below needs it
+    osim = None
+needs_opensim = pytest.mark.skipif(osim is None, reason="opensim not installed: pip install 'spinemocap[opensim]'")
 
 
 @pytest.fixture(scope="module")
@@ -61,6 +65,7 @@ def base_run(studio, tmp_path_factory):
     return _run(studio, tmp_path_factory.mktemp("base"))
 
 
+@needs_opensim
 def test_built_model_loads_and_initialises(studio, base_run):
     result = base_run
     model = osim.Model(str(result.out_dir / "model.osim"))
@@ -82,6 +87,7 @@ def test_built_model_loads_and_initialises(studio, base_run):
     osim.InverseKinematicsTool(str(result.out_dir / "setup_ik.xml"))
 
 
+@needs_opensim
 def test_markers_land_on_the_vertebra_of_the_level_map(studio, tmp_path):
     from spinemocap.analysis.levels import LevelMap
     from spinemocap.opensim.tools import marker_locations
@@ -98,6 +104,7 @@ def test_markers_land_on_the_vertebra_of_the_level_map(studio, tmp_path):
     assert placed["R06R"][1][2] > 10 and placed["R08L"][1][2] < -10
 
 
+@needs_opensim
 def test_ik_on_a_studio_capture_meets_the_marker_rms_bound(studio, tmp_path):
     from spinemocap.opensim.tools import read_storage
 
@@ -123,6 +130,7 @@ def _turn(points: np.ndarray, degrees: float) -> np.ndarray:
     return np.asarray(points, float) @ R.T
 
 
+@needs_opensim
 def test_turning_the_capture_about_the_vertical_leaves_the_angles_unchanged(studio, base_run, tmp_path):
     base = base_run
     turned_markers = MarkerTable.from_arrays(studio["labels"], _turn(studio["dots"], 130.0), fps=FPS)
@@ -132,6 +140,7 @@ def test_turning_the_capture_about_the_vertical_leaves_the_angles_unchanged(stud
     assert turned.summary["marker_rms_mm"] == pytest.approx(base.summary["marker_rms_mm"], abs=0.01)
 
 
+@needs_opensim
 def test_a_subject_standing_a_little_turned_gets_its_own_sagittal_plane(studio, base_run, tmp_path):
     turned = _run(studio, tmp_path, facing=_turn(studio["facing"], 30.0))  # declared 30 deg off the data
     assert turned.summary["facing_error_deg"] == pytest.approx(30.0, abs=1.0)
@@ -139,6 +148,7 @@ def test_a_subject_standing_a_little_turned_gets_its_own_sagittal_plane(studio, 
     np.testing.assert_allclose(turned.angles[columns].to_numpy(), base_run.angles[columns].to_numpy(), atol=0.3)
 
 
+@needs_opensim
 @pytest.mark.parametrize("facing", [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0)])
 def test_a_facing_wrong_for_the_data_is_a_clear_error(studio, tmp_path, facing):
     with pytest.raises(InputError, match=r"facing does not match the data.*subject faces about \[-?0\.0\d, -1\.00"):
@@ -146,6 +156,7 @@ def test_a_facing_wrong_for_the_data_is_a_clear_error(studio, tmp_path, facing):
     assert not (tmp_path / "out").exists()
 
 
+@needs_opensim
 def test_missing_samples_are_excluded_not_zero(studio, tmp_path):
     dots = studio["dots"].copy()
     status = np.full(dots.shape[:2], "observed", dtype=object)
@@ -169,6 +180,7 @@ def test_missing_samples_are_excluded_not_zero(studio, tmp_path):
     assert float(task.find("weight").text) == pytest.approx(weights[studio["labels"][12]], abs=1e-3)
 
 
+@needs_opensim
 def test_markers_on_a_lab_model(studio, base_run, tmp_path):
     from spinemocap.opensim.labmodel import run_lab_model
 
@@ -191,6 +203,7 @@ def test_markers_on_a_lab_model(studio, base_run, tmp_path):
                       tmp_path / "out2", tmp_path / "lab.osim", tmp_path / "bad.toml")
 
 
+@needs_opensim
 def test_batch_with_opensim_shows_ik_beside_the_tape_angles(tmp_path):
     from spinemocap.analysis.bent_tape import write_bent_capture
     from spinemocap.app.batch import run_batch
