@@ -1,5 +1,9 @@
 """Published thoracolumbar anthropometry the spine model is built from (generic adult, mm, degrees).
 
+The numbers below were entered as rounded mid values of the cited tables (not copied from a
+file); check them against the papers before relying on a single level's value. The model uses
+their ratios along the column, and the tape scales them to the subject.
+
 Every vertebra from T1 to L5 plus S1 (the sacral plateau) carries:
 
 - ``body_height``: vertebral body height (mean of anterior and posterior), and ``disc_below``:
@@ -8,9 +12,9 @@ Every vertebra from T1 to L5 plus S1 (the sacral plateau) carries:
   three-dimensional anatomy", Spine 16(8):888-901 (posterior body height rising from ~14 mm at
   T1 to ~23 mm at T12). Lumbar bodies: Panjabi MM, Goel V, Oxland T et al. (1992) "Human lumbar
   vertebrae: quantitative three-dimensional anatomy", Spine 17(3):299-306 (~25-28 mm). Discs:
-  thoracic 4-6 mm, lumbar 9-12 mm (Gilad I, Nissan M (1986) "A study of vertebra and disc
-  geometric relations of the human cervical and lumbar spine", Spine 11(2):154-157, and
-  Pooni JS et al. (1986) Spine 11(7):725-730 for the trend along the column).
+  thoracic 4-6 mm, lumbar 9-12 mm (typical adult values, lumbar as in Gilad I, Nissan M (1986)
+  "A study of vertebra and disc geometric relations of the human cervical and lumbar spine",
+  Spine 11(2):154-157).
   Only their ratios matter: the column is scaled to the subject by the tape (see
   :mod:`spinemocap.opensim.geometry`).
 - ``body_depth`` and ``body_width``: upper end-plate depth and width (same Panjabi tables),
@@ -23,7 +27,7 @@ Every vertebra from T1 to L5 plus S1 (the sacral plateau) carries:
 
 Range of motion per motion segment, stored on the segment's upper vertebra (``L4`` = the
 L4/L5 joint): representative values of White AA, Panjabi MM (1990) *Clinical
-Biomechanics of the Spine*, 2nd ed., Table 2-1 (thoracic) and Table 2-7 (lumbar):
+Biomechanics of the Spine*, 2nd ed. (their tables of representative thoracic and lumbar values):
 flexion+extension, lateral bending to one side, axial rotation to one side. The lateral and
 axial values are also the coupling ratios that share a region's lateral bending and axial
 rotation between its joints (as the coordinate couplers of the published lumbar model of

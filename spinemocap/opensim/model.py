@@ -159,7 +159,7 @@ def _segment_body(osim, name: str, geometry: SpineGeometry, k: int):
     v = ANATOMY.get(name if name != HEAD_NECK else "T1")
     share = {"S1": 0.0}.get(name, (v.mass_share if v else 1.1) / 100.0)
     if name == HEAD_NECK:
-        share = 0.081 + 0.2  # head-neck (de Leva 1996: 8.1 %) + upper thorax
+        share = 0.081 + 0.2  # head-neck 8.1 % (Dempster 1955, as tabulated by Winter) + upper thorax
     mass = max(share, 0.005) * BODY_MASS_KG
     s = geometry.scale / 1000.0
     width = (v.body_width if v else 28.0) * s
@@ -208,7 +208,7 @@ def build_model(geometry: SpineGeometry, plan: ModelPlan, markers: list[tuple[st
     bodies = {}
     pelvis = _segment_body(osim, "S1", geometry, 0)
     pelvis.setName("pelvis")
-    pelvis.setMass(0.142 * BODY_MASS_KG)  # de Leva (1996) pelvis segment
+    pelvis.setMass(0.142 * BODY_MASS_KG)  # pelvis 14.2 % (Dempster 1955, as tabulated by Winter)
     model.addBody(pelvis)
     root = _custom_joint(osim, "ground_pelvis", model.getGround(), geometry.centre[0] * mm, geometry.frame[0],
                          pelvis, np.zeros(3), list(ROOT_COORDS))
