@@ -68,6 +68,8 @@ ANGLES = "angles.csv"
 MARKERS = "markers.csv"
 INTERRUPTED = "interrupted"
 
+OPENSIM_DIR = "opensim"  # spinemocap opensim's outputs per trial (run_batch(opensim=True))
+
 
 @dataclass
 class Trial:
@@ -98,6 +100,8 @@ class TrialJob:
     force: bool = False
     detector: str = "net"
     stop_event: str | None = None  # name of a Dask distributed Event that asks the trial to stop
+
+    opensim: bool = False  # also run spinemocap opensim into <trial out>/opensim
 
     def summary_head(self) -> dict:
         """The keys every trial summary starts with (ok, failed or lost with its worker)."""
@@ -181,7 +185,8 @@ def process_trial(job: TrialJob) -> dict:
         summary_path = out / SUMMARY
         if not job.force and _up_to_date(summary_path, inputs):
             cached = json.loads(summary_path.read_text())
-            return {**cached, "skipped": True}
+            if not job.opensim or "opensim" in cached:
+                return {**cached, "skipped": True}
         summary = {**base, **_analyse(job, inputs)}
     except TrackingStopped:  # the batch is being interrupted: no summary, a rerun redoes the trial
         return {**base, "status": INTERRUPTED, "reason": "interrupted (stopped while running)", "skipped": False}
@@ -206,7 +211,9 @@ def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
     with atomic_write(out / ANGLES) as handle:
         result.table.to_csv(handle, index=False, float_format="%.4f")
     fps = markers.fps
+    extra = {"opensim": _opensim(markers, capture, levels, out / OPENSIM_DIR)} if job.opensim else {}
     return {
+        **extra,
         "status": "ok", "reason": "",
         "n_frames": int(len(result.table)), "fps": fps,
         "duration_s": float(len(result.table) / fps),
@@ -217,6 +224,22 @@ def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
         "notes": result.notes,
         "stats": result.summary(),
     }
+
+
+def _opensim(markers: MarkerTable, capture: Capture, levels: LevelMap, out: Path) -> dict:
+    """spinemocap opensim on the trial's markers; a trial OpenSim cannot solve keeps its geometric
+    angles and records why."""
+    from ..opensim import run_opensim
+
+    try:
+        result = run_opensim(markers, capture.tape, levels, capture.up,
+                             capture.subject.get("facing", (0.0, -1.0, 0.0)), out, source=str(capture.root))
+    except InputError as exc:
+        return {"status": "failed", "reason": str(exc)}
+    s = result.summary
+    return {"status": "ok", "marker_rms_mm": s["marker_rms_mm"], "marker_rms_mm_max": s["marker_rms_mm_max"],
+            "ms_per_frame": s["ms_per_frame"], "flagged_frames": len(s["flagged_frames"]),
+            "driven_joints": s["driven_joints"], "out_dir": str(out)}
 
 
 def _input_files(job: TrialJob) -> list[Path]:
@@ -313,16 +336,24 @@ def read_markers_csv(path: str | os.PathLike) -> MarkerTable:
 
 
 def _levels(job: TrialJob, capture: Capture) -> tuple[LevelMap, str]:
+    return find_level_map(capture, job.trial.levels_file, job.levels_file)
+
+
+def find_level_map(capture: Capture, trial_file: str | os.PathLike | None = None,
+                   batch_file: str | os.PathLike | None = None) -> tuple[LevelMap, str]:
+    """The capture's row-to-level map and where it came from, first found wins: ``trial_file``,
+    ``levels.toml`` in the capture folder, ``[levels]`` in capture.toml, ``levels.toml`` two
+    folders up (the subject's), ``batch_file``, the synthetic ground truth's ``row_levels``."""
     n_rows = capture.tape.n_rows
     folder = capture.root
-    candidates = [job.trial.levels_file, folder / "levels.toml"]
+    candidates = [trial_file, folder / "levels.toml"]
     for path in candidates[:2]:
         if path and Path(path).is_file():
             return LevelMap.from_toml(path, n_rows), str(path)
     section = read_toml(folder / MANIFEST).get("levels")
     if section:
         return LevelMap(dict(section), n_rows, source=str(folder / MANIFEST)), str(folder / MANIFEST)
-    for path in (folder.parent.parent / "levels.toml", job.levels_file):
+    for path in (folder.parent.parent / "levels.toml", batch_file):
         if path and Path(path).is_file():
             return LevelMap.from_toml(path, n_rows), str(path)
     row_levels = capture.row_levels()
@@ -375,12 +406,13 @@ def trial_out_dir(out: Path, trial: Trial) -> Path:
 def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = "tracked",
               workers: int = 2, scheduler: str | None = None, levels_file: str | None = None,
               settings: AngleSettings | None = None, force: bool = False,
-              detector: str = "net", progress: bool = True) -> BatchResult:
+              detector: str = "net", progress: bool = True, opensim: bool = False) -> BatchResult:
     """Process every trial under ``root`` into ``out`` (see the module docstring).
 
     ``workers``: local processes (1 = in this process); ``scheduler``: a Dask distributed
     scheduler address (``tcp://HOST:PORT``) -- then the cluster's workers run the trials.
     ``detector``: the tracker's dot detector for ``source="tracked"`` (net, classical, mask).
+    ``opensim``: also solve each trial with ``spinemocap opensim`` (into ``<trial>/opensim``).
     """
     if source not in SOURCES:
         raise InputError(None, f"unknown marker source {source!r}; expected one of {SOURCES}")
@@ -388,7 +420,9 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = 
     clean_stale_temps(out)
     trials = discover(root)
     settings = settings or AngleSettings()
-    jobs = [TrialJob(t, str(trial_out_dir(out, t)), source, levels_file, settings, force, detector) for t in trials]
+    jobs = [TrialJob(t, str(trial_out_dir(out, t)), source, levels_file, settings, force, detector,
+                     opensim=opensim)
+            for t in trials]
     handler = logging.FileHandler(out / "batch.log")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
     log.addHandler(handler)
@@ -569,6 +603,8 @@ def load_results(out: str | os.PathLike) -> list[dict]:
         raise InputError(out, "batch output folder not found")
     summaries = []
     for path in sorted(out.rglob(SUMMARY)):
+        if path.parent.name == OPENSIM_DIR:  # spinemocap opensim's own summary inside a trial
+            continue
         try:
             data = json.loads(path.read_text())
         except (OSError, ValueError) as exc:

@@ -126,12 +126,20 @@ def angles_plot_png(angles: pd.DataFrame) -> bytes:
     return base64.b64decode(_trial_plot(angles))
 
 
-def _trial_plot(angles: pd.DataFrame) -> str:
+def _trial_plot(angles: pd.DataFrame, ik: pd.DataFrame | None = None) -> str:
+    """The tape's lumbar angles over time; with ``ik`` (spinemocap opensim's spine_angles.csv) the
+    IK region sums beside them, shifted to the tape angle's median over the first 10 frames (IK's
+    zero is the static posture there)."""
     fig, axes = plt.subplots(1, 3, figsize=(13, 2.4), sharex=True)
     t = angles["time"].to_numpy()
     for ax, (column, label) in zip(axes, PLOTTED):
         values = angles[column].to_numpy(float)
-        ax.plot(t, values, lw=1.4, color="tab:blue")
+        ax.plot(t, values, lw=1.4, color="tab:blue", label="tape (geometric)" if ik is not None else None)
+        if ik is not None and column in ik:
+            offset = np.nanmedian(values[:10]) if np.isfinite(values[:10]).any() else 0.0
+            ax.plot(ik["time"], ik[column] + offset, lw=1.1, color="tab:orange", ls="--",
+                    label="OpenSim IK (driven lumbar joints)")
+            ax.legend(loc="upper left", fontsize=7)
         missing = ~np.isfinite(values)
         if missing.any():
             low, high = ax.get_ylim() if np.isfinite(values).any() else (-1, 1)
@@ -245,8 +253,16 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
         angles = pd.read_csv(Path(r["out_dir"]) / ANGLES)
         parts.append(f"<h3>{html.escape(r['key'])} <span class='note'>"
                      f"({r.get('completeness_pct', float('nan')):.0f}% of dots observed)</span></h3>")
+        ik = None
+        if r.get("opensim", {}).get("status") == "ok":
+            ik = pd.read_csv(Path(r["opensim"]["out_dir"]) / "spine_angles.csv", comment="#")
+            parts.append(f"<p class='note'>OpenSim IK: marker RMS {r['opensim']['marker_rms_mm']:.2f} mm, "
+                         f"{r['opensim']['flagged_frames']} flagged frames (files in "
+                         f"{html.escape(r['opensim']['out_dir'])})</p>")
+        elif r.get("opensim"):
+            parts.append(f"<p class='warn'>OpenSim IK failed: {html.escape(r['opensim'].get('reason', ''))}</p>")
         try:
-            parts.append(f"<img alt='{html.escape(r['key'])}' src='data:image/png;base64,{_trial_plot(angles)}'>")
+            parts.append(f"<img alt='{html.escape(r['key'])}' src='data:image/png;base64,{_trial_plot(angles, ik)}'>")
         except (KeyError, TypeError, ValueError) as exc:  # the page is written anyway, saying why
             parts.append(f"<p class='bad'>no plot: {html.escape(f'{type(exc).__name__}: {exc}')}</p>")
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title or out.name)}</title>"

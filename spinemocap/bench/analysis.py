@@ -78,7 +78,8 @@ def mid_bone_rows(row_heights: np.ndarray, joint_heights: np.ndarray) -> tuple[i
 
 
 def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0) -> dict:
-    """Ground-truth dots of a studio motion (no rendering), the applied angles and the levels."""
+    """Ground-truth dots of a studio motion (no rendering), the applied angles, the benchmark
+    rows, the rows' nearest vertebral levels and the scene (to render and track it)."""
 
     config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed)
     scene = build_scene(config)
@@ -90,7 +91,8 @@ def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0
     lo, hi, joints = mid_bone_rows(row_z, scene.body.spine_chain()[:, 2])
     return {"dots": dots, "labels": scene.labels, "tape": scene.tape, "applied": scene.angles_deg,
             "rows": (lo, hi), "share": joints / len(SPINE_BONES), "fps": fps,
-            "up": scene.subject()["up"], "facing": scene.subject()["facing"]}
+            "up": scene.subject()["up"], "facing": scene.subject()["facing"],
+            "row_levels": list(scene.tape_on_skin.row_levels), "scene": scene}
 
 
 def bench_studio(frames: int = 60, fps: float = 20.0, rows: int = 13, seed: int = 0,

@@ -1,0 +1,155 @@
+"""``spinemocap opensim RESULTS --capture CAPTURE --out DIR``: a multi-segment spine model carrying
+the tape's markers, placed on a static trial by OpenSim's MarkerPlacer and solved by its
+InverseKinematicsTool (see :mod:`spinemocap.opensim`); ``spinemocap bench opensim``: arguments and
+printing, the benchmark is :mod:`spinemocap.bench.opensim`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "opensim", help="OpenSim spine model + inverse kinematics from tracked tape markers",
+        description="Build a pelvis-sacrum-L5..T1-head/neck model with one marker per tape dot on the "
+                    "vertebra under it (level map), place the markers on a static trial (MarkerPlacer) "
+                    "and solve inverse kinematics; writes model.osim, markers_opensim.trc, setup_scale.xml, "
+                    "setup_ik.xml, ik.mot, ik_marker_errors.sto, spine_angles.csv/.png and summary.json "
+                    "into DIR. Needs the optional extra: pip install 'spinemocap[opensim]'.")
+    p.add_argument("results", type=Path, help="tracking results folder (markers.csv) or any marker file the "
+                                              "exporters read (csv, trc, c3d, parquet)")
+    p.add_argument("--capture", type=Path, required=True,
+                   help="capture folder: tape spec and [subject] up/facing (the OpenSim axes) from capture.toml")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--levels", type=Path, help="row-to-level map (TOML); default: as `spinemocap batch` finds it "
+                                              "(levels.toml in the capture or subject folder, [levels] in "
+                                              "capture.toml, a synthetic capture's ground truth)")
+    p.add_argument("--static", type=Path, help="static trial marker file (default: the first --static-frames frames)")
+    p.add_argument("--static-frames", type=int, default=10, help="frames averaged as the static trial (default 10)")
+    p.add_argument("--depth-scale", type=float,
+                   help="factor on the published skin-to-vertebral-body depths (1 = anatomical); default: "
+                        "fitted to the trial by minimising the IK marker RMS")
+    p.add_argument("--coupling", choices=("rows", "region"), default="rows",
+                   help="rows: couple a vertebra's rotations to its neighbour's only when no tape row lies over "
+                        "it (default); region: couple lateral bending and axial rotation over each region, as "
+                        "the published lumbar models")
+    p.add_argument("--prior-weight", type=float, default=0.0,
+                   help="IK weight of a prior pulling every level's lateral bending and axial rotation toward the "
+                        "static posture (per rad^2; default 0 = off; see docs/BENCHMARKS.md for its effect)")
+    p.add_argument("--accuracy", type=float, default=1e-5, help="IK solver accuracy (default 1e-5)")
+    p.add_argument("--model", type=Path, help="attach the markers to this lab model (.osim) instead of building one")
+    p.add_argument("--bodies", type=Path, help="with --model: TOML mapping vertebrae to the model's bodies, "
+                                               "e.g. L3 = \"lumbar3\"")
+    p.set_defaults(func=run_opensim_command)
+
+
+def read_results(path: Path):
+    """A marker table from a results folder (``markers.csv``) or a marker file."""
+    import exporters
+
+    from ..fileio import InputError
+
+    if path.is_dir():
+        candidates = [path / name for name in ("markers.csv", "markers.parquet", "markers.c3d", "markers.trc")]
+        found = next((c for c in candidates if c.is_file()), None)
+        if found is None:
+            raise InputError(path, "no markers.csv/.parquet/.c3d/.trc in this results folder")
+        path = found
+    if not path.is_file():
+        raise InputError(path, "marker file not found")
+    return exporters.read(path)
+
+
+def run_opensim_command(args: argparse.Namespace) -> int:
+    from ..opensim import OpenSimSettings, require_opensim, run_opensim
+
+    require_opensim()
+    from ..analysis.levels import LevelMap
+    from ..app.batch import find_level_map
+    from ..capture import Capture
+    from ..fileio import InputError
+
+    if (args.model is None) != (args.bodies is None):
+        raise InputError("--model/--bodies", "a lab model needs both --model FILE.osim and --bodies MAP.toml")
+    capture = Capture.open(args.capture)
+    markers = read_results(args.results)
+    if args.levels:
+        levels, levels_from = LevelMap.from_toml(args.levels, capture.tape.n_rows), str(args.levels)
+    else:
+        levels, levels_from = find_level_map(capture)
+    facing = capture.subject.get("facing")
+    if facing is None:
+        raise InputError(Path(args.capture) / "capture.toml", "[subject] facing is not set: OpenSim's forward axis "
+                         "comes from it (e.g. facing = [0.0, -1.0, 0.0])")
+    static = read_results(args.static) if args.static else None
+    settings = OpenSimSettings(static_frames=args.static_frames, accuracy=args.accuracy,
+                               depth_scale=args.depth_scale, coupling=args.coupling, prior_weight=args.prior_weight)
+    if args.model is not None:
+        from ..opensim.labmodel import run_lab_model
+
+        result = run_lab_model(markers, capture.tape, levels, capture.up, facing, args.out, args.model,
+                               args.bodies, static=static, settings=settings, source=str(args.results))
+    else:
+        result = run_opensim(markers, capture.tape, levels, capture.up, facing, args.out, static=static,
+                             settings=settings, source=str(args.results))
+    s = result.summary
+    print(f"level map: {levels_from}")
+    print(f"{s['frames']} frames: marker RMS {s['marker_rms_mm']:.2f} mm mean, {s['marker_rms_mm_max']:.2f} mm worst "
+          f"frame; IK {s['ms_per_frame']:.1f} ms/frame; driven joints {', '.join(s['driven_joints'])}")
+    if "depth_scale" in s:
+        d = s["depth_scale"]
+        print(f"joint centres {d['value']:.2f} x the published depth under the skin ({'fitted' if d['fitted'] else 'given'})")
+    for reason, count in s["flag_reasons"].items():
+        print(f"  flagged {count} frames: {reason}")
+    for warning in s.get("warnings", []):
+        print(f"  warning: {warning}")
+    for name in ("model.osim", "markers_opensim.trc", "setup_scale.xml", "setup_ik.xml", "ik.mot",
+                 "ik_marker_errors.sto", "spine_angles.csv", "spine_angles.png", "summary.json"):
+        if (args.out / name).is_file():
+            print(f"  {args.out / name}")
+    return 0
+
+
+def register_bench(subparsers) -> None:
+    p = subparsers.add_parser(
+        "opensim", help="OpenSim IK spine angles vs the studio's applied motion (RMSE, R^2, marker RMS), "
+                        "geometric angles as the peer",
+        description="Runs the studio's flexion, lateral, rotation and mixed motions through `spinemocap "
+                    "opensim` (model, MarkerPlacer, IK) on ground-truth and tracked markers and scores the "
+                    "IK angles between two tape levels against the applied ones, beside the geometric "
+                    "angles of the same markers. See spinemocap/bench/opensim.py.")
+    p.add_argument("--frames", type=int, default=100, help="frames per motion (default 100)")
+    p.add_argument("--fps", type=float, default=100 / 3, help="frame rate (default 33.3: 3 s of motion)")
+    p.add_argument("--rows", type=int, default=13, help="tape rows (default 13)")
+    p.add_argument("--motions", nargs="+", default=["flexion", "lateral", "rotation", "mixed"],
+                   choices=("flexion", "lateral", "rotation", "mixed"))
+    p.add_argument("--sources", nargs="+", default=["groundtruth", "tracked"], choices=("groundtruth", "tracked"))
+    p.add_argument("--tracked-frames", type=int, help="frames to render and track per motion (default: --frames)")
+    p.add_argument("--cache", type=Path, help="keep the tracked markers here (markers_<motion>_<frames>_<fps>.csv) "
+                                              "and reuse them instead of rendering and tracking again")
+    p.add_argument("--json", type=Path, help="write the numbers here")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=run_bench)
+
+
+def run_bench(args: argparse.Namespace) -> int:
+    from ..bench.opensim import format_table, run_opensim_benchmark
+    from ..fileio import atomic_write
+
+    report = run_opensim_benchmark(args.motions, args.sources, args.frames, args.fps, args.rows,
+                                   args.tracked_frames, args.cache, not args.no_progress)
+    report["command"] = " ".join(
+        ["spinemocap bench opensim", f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
+         "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources)]
+        + ([f"--tracked-frames {args.tracked_frames}"] if args.tracked_frames else []))
+    print(format_table(report["sources"]))
+    print("headline (" + report["headline_source"] + "): " + ", ".join(
+        f"{k} {report[k]:.2f}" for k in ("flexion_rmse_deg", "lateral_rmse_deg", "rotation_rmse_deg",
+                                         "marker_rms_mm", "ik_ms_per_frame") if k in report))
+    if args.json:
+        with atomic_write(args.json) as handle:
+            json.dump(report, handle, indent=1, default=float)
+        print(f"numbers: {args.json}")
+    return 0

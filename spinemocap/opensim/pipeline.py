@@ -1,0 +1,464 @@
+"""Tape markers -> spine model -> MarkerPlacer -> inverse kinematics -> spine angles, in one call.
+
+:func:`run_opensim` writes into ``out_dir`` (every file built in a temporary sibling folder and
+renamed into place at the end):
+
+- ``model_generic.osim``: the model as built from the static trial (anatomical marker places),
+- ``model.osim``: after MarkerPlacer (markers moved onto the static trial),
+- ``markers_opensim.trc`` / ``markers_static.trc``: metres, OpenSim axes (X facing, Y up),
+- ``setup_scale.xml``, ``setup_ik.xml``, ``static_pose.mot`` (radians), ``ik.mot`` (degrees),
+  ``ik_marker_errors.sto`` (metres),
+- ``spine_angles.csv``: per driven joint and summed per region, degrees, this project's signs
+  (flexion = forward bending positive = -OpenSim extension; lateral bending toward the right
+  positive; axial rotation toward the left positive), zero = the static posture,
+- ``summary.json`` and ``spine_angles.png``.
+
+Steps: the static trial (first frames, or a separate trial) fixes the tape's rows; the declared
+facing is checked against the tape (:func:`geometry.check_facing`); the depth of the joint
+centres under the skin is fitted unless given (:func:`fit_depth_scale`); the model is built
+(:mod:`model`), MarkerPlacer moves its markers onto the static trial and the placement is checked
+against the anatomy (:func:`check_placement`); IK solves every frame. Missing samples stay NaN
+(OpenSim skips them per frame); frames the result cannot vouch for are flagged in the CSV, the
+summary and the plot.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..fileio import InputError, atomic_write
+from ..markers import MarkerTable
+from ..tape import TapeSpec
+from .geometry import (
+    LevelRows,
+    RowFrames,
+    SpineGeometry,
+    check_facing,
+    expected_marker_locations,
+    opensim_axes,
+    row_frames,
+    spine_geometry,
+    static_positions,
+    to_opensim,
+)
+from .model import DOF, ModelPlan, body_name, build_model, plan_model
+from .tools import (
+    marker_locations,
+    marker_weights,
+    quiet_opensim,
+    read_storage,
+    require_opensim,
+    run_ik,
+    run_scale,
+    write_ik_setup,
+    write_scale_setup,
+    write_trc,
+)
+
+# A placed marker may sit this far (median over markers, mm) from its anatomical place before the
+# placement is refused: beside the spine (lateral) or in front of / behind it (depth).
+PLACEMENT_LATERAL_MM = 15.0
+PLACEMENT_DEPTH_MM = 30.0
+# Frames flagged in the outputs: marker RMS or worst marker beyond these (mm), too few markers,
+# or a joint beyond FLAG_RANGE_FACTOR x its published range.
+FLAG_RMS_MM = 4.0
+FLAG_MAX_MM = 10.0
+FLAG_MIN_MARKERS = 6
+FLAG_RANGE_FACTOR = 2.0
+SIGN = {"extension": -1.0, "lateral_bending": 1.0, "axial_rotation": 1.0}  # OpenSim -> project
+PROJECT_NAME = {"extension": "flexion", "lateral_bending": "lateral", "axial_rotation": "rotation"}
+
+
+@dataclass(frozen=True)
+class OpenSimSettings:
+    """``static_frames``: frames from the start averaged as the static trial (when no static file);
+    ``accuracy``: IK solver accuracy (OpenSim's default 1e-5); ``depth_scale``: factor on the
+    published skin-to-vertebral-body depths, None = fit it to the trial (:func:`fit_depth_scale`,
+    golden section on ``depth_bounds`` to ``depth_tolerance`` over ``fit_frames`` frames);
+    ``coupling``: see :func:`spinemocap.opensim.model.plan_model`; ``prior_weight``: the
+    regularising prior on per-level lateral bending and axial rotation (:func:`_priors`)."""
+
+    static_frames: int = 10
+    accuracy: float = 1e-5
+    depth_scale: float | None = None  # None: fitted (fit_depth_scale); 1.0: published depths
+    depth_bounds: tuple[float, float] = (0.25, 1.25)
+    depth_tolerance: float = 0.05
+    fit_frames: int = 24
+    coupling: str = "rows"  # see spinemocap.opensim.model.plan_model
+    # IK weight (per rad^2, beside marker errors in m^2) of a prior toward the static posture on every
+    # level's lateral bending and axial rotation; 0 = off (default: on the studio it cost range and did
+    # not make the summed ranges independent of the solver accuracy, see docs/BENCHMARKS.md)
+    prior_weight: float = 0.0
+
+
+@dataclass
+class OpenSimResult:
+    """What :func:`run_opensim` wrote: the angle table, the summary and the file paths."""
+
+    out_dir: Path
+    angles: pd.DataFrame
+    summary: dict
+    plan: ModelPlan | None  # None on a lab's own model
+    geometry: SpineGeometry
+    files: dict[str, Path] = field(default_factory=dict)
+
+
+@dataclass
+class TapeMarkers:
+    """The tape's dots in tape order, OpenSim axes (mm): positions (F, D, 3), status (F, D)."""
+
+    labels: list[str]
+    times: np.ndarray
+    positions: np.ndarray
+    status: np.ndarray
+    fps: float
+
+
+def tape_markers(markers: MarkerTable, tape: TapeSpec, axes: np.ndarray, source: str | None = None) -> TapeMarkers:
+    """The tape's labels from a marker table (absent labels are missing throughout), rotated into
+    OpenSim axes; missing samples are NaN, never zero."""
+    arrays = markers.to_arrays()
+    present = {str(label): i for i, label in enumerate(arrays["labels"])}
+    labels = list(tape.labels)
+    if not any(label in present for label in labels):
+        raise InputError(source, f"no tape labels ({labels[0]}, {labels[1]}, ...) in this marker data")
+    F = len(arrays["frames"])
+    positions = np.full((F, len(labels), 3), np.nan)
+    status = np.full((F, len(labels)), "missing", dtype=object)
+    for d, label in enumerate(labels):
+        if label in present:
+            positions[:, d] = arrays["positions"][:, present[label]]
+            status[:, d] = arrays["status"][:, present[label]]
+    positions[status == "missing"] = np.nan
+    status[~np.isfinite(positions).all(axis=2)] = "missing"
+    times = arrays["time"]
+    fps = float(markers.fps)
+    if not np.isfinite(times).all():
+        times = arrays["frames"] / fps
+    return TapeMarkers(labels, np.asarray(times, float), to_opensim(positions, axes), status, fps)
+
+
+@dataclass
+class StaticTrial:
+    """The static trial: median positions (D, 3) mm, its markers for the TRC and time range."""
+
+    positions: np.ndarray
+    markers: TapeMarkers
+    time_range: tuple[float, float]
+
+
+def _static(data: TapeMarkers, static: MarkerTable | None, tape: TapeSpec, axes: np.ndarray,
+            settings: OpenSimSettings, source: str | None) -> StaticTrial:
+    if static is not None:
+        st = tape_markers(static, tape, axes, source)
+    else:
+        n = max(1, min(settings.static_frames, len(data.times)))
+        st = TapeMarkers(data.labels, data.times[:n], data.positions[:n], data.status[:n], data.fps)
+    return StaticTrial(static_positions(st.positions), st, (float(st.times[0]), float(st.times[-1])))
+
+
+@dataclass
+class _Placed:
+    geometry: SpineGeometry
+    plan: ModelPlan
+    labels: list[str]
+    placed: np.ndarray  # tape dot indices in the model
+    expected: np.ndarray  # (len(placed), 3) anatomical places, mm
+    placement: dict
+
+
+def _build_and_place(work: Path, rows, levels: LevelRows, tape: TapeSpec, static: StaticTrial, depth_scale: float,
+                     coupling: str, source: str | None) -> _Placed:
+    """Build ``model_generic.osim`` in ``work`` and run MarkerPlacer (``setup_scale.xml``) to
+    ``model.osim``; the placement is checked against the anatomy."""
+    geometry = spine_geometry(rows, levels, depth_scale, source)
+    graph = tape.graph
+    placed = np.flatnonzero(np.isfinite(static.positions).all(axis=1))
+    bodies = geometry.row_body[graph.row]
+    expected = expected_marker_locations(geometry, rows, tape)
+    row_bodies = geometry.row_body[np.flatnonzero(rows.seen)]
+    plan = plan_model(geometry, bodies[placed], row_bodies, coupling)
+    if not plan.driven:
+        raise InputError(source, "all tape rows lie over one vertebra: no joint for the tape to drive")
+    labels = [static.markers.labels[d] for d in placed]
+    model = build_model(geometry, plan, [(labels[i], int(bodies[d]), expected[d]) for i, d in enumerate(placed)])
+    model.printToXML(str(work / "model_generic.osim"))
+    place_markers(work, labels, placed, static)
+    placement = check_placement(work / "model.osim", labels, expected[placed], source)
+    return _Placed(geometry, plan, labels, placed, expected[placed], placement)
+
+
+def place_markers(work: Path, labels: list[str], placed: np.ndarray, static: StaticTrial) -> None:
+    """``markers_static.trc`` and ``setup_scale.xml`` in ``work``; MarkerPlacer moves the markers
+    of ``model_generic.osim`` onto the static trial and writes ``model.osim`` (+ ``static_pose.mot``,
+    radians)."""
+    st = static.markers
+    times, positions, time_range = st.times, st.positions[:, placed], static.time_range
+    if len(times) == 1:  # MarkerPlacer averages over a time range: a one-frame trial is written twice
+        times = np.array([times[0], times[0] + 1.0 / st.fps])
+        positions = np.repeat(positions, 2, axis=0)
+        time_range = (float(times[0]), float(times[1]))
+    write_trc(work / "markers_static.trc", labels, times, positions, st.fps)
+    setup = write_scale_setup(work, "model_generic.osim", "markers_static.trc", time_range, labels,
+                              np.ones(len(labels)), "model.osim", "static_pose.mot")
+    run_scale(setup)
+
+
+def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: TapeMarkers, frames: np.ndarray,
+                       accuracy: float, priors: dict[str, float] | None = None) -> float:
+    """``markers_opensim.trc`` (the given frames, the ``placed`` dots named ``labels``),
+    ``setup_ik.xml`` on ``model.osim``, ``ik.mot`` and ``ik_marker_errors.sto`` in ``work``;
+    returns IK seconds."""
+    positions = data.positions[frames][:, placed]
+    write_trc(work / "markers_opensim.trc", labels, data.times[frames], positions, data.fps)
+    weights = marker_weights(data.status[frames][:, placed])
+    setup = write_ik_setup(work, "model.osim", "markers_opensim.trc",
+                           (float(data.times[frames[0]]), float(data.times[frames[-1]])), labels,
+                           weights, "ik.mot", accuracy, priors)
+    started = time.perf_counter()
+    run_ik(setup)
+    seconds = time.perf_counter() - started
+    os.replace(work / "spinemocap_ik_marker_errors.sto", work / "ik_marker_errors.sto")
+    return seconds
+
+
+def _priors(plan: ModelPlan, settings: OpenSimSettings) -> dict[str, float]:
+    """Weak coordinate tasks toward the static posture on every independent per-level lateral
+    bending and axial rotation: they choose among the distributions the markers cannot tell apart."""
+    if settings.prior_weight <= 0:
+        return {}
+    dependent = {d for d, _, _ in plan.couplers}
+    return {j.coordinate(dof): settings.prior_weight for j in plan.driven
+            for dof in ("lateral_bending", "axial_rotation") if j.coordinate(dof) not in dependent}
+
+
+def fit_depth_scale(rows, levels: LevelRows, tape: TapeSpec, static: StaticTrial, data: TapeMarkers,
+                    settings: OpenSimSettings, folder: Path, source: str | None = None) -> tuple[float, dict]:
+    """Functional calibration of the depth of the joint centres under the skin: the factor on
+    the published depths that minimises the mean IK marker RMS over up to
+    ``settings.fit_frames`` frames spread over the trial (golden-section search on
+    ``settings.depth_bounds``). Skin does not move rigidly with the vertebral bodies (it slides
+    and stretches: DESIGN section 8), so the centres that explain its motion best lie at an
+    effective depth; a fit at a bound is flagged. Returns (factor, {factor: RMS mm})."""
+    frames = np.unique(np.linspace(0, len(data.times) - 1, min(settings.fit_frames, len(data.times))).astype(int))
+    tried: dict[float, float] = {}
+
+    def rms(factor: float) -> float:
+        key = round(factor, 4)
+        if key not in tried:
+            work = Path(tempfile.mkdtemp(prefix="depth.", dir=folder))
+            placed = _build_and_place(work, rows, levels, tape, static, factor, settings.coupling, source)
+            inverse_kinematics(work, placed.labels, placed.placed, data, frames, settings.accuracy,
+                               _priors(placed.plan, settings))
+            _, labels, err, _ = read_storage(work / "ik_marker_errors.sto")
+            tried[key] = float(1000.0 * np.mean(err[:, labels.index("marker_error_RMS")]))
+        return tried[key]
+
+    lo, hi = settings.depth_bounds
+    golden = (np.sqrt(5.0) - 1.0) / 2.0
+    a, b = lo, hi
+    c, d = b - golden * (b - a), a + golden * (b - a)
+    while b - a > settings.depth_tolerance:
+        if rms(c) < rms(d):
+            b, d = d, c
+            c = b - golden * (b - a)
+        else:
+            a, c = c, d
+            d = a + golden * (b - a)
+    best = min(tried, key=tried.get)
+    return float(best), dict(sorted(tried.items()))
+
+
+def prepare(markers: MarkerTable, tape: TapeSpec, up: Sequence[float], facing: Sequence[float],
+            static: MarkerTable | None, settings: OpenSimSettings,
+            source: str | None) -> tuple[TapeMarkers, StaticTrial, RowFrames, float]:
+    """The tape markers in OpenSim axes, the static trial, its rows and the facing check."""
+    quiet_opensim()
+    axes = opensim_axes(up, facing, source)
+    data = tape_markers(markers, tape, axes, source)
+    st = _static(data, static, tape, axes, settings, source)
+    rows = row_frames(st.positions, tape, source)
+    return data, st, rows, check_facing(rows, axes, source)
+
+
+def work_folder(out_dir: Path) -> Path:
+    """A temporary folder beside ``out_dir`` where a run builds its files (see :func:`publish`)."""
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+
+
+def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Sequence[float],
+                facing: Sequence[float], out_dir: str | os.PathLike, static: MarkerTable | None = None,
+                settings: OpenSimSettings = OpenSimSettings(), source: str | None = None) -> OpenSimResult:
+    """Build, place and solve; see the module docstring. ``source`` names the input in errors."""
+    osim = require_opensim()
+    data, st, rows, facing_error = prepare(markers, tape, up, facing, static, settings, source)
+    out_dir = Path(out_dir)
+    work = work_folder(out_dir)
+    try:
+        depth_fit: dict[float, float] = {}
+        depth_scale = settings.depth_scale
+        if depth_scale is None:
+            depth_scale, depth_fit = fit_depth_scale(rows, levels, tape, st, data, settings, work, source)
+            for sub in work.iterdir():
+                shutil.rmtree(sub, ignore_errors=True)
+        placed = _build_and_place(work, rows, levels, tape, st, depth_scale, settings.coupling, source)
+        ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
+                                        settings.accuracy, _priors(placed.plan, settings))
+        angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
+        weights = marker_weights(data.status[:, placed.placed])
+        summary = _summary(data, placed, angles, flags, ik_seconds, facing_error, weights, settings, osim)
+        summary["depth_scale"] = {"value": depth_scale, "fitted": settings.depth_scale is None,
+                                  "bounds": list(settings.depth_bounds), "marker_rms_mm_tried": {
+                                      f"{k:g}": v for k, v in depth_fit.items()},
+                                  "at_bound": bool(depth_fit) and min(abs(depth_scale - b) for b in
+                                                                      settings.depth_bounds) < settings.depth_tolerance,
+                                  "depth_mm": {n: round(float(x), 1) for n, x in
+                                               zip(placed.geometry.names, placed.geometry.depth)}}
+        if summary["depth_scale"]["at_bound"]:
+            summary["warnings"].append(f"fitted joint-centre depth at the search bound ({depth_scale:.2f} x published)")
+        with atomic_write(work / "spine_angles.csv") as handle:
+            handle.write(_angles_header(placed.plan))
+            angles.to_csv(handle, index=False, float_format="%.4f")
+        from .plot import angles_plot_png
+
+        with atomic_write(work / "spine_angles.png", "wb") as handle:
+            handle.write(angles_plot_png(angles, summary))
+        with atomic_write(work / "summary.json") as handle:
+            json.dump(summary, handle, indent=1)
+        files = publish(work, out_dir)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return OpenSimResult(out_dir, angles, summary, placed.plan, placed.geometry, files)
+
+
+def publish(work: Path, out_dir: Path) -> dict[str, Path]:
+    """Rename every finished file from the work folder into ``out_dir`` (replacing old ones)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = {}
+    for path in sorted(work.iterdir()):
+        if path.is_file() and not path.name.startswith("."):
+            os.replace(path, out_dir / path.name)
+            files[path.name] = out_dir / path.name
+    return files
+
+
+def check_placement(model_file: Path, labels: list[str], expected_mm: np.ndarray,
+                    source: str | None = None) -> dict[str, float]:
+    """Median and worst distance (mm) of the placed markers from their anatomical places, beside
+    (lateral, body Z) and in front of/behind (depth, body X) the spine. Raises
+    :class:`InputError` beyond :data:`PLACEMENT_LATERAL_MM` / :data:`PLACEMENT_DEPTH_MM`: the
+    axes (``[subject] up/facing``) or the level map do not fit the data."""
+    placed = marker_locations(model_file, labels)
+    offsets = np.array([placed[label][1] - expected_mm[i] for i, label in enumerate(labels) if label in placed])
+    lateral, depth = np.abs(offsets[:, 2]), np.abs(offsets[:, 0])
+    result = {"lateral_median_mm": float(np.median(lateral)), "lateral_max_mm": float(lateral.max()),
+              "depth_median_mm": float(np.median(depth)), "depth_max_mm": float(depth.max()),
+              "vertical_median_mm": float(np.median(np.abs(offsets[:, 1])))}
+    if result["lateral_median_mm"] > PLACEMENT_LATERAL_MM or result["depth_median_mm"] > PLACEMENT_DEPTH_MM:
+        raise InputError(source, (
+            f"MarkerPlacer put the tape markers {result['lateral_median_mm']:.0f} mm beside and "
+            f"{result['depth_median_mm']:.0f} mm in front of/behind their places over the spine (median; limits "
+            f"{PLACEMENT_LATERAL_MM:.0f} / {PLACEMENT_DEPTH_MM:.0f} mm): [subject] up/facing in capture.toml or the "
+            "level map do not fit this capture"))
+    return result
+
+
+def spine_angles(motion: Path, errors: Path, plan: ModelPlan, data: TapeMarkers) -> tuple[pd.DataFrame, np.ndarray]:
+    """Per-frame angle table (deg, project signs) from IK's ``.mot``, with marker RMS/max (mm)
+    and a ``flag`` column; returns it and the flagged frames' reasons."""
+    times, labels, values, degrees = read_storage(motion)
+    if not degrees:
+        values = np.degrees(values)  # every spine coordinate is rotational
+    column = {label.split("/")[-2] if label.startswith("/") else label: i for i, label in enumerate(labels)}
+    table = pd.DataFrame({"frame": np.arange(len(times)), "time": times})
+    out_of_range = np.zeros(len(times), bool)
+    region_sum: dict[str, np.ndarray] = {}
+    for j in plan.driven:
+        for dof, rom in zip(DOF, j.rom_deg):
+            value = SIGN[dof] * values[:, column[j.coordinate(dof)]]
+            table[f"{j.name}_{PROJECT_NAME[dof]}"] = value
+            out_of_range |= np.abs(value) > FLAG_RANGE_FACTOR * rom
+            key = f"{j.region}_{PROJECT_NAME[dof]}"
+            region_sum[key] = region_sum.get(key, 0.0) + value
+    for key, value in region_sum.items():
+        table[key] = value
+    _, err_labels, err, _ = read_storage(errors)
+    rms = 1000.0 * err[:, err_labels.index("marker_error_RMS")]
+    worst = 1000.0 * err[:, err_labels.index("marker_error_max")]
+    table["marker_rms"] = rms
+    table["marker_max"] = worst
+    n_markers = np.isfinite(data.positions).all(axis=2).sum(axis=1)
+    reasons = np.full(len(times), "", dtype=object)
+    for mask, why in ((rms > FLAG_RMS_MM, f"marker RMS > {FLAG_RMS_MM:g} mm"),
+                      (worst > FLAG_MAX_MM, f"a marker > {FLAG_MAX_MM:g} mm off"),
+                      (n_markers[: len(times)] < FLAG_MIN_MARKERS, f"fewer than {FLAG_MIN_MARKERS} markers"),
+                      (out_of_range, f"a joint beyond {FLAG_RANGE_FACTOR:g}x its published range")):
+        reasons[mask] = [f"{r}; {why}" if r else why for r in reasons[mask]]
+    table["flag"] = reasons
+    return table, reasons
+
+
+def _angles_header(plan: ModelPlan) -> str:
+    joints = ", ".join(j.name for j in plan.driven)
+    return ("# spinemocap opensim: inverse-kinematics spine angles. Units: time s; angles deg; marker_rms, "
+            "marker_max mm.\n# Signs (this project's): flexion = forward bending positive (OpenSim extension "
+            "negated); lateral = bending toward the subject's right positive; rotation = axial rotation toward "
+            "the subject's left positive. Zero = the static trial's posture.\n"
+            f"# Driven joints (child_parent): {joints}. lumbar_* / thoracic_* = sums over the region's driven "
+            "joints (lumbar: L5/S1..T12/L1, thoracic: T11/T12..C7/T1).\n# flag: why a frame is not vouched for "
+            "(empty = fine).\n")
+
+
+def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np.ndarray, ik_seconds: float,
+             facing_error: float, weights: np.ndarray, settings: OpenSimSettings, osim) -> dict:
+    geometry, plan, labels = placed.geometry, placed.plan, placed.labels
+    rms = angles["marker_rms"].to_numpy()
+    flagged = np.flatnonzero(flags != "")
+    reasons: dict[str, int] = {}
+    for text in flags[flagged]:
+        for why in str(text).split("; "):
+            reasons[why] = reasons.get(why, 0) + 1
+    bodies: dict[str, list[str]] = {}
+    for label in labels:
+        name = body_name(geometry.names[geometry.row_body[int(label[1:3]) - 1]])
+        bodies.setdefault(name, []).append(label)
+    ranges = {c: [float(np.nanmin(angles[c])), float(np.nanmax(angles[c]))]
+              for c in angles.columns if c.startswith(("lumbar_", "thoracic_"))}
+    return {
+        "frames": len(angles),
+        "fps": data.fps,
+        "marker_rms_mm": float(np.nanmean(rms)),
+        "marker_rms_mm_max": float(np.nanmax(rms)),
+        "marker_max_mm": float(np.nanmax(angles["marker_max"])),
+        "ms_per_frame": 1000.0 * ik_seconds / max(len(angles), 1),
+        "flagged_frames": [int(f) for f in flagged],
+        "flag_reasons": reasons,
+        "warnings": [],
+        "driven_joints": [j.name for j in plan.driven],
+        "welded_joints": [j.name for j in plan.joints if not j.driven],
+        "couplers": [{"dependent": d, "independent": i, "ratio": round(r, 4)} for d, i, r in plan.couplers],
+        "coordinates": plan.coordinates,
+        "markers_by_body": bodies,
+        "markers_not_placed": [label for label in data.labels if label not in set(labels)],
+        "marker_weights": {label: round(float(w), 3) for label, w in zip(labels, weights)},
+        "levels_mapped": geometry.mapped,
+        "scale_to_generic": geometry.scale,
+        "facing_error_deg": facing_error,
+        "placement": placed.placement,
+        "region_ranges_deg": ranges,
+        "ik_accuracy": settings.accuracy,
+        "opensim_version": str(osim.GetVersion()),
+        "units": {"angles": "deg", "marker errors": "mm", "trc": "m"},
+        "signs": "flexion forward +, lateral toward right +, rotation toward left +, zero = static posture",
+    }

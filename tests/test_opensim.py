@@ -1,0 +1,223 @@
+"""spinemocap opensim: the spine model, MarkerPlacer and inverse kinematics on studio markers.
+
+Skipped without the optional ``opensim`` package (except the test of the message that says how to
+install it). Studio data: ground-truth dots of a short ``mixed`` motion (no rendering)."""
+
+from __future__ import annotations
+
+import sys
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+from spinemocap.fileio import InputError
+from spinemocap.markers import MarkerTable
+
+FRAMES = 12
+FPS = 12.0  # the mixed motion's first second: ~16 deg flexion, ~27 deg lateral bending
+
+
+def test_missing_opensim_says_how_to_install(monkeypatch, tmp_path):
+    import argparse
+
+    from spinemocap.commands.opensim import run_opensim_command
+
+    monkeypatch.setitem(sys.modules, "opensim", None)
+    args = argparse.Namespace(results=tmp_path, capture=tmp_path, out=tmp_path / "out")
+    with pytest.raises(InputError, match=r"pip install 'spinemocap\[opensim\]'"):
+        run_opensim_command(args)
+
+
+try:
+    import opensim as osim
+except ImportError:  # the extra is optional: everything below needs it
+    osim = None
+needs_opensim = pytest.mark.skipif(osim is None, reason="opensim not installed: pip install 'spinemocap[opensim]'")
+
+
+@pytest.fixture(scope="module")
+def studio():
+    import torch
+
+    from spinemocap.analysis.levels import LevelMap
+    from spinemocap.bench.analysis import studio_motion
+
+    torch.set_num_threads(1)
+    data = studio_motion("mixed", FRAMES, FPS, 13)
+    data["levels"] = LevelMap.from_row_levels(data["row_levels"], 13)
+    data["markers"] = MarkerTable.from_arrays(data["labels"], data["dots"], fps=FPS)
+    return data
+
+
+def _run(studio, tmp_path, markers=None, up=None, facing=None, levels=None, **settings):
+    from spinemocap.opensim import OpenSimSettings, run_opensim
+
+    settings.setdefault("depth_scale", 0.5)
+    settings.setdefault("static_frames", 1)  # the neutral first frame (the motion starts at once)
+    return run_opensim(markers or studio["markers"], studio["tape"], levels or studio["levels"],
+                       studio["up"] if up is None else up, studio["facing"] if facing is None else facing,
+                       tmp_path / "out", settings=OpenSimSettings(**settings))
+
+
+@pytest.fixture(scope="module")
+def base_run(studio, tmp_path_factory):
+    return _run(studio, tmp_path_factory.mktemp("base"))
+
+
+@needs_opensim
+def test_built_model_loads_and_initialises(studio, base_run):
+    result = base_run
+    model = osim.Model(str(result.out_dir / "model.osim"))
+    state = model.initSystem()
+    names = [model.getCoordinateSet().get(i).getName() for i in range(model.getNumCoordinates())]
+    assert names == result.plan.coordinates
+    bodies = [model.getBodySet().get(i).getName() for i in range(model.getBodySet().getSize())]
+    assert bodies[:3] == ["pelvis", "sacrum", "L5"] and bodies[-2:] == ["T1", "head_neck"]
+    assert model.getMarkerSet().getSize() == len(studio["labels"])
+    # joints outside the taped span are welds: no coordinates below L4 / above T6 (tape L4..T6)
+    assert result.summary["driven_joints"][0] == "L3_L4" and result.summary["driven_joints"][-1] == "T6_T7"
+    assert "L4_L5" in result.summary["welded_joints"] and "T5_T6" in result.summary["welded_joints"]
+    model.realizePosition(state)
+    # the setups are OpenSim's own and name one marker task per placed marker
+    for setup in ("setup_scale.xml", "setup_ik.xml"):
+        tasks = ET.parse(result.out_dir / setup).getroot().iter("IKMarkerTask")
+        assert sorted(t.get("name") for t in tasks) == sorted(studio["labels"])
+    osim.ScaleTool(str(result.out_dir / "setup_scale.xml"))
+    osim.InverseKinematicsTool(str(result.out_dir / "setup_ik.xml"))
+
+
+@needs_opensim
+def test_markers_land_on_the_vertebra_of_the_level_map(studio, tmp_path):
+    from spinemocap.analysis.levels import LevelMap
+    from spinemocap.opensim.tools import marker_locations
+
+    levels = LevelMap({"L4": 1, "L1": 10, "T10": 13}, 13)  # L3 at row 4, L2 at 7, T12 11, T11 12
+    result = _run(studio, tmp_path, levels=levels)
+    placed = marker_locations(result.out_dir / "model.osim", studio["labels"])
+    expected = {"R01L": "L4", "R02C": "L4", "R04C": "L3", "R06R": "L2", "R08L": "L2", "R10C": "L1",
+                "R12C": "T11", "R13R": "T10"}
+    assert {label: placed[label][0] for label in expected} == expected
+    # on the back of the spine: behind the body centre, beside the midline by the tape's column
+    assert all(placed[label][1][0] < -15 for label in expected)
+    assert placed["R04C"][1][2] == pytest.approx(0.0, abs=3.0)
+    assert placed["R06R"][1][2] > 10 and placed["R08L"][1][2] < -10
+
+
+@needs_opensim
+def test_ik_on_a_studio_capture_meets_the_marker_rms_bound(studio, tmp_path):
+    from spinemocap.opensim.tools import read_storage
+
+    result = _run(studio, tmp_path, depth_scale=None, fit_frames=FRAMES)
+    s = result.summary
+    assert s["marker_rms_mm"] <= 2.0 and s["marker_rms_mm_max"] <= 3.0
+    assert 0.25 <= s["depth_scale"]["value"] <= 1.25 and len(s["depth_scale"]["marker_rms_mm_tried"]) >= 4
+    angles = result.angles
+    # the mixed motion bends forward: lumbar + thoracic flexion (project sign) grows from the static
+    # pose (frame 0)
+    total = angles["lumbar_flexion"] + angles["thoracic_flexion"]
+    assert total.iloc[0] == pytest.approx(0.0, abs=1.0) and total.max() > 5.0
+    header = (result.out_dir / "spine_angles.csv").read_text().splitlines()[0]
+    assert "angles deg" in header and "mm" in header
+    times, _, _, degrees = read_storage(result.out_dir / "ik.mot")
+    assert degrees and len(times) == FRAMES
+    assert (result.out_dir / "spine_angles.png").stat().st_size > 10_000
+
+
+def _turn(points: np.ndarray, degrees: float) -> np.ndarray:
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return np.asarray(points, float) @ R.T
+
+
+@needs_opensim
+def test_turning_the_capture_about_the_vertical_leaves_the_angles_unchanged(studio, base_run, tmp_path):
+    base = base_run
+    turned_markers = MarkerTable.from_arrays(studio["labels"], _turn(studio["dots"], 130.0), fps=FPS)
+    turned = _run(studio, tmp_path / "b", markers=turned_markers, facing=_turn(studio["facing"], 130.0))
+    columns = [c for c in base.angles.columns if c.startswith(("lumbar_", "thoracic_"))]
+    np.testing.assert_allclose(turned.angles[columns].to_numpy(), base.angles[columns].to_numpy(), atol=0.02)
+    assert turned.summary["marker_rms_mm"] == pytest.approx(base.summary["marker_rms_mm"], abs=0.01)
+
+
+@needs_opensim
+def test_a_subject_standing_a_little_turned_gets_its_own_sagittal_plane(studio, base_run, tmp_path):
+    turned = _run(studio, tmp_path, facing=_turn(studio["facing"], 30.0))  # declared 30 deg off the data
+    assert turned.summary["facing_error_deg"] == pytest.approx(30.0, abs=1.0)
+    columns = [c for c in base_run.angles.columns if c.startswith(("lumbar_", "thoracic_"))]
+    np.testing.assert_allclose(turned.angles[columns].to_numpy(), base_run.angles[columns].to_numpy(), atol=0.3)
+
+
+@needs_opensim
+@pytest.mark.parametrize("facing", [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0)])
+def test_a_facing_wrong_for_the_data_is_a_clear_error(studio, tmp_path, facing):
+    with pytest.raises(InputError, match=r"facing does not match the data.*subject faces about \[-?0\.0\d, -1\.00"):
+        _run(studio, tmp_path, facing=facing)
+    assert not (tmp_path / "out").exists()
+
+
+@needs_opensim
+def test_missing_samples_are_excluded_not_zero(studio, tmp_path):
+    dots = studio["dots"].copy()
+    status = np.full(dots.shape[:2], "observed", dtype=object)
+    holes = [(3, 5), (4, 5), (6, 20), (FRAMES - 1, 31)]  # after the static frames
+    for f, d in holes:
+        dots[f, d] = np.nan
+    status[2:, 12] = "inferred"
+    markers = MarkerTable.from_arrays(studio["labels"], dots, fps=FPS, status=status)
+    result = _run(studio, tmp_path, markers=markers, static_frames=2)  # holes after the static frames
+    table = osim.TimeSeriesTableVec3(str(result.out_dir / "markers_opensim.trc"))
+    labels = list(table.getColumnLabels())
+    for f, d in holes:
+        v = table.getRowAtIndex(f)[labels.index(studio["labels"][d])]
+        assert all(np.isnan([v[0], v[1], v[2]]))
+    assert result.summary["marker_rms_mm"] <= 2.0  # zeros would put a marker a metre off
+    weights = result.summary["marker_weights"]
+    assert weights[studio["labels"][5]] == 1.0 and weights[studio["labels"][12]] == pytest.approx(
+        (2 + 0.2 * (FRAMES - 2)) / FRAMES, abs=1e-3)
+    ik = ET.parse(result.out_dir / "setup_ik.xml").getroot()
+    task = next(t for t in ik.iter("IKMarkerTask") if t.get("name") == studio["labels"][12])
+    assert float(task.find("weight").text) == pytest.approx(weights[studio["labels"][12]], abs=1e-3)
+
+
+@needs_opensim
+def test_markers_on_a_lab_model(studio, base_run, tmp_path):
+    from spinemocap.opensim.labmodel import run_lab_model
+
+    lab = osim.Model(str(base_run.out_dir / "model_generic.osim"))  # stands in for a lab's model
+    lab.updMarkerSet().clearAndDestroy()
+    lab.setName("lab_spine")
+    lab.printToXML(str(tmp_path / "lab.osim"))
+    (tmp_path / "bodies.toml").write_text("[bodies]\nL4 = 'L4'\nL2 = 'L2'\nL1 = 'L1'\nT12 = 'T12'\nT10 = 'T10'\n"
+                                          "T8 = 'T8'\nT6 = 'T6'\n")
+    result = run_lab_model(studio["markers"], studio["tape"], studio["levels"], studio["up"], studio["facing"],
+                           tmp_path / "out", tmp_path / "lab.osim", tmp_path / "bodies.toml")
+    s = result.summary
+    assert s["marker_rms_mm"] <= 2.0
+    # rows over unmapped vertebrae go to the nearest mapped one: L3's rows onto L4 or L2, T11's onto T12/T10
+    assert set(s["markers_by_body"]) == {"L4", "L2", "L1", "T12", "T10", "T8", "T6"}
+    assert "L2_L3_extension" in result.angles.columns and (tmp_path / "out" / "setup_ik.xml").is_file()
+    with pytest.raises(InputError, match="not in"):
+        (tmp_path / "bad.toml").write_text("L4 = 'no_such_body'\n")
+        run_lab_model(studio["markers"], studio["tape"], studio["levels"], studio["up"], studio["facing"],
+                      tmp_path / "out2", tmp_path / "lab.osim", tmp_path / "bad.toml")
+
+
+@needs_opensim
+def test_batch_with_opensim_shows_ik_beside_the_tape_angles(tmp_path):
+    from spinemocap.analysis.bent_tape import write_bent_capture
+    from spinemocap.app.batch import run_batch
+    from spinemocap.app.report import write_report
+    from spinemocap.tape import TapeSpec
+
+    root = tmp_path / "study"
+    write_bent_capture(root / "S01" / "pre" / "trial01", TapeSpec(n_rows=13), 30.0, n_frames=12, fps=12.0)
+    (root / "S01" / "levels.toml").write_text('[levels]\nS1 = 1\n"T12/L1" = 7\nT9 = 13\n')
+    result = run_batch(root, tmp_path / "out", source="groundtruth", workers=1, progress=False, opensim=True)
+    trial = result.trials[0]
+    assert trial["status"] == "ok" and trial["opensim"]["status"] == "ok", trial
+    assert trial["opensim"]["marker_rms_mm"] <= 2.0
+    ik = (tmp_path / "out" / "S01" / "pre" / "trial01" / "opensim" / "spine_angles.csv").read_text()
+    assert "lumbar_flexion" in ik
+    page = write_report(tmp_path / "out")["html"].read_text()
+    assert "OpenSim IK: marker RMS" in page
