@@ -1,6 +1,7 @@
 """Synthetic calibration captures with a known rig: board sequences and a Vicon wand wave.
 
-Boards are planar, so they are rendered exactly: every (2x supersampled) pixel is
+Boards are planar, so they are rendered exactly (the printed face only; a camera behind the
+board sees its blank back): every (2x supersampled) pixel is
 back-projected through the :class:`~spinemocap.camera.Camera` model (undistort -> ray), the ray
 is intersected with the board plane and the board texture is sampled there (``cv2.remap``);
 then the image is area-downsampled, mildly blurred and given sensor noise. The wand's markers
@@ -90,7 +91,10 @@ class BoardRenderer:
             offset = ((self.margin_mm - R_cb[:, :2].T @ t_cb) * self.ppm - 0.5).astype(np.float32)
             map_xy = xy * depth[..., None] + offset
         map_xy[~((depth > 0) & np.isfinite(depth))] = -1e4
-        tex = self.texture * (190.0 / 255.0) + 30.0  # printed black 30, white 220
+        if normal @ t_cb > 0:  # the printed face (looking along -z_board) faces the camera
+            tex = self.texture * (190.0 / 255.0) + 30.0  # printed black 30, white 220
+        else:  # the camera sees the board's blank back
+            tex = np.full_like(self.texture, 150.0)
         big = cv2.remap(tex, map_xy[..., 0], map_xy[..., 1], cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_CONSTANT, borderValue=background)
         w, h = cam.size
@@ -155,12 +159,21 @@ def floor_poses(n: int) -> list[tuple[np.ndarray, np.ndarray]]:
     return poses
 
 
+def half_turn(board: BoardSpec, R_wb: np.ndarray, t_wb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The board pose turned by half a turn about its normal through the pattern's centre."""
+    w_mm, h_mm = board.size_mm
+    centre = R_wb @ np.array([w_mm / 2, h_mm / 2, 0.0]) + t_wb
+    R = R_wb @ np.diag([-1.0, -1.0, 1.0])
+    return R, centre - R @ np.array([w_mm / 2, h_mm / 2, 0.0])
+
+
 def render_board_capture(rig: Rig, board: BoardSpec, n_frames: int, seed: int = 1,
                          n_floor: int = 1, min_cameras: int = 2, renderer: BoardRenderer | None = None,
-                         **render_kwargs) -> BoardCapture:
+                         half_turns: bool = False, **render_kwargs) -> BoardCapture:
     """``n_frames`` synchronized frames of ``board``: the first ``n_floor`` lie on the floor
     (:func:`floor_poses`, frame 0 at :data:`FLOOR_POSE`), the rest are waved in front of the rig,
-    each fully visible to at least ``min_cameras`` cameras."""
+    each fully visible to at least ``min_cameras`` cameras. ``half_turns``: every other waved
+    frame is held turned by half a turn (upside down), as people do."""
     rng = np.random.default_rng(seed)
     renderer = renderer or BoardRenderer(board)
     centre = np.mean([c.center for c in rig], axis=0)
@@ -174,6 +187,8 @@ def render_board_capture(rig: Rig, board: BoardSpec, n_frames: int, seed: int = 
         a, b = rng.choice(len(rig), 2, replace=False)
         facing = (rig[int(a)].center + rig[int(b)].center) / 2
         pose = random_board_pose(board, rng, centre, facing)
+        if half_turns and len(poses) % 2:
+            pose = half_turn(board, *pose)
         if sum(board_visible(cam, board, *pose) for cam in rig) >= min_cameras:
             poses.append(pose)
     images = {cam.name: [renderer.render(cam, R, t, rng, **render_kwargs) for R, t in poses] for cam in rig}
@@ -212,12 +227,14 @@ class CalibrationSession:
 
 
 def render_calibration_session(rig: Rig, board: BoardSpec, n_intrinsic: int = 15, n_frames: int = 20,
-                               n_floor: int = 3, seed: int = 1) -> CalibrationSession:
-    """Render a full synthetic calibration session for ``rig`` (deterministic for a seed)."""
+                               n_floor: int = 3, seed: int = 1, half_turns: bool = False) -> CalibrationSession:
+    """Render a full synthetic calibration session for ``rig`` (deterministic for a seed);
+    ``half_turns``: see :func:`render_board_capture`."""
     renderer = BoardRenderer(board)
     intrinsic = {cam.name: render_intrinsic_views(cam, board, n_intrinsic, seed=seed * 100 + k, renderer=renderer)
                  for k, cam in enumerate(rig)}
-    capture = render_board_capture(rig, board, n_frames, seed=seed, n_floor=n_floor, renderer=renderer)
+    capture = render_board_capture(rig, board, n_frames, seed=seed, n_floor=n_floor, renderer=renderer,
+                                   half_turns=half_turns)
     return CalibrationSession(intrinsic, capture, list(range(n_floor)))
 
 
