@@ -323,11 +323,62 @@ def render_wand_wave(rig: Rig, wand: WandSpec | None = None, duration_s: float =
     t = np.asarray(vicon_translation_mm, float)
     vicon = vicon_world @ R.T + t + rng.normal(0, 0.05, vicon_world.shape)
     keep = t_vicon >= 0
+    images = render_marker_frames(rig, world, wand, rng, noise_sigma)
+    return WandWave(rig, wand, fps, images, world, vicon_rate, vicon[keep], R, t, 1.0, offset_s)
+
+
+def render_marker_frames(rig: Rig, world_mm: np.ndarray, wand: WandSpec, rng: np.random.Generator,
+                         noise_sigma: float = 2.0) -> dict[str, list[np.ndarray]]:
+    """``images[cam][frame]`` of the wand markers ``world_mm`` (F, M, 3) in every camera."""
     # Sensor noise drawn from a small bank of fields (fresh noise per frame costs more than the render).
     bank = rng.normal(0, noise_sigma, (7, rig[0].size[1], rig[0].size[0])).astype(np.float32)
     images = {}
     for cam in rig:
         noise = bank if cam.size == rig[0].size else rng.normal(0, noise_sigma, (7, cam.size[1], cam.size[0]))
-        images[cam.name] = [render_wand_frame(cam, world[f], wand.marker_diameter_mm / 2, noise[rng.integers(7)])
-                            for f in range(len(t_rgb))]
-    return WandWave(rig, wand, fps, images, world, vicon_rate, vicon[keep], R, t, 1.0, offset_s)
+        images[cam.name] = [render_wand_frame(cam, markers, wand.marker_diameter_mm / 2, noise[rng.integers(7)])
+                            for markers in world_mm]
+    return images
+
+
+def wand_on_floor(wand: WandSpec) -> list[np.ndarray]:
+    """Marker positions (world mm) of the wand lying on the floor, its first ``x_axis`` marker
+    above the world origin and the direction to the second along +X: once for a T-wand; for a
+    linear wand a second placement along +Y (an L), since one line does not fix the floor."""
+    lift = np.array([0.0, 0.0, wand.height_on_floor_mm])
+    a, b = wand.x_axis
+    along = wand.points_mm[b] - wand.points_mm[a]
+    angle = np.arctan2(along[1], along[0])
+    flat = Rotation.from_euler("z", -angle).apply(wand.points_mm - wand.points_mm[a])
+    placements = [flat + lift]
+    if wand.kind != "t":
+        placements.append(Rotation.from_euler("z", 90, degrees=True).apply(flat) + lift)
+    return placements
+
+
+@dataclass
+class WandCalibrationWave:
+    """A wand-wave calibration capture: ``images[cam][frame]`` with the wand lying on the floor in
+    ``floor_frames`` (first) and waved through the volume after; true markers ``world_mm``."""
+
+    rig: Rig
+    wand: WandSpec
+    fps: float
+    images: dict[str, list[np.ndarray]]
+    world_mm: np.ndarray
+    floor_frames: list[int]
+
+
+def render_wand_calibration(rig: Rig, wand: WandSpec, duration_s: float = 4.0, fps: float = 50.0,
+                            floor_frames_per_placement: int = 3, seed: int = 5, noise_sigma: float = 2.0,
+                            floor_noise_mm: float = 0.0) -> WandCalibrationWave:
+    """Render a wand-wave calibration: the wand lying still on the floor (:func:`wand_on_floor`,
+    ``floor_frames_per_placement`` frames per placement), then ``duration_s`` of waving."""
+    rng = np.random.default_rng(seed)
+    floor = [markers + rng.normal(0, floor_noise_mm, markers.shape) for markers in wand_on_floor(wand)
+             for _ in range(floor_frames_per_placement)]
+    centre = np.mean([c.center for c in rig], axis=0)
+    centre[2] = 1100.0
+    wave = wand_trajectory(np.arange(int(duration_s * fps)) / fps, wand, seed, centre)
+    world = np.concatenate([np.asarray(floor).reshape(-1, wand.n_markers, 3), wave])
+    images = render_marker_frames(rig, world, wand, rng, noise_sigma)
+    return WandCalibrationWave(rig, wand, fps, images, world, list(range(len(floor))))
