@@ -15,15 +15,21 @@ rate on the Vicon clock, ``t_vicon = t_rgb + offset``.
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
 from calibration.boards import BoardSpec
 from calibration.wand import WandSpec
 from spinemocap.camera import Camera, Rig
+from spinemocap.fileio import InputError, write_toml
 
 #: The floor board lies face up with its pattern origin at the world origin: board x = world x,
 #: board y = world -y, board z (into the board) = world -z.
@@ -382,3 +388,76 @@ def render_wand_calibration(rig: Rig, wand: WandSpec, duration_s: float = 4.0, f
     world = np.concatenate([np.asarray(floor).reshape(-1, wand.n_markers, 3), wave])
     images = render_marker_frames(rig, world, wand, rng, noise_sigma)
     return WandCalibrationWave(rig, wand, fps, images, world, list(range(len(floor))))
+
+
+# ---------------------------------------------------------------------- a session on disk
+def write_calibration_session(out: str | os.PathLike, board: BoardSpec, wand: WandSpec, n_cameras: int = 6,
+                              size: tuple[int, int] = (800, 600), n_intrinsic: int = 12, n_frames: int = 16,
+                              wand_seconds: float = 3.0, seed: int = 0, progress: bool = True) -> str:
+    """Write a synthetic calibration session to the new folder ``out`` and return its README text:
+    ``rig_true.toml`` (the truth), ``intrinsics/CAM/`` (board images per camera),
+    ``board/CAM/`` (synchronized board frames, the first 3 on the floor; board half-turned in
+    every other waved frame), ``wand/CAM/`` (wand on the floor first, then waved; 50 fps),
+    ``session.toml`` (board, wand, floor frames) and ``README.txt`` (the commands to run)."""
+    out = Path(out)
+    if out.exists():
+        raise InputError(out, "output folder exists; give a new folder")
+    rig = make_ring_rig(n_cameras, size=size, seed=seed)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent if str(out.parent) else "."))
+    try:
+        with tqdm(total=3, desc="synthetic calibration", disable=not progress) as bar:
+            session = render_calibration_session(rig, board, n_intrinsic, n_frames, n_floor=3, seed=seed + 1,
+                                                 half_turns=True)
+            bar.update()
+            wave = render_wand_calibration(rig, wand, duration_s=wand_seconds, seed=seed + 5)
+            bar.update()
+            for cam in rig:
+                _write_images(tmp / "intrinsics" / cam.name, session.intrinsic[cam.name])
+                _write_images(tmp / "board" / cam.name, session.capture.images[cam.name])
+                _write_images(tmp / "wand" / cam.name, wave.images[cam.name])
+            bar.update()
+        rig.to_toml(tmp / "rig_true.toml")
+        write_toml(tmp / "session.toml", {"board": str(board), "wand": wand_text(wand), "fps": wave.fps,
+                                          "board_floor_frames": session.floor_frames,
+                                          "wand_floor_frames": wave.floor_frames, "cameras": rig.names})
+        readme = _session_readme(out, rig, board, wand, session.floor_frames, wave.floor_frames)
+        (tmp / "README.txt").write_text(readme)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return readme
+
+
+def wand_text(wand: WandSpec) -> str:
+    """The ``--wand`` text that parses back to ``wand``."""
+    if wand.kind == "t":
+        return "t"
+    return "linear:" + ":".join(f"{x:g}" for x in wand.points_mm[1:, 0])
+
+
+def _write_images(folder: Path, images: list[np.ndarray]) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    for k, image in enumerate(images):
+        cv2.imwrite(str(folder / f"{k:04d}.png"), image)
+
+
+def _session_readme(out: Path, rig: Rig, board: BoardSpec, wand: WandSpec, board_floor: list[int],
+                    wand_floor: list[int]) -> str:
+    names = rig.names
+    intr = " ".join(f"{out}/{n}_intrinsics.toml" for n in names)
+    lines = [f"Synthetic calibration session: {len(rig)} cameras, board {board}, wand {wand_text(wand)}.",
+             f"The true rig is {out}/rig_true.toml (world mm, Z up). Calibrate it three ways:", "",
+             "# 1. intrinsics, one camera at a time"]
+    lines += [f"spinemocap calibrate intrinsics {out}/intrinsics/{n} --board {board} --name {n} "
+              f"--out {out}/{n}_intrinsics.toml" for n in names]
+    lines += ["", "# 2. extrinsics from the board (frames " + ",".join(map(str, board_floor)) + " lie on the floor)",
+              f"spinemocap calibrate extrinsics --intrinsics {intr} --views "
+              + " ".join(f"{out}/board/{n}" for n in names)
+              + f" --board {board} --floor-frames {' '.join(map(str, board_floor))} --out {out}/rig_board.toml",
+              "", f"# 3. extrinsics from the wand wave alone (frames {wand_floor[0]}-{wand_floor[-1]}: wand on the floor)",
+              f"spinemocap calibrate wand-wave --intrinsics {intr} --videos "
+              + " ".join(f"{out}/wand/{n}" for n in names)
+              + f" --wand {wand_text(wand)} --floor-frames {wand_floor[0]}-{wand_floor[-1]} --out {out}/rig_wand.toml",
+              ""]
+    return "\n".join(lines)
