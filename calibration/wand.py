@@ -71,24 +71,18 @@ class WandSpec:
         ``linear:A_MM:LENGTH_MM`` (3 markers at 0, A and LENGTH along a line; A must be at most
         0.43 LENGTH or at least 0.57 LENGTH so the two ends can be told apart)."""
         parts = text.strip().lower().split(":")
-        try:
-            if parts[0] in ("t", "t-wand", "t5") and len(parts) == 1:
-                return cls()
-            if parts[0] == "linear" and len(parts) in (2, 3):
-                along = [0.0] + [float(v) for v in parts[1:]]
-                if not all(b > a for a, b in zip(along, along[1:])):
-                    raise ValueError
-                if len(along) == 3 and abs(along[1] / along[2] - 0.5) < 0.07:
-                    raise InputError("--wand", f"linear wand {text!r}: the middle marker is too near the middle "
-                                     "(ends cannot be told apart); the middle marker must sit at <= 0.43 or "
-                                     ">= 0.57 of the length")
-                points = np.array([[a, 0.0, 0.0] for a in along])
-                return cls(tuple(f"WAND{k + 1}" for k in range(len(along))), points, kind="linear",
-                           x_axis=(0, len(along) - 1))
-        except ValueError:
-            pass
-        raise InputError("--wand", f"cannot parse wand {text!r}; expected t, linear:LENGTH_MM or "
-                         "linear:A_MM:LENGTH_MM")
+        if parts[0] in ("t", "t-wand", "t5") and len(parts) == 1:
+            return cls()
+        along = _positions_along(parts[1:]) if parts[0] == "linear" and len(parts) in (2, 3) else None
+        if along is None:
+            raise InputError("--wand", f"cannot parse wand {text!r}; expected t, linear:LENGTH_MM or "
+                             "linear:A_MM:LENGTH_MM (increasing positive distances)")
+        if len(along) == 3 and abs(along[1] / along[2] - 0.5) < 0.07:
+            raise InputError("--wand", f"linear wand {text!r}: the middle marker is too near the middle (the ends "
+                             "cannot be told apart); it must sit at <= 0.43 or >= 0.57 of the length")
+        points = np.array([[a, 0.0, 0.0] for a in along])
+        return cls(tuple(f"WAND{k + 1}" for k in range(len(along))), points, kind="linear",
+                   x_axis=(0, len(along) - 1))
 
     @property
     def n_markers(self) -> int:
@@ -114,6 +108,15 @@ class WandSpec:
     def distances(self) -> np.ndarray:
         p = self.points_mm
         return np.linalg.norm(p[:, None] - p[None], axis=2)
+
+
+def _positions_along(values: list[str]) -> list[float] | None:
+    """[0, d1, d2...] from distance strings, or None unless they are numbers increasing from 0."""
+    try:
+        along = [0.0] + [float(v) for v in values]
+    except ValueError:
+        return None
+    return along if all(b > a for a, b in itertools.pairwise(along)) else None
 
 
 # ---------------------------------------------------------------------- 2D detection
