@@ -288,7 +288,7 @@ def adjust(intrinsics: Rig, poses: list[Pose], views: WandViews, wand: WandSpec,
         rig, refined, _ = bundle_adjust(rig, wand.points_mm, _detections(rig, views, targets), [(c.R, c.t) for c in rig],
                                         targets, reference, refine_intrinsics=False, progress=progress,
                                         backend=backend)
-        targets = {int(f): pose for f, pose in refined.items()}
+        targets = dict(zip(list(targets), refined.values()))  # same frames, same order
         errors = _view_errors(rig, views, targets, wand)
         limit = max(5 * float(np.median(list(errors.values()))), 1.0)
         bad = [key for key, e in errors.items() if e > limit]

@@ -7,9 +7,9 @@ from scipy.spatial.transform import Rotation
 
 from calibration.boards import BoardDetection, BoardSpec
 from calibration.extrinsics import bundle_adjust
+from spinemocap.bench.calibration_scenes import board_visible, make_ring_rig, random_board_pose
 from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import InputError
-from spinemocap.synth.calibration_scenes import board_visible, make_ring_rig, random_board_pose
 
 BOARD = BoardSpec.parse("charuco:6x5:120")
 

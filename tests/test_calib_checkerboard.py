@@ -10,9 +10,9 @@ from scipy.spatial.transform import Rotation
 
 from calibration.boards import BoardSpec, detect_board, order_checkerboard, view_problem
 from calibration.extrinsics import calibrate_extrinsics
+from spinemocap.bench.calibration_scenes import make_ring_rig, render_board_capture
 from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import InputError
-from spinemocap.synth.calibration_scenes import make_ring_rig, render_board_capture
 
 BOARD = BoardSpec.parse("checkerboard:4x7:120")
 

@@ -10,10 +10,10 @@ from scipy.spatial.transform import Rotation
 
 from calibration.wand import WandSpec, detect_wand_views, identify_linear_wand
 from calibration.wandwave import calibrate_wand_wave
+from spinemocap.bench.calibration_scenes import make_ring_rig, render_wand_calibration
 from spinemocap.camera import Camera, Rig
 from spinemocap.cli import main
 from spinemocap.fileio import InputError
-from spinemocap.synth.calibration_scenes import make_ring_rig, render_wand_calibration
 
 
 def _unposed(rig: Rig) -> Rig:

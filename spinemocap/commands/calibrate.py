@@ -214,6 +214,7 @@ def _wand_wave(args: argparse.Namespace) -> int:
 def _synth_calibration(args: argparse.Namespace) -> int:
     from calibration.boards import BoardSpec
     from calibration.wand import WandSpec
+
     from ..bench.calibration_scenes import write_calibration_session
 
     readme = write_calibration_session(args.out, BoardSpec.parse(args.board), WandSpec.parse(args.wand),
