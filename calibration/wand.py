@@ -234,14 +234,21 @@ def triangulate_wand_views(rig: Rig, views: WandViews, wand: WandSpec, max_fit_m
     wand or the triangulated shape is more than ``max_fit_mm`` RMS from the wand's."""
     out = np.full((len(views), wand.n_markers, 3), np.nan)
     for f, per_cam in enumerate(views):
-        cams = [c for c, v in enumerate(per_cam) if v is not None]
-        if len(cams) < 2:
-            continue
-        pts = np.stack([triangulate([rig[c] for c in cams], np.stack([per_cam[c][k] for c in cams]))
-                        for k in range(wand.n_markers)])
-        if rigid_fit(wand.points_mm, pts)[2] <= max_fit_mm:
+        pts = triangulate_markers(rig, per_cam)
+        if pts is not None and rigid_fit(wand.points_mm, pts)[2] <= max_fit_mm:
             out[f] = pts
     return out
+
+
+def triangulate_markers(rig: Rig, per_cam: Sequence[np.ndarray | None]) -> np.ndarray | None:
+    """(M, 3) markers of one frame (rig frame, mm) triangulated from every camera that identified
+    them (``per_cam[c]``: (M, 2) pixels in label order, or None); None when fewer than two did."""
+    cams = [c for c, v in enumerate(per_cam) if v is not None]
+    if len(cams) < 2:
+        return None
+    views = [per_cam[c] for c in cams]
+    return np.stack([triangulate([rig[c] for c in cams], np.stack([v[k] for v in views]))
+                     for k in range(len(views[0]))])
 
 
 def triangulate_wand(rig: Rig, frames: Iterable[Sequence[np.ndarray]], wand: WandSpec,
@@ -457,5 +464,5 @@ def coregister(rig: Rig, frames: Iterable[Sequence[np.ndarray]], fps: float, vic
 
 __all__ = ["WandSpec", "WandRegistration", "ViconWand", "detect_blobs", "identify_wand", "triangulate_wand",
            "detect_wand_views", "triangulate_wand_views", "refine_rig_with_wand",
-           "vicon_wand_from_table", "coarse_offset", "identify_markers", "identify_linear_wand", "register_wand", "coregister",
+           "vicon_wand_from_table", "coarse_offset", "identify_markers", "identify_linear_wand", "triangulate_markers", "register_wand", "coregister",
            "synchronized_frames"]

@@ -42,8 +42,8 @@ from spinemocap.fileio import InputError, atomic_path
 
 from .boards import BoardDetection
 from .extrinsics import bundle_adjust, spanning_tree
-from .geometry import rigid_fit, transform_rig, triangulate
-from .wand import WandSpec, WandViews
+from .geometry import rigid_fit, transform_rig
+from .wand import WandSpec, WandViews, triangulate_markers
 
 log = logging.getLogger(__name__)
 
@@ -246,11 +246,9 @@ def wand_poses(rig: Rig, views: WandViews, wand: WandSpec, max_fit_mm: float) ->
     triangulated markers, kept when the fit is within ``max_fit_mm`` RMS."""
     poses = {}
     for f, per in enumerate(views):
-        cams = [c for c, v in enumerate(per) if v is not None]
-        if len(cams) < 2:
+        pts = triangulate_markers(rig, per)
+        if pts is None:
             continue
-        pts = np.stack([triangulate([rig[c] for c in cams], np.stack([per[c][k] for c in cams]))
-                        for k in range(wand.n_markers)])
         R, t, rms = rigid_fit(wand.points_mm, pts)
         if rms <= max_fit_mm:
             poses[f] = (R, t)
@@ -336,11 +334,9 @@ def length_errors(rig: Rig, views: WandViews, wand: WandSpec, frames) -> tuple[n
     a, b = wand.length_pair
     used, centres, errors = [], [], []
     for f in frames:
-        cams = [c for c, v in enumerate(views[f]) if v is not None]
-        if len(cams) < 2:
+        pts = triangulate_markers(rig, views[f])
+        if pts is None:
             continue
-        pts = np.stack([triangulate([rig[c] for c in cams], np.stack([views[f][c][k] for c in cams]))
-                        for k in range(wand.n_markers)])
         used.append(f)
         centres.append(pts.mean(axis=0))
         errors.append(np.linalg.norm(pts[a] - pts[b]) - wand.distances[a, b])

@@ -48,6 +48,13 @@ def rig_errors(truth: Rig, estimate: Rig) -> dict[str, float]:
 
 def board_stage(size: int, n_intrinsic: int, n_frames: int, seed: int, board_text: str = BOARD,
                 backends: tuple[str, ...] = ("ceres", "scipy")) -> dict:
+    """One board session: intrinsics per camera, then extrinsics with each BA backend."""
+    return board_session(size, n_intrinsic, n_frames, seed, board_text, backends)[0]
+
+
+def board_session(size: int, n_intrinsic: int, n_frames: int, seed: int, board_text: str = BOARD,
+                  backends: tuple[str, ...] = ("ceres", "scipy")) -> tuple[dict, Rig]:
+    """:func:`board_stage`'s row and the intrinsics it calibrated (poses not set)."""
     board = BoardSpec.parse(board_text)
     truth = make_ring_rig(6, size=(size, size * 3 // 4), seed=seed)
     t0 = time.perf_counter()
@@ -78,11 +85,12 @@ def board_stage(size: int, n_intrinsic: int, n_frames: int, seed: int, board_tex
                                 "rms_px": max(result.rms_px.values()), "board_rms_mm": result.board_rms_mm,
                                 "views_left_out": len(result.rejected)}
     out["ours_ba"] = out[f"ba_{backends[0]}"]
-    return out
+    return out, intr_rig
 
 
-def wandwave_stage(size: int, seed: int, wand_text: str, seconds: float) -> dict:
-    """All extrinsics from a wand wave alone (Ceres bundle adjustment), true intrinsics."""
+def wandwave_stage(size: int, seed: int, wand_text: str, seconds: float, intrinsics: Rig) -> dict:
+    """All extrinsics from a wand wave alone (Ceres bundle adjustment) with ``intrinsics`` (from
+    the ChArUco session of the same rig), and the same with the true lenses (the ideal case)."""
     wand = WandSpec.parse(wand_text)
     truth = make_ring_rig(6, size=(size, size * 3 // 4), seed=seed)
     t0 = time.perf_counter()
@@ -92,13 +100,15 @@ def wandwave_stage(size: int, seed: int, wand_text: str, seconds: float) -> dict
     frames = ([wave.images[c.name][f] for c in truth] for f in range(len(wave.world_mm)))
     views = detect_wand_views(frames, wand, progress=False)
     t_detect = time.perf_counter() - t0
-    intrinsics = Rig([Camera(c.name, c.K, c.dist, np.eye(3), np.zeros(3), c.size) for c in truth])
     t0 = time.perf_counter()
     result = calibrate_wand_wave(intrinsics, views, wand, wave.floor_frames, progress=False)
     t_cal = time.perf_counter() - t0
-    return {"wand": wand_text, "seed": seed, "frames": len(views), **rig_errors(truth, result.rig),
-            "length_rms_mm": result.length_rms_mm, "length_max_mm": float(np.abs(result.length_error_mm).max()),
-            "rms_px": max(result.rms_px.values()),
+    lenses = Rig([Camera(c.name, c.K, c.dist, np.eye(3), np.zeros(3), c.size) for c in truth])
+    ideal = calibrate_wand_wave(lenses, views, wand, wave.floor_frames, progress=False)
+    return {"wand": wand_text, "seed": seed, "frames": len(views), "intrinsics": "ChArUco session's",
+            **rig_errors(truth, result.rig), "length_rms_mm": result.length_rms_mm,
+            "length_max_mm": float(np.abs(result.length_error_mm).max()), "rms_px": max(result.rms_px.values()),
+            "true_intrinsics": {**rig_errors(truth, ideal.rig), "length_rms_mm": ideal.length_rms_mm},
             "seconds": {"render": t_render, "detect": t_detect, "calibrate": t_cal}}
 
 
@@ -133,7 +143,7 @@ def run_benchmark(size: int, n_intrinsic: int, n_frames: int, seeds: list[int], 
                      "checkerboard": checkerboard, "wand_wave": wand, "boards": [], "checkerboards": [],
                      "wandwaves": [], "wand": []}
     for seed in seeds:
-        b = board_stage(size, n_intrinsic, n_frames, seed)
+        b, intrinsics = board_session(size, n_intrinsic, n_frames, seed)
         results["boards"].append(b)
         print(f"seed {seed} ChArUco {b['size'][0]}x{b['size'][1]}: no-BA peer centre {b['peer_no_ba']['centre_mm']:.2f} mm "
               f"rot {b['peer_no_ba']['rotation_deg']:.3f} deg | " + " | ".join(
@@ -143,11 +153,12 @@ def run_benchmark(size: int, n_intrinsic: int, n_frames: int, seeds: list[int], 
         results["checkerboards"].append(c)
         print(f"seed {seed} {checkerboard}: centre {c['ours_ba']['centre_mm']:.2f} mm rot {c['ours_ba']['rotation_deg']:.3f} deg "
               f"focal {c['ours_ba']['focal_pct']:.3f} % ({c['ours_ba']['views_left_out']} views left out)")
-        w = wandwave_stage(size, seed, wand, wand_seconds)
+        w = wandwave_stage(size, seed, wand, wand_seconds, intrinsics)
         results["wandwaves"].append(w)
-        print(f"seed {seed} wand wave ({wand}): centre {w['centre_mm']:.2f} mm rot {w['rotation_deg']:.4f} deg, "
-              f"wand length error RMS {w['length_rms_mm']:.3f} mm (max {w['length_max_mm']:.2f}); "
-              f"calibration {w['seconds']['calibrate']:.1f} s")
+        print(f"seed {seed} wand wave ({wand}, ChArUco intrinsics): centre {w['centre_mm']:.2f} mm rot "
+              f"{w['rotation_deg']:.4f} deg, wand length error RMS {w['length_rms_mm']:.3f} mm (max "
+              f"{w['length_max_mm']:.2f}); calibration {w['seconds']['calibrate']:.1f} s | true lenses: centre "
+              f"{w['true_intrinsics']['centre_mm']:.2f} mm rot {w['true_intrinsics']['rotation_deg']:.4f} deg")
         with tempfile.TemporaryDirectory() as tmp:
             v = wand_stage(seed, f"{tmp}/wand.c3d")
         results["wand"].append(v)
