@@ -100,3 +100,30 @@ def test_half_turn_symmetric_board_is_refused(session):
     # single views still serve intrinsics, but say why their order is not trusted
     det = detect_board(np.asarray(capture.images["cam1"][0]), BOARD)
     assert det is not None and det.order_problem is None
+
+
+def test_real_pose2sim_photos_get_an_unambiguous_corner_order():
+    """The Pose2Sim demo's 4x7 checkerboard photos (real lighting and print): every view found
+    gets the board's own order, and that order puts the origin's black square where the image
+    shows a dark square."""
+    from pathlib import Path
+
+    import cv2
+
+    demo = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "calibration" / "pose2sim_demo" / "cam01"
+    if not demo.is_dir():
+        pytest.skip("shared calibration data not present")
+    board = BoardSpec.parse("checkerboard:4x7:60")
+    found = 0
+    for path in sorted(demo.glob("*.jpg"))[:4]:
+        grey = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        det = detect_board(grey, board)
+        if det is None:
+            continue
+        found += 1
+        assert det.order_problem is None, path.name
+        # the square between corners 0, 1, cols, cols+1 is black by the board's own order
+        first = det.pixels[[0, 1, board.cols, board.cols + 1]].mean(axis=0)
+        second = det.pixels[[1, 2, board.cols + 1, board.cols + 2]].mean(axis=0)
+        assert grey[int(first[1]), int(first[0])] < grey[int(second[1]), int(second[0])] - 40, path.name
+    assert found >= 3
