@@ -81,5 +81,13 @@ def test_synth_calibration_and_wand_wave_cli(tmp_path, capsys):
     for true, est in zip(truth, rig):
         assert np.linalg.norm(est.center - true.center) < 3.0
     assert (tmp_path / "rig.toml.wand_length.png").stat().st_size > 10_000
+    # the same session's checkerboard frames through `calibrate extrinsics`
+    board_rig = tmp_path / "board.toml"
+    code = main(["calibrate", "extrinsics", "--intrinsics", str(out / "rig_true.toml"), "--views",
+                 *[str(out / "board" / n) for n in truth.names], "--board", "checkerboard:4x7:120",
+                 "--floor-frames", "0", "1", "2", "--fixed-intrinsics", "--out", str(board_rig)])
+    assert code == 0
+    for true, est in zip(truth, Rig.from_toml(board_rig)):
+        assert np.linalg.norm(est.center - true.center) < 10.0
     assert main(["synth-calibration", str(out)]) == 2
     assert "exists" in capsys.readouterr().err
