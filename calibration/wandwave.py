@@ -13,9 +13,9 @@ first frames optionally with the wand lying on the floor. Pipeline:
 3. metric scale per tree edge from the wand's known distances between the markers the pair
    triangulates (median over frames), chained poses from the reference camera;
 4. wand pose per frame (markers triangulated from all cameras, rigid fit to the wand), then
-   bundle adjustment of camera poses and wand poses with the wand as a rigid target of known
-   size (:func:`calibration.extrinsics.bundle_adjust`: Ceres by default), views that disagree
-   left out and the adjustment repeated;
+   bundle adjustment of camera poses, wand poses and (by default) the intrinsics with the wand
+   as a rigid target of known size (:func:`calibration.extrinsics.bundle_adjust`: Ceres by
+   default), views that disagree left out and the adjustment repeated;
 5. world frame from the wand on the floor (``floor_frames``): Z up is the normal of the plane
    through the floor markers (towards the cameras), the origin is below the wand's first
    ``x_axis`` marker, X points to its second. A T-wand is an L-frame by itself; a linear wand
@@ -272,9 +272,11 @@ def _view_errors(rig: Rig, views: WandViews, poses: dict[int, Pose], wand: WandS
 
 
 def adjust(intrinsics: Rig, poses: list[Pose], views: WandViews, wand: WandSpec, reference: int,
-           backend: str, progress: bool) -> tuple[Rig, dict[int, Pose], WandViews, dict[str, int]]:
-    """Bundle adjustment with the wand as a rigid target (intrinsics fixed); views more than
-    ``max(5 x median, 1 px)`` off after the first pass are left out and the rig adjusted again."""
+           backend: str, progress: bool, refine_intrinsics: bool = False
+           ) -> tuple[Rig, dict[int, Pose], WandViews, dict[str, int]]:
+    """Bundle adjustment with the wand as a rigid target (``refine_intrinsics``: also fx fy cx cy
+    k1 k2 p1 p2); views more than ``max(5 x median, 1 px)`` off after the first pass are left
+    out and the rig adjusted again."""
     rig = _with_poses(intrinsics, poses)
     views = label_views(rig, views, wand)
     targets = wand_poses(rig, views, wand, max_fit_mm=0.05 * wand.distances.max())
@@ -284,7 +286,7 @@ def adjust(intrinsics: Rig, poses: list[Pose], views: WandViews, wand: WandSpec,
     dropped = {"views whose markers disagree with the others": 0}
     for _ in range(2):
         rig, refined, _ = bundle_adjust(rig, wand.points_mm, _detections(rig, views, targets), [(c.R, c.t) for c in rig],
-                                        targets, reference, refine_intrinsics=False, progress=progress,
+                                        targets, reference, refine_intrinsics=refine_intrinsics, progress=progress,
                                         backend=backend)
         targets = dict(zip(list(targets), refined.values()))  # same frames, same order
         errors = _view_errors(rig, views, targets, wand)
@@ -354,12 +356,16 @@ def _residuals(rig: Rig, views: WandViews, targets: dict[int, Pose], wand: WandS
 
 
 def calibrate_wand_wave(intrinsics: Rig, views: WandViews, wand: WandSpec, floor_frames: list[int] | None = None,
-                        reference: int = 0, backend: str = "ceres", progress: bool = True) -> WandWaveResult:
+                        reference: int = 0, backend: str = "ceres", progress: bool = True,
+                        refine_intrinsics: bool = True) -> WandWaveResult:
     """Whole pipeline (module doc): ``intrinsics`` (poses ignored), ``views[frame][camera]``
     identified markers (:func:`calibration.wand.detect_wand_views`), ``floor_frames`` where
-    the wand lies on the floor (None: the world is the reference camera's frame)."""
+    the wand lies on the floor (None: the world is the reference camera's frame).
+    ``refine_intrinsics``: the bundle adjustment also refines fx fy cx cy k1 k2 p1 p2 (as
+    optical systems do in a wand wave; it takes the per-camera board intrinsics' errors out)."""
     poses = initial_rig(intrinsics, views, wand, reference)
-    rig, targets, views, dropped = adjust(intrinsics, poses, views, wand, reference, backend, progress)
+    rig, targets, views, dropped = adjust(intrinsics, poses, views, wand, reference, backend, progress,
+                                          refine_intrinsics)
     if floor_frames:
         R, t = floor_transform(rig, targets, wand, list(floor_frames))
         rig = transform_rig(rig, R, t)

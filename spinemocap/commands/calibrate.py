@@ -47,6 +47,7 @@ def register(subparsers) -> None:
                    help="frames where the wand lies on the floor, e.g. 0-9 or 0,1,2 (world Z up; a linear wand "
                    "must lie in two directions); empty: the first camera's frame is the world")
     p.add_argument("--ba", choices=["ceres", "scipy"], default="ceres", help="bundle adjustment backend")
+    p.add_argument("--fixed-intrinsics", action="store_true", help="do not refine intrinsics in the adjustment")
     p.add_argument("--out", required=True, help="output rig (.toml ours, --format pose2sim, or .xcp)")
     p.add_argument("--format", choices=["spinemocap", "pose2sim"], help="TOML flavour of --out")
     p.add_argument("--plot", help="wand-length error PNG (default: OUT.wand_length.png; residuals: OUT.residuals.png)")
@@ -199,7 +200,8 @@ def _wand_wave(args: argparse.Namespace) -> int:
     intrinsics = _read_cameras(args.intrinsics)
     frames, _ = synchronized_frames(args.videos, len(intrinsics))
     views = detect_wand_views(frames, wand)
-    result = calibrate_wand_wave(intrinsics, views, wand, parse_frames(args.floor_frames) or None, backend=args.ba)
+    result = calibrate_wand_wave(intrinsics, views, wand, parse_frames(args.floor_frames) or None, backend=args.ba,
+                                 refine_intrinsics=not args.fixed_intrinsics)
     print(result.summary())
     write_rig(result.rig, args.out, args.format)
     save_residuals(args.out, result.residuals)
