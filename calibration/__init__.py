@@ -8,8 +8,13 @@ Pipeline (one module per step):
 
 * :mod:`calibration.boards` — board spec (checkerboard / ChArUco), detection, view checks;
 * :mod:`calibration.intrinsics` — one camera's K and distortion from board views;
-* :mod:`calibration.extrinsics` — PnP spanning tree + bundle adjustment, world frame from the floor;
-* :mod:`calibration.wand` — Vicon wand: identify, triangulate, clock offset, similarity transform;
+* :mod:`calibration.extrinsics` — PnP spanning tree + bundle adjustment, world frame from the floor
+  (ChArUco or checkerboard; the checkerboard's corner order in :mod:`calibration.boards`);
+* :mod:`calibration.ceres_ba` — the bundle adjustment through Ceres (pycolmap), the default;
+* :mod:`calibration.wandwave` — all extrinsics from a wand wave alone (essential matrices,
+  spanning tree, wand scale, rigid-wand bundle adjustment, floor from the wand on the floor);
+* :mod:`calibration.wand` — wands (T, linear): identify, triangulate; Vicon co-registration:
+  clock offset, similarity transform;
 * :mod:`calibration.formats` — ours, Pose2Sim/Anipose TOML, Qualisys .qca.txt, Vicon .xcp;
 * :mod:`calibration.check` — per-camera table and reprojection-error plot;
 * :mod:`calibration.geometry` — triangulation, Umeyama, rig transforms (shared helpers);
@@ -30,6 +35,7 @@ _PUBLIC = {
     "detect_board": "calibration.boards",
     "calibrate_intrinsics": "calibration.intrinsics",
     "calibrate_extrinsics": "calibration.extrinsics",
+    "calibrate_wand_wave": "calibration.wandwave",
     "WandSpec": "calibration.wand",
     "coregister": "calibration.wand",
     "vicon_wand_from_table": "calibration.wand",

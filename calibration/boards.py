@@ -5,8 +5,12 @@ columns, y down along the rows, z into the board (right-handed), millimetres. Ob
 on z = 0. Two kinds:
 
 * ``checkerboard:COLSxROWS:SQUARE_MM`` — COLS x ROWS *inner* corners (OpenCV convention), found
-  with ``cv2.findChessboardCornersSB`` (sub-pixel by construction). Its corner order can flip by
-  180 degrees between views, so it serves intrinsics; multi-camera extrinsics need ChArUco.
+  with ``cv2.findChessboardCornersSB``. OpenCV's corner order can start at any corner of the
+  grid; :func:`order_checkerboard` puts every view into one order (the board frame above, the
+  pattern's corner square at the origin black, as :meth:`BoardSpec.texture` prints it), so the
+  same corner id is the same physical corner in every camera and multi-camera extrinsics work.
+  That needs a board with one odd and one even count of inner corners (e.g. 4x7): a board with
+  both odd or both even looks the same after a half turn and its views stay ambiguous.
 * ``charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]]`` — COLS x ROWS *squares*, ArUco markers of
   MARKER_MM (default 0.75 * square) from dictionary DICT (default ``DICT_4X4_50``); corners carry
   ids, so every view is unambiguous and partial views still count.
@@ -121,6 +125,8 @@ class BoardDetection:
     ids: np.ndarray
     pixels: np.ndarray
     blur_px: float = 0.0
+    #: Why the corner order cannot be trusted across cameras (checkerboards only), else None.
+    order_problem: str | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -142,7 +148,8 @@ def detect_board(image: np.ndarray, board: BoardSpec) -> BoardDetection | None:
         win = int(np.clip(0.3 * _median_spacing(corners), 2, 15))
         crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
         pixels = cv2.cornerSubPix(grey, corners.reshape(-1, 1, 2), (win, win), (-1, -1), crit).reshape(-1, 2).astype(float)
-        ids = np.arange(len(pixels))
+        pixels, problem = order_checkerboard(grey, pixels, board)
+        return BoardDetection(np.arange(len(pixels)), pixels, edge_blur_sigma(grey, pixels), problem)
     else:
         detector = cv2.aruco.CharucoDetector(board.charuco_board())
         corners, ids, _, _ = detector.detectBoard(grey)
@@ -159,6 +166,68 @@ def detect_board(image: np.ndarray, board: BoardSpec) -> BoardDetection | None:
         pixels = pixels.astype(float)
         ids = ids.ravel().astype(int)
     return BoardDetection(ids, pixels, edge_blur_sigma(grey, pixels))
+
+
+def is_half_turn_symmetric(board: BoardSpec) -> bool:
+    """A checkerboard whose inner-corner counts are both odd or both even prints the same after a
+    half turn about its centre, so no view can tell its origin corner."""
+    return board.kind == "checkerboard" and (board.cols + board.rows) % 2 == 0
+
+
+def order_checkerboard(grey: np.ndarray, pixels: np.ndarray, board: BoardSpec,
+                       min_contrast: float = 4.0) -> tuple[np.ndarray, str | None]:
+    """Checkerboard corners (OpenCV's row-major grid, any start corner) in the board's own order.
+
+    1. Mirror: the printed face is what a camera sees, so the board's x (along COLS) and y (along
+       ROWS) axes must turn the same way as the image's u and v (board z, into the board, points
+       away from the camera). If every grid cell turns the other way, the rows are reversed.
+    2. Half turn: the pattern's corner square at the origin is black, so the square between
+       corners (i, j) and (i+1, j+1) is black when i + j is even. Over all squares between the
+       detected corners, the ones predicted black must be darker than the ones predicted white;
+       when they are brighter the order is turned by half a turn. With one odd and one even side
+       a half turn changes every square's colour, so this decides; otherwise it cannot.
+
+    Returns (pixels in board order, None) or (pixels, reason) when the order stays ambiguous.
+    ``min_contrast``: least separation of the two square classes (difference of their medians
+    over the pooled spread of the squares' brightness) for a decision.
+    """
+    grid = pixels.reshape(board.rows, board.cols, 2)
+    along_x = grid[:-1, 1:] - grid[:-1, :-1]
+    along_y = grid[1:, :-1] - grid[:-1, :-1]
+    turn = along_x[..., 0] * along_y[..., 1] - along_x[..., 1] * along_y[..., 0]
+    if not (np.all(turn > 0) or np.all(turn < 0)):
+        return pixels, "the corner grid folds over (cells turn both ways): a mis-ordered detection"
+    if np.all(turn < 0):
+        grid = grid[::-1]
+    if is_half_turn_symmetric(board):
+        return grid.reshape(-1, 2), (f"checkerboard {board.cols}x{board.rows} looks the same after a half turn "
+                                     "(inner corners both odd or both even); use a board with one odd and one "
+                                     "even count of inner corners, e.g. 4x7, or a ChArUco board")
+    darkness = _square_brightness(grey, grid)
+    parity = np.add.outer(np.arange(board.rows - 1), np.arange(board.cols - 1)) % 2
+    black, white = darkness[parity == 0], darkness[parity == 1]
+    spread = np.sqrt(0.5 * (np.var(black) + np.var(white))) + 1.0
+    separation = (np.median(white) - np.median(black)) / spread
+    if abs(separation) < min_contrast:
+        return grid.reshape(-1, 2), (f"black and white squares cannot be told apart (separation {abs(separation):.1f} "
+                                     f"< {min_contrast:g}): glare, a washed-out print or a mis-detection")
+    if separation < 0:
+        grid = grid[::-1, ::-1]
+    return grid.reshape(-1, 2), None
+
+
+def _square_brightness(grey: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """(rows-1, cols-1) median gray level inside each square between detected corners, sampled
+    on a 5x5 lattice over the square's middle half (bilinear in the corners' positions)."""
+    s = np.linspace(0.25, 0.75, 5)
+    a, b = np.meshgrid(s, s)
+    p00, p01, p10, p11 = grid[:-1, :-1], grid[:-1, 1:], grid[1:, :-1], grid[1:, 1:]
+    w = [((1 - a) * (1 - b)).ravel(), (a * (1 - b)).ravel(), ((1 - a) * b).ravel(), (a * b).ravel()]
+    points = sum(p[..., None, :] * wk[:, None] for p, wk in zip((p00, p01, p10, p11), w))
+    h, wd = grey.shape
+    u = np.clip(np.round(points[..., 0]).astype(int), 0, wd - 1)
+    v = np.clip(np.round(points[..., 1]).astype(int), 0, h - 1)
+    return np.median(grey[v, u].astype(float), axis=-1)
 
 
 def _median_spacing(pixels: np.ndarray) -> float:
@@ -205,10 +274,14 @@ def _foreshortening(H: np.ndarray, at_xy: np.ndarray) -> float:
 
 
 def view_problem(detection: BoardDetection | None, board: BoardSpec, image_size: tuple[int, int],
-                 max_blur_px: float = MAX_BLUR_SIGMA_PX) -> str | None:
-    """Why a detected view is unusable for calibration, or None if it is fine."""
+                 max_blur_px: float = MAX_BLUR_SIGMA_PX, need_order: bool = False) -> str | None:
+    """Why a detected view is unusable for calibration, or None if it is fine. ``need_order``:
+    the view is shared with other cameras (extrinsics), so a checkerboard's corner order must
+    be unambiguous (:func:`order_checkerboard`)."""
     if detection is None:
         return "board not found"
+    if need_order and detection.order_problem:
+        return f"corner order ambiguous: {detection.order_problem}"
     min_corners = max(6, int(0.3 * board.n_corners))
     if len(detection) < min_corners:
         return f"only {len(detection)} corners (< {min_corners})"

@@ -6,9 +6,11 @@ Pipeline:
    translation median), a maximum spanning tree over pairs weighted by shared frames, and the
    chained poses of every camera in the reference camera's frame;
 3. bundle adjustment over all camera poses, all board poses and (optionally) each camera's
-   fx fy cx cy k1 k2 p1 p2: ``scipy.optimize.least_squares`` (trust region reflective, Huber
-   loss of 1 px, sparse Jacobian pattern); the reference camera's pose fixes the gauge and the
-   board's square size fixes the scale;
+   fx fy cx cy k1 k2 p1 p2, Huber loss of 1 px: by default Ceres through pycolmap
+   (:mod:`calibration.ceres_ba`), or ``scipy.optimize.least_squares`` (trust region
+   reflective, sparse Jacobian pattern; ``backend="scipy"``, the peer in ``bench
+   calibration``); the reference camera's pose fixes the gauge and the board's square size
+   fixes the scale;
 4. world frame from the board lying face up on the floor in frame ``floor_frame``: origin at
    the pattern's top-left corner, X along the board's columns, Z up (board z is into the board,
    so world = diag(1, -1, -1) board). Several floor frames (the board laid at a few places)
@@ -16,6 +18,10 @@ Pipeline:
 
 Frames are any hashable keys; a frame seen by one camera only (e.g. that camera's intrinsic
 views) still constrains that camera's intrinsics in the bundle adjustment.
+
+Boards: ChArUco corners carry ids; checkerboard corners are put into one order by
+:func:`calibration.boards.order_checkerboard`, and views whose order stays ambiguous are left
+out of frames shared by several cameras (:func:`drop_ambiguous_views`, reasons in the result).
 """
 
 from __future__ import annotations
@@ -36,7 +42,8 @@ from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import InputError
 from spinemocap.geometry import distort
 
-from .boards import BoardDetection, BoardSpec
+from .boards import BoardDetection, BoardSpec, is_half_turn_symmetric
+from .ceres_ba import bundle_adjust_ceres, ceres_unsupported
 from .geometry import rigid_fit, rodrigues, transform_rig, triangulate
 
 log = logging.getLogger(__name__)
@@ -69,6 +76,8 @@ class ExtrinsicsResult:
     board_error_mm: dict[Hashable, float]
     residuals: dict[str, np.ndarray] = field(repr=False, default_factory=dict)  # cam -> (N, 4) u v du dv
     board_poses: dict[Hashable, tuple[np.ndarray, np.ndarray]] = field(repr=False, default_factory=dict)
+    #: (camera, frame) -> why that view was left out (e.g. a checkerboard's ambiguous corner order)
+    rejected: dict[tuple[str, Hashable], str] = field(default_factory=dict)
 
     @property
     def board_rms_mm(self) -> float:
@@ -83,6 +92,7 @@ class ExtrinsicsResult:
                          f"{cam.K[0, 0]:>10.2f}{c[0]:>11.1f}{c[1]:>9.1f}{c[2]:>9.1f}")
         lines.append(f"board geometry from triangulated corners: RMS {self.board_rms_mm:.3f} mm over "
                      f"{len(self.board_error_mm)} multi-camera frames")
+        lines += [f"left out {name} frame {frame}: {why}" for (name, frame), why in self.rejected.items()]
         return "\n".join(lines)
 
 
@@ -106,6 +116,15 @@ def _mean_rotation(rotations: list[np.ndarray]) -> np.ndarray:
     return R
 
 
+def spanning_tree(weights: np.ndarray, reference: int) -> tuple[np.ndarray, np.ndarray]:
+    """Maximum spanning tree over cameras (``weights[i, j]``: how much cameras i and j share,
+    0 = nothing), walked breadth first from ``reference``: (order of the reached cameras,
+    parent of each camera; -9999 for the reference and unreached cameras)."""
+    tree = minimum_spanning_tree(-weights).toarray()
+    tree = (tree != 0) | (tree.T != 0)
+    return breadth_first_order(tree, reference, directed=False)
+
+
 def initial_poses(intrinsics: Rig, board: BoardSpec, detections: Detections, reference: int = 0
                   ) -> tuple[list[tuple[np.ndarray, np.ndarray]], dict[Hashable, tuple[np.ndarray, np.ndarray]]]:
     """Camera poses (R, t: reference frame -> camera) by a spanning tree over camera pairs, and
@@ -123,9 +142,7 @@ def initial_poses(intrinsics: Rig, board: BoardSpec, detections: Detections, ref
     weights = np.zeros((n, n))
     for (i, j), shared in pair_frames.items():
         weights[i, j] = weights[j, i] = len(shared)
-    tree = minimum_spanning_tree(-weights).toarray()  # maximum spanning tree on shared frames
-    tree = (tree != 0) | (tree.T != 0)
-    order, parents = breadth_first_order(tree, reference, directed=False)
+    order, parents = spanning_tree(weights, reference)
     unreached = [names[c] for c in range(n) if c not in set(order.tolist())]
     if unreached:
         seen = {names[c]: len(pnp[c]) for c in range(n)}
@@ -179,18 +196,43 @@ def project_batch(K: np.ndarray, dist: np.ndarray, points_cam: np.ndarray) -> np
     return np.column_stack([K[:, 0] * xd + K[:, 2], K[:, 1] * yd + K[:, 3]])
 
 
+BACKENDS = ("ceres", "scipy")
+
+
 def bundle_adjust(intrinsics: Rig, board: BoardSpec | np.ndarray, detections: Detections,
                   poses: list[tuple[np.ndarray, np.ndarray]], boards: dict[Hashable, tuple[np.ndarray, np.ndarray]],
                   reference: int = 0, refine_intrinsics: bool = True, loss_scale_px: float = 1.0,
-                  progress: bool = True) -> tuple[Rig, dict[Hashable, tuple[np.ndarray, np.ndarray]], Observations]:
+                  progress: bool = True, backend: str = "ceres"
+                  ) -> tuple[Rig, dict[Hashable, tuple[np.ndarray, np.ndarray]], Observations]:
     """Refine all camera poses, board poses and (optionally) intrinsics; see module doc.
     ``board`` may also be the (N, 3) model points of any rigid target (e.g. the Vicon wand),
-    indexed by the detections' ids."""
+    indexed by the detections' ids. ``backend``: ``"ceres"`` (pycolmap; falls back to scipy,
+    with a log line, for cameras with a k3 term) or ``"scipy"``."""
+    if backend not in BACKENDS:
+        raise InputError("--ba", f"unknown bundle adjustment backend {backend!r}; choose one of {BACKENDS}")
     names = intrinsics.names
-    n_cam = len(names)
     frames = list(boards)
     obs = _observations(names, detections, frames)
     model = board.object_points() if isinstance(board, BoardSpec) else np.asarray(board, float)
+    if backend == "ceres":
+        why_not = ceres_unsupported(intrinsics)
+        if why_not is None:
+            rig, targets = bundle_adjust_ceres(intrinsics, model, obs.cam, obs.frame, obs.corner, obs.pixels,
+                                               poses, [boards[f] for f in frames], reference, refine_intrinsics,
+                                               loss_scale_px)
+            return rig, dict(zip(frames, targets)), obs
+        log.info("bundle adjustment with scipy: %s", why_not)
+    return _bundle_adjust_scipy(intrinsics, model, obs, poses, boards, reference, refine_intrinsics,
+                                loss_scale_px, progress)
+
+
+def _bundle_adjust_scipy(intrinsics: Rig, model: np.ndarray, obs: Observations,
+                         poses: list[tuple[np.ndarray, np.ndarray]], boards: dict[Hashable, tuple[np.ndarray, np.ndarray]],
+                         reference: int, refine_intrinsics: bool, loss_scale_px: float, progress: bool
+                         ) -> tuple[Rig, dict[Hashable, tuple[np.ndarray, np.ndarray]], Observations]:
+    """``scipy.optimize.least_squares`` path of :func:`bundle_adjust`."""
+    n_cam = len(intrinsics)
+    frames = list(boards)
     n_ci = 6 + (N_INTRINSICS if refine_intrinsics else 0)
     k3 = np.array([cam.dist[4] for cam in intrinsics])
 
@@ -281,31 +323,60 @@ def floor_world_transform(board: BoardSpec, board_poses: dict, floor_frame) -> t
 
 def calibrate_extrinsics(intrinsics: Rig, board: BoardSpec, detections: Detections,
                          floor_frame: Hashable | None = None, reference: int = 0,
-                         refine_intrinsics: bool = True, progress: bool = True) -> ExtrinsicsResult:
+                         refine_intrinsics: bool = True, progress: bool = True,
+                         backend: str = "ceres") -> ExtrinsicsResult:
     """Whole pipeline (see module doc). ``intrinsics``: cameras with calibrated K/dist (poses
     ignored); ``detections[camera][frame]``; ``floor_frame``: the frame where the board lies
-    face up on the floor (world Z up); None keeps the reference camera's frame as the world."""
-    if board.kind != "charuco":
-        raise InputError("--board", "extrinsics need a ChArUco board: a checkerboard's corner order can flip "
-                         "between cameras, so shared views cannot be matched. Capture again with a ChArUco board")
+    face up on the floor (world Z up); None keeps the reference camera's frame as the world.
+    ``backend``: bundle adjustment by ``"ceres"`` (pycolmap) or ``"scipy"``."""
+    if is_half_turn_symmetric(board):
+        raise InputError("--board", f"checkerboard {board.cols}x{board.rows} looks the same after a half turn "
+                         "(inner corners both odd or both even), so cameras cannot agree on its corner order. "
+                         "Use a board with one odd and one even count of inner corners (e.g. 4x7) or ChArUco")
     _check_sizes(intrinsics)
+    detections, rejected = drop_ambiguous_views(detections)
+    for (name, frame), why in rejected.items():
+        log.warning("left out %s frame %s: %s", name, frame, why)
     poses, boards = initial_poses(intrinsics, board, detections, reference)
     rig, board_poses, obs = bundle_adjust(intrinsics, board, detections, poses, boards, reference,
-                                          refine_intrinsics, progress=progress)
+                                          refine_intrinsics, progress=progress, backend=backend)
     # Drop corners whose residual is far beyond the typical one (mis-refined corners), then
     # adjust again from the refined state.
     detections, n_dropped = drop_outlier_corners(rig, board, detections, board_poses)
     if n_dropped:
         log.info("bundle adjustment: dropped %d outlier corners, adjusting again", n_dropped)
         rig, board_poses, obs = bundle_adjust(rig, board, detections, [(c.R, c.t) for c in rig], board_poses,
-                                              reference, refine_intrinsics, progress=progress)
+                                              reference, refine_intrinsics, progress=progress, backend=backend)
     if floor_frame is not None:
         R, t = floor_world_transform(board, board_poses, floor_frame)
         rig = transform_rig(rig, R, t)
         board_poses = {f: (R @ Rb, R @ tb + t) for f, (Rb, tb) in board_poses.items()}
     else:
         log.warning("no floor frame given: the world frame is camera %s's frame, not Z up", rig[reference].name)
-    return _report(rig, board, detections, board_poses, obs)
+    result = _report(rig, board, detections, board_poses, obs)
+    result.rejected = rejected
+    return result
+
+
+def drop_ambiguous_views(detections: Detections) -> tuple[Detections, dict[tuple[str, Hashable], str]]:
+    """Leave out views whose corner order is not trusted (:attr:`BoardDetection.order_problem`)
+    from frames that several cameras see; a frame one camera sees alone keeps its view (its
+    board pose is that camera's own, so the order does not matter). Returns the kept views and
+    (camera, frame) -> reason for the ones left out."""
+    cameras_per_frame: dict[Hashable, int] = defaultdict(int)
+    for views in detections.values():
+        for f in views:
+            cameras_per_frame[f] += 1
+    kept: Detections = {}
+    rejected: dict[tuple[str, Hashable], str] = {}
+    for name, views in detections.items():
+        kept[name] = {}
+        for f, det in views.items():
+            if det.order_problem and cameras_per_frame[f] > 1:
+                rejected[name, f] = f"corner order ambiguous: {det.order_problem}"
+            else:
+                kept[name][f] = det
+    return kept, rejected
 
 
 def drop_outlier_corners(rig: Rig, board: BoardSpec, detections: Detections, board_poses,
@@ -328,7 +399,7 @@ def drop_outlier_corners(rig: Rig, board: BoardSpec, detections: Detections, boa
             good = errors[name, f] <= limit if (name, f) in errors else np.ones(len(det), bool)
             dropped += int((~good).sum())
             if good.sum() >= 6:
-                kept[name][f] = BoardDetection(det.ids[good], det.pixels[good], det.blur_px)
+                kept[name][f] = BoardDetection(det.ids[good], det.pixels[good], det.blur_px, det.order_problem)
     return kept, dropped
 
 

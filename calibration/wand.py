@@ -49,17 +49,74 @@ from .geometry import rigid_fit, transform_rig, triangulate, umeyama
 
 @dataclass(frozen=True)
 class WandSpec:
-    """Marker layout of a planar 5-marker T-wand (see module doc), mm."""
+    """Marker layout of a wand, mm, in the wand's frame: by default the planar 5-marker T-wand
+    (see module doc); :meth:`parse` also makes 2- and 3-marker linear wands.
+
+    ``kind``: ``"t"`` or ``"linear"``; ``x_axis``: the two markers whose direction is the world X
+    axis when the wand lies on the floor (the origin is below the first); ``floor_height_mm``:
+    height of the marker centres above the floor when the wand lies on it (default: the marker
+    radius)."""
 
     labels: tuple[str, ...] = ("WAND1", "WAND2", "WAND3", "WAND4", "WAND5")
     points_mm: np.ndarray = field(default_factory=lambda: np.array(
         [[0, 0, 0], [-120, 0, 0], [240, 0, 0], [0, -160, 0], [0, -400, 0]], float))
     marker_diameter_mm: float = 14.0
+    kind: str = "t"
+    x_axis: tuple[int, int] = (0, 2)
+    floor_height_mm: float | None = None
+
+    @classmethod
+    def parse(cls, text: str) -> "WandSpec":
+        """``t`` (the 5-marker T-wand above), ``linear:LENGTH_MM`` (2 markers LENGTH apart) or
+        ``linear:A_MM:LENGTH_MM`` (3 markers at 0, A and LENGTH along a line; A must be at most
+        0.43 LENGTH or at least 0.57 LENGTH so the two ends can be told apart)."""
+        parts = text.strip().lower().split(":")
+        if parts[0] in ("t", "t-wand", "t5") and len(parts) == 1:
+            return cls()
+        along = _positions_along(parts[1:]) if parts[0] == "linear" and len(parts) in (2, 3) else None
+        if along is None:
+            raise InputError("--wand", f"cannot parse wand {text!r}; expected t, linear:LENGTH_MM or "
+                             "linear:A_MM:LENGTH_MM (increasing positive distances)")
+        if len(along) == 3 and abs(along[1] / along[2] - 0.5) < 0.07:
+            raise InputError("--wand", f"linear wand {text!r}: the middle marker is too near the middle (the ends "
+                             "cannot be told apart); it must sit at <= 0.43 or >= 0.57 of the length")
+        points = np.array([[a, 0.0, 0.0] for a in along])
+        return cls(tuple(f"WAND{k + 1}" for k in range(len(along))), points, kind="linear",
+                   x_axis=(0, len(along) - 1))
+
+    @property
+    def n_markers(self) -> int:
+        return len(self.points_mm)
+
+    @property
+    def ordered(self) -> bool:
+        """Whether a single view tells every marker apart (not so for a 2-marker wand)."""
+        return self.n_markers != 2
+
+    @property
+    def height_on_floor_mm(self) -> float:
+        return self.marker_diameter_mm / 2 if self.floor_height_mm is None else self.floor_height_mm
+
+    @property
+    def length_pair(self) -> tuple[int, int]:
+        """The two markers farthest apart ("the wand length")."""
+        d = self.distances
+        i, j = np.unravel_index(np.argmax(d), d.shape)
+        return (int(min(i, j)), int(max(i, j)))
 
     @property
     def distances(self) -> np.ndarray:
         p = self.points_mm
         return np.linalg.norm(p[:, None] - p[None], axis=2)
+
+
+def _positions_along(values: list[str]) -> list[float] | None:
+    """[0, d1, d2...] from distance strings, or None unless they are numbers increasing from 0."""
+    try:
+        along = [0.0] + [float(v) for v in values]
+    except ValueError:
+        return None
+    return along if all(b > a for a, b in itertools.pairwise(along)) else None
 
 
 # ---------------------------------------------------------------------- 2D detection
@@ -131,30 +188,67 @@ def identify_wand(blobs: np.ndarray, wand: WandSpec, max_line_error: float = 0.0
     return blobs[[junction, short, long_, near, far]]
 
 
+def identify_linear_wand(blobs: np.ndarray, wand: WandSpec, max_line_error: float = 0.02) -> np.ndarray | None:
+    """Order the blobs of a linear wand as its markers, or None when the view is ambiguous. Three
+    markers: collinear, the middle one between the others, the end nearer the middle marker is
+    the wand's nearer end (image distance ratio >= 1.3). Two markers: returned as found (which
+    end is which is settled later across cameras, :mod:`calibration.wandwave`)."""
+    if len(blobs) != wand.n_markers:
+        return None
+    if wand.n_markers == 2:
+        return blobs.copy() if np.linalg.norm(blobs[1] - blobs[0]) > 3.0 else None
+    d = np.linalg.norm(blobs[:, None] - blobs[None], axis=2)
+    i, j = np.unravel_index(np.argmax(d), d.shape)
+    middle = 3 - i - j
+    line = (blobs[j] - blobs[i]) / d[i, j]
+    rel = blobs[middle] - blobs[i]
+    if abs(line[0] * rel[1] - line[1] * rel[0]) / d[i, j] > max_line_error:
+        return None
+    near_model = wand.distances[0, 1] < wand.distances[1, 2]  # marker 0 is the end nearer the middle one
+    di, dj = d[i, middle], d[j, middle]
+    if max(di, dj) < 1.3 * min(di, dj):
+        return None
+    near, far = (i, j) if di < dj else (j, i)
+    first, last = (near, far) if near_model else (far, near)
+    return blobs[[first, middle, last]]
+
+
+def identify_markers(blobs: np.ndarray, wand: WandSpec) -> np.ndarray | None:
+    """The wand's markers in label order from one image's blobs (T-wand or linear), or None."""
+    return identify_wand(blobs, wand) if wand.kind == "t" else identify_linear_wand(blobs, wand)
+
+
 # ---------------------------------------------------------------------- 3D from the rig
-WandViews = list[list[np.ndarray | None]]  # [frame][camera] -> (5, 2) identified pixels or None
+WandViews = list[list[np.ndarray | None]]  # [frame][camera] -> (M, 2) identified pixels or None
 
 
 def detect_wand_views(frames: Iterable[Sequence[np.ndarray]], wand: WandSpec, progress: bool = True) -> WandViews:
     """Identified wand markers per frame and camera for ``frames[f][c]`` = image of camera c at
     frame f (any iterable, e.g. streamed videos)."""
-    return [[identify_wand(detect_blobs(img), wand) for img in images]
+    return [[identify_markers(detect_blobs(img), wand) for img in images]
             for images in tqdm(frames, desc="wand markers", unit=" frames", disable=not progress, leave=False)]
 
 
 def triangulate_wand_views(rig: Rig, views: WandViews, wand: WandSpec, max_fit_mm: float = 3.0) -> np.ndarray:
-    """(F, 5, 3) wand markers in the rig frame; NaN where fewer than two cameras identified the
+    """(F, M, 3) wand markers in the rig frame; NaN where fewer than two cameras identified the
     wand or the triangulated shape is more than ``max_fit_mm`` RMS from the wand's."""
-    out = np.full((len(views), 5, 3), np.nan)
+    out = np.full((len(views), wand.n_markers, 3), np.nan)
     for f, per_cam in enumerate(views):
-        cams = [c for c, v in enumerate(per_cam) if v is not None]
-        if len(cams) < 2:
-            continue
-        pts = np.stack([triangulate([rig[c] for c in cams], np.stack([per_cam[c][k] for c in cams]))
-                        for k in range(5)])
-        if rigid_fit(wand.points_mm, pts)[2] <= max_fit_mm:
+        pts = triangulate_markers(rig, per_cam)
+        if pts is not None and rigid_fit(wand.points_mm, pts)[2] <= max_fit_mm:
             out[f] = pts
     return out
+
+
+def triangulate_markers(rig: Rig, per_cam: Sequence[np.ndarray | None]) -> np.ndarray | None:
+    """(M, 3) markers of one frame (rig frame, mm) triangulated from every camera that identified
+    them (``per_cam[c]``: (M, 2) pixels in label order, or None); None when fewer than two did."""
+    cams = [c for c, v in enumerate(per_cam) if v is not None]
+    if len(cams) < 2:
+        return None
+    views = [per_cam[c] for c in cams]
+    return np.stack([triangulate([rig[c] for c in cams], np.stack([v[k] for v in views]))
+                     for k in range(len(views[0]))])
 
 
 def triangulate_wand(rig: Rig, frames: Iterable[Sequence[np.ndarray]], wand: WandSpec,
@@ -180,7 +274,7 @@ def refine_rig_with_wand(rig: Rig, views: WandViews, points: np.ndarray, wand: W
         poses[f] = (R, t)
         for cam, pix in zip(rig, per_cam):
             if pix is not None:
-                detections[cam.name][f] = BoardDetection(np.arange(5), pix)
+                detections[cam.name][f] = BoardDetection(np.arange(wand.n_markers), pix)
     if len(poses) < 20:
         raise InputError("wand videos", f"only {len(poses)} triangulated wand frames; cannot refine the rig")
     refined, _, _ = bundle_adjust(rig, wand.points_mm, detections, [(c.R, c.t) for c in rig], poses,
@@ -335,7 +429,7 @@ def register_wand(rig_points: np.ndarray, fps: float, vicon: ViconWand, wand: Wa
                         x_scale=[1e-3, 1e-3, 1e-3, 1e-3, 1.0, 1.0, 1.0, 1e-3])
     offset = tau0 + fit.x[0]
     R, t, s = Rotation.from_rotvec(fit.x[1:4]).as_matrix(), fit.x[4:7], float(np.exp(fit.x[7]))
-    err = np.linalg.norm(residuals(fit.x).reshape(-1, 5, 3), axis=2)
+    err = np.linalg.norm(residuals(fit.x).reshape(-1, wand.n_markers, 3), axis=2)
     residual = {lab: float(np.sqrt(np.mean(err[:, k] ** 2))) for k, lab in enumerate(wand.labels)}
     return WandRegistration(R, t, s, float(offset), residual, int(ok.sum()))
 
@@ -370,5 +464,5 @@ def coregister(rig: Rig, frames: Iterable[Sequence[np.ndarray]], fps: float, vic
 
 __all__ = ["WandSpec", "WandRegistration", "ViconWand", "detect_blobs", "identify_wand", "triangulate_wand",
            "detect_wand_views", "triangulate_wand_views", "refine_rig_with_wand",
-           "vicon_wand_from_table", "coarse_offset", "register_wand", "coregister",
+           "vicon_wand_from_table", "coarse_offset", "identify_markers", "identify_linear_wand", "triangulate_markers", "register_wand", "coregister",
            "synchronized_frames"]

@@ -1,6 +1,7 @@
 """Synthetic calibration captures with a known rig: board sequences and a Vicon wand wave.
 
-Boards are planar, so they are rendered exactly: every (2x supersampled) pixel is
+Boards are planar, so they are rendered exactly (the printed face only; a camera behind the
+board sees its blank back): every (2x supersampled) pixel is
 back-projected through the :class:`~spinemocap.camera.Camera` model (undistort -> ray), the ray
 is intersected with the board plane and the board texture is sampled there (``cv2.remap``);
 then the image is area-downsampled, mildly blurred and given sensor noise. The wand's markers
@@ -14,15 +15,21 @@ rate on the Vicon clock, ``t_vicon = t_rgb + offset``.
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
 from calibration.boards import BoardSpec
 from calibration.wand import WandSpec
 from spinemocap.camera import Camera, Rig
+from spinemocap.fileio import InputError, write_toml
 
 #: The floor board lies face up with its pattern origin at the world origin: board x = world x,
 #: board y = world -y, board z (into the board) = world -z.
@@ -90,7 +97,10 @@ class BoardRenderer:
             offset = ((self.margin_mm - R_cb[:, :2].T @ t_cb) * self.ppm - 0.5).astype(np.float32)
             map_xy = xy * depth[..., None] + offset
         map_xy[~((depth > 0) & np.isfinite(depth))] = -1e4
-        tex = self.texture * (190.0 / 255.0) + 30.0  # printed black 30, white 220
+        if normal @ t_cb > 0:  # the printed face (looking along -z_board) faces the camera
+            tex = self.texture * (190.0 / 255.0) + 30.0  # printed black 30, white 220
+        else:  # the camera sees the board's blank back
+            tex = np.full_like(self.texture, 150.0)
         big = cv2.remap(tex, map_xy[..., 0], map_xy[..., 1], cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_CONSTANT, borderValue=background)
         w, h = cam.size
@@ -155,12 +165,21 @@ def floor_poses(n: int) -> list[tuple[np.ndarray, np.ndarray]]:
     return poses
 
 
+def half_turn(board: BoardSpec, R_wb: np.ndarray, t_wb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The board pose turned by half a turn about its normal through the pattern's centre."""
+    w_mm, h_mm = board.size_mm
+    centre = R_wb @ np.array([w_mm / 2, h_mm / 2, 0.0]) + t_wb
+    R = R_wb @ np.diag([-1.0, -1.0, 1.0])
+    return R, centre - R @ np.array([w_mm / 2, h_mm / 2, 0.0])
+
+
 def render_board_capture(rig: Rig, board: BoardSpec, n_frames: int, seed: int = 1,
                          n_floor: int = 1, min_cameras: int = 2, renderer: BoardRenderer | None = None,
-                         **render_kwargs) -> BoardCapture:
+                         half_turns: bool = False, **render_kwargs) -> BoardCapture:
     """``n_frames`` synchronized frames of ``board``: the first ``n_floor`` lie on the floor
     (:func:`floor_poses`, frame 0 at :data:`FLOOR_POSE`), the rest are waved in front of the rig,
-    each fully visible to at least ``min_cameras`` cameras."""
+    each fully visible to at least ``min_cameras`` cameras. ``half_turns``: every other waved
+    frame is held turned by half a turn (upside down), as people do."""
     rng = np.random.default_rng(seed)
     renderer = renderer or BoardRenderer(board)
     centre = np.mean([c.center for c in rig], axis=0)
@@ -174,6 +193,8 @@ def render_board_capture(rig: Rig, board: BoardSpec, n_frames: int, seed: int = 
         a, b = rng.choice(len(rig), 2, replace=False)
         facing = (rig[int(a)].center + rig[int(b)].center) / 2
         pose = random_board_pose(board, rng, centre, facing)
+        if half_turns and len(poses) % 2:
+            pose = half_turn(board, *pose)
         if sum(board_visible(cam, board, *pose) for cam in rig) >= min_cameras:
             poses.append(pose)
     images = {cam.name: [renderer.render(cam, R, t, rng, **render_kwargs) for R, t in poses] for cam in rig}
@@ -212,12 +233,14 @@ class CalibrationSession:
 
 
 def render_calibration_session(rig: Rig, board: BoardSpec, n_intrinsic: int = 15, n_frames: int = 20,
-                               n_floor: int = 3, seed: int = 1) -> CalibrationSession:
-    """Render a full synthetic calibration session for ``rig`` (deterministic for a seed)."""
+                               n_floor: int = 3, seed: int = 1, half_turns: bool = False) -> CalibrationSession:
+    """Render a full synthetic calibration session for ``rig`` (deterministic for a seed);
+    ``half_turns``: see :func:`render_board_capture`."""
     renderer = BoardRenderer(board)
     intrinsic = {cam.name: render_intrinsic_views(cam, board, n_intrinsic, seed=seed * 100 + k, renderer=renderer)
                  for k, cam in enumerate(rig)}
-    capture = render_board_capture(rig, board, n_frames, seed=seed, n_floor=n_floor, renderer=renderer)
+    capture = render_board_capture(rig, board, n_frames, seed=seed, n_floor=n_floor, renderer=renderer,
+                                   half_turns=half_turns)
     return CalibrationSession(intrinsic, capture, list(range(n_floor)))
 
 
@@ -306,11 +329,135 @@ def render_wand_wave(rig: Rig, wand: WandSpec | None = None, duration_s: float =
     t = np.asarray(vicon_translation_mm, float)
     vicon = vicon_world @ R.T + t + rng.normal(0, 0.05, vicon_world.shape)
     keep = t_vicon >= 0
+    images = render_marker_frames(rig, world, wand, rng, noise_sigma)
+    return WandWave(rig, wand, fps, images, world, vicon_rate, vicon[keep], R, t, 1.0, offset_s)
+
+
+def render_marker_frames(rig: Rig, world_mm: np.ndarray, wand: WandSpec, rng: np.random.Generator,
+                         noise_sigma: float = 2.0) -> dict[str, list[np.ndarray]]:
+    """``images[cam][frame]`` of the wand markers ``world_mm`` (F, M, 3) in every camera."""
     # Sensor noise drawn from a small bank of fields (fresh noise per frame costs more than the render).
     bank = rng.normal(0, noise_sigma, (7, rig[0].size[1], rig[0].size[0])).astype(np.float32)
     images = {}
     for cam in rig:
         noise = bank if cam.size == rig[0].size else rng.normal(0, noise_sigma, (7, cam.size[1], cam.size[0]))
-        images[cam.name] = [render_wand_frame(cam, world[f], wand.marker_diameter_mm / 2, noise[rng.integers(7)])
-                            for f in range(len(t_rgb))]
-    return WandWave(rig, wand, fps, images, world, vicon_rate, vicon[keep], R, t, 1.0, offset_s)
+        images[cam.name] = [render_wand_frame(cam, markers, wand.marker_diameter_mm / 2, noise[rng.integers(7)])
+                            for markers in world_mm]
+    return images
+
+
+def wand_on_floor(wand: WandSpec) -> list[np.ndarray]:
+    """Marker positions (world mm) of the wand lying on the floor, its first ``x_axis`` marker
+    above the world origin and the direction to the second along +X: once for a T-wand; for a
+    linear wand a second placement along +Y (an L), since one line does not fix the floor."""
+    lift = np.array([0.0, 0.0, wand.height_on_floor_mm])
+    a, b = wand.x_axis
+    along = wand.points_mm[b] - wand.points_mm[a]
+    angle = np.arctan2(along[1], along[0])
+    flat = Rotation.from_euler("z", -angle).apply(wand.points_mm - wand.points_mm[a])
+    placements = [flat + lift]
+    if wand.kind != "t":
+        placements.append(Rotation.from_euler("z", 90, degrees=True).apply(flat) + lift)
+    return placements
+
+
+@dataclass
+class WandCalibrationWave:
+    """A wand-wave calibration capture: ``images[cam][frame]`` with the wand lying on the floor in
+    ``floor_frames`` (first) and waved through the volume after; true markers ``world_mm``."""
+
+    rig: Rig
+    wand: WandSpec
+    fps: float
+    images: dict[str, list[np.ndarray]]
+    world_mm: np.ndarray
+    floor_frames: list[int]
+
+
+def render_wand_calibration(rig: Rig, wand: WandSpec, duration_s: float = 4.0, fps: float = 50.0,
+                            floor_frames_per_placement: int = 3, seed: int = 5, noise_sigma: float = 2.0,
+                            floor_noise_mm: float = 0.0) -> WandCalibrationWave:
+    """Render a wand-wave calibration: the wand lying still on the floor (:func:`wand_on_floor`,
+    ``floor_frames_per_placement`` frames per placement), then ``duration_s`` of waving."""
+    rng = np.random.default_rng(seed)
+    floor = [markers + rng.normal(0, floor_noise_mm, markers.shape) for markers in wand_on_floor(wand)
+             for _ in range(floor_frames_per_placement)]
+    centre = np.mean([c.center for c in rig], axis=0)
+    centre[2] = 1100.0
+    wave = wand_trajectory(np.arange(int(duration_s * fps)) / fps, wand, seed, centre)
+    world = np.concatenate([np.asarray(floor).reshape(-1, wand.n_markers, 3), wave])
+    images = render_marker_frames(rig, world, wand, rng, noise_sigma)
+    return WandCalibrationWave(rig, wand, fps, images, world, list(range(len(floor))))
+
+
+# ---------------------------------------------------------------------- a session on disk
+def write_calibration_session(out: str | os.PathLike, board: BoardSpec, wand: WandSpec, n_cameras: int = 6,
+                              size: tuple[int, int] = (800, 600), n_intrinsic: int = 12, n_frames: int = 16,
+                              wand_seconds: float = 3.0, seed: int = 0, progress: bool = True) -> str:
+    """Write a synthetic calibration session to the new folder ``out`` and return its README text:
+    ``rig_true.toml`` (the truth), ``intrinsics/CAM/`` (board images per camera),
+    ``board/CAM/`` (synchronized board frames, the first 3 on the floor; board half-turned in
+    every other waved frame), ``wand/CAM/`` (wand on the floor first, then waved; 50 fps),
+    ``session.toml`` (board, wand, floor frames) and ``README.txt`` (the commands to run)."""
+    out = Path(out)
+    if out.exists():
+        raise InputError(out, "output folder exists; give a new folder")
+    rig = make_ring_rig(n_cameras, size=size, seed=seed)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent if str(out.parent) else "."))
+    try:
+        with tqdm(total=3, desc="synthetic calibration", disable=not progress) as bar:
+            session = render_calibration_session(rig, board, n_intrinsic, n_frames, n_floor=3, seed=seed + 1,
+                                                 half_turns=True)
+            bar.update()
+            wave = render_wand_calibration(rig, wand, duration_s=wand_seconds, seed=seed + 5)
+            bar.update()
+            for cam in rig:
+                _write_images(tmp / "intrinsics" / cam.name, session.intrinsic[cam.name])
+                _write_images(tmp / "board" / cam.name, session.capture.images[cam.name])
+                _write_images(tmp / "wand" / cam.name, wave.images[cam.name])
+            bar.update()
+        rig.to_toml(tmp / "rig_true.toml")
+        write_toml(tmp / "session.toml", {"board": str(board), "wand": wand_text(wand), "fps": wave.fps,
+                                          "board_floor_frames": session.floor_frames,
+                                          "wand_floor_frames": wave.floor_frames, "cameras": rig.names})
+        readme = _session_readme(out, rig, board, wand, session.floor_frames, wave.floor_frames)
+        (tmp / "README.txt").write_text(readme)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return readme
+
+
+def wand_text(wand: WandSpec) -> str:
+    """The ``--wand`` text that parses back to ``wand``."""
+    if wand.kind == "t":
+        return "t"
+    return "linear:" + ":".join(f"{x:g}" for x in wand.points_mm[1:, 0])
+
+
+def _write_images(folder: Path, images: list[np.ndarray]) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    for k, image in enumerate(images):
+        cv2.imwrite(str(folder / f"{k:04d}.png"), image)
+
+
+def _session_readme(out: Path, rig: Rig, board: BoardSpec, wand: WandSpec, board_floor: list[int],
+                    wand_floor: list[int]) -> str:
+    names = rig.names
+    intr = " ".join(f"{out}/{n}_intrinsics.toml" for n in names)
+    lines = [f"Synthetic calibration session: {len(rig)} cameras, board {board}, wand {wand_text(wand)}.",
+             f"The true rig is {out}/rig_true.toml (world mm, Z up). Calibrate it three ways:", "",
+             "# 1. intrinsics, one camera at a time"]
+    lines += [f"spinemocap calibrate intrinsics {out}/intrinsics/{n} --board {board} --name {n} "
+              f"--out {out}/{n}_intrinsics.toml" for n in names]
+    lines += ["", "# 2. extrinsics from the board (frames " + ",".join(map(str, board_floor)) + " lie on the floor)",
+              f"spinemocap calibrate extrinsics --intrinsics {intr} --views "
+              + " ".join(f"{out}/board/{n}" for n in names)
+              + f" --board {board} --floor-frames {' '.join(map(str, board_floor))} --out {out}/rig_board.toml",
+              "", f"# 3. extrinsics from the wand wave alone (frames {wand_floor[0]}-{wand_floor[-1]}: wand on the floor)",
+              f"spinemocap calibrate wand-wave --intrinsics {intr} --videos "
+              + " ".join(f"{out}/wand/{n}" for n in names)
+              + f" --wand {wand_text(wand)} --floor-frames {wand_floor[0]}-{wand_floor[-1]} --out {out}/rig_wand.toml",
+              ""]
+    return "\n".join(lines)

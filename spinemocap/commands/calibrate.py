@@ -1,5 +1,6 @@
-"""``spinemocap calibrate intrinsics|extrinsics|wand|convert|check`` and
-``spinemocap bench calibration``: the :mod:`calibration` package on the command line."""
+"""``spinemocap calibrate intrinsics|extrinsics|wand-wave|wand|convert|check``,
+``spinemocap synth-calibration`` and ``spinemocap bench calibration``: the :mod:`calibration`
+package on the command line."""
 
 from __future__ import annotations
 
@@ -21,11 +22,14 @@ def register(subparsers) -> None:
     p.add_argument("--max-frames", type=int, default=60, help="frames sampled from a video (default 60)")
     p.set_defaults(func=_intrinsics)
 
-    p = sub.add_parser("extrinsics", help="all cameras' poses from synchronized ChArUco views + bundle adjustment")
+    p = sub.add_parser("extrinsics", help="all cameras' poses from synchronized board views + bundle adjustment")
     p.add_argument("--intrinsics", nargs="+", required=True, help="rig/intrinsics files giving the cameras in order")
     p.add_argument("--views", nargs="+", required=True,
                    help="one folder of synchronized images (or a video) per camera, in the cameras' order")
-    p.add_argument("--board", required=True, help="charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]]")
+    p.add_argument("--board", required=True, help="charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]] or "
+                   "checkerboard:COLSxROWS:SQUARE_MM (inner corners; one odd and one even count, e.g. 4x7)")
+    p.add_argument("--ba", choices=["ceres", "scipy"], default="ceres",
+                   help="bundle adjustment: Ceres via pycolmap (default) or scipy least_squares")
     p.add_argument("--floor-frames", type=int, nargs="*", default=[0],
                    help="frame indices where the board lies face up on the floor (world Z up; default 0)")
     p.add_argument("--fixed-intrinsics", action="store_true", help="do not refine intrinsics in the adjustment")
@@ -33,6 +37,21 @@ def register(subparsers) -> None:
     p.add_argument("--format", choices=["spinemocap", "pose2sim"], help="TOML flavour of --out")
     p.add_argument("--plot", help="reprojection-error PNG (default: OUT.residuals.png)")
     p.set_defaults(func=_extrinsics)
+
+    p = sub.add_parser("wand-wave", help="all cameras' poses from a wand wave alone (no board)")
+    p.add_argument("--intrinsics", nargs="+", required=True, help="rig/intrinsics files giving the cameras in order")
+    p.add_argument("--videos", nargs="+", required=True, help="one video (or image folder) per camera, in order")
+    p.add_argument("--wand", default="t", help="t (5-marker T-wand, layout in calibration/wand.py), "
+                   "linear:LENGTH_MM or linear:A_MM:LENGTH_MM (default t)")
+    p.add_argument("--floor-frames", default="",
+                   help="frames where the wand lies on the floor, e.g. 0-9 or 0,1,2 (world Z up; a linear wand "
+                   "must lie in two directions); empty: the first camera's frame is the world")
+    p.add_argument("--ba", choices=["ceres", "scipy"], default="ceres", help="bundle adjustment backend")
+    p.add_argument("--fixed-intrinsics", action="store_true", help="do not refine intrinsics in the adjustment")
+    p.add_argument("--out", required=True, help="output rig (.toml ours, --format pose2sim, or .xcp)")
+    p.add_argument("--format", choices=["spinemocap", "pose2sim"], help="TOML flavour of --out")
+    p.add_argument("--plot", help="wand-length error PNG (default: OUT.wand_length.png; residuals: OUT.residuals.png)")
+    p.set_defaults(func=_wand_wave)
 
     p = sub.add_parser("wand", help="express a calibrated rig in the Vicon frame from a wand wave")
     p.add_argument("--rig", required=True, help="calibrated rig (any supported format)")
@@ -58,6 +77,20 @@ def register(subparsers) -> None:
     p.add_argument("--plot", help="PNG path (default: RIG.check.png)")
     p.set_defaults(func=_check)
 
+    p = subparsers.add_parser("synth-calibration",
+                              help="render a synthetic calibration session (board and wand images) with its true rig")
+    p.add_argument("out", help="output folder (must not exist)")
+    p.add_argument("--board", default="checkerboard:4x7:60", help="board for intrinsics and extrinsics "
+                   "(checkerboard:COLSxROWS:SQUARE_MM or charuco:...; default checkerboard:4x7:60)")
+    p.add_argument("--wand", default="t", help="wand for the wand wave: t, linear:LENGTH_MM or linear:A_MM:LENGTH_MM")
+    p.add_argument("--cameras", type=int, default=6, help="cameras on a ring (default 6)")
+    p.add_argument("--size", type=int, default=800, help="image width in px (height = 3/4; default 800)")
+    p.add_argument("--intrinsic-views", type=int, default=12, help="board images per camera for intrinsics")
+    p.add_argument("--frames", type=int, default=16, help="synchronized board frames (3 on the floor first)")
+    p.add_argument("--wand-seconds", type=float, default=3.0, help="length of the wand wave at 50 fps")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_synth_calibration)
+
 
 def register_bench(subparsers) -> None:
     p = subparsers.add_parser("calibration", help="synthetic 6-camera board calibration + wand co-registration")
@@ -65,6 +98,9 @@ def register_bench(subparsers) -> None:
     p.add_argument("--intrinsic-views", type=int, default=20)
     p.add_argument("--frames", type=int, default=24)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--checkerboard", default="checkerboard:4x7:120", help="checkerboard of the checkerboard row")
+    p.add_argument("--wand", default="t", help="wand of the wand-wave row (t or linear:...)")
+    p.add_argument("--wand-seconds", type=float, default=4.0, help="wand wave length at 50 fps")
     p.add_argument("--out", default="bench_calibration.json", help="JSON with the numbers")
     p.set_defaults(func=_bench)
 
@@ -129,7 +165,7 @@ def _extrinsics(args: argparse.Namespace) -> int:
     detections = load_view_detections(args.views, intrinsics.names, [c.size for c in intrinsics], board)
     floor = args.floor_frames if args.floor_frames else None
     result = calibrate_extrinsics(intrinsics, board, detections, floor_frame=floor,
-                                  refine_intrinsics=not args.fixed_intrinsics)
+                                  refine_intrinsics=not args.fixed_intrinsics, backend=args.ba)
     print(result.summary())
     write_rig(result.rig, args.out, args.format)
     save_residuals(args.out, result.residuals)
@@ -137,6 +173,56 @@ def _extrinsics(args: argparse.Namespace) -> int:
     plot_residuals(result.rig, result.residuals, plot)
     print(camera_table(result.rig, result.residuals))
     print(f"wrote {args.out} and {plot}")
+    return 0
+
+
+def parse_frames(text: str) -> list[int]:
+    """``0-9``, ``0,1,2`` or ``0-4,20-24`` -> frame indices."""
+    from spinemocap.fileio import InputError
+
+    frames: list[int] = []
+    try:
+        for part in filter(None, text.replace(" ", "").split(",")):
+            lo, _, hi = part.partition("-")
+            frames += list(range(int(lo), int(hi or lo) + 1))
+    except ValueError:
+        raise InputError("--floor-frames", f"cannot read frames {text!r}; write e.g. 0-9 or 0,1,2") from None
+    return frames
+
+
+def _wand_wave(args: argparse.Namespace) -> int:
+    from calibration.check import camera_table, plot_residuals, save_residuals
+    from calibration.formats import write_rig
+    from calibration.wand import WandSpec, detect_wand_views, synchronized_frames
+    from calibration.wandwave import calibrate_wand_wave, plot_length_error
+
+    wand = WandSpec.parse(args.wand)
+    intrinsics = _read_cameras(args.intrinsics)
+    frames, _ = synchronized_frames(args.videos, len(intrinsics))
+    views = detect_wand_views(frames, wand)
+    result = calibrate_wand_wave(intrinsics, views, wand, parse_frames(args.floor_frames) or None, backend=args.ba,
+                                 refine_intrinsics=not args.fixed_intrinsics)
+    print(result.summary())
+    write_rig(result.rig, args.out, args.format)
+    save_residuals(args.out, result.residuals)
+    plot_residuals(result.rig, result.residuals, f"{args.out}.residuals.png")
+    plot = args.plot or f"{args.out}.wand_length.png"
+    plot_length_error(result, plot)
+    print(camera_table(result.rig, result.residuals))
+    print(f"wrote {args.out}, {plot} and {args.out}.residuals.png")
+    return 0
+
+
+def _synth_calibration(args: argparse.Namespace) -> int:
+    from calibration.boards import BoardSpec
+    from calibration.wand import WandSpec
+
+    from ..bench.calibration_scenes import write_calibration_session
+
+    readme = write_calibration_session(args.out, BoardSpec.parse(args.board), WandSpec.parse(args.wand),
+                                       args.cameras, (args.size, args.size * 3 // 4), args.intrinsic_views,
+                                       args.frames, args.wand_seconds, args.seed)
+    print(readme)
     return 0
 
 
@@ -195,5 +281,6 @@ def _check(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     from ..bench.calibration import run_benchmark
 
-    run_benchmark(args.size, args.intrinsic_views, args.frames, args.seeds, args.out)
+    run_benchmark(args.size, args.intrinsic_views, args.frames, args.seeds, args.out,
+                  checkerboard=args.checkerboard, wand=args.wand, wand_seconds=args.wand_seconds)
     return 0
