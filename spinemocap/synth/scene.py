@@ -160,7 +160,8 @@ class SynthConfig:
             problems.append(f"balls must be >= 0 (got {self.balls})")
         if not 0 <= self.blur <= 1:
             problems.append(f"blur (exposure / frame interval) must lie in [0, 1] (got {self.blur})")
-        if self.noise < 0 or self.distortion < 0:
+        level = {name: float(getattr(self, name)) for name in REALISM_LEVELS[self.realism]}  # all set now
+        if level["noise"] < 0 or self.distortion < 0:
             problems.append("noise and distortion must be >= 0")
         if self.skin_tone is not None and not 0 <= self.skin_tone <= 1:
             problems.append(f"skin_tone must lie in [0, 1] (got {self.skin_tone})")
@@ -172,15 +173,15 @@ class SynthConfig:
         for name in ("tape_start", "band_level"):
             if getattr(self, name) not in LEVELS:
                 problems.append(f"{name} {getattr(self, name)!r} is not a vertebral level (choose from {list(LEVELS)})")
-        if not 0 <= self.skin_strain <= 3:
+        if not 0 <= level["skin_strain"] <= 3:
             problems.append(f"skin_strain (a scale of the Schober skin strain, 1 = a healthy adult) must lie in [0, 3] "
                             f"(got {self.skin_strain})")
-        if not -0.3 <= self.tape_tension <= 0.8:
+        if not -0.3 <= level["tape_tension"] <= 0.8:
             problems.append(f"tape_tension must lie in [-0.3, 0.8] (kinesiology tape gives out at about 1.4-1.6 "
                             f"times its rest length; got {self.tape_tension})")
-        if not 0 <= self.calibration_error_px <= 20:
+        if not 0 <= level["calibration_error_px"] <= 20:
             problems.append(f"calibration_error_px must lie in [0, 20] (got {self.calibration_error_px})")
-        if not 0 <= self.sync_error_ms <= 50:
+        if not 0 <= level["sync_error_ms"] <= 50:
             problems.append(f"sync_error_ms must lie in [0, 50] (got {self.sync_error_ms})")
         if self.supersample < 1:
             problems.append("supersample must be >= 1")
@@ -525,9 +526,10 @@ class Scene:
     def _sensor(self, rgb: np.ndarray, frame: int, camera: int) -> np.ndarray:
         """Sensor noise (seeded per frame and camera) and conversion to BGR uint8."""
         image = rgb.astype(np.float32)
-        if self.config.noise > 0:
+        noise = float(self.config.noise or 0.0)
+        if noise > 0:
             rng = np.random.default_rng([self.rng_seed, 2, frame, camera])
-            image += rng.normal(0.0, self.config.noise, image.shape).astype(np.float32)
+            image += rng.normal(0.0, noise, image.shape).astype(np.float32)
         return cv2.cvtColor(np.clip(image + 0.5, 0, 255).astype(np.uint8), cv2.COLOR_RGB2BGR)
 
     def frame_source(self) -> SceneFrameSource:
