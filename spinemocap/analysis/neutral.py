@@ -24,8 +24,11 @@ import pandas as pd
 
 from .angles import ANGLE_COLUMNS
 
-#: The first frames of a trial that define its neutral when no static trial is given (s).
-NEUTRAL_FIRST_S = 0.2
+#: The start of a trial that defines its neutral when no static trial is given (s from its first
+#: frame; 0 = the first frame alone, which the row tracks' low-pass already smooths). A longer
+#: window (a median) suits trials that begin with the subject standing still; a trial that starts
+#: moving at once would have its neutral shifted into the motion.
+NEUTRAL_FIRST_S = 0.0
 
 #: Words for the positive and negative direction of each angle, as a report writes them.
 DIRECTION_WORDS: dict[str, tuple[str, str]] = {
@@ -66,8 +69,8 @@ class Neutral:
 def neutral_from_angles(table: pd.DataFrame, first_s: float | None = NEUTRAL_FIRST_S,
                         source: str | None = None) -> Neutral:
     """The neutral posture of an angles table (:attr:`SpineAngles.table`): the median of each
-    angle over its first ``first_s`` seconds (at least the first frame), or over the whole table
-    when ``first_s`` is None (a static trial)."""
+    angle over its first ``first_s`` seconds (0: the first frame), or over the whole table when
+    ``first_s`` is None (a static trial)."""
     if table.empty:
         return Neutral({c: float("nan") for c in ANGLE_COLUMNS}, source or "an empty trial")
     t = table["time"].to_numpy(float)

@@ -184,9 +184,13 @@ def trial_neutrals(results: list[dict]) -> dict[str, tuple[dict, str]]:
             neutral, source = static[r.get("subject", "")]
         else:
             neutral = neutral_from_angles(tables[key], first_s=NEUTRAL_FIRST_S)
-            source = f"first {NEUTRAL_FIRST_S:g} s"
+            source = _first_frames_words()
         out[key] = (neutral_summary(tables[key], neutral), source)
     return out
+
+
+def _first_frames_words() -> str:
+    return f"first {NEUTRAL_FIRST_S:g} s" if NEUTRAL_FIRST_S > 0 else "first frame"
 
 
 def _read_angles(result: dict) -> pd.DataFrame:
@@ -222,6 +226,9 @@ def _trial_plot(angles: pd.DataFrame, neutral: Neutral | None = None) -> str:
                             label="no angle (see problems)")
             ax.set_ylim(low, high)
             ax.legend(loc="upper right", fontsize=7)
+        if not np.isfinite(values).any():
+            ax.text(0.5, 0.5, "no angle in any frame\n(reason under Problems)", ha="center", va="center",
+                    transform=ax.transAxes, fontsize=9, color="tab:red")
         ax.axhline(0, color="0.6", lw=0.6)
         zero = neutral.value(column)
         ax.set_title(f"{label}\nneutral = {zero:.1f} deg absolute" if np.isfinite(zero) else f"{label}\nno neutral value",
@@ -294,7 +301,8 @@ def _draw_segments(over_time, at_peaks, segments: pd.DataFrame | None, frames: d
     at_peaks.axhline(0, color="0.6", lw=0.6)
     at_peaks.set_xticks(x, names, rotation=60, fontsize=6)
     at_peaks.set_title("segmental flexion at the peaks (sacral -> cranial)", fontsize=8)
-    at_peaks.legend(fontsize=6)
+    if at_peaks.get_legend_handles_labels()[0]:
+        at_peaks.legend(fontsize=6)
     for ax in (over_time, at_peaks):
         ax.tick_params(labelsize=7)
 
@@ -438,8 +446,8 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
              f"Generated {_dt.datetime.now():%Y-%m-%d %H:%M}. Angles in degrees: lumbar = "
              f"{html.escape(_lumbar_levels(results))} on the tape's midline; flexion positive forward, lateral bending "
              "positive to the subject's right, axial rotation positive to the subject's left. "
-             "Motion is reported from neutral (zero = the subject's static trial, or the first "
-             f"{NEUTRAL_FIRST_S:g} s of the trial): flexion and extension from neutral are the largest bends "
+             "Motion is reported from neutral (zero = the subject's static trial, or else the trial's "
+             f"{_first_frames_words()}): flexion and extension from neutral are the largest bends "
              "forward and backward past it, ROM the whole range; 'angle at neutral' is the absolute angle "
              "(negative = lordotic). Tables: summary.csv, summary_by_subject.csv, summary_by_condition.csv, "
              "summary.xlsx.</p>"]
