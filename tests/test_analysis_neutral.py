@@ -1,6 +1,8 @@
 """Angles relative to standing (a neutral trial or the first frames), segmental angles and the
 midline profiles, on the analytic bent tape; and the lab's lumbar angle on a default studio capture."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -108,3 +110,20 @@ def test_default_studio_capture_starts_at_s1_and_its_lumbar_angle_is_finite_over
     assert np.isfinite(table["lumbar_flexion"]).all(), table["lumbar_note"].tolist()
     change = relative_to_neutral(table, neutral_from_angles(table, first_s=0.0))["lumbar_flexion"]
     assert change.max() > 15  # the lumbar spine flexed with the motion
+
+
+def test_angles_command_reports_motion_from_a_static_trial(tmp_path, capsys):
+    import exporters
+    from spinemocap.cli import main
+
+    exporters.write(_trial(np.zeros(20)), tmp_path / "static.trc")
+    exporters.write(_trial(np.r_[np.zeros(10), np.linspace(0, 30, 30), np.linspace(30, -5, 30)]), tmp_path / "bend.trc")
+    (tmp_path / "levels.toml").write_text('S1 = 1\nL3 = 5\n"T12/L1" = 9\nT7 = 13\n')
+    assert main(["angles", str(tmp_path / "bend.trc"), "--levels", str(tmp_path / "levels.toml"),
+                 "--neutral", str(tmp_path / "static.trc")]) == 0
+    text = capsys.readouterr().out
+    assert "neutral: the static trial static.trc" in text
+    flexion, extension, rom = (float(x) for x in re.search(
+        r"flexion from neutral ([\d.-]+) deg, extension from neutral ([\d.-]+) deg, ROM ([\d.-]+)", text).groups())
+    assert flexion == pytest.approx(30.0, abs=0.6) and extension == pytest.approx(5.0, abs=0.6)
+    assert rom == pytest.approx(35.0, abs=1.0)

@@ -6,7 +6,6 @@ import base64
 import re
 import shutil
 import subprocess
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -54,7 +53,6 @@ def _images(page: str) -> dict[str, np.ndarray]:
 
 def _drawn(image: np.ndarray) -> float:
     """Share of pixels that are neither white nor grey: the plotted lines, boxes and bars."""
-    b, g, r = (image[..., k].astype(int) for k in range(3))
     return float(np.mean((np.max(image, axis=2).astype(int) - np.min(image, axis=2)) > 40))
 
 

@@ -26,6 +26,9 @@ def register(subparsers) -> None:
     p.add_argument("--lumbar", nargs=2, metavar=("LOWER", "UPPER"), default=("S1", "T12/L1"))
     p.add_argument("--up", type=float, nargs=3, default=(0.0, 0.0, 1.0), help="subject's up (world)")
     p.add_argument("--facing", type=float, nargs=3, default=(0.0, -1.0, 0.0), help="subject's facing (world)")
+    p.add_argument("--neutral", type=Path, metavar="STATIC",
+                   help="marker file of a neutral (static, standing) trial of the same subject and tape: its median "
+                        "angles are zero (default: the trial's first frame)")
     p.set_defaults(func=run_angles)
 
 
@@ -34,6 +37,7 @@ def run_angles(args: argparse.Namespace) -> int:
 
     from ..analysis.angles import AngleSettings, compute_angles
     from ..analysis.levels import LevelMap
+    from ..analysis.neutral import neutral_from_angles, neutral_summary
     from ..app.report import angles_plot_png
     from ..fileio import InputError
     from ..tape import TapeSpec
@@ -46,14 +50,23 @@ def run_angles(args: argparse.Namespace) -> int:
     levels = LevelMap.from_toml(args.levels, tape.n_rows)
     settings = AngleSettings(lower=args.lumbar[0], thoracolumbar=args.lumbar[1])
     result = compute_angles(markers, tape, levels, up=args.up, facing=args.facing, settings=settings)
+    if args.neutral:
+        static = compute_angles(exporters.read(args.neutral), tape, levels, up=args.up, facing=args.facing,
+                                settings=settings)
+        neutral = neutral_from_angles(static.table, first_s=None, source=f"the static trial {args.neutral.name}")
+    else:
+        neutral = neutral_from_angles(result.table)
     out = args.out or args.markers.with_name(args.markers.stem + "_angles.csv")
     with atomic_write(out) as handle:
         result.table.to_csv(handle, index=False, float_format="%.4f")
     with atomic_write(out.with_suffix(".png"), "wb") as handle:
-        handle.write(angles_plot_png(result.table))
-    stats = result.summary()
-    print(f"{len(result.table)} frames, {100 * result.completeness:.0f}% of dots observed; lumbar flexion "
-          f"{stats['lumbar_flexion_min']:.1f}..{stats['lumbar_flexion_max']:.1f} deg (ROM {stats['lumbar_flexion_rom']:.1f})")
+        handle.write(angles_plot_png(result.table, neutral))
+    stats = neutral_summary(result.table, neutral)
+    print(f"{len(result.table)} frames, {100 * result.completeness:.0f}% of dots observed; neutral: {neutral.source}")
+    print(f"lumbar flexion from neutral {stats['lumbar_flexion_pos_from_neutral']:.1f} deg, extension from neutral "
+          f"{stats['lumbar_flexion_neg_from_neutral']:.1f} deg, ROM {stats['lumbar_flexion_rom']:.1f} deg "
+          f"(absolute {stats['lumbar_flexion_min']:.1f}..{stats['lumbar_flexion_max']:.1f} deg, "
+          f"{stats['lumbar_flexion_neutral']:.1f} at neutral)")
     for group, reasons in result.notes.items():
         for reason, count in reasons.items():
             print(f"  {group} angles NaN in {count} frames: {reason}")
