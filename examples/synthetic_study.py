@@ -11,7 +11,10 @@
    Existing captures are kept.
 2. ``run_batch`` computes the spine angles of every trial, on the studio's ground-truth markers
    by default (``--source tracked`` runs the tracker first), on a local process pool.
-3. ``write_report`` writes study_out/results/report.html plus CSV/XLSX tables.
+3. ``write_report`` writes study_out/results/report.html plus CSV/XLSX tables: ROM by subject
+   and condition (box plots), lumbar motion from neutral (each trial's first frame), and per
+   trial a picture of the spine at neutral / peak flexion / peak extension and the segmental
+   flexion.
 
 Same as the command line: ``spinemocap batch study_out/study --out study_out/results --source
 groundtruth --lumbar S1 T12/L1 --report``.
