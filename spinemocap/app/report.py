@@ -303,6 +303,9 @@ def _draw_segments(over_time, at_peaks, segments: pd.DataFrame | None, frames: d
     at_peaks.set_title("segmental flexion at the peaks (sacral -> cranial)", fontsize=8)
     if at_peaks.get_legend_handles_labels()[0]:
         at_peaks.legend(fontsize=6)
+    else:
+        at_peaks.text(0.5, 0.5, "no peaks: the lumbar angle\nis missing in every frame", ha="center", va="center",
+                      transform=at_peaks.transAxes, fontsize=8, color="tab:red")
     for ax in (over_time, at_peaks):
         ax.tick_params(labelsize=7)
 
