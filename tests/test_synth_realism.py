@@ -218,3 +218,16 @@ def test_motions_reach_full_flexion_and_the_forehand_swings_early():
     speed = np.abs(np.diff(spine_motion("forehand", t)[:, 2])) / 0.01
     fast = t[1:][speed > 500]
     assert len(fast) and fast.min() < 0.5  # the fast phase lies in the first 50 frames at 100 fps
+
+
+def test_groundtruth_places_s1_and_t12_l1_on_the_tape():
+    """level_rows: S1 at row 1 of the default tape, T12/L1 at least two rows below its last row."""
+    scene = build_scene(SynthConfig.preset("tiny", frames=1, motion="neutral"))
+    gt = scene.groundtruth
+    rows = dict(zip([str(x) for x in gt["level_names"]], gt["level_rows"]))
+    n = scene.tape.n_rows
+    assert abs(rows["S1"] - 1) < 0.1
+    assert 1 < rows["T12/L1"] < n - 1  # rows n - 1 and n lie above it
+    assert rows["S1"] < rows["L5/S1"] < rows["L5"] < rows["L4"]  # ordered along the tape
+    assert np.isnan(rows["C7"])  # off this tape
+    scene.close()

@@ -420,7 +420,9 @@ class Scene:
         ``keypoint_names`` (hips, waist, shoulder-blade angles, shoulders; left then right; see
         :func:`spinemocap.synth.tape_on_skin.back_keypoints`); ``row_levels``
         (n_rows,) str vertebral level nearest each row (approximate, see
-        :mod:`spinemocap.synth.body`); ``camera_names``.
+        :mod:`spinemocap.synth.body`); ``level_names`` (L,) str vertebral levels S2..C7 and their
+        junctions (``"T12/L1"``, upper level first) with ``level_rows`` (L,) the fractional 1-based
+        row where each lies on the rest tape (NaN off the tape); ``camera_names``.
 
         The tape's true layout (the tracker is given only the roll's spec in ``capture.toml``):
         ``tape_tension`` the nominal taping tension; ``laid_stretch`` (n_rows - 1,) the laid arc
@@ -450,6 +452,8 @@ class Scene:
             angle_names=np.array(ANGLE_NAMES),
             keypoint_names=np.array(self.tape_on_skin.keypoint_names),
             row_levels=np.array(self.tape_on_skin.row_levels),
+            level_names=np.array(list(self.tape_on_skin.level_rows())),
+            level_rows=np.array(list(self.tape_on_skin.level_rows().values())),
             camera_names=np.array(self.rig.names),
         )
         gt.update(self.layout_truth(gt["dots"]))

@@ -389,6 +389,24 @@ class TapeOnSkin:
         uv = np.asarray(uv, float)
         return np.column_stack([uv[:, 0], self.s0 + self.tension.laid_v(self.spec, uv[:, 1])])
 
+    def level_rows(self) -> dict[str, float]:
+        """Fractional 1-based row at which each vertebral level (and junction ``"T12/L1"``-style
+        midpoint of two adjacent levels) lies on the rest tape, measured along the strip; NaN
+        beyond the first and last rows."""
+        spec = self.spec
+        row_s = self.material(np.column_stack([np.zeros(spec.n_rows), np.arange(spec.n_rows) * spec.row_pitch_mm]))[:, 1]
+        heights = self.body.level_heights()
+        names = list(heights)
+        points = dict(heights)
+        for lower, upper in zip(names[:-1], names[1:]):
+            points[f"{upper}/{lower}"] = 0.5 * (heights[lower] + heights[upper])
+        rows = np.arange(1, spec.n_rows + 1, dtype=float)
+        out = {}
+        for name, z in points.items():
+            s = self.chart.arc_at_height(z)
+            out[name] = float(np.interp(s, row_s, rows)) if row_s[0] <= s <= row_s[-1] else float("nan")
+        return out
+
     def pose(self, vertices: np.ndarray, normals: np.ndarray | None = None, strain: SkinStrain | None = None,
              angles_deg: np.ndarray | None = None) -> PosedTape:
         """The tape on a posed body (vertices (V, 3) mm, vertex normals), its skin strained by
