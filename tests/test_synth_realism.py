@@ -231,3 +231,22 @@ def test_groundtruth_places_s1_and_t12_l1_on_the_tape():
     assert rows["S1"] < rows["L5/S1"] < rows["L5"] < rows["L4"]  # ordered along the tape
     assert np.isnan(rows["C7"])  # off this tape
     scene.close()
+
+
+def test_default_capture_has_a_finite_s1_to_t12_l1_lumbar_angle_over_full_flexion():
+    """Issue 17: the default studio tape starts at S1, so the standard lumbar angle S1 -> T12/L1
+    is finite in every frame of a full flexion, lordotic at rest and growing with the flexion."""
+    from spinemocap.analysis.angles import compute_angles
+    from spinemocap.analysis.levels import LevelMap
+    from spinemocap.markers import MarkerTable
+
+    scene = build_scene(SynthConfig.preset("tiny", frames=7, fps=2.0, motion="flexion"))
+    gt = scene.groundtruth
+    levels = LevelMap.from_row_levels([str(x) for x in gt["row_levels"]], scene.tape.n_rows)
+    table = compute_angles(MarkerTable.from_arrays(scene.labels, gt["dots"], fps=2.0), scene.tape, levels).table
+    flexion = table["lumbar_flexion"].to_numpy(float)
+    assert np.isfinite(flexion).all()
+    assert flexion[0] < 0  # standing: lumbar lordosis
+    peak = int(np.argmax(gt["angles_deg"][:, 0]))
+    assert gt["angles_deg"][peak, 0] > 65 and flexion[peak] - flexion[0] > 15
+    scene.close()
