@@ -250,3 +250,16 @@ def test_default_capture_has_a_finite_s1_to_t12_l1_lumbar_angle_over_full_flexio
     peak = int(np.argmax(gt["angles_deg"][:, 0]))
     assert gt["angles_deg"][peak, 0] > 65 and flexion[peak] - flexion[0] > 15
     scene.close()
+
+
+def test_every_start_from_s2_to_t1_can_be_laid_and_only_impossible_ones_are_refused():
+    """Default rows from any start S2..T1 lie flat (the taut strip bridges the cleft at S2); a
+    5-row tape from T1 would run onto the head: refused with the room there is."""
+    from spinemocap.synth.body import LEVELS
+    from spinemocap.synth.scene import cached_tape_on_skin
+
+    for start in LEVELS[:-1]:  # S2 .. T1
+        tape = cached_tape_on_skin((), None, start)
+        assert tape.row_levels[0] == start and tape.spec.n_rows >= 3
+    with pytest.raises(ValueError, match=r"5-row tape .* starting at T1 does not fit .*\(\d+ mm of midline above T1"):
+        cached_tape_on_skin((), 5, "T1")

@@ -87,7 +87,8 @@ class SynthConfig:
     1 = old; muscle, weight, height, proportions; ``sex`` is an alias of gender). ``tape_start`` is the vertebral level of the tape's first row.
     ``tape_start``: the vertebral level (S2..T1) of the tape's first row, S1 by default; ``rows``
     None picks the smallest odd count that passes the T12/L1 junction by
-    :data:`ROWS_PAST_THORACOLUMBAR` rows on this body (at rest, with the tension).
+    :data:`ROWS_PAST_THORACOLUMBAR` rows on this body (at rest, with the tension), fewer (at
+    least 3) where the back above a high start is shorter.
     ``realism`` (:data:`REALISM_LEVELS`: ``ideal``, ``skin`` = default, ``lab``) sets every realism
     field left None: ``skin_strain`` scales the Schober skin strain of
     :mod:`spinemocap.synth.skin_strain` (0 = off, 1 = a healthy adult, the subject's figures drawn
