@@ -263,3 +263,17 @@ def test_every_start_from_s2_to_t1_can_be_laid_and_only_impossible_ones_are_refu
         assert tape.row_levels[0] == start and tape.spec.n_rows >= 3
     with pytest.raises(ValueError, match=r"5-row tape .* starting at T1 does not fit .*\(\d+ mm of midline above T1"):
         cached_tape_on_skin((), 5, "T1")
+
+
+def test_studio_envelope_benchmark_shows_the_lab_beyond_the_ideal_studio(tmp_path):
+    """``bench studio``'s envelope: at full flexion the lab tape stretches ~40-60 % against its spec
+    between rows, the ideal studio (the peer) only by anny's own few percent."""
+    from spinemocap.bench.synth import plot_envelope, realism_envelope
+
+    rows = realism_envelope(levels=("ideal", "lab"), motions=("flexion",), frames=3, fps=1 / 0.75, progress=False)
+    ideal, lab = rows
+    assert ideal["row_stretch_max"] < 1.15 and 1.4 < lab["row_stretch_max"] < 1.7
+    assert abs(lab["calibration_rms_px"] - 0.5) < 0.01 and abs(lab["sync_rms_ms"] - 1.0) < 1e-6
+    assert lab["schober_growth_mm"] > 45 > ideal["schober_growth_mm"]  # >= 5 cm over 15 cm of skin (x tension)
+    plot_envelope(rows, 1 / 0.75, tmp_path / "envelope.png")
+    assert (tmp_path / "envelope.png").stat().st_size > 1000
