@@ -184,6 +184,10 @@ def test_occlusion_levels_reproduce_table2_shares(level):
         (dict(occlusion="extreme"), "unknown occlusion"),
         (dict(tape_start="X9"), "vertebral level"),
         (dict(phenotype={"age": 2.0}), "phenotype"),
+        (dict(tape_tension=1.5), "tape_tension must lie"),
+        (dict(calibration_error_px=-1.0), "calibration_error_px must lie"),
+        (dict(sync_error_ms=-1.0), "sync_error_ms must lie"),
+        (dict(skin_strain=-1.0), "skin_strain"),
     ],
 )
 def test_impossible_settings_raise_clear_errors(overrides, message):

@@ -218,3 +218,62 @@ def test_motions_reach_full_flexion_and_the_forehand_swings_early():
     speed = np.abs(np.diff(spine_motion("forehand", t)[:, 2])) / 0.01
     fast = t[1:][speed > 500]
     assert len(fast) and fast.min() < 0.5  # the fast phase lies in the first 50 frames at 100 fps
+
+
+def test_groundtruth_places_s1_and_t12_l1_on_the_tape():
+    """level_rows: S1 at row 1 of the default tape, T12/L1 at least two rows below its last row."""
+    scene = build_scene(SynthConfig.preset("tiny", frames=1, motion="neutral"))
+    gt = scene.groundtruth
+    rows = dict(zip([str(x) for x in gt["level_names"]], gt["level_rows"]))
+    n = scene.tape.n_rows
+    assert abs(rows["S1"] - 1) < 0.1
+    assert 1 < rows["T12/L1"] < n - 1  # rows n - 1 and n lie above it
+    assert rows["S1"] < rows["L5/S1"] < rows["L5"] < rows["L4"]  # ordered along the tape
+    assert np.isnan(rows["C7"])  # off this tape
+    scene.close()
+
+
+def test_default_capture_has_a_finite_s1_to_t12_l1_lumbar_angle_over_full_flexion():
+    """Issue 17: the default studio tape starts at S1, so the standard lumbar angle S1 -> T12/L1
+    is finite in every frame of a full flexion, lordotic at rest and growing with the flexion."""
+    from spinemocap.analysis.angles import compute_angles
+    from spinemocap.analysis.levels import LevelMap
+    from spinemocap.markers import MarkerTable
+
+    scene = build_scene(SynthConfig.preset("tiny", frames=7, fps=2.0, motion="flexion"))
+    gt = scene.groundtruth
+    levels = LevelMap.from_row_levels([str(x) for x in gt["row_levels"]], scene.tape.n_rows)
+    table = compute_angles(MarkerTable.from_arrays(scene.labels, gt["dots"], fps=2.0), scene.tape, levels).table
+    flexion = table["lumbar_flexion"].to_numpy(float)
+    assert np.isfinite(flexion).all()
+    assert flexion[0] < 0  # standing: lumbar lordosis
+    peak = int(np.argmax(gt["angles_deg"][:, 0]))
+    assert gt["angles_deg"][peak, 0] > 65 and flexion[peak] - flexion[0] > 15
+    scene.close()
+
+
+def test_every_start_from_s2_to_t1_can_be_laid_and_only_impossible_ones_are_refused():
+    """Default rows from any start S2..T1 lie flat (the taut strip bridges the cleft at S2); a
+    5-row tape from T1 would run onto the head: refused with the room there is."""
+    from spinemocap.synth.body import LEVELS
+    from spinemocap.synth.scene import cached_tape_on_skin
+
+    for start in LEVELS[:-1]:  # S2 .. T1
+        tape = cached_tape_on_skin((), None, start)
+        assert tape.row_levels[0] == start and tape.spec.n_rows >= 3
+    with pytest.raises(ValueError, match=r"5-row tape .* starting at T1 does not fit .*\(\d+ mm of midline above T1"):
+        cached_tape_on_skin((), 5, "T1")
+
+
+def test_studio_envelope_benchmark_shows_the_lab_beyond_the_ideal_studio(tmp_path):
+    """``bench studio``'s envelope: at full flexion the lab tape stretches ~40-60 % against its spec
+    between rows, the ideal studio (the peer) only by anny's own few percent."""
+    from spinemocap.bench.synth import plot_envelope, realism_envelope
+
+    rows = realism_envelope(levels=("ideal", "lab"), motions=("flexion",), frames=3, fps=1 / 0.75, progress=False)
+    ideal, lab = rows
+    assert ideal["row_stretch_max"] < 1.15 and 1.4 < lab["row_stretch_max"] < 1.7
+    assert abs(lab["calibration_rms_px"] - 0.5) < 0.01 and abs(lab["sync_rms_ms"] - 1.0) < 1e-6
+    assert lab["schober_growth_mm"] > 45 > ideal["schober_growth_mm"]  # >= 5 cm over 15 cm of skin (x tension)
+    plot_envelope(rows, 1 / 0.75, tmp_path / "envelope.png")
+    assert (tmp_path / "envelope.png").stat().st_size > 1000

@@ -140,6 +140,21 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
                    help="frames of the artificial sequence for the visibility table (paper: 548)")
     p.add_argument("--out", type=Path, default=Path("bench_out/render"), help="folder for the plot and numbers")
     p.set_defaults(func=run_bench_render)
+    p = subparsers.add_parser(
+        "studio", help="synthetic studio realism envelope: tape stretch against the spec (between rows, whole tape, "
+                       "across), Schober growth, calibration and sync errors per realism level and motion")
+    p.add_argument("--frames", type=int, default=60, help="frames per motion (default 60 at 20 fps: 3 s)")
+    p.add_argument("--fps", type=float, default=20.0, help="frame rate (default 20)")
+    p.add_argument("--out", type=Path, default=Path("bench_out/studio"), help="folder for the plot and numbers")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_bench_studio)
+
+
+def run_bench_studio(args: argparse.Namespace) -> int:
+    from spinemocap.bench.synth import run_studio_benchmark
+
+    run_studio_benchmark(args.frames, args.fps, args.out, progress=not args.no_progress)
+    return 0
 
 
 def run_bench_render(args: argparse.Namespace) -> int:

@@ -87,7 +87,8 @@ class SynthConfig:
     1 = old; muscle, weight, height, proportions; ``sex`` is an alias of gender). ``tape_start`` is the vertebral level of the tape's first row.
     ``tape_start``: the vertebral level (S2..T1) of the tape's first row, S1 by default; ``rows``
     None picks the smallest odd count that passes the T12/L1 junction by
-    :data:`ROWS_PAST_THORACOLUMBAR` rows on this body (at rest, with the tension).
+    :data:`ROWS_PAST_THORACOLUMBAR` rows on this body (at rest, with the tension), fewer (at
+    least 3) where the back above a high start is shorter.
     ``realism`` (:data:`REALISM_LEVELS`: ``ideal``, ``skin`` = default, ``lab``) sets every realism
     field left None: ``skin_strain`` scales the Schober skin strain of
     :mod:`spinemocap.synth.skin_strain` (0 = off, 1 = a healthy adult, the subject's figures drawn
@@ -420,7 +421,9 @@ class Scene:
         ``keypoint_names`` (hips, waist, shoulder-blade angles, shoulders; left then right; see
         :func:`spinemocap.synth.tape_on_skin.back_keypoints`); ``row_levels``
         (n_rows,) str vertebral level nearest each row (approximate, see
-        :mod:`spinemocap.synth.body`); ``camera_names``.
+        :mod:`spinemocap.synth.body`); ``level_names`` (L,) str vertebral levels S2..C7 and their
+        junctions (``"T12/L1"``, upper level first) with ``level_rows`` (L,) the fractional 1-based
+        row where each lies on the rest tape (NaN off the tape); ``camera_names``.
 
         The tape's true layout (the tracker is given only the roll's spec in ``capture.toml``):
         ``tape_tension`` the nominal taping tension; ``laid_stretch`` (n_rows - 1,) the laid arc
@@ -450,6 +453,8 @@ class Scene:
             angle_names=np.array(ANGLE_NAMES),
             keypoint_names=np.array(self.tape_on_skin.keypoint_names),
             row_levels=np.array(self.tape_on_skin.row_levels),
+            level_names=np.array(list(self.tape_on_skin.level_rows())),
+            level_rows=np.array(list(self.tape_on_skin.level_rows().values())),
             camera_names=np.array(self.rig.names),
         )
         gt.update(self.layout_truth(gt["dots"]))

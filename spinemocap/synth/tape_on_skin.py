@@ -121,7 +121,8 @@ class BackProfile:
     """The midline of a taut strip laid up the rest back, parametrised by arc length (mm).
 
     Horizontal rays from behind (``-Y``) sample the back's surface across the strip's width
-    (``|x| <= BRIDGE_HALF_WIDTH_MM``) every ``step_mm`` of height from below S2 to above C7; at
+    (``|x| <= BRIDGE_HALF_WIDTH_MM``) every ``step_mm`` of height from below S2 up the back of the
+    neck (to where the head overhangs it); at
     each height the strip spans the hollows (the gluteal cleft, the groove over the spinous
     processes) like a taut chord, so its midline lies on the outer convex envelope of the
     section, not in the cleft. The midline is smoothed lightly and parametrised by arc length.
@@ -129,15 +130,26 @@ class BackProfile:
 
     def __init__(self, body: Body, step_mm: float = 2.0):
         levels = body.level_heights()
-        z = np.arange(levels["S2"] - 60.0, levels["C7"] + 40.0, step_mm)
+        z = np.arange(levels["S2"] - 60.0, levels["C7"] + 150.0, step_mm)
         x = np.linspace(-BRIDGE_HALF_WIDTH_MM, BRIDGE_HALF_WIDTH_MM, 25)
         behind = body.rest_vertices[:, 1].max() - 50.0  # rays run 100 mm either side of this
         zz, xx = np.meshgrid(z, x, indexing="ij")
         starts = np.column_stack([xx.ravel(), np.full(xx.size, behind), zz.ravel()])
-        _, hits = cast_onto_skin(body, starts, np.tile([0.0, -1.0, 0.0], (len(starts), 1)))
+        _, hits = cast_onto_skin(body, starts, np.tile([0.0, -1.0, 0.0], (len(starts), 1)), missing_ok=True)
         depth = (behind - hits[:, 1]).reshape(len(z), len(x))  # grows into the body
+        # up the neck the profile ends where a ray misses or the back of the head overhangs it
+        missed = np.flatnonzero(np.isnan(depth).any(axis=1))
+        if len(missed) and z[missed[0]] <= levels["C7"]:
+            raise ValueError(f"the back of this body is not where the studio looks for it (no skin at "
+                             f"height {z[missed[0]]:.0f} mm)")
+        end = missed[0] if len(missed) else len(z)
+        z, depth = z[:end], depth[:end]
         mid = len(x) // 2
         y = behind - np.array([_outer_envelope(x, row)[mid] for row in depth])
+        neck = np.flatnonzero(z > levels["C7"])
+        overhang = neck[y[neck] > np.minimum.accumulate(y[neck]) + 2.0]
+        if len(overhang):
+            z, y = z[: overhang[0]], y[: overhang[0]]
         kernel = np.ones(5) / 5
         y = np.convolve(np.pad(y, 2, mode="edge"), kernel, mode="valid")
         self.points = np.column_stack([np.zeros_like(z), y, z])  # (K, 3)
@@ -273,9 +285,11 @@ def bind_to_surface(
     return SkinBinding(triangles, weights, None if heights is None else np.asarray(heights, float))
 
 
-def cast_onto_skin(body: Body, points: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def cast_onto_skin(body: Body, points: np.ndarray, directions: np.ndarray,
+                   missing_ok: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """First skin hits of the rays ``points - 100 d -> points + 100 d``: triangle indices (N,)
-    and hit points (N, 3) on the rest mesh."""
+    and hit points (N, 3) on the rest mesh; a ray that misses raises, or with ``missing_ok``
+    gives triangle -1 and NaN."""
     import pyvista as pv
     import vtk
 
@@ -291,7 +305,10 @@ def cast_onto_skin(body: Body, points: np.ndarray, directions: np.ndarray) -> tu
     for i, (p, d) in enumerate(zip(np.asarray(points, float) + nudge, np.asarray(directions, float))):
         tree.IntersectWithLine(p - 100.0 * d, p + 100.0 * d, hits, cells)
         if hits.GetNumberOfPoints() == 0:
-            raise ValueError(f"tape point {i} at {p.round(1)} does not lie over the skin")
+            if not missing_ok:
+                raise ValueError(f"tape point {i} at {p.round(1)} does not lie over the skin")
+            triangles[i], projected[i] = -1, np.nan
+            continue
         triangles[i] = cells.GetId(0)
         projected[i] = hits.GetPoint(0)
     return triangles, projected
@@ -369,9 +386,9 @@ class TapeOnSkin:
         if v_ends[0] < self.chart.s[0] or v_ends[1] > self.chart.s[-1]:
             raise ValueError(
                 f"a {spec.n_rows}-row tape ({spec.length_mm:.0f} mm, laid {v_ends[1] - v_ends[0]:.0f} mm long) "
-                f"starting at {start_level} does not fit on the back between the sacrum and the neck "
-                f"({self.chart.s[-1] - self.s0:.0f} mm of midline above {start_level}); use fewer rows or a "
-                f"lower start level"
+                f"starting at {start_level} does not fit on the back below the head "
+                f"({self.chart.s[-1] - self.s0:.0f} mm of midline above {start_level}, up the back of the neck); "
+                f"use fewer rows or a lower start level"
             )
         self.strip = TapeStrip.build(spec)
         self.dot_material = self.material(spec.graph.uv_mm)
@@ -388,6 +405,24 @@ class TapeOnSkin:
         of the skin under them as laid (stretched along the tape by the taping tension), mm."""
         uv = np.asarray(uv, float)
         return np.column_stack([uv[:, 0], self.s0 + self.tension.laid_v(self.spec, uv[:, 1])])
+
+    def level_rows(self) -> dict[str, float]:
+        """Fractional 1-based row at which each vertebral level (and junction ``"T12/L1"``-style
+        midpoint of two adjacent levels) lies on the rest tape, measured along the strip; NaN
+        beyond the first and last rows."""
+        spec = self.spec
+        row_s = self.material(np.column_stack([np.zeros(spec.n_rows), np.arange(spec.n_rows) * spec.row_pitch_mm]))[:, 1]
+        heights = self.body.level_heights()
+        names = list(heights)
+        points = dict(heights)
+        for lower, upper in zip(names[:-1], names[1:]):
+            points[f"{upper}/{lower}"] = 0.5 * (heights[lower] + heights[upper])
+        rows = np.arange(1, spec.n_rows + 1, dtype=float)
+        out = {}
+        for name, z in points.items():
+            s = self.chart.arc_at_height(z)
+            out[name] = float(np.interp(s, row_s, rows)) if row_s[0] <= s <= row_s[-1] else float("nan")
+        return out
 
     def pose(self, vertices: np.ndarray, normals: np.ndarray | None = None, strain: SkinStrain | None = None,
              angles_deg: np.ndarray | None = None) -> PosedTape:
@@ -490,13 +525,24 @@ class PosedTape:
 def rows_to_pass(chart: BackChart, spec: TapeSpec, s0: float, tension: TapeTension, height_mm: float,
                  rows_above: int = 2) -> int:
     """The smallest odd row count of tape ``spec`` whose tape, laid from arc length ``s0`` with
-    ``tension``, has ``rows_above`` rows above the height ``height_mm`` (mm) at rest."""
+    ``tension``, has ``rows_above`` rows above the height ``height_mm`` (mm) at rest -- or, where
+    the back above the start is too short for that (high starts), the most rows that fit (>= 3)."""
     target = chart.arc_at_height(height_mm) - s0
-    for n in range(max(3, 2 * rows_above + 1), 101, 2):
+    n = max(3, 2 * rows_above + 1)
+    while n < 99:
         longer = replace(spec, n_rows=n)
         if tension.laid_v(longer, np.array([(n - rows_above) * longer.row_pitch_mm]))[0] > target:
-            return n
-    raise ValueError(f"no tape of up to 99 rows reaches {height_mm:.0f} mm")
+            break
+        n += 2
+
+    def fits(rows: int) -> bool:
+        longer = replace(spec, n_rows=rows)
+        end = longer.length_mm - longer.end_margin_mm
+        return bool(s0 + tension.laid_v(longer, np.array([end]))[0] <= chart.s[-1])
+
+    while n > 3 and not fits(n):
+        n -= 2
+    return n
 
 
 def _outer_envelope(u: np.ndarray, depth: np.ndarray) -> np.ndarray:
