@@ -219,6 +219,7 @@ def _trial_plot(angles: pd.DataFrame, neutral: Neutral | None = None) -> str:
     for ax, (column, label) in zip(axes, PLOTTED):
         values = angles[column].to_numpy(float) - neutral.value(column)
         ax.plot(t, values, lw=1.4, color="tab:blue")
+        _at_least_degrees(ax, MIN_SPAN_DEG)
         missing = ~np.isfinite(values)
         if missing.any():
             low, high = ax.get_ylim() if np.isfinite(values).any() else (-1, 1)
@@ -238,6 +239,17 @@ def _trial_plot(angles: pd.DataFrame, neutral: Neutral | None = None) -> str:
     axes[0].set_ylabel("deg", fontsize=8)
     fig.tight_layout()
     return _png(fig)
+
+
+#: Smallest y range (deg) of an angle plot, so that hundredths of a degree do not look like motion.
+MIN_SPAN_DEG = 4.0
+
+
+def _at_least_degrees(ax, span: float) -> None:
+    low, high = ax.get_ylim()
+    if high - low < span:
+        middle = 0.5 * (low + high)
+        ax.set_ylim(middle - span / 2, middle + span / 2)
 
 
 SHAPE_STYLE = {"neutral": ("0.45", "-"), "peak flexion": ("tab:blue", "-"), "peak extension": ("tab:red", "--")}
