@@ -110,3 +110,15 @@ def test_report_renders_its_plots_in_headless_chromium(report, tmp_path):
     assert blue.sum() > 2000 and rows_with_blue.size > 300
     # a plot sits at the top (ROM) and further down (per trial): blue spread over the page
     assert rows_with_blue.min() < 1200 and rows_with_blue.max() > 2000
+
+
+def test_rom_plot_of_a_study_without_any_lumbar_angle_says_so():
+    from spinemocap.app.report import _rom_plot
+
+    trials = pd.DataFrame({"subject": ["S01", "S02"], "condition": ["pre", "pre"], "status": ["ok", "ok"],
+                           "flexion_rom_deg": [np.nan, np.nan], "lateral_rom_deg": [np.nan, np.nan],
+                           "rotation_rom_deg": [np.nan, np.nan]})
+    image = cv2.imdecode(np.frombuffer(base64.b64decode(_rom_plot(trials)), np.uint8), cv2.IMREAD_COLOR)
+    red = np.all(np.abs(image.astype(int) - [40, 39, 214]) < 60, axis=2)  # tab:red text, BGR
+    assert red.sum() > 100  # "no value in any trial (see Problems)" in each panel
+    assert _rom_plot(trials.assign(status="failed")) is None  # nothing analysed: no plot at all

@@ -323,9 +323,10 @@ def _draw_segments(over_time, at_peaks, segments: pd.DataFrame | None, frames: d
 
 
 def _rom_plot(trials: pd.DataFrame) -> str | None:
-    """ROM by subject (x) and condition (colour): box plots with every trial as a point."""
+    """ROM by subject (x) and condition (colour): box plots with every trial as a point; a panel
+    without any value says so (the reasons are in the problems table). None without analysed trials."""
     ok = trials[trials["status"] == "ok"]
-    if ok.empty or not np.isfinite(ok[["flexion_rom_deg", "lateral_rom_deg", "rotation_rom_deg"]].to_numpy(float)).any():
+    if ok.empty:
         return None
     subjects = sorted(ok["subject"].astype(str).unique())
     conditions = sorted(ok["condition"].astype(str).unique())
@@ -349,11 +350,15 @@ def _rom_plot(trials: pd.DataFrame) -> str | None:
                            whiskerprops={"color": colours[c]}, capprops={"color": colours[c]})
                 ax.scatter(x + rng.uniform(-0.15, 0.15, values.size) * width, values, s=14, color=colours[c],
                            zorder=3, label=condition if s == 0 else None)
+        if not np.isfinite(ok[column].to_numpy(float)).any():
+            ax.text(0.5, 0.5, "no value in any trial\n(see Problems)", ha="center", va="center",
+                    transform=ax.transAxes, color="tab:red", fontsize=9)
         ax.set_xticks(range(len(subjects)), subjects, fontsize=7)
         ax.set_xlim(-0.6, len(subjects) - 0.4)
         ax.set_title(label, fontsize=9)
         ax.tick_params(labelsize=7)
-    axes[0].legend(title="condition", fontsize=7, title_fontsize=7)
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(title="condition", fontsize=7, title_fontsize=7)
     fig.tight_layout()
     return _png(fig)
 
