@@ -18,4 +18,9 @@ def test_synthetic_study_example(tmp_path):
     assert set(summary["subject"]) == {"S01", "S02", "S03"} and set(summary["condition"]) == {"flexion", "forehand"}
     flexion = summary[summary["condition"] == "flexion"]["flexion_rom_deg"]
     assert (flexion > 5).all()  # the flexion trials bend the lumbar spine
-    assert "data:image/png;base64," in (tmp_path / "results" / "report.html").read_text()
+    page = (tmp_path / "results" / "report.html").read_text()
+    assert "alt='range of motion by subject and condition'" in page
+    assert page.count("alt='spine shape and segmental angles: ") == 12
+    # the lumbar angle is the standard S1 -> T12/L1 and finite in every frame of every trial
+    assert (summary["lumbar_valid_pct"] == 100).all()
+    assert "T12/L1 relative to S1" in page

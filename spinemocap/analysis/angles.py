@@ -116,9 +116,7 @@ def compute_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
         settings = replace(settings, upper=list(levels.rows)[-1])
     arrays = markers.to_arrays()
     F = len(arrays["frames"])
-    rows = row_tracks(arrays["positions"], list(arrays["labels"]), tape, markers.fps,
-                      settings.max_gap_s, settings.lowpass_hz)
-    curves = [fit_midline(rows.v, rows.centre[f], rows.v[-1], settings.smoothing) for f in range(F)]
+    rows, curves = midlines(markers, tape, settings)
 
     level_v, missing_level = _level_positions(levels, tape, settings)
     names = _roles(settings)
@@ -144,6 +142,36 @@ def compute_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
     table["curve_length_mm"] = [c.length_mm if c is not None else np.nan for c in curves]
     status = arrays["status"]
     return SpineAngles(table=table, notes=notes, completeness=float(np.mean(status == "observed")))
+
+
+def midlines(markers: MarkerTable, tape: TapeSpec,
+             settings: AngleSettings = AngleSettings()) -> tuple[RowTracks, list[MidlineCurve | None]]:
+    """Row tracks and the per-frame midline curves (None where too few rows were seen) of a
+    marker table: the first two steps of :func:`compute_angles`."""
+    arrays = markers.to_arrays()
+    rows = row_tracks(arrays["positions"], list(arrays["labels"]), tape, markers.fps,
+                      settings.max_gap_s, settings.lowpass_hz)
+    curves = [fit_midline(rows.v, rows.centre[f], rows.v[-1], settings.smoothing) for f in range(rows.n_frames)]
+    return rows, curves
+
+
+def level_frames(markers: MarkerTable, tape: TapeSpec, levels: LevelMap, names: list[str],
+                 settings: AngleSettings = AngleSettings()) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Segment frames (F, 3, 3) (columns a, s, r in world coordinates, see :mod:`frames`) at
+    each vertebral level in ``names`` with the reason per frame where a frame is NaN (F,):
+    ``{level: (frames, notes)}``. A level the map does not place gets all-NaN frames and its
+    reason. Used for segmental angles and to validate angles against a known motion."""
+    rows, curves = midlines(markers, tape, settings)
+    out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for name in names:
+        try:
+            v = levels.v_of(name, tape.row_pitch_mm)
+        except KeyError as exc:
+            out[name] = (np.full((rows.n_frames, 3, 3), np.nan), np.full(rows.n_frames, exc.args[0], dtype=object))
+            continue
+        at = _frames_at_level(rows, curves, v, settings, name)
+        out[name] = (at.frames, at.notes)
+    return out
 
 
 def _roles(settings: AngleSettings) -> dict[str, str]:

@@ -10,6 +10,8 @@ Per trial, in ``OUT/<subject>/<condition>/<trial>/``:
 - ``markers.csv`` -- the tracker's output (``--source tracked``; reused while newer than the
   capture's inputs);
 - ``angles.csv`` -- per-frame angles (:mod:`spinemocap.analysis.angles`);
+- ``segments.csv`` and ``shape.json`` -- segmental angles per frame and the tape midline at
+  neutral, peak flexion and peak extension (:mod:`spinemocap.analysis.shape`), for the report;
 - ``summary.json`` -- written last, atomically, like every file here: the trial's status (``ok``
   or ``failed`` with the reason), peaks, ranges, completeness and the reasons for NaN angles.
 
@@ -54,6 +56,7 @@ from tqdm import tqdm
 from ..analysis.angles import AngleSettings, compute_angles
 from ..analysis.frames import pelvis_frame_from_markers
 from ..analysis.levels import LevelMap
+from ..analysis.shape import key_frames, midline_profiles, segmental_angles
 from ..capture import MANIFEST, Capture
 from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, read_toml
 from ..markers import MarkerTable
@@ -69,6 +72,9 @@ MARKERS = "markers.csv"
 INTERRUPTED = "interrupted"
 
 OPENSIM_DIR = "opensim"  # spinemocap opensim's outputs per trial (run_batch(opensim=True))
+
+SEGMENTS = "segments.csv"
+SHAPE = "shape.json"
 
 
 @dataclass
@@ -210,6 +216,7 @@ def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
                             settings=job.settings, pelvis_frames=pelvis)
     with atomic_write(out / ANGLES) as handle:
         result.table.to_csv(handle, index=False, float_format="%.4f")
+    write_shape(out, markers, capture, levels, job.settings, result.table)
     fps = markers.fps
     extra = {"opensim": _opensim(markers, capture, levels, out / OPENSIM_DIR)} if job.opensim else {}
     return {
@@ -240,6 +247,21 @@ def _opensim(markers: MarkerTable, capture: Capture, levels: LevelMap, out: Path
     return {"status": "ok", "marker_rms_mm": s["marker_rms_mm"], "marker_rms_mm_max": s["marker_rms_mm_max"],
             "ms_per_frame": s["ms_per_frame"], "flagged_frames": len(s["flagged_frames"]),
             "driven_joints": s["driven_joints"], "out_dir": str(out)}
+
+def write_shape(out: Path, markers: MarkerTable, capture: Capture, levels: LevelMap, settings: AngleSettings,
+                angles: pd.DataFrame) -> None:
+    """The report's pictures of the spine: ``segments.csv`` (segmental angles per frame,
+    :func:`shape.segmental_angles`) and ``shape.json`` (the tape midline at neutral, peak flexion
+    and peak extension in the subject's axes, :func:`shape.midline_profiles`, with their frames)."""
+    frames = key_frames(angles)
+    with atomic_write(out / SEGMENTS) as handle:
+        segmental_angles(markers, capture.tape, levels, settings).to_csv(handle, index=False, float_format="%.4f")
+    profiles = midline_profiles(markers, capture.tape, frames, up=capture.up,
+                                facing=capture.subject.get("facing", (0.0, -1.0, 0.0)), settings=settings)
+    shape = {"frames": frames, "times_s": {k: float(angles["time"].iloc[f]) for k, f in frames.items()},
+             "midline_mm": profiles}
+    with atomic_write(out / SHAPE) as handle:
+        json.dump(shape, handle)
 
 
 def _input_files(job: TrialJob) -> list[Path]:

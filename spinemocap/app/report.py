@@ -1,18 +1,24 @@
 """Study report from a batch output folder: one self-contained HTML page plus CSV/XLSX tables.
 
-Reads every ``summary.json`` and ``angles.csv`` under the batch folder (see :mod:`batch`) and
-writes into it (atomically):
+Reads every ``summary.json``, ``angles.csv``, ``segments.csv`` and ``shape.json`` under the batch
+folder (see :mod:`batch`) and writes into it (atomically):
 
-- ``report.html``: the problems first (failed trials with their reason, NaN angles with theirs),
-  the per-trial table (peak flexion/extension, ranges of motion, data completeness), group
-  summaries by subject and by condition, and per trial the lumbar flexion, lateral bending and
-  axial rotation over time. Plots are matplotlib PNGs embedded as base64: the page needs no
-  other file and no network.
+- ``report.html``: the problems first (failed trials with their reason, NaN angles with theirs,
+  a trial without any lumbar angle says so), ROM by subject and condition as box/strip plots, the
+  per-trial table (lumbar flexion from neutral, extension from neutral, ROM, the absolute angle
+  at neutral; lateral bending and axial rotation likewise; data completeness), group summaries
+  (mean +- SD) by subject and by condition, and per trial: the angles from neutral over time, a
+  picture of the spine (the tape midline in the sagittal and frontal planes at neutral, peak
+  flexion and peak extension) and the segmental (per-level) flexion. Plots are matplotlib PNGs
+  embedded as base64: the page needs no other file and no network.
 - ``summary.csv`` (one row per trial), ``summary_by_subject.csv``, ``summary_by_condition.csv``
   and ``summary.xlsx`` (the same tables as sheets, plus ``problems``): the numbers on the page.
 
-Angles in degrees, positive flexion = forward bending, lateral positive to the subject's right,
-rotation positive to the subject's left (see :mod:`angles`).
+Neutral (zero): a trial named or conditioned ``static``/``neutral``/``standing`` of the same
+subject when the study has one (:mod:`spinemocap.analysis.neutral`), else the first
+:data:`~spinemocap.analysis.neutral.NEUTRAL_FIRST_S` s of the trial itself. Angles in degrees,
+positive flexion = forward bending, lateral positive to the subject's right, rotation positive
+to the subject's left (see :mod:`angles`).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import base64
 import datetime as _dt
 import html
 import io
+import json
 import os
 from pathlib import Path
 
@@ -31,35 +38,74 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from ..analysis.neutral import (  # noqa: E402
+    NEUTRAL_FIRST_S,
+    Neutral,
+    is_static_name,
+    neutral_from_angles,
+    neutral_summary,
+)
+from ..analysis.shape import segments_of  # noqa: E402
 from ..capture import Capture  # noqa: E402
 from ..fileio import InputError, atomic_path, atomic_write, check_writable  # noqa: E402
-from .batch import ANGLES, load_results  # noqa: E402
+from .batch import ANGLES, SEGMENTS, SHAPE, load_results  # noqa: E402
 
 #: Per-trial numbers: (column name in the tables, angle statistic key in summary.json).
+#: Absolute angles (the lumbar angle of a standing lordotic back is negative).
 TRIAL_COLUMNS = {
-    "peak_flexion_deg": "lumbar_flexion_max",
-    "peak_extension_deg": "lumbar_flexion_min",
+    "flexion_abs_max_deg": "lumbar_flexion_max",
+    "flexion_abs_min_deg": "lumbar_flexion_min",
     "flexion_rom_deg": "lumbar_flexion_rom",
-    "lateral_right_peak_deg": "lumbar_lateral_max",
-    "lateral_left_peak_deg": "lumbar_lateral_min",
+    "lateral_abs_max_deg": "lumbar_lateral_max",
+    "lateral_abs_min_deg": "lumbar_lateral_min",
     "lateral_rom_deg": "lumbar_lateral_rom",
-    "rotation_left_peak_deg": "lumbar_rotation_max",
-    "rotation_right_peak_deg": "lumbar_rotation_min",
+    "rotation_abs_max_deg": "lumbar_rotation_max",
+    "rotation_abs_min_deg": "lumbar_rotation_min",
     "rotation_rom_deg": "lumbar_rotation_rom",
     "thoracic_flexion_rom_deg": "thoracic_flexion_rom",
     "lordosis_max_deg": "lordosis_max",
     "kyphosis_max_deg": "kyphosis_max",
     "lumbar_valid_pct": "lumbar_flexion_valid",
 }
-GROUP_COLUMNS = ["peak_flexion_deg", "peak_extension_deg", "flexion_rom_deg", "lateral_rom_deg",
+#: Numbers relative to neutral (column name, key of :func:`neutral.neutral_summary`).
+NEUTRAL_COLUMNS = {
+    "flexion_neutral_abs_deg": "lumbar_flexion_neutral",
+    "flexion_from_neutral_deg": "lumbar_flexion_pos_from_neutral",
+    "extension_from_neutral_deg": "lumbar_flexion_neg_from_neutral",
+    "lateral_right_from_neutral_deg": "lumbar_lateral_pos_from_neutral",
+    "lateral_left_from_neutral_deg": "lumbar_lateral_neg_from_neutral",
+    "rotation_left_from_neutral_deg": "lumbar_rotation_pos_from_neutral",
+    "rotation_right_from_neutral_deg": "lumbar_rotation_neg_from_neutral",
+}
+GROUP_COLUMNS = ["flexion_from_neutral_deg", "extension_from_neutral_deg", "flexion_rom_deg", "lateral_rom_deg",
                  "rotation_rom_deg", "completeness_pct"]
-PLOTTED = (("lumbar_flexion", "lumbar flexion (+ forward)"),
-           ("lumbar_lateral", "lateral bending (+ right)"),
-           ("lumbar_rotation", "axial rotation (+ left)"))
+PLOTTED = (("lumbar_flexion", "lumbar flexion from neutral (+ forward)"),
+           ("lumbar_lateral", "lateral bending from neutral (+ right)"),
+           ("lumbar_rotation", "axial rotation from neutral (+ left)"))
+#: The trial table as the page shows it: (group header, [(column, short header)]).
+DISPLAY_TRIALS = (
+    ("Trial", [("subject", "subject"), ("condition", "condition"), ("trial", "trial"), ("status", "status"),
+               ("n_frames", "frames"), ("completeness_pct", "dots seen %")]),
+    ("Lumbar flexion (deg)", [("flexion_from_neutral_deg", "flexion from neutral"),
+                              ("extension_from_neutral_deg", "extension from neutral"),
+                              ("flexion_rom_deg", "ROM"), ("flexion_neutral_abs_deg", "angle at neutral")]),
+    ("Lateral bending (deg)", [("lateral_right_from_neutral_deg", "right"), ("lateral_left_from_neutral_deg", "left"),
+                               ("lateral_rom_deg", "ROM")]),
+    ("Axial rotation (deg)", [("rotation_left_from_neutral_deg", "left"), ("rotation_right_from_neutral_deg", "right"),
+                              ("rotation_rom_deg", "ROM")]),
+    ("Other", [("thoracic_flexion_rom_deg", "thoracic flexion ROM"), ("lumbar_valid_pct", "lumbar angle valid %"),
+               ("neutral_from", "neutral")]),
+)
+GROUP_HEADERS = {"flexion_from_neutral_deg": "flexion from neutral", "extension_from_neutral_deg": "extension from neutral",
+                 "flexion_rom_deg": "flexion ROM", "lateral_rom_deg": "lateral ROM", "rotation_rom_deg": "rotation ROM",
+                 "completeness_pct": "dots seen %"}
 
 
-def trial_table(results: list[dict]) -> pd.DataFrame:
-    """One row per trial: identity, status, reason, frames, completeness and the angle numbers."""
+def trial_table(results: list[dict], neutrals: dict[str, tuple[dict, str]] | None = None) -> pd.DataFrame:
+    """One row per trial: identity, status, reason, frames, completeness, the absolute angle
+    numbers and (with ``neutrals``: trial key -> (:func:`neutral.neutral_summary`, where the
+    neutral came from)) the numbers relative to neutral."""
+    neutrals = neutrals or {}
     rows = []
     for r in results:
         row = {"subject": r.get("subject", ""), "condition": r.get("condition", ""),
@@ -71,6 +117,10 @@ def trial_table(results: list[dict]) -> pd.DataFrame:
         for column, key in TRIAL_COLUMNS.items():
             value = stats.get(key, np.nan)
             row[column] = 100.0 * value if column.endswith("_pct") and value == value else value
+        relative, source = neutrals.get(r["key"], ({}, ""))
+        for column, key in NEUTRAL_COLUMNS.items():
+            row[column] = relative.get(key, np.nan)
+        row["neutral_from"] = source
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -90,12 +140,16 @@ def group_table(trials: pd.DataFrame, by: str) -> pd.DataFrame:
 
 
 def problem_table(results: list[dict]) -> pd.DataFrame:
-    """Failed trials and NaN-angle reasons, one row per (trial, what, reason)."""
+    """Failed trials and NaN-angle reasons, one row per (trial, what, reason); a trial whose
+    lumbar angle is missing in every frame gets a row saying so first."""
     rows = [{"key": r["key"], "what": "trial failed", "frames": np.nan, "reason": r.get("reason", "")}
             for r in results if r["status"] != "ok"]
     for r in results:
         if r["status"] != "ok":
             continue
+        if r.get("stats", {}).get("lumbar_flexion_valid", 1.0) == 0.0:
+            rows.append({"key": r["key"], "what": "no lumbar angle in any frame", "frames": r.get("n_frames", np.nan),
+                         "reason": _lumbar_reason(r)})
         for group, reasons in r.get("notes", {}).items():
             for reason, count in reasons.items():
                 rows.append({"key": r["key"], "what": f"{group} angles NaN", "frames": count, "reason": reason})
@@ -105,11 +159,53 @@ def problem_table(results: list[dict]) -> pd.DataFrame:
 def empty_column_problems(trials: pd.DataFrame) -> pd.DataFrame:
     """A problem row for every plotted summary column without a single value (all NaN)."""
     ok = trials[trials["status"] == "ok"]
+    columns = [c for c in ("flexion_rom_deg", "flexion_abs_max_deg") if c in ok]
     rows = [{"key": "all trials", "what": f"{column} NaN", "frames": np.nan,
              "reason": "no analysed trial has this value (e.g. the level maps do not reach the lumbar "
                        "levels); its plot is empty"}
-            for column in ("flexion_rom_deg", "peak_flexion_deg") if len(ok) and ok[column].isna().all()]
+            for column in columns if len(ok) and ok[column].isna().all()]
     return pd.DataFrame(rows, columns=["key", "what", "frames", "reason"])
+
+
+def _lumbar_reason(result: dict) -> str:
+    """The most frequent reason for NaN lumbar angles of a trial (summary.json notes)."""
+    reasons = result.get("notes", {}).get("lumbar", {})
+    if not reasons:
+        return "no reason recorded (summary.json has no lumbar notes)"
+    return max(reasons.items(), key=lambda kv: kv[1])[0]
+
+
+# ---------------------------------------------------------------------------------- neutral
+def trial_neutrals(results: list[dict]) -> dict[str, tuple[dict, str]]:
+    """Per analysed trial key: (:func:`neutral.neutral_summary` of its angles, where its neutral
+    came from). A subject's static trial (:func:`neutral.is_static_name`) is the neutral of all
+    the subject's trials; without one, each trial's first frames are."""
+    tables = {r["key"]: _read_angles(r) for r in results if r["status"] == "ok"}
+    static: dict[str, tuple[Neutral, str]] = {}
+    for r in results:
+        key = r["key"]
+        if key in tables and is_static_name(r.get("trial", ""), r.get("condition", "")) and r.get("subject", "") not in static:
+            static[r.get("subject", "")] = (neutral_from_angles(tables[key], first_s=None), f"static trial {key}")
+    out = {}
+    for r in results:
+        key = r["key"]
+        if key not in tables:
+            continue
+        if r.get("subject", "") in static:
+            neutral, source = static[r.get("subject", "")]
+        else:
+            neutral = neutral_from_angles(tables[key], first_s=NEUTRAL_FIRST_S)
+            source = _first_frames_words()
+        out[key] = (neutral_summary(tables[key], neutral), source)
+    return out
+
+
+def _first_frames_words() -> str:
+    return f"first {NEUTRAL_FIRST_S:g} s" if NEUTRAL_FIRST_S > 0 else "first frame"
+
+
+def _read_angles(result: dict) -> pd.DataFrame:
+    return pd.read_csv(Path(result["out_dir"]) / ANGLES)
 
 
 # ---------------------------------------------------------------------------------- plots
@@ -121,34 +217,40 @@ def _png(fig) -> str:
     return base64.b64encode(buffer.getvalue()).decode("ascii")
 
 
-def angles_plot_png(angles: pd.DataFrame) -> bytes:
-    """PNG of lumbar flexion, lateral bending and axial rotation over time (an angles table)."""
-    return base64.b64decode(_trial_plot(angles))
+def angles_plot_png(angles: pd.DataFrame, neutral: Neutral | None = None) -> bytes:
+    """PNG of lumbar flexion, lateral bending and axial rotation from neutral over time (an
+    angles table; ``neutral`` None: its first frames)."""
+    return base64.b64decode(_trial_plot(angles, neutral))
 
 
-def _trial_plot(angles: pd.DataFrame, ik: pd.DataFrame | None = None) -> str:
-    """The tape's lumbar angles over time; with ``ik`` (spinemocap opensim's spine_angles.csv) the
-    IK region sums beside them, shifted to the tape angle's median over the first 10 frames (IK's
-    zero is the static posture there)."""
-    fig, axes = plt.subplots(1, 3, figsize=(13, 2.4), sharex=True)
+def _trial_plot(angles: pd.DataFrame, neutral: Neutral | None = None, ik: pd.DataFrame | None = None) -> str:
+    """Angles from neutral over time; with ``ik`` (spinemocap opensim's spine_angles.csv) the IK
+    region sums beside them (IK's zero is its static posture, by default the first frames too)."""
+    neutral = neutral or neutral_from_angles(angles)
+    fig, axes = plt.subplots(1, 3, figsize=(12, 2.3), sharex=True)
     t = angles["time"].to_numpy()
     for ax, (column, label) in zip(axes, PLOTTED):
-        values = angles[column].to_numpy(float)
+        values = angles[column].to_numpy(float) - neutral.value(column)
         ax.plot(t, values, lw=1.4, color="tab:blue", label="tape (geometric)" if ik is not None else None)
         if ik is not None and column in ik:
-            offset = np.nanmedian(values[:10]) if np.isfinite(values[:10]).any() else 0.0
-            ax.plot(ik["time"], ik[column] + offset, lw=1.1, color="tab:orange", ls="--",
+            ax.plot(ik["time"], ik[column], lw=1.1, color="tab:orange", ls="--",
                     label="OpenSim IK (driven lumbar joints)")
             ax.legend(loc="upper left", fontsize=7)
+        _at_least_degrees(ax, MIN_SPAN_DEG)
         missing = ~np.isfinite(values)
         if missing.any():
             low, high = ax.get_ylim() if np.isfinite(values).any() else (-1, 1)
             ax.fill_between(t, low, high, where=missing, color="tab:red", alpha=0.15, lw=0,
-                            label="no angle (see notes)")
+                            label="no angle (see problems)")
             ax.set_ylim(low, high)
             ax.legend(loc="upper right", fontsize=7)
+        if not np.isfinite(values).any():
+            ax.text(0.5, 0.5, "no angle in any frame\n(reason under Problems)", ha="center", va="center",
+                    transform=ax.transAxes, fontsize=9, color="tab:red")
         ax.axhline(0, color="0.6", lw=0.6)
-        ax.set_title(label, fontsize=9)
+        zero = neutral.value(column)
+        ax.set_title(f"{label}\nneutral = {zero:.1f} deg absolute" if np.isfinite(zero) else f"{label}\nno neutral value",
+                     fontsize=8)
         ax.set_xlabel("time (s)", fontsize=8)
         ax.tick_params(labelsize=7)
     axes[0].set_ylabel("deg", fontsize=8)
@@ -156,52 +258,160 @@ def _trial_plot(angles: pd.DataFrame, ik: pd.DataFrame | None = None) -> str:
     return _png(fig)
 
 
-def _group_plot(trials: pd.DataFrame) -> str | None:
+#: Smallest y range (deg) of an angle plot, so that hundredths of a degree do not look like motion.
+MIN_SPAN_DEG = 4.0
+
+
+def _at_least_degrees(ax, span: float) -> None:
+    low, high = ax.get_ylim()
+    if high - low < span:
+        middle = 0.5 * (low + high)
+        ax.set_ylim(middle - span / 2, middle + span / 2)
+
+
+SHAPE_STYLE = {"neutral": ("0.45", "-"), "peak flexion": ("tab:blue", "-"), "peak extension": ("tab:red", "--")}
+
+
+def _spine_plot(shape: dict | None, segments: pd.DataFrame | None) -> str:
+    """Per trial: the tape midline in the sagittal (anterior-superior) and frontal (right-superior)
+    planes at neutral, peak flexion and peak extension, the segmental flexion over time and each
+    segment's flexion at the peaks (change from the first frame)."""
+    fig, axes = plt.subplots(1, 4, figsize=(12, 3.1), gridspec_kw={"width_ratios": [1, 1, 1.6, 1.6]})
+    _draw_midlines(axes[0], axes[1], shape)
+    _draw_segments(axes[2], axes[3], segments, (shape or {}).get("frames", {}))
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _draw_midlines(sagittal, frontal, shape: dict | None) -> None:
+    profiles = (shape or {}).get("midline_mm", {})
+    for ax, (x, title) in ((sagittal, ("anterior", "sagittal plane (anterior to the left)")),
+                           (frontal, ("right", "frontal plane, seen from behind"))):
+        for name, profile in profiles.items():
+            colour, style = SHAPE_STYLE.get(name, ("k", ":"))
+            ax.plot(profile[x], profile["superior"], color=colour, ls=style, lw=1.6, label=name)
+        if not profiles:
+            ax.text(0.5, 0.5, "no midline:\ntoo few tape rows seen", ha="center", va="center", transform=ax.transAxes,
+                    fontsize=8, color="tab:red")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(title, fontsize=8)
+        ax.set_xlabel(f"{x} (mm)", fontsize=7)
+        ax.tick_params(labelsize=7)
+    sagittal.invert_xaxis()  # the subject faces left, the back to the right: the usual sagittal view
+    sagittal.set_ylabel("superior (mm, from the tape's sacral end)", fontsize=7)
+    if profiles:
+        sagittal.legend(fontsize=6, loc="lower left")
+
+
+def _draw_segments(over_time, at_peaks, segments: pd.DataFrame | None, frames: dict) -> None:
+    names = segments_of(segments) if segments is not None else []
+    values = segments[[f"{n}_flexion" for n in names]].to_numpy(float) if names else np.zeros((0, 0))
+    if not names or not np.isfinite(values).any():
+        for ax in (over_time, at_peaks):
+            ax.text(0.5, 0.5, "no segmental angles:\nlevels not seen or not mapped", ha="center", va="center",
+                    transform=ax.transAxes, fontsize=8, color="tab:red")
+            ax.set_xticks([])
+            ax.set_yticks([])
+        return
+    change = values - values[0]
+    colours = plt.get_cmap("viridis")(np.linspace(0, 1, len(names)))
+    t = segments["time"].to_numpy(float)
+    for k, name in enumerate(names):
+        over_time.plot(t, change[:, k], color=colours[k], lw=1.0, label=name)
+    over_time.set_title("segmental flexion (change from first frame)", fontsize=8)
+    over_time.set_xlabel("time (s)", fontsize=7)
+    over_time.set_ylabel("deg", fontsize=7)
+    over_time.legend(fontsize=5, ncol=2, loc="best")
+    x = np.arange(len(names))
+    width = 0.4
+    for name, offset in (("peak flexion", -0.2), ("peak extension", 0.2)):
+        if name in frames and frames[name] < len(change):
+            at_peaks.bar(x + offset, np.nan_to_num(change[frames[name]]), width, color=SHAPE_STYLE[name][0], label=name)
+    at_peaks.axhline(0, color="0.6", lw=0.6)
+    at_peaks.set_xticks(x, names, rotation=60, fontsize=6)
+    at_peaks.set_title("segmental flexion at the peaks (sacral -> cranial)", fontsize=8)
+    if at_peaks.get_legend_handles_labels()[0]:
+        at_peaks.legend(fontsize=6)
+    else:
+        at_peaks.text(0.5, 0.5, "no peaks: the lumbar angle\nis missing in every frame", ha="center", va="center",
+                      transform=at_peaks.transAxes, fontsize=8, color="tab:red")
+    for ax in (over_time, at_peaks):
+        ax.tick_params(labelsize=7)
+
+
+def _rom_plot(trials: pd.DataFrame) -> str | None:
+    """ROM by subject (x) and condition (colour): box plots with every trial as a point; a panel
+    without any value says so (the reasons are in the problems table). None without analysed trials."""
     ok = trials[trials["status"] == "ok"]
-    if len(ok) < 2:  # nothing to compare
+    if ok.empty:
         return None
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.2))
-    for ax, column, label in zip(axes, ("flexion_rom_deg", "peak_flexion_deg", "completeness_pct"),
-                                 ("lumbar flexion ROM (deg)", "peak lumbar flexion (deg)", "observed dots (%)")):
-        pivot = ok.pivot_table(index="subject", columns="condition", values=column, aggfunc="mean", dropna=False)
-        spread = ok.pivot_table(index="subject", columns="condition", values=column, aggfunc="std", dropna=False)
-        ax.set_title(label, fontsize=9)
-        if not np.isfinite(pivot.to_numpy(float)).any():  # e.g. no trial's level map reaches S1
+    subjects = sorted(ok["subject"].astype(str).unique())
+    conditions = sorted(ok["condition"].astype(str).unique())
+    colours = plt.get_cmap("tab10")(np.arange(len(conditions)) % 10)
+    width = 0.8 / max(len(conditions), 1)
+    rng = np.random.default_rng(0)  # jitter of the strip points only
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.0))
+    for ax, (column, label) in zip(axes, (("flexion_rom_deg", "lumbar flexion ROM (deg)"),
+                                          ("lateral_rom_deg", "lateral bending ROM (deg)"),
+                                          ("rotation_rom_deg", "axial rotation ROM (deg)"))):
+        for c, condition in enumerate(conditions):
+            for s, subject in enumerate(subjects):
+                cell = ok[(ok["subject"].astype(str) == subject) & (ok["condition"].astype(str) == condition)]
+                values = cell[column].to_numpy(float)
+                values = values[np.isfinite(values)]
+                if not values.size:
+                    continue
+                x = s - 0.4 + width * (c + 0.5)
+                ax.boxplot(values, positions=[x], widths=0.8 * width, showfliers=False,
+                           medianprops={"color": colours[c]}, boxprops={"color": colours[c]},
+                           whiskerprops={"color": colours[c]}, capprops={"color": colours[c]})
+                ax.scatter(x + rng.uniform(-0.15, 0.15, values.size) * width, values, s=14, color=colours[c],
+                           zorder=3, label=condition if s == 0 else None)
+        if not np.isfinite(ok[column].to_numpy(float)).any():
             ax.text(0.5, 0.5, "no value in any trial\n(see Problems)", ha="center", va="center",
                     transform=ax.transAxes, color="tab:red", fontsize=9)
-            continue
-        pivot.plot.bar(ax=ax, yerr=spread.reindex_like(pivot), capsize=2, rot=0, legend=ax is axes[0])
-        ax.set_xlabel("")
-        ax.tick_params(labelsize=8)
-    handles, labels = axes[0].get_legend_handles_labels()
-    if any(label.strip() for label in labels):
-        axes[0].legend(handles, labels, title="condition", fontsize=7, title_fontsize=7)
-    elif axes[0].get_legend():
-        axes[0].get_legend().remove()
+        ax.set_xticks(range(len(subjects)), subjects, fontsize=7)
+        ax.set_xlim(-0.6, len(subjects) - 0.4)
+        ax.set_title(label, fontsize=9)
+        ax.tick_params(labelsize=7)
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(title="condition", fontsize=7, title_fontsize=7)
     fig.tight_layout()
     return _png(fig)
 
 
 # ---------------------------------------------------------------------------------- page
 _CSS = """
-body{font-family:system-ui,sans-serif;margin:24px;color:#222;max-width:1400px}
+body{font-family:system-ui,sans-serif;margin:24px;color:#222;max-width:1200px}
 h1{font-size:22px}h2{font-size:18px;margin-top:28px;border-bottom:1px solid #ccc}
 table{border-collapse:collapse;font-size:12px;margin:8px 0}
-td,th{border:1px solid #ddd;padding:3px 6px;text-align:right}th{background:#f3f3f3}
-td.text,th{text-align:left}.scroll{overflow-x:auto}h3{font-size:14px;margin:14px 0 2px}
+td,th{border:1px solid #ddd;padding:2px 5px;text-align:right}th{background:#f3f3f3;font-weight:600}
+th.group{text-align:center;background:#e6ecf3}th.col{max-width:80px;white-space:normal;font-size:11px;vertical-align:bottom}
+td.text,th{text-align:left}.scroll{overflow-x:auto}h3{font-size:14px;margin:18px 0 2px}
 .bad{background:#fde8e8}.warn{background:#fff6dd}.ok{color:#2a7a2a}.note{color:#555;font-size:13px}
-img{max-width:100%}
+td.na{color:#999}img{max-width:100%}
 """
 
 
-def _html_table(df: pd.DataFrame, row_class=None) -> str:
-    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in df.columns)
+def _html_table(df: pd.DataFrame, row_class=None, groups: list[tuple[str, int]] | None = None,
+                headers: list[str] | None = None) -> str:
+    """An HTML table; ``groups`` adds a header row of (label, column span) above the column
+    headers (``headers``: shown names, default the column names)."""
+    top = "".join(f"<th class='group' colspan={span}>{html.escape(label)}</th>" for label, span in groups) if groups else ""
+    names = headers or [str(c) for c in df.columns]
+    head = "".join(f"<th class='col'>{html.escape(n)}</th>" for n in names)
     body = []
     for _, row in df.iterrows():
         cls = f' class="{row_class(row)}"' if row_class else ""
-        cells = "".join(f"<td{'' if _numeric(v) else ' class=text'}>{html.escape(_fmt(v))}</td>" for v in row)
-        body.append(f"<tr{cls}>{cells}</tr>")
-    return f"<div class='scroll'><table><tr>{head}</tr>{''.join(body)}</table></div>"
+        body.append(f"<tr{cls}>{''.join(_cell(v) for v in row)}</tr>")
+    head_rows = (f"<tr>{top}</tr>" if top else "") + f"<tr>{head}</tr>"
+    return f"<div class='scroll'><table>{head_rows}{''.join(body)}</table></div>"
+
+
+def _cell(value) -> str:
+    if _numeric(value) and not np.isfinite(value):
+        return "<td class='na' title='not computed: see Problems'>n/a</td>"
+    return f"<td{'' if _numeric(value) else ' class=text'}>{html.escape(_fmt(value))}</td>"
 
 
 def _numeric(value) -> bool:
@@ -214,12 +424,68 @@ def _fmt(value) -> str:
     return str(value)
 
 
+def _trials_html(trials: pd.DataFrame) -> str:
+    """The trial table with grouped, short headers (the CSV keeps every column)."""
+    columns = [(c, h) for _, cols in DISPLAY_TRIALS for c, h in cols]
+    shown = trials[[c for c, _ in columns]]
+    return _html_table(shown, lambda r: "bad" if r["status"] != "ok" else "",
+                       groups=[(label, len(cols)) for label, cols in DISPLAY_TRIALS], headers=[h for _, h in columns])
+
+
+def _group_html(table: pd.DataFrame, by: str) -> str:
+    """A group table as mean +- SD per number, one column each."""
+    if table.empty or "n_failed" not in table:
+        return "<p class='note'>No analysed trials.</p>"
+    shown = table[[by, "n_trials", "n_failed"]].copy()
+    for column in GROUP_COLUMNS:
+        shown[GROUP_HEADERS[column]] = [_mean_sd(m, s) for m, s in zip(table[f"{column}_mean"], table[f"{column}_sd"])]
+    return _html_table(shown, headers=[by, "trials", "failed"] + [GROUP_HEADERS[c] for c in GROUP_COLUMNS])
+
+
+def _mean_sd(mean: float, sd: float) -> str:
+    if not np.isfinite(mean):
+        return "n/a"
+    return f"{mean:.1f} ± {sd:.1f}" if np.isfinite(sd) else f"{mean:.1f}"
+
+
+def _trial_section(result: dict, neutral: Neutral | None) -> list[str]:
+    """One trial's heading, its problems in words, and its three pictures."""
+    key = html.escape(result["key"])
+    if result["status"] != "ok":
+        return [f"<p class='bad'><b>{key}</b>: failed: {html.escape(result.get('reason', ''))}</p>"]
+    folder = Path(result["out_dir"])
+    angles = pd.read_csv(folder / ANGLES)
+    parts = [f"<h3>{key} <span class='note'>({result.get('completeness_pct', float('nan')):.0f}% of dots observed"
+             f"{'; neutral: ' + html.escape(neutral.source) if neutral else ''})</span></h3>"]
+    if result.get("stats", {}).get("lumbar_flexion_valid", 1.0) == 0.0:
+        parts.append(f"<p class='bad'>No lumbar angle in any frame: {html.escape(_lumbar_reason(result))}.</p>")
+    ik = None
+    if result.get("opensim", {}).get("status") == "ok":
+        ik = pd.read_csv(Path(result["opensim"]["out_dir"]) / "spine_angles.csv", comment="#")
+        parts.append(f"<p class='note'>OpenSim IK: marker RMS {result['opensim']['marker_rms_mm']:.2f} mm, "
+                     f"{result['opensim']['flagged_frames']} flagged frames (files in "
+                     f"{html.escape(result['opensim']['out_dir'])})</p>")
+    elif result.get("opensim"):
+        parts.append(f"<p class='warn'>OpenSim IK failed: {html.escape(result['opensim'].get('reason', ''))}</p>")
+    try:
+        parts.append(f"<img alt='angles from neutral: {key}' "
+                     f"src='data:image/png;base64,{_trial_plot(angles, neutral, ik)}'>")
+    except (KeyError, TypeError, ValueError) as exc:  # the page is written anyway, saying why
+        parts.append(f"<p class='bad'>no plot: {html.escape(f'{type(exc).__name__}: {exc}')}</p>")
+    shape = json.loads((folder / SHAPE).read_text()) if (folder / SHAPE).is_file() else None
+    segments = pd.read_csv(folder / SEGMENTS) if (folder / SEGMENTS).is_file() else None
+    parts.append(f"<img alt='spine shape and segmental angles: {key}' "
+                 f"src='data:image/png;base64,{_spine_plot(shape, segments)}'>")
+    return parts
+
+
 def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, Path]:
     """Write the report and summary tables into the batch folder ``out``; returns their paths."""
     out = Path(out)
-    results = load_results(out)
     check_writable(out, "batch output folder")
-    trials = trial_table(results)
+    results = load_results(out)
+    relative = trial_neutrals(results)
+    trials = trial_table(results, relative)
     by_subject, by_condition = group_table(trials, "subject"), group_table(trials, "condition")
     problems = pd.concat([problem_table(results), empty_column_problems(trials)], ignore_index=True)
     paths = _write_tables(out, trials, by_subject, by_condition, problems)
@@ -230,47 +496,43 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
              f"Generated {_dt.datetime.now():%Y-%m-%d %H:%M}. Angles in degrees: lumbar = "
              f"{html.escape(_lumbar_levels(results))} on the tape's midline; flexion positive forward, lateral bending "
              "positive to the subject's right, axial rotation positive to the subject's left. "
-             "Peak extension is the smallest flexion angle (negative = extended). "
-             "Tables: summary.csv, summary_by_subject.csv, summary_by_condition.csv, summary.xlsx.</p>"]
+             "Motion is reported from neutral (zero = the subject's static trial, or else the trial's "
+             f"{_first_frames_words()}): flexion and extension from neutral are the largest bends "
+             "forward and backward past it, ROM the whole range; 'angle at neutral' is the absolute angle "
+             "(negative = lordotic). Tables: summary.csv, summary_by_subject.csv, summary_by_condition.csv, "
+             "summary.xlsx.</p>"]
     parts.append("<h2>Problems</h2>")
     if problems.empty:
         parts.append("<p class='ok'>None: every trial analysed, every angle supported by the data.</p>")
     else:
-        parts.append(_html_table(problems, lambda r: "bad" if r["what"] == "trial failed" else "warn"))
-    parts.append("<h2>Trials</h2>")
-    shown = trials.drop(columns=["key"])
-    parts.append(_html_table(shown, lambda r: "bad" if r["status"] != "ok" else ""))
-    parts.append("<h2>By subject</h2>" + _html_table(by_subject))
-    parts.append("<h2>By condition</h2>" + _html_table(by_condition))
-    group_png = _group_plot(trials)
-    if group_png:
-        parts.append(f"<img alt='group summary' src='data:image/png;base64,{group_png}'>")
-    parts.append("<h2>Angles over time</h2>")
+        parts.append(_html_table(problems, lambda r: "warn" if r["what"].endswith("angles NaN") else "bad"))
+    rom_png = _rom_plot(trials)
+    if rom_png:
+        parts.append("<h2>Range of motion by subject and condition</h2>")
+        parts.append(f"<img alt='range of motion by subject and condition' src='data:image/png;base64,{rom_png}'>")
+    parts.append("<h2>Trials</h2>" + _trials_html(trials))
+    parts.append("<h2>By subject</h2>" + _group_html(by_subject, "subject"))
+    parts.append("<h2>By condition</h2>" + _group_html(by_condition, "condition"))
+    parts.append("<h2>Per trial</h2><p class='note'>Top: lumbar angles from neutral over time. Bottom: the tape "
+                 "midline (S1 end at the origin) at neutral, peak flexion and peak extension, and the flexion of "
+                 "each vertebral segment.</p>")
     for r in results:
-        if r["status"] != "ok":
-            parts.append(f"<p class='bad'><b>{html.escape(r['key'])}</b>: failed: {html.escape(r.get('reason', ''))}</p>")
-            continue
-        angles = pd.read_csv(Path(r["out_dir"]) / ANGLES)
-        parts.append(f"<h3>{html.escape(r['key'])} <span class='note'>"
-                     f"({r.get('completeness_pct', float('nan')):.0f}% of dots observed)</span></h3>")
-        ik = None
-        if r.get("opensim", {}).get("status") == "ok":
-            ik = pd.read_csv(Path(r["opensim"]["out_dir"]) / "spine_angles.csv", comment="#")
-            parts.append(f"<p class='note'>OpenSim IK: marker RMS {r['opensim']['marker_rms_mm']:.2f} mm, "
-                         f"{r['opensim']['flagged_frames']} flagged frames (files in "
-                         f"{html.escape(r['opensim']['out_dir'])})</p>")
-        elif r.get("opensim"):
-            parts.append(f"<p class='warn'>OpenSim IK failed: {html.escape(r['opensim'].get('reason', ''))}</p>")
-        try:
-            parts.append(f"<img alt='{html.escape(r['key'])}' src='data:image/png;base64,{_trial_plot(angles, ik)}'>")
-        except (KeyError, TypeError, ValueError) as exc:  # the page is written anyway, saying why
-            parts.append(f"<p class='bad'>no plot: {html.escape(f'{type(exc).__name__}: {exc}')}</p>")
+        neutral = _neutral_of(r, relative)
+        parts.extend(_trial_section(r, neutral))
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title or out.name)}</title>"
             f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
     with atomic_write(out / "report.html") as handle:
         handle.write(page)
     paths["html"] = out / "report.html"
     return paths
+
+
+def _neutral_of(result: dict, relative: dict[str, tuple[dict, str]]) -> Neutral | None:
+    """The neutral a trial's numbers were taken from (rebuilt from its summary's ``*_neutral``)."""
+    if result["key"] not in relative:
+        return None
+    summary, source = relative[result["key"]]
+    return Neutral({k[: -len("_neutral")]: v for k, v in summary.items() if k.endswith("_neutral")}, source)
 
 
 def _lumbar_levels(results: list[dict]) -> str:

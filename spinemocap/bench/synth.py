@@ -120,3 +120,86 @@ def run_render_benchmark(frames: int, visibility_frames: int, out: Path) -> dict
         json.dump(result, handle, indent=2)
     print(f"wrote {out / 'render_benchmark.json'} and {out / 'visibility_table.png'}")
     return result
+
+
+# ---------------------------------------------------------------------- realism envelope
+ENVELOPE_MOTIONS = ("flexion", "mixed", "lateral", "rotation", "forehand")
+
+
+def realism_envelope(levels=("ideal", "skin", "lab"), motions=ENVELOPE_MOTIONS, frames: int = 60,
+                     fps: float = 20.0, seed: int = 0, progress: bool = True) -> list[dict]:
+    """What the tape on the ``artificial`` preset goes through at each realism level and motion:
+    the stretch against the roll's spec between consecutive rows (``row_stretch``), over the
+    whole tape and across it, the modified-Schober growth of the lowest 150 mm, and the lab's
+    calibration and sync errors. Ground truth only (no rendering). ``ideal`` is the first studio,
+    the peer the others are compared with."""
+    from tqdm import tqdm
+
+    rows = []
+    for level, motion in tqdm([(lv, m) for lv in levels for m in motions], desc="studio envelope",
+                              disable=not progress):
+        scene = build_scene(SynthConfig.preset("artificial", frames=frames, fps=fps, motion=motion, realism=level,
+                                               seed=seed))
+        layout = scene.layout_truth(np.stack([scene.frame_dots(f) for f in range(scene.n_frames)]))
+        spacing, pitch = layout["row_spacing_mm"], scene.tape.row_pitch_mm
+        whole = spacing.sum(axis=1) / (spacing.shape[1] * pitch)
+        lumbar = spacing[:, :6].sum(axis=1)  # the six lowest gaps from S1: 150 mm of spec
+        rows.append({
+            "level": level, "motion": motion, "rows": scene.tape.n_rows,
+            "peak_angles_deg": np.abs(scene.angles_deg).max(axis=0).round(1).tolist(),
+            "row_stretch_min": float(layout["row_stretch"].min()), "row_stretch_max": float(layout["row_stretch"].max()),
+            "tape_stretch_min": float(whole.min()), "tape_stretch_max": float(whole.max()),
+            "width_stretch_min": float(layout["width_stretch"].min()),
+            "width_stretch_max": float(layout["width_stretch"].max()),
+            "schober_growth_mm": float(lumbar.max() - lumbar[0]),
+            "calibration_rms_px": float(scene.calibration_rms_px.mean()),
+            "sync_rms_ms": float(np.sqrt(np.mean(scene.sync_offsets_s**2)) * 1000),
+            "tape_stretch_series": whole.round(4).tolist(),
+        })
+        scene.close()
+    return rows
+
+
+def plot_envelope(rows: list[dict], fps: float, path: Path) -> None:
+    """Whole-tape stretch against the spec over time, one panel per motion, one line per level."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    motions = list(dict.fromkeys(r["motion"] for r in rows))
+    fig, axes = plt.subplots(1, len(motions), figsize=(3.2 * len(motions), 3.2), sharey=True)
+    for ax, motion in zip(np.atleast_1d(axes), motions):
+        for r in (r for r in rows if r["motion"] == motion):
+            series = np.asarray(r["tape_stretch_series"])
+            ax.plot(np.arange(len(series)) / fps, 100 * (series - 1), label=r["level"])
+        ax.set_title(motion)
+        ax.set_xlabel("time (s)")
+        ax.axhline(0, color="grey", lw=0.5)
+    np.atleast_1d(axes)[0].set_ylabel("tape length vs spec (%)")
+    np.atleast_1d(axes)[0].legend()
+    fig.tight_layout()
+    with atomic_write(path, "wb") as handle:
+        fig.savefig(handle, format="png", dpi=120)
+    plt.close(fig)
+
+
+def run_studio_benchmark(frames: int, fps: float, out: Path, progress: bool = True) -> dict:
+    """``spinemocap bench studio``: the realism envelope table, JSON and plot."""
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    rows = realism_envelope(frames=frames, fps=fps, progress=progress)
+    print(f"{'level':<6} {'motion':<9} {'row stretch':>14} {'tape stretch':>14} {'width':>13} "
+          f"{'Schober mm':>10} {'calib px':>8} {'sync ms':>7}")
+    for r in rows:
+        print(f"{r['level']:<6} {r['motion']:<9} {r['row_stretch_min']:6.3f}..{r['row_stretch_max']:5.3f} "
+              f"{r['tape_stretch_min']:6.3f}..{r['tape_stretch_max']:5.3f} {r['width_stretch_min']:5.3f}.."
+              f"{r['width_stretch_max']:5.3f} {r['schober_growth_mm']:10.1f} {r['calibration_rms_px']:8.2f} "
+              f"{r['sync_rms_ms']:7.2f}")
+    plot_envelope(rows, fps, out / "studio_envelope.png")
+    result = {"machine": f"{platform.machine()} {platform.processor()}".strip(), "frames": frames, "fps": fps,
+              "wall_s": time.perf_counter() - t0, "rows": rows}
+    with atomic_write(out / "studio_envelope.json", "w") as handle:
+        json.dump(result, handle, indent=2)
+    print(f"wrote {out / 'studio_envelope.json'} and {out / 'studio_envelope.png'}")
+    return result

@@ -7,10 +7,16 @@ rig, with occluders, rendered offscreen, and exact ground truth.
     scene.groundtruth["dots"]               # (F, D, 3) mm
     write_capture(SynthConfig.preset("artificial", frames=20, occlusion="heavy"), "out")
 
-Modules, in the order a scene is assembled: body (anny, phenotype, posing), motions,
-tape_on_skin (laying and barycentric binding), rigs (camera layouts), occluders (balls, band),
-visibility (ray casting), render (pyvista offscreen, exact OpenCV projection), scene (assembly,
+Modules, in the order a scene is assembled: body (anny, phenotype, posing, vertebral levels),
+motions, tape_on_skin (the taut strip from the start level, taping tension, skin binding),
+skin_strain (the Schober skin strain of a real back), rigs (camera layouts), lab_errors
+(calibration and sync errors of the written rig), occluders (balls, band), visibility (ray
+casting), render (pyvista offscreen, exact OpenCV projection), scene (assembly, realism levels,
 ground truth), writer (capture folder). Heavy libraries load only when a scene is built.
+
+Realism: ``SynthConfig(realism="ideal" | "skin" | "lab")``; ``skin`` (the default) has the
+skin strain on, ``lab`` adds taping tension, calibration and sync errors and more sensor noise
+(see :data:`spinemocap.synth.scene.REALISM_LEVELS`).
 """
 
 from .scene import RenderedFrame, Scene, SynthConfig, build_scene

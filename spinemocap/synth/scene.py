@@ -24,11 +24,26 @@ import numpy as np
 from ..camera import Rig
 from ..tape import TapeSpec
 from .body import ANGLE_NAMES, LEVELS, PHENOTYPE_KEYS, Body, vertex_normals
+from .lab_errors import clock_offsets_s, perturb_rig
 from .motions import MOTIONS, spine_motion
-from .occluders import OCCLUSION_LEVELS, FallingBalls, SportsBraBand, balls_for, sphere_mesh
+from .occluders import (
+    OCCLUSION_LEVELS,
+    FallingBalls,
+    SportsBraBand,
+    balls_for,
+    sphere_mesh,
+)
 from .render import Appearance, CameraRenderer, SceneMeshes
 from .rigs import LAYOUTS, arc_rig
-from .tape_on_skin import SYNTH_TAPE_THICKNESS_MM, TapeOnSkin
+from .skin_strain import SkinStrain
+from .tape_on_skin import (
+    SYNTH_TAPE_THICKNESS_MM,
+    BackChart,
+    PosedTape,
+    TapeOnSkin,
+    TapeTension,
+    rows_to_pass,
+)
 from .visibility import MeshRayCaster, dot_visibility
 
 log = logging.getLogger(__name__)
@@ -38,10 +53,24 @@ SKIN_LIGHT = np.array([0.93, 0.78, 0.68])
 SKIN_DARK = np.array([0.42, 0.28, 0.20])
 
 _PRESETS: dict[str, dict] = {
-    "tiny": dict(frames=4, fps=4.0, cameras=3, size=(480, 360), rows=5, motion="mixed"),
-    "artificial": dict(frames=548, fps=100.0, cameras=4, size=(1024, 768), rows=13, motion="mixed"),
-    "studio": dict(frames=300, fps=100.0, cameras=6, size=(2448, 1600), rows=13, motion="mixed"),
+    "tiny": {"frames": 4, "fps": 4.0, "cameras": 3, "size": (480, 360), "motion": "mixed"},
+    # the paper's 13-row tape (32 dots): from S1 it passes T12/L1 by four or more rows
+    "artificial": {"frames": 548, "fps": 100.0, "cameras": 4, "size": (1024, 768), "rows": 13, "motion": "mixed"},
+    "studio": {"frames": 300, "fps": 100.0, "cameras": 6, "size": (2448, 1600), "rows": 13, "motion": "mixed"},
 }
+
+# Realism levels: the values of the realism fields a level sets when they are not given.
+# ideal: the first studio (no skin strain, tape laid at its spec, exact calibration and sync);
+# skin (SynthConfig's default): a real back under an exact set-up (Schober skin strain);
+# lab: a real back in a real lab (15 % taping tension, 0.5 px calibration error, 1 ms sync
+# error, sensor noise of 3 grey levels) -- the benchmarks' default.
+REALISM_LEVELS: dict[str, dict[str, float]] = {
+    "ideal": {"skin_strain": 0.0, "tape_tension": 0.0, "calibration_error_px": 0.0, "sync_error_ms": 0.0, "noise": 2.0},
+    "skin": {"skin_strain": 1.0, "tape_tension": 0.0, "calibration_error_px": 0.0, "sync_error_ms": 0.0, "noise": 2.0},
+    "lab": {"skin_strain": 1.0, "tape_tension": 0.15, "calibration_error_px": 0.5, "sync_error_ms": 1.0, "noise": 3.0},
+}
+# rows: by default enough to pass the T12/L1 junction by this many rows at rest
+ROWS_PAST_THORACOLUMBAR = 2
 
 
 @dataclass
@@ -56,6 +85,21 @@ class SynthConfig:
     (dark), None picks one from the seed; ``phenotype`` holds anny's parameters in [0, 1]
     (anny's convention: gender 0 = male .. 1 = female; age 0 = newborn .. 0.5 = young adult ..
     1 = old; muscle, weight, height, proportions; ``sex`` is an alias of gender). ``tape_start`` is the vertebral level of the tape's first row.
+    ``tape_start``: the vertebral level (S2..T1) of the tape's first row, S1 by default; ``rows``
+    None picks the smallest odd count that passes the T12/L1 junction by
+    :data:`ROWS_PAST_THORACOLUMBAR` rows on this body (at rest, with the tension), fewer (at
+    least 3) where the back above a high start is shorter.
+    ``realism`` (:data:`REALISM_LEVELS`: ``ideal``, ``skin`` = default, ``lab``) sets every realism
+    field left None: ``skin_strain`` scales the Schober skin strain of
+    :mod:`spinemocap.synth.skin_strain` (0 = off, 1 = a healthy adult, the subject's figures drawn
+    from the seed), ``tape_tension``, ``calibration_error_px``, ``sync_error_ms`` and ``noise``.
+    ``tape_tension``: the tape was laid stretched along its length by this fraction (0.2 = its dots
+    sit 20 % farther apart on the skin than the roll's spec), unevenly along the tape (seeded, see
+    :class:`spinemocap.synth.tape_on_skin.TapeTension`); ``capture.toml`` keeps the roll's spec.
+    ``calibration_error_px``: the written ``rig.toml`` is perturbed (rotations, centres, focal
+    lengths) so that the true dots reproject through it with this RMS per camera, while the images
+    come from the true rig (kept in the ground truth); ``sync_error_ms``: RMS of per-camera clock
+    offsets (each camera renders at its own offset times). See :mod:`spinemocap.synth.lab_errors`.
     """
 
     layout: str = "tiny"  # the preset whose camera layout is used (rigs.LAYOUTS)
@@ -63,7 +107,7 @@ class SynthConfig:
     fps: float = 100.0
     cameras: int = 3
     size: tuple[int, int] = (480, 360)
-    rows: int = 5
+    rows: int | None = None
     motion: str = "mixed"
     occlusion: str = "none"
     balls: int | None = None
@@ -73,9 +117,14 @@ class SynthConfig:
     phenotype: dict = field(default_factory=dict)
     skin_tone: float | None = None
     blur: float = 0.0
-    noise: float = 2.0
+    noise: float | None = None
     distortion: float = 1.0
-    tape_start: str = "L4"
+    tape_start: str = "S1"
+    realism: str = "skin"
+    skin_strain: float | None = None
+    tape_tension: float | None = None
+    calibration_error_px: float | None = None
+    sync_error_ms: float | None = None
     supersample: int = 1
     video: bool = False
     name: str = "synthetic"
@@ -86,6 +135,12 @@ class SynthConfig:
         if "sex" in self.phenotype:
             self.phenotype["gender"] = self.phenotype.pop("sex")
         problems = []
+        if self.realism not in REALISM_LEVELS:
+            raise ValueError(f"invalid synthetic studio settings: unknown realism level {self.realism!r} "
+                             f"(choose from {list(REALISM_LEVELS)})")
+        for name, value in REALISM_LEVELS[self.realism].items():
+            if getattr(self, name) is None:
+                setattr(self, name, value)
         if self.layout not in LAYOUTS:
             problems.append(f"unknown camera layout {self.layout!r} (choose from {sorted(LAYOUTS)})")
         if self.frames < 1:
@@ -96,7 +151,7 @@ class SynthConfig:
             problems.append(f"cameras must be >= 1 (got {self.cameras})")
         if min(self.size) < 16:
             problems.append(f"image size {self.size} is too small (min 16 px)")
-        if self.rows < 1 or self.rows % 2 == 0:
+        if self.rows is not None and (self.rows < 1 or self.rows % 2 == 0):
             problems.append(f"rows must be odd and >= 1: rows alternate 2/3 dots and start and end with a 2-dot row (got {self.rows})")
         if self.motion not in MOTIONS:
             problems.append(f"unknown motion {self.motion!r} (choose from {sorted(MOTIONS)})")
@@ -106,7 +161,8 @@ class SynthConfig:
             problems.append(f"balls must be >= 0 (got {self.balls})")
         if not 0 <= self.blur <= 1:
             problems.append(f"blur (exposure / frame interval) must lie in [0, 1] (got {self.blur})")
-        if self.noise < 0 or self.distortion < 0:
+        level = {name: float(getattr(self, name)) for name in REALISM_LEVELS[self.realism]}  # all set now
+        if level["noise"] < 0 or self.distortion < 0:
             problems.append("noise and distortion must be >= 0")
         if self.skin_tone is not None and not 0 <= self.skin_tone <= 1:
             problems.append(f"skin_tone must lie in [0, 1] (got {self.skin_tone})")
@@ -118,13 +174,23 @@ class SynthConfig:
         for name in ("tape_start", "band_level"):
             if getattr(self, name) not in LEVELS:
                 problems.append(f"{name} {getattr(self, name)!r} is not a vertebral level (choose from {list(LEVELS)})")
+        if not 0 <= level["skin_strain"] <= 3:
+            problems.append(f"skin_strain (a scale of the Schober skin strain, 1 = a healthy adult) must lie in [0, 3] "
+                            f"(got {self.skin_strain})")
+        if not -0.3 <= level["tape_tension"] <= 0.8:
+            problems.append(f"tape_tension must lie in [-0.3, 0.8] (kinesiology tape gives out at about 1.4-1.6 "
+                            f"times its rest length; got {self.tape_tension})")
+        if not 0 <= level["calibration_error_px"] <= 20:
+            problems.append(f"calibration_error_px must lie in [0, 20] (got {self.calibration_error_px})")
+        if not 0 <= level["sync_error_ms"] <= 50:
+            problems.append(f"sync_error_ms must lie in [0, 50] (got {self.sync_error_ms})")
         if self.supersample < 1:
             problems.append("supersample must be >= 1")
         if problems:
             raise ValueError("invalid synthetic studio settings: " + "; ".join(problems))
 
     @classmethod
-    def preset(cls, name: str, /, **overrides) -> "SynthConfig":
+    def preset(cls, name: str, /, **overrides) -> SynthConfig:
         """A named preset (``tiny``, ``artificial``, ``studio``) with fields overridden."""
         if name not in _PRESETS:
             raise ValueError(f"unknown preset {name!r}; choose from {sorted(_PRESETS)}")
@@ -163,7 +229,7 @@ class SceneFrameSource:
     """In-process :class:`spinemocap.capture.FrameSource`: renders frames on demand (images only;
     ``scene.render(i)`` also gives the tape masks)."""
 
-    def __init__(self, scene: "Scene"):
+    def __init__(self, scene: Scene):
         self.scene = scene
         self.camera_names = scene.rig.names
         self.n_frames = scene.n_frames
@@ -180,10 +246,24 @@ def cached_body(phenotype: tuple) -> Body:
     return Body(dict(phenotype))
 
 
+@functools.lru_cache(maxsize=4)
+def cached_back_chart(phenotype: tuple) -> BackChart:
+    """The taut strip's chart over a body's back, cached: it casts ~20k rays (seconds)."""
+    return BackChart(cached_body(phenotype))
+
+
 @functools.lru_cache(maxsize=8)
-def cached_tape_on_skin(phenotype: tuple, rows: int, start_level: str) -> TapeOnSkin:
-    """The tape laid on a body, cached: laying casts ~20k rays (seconds)."""
-    return TapeOnSkin(cached_body(phenotype), TapeSpec(n_rows=rows, thickness_mm=SYNTH_TAPE_THICKNESS_MM), start_level)
+def cached_tape_on_skin(phenotype: tuple, rows: int | None, start_level: str,
+                        tension: TapeTension | None = None) -> TapeOnSkin:
+    """The tape laid on a body (cached); ``rows`` None: enough rows to pass T12/L1 by
+    :data:`ROWS_PAST_THORACOLUMBAR` rows."""
+    body, chart, tension = cached_body(phenotype), cached_back_chart(phenotype), tension or TapeTension()
+    if rows is None:
+        probe = TapeSpec(n_rows=1, thickness_mm=SYNTH_TAPE_THICKNESS_MM)
+        s0 = chart.arc_at_height(body.level_heights()[start_level])
+        rows = rows_to_pass(chart, probe, s0, tension, body.junction_height("L1", "T12"), ROWS_PAST_THORACOLUMBAR)
+    spec = TapeSpec(n_rows=rows, thickness_mm=SYNTH_TAPE_THICKNESS_MM)
+    return TapeOnSkin(body, spec, start_level, tension, chart)
 
 
 class Scene:
@@ -194,26 +274,34 @@ class Scene:
         self.rng_seed = int(config.seed)
         rng = np.random.default_rng([self.rng_seed, 1])
         self.body = cached_body(tuple(sorted(config.phenotype.items())))
-        self.tape = TapeSpec(n_rows=config.rows, thickness_mm=SYNTH_TAPE_THICKNESS_MM)
-        self.tape_on_skin = cached_tape_on_skin(tuple(sorted(config.phenotype.items())), config.rows, config.tape_start)
+        tension = TapeTension(config.tape_tension, self.rng_seed) if config.tape_tension else TapeTension()
+        self.tape_on_skin = cached_tape_on_skin(tuple(sorted(config.phenotype.items())), config.rows, config.tape_start,
+                                                tension)
+        self.tape = self.tape_on_skin.spec
+        self.skin = SkinStrain.for_subject(self.rng_seed, config.skin_strain)
         self.labels: list[str] = list(self.tape.labels)
         self.fps = float(config.fps)
         self.n_frames = int(config.frames)
         self.times = np.arange(self.n_frames) / self.fps
         self.commanded_deg = spine_motion(config.motion, self.times)
-        # posed meshes are kept one chunk of frames at a time (a long sequence would need GBs);
-        # this first pass records the applied angles
-        self._chunk: tuple[int, np.ndarray] | None = None
+        # posed meshes are kept one chunk of frames at a time per camera clock (a long sequence
+        # would need GBs); this first pass records the applied angles
+        self._chunks: dict[float, tuple[int, np.ndarray]] = {}
         applied = []
         for start in range(0, self.n_frames, POSE_CHUNK):
             vertices, angles = self.body.pose(self.commanded_deg[start : start + POSE_CHUNK])
             applied.append(angles)
-            self._chunk = (start // POSE_CHUNK, vertices)
+            self._chunks[0.0] = (start // POSE_CHUNK, vertices)
         self.angles_deg = np.concatenate(applied)
-        rest_dots = self.tape_on_skin.dot_positions(self.body.rest_vertices)
+        rest_dots = self.tape_on_skin.pose(self.body.rest_vertices).dots()
         self.target = rest_dots.mean(axis=0)
         self.rig: Rig = arc_rig(LAYOUTS[config.layout], config.cameras, config.size, self.target,
                                 config.distortion, rng)
+        # the lab's errors draw from their own streams, so turning them on changes nothing else
+        self.sync_offsets_s = clock_offsets_s(len(self.rig), config.sync_error_ms,
+                                              np.random.default_rng([self.rng_seed, 4]))
+        self.calibrated_rig, self.calibration_rms_px = perturb_rig(
+            self.rig, self._calibration_points(), config.calibration_error_px, np.random.default_rng([self.rng_seed, 3]))
         self.balls = FallingBalls.generate(config.n_balls, config.duration_s, self.target, rng)
         self.band = SportsBraBand(self.body, self.body.level_heights()[config.band_level]) if config.band else None
         tone = config.skin_tone if config.skin_tone is not None else rng.uniform(0.0, 0.8)
@@ -228,32 +316,59 @@ class Scene:
         self._renderers: list[CameraRenderer] | None = None
 
     # ------------------------------------------------------------------ geometry per instant
-    def _posed(self, frame: int | None = None, time_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _posed(self, frame: int | None = None, time_s: float | None = None,
+               offset_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Posed vertices and vertex normals at a frame (seen by a clock ``offset_s`` ahead) or
+        at any instant ``time_s``."""
         if time_s is None:
-            v = self.frame_vertices(frame)
+            v = self.frame_vertices(frame, offset_s)
         else:
             v = self.body.pose(spine_motion(self.config.motion, [time_s]))[0][0].astype(float)
         return v, vertex_normals(v, self.body.faces)
 
-    def frame_vertices(self, frame: int) -> np.ndarray:
-        """(V, 3) posed body vertices (mm) at a frame."""
+    def frame_vertices(self, frame: int, offset_s: float = 0.0) -> np.ndarray:
+        """(V, 3) posed body vertices (mm) at a frame, as seen by a camera whose clock runs
+        ``offset_s`` ahead of the nominal frame times."""
+        key = float(offset_s)
         index = frame // POSE_CHUNK
-        if self._chunk is None or self._chunk[0] != index:
+        cached = self._chunks.get(key)
+        if cached is None or cached[0] != index:
             start = index * POSE_CHUNK
-            self._chunk = (index, self.body.pose(self.commanded_deg[start : start + POSE_CHUNK])[0])
-        return self._chunk[1][frame - index * POSE_CHUNK].astype(float)
+            times = self.times[start : start + POSE_CHUNK] + key
+            cached = (index, self.body.pose(spine_motion(self.config.motion, times))[0])
+            self._chunks[key] = cached
+        return cached[1][frame - index * POSE_CHUNK].astype(float)
+
+    def _calibration_points(self, n_frames: int = 8) -> np.ndarray:
+        """True dot positions (N, 3) mm over up to ``n_frames`` frames spread over the sequence:
+        the points against which the calibration error is measured."""
+        frames = np.unique(np.linspace(0, self.n_frames - 1, min(n_frames, self.n_frames)).round().astype(int))
+        return np.concatenate([self.posed_tape(int(f)).dots() for f in frames])
+
+    def posed_tape(self, frame: int | None = None, time_s: float | None = None, offset_s: float = 0.0,
+                   posed: tuple[np.ndarray, np.ndarray] | None = None) -> PosedTape:
+        """The tape on the body at a frame (on a clock ``offset_s`` ahead) or at any instant
+        ``time_s``, with the subject's skin strain; ``posed`` reuses already posed (vertices,
+        normals) of that instant."""
+        t = self.times[frame] + offset_s if time_s is None else time_s
+        v, n = posed if posed is not None else self._posed(frame, time_s, offset_s)
+        return self.tape_on_skin.pose(v, n, self.skin, spine_motion(self.config.motion, [t])[0])
+
+    def frame_dots(self, frame: int) -> np.ndarray:
+        """(D, 3) true dot centres (mm) at a frame's nominal time."""
+        return self.posed_tape(frame).dots()
 
     def _band_vertices(self, vertices: np.ndarray, normals: np.ndarray) -> np.ndarray | None:
         return None if self.band is None else self.band.vertices(vertices, normals)
 
-    def meshes(self, frame: int | None = None, time_s: float | None = None) -> SceneMeshes:
-        """Posed geometry at a frame (or any instant ``time_s``)."""
-        t = self.times[frame] if time_s is None else time_s
-        v, n = self._posed(frame, time_s)
+    def meshes(self, frame: int | None = None, time_s: float | None = None, offset_s: float = 0.0) -> SceneMeshes:
+        """Posed geometry at a frame (seen by a clock ``offset_s`` ahead) or any instant ``time_s``."""
+        t = self.times[frame] + offset_s if time_s is None else time_s
+        v, n = self._posed(frame, time_s, offset_s)
         centres, radii = self.balls.at(t)
         return SceneMeshes(
             body_vertices=v, body_normals=n,
-            tape_vertices=self.tape_on_skin.strip_vertices(v, n),
+            tape_vertices=self.posed_tape(frame, time_s, offset_s, posed=(v, n)).strip_vertices(),
             occluders=sphere_mesh(centres, radii) if len(centres) else None,
             band_vertices=self._band_vertices(v, n),
         )
@@ -266,15 +381,29 @@ class Scene:
         return MeshRayCaster(np.concatenate([v, band_v]), faces)
 
     def frame_groundtruth(self, frame: int) -> dict[str, np.ndarray]:
-        """Ground truth of one frame (see :attr:`groundtruth` for the keys and units)."""
+        """Ground truth of one frame (see :attr:`groundtruth` for the keys and units). Dots,
+        normals and keypoints are at the nominal frame time; ``uv`` and ``visible`` are what each
+        camera saw at its own clock's time."""
         v, n = self._posed(frame)
         tos = self.tape_on_skin
-        dots = tos.dot_positions(v, n)
-        normals = tos.dots.normals(n, self.body.faces)
-        uv = self.rig.project(dots)
-        centres, radii = self.balls.at(self.times[frame])
-        visible = dot_visibility(self.rig, dots, normals, uv, self._occluding_mesh(v, n), centres, radii,
-                                 self.tape.dot_diameter_mm / 2)
+        tape = self.posed_tape(frame, posed=(v, n))
+        dots, normals = tape.dots(), tape.dot_normals()
+        uv = np.empty((len(self.rig), len(dots), 2))
+        visible = np.empty((len(self.rig), len(dots)), dtype=bool)
+        for offset in np.unique(self.sync_offsets_s):
+            cams = np.flatnonzero(self.sync_offsets_s == offset)
+            if offset == 0.0:
+                v_c, n_c, dots_c, normals_c = v, n, dots, normals
+            else:
+                v_c, n_c = self._posed(frame, offset_s=float(offset))
+                tape_c = self.posed_tape(frame, offset_s=float(offset), posed=(v_c, n_c))
+                dots_c, normals_c = tape_c.dots(), tape_c.dot_normals()
+            rig = self.rig.subset([self.rig.names[c] for c in cams])
+            uv_c = rig.project(dots_c)
+            centres, radii = self.balls.at(self.times[frame] + offset)
+            uv[cams] = uv_c
+            visible[cams] = dot_visibility(rig, dots_c, normals_c, uv_c, self._occluding_mesh(v_c, n_c), centres,
+                                           radii, self.tape.dot_diameter_mm / 2)
         return {
             "dots": dots, "dot_normals": normals, "uv": uv, "visible": visible,
             "keypoints": tos.keypoints.points(v, self.body.faces),
@@ -292,7 +421,24 @@ class Scene:
         ``keypoint_names`` (hips, waist, shoulder-blade angles, shoulders; left then right; see
         :func:`spinemocap.synth.tape_on_skin.back_keypoints`); ``row_levels``
         (n_rows,) str vertebral level nearest each row (approximate, see
-        :mod:`spinemocap.synth.body`); ``camera_names``.
+        :mod:`spinemocap.synth.body`); ``level_names`` (L,) str vertebral levels S2..C7 and their
+        junctions (``"T12/L1"``, upper level first) with ``level_rows`` (L,) the fractional 1-based
+        row where each lies on the rest tape (NaN off the tape); ``camera_names``.
+
+        The tape's true layout (the tracker is given only the roll's spec in ``capture.toml``):
+        ``tape_tension`` the nominal taping tension; ``laid_stretch`` (n_rows - 1,) the laid arc
+        length between consecutive rows on the rest skin divided by the spec's row pitch (the
+        uneven tension profile); ``row_spacing_mm`` (F, n_rows - 1) the 3D distance between the
+        centres (mean of the L and R dots) of consecutive rows in each frame, and
+        ``row_stretch`` (F, n_rows - 1) that over the spec's pitch (tension times skin strain:
+        the stretch a tracker must cope with); ``width_stretch`` (F, n_rows) the L-R distance of
+        each row over the spec's.
+
+        The true rig (``rig.toml`` holds the calibrated one, perturbed by
+        ``calibration_error_px``): ``rig_K`` (C, 3, 3), ``rig_dist`` (C, 5), ``rig_R`` (C, 3, 3),
+        ``rig_t`` (C, 3) mm; ``calibration_rms_px`` (C,) how far the written rig reprojects the
+        true dots; ``sync_offset_s`` (C,) each camera's clock offset (its frame ``f`` shows the
+        instant ``times[f] + sync_offset_s[c]``).
         """
         from tqdm import tqdm
 
@@ -307,9 +453,35 @@ class Scene:
             angle_names=np.array(ANGLE_NAMES),
             keypoint_names=np.array(self.tape_on_skin.keypoint_names),
             row_levels=np.array(self.tape_on_skin.row_levels),
+            level_names=np.array(list(self.tape_on_skin.level_rows())),
+            level_rows=np.array(list(self.tape_on_skin.level_rows().values())),
             camera_names=np.array(self.rig.names),
         )
+        gt.update(self.layout_truth(gt["dots"]))
+        gt.update(
+            rig_K=np.stack([c.K for c in self.rig]), rig_dist=np.stack([c.dist for c in self.rig]),
+            rig_R=np.stack([c.R for c in self.rig]), rig_t=np.stack([c.t for c in self.rig]),
+            calibration_rms_px=self.calibration_rms_px.copy(), sync_offset_s=self.sync_offsets_s.copy(),
+        )
         return gt
+
+    def layout_truth(self, dots: np.ndarray) -> dict[str, np.ndarray]:
+        """The tape's true layout (see :attr:`groundtruth`) from (F, D, 3) dot positions (mm)."""
+        spec, graph = self.tape, self.tape.graph
+        labels = self.labels
+        left = [labels.index(f"R{r + 1:02d}L") for r in range(spec.n_rows)]
+        right = [labels.index(f"R{r + 1:02d}R") for r in range(spec.n_rows)]
+        centres = 0.5 * (dots[:, left] + dots[:, right])
+        spacing = np.linalg.norm(np.diff(centres, axis=1), axis=2)
+        nominal_width = np.abs(graph.uv_mm[right, 0] - graph.uv_mm[left, 0])
+        width = np.linalg.norm(dots[:, right] - dots[:, left], axis=2)
+        return {
+            "tape_tension": np.array(self.config.tape_tension),
+            "laid_stretch": self.tape_on_skin.tension.row_spacing_mm(spec) / spec.row_pitch_mm,
+            "row_spacing_mm": spacing,
+            "row_stretch": spacing / spec.row_pitch_mm,
+            "width_stretch": width / nominal_width,
+        }
 
     # ------------------------------------------------------------------ rendering
     @property
@@ -324,13 +496,19 @@ class Scene:
         return self._renderers
 
     def render(self, frame: int, with_masks: bool = True) -> RenderedFrame:
-        """Render one frame in every camera: BGR images (with blur and noise) and tape masks."""
+        """Render one frame in every camera (each at its own clock's time): BGR images (with blur
+        and noise) and tape masks."""
         if not 0 <= frame < self.n_frames:
             raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
-        instants = self._exposure_instants(frame)
-        meshes = [self.meshes(frame)] + [self.meshes(time_s=t) for t in instants[1:]]
         images, masks = [], []
+        shared: dict[float, list[SceneMeshes]] = {}
         for c, renderer in enumerate(self.renderers):
+            offset = float(self.sync_offsets_s[c])
+            if offset not in shared:
+                instants = self._exposure_instants(frame, offset)
+                shared[offset] = ([self.meshes(frame, offset_s=offset)]
+                                  + [self.meshes(time_s=t) for t in instants[1:]])
+            meshes = shared[offset]
             rgb, mask = renderer.render(meshes[0], with_mask=with_masks)
             if len(meshes) > 1:
                 acc = rgb.astype(np.float32)
@@ -341,9 +519,10 @@ class Scene:
             masks.append(mask)
         return RenderedFrame(images, masks)
 
-    def _exposure_instants(self, frame: int) -> list[float]:
-        """The frame time first, then sub-frame instants spread over the exposure (motion blur)."""
-        t = float(self.times[frame])
+    def _exposure_instants(self, frame: int, offset_s: float = 0.0) -> list[float]:
+        """The frame time (on a clock ``offset_s`` ahead) first, then sub-frame instants spread
+        over the exposure (motion blur)."""
+        t = float(self.times[frame]) + offset_s
         if self.config.blur <= 0:
             return [t]
         half = 0.5 * self.config.blur / self.fps
@@ -352,9 +531,10 @@ class Scene:
     def _sensor(self, rgb: np.ndarray, frame: int, camera: int) -> np.ndarray:
         """Sensor noise (seeded per frame and camera) and conversion to BGR uint8."""
         image = rgb.astype(np.float32)
-        if self.config.noise > 0:
+        noise = float(self.config.noise or 0.0)
+        if noise > 0:
             rng = np.random.default_rng([self.rng_seed, 2, frame, camera])
-            image += rng.normal(0.0, self.config.noise, image.shape).astype(np.float32)
+            image += rng.normal(0.0, noise, image.shape).astype(np.float32)
         return cv2.cvtColor(np.clip(image + 0.5, 0, 255).astype(np.uint8), cv2.COLOR_RGB2BGR)
 
     def frame_source(self) -> SceneFrameSource:
