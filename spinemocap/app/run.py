@@ -29,6 +29,9 @@ from ..markers import MarkerTable
 from ..tape import TapeSpec
 from ..track.config import TrackerConfig
 from ..track.pipeline import STAGES, FrameResult, FrameTracker
+from ..track.quality import is_flagged, label_confidence
+from ..track.rig_check import CalibrationWarning, RigResiduals
+from ..track.stretch import row_stretch
 from ..track.sequence import SequenceTracker, fill_and_smooth
 from ..views import ViewDots
 
@@ -89,6 +92,8 @@ class TrackResult:
 
     table: MarkerTable
     frames: list[FrameResult]
+    rig_residuals: RigResiduals | None = None
+    calibration_warning: str | None = None
 
     def stage_ms(self) -> dict[str, float]:
         """Mean time per stage per frame (ms), over all frames."""
@@ -100,6 +105,61 @@ class TrackResult:
         for f in self.frames:
             out[f.route] = out.get(f.route, 0) + 1
         return out
+
+    def flagged_frames(self) -> list[int]:
+        """Frame numbers whose labels the tracker cannot vouch for (see track.quality)."""
+        first = int(self.table.frames[0]) if self.table.n_frames else 0
+        return [first + k for k, f in enumerate(self.frames) if is_flagged(f.flags) or not f.solved]
+
+    def flag_counts(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for f in self.frames:
+            for flag in set(f.flags):
+                out[flag] = out.get(flag, 0) + 1
+        return out
+
+    def quality(self) -> dict:
+        """Numbers for summaries and JSON: flagged frames, flag counts, the spacing measured
+        (ratio to the roll's spec) and the rig's residuals."""
+        along = [f.stretch.along for f in self.frames if f.stretch is not None and f.stretch.source == "data"]
+        across = [f.stretch.across for f in self.frames if f.stretch is not None and f.stretch.source == "data"]
+        gates = [f.gate_px for f in self.frames if np.isfinite(f.gate_px)]
+        res = self.rig_residuals
+        return {
+            "flagged_frames": self.flagged_frames(),
+            "flags": self.flag_counts(),
+            "stretch_along": [float(np.min(along)), float(np.median(along)), float(np.max(along))] if along else None,
+            "stretch_across": float(np.median(across)) if across else None,
+            "gate_px": float(np.median(gates)) if gates else None,
+            "rig_rms_px": ({n: float(r) for n, r in zip(res.cameras, res.rms_px)} if res is not None else None),
+            "calibration_warning": self.calibration_warning,
+        }
+
+    def summary(self) -> str:
+        """What the tracker can and cannot vouch for, in a few lines (end of ``spinemocap track``)."""
+        q = self.quality()
+        lines = []
+        if q["stretch_along"]:
+            lo, med, hi = q["stretch_along"]
+            lines.append(f"tape spacing measured: {100 * (med - 1):+.0f} % along the tape vs the roll's spec "
+                         f"(frames {100 * (lo - 1):+.0f} .. {100 * (hi - 1):+.0f} %), "
+                         f"{100 * (q['stretch_across'] - 1):+.0f} % across")
+        if q["rig_rms_px"]:
+            lines.append("rig residuals on the capture's dots: " + self.rig_residuals.describe()
+                         + (f"; candidate gate {q['gate_px']:.1f} px" if q["gate_px"] else ""))
+        if q["calibration_warning"]:
+            lines.append("WARNING " + q["calibration_warning"])
+        flagged = q["flagged_frames"]
+        if flagged:
+            shown = ", ".join(str(f) for f in flagged[:12]) + (" ..." if len(flagged) > 12 else "")
+            lines.append(f"WARNING {len(flagged)} of {len(self.frames)} frames flagged (labels not vouched for: "
+                         + ", ".join(f"{k} {v}" for k, v in sorted(q["flags"].items())) + f"): frames {shown}; "
+                         "see the confidence column of markers.csv")
+        else:
+            lines.append(f"no frame flagged ({len(self.frames)} frames"
+                         + (f"; mild: {', '.join(f'{k} {v}' for k, v in sorted(q['flags'].items()))}" if q["flags"] else "")
+                         + ")")
+        return "\n".join(lines)
 
 
 def run_tracking(
@@ -148,10 +208,16 @@ def run_tracking(
     first = frame_ids[0] if frame_ids else 0
     if frame_ids and frame_ids != list(range(first, first + len(frame_ids))):
         raise ValueError("frames must be consecutive")
+    confidence = np.stack([label_confidence(s, r.flags) for s, r in zip(status, results)]) if results else None
+    stretch = np.stack([row_stretch(p, tracker.graph)[0] for p in positions]) if results else None
     table = MarkerTable.from_arrays(tape.labels, positions, fps, status=status, n_views=n_views,
-                                    residual=residual, first_frame=first,
+                                    residual=residual, first_frame=first, confidence=confidence, stretch=stretch,
                                     meta={"mode": mode, **(meta or {})})
-    return TrackResult(table, results)
+    residuals = tracker.monitor.residuals() if tracker.monitor.measured else None
+    calibration = tracker.monitor.warning() if tracker.monitor.measured else None
+    if calibration:
+        warnings.warn(calibration, CalibrationWarning, stacklevel=2)
+    return TrackResult(table, results, residuals, calibration)
 
 
 def parse_frames(spec: str | None, n_frames: int, source: str = "--frames") -> range:

@@ -21,7 +21,8 @@ import numpy as np
 
 from ..camera import Rig
 from .candidates import CandidateConfig, build_candidates
-from .types import CandidateCloud, ViewDots
+from ..views import ViewDots
+from .types import CandidateCloud
 
 
 class CalibrationWarning(UserWarning):
