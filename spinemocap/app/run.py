@@ -31,8 +31,10 @@ from ..track.config import TrackerConfig
 from ..track.pipeline import STAGES, FrameResult, FrameTracker
 from ..track.quality import is_flagged, label_confidence
 from ..track.rig_check import CalibrationWarning, RigResiduals
-from ..track.stretch import row_stretch
+from ..track.rig_refine import RigRefineConfig, RigRefinement, refine_rig, retriangulate
 from ..track.sequence import SequenceTracker, fill_and_smooth
+from ..track.stretch import row_stretch
+from ..track.template import tape_frames
 from ..views import ViewDots
 
 log = logging.getLogger(__name__)
@@ -94,6 +96,7 @@ class TrackResult:
     frames: list[FrameResult]
     rig_residuals: RigResiduals | None = None
     calibration_warning: str | None = None
+    refinement: RigRefinement | None = None
 
     def stage_ms(self) -> dict[str, float]:
         """Mean time per stage per frame (ms), over all frames."""
@@ -105,6 +108,13 @@ class TrackResult:
         for f in self.frames:
             out[f.route] = out.get(f.route, 0) + 1
         return out
+
+    def pixels(self) -> np.ndarray:
+        """(F, D, C, 2) distorted blob centres of the observed dots (NaN elsewhere)."""
+        shape = next((f.pixels.shape for f in self.frames if f.pixels is not None), None)
+        if shape is None:
+            return np.full((len(self.frames), len(self.table.labels), 0, 2), np.nan)
+        return np.stack([f.pixels if f.pixels is not None else np.full(shape, np.nan) for f in self.frames])
 
     def flagged_frames(self) -> list[int]:
         """Frame numbers whose labels the tracker cannot vouch for (see track.quality)."""
@@ -144,11 +154,15 @@ class TrackResult:
             lines.append(f"tape spacing measured: {100 * (med - 1):+.0f} % along the tape vs the roll's spec "
                          f"(frames {100 * (lo - 1):+.0f} .. {100 * (hi - 1):+.0f} %), "
                          f"{100 * (q['stretch_across'] - 1):+.0f} % across")
-        if q["rig_rms_px"]:
+        if self.rig_residuals is not None:
             lines.append("rig residuals on the capture's dots: " + self.rig_residuals.describe()
                          + (f"; candidate gate {q['gate_px']:.1f} px" if q["gate_px"] else ""))
         if q["calibration_warning"]:
             lines.append("WARNING " + q["calibration_warning"])
+        if self.refinement is not None:
+            before, after = self.refinement.before_px["all"], self.refinement.after_px["all"]
+            lines.append(f"rig refined on {self.refinement.n_points} tracked dot-frames: reprojection RMS "
+                         f"{before:.2f} -> {after:.2f} px (rig_refined.toml, rig_refine.json)")
         flagged = q["flagged_frames"]
         if flagged:
             shown = ", ".join(str(f) for f in flagged[:12]) + (" ..." if len(flagged) > 12 else "")
@@ -261,6 +275,24 @@ def track_capture(
     """Track a capture folder and write ``out_dir/markers.csv`` plus ``.trc`` and ``.c3d``.
 
     ``frames``: ``"A:B"`` or a range (default: all). Returns the marker table (mm, world Z up)."""
+    return track_capture_result(capture_dir, out_dir, mode, config, detector, frames, progress).table
+
+
+def track_capture_result(
+    capture_dir: str | Path,
+    out_dir: str | Path,
+    mode: str = "sequence",
+    config: TrackerConfig | None = None,
+    detector: str = "net",
+    frames: str | range | None = None,
+    progress: bool = True,
+    refine: RigRefineConfig | None = None,
+) -> TrackResult:
+    """:func:`track_capture` returning the whole :class:`TrackResult` (quality flags, rig
+    residuals). ``refine``: bundle-adjust the rig on the tracked dots afterwards
+    (``--refine-rig``): the refined rig goes to ``out_dir/rig_refined.toml`` with the residuals
+    before/after in ``out_dir/rig_refine.json``, and the observed dots are re-triangulated with it
+    (labels unchanged, :func:`apply_refined_rig`)."""
     capture = Capture.open(capture_dir)
     if mode not in MODES:
         raise InputError(capture_dir, f"unknown tracking mode {mode!r}; choose from {MODES}")
@@ -271,8 +303,43 @@ def track_capture(
         up=capture.up, mode=mode, config=config, progress=progress, n_frames=len(frame_range),
         meta={"subject": capture.subject.get("id", ""), "source": str(capture.root), "detector": detector},
     )
+    if refine is not None:
+        result.refinement = refine_rig(capture.rig, result.pixels(), result.table.positions(), capture.fps, refine)
+        write_refinement(result.refinement, out_dir)
+        result.table = apply_refined_rig(result, result.refinement, capture.tape)
     write_markers(result.table, out_dir)
-    return result.table
+    return result
+
+
+def apply_refined_rig(result: TrackResult, refinement: RigRefinement, tape: TapeSpec) -> MarkerTable:
+    """The result's table with its observed dots re-triangulated under the refined rig (the
+    other dots follow them, see :func:`spinemocap.track.rig_refine.retriangulate`)."""
+    arrays = result.table.to_arrays()
+    positions = arrays["positions"]
+    normals = np.stack([tape_frames(p, tape.graph)[0] if np.isfinite(p).all() else np.zeros_like(p)
+                        for p in positions])
+    moved = retriangulate(refinement.rig, result.pixels(), positions, arrays["status"], tape.thickness_mm, normals)
+    table = MarkerTable.from_arrays(list(arrays["labels"]), moved, result.table.fps, status=arrays["status"],
+                                    n_views=arrays["n_views"], residual=arrays["residual"],
+                                    first_frame=int(arrays["frames"][0]), confidence=arrays["confidence"],
+                                    stretch=arrays["stretch"], meta={**result.table.meta, "rig": "refined"})
+    return table
+
+
+def write_refinement(refinement: RigRefinement, out_dir: str | Path) -> tuple[Path, Path]:
+    """``rig_refined.toml`` and ``rig_refine.json`` (residuals before/after) in ``out_dir``."""
+    import json
+
+    from ..fileio import atomic_path, atomic_write
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rig_path, json_path = out / "rig_refined.toml", out / "rig_refine.json"
+    with atomic_path(rig_path) as tmp:
+        refinement.rig.to_toml(tmp)
+    with atomic_write(json_path) as fh:
+        json.dump(refinement.to_dict(), fh, indent=2)
+    return rig_path, json_path
 
 
 def write_markers(table: MarkerTable, out_dir: str | Path) -> list[Path]:

@@ -60,6 +60,7 @@ class FrameResult:
     flags: list[str] = field(default_factory=list)
     stretch: StretchEstimate | None = None
     gate_px: float = float("nan")
+    pixels: np.ndarray | None = None  # (D, C, 2) distorted px of the blobs of observed dots
 
     @property
     def solved(self) -> bool:
@@ -177,7 +178,10 @@ class FrameTracker:
         n_views[seen] = cloud.n_views[src]
         residual = np.full(self.n_dots, np.nan)
         residual[seen] = cloud.residual[src]
-        return FrameResult(positions, status, n_views, residual)
+        pixels = np.full((self.n_dots, len(self.rig), 2), np.nan)
+        if cloud.pixels is not None:
+            pixels[seen] = cloud.pixels[src]
+        return FrameResult(positions, status, n_views, residual, pixels=pixels)
 
     def add_quality(self, result: FrameResult, cloud: CandidateCloud, stretch: StretchEstimate) -> FrameResult:
         """Flags of a solved frame (see :mod:`spinemocap.track.quality`) and its spacing/gate."""

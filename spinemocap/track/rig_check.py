@@ -20,8 +20,8 @@ from typing import Sequence
 import numpy as np
 
 from ..camera import Rig
-from .candidates import CandidateConfig, build_candidates
 from ..views import ViewDots
+from .candidates import CandidateConfig, build_candidates
 from .types import CandidateCloud
 
 

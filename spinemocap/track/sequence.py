@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..tape import TapeSpec
 from ..timing import StageTimer
 from ..views import ViewDots
-from ..tape import TapeSpec
 from .config import SequenceConfig
 from .continuity import relabel_rows, row_shift, shift_is_unambiguous
 from .edges import edge_bounds
