@@ -41,6 +41,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--band", action="store_true", help="add a sports-bra band around the chest")
     p.add_argument("--band-level", help="vertebral level the band is centred on (default T9)")
     p.add_argument("--tape-start", help="vertebral level of the tape's first row (default L4)")
+    p.add_argument("--tape-tension", type=float, metavar="FRACTION",
+                   help="the tape was laid stretched by this fraction along its length (0.2 = dots 20 %% farther "
+                        "apart on the skin than the roll's spec; uneven along the tape by a seeded few percent); "
+                        "capture.toml keeps the roll's spec, groundtruth.npz the true layout")
     p.add_argument("--blur", type=float, help="motion blur: exposure as a fraction of the frame interval (0..1)")
     p.add_argument("--noise", type=float, help="sensor noise, standard deviation in grey levels")
     p.add_argument("--distortion", type=float, help="lens distortion scale (0 = ideal pinhole, 1 = mild)")
@@ -71,7 +75,7 @@ def config_from_args(args: argparse.Namespace):
     overrides = dict(
         frames=args.frames, fps=args.fps, cameras=args.cameras, size=args.size, rows=args.rows,
         motion=args.motion, occlusion=args.occlusion, band=args.band or None, band_level=args.band_level,
-        tape_start=args.tape_start, blur=args.blur, noise=args.noise, distortion=args.distortion,
+        tape_start=args.tape_start, tape_tension=args.tape_tension, blur=args.blur, noise=args.noise, distortion=args.distortion,
         supersample=args.supersample, seed=args.seed, video=args.video or None,
         phenotype=phenotype or None, name=args.out.name,
     )

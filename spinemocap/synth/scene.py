@@ -28,7 +28,7 @@ from .motions import MOTIONS, spine_motion
 from .occluders import OCCLUSION_LEVELS, FallingBalls, SportsBraBand, balls_for, sphere_mesh
 from .render import Appearance, CameraRenderer, SceneMeshes
 from .rigs import LAYOUTS, arc_rig
-from .tape_on_skin import SYNTH_TAPE_THICKNESS_MM, TapeOnSkin
+from .tape_on_skin import SYNTH_TAPE_THICKNESS_MM, TapeOnSkin, TapeTension
 from .visibility import MeshRayCaster, dot_visibility
 
 log = logging.getLogger(__name__)
@@ -56,6 +56,9 @@ class SynthConfig:
     (dark), None picks one from the seed; ``phenotype`` holds anny's parameters in [0, 1]
     (anny's convention: gender 0 = male .. 1 = female; age 0 = newborn .. 0.5 = young adult ..
     1 = old; muscle, weight, height, proportions; ``sex`` is an alias of gender). ``tape_start`` is the vertebral level of the tape's first row.
+    ``tape_tension``: the tape was laid stretched along its length by this fraction (0.2 = its dots
+    sit 20 % farther apart on the skin than the roll's spec), unevenly along the tape (seeded, see
+    :class:`spinemocap.synth.tape_on_skin.TapeTension`); ``capture.toml`` keeps the roll's spec.
     """
 
     layout: str = "tiny"  # the preset whose camera layout is used (rigs.LAYOUTS)
@@ -76,6 +79,7 @@ class SynthConfig:
     noise: float = 2.0
     distortion: float = 1.0
     tape_start: str = "L4"
+    tape_tension: float = 0.0
     supersample: int = 1
     video: bool = False
     name: str = "synthetic"
@@ -118,6 +122,9 @@ class SynthConfig:
         for name in ("tape_start", "band_level"):
             if getattr(self, name) not in LEVELS:
                 problems.append(f"{name} {getattr(self, name)!r} is not a vertebral level (choose from {list(LEVELS)})")
+        if not -0.3 <= self.tape_tension <= 0.8:
+            problems.append(f"tape_tension must lie in [-0.3, 0.8] (kinesiology tape gives out at about 1.4-1.6 "
+                            f"times its rest length; got {self.tape_tension})")
         if self.supersample < 1:
             problems.append("supersample must be >= 1")
         if problems:
@@ -181,9 +188,10 @@ def cached_body(phenotype: tuple) -> Body:
 
 
 @functools.lru_cache(maxsize=8)
-def cached_tape_on_skin(phenotype: tuple, rows: int, start_level: str) -> TapeOnSkin:
+def cached_tape_on_skin(phenotype: tuple, rows: int, start_level: str, tension: TapeTension = TapeTension()) -> TapeOnSkin:
     """The tape laid on a body, cached: laying casts ~20k rays (seconds)."""
-    return TapeOnSkin(cached_body(phenotype), TapeSpec(n_rows=rows, thickness_mm=SYNTH_TAPE_THICKNESS_MM), start_level)
+    spec = TapeSpec(n_rows=rows, thickness_mm=SYNTH_TAPE_THICKNESS_MM)
+    return TapeOnSkin(cached_body(phenotype), spec, start_level, tension)
 
 
 class Scene:
@@ -195,7 +203,9 @@ class Scene:
         rng = np.random.default_rng([self.rng_seed, 1])
         self.body = cached_body(tuple(sorted(config.phenotype.items())))
         self.tape = TapeSpec(n_rows=config.rows, thickness_mm=SYNTH_TAPE_THICKNESS_MM)
-        self.tape_on_skin = cached_tape_on_skin(tuple(sorted(config.phenotype.items())), config.rows, config.tape_start)
+        tension = TapeTension(config.tape_tension, self.rng_seed) if config.tape_tension else TapeTension()
+        self.tape_on_skin = cached_tape_on_skin(tuple(sorted(config.phenotype.items())), config.rows, config.tape_start,
+                                                tension)
         self.labels: list[str] = list(self.tape.labels)
         self.fps = float(config.fps)
         self.n_frames = int(config.frames)
@@ -293,6 +303,15 @@ class Scene:
         :func:`spinemocap.synth.tape_on_skin.back_keypoints`); ``row_levels``
         (n_rows,) str vertebral level nearest each row (approximate, see
         :mod:`spinemocap.synth.body`); ``camera_names``.
+
+        The tape's true layout (the tracker is given only the roll's spec in ``capture.toml``):
+        ``tape_tension`` the nominal taping tension; ``laid_stretch`` (n_rows - 1,) the laid arc
+        length between consecutive rows on the rest skin divided by the spec's row pitch (the
+        uneven tension profile); ``row_spacing_mm`` (F, n_rows - 1) the 3D distance between the
+        centres (mean of the L and R dots) of consecutive rows in each frame, and
+        ``row_stretch`` (F, n_rows - 1) that over the spec's pitch (tension times skin strain:
+        the stretch a tracker must cope with); ``width_stretch`` (F, n_rows) the L-R distance of
+        each row over the spec's.
         """
         from tqdm import tqdm
 
@@ -309,7 +328,26 @@ class Scene:
             row_levels=np.array(self.tape_on_skin.row_levels),
             camera_names=np.array(self.rig.names),
         )
+        gt.update(self.layout_truth(gt["dots"]))
         return gt
+
+    def layout_truth(self, dots: np.ndarray) -> dict[str, np.ndarray]:
+        """The tape's true layout (see :attr:`groundtruth`) from (F, D, 3) dot positions (mm)."""
+        spec, graph = self.tape, self.tape.graph
+        labels = self.labels
+        left = [labels.index(f"R{r + 1:02d}L") for r in range(spec.n_rows)]
+        right = [labels.index(f"R{r + 1:02d}R") for r in range(spec.n_rows)]
+        centres = 0.5 * (dots[:, left] + dots[:, right])
+        spacing = np.linalg.norm(np.diff(centres, axis=1), axis=2)
+        nominal_width = np.abs(graph.uv_mm[right, 0] - graph.uv_mm[left, 0])
+        width = np.linalg.norm(dots[:, right] - dots[:, left], axis=2)
+        return {
+            "tape_tension": np.array(self.config.tape_tension),
+            "laid_stretch": self.tape_on_skin.tension.row_spacing_mm(spec) / spec.row_pitch_mm,
+            "row_spacing_mm": spacing,
+            "row_stretch": spacing / spec.row_pitch_mm,
+            "width_stretch": width / nominal_width,
+        }
 
     # ------------------------------------------------------------------ rendering
     @property

@@ -35,6 +35,45 @@ WAIST_LEVEL = "L1"  # the lower ribs (12th rib) / waist
 SCAPULA_ANGLE_LEVEL = "T7"  # the inferior angles of the shoulder blades
 
 
+TENSION_UNEVENNESS = 0.25  # the local tension varies by +-25 % of its mean along the tape (seeded)
+
+
+@dataclass(frozen=True)
+class TapeTension:
+    """How the tape was laid along its length: stretched by ``fraction`` on average (0.2 = the
+    dots sit 20 % farther apart on the skin than the roll's spec), unevenly along the tape.
+
+    The local stretch is ``1 + fraction * (1 + TENSION_UNEVENNESS * z(v))`` with ``z`` a seeded
+    piecewise-linear profile in [-1, 1] with one knot per row: at 15 % tension neighbouring row
+    gaps differ by up to a few percent, as when a taper pulls the roll by hand. A negative
+    fraction lays the dots closer than the spec (a roll whose printed spacing is too long).
+    Across the tape the dots keep the spec's spacing (tension acts along the tape).
+    """
+
+    fraction: float = 0.0
+    seed: int = 0
+
+    def _profile(self, spec: TapeSpec) -> tuple[np.ndarray, np.ndarray]:
+        """Knots ``v`` (mm along the flat tape) and local stretch factors there."""
+        v = np.arange(spec.n_rows) * spec.row_pitch_mm
+        z = np.random.default_rng([self.seed, 11]).uniform(-1.0, 1.0, spec.n_rows)
+        return v, 1.0 + self.fraction * (1.0 + TENSION_UNEVENNESS * z)
+
+    def laid_v(self, spec: TapeSpec, v: np.ndarray) -> np.ndarray:
+        """Flat tape coordinate ``v`` (mm from row 1, nominal) -> arc length (mm) from row 1 on
+        the rest skin: the integral of the local stretch (constant beyond the end rows)."""
+        knots, stretch = self._profile(spec)
+        grid = np.linspace(-spec.end_margin_mm - 1.0, spec.length_mm, 4 * int(spec.length_mm) + 8)
+        lam = np.interp(grid, knots, stretch)
+        cum = np.concatenate([[0.0], np.cumsum(0.5 * (lam[1:] + lam[:-1]) * np.diff(grid))])
+        cum -= np.interp(0.0, grid, cum)
+        return np.interp(np.asarray(v, float), grid, cum)
+
+    def row_spacing_mm(self, spec: TapeSpec) -> np.ndarray:
+        """(n_rows - 1,) laid arc length between consecutive rows on the rest skin (mm)."""
+        return np.diff(self.laid_v(spec, np.arange(spec.n_rows) * spec.row_pitch_mm))
+
+
 @dataclass
 class SkinBinding:
     """Points bound to a triangle mesh: ``triangles`` (N,) face indices, ``weights`` (N, 3)
@@ -223,18 +262,18 @@ class TapeStrip:
 class TapeOnSkin:
     """A tape laid on a body: bindings for the strip mesh, the dot centres and the keypoints."""
 
-    def __init__(self, body: Body, spec: TapeSpec, start_level: str = "S1"):
+    def __init__(self, body: Body, spec: TapeSpec, start_level: str = "S1", tension: TapeTension = TapeTension()):
         heights = body.level_heights()
         if start_level not in heights:
             raise ValueError(f"unknown tape start level {start_level!r}; known: {list(heights)}")
-        self.body, self.spec, self.start_level = body, spec, start_level
+        self.body, self.spec, self.start_level, self.tension = body, spec, start_level, tension
         self.profile = BackProfile(body)
         self.s0 = self.profile.arc_at_height(heights[start_level])
-        s_end = self.s0 + (spec.n_rows - 1) * spec.row_pitch_mm + spec.end_margin_mm
-        if self.s0 - spec.end_margin_mm < 0 or s_end > self.profile.arc[-1]:
+        v_ends = self.tension.laid_v(spec, np.array([-spec.end_margin_mm, spec.length_mm - spec.end_margin_mm]))
+        if self.s0 + v_ends[0] < 0 or self.s0 + v_ends[1] > self.profile.arc[-1]:
             raise ValueError(
-                f"a {spec.n_rows}-row tape ({spec.length_mm:.0f} mm) starting at {start_level} does "
-                f"not fit on the back between the sacrum and the neck "
+                f"a {spec.n_rows}-row tape ({spec.length_mm:.0f} mm, laid {v_ends[1] - v_ends[0]:.0f} mm long) "
+                f"starting at {start_level} does not fit on the back between the sacrum and the neck "
                 f"({self.profile.arc[-1]:.0f} mm of midline); use fewer rows or a lower start level"
             )
         self.strip = TapeStrip.build(spec)
@@ -249,12 +288,20 @@ class TapeOnSkin:
         row_z = [rest_dots[graph.row == r, 2].mean() for r in range(spec.n_rows)]
         self.row_levels = [body.nearest_level(z) for z in row_z]
 
+    def laid_uv(self, uv: np.ndarray) -> np.ndarray:
+        """Flat tape coordinates (N, 2) of the roll's spec -> coordinates as laid on the rest skin
+        (``u`` unchanged, ``v`` stretched by the taping tension), mm."""
+        uv = np.asarray(uv, float)
+        return np.column_stack([uv[:, 0], self.tension.laid_v(self.spec, uv[:, 1])])
+
     def _check_lies_flat(self, rest_dots: np.ndarray) -> None:
         """Refuse a lay that a real tape could not take: at rest, every solid dot distance must
         match the spec within the tape's stretch tolerance. Starts too low pull the tape into the
         gluteal cleft (measured on anny: S1 squeezes row 1 by 75-94 %, L5 by 16-27 %, L4 < 5 %)."""
         graph = self.spec.graph
-        edges, rest = graph.edges[graph.solid], graph.rest_length_mm[graph.solid]
+        edges = graph.edges[graph.solid]
+        flat = self.laid_uv(graph.uv_mm)
+        rest = np.linalg.norm(flat[edges[:, 0]] - flat[edges[:, 1]], axis=1)  # as laid, before the skin
         laid = np.linalg.norm(rest_dots[edges[:, 0]] - rest_dots[edges[:, 1]], axis=1)
         deviation = np.abs(laid / rest - 1)
         worst = int(np.argmax(deviation))
@@ -286,9 +333,10 @@ class TapeOnSkin:
         return lambda points_uv: np.maximum(interpolate(np.asarray(points_uv)[:, ::-1]), 0.0)
 
     def lay(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Flat tape coordinates (N, 2) mm -> approximate 3D rest positions near the skin and the
-        inward directions along which they are projected onto it."""
-        p, tangent = self.profile.at(self.s0 + uv[:, 1])
+        """Flat tape coordinates (N, 2) mm (the roll's spec) -> approximate 3D rest positions near
+        the skin (stretched along the tape by the taping tension) and the inward directions along
+        which they are projected onto it."""
+        p, tangent = self.profile.at(self.s0 + self.tension.laid_v(self.spec, uv[:, 1]))
         right = np.array([-1.0, 0.0, 0.0])  # the subject's right; the profile lies in x = 0
         inward = np.cross(tangent, right)  # in the sagittal plane, pointing into the back (-Y)
         inward /= np.linalg.norm(inward, axis=1, keepdims=True)
