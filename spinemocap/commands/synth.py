@@ -45,6 +45,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="the tape was laid stretched by this fraction along its length (0.2 = dots 20 %% farther "
                         "apart on the skin than the roll's spec; uneven along the tape by a seeded few percent); "
                         "capture.toml keeps the roll's spec, groundtruth.npz the true layout")
+    p.add_argument("--calibration-error", type=float, metavar="PX",
+                   help="write a rig.toml perturbed (rotations, centres, focal lengths) so that the true dots "
+                        "reproject with this RMS per camera; the images stay exact, groundtruth.npz keeps the true rig")
+    p.add_argument("--sync-error", type=float, metavar="MS",
+                   help="per-camera clock offsets with this RMS (ms): each camera renders at its own offset times")
     p.add_argument("--blur", type=float, help="motion blur: exposure as a fraction of the frame interval (0..1)")
     p.add_argument("--noise", type=float, help="sensor noise, standard deviation in grey levels")
     p.add_argument("--distortion", type=float, help="lens distortion scale (0 = ideal pinhole, 1 = mild)")
@@ -75,7 +80,8 @@ def config_from_args(args: argparse.Namespace):
     overrides = dict(
         frames=args.frames, fps=args.fps, cameras=args.cameras, size=args.size, rows=args.rows,
         motion=args.motion, occlusion=args.occlusion, band=args.band or None, band_level=args.band_level,
-        tape_start=args.tape_start, tape_tension=args.tape_tension, blur=args.blur, noise=args.noise, distortion=args.distortion,
+        tape_start=args.tape_start, tape_tension=args.tape_tension,
+        calibration_error_px=args.calibration_error, sync_error_ms=args.sync_error, blur=args.blur, noise=args.noise, distortion=args.distortion,
         supersample=args.supersample, seed=args.seed, video=args.video or None,
         phenotype=phenotype or None, name=args.out.name,
     )

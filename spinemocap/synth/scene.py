@@ -29,6 +29,7 @@ from .occluders import OCCLUSION_LEVELS, FallingBalls, SportsBraBand, balls_for,
 from .render import Appearance, CameraRenderer, SceneMeshes
 from .rigs import LAYOUTS, arc_rig
 from .tape_on_skin import SYNTH_TAPE_THICKNESS_MM, TapeOnSkin, TapeTension
+from .lab_errors import clock_offsets_s, perturb_rig
 from .visibility import MeshRayCaster, dot_visibility
 
 log = logging.getLogger(__name__)
@@ -59,6 +60,10 @@ class SynthConfig:
     ``tape_tension``: the tape was laid stretched along its length by this fraction (0.2 = its dots
     sit 20 % farther apart on the skin than the roll's spec), unevenly along the tape (seeded, see
     :class:`spinemocap.synth.tape_on_skin.TapeTension`); ``capture.toml`` keeps the roll's spec.
+    ``calibration_error_px``: the written ``rig.toml`` is perturbed (rotations, centres, focal
+    lengths) so that the true dots reproject through it with this RMS per camera, while the images
+    come from the true rig (kept in the ground truth); ``sync_error_ms``: RMS of per-camera clock
+    offsets (each camera renders at its own offset times). See :mod:`spinemocap.synth.lab_errors`.
     """
 
     layout: str = "tiny"  # the preset whose camera layout is used (rigs.LAYOUTS)
@@ -80,6 +85,8 @@ class SynthConfig:
     distortion: float = 1.0
     tape_start: str = "L4"
     tape_tension: float = 0.0
+    calibration_error_px: float = 0.0
+    sync_error_ms: float = 0.0
     supersample: int = 1
     video: bool = False
     name: str = "synthetic"
@@ -125,6 +132,10 @@ class SynthConfig:
         if not -0.3 <= self.tape_tension <= 0.8:
             problems.append(f"tape_tension must lie in [-0.3, 0.8] (kinesiology tape gives out at about 1.4-1.6 "
                             f"times its rest length; got {self.tape_tension})")
+        if not 0 <= self.calibration_error_px <= 20:
+            problems.append(f"calibration_error_px must lie in [0, 20] (got {self.calibration_error_px})")
+        if not 0 <= self.sync_error_ms <= 50:
+            problems.append(f"sync_error_ms must lie in [0, 50] (got {self.sync_error_ms})")
         if self.supersample < 1:
             problems.append("supersample must be >= 1")
         if problems:
@@ -211,19 +222,24 @@ class Scene:
         self.n_frames = int(config.frames)
         self.times = np.arange(self.n_frames) / self.fps
         self.commanded_deg = spine_motion(config.motion, self.times)
-        # posed meshes are kept one chunk of frames at a time (a long sequence would need GBs);
-        # this first pass records the applied angles
-        self._chunk: tuple[int, np.ndarray] | None = None
+        # posed meshes are kept one chunk of frames at a time per camera clock (a long sequence
+        # would need GBs); this first pass records the applied angles
+        self._chunks: dict[float, tuple[int, np.ndarray]] = {}
         applied = []
         for start in range(0, self.n_frames, POSE_CHUNK):
             vertices, angles = self.body.pose(self.commanded_deg[start : start + POSE_CHUNK])
             applied.append(angles)
-            self._chunk = (start // POSE_CHUNK, vertices)
+            self._chunks[0.0] = (start // POSE_CHUNK, vertices)
         self.angles_deg = np.concatenate(applied)
         rest_dots = self.tape_on_skin.dot_positions(self.body.rest_vertices)
         self.target = rest_dots.mean(axis=0)
         self.rig: Rig = arc_rig(LAYOUTS[config.layout], config.cameras, config.size, self.target,
                                 config.distortion, rng)
+        # the lab's errors draw from their own streams, so turning them on changes nothing else
+        self.sync_offsets_s = clock_offsets_s(len(self.rig), config.sync_error_ms,
+                                              np.random.default_rng([self.rng_seed, 4]))
+        self.calibrated_rig, self.calibration_rms_px = perturb_rig(
+            self.rig, self._calibration_points(), config.calibration_error_px, np.random.default_rng([self.rng_seed, 3]))
         self.balls = FallingBalls.generate(config.n_balls, config.duration_s, self.target, rng)
         self.band = SportsBraBand(self.body, self.body.level_heights()[config.band_level]) if config.band else None
         tone = config.skin_tone if config.skin_tone is not None else rng.uniform(0.0, 0.8)
@@ -238,28 +254,42 @@ class Scene:
         self._renderers: list[CameraRenderer] | None = None
 
     # ------------------------------------------------------------------ geometry per instant
-    def _posed(self, frame: int | None = None, time_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _posed(self, frame: int | None = None, time_s: float | None = None,
+               offset_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Posed vertices and vertex normals at a frame (seen by a clock ``offset_s`` ahead) or
+        at any instant ``time_s``."""
         if time_s is None:
-            v = self.frame_vertices(frame)
+            v = self.frame_vertices(frame, offset_s)
         else:
             v = self.body.pose(spine_motion(self.config.motion, [time_s]))[0][0].astype(float)
         return v, vertex_normals(v, self.body.faces)
 
-    def frame_vertices(self, frame: int) -> np.ndarray:
-        """(V, 3) posed body vertices (mm) at a frame."""
+    def frame_vertices(self, frame: int, offset_s: float = 0.0) -> np.ndarray:
+        """(V, 3) posed body vertices (mm) at a frame, as seen by a camera whose clock runs
+        ``offset_s`` ahead of the nominal frame times."""
+        key = float(offset_s)
         index = frame // POSE_CHUNK
-        if self._chunk is None or self._chunk[0] != index:
+        cached = self._chunks.get(key)
+        if cached is None or cached[0] != index:
             start = index * POSE_CHUNK
-            self._chunk = (index, self.body.pose(self.commanded_deg[start : start + POSE_CHUNK])[0])
-        return self._chunk[1][frame - index * POSE_CHUNK].astype(float)
+            times = self.times[start : start + POSE_CHUNK] + key
+            cached = (index, self.body.pose(spine_motion(self.config.motion, times))[0])
+            self._chunks[key] = cached
+        return cached[1][frame - index * POSE_CHUNK].astype(float)
+
+    def _calibration_points(self, n_frames: int = 8) -> np.ndarray:
+        """True dot positions (N, 3) mm over up to ``n_frames`` frames spread over the sequence:
+        the points against which the calibration error is measured."""
+        frames = np.unique(np.linspace(0, self.n_frames - 1, min(n_frames, self.n_frames)).round().astype(int))
+        return np.concatenate([self.tape_on_skin.dot_positions(*self._posed(int(f))) for f in frames])
 
     def _band_vertices(self, vertices: np.ndarray, normals: np.ndarray) -> np.ndarray | None:
         return None if self.band is None else self.band.vertices(vertices, normals)
 
-    def meshes(self, frame: int | None = None, time_s: float | None = None) -> SceneMeshes:
-        """Posed geometry at a frame (or any instant ``time_s``)."""
-        t = self.times[frame] if time_s is None else time_s
-        v, n = self._posed(frame, time_s)
+    def meshes(self, frame: int | None = None, time_s: float | None = None, offset_s: float = 0.0) -> SceneMeshes:
+        """Posed geometry at a frame (seen by a clock ``offset_s`` ahead) or any instant ``time_s``."""
+        t = self.times[frame] + offset_s if time_s is None else time_s
+        v, n = self._posed(frame, time_s, offset_s)
         centres, radii = self.balls.at(t)
         return SceneMeshes(
             body_vertices=v, body_normals=n,
@@ -276,15 +306,28 @@ class Scene:
         return MeshRayCaster(np.concatenate([v, band_v]), faces)
 
     def frame_groundtruth(self, frame: int) -> dict[str, np.ndarray]:
-        """Ground truth of one frame (see :attr:`groundtruth` for the keys and units)."""
+        """Ground truth of one frame (see :attr:`groundtruth` for the keys and units). Dots,
+        normals and keypoints are at the nominal frame time; ``uv`` and ``visible`` are what each
+        camera saw at its own clock's time."""
         v, n = self._posed(frame)
         tos = self.tape_on_skin
         dots = tos.dot_positions(v, n)
         normals = tos.dots.normals(n, self.body.faces)
-        uv = self.rig.project(dots)
-        centres, radii = self.balls.at(self.times[frame])
-        visible = dot_visibility(self.rig, dots, normals, uv, self._occluding_mesh(v, n), centres, radii,
-                                 self.tape.dot_diameter_mm / 2)
+        uv = np.empty((len(self.rig), len(dots), 2))
+        visible = np.empty((len(self.rig), len(dots)), dtype=bool)
+        for offset in np.unique(self.sync_offsets_s):
+            cams = np.flatnonzero(self.sync_offsets_s == offset)
+            if offset == 0.0:
+                v_c, n_c, dots_c, normals_c = v, n, dots, normals
+            else:
+                v_c, n_c = self._posed(frame, offset_s=float(offset))
+                dots_c, normals_c = tos.dot_positions(v_c, n_c), tos.dots.normals(n_c, self.body.faces)
+            rig = self.rig.subset([self.rig.names[c] for c in cams])
+            uv_c = rig.project(dots_c)
+            centres, radii = self.balls.at(self.times[frame] + offset)
+            uv[cams] = uv_c
+            visible[cams] = dot_visibility(rig, dots_c, normals_c, uv_c, self._occluding_mesh(v_c, n_c), centres,
+                                           radii, self.tape.dot_diameter_mm / 2)
         return {
             "dots": dots, "dot_normals": normals, "uv": uv, "visible": visible,
             "keypoints": tos.keypoints.points(v, self.body.faces),
@@ -312,6 +355,12 @@ class Scene:
         ``row_stretch`` (F, n_rows - 1) that over the spec's pitch (tension times skin strain:
         the stretch a tracker must cope with); ``width_stretch`` (F, n_rows) the L-R distance of
         each row over the spec's.
+
+        The true rig (``rig.toml`` holds the calibrated one, perturbed by
+        ``calibration_error_px``): ``rig_K`` (C, 3, 3), ``rig_dist`` (C, 5), ``rig_R`` (C, 3, 3),
+        ``rig_t`` (C, 3) mm; ``calibration_rms_px`` (C,) how far the written rig reprojects the
+        true dots; ``sync_offset_s`` (C,) each camera's clock offset (its frame ``f`` shows the
+        instant ``times[f] + sync_offset_s[c]``).
         """
         from tqdm import tqdm
 
@@ -329,6 +378,11 @@ class Scene:
             camera_names=np.array(self.rig.names),
         )
         gt.update(self.layout_truth(gt["dots"]))
+        gt.update(
+            rig_K=np.stack([c.K for c in self.rig]), rig_dist=np.stack([c.dist for c in self.rig]),
+            rig_R=np.stack([c.R for c in self.rig]), rig_t=np.stack([c.t for c in self.rig]),
+            calibration_rms_px=self.calibration_rms_px.copy(), sync_offset_s=self.sync_offsets_s.copy(),
+        )
         return gt
 
     def layout_truth(self, dots: np.ndarray) -> dict[str, np.ndarray]:
@@ -362,13 +416,19 @@ class Scene:
         return self._renderers
 
     def render(self, frame: int, with_masks: bool = True) -> RenderedFrame:
-        """Render one frame in every camera: BGR images (with blur and noise) and tape masks."""
+        """Render one frame in every camera (each at its own clock's time): BGR images (with blur
+        and noise) and tape masks."""
         if not 0 <= frame < self.n_frames:
             raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
-        instants = self._exposure_instants(frame)
-        meshes = [self.meshes(frame)] + [self.meshes(time_s=t) for t in instants[1:]]
         images, masks = [], []
+        shared: dict[float, list[SceneMeshes]] = {}
         for c, renderer in enumerate(self.renderers):
+            offset = float(self.sync_offsets_s[c])
+            if offset not in shared:
+                instants = self._exposure_instants(frame, offset)
+                shared[offset] = ([self.meshes(frame, offset_s=offset)]
+                                  + [self.meshes(time_s=t) for t in instants[1:]])
+            meshes = shared[offset]
             rgb, mask = renderer.render(meshes[0], with_mask=with_masks)
             if len(meshes) > 1:
                 acc = rgb.astype(np.float32)
@@ -379,9 +439,10 @@ class Scene:
             masks.append(mask)
         return RenderedFrame(images, masks)
 
-    def _exposure_instants(self, frame: int) -> list[float]:
-        """The frame time first, then sub-frame instants spread over the exposure (motion blur)."""
-        t = float(self.times[frame])
+    def _exposure_instants(self, frame: int, offset_s: float = 0.0) -> list[float]:
+        """The frame time (on a clock ``offset_s`` ahead) first, then sub-frame instants spread
+        over the exposure (motion blur)."""
+        t = float(self.times[frame]) + offset_s
         if self.config.blur <= 0:
             return [t]
         half = 0.5 * self.config.blur / self.fps

@@ -2,7 +2,8 @@
 
 Layout::
 
-    OUT/capture.toml, rig.toml          (Capture.save; [subject] has up/facing and the phenotype)
+    OUT/capture.toml, rig.toml          (Capture.save; [subject] has up/facing and the phenotype;
+                                         rig.toml is the calibrated rig: off by calibration_error_px)
     OUT/images/<cam>/000000.png         (or OUT/videos/<cam>.mkv, lossless FFV1, with video=True)
     OUT/masks/<cam>/000000.png          tape silhouettes (255 = tape), always images
     OUT/groundtruth.npz                 see Scene.groundtruth
@@ -49,7 +50,7 @@ def write_capture(config: SynthConfig, out_dir: str | os.PathLike, progress: boo
     root = Path(out_dir)
     scene = build_scene(config)
     media = "video" if config.video else "images"
-    capture = Capture(root=root, name=config.name, fps=scene.fps, n_frames=scene.n_frames, rig=scene.rig,
+    capture = Capture(root=root, name=config.name, fps=scene.fps, n_frames=scene.n_frames, rig=scene.calibrated_rig,
                       tape=scene.tape, subject=scene.subject(), media=media)
     root.mkdir(parents=True, exist_ok=True)
     writers = {}
