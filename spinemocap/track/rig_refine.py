@@ -15,8 +15,11 @@ those points, with the intrinsics' principal point and distortion held fixed.
   dot's velocity along its tracked trajectory (mm/s, central differences) and ``dt_c`` the
   camera's offset (s) against the reference camera.
 
-The residual reported before/after is the RMS reprojection error (distorted px) of all
-observations with their points triangulated from the same blobs (before: with the given rig).
+The residual reported before/after is the RMS reprojection error (distorted px) of the
+observations kept (before: points triangulated from their blobs with the given rig). Now and then
+a blob was paired with a neighbouring dot's point (a few px off whatever the rig): after a first
+solve, observations beyond ``outlier_factor`` x the robust RMS (at least 1 px) are dropped and
+the problem solved again (``outliers_dropped`` in the report).
 """
 
 from __future__ import annotations
@@ -31,12 +34,14 @@ from scipy.sparse import lil_matrix
 
 from ..camera import Rig
 from ..geometry import triangulate_dlt
+from .rig_check import robust_rms
 
 
 @dataclass
 class RigRefineConfig:
     """``max_frames``: frames used (evenly spread); ``focal``: refine a focal scale per camera;
-    ``sync``: refine a clock offset per camera; see module for the rest."""
+    ``sync``: refine a clock offset per camera; ``outlier_factor``: see module; the rest: see
+    module."""
 
     max_frames: int = 120
     focal: bool = True
@@ -45,6 +50,7 @@ class RigRefineConfig:
     loss_scale_px: float = 1.0
     centre_prior_mm: float = 20.0
     max_nfev: int = 100
+    outlier_factor: float = 4.0
 
 
 @dataclass
@@ -140,6 +146,7 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
     the observed dots (NaN elsewhere), ``positions`` (F, D, 3) mm their tracked trajectories
     (velocities for the clock offsets), ``fps`` frames per second. See module."""
     config = config or RigRefineConfig()
+    outlier_factor = config.outlier_factor
     F = len(positions)
     frames = np.unique(np.linspace(0, F - 1, min(config.max_frames, F)).round().astype(int)) if F else np.zeros(0, int)
     prob = _observations(pixels, positions, fps, rig, frames)
@@ -193,18 +200,37 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
     def reprojection(x: np.ndarray) -> np.ndarray:
         return np.linalg.norm(residuals(x)[: 2 * M].reshape(M, 2), axis=1)
 
+    def solve(x: np.ndarray, weight: np.ndarray):
+        def weighted(xx: np.ndarray) -> np.ndarray:
+            r = residuals(xx)
+            r[: 2 * M] *= np.repeat(weight, 2)
+            return r
+
+        return least_squares(weighted, x, jac_sparsity=sparsity, loss="huber", f_scale=config.loss_scale_px,
+                             x_scale="jac", method="trf", max_nfev=config.max_nfev)
+
     before = reprojection(x0)
-    fit = least_squares(residuals, x0, jac_sparsity=sparsity, loss="huber", f_scale=config.loss_scale_px,
-                        x_scale="jac", method="trf", max_nfev=config.max_nfev)
+    inlier = np.ones(M)
+    fit = solve(x0, inlier)
+    # a blob paired with the wrong dot now and then (a few px off whatever the rig): drop the
+    # observations far beyond the fitted residuals' spread and solve again
     after = reprojection(fit.x)
+    limit = max(outlier_factor * robust_rms(after), 1.0)
+    inlier = (after < limit).astype(float)
+    if inlier.sum() < M:
+        fit = solve(fit.x, inlier)
+        after = reprojection(fit.x)
+    keep = inlier > 0
+    before, after, obs_cam = before[keep], after[keep], prob.cam[keep]
     cams, _ = unpack(fit.x)
     R, t, K, dt = camera_arrays(cams)
     refined = Rig([dataclasses.replace(c, K=K[i], R=cv2.Rodrigues(cv2.Rodrigues(R[i])[0])[0], t=t[i].copy())
                    for i, c in enumerate(rig)])
     return RigRefinement(
-        rig=refined, before_px=_per_camera_rms(before, prob.cam, rig), after_px=_per_camera_rms(after, prob.cam, rig),
+        rig=refined, before_px=_per_camera_rms(before, obs_cam, rig), after_px=_per_camera_rms(after, obs_cam, rig),
         sync_offsets_ms={n: float(1000 * dt[i]) for i, n in enumerate(rig.names)}, n_points=P, n_observations=M,
         extra={"frames_used": int(len(frames)), "solver": "scipy least_squares (trf, huber)",
+               "outliers_dropped": int(M - keep.sum()),
                "focal_scale": {n: float(cams[i, 6]) if config.focal else 1.0 for i, n in enumerate(rig.names)},
                "camera_moved_mm": {n: float(np.linalg.norm(refined[i].center - centres0[i])) for i, n in enumerate(rig.names)}},
     )

@@ -197,7 +197,6 @@ def row_stretch(positions: np.ndarray, graph: TapeGraph) -> tuple[np.ndarray, np
     pos = np.asarray(positions, float)
     spec = graph.spec
     n_rows = spec.n_rows
-    column = np.asarray(graph.column)
     centre = np.full((n_rows, 3), np.nan)
     for r in range(n_rows):
         members = pos[graph.row == r]
@@ -206,12 +205,11 @@ def row_stretch(positions: np.ndarray, graph: TapeGraph) -> tuple[np.ndarray, np
         else:
             centre[r] = members.mean(axis=0)
     gaps = np.linalg.norm(np.diff(centre, axis=0), axis=1) / spec.row_pitch_mm  # (n_rows - 1,)
-    with np.errstate(invalid="ignore"):
-        below = np.concatenate([[np.nan], gaps])
-        above = np.concatenate([gaps, [np.nan]])
-        along_row = np.nanmean(np.stack([below, above]), axis=0) if n_rows > 1 else np.full(1, np.nan)
+    sides = np.stack([np.concatenate([[np.nan], gaps]), np.concatenate([gaps, [np.nan]])])  # below, above
+    count_rows = np.isfinite(sides).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        along_row = np.where(count_rows > 0, np.nansum(sides, axis=0) / count_rows, np.nan)
     along = along_row[graph.row]
-    across = np.full(len(pos), np.nan)
     transverse = graph.edges[graph.solid & graph.transverse]
     lengths = np.linalg.norm(pos[transverse[:, 0]] - pos[transverse[:, 1]], axis=1)
     rest = graph.rest_length_mm[graph.solid & graph.transverse]
@@ -224,5 +222,4 @@ def row_stretch(positions: np.ndarray, graph: TapeGraph) -> tuple[np.ndarray, np
         np.add.at(count, transverse[ok, k], 1)
     with np.errstate(invalid="ignore"):
         across = np.where(count > 0, total / np.maximum(count, 1), np.nan)
-    del column
     return along, across
