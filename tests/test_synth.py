@@ -65,17 +65,28 @@ def test_visible_dots_are_bright_blobs_in_the_tape_and_occluded_ones_are_not(occ
     assert gt["visible"].any() and (~gt["visible"]).any(), "scene must have visible and occluded dots"
     import cv2
 
+    from spinemocap.synth.occluders import segments_blocked_by_spheres
+    from spinemocap.synth.visibility import rim_points
+
+    # a ball over part of a dot (centre seen, 2+ rim points hidden) counts as occluded: the centre
+    # pixel cannot tell, so such dots are left out
+    tape = scene.posed_tape(frame)
+    samples = np.concatenate([gt["dots"][:, None], rim_points(gt["dots"], tape.dot_normals(), 5.0)], axis=1)
+    centres, radii = scene.balls.at(scene.times[frame])
     n_checked = 0
     for c, (image, mask) in enumerate(zip(rendered.images, rendered.masks)):
         gray = cv2.blur(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(float), (3, 3))
+        cam_centre = np.repeat(scene.rig[c].center[None], samples.size // 3, axis=0)
+        hidden = segments_blocked_by_spheres(cam_centre, samples.reshape(-1, 3), centres, radii).reshape(-1, 5)
+        partial = ~hidden[:, 0] & (hidden[:, 1:].sum(axis=1) >= 2)
         for d, (u, v) in enumerate(gt["uv"][c]):
-            if not scene.rig[c].in_image(np.array([[u, v]]), margin=3)[0]:
+            if not scene.rig[c].in_image(np.array([[u, v]]), margin=3)[0] or partial[d]:
                 continue
             x, y = int(round(u)), int(round(v))
             blob = gray[y, x] > 80 and mask[y, x]  # a bright hole inside the tape's silhouette
             assert blob == gt["visible"][c, d], (scene.rig[c].name, scene.labels[d], gray[y, x], mask[y, x])
             n_checked += 1
-    assert n_checked >= 3 * scene.tape.n_dots * 0.8
+    assert n_checked >= 3 * scene.tape.n_dots * 0.75
 
 
 def test_tape_masks_cover_visible_dots_and_tape_is_dark(occluded_scene):
@@ -212,20 +223,23 @@ def test_write_capture_opens_with_capture_and_groundtruth_has_documented_shapes(
     out = write_capture(config, tmp_path / "cap", progress=False)
     capture = Capture.open(out)
     assert capture.n_frames == 2 and capture.fps == config.fps and len(capture.rig) == 3
-    assert capture.tape.n_rows == 5
+    # the default tape starts at S1 and passes the T12/L1 junction by two rows (9 rows on this body)
+    assert capture.tape.n_rows == 9 and capture.subject["tape_start"] == "S1"
     np.testing.assert_allclose(capture.up, [0, 0, 1])
     assert capture.subject["facing"] == [0.0, -1.0, 0.0]
     images = capture.frame_source().read(1)
     assert len(images) == 3 and images[0].shape == (360, 480, 3) and images[0].dtype == np.uint8
     assert (out / "masks" / "cam2" / "000001.png").is_file()
     gt = np.load(out / "groundtruth.npz")
-    F, C, D = 2, 3, 12
+    F, C, D = 2, 3, 22
     assert list(gt["labels"]) == capture.tape.labels
     assert gt["dots"].shape == (F, D, 3) and gt["dot_normals"].shape == (F, D, 3)
     assert gt["visible"].shape == (F, C, D) and gt["visible"].dtype == bool
     assert gt["uv"].shape == (F, C, D, 2)
     assert gt["angles_deg"].shape == (F, 3) and list(gt["angle_names"]) == ["flexion", "lateral_bending", "axial_rotation"]
-    assert gt["keypoints"].shape == (F, 8, 3) and gt["row_levels"].shape == (5,)
+    assert gt["keypoints"].shape == (F, 8, 3) and gt["row_levels"].shape == (9,) and gt["row_levels"][0] == "S1"
+    assert gt["row_stretch"].shape == (F, 8) and gt["width_stretch"].shape == (F, 9)
+    assert gt["rig_R"].shape == (C, 3, 3) and gt["sync_offset_s"].shape == (C,)
     assert float(gt["fps"]) == config.fps
     # uv is the camera model's projection of the dots (distorted pixels)
     np.testing.assert_allclose(gt["uv"][1], capture.rig.project(gt["dots"][1]), atol=1e-6)
@@ -313,8 +327,7 @@ def test_motions_start_neutral_and_have_their_character():
         spine_motion("moonwalk", t)
 
 
-def test_tape_that_cannot_lie_flat_is_refused():
-    """Laid from S1, anny's gluteal cleft would squeeze the first row's dots together: refused with
-    a message naming the start, the dots and the distortion; the default start lies flat."""
-    with pytest.raises(ValueError, match=r"starting at S1 does not lie flat.*R01L-R01R.*% off"):
-        build_scene(SynthConfig.preset("tiny", rows=13, tape_start="S1"))
+def test_impossible_tape_starts_are_refused_with_the_reason():
+    """A start is refused only when the tape cannot be laid: too long for the back above it."""
+    with pytest.raises(ValueError, match=r"starting at T6 does not fit on the back.*use fewer rows"):
+        build_scene(SynthConfig.preset("tiny", rows=13, tape_start="T6", frames=1))

@@ -33,14 +33,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--fps", type=float, help="frame rate (Hz)")
     p.add_argument("--cameras", type=int, help="number of cameras (spread over the preset's arc)")
     p.add_argument("--size", type=_size, help="image size WxH in pixels")
-    p.add_argument("--rows", type=int, help="tape rows (odd: 2-3-2-...-2 dots)")
-    p.add_argument("--motion", help="flexion, lateral, rotation, mixed, forehand or neutral")
+    p.add_argument("--rows", type=int, help="tape rows (odd: 2-3-2-...-2 dots); default: the preset's (13 for artificial "
+                                            "and studio), else enough to pass T12/L1 by two rows on this body")
+    p.add_argument("--motion", help="flexion (to full forward flexion, 70 deg of spine), lateral, rotation, mixed, "
+                                    "forehand (fast swing at 0.35-0.5 s) or neutral")
     p.add_argument("--occlusion", choices=("none", "light", "heavy"),
                    help="falling balls: light/heavy = the paper's 5000/10000 balls per 548 frames")
     p.add_argument("--balls", type=int, help="number of falling balls over the whole sequence (overrides --occlusion)")
     p.add_argument("--band", action="store_true", help="add a sports-bra band around the chest")
     p.add_argument("--band-level", help="vertebral level the band is centred on (default T9)")
-    p.add_argument("--tape-start", help="vertebral level of the tape's first row (default L4)")
+    p.add_argument("--tape-start", help="vertebral level of the tape's first row, S2..T1 (default S1); the tape is laid "
+                                        "as a taut strip that bridges the gluteal cleft and the spinal groove")
+    p.add_argument("--realism", choices=("ideal", "skin", "lab"), default="lab",
+                   help="how hard the studio is (default lab): lab = 15 %% taping tension, Schober skin strain, 0.5 px "
+                        "calibration error, 1 ms sync error, sensor noise 3; skin = skin strain only, exact set-up "
+                        "(the Python API's default); ideal = the first studio (no strain, exact set-up). The flags "
+                        "below override single values")
+    p.add_argument("--skin-strain", type=float, metavar="SCALE",
+                   help="scale of the Schober skin strain (0 = off, 1 = a healthy adult: the lumbar skin "
+                        "lengthens by about a third at full flexion)")
     p.add_argument("--tape-tension", type=float, metavar="FRACTION",
                    help="the tape was laid stretched by this fraction along its length (0.2 = dots 20 %% farther "
                         "apart on the skin than the roll's spec; uneven along the tape by a seeded few percent); "
@@ -80,7 +91,7 @@ def config_from_args(args: argparse.Namespace):
     overrides = dict(
         frames=args.frames, fps=args.fps, cameras=args.cameras, size=args.size, rows=args.rows,
         motion=args.motion, occlusion=args.occlusion, band=args.band or None, band_level=args.band_level,
-        tape_start=args.tape_start, tape_tension=args.tape_tension,
+        tape_start=args.tape_start, realism=args.realism, skin_strain=args.skin_strain, tape_tension=args.tape_tension,
         calibration_error_px=args.calibration_error, sync_error_ms=args.sync_error, blur=args.blur, noise=args.noise, distortion=args.distortion,
         supersample=args.supersample, seed=args.seed, video=args.video or None,
         phenotype=phenotype or None, name=args.out.name,
@@ -97,6 +108,7 @@ def config_from_args(args: argparse.Namespace):
 
 
 def run_synth(args: argparse.Namespace) -> int:
+    from spinemocap.capture import Capture
     from spinemocap.fileio import InputError
     from spinemocap.synth import write_capture
 
@@ -108,9 +120,13 @@ def run_synth(args: argparse.Namespace) -> int:
             raise
         raise InputError("spinemocap synth", str(exc)) from exc
     media = "videos/" if config.video else "images/"
+    rows = Capture.open(out).tape.n_rows
     print(f"synthetic capture written to {out}/ ({config.frames} frames, {config.cameras} cameras, "
-          f"{config.rows}-row tape, {config.n_balls} balls): capture.toml, rig.toml, {media}, masks/, "
-          f"groundtruth.npz")
+          f"{rows}-row tape from {config.tape_start}, {config.n_balls} balls): capture.toml, rig.toml, {media}, "
+          f"masks/, groundtruth.npz")
+    print(f"realism {config.realism}: skin strain x{config.skin_strain:g}, tape tension {100 * config.tape_tension:g} %, "
+          f"calibration error {config.calibration_error_px:g} px (rig.toml), sync error {config.sync_error_ms:g} ms, "
+          f"sensor noise {config.noise:g}")
     return 0
 
 

