@@ -4,15 +4,17 @@
 
 1. The synthetic studio (tiny preset: 3 cameras, small images) renders 12 captures of anny
    bodies of three phenotypes (the subjects) doing two movements (the conditions: slow forward
-   flexion, and a tennis forehand), two trials each with different seeds. A 13-row tape runs
-   from L4 (the lowest start at which it lies flat on anny: lower ones fold into the gluteal
-   cleft), so the lumbar angle is measured L4 -> T12/L1. Existing captures are kept.
+   flexion to full flexion, and a tennis forehand), two trials each with different seeds. The
+   tape is laid from S1 as a taut strip over the gluteal cleft, with the studio's default row
+   count (two rows past T12/L1 on every body), so the lumbar angle is the standard
+   S1 -> T12/L1. The studio's default realism applies (Schober skin strain, exact set-up).
+   Existing captures are kept.
 2. ``run_batch`` computes the spine angles of every trial, on the studio's ground-truth markers
    by default (``--source tracked`` runs the tracker first), on a local process pool.
 3. ``write_report`` writes study_out/results/report.html plus CSV/XLSX tables.
 
 Same as the command line: ``spinemocap batch study_out/study --out study_out/results --source
-groundtruth --lumbar L4 T12/L1 --report``.
+groundtruth --lumbar S1 T12/L1 --report``.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ SUBJECTS = {  # anny phenotypes in [0, 1]
 }
 CONDITIONS = {"flexion": "flexion", "forehand": "forehand"}  # condition -> studio motion
 TRIALS = 2
-TAPE_START = "L4"  # vertebral level of the tape's first row (and the lumbar angle's lower end)
+TAPE_START = "S1"  # vertebral level of the tape's first row and the lumbar angle's lower end (S1 -> T12/L1)
 
 
 def make_study(root: Path, frames: int, fps: float) -> None:
@@ -43,7 +45,7 @@ def make_study(root: Path, frames: int, fps: float) -> None:
                 if (folder / "capture.toml").is_file():
                     continue
                 print(f"synthesizing {folder}")
-                config = SynthConfig.preset("tiny", motion=motion, frames=frames, fps=fps, rows=13,
+                config = SynthConfig.preset("tiny", motion=motion, frames=frames, fps=fps,
                                             tape_start=TAPE_START, phenotype=phenotype, seed=10 * s + trial,
                                             name=f"{subject}-{condition}-{trial}")
                 write_capture(config, folder, progress=False)
@@ -60,7 +62,7 @@ def main() -> None:
 
     make_study(args.out / "study", args.frames, args.fps)
     result = run_batch(args.out / "study", args.out / "results", source=args.source, workers=args.workers,
-                       settings=AngleSettings(lower=TAPE_START))
+                       settings=AngleSettings(lower=TAPE_START, thoracolumbar="T12/L1"))
     for trial in result.failed:
         print(f"FAILED {trial['key']}: {trial['reason']}")
     paths = write_report(args.out / "results", title="Synthetic study: lumbar angles")
