@@ -88,14 +88,14 @@ def config_from_args(args: argparse.Namespace):
             raise InputError("--phenotype", f"expected KEY=VALUE with a number, got {item!r}") from None
         if not sep:
             raise InputError("--phenotype", f"expected KEY=VALUE, got {item!r}")
-    overrides = dict(
-        frames=args.frames, fps=args.fps, cameras=args.cameras, size=args.size, rows=args.rows,
-        motion=args.motion, occlusion=args.occlusion, band=args.band or None, band_level=args.band_level,
-        tape_start=args.tape_start, realism=args.realism, skin_strain=args.skin_strain, tape_tension=args.tape_tension,
-        calibration_error_px=args.calibration_error, sync_error_ms=args.sync_error, blur=args.blur, noise=args.noise, distortion=args.distortion,
-        supersample=args.supersample, seed=args.seed, video=args.video or None,
-        phenotype=phenotype or None, name=args.out.name,
-    )
+    overrides = {
+        "frames": args.frames, "fps": args.fps, "cameras": args.cameras, "size": args.size, "rows": args.rows,
+        "motion": args.motion, "occlusion": args.occlusion, "band": args.band or None, "band_level": args.band_level,
+        "tape_start": args.tape_start, "realism": args.realism, "skin_strain": args.skin_strain, "tape_tension": args.tape_tension,
+        "calibration_error_px": args.calibration_error, "sync_error_ms": args.sync_error, "blur": args.blur, "noise": args.noise, "distortion": args.distortion,
+        "supersample": args.supersample, "seed": args.seed, "video": args.video or None,
+        "phenotype": phenotype or None, "name": args.out.name,
+    }
     overrides = {k: v for k, v in overrides.items() if v is not None}
     if args.balls is not None:
         overrides["balls"] = args.balls

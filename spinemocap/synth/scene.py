@@ -24,13 +24,26 @@ import numpy as np
 from ..camera import Rig
 from ..tape import TapeSpec
 from .body import ANGLE_NAMES, LEVELS, PHENOTYPE_KEYS, Body, vertex_normals
+from .lab_errors import clock_offsets_s, perturb_rig
 from .motions import MOTIONS, spine_motion
-from .occluders import OCCLUSION_LEVELS, FallingBalls, SportsBraBand, balls_for, sphere_mesh
+from .occluders import (
+    OCCLUSION_LEVELS,
+    FallingBalls,
+    SportsBraBand,
+    balls_for,
+    sphere_mesh,
+)
 from .render import Appearance, CameraRenderer, SceneMeshes
 from .rigs import LAYOUTS, arc_rig
 from .skin_strain import SkinStrain
-from .tape_on_skin import SYNTH_TAPE_THICKNESS_MM, BackChart, PosedTape, TapeOnSkin, TapeTension, rows_to_pass
-from .lab_errors import clock_offsets_s, perturb_rig
+from .tape_on_skin import (
+    SYNTH_TAPE_THICKNESS_MM,
+    BackChart,
+    PosedTape,
+    TapeOnSkin,
+    TapeTension,
+    rows_to_pass,
+)
 from .visibility import MeshRayCaster, dot_visibility
 
 log = logging.getLogger(__name__)
@@ -40,10 +53,10 @@ SKIN_LIGHT = np.array([0.93, 0.78, 0.68])
 SKIN_DARK = np.array([0.42, 0.28, 0.20])
 
 _PRESETS: dict[str, dict] = {
-    "tiny": dict(frames=4, fps=4.0, cameras=3, size=(480, 360), motion="mixed"),
+    "tiny": {"frames": 4, "fps": 4.0, "cameras": 3, "size": (480, 360), "motion": "mixed"},
     # the paper's 13-row tape (32 dots): from S1 it passes T12/L1 by four or more rows
-    "artificial": dict(frames=548, fps=100.0, cameras=4, size=(1024, 768), rows=13, motion="mixed"),
-    "studio": dict(frames=300, fps=100.0, cameras=6, size=(2448, 1600), rows=13, motion="mixed"),
+    "artificial": {"frames": 548, "fps": 100.0, "cameras": 4, "size": (1024, 768), "rows": 13, "motion": "mixed"},
+    "studio": {"frames": 300, "fps": 100.0, "cameras": 6, "size": (2448, 1600), "rows": 13, "motion": "mixed"},
 }
 
 # Realism levels: the values of the realism fields a level sets when they are not given.
@@ -52,9 +65,9 @@ _PRESETS: dict[str, dict] = {
 # lab: a real back in a real lab (15 % taping tension, 0.5 px calibration error, 1 ms sync
 # error, sensor noise of 3 grey levels) -- the benchmarks' default.
 REALISM_LEVELS: dict[str, dict[str, float]] = {
-    "ideal": dict(skin_strain=0.0, tape_tension=0.0, calibration_error_px=0.0, sync_error_ms=0.0, noise=2.0),
-    "skin": dict(skin_strain=1.0, tape_tension=0.0, calibration_error_px=0.0, sync_error_ms=0.0, noise=2.0),
-    "lab": dict(skin_strain=1.0, tape_tension=0.15, calibration_error_px=0.5, sync_error_ms=1.0, noise=3.0),
+    "ideal": {"skin_strain": 0.0, "tape_tension": 0.0, "calibration_error_px": 0.0, "sync_error_ms": 0.0, "noise": 2.0},
+    "skin": {"skin_strain": 1.0, "tape_tension": 0.0, "calibration_error_px": 0.0, "sync_error_ms": 0.0, "noise": 2.0},
+    "lab": {"skin_strain": 1.0, "tape_tension": 0.15, "calibration_error_px": 0.5, "sync_error_ms": 1.0, "noise": 3.0},
 }
 # rows: by default enough to pass the T12/L1 junction by this many rows at rest
 ROWS_PAST_THORACOLUMBAR = 2
@@ -175,7 +188,7 @@ class SynthConfig:
             raise ValueError("invalid synthetic studio settings: " + "; ".join(problems))
 
     @classmethod
-    def preset(cls, name: str, /, **overrides) -> "SynthConfig":
+    def preset(cls, name: str, /, **overrides) -> SynthConfig:
         """A named preset (``tiny``, ``artificial``, ``studio``) with fields overridden."""
         if name not in _PRESETS:
             raise ValueError(f"unknown preset {name!r}; choose from {sorted(_PRESETS)}")
@@ -214,7 +227,7 @@ class SceneFrameSource:
     """In-process :class:`spinemocap.capture.FrameSource`: renders frames on demand (images only;
     ``scene.render(i)`` also gives the tape masks)."""
 
-    def __init__(self, scene: "Scene"):
+    def __init__(self, scene: Scene):
         self.scene = scene
         self.camera_names = scene.rig.names
         self.n_frames = scene.n_frames

@@ -69,7 +69,7 @@ class SkinStrain:
     scale: float = 1.0
 
     @classmethod
-    def for_subject(cls, seed: int, scale: float = 1.0) -> "SkinStrain":
+    def for_subject(cls, seed: int, scale: float = 1.0) -> SkinStrain:
         """Per-subject figures drawn from the seed (ranges in the module docstring)."""
         rng = np.random.default_rng([int(seed), 5])
         return cls(lumbar_gain=float(rng.uniform(*LUMBAR_GAIN_RANGE)),

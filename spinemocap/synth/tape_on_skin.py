@@ -323,7 +323,7 @@ class TapeStrip:
     faces_solid: np.ndarray
 
     @classmethod
-    def build(cls, spec: TapeSpec, step_mm: float = 1.0) -> "TapeStrip":
+    def build(cls, spec: TapeSpec, step_mm: float = 1.0) -> TapeStrip:
         half_w = spec.width_mm / 2
         v_lo = -spec.end_margin_mm
         v_hi = (spec.n_rows - 1) * spec.row_pitch_mm + spec.end_margin_mm
@@ -390,7 +390,7 @@ class TapeOnSkin:
         return np.column_stack([uv[:, 0], self.s0 + self.tension.laid_v(self.spec, uv[:, 1])])
 
     def pose(self, vertices: np.ndarray, normals: np.ndarray | None = None, strain: SkinStrain | None = None,
-             angles_deg: np.ndarray | None = None) -> "PosedTape":
+             angles_deg: np.ndarray | None = None) -> PosedTape:
         """The tape on a posed body (vertices (V, 3) mm, vertex normals), its skin strained by
         ``strain`` for the spine's [flexion, lateral bending, axial rotation] ``angles_deg``."""
         return PosedTape(self, vertices, normals, strain, angles_deg)
