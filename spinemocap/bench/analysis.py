@@ -29,7 +29,7 @@ from ..analysis.levels import LevelMap
 from ..app.batch import run_batch
 from ..markers import MarkerTable
 from ..synth import SynthConfig, build_scene
-from ..synth.body import SPINE_BONES, vertex_normals
+from ..synth.body import SPINE_BONES
 from ..tape import TapeSpec
 
 MOTIONS = ("flexion", "lateral", "rotation")
@@ -82,9 +82,7 @@ def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0
 
     config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed)
     scene = build_scene(config)
-    faces = scene.body.faces
-    vertices = (scene.frame_vertices(f) for f in range(scene.n_frames))
-    dots = np.array([scene.tape_on_skin.dot_positions(v, vertex_normals(v, faces)) for v in vertices])
+    dots = np.array([scene.frame_dots(f) for f in range(scene.n_frames)])  # the studio's truth, skin strain included
     graph = scene.tape.graph
     row_z = np.array([dots[0][graph.row == r, 2].mean() for r in range(rows)])
     lo, hi, joints = mid_bone_rows(row_z, scene.body.spine_chain()[:, 2])
