@@ -8,9 +8,12 @@ those points, with the intrinsics' principal point and distortion held fixed.
   sparse Jacobian: an observation depends on its camera's 6-8 parameters and its point's 3).
   pycolmap's Ceres adjuster needs a reconstruction object per frame set and offers no per-camera
   clock offset; scipy solves this size (a few thousand points) in seconds.
-- Gauge: the ``reference`` camera (default the first) does not move; the scale, which the dots
-  alone cannot fix, is held by a prior pulling the other camera centres toward the given rig
-  (``centre_prior_mm`` standard deviation), so a rig off by rotations keeps its metric size.
+- Gauge: the dots alone fix neither the world frame nor the scale. By default no camera is held;
+  weak priors pull every camera's centre (``centre_prior_mm``) and rotation
+  (``rotation_prior_deg``) toward the given rig, so the correction is the smallest one in the
+  gauge directions: the refined rig keeps the given rig's average frame and metric size (each
+  camera's own error partly averages out, where fixing one ``reference`` camera would carry
+  that camera's whole error into every point).
 - Clock offsets (``sync=True``): camera ``c`` sees a dot at ``X + dt_c V`` where ``V`` is the
   dot's velocity along its tracked trajectory (mm/s, central differences) and ``dt_c`` the
   camera's offset (s) against the reference camera.
@@ -46,9 +49,10 @@ class RigRefineConfig:
     max_frames: int = 120
     focal: bool = True
     sync: bool = False
-    reference: int = 0
+    reference: int | None = None
     loss_scale_px: float = 1.0
     centre_prior_mm: float = 20.0
+    rotation_prior_deg: float = 0.5
     max_nfev: int = 100
     outlier_factor: float = 4.0
 
@@ -154,17 +158,21 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
         raise ValueError(f"only {len(prob.start)} dot-frames seen by >= 2 cameras; cannot refine the rig")
     C, P, M = len(rig), len(prob.start), len(prob.cam)
     ref = config.reference
+    rvec0 = np.stack([c.rvec for c in rig])
     n_cam = 6 + int(config.focal) + int(config.sync)
     K0 = np.stack([c.K for c in rig])
     dist0 = np.stack([c.dist for c in rig])
     centres0 = np.stack([c.center for c in rig])
     cam0 = np.concatenate([np.concatenate([c.rvec, c.t, [1.0] * int(config.focal), [0.0] * int(config.sync)]) for c in rig])
     x0 = np.concatenate([cam0, prob.start.ravel()])
-    ref_block = cam0[ref * n_cam:(ref + 1) * n_cam].copy()
+    ref_block = cam0[ref * n_cam:(ref + 1) * n_cam].copy() if ref is not None else None
 
     def unpack(x: np.ndarray):
         cams = x[: C * n_cam].reshape(C, n_cam).copy()
-        cams[ref] = ref_block  # gauge
+        if ref is not None:
+            cams[ref] = ref_block  # gauge
+        if config.sync:
+            cams[0, -1] = 0.0  # clocks against the first camera (a common offset is a gauge)
         return cams, x[C * n_cam:].reshape(P, 3)
 
     def camera_arrays(cams: np.ndarray):
@@ -182,10 +190,11 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
         world = X[prob.point] + dt[prob.cam, None] * prob.velocity[prob.point]
         reproj = (_project(K[prob.cam], dist0[prob.cam], R[prob.cam], t[prob.cam], world) - prob.uv).ravel()
         centres = -np.einsum("cji,cj->ci", R, t)
-        prior = ((centres - centres0) / config.centre_prior_mm).ravel()
-        return np.concatenate([reproj, prior])
+        prior_c = ((centres - centres0) / config.centre_prior_mm).ravel()
+        prior_r = ((cams[:, :3] - rvec0) / np.deg2rad(config.rotation_prior_deg)).ravel()
+        return np.concatenate([reproj, prior_c, prior_r])
 
-    sparsity = lil_matrix((2 * M + 3 * C, len(x0)), dtype=int)
+    sparsity = lil_matrix((2 * M + 6 * C, len(x0)), dtype=int)
     rows = np.arange(M)
     for k in range(n_cam):
         sparsity[2 * rows, prob.cam * n_cam + k] = 1
@@ -195,7 +204,11 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
         sparsity[2 * rows + 1, C * n_cam + 3 * prob.point + k] = 1
     for c in range(C):
         sparsity[2 * M + 3 * c: 2 * M + 3 * c + 3, c * n_cam: c * n_cam + 6] = 1
-    sparsity[:, ref * n_cam:(ref + 1) * n_cam] = 0
+        sparsity[2 * M + 3 * C + 3 * c: 2 * M + 3 * C + 3 * c + 3, c * n_cam: c * n_cam + 3] = 1
+    if ref is not None:
+        sparsity[:, ref * n_cam:(ref + 1) * n_cam] = 0
+    if config.sync:
+        sparsity[:, n_cam - 1] = 0
 
     def reprojection(x: np.ndarray) -> np.ndarray:
         return np.linalg.norm(residuals(x)[: 2 * M].reshape(M, 2), axis=1)
