@@ -76,10 +76,10 @@ def _render(scene, detect, n_frames: int, progress: bool) -> list:
 def _score(table, gt: dict, spacing: float, result) -> dict:
     ev = evaluate_tracking(table, gt, spacing, result.stage_ms())
     quality = result.quality()
-    return {"mean_mm": ev["mean_error_mm"], "p95_mm": ev["p95_error_mm"], "swaps": ev["label_swaps"],
+    return {"mean_mm": ev.mean_error_mm, "p95_mm": ev.p95_error_mm, "swaps": ev.label_swaps,
             "flagged_frames": len(quality["flagged_frames"]), "flags": quality["flags"],
-            "unsolved_frames": ev["frames_without_solution"], "stretch_along": quality["stretch_along"],
-            "gate_px": quality["gate_px"], "ms_per_frame": ev["total_ms_per_frame"]}
+            "unsolved_frames": ev.frames_without_solution, "stretch_along": quality["stretch_along"],
+            "gate_px": quality["gate_px"], "ms_per_frame": ev.total_ms_per_frame}
 
 
 def run_case(case: Case, frames: int, fps: float | None, preset: str, occlusion: str, detector: str,

@@ -7,7 +7,10 @@ points, the LP then works on a ghost-rich cloud and labels break without a word.
 follows the rig: the capture's dots seen by >= ``min_views`` cameras (ghosts of wrong blob
 pairings rarely agree in three views) are triangulated with a loose ``probe_gate_px`` and their
 reprojection errors (distorted px, per camera) measured; the gate is ``gate_factor`` times the
-robust RMS, never below the configured ``th1_px`` and never above ``max_gate_px``. Cameras whose
+worst camera's robust RMS plus ``gate_margin_px`` (a calibration error is systematic: a camera's
+errors cluster near its RMS rather than spreading to three times it, and a wider gate pairs
+neighbouring dots' blobs: 15 mm at 2 m is ~11 px), never below the configured ``th1_px`` and never
+above ``max_gate_px``. Cameras whose
 RMS exceeds ``warn_px`` are named in a :class:`CalibrationWarning`.
 """
 
@@ -34,15 +37,17 @@ class RigCheckConfig:
     """``adaptive_gate``: derive th1 from the measured residuals (False: the fixed
     ``candidates.th1_px``, the tracker before issue 11); ``probe_gate_px``: the loose gate used
     to find the dots the residuals are measured on; ``min_views``: cameras a dot needs to count;
-    ``gate_factor`` x robust RMS = the gate, clamped to [th1_px, ``max_gate_px``]; ``warn_px``:
+    ``gate_factor`` x the worst camera's robust RMS + ``gate_margin_px`` = the gate, clamped to
+    [th1_px, ``max_gate_px``]; ``warn_px``:
     per-camera RMS above which the camera is named in a warning; ``window``: frames the running
     per-camera RMS is the median over."""
 
     adaptive_gate: bool = True
     probe_gate_px: float = 8.0
     min_views: int = 3
-    gate_factor: float = 3.0
-    max_gate_px: float = 8.0
+    gate_factor: float = 1.5
+    gate_margin_px: float = 1.0
+    max_gate_px: float = 6.0
     warn_px: float = 1.0
     window: int = 25
 
@@ -118,7 +123,8 @@ class RigMonitor:
             return self.base.th1_px
         rms = self.residuals().rms_px
         worst = float(np.nanmax(rms)) if np.isfinite(rms).any() else 0.0
-        return float(np.clip(self.config.gate_factor * worst, self.base.th1_px, self.config.max_gate_px))
+        gate = self.config.gate_factor * worst + self.config.gate_margin_px
+        return float(np.clip(gate, self.base.th1_px, self.config.max_gate_px))
 
     def candidate_config(self) -> CandidateConfig:
         return dataclasses.replace(self.base, th1_px=self.gate_px())

@@ -36,7 +36,7 @@ from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 
 from ..camera import Rig
-from ..geometry import triangulate_dlt
+from ..geometry import distort, triangulate_dlt
 from .rig_check import robust_rms
 
 
@@ -118,14 +118,9 @@ def _observations(pixels: np.ndarray, positions: np.ndarray, fps: float, rig: Ri
 def _project(K: np.ndarray, dist: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
     """Distorted pixels of world points X (M, 3) with per-row K (M, 3, 3), dist (M, 5), R, t."""
     pc = np.einsum("mij,mj->mi", R, X) + t
-    x = pc[:, 0] / pc[:, 2]
-    y = pc[:, 1] / pc[:, 2]
-    k1, k2, p1, p2, k3 = dist.T
-    r2 = x * x + y * y
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    return np.column_stack([K[:, 0, 0] * xd + K[:, 0, 1] * yd + K[:, 0, 2], K[:, 1, 1] * yd + K[:, 1, 2]])
+    xd = distort(pc[:, :2] / pc[:, 2:3], dist)
+    return np.column_stack([K[:, 0, 0] * xd[:, 0] + K[:, 0, 1] * xd[:, 1] + K[:, 0, 2],
+                            K[:, 1, 1] * xd[:, 1] + K[:, 1, 2]])
 
 
 def _rodrigues(rvecs: np.ndarray) -> np.ndarray:
