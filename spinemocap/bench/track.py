@@ -79,8 +79,9 @@ def run_track_benchmark(preset: str = "artificial", occlusion: str = "none", fra
                                **({"frames": frames} if frames else {}))
     say(f"building the {preset} scene ({synth.frames} frames, {synth.cameras} cameras, "
         f"{synth.rows}-row tape, occlusion {occlusion}: {synth.n_balls} balls) at the '{realism}' realism level: "
-        f"tape tension {100 * synth.tape_tension:g} %, skin strain x{synth.skin_strain:g}, calibration error "
-        f"{synth.calibration_error_px:g} px, sync error {synth.sync_error_ms:g} ms, noise {synth.noise:g} ...")
+        f"tape tension {100 * float(synth.tape_tension or 0):g} %, skin strain x{float(synth.skin_strain or 0):g}, "
+        f"calibration error {float(synth.calibration_error_px or 0):g} px, sync error "
+        f"{float(synth.sync_error_ms or 0):g} ms, noise {float(synth.noise or 0):g} ...")
     scene = build_scene(synth)
     rig = getattr(scene, "calibrated_rig", scene.rig)  # the rig a lab would have been given
     detect = make_detector(detector)
