@@ -160,3 +160,23 @@ def test_refine_rig_lowers_the_residual_of_a_perturbed_rig():
     assert refinement.before_px["all"] > 1.0  # triangulation spreads the 2 px over the views
     assert refinement.after_px["all"] < 0.3 * refinement.before_px["all"]
     assert set(refinement.after_px) == {"cam1", "cam2", "cam3", "cam4", "all"}
+
+
+def test_the_report_lists_flagged_frames_from_markers_csv(tmp_path):
+    import exporters
+    from spinemocap.app.report import tracking_quality_table
+    from spinemocap.markers import MarkerTable
+
+    dots = np.stack(drifting(tape_on_back(SPEC), 4))
+    status = np.full(dots.shape[:2], "observed", dtype=object)
+    flags = [[], ["identity_kept"], [], ["stretch_carried"]]  # frame 1 flagged, frame 3 only mildly
+    confidence = np.stack([label_confidence(s, f) for s, f in zip(status, flags)])
+    table = MarkerTable.from_arrays(SPEC.labels, dots, 100.0, status=status, confidence=confidence,
+                                    stretch=np.ones(dots.shape[:2]))
+    exporters.write(table, tmp_path / "markers.csv")
+    results = [{"key": "s1/t1", "status": "ok", "source": "tracked", "out_dir": str(tmp_path)}]
+    quality = tracking_quality_table(results)
+    assert quality.to_dict("records") == [{"key": "s1/t1", "flagged_frames": 1, "of_frames": 4, "frames": "1",
+                                          "median_stretch": 1.0}]
+    exporters.write(MarkerTable.from_arrays(SPEC.labels, dots, 100.0), tmp_path / "markers.csv")
+    assert tracking_quality_table(results).empty  # nothing flagged (no confidence known): no section
