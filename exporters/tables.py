@@ -1,5 +1,6 @@
 """The full marker table as CSV or Parquet: one row per (frame, label) with
-``frame, time, label, x, y, z, status, n_views, residual`` (mm, s, px), nothing lost.
+``frame, time, label, x, y, z, status, n_views, residual`` (mm, s, px) and the tracker's quality
+columns ``confidence, stretch`` (optional on reading), nothing lost.
 
 CSV is plain (no comment lines, so any spreadsheet or ``pandas.read_csv`` opens it; strings
 quoted); floats are written with the shortest text that reads back exactly. The frame rate is recovered from the time column; other metadata
@@ -17,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from spinemocap.fileio import InputError, atomic_path, reading
-from spinemocap.markers import COLUMNS, MarkerTable
+from spinemocap.markers import ALL_COLUMNS, COLUMNS, MarkerTable
 
 from .common import ExportWarning, checked_table, dense_mm, mm_per_unit, table_from_dense, warn_empty_markers
 from .registry import Exporter
@@ -29,7 +30,7 @@ def _mm_frame(table: MarkerTable, path: Path) -> pd.DataFrame:
     """The table's rows with coordinates in mm (whatever ``meta['units']`` said)."""
     arrays = dense_mm(table, path)
     warn_empty_markers(list(arrays["labels"]), arrays["positions"], path)
-    df = table.data.loc[:, list(COLUMNS)].copy()
+    df = table.data.loc[:, list(ALL_COLUMNS)].copy()
     df[["x", "y", "z"]] *= mm_per_unit(table.meta.get("units", "mm"), path)
     df["status"] = df["status"].astype(str)
     return df

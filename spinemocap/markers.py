@@ -4,6 +4,10 @@ One row per (frame, label): ``frame`` (int, 0-based), ``time`` (s), ``label`` (s
 (mm, world frame, Z up; NaN when missing), ``status`` (``observed`` | ``inferred`` |
 ``missing``), ``n_views`` (cameras that saw the marker), ``residual`` (mean reprojection error in
 px for tracked data; for imported C3D data the file's residual; NaN when unknown).
+Quality columns (optional on input, NaN when unknown; written by the CSV/Parquet exporters, not
+by C3D/TRC which have no place for them): ``confidence`` (0..1, how sure the tracker is of the
+label, see :mod:`spinemocap.track.quality`) and ``stretch`` (the tape's measured row pitch at
+the dot over the roll's spec, 1 = as specified).
 
 Metadata travels in :attr:`MarkerTable.meta` (``fps``, ``units``, ``subject``, ``source`` ...).
 """
@@ -22,6 +26,8 @@ STATUSES = ("observed", "inferred", "missing")
 MAX_ABS_MM = 1.0e6      # a marker more than 1 km from the lab origin is a damaged sample, not data
 MAX_FRAME = 2**31 - 1   # frame numbers beyond this are damaged values (C3D and TRC count in 32 bits at most)
 COLUMNS = ("frame", "time", "label", "x", "y", "z", "status", "n_views", "residual")
+QUALITY_COLUMNS = ("confidence", "stretch")
+ALL_COLUMNS = COLUMNS + QUALITY_COLUMNS
 
 
 @dataclass
@@ -41,13 +47,17 @@ class MarkerTable:
         missing = [c for c in COLUMNS if c not in df.columns]
         if missing:
             raise InputError(source, f"marker table lacks columns {missing}")
-        df = df.loc[:, list(COLUMNS)].copy()
+        df = df.copy()
+        for c in QUALITY_COLUMNS:
+            if c not in df.columns:
+                df[c] = np.nan
+        df = df.loc[:, list(ALL_COLUMNS)]
         frames = pd.to_numeric(df["frame"], errors="coerce")
         if frames.isna().any() or not (frames.abs() <= MAX_FRAME).all() or not (frames == frames.round()).all():
             raise InputError(source, f"frame numbers must be whole numbers within +-{MAX_FRAME}")
         df["frame"] = frames.astype(np.int64)
         df["label"] = df["label"].astype(str)
-        for c in ("time", "x", "y", "z", "residual"):
+        for c in ("time", "x", "y", "z", "residual", *QUALITY_COLUMNS):
             df[c] = pd.to_numeric(df[c], errors="raise").astype(float)
         df["n_views"] = pd.to_numeric(df["n_views"]).fillna(0).astype(np.int64)
         bad = set(df["status"].astype(str)) - set(STATUSES)
@@ -71,9 +81,12 @@ class MarkerTable:
         residual: np.ndarray | None = None,
         first_frame: int = 0,
         meta: dict | None = None,
+        confidence: np.ndarray | None = None,
+        stretch: np.ndarray | None = None,
     ) -> "MarkerTable":
         """Build from (F, D, 3) positions; ``status`` (F, D) of str (default: observed where
-        finite, missing elsewhere), ``n_views`` (F, D) int, ``residual`` (F, D) px."""
+        finite, missing elsewhere), ``n_views`` (F, D) int, ``residual`` (F, D) px,
+        ``confidence`` (F, D) 0..1 and ``stretch`` (F, D) ratio to the tape spec (NaN: unknown)."""
         positions_mm = np.asarray(positions_mm, float)
         F, D = positions_mm.shape[:2]
         if len(labels) != D:
@@ -94,6 +107,8 @@ class MarkerTable:
                 "status": status.ravel(),
                 "n_views": (np.zeros((F, D), int) if n_views is None else np.asarray(n_views)).ravel(),
                 "residual": (np.full((F, D), np.nan) if residual is None else np.asarray(residual, float)).ravel(),
+                "confidence": (np.full((F, D), np.nan) if confidence is None else np.asarray(confidence, float)).ravel(),
+                "stretch": (np.full((F, D), np.nan) if stretch is None else np.asarray(stretch, float)).ravel(),
             }
         )
         meta = dict(meta or {})
@@ -130,7 +145,8 @@ class MarkerTable:
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Dense arrays: ``frames`` (F,), ``time`` (F,), ``labels`` (D,), ``positions`` (F, D, 3)
-        mm (NaN where missing), ``status`` (F, D) str, ``n_views`` (F, D), ``residual`` (F, D)."""
+        mm (NaN where missing), ``status`` (F, D) str, ``n_views`` (F, D), ``residual``,
+        ``confidence`` and ``stretch`` (F, D) (NaN where unknown)."""
         labels = self.labels
         frames = self.frames
         fi = np.searchsorted(frames, self.data["frame"].to_numpy())
@@ -144,10 +160,14 @@ class MarkerTable:
         n_views[fi, li] = self.data["n_views"].to_numpy()
         residual = np.full((F, D), np.nan)
         residual[fi, li] = self.data["residual"].to_numpy()
+        quality = {}
+        for c in QUALITY_COLUMNS:
+            quality[c] = np.full((F, D), np.nan)
+            quality[c][fi, li] = self.data[c].to_numpy()
         time = np.full(F, np.nan)
         time[fi] = self.data["time"].to_numpy()
         return {"frames": frames, "time": time, "labels": np.array(labels), "positions": pos,
-                "status": status, "n_views": n_views, "residual": residual}
+                "status": status, "n_views": n_views, "residual": residual, **quality}
 
     def dense(self) -> tuple[np.ndarray, np.ndarray]:
         """``(frames (F,), positions (F, D, 3) mm)`` over every frame from the first to the last

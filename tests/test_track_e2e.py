@@ -65,3 +65,21 @@ def test_track_reports_bad_input_cleanly(tmp_path, capture, capsys):
     assert "no_such_key" in capsys.readouterr().err
     assert main(["track", str(capture), "--out", str(tmp_path / "o"), "--detector", "mask", "--frames", "7:9"]) == 2
     assert "selects no frame" in capsys.readouterr().err
+
+
+def test_track_refine_rig_writes_the_refined_rig_with_its_residuals(capture, tmp_path, capsys):
+    import json
+
+    from spinemocap.camera import Rig
+
+    code = main(["track", str(capture), "--out", str(tmp_path), "--detector", "mask", "--refine-rig",
+                 "--no-progress"])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "rig refined on" in out and "no frame flagged" in out
+    report = json.loads((tmp_path / "rig_refine.json").read_text())
+    assert report["after_px"]["all"] <= report["before_px"]["all"] + 1e-9
+    assert len(Rig.from_toml(tmp_path / "rig_refined.toml")) == 3
+    table = pd.read_csv(tmp_path / "markers.csv")
+    assert {"confidence", "stretch"} <= set(table.columns)
+    assert table["confidence"].between(0, 1).all()

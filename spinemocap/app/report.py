@@ -208,6 +208,32 @@ def _read_angles(result: dict) -> pd.DataFrame:
     return pd.read_csv(Path(result["out_dir"]) / ANGLES)
 
 
+def tracking_quality_table(results: list[dict]) -> pd.DataFrame:
+    """Trials whose tracked markers.csv holds flagged frames (see
+    :func:`spinemocap.track.quality.flagged_from_confidence`): key, flagged frame count, the
+    first frames, and the median tape stretch (ratio to the roll's spec)."""
+    from ..markers import MarkerTable
+    from ..track.quality import flagged_from_confidence
+    from .batch import MARKERS
+
+    rows = []
+    for r in results:
+        path = Path(r.get("out_dir", "")) / MARKERS
+        if r["status"] != "ok" or r.get("source", "tracked") != "tracked" or not path.is_file():
+            continue
+        df = pd.read_csv(path, dtype={"label": str})
+        if "confidence" not in df.columns:
+            continue
+        arrays = MarkerTable(df, {"source": str(path)}).to_arrays()
+        flagged = arrays["frames"][flagged_from_confidence(arrays["status"], arrays["confidence"])]
+        if len(flagged):
+            shown = ", ".join(str(int(f)) for f in flagged[:15]) + (" ..." if len(flagged) > 15 else "")
+            rows.append({"key": r["key"], "flagged_frames": len(flagged), "of_frames": len(arrays["frames"]),
+                         "frames": shown, "median_stretch": float(np.nanmedian(arrays["stretch"]))
+                         if np.isfinite(arrays["stretch"]).any() else np.nan})
+    return pd.DataFrame(rows, columns=["key", "flagged_frames", "of_frames", "frames", "median_stretch"])
+
+
 # ---------------------------------------------------------------------------------- plots
 def _png(fig) -> str:
     """The figure as base64 PNG text (for data: URLs); closes it."""
@@ -506,6 +532,13 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
         parts.append("<p class='ok'>None: every trial analysed, every angle supported by the data.</p>")
     else:
         parts.append(_html_table(problems, lambda r: "warn" if r["what"].endswith("angles NaN") else "bad"))
+    quality = tracking_quality_table(results)
+    if not quality.empty:
+        parts.append("<h2>Tracking quality</h2><p class='warn'>The tracker could not vouch for the labels "
+                     "of these frames (a re-solve wanted other labels, dots were left unlabelled beyond the "
+                     "tape's end or the tape's spacing was implausible); their dots carry a low "
+                     "<code>confidence</code> in markers.csv. Check them before trusting their angles.</p>")
+        parts.append(_html_table(quality, lambda r: "warn"))
     rom_png = _rom_plot(trials)
     if rom_png:
         parts.append("<h2>Range of motion by subject and condition</h2>")

@@ -26,7 +26,12 @@ from ..markers import MarkerTable
 from ..tape import TapeSpec
 from ..track.config import TrackerConfig
 from ..track.pipeline import STAGES, FrameResult, FrameTracker
+from ..track.quality import is_flagged, label_confidence
+from ..track.rig_check import CalibrationWarning, RigResiduals
+from ..track.rig_refine import RigRefineConfig, RigRefinement, refine_rig, retriangulate
 from ..track.sequence import SequenceTracker, fill_and_smooth
+from ..track.stretch import row_stretch
+from ..track.template import tape_frames
 from ..views import ViewDots
 from .results import TrackingStopped, write_markers
 from .streaming import CaptureDetector, SpeedOptions, prefetched_frames
@@ -63,6 +68,9 @@ class TrackResult:
 
     table: MarkerTable
     frames: list[FrameResult]
+    rig_residuals: RigResiduals | None = None
+    calibration_warning: str | None = None
+    refinement: RigRefinement | None = None
     detector_searches: dict[str, int] = field(default_factory=dict)  # camera images per detection route
 
     def stage_ms(self) -> dict[str, float]:
@@ -75,6 +83,72 @@ class TrackResult:
         for f in self.frames:
             out[f.route] = out.get(f.route, 0) + 1
         return out
+
+    def pixels(self) -> np.ndarray:
+        """(F, D, C, 2) distorted blob centres of the observed dots (NaN elsewhere)."""
+        shape = next((f.pixels.shape for f in self.frames if f.pixels is not None), None)
+        if shape is None:
+            return np.full((len(self.frames), len(self.table.labels), 0, 2), np.nan)
+        return np.stack([f.pixels if f.pixels is not None else np.full(shape, np.nan) for f in self.frames])
+
+    def flagged_frames(self) -> list[int]:
+        """Frame numbers whose labels the tracker cannot vouch for (see track.quality)."""
+        first = int(self.table.frames[0]) if self.table.n_frames else 0
+        return [first + k for k, f in enumerate(self.frames) if is_flagged(f.flags) or not f.solved]
+
+    def flag_counts(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for f in self.frames:
+            for flag in set(f.flags):
+                out[flag] = out.get(flag, 0) + 1
+        return out
+
+    def quality(self) -> dict:
+        """Numbers for summaries and JSON: flagged frames, flag counts, the spacing measured
+        (ratio to the roll's spec) and the rig's residuals."""
+        along = [f.stretch.along for f in self.frames if f.stretch is not None and f.stretch.source == "data"]
+        across = [f.stretch.across for f in self.frames if f.stretch is not None and f.stretch.source == "data"]
+        gates = [f.gate_px for f in self.frames if np.isfinite(f.gate_px)]
+        res = self.rig_residuals
+        return {
+            "flagged_frames": self.flagged_frames(),
+            "flags": self.flag_counts(),
+            "stretch_along": [float(np.min(along)), float(np.median(along)), float(np.max(along))] if along else None,
+            "stretch_across": float(np.median(across)) if across else None,
+            "gate_px": float(np.median(gates)) if gates else None,
+            "rig_rms_px": ({n: float(r) for n, r in zip(res.cameras, res.rms_px)} if res is not None else None),
+            "calibration_warning": self.calibration_warning,
+        }
+
+    def summary(self) -> str:
+        """What the tracker can and cannot vouch for, in a few lines (end of ``spinemocap track``)."""
+        q = self.quality()
+        lines = []
+        if q["stretch_along"]:
+            lo, med, hi = q["stretch_along"]
+            lines.append(f"tape spacing measured: {100 * (med - 1):+.0f} % along the tape vs the roll's spec "
+                         f"(frames {100 * (lo - 1):+.0f} .. {100 * (hi - 1):+.0f} %), "
+                         f"{100 * (q['stretch_across'] - 1):+.0f} % across")
+        if self.rig_residuals is not None:
+            lines.append("rig residuals on the capture's dots: " + self.rig_residuals.describe()
+                         + (f"; candidate gate {q['gate_px']:.1f} px" if q["gate_px"] else ""))
+        if q["calibration_warning"]:
+            lines.append("WARNING " + q["calibration_warning"])
+        if self.refinement is not None:
+            before, after = self.refinement.before_px["all"], self.refinement.after_px["all"]
+            lines.append(f"rig refined on {self.refinement.n_points} tracked dot-frames: reprojection RMS "
+                         f"{before:.2f} -> {after:.2f} px (rig_refined.toml, rig_refine.json)")
+        flagged = q["flagged_frames"]
+        if flagged:
+            shown = ", ".join(str(f) for f in flagged[:12]) + (" ..." if len(flagged) > 12 else "")
+            lines.append(f"WARNING {len(flagged)} of {len(self.frames)} frames flagged (labels not vouched for: "
+                         + ", ".join(f"{k} {v}" for k, v in sorted(q["flags"].items())) + f"): frames {shown}; "
+                         "see the confidence column of markers.csv")
+        else:
+            lines.append(f"no frame flagged ({len(self.frames)} frames"
+                         + (f"; mild: {', '.join(f'{k} {v}' for k, v in sorted(q['flags'].items()))}" if q["flags"] else "")
+                         + ")")
+        return "\n".join(lines)
 
 
 def run_tracking(
@@ -132,10 +206,16 @@ def run_tracking(
     first = frame_ids[0] if frame_ids else 0
     if frame_ids and frame_ids != list(range(first, first + len(frame_ids))):
         raise ValueError("frames must be consecutive")
+    confidence = np.stack([label_confidence(s, r.flags) for s, r in zip(status, results)]) if results else None
+    stretch = np.stack([row_stretch(p, tracker.graph)[0] for p in positions]) if results else None
     table = MarkerTable.from_arrays(tape.labels, positions, fps, status=status, n_views=n_views,
-                                    residual=residual, first_frame=first,
+                                    residual=residual, first_frame=first, confidence=confidence, stretch=stretch,
                                     meta={"mode": mode, **(meta or {})})
-    return TrackResult(table, results)
+    residuals = tracker.monitor.residuals() if tracker.monitor.measured else None
+    calibration = tracker.monitor.warning() if tracker.monitor.measured else None
+    if calibration:
+        warnings.warn(calibration, CalibrationWarning, stacklevel=2)
+    return TrackResult(table, results, residuals, calibration)
 
 
 def parse_frames(spec: str | None, n_frames: int, source: str = "--frames") -> range:
@@ -223,6 +303,27 @@ def track_capture(
     ``frames``: ``"A:B"`` or a range (default: all); ``stop``: see :func:`run_tracking`;
     ``speed``: reading and detection options (:class:`~spinemocap.app.streaming.SpeedOptions`;
     ``streaming.LEGACY`` is the pre-issue-15 path). Returns the marker table (mm, world Z up)."""
+    return track_capture_result(capture_dir, out_dir, mode, config, detector, frames, progress,
+                                stop=stop, speed=speed).table
+
+
+def track_capture_result(
+    capture_dir: str | Path,
+    out_dir: str | Path,
+    mode: str = "sequence",
+    config: TrackerConfig | None = None,
+    detector: str = "net",
+    frames: str | range | None = None,
+    progress: bool = True,
+    refine: RigRefineConfig | None = None,
+    stop: Callable[[], bool] | None = None,
+    speed: SpeedOptions | None = None,
+) -> TrackResult:
+    """:func:`track_capture` returning the whole :class:`TrackResult` (quality flags, rig
+    residuals). ``refine``: bundle-adjust the rig on the tracked dots afterwards
+    (``--refine-rig``): the refined rig goes to ``out_dir/rig_refined.toml`` with the residuals
+    before/after in ``out_dir/rig_refine.json``, and the observed dots are re-triangulated with it
+    (labels unchanged, :func:`apply_refined_rig`)."""
     capture = Capture.open(capture_dir)
     check_writable(out_dir)
     if mode not in MODES:
@@ -233,5 +334,40 @@ def track_capture(
                           speed=speed, mask_dir=capture.root / "masks",
                           meta={"subject": capture.subject.get("id", ""), "source": str(capture.root)},
                           stop=stop)
+    if refine is not None:
+        result.refinement = refine_rig(capture.rig, result.pixels(), result.table.positions(), capture.fps, refine)
+        write_refinement(result.refinement, out_dir)
+        result.table = apply_refined_rig(result, result.refinement, capture.tape)
     write_markers(result.table, out_dir)
-    return result.table
+    return result
+
+
+def apply_refined_rig(result: TrackResult, refinement: RigRefinement, tape: TapeSpec) -> MarkerTable:
+    """The result's table with its observed dots re-triangulated under the refined rig (the
+    other dots follow them, see :func:`spinemocap.track.rig_refine.retriangulate`)."""
+    arrays = result.table.to_arrays()
+    positions = arrays["positions"]
+    normals = np.stack([tape_frames(p, tape.graph)[0] if np.isfinite(p).all() else np.zeros_like(p)
+                        for p in positions])
+    moved = retriangulate(refinement.rig, result.pixels(), positions, arrays["status"], tape.thickness_mm, normals)
+    table = MarkerTable.from_arrays(list(arrays["labels"]), moved, result.table.fps, status=arrays["status"],
+                                    n_views=arrays["n_views"], residual=arrays["residual"],
+                                    first_frame=int(arrays["frames"][0]), confidence=arrays["confidence"],
+                                    stretch=arrays["stretch"], meta={**result.table.meta, "rig": "refined"})
+    return table
+
+
+def write_refinement(refinement: RigRefinement, out_dir: str | Path) -> tuple[Path, Path]:
+    """``rig_refined.toml`` and ``rig_refine.json`` (residuals before/after) in ``out_dir``."""
+    import json
+
+    from ..fileio import atomic_path, atomic_write
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rig_path, json_path = out / "rig_refined.toml", out / "rig_refine.json"
+    with atomic_path(rig_path) as tmp:
+        refinement.rig.to_toml(tmp)
+    with atomic_write(json_path) as fh:
+        json.dump(refinement.to_dict(), fh, indent=2)
+    return rig_path, json_path

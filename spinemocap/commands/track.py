@@ -35,22 +35,42 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--legacy", action="store_true",
                    help="the pipeline before issue 15 (one camera after the other, no prefetching, full tape "
                         "search in every frame): for comparisons")
+    p.add_argument("--refine-rig", action="store_true",
+                   help="bundle-adjust the camera poses (and a focal scale per camera) on the tracked dots, "
+                        "write DIR/rig_refined.toml with the residuals before/after in DIR/rig_refine.json and "
+                        "re-triangulate the observed dots with it")
+    p.add_argument("--refine-sync", action="store_true",
+                   help="with --refine-rig: also estimate a clock offset per camera (ms, against the first)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_track)
 
 
 def run_track(args: argparse.Namespace) -> int:
-    from spinemocap.app.run import TrackingWarning, track_capture
+    from spinemocap.app.run import TrackingWarning, track_capture_result
     from spinemocap.app.streaming import LEGACY, SpeedOptions
+    from spinemocap.fileio import InputError
     from spinemocap.track.config import TrackerConfig
+    from spinemocap.track.rig_check import CalibrationWarning
+    from spinemocap.track.rig_refine import RigRefineConfig
 
     config = TrackerConfig.from_toml(args.config) if args.config else None
+    if args.refine_sync and not args.refine_rig:
+        raise InputError("--refine-sync", "needs --refine-rig")
+    refine = RigRefineConfig(sync=args.refine_sync) if args.refine_rig else None
     speed = LEGACY if args.legacy else SpeedOptions(workers=args.workers, refresh_every=args.refresh_every)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TrackingWarning)
-        table = track_capture(args.capture, args.out, mode=args.mode, config=config, detector=args.detector,
-                              frames=args.frames, progress=not args.no_progress, speed=speed)
+        warnings.simplefilter("ignore", CalibrationWarning)  # in the summary below
+        try:
+            result = track_capture_result(args.capture, args.out, mode=args.mode, config=config,
+                                          detector=args.detector, frames=args.frames,
+                                          progress=not args.no_progress, refine=refine, speed=speed)
+        except ValueError as exc:
+            if refine is None:
+                raise
+            raise InputError(args.capture, f"--refine-rig: {exc}") from exc
+    table = result.table
     for w in caught:
         log.warning("%s", w.message)
     elapsed = time.perf_counter() - start
@@ -58,6 +78,7 @@ def run_track(args: argparse.Namespace) -> int:
     print(f"tracked {table.n_frames} frames in {elapsed:.1f} s ({table.n_frames / elapsed:.2f} frames/s): "
           + ", ".join(f"{counts.get(s, 0)} {s}" for s in ("observed", "inferred", "missing")))
     print(f"markers written to {Path(args.out) / 'markers.csv'} (+ .trc, .c3d)")
+    print(result.summary())
     if Capture.open(args.capture).has_groundtruth:
         print(accuracy_summary(table, args.capture))
     return 0

@@ -213,4 +213,15 @@ def build_candidates(rig: Rig, views: Sequence[ViewDots], config: CandidateConfi
         ids = ids[suppress_dominated(ids)]
     points, residual, _ = v.solve(ids, config.th1_px) if len(ids) else (np.zeros((0, 3)), np.zeros(0), None)
     normals = v.normals(points, ids) if len(ids) else np.zeros((0, 3))
-    return CandidateCloud(points=points.reshape(-1, 3), normals=normals, blob_ids=ids, residual=residual)
+    return CandidateCloud(points=points.reshape(-1, 3), normals=normals, blob_ids=ids, residual=residual,
+                          pixels=blob_pixels(views, ids))
+
+
+def blob_pixels(views: Sequence[ViewDots], ids: np.ndarray) -> np.ndarray:
+    """(N, C, 2) distorted pixel centres of the blobs in ``ids`` (N, C) (NaN where -1)."""
+    out = np.full(ids.shape + (2,), np.nan)
+    for c, view in enumerate(views):
+        used = ids[:, c] >= 0
+        if used.any():
+            out[used, c] = np.asarray(view.uv, float)[ids[used, c]]
+    return out

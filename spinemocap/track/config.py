@@ -17,6 +17,13 @@ Example ``tracker.toml`` (every key optional; unknown keys are an error)::
     observe_radius_mm = 7.0
     [sequence]
     skip_lp = true
+    [stretch]
+    adaptive = true
+    [rig]
+    adaptive_gate = true
+
+``TrackerConfig.before_issue_11()`` is the tracker as it was before stretch adaptation, the
+rig-derived gate and label continuity (nominal spacing, fixed th1): the peer in ``bench realism``.
 """
 
 from __future__ import annotations
@@ -31,6 +38,8 @@ from .edges import EdgeConfig
 from .lp import LPConfig
 from .mrf1 import MRF1Config
 from .mrf2 import MRF2Config
+from .rig_check import RigCheckConfig
+from .stretch import StretchConfig
 
 
 @dataclass
@@ -61,7 +70,10 @@ class SequenceConfig:
     ``warm_start``: MRF1 starts from the previous frame instead of the cubic template (off by
     default: after a fast move the previous dots are too far for particle BP to travel); ``gap_fill_frames``: frames without a
     solution between solved ones are interpolated in time up to this gap length;
-    ``smooth_inferred``: window (frames, odd) of a moving average over inferred stretches."""
+    ``smooth_inferred``: window (frames, odd) of a moving average over inferred stretches;
+    ``keep_identity``: a full re-solve that relabels the tape by up to ``max_row_shift`` rows
+    against the previous frame is overruled (previous identity kept, frame flagged) unless the
+    evidence is unambiguous (see :mod:`spinemocap.track.continuity`)."""
 
     skip_lp: bool = True
     match_radius_mm: float = 8.0
@@ -70,6 +82,8 @@ class SequenceConfig:
     warm_start: bool = False
     gap_fill_frames: int = 10
     smooth_inferred: int = 3
+    keep_identity: bool = True
+    max_row_shift: int = 2
 
 
 _SECTIONS = {
@@ -81,6 +95,8 @@ _SECTIONS = {
     "evidence": EvidenceConfig,
     "status": StatusConfig,
     "sequence": SequenceConfig,
+    "stretch": StretchConfig,
+    "rig": RigCheckConfig,
 }
 
 
@@ -96,7 +112,19 @@ class TrackerConfig:
     evidence: EvidenceConfig = field(default_factory=EvidenceConfig)
     status: StatusConfig = field(default_factory=StatusConfig)
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
+    stretch: StretchConfig = field(default_factory=StretchConfig)
+    rig: RigCheckConfig = field(default_factory=RigCheckConfig)
     seed: int = 0
+
+    @classmethod
+    def before_issue_11(cls) -> "TrackerConfig":
+        """The tracker before issue 11: the roll's nominal dot spacing, the fixed th1 gate, no
+        label-continuity check (kept as the benchmark's peer)."""
+        config = cls()
+        return dataclasses.replace(
+            config, stretch=dataclasses.replace(config.stretch, adaptive=False),
+            rig=dataclasses.replace(config.rig, adaptive_gate=False),
+            sequence=dataclasses.replace(config.sequence, keep_identity=False))
 
     @classmethod
     def from_dict(cls, data: dict, source: str | None = None) -> "TrackerConfig":

@@ -3,7 +3,10 @@
 :class:`FrameTracker` runs the paper's per-frame pipeline (sections 3-3.3) and assigns each dot a
 status: ``observed`` when a candidate point triangulated from >= 2 views lies near the model dot
 (its position is then that point), ``inferred`` when the model placed it without such a point,
-``missing`` when the frame has no solution. The sequence tracker (:mod:`spinemocap.track.sequence`)
+``missing`` when the frame has no solution. Beyond the paper, every frame is solved with the tape
+as laid on the body (its dot spacing measured from the frame's own points, :mod:`.stretch`)
+and a candidate gate that follows the rig's measured residuals (:mod:`.rig_check`), and the
+result carries quality flags (:mod:`.quality`). The sequence tracker (:mod:`spinemocap.track.sequence`)
 wraps it; running a whole capture (detector choice, frames, outputs, sequence vs paper mode) is the
 application layer's :mod:`spinemocap.app.run`.
 """
@@ -28,6 +31,9 @@ from .evidence import build_evidence
 from .lp import select_edges
 from .mrf1 import fit_mrf1
 from .mrf2 import TemplateEvidenceScore, refine_mrf2
+from .quality import stretch_plausible, unlabelled_dots
+from .rig_check import RigMonitor
+from .stretch import StretchEstimate, estimate_stretch, row_stretch, stretched_spec
 from .template import tape_frames
 from .types import CandidateCloud, FeasibleSet
 
@@ -39,7 +45,9 @@ class FrameResult:
     """One frame's labelled dots, in tape label order: ``positions`` (D, 3) mm (NaN = missing),
     ``status`` (D,) str, ``n_views`` (D,) int, ``residual`` (D,) px RMS reprojection error
     (NaN for inferred/missing); ``stage_ms`` per stage; ``route``: ``full`` (LP + MRFs),
-    ``carried`` (sequence mode: the previous solution explained the frame), ``failed``."""
+    ``carried`` (sequence mode: the previous solution explained the frame), ``failed``;
+    ``flags``: quality flags (:mod:`spinemocap.track.quality`); ``stretch``: the dot spacing the
+    frame was solved with (ratio to the roll's spec); ``gate_px``: the candidate gate used."""
 
     positions: np.ndarray
     status: np.ndarray
@@ -49,6 +57,10 @@ class FrameResult:
     route: str = "full"
     lp_status: str = ""
     note: str = ""
+    flags: list[str] = field(default_factory=list)
+    stretch: StretchEstimate | None = None
+    gate_px: float = float("nan")
+    pixels: np.ndarray | None = None  # (D, C, 2) distorted px of the blobs of observed dots
 
     @property
     def solved(self) -> bool:
@@ -86,6 +98,8 @@ class FrameTracker:
         self.config = config or TrackerConfig()
         self.up = np.asarray(up, float) / np.linalg.norm(up)
         self.rng = np.random.default_rng(self.config.seed)
+        self.monitor = RigMonitor(rig, self.config.candidates, self.config.rig)
+        self.stretch = StretchEstimate.nominal()  # the last spacing measured on a frame
 
     @property
     def n_dots(self) -> int:
@@ -93,13 +107,35 @@ class FrameTracker:
 
     # ------------------------------------------------------------------ stages
     def candidates(self, views: Sequence[ViewDots]) -> CandidateCloud:
-        return build_candidates(self.rig, views, self.config.candidates)
+        """The candidate cloud with the rig-derived gate (the first frame probes the residuals
+        with a loose gate first); each frame's well-supported points update the residuals."""
+        if self.config.rig.adaptive_gate and not self.monitor.measured:
+            self.monitor.probe(views)
+        cloud = build_candidates(self.rig, views, self.monitor.candidate_config())
+        if self.config.rig.adaptive_gate:
+            self.monitor.update(views, cloud)
+        return cloud
 
-    def feasible_set(self, cloud: CandidateCloud, timer: StageTimer) -> FeasibleSet | None:
+    def measure_stretch(self, cloud: CandidateCloud) -> StretchEstimate:
+        """The tape's dot spacing in this frame's points (>= 3-view points when there are enough,
+        ghosts rarely reach three views), falling back to the last measured one."""
+        strong = cloud.points[cloud.n_views >= 3] if len(cloud) else np.zeros((0, 3))
+        points = strong if len(strong) >= self.config.stretch.min_points else cloud.points
+        estimate = estimate_stretch(points, self.tape, self.config.stretch, fallback=self.stretch)
+        if estimate.source == "data":
+            self.stretch = estimate
+        return estimate
+
+    def frame_tape(self, stretch: StretchEstimate) -> TapeSpec:
+        """The tape as laid on the body for a spacing estimate (labels as the spec's)."""
+        return stretched_spec(self.tape, stretch)
+
+    def feasible_set(self, cloud: CandidateCloud, timer: StageTimer, tape: TapeSpec | None = None) -> FeasibleSet | None:
+        tape = tape or self.tape
         with timer("edges"):
-            edge_cloud = build_edges(cloud, self.tape, self.config.edges)
+            edge_cloud = build_edges(cloud, tape, self.config.edges)
         with timer("lp"):
-            return select_edges(cloud, edge_cloud, self.tape, self.config.lp)
+            return select_edges(cloud, edge_cloud, tape, self.config.lp)
 
     def evidence(self, views: Sequence[ViewDots]) -> list | None:
         """MRF2's per-camera cost images (None when no view has an image)."""
@@ -109,12 +145,14 @@ class FrameTracker:
                 if v.image is not None else None for v in views]
 
     def refine(self, positions: np.ndarray, views: Sequence[ViewDots],
-               feasible_points: np.ndarray | None = None, evidence: list | None = None) -> np.ndarray:
-        """MRF2 on the camera images; returns ``positions`` unchanged when no view has an image."""
+               feasible_points: np.ndarray | None = None, evidence: list | None = None,
+               tape: TapeSpec | None = None) -> np.ndarray:
+        """MRF2 on the camera images (target lengths of ``tape``, default the spec); returns
+        ``positions`` unchanged when no view has an image."""
         evidence = evidence if evidence is not None else self.evidence(views)
         if evidence is None:
             return positions
-        result = refine_mrf2(positions, self.graph, self.rig, evidence, self.config.mrf2,
+        result = refine_mrf2(positions, (tape or self.tape).graph, self.rig, evidence, self.config.mrf2,
                              rng=self.rng, feasible_points=feasible_points)
         return result.positions
 
@@ -140,38 +178,70 @@ class FrameTracker:
         n_views[seen] = cloud.n_views[src]
         residual = np.full(self.n_dots, np.nan)
         residual[seen] = cloud.residual[src]
-        return FrameResult(positions, status, n_views, residual)
+        pixels = np.full((self.n_dots, len(self.rig), 2), np.nan)
+        if cloud.pixels is not None:
+            pixels[seen] = cloud.pixels[src]
+        return FrameResult(positions, status, n_views, residual, pixels=pixels)
+
+    def add_quality(self, result: FrameResult, cloud: CandidateCloud, stretch: StretchEstimate) -> FrameResult:
+        """Flags of a solved frame (see :mod:`spinemocap.track.quality`) and its spacing/gate."""
+        result.stretch, result.gate_px = stretch, self.monitor.gate_px()
+        if not result.solved:
+            return result
+        flags = result.flags
+        if self.config.stretch.adaptive and stretch.source != "data":
+            flags.append("stretch_carried")
+        if result.lp_status == "relaxed":
+            flags.append("lp_relaxed")
+        if unlabelled_dots(result.positions, cloud.points, cloud.n_views, self.frame_tape(stretch).graph,
+                           self.config.status.observe_radius_mm) >= 2:
+            flags.append("unlabelled_dots")
+        lo, hi = self.config.stretch.along_range
+        if not stretch_plausible(row_stretch(result.positions, self.graph)[0], (lo * 0.85, hi * 1.15)):
+            flags.append("stretch_implausible")
+        return result
 
     # ------------------------------------------------------------------ whole frame
     def solve(self, views: Sequence[ViewDots], previous: np.ndarray | None = None,
               cloud: CandidateCloud | None = None, stage_ms: dict | None = None,
-              warm_start: bool = False) -> FrameResult:
+              warm_start: bool = False, stretch: StretchEstimate | None = None) -> FrameResult:
         """The paper's pipeline on one frame. ``previous`` (D, 3): last frame's dots (NaN rows
         allowed), which carries orientation/identity into MRF1 (sequence mode); without it the
         capture's ``up`` direction orients the tape (row 1 lowest). ``warm_start``: MRF1 starts
-        from ``previous`` whatever ``config.mrf1.warm_start`` says (the sequence tracker's option)."""
+        from ``previous`` whatever ``config.mrf1.warm_start`` says (the sequence tracker's option).
+        ``stretch``: the frame's dot spacing (default: measured from the frame's points)."""
         stage_ms = {} if stage_ms is None else stage_ms
         timer = StageTimer(stage_ms)
         if cloud is None:
             with timer("candidates"):
                 cloud = self.candidates(views)
-        feasible = self.feasible_set(cloud, timer)
+        if stretch is None:
+            with timer("candidates"):
+                stretch = self.measure_stretch(cloud)
+        result = self._solve(views, previous, cloud, stage_ms, warm_start, self.frame_tape(stretch))
+        return self.add_quality(result, cloud, stretch)
+
+    def _solve(self, views: Sequence[ViewDots], previous: np.ndarray | None, cloud: CandidateCloud,
+               stage_ms: dict, warm_start: bool, tape: TapeSpec) -> FrameResult:
+        timer = StageTimer(stage_ms)
+        graph = tape.graph
+        feasible = self.feasible_set(cloud, timer, tape)
         if feasible is None or len(feasible) < 4:
             return FrameResult.missing(self.n_dots, stage_ms, "no tape-like edge set")
         with timer("mrf1"):
             evidence = self.evidence(views)
             # the images break the two-row offset tie of a partial feasible set
-            score = TemplateEvidenceScore(self.rig, evidence, self.graph) if evidence is not None else None
+            score = TemplateEvidenceScore(self.rig, evidence, graph) if evidence is not None else None
             try:
                 mrf1_config = self.config.mrf1
                 if warm_start:
                     mrf1_config = dataclasses.replace(mrf1_config, warm_start=True)
-                mrf1 = fit_mrf1(feasible, self.graph, mrf1_config, up=self.up, previous=previous,
+                mrf1 = fit_mrf1(feasible, graph, mrf1_config, up=self.up, previous=previous,
                                 rng=self.rng, template_score=score)
             except ValueError as exc:
                 return FrameResult.missing(self.n_dots, stage_ms, f"MRF1 failed: {exc}")
         with timer("mrf2"):
-            model = self.refine(mrf1.positions, views, feasible.points, evidence=evidence)
+            model = self.refine(mrf1.positions, views, feasible.points, evidence=evidence, tape=tape)
         with timer("status"):
             result = self.assign_status(model, cloud)
         result.stage_ms, result.lp_status = stage_ms, feasible.status

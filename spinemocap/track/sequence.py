@@ -9,7 +9,11 @@ Per frame (``mode = "sequence"``):
    their triangulated points and the others follow their observed tape neighbours (a locally
    weighted affine map from the flat tape to 3D), then MRF2 refines them on the images;
 3. otherwise the full per-frame pipeline runs with the previous dots handed to MRF1, which
-   orients the template by them (labels survive handstands) and warm-starts from them.
+   orients the template by them (labels survive handstands) and warm-starts from them; a
+   re-solve that relabels the tape by whole rows against the prediction is overruled unless the
+   evidence is unambiguous (:mod:`spinemocap.track.continuity`: previous identity kept, frame
+   flagged ``identity_kept``; accepted shifts are flagged ``relabelled``).
+Both routes work with the frame's measured dot spacing (:mod:`spinemocap.track.stretch`).
 After the sequence, short gaps (frames without a solution) are interpolated in time and
 inferred stretches smoothed (:func:`fill_and_smooth`).
 """
@@ -18,11 +22,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..tape import TapeSpec
 from ..timing import StageTimer
 from ..views import ViewDots
 from .config import SequenceConfig
+from .continuity import relabel_rows, row_shift, shift_is_unambiguous
 from .edges import edge_bounds
 from .pipeline import FrameResult, FrameTracker, match_points
+from .stretch import StretchEstimate
 from .types import CandidateCloud
 
 
@@ -36,7 +43,6 @@ class SequenceTracker:
         self.before_last: np.ndarray | None = None
         self.uv = tracker.graph.uv_mm
         self.solid = tracker.graph.solid_edges
-        self.bounds = edge_bounds(tracker.tape, tracker.config.edges)
 
     def predict(self) -> np.ndarray:
         """Constant-velocity prediction (mm) from the last two solved frames."""
@@ -49,22 +55,62 @@ class SequenceTracker:
         timer = StageTimer(stage_ms)
         with timer("candidates"):
             cloud = self.tracker.candidates(views)
+            stretch = self.tracker.measure_stretch(cloud)
+        tape = self.tracker.frame_tape(stretch)
         result = None
         if self.last is not None and self.config.skip_lp:
-            result = self._carry(views, cloud, timer)
+            result = self._carry(views, cloud, timer, tape)
+            if result is not None:
+                self.tracker.add_quality(result, cloud, stretch)
         if result is None:
-            result = self._solve_full(views, cloud, stage_ms)
+            result = self._solve_full(views, cloud, stage_ms, stretch)
         result.stage_ms = stage_ms
         self._remember(result)
         return result
 
     # ------------------------------------------------------------------ routes
-    def _solve_full(self, views, cloud: CandidateCloud, stage_ms: dict) -> FrameResult:
+    def _solve_full(self, views, cloud: CandidateCloud, stage_ms: dict, stretch: StretchEstimate) -> FrameResult:
         warm_start = self.last is not None and self.config.warm_start
-        return self.tracker.solve(views, previous=self.last, cloud=cloud, stage_ms=stage_ms,
-                                  warm_start=warm_start)
+        result = self.tracker.solve(views, previous=self.last, cloud=cloud, stage_ms=stage_ms,
+                                    warm_start=warm_start, stretch=stretch)
+        if self.last is None or not result.solved or not self.config.keep_identity:
+            return result
+        return self._keep_identity(result, views, cloud, stretch, stage_ms)
 
-    def _carry(self, views, cloud: CandidateCloud, timer: StageTimer) -> FrameResult | None:
+    def _keep_identity(self, result: FrameResult, views, cloud: CandidateCloud, stretch: StretchEstimate,
+                       stage_ms: dict) -> FrameResult:
+        """Check a re-solve's labels against the prediction (see module): unchanged, accepted
+        as ``relabelled``, or relabelled back to the previous identity (``identity_kept``)."""
+        graph = self.tracker.graph
+        predicted = self.predict()
+        shift, _ = row_shift(result.positions, predicted, graph, self.config.max_row_shift)
+        if shift == 0:
+            return result
+        if shift_is_unambiguous(result.status == "observed", graph, shift):
+            result.flags.append("relabelled")
+            result.note = f"labels moved by {shift} row(s) against the previous frame (the cameras demand it)"
+            return result
+        timer = StageTimer(stage_ms)
+        tape = self.tracker.frame_tape(stretch)
+        with timer("status"):
+            model = relabel_rows(result.positions, graph, shift)
+            known = np.isfinite(model).all(axis=1)
+            if known.sum() >= 3 and not known.all():
+                model[~known] = self._follow_neighbours(model, predicted, known)
+            elif not known.all():
+                model[~known] = predicted[~known]
+        usable = np.nonzero(cloud.n_views >= 2)[0] if len(cloud) else np.zeros(0, np.int64)
+        with timer("mrf2"):
+            model = self.tracker.refine(model, views, cloud.points[usable], tape=tape)
+        with timer("status"):
+            kept = self.tracker.assign_status(model, cloud)
+        kept.route, kept.lp_status = result.route, result.lp_status
+        kept.flags = [f for f in result.flags if f != "unlabelled_dots"] + ["identity_kept"]
+        kept.note = f"the re-solve moved the labels by {shift} row(s); the previous identity was kept"
+        kept.stretch, kept.gate_px = result.stretch, result.gate_px
+        return kept
+
+    def _carry(self, views, cloud: CandidateCloud, timer: StageTimer, tape: TapeSpec) -> FrameResult | None:
         """The previous solution moved onto this frame's points, or None if it does not fit."""
         with timer("status"):
             predicted = self.predict()
@@ -75,25 +121,25 @@ class SequenceTracker:
                 return None
             positions = predicted.copy()
             positions[seen] = cloud.points[usable[match[seen]]]
-            if not self._tape_like(positions, seen):
+            if not self._tape_like(positions, seen, edge_bounds(tape, self.tracker.config.edges)):
                 return None
             positions[~seen] = self._follow_neighbours(positions, predicted, seen)
         if (~seen).any() and self.config.refine_skipped:
             with timer("mrf2"):
-                positions = self.tracker.refine(positions, views, cloud.points[usable])
+                positions = self.tracker.refine(positions, views, cloud.points[usable], tape=tape)
         with timer("status"):
             result = self.tracker.assign_status(positions, cloud)
         result.route, result.lp_status = "carried", "skipped"
         return result
 
-    def _tape_like(self, positions: np.ndarray, seen: np.ndarray) -> bool:
-        """Solid edges between matched dots all have lengths within (th3, th4)."""
+    def _tape_like(self, positions: np.ndarray, seen: np.ndarray, bounds: tuple[float, float]) -> bool:
+        """Solid edges between matched dots all have lengths within ``bounds`` (th3, th4)."""
         both = seen[self.solid[:, 0]] & seen[self.solid[:, 1]]
         if not both.any():
             return False
         e = self.solid[both]
         lengths = np.linalg.norm(positions[e[:, 0]] - positions[e[:, 1]], axis=1)
-        return bool(((lengths > self.bounds[0]) & (lengths < self.bounds[1])).all())
+        return bool(((lengths > bounds[0]) & (lengths < bounds[1])).all())
 
     def _follow_neighbours(self, positions, predicted, seen, sigma_mm: float = 30.0) -> np.ndarray:
         """Unmatched dots from this frame's matched dots alone (no drift from earlier frames): a

@@ -13,12 +13,15 @@ class CandidateCloud:
 
     ``points``: (N, 3) mm; ``normals``: (N, 3) unit, negative mean viewing direction of the
     cameras used; ``blob_ids``: (N, C) index of the blob used in each camera, -1 where the camera
-    did not contribute; ``residual``: (N,) RMS reprojection error in px over contributing views."""
+    did not contribute; ``residual``: (N,) RMS reprojection error in px over contributing views;
+    ``pixels``: (N, C, 2) the blobs' distorted pixel centres (NaN where unused; for the rig's
+    bundle adjustment on tracked dots)."""
 
     points: np.ndarray
     normals: np.ndarray
     blob_ids: np.ndarray
     residual: np.ndarray
+    pixels: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.points)

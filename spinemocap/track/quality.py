@@ -1,0 +1,94 @@
+"""Quality flags: what the tracker cannot vouch for, per frame and per dot (beyond the paper).
+
+A two-row label shift reprojects perfectly (every dot sits on a real dot, just the wrong one), so
+residuals alone never reveal it. Each frame therefore carries flags for the situations where the
+labels may be wrong, and each dot a label confidence in [0, 1]:
+
+``confidence = status factor x product of the frame's flag factors``
+
+- status factor: ``observed`` 1.0 (a triangulated point of >= 2 views is at the dot), ``inferred``
+  0.6 (placed by the tape model only), ``missing`` 0;
+- flags (factor): ``identity_kept`` 0.5 (the re-solve wanted another labelling, the previous
+  frame's was kept, see :mod:`spinemocap.track.continuity`); ``relabelled`` 0.5 (the labels moved
+  by whole rows against the previous frame because the evidence demanded it); ``unlabelled_dots``
+  0.5 (dots seen by >= 3 cameras just beyond an end of the labelled tape were left without a
+  label: the template may sit a row or two off); ``stretch_implausible`` 0.5 (the solved tape's row pitch leaves the
+  range a kinesiology tape can take); ``stretch_carried`` 0.9 (this frame's spacing could not be
+  measured, an earlier frame's was used); ``lp_relaxed`` 0.9 (the LP had to drop edges).
+
+A frame is *flagged* when it holds any flag but ``stretch_carried``/``lp_relaxed`` (both mild and
+frequent under occlusion).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..tape import TapeGraph
+
+FLAG_FACTORS = {
+    "identity_kept": 0.5,
+    "relabelled": 0.5,
+    "unlabelled_dots": 0.5,
+    "stretch_implausible": 0.5,
+    "stretch_carried": 0.9,
+    "lp_relaxed": 0.9,
+}
+MILD_FLAGS = frozenset({"stretch_carried", "lp_relaxed"})
+STATUS_FACTORS = {"observed": 1.0, "inferred": 0.6, "missing": 0.0}
+
+
+def label_confidence(status: np.ndarray, flags: list[str]) -> np.ndarray:
+    """(D,) confidence in [0, 1] from the dots' status (D,) and the frame's flags (see module)."""
+    frame = float(np.prod([FLAG_FACTORS.get(f, 1.0) for f in set(flags)])) if flags else 1.0
+    return np.array([STATUS_FACTORS.get(str(s), 0.0) for s in status]) * frame
+
+
+def is_flagged(flags: list[str]) -> bool:
+    """True when the frame holds a flag that puts its labels in doubt (see module)."""
+    return bool(set(flags) - MILD_FLAGS)
+
+
+def unlabelled_dots(model: np.ndarray, points: np.ndarray, n_views: np.ndarray, graph: TapeGraph,
+                    radius_mm: float, min_views: int = 3, reach: float = 1.5) -> int:
+    """Candidate points of >= ``min_views`` cameras beyond either end row of the labelled tape
+    (model (D, 3) mm in label order; ``graph`` the frame's stretched tape): nearest to an end
+    row, farther out along the tape than that row by 0.4-``reach`` row pitches and claimed by
+    no dot (none within ``radius_mm``). Real dots there are the mark of a template one or two
+    rows off; ghosts of a poor rig scatter around the whole tape instead."""
+    model = np.asarray(model, float)
+    strong = np.asarray(points, float).reshape(-1, 3)[np.asarray(n_views) >= min_views]
+    if not len(strong) or not np.isfinite(model).all():
+        return 0
+    n_rows = int(graph.row.max()) + 1
+    if n_rows < 3:
+        return 0
+    centres = np.stack([model[graph.row == r].mean(axis=0) for r in range(n_rows)])
+    pitch = graph.spec.row_pitch_mm
+    dist, nearest = cKDTree(model).query(strong)
+    nearest_row = graph.row[nearest]
+    count = 0
+    for end, inner in ((0, 1), (n_rows - 1, n_rows - 2)):
+        outward = centres[end] - centres[inner]
+        outward /= max(np.linalg.norm(outward), 1e-9)
+        beyond = (strong - centres[end]) @ outward
+        count += int(((nearest_row == end) & (dist > radius_mm) & (beyond > 0.4 * pitch) & (beyond < reach * pitch)).sum())
+    return count
+
+
+def stretch_plausible(along: np.ndarray, bounds: tuple[float, float]) -> bool:
+    """False when a measured row stretch (D,) leaves ``bounds`` (ratio to the spec)."""
+    finite = np.asarray(along, float)
+    finite = finite[np.isfinite(finite)]
+    return bool(not len(finite) or ((finite >= bounds[0]) & (finite <= bounds[1])).all())
+
+
+def flagged_from_confidence(status: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """(F,) bool from a marker table's (F, D) status and confidence columns: frames where some
+    dot's confidence sits below 0.75 x its status factor, i.e. a label-doubting flag was set
+    (the mild flags multiply to >= 0.81). Unknown confidences (NaN, older files) never flag."""
+    factor = np.vectorize(lambda s: STATUS_FACTORS.get(str(s), 0.0))(status) if status.size else np.zeros(status.shape)
+    with np.errstate(invalid="ignore"):
+        low = (factor > 0) & np.isfinite(confidence) & (confidence < 0.75 * factor)
+    return low.any(axis=1)

@@ -1,0 +1,276 @@
+"""Refine the rig on the tracked dots of the capture itself (``spinemocap track --refine-rig``).
+
+Every observed dot-frame is a 3D point seen by >= 2 cameras at known blobs: a bundle adjustment
+over the camera poses (and optionally a focal-length scale and a clock offset per camera) and
+those points, with the intrinsics' principal point and distortion held fixed.
+
+- Solver: scipy's ``least_squares`` (trust-region reflective, Huber loss of ``loss_scale_px``,
+  sparse Jacobian: an observation depends on its camera's 6-8 parameters and its point's 3).
+  pycolmap's Ceres adjuster needs a reconstruction object per frame set and offers no per-camera
+  clock offset; scipy solves this size (a few thousand points) in seconds.
+- Gauge: the dots alone fix neither the world frame nor the scale. By default no camera is held;
+  weak priors pull every camera's centre (``centre_prior_mm``) and rotation
+  (``rotation_prior_deg``) toward the given rig, so the correction is the smallest one in the
+  gauge directions: the refined rig keeps the given rig's average frame and metric size (each
+  camera's own error partly averages out, where fixing one ``reference`` camera would carry
+  that camera's whole error into every point).
+- Clock offsets (``sync=True``): camera ``c`` sees a dot at ``X + dt_c V`` where ``V`` is the
+  dot's velocity along its tracked trajectory (mm/s, central differences) and ``dt_c`` the
+  camera's offset (s) against the reference camera.
+
+The residual reported before/after is the RMS reprojection error (distorted px) of the
+observations kept (before: points triangulated from their blobs with the given rig). Now and then
+a blob was paired with a neighbouring dot's point (a few px off whatever the rig): after a first
+solve, observations beyond ``outlier_factor`` x the robust RMS (at least 1 px) are dropped and
+the problem solved again (``outliers_dropped`` in the report).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import lil_matrix
+
+from ..camera import Rig
+from ..geometry import distort, triangulate_dlt
+from .rig_check import robust_rms
+
+
+@dataclass
+class RigRefineConfig:
+    """``max_frames``: frames used (evenly spread); ``focal``: refine a focal scale per camera;
+    ``sync``: refine a clock offset per camera; ``outlier_factor``: see module; the rest: see
+    module."""
+
+    max_frames: int = 120
+    focal: bool = True
+    sync: bool = False
+    reference: int | None = None
+    loss_scale_px: float = 1.0
+    centre_prior_mm: float = 20.0
+    rotation_prior_deg: float = 0.5
+    max_nfev: int = 100
+    outlier_factor: float = 4.0
+
+
+@dataclass
+class RigRefinement:
+    """The refined rig with the residuals (distorted px RMS, per camera and overall) before and
+    after, the clock offsets (ms, per camera; zeros without ``sync``) and the problem size."""
+
+    rig: Rig
+    before_px: dict[str, float]
+    after_px: dict[str, float]
+    sync_offsets_ms: dict[str, float]
+    n_points: int
+    n_observations: int
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"before_px": self.before_px, "after_px": self.after_px, "sync_offsets_ms": self.sync_offsets_ms,
+                "n_points": self.n_points, "n_observations": self.n_observations, **self.extra}
+
+
+@dataclass
+class _Problem:
+    cam: np.ndarray  # (M,) camera of each observation
+    point: np.ndarray  # (M,) point of each observation
+    uv: np.ndarray  # (M, 2) distorted px
+    velocity: np.ndarray  # (P, 3) mm/s per point
+    start: np.ndarray  # (P, 3) initial points (mm)
+
+
+def _observations(pixels: np.ndarray, positions: np.ndarray, fps: float, rig: Rig, frames: np.ndarray) -> _Problem:
+    """Observations of the dot-frames seen by >= 2 cameras in ``frames`` (indices into the
+    (F, D, C, 2) ``pixels`` and (F, D, 3) ``positions``)."""
+    F = len(positions)
+    velocity = np.zeros_like(positions)
+    if F > 2:
+        velocity[1:-1] = (positions[2:] - positions[:-2]) * fps / 2
+    velocity = np.nan_to_num(velocity)
+    seen = np.isfinite(pixels).all(axis=3)  # (F, D, C)
+    cams, pts, uvs, vel, start = [], [], [], [], []
+    P = np.stack([c.projection_matrix for c in rig])
+    for f in frames:
+        for d in np.flatnonzero(seen[f].sum(axis=1) >= 2):
+            used = seen[f, d]
+            undist = np.full((len(rig), 2), np.nan)
+            for c in np.flatnonzero(used):
+                undist[c] = rig[c].undistort_points(pixels[f, d, c][None])[0]
+            X = triangulate_dlt(P, np.nan_to_num(undist)[None], used[None])[0]
+            if not np.isfinite(X).all():
+                continue
+            p = len(start)
+            start.append(X)
+            vel.append(velocity[f, d])
+            for c in np.flatnonzero(used):
+                cams.append(c)
+                pts.append(p)
+                uvs.append(pixels[f, d, c])
+    return _Problem(np.asarray(cams, np.int64), np.asarray(pts, np.int64), np.asarray(uvs, float).reshape(-1, 2),
+                    np.asarray(vel, float).reshape(-1, 3), np.asarray(start, float).reshape(-1, 3))
+
+
+def _project(K: np.ndarray, dist: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Distorted pixels of world points X (M, 3) with per-row K (M, 3, 3), dist (M, 5), R, t."""
+    pc = np.einsum("mij,mj->mi", R, X) + t
+    xd = distort(pc[:, :2] / pc[:, 2:3], dist)
+    return np.column_stack([K[:, 0, 0] * xd[:, 0] + K[:, 0, 1] * xd[:, 1] + K[:, 0, 2],
+                            K[:, 1, 1] * xd[:, 1] + K[:, 1, 2]])
+
+
+def _rodrigues(rvecs: np.ndarray) -> np.ndarray:
+    theta = np.linalg.norm(rvecs, axis=1)[:, None, None]
+    k = rvecs / np.maximum(theta[:, :, 0], 1e-12)
+    Kx = np.zeros((len(rvecs), 3, 3))
+    Kx[:, 0, 1], Kx[:, 0, 2], Kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    Kx[:, 1, 0], Kx[:, 2, 0], Kx[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
+    return np.eye(3) + np.sin(theta) * Kx + (1 - np.cos(theta)) * Kx @ Kx
+
+
+def _per_camera_rms(errors: np.ndarray, cam: np.ndarray, rig: Rig) -> dict[str, float]:
+    out = {name: float(np.sqrt(np.mean(errors[cam == c] ** 2))) if (cam == c).any() else float("nan")
+           for c, name in enumerate(rig.names)}
+    out["all"] = float(np.sqrt(np.mean(errors**2))) if len(errors) else float("nan")
+    return out
+
+
+def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
+               config: RigRefineConfig | None = None) -> RigRefinement:
+    """Bundle-adjust ``rig`` on tracked dots: ``pixels`` (F, D, C, 2) distorted blob centres of
+    the observed dots (NaN elsewhere), ``positions`` (F, D, 3) mm their tracked trajectories
+    (velocities for the clock offsets), ``fps`` frames per second. See module."""
+    config = config or RigRefineConfig()
+    outlier_factor = config.outlier_factor
+    F = len(positions)
+    frames = np.unique(np.linspace(0, F - 1, min(config.max_frames, F)).round().astype(int)) if F else np.zeros(0, int)
+    prob = _observations(pixels, positions, fps, rig, frames)
+    if len(prob.start) < 10:
+        raise ValueError(f"only {len(prob.start)} dot-frames seen by >= 2 cameras; cannot refine the rig")
+    C, P, M = len(rig), len(prob.start), len(prob.cam)
+    ref = config.reference
+    rvec0 = np.stack([c.rvec for c in rig])
+    n_cam = 6 + int(config.focal) + int(config.sync)
+    K0 = np.stack([c.K for c in rig])
+    dist0 = np.stack([c.dist for c in rig])
+    centres0 = np.stack([c.center for c in rig])
+    cam0 = np.concatenate([np.concatenate([c.rvec, c.t, [1.0] * int(config.focal), [0.0] * int(config.sync)]) for c in rig])
+    x0 = np.concatenate([cam0, prob.start.ravel()])
+    ref_block = cam0[ref * n_cam:(ref + 1) * n_cam].copy() if ref is not None else None
+
+    def unpack(x: np.ndarray):
+        cams = x[: C * n_cam].reshape(C, n_cam).copy()
+        if ref is not None:
+            cams[ref] = ref_block  # gauge
+        if config.sync:
+            cams[0, -1] = 0.0  # clocks against the first camera (a common offset is a gauge)
+        return cams, x[C * n_cam:].reshape(P, 3)
+
+    def camera_arrays(cams: np.ndarray):
+        R = _rodrigues(cams[:, :3])
+        K = K0.copy()
+        if config.focal:
+            K[:, 0, 0] *= cams[:, 6]
+            K[:, 1, 1] *= cams[:, 6]
+        dt = cams[:, -1] if config.sync else np.zeros(C)
+        return R, cams[:, 3:6], K, dt
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        cams, X = unpack(x)
+        R, t, K, dt = camera_arrays(cams)
+        world = X[prob.point] + dt[prob.cam, None] * prob.velocity[prob.point]
+        reproj = (_project(K[prob.cam], dist0[prob.cam], R[prob.cam], t[prob.cam], world) - prob.uv).ravel()
+        centres = -np.einsum("cji,cj->ci", R, t)
+        prior_c = ((centres - centres0) / config.centre_prior_mm).ravel()
+        prior_r = ((cams[:, :3] - rvec0) / np.deg2rad(config.rotation_prior_deg)).ravel()
+        return np.concatenate([reproj, prior_c, prior_r])
+
+    sparsity = lil_matrix((2 * M + 6 * C, len(x0)), dtype=int)
+    rows = np.arange(M)
+    for k in range(n_cam):
+        sparsity[2 * rows, prob.cam * n_cam + k] = 1
+        sparsity[2 * rows + 1, prob.cam * n_cam + k] = 1
+    for k in range(3):
+        sparsity[2 * rows, C * n_cam + 3 * prob.point + k] = 1
+        sparsity[2 * rows + 1, C * n_cam + 3 * prob.point + k] = 1
+    for c in range(C):
+        sparsity[2 * M + 3 * c: 2 * M + 3 * c + 3, c * n_cam: c * n_cam + 6] = 1
+        sparsity[2 * M + 3 * C + 3 * c: 2 * M + 3 * C + 3 * c + 3, c * n_cam: c * n_cam + 3] = 1
+    if ref is not None:
+        sparsity[:, ref * n_cam:(ref + 1) * n_cam] = 0
+    if config.sync:
+        sparsity[:, n_cam - 1] = 0
+
+    def reprojection(x: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(residuals(x)[: 2 * M].reshape(M, 2), axis=1)
+
+    def solve(x: np.ndarray, weight: np.ndarray):
+        def weighted(xx: np.ndarray) -> np.ndarray:
+            r = residuals(xx)
+            r[: 2 * M] *= np.repeat(weight, 2)
+            return r
+
+        return least_squares(weighted, x, jac_sparsity=sparsity, loss="huber", f_scale=config.loss_scale_px,
+                             x_scale="jac", method="trf", max_nfev=config.max_nfev)
+
+    before = reprojection(x0)
+    inlier = np.ones(M)
+    fit = solve(x0, inlier)
+    # a blob paired with the wrong dot now and then (a few px off whatever the rig): drop the
+    # observations far beyond the fitted residuals' spread and solve again
+    after = reprojection(fit.x)
+    limit = max(outlier_factor * robust_rms(after), 1.0)
+    inlier = (after < limit).astype(float)
+    if inlier.sum() < M:
+        fit = solve(fit.x, inlier)
+        after = reprojection(fit.x)
+    keep = inlier > 0
+    before, after, obs_cam = before[keep], after[keep], prob.cam[keep]
+    cams, _ = unpack(fit.x)
+    R, t, K, dt = camera_arrays(cams)
+    refined = Rig([dataclasses.replace(c, K=K[i], R=cv2.Rodrigues(cv2.Rodrigues(R[i])[0])[0], t=t[i].copy())
+                   for i, c in enumerate(rig)])
+    return RigRefinement(
+        rig=refined, before_px=_per_camera_rms(before, obs_cam, rig), after_px=_per_camera_rms(after, obs_cam, rig),
+        sync_offsets_ms={n: float(1000 * dt[i]) for i, n in enumerate(rig.names)}, n_points=P, n_observations=M,
+        extra={"frames_used": int(len(frames)), "solver": "scipy least_squares (trf, huber)",
+               "outliers_dropped": int(M - keep.sum()),
+               "focal_scale": {n: float(cams[i, 6]) if config.focal else 1.0 for i, n in enumerate(rig.names)},
+               "camera_moved_mm": {n: float(np.linalg.norm(refined[i].center - centres0[i])) for i, n in enumerate(rig.names)}},
+    )
+
+
+def retriangulate(rig: Rig, pixels: np.ndarray, positions: np.ndarray, status: np.ndarray,
+                  thickness_mm: float = 0.0, normals: np.ndarray | None = None) -> np.ndarray:
+    """Positions (F, D, 3) mm under a refined rig, labels unchanged: observed dots re-triangulated
+    from their blobs (moved in by ``thickness_mm`` along ``normals`` (F, D, 3) as the tracker
+    does), the other finite dots moved with the observed ones by a per-frame similarity fit."""
+    from ..geometry import umeyama
+
+    out = positions.copy()
+    P = np.stack([c.projection_matrix for c in rig])
+    for f in range(len(positions)):
+        used = np.isfinite(pixels[f]).all(axis=2)  # (D, C)
+        obs = (status[f] == "observed") & (used.sum(axis=1) >= 2)
+        if not obs.any():
+            continue
+        undist = np.zeros(pixels[f].shape)
+        for c, cam in enumerate(rig):
+            rows = obs & used[:, c]
+            if rows.any():
+                undist[rows, c] = cam.undistort_points(pixels[f, rows, c])
+        new = triangulate_dlt(P, undist[obs], used[obs])
+        if thickness_mm and normals is not None:
+            new = new - thickness_mm * normals[f, obs]
+        old = positions[f, obs]
+        out[f, obs] = new
+        rest = ~obs & np.isfinite(positions[f]).all(axis=1)
+        good = np.isfinite(new).all(axis=1) & np.isfinite(old).all(axis=1)
+        if rest.any() and good.sum() >= 3:
+            Rm, tm, s = umeyama(old[good], new[good], with_scale=True)
+            out[f, rest] = s * positions[f, rest] @ Rm.T + tm
+    return out

@@ -1,0 +1,225 @@
+"""The tape's actual dot spacing, estimated from the data (beyond the paper).
+
+Kinesiology tape is laid with tension (often 10-25 %) and stretches with the skin (the modified
+Schober test: the lumbar skin lengthens by a third at full flexion), so the dots on the body sit
+up to ~60 % farther apart along the tape than the roll's spec, and up to ~15 % across it, unevenly
+and changing over time. A tracker that believes the spec then fits a template that is too short:
+the chamfer match slides it by one or two rows and every residual still looks perfect. This
+module measures the spacing from the frame's own points before any labelling:
+
+- **along** (row pitch): the candidate points' arc length along a cubic fitted through them is
+  periodic with the row pitch (every row, 2- or 3-dot, sits at one arc position). A Rayleigh
+  periodogram ``R(p) = |sum exp(2 pi i s / p)| / N`` over pitches from ``along_range`` of the spec
+  peaks at the true pitch and at its integer fractions (p/2, p/3 are periodic too); the largest
+  pitch among the near-best local maxima is taken. The rows' arc positions, assigned by that
+  period, then give the pitch between neighbouring rows (``row_pitch_mm``: how the stretch varies
+  along the tape).
+- **across** (column spacing): the median nearest-neighbour distance in the range of a row's
+  dot spacing (the nearest other dot of every tape dot is its row neighbour: 15 mm across vs
+  >= 23 mm to the next row for any along stretch >= 0.9).
+
+:func:`stretched_spec` turns the estimate into the tape the frame is solved with (pitch, column
+spacing and width scaled; labels unchanged), so the edge windows (th3, th4), the LP's tape, the
+MRF1 template and target lengths and MRF2's target lengths all follow it.
+:func:`dot_stretch` measures the stretch of a labelled solution per dot (reported per dot in
+``markers.csv``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..tape import TapeGraph, TapeSpec
+
+
+@dataclass
+class StretchConfig:
+    """``adaptive``: estimate the spacing from the data (False = the roll's nominal spec, the
+    tracker before issue 11); ``along_range`` / ``across_range``: searched stretch relative to
+    the spec (kinesiology tape gives out at ~1.6; 0.8 covers a spec longer than the tape);
+    ``min_points``: fewer candidate points than this keep the previous/nominal estimate;
+    ``min_coherence``: periodogram peak below this is not trusted (occluded or ghost-ridden
+    frame); ``window_margin``: th3/th4 are widened by this beyond the smallest/largest local row
+    pitch (on top of the spec's ``stretch_tolerance`` for the solid-edge set)."""
+
+    adaptive: bool = True
+    along_range: tuple[float, float] = (0.8, 1.75)
+    across_range: tuple[float, float] = (0.85, 1.3)
+    min_points: int = 8
+    min_coherence: float = 0.45
+    window_margin: float = 0.05
+
+
+@dataclass
+class StretchEstimate:
+    """Stretch of the tape on the body relative to the roll's spec (dimensionless, 1 = spec).
+
+    ``along``: mean row-pitch ratio; ``across``: column-spacing ratio; ``along_min`` /
+    ``along_max``: smallest/largest local row pitch ratio seen between neighbouring rows;
+    ``coherence``: periodogram peak height (0..1, how periodic the points were);
+    ``source``: ``data`` (this frame), ``carried`` (an earlier frame's, this one too
+    ambiguous), ``nominal`` (the spec)."""
+
+    along: float = 1.0
+    across: float = 1.0
+    along_min: float = 1.0
+    along_max: float = 1.0
+    coherence: float = 0.0
+    source: str = "nominal"
+
+    @classmethod
+    def nominal(cls) -> "StretchEstimate":
+        return cls()
+
+
+def _rayleigh(arc: np.ndarray, pitches: np.ndarray) -> np.ndarray:
+    """(P,) periodogram height |mean exp(2 pi i arc / p)| for each pitch p (mm)."""
+    phase = 2 * np.pi * arc[None, :] / pitches[:, None]
+    return np.abs(np.exp(1j * phase).mean(axis=1))
+
+
+def _arc_coordinates(points: np.ndarray) -> np.ndarray:
+    """Arc length (mm) of each point's nearest sample on a cubic fitted through the points."""
+    from .template import SpineCurve
+
+    return SpineCurve(points).arc_of(points)
+
+
+def along_pitch(arc: np.ndarray, spec_pitch: float, along_range: tuple[float, float],
+                resolution: float = 0.0025) -> tuple[float, float]:
+    """(pitch mm, coherence): the largest near-best local maximum of the arc periodogram."""
+    ratios = np.arange(along_range[0], along_range[1] + resolution, resolution)
+    pitches = spec_pitch * ratios
+    height = _rayleigh(arc, pitches)
+    padded = np.concatenate([[-1.0], height, [-1.0]])
+    peaks = np.flatnonzero((height >= padded[:-2]) & (height >= padded[2:]))
+    best = float(height.max())
+    strong = peaks[height[peaks] >= 0.8 * best]
+    k = int(strong.max()) if len(strong) else int(np.argmax(height))
+    return float(pitches[k]), float(height[k])
+
+
+def local_pitches(arc: np.ndarray, pitch: float, min_per_row: int = 1) -> np.ndarray:
+    """Pitch (mm) between neighbouring occupied rows, from the points' arc positions grouped
+    into rows by the period ``pitch``: (n_row_pairs,), empty with fewer than two rows."""
+    phase = np.angle(np.exp(2j * np.pi * arc / pitch).mean()) * pitch / (2 * np.pi)
+    rows = np.round((arc - phase) / pitch).astype(np.int64)
+    centres = []
+    for r in np.unique(rows):
+        members = arc[rows == r]
+        if len(members) >= min_per_row:
+            centres.append((r, float(np.median(members))))
+    out = [(b[1] - a[1]) / (b[0] - a[0]) for a, b in zip(centres[:-1], centres[1:]) if b[0] - a[0] == 1]
+    return np.asarray(out, float)
+
+
+def across_spacing(points: np.ndarray, spec_spacing: float, across_range: tuple[float, float]) -> float | None:
+    """Median nearest-neighbour distance (mm) within the plausible row-neighbour range, or None."""
+    if len(points) < 2:
+        return None
+    dist = cKDTree(points).query(points, k=2)[0][:, 1]
+    lo, hi = spec_spacing * across_range[0] * 0.9, spec_spacing * across_range[1] * 1.1
+    inside = dist[(dist > lo) & (dist < hi)]
+    return float(np.median(inside)) if len(inside) >= 3 else None
+
+
+def estimate_stretch(points: np.ndarray, spec: TapeSpec, config: StretchConfig | None = None,
+                     fallback: StretchEstimate | None = None) -> StretchEstimate:
+    """Stretch of the tape seen in candidate points (N, 3) mm against ``spec`` (see module).
+
+    Returns ``fallback`` (default: nominal) relabelled ``carried`` when the points are too few or
+    not periodic enough to trust."""
+    config = config or StretchConfig()
+    fallback = fallback or StretchEstimate.nominal()
+    points = np.asarray(points, float).reshape(-1, 3)
+    if not config.adaptive:
+        return StretchEstimate.nominal()
+    carried = dataclasses.replace(fallback, source="carried" if fallback.source != "nominal" else "nominal")
+    if len(points) < config.min_points:
+        return carried
+    try:
+        arc = _arc_coordinates(points)
+    except (ValueError, np.linalg.LinAlgError):
+        return carried
+    pitch, coherence = along_pitch(arc, spec.row_pitch_mm, config.along_range)
+    if coherence < config.min_coherence:
+        return dataclasses.replace(carried, coherence=coherence)
+    across = across_spacing(points, spec.column_spacing_mm, config.across_range)
+    across_ratio = float(np.clip(across / spec.column_spacing_mm, *config.across_range)) if across else fallback.across
+    local = local_pitches(arc, pitch) / spec.row_pitch_mm
+    local = local[(local > config.along_range[0] * 0.8) & (local < config.along_range[1] * 1.2)]
+    along = pitch / spec.row_pitch_mm
+    return StretchEstimate(
+        along=along, across=across_ratio,
+        along_min=float(min(local.min(), along)) if len(local) else along,
+        along_max=float(max(local.max(), along)) if len(local) else along,
+        coherence=coherence, source="data",
+    )
+
+
+def stretched_spec(spec: TapeSpec, estimate: StretchEstimate, quantum: float = 0.005) -> TapeSpec:
+    """The tape as laid on the body: row pitch and end margins times ``along``, column spacing
+    and width times ``across`` (both rounded to ``quantum`` so frames share cached graphs); the
+    stretch tolerance grows to cover the local pitches between ``along_min`` and ``along_max``."""
+    along = max(round(estimate.along / quantum) * quantum, quantum)
+    across = max(round(estimate.across / quantum) * quantum, quantum)
+    spread = max(along / max(estimate.along_min, 1e-6) - 1, estimate.along_max / along - 1, 0.0)
+    tolerance = min(max(spec.stretch_tolerance, round((spec.stretch_tolerance + spread) / quantum) * quantum), 0.5)
+    if along == 1.0 and across == 1.0 and tolerance == spec.stretch_tolerance:
+        return spec
+    return _spec_cache(spec, along, across, tolerance)
+
+
+_SPECS: dict[tuple, TapeSpec] = {}
+
+
+def _spec_cache(spec: TapeSpec, along: float, across: float, tolerance: float) -> TapeSpec:
+    key = (spec, along, across, tolerance)
+    if key not in _SPECS:
+        if len(_SPECS) > 256:
+            _SPECS.clear()
+        _SPECS[key] = dataclasses.replace(
+            spec, row_pitch_mm=spec.row_pitch_mm * along, end_margin_mm=spec.end_margin_mm * along,
+            column_spacing_mm=spec.column_spacing_mm * across, width_mm=spec.width_mm * across,
+            stretch_tolerance=tolerance)
+    return _SPECS[key]
+
+
+def row_stretch(positions: np.ndarray, graph: TapeGraph) -> tuple[np.ndarray, np.ndarray]:
+    """Measured stretch of a labelled solution (D, 3) mm against ``graph``'s spec, per dot:
+    (along, across), each (D,). Along: distance between the centres of the dot's row and its
+    neighbouring rows over the spec's pitch (mean of both sides); across: mean distance to the
+    dot's row neighbours over the column spacing. NaN where the needed dots are missing."""
+    pos = np.asarray(positions, float)
+    spec = graph.spec
+    n_rows = spec.n_rows
+    centre = np.full((n_rows, 3), np.nan)
+    for r in range(n_rows):
+        members = pos[graph.row == r]
+        if len(members) == 3:
+            centre[r] = members[1]  # the C dot sits on the midline
+        else:
+            centre[r] = members.mean(axis=0)
+    gaps = np.linalg.norm(np.diff(centre, axis=0), axis=1) / spec.row_pitch_mm  # (n_rows - 1,)
+    sides = np.stack([np.concatenate([[np.nan], gaps]), np.concatenate([gaps, [np.nan]])])  # below, above
+    count_rows = np.isfinite(sides).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        along_row = np.where(count_rows > 0, np.nansum(sides, axis=0) / count_rows, np.nan)
+    along = along_row[graph.row]
+    transverse = graph.edges[graph.solid & graph.transverse]
+    lengths = np.linalg.norm(pos[transverse[:, 0]] - pos[transverse[:, 1]], axis=1)
+    rest = graph.rest_length_mm[graph.solid & graph.transverse]
+    ratio = lengths / rest
+    total = np.zeros(len(pos))
+    count = np.zeros(len(pos))
+    for k in range(2):
+        ok = np.isfinite(ratio)
+        np.add.at(total, transverse[ok, k], ratio[ok])
+        np.add.at(count, transverse[ok, k], 1)
+    with np.errstate(invalid="ignore"):
+        across = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+    return along, across
