@@ -13,8 +13,15 @@ import logging
 
 import numpy as np
 
-from .base import CANONICAL_JOINTS, BodyModel, RestBody, SurfaceAnchors, apply_global, rotvec_to_matrix, \
-    vertex_normals
+from .base import (
+    CANONICAL_JOINTS,
+    BodyModel,
+    RestBody,
+    SurfaceAnchors,
+    apply_global,
+    rotvec_to_matrix,
+    vertex_normals,
+)
 
 log = logging.getLogger(__name__)
 

@@ -18,8 +18,8 @@ LBFGS stalls on this problem's ill-conditioning; LM does not. Units: mm, radians
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 

@@ -22,8 +22,15 @@ from pathlib import Path
 import numpy as np
 
 from ..fileio import InputError
-from .base import CANONICAL_JOINTS, BodyModel, RestBody, SurfaceAnchors, apply_global, rotvec_to_matrix, \
-    vertex_normals
+from .base import (
+    CANONICAL_JOINTS,
+    BodyModel,
+    RestBody,
+    SurfaceAnchors,
+    apply_global,
+    rotvec_to_matrix,
+    vertex_normals,
+)
 
 # SMPL frame -> studio frame
 SMPL_TO_STUDIO = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
