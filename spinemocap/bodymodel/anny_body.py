@@ -13,6 +13,7 @@ import logging
 
 import numpy as np
 
+from ..skin import vertex_normals
 from .base import (
     CANONICAL_JOINTS,
     BodyModel,
@@ -20,7 +21,6 @@ from .base import (
     SurfaceAnchors,
     apply_global,
     rotvec_to_matrix,
-    vertex_normals,
 )
 
 log = logging.getLogger(__name__)
@@ -32,6 +32,7 @@ POSE_BONES = (
     "clavicle.R", "upperarm01.R", "lowerarm01.R", "wrist.R",
     "upperleg01.L", "lowerleg01.L", "foot.L", "upperleg01.R", "lowerleg01.R", "foot.R",
 )
+SPINE_CHAIN = ("spine05", "spine04", "spine03", "spine02", "spine01", "neck01")  # heads: S1 ... C7
 # Canonical joint -> the anny bone whose head it is (pelvis: between the hips; head_top: the
 # top of the skull vertices; hand: middle-finger base).
 _JOINT_BONES = {
@@ -100,16 +101,23 @@ class AnnyModel(BodyModel):
         return {"vertices": rest["rest_vertices"][0].double(), "bone_poses": rest["rest_bone_poses"][0].double()}
 
     def rest(self, shape: np.ndarray | None = None) -> RestBody:
+        """The body at the zero pose (anny's reference pose: standing, arms down), which is
+        what :meth:`points` and :meth:`vertices` return for a zero pose vector."""
+        torch = self._torch
         shape = self.default_shape() if shape is None else np.asarray(shape, float)
-        rest = self._rest_model(shape)
-        vertices = rest["vertices"].numpy() * 1000.0
-        heads = rest["bone_poses"][:, :3, 3].numpy() * 1000.0
+        pheno = {k: torch.tensor([float(v)]) for k, v in zip(PHENOTYPE_KEYS, shape)}
+        with torch.no_grad():
+            out = self.model(pose_parameters=torch.eye(4).repeat(1, len(self.bone_labels), 1, 1),
+                             phenotype_kwargs=pheno, pose_parameterization="local-ref")
+        vertices = out["vertices"][0].double().numpy() * 1000.0
+        heads = out["bone_poses"][0, :, :3, 3].double().numpy() * 1000.0
         joints = {name: heads[self.bone_labels.index(bone)] for name, bone in _JOINT_BONES.items()}
-        joints["pelvis"] = (joints["hip_L"] + joints["hip_R"]) / 2
+        joints["pelvis"] = self._pelvis(self._rest_model(shape))
         near_axis = np.linalg.norm(vertices[:, :2] - joints["head"][:2], axis=1) < 30
         joints["head_top"] = vertices[near_axis][np.argmax(vertices[near_axis, 2])]
         assert set(joints) == set(CANONICAL_JOINTS)
-        return RestBody(vertices, self._faces, joints, vertex_normals(vertices, self._faces))
+        chain = np.array([heads[self.bone_labels.index(b)] for b in SPINE_CHAIN])
+        return RestBody(vertices, self._faces, joints, vertex_normals(vertices, self._faces), chain)
 
     # ------------------------------------------------------------------ posing
     def _bone_transforms(self, pose, rest_bone_poses):
@@ -125,18 +133,26 @@ class AnnyModel(BodyModel):
         return transforms
 
     def points(self, pose, shape, anchors: SurfaceAnchors):
+        """Sparse path; an anchor's offset is given in the zero pose (:meth:`rest`) and turns
+        with the blended rotation of its vertex relative to the zero pose."""
         torch = self._torch
         pose = torch.as_tensor(pose, dtype=torch.float64)
         rest = self._rest_model(shape)
         idx = torch.as_tensor(np.asarray(anchors.vertices), dtype=torch.long)
-        offsets = torch.as_tensor(anchors.offsets, dtype=torch.float64) / 1000.0
-        p = rest["vertices"][idx] + offsets  # (M, 3) m
+        offsets = torch.as_tensor(anchors.offsets, dtype=torch.float64)
+        zero = torch.zeros(1, pose.shape[1], dtype=torch.float64)
+        blended = self._blended(torch.cat([pose, zero]), rest, idx)  # (F + 1, M, 3, 4)
+        p = rest["vertices"][idx]  # (M, 3) m
+        skinned = (blended[:-1, :, :, :3] @ p[None, :, :, None])[..., 0] + blended[:-1, :, :, 3]
+        turn = blended[:-1, :, :, :3] @ torch.linalg.inv(blended[-1, :, :, :3])  # (F, M, 3, 3)
+        moved = skinned * 1000.0 + (turn @ offsets[None, :, :, None])[..., 0]
+        return apply_global(moved, pose, self._pelvis(rest))
+
+    def _blended(self, pose, rest: dict, idx):
+        """(F, M, 3, 4) skinning-weight blend of the bone transforms of vertices ``idx``."""
         T = self._bone_transforms(pose, rest["bone_poses"])[:, self._bones[idx]]  # (F, M, K, 4, 4)
-        w = self._weights[idx]  # (M, K)
-        blended = (w[None, :, :, None, None] * T[..., :3, :]).sum(2)  # (F, M, 3, 4)
-        skinned = (blended[..., :3] @ p[None, :, :, None])[..., 0] + blended[..., 3]
-        pelvis = self._pelvis(rest)
-        return apply_global(skinned * 1000.0, pose, pelvis)
+        w = self._weights[idx]
+        return (w[None, :, :, None, None] * T[..., :3, :]).sum(2)
 
     def _pelvis(self, rest: dict) -> np.ndarray:
         heads = rest["bone_poses"][:, :3, 3].detach().numpy() * 1000.0

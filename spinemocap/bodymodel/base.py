@@ -36,12 +36,14 @@ CANONICAL_JOINTS = (
 @dataclass
 class RestBody:
     """A body at rest: ``vertices`` (V, 3) mm, ``faces`` (T, 3), ``joints`` (canonical name ->
-    (3,) mm, see :data:`CANONICAL_JOINTS`) and ``normals`` (V, 3) unit outward vertex normals."""
+    (3,) mm, see :data:`CANONICAL_JOINTS`), ``normals`` (V, 3) unit outward vertex normals and
+    ``spine_chain`` (K, 3) mm, the model's spine joints from the sacrum to C7 (bottom to top)."""
 
     vertices: np.ndarray
     faces: np.ndarray
     joints: dict[str, np.ndarray]
     normals: np.ndarray
+    spine_chain: np.ndarray
 
     @property
     def pelvis(self) -> np.ndarray:
@@ -101,18 +103,6 @@ class BodyModel(ABC):
     def joint_index(self, name: str) -> int:
         """Column of joint ``name``'s rotation vector in the pose vector (first of 3)."""
         return 6 + 3 * self.pose_joints.index(name)
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(V, 3) area-weighted unit vertex normals of a triangle mesh (outward for a closed,
-    counter-clockwise mesh)."""
-    v = np.asarray(vertices, float)
-    tri = v[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    weights = np.repeat(fn, 3, axis=0)
-    idx = np.asarray(faces).ravel()
-    n = np.column_stack([np.bincount(idx, weights[:, d], minlength=len(v)) for d in range(3)])
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
 def rotvec_to_matrix(rotvec):

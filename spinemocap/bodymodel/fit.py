@@ -36,8 +36,8 @@ class FitOptions:
     pose_sigma_rad: float = 1.0  # weak prior pulling joints toward the rest pose
     shape_sigma: float = 1.0  # prior on shape (anny phenotype units / SMPL betas)
     n_key_frames: int = 5
-    shape_rounds: int = 3
-    shape_iterations: int = 8
+    shape_rounds: int = 2
+    shape_iterations: int = 5
     pose_iterations: int = 12
     min_markers: int = 4
     fit_offsets: bool = True

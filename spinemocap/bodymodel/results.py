@@ -57,10 +57,10 @@ def write_fit(out: str | os.PathLike, fit: BodyFit, frames: np.ndarray, fps: flo
     """Write everything of a fit into folder ``out``; returns the summary."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    arrays = dict(model=np.array(fit.model_name), labels=np.array(fit.labels), frames=np.asarray(frames),
-                  time=np.asarray(frames) / fps, fps=np.array(fps), shape=fit.shape, poses=fit.poses,
-                  pose_joints=np.array(pose_joints), marker_vertices=fit.vertices, marker_offsets_mm=fit.offsets,
-                  residual_mm=fit.residual_mm, flagged=fit.flagged)
+    arrays = {"model": np.array(fit.model_name), "labels": np.array(fit.labels), "frames": np.asarray(frames),
+              "time": np.asarray(frames) / fps, "fps": np.array(fps), "shape": fit.shape, "poses": fit.poses,
+              "pose_joints": np.array(pose_joints), "marker_vertices": fit.vertices,
+              "marker_offsets_mm": fit.offsets, "residual_mm": fit.residual_mm, "flagged": fit.flagged}
     if vertices is not None:
         arrays["vertices_mm"] = vertices
     with atomic_path(out / "body.npz") as tmp:
@@ -100,7 +100,7 @@ def plot_fit(path: Path, fit: BodyFit, frames: np.ndarray, summary: dict) -> Non
     ax2.bar(range(len(values)), values, color=colours)
     ax2.set_xticks(range(len(values)), fit.labels, rotation=90, fontsize=7)
     ax2.set_ylabel("RMS over the trial (mm)")
-    ax2.set_title("per marker (orange: trunk, red: flagged > %.0f mm)" % MARKER_FLAG_MM)
+    ax2.set_title(f"per marker (orange: trunk, red: flagged > {MARKER_FLAG_MM:.0f} mm)")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..fileio import InputError
+from ..skin import vertex_normals
 from .base import (
     CANONICAL_JOINTS,
     BodyModel,
@@ -29,7 +30,6 @@ from .base import (
     SurfaceAnchors,
     apply_global,
     rotvec_to_matrix,
-    vertex_normals,
 )
 
 # SMPL frame -> studio frame
@@ -146,7 +146,8 @@ class SmplModel(BodyModel):
         joints["head_top"] = vertices[near_axis][np.argmax(vertices[near_axis, 2])] if near_axis.any() else \
             joints["head"] + np.array([0.0, 0.0, 150.0])
         assert set(joints) == set(CANONICAL_JOINTS)
-        return RestBody(vertices, self._faces, joints, vertex_normals(vertices, self._faces))
+        chain = joints_all[[SMPL_JOINTS.index(n) for n in ("pelvis", "spine1", "spine2", "spine3", "neck")]]
+        return RestBody(vertices, self._faces, joints, vertex_normals(vertices, self._faces), chain)
 
     def _full_rotations(self, pose):
         torch = self._torch

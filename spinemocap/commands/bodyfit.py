@@ -39,6 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--static", type=Path, help="static trial (C3D/TRC) for the shape stage")
     p.add_argument("--frames", type=frame_range, help="frame range A:B to fit (B exclusive)")
     p.add_argument("--step", type=int, default=1, help="fit every N-th frame (default 1)")
+    p.add_argument("--key-frames", type=int, default=5, help="frames of the shape stage (default 5)")
     p.add_argument("--mapping", type=Path, help="TOML mapping unknown labels to markers or placement rules")
     p.add_argument("--save-vertices", action="store_true", help="also store all mesh vertices per frame in body.npz")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -70,7 +71,7 @@ def run_bodyfit(args: argparse.Namespace) -> int:
     import torch
 
     from spinemocap.bodymodel import load_model
-    from spinemocap.bodymodel.fit import MarkerFitter
+    from spinemocap.bodymodel.fit import FitOptions, MarkerFitter
     from spinemocap.bodymodel.markersets import place_markers, read_mapping
     from spinemocap.bodymodel.results import write_fit
     from spinemocap.fileio import InputError
@@ -94,7 +95,7 @@ def run_bodyfit(args: argparse.Namespace) -> int:
         for k, label in enumerate(kept):
             if label in static_labels:
                 static[:, k] = static_positions[:, static_labels.index(label)]
-    fitter = MarkerFitter(model, vertices)
+    fitter = MarkerFitter(model, vertices, FitOptions(n_key_frames=max(args.key_frames, 1)))
     fit = fitter.fit(positions[:, columns], static=static, progress=not args.no_progress, labels=kept)
     dense = model.vertices(fit.poses, fit.shape) if args.save_vertices else None
     summary = write_fit(args.out, fit, frames, fps, str(args.markers),
