@@ -52,6 +52,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--video", action="store_true", help="write lossless videos instead of PNG images")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--vicon", action="store_true", help="also write vicon.c3d: a virtual Vicon (200 Hz, own frame and "
+                   "clock; truth in groundtruth.npz)")
     p.set_defaults(func=run_synth)
 
 
@@ -97,6 +99,10 @@ def run_synth(args: argparse.Namespace) -> int:
         if isinstance(exc, InputError):
             raise
         raise InputError("spinemocap synth", str(exc)) from exc
+    if args.vicon:  # virtual Vicon (spinemocap/commands/_synth_vicon.py)
+        from ._synth_vicon import write_virtual_vicon
+
+        write_virtual_vicon(config, out)
     media = "videos/" if config.video else "images/"
     print(f"synthetic capture written to {out}/ ({config.frames} frames, {config.cameras} cameras, "
           f"{config.rows}-row tape, {config.n_balls} balls): capture.toml, rig.toml, {media}, masks/, "
