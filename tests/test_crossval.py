@@ -31,7 +31,7 @@ def trial(tmp_path_factory):
     """A 2 s studio trial (no rendering): exact dots + 0.1 mm noise, and its virtual Vicon."""
     torch = pytest.importorskip("torch")
     torch.set_num_threads(1)
-    from spinemocap.commands._synth_vicon import record_scene
+    from spinemocap.app.virtual_vicon import record_scene
     from spinemocap.synth import SynthConfig
     from spinemocap.synth.scene import build_scene
 
@@ -93,7 +93,7 @@ def test_crossval_command_writes_its_outputs(trial, tmp_path):
 def test_synth_vicon_hook_writes_a_c3d_nexus_tools_read(tmp_path):
     pytest.importorskip("torch")
     ezc3d = pytest.importorskip("ezc3d")
-    from spinemocap.commands._synth_vicon import write_virtual_vicon
+    from spinemocap.app.virtual_vicon import write_virtual_vicon
     from spinemocap.synth import SynthConfig
 
     np.savez(tmp_path / "groundtruth.npz", dots=np.zeros((4, 2, 3)))  # the studio's own truth, kept

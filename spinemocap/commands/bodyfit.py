@@ -4,12 +4,7 @@
 from __future__ import annotations
 
 import argparse
-import logging
 from pathlib import Path
-
-import numpy as np
-
-log = logging.getLogger(__name__)
 
 
 def frame_range(text: str) -> tuple[int | None, int | None]:
@@ -46,61 +41,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_bodyfit)
 
 
-def marker_arrays(path: Path, frames: tuple[int | None, int | None] | None = None, step: int = 1):
-    """(labels, frames (F,), positions (F, D, 3) mm, fps) of the markers (not the modelled
-    outputs) of a C3D/TRC file."""
-    import exporters
-    from spinemocap.fileio import InputError
-
-    table = exporters.read(path)
-    point_types = table.meta.get("point_types") or {}
-    labels = [label for label in table.labels if label not in point_types]
-    arrays = table.select(labels=labels).to_arrays()
-    frame_numbers, positions = arrays["frames"], arrays["positions"]
-    if frames is not None:
-        lo = frames[0] if frames[0] is not None else frame_numbers[0]
-        hi = frames[1] if frames[1] is not None else frame_numbers[-1] + 1
-        keep = (frame_numbers >= lo) & (frame_numbers < hi)
-        if not keep.any():
-            raise InputError(path, f"no frames in {lo}:{hi} (the file holds {frame_numbers[0]}..{frame_numbers[-1]})")
-        frame_numbers, positions = frame_numbers[keep], positions[keep]
-    return list(arrays["labels"]), frame_numbers[::step], positions[::step], table.fps
-
-
 def run_bodyfit(args: argparse.Namespace) -> int:
-    import torch
+    from ..app.bodyfit import fit_marker_file
 
-    from spinemocap.bodymodel import load_model
-    from spinemocap.bodymodel.fit import FitOptions, MarkerFitter
-    from spinemocap.bodymodel.markersets import place_markers, read_mapping
-    from spinemocap.bodymodel.results import write_fit
-    from spinemocap.fileio import InputError
-
-    torch.set_num_threads(1)
-    labels, frames, positions, fps = marker_arrays(args.markers, args.frames, max(args.step, 1))
-    rules = read_mapping(args.mapping) if args.mapping else None
-    model = load_model(args.model, args.model_path, args.gender)
-    kept, vertices = place_markers(model.rest(), labels, rules)
-    if len(kept) < 4:
-        raise InputError(args.markers, f"only {len(kept)} of its {len(labels)} marker labels are known ({kept}); "
-                                       "pass --mapping FILE to name the others")
-    skipped = [label for label in labels if label not in kept]
-    if skipped:
-        log.info("markers not used (unknown labels): %s", ", ".join(skipped))
-    columns = [labels.index(label) for label in kept]
-    static = None
-    if args.static:
-        static_labels, _, static_positions, _ = marker_arrays(args.static)
-        static = np.full((len(static_positions), len(kept), 3), np.nan)
-        for k, label in enumerate(kept):
-            if label in static_labels:
-                static[:, k] = static_positions[:, static_labels.index(label)]
-    fitter = MarkerFitter(model, vertices, FitOptions(n_key_frames=max(args.key_frames, 1)))
-    fit = fitter.fit(positions[:, columns], static=static, progress=not args.no_progress, labels=kept)
-    dense = model.vertices(fit.poses, fit.shape) if args.save_vertices else None
-    summary = write_fit(args.out, fit, frames, fps, str(args.markers),
-                        model.pose_joints, dense)
-    print(f"{args.model} fit of {len(kept)} markers over {len(frames)} frames: marker RMS "
+    summary = fit_marker_file(args.markers, args.out, args.model, args.model_path, args.gender, args.static,
+                              args.frames, args.step, args.mapping, args.key_frames, args.save_vertices,
+                              progress=not args.no_progress)
+    print(f"{args.model} fit of {len(summary['markers'])} markers over {summary['n_frames']} frames: marker RMS "
           f"{summary['marker_rms_mm']:.2f} mm" + (f", trunk markers {summary['trunk_marker_rms_mm']:.2f} mm"
                                                    if summary["trunk_marker_rms_mm"] is not None else ""))
     if summary["markers_flagged"]:
@@ -109,4 +56,31 @@ def run_bodyfit(args: argparse.Namespace) -> int:
         print(f"WARNING: {len(summary['frames_without_fit'])} frames had too few markers and keep the previous pose")
     print("note: the body fit is a baseline, not a truth (free marker offsets hide a misplaced back surface)")
     print(f"wrote {args.out}/body.npz, summary.json, residuals.csv, residuals.png")
+    return 0
+
+
+def register_bench(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "bodyfit", help="the paper's Studio row: body fit to virtual Vicon markers vs the tracker, and "
+                        "cross-validation with a known clock offset and transform")
+    p.add_argument("--preset", default="artificial", choices=("tiny", "artificial", "studio"),
+                   help="studio scene to render and track (default artificial)")
+    p.add_argument("--frames", type=int, default=10, help="camera frames (default 10)")
+    p.add_argument("--misplacement", type=float, default=10.0, help="Vicon marker misplacement on the skin, mm")
+    p.add_argument("--key-frames", type=int, default=3, help="frames of the fit's shape stage")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", type=Path, help="save every number to this JSON file")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=run_bench_bodyfit)
+
+
+def run_bench_bodyfit(args: argparse.Namespace) -> int:
+    from ..bench.bodyfit import format_report, run_bodyfit_benchmark, save
+
+    numbers = run_bodyfit_benchmark(args.preset, args.frames, args.misplacement, args.key_frames, args.seed,
+                                    progress=not args.no_progress)
+    print(format_report(numbers))
+    if args.json:
+        save(numbers, args.json)
+        print(f"wrote {args.json}")
     return 0

@@ -99,8 +99,8 @@ def run_synth(args: argparse.Namespace) -> int:
         if isinstance(exc, InputError):
             raise
         raise InputError("spinemocap synth", str(exc)) from exc
-    if args.vicon:  # virtual Vicon (spinemocap/commands/_synth_vicon.py)
-        from ._synth_vicon import write_virtual_vicon
+    if args.vicon:  # virtual Vicon (spinemocap/app/virtual_vicon.py)
+        from ..app.virtual_vicon import write_virtual_vicon
 
         write_virtual_vicon(config, out)
     media = "videos/" if config.video else "images/"

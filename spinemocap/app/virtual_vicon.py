@@ -1,4 +1,4 @@
-"""The ``synth --vicon`` hook: record a virtual Vicon on the studio's body and write
+"""``spinemocap synth --vicon``: record a virtual Vicon on the studio's body and write
 ``vicon.c3d`` (Vicon frame and clock) and the truth into ``groundtruth.npz``.
 
 Application layer: wires the studio (:mod:`spinemocap.synth`) to the body model package
@@ -13,10 +13,16 @@ from pathlib import Path
 
 import numpy as np
 
-from spinemocap.bodymodel.anny_body import PHENOTYPE_KEYS, AnnyModel
-from spinemocap.bodymodel.base import RestBody
-from spinemocap.bodymodel.tape import lay_tape
-from spinemocap.bodymodel.virtual_vicon import ViconSetup, VirtualVicon, record
+import exporters
+
+from ..bodymodel.anny_body import PHENOTYPE_KEYS, AnnyModel
+from ..bodymodel.base import RestBody
+from ..bodymodel.tape import lay_tape
+from ..bodymodel.virtual_vicon import ViconSetup, VirtualVicon, record
+from ..fileio import atomic_path
+from ..markers import MarkerTable
+from ..synth.motions import spine_motion
+from ..synth.scene import build_scene
 
 
 def studio_rest_body(scene) -> RestBody:
@@ -31,8 +37,6 @@ def studio_rest_body(scene) -> RestBody:
 
 def record_scene(scene, setup: ViconSetup | None = None) -> VirtualVicon:
     """Record the virtual Vicon over a built studio scene's duration."""
-    from spinemocap.synth.motions import spine_motion
-
     rest = studio_rest_body(scene)
     laid = lay_tape(rest, scene.tape, scene.config.tape_start)
     return record(rest, laid, lambda t: scene.body.pose(spine_motion(scene.config.motion, t))[0],
@@ -42,11 +46,6 @@ def record_scene(scene, setup: ViconSetup | None = None) -> VirtualVicon:
 def write_virtual_vicon(config, out: str | os.PathLike, setup: ViconSetup | None = None) -> VirtualVicon:
     """Record the virtual Vicon for a studio configuration whose capture is in ``out``; write
     ``out/vicon.c3d`` and add the ``vicon_*`` truth to ``out/groundtruth.npz``."""
-    import exporters
-    from spinemocap.fileio import atomic_path
-    from spinemocap.markers import MarkerTable
-    from spinemocap.synth.scene import build_scene
-
     scene = build_scene(config)
     try:
         vicon = record_scene(scene, setup)

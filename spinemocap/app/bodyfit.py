@@ -1,0 +1,76 @@
+"""Fitting a body model to the markers of a C3D/TRC file and writing the results
+(``spinemocap bodyfit``): reads with the one marker reader (``exporters.read``), fits with
+:mod:`spinemocap.bodymodel.fit`, writes with :mod:`spinemocap.bodymodel.results`."""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+
+import exporters
+
+from ..bodymodel import load_model
+from ..bodymodel.fit import FitOptions, MarkerFitter
+from ..bodymodel.markersets import place_markers, read_mapping
+from ..bodymodel.results import write_fit
+from ..fileio import InputError
+
+log = logging.getLogger(__name__)
+
+
+def marker_arrays(path: str | os.PathLike, frames: tuple[int | None, int | None] | None = None, step: int = 1
+                  ) -> tuple[list[str], np.ndarray, np.ndarray, float]:
+    """(labels, frame numbers (F,), positions (F, D, 3) mm, fps) of the markers (not the modelled
+    outputs such as angles or joint centres a C3D may carry) of a marker file; ``frames`` (A, B)
+    keeps A <= frame < B, ``step`` every N-th frame."""
+    table = exporters.read(path)
+    point_types = table.meta.get("point_types") or {}
+    labels = [label for label in table.labels if label not in point_types]
+    arrays = table.select(labels=labels).to_arrays()
+    frame_numbers, positions = arrays["frames"], arrays["positions"]
+    if frames is not None:
+        lo = frames[0] if frames[0] is not None else frame_numbers[0]
+        hi = frames[1] if frames[1] is not None else frame_numbers[-1] + 1
+        keep = (frame_numbers >= lo) & (frame_numbers < hi)
+        if not keep.any():
+            raise InputError(path, f"no frames in {lo}:{hi} (the file holds {frame_numbers[0]}..{frame_numbers[-1]})")
+        frame_numbers, positions = frame_numbers[keep], positions[keep]
+    return list(arrays["labels"]), frame_numbers[::step], positions[::step], table.fps
+
+
+def fit_marker_file(markers: str | os.PathLike, out: str | os.PathLike, model_name: str = "anny",
+                    model_path: str | os.PathLike | None = None, gender: str = "neutral",
+                    static: str | os.PathLike | None = None, frames: tuple[int | None, int | None] | None = None,
+                    step: int = 1, mapping: str | os.PathLike | None = None, key_frames: int = 5,
+                    save_vertices: bool = False, progress: bool = True) -> dict:
+    """Fit and write ``out``/body.npz, summary.json, residuals.csv, residuals.png; returns the
+    summary (see :func:`spinemocap.bodymodel.results.fit_summary`)."""
+    import torch
+
+    torch.set_num_threads(1)
+    step = max(step, 1)
+    labels, frame_numbers, positions, fps = marker_arrays(markers, frames, step)
+    rules = read_mapping(mapping) if mapping else None
+    model = load_model(model_name, model_path, gender)
+    kept, vertices = place_markers(model.rest(), labels, rules)
+    if len(kept) < 4:
+        raise InputError(markers, f"only {len(kept)} of its {len(labels)} marker labels are known ({kept}); "
+                                  "pass --mapping FILE to name the others")
+    skipped = [label for label in labels if label not in kept]
+    if skipped:
+        log.info("markers not used (unknown labels): %s", ", ".join(skipped))
+    columns = [labels.index(label) for label in kept]
+    static_markers = None
+    if static:
+        static_labels, _, static_positions, _ = marker_arrays(static)
+        static_markers = np.full((len(static_positions), len(kept), 3), np.nan)
+        for k, label in enumerate(kept):
+            if label in static_labels:
+                static_markers[:, k] = static_positions[:, static_labels.index(label)]
+    fitter = MarkerFitter(model, vertices, FitOptions(n_key_frames=max(key_frames, 1)))
+    fit = fitter.fit(positions[:, columns], static=static_markers, progress=progress, labels=kept)
+    dense = model.vertices(fit.poses, fit.shape) if save_vertices else None
+    return write_fit(Path(out), fit, frame_numbers, fps, str(markers), model.pose_joints, dense)
