@@ -26,6 +26,14 @@ import numpy as np
 
 from .tape import TapeSpec
 
+# Vertebral levels from the sacrum (S1) to C7 and typical adult segment heights (vertebral body +
+# disc, mm) used only as relative weights to place the levels along a body model's spine between
+# its S1 and C7/T1 joints (the studio's table, spinemocap.synth.body). Approximate by design.
+LEVELS = ("S1", "L5", "L4", "L3", "L2", "L1", "T12", "T11", "T10", "T9", "T8", "T7", "T6",
+          "T5", "T4", "T3", "T2", "T1", "C7")
+SEGMENT_MM = (38, 38, 37, 36, 35, 31, 29, 28, 27, 26, 25, 24, 23, 22, 21, 20, 19, 18)
+LEVEL_FRACTIONS = np.concatenate([[0.0], np.cumsum(SEGMENT_MM)]) / sum(SEGMENT_MM)  # S1 = 0 ... C7 = 1
+
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(V, 3) area-weighted unit vertex normals of a triangle mesh."""

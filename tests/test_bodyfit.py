@@ -90,7 +90,7 @@ def test_anny_fit_recovers_a_known_pose_and_the_tape_on_it(anny):
     assert np.linalg.norm(fitted - true_dots, axis=2).mean() < 2.0  # mm
 
 
-def _run_bodyfit(tmp_path, name: str, frames: str) -> dict:
+def _run_bodyfit(tmp_path, name: str, frames: str, *extra: str) -> dict:
     from spinemocap.cli import main
 
     path = VICON / name
@@ -98,7 +98,7 @@ def _run_bodyfit(tmp_path, name: str, frames: str) -> dict:
         pytest.skip(f"{path} absent")
     out = tmp_path / name
     assert main(["bodyfit", str(path), "--out", str(out), "--frames", frames, "--key-frames", "1",
-                 "--no-progress"]) == 0
+                 "--no-progress", *extra]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert np.isfinite(summary["marker_rms_mm"]) and summary["marker_rms_mm"] < 30
     for name_ in ("body.npz", "residuals.csv", "residuals.png"):
@@ -107,7 +107,12 @@ def _run_bodyfit(tmp_path, name: str, frames: str) -> dict:
 
 
 def test_real_plug_in_gait_trial_fits_with_trunk_rms(tmp_path, anny):
-    summary = _run_bodyfit(tmp_path, "golf_static.c3d", "0:1")
+    import exporters
+
+    TapeSpec(n_rows=9).to_toml(tmp_path / "tape.toml")
+    summary = _run_bodyfit(tmp_path, "golf_static.c3d", "0:1", "--tape", str(tmp_path / "tape.toml"))
+    tape = exporters.read(summary["tape_dots"])
+    assert tape.labels == TapeSpec(n_rows=9).labels and np.isfinite(tape.positions()).all()
     assert {"C7", "T10", "CLAV", "STRN", "RBAK"} <= set(summary["trunk_markers"])
     assert np.isfinite(summary["trunk_marker_rms_mm"])
     assert len(summary["markers"]) >= 35

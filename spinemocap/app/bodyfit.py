@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 from pathlib import Path
@@ -16,7 +17,11 @@ from ..bodymodel import load_model
 from ..bodymodel.fit import FitOptions, MarkerFitter
 from ..bodymodel.markersets import place_markers, read_mapping
 from ..bodymodel.results import write_fit
-from ..fileio import InputError
+from ..bodymodel.tape import lay_tape
+from ..capture import Capture
+from ..fileio import InputError, atomic_write
+from ..markers import MarkerTable
+from ..tape import TapeSpec
 
 log = logging.getLogger(__name__)
 
@@ -41,13 +46,30 @@ def marker_arrays(path: str | os.PathLike, frames: tuple[int | None, int | None]
     return list(arrays["labels"]), frame_numbers[::step], positions[::step], table.fps
 
 
+def tape_reference(model, fit, frame_numbers: np.ndarray, fps: float, spec: TapeSpec, start_level: str
+                   ) -> MarkerTable:
+    """The tape laid on the fitted body (first row at ``start_level``) and read off the posed
+    body in every fitted frame: a marker table with the tracker's labels (the paper's body-model
+    ground truth; write it beside tracked dots with ``reference=`` to get ``REF_*`` markers)."""
+    laid = lay_tape(model.rest(fit.shape), spec, start_level)
+    dots = laid.dots.sequence(model.vertices(fit.poses, fit.shape), model.faces)
+    meta = {"source": "body-model tape (spinemocap bodyfit)", "row_levels": laid.row_levels}
+    table = MarkerTable.from_arrays(laid.labels, dots, fps, meta=meta)
+    table.data["frame"] = np.repeat(frame_numbers, len(laid.labels))
+    table.data["time"] = table.data["frame"] / fps
+    return MarkerTable(table.data, table.meta)
+
+
 def fit_marker_file(markers: str | os.PathLike, out: str | os.PathLike, model_name: str = "anny",
                     model_path: str | os.PathLike | None = None, gender: str = "neutral",
                     static: str | os.PathLike | None = None, frames: tuple[int | None, int | None] | None = None,
                     step: int = 1, mapping: str | os.PathLike | None = None, key_frames: int = 5,
-                    save_vertices: bool = False, progress: bool = True) -> dict:
-    """Fit and write ``out``/body.npz, summary.json, residuals.csv, residuals.png; returns the
-    summary (see :func:`spinemocap.bodymodel.results.fit_summary`)."""
+                    save_vertices: bool = False, progress: bool = True,
+                    tape_capture: str | os.PathLike | None = None, tape_start: str = "L4") -> dict:
+    """Fit and write ``out``/body.npz, summary.json, residuals.csv, residuals.png (and, with
+    ``tape_capture`` (a capture folder or a tape TOML), that tape laid on the fitted body:
+    tape_dots.c3d/.csv); returns
+    the summary (see :func:`spinemocap.bodymodel.results.fit_summary`)."""
     import torch
 
     torch.set_num_threads(1)
@@ -73,4 +95,17 @@ def fit_marker_file(markers: str | os.PathLike, out: str | os.PathLike, model_na
     fitter = MarkerFitter(model, vertices, FitOptions(n_key_frames=max(key_frames, 1)))
     fit = fitter.fit(positions[:, columns], static=static_markers, progress=progress, labels=kept)
     dense = model.vertices(fit.poses, fit.shape) if save_vertices else None
-    return write_fit(Path(out), fit, frame_numbers, fps, str(markers), model.pose_joints, dense)
+    summary = write_fit(Path(out), fit, frame_numbers, fps, str(markers), model.pose_joints, dense)
+    if tape_capture:
+        spec = Capture.open(tape_capture).tape if Path(tape_capture).is_dir() else TapeSpec.from_toml(tape_capture)
+        try:
+            reference = tape_reference(model, fit, frame_numbers, fps, spec, tape_start)
+        except ValueError as exc:
+            raise InputError(tape_capture, f"cannot lay its tape on the fitted body: {exc}") from exc
+        exporters.write(reference, Path(out) / "tape_dots.c3d")
+        exporters.write(reference, Path(out) / "tape_dots.csv")
+        summary["tape_dots"] = str(Path(out) / "tape_dots.c3d")
+        summary["tape_row_levels"] = reference.meta["row_levels"]
+        with atomic_write(Path(out) / "summary.json") as handle:
+            json.dump(summary, handle, indent=2)
+    return summary

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..geometry import umeyama
 from .base import GLOBAL_ROTATION, TRANSLATION, BodyModel, SurfaceAnchors
 
 log = logging.getLogger(__name__)
@@ -38,7 +39,8 @@ class FitOptions:
     n_key_frames: int = 5
     shape_rounds: int = 2
     shape_iterations: int = 5
-    pose_iterations: int = 12
+    pose_iterations: int = 12  # cold start (first frame, key frames)
+    warm_iterations: int = 4  # a frame warm-started from the previous one (more changed nothing measurable)
     min_markers: int = 4
     fit_offsets: bool = True
 
@@ -124,15 +126,6 @@ def jacobian(residuals: Callable, x: np.ndarray) -> np.ndarray:
     return np.stack(columns, axis=1)
 
 
-def kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation R and translation t with ``target ~ R source + t`` (both (N, 3))."""
-    cs, ct = source.mean(0), target.mean(0)
-    U, _, Vt = np.linalg.svd((source - cs).T @ (target - ct))
-    d = np.sign(np.linalg.det(Vt.T @ U.T))
-    R = Vt.T @ np.diag([1, 1, d]) @ U.T
-    return R, ct - R @ cs
-
-
 class MarkerFitter:
     """Fits a :class:`~spinemocap.bodymodel.base.BodyModel` to (F, M, 3) mm marker positions
     whose skin vertices (M,) on the model's rest mesh are known (see
@@ -168,7 +161,7 @@ class MarkerFitter:
         with torch.no_grad():
             rest_points = self.model.points(torch.as_tensor(pose), np.asarray(shape, float),
                                             SurfaceAnchors(self.vertices, offsets))[0].numpy()
-        R, t = kabsch(rest_points[ok], observed[ok])
+        R, t, _ = umeyama(rest_points[ok], observed[ok], with_scale=False)
         from scipy.spatial.transform import Rotation
 
         pose[0, GLOBAL_ROTATION] = Rotation.from_matrix(R).as_rotvec()
@@ -270,8 +263,10 @@ class MarkerFitter:
                 flagged[f] = True
                 poses[f] = previous if previous is not None else self.model.zero_pose(1)[0]
                 continue
-            x0 = previous if previous is not None else self.initial_pose(markers[f], shape, offsets)
-            poses[f], _ = self.fit_pose(markers[f], shape, offsets, x0)
+            if previous is None:
+                poses[f], _ = self.fit_pose(markers[f], shape, offsets, self.initial_pose(markers[f], shape, offsets))
+            else:
+                poses[f], _ = self.fit_pose(markers[f], shape, offsets, previous, o.warm_iterations)
             previous = poses[f]
         times["pose_stage"] = time.perf_counter() - t0
         residual = self.marker_residuals(markers, poses, shape, offsets)

@@ -20,13 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..fileio import InputError, read_toml
+from ..skin import LEVEL_FRACTIONS, LEVELS
 from .base import CANONICAL_JOINTS, RestBody
-
-# Vertebral levels from S1 to C7 with typical segment heights (mm) used as relative weights along
-# the spine between the canonical ``spine_base`` (S1) and ``neck_base`` (C7) joints.
-LEVELS = ("S1", "L5", "L4", "L3", "L2", "L1", "T12", "T11", "T10", "T9", "T8", "T7", "T6",
-          "T5", "T4", "T3", "T2", "T1", "C7")
-_SEGMENT_MM = (38, 38, 37, 36, 35, 31, 29, 28, 27, 26, 25, 24, 23, 22, 21, 20, 19, 18)
 
 
 @dataclass(frozen=True)
@@ -138,9 +133,8 @@ def level_point(rest: RestBody, level: str) -> np.ndarray:
     """(3,) rest point on the spine chain at a vertebral level (mm)."""
     if level not in LEVELS:
         raise ValueError(f"unknown vertebral level {level!r}; known: {LEVELS}")
-    cum = np.concatenate([[0.0], np.cumsum(_SEGMENT_MM)]) / sum(_SEGMENT_MM)
     a, b = rest.joints["spine_base"], rest.joints["neck_base"]
-    return a + cum[LEVELS.index(level)] * (b - a)
+    return a + LEVEL_FRACTIONS[LEVELS.index(level)] * (b - a)
 
 
 def level_heights(rest: RestBody) -> dict[str, float]:

@@ -36,6 +36,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--step", type=int, default=1, help="fit every N-th frame (default 1)")
     p.add_argument("--key-frames", type=int, default=5, help="frames of the shape stage (default 5)")
     p.add_argument("--mapping", type=Path, help="TOML mapping unknown labels to markers or placement rules")
+    p.add_argument("--tape", dest="tape_capture", type=Path, help="capture folder (or tape TOML) whose tape to lay "
+                   "on the fitted body: writes tape_dots.c3d/.csv (the tracker's labels; the body-model ground truth)")
+    p.add_argument("--tape-start", default="L4", help="vertebral level of the tape's first row (default L4)")
     p.add_argument("--save-vertices", action="store_true", help="also store all mesh vertices per frame in body.npz")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_bodyfit)
@@ -46,7 +49,8 @@ def run_bodyfit(args: argparse.Namespace) -> int:
 
     summary = fit_marker_file(args.markers, args.out, args.model, args.model_path, args.gender, args.static,
                               args.frames, args.step, args.mapping, args.key_frames, args.save_vertices,
-                              progress=not args.no_progress)
+                              progress=not args.no_progress, tape_capture=args.tape_capture,
+                              tape_start=args.tape_start)
     print(f"{args.model} fit of {len(summary['markers'])} markers over {summary['n_frames']} frames: marker RMS "
           f"{summary['marker_rms_mm']:.2f} mm" + (f", trunk markers {summary['trunk_marker_rms_mm']:.2f} mm"
                                                    if summary["trunk_marker_rms_mm"] is not None else ""))
@@ -55,7 +59,8 @@ def run_bodyfit(args: argparse.Namespace) -> int:
     if summary["frames_without_fit"]:
         print(f"WARNING: {len(summary['frames_without_fit'])} frames had too few markers and keep the previous pose")
     print("note: the body fit is a baseline, not a truth (free marker offsets hide a misplaced back surface)")
-    print(f"wrote {args.out}/body.npz, summary.json, residuals.csv, residuals.png")
+    print(f"wrote {args.out}/body.npz, summary.json, residuals.csv, residuals.png"
+          + (", tape_dots.c3d, tape_dots.csv" if args.tape_capture else ""))
     return 0
 
 

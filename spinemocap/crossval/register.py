@@ -18,6 +18,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from ..fileio import InputError
+from ..geometry import umeyama
 
 
 @dataclass
@@ -81,14 +82,6 @@ def coarse_offset(rig_time: np.ndarray, rig_points: np.ndarray, vicon_time: np.n
     return best
 
 
-def _kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    cs, ct = source.mean(0), target.mean(0)
-    U, _, Vt = np.linalg.svd((source - cs).T @ (target - ct))
-    d = np.sign(np.linalg.det(Vt.T @ U.T))
-    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    return R, ct - R @ cs
-
-
 def estimate_alignment(rig_time: np.ndarray, rig_points: np.ndarray, vicon_time: np.ndarray,
                        vicon_points: np.ndarray, max_offset_s: float = 1.0,
                        transform: tuple[np.ndarray, np.ndarray] | None = None) -> Alignment:
@@ -104,7 +97,7 @@ def estimate_alignment(rig_time: np.ndarray, rig_points: np.ndarray, vicon_time:
     source = rig_points[ok].reshape(-1, 3)
     times = rig_time[ok]
     if transform is None:
-        R0, t0 = _kabsch(source, spline(times + tau0).reshape(-1, 3))
+        R0, t0, _ = umeyama(source, spline(times + tau0).reshape(-1, 3), with_scale=False)
     else:
         R0, t0 = np.asarray(transform[0], float), np.asarray(transform[1], float)
     fixed = transform is not None
