@@ -106,11 +106,11 @@ def run_bodyfit_benchmark(preset: str = "artificial", frames: int = 10, misplace
                                      progress)
     body_err = np.linalg.norm(dots - gt["dots"], axis=2)
     say("cross-validating against the virtual Vicon ...")
-    numbers = {"preset": preset, "frames": frames, "seed": seed, "paper_studio_mm": PAPER_STUDIO_MM,
-               **_stats(body_err, "bodyfit"), **_stats(tracker_err, "tracker"), "bodyfit": fit_numbers,
-               "crossval": crossval_numbers(seed)}
-    numbers["bodyfit_over_tracker"] = numbers["bodyfit_dot_error_mean_mm"] / numbers["tracker_dot_error_mean_mm"]
-    return numbers
+    body_stats, tracker_stats = _stats(body_err, "bodyfit"), _stats(tracker_err, "tracker")
+    return {"preset": preset, "frames": frames, "seed": seed, "paper_studio_mm": PAPER_STUDIO_MM,
+            **body_stats, **tracker_stats,
+            "bodyfit_over_tracker": body_stats["bodyfit_dot_error_mean_mm"] / tracker_stats["tracker_dot_error_mean_mm"],
+            "bodyfit": fit_numbers, "crossval": crossval_numbers(seed)}
 
 
 def format_report(n: dict) -> str:
