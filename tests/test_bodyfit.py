@@ -54,6 +54,17 @@ def test_tape_on_the_studio_body_reproduces_the_studio_dots(anny):
     ours = anny.vertices(spine_pose(anny, angles)) + body.floor_offset  # studio frame: soles on z = 0
     for f in range(len(angles)):
         np.testing.assert_allclose(laid.dot_positions(ours[f]), studio.dot_positions(studio_vertices[f]), atol=0.01)
+    # the other reference: bind to the (here: exact) tracked dots of frame 0, read them off frame 1
+    from spinemocap.bodymodel.tape import bind_to_tracked, dots_over_frames
+
+    tracked = studio.dot_positions(studio_vertices[0])
+    tracked[3] = np.nan  # a dot not seen in the reference frame stays NaN
+    binding, present = bind_to_tracked(ours[0], anny.faces, tracked)
+    dots = dots_over_frames(binding, ours, anny.faces, len(tracked), present)
+    assert np.isnan(dots[:, 3]).all()
+    np.testing.assert_allclose(dots[0, present], tracked[present], atol=0.1)  # offsets along the interpolated normal
+    error = np.linalg.norm(dots[1, present] - studio.dot_positions(studio_vertices[1])[present], axis=1)
+    assert error.max() < 0.5
 
 
 def test_anny_fit_recovers_a_known_pose_and_the_tape_on_it(anny):

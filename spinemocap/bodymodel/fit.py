@@ -66,10 +66,10 @@ class BodyFit:
 
 
 def levenberg_marquardt(residuals: Callable, x0: np.ndarray, iterations: int = 10,
-                        bounds: tuple[np.ndarray, np.ndarray] | None = None, tol: float = 1e-6
-                        ) -> tuple[np.ndarray, float]:
+                        bounds: tuple[np.ndarray, np.ndarray] | None = None, tol: float = 1e-6,
+                        jac: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, float]:
     """Minimise ``|residuals(x)|^2`` (torch function of a float64 vector) from ``x0``; Jacobian
-    by forward-mode autograd. Returns (x, final cost)."""
+    by forward-mode autograd (:func:`jacobian`, or ``jac(x)`` when given). Returns (x, final cost)."""
     import torch
 
     x = np.asarray(x0, float).copy()
@@ -82,7 +82,7 @@ def levenberg_marquardt(residuals: Callable, x0: np.ndarray, iterations: int = 1
     r = evaluate(x)
     cost = float(r @ r)
     for _ in range(iterations):
-        J = jacobian(residuals, x)
+        J = jac(x) if jac is not None else jacobian(residuals, x)
         JtJ, g = J.T @ J, J.T @ r
         diag = np.maximum(np.diag(JtJ), 1e-9)
         improved = False
@@ -126,6 +126,20 @@ def jacobian(residuals: Callable, x: np.ndarray) -> np.ndarray:
     return np.stack(columns, axis=1)
 
 
+def batched_jacobian(residuals: Callable, x: np.ndarray) -> np.ndarray:
+    """(R, N) Jacobian of a torch function mapping a batch of vectors (B, N) to residuals (B, R),
+    by forward-mode autograd in one batched pass: the batch holds N copies of ``x``, copy i
+    carrying tangent e_i (no vmap; ~1.5x faster than vectorised ``jacobian`` through anny)."""
+    import torch
+    import torch.autograd.forward_ad as fwAD
+
+    n = len(x)
+    with torch.no_grad(), fwAD.dual_level():
+        dual = fwAD.make_dual(torch.as_tensor(x, dtype=torch.float64)[None].repeat(n, 1),
+                              torch.eye(n, dtype=torch.float64))
+        return fwAD.unpack_dual(residuals(dual)).tangent.numpy().T
+
+
 class MarkerFitter:
     """Fits a :class:`~spinemocap.bodymodel.base.BodyModel` to (F, M, 3) mm marker positions
     whose skin vertices (M,) on the model's rest mesh are known (see
@@ -149,8 +163,15 @@ class MarkerFitter:
         target = torch.as_tensor(np.nan_to_num(observed))
         return (pred - target)[torch.as_tensor(ok)].reshape(-1) / self.options.marker_sigma_mm
 
-    def _pose_prior(self, pose):
-        return pose[:, 6:].reshape(-1) / self.options.pose_sigma_rad
+    def _frame_residuals(self, poses, shape: np.ndarray, offsets, observed: np.ndarray):
+        """(B, R) residuals of B candidate poses (B, P) of one frame's markers (M, 3)."""
+        import torch
+
+        ok = torch.as_tensor(np.isfinite(observed).all(axis=-1))
+        pred = self.model.points(poses, shape, SurfaceAnchors(self.vertices, offsets))
+        target = torch.as_tensor(np.nan_to_num(observed))
+        markers = (pred - target)[:, ok].reshape(len(poses), -1) / self.options.marker_sigma_mm
+        return torch.cat([markers, poses[:, 6:] / self.options.pose_sigma_rad], dim=1)
 
     def initial_pose(self, observed: np.ndarray, shape: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         """Global rigid alignment of the rest model's markers to one frame's markers (F=1)."""
@@ -176,13 +197,16 @@ class MarkerFitter:
         import torch
 
         offsets_t = torch.as_tensor(offsets, dtype=torch.float64)
+        shape = np.asarray(shape, float)
+
+        def batch(X):
+            return self._frame_residuals(X, shape, offsets_t, observed)
 
         def residuals(x):
-            pose = x[None]
-            return torch.cat([self._marker_residual(pose, np.asarray(shape, float), offsets_t, observed[None]),
-                              self._pose_prior(pose)])
+            return batch(x[None])[0]
 
-        return levenberg_marquardt(residuals, x0, iterations or self.options.pose_iterations)
+        return levenberg_marquardt(residuals, x0, iterations or self.options.pose_iterations,
+                                   jac=lambda x: batched_jacobian(batch, x))
 
     def fit_offsets(self, observed: np.ndarray, poses: np.ndarray, shape: np.ndarray) -> np.ndarray:
         """Offsets (M, 3) mm for fixed poses (K, P) and shape: per marker a 3 x 3 linear least
