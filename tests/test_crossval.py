@@ -80,13 +80,22 @@ def test_crossval_command_writes_its_outputs(trial, tmp_path):
     first = round(vicon.time_s[0] * vicon.setup.rate_hz)
     exporters.write(MarkerTable.from_arrays(vicon.labels, vicon.positions, vicon.setup.rate_hz, first_frame=first),
                     tmp_path / "vicon.c3d")
+    # a body-model reference in the Vicon frame and clock (here: the exact dots, as a perfect body fit
+    # would give them, sampled on the Vicon clock)
+    exact = np.array([scene.tape_on_skin.dot_positions(scene.frame_vertices(f)) for f in range(scene.n_frames)])
+    s = vicon.setup
+    ref_first = 10
+    reference = MarkerTable.from_arrays(scene.labels, exact @ s.R.T + s.t, scene.fps, first_frame=ref_first)
+    reference.data["time"] = (reference.data["frame"] - ref_first) / scene.fps + s.clock_offset_s
+    exporters.write(MarkerTable(reference.data, reference.meta), tmp_path / "tape_dots.csv")  # time column kept
     out = tmp_path / "cv"
     assert main(["crossval", str(tmp_path / "tracked.c3d"), str(tmp_path / "vicon.c3d"), "--capture", str(capture),
-                 "--out", str(out)]) == 0
+                 "--out", str(out), "--reference", str(tmp_path / "tape_dots.csv")]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert abs(summary["clock_offset_s"] - vicon.setup.clock_offset_s) < 1e-3
+    assert summary["reference"]["dot_distance_mean_mm"] < 0.5  # tracked noise is 0.1 mm per axis
     merged = exporters.read(out / "merged.c3d")
-    assert "VICON_VT_R01" in merged.labels and "R01L" in merged.labels
+    assert {"VICON_VT_R01", "R01L", "REF_R01L"} <= set(merged.labels)
     assert "<img src=\"data:image/png;base64," in (out / "report.html").read_text()
 
 

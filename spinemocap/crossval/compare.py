@@ -42,6 +42,8 @@ class CrossValidation:
     vicon_rig: np.ndarray
     angles: dict[str, tuple[np.ndarray, np.ndarray]]
     summary: dict
+    reference_rig: np.ndarray | None = None  # (F, D, 3) body-model dots (tape labels), rig frame
+    reference_angles: dict[str, tuple[np.ndarray, np.ndarray]] | None = None  # name -> (tape, reference)
 
 
 def resample(time_s: np.ndarray, points: np.ndarray, query_s: np.ndarray, max_gap_s: float = 0.05) -> np.ndarray:
@@ -98,9 +100,12 @@ def segment_angles(tape_points: dict[int, tuple[np.ndarray, np.ndarray, np.ndarr
 def cross_validate(tape_time: np.ndarray, tape_positions: np.ndarray, tape_labels: list[str], spec: TapeSpec,
                    vicon_time: np.ndarray, vicon_positions: np.ndarray, vicon_labels: list[str],
                    marker_diameter_mm: float = 14.0, transform: tuple[np.ndarray, np.ndarray] | None = None,
-                   max_offset_s: float = 1.0) -> CrossValidation:
+                   max_offset_s: float = 1.0,
+                   reference: tuple[np.ndarray, np.ndarray, list[str]] | None = None) -> CrossValidation:
     """Compare tracked dots (F, D, 3) at ``tape_time`` with Vicon markers (N, M, 3) at
-    ``vicon_time`` (Vicon clock). See the module docstring."""
+    ``vicon_time`` (Vicon clock). See the module docstring. ``reference`` (time (K,), dots
+    (K, D, 3), labels) in the Vicon frame and clock, e.g. the tape read off a body fitted to the
+    Vicon markers (``spinemocap bodyfit --tape``), is compared with the tracked dots too."""
     missing = [label for label in spec.graph.labels if label not in tape_labels]
     if missing:
         raise InputError("tracked markers", f"tape dots {missing[:6]} are absent (is this the capture's tape?)")
@@ -149,4 +154,39 @@ def cross_validate(tape_time: np.ndarray, tape_positions: np.ndarray, tape_label
         "angle_convention": "tape minus Vicon; segment frames from triads at the rows listed in angle_rows "
                             "(lumbar: first -> second, thoracic: second -> third); Cardan X-Y-Z, degrees",
     }
-    return CrossValidation(alignment, list(vicon_labels), vicon_rig, angles, summary)
+    result = CrossValidation(alignment, list(vicon_labels), vicon_rig, angles, summary)
+    if reference is not None:
+        _compare_reference(result, reference, tape_time, tape_positions, tape_labels, spec, rows)
+    return result
+
+
+def _compare_reference(result: CrossValidation, reference: tuple[np.ndarray, np.ndarray, list[str]],
+                       tape_time: np.ndarray, tape_positions: np.ndarray, tape_labels: list[str], spec: TapeSpec,
+                       rows: list[int]) -> None:
+    """Body-model dots vs tracked dots: per dot-frame distances and the same segment angles."""
+    ref_time, ref_positions, ref_labels = reference
+    missing = [label for label in spec.graph.labels if label not in ref_labels]
+    if missing:
+        raise InputError("reference", f"reference dots lack the tape's labels {missing[:6]}")
+    order = [list(ref_labels).index(label) for label in spec.graph.labels]
+    a = result.alignment
+    ref_rig = a.to_rig(resample(np.asarray(ref_time), np.asarray(ref_positions)[:, order], tape_time + a.offset_s))
+    tracked = tape_positions[:, [tape_labels.index(label) for label in spec.graph.labels]]
+    d = np.linalg.norm(ref_rig - tracked, axis=2)
+    d = d[np.isfinite(d)]
+    stats = {"dot_distance_mean_mm": float(d.mean()) if len(d) else float("nan"),
+             "dot_distance_median_mm": float(np.median(d)) if len(d) else float("nan"),
+             "dot_distance_p95_mm": float(np.percentile(d, 95)) if len(d) else float("nan"), "n": int(len(d))}
+    labels = list(spec.graph.labels)
+    angles: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    if len(rows) >= 2:
+        def triads(positions: np.ndarray, names: list[str]) -> dict:
+            centres = row_centres(positions, spec, names)
+            return {r: (centres[:, r], *row_sides(positions, spec, names, r)) for r in rows}
+
+        tape_angles = segment_angles(triads(tape_positions, tape_labels), rows)
+        ref_angles = segment_angles(triads(ref_rig, labels), rows)
+        angles = {name: (tape_angles[name], ref_angles[name]) for name in tape_angles}
+    stats["angles"] = {name: agreement(t, r, "deg") for name, (t, r) in angles.items()}
+    result.summary["reference"] = stats
+    result.reference_rig, result.reference_angles = ref_rig, angles
