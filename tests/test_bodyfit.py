@@ -117,6 +117,7 @@ def _run_bodyfit(tmp_path, name: str, frames: str, *extra: str) -> dict:
     return summary
 
 
+@pytest.mark.slow
 def test_real_plug_in_gait_trial_fits_with_trunk_rms(tmp_path, anny):
     import exporters
 
