@@ -30,7 +30,8 @@ def marker_arrays(path: str | os.PathLike, frames: tuple[int | None, int | None]
                   ) -> tuple[list[str], np.ndarray, np.ndarray, float]:
     """(labels, frame numbers (F,), positions (F, D, 3) mm, fps) of the markers (not the modelled
     outputs such as angles or joint centres a C3D may carry) of a marker file; ``frames`` (A, B)
-    keeps A <= frame < B, ``step`` every N-th frame."""
+    keeps A <= frame < B, ``step`` the frames whose number is a multiple of N (a regular clock
+    at fps / N)."""
     table = exporters.read(path)
     point_types = table.meta.get("point_types") or {}
     labels = [label for label in table.labels if label not in point_types]
@@ -43,20 +44,23 @@ def marker_arrays(path: str | os.PathLike, frames: tuple[int | None, int | None]
         if not keep.any():
             raise InputError(path, f"no frames in {lo}:{hi} (the file holds {frame_numbers[0]}..{frame_numbers[-1]})")
         frame_numbers, positions = frame_numbers[keep], positions[keep]
-    return list(arrays["labels"]), frame_numbers[::step], positions[::step], table.fps
+    on_grid = frame_numbers % step == 0  # frames on the file's clock grid at fps / step
+    return list(arrays["labels"]), frame_numbers[on_grid], positions[on_grid], table.fps
 
 
-def tape_reference(model, fit, frame_numbers: np.ndarray, fps: float, spec: TapeSpec, start_level: str
-                   ) -> MarkerTable:
+def tape_reference(model, fit, frame_numbers: np.ndarray, fps: float, spec: TapeSpec, start_level: str,
+                   step: int = 1) -> MarkerTable:
     """The tape laid on the fitted body (first row at ``start_level``) and read off the posed
     body in every fitted frame: a marker table with the tracker's labels (the paper's body-model
-    ground truth; write it beside tracked dots with ``reference=`` to get ``REF_*`` markers)."""
+    ground truth; write it beside tracked dots with ``reference=`` to get ``REF_*`` markers).
+    Frames fitted every ``step`` (multiples of it) become a table at ``fps / step``, so times
+    stay on the file's clock."""
     laid = lay_tape(model.rest(fit.shape), spec, start_level)
     dots = laid.dots.sequence(model.vertices(fit.poses, fit.shape), model.faces)
     meta = {"source": "body-model tape (spinemocap bodyfit)", "row_levels": laid.row_levels}
-    table = MarkerTable.from_arrays(laid.labels, dots, fps, meta=meta)
-    table.data["frame"] = np.repeat(frame_numbers, len(laid.labels))
-    table.data["time"] = table.data["frame"] / fps
+    table = MarkerTable.from_arrays(laid.labels, dots, fps / step, meta=meta)
+    table.data["frame"] = np.repeat(np.asarray(frame_numbers) // step, len(laid.labels))
+    table.data["time"] = table.data["frame"] / (fps / step)
     return MarkerTable(table.data, table.meta)
 
 
@@ -99,7 +103,7 @@ def fit_marker_file(markers: str | os.PathLike, out: str | os.PathLike, model_na
     if tape_capture:
         spec = Capture.open(tape_capture).tape if Path(tape_capture).is_dir() else TapeSpec.from_toml(tape_capture)
         try:
-            reference = tape_reference(model, fit, frame_numbers, fps, spec, tape_start)
+            reference = tape_reference(model, fit, frame_numbers, fps, spec, tape_start, step)
         except ValueError as exc:
             raise InputError(tape_capture, f"cannot lay its tape on the fitted body: {exc}") from exc
         exporters.write(reference, Path(out) / "tape_dots.c3d")
