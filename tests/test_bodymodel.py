@@ -123,3 +123,28 @@ def test_amass_loader_reads_both_layouts(tmp_path):
     np.savez(tmp_path / "short.npz", poses=poses, trans=trans[:3], betas=betas, mocap_framerate=np.array(1.0))
     with pytest.raises(InputError, match="frames"):
         load_amass(tmp_path / "short.npz")
+
+
+@pytest.mark.slow  # ~30 s on the loaded 2-core machine (forward-mode duals through smplx's blend shapes)
+def test_marker_fit_runs_on_the_smpl_backend(tmp_path):
+    pytest.importorskip("smplx")
+    import torch
+
+    from spinemocap.bodymodel import load_model
+    from spinemocap.bodymodel.fit import FitOptions, MarkerFitter
+    from spinemocap.bodymodel.markersets import PLUG_IN_GAIT, place_markers
+
+    write_tiny_smpl(tmp_path / "SMPL_NEUTRAL.pkl", n_per_joint=30)
+    model = load_model("smpl", tmp_path / "SMPL_NEUTRAL.pkl")
+    rest = model.rest()
+    labels, vertices = place_markers(rest, list(PLUG_IN_GAIT))  # a stick figure: some rules find no skin
+    assert len(labels) >= 20
+    pose = np.zeros((2, model.pose_size))
+    pose[:, 6:] = np.random.default_rng(0).normal(0, 0.1, model.pose_size - 6) * np.array([[1.0], [1.1]])
+    pose[:, :3] = [[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]]
+    with torch.no_grad():
+        markers = model.points(torch.tensor(pose), model.default_shape(),
+                               SurfaceAnchors(vertices, rest.normals[vertices] * 9.5)).numpy()
+    fit = MarkerFitter(model, vertices, FitOptions(n_key_frames=1, shape_rounds=1, shape_iterations=2)).fit(
+        markers, labels=labels, progress=False)
+    assert np.sqrt(np.mean(fit.residual_mm ** 2)) < 2.0

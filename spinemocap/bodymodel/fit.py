@@ -67,9 +67,12 @@ class BodyFit:
 
 def levenberg_marquardt(residuals: Callable, x0: np.ndarray, iterations: int = 10,
                         bounds: tuple[np.ndarray, np.ndarray] | None = None, tol: float = 1e-6,
-                        jac: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, float]:
+                        jac: Callable[[np.ndarray], np.ndarray] | None = None,
+                        max_iterations: int | None = None) -> tuple[np.ndarray, float]:
     """Minimise ``|residuals(x)|^2`` (torch function of a float64 vector) from ``x0``; Jacobian
-    by forward-mode autograd (:func:`jacobian`, or ``jac(x)`` when given). Returns (x, final cost)."""
+    by forward-mode autograd (:func:`jacobian`, or ``jac(x)`` when given). Stops when a step gains
+    less than ``tol`` (relative), or after ``iterations`` once a step gains less than 1 %; at most
+    ``max_iterations`` (default ``iterations``). Returns (x, final cost)."""
     import torch
 
     x = np.asarray(x0, float).copy()
@@ -81,7 +84,7 @@ def levenberg_marquardt(residuals: Callable, x0: np.ndarray, iterations: int = 1
 
     r = evaluate(x)
     cost = float(r @ r)
-    for _ in range(iterations):
+    for iteration in range(max(iterations, max_iterations or 0)):
         J = jac(x) if jac is not None else jacobian(residuals, x)
         JtJ, g = J.T @ J, J.T @ r
         diag = np.maximum(np.diag(JtJ), 1e-9)
@@ -102,7 +105,7 @@ def levenberg_marquardt(residuals: Callable, x0: np.ndarray, iterations: int = 1
         gain = (cost - cost_new) / max(cost, 1e-12)
         x, r, cost = candidate, r_new, cost_new
         lam = max(lam / 3, 1e-7)
-        if gain < tol:
+        if gain < tol or (iteration + 1 >= iterations and gain < 1e-2):
             break
     return x, cost
 
@@ -193,7 +196,8 @@ class MarkerFitter:
 
     def fit_pose(self, observed: np.ndarray, shape: np.ndarray, offsets: np.ndarray, x0: np.ndarray,
                  iterations: int | None = None) -> tuple[np.ndarray, float]:
-        """One frame's pose (P,) for (M, 3) observed markers, from ``x0``."""
+        """One frame's pose (P,) for (M, 3) observed markers, from ``x0``: ``iterations`` LM
+        steps, more (up to ``pose_iterations``) while steps still gain over 1 %."""
         import torch
 
         offsets_t = torch.as_tensor(offsets, dtype=torch.float64)
@@ -206,7 +210,8 @@ class MarkerFitter:
             return batch(x[None])[0]
 
         return levenberg_marquardt(residuals, x0, iterations or self.options.pose_iterations,
-                                   jac=lambda x: batched_jacobian(batch, x))
+                                   jac=lambda x: batched_jacobian(batch, x),
+                                   max_iterations=self.options.pose_iterations)
 
     def fit_offsets(self, observed: np.ndarray, poses: np.ndarray, shape: np.ndarray) -> np.ndarray:
         """Offsets (M, 3) mm for fixed poses (K, P) and shape: per marker a 3 x 3 linear least

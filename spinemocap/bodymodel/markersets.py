@@ -14,6 +14,7 @@ Other labels map through a mapping file (TOML), see :func:`read_mapping`.
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
 
@@ -35,6 +36,8 @@ class MarkerRule:
     fraction: float = 0.0
     offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
+
+log = logging.getLogger(__name__)
 
 # Left-side rules (right side mirrored in x); unpaired markers below.
 _PAIRED = {
@@ -176,14 +179,20 @@ def place_on_skin(rest: RestBody, origin: np.ndarray, direction: np.ndarray, rad
 def place_markers(rest: RestBody, labels: list[str], extra_rules: dict[str, MarkerRule] | None = None
                   ) -> tuple[list[str], np.ndarray]:
     """The labels a fit can use and their skin vertices on ``rest``: (labels kept, (M,) vertex
-    indices). Labels with neither a known name nor a mapping rule are left out."""
+    indices). Labels with neither a known name nor a mapping rule are left out, and so are those
+    whose rule finds no skin on this body (logged)."""
     kept, vertices = [], []
     for label in labels:
         rule = (extra_rules or {}).get(label) or rule_for(label)
         if rule is None:
             continue
+        try:
+            vertex = place_on_skin(rest, _origin(rest, rule), np.asarray(rule.direction, float))
+        except ValueError as exc:
+            log.warning("marker %s left out: %s", label, exc)
+            continue
         kept.append(label)
-        vertices.append(place_on_skin(rest, _origin(rest, rule), np.asarray(rule.direction, float)))
+        vertices.append(vertex)
     return kept, np.array(vertices, dtype=np.int64)
 
 
