@@ -125,7 +125,6 @@ def test_amass_loader_reads_both_layouts(tmp_path):
         load_amass(tmp_path / "short.npz")
 
 
-@pytest.mark.slow  # ~30 s on the loaded 2-core machine (forward-mode duals through smplx's blend shapes)
 def test_marker_fit_runs_on_the_smpl_backend(tmp_path):
     pytest.importorskip("smplx")
     import torch
