@@ -20,14 +20,15 @@ PACKAGES = ("spinemocap", "calibration", "exporters")
 
 # core: small modules of shared types and helpers; they import only each other
 CORE = {f"spinemocap.{name}" for name in
-        ("_version", "camera", "tape", "markers", "capture", "views", "geometry", "fileio", "timing")}
+        ("_version", "camera", "tape", "markers", "capture", "views", "geometry", "fileio", "timing", "skin")}
 # unit (module prefix) -> layer
 UNITS = {
     "spinemocap.detect": "domain",
     "spinemocap.track": "domain",
     "spinemocap.synth": "domain",
     "spinemocap.analysis": "domain",
-    "spinemocap.bodymodel": "domain",  # planned
+    "spinemocap.bodymodel": "domain",
+    "spinemocap.crossval": "domain",
     "spinemocap.opensim": "domain",  # planned
     "calibration": "domain",
     "exporters": "domain",

@@ -72,6 +72,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--video", action="store_true", help="write lossless videos instead of PNG images")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--vicon", action="store_true", help="also write vicon.c3d: a virtual Vicon (200 Hz, own frame and "
+                   "clock; truth in groundtruth.npz)")
     p.set_defaults(func=run_synth)
 
 
@@ -119,6 +121,10 @@ def run_synth(args: argparse.Namespace) -> int:
         if isinstance(exc, InputError):
             raise
         raise InputError("spinemocap synth", str(exc)) from exc
+    if args.vicon:  # virtual Vicon (spinemocap/app/virtual_vicon.py)
+        from ..app.virtual_vicon import write_virtual_vicon
+
+        write_virtual_vicon(config, out)
     media = "videos/" if config.video else "images/"
     rows = Capture.open(out).tape.n_rows
     print(f"synthetic capture written to {out}/ ({config.frames} frames, {config.cameras} cameras, "

@@ -1,0 +1,106 @@
+"""Writing a body fit: the body sequence (``body.npz``), ``summary.json``, per-marker/per-frame
+residuals (``residuals.csv``) and a plot (``residuals.png``). All writes are atomic."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..fileio import atomic_path, atomic_write
+from .fit import BodyFit
+from .markersets import is_trunk
+
+# A fitted marker this far from its measurement (RMS over the trial) is flagged: the body
+# could not explain it (wrong label, marker moved, or a rule that does not fit this body).
+MARKER_FLAG_MM = 20.0
+
+
+def _rms(values: np.ndarray) -> float:
+    values = values[np.isfinite(values)]
+    return float(np.sqrt(np.mean(values ** 2))) if len(values) else float("nan")
+
+
+def fit_summary(fit: BodyFit, frames: np.ndarray, fps: float, source: str) -> dict:
+    """The numbers of ``summary.json`` (mm): ``marker_rms_mm``, ``trunk_marker_rms_mm`` and
+    per-marker / per-frame RMS, flags."""
+    residual = fit.residual_mm
+    trunk = np.array([is_trunk(label) for label in fit.labels])
+    per_marker = {label: _rms(residual[:, k]) for k, label in enumerate(fit.labels)}
+    flagged_markers = [label for label, value in per_marker.items() if value > MARKER_FLAG_MM]
+    return {
+        "source": source,
+        "model": fit.model_name,
+        "n_frames": len(frames),
+        "first_frame": int(frames[0]) if len(frames) else 0,
+        "fps": float(fps),
+        "markers": list(fit.labels),
+        "marker_rms_mm": _rms(residual),
+        "trunk_markers": [label for label, t in zip(fit.labels, trunk) if t],
+        "trunk_marker_rms_mm": _rms(residual[:, trunk]) if trunk.any() else None,
+        "per_marker_rms_mm": per_marker,
+        "per_frame_rms_mm": [_rms(row) for row in residual],
+        "offset_mm": {label: float(np.linalg.norm(o)) for label, o in zip(fit.labels, fit.offsets)},
+        "shape": [float(v) for v in fit.shape],
+        "frames_without_fit": [int(frames[i]) for i in np.flatnonzero(fit.flagged)],
+        "markers_flagged": flagged_markers,
+        "timings_s": fit.timings_s,
+        "note": "a body fit to sparse markers is a baseline, not a truth: free per-marker offsets let a small "
+                "marker residual coexist with a misplaced back surface",
+    }
+
+
+def write_fit(out: str | os.PathLike, fit: BodyFit, frames: np.ndarray, fps: float, source: str,
+              pose_joints: tuple[str, ...], vertices: np.ndarray | None = None) -> dict:
+    """Write everything of a fit into folder ``out``; returns the summary."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    arrays = {"model": np.array(fit.model_name), "labels": np.array(fit.labels), "frames": np.asarray(frames),
+              "time": np.asarray(frames) / fps, "fps": np.array(fps), "shape": fit.shape, "poses": fit.poses,
+              "pose_joints": np.array(pose_joints), "marker_vertices": fit.vertices,
+              "marker_offsets_mm": fit.offsets, "residual_mm": fit.residual_mm, "flagged": fit.flagged}
+    if vertices is not None:
+        arrays["vertices_mm"] = vertices
+    with atomic_path(out / "body.npz") as tmp:
+        np.savez_compressed(tmp, **arrays)
+    summary = fit_summary(fit, np.asarray(frames), fps, source)
+    with atomic_write(out / "summary.json") as handle:
+        json.dump(summary, handle, indent=2)
+    with atomic_write(out / "residuals.csv") as handle:
+        handle.write("frame,label,residual_mm\n")
+        for i, frame in enumerate(frames):
+            for k, label in enumerate(fit.labels):
+                value = fit.residual_mm[i, k]
+                handle.write(f"{int(frame)},{label},{'' if not np.isfinite(value) else f'{value:.3f}'}\n")
+    plot_fit(out / "residuals.png", fit, np.asarray(frames), summary)
+    return summary
+
+
+def plot_fit(path: Path, fit: BodyFit, frames: np.ndarray, summary: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 7), constrained_layout=True)
+    ax1.plot(frames, summary["per_frame_rms_mm"], lw=1)
+    flagged = frames[fit.flagged]
+    if len(flagged):
+        ax1.plot(flagged, np.zeros(len(flagged)), "rx", label="no fit (too few markers)")
+        ax1.legend()
+    ax1.set_xlabel("frame")
+    ax1.set_ylabel("marker RMS (mm)")
+    ax1.set_title(f"{fit.model_name} fit: marker RMS {summary['marker_rms_mm']:.2f} mm"
+                  + (f", trunk {summary['trunk_marker_rms_mm']:.2f} mm" if summary["trunk_marker_rms_mm"] else ""))
+    values = [summary["per_marker_rms_mm"][label] for label in fit.labels]
+    colours = ["tab:red" if label in summary["markers_flagged"] else
+               "tab:orange" if label in summary["trunk_markers"] else "tab:blue" for label in fit.labels]
+    ax2.bar(range(len(values)), values, color=colours)
+    ax2.set_xticks(range(len(values)), fit.labels, rotation=90, fontsize=7)
+    ax2.set_ylabel("RMS over the trial (mm)")
+    ax2.set_title(f"per marker (orange: trunk, red: flagged > {MARKER_FLAG_MM:.0f} mm)")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)

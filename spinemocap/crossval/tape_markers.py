@@ -1,0 +1,93 @@
+"""Points on the tape that Vicon markers sit on, and segment angles from marker triads.
+
+Virtual-Vicon/lab protocol (see ``spinemocap.bodymodel.virtual_vicon``): at chosen 2-dot rows a
+marker ``VT_Rnn`` is stuck on the tape's centre line midway between the row's two dots, and
+``VT_RnnL``/``VT_RnnR`` sit on the skin beside the tape. From the tracked dots, the centre marker
+is at the row's dot midpoint plus the tape normal times (tape thickness + marker radius).
+The tape normal at a row: ``across x along`` with ``across`` = right dot - left dot and
+``along`` = the next row's centre - the previous row's centre (outward from the back).
+
+Segment frames (x = the subject's left, y = backward, z = up along the tape) are built from
+triads (centre, left, right); angles between two frames use the studio's Cardan X-Y-Z sequence
+(flexion about x positive forward, lateral bending positive to the subject's right, axial
+rotation positive to the subject's left), in degrees.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from ..tape import TapeSpec
+
+TAPE_MARKER = re.compile(r"^(?:.*:)?VT_R(\d+)([LR]?)$")
+
+
+def row_centres(positions: np.ndarray, spec: TapeSpec, labels: list[str]) -> np.ndarray:
+    """(F, n_rows, 3) mean of each row's dots (NaN where a dot is missing)."""
+    graph = spec.graph
+    index = [labels.index(label) for label in graph.labels]
+    dots = positions[:, index]
+    return np.stack([dots[:, graph.row == r].mean(axis=1) for r in range(spec.n_rows)], axis=1)
+
+
+def row_sides(positions: np.ndarray, spec: TapeSpec, labels: list[str], row: int) -> tuple[np.ndarray, np.ndarray]:
+    """(F, 3) left and right dots of a row (the subject's left/right: labels ``L``/``R``)."""
+    graph = spec.graph
+    names = [graph.labels[i] for i in np.flatnonzero(graph.row == row)]
+    left = next(n for n in names if n.endswith("L"))
+    right = next(n for n in names if n.endswith("R"))
+    return positions[:, labels.index(left)], positions[:, labels.index(right)]
+
+
+def tape_normal(positions: np.ndarray, spec: TapeSpec, labels: list[str], row: int) -> np.ndarray:
+    """(F, 3) unit outward tape normal at a row (see module docstring)."""
+    centres = row_centres(positions, spec, labels)
+    lo, hi = max(row - 1, 0), min(row + 1, spec.n_rows - 1)
+    along = centres[:, hi] - centres[:, lo]
+    left, right = row_sides(positions, spec, labels, row)
+    n = np.cross(right - left, along)
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def tape_marker_points(positions: np.ndarray, labels: list[str], spec: TapeSpec, marker_labels: list[str],
+                       height_mm: float) -> tuple[list[str], np.ndarray]:
+    """The centre tape markers among ``marker_labels`` (``VT_Rnn``) and their expected (F, K, 3)
+    positions from tracked dots (F, D, 3); ``height_mm`` = tape thickness + marker radius."""
+    names, points = [], []
+    centres = row_centres(positions, spec, labels)
+    for name in marker_labels:
+        match = TAPE_MARKER.match(name)
+        if not match or match.group(2):
+            continue
+        row = int(match.group(1)) - 1
+        if not 0 <= row < spec.n_rows or (spec.graph.row == row).sum() != 2:
+            continue
+        names.append(name)
+        points.append(centres[:, row] + height_mm * tape_normal(positions, spec, labels, row))
+    return names, (np.stack(points, axis=1) if points else np.zeros((len(positions), 0, 3)))
+
+
+def triad_frame(centre: np.ndarray, left: np.ndarray, right: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """(F, 3, 3) segment frames, columns x (to the subject's left), y (backward), z (up)."""
+    x = left - right
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    z = up - np.einsum("fd,fd->f", up, x)[:, None] * x
+    z /= np.linalg.norm(z, axis=1, keepdims=True)
+    y = np.cross(z, x)
+    return np.stack([x, y, z], axis=2)
+
+
+def cardan_angles(R: np.ndarray) -> np.ndarray:
+    """(F, 3, 3) relative rotations -> (F, 3) [flexion, lateral bending, axial rotation] deg
+    for ``R = Rx(a) Ry(-lateral) Rz(c)``."""
+    b = np.arcsin(np.clip(R[:, 0, 2], -1, 1))
+    a = np.arctan2(-R[:, 1, 2], R[:, 2, 2])
+    c = np.arctan2(-R[:, 0, 1], R[:, 0, 0])
+    return np.degrees(np.column_stack([a, -b, c]))
+
+
+def relative_angles(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """(F, 3) angles of the upper frame relative to the lower one (frames (F, 3, 3))."""
+    return cardan_angles(np.einsum("fji,fjk->fik", lower, upper))

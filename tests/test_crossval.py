@@ -1,0 +1,141 @@
+"""Cross-validation: on a synthetic studio trial with a virtual Vicon (own clock and frame), the
+clock offset (< 1 ms) and transform (< 1 mm) are recovered and the angles agree; agreement
+statistics on known series."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from spinemocap.crossval.agreement import agreement, cmc, icc_2_1
+
+
+def test_agreement_statistics_on_known_series():
+    rng = np.random.default_rng(0)
+    truth = 10 * np.sin(np.linspace(0, 6, 400))
+    a = truth + 1.0 + rng.normal(0, 0.5, truth.shape)
+    stats = agreement(a, truth)
+    assert stats["bias_deg"] == pytest.approx(1.0, abs=0.1)
+    assert stats["loa_high_deg"] - stats["loa_low_deg"] == pytest.approx(2 * 1.96 * 0.5, rel=0.1)
+    assert stats["rmse_deg"] == pytest.approx(np.sqrt(1.0 + 0.25), rel=0.05)
+    assert 0.9 < stats["icc"] < 1.0 and 0.95 < stats["cmc"] < 1.0
+    assert icc_2_1(truth, truth) == pytest.approx(1.0) and cmc(truth, truth) == pytest.approx(1.0)
+    assert icc_2_1(truth, -truth) < 0  # opposite waveforms do not agree
+    assert np.isnan(cmc(truth, -truth))  # within-instant variance above the total: no real CMC
+
+
+@pytest.fixture(scope="module")
+def trial(tmp_path_factory):
+    """A 2 s studio trial (no rendering): exact dots + 0.1 mm noise, and its virtual Vicon."""
+    torch = pytest.importorskip("torch")
+    torch.set_num_threads(1)
+    from spinemocap.app.virtual_vicon import record_scene
+    from spinemocap.synth import SynthConfig
+    from spinemocap.synth.scene import build_scene
+
+    config = SynthConfig.preset("tiny", frames=60, fps=30.0, rows=9)
+    scene = build_scene(config)
+    dots = np.array([scene.tape_on_skin.dot_positions(scene.frame_vertices(f)) for f in range(scene.n_frames)])
+    dots += np.random.default_rng(1).normal(0.0, 0.1, dots.shape)
+    vicon = record_scene(scene)
+    return scene, dots, vicon
+
+
+def test_crossval_recovers_clock_offset_and_transform(trial):
+    from spinemocap.crossval.compare import cross_validate
+
+    scene, dots, vicon = trial
+    assert vicon.setup.rate_hz == 200.0 and np.isnan(vicon.positions).any()  # own rate, with gaps
+    result = cross_validate(scene.times, dots, scene.labels, scene.tape, vicon.time_s, vicon.positions,
+                            vicon.labels)
+    a, s = result.alignment, vicon.setup
+    assert abs(a.offset_s - s.clock_offset_s) < 1e-3
+    points = dots.reshape(-1, 3)
+    assert np.linalg.norm(a.to_vicon(points) - (points @ s.R.T + s.t), axis=1).max() < 1.0
+    angles = result.summary["angles"]
+    assert set(angles) == {f"{seg}_{k}" for seg in ("lumbar", "thoracic")
+                           for k in ("flexion", "lateral_bending", "axial_rotation")}
+    for name, stats in angles.items():
+        assert {"rmse_deg", "bias_deg", "loa_low_deg", "loa_high_deg", "icc", "cmc"} <= set(stats)
+        assert stats["rmse_deg"] < 2.0 and stats["icc"] > 0.9, name
+    # a wrong clock is found: shifting the Vicon clock by 100 ms shifts the estimate by 100 ms
+    shifted = cross_validate(scene.times, dots, scene.labels, scene.tape, vicon.time_s + 0.1, vicon.positions,
+                             vicon.labels)
+    assert abs(shifted.alignment.offset_s - (s.clock_offset_s + 0.1)) < 1e-3
+
+
+def test_crossval_command_writes_its_outputs(trial, tmp_path):
+    import exporters
+    from spinemocap.cli import main
+    from spinemocap.markers import MarkerTable
+
+    scene, dots, vicon = trial
+    capture = tmp_path / "capture"
+    from spinemocap.capture import Capture
+
+    Capture(root=capture, name="trial", fps=scene.fps, n_frames=scene.n_frames, rig=scene.rig, tape=scene.tape).save()
+    exporters.write(MarkerTable.from_arrays(scene.labels, dots, scene.fps), tmp_path / "tracked.c3d")
+    first = round(vicon.time_s[0] * vicon.setup.rate_hz)
+    exporters.write(MarkerTable.from_arrays(vicon.labels, vicon.positions, vicon.setup.rate_hz, first_frame=first),
+                    tmp_path / "vicon.c3d")
+    # a body-model reference in the Vicon frame and clock (here: the exact dots, as a perfect body fit
+    # would give them, sampled on the Vicon clock)
+    exact = np.array([scene.tape_on_skin.dot_positions(scene.frame_vertices(f)) for f in range(scene.n_frames)])
+    s = vicon.setup
+    ref_first = 10
+    reference = MarkerTable.from_arrays(scene.labels, exact @ s.R.T + s.t, scene.fps, first_frame=ref_first)
+    reference.data["time"] = (reference.data["frame"] - ref_first) / scene.fps + s.clock_offset_s
+    exporters.write(MarkerTable(reference.data, reference.meta), tmp_path / "tape_dots.csv")  # time column kept
+    out = tmp_path / "cv"
+    assert main(["crossval", str(tmp_path / "tracked.c3d"), str(tmp_path / "vicon.c3d"), "--capture", str(capture),
+                 "--out", str(out), "--reference", str(tmp_path / "tape_dots.csv")]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert abs(summary["clock_offset_s"] - vicon.setup.clock_offset_s) < 1e-3
+    assert summary["reference"]["dot_distance_mean_mm"] < 0.5  # tracked noise is 0.1 mm per axis
+    merged = exporters.read(out / "merged.c3d")
+    assert {"VICON_VT_R01", "R01L", "REF_R01L"} <= set(merged.labels)
+    assert "<img src=\"data:image/png;base64," in (out / "report.html").read_text()
+
+
+def test_synth_vicon_hook_writes_a_c3d_nexus_tools_read(tmp_path):
+    pytest.importorskip("torch")
+    ezc3d = pytest.importorskip("ezc3d")
+    from spinemocap.app.virtual_vicon import write_virtual_vicon
+    from spinemocap.synth import SynthConfig
+
+    np.savez(tmp_path / "groundtruth.npz", dots=np.zeros((4, 2, 3)))  # the studio's own truth, kept
+    config = SynthConfig.preset("tiny")
+    vicon = write_virtual_vicon(config, tmp_path)
+    c3d = ezc3d.c3d(str(tmp_path / "vicon.c3d"))
+    assert c3d["parameters"]["POINT"]["RATE"]["value"][0] == 200.0
+    labels = c3d["parameters"]["POINT"]["LABELS"]["value"]
+    assert labels == vicon.labels and {"LASI", "C7", "VT_R01", "VT_R01L"} <= set(labels)
+    points = np.transpose(c3d["data"]["points"][:3], (2, 1, 0))  # (N, M, 3) mm, Vicon frame
+    seen = np.isfinite(vicon.positions)
+    np.testing.assert_allclose(points[seen], vicon.positions[seen], atol=0.01)
+    truth = np.load(tmp_path / "groundtruth.npz")
+    assert "dots" in truth.files and float(truth["vicon_clock_offset_s"]) == vicon.setup.clock_offset_s
+    studio = truth["vicon_truth_studio_mm"]
+    # Vicon = R studio + t + noise (0.2 mm)
+    residual = (studio @ truth["vicon_R"].T + truth["vicon_t_mm"] - vicon.positions)[seen]
+    assert np.abs(residual).max() < 1.5 and np.isnan(vicon.positions).any()
+
+
+def test_transform_from_the_wand_calibrated_rig():
+    """--rig-vicon: the same cameras' extrinsics in the rig and in the Vicon frame give X_v = R X + t."""
+    from scipy.spatial.transform import Rotation
+
+    from spinemocap.crossval.register import transform_between_rigs
+
+    rng = np.random.default_rng(3)
+    R = Rotation.from_euler("xyz", [1.0, -2.0, 75.0], degrees=True).as_matrix()
+    t = np.array([300.0, -900.0, 12.0])
+    cams_R = [Rotation.random(random_state=k).as_matrix() for k in range(4)]
+    cams_t = [rng.normal(0, 1000, 3) for _ in range(4)]
+    vicon_R = [Rc @ R.T for Rc in cams_R]
+    vicon_t = [tc - Rc @ R.T @ t for Rc, tc in zip(cams_R, cams_t)]
+    R_est, t_est = transform_between_rigs(cams_R, cams_t, vicon_R, vicon_t)
+    np.testing.assert_allclose(R_est, R, atol=1e-9)
+    np.testing.assert_allclose(t_est, t, atol=1e-6)
