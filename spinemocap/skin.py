@@ -1,9 +1,10 @@
 """Points bound to a body's skin, and a tape laid along the spine of any body mesh (core).
 
 Body-agnostic generalisation of the studio's tape laying (``spinemocap.synth.tape_on_skin``,
-which works on anny only): everything here takes a rest mesh (vertices (V, 3) mm, faces (T, 3))
-plus the body's spine chain and vertebral level heights, so any body model (anny, SMPL, SMPL-X)
-carries a tape. Frame: the studio's (mm, Z up, the body facing ``-Y`` at rest, so the back faces
+which works on anny only and builds its taut strip from the binding, ray casting, arc-length
+profile and convex bridge here): everything here takes a rest mesh (vertices (V, 3) mm, faces
+(T, 3)) plus the body's spine chain and vertebral level heights, so any body model (anny, SMPL,
+SMPL-X) carries a tape. Frame: the studio's (mm, Z up, the body facing ``-Y`` at rest, so the back faces
 ``+Y``; the subject's left ``+X``).
 
 A point is bound by a triangle index and barycentric weights (plus an optional height along the
@@ -28,7 +29,8 @@ from .tape import TapeSpec
 
 # Vertebral levels from the sacrum (S1) to C7 and typical adult segment heights (vertebral body +
 # disc, mm) used only as relative weights to place the levels along a body model's spine between
-# its S1 and C7/T1 joints (the studio's table, spinemocap.synth.body). Approximate by design.
+# its S1 and C7/T1 joints (the studio, spinemocap.synth.body, extends the table down to S2).
+# Approximate by design.
 LEVELS = ("S1", "L5", "L4", "L3", "L2", "L1", "T12", "T11", "T10", "T9", "T8", "T7", "T6",
           "T5", "T4", "T3", "T2", "T1", "C7")
 SEGMENT_MM = (38, 38, 37, 36, 35, 31, 29, 28, 27, 26, 25, 24, 23, 22, 21, 20, 19, 18)
@@ -102,10 +104,11 @@ def barycentric(corners: np.ndarray, points: np.ndarray) -> np.ndarray:
     return w / w.sum(axis=1, keepdims=True)
 
 
-def cast_onto_skin(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, directions: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def cast_onto_skin(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, directions: np.ndarray,
+                   missing_ok: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """First skin hits of the rays ``points - 100 d -> points + 100 d``: triangle indices (N,)
-    and hit points (N, 3) mm."""
+    and hit points (N, 3) mm; a ray that misses raises, or with ``missing_ok`` gives triangle -1
+    and NaN."""
     import vtk
 
     tree = vtk.vtkOBBTree()
@@ -118,7 +121,10 @@ def cast_onto_skin(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, 
     for i, (p, d) in enumerate(zip(np.asarray(points, float) + nudge, np.asarray(directions, float))):
         tree.IntersectWithLine(p - 100.0 * d, p + 100.0 * d, hits, cells)
         if hits.GetNumberOfPoints() == 0:
-            raise ValueError(f"point {i} at {p.round(1)} does not lie over the skin")
+            if not missing_ok:
+                raise ValueError(f"point {i} at {p.round(1)} does not lie over the skin")
+            triangles[i], projected[i] = -1, np.nan
+            continue
         triangles[i] = cells.GetId(0)
         projected[i] = hits.GetPoint(0)
     return triangles, projected
@@ -157,7 +163,42 @@ def bind_to_nearest(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray)
     return binding
 
 
-class BackProfile:
+class ArcProfile:
+    """A midline up the back in the sagittal plane ``x = 0``: ``points`` (K, 3) mm from bottom to
+    top, parametrised by arc length ``arc`` (K,) mm from its first point."""
+
+    def __init__(self, points: np.ndarray):
+        self.points = np.asarray(points, float)
+        seg = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
+        self.arc = np.concatenate([[0.0], np.cumsum(seg)])
+
+    def arc_at_height(self, z_mm: float) -> float:
+        """Arc length (mm) where the profile reaches the height ``z_mm``."""
+        return float(np.interp(z_mm, self.points[:, 2], self.arc))
+
+    def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Profile points (N, 3) and unit upward tangents (N, 3) at arc lengths ``s``."""
+        s = np.asarray(s, float)
+
+        def interp(q: np.ndarray) -> np.ndarray:
+            return np.column_stack([np.interp(q, self.arc, self.points[:, k]) for k in range(3)])
+
+        t = interp(s + 1.0) - interp(s - 1.0)
+        return interp(s), t / np.linalg.norm(t, axis=1, keepdims=True)
+
+    def across(self, us: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Coordinates (N, 2) ``(u, s)`` mm -> the profile points at arc lengths ``s`` shifted ``u``
+        toward the subject's right (``-X``), and the inward unit directions (in the sagittal plane,
+        normal to the profile) along which they are projected onto the skin."""
+        us = np.asarray(us)
+        p, tangent = self.at(us[:, 1])
+        right = np.array([-1.0, 0.0, 0.0])
+        inward = np.cross(tangent, right)
+        inward /= np.linalg.norm(inward, axis=1, keepdims=True)
+        return p + us[:, :1] * right, inward
+
+
+class BackProfile(ArcProfile):
     """The sagittal midline of the back on a rest mesh, parametrised by arc length (mm).
     ``spine_chain`` (K, 3): rest spine joints from the sacrum (S1) to C7, bottom to top."""
 
@@ -179,22 +220,7 @@ class BackProfile:
         order = np.argsort(zs)
         zs_a, ys_a = np.array(zs)[order], np.array(ys)[order]
         ys_a = np.convolve(np.pad(ys_a, 2, mode="edge"), np.ones(5) / 5, mode="valid")
-        self.points = np.column_stack([np.zeros_like(zs_a), ys_a, zs_a])
-        seg = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
-        self.arc = np.concatenate([[0.0], np.cumsum(seg)])
-
-    def arc_at_height(self, z_mm: float) -> float:
-        return float(np.interp(z_mm, self.points[:, 2], self.arc))
-
-    def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Profile points (N, 3) and unit upward tangents (N, 3) at arc lengths ``s``."""
-        s = np.asarray(s, float)
-
-        def interp(q: np.ndarray) -> np.ndarray:
-            return np.column_stack([np.interp(q, self.arc, self.points[:, k]) for k in range(3)])
-
-        t = interp(s + 1.0) - interp(s - 1.0)
-        return interp(s), t / np.linalg.norm(t, axis=1, keepdims=True)
+        super().__init__(np.column_stack([np.zeros_like(zs_a), ys_a, zs_a]))
 
 
 class LaidTape:
@@ -227,11 +253,8 @@ class LaidTape:
     def lay(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Flat tape coordinates (N, 2) mm -> 3D rest positions near the skin and the inward
         directions along which they are projected onto it."""
-        p, tangent = self.profile.at(self.s0 + np.asarray(uv)[:, 1])
-        right = np.array([-1.0, 0.0, 0.0])
-        inward = np.cross(tangent, right)
-        inward /= np.linalg.norm(inward, axis=1, keepdims=True)
-        return p + np.asarray(uv)[:, :1] * right, inward
+        uv = np.asarray(uv, float)
+        return self.profile.across(np.column_stack([uv[:, 0], self.s0 + uv[:, 1]]))
 
     def bridge_heights(self):
         """Interpolator ``(N, 2) uv -> (N,)`` heights (mm) at which the taut tape bridges the
@@ -256,13 +279,13 @@ class LaidTape:
 
 def outer_envelope(u: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """The convex bridge over a cross-section: the lower convex hull of (u, depth) (depth grows
-    into the body), evaluated at ``u``."""
+    into the body), evaluated at ``u``. A taut strip spans hollows instead of following them."""
     hull: list[int] = []
     for i in range(len(u)):
         while len(hull) >= 2:
             a, b = hull[-2], hull[-1]
             cross = (u[b] - u[a]) * (depth[i] - depth[a]) - (depth[b] - depth[a]) * (u[i] - u[a])
-            if cross <= 0:
+            if cross <= 0:  # b lies on or above the chord a-i: not on the lower hull
                 hull.pop()
             else:
                 break

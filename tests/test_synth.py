@@ -9,8 +9,8 @@ import pytest
 from spinemocap.bench.synth import PAPER_TABLE2, views_histogram
 from spinemocap.camera import Camera
 from spinemocap.capture import Capture, FrameSource
+from spinemocap.skin import vertex_normals
 from spinemocap.synth import SynthConfig, build_scene, write_capture
-from spinemocap.synth.body import vertex_normals
 from spinemocap.synth.tape_on_skin import KEYPOINT_NAMES
 
 

@@ -20,6 +20,9 @@ import math
 
 import numpy as np
 
+from ..skin import LEVELS as S1_TO_C7
+from ..skin import SEGMENT_MM as S1_TO_C7_SEGMENT_MM
+
 log = logging.getLogger(__name__)
 
 SPINE_BONES = ("spine05", "spine04", "spine03", "spine02", "spine01")
@@ -29,9 +32,10 @@ ANGLE_NAMES = ("flexion", "lateral_bending", "axial_rotation")
 # Vertebral levels from the sacrum (S2) to the vertebra prominens (C7), placed on anny from
 # published surface anatomy (see :meth:`Body.level_heights`), with typical adult segment heights
 # (vertebral body + disc, mm) used only as relative weights between the two end landmarks.
-LEVELS = ("S2", "S1", "L5", "L4", "L3", "L2", "L1", "T12", "T11", "T10", "T9", "T8", "T7", "T6",
-          "T5", "T4", "T3", "T2", "T1", "C7")
-_SEGMENT_MM = (25, 38, 38, 37, 36, 35, 31, 29, 28, 27, 26, 25, 24, 23, 22, 21, 20, 19, 18)
+# The core's table (S1 ... C7, :mod:`spinemocap.skin`) extended down by the S2-S1 segment.
+S2_S1_SEGMENT_MM = 25
+LEVELS = ("S2", *S1_TO_C7)
+_SEGMENT_MM = (S2_S1_SEGMENT_MM, *S1_TO_C7_SEGMENT_MM)
 # Surface-anatomy figures used to place the levels:
 # - the posterior superior iliac spines (the "dimples of Venus") lie at the level of S2;
 # - the hip joint centre lies 30 % of the inter-ASIS distance (IAD) below the ASIS and 36 % of it
@@ -188,13 +192,3 @@ class Body:
         heights = self.level_heights()
         return min(heights, key=lambda name: abs(heights[name] - z_mm))
 
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(V, 3) area-weighted unit vertex normals of a triangle mesh (outward for anny)."""
-    v = np.asarray(vertices, float)
-    tri = v[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    idx = faces.ravel()
-    weights = np.repeat(fn, 3, axis=0)  # each face normal once per corner, in faces.ravel() order
-    n = np.column_stack([np.bincount(idx, weights[:, d], minlength=len(v)) for d in range(3)])
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)

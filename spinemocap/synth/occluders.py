@@ -121,7 +121,7 @@ class SportsBraBand:
     def __init__(self, body, level_z_mm: float, width_mm: float = 60.0, torso_half_width_mm: float = 175.0):
         import pyvista as pv
 
-        from .tape_on_skin import SkinBinding, barycentric
+        from ..skin import SkinBinding, barycentric
 
         faces_vtk = np.column_stack([np.full(len(body.faces), 3), body.faces]).ravel()
         mesh = pv.PolyData(body.rest_vertices, faces_vtk)

@@ -22,8 +22,9 @@ import cv2
 import numpy as np
 
 from ..camera import Rig
+from ..skin import vertex_normals
 from ..tape import TapeSpec
-from .body import ANGLE_NAMES, LEVELS, PHENOTYPE_KEYS, Body, vertex_normals
+from .body import ANGLE_NAMES, LEVELS, PHENOTYPE_KEYS, Body
 from .lab_errors import clock_offsets_s, perturb_rig
 from .motions import MOTIONS, spine_motion
 from .occluders import (

@@ -28,8 +28,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..skin import ArcProfile, barycentric, bind_to_surface, cast_onto_skin, outer_envelope, vertex_normals
 from ..tape import TapeSpec
-from .body import Body, vertex_normals
+from .body import Body
 from .skin_strain import SkinStrain, StrainRegions
 
 SYNTH_TAPE_THICKNESS_MM = 0.8  # studio tape thickness: holes' rims this far above the skin
@@ -82,42 +83,12 @@ class TapeTension:
         return np.diff(self.laid_v(spec, np.arange(spec.n_rows) * spec.row_pitch_mm))
 
 
-@dataclass
-class SkinBinding:
-    """Points bound to a triangle mesh: ``triangles`` (N,) face indices, ``weights`` (N, 3)
-    barycentric weights and ``heights`` (N,) mm above the skin along the interpolated normal."""
-
-    triangles: np.ndarray
-    weights: np.ndarray
-    heights: np.ndarray | None = None
-
-    def surface_points(self, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-        """(N, 3) the skin points under the bound points (any pose of the same topology)."""
-        corners = np.asarray(vertices)[faces[self.triangles]]  # (N, 3, 3)
-        return np.einsum("nk,nkd->nd", self.weights, corners)
-
-    def points(self, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
-        """(N, 3) bound positions on a posed mesh; ``normals`` are its vertex normals (computed
-        when needed and not given)."""
-        p = self.surface_points(vertices, faces)
-        if self.heights is None or not np.any(self.heights):
-            return p
-        if normals is None:
-            normals = vertex_normals(vertices, faces)
-        return p + self.heights[:, None] * self.normals(normals, faces)
-
-    def normals(self, vertex_normals_: np.ndarray, faces: np.ndarray) -> np.ndarray:
-        """(N, 3) unit normals interpolated from per-vertex normals."""
-        n = self.surface_points(vertex_normals_, faces)
-        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-
-
 BRIDGE_HALF_WIDTH_MM = 30.0  # the strip spans hollows over its width plus its transverse stretch
 CHART_STEP_MM = 2.0  # chart node spacing along the tape
 CHART_U_STEP_MM = 2.5  # chart node spacing across the tape
 
 
-class BackProfile:
+class BackProfile(ArcProfile):
     """The midline of a taut strip laid up the rest back, parametrised by arc length (mm).
 
     Horizontal rays from behind (``-Y``) sample the back's surface across the strip's width
@@ -135,7 +106,8 @@ class BackProfile:
         behind = body.rest_vertices[:, 1].max() - 50.0  # rays run 100 mm either side of this
         zz, xx = np.meshgrid(z, x, indexing="ij")
         starts = np.column_stack([xx.ravel(), np.full(xx.size, behind), zz.ravel()])
-        _, hits = cast_onto_skin(body, starts, np.tile([0.0, -1.0, 0.0], (len(starts), 1)), missing_ok=True)
+        forward = np.tile([0.0, -1.0, 0.0], (len(starts), 1))
+        _, hits = cast_onto_skin(body.rest_vertices, body.faces, starts, forward, missing_ok=True)
         depth = (behind - hits[:, 1]).reshape(len(z), len(x))  # grows into the body
         # up the neck the profile ends where a ray misses or the back of the head overhangs it
         missed = np.flatnonzero(np.isnan(depth).any(axis=1))
@@ -145,28 +117,14 @@ class BackProfile:
         end = missed[0] if len(missed) else len(z)
         z, depth = z[:end], depth[:end]
         mid = len(x) // 2
-        y = behind - np.array([_outer_envelope(x, row)[mid] for row in depth])
+        y = behind - np.array([outer_envelope(x, row)[mid] for row in depth])
         neck = np.flatnonzero(z > levels["C7"])
         overhang = neck[y[neck] > np.minimum.accumulate(y[neck]) + 2.0]
         if len(overhang):
             z, y = z[: overhang[0]], y[: overhang[0]]
         kernel = np.ones(5) / 5
         y = np.convolve(np.pad(y, 2, mode="edge"), kernel, mode="valid")
-        self.points = np.column_stack([np.zeros_like(z), y, z])  # (K, 3)
-        seg = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
-        self.arc = np.concatenate([[0.0], np.cumsum(seg)])
-
-    def arc_at_height(self, z_mm: float) -> float:
-        return float(np.interp(z_mm, self.points[:, 2], self.arc))
-
-    def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Profile points (N, 3) and unit tangents (N, 3, upward) at arc lengths ``s``."""
-        s = np.asarray(s, float)
-        p = np.column_stack([np.interp(s, self.arc, self.points[:, k]) for k in range(3)])
-        ds = 1.0
-        q = np.column_stack([np.interp(s + ds, self.arc, self.points[:, k]) for k in range(3)])
-        t = q - np.column_stack([np.interp(s - ds, self.arc, self.points[:, k]) for k in range(3)])
-        return p, t / np.linalg.norm(t, axis=1, keepdims=True)
+        super().__init__(np.column_stack([np.zeros_like(z), y, z]))
 
 
 class FramedBinding:
@@ -210,9 +168,9 @@ class BackChart:
         self.u = np.arange(-BRIDGE_HALF_WIDTH_MM, BRIDGE_HALF_WIDTH_MM + 1e-9, CHART_U_STEP_MM)
         ss, uu = np.meshgrid(self.s, self.u, indexing="ij")
         starts, inward = self.lay(np.column_stack([uu.ravel(), ss.ravel()]))
-        triangles, hits = cast_onto_skin(body, starts, inward)
+        triangles, hits = cast_onto_skin(body.rest_vertices, body.faces, starts, inward)
         depth = np.einsum("nd,nd->n", hits - starts, inward).reshape(ss.shape)
-        envelope = np.array([_outer_envelope(self.u, row) for row in depth])
+        envelope = np.array([outer_envelope(self.u, row) for row in depth])
         rest = starts + envelope.reshape(-1, 1) * inward
         self.bridge_mm = (depth - envelope)  # (Ns, Nu) how far the strip floats above the skin
         weights = barycentric(body.rest_vertices[body.faces[triangles]], hits)
@@ -224,11 +182,7 @@ class BackChart:
         """Chart coordinates (N, 2) ``(u, s)`` mm -> points in the profile's plane shifted ``u``
         toward the subject's right, and the inward directions (in the sagittal plane, normal to the
         profile) along which they are projected onto the skin."""
-        p, tangent = self.profile.at(us[:, 1])
-        right = np.array([-1.0, 0.0, 0.0])  # the subject's right; the profile lies in x = 0
-        inward = np.cross(tangent, right)
-        inward /= np.linalg.norm(inward, axis=1, keepdims=True)
-        return p + us[:, :1] * right, inward
+        return self.profile.across(us)
 
     def arc_at_height(self, z_mm: float) -> float:
         return self.profile.arc_at_height(z_mm)
@@ -272,62 +226,6 @@ def back_keypoints(body: Body) -> tuple[np.ndarray, np.ndarray]:
     behind = body.rest_vertices[:, 1].max() - 50.0  # rays run 100 mm either side of this
     points = np.array([(side * xk, behind, zk) for xk, zk in zip(x, z) for side in (1.0, -1.0)])
     return points, np.tile([0.0, -1.0, 0.0], (len(points), 1))
-
-
-def bind_to_surface(
-    body: Body, points: np.ndarray, directions: np.ndarray, heights: np.ndarray | None = None
-) -> SkinBinding:
-    """Bind (N, 3) points to the rest skin: each is moved along its inward unit direction (N, 3)
-    onto the first skin surface it meets (a ray cast from 100 mm outside), then floated
-    ``heights`` (N,) mm back out along the skin normal."""
-    triangles, projected = cast_onto_skin(body, points, directions)
-    weights = barycentric(body.rest_vertices[body.faces[triangles]], projected)
-    return SkinBinding(triangles, weights, None if heights is None else np.asarray(heights, float))
-
-
-def cast_onto_skin(body: Body, points: np.ndarray, directions: np.ndarray,
-                   missing_ok: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """First skin hits of the rays ``points - 100 d -> points + 100 d``: triangle indices (N,)
-    and hit points (N, 3) on the rest mesh; a ray that misses raises, or with ``missing_ok``
-    gives triangle -1 and NaN."""
-    import pyvista as pv
-    import vtk
-
-    mesh = pv.PolyData(body.rest_vertices, np.column_stack([np.full(len(body.faces), 3), body.faces]).ravel())
-    tree = vtk.vtkOBBTree()
-    tree.SetDataSet(mesh)
-    tree.BuildLocator()
-    hits, cells = vtk.vtkPoints(), vtk.vtkIdList()
-    triangles = np.empty(len(points), dtype=np.int64)
-    projected = np.empty((len(points), 3))
-    # anny is mirror-symmetric with vertices on x = 0: nudge rays off the edges lying there
-    nudge = np.array([1e-3, 0.0, 0.0])
-    for i, (p, d) in enumerate(zip(np.asarray(points, float) + nudge, np.asarray(directions, float))):
-        tree.IntersectWithLine(p - 100.0 * d, p + 100.0 * d, hits, cells)
-        if hits.GetNumberOfPoints() == 0:
-            if not missing_ok:
-                raise ValueError(f"tape point {i} at {p.round(1)} does not lie over the skin")
-            triangles[i], projected[i] = -1, np.nan
-            continue
-        triangles[i] = cells.GetId(0)
-        projected[i] = hits.GetPoint(0)
-    return triangles, projected
-
-
-def barycentric(corners: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(N, 3) barycentric weights of points lying in triangles ``corners`` (N, 3, 3)."""
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    v0, v1, v2 = b - a, c - a, points - a
-    d00 = np.einsum("nd,nd->n", v0, v0)
-    d01 = np.einsum("nd,nd->n", v0, v1)
-    d11 = np.einsum("nd,nd->n", v1, v1)
-    d20 = np.einsum("nd,nd->n", v2, v0)
-    d21 = np.einsum("nd,nd->n", v2, v1)
-    den = d00 * d11 - d01 * d01
-    w1 = (d11 * d20 - d01 * d21) / den
-    w2 = (d00 * d21 - d01 * d20) / den
-    w = np.column_stack([1 - w1 - w2, w1, w2])
-    return np.clip(w, 0.0, 1.0) / np.clip(w, 0.0, 1.0).sum(axis=1, keepdims=True)
 
 
 @dataclass
@@ -394,7 +292,7 @@ class TapeOnSkin:
         self.dot_material = self.material(spec.graph.uv_mm)
         self.strip_material = self.material(self.strip.uv)
         self.keypoint_names = list(KEYPOINT_NAMES)
-        self.keypoints = bind_to_surface(body, *back_keypoints(body))
+        self.keypoints = bind_to_surface(body.rest_vertices, body.faces, *back_keypoints(body))
         rest_dots = self.pose(body.rest_vertices).dots()
         self._check_lies_flat(rest_dots)
         row_z = [rest_dots[spec.graph.row == r, 2].mean() for r in range(spec.n_rows)]
@@ -544,18 +442,3 @@ def rows_to_pass(chart: BackChart, spec: TapeSpec, s0: float, tension: TapeTensi
         n -= 2
     return n
 
-
-def _outer_envelope(u: np.ndarray, depth: np.ndarray) -> np.ndarray:
-    """The convex bridge over a cross-section: the lower convex hull of (u, depth) (depth grows
-    into the body), evaluated at ``u``. A taut strip spans hollows instead of following them."""
-    hull: list[int] = []
-    for i in range(len(u)):
-        while len(hull) >= 2:
-            a, b = hull[-2], hull[-1]
-            cross = (u[b] - u[a]) * (depth[i] - depth[a]) - (depth[b] - depth[a]) * (u[i] - u[a])
-            if cross <= 0:  # b lies on or above the chord a-i: not on the lower hull
-                hull.pop()
-            else:
-                break
-        hull.append(i)
-    return np.interp(u, u[hull], depth[hull])
