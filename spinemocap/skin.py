@@ -1,22 +1,24 @@
-"""Points bound to a body's skin, and a tape laid along the spine of any body mesh (core).
+"""Points bound to a body's skin, and a tape laid as a taut strip up the back of any body mesh (core).
 
-Body-agnostic generalisation of the studio's tape laying (``spinemocap.synth.tape_on_skin``,
-which works on anny only and builds its taut strip from the binding, ray casting, arc-length
-profile and convex bridge here): everything here takes a rest mesh (vertices (V, 3) mm, faces
-(T, 3)) plus the body's spine chain and vertebral level heights, so any body model (anny, SMPL,
-SMPL-X) carries a tape. Frame: the studio's (mm, Z up, the body facing ``-Y`` at rest, so the back faces
-``+Y``; the subject's left ``+X``).
+The one tape-laying toolkit: the studio (``spinemocap.synth.tape_on_skin``) lays its tape with
+:class:`BackChart` and adds taping tension and skin strain; the body models
+(``spinemocap.bodymodel``) lay theirs with :class:`LaidTape`, the same chart without them. Everything
+here takes a rest mesh (vertices (V, 3) mm, faces (T, 3)) plus the body's vertebral level heights,
+so any body model (anny, SMPL, SMPL-X) carries a tape. Frame: the studio's (mm, Z up, the body
+facing ``-Y`` at rest, so the back faces ``+Y``; the subject's left ``+X``).
 
-A point is bound by a triangle index and barycentric weights (plus an optional height along the
-interpolated normal), so in any pose of the same topology it is the same convex combination of
-the posed triangle's corners: the tape stretches and bends with the skin.
+A point is bound by a triangle index and barycentric weights (plus an offset along the
+interpolated normal or in the triangle's local frame), so in any pose of the same topology it is
+the same combination of the posed triangle's corners: the tape stretches and bends with the skin.
 
-The tape is laid as in the studio: the sagittal profile of the back (the mesh cut by ``x = 0``,
-back side only) is parametrised by arc length; a tape point with flat coordinates ``(u, v)``
-(``v`` along the tape from the first row, ``u`` across, positive toward the subject's right =
-``-X``) is placed ``v`` mm along the profile above the start level, shifted ``u`` mm to the right
-and projected onto the skin; where the tape bridges the groove over the spinous processes the
-points float at the height of the cross-section's convex envelope.
+The tape is laid as a taut strip: :class:`BackProfile` is the strip's midline (the outer convex
+envelope of horizontal sections of the back, parametrised by arc length); :class:`BackChart` is a
+grid of nodes ``(s, u)`` on the strip's surface (``s`` arc length along the midline, ``u`` toward
+the subject's right = ``-X``, as in :mod:`spinemocap.tape`), each bound to the skin under it, so it
+follows the skin in any pose; a tape point with flat coordinates ``(u, v)`` lies at chart
+coordinates ``(u, s0 + v)`` (``s0``: the start level's arc length), interpolated bilinearly from
+the posed nodes. Where the strip bridges a hollow (the gluteal cleft, the groove over the spinous
+processes) its points float at the height of the section's convex envelope.
 """
 
 from __future__ import annotations
@@ -139,10 +141,11 @@ def bind_to_surface(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
     return SkinBinding(triangles, weights, None if heights is None else np.asarray(heights, float))
 
 
-def bind_to_nearest(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> SkinBinding:
-    """Bind (N, 3) points to their closest points on a (posed) mesh; ``heights`` keep each
-    point's signed distance along the interpolated normal, so the binding reproduces points that
-    lie off the skin (tracked dots on a tape, markers)."""
+def bind_to_nearest(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> FramedBinding:
+    """Bind (N, 3) points to their closest points on a (posed) mesh, each keeping its offset
+    from there in the triangle's local frame, so the binding reproduces points that lie off the
+    skin (tracked dots on a tape bridging a hollow, markers) exactly in this pose and follows the
+    skin's rotation in others."""
     import vtk
 
     locator = vtk.vtkCellLocator()
@@ -156,11 +159,7 @@ def bind_to_nearest(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray)
         locator.FindClosestPoint(p, closest, cell, sub, dist2)
         triangles[i], surface[i] = int(cell), closest
     weights = barycentric(np.asarray(vertices, float)[faces[triangles]], surface)
-    binding = SkinBinding(triangles, weights)
-    normals = binding.normals(vertex_normals(vertices, faces), faces)
-    binding.heights = np.einsum("nd,nd->n", np.asarray(points, float) - binding.surface_points(vertices, faces),
-                                normals)
-    return binding
+    return FramedBinding(vertices, faces, triangles, weights, np.asarray(points, float))
 
 
 class ArcProfile:
@@ -198,51 +197,177 @@ class ArcProfile:
         return p + us[:, :1] * right, inward
 
 
-class BackProfile(ArcProfile):
-    """The sagittal midline of the back on a rest mesh, parametrised by arc length (mm).
-    ``spine_chain`` (K, 3): rest spine joints from the sacrum (S1) to C7, bottom to top."""
+BRIDGE_HALF_WIDTH_MM = 30.0  # the strip spans hollows over its width plus its transverse stretch
+CHART_STEP_MM = 2.0  # chart node spacing along the tape
+CHART_U_STEP_MM = 2.5  # chart node spacing across the tape
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, spine_chain: np.ndarray, step_mm: float = 2.0):
-        section = _polydata(vertices, faces).slice(normal="x", origin=(0.0, 0.0, 0.0)).points
-        chain = np.asarray(spine_chain, float)
-        z_lo, z_hi = chain[0, 2] - 120.0, chain[-1, 2] + 40.0
-        inside = (section[:, 2] > z_lo) & (section[:, 2] < z_hi)
-        spine_y = np.interp(section[:, 2], chain[:, 2], chain[:, 1])
-        back = section[inside & (section[:, 1] > spine_y)]
-        z = np.arange(z_lo, z_hi, step_mm)
-        bins = np.digitize(back[:, 2], z)
-        zs, ys = [], []
-        for b in np.unique(bins):  # the outermost slice point per z bin: y(z) near the midline
-            sel = bins == b
-            k = np.argmax(back[sel, 1])
-            zs.append(back[sel][k, 2])
-            ys.append(back[sel][k, 1])
-        order = np.argsort(zs)
-        zs_a, ys_a = np.array(zs)[order], np.array(ys)[order]
-        ys_a = np.convolve(np.pad(ys_a, 2, mode="edge"), np.ones(5) / 5, mode="valid")
-        super().__init__(np.column_stack([np.zeros_like(zs_a), ys_a, zs_a]))
+
+class BackProfile(ArcProfile):
+    """The midline of a taut strip laid up the rest back, parametrised by arc length (mm).
+
+    Horizontal rays from behind (``-Y``) sample the back's surface across the strip's width
+    (``|x| <= BRIDGE_HALF_WIDTH_MM``) every ``step_mm`` of height from 60 mm below the lowest
+    vertebral level of ``level_heights`` (level name -> rest height z, mm; it must hold ``C7``) up
+    the back of the neck (to where the head overhangs it); at each height the strip spans the
+    hollows (the gluteal cleft, the groove over the spinous processes) like a taut chord, so its
+    midline lies on the outer convex envelope of the section, not in the cleft. The midline is
+    smoothed lightly and parametrised by arc length.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, level_heights: dict[str, float],
+                 step_mm: float = 2.0):
+        z = np.arange(min(level_heights.values()) - 60.0, level_heights["C7"] + 150.0, step_mm)
+        x = np.linspace(-BRIDGE_HALF_WIDTH_MM, BRIDGE_HALF_WIDTH_MM, 25)
+        behind = np.asarray(vertices)[:, 1].max() - 50.0  # rays run 100 mm either side of this
+        zz, xx = np.meshgrid(z, x, indexing="ij")
+        starts = np.column_stack([xx.ravel(), np.full(xx.size, behind), zz.ravel()])
+        forward = np.tile([0.0, -1.0, 0.0], (len(starts), 1))
+        _, hits = cast_onto_skin(vertices, faces, starts, forward, missing_ok=True)
+        depth = (behind - hits[:, 1]).reshape(len(z), len(x))  # grows into the body
+        # up the neck the profile ends where a ray misses or the back of the head overhangs it
+        missed = np.flatnonzero(np.isnan(depth).any(axis=1))
+        if len(missed) and z[missed[0]] <= level_heights["C7"]:
+            raise ValueError(f"the back of this body is not where the tape is laid (no skin at "
+                             f"height {z[missed[0]]:.0f} mm)")
+        end = missed[0] if len(missed) else len(z)
+        z, depth = z[:end], depth[:end]
+        mid = len(x) // 2
+        y = behind - np.array([outer_envelope(x, row)[mid] for row in depth])
+        neck = np.flatnonzero(z > level_heights["C7"])
+        overhang = neck[y[neck] > np.minimum.accumulate(y[neck]) + 2.0]
+        if len(overhang):
+            z, y = z[: overhang[0]], y[: overhang[0]]
+        kernel = np.ones(5) / 5
+        y = np.convolve(np.pad(y, 2, mode="edge"), kernel, mode="valid")
+        super().__init__(np.column_stack([np.zeros_like(z), y, z]))
+
+
+class FramedBinding:
+    """Points bound to a mesh with an offset in the local frame of their triangle: ``triangles``
+    (N,), barycentric ``weights`` (N, 3) of the skin point under each, and ``offsets`` (N, 3) mm
+    of the point from it along (edge tangent, second tangent, interpolated normal). Follows the
+    skin's rotation where a plain normal offset would swing sideways in a fold."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, triangles: np.ndarray, weights: np.ndarray,
+                 points: np.ndarray):
+        self.triangles, self.weights = triangles, weights
+        base, frame = self._frames(vertices, faces, vertex_normals(vertices, faces))
+        self.offsets = np.einsum("nkd,nd->nk", frame, points - base)
+
+    def _frames(self, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        corners = np.asarray(vertices, float)[faces[self.triangles]]
+        base = np.einsum("nk,nkd->nd", self.weights, corners)
+        n = np.einsum("nk,nkd->nd", self.weights, np.asarray(normals, float)[faces[self.triangles]])
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        e1 = corners[:, 1] - corners[:, 0]
+        e1 -= np.einsum("nd,nd->n", e1, n)[:, None] * n
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        return base, np.stack([e1, np.cross(n, e1), n], axis=1)  # (N, 3 axes, 3)
+
+    def points(self, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+        """(N, 3) bound points on a posed mesh with vertex ``normals`` (computed if not given)."""
+        if normals is None:
+            normals = vertex_normals(vertices, faces)
+        base, frame = self._frames(vertices, faces, normals)
+        return base + np.einsum("nk,nkd->nd", self.offsets, frame)
+
+    def sequence(self, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+        """(F, N, 3) bound points over (F, V, 3) posed meshes."""
+        return np.stack([self.points(v, faces) for v in vertices])
+
+
+class BackChart:
+    """Taut-strip coordinates over the back of a rest mesh (vertices (V, 3) mm, faces (T, 3);
+    ``level_heights`` as for :class:`BackProfile`): a grid of nodes ``(s, u)`` (arc length along
+    the :class:`BackProfile` from its bottom, and offset toward the subject's right, mm), each on
+    the surface a taut strip laid along the midline takes (bridging the hollows across the strip),
+    bound to the skin. Any tape point is interpolated from the posed nodes around it."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, level_heights: dict[str, float]):
+        self.rest_vertices, self.faces = np.asarray(vertices, float), np.asarray(faces)
+        self.profile = BackProfile(self.rest_vertices, self.faces, level_heights)
+        self.s = np.arange(0.0, self.profile.arc[-1], CHART_STEP_MM)
+        self.u = np.arange(-BRIDGE_HALF_WIDTH_MM, BRIDGE_HALF_WIDTH_MM + 1e-9, CHART_U_STEP_MM)
+        ss, uu = np.meshgrid(self.s, self.u, indexing="ij")
+        starts, inward = self.lay(np.column_stack([uu.ravel(), ss.ravel()]))
+        triangles, hits = cast_onto_skin(self.rest_vertices, self.faces, starts, inward)
+        depth = np.einsum("nd,nd->n", hits - starts, inward).reshape(ss.shape)
+        envelope = np.array([outer_envelope(self.u, row) for row in depth])
+        rest = starts + envelope.reshape(-1, 1) * inward
+        self.bridge_mm = (depth - envelope)  # (Ns, Nu) how far the strip floats above the skin
+        weights = barycentric(self.rest_vertices[self.faces[triangles]], hits)
+        self.binding = FramedBinding(self.rest_vertices, self.faces, triangles, weights, rest)
+        self.rest_grid = rest.reshape(len(self.s), len(self.u), 3)
+        self.rest_segments = np.linalg.norm(np.diff(self.rest_grid, axis=0), axis=2)  # (Ns - 1, Nu)
+
+    def lay(self, us: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Chart coordinates (N, 2) ``(u, s)`` mm -> points in the profile's plane shifted ``u``
+        toward the subject's right, and the inward directions (in the sagittal plane, normal to the
+        profile) along which they are projected onto the skin."""
+        return self.profile.across(us)
+
+    def arc_at_height(self, z_mm: float) -> float:
+        return self.profile.arc_at_height(z_mm)
+
+    def posed_grid(self, vertices: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+        """(Ns, Nu, 3) node positions (mm) on a posed mesh."""
+        if normals is None:
+            normals = vertex_normals(vertices, self.faces)
+        return self.binding.points(vertices, self.faces, normals).reshape(len(self.s), len(self.u), 3)
+
+    def interpolate(self, grid: np.ndarray, us: np.ndarray) -> np.ndarray:
+        """Bilinear interpolation of a node field ``grid`` (Ns, Nu, ...) at chart coordinates
+        ``us`` (N, 2) ``(u, s)``; linear extrapolation beyond the chart's ends."""
+        fi = (us[:, 1] - self.s[0]) / CHART_STEP_MM
+        fj = (us[:, 0] - self.u[0]) / CHART_U_STEP_MM
+        i = np.clip(np.floor(fi).astype(int), 0, len(self.s) - 2)
+        j = np.clip(np.floor(fj).astype(int), 0, len(self.u) - 2)
+        a, b = fi - i, fj - j
+        extra = (slice(None),) + (None,) * (grid.ndim - 2)
+        a, b = a[extra], b[extra]
+        return ((1 - a) * (1 - b) * grid[i, j] + a * (1 - b) * grid[i + 1, j]
+                + (1 - a) * b * grid[i, j + 1] + a * b * grid[i + 1, j + 1])
+
+
+@dataclass
+class ChartPoints:
+    """Points fixed on a :class:`BackChart` at chart coordinates ``us`` (N, 2) ``(u, s)`` mm:
+    read off any posed mesh of the chart's topology."""
+
+    chart: BackChart
+    us: np.ndarray
+
+    def points(self, vertices: np.ndarray, faces: np.ndarray | None = None,
+               normals: np.ndarray | None = None) -> np.ndarray:
+        """(N, 3) positions (mm) on a posed mesh (``faces`` must be the chart's, if given)."""
+        return self.chart.interpolate(self.chart.posed_grid(vertices, normals), self.us)
+
+    def sequence(self, vertices: np.ndarray, faces: np.ndarray | None = None) -> np.ndarray:
+        """(F, N, 3) positions over (F, V, 3) posed meshes."""
+        return np.stack([self.points(v) for v in vertices])
 
 
 class LaidTape:
-    """A tape laid along the spine of a rest mesh (see the module docstring): ``dots`` is the
-    binding of the dot centres (labels: ``spec.graph.labels``); ``row_levels`` the nearest
+    """A tape laid as a taut strip along the spine of a rest mesh from ``start_level`` at its spec
+    (no taping tension; the studio, :mod:`spinemocap.synth.tape_on_skin`, lays it the same way and
+    adds tension and skin strain): ``dots`` are the dot centres (the holes' centres on the tape's
+    underside; labels ``spec.graph.labels``) on the :class:`BackChart`; ``row_levels`` the nearest
     vertebral level of each row. ``level_heights``: level name -> rest height z (mm)."""
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, spine_chain: np.ndarray,
-                 level_heights: dict[str, float], spec: TapeSpec, start_level: str = "L4"):
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, level_heights: dict[str, float], spec: TapeSpec,
+                 start_level: str = "L4", chart: BackChart | None = None):
         if start_level not in level_heights:
             raise ValueError(f"unknown tape start level {start_level!r}; known: {list(level_heights)}")
         self.vertices, self.faces = np.asarray(vertices, float), np.asarray(faces)
         self.spec, self.start_level, self.level_heights = spec, start_level, level_heights
-        self.profile = BackProfile(self.vertices, self.faces, spine_chain)
-        self.s0 = self.profile.arc_at_height(level_heights[start_level])
-        s_end = self.s0 + (spec.n_rows - 1) * spec.row_pitch_mm + spec.end_margin_mm
-        if self.s0 - spec.end_margin_mm < 0 or s_end > self.profile.arc[-1]:
+        self.chart = chart if chart is not None else BackChart(self.vertices, self.faces, level_heights)
+        self.s0 = self.chart.arc_at_height(level_heights[start_level])
+        if self.s0 - spec.end_margin_mm < self.chart.s[0] or self.s0 + spec.length_mm - spec.end_margin_mm > self.chart.s[-1]:
             raise ValueError(f"a {spec.n_rows}-row tape starting at {start_level} does not fit on the back "
-                             f"({self.profile.arc[-1]:.0f} mm of midline); use fewer rows or a lower start level")
-        uv = spec.graph.uv_mm
-        self.dots = bind_to_surface(self.vertices, self.faces, *self.lay(uv), self.bridge_heights()(uv))
-        rest_dots = self.dots.points(self.vertices, self.faces)
+                             f"({self.chart.s[-1] - self.s0:.0f} mm of midline above it); use fewer rows or "
+                             f"a lower start level")
+        self.dots = ChartPoints(self.chart, self.material(spec.graph.uv_mm))
+        rest_dots = self.dot_positions(self.vertices)
         row_z = [rest_dots[spec.graph.row == r, 2].mean() for r in range(spec.n_rows)]
         self.row_levels = [min(level_heights, key=lambda name: abs(level_heights[name] - z)) for z in row_z]
 
@@ -250,31 +375,14 @@ class LaidTape:
     def labels(self) -> list[str]:
         return list(self.spec.graph.labels)
 
-    def lay(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Flat tape coordinates (N, 2) mm -> 3D rest positions near the skin and the inward
-        directions along which they are projected onto it."""
+    def material(self, uv: np.ndarray) -> np.ndarray:
+        """Flat tape coordinates (N, 2) mm -> chart coordinates ``(u, s)`` mm of the tape as laid."""
         uv = np.asarray(uv, float)
-        return self.profile.across(np.column_stack([uv[:, 0], self.s0 + uv[:, 1]]))
-
-    def bridge_heights(self):
-        """Interpolator ``(N, 2) uv -> (N,)`` heights (mm) at which the taut tape bridges the
-        hollows of each cross-section (its outer convex envelope)."""
-        from scipy.interpolate import RegularGridInterpolator
-
-        spec = self.spec
-        u = np.linspace(-spec.width_mm / 2, spec.width_mm / 2, 26)
-        v = np.arange(-spec.end_margin_mm, spec.length_mm - spec.end_margin_mm + 1.0, 2.0)
-        uu, vv = np.meshgrid(u, v)
-        start, inward = self.lay(np.column_stack([uu.ravel(), vv.ravel()]))
-        _, hit = cast_onto_skin(self.vertices, self.faces, start, inward)
-        depth = np.einsum("nd,nd->n", hit - start, inward).reshape(len(v), len(u))
-        heights = np.array([row - outer_envelope(u, row) for row in depth])
-        interpolate = RegularGridInterpolator((v, u), heights, bounds_error=False, fill_value=None)
-        return lambda points_uv: np.maximum(interpolate(np.asarray(points_uv)[:, ::-1]), 0.0)
+        return np.column_stack([uv[:, 0], self.s0 + uv[:, 1]])
 
     def dot_positions(self, vertices: np.ndarray) -> np.ndarray:
         """(D, 3) dot centres (mm) on a posed mesh of the same topology."""
-        return self.dots.points(vertices, self.faces)
+        return self.dots.points(vertices)
 
 
 def outer_envelope(u: np.ndarray, depth: np.ndarray) -> np.ndarray:

@@ -47,7 +47,11 @@ def test_tape_on_the_studio_body_reproduces_the_studio_dots(anny):
     spec = TapeSpec(n_rows=9)
     body = Body()
     studio = TapeOnSkin(body, spec, "L4")
-    laid = lay_tape(anny.rest(), spec, "L4")
+    # the studio places the vertebral levels by surface anatomy (S2 at the PSIS), the body model
+    # along its spine chain: laid from the studio's levels (in anny's own frame: soles not on z = 0)
+    # on the studio's own body, the body-model tape is the studio's (no tension, no skin strain)
+    levels = {name: z - body.floor_offset[2] for name, z in body.level_heights().items()}
+    laid = lay_tape(anny.rest(), spec, "L4", levels)
     assert laid.row_levels == studio.row_levels
     angles = np.array([[20.0, 5.0, -10.0], [-10.0, 0.0, 15.0]])
     studio_vertices, _ = body.pose(angles)
@@ -62,7 +66,7 @@ def test_tape_on_the_studio_body_reproduces_the_studio_dots(anny):
     binding, present = bind_to_tracked(ours[0], anny.faces, tracked)
     dots = dots_over_frames(binding, ours, anny.faces, len(tracked), present)
     assert np.isnan(dots[:, 3]).all()
-    np.testing.assert_allclose(dots[0, present], tracked[present], atol=0.1)  # offsets along the interpolated normal
+    np.testing.assert_allclose(dots[0, present], tracked[present], atol=0.1)  # offsets in the triangles' frames
     error = np.linalg.norm(dots[1, present] - studio.dot_positions(studio_vertices[1])[present], axis=1)
     assert error.max() < 0.5
 

@@ -37,7 +37,7 @@ def trial(tmp_path_factory):
 
     config = SynthConfig.preset("tiny", frames=60, fps=30.0, rows=9)
     scene = build_scene(config)
-    dots = np.array([scene.tape_on_skin.dot_positions(scene.frame_vertices(f)) for f in range(scene.n_frames)])
+    dots = np.array([scene.frame_dots(f) for f in range(scene.n_frames)])  # the studio's truth (skin strain on)
     dots += np.random.default_rng(1).normal(0.0, 0.1, dots.shape)
     vicon = record_scene(scene)
     return scene, dots, vicon
@@ -82,7 +82,7 @@ def test_crossval_command_writes_its_outputs(trial, tmp_path):
                     tmp_path / "vicon.c3d")
     # a body-model reference in the Vicon frame and clock (here: the exact dots, as a perfect body fit
     # would give them, sampled on the Vicon clock)
-    exact = np.array([scene.tape_on_skin.dot_positions(scene.frame_vertices(f)) for f in range(scene.n_frames)])
+    exact = np.array([scene.frame_dots(f) for f in range(scene.n_frames)])
     s = vicon.setup
     ref_first = 10
     reference = MarkerTable.from_arrays(scene.labels, exact @ s.R.T + s.t, scene.fps, first_frame=ref_first)

@@ -17,8 +17,15 @@ import exporters
 
 from ..bodymodel.anny_body import PHENOTYPE_KEYS, AnnyModel
 from ..bodymodel.base import RestBody
-from ..bodymodel.tape import lay_tape
-from ..bodymodel.virtual_vicon import ViconSetup, VirtualVicon, record
+from ..bodymodel.virtual_vicon import (
+    TapeMarkers,
+    ViconSetup,
+    VirtualVicon,
+    default_tape_rows,
+    interleave_rows,
+    record,
+    tape_marker_layout,
+)
 from ..fileio import atomic_path
 from ..markers import MarkerTable
 from ..synth.motions import spine_motion
@@ -35,11 +42,34 @@ def studio_rest_body(scene) -> RestBody:
                                joints={k: v + lift for k, v in rest.joints.items()})
 
 
+def studio_tape_markers(scene, radius_mm: float, beside_mm: float) -> TapeMarkers:
+    """The Vicon markers on and beside the studio's own tape, as the studio lays it and strains the
+    skin under it at every instant: each centre marker sits on the tape (its underside point, the
+    tape's thickness and the marker's radius out along the tape's normal), so it moves with the
+    studio's dots; the beside markers ride on the same strained skin chart beside the tape (beyond
+    the chart's edge, extrapolated from it), their radius out along its normal."""
+    tape = scene.tape_on_skin
+    spec = tape.spec
+    labels, centres, sides = tape_marker_layout(spec, default_tape_rows(spec), beside_mm)
+    material = tape.material(np.concatenate([centres, sides.reshape(-1, 2)]))
+    heights = np.concatenate([np.full(len(centres), spec.thickness_mm + radius_mm), np.full(2 * len(sides), radius_mm)])
+    dots_z = tape.pose(scene.body.rest_vertices).dots()[:, 2]
+
+    def points(time_s: float, vertices: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        posed = scene.posed_tape(time_s=time_s, posed=(vertices, normals))
+        p = posed.points(material) + heights[:, None] * posed.normals(material)
+        return interleave_rows(p[: len(centres)], p[len(centres) :])
+
+    return TapeMarkers(labels, (float(dots_z.min()), float(dots_z.max())), points)
+
+
 def record_scene(scene, setup: ViconSetup | None = None) -> VirtualVicon:
-    """Record the virtual Vicon over a built studio scene's duration."""
+    """Record the virtual Vicon over a built studio scene's duration; its tape markers ride on the
+    studio's own tape (skin strain included)."""
+    setup = setup or ViconSetup()
     rest = studio_rest_body(scene)
-    laid = lay_tape(rest, scene.tape, scene.config.tape_start)
-    return record(rest, laid, lambda t: scene.body.pose(spine_motion(scene.config.motion, t))[0],
+    markers = studio_tape_markers(scene, setup.marker_diameter_mm / 2, setup.beside_mm)
+    return record(rest, markers, lambda t: scene.body.pose(spine_motion(scene.config.motion, t))[0],
                   scene.n_frames / scene.fps, setup)
 
 

@@ -1,7 +1,7 @@
 """A tape on a body model, per frame: the paper's body-model ground truth (its "MoSh" baseline).
 
-The tape is laid on the fitted body in its rest pose (anatomically, from the vertebral levels:
-:func:`lay_tape`) or bound to the tracked dots of one chosen frame (:func:`bind_to_tracked`), and
+The tape is laid on the fitted body in its rest pose as the studio lays it (a taut strip up the
+back from a vertebral level: :func:`lay_tape`) or bound to the tracked dots of one chosen frame (:func:`bind_to_tracked`), and
 read off the posed body in every frame: the dots' labels are the tracker's (``spec.graph``),
 so the result is a marker table to export beside the tracked dots as ``REF_*`` markers. Units
 mm, the studio frame.
@@ -11,18 +11,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..skin import LaidTape, SkinBinding, bind_to_nearest
+from ..skin import FramedBinding, LaidTape, bind_to_nearest
 from ..tape import TapeSpec
 from .base import RestBody
 from .markersets import level_heights
 
 
-def lay_tape(rest: RestBody, spec: TapeSpec, start_level: str = "L4") -> LaidTape:
-    """Lay ``spec`` along the spine of a rest body, its first row at ``start_level``."""
-    return LaidTape(rest.vertices, rest.faces, rest.spine_chain, level_heights(rest), spec, start_level)
+def lay_tape(rest: RestBody, spec: TapeSpec, start_level: str = "L4",
+             levels: dict[str, float] | None = None) -> LaidTape:
+    """Lay ``spec`` as a taut strip up the back of a rest body (the studio's laying, core
+    :class:`~spinemocap.skin.LaidTape`), its first row at ``start_level``. ``levels``: vertebral
+    level name -> rest height z (mm) in the rest body's frame; by default this body's own
+    (:func:`~.markersets.level_heights`, spread along its spine chain from S1 to C7)."""
+    return LaidTape(rest.vertices, rest.faces, level_heights(rest) if levels is None else levels, spec, start_level)
 
 
-def bind_to_tracked(vertices: np.ndarray, faces: np.ndarray, dots_mm: np.ndarray) -> tuple[SkinBinding, np.ndarray]:
+def bind_to_tracked(vertices: np.ndarray, faces: np.ndarray, dots_mm: np.ndarray) -> tuple[FramedBinding, np.ndarray]:
     """Bind the tracked dots (D, 3) mm of one frame (NaN where missing) to the body posed in that
     frame (``vertices`` (V, 3) mm). Returns the binding of the finite dots and their indices."""
     dots_mm = np.asarray(dots_mm, float)
@@ -32,7 +36,7 @@ def bind_to_tracked(vertices: np.ndarray, faces: np.ndarray, dots_mm: np.ndarray
     return bind_to_nearest(vertices, faces, dots_mm[present]), present
 
 
-def dots_over_frames(binding: SkinBinding, vertices: np.ndarray, faces: np.ndarray, n_dots: int | None = None,
+def dots_over_frames(binding: FramedBinding, vertices: np.ndarray, faces: np.ndarray, n_dots: int | None = None,
                      present: np.ndarray | None = None) -> np.ndarray:
     """(F, D, 3) mm dot positions read off posed meshes (F, V, 3); dots not bound (``present``
     lists those bound) are NaN."""

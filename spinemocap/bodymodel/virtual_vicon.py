@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..skin import LaidTape, SkinBinding, bind_to_surface, vertex_normals
+from ..skin import SkinBinding, bind_to_surface, vertex_normals
+from ..tape import TapeSpec
 from .base import RestBody
 from .markersets import PLUG_IN_GAIT, SPINE_MARKERS, level_point, place_markers
 
@@ -70,32 +71,41 @@ class VirtualVicon:
                 "vicon_time_s": self.time_s, "vicon_truth_studio_mm": self.truth_studio}
 
 
-def tape_marker_bindings(laid: LaidTape, rows: list[int], radius_mm: float, beside_mm: float
-                         ) -> tuple[list[str], SkinBinding]:
-    """Bindings of the tape markers (see module docstring) at 2-dot rows ``rows`` (0-based)."""
-    spec = laid.spec
+@dataclass
+class TapeMarkers:
+    """The Vicon markers on and beside a tape: ``labels`` (per 2-dot row ``VT_Rnn``, ``VT_RnnL``,
+    ``VT_RnnR``), ``z_range_mm`` the rest height range (mm) of the tape's dots (no spine marker is
+    stuck there) and ``points(time_s, vertices, normals)`` -> (M, 3) marker centres (mm, studio
+    frame) on the body posed at studio time ``time_s`` (vertices/vertex normals (V, 3))."""
+
+    labels: list[str]
+    z_range_mm: tuple[float, float]
+    points: Callable[[float, np.ndarray, np.ndarray], np.ndarray]
+
+
+def tape_marker_layout(spec: TapeSpec, rows: list[int], beside_mm: float) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Labels of the tape markers (see module docstring) at 2-dot rows ``rows`` (0-based), the flat
+    tape coordinates (R, 2) mm of the centre markers and (R, 2, 2) of the beside markers (L, R)."""
     graph = spec.graph
-    labels, uv, heights = [], [], []
-    bridge = laid.bridge_heights()
+    labels, centres, sides = [], [], []
     for r in rows:
         v = float(graph.uv_mm[graph.row == r, 1].mean())
         name = f"VT_R{r + 1:02d}"
-        centre = np.array([[0.0, v]])
-        labels.append(name)
-        uv.append(centre[0])
-        heights.append(float(bridge(centre)[0]) + spec.thickness_mm + radius_mm)
-        for side, u in (("L", -1.0), ("R", 1.0)):  # u positive toward the subject's right
-            labels.append(name + side)
-            uv.append([u * (spec.width_mm / 2 + beside_mm), v])
-            heights.append(radius_mm)
-    uv_a = np.array(uv)
-    binding = bind_to_surface(laid.vertices, laid.faces, *laid.lay(uv_a), np.array(heights))
-    return labels, binding
+        labels += [name, name + "L", name + "R"]
+        centres.append([0.0, v])
+        # u positive toward the subject's right
+        sides.append([[-(spec.width_mm / 2 + beside_mm), v], [spec.width_mm / 2 + beside_mm, v]])
+    return labels, np.array(centres, float), np.array(sides, float)
 
 
-def default_tape_rows(laid: LaidTape) -> list[int]:
+def interleave_rows(centres: np.ndarray, sides: np.ndarray) -> np.ndarray:
+    """(R, 3) centre and (2R, 3) beside markers (row by row, L then R) -> (3R, 3) in label order."""
+    return np.concatenate([centres[:, None], sides.reshape(-1, 2, 3)], axis=1).reshape(-1, 3)
+
+
+def default_tape_rows(spec: TapeSpec) -> list[int]:
     """Three 2-dot rows: the second, the middle and the last but one."""
-    two = [r for r in range(laid.spec.n_rows) if (laid.spec.graph.row == r).sum() == 2]
+    two = [r for r in range(spec.n_rows) if (spec.graph.row == r).sum() == 2]
     return sorted({two[0], two[len(two) // 2], two[-1]})
 
 
@@ -128,37 +138,38 @@ def _gaps(n_frames: int, n_markers: int, share: float, rng: np.random.Generator)
     return missing
 
 
-def record(rest: RestBody, laid: LaidTape, posed: Callable[[np.ndarray], np.ndarray], duration_s: float,
+def record(rest: RestBody, tape_markers: TapeMarkers, posed: Callable[[np.ndarray], np.ndarray], duration_s: float,
            setup: ViconSetup | None = None, spine: bool = True, chunk: int = 64) -> VirtualVicon:
     """Record the virtual Vicon over studio times [0, duration_s]: ``posed(times)`` returns the
-    body's (N, V, 3) mm vertices (studio frame) at studio times (N,) s. ``rest``/``laid`` are the
-    same body at rest (studio frame) and the tape laid on it."""
+    body's (N, V, 3) mm vertices (studio frame) at studio times (N,) s; ``rest`` is the same body at
+    rest (studio frame) and ``tape_markers`` the markers on and beside its tape (built with the
+    marker radius of ``setup``; the studio's: ``spinemocap.app.virtual_vicon``)."""
     setup = setup or ViconSetup()
     rng = np.random.default_rng(setup.seed)
     radius = setup.marker_diameter_mm / 2
-    under_tape = _levels_under_tape(rest, laid)
+    under_tape = _levels_under_tape(rest, tape_markers.z_range_mm)
     skin_labels = list(PLUG_IN_GAIT) + [s for s in SPINE_MARKERS if spine and s not in PLUG_IN_GAIT
                                         and s not in under_tape]
     skin_labels = [s for s in skin_labels if s not in under_tape]
     labels_a, skin = skin_marker_binding(rest, skin_labels, radius, setup.misplacement_mm, rng)
-    labels_b, tape = tape_marker_bindings(laid, default_tape_rows(laid), radius, setup.beside_mm)
     first = int(np.ceil(setup.clock_offset_s * setup.rate_hz - 1e-9))
     last = int(np.floor((duration_s + setup.clock_offset_s) * setup.rate_hz + 1e-9))
     vicon_time = np.arange(first, last + 1) / setup.rate_hz
     studio_time = np.clip(vicon_time - setup.clock_offset_s, 0.0, duration_s)
     truth = []
     for start in range(0, len(studio_time), chunk):
-        for v in posed(studio_time[start : start + chunk]):
+        times = studio_time[start : start + chunk]
+        for t, v in zip(times, posed(times)):
             n = vertex_normals(v, rest.faces)
-            truth.append(np.concatenate([skin.points(v, rest.faces, n), tape.points(v, rest.faces, n)]))
+            truth.append(np.concatenate([skin.points(v, rest.faces, n), tape_markers.points(float(t), v, n)]))
     truth_a = np.array(truth)
     vicon = truth_a @ setup.R.T + setup.t + rng.normal(0.0, setup.noise_mm, truth_a.shape)
     vicon[_gaps(len(vicon), vicon.shape[1], setup.gap_share, rng)] = np.nan
-    return VirtualVicon(labels_a + labels_b, vicon, vicon_time, truth_a, setup)
+    return VirtualVicon(labels_a + tape_markers.labels, vicon, vicon_time, truth_a, setup)
 
 
-def _levels_under_tape(rest: RestBody, laid: LaidTape) -> set[str]:
-    """Spine levels whose rest height lies within the tape (a marker cannot sit on the dots)."""
-    dots = laid.dot_positions(laid.vertices)
-    lo, hi = dots[:, 2].min() - 20.0, dots[:, 2].max() + 20.0
+def _levels_under_tape(rest: RestBody, z_range_mm: tuple[float, float]) -> set[str]:
+    """Spine levels whose rest height lies within the tape's dots' height range ``z_range_mm``
+    (a marker cannot sit on the dots)."""
+    lo, hi = z_range_mm[0] - 20.0, z_range_mm[1] + 20.0
     return {s for s in SPINE_MARKERS if lo <= level_point(rest, s)[2] <= hi}

@@ -43,6 +43,7 @@ from .tape_on_skin import (
     PosedTape,
     TapeOnSkin,
     TapeTension,
+    back_chart,
     rows_to_pass,
 )
 from .visibility import MeshRayCaster, dot_visibility
@@ -250,7 +251,7 @@ def cached_body(phenotype: tuple) -> Body:
 @functools.lru_cache(maxsize=4)
 def cached_back_chart(phenotype: tuple) -> BackChart:
     """The taut strip's chart over a body's back, cached: it casts ~20k rays (seconds)."""
-    return BackChart(cached_body(phenotype))
+    return back_chart(cached_body(phenotype))
 
 
 @functools.lru_cache(maxsize=8)

@@ -2,9 +2,10 @@
 
 Laying (on the neutral, "rest" pose): a taut strip laid up the back from a start level spans the
 hollows across its width (the gluteal cleft, the groove over the spinous processes) instead of
-following them, as real kinesiology tape does. :class:`BackProfile` is the strip's midline (the
+following them, as real kinesiology tape does. The laying is core's (:mod:`spinemocap.skin`,
+shared with the body models): its ``BackProfile`` is the strip's midline (the
 outer convex envelope of horizontal sections of the back, parametrised by arc length);
-:class:`BackChart` is a grid of nodes ``(s, u)`` on the strip's surface (``s`` arc length along
+its ``BackChart`` is a grid of nodes ``(s, u)`` on the strip's surface (``s`` arc length along
 the midline, ``u`` toward the subject's right = ``-X``, as in :mod:`spinemocap.tape`), each
 bound to the skin under it by a triangle, barycentric weights and an offset in the triangle's
 local frame, so it follows the skin in any pose.
@@ -28,7 +29,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..skin import ArcProfile, barycentric, bind_to_surface, cast_onto_skin, outer_envelope, vertex_normals
+from ..skin import BackChart, bind_to_surface
 from ..tape import TapeSpec
 from .body import Body
 from .skin_strain import SkinStrain, StrainRegions
@@ -83,128 +84,10 @@ class TapeTension:
         return np.diff(self.laid_v(spec, np.arange(spec.n_rows) * spec.row_pitch_mm))
 
 
-BRIDGE_HALF_WIDTH_MM = 30.0  # the strip spans hollows over its width plus its transverse stretch
-CHART_STEP_MM = 2.0  # chart node spacing along the tape
-CHART_U_STEP_MM = 2.5  # chart node spacing across the tape
-
-
-class BackProfile(ArcProfile):
-    """The midline of a taut strip laid up the rest back, parametrised by arc length (mm).
-
-    Horizontal rays from behind (``-Y``) sample the back's surface across the strip's width
-    (``|x| <= BRIDGE_HALF_WIDTH_MM``) every ``step_mm`` of height from below S2 up the back of the
-    neck (to where the head overhangs it); at
-    each height the strip spans the hollows (the gluteal cleft, the groove over the spinous
-    processes) like a taut chord, so its midline lies on the outer convex envelope of the
-    section, not in the cleft. The midline is smoothed lightly and parametrised by arc length.
-    """
-
-    def __init__(self, body: Body, step_mm: float = 2.0):
-        levels = body.level_heights()
-        z = np.arange(levels["S2"] - 60.0, levels["C7"] + 150.0, step_mm)
-        x = np.linspace(-BRIDGE_HALF_WIDTH_MM, BRIDGE_HALF_WIDTH_MM, 25)
-        behind = body.rest_vertices[:, 1].max() - 50.0  # rays run 100 mm either side of this
-        zz, xx = np.meshgrid(z, x, indexing="ij")
-        starts = np.column_stack([xx.ravel(), np.full(xx.size, behind), zz.ravel()])
-        forward = np.tile([0.0, -1.0, 0.0], (len(starts), 1))
-        _, hits = cast_onto_skin(body.rest_vertices, body.faces, starts, forward, missing_ok=True)
-        depth = (behind - hits[:, 1]).reshape(len(z), len(x))  # grows into the body
-        # up the neck the profile ends where a ray misses or the back of the head overhangs it
-        missed = np.flatnonzero(np.isnan(depth).any(axis=1))
-        if len(missed) and z[missed[0]] <= levels["C7"]:
-            raise ValueError(f"the back of this body is not where the studio looks for it (no skin at "
-                             f"height {z[missed[0]]:.0f} mm)")
-        end = missed[0] if len(missed) else len(z)
-        z, depth = z[:end], depth[:end]
-        mid = len(x) // 2
-        y = behind - np.array([outer_envelope(x, row)[mid] for row in depth])
-        neck = np.flatnonzero(z > levels["C7"])
-        overhang = neck[y[neck] > np.minimum.accumulate(y[neck]) + 2.0]
-        if len(overhang):
-            z, y = z[: overhang[0]], y[: overhang[0]]
-        kernel = np.ones(5) / 5
-        y = np.convolve(np.pad(y, 2, mode="edge"), kernel, mode="valid")
-        super().__init__(np.column_stack([np.zeros_like(z), y, z]))
-
-
-class FramedBinding:
-    """Points bound to a mesh with an offset in the local frame of their triangle: ``triangles``
-    (N,), barycentric ``weights`` (N, 3) of the skin point under each, and ``offsets`` (N, 3) mm
-    of the point from it along (edge tangent, second tangent, interpolated normal). Follows the
-    skin's rotation where a plain normal offset would swing sideways in a fold."""
-
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, triangles: np.ndarray, weights: np.ndarray,
-                 points: np.ndarray):
-        self.triangles, self.weights = triangles, weights
-        base, frame = self._frames(vertices, faces, vertex_normals(vertices, faces))
-        self.offsets = np.einsum("nkd,nd->nk", frame, points - base)
-
-    def _frames(self, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        corners = np.asarray(vertices, float)[faces[self.triangles]]
-        base = np.einsum("nk,nkd->nd", self.weights, corners)
-        n = np.einsum("nk,nkd->nd", self.weights, np.asarray(normals, float)[faces[self.triangles]])
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
-        e1 = corners[:, 1] - corners[:, 0]
-        e1 -= np.einsum("nd,nd->n", e1, n)[:, None] * n
-        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-        return base, np.stack([e1, np.cross(n, e1), n], axis=1)  # (N, 3 axes, 3)
-
-    def points(self, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> np.ndarray:
-        """(N, 3) bound points on a posed mesh with vertex ``normals``."""
-        base, frame = self._frames(vertices, faces, normals)
-        return base + np.einsum("nk,nkd->nd", self.offsets, frame)
-
-
-class BackChart:
-    """Taut-strip coordinates over the back: a grid of nodes ``(s, u)`` (arc length along the
-    :class:`BackProfile` from its bottom, and offset toward the subject's right, mm), each on the
-    surface a taut strip laid along the midline takes (bridging the hollows across the strip), bound
-    to the skin. Any tape point is interpolated from the posed nodes around it."""
-
-    def __init__(self, body: Body):
-        self.body = body
-        self.profile = BackProfile(body)
-        self.s = np.arange(0.0, self.profile.arc[-1], CHART_STEP_MM)
-        self.u = np.arange(-BRIDGE_HALF_WIDTH_MM, BRIDGE_HALF_WIDTH_MM + 1e-9, CHART_U_STEP_MM)
-        ss, uu = np.meshgrid(self.s, self.u, indexing="ij")
-        starts, inward = self.lay(np.column_stack([uu.ravel(), ss.ravel()]))
-        triangles, hits = cast_onto_skin(body.rest_vertices, body.faces, starts, inward)
-        depth = np.einsum("nd,nd->n", hits - starts, inward).reshape(ss.shape)
-        envelope = np.array([outer_envelope(self.u, row) for row in depth])
-        rest = starts + envelope.reshape(-1, 1) * inward
-        self.bridge_mm = (depth - envelope)  # (Ns, Nu) how far the strip floats above the skin
-        weights = barycentric(body.rest_vertices[body.faces[triangles]], hits)
-        self.binding = FramedBinding(body.rest_vertices, body.faces, triangles, weights, rest)
-        self.rest_grid = rest.reshape(len(self.s), len(self.u), 3)
-        self.rest_segments = np.linalg.norm(np.diff(self.rest_grid, axis=0), axis=2)  # (Ns - 1, Nu)
-
-    def lay(self, us: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Chart coordinates (N, 2) ``(u, s)`` mm -> points in the profile's plane shifted ``u``
-        toward the subject's right, and the inward directions (in the sagittal plane, normal to the
-        profile) along which they are projected onto the skin."""
-        return self.profile.across(us)
-
-    def arc_at_height(self, z_mm: float) -> float:
-        return self.profile.arc_at_height(z_mm)
-
-    def posed_grid(self, vertices: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
-        """(Ns, Nu, 3) node positions (mm) on a posed mesh."""
-        if normals is None:
-            normals = vertex_normals(vertices, self.body.faces)
-        return self.binding.points(vertices, self.body.faces, normals).reshape(len(self.s), len(self.u), 3)
-
-    def interpolate(self, grid: np.ndarray, us: np.ndarray) -> np.ndarray:
-        """Bilinear interpolation of a node field ``grid`` (Ns, Nu, ...) at chart coordinates
-        ``us`` (N, 2) ``(u, s)``; linear extrapolation beyond the chart's ends."""
-        fi = (us[:, 1] - self.s[0]) / CHART_STEP_MM
-        fj = (us[:, 0] - self.u[0]) / CHART_U_STEP_MM
-        i = np.clip(np.floor(fi).astype(int), 0, len(self.s) - 2)
-        j = np.clip(np.floor(fj).astype(int), 0, len(self.u) - 2)
-        a, b = fi - i, fj - j
-        extra = (slice(None),) + (None,) * (grid.ndim - 2)
-        a, b = a[extra], b[extra]
-        return ((1 - a) * (1 - b) * grid[i, j] + a * (1 - b) * grid[i + 1, j]
-                + (1 - a) * b * grid[i, j + 1] + a * b * grid[i + 1, j + 1])
+def back_chart(body: Body) -> BackChart:
+    """The taut-strip chart over the back of the studio's body at rest (core :class:`BackChart`),
+    its profile starting 60 mm below S2."""
+    return BackChart(body.rest_vertices, body.faces, body.level_heights())
 
 
 def back_keypoints(body: Body) -> tuple[np.ndarray, np.ndarray]:
@@ -277,7 +160,7 @@ class TapeOnSkin:
         if start_level not in heights:
             raise ValueError(f"unknown tape start level {start_level!r}; known: {list(heights)}")
         self.body, self.spec, self.start_level, self.tension = body, spec, start_level, tension
-        self.chart = chart if chart is not None else BackChart(body)
+        self.chart = chart if chart is not None else back_chart(body)
         self.s0 = self.chart.arc_at_height(heights[start_level])
         self.regions = StrainRegions(*(self.chart.arc_at_height(heights[name]) for name in ("S1", "L1", "T10")))
         v_ends = self.s0 + tension.laid_v(spec, np.array([-spec.end_margin_mm, spec.length_mm - spec.end_margin_mm]))
