@@ -29,7 +29,7 @@ UNITS = {
     "spinemocap.analysis": "domain",
     "spinemocap.bodymodel": "domain",
     "spinemocap.crossval": "domain",
-    "spinemocap.opensim": "domain",  # planned
+    "spinemocap.opensim": "domain",
     "calibration": "domain",
     "exporters": "domain",
     "spinemocap.app": "app",
