@@ -65,8 +65,17 @@ def base_run(studio, tmp_path_factory):
     return _run(studio, tmp_path_factory.mktemp("base"))
 
 
+@pytest.fixture(scope="module")
+def fitted_run(studio, tmp_path_factory):
+    """The command's defaults: the joint-centre depth fitted to the trial (over all its frames)."""
+    return _run(studio, tmp_path_factory.mktemp("fitted"), depth_scale=None, fit_frames=FRAMES)
+
+
 @needs_opensim
 def test_built_model_loads_and_initialises(studio, base_run):
+    from spinemocap.opensim.geometry import CHAIN, HEAD_NECK
+    from spinemocap.opensim.model import joint_name
+
     result = base_run
     model = osim.Model(str(result.out_dir / "model.osim"))
     state = model.initSystem()
@@ -75,9 +84,14 @@ def test_built_model_loads_and_initialises(studio, base_run):
     bodies = [model.getBodySet().get(i).getName() for i in range(model.getBodySet().getSize())]
     assert bodies[:3] == ["pelvis", "sacrum", "L5"] and bodies[-2:] == ["T1", "head_neck"]
     assert model.getMarkerSet().getSize() == len(studio["labels"])
-    # joints outside the taped span are welds: no coordinates below L4 / above T6 (tape L4..T6)
-    assert result.summary["driven_joints"][0] == "L3_L4" and result.summary["driven_joints"][-1] == "T6_T7"
-    assert "L4_L5" in result.summary["welded_joints"] and "T5_T6" in result.summary["welded_joints"]
+    # joints outside the taped span are welds: coordinates only between the vertebrae under the
+    # tape's first and last rows (the studio lays the tape from S1 by default: then L5/S1 is driven)
+    chain = [*CHAIN, HEAD_NECK]
+    lowest, highest = chain.index(studio["row_levels"][0]), chain.index(studio["row_levels"][-1])
+    joints = [joint_name(chain[k], chain[k - 1]) for k in range(1, len(chain))]
+    assert result.summary["driven_joints"] == joints[lowest:highest]
+    assert result.summary["welded_joints"] == joints[:lowest] + joints[highest:]
+    assert highest < len(chain) - 1 and joints[highest] in result.summary["welded_joints"]  # the tape ends below T1
     model.realizePosition(state)
     # the setups are OpenSim's own and name one marker task per placed marker
     for setup in ("setup_scale.xml", "setup_ik.xml"):
@@ -105,10 +119,10 @@ def test_markers_land_on_the_vertebra_of_the_level_map(studio, tmp_path):
 
 
 @needs_opensim
-def test_ik_on_a_studio_capture_meets_the_marker_rms_bound(studio, tmp_path):
+def test_ik_on_a_studio_capture_meets_the_marker_rms_bound(fitted_run):
     from spinemocap.opensim.tools import read_storage
 
-    result = _run(studio, tmp_path, depth_scale=None, fit_frames=FRAMES)
+    result = fitted_run
     s = result.summary
     assert s["marker_rms_mm"] <= 2.0 and s["marker_rms_mm_max"] <= 3.0
     assert 0.25 <= s["depth_scale"]["value"] <= 1.25 and len(s["depth_scale"]["marker_rms_mm_tried"]) >= 4
@@ -141,11 +155,29 @@ def test_turning_the_capture_about_the_vertical_leaves_the_angles_unchanged(stud
 
 
 @needs_opensim
-def test_a_subject_standing_a_little_turned_gets_its_own_sagittal_plane(studio, base_run, tmp_path):
-    turned = _run(studio, tmp_path, facing=_turn(studio["facing"], 30.0))  # declared 30 deg off the data
+def test_a_subject_standing_a_little_turned_gets_its_own_sagittal_plane(studio, fitted_run, tmp_path):
+    from spinemocap.opensim.tools import marker_locations
+
+    # With the depth fitted (the command's default) on the studio's default back (skin strain on).
+    # The two runs pose the same problem in ground frames 30 deg apart, so any difference is IK's
+    # stopping point, and that is not robust: per-level lateral bending and axial rotation are
+    # ill-conditioned (issue 13). Measured on this capture: fitted depth 1.23 x published (at the
+    # search bound, flagged) -> equal to 0.01 deg; fixed 0.5 x published (RMS 4-6 mm, the skin's
+    # stretch unexplained) -> up to 4 deg apart; the unbounded fit's 1.64 -> up to 7 deg apart;
+    # realism="ideal" -> up to 2.2 deg. The placed markers below are the solver-free check.
+    turned = _run(studio, tmp_path, facing=_turn(studio["facing"], 30.0), depth_scale=None,
+                  fit_frames=FRAMES)  # declared 30 deg off the data
     assert turned.summary["facing_error_deg"] == pytest.approx(30.0, abs=1.0)
-    columns = [c for c in base_run.angles.columns if c.startswith(("lumbar_", "thoracic_"))]
-    np.testing.assert_allclose(turned.angles[columns].to_numpy(), base_run.angles[columns].to_numpy(), atol=0.3)
+    assert turned.summary["depth_scale"]["value"] == pytest.approx(fitted_run.summary["depth_scale"]["value"])
+    # the model is built in the tape's own sagittal plane: every marker lands at the same place on
+    # the same vertebra whichever facing was declared
+    labels = list(fitted_run.summary["marker_weights"])
+    placed = marker_locations(fitted_run.out_dir / "model.osim", labels)
+    placed_turned = marker_locations(turned.out_dir / "model.osim", labels)
+    assert {k: v[0] for k, v in placed_turned.items()} == {k: v[0] for k, v in placed.items()}
+    np.testing.assert_allclose([placed_turned[k][1] for k in labels], [placed[k][1] for k in labels], atol=0.05)
+    columns = [c for c in fitted_run.angles.columns if c.startswith(("lumbar_", "thoracic_"))]
+    np.testing.assert_allclose(turned.angles[columns].to_numpy(), fitted_run.angles[columns].to_numpy(), atol=0.3)
 
 
 @needs_opensim
@@ -165,7 +197,9 @@ def test_missing_samples_are_excluded_not_zero(studio, tmp_path):
         dots[f, d] = np.nan
     status[2:, 12] = "inferred"
     markers = MarkerTable.from_arrays(studio["labels"], dots, fps=FPS, status=status)
-    result = _run(studio, tmp_path, markers=markers, static_frames=2)  # holes after the static frames
+    # holes after the static frames; the depth fitted (the command's default): the fixed shallow
+    # depth of the other tests cannot follow the studio's skin strain (RMS ~3.9 mm with or without holes)
+    result = _run(studio, tmp_path, markers=markers, static_frames=2, depth_scale=None, fit_frames=FRAMES)
     table = osim.TimeSeriesTableVec3(str(result.out_dir / "markers_opensim.trc"))
     labels = list(table.getColumnLabels())
     for f, d in holes:
