@@ -30,13 +30,54 @@ import numpy as np
 from .tape import TapeSpec
 
 # Vertebral levels from the sacrum (S1) to C7 and typical adult segment heights (vertebral body +
-# disc, mm) used only as relative weights to place the levels along a body model's spine between
-# its S1 and C7/T1 joints (the studio, spinemocap.synth.body, extends the table down to S2).
-# Approximate by design.
+# disc, mm) used only as relative weights between the two end landmarks. Approximate by design.
 LEVELS = ("S1", "L5", "L4", "L3", "L2", "L1", "T12", "T11", "T10", "T9", "T8", "T7", "T6",
           "T5", "T4", "T3", "T2", "T1", "C7")
 SEGMENT_MM = (38, 38, 37, 36, 35, 31, 29, 28, 27, 26, 25, 24, 23, 22, 21, 20, 19, 18)
-LEVEL_FRACTIONS = np.concatenate([[0.0], np.cumsum(SEGMENT_MM)]) / sum(SEGMENT_MM)  # S1 = 0 ... C7 = 1
+# The one level table of every body (the studio's and the body models'): the table above extended
+# down to S2 (the PSIS landmark), placed from surface anatomy by :func:`surface_level_heights`.
+S2_S1_SEGMENT_MM = 25
+SURFACE_LEVELS = ("S2", *LEVELS)
+_SURFACE_SEGMENT_MM = (S2_S1_SEGMENT_MM, *SEGMENT_MM)
+# Surface-anatomy figures used to place the levels:
+# - the posterior superior iliac spines (the "dimples of Venus") lie at the level of S2;
+# - the hip joint centre lies 30 % of the inter-ASIS distance (IAD) below the ASIS and 36 % of it
+#   lateral of the midline (Bell, Pedersen & Brand 1990, J Biomech 23:617), so the hip joints
+#   give the ASIS height; standing, the PSIS sit about 20 mm above the ASIS (anterior pelvic tilt
+#   of ~10 deg over ~12 cm from ASIS to PSIS);
+# - the vertebra prominens (C7) sits at the cervico-thoracic junction (anny's ``neck01`` head,
+#   SMPL's ``neck`` joint);
+# - checks of the result on anny (tests/test_synth_realism.py): the iliac-crest (supracristal,
+#   Tuffier's) line falls at L4/L5 about 6-8 cm above the PSIS line, the inferior angle of the
+#   scapula near T7.
+HJC_BELOW_ASIS_IAD = 0.30
+HJC_LATERAL_IAD = 0.36
+PSIS_ABOVE_ASIS_MM = 20.0
+Z_UP = (0.0, 0.0, 1.0)  # the studio's up axis
+
+
+def psis_height(hip_left: np.ndarray, hip_right: np.ndarray, up: tuple[float, float, float] | np.ndarray = Z_UP) -> float:
+    """Rest height (mm, along the unit ``up`` axis) of the posterior superior iliac spines (the S2
+    level), from the rest hip joint centres (mm, any frame) through Bell et al.'s regression (see
+    :data:`HJC_BELOW_ASIS_IAD`): the hip centres' mean height plus 30 % of the inter-ASIS distance
+    (their half-separation across ``up`` / 0.36) plus :data:`PSIS_ABOVE_ASIS_MM`."""
+    hip_left, hip_right, up = (np.asarray(v, float) for v in (hip_left, hip_right, up))
+    across = hip_left - hip_right
+    across = across - float(across @ up) * up
+    inter_asis = 0.5 * float(np.linalg.norm(across)) / HJC_LATERAL_IAD
+    hip_height = 0.5 * (float(hip_left @ up) + float(hip_right @ up))
+    return hip_height + HJC_BELOW_ASIS_IAD * inter_asis + PSIS_ABOVE_ASIS_MM
+
+
+def surface_level_heights(hip_left: np.ndarray, hip_right: np.ndarray, c7: np.ndarray,
+                          up: tuple[float, float, float] | np.ndarray = Z_UP) -> dict[str, float]:
+    """Rest height (mm, along the unit ``up`` axis) of each level of :data:`SURFACE_LEVELS`, from
+    body-agnostic landmarks of the rest body (mm, one frame): the hip joint centres give S2 at the
+    PSIS (:func:`psis_height`), ``c7`` (the cervico-thoracic junction joint) gives C7, the levels
+    between are spread by the typical segment heights."""
+    z0, z1 = psis_height(hip_left, hip_right, up), float(np.asarray(c7, float) @ np.asarray(up, float))
+    cum = np.concatenate([[0.0], np.cumsum(_SURFACE_SEGMENT_MM)]) / sum(_SURFACE_SEGMENT_MM)
+    return {name: float(z0 + c * (z1 - z0)) for name, c in zip(SURFACE_LEVELS, cum)}
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

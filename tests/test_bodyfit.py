@@ -47,11 +47,18 @@ def test_tape_on_the_studio_body_reproduces_the_studio_dots(anny):
     spec = TapeSpec(n_rows=9)
     body = Body()
     studio = TapeOnSkin(body, spec, "L4")
-    # the studio places the vertebral levels by surface anatomy (S2 at the PSIS), the body model
-    # along its spine chain: laid from the studio's levels (in anny's own frame: soles not on z = 0)
-    # on the studio's own body, the body-model tape is the studio's (no tension, no skin strain)
-    levels = {name: z - body.floor_offset[2] for name, z in body.level_heights().items()}
-    laid = lay_tape(anny.rest(), spec, "L4", levels)
+    # one level table: the body model places the vertebral levels from its hip and neck joints as
+    # the studio does from anny's (S2 at the PSIS, C7 at the neck; anny's own frame: soles not on z = 0)
+    from spinemocap.bodymodel.markersets import level_heights
+
+    ours_levels = level_heights(anny.rest())
+    studio_levels = body.level_heights()
+    assert list(ours_levels) == list(studio_levels)
+    np.testing.assert_allclose([ours_levels[n] + body.floor_offset[2] for n in ours_levels],
+                               list(studio_levels.values()), atol=1e-6)
+    # so on the studio's own body the body-model tape, laid from its own levels, is the studio's
+    # (no tension, no skin strain)
+    laid = lay_tape(anny.rest(), spec, "L4")
     assert laid.row_levels == studio.row_levels
     angles = np.array([[20.0, 5.0, -10.0], [-10.0, 0.0, 15.0]])
     studio_vertices, _ = body.pose(angles)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..fileio import InputError, read_toml
-from ..skin import LEVEL_FRACTIONS, LEVELS
+from ..skin import LEVELS, SURFACE_LEVELS, surface_level_heights
 from .base import CANONICAL_JOINTS, RestBody
 
 
@@ -132,17 +132,21 @@ def read_mapping(path: str | os.PathLike) -> dict[str, MarkerRule]:
     return rules
 
 
-def level_point(rest: RestBody, level: str) -> np.ndarray:
-    """(3,) rest point on the spine chain at a vertebral level (mm)."""
-    if level not in LEVELS:
-        raise ValueError(f"unknown vertebral level {level!r}; known: {LEVELS}")
-    a, b = rest.joints["spine_base"], rest.joints["neck_base"]
-    return a + LEVEL_FRACTIONS[LEVELS.index(level)] * (b - a)
-
-
 def level_heights(rest: RestBody) -> dict[str, float]:
-    """Rest height z (mm) of each level of :data:`LEVELS` on this body."""
-    return {level: float(level_point(rest, level)[2]) for level in LEVELS}
+    """Rest height z (mm) of each level of :data:`~spinemocap.skin.SURFACE_LEVELS` (S2 ... C7) on
+    this body: the one level table the studio uses too (:func:`~spinemocap.skin.surface_level_heights`),
+    placed from the body's hip joint centres (S2 at the PSIS) and its ``neck_base`` joint (C7)."""
+    return surface_level_heights(rest.joints["hip_L"], rest.joints["hip_R"], rest.joints["neck_base"])
+
+
+def level_point(rest: RestBody, level: str) -> np.ndarray:
+    """(3,) rest point (mm) at a vertebral level's height (:func:`level_heights`) on the line
+    through the body's ``spine_base`` and ``neck_base`` joints (inside the trunk)."""
+    if level not in SURFACE_LEVELS:
+        raise ValueError(f"unknown vertebral level {level!r}; known: {SURFACE_LEVELS}")
+    a, b = rest.joints["spine_base"], rest.joints["neck_base"]
+    fraction = (level_heights(rest)[level] - a[2]) / (b[2] - a[2])
+    return a + fraction * (b - a)
 
 
 def _origin(rest: RestBody, rule: MarkerRule) -> np.ndarray:

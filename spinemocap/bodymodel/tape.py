@@ -22,7 +22,8 @@ def lay_tape(rest: RestBody, spec: TapeSpec, start_level: str = "L4",
     """Lay ``spec`` as a taut strip up the back of a rest body (the studio's laying, core
     :class:`~spinemocap.skin.LaidTape`), its first row at ``start_level``. ``levels``: vertebral
     level name -> rest height z (mm) in the rest body's frame; by default this body's own
-    (:func:`~.markersets.level_heights`, spread along its spine chain from S1 to C7)."""
+    (:func:`~.markersets.level_heights`: the studio's surface-anatomy table, S2 at the PSIS from
+    the hip joints, C7 at the neck joint)."""
     return LaidTape(rest.vertices, rest.faces, level_heights(rest) if levels is None else levels, spec, start_level)
 
 

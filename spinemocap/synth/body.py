@@ -20,8 +20,7 @@ import math
 
 import numpy as np
 
-from ..skin import LEVELS as S1_TO_C7
-from ..skin import SEGMENT_MM as S1_TO_C7_SEGMENT_MM
+from ..skin import SURFACE_LEVELS, psis_height, surface_level_heights
 
 log = logging.getLogger(__name__)
 
@@ -29,27 +28,10 @@ SPINE_BONES = ("spine05", "spine04", "spine03", "spine02", "spine01")
 PHENOTYPE_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")
 ANGLE_NAMES = ("flexion", "lateral_bending", "axial_rotation")
 
-# Vertebral levels from the sacrum (S2) to the vertebra prominens (C7), placed on anny from
-# published surface anatomy (see :meth:`Body.level_heights`), with typical adult segment heights
-# (vertebral body + disc, mm) used only as relative weights between the two end landmarks.
-# The core's table (S1 ... C7, :mod:`spinemocap.skin`) extended down by the S2-S1 segment.
-S2_S1_SEGMENT_MM = 25
-LEVELS = ("S2", *S1_TO_C7)
-_SEGMENT_MM = (S2_S1_SEGMENT_MM, *S1_TO_C7_SEGMENT_MM)
-# Surface-anatomy figures used to place the levels:
-# - the posterior superior iliac spines (the "dimples of Venus") lie at the level of S2;
-# - the hip joint centre lies 30 % of the inter-ASIS distance (IAD) below the ASIS and 36 % of it
-#   lateral of the midline (Bell, Pedersen & Brand 1990, J Biomech 23:617), so anny's hip joints
-#   give the ASIS height; standing, the PSIS sit about 20 mm above the ASIS (anterior pelvic tilt
-#   of ~10 deg over ~12 cm from ASIS to PSIS);
-# - the vertebra prominens (C7) sits at the cervico-thoracic junction, anny's ``neck01`` head
-#   (anny's acromion is at 0.82 of its height, as in Winter's anthropometric figures, so its
-#   upper trunk is placed right);
-# - checks of the result (tests/test_synth_realism.py): the iliac-crest (supracristal, Tuffier's)
-#   line falls at L4/L5 about 6-8 cm above the PSIS line, the inferior angle of the scapula near T7.
-HJC_BELOW_ASIS_IAD = 0.30
-HJC_LATERAL_IAD = 0.36
-PSIS_ABOVE_ASIS_MM = 20.0
+# Vertebral levels from the sacrum (S2) to the vertebra prominens (C7): the core's one level table,
+# placed on anny from published surface anatomy by :func:`spinemocap.skin.surface_level_heights`
+# (see :meth:`Body.level_heights`), as the body models place theirs.
+LEVELS = SURFACE_LEVELS
 
 
 @functools.lru_cache(maxsize=1)
@@ -171,17 +153,16 @@ class Body:
 
     def psis_height(self) -> float:
         """Rest height (mm) of the posterior superior iliac spines (the S2 level), from anny's hip
-        joint centres through Bell et al.'s regression (see :data:`HJC_BELOW_ASIS_IAD`)."""
-        hip = self.rest_bone_heads["upperleg01.L"]
-        inter_asis = abs(float(hip[0])) / HJC_LATERAL_IAD
-        return float(hip[2]) + HJC_BELOW_ASIS_IAD * inter_asis + PSIS_ABOVE_ASIS_MM
+        joint centres (see :func:`spinemocap.skin.psis_height`)."""
+        heads = self.rest_bone_heads
+        return psis_height(heads["upperleg01.L"], heads["upperleg01.R"])
 
     def level_heights(self) -> dict[str, float]:
         """Rest height z (mm) of each vertebral level in :data:`LEVELS`: S2 at the PSIS, C7 at
-        the cervico-thoracic junction, the levels between spread by typical segment heights."""
-        z0, z1 = self.psis_height(), float(self.rest_bone_heads["neck01"][2])
-        cum = np.concatenate([[0.0], np.cumsum(_SEGMENT_MM)]) / sum(_SEGMENT_MM)
-        return {name: float(z0 + c * (z1 - z0)) for name, c in zip(LEVELS, cum)}
+        the cervico-thoracic junction (anny's ``neck01`` head), the levels between spread by
+        typical segment heights (:func:`spinemocap.skin.surface_level_heights`)."""
+        heads = self.rest_bone_heads
+        return surface_level_heights(heads["upperleg01.L"], heads["upperleg01.R"], heads["neck01"])
 
     def junction_height(self, lower: str, upper: str) -> float:
         """Rest height (mm) of the junction between two adjacent levels, e.g. ``("L1", "T12")``."""
