@@ -88,11 +88,14 @@ def mid_bone_rows(row_heights: np.ndarray, joint_heights: np.ndarray) -> tuple[i
     return lo + 1, hi + 1, joints
 
 
-def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0) -> dict:
+def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0,
+                  realism: str | None = None) -> dict:
     """Ground-truth dots of a studio motion (no rendering), the applied angles, the benchmark
-    rows, the rows' nearest vertebral levels and the scene (to render and track it)."""
+    rows, the rows' nearest vertebral levels and the scene (to render and track it);
+    ``realism``: the studio's level (None: ``SynthConfig``'s default)."""
 
-    config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed)
+    levels = {} if realism is None else {"realism": realism}
+    config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed, **levels)
     scene = build_scene(config)
     dots = np.array([scene.frame_dots(f) for f in range(scene.n_frames)])  # the studio's truth, skin strain included
     graph = scene.tape.graph

@@ -33,9 +33,10 @@ GOALS = {"marker_rms_mm": 2.0, "flexion_rmse_deg": 2.0, "lateral_rmse_deg": 3.0,
 
 def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[str] = ("groundtruth", "tracked"),
                           frames: int = 100, fps: float = 100 / 3, rows: int = 13, tracked_frames: int | None = None,
-                          cache: Path | None = None, progress: bool = True) -> dict:
+                          cache: Path | None = None, progress: bool = True, realism: str = "lab") -> dict:
     """Every (motion, source) pair scored (see the module docstring), the headline numbers and
-    the goals; ``cache``: folder to keep and reuse the tracked markers."""
+    the goals; ``cache``: folder to keep and reuse the tracked markers; ``realism``: the studio's
+    level (``lab``: tension, skin strain, tracking through the lab's inexact rig)."""
     from tqdm import tqdm
 
     from ..opensim import require_opensim
@@ -46,11 +47,12 @@ def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[st
     jobs = [(m, s) for m in motions for s in sources]
     for motion, source in tqdm(jobs, desc="motions x sources", disable=not progress):
         n = (tracked_frames or frames) if source == "tracked" else frames
-        results[source][motion] = bench_motion(motion, source, n, fps, rows, progress, cache)
+        results[source][motion] = bench_motion(motion, source, n, fps, rows, progress, cache, realism)
     return {
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
         "date": time.strftime("%Y-%m-%d"),
         "goals": GOALS,
+        "realism": realism,
         **headline(results),
         "sources": results,
         "wall_s": round(time.time() - started, 1),
@@ -75,7 +77,7 @@ def headline(results: dict) -> dict:
 
 
 def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, progress: bool,
-                 cache: Path | None = None) -> dict:
+                 cache: Path | None = None, realism: str = "lab") -> dict:
     """One studio motion from one marker source: IK and geometric angles scored."""
     from ..analysis.angles import AngleSettings, compute_angles
     from ..analysis.levels import LevelMap
@@ -83,10 +85,10 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     from ..opensim import OpenSimSettings, run_opensim
     from .analysis import HIGH, LOW, studio_motion
 
-    data = studio_motion(motion, frames, fps, rows)
+    data = studio_motion(motion, frames, fps, rows, realism=realism)
     tape = data["tape"]
     if source == "tracked":
-        markers = tracked_markers(data["scene"], progress, cache and cache / f"markers_{motion}_{frames}_{fps:.4g}.csv")
+        markers = tracked_markers(data["scene"], progress, cache and cache / f"markers_{motion}_{frames}_{fps:.4g}_{realism}.csv")
     else:
         markers = MarkerTable.from_arrays(data["labels"], data["dots"], fps=fps)
     applied = data["applied"] - data["applied"][0]
@@ -170,7 +172,7 @@ def tracked_markers(scene, progress: bool, cache: Path | None = None):
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", TrackingWarning)
-        result = run_tracking(views(), scene.rig, scene.tape, scene.fps, up=scene.subject()["up"],
+        result = run_tracking(views(), scene.calibrated_rig, scene.tape, scene.fps,  # the rig the lab has up=scene.subject()["up"],
                               progress=progress, n_frames=scene.n_frames)
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)

@@ -241,16 +241,17 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                         mode: str = "sequence", detector: str = "net", seed: int = 0,
                         workdir: Path | None = None, legacy: bool = True, video: bool = True,
                         in_memory: bool = True, speed: SpeedOptions | None = None, progress: bool = True,
-                        say: Callable[[str], None] = print) -> dict:
+                        say: Callable[[str], None] = print, realism: str = "lab") -> dict:
     """Render ``frames`` frames of the synthetic ``preset`` and time tracking them (see the module
     docstring). ``legacy``: also run the previous pipeline (the peer); ``workdir``: where the
-    capture folders go (a temporary folder, removed afterwards, when None)."""
+    capture folders go (a temporary folder, removed afterwards, when None); ``realism``: the
+    studio's level (``lab``: tension, skin strain, the lab's inexact rig, sync error, noise)."""
     import torch
 
     from ..synth import SynthConfig, write_capture
 
     speed = speed or SpeedOptions()
-    config = SynthConfig.preset(preset, frames=frames, occlusion=occlusion, seed=seed)
+    config = SynthConfig.preset(preset, frames=frames, occlusion=occlusion, seed=seed, realism=realism)
     tmp = None if workdir is not None else tempfile.mkdtemp(prefix="spinemocap-speed-")
     root = Path(workdir) if workdir is not None else Path(tmp)  # type: ignore[arg-type]
     try:
@@ -298,7 +299,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
             shutil.rmtree(tmp, ignore_errors=True)
     cuda = torch.cuda.is_available()
     numbers = {
-        "preset": preset, "frames": frames, "cameras": config.cameras, "image_size": list(config.size),
+        "preset": preset, "realism": realism, "frames": frames, "cameras": config.cameras, "image_size": list(config.size),
         "occlusion": occlusion, "mode": mode, "detector": detector,
         "machine": {"cpu_cores": os.cpu_count(), "load_average_1min": os.getloadavg()[0],
                     "torch_threads": torch.get_num_threads(),

@@ -30,6 +30,8 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--sensor-noise", type=float, default=0.0,
                    help="with --capture: add this sensor noise (grey levels) to a capture rendered without it")
     p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA if torch sees it), cpu, cuda")
+    p.add_argument("--realism", default="lab", choices=("ideal", "skin", "lab"),
+                   help="studio realism level (default lab: tape tension, skin strain, inexact rig, sync error)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, help="write all numbers to this JSON file")
     p.add_argument("--no-progress", action="store_true")
@@ -48,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         numbers = run_speed_benchmark(args.preset, args.frames, args.occlusion, args.mode, args.detector, args.seed,
                                       args.workdir, legacy=not args.no_legacy, video=not args.no_video,
-                                      in_memory=not args.no_memory, speed=speed, progress=not args.no_progress)
+                                      in_memory=not args.no_memory, speed=speed, progress=not args.no_progress,
+                                      realism=args.realism)
     print(format_report(numbers))
     if args.json:
         save(numbers, args.json)

@@ -129,6 +129,8 @@ def register_bench(subparsers) -> None:
     p.add_argument("--tracked-frames", type=int, help="frames to render and track per motion (default: --frames)")
     p.add_argument("--cache", type=Path, help="keep the tracked markers here (markers_<motion>_<frames>_<fps>.csv) "
                                               "and reuse them instead of rendering and tracking again")
+    p.add_argument("--realism", default="lab", choices=("ideal", "skin", "lab"),
+                   help="studio realism level (default lab: tape tension, skin strain, the lab's inexact rig)")
     p.add_argument("--json", type=Path, help="write the numbers here")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_bench)
@@ -139,9 +141,10 @@ def run_bench(args: argparse.Namespace) -> int:
     from ..fileio import atomic_write
 
     report = run_opensim_benchmark(args.motions, args.sources, args.frames, args.fps, args.rows,
-                                   args.tracked_frames, args.cache, not args.no_progress)
+                                   args.tracked_frames, args.cache, not args.no_progress, realism=args.realism)
     report["command"] = " ".join(
         ["spinemocap bench opensim", f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
+         f"--realism {args.realism}",
          "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources)]
         + ([f"--tracked-frames {args.tracked_frames}"] if args.tracked_frames else []))
     print(format_table(report["sources"]))
