@@ -52,7 +52,7 @@ import numpy as np
 
 from spinemocap._version import __version__
 from spinemocap.fileio import InputError, atomic_path
-from spinemocap.markers import MarkerTable
+from spinemocap.markers import MAX_ABS_MM, MarkerTable
 
 from .common import (
     ExportWarning,
@@ -264,7 +264,6 @@ def fit_descriptions(descriptions: Sequence[str]) -> list[str]:
 
 
 # ---------------------------------------------------------------------------------- reading
-MAX_ABS_MM = 1.0e6       # a marker more than 1 km from the lab origin is a damaged sample, not data
 MAX_ABS_OTHER = 1.0e9    # the same for non-marker points (angles, forces, moments ...) in their own units
 SATURATED = 65535        # 16-bit frame fields (header, POINT:FRAMES) hold this beyond 65534 frames
 PROCESSORS = {84: "Intel", 85: "DEC", 86: "SGI/MIPS"}

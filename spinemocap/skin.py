@@ -23,11 +23,26 @@ processes) its points float at the height of the section's convex envelope.
 
 from __future__ import annotations
 
+import functools
+import logging
 from dataclasses import dataclass
 
 import numpy as np
 
 from .tape import TapeSpec
+
+log = logging.getLogger(__name__)
+
+
+@functools.lru_cache(maxsize=1)
+def anny_model():
+    """The anny body model, loaded once per process for the studio and the body models alike
+    (anny is imported here, not at module level: it is heavy; its first load on a machine
+    compiles kernels, ~40 s)."""
+    import anny
+
+    log.info("loading the anny body model")
+    return anny.Anny()
 
 # Vertebral levels from the sacrum (S1) to C7 and typical adult segment heights (vertebral body +
 # disc, mm) used only as relative weights between the two end landmarks. Approximate by design.

@@ -61,7 +61,7 @@ from ..capture import MANIFEST, Capture
 from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, read_toml
 from ..markers import MarkerTable
 from .c3d_inputs import read_pelvis_c3d
-from .results import TrackingStopped, results_run_id
+from .results import TrackingStopped, results_complete
 
 log = logging.getLogger("spinemocap.batch")
 
@@ -299,7 +299,7 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
     if job.source != "tracked":
         raise InputError(None, f"unknown marker source {job.source!r}; expected one of {SOURCES}")
     path = Path(job.out_dir) / MARKERS
-    if job.force or not _newer_than(path, inputs) or not _complete_results(path.parent):
+    if job.force or not _newer_than(path, inputs) or not results_complete(path.parent):
         try:
             from ..app.run import track_capture
         except ImportError as exc:
@@ -308,16 +308,6 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
         track_capture(capture.root, Path(job.out_dir), mode="sequence", detector=job.detector, progress=False,
                       stop=_stop_check(job.stop_event))
     return read_markers_csv(path)
-
-
-def _complete_results(folder: Path) -> bool:
-    """True when the marker files in ``folder`` are one complete set (else they are redone)."""
-    try:
-        results_run_id(folder)
-    except InputError as exc:
-        log.info("%s", exc)
-        return False
-    return True
 
 
 def _stop_check(event_name: str | None) -> Callable[[], bool] | None:

@@ -47,7 +47,7 @@ from ..analysis.neutral import (  # noqa: E402
 )
 from ..analysis.shape import segments_of  # noqa: E402
 from ..capture import Capture  # noqa: E402
-from ..fileio import InputError, atomic_path, atomic_write, check_writable  # noqa: E402
+from ..fileio import atomic_path, atomic_write, check_writable  # noqa: E402
 from .batch import ANGLES, SEGMENTS, SHAPE, load_results  # noqa: E402
 
 #: Per-trial numbers: (column name in the tables, angle statistic key in summary.json).
@@ -589,16 +589,6 @@ def _write_tables(out: Path, trials: pd.DataFrame, by_subject: pd.DataFrame, by_
     return paths
 
 
-def _complete(folder: Path) -> bool:
-    from .results import results_run_id
-
-    try:
-        results_run_id(folder)
-    except InputError:
-        return False
-    return True
-
-
 def report_capture(capture_dir: str | os.PathLike, out: str | os.PathLike,
                    markers_csv: str | os.PathLike | None = None, progress: bool = False) -> dict[str, Path]:
     """Angles and report for a single capture (``spinemocap demo``'s last step).
@@ -613,7 +603,7 @@ def report_capture(capture_dir: str | os.PathLike, out: str | os.PathLike,
     from ..analysis.angles import AngleSettings
     from ..analysis.levels import LevelMap
     from .batch import MARKERS, discover, run_batch, trial_out_dir
-    from .results import RESULT_FILES, RESULTS_MANIFEST, write_markers
+    from .results import RESULT_FILES, RESULTS_MANIFEST, results_complete, write_markers
 
     out = Path(out)
     (trial,) = discover(capture_dir)
@@ -625,7 +615,7 @@ def report_capture(capture_dir: str | os.PathLike, out: str | os.PathLike,
             if (Path(markers_csv).parent / name).is_file():
                 shutil.copy2(Path(markers_csv).parent / name, target / name)
                 os.utime(target / name)  # newer than the capture
-        if Path(markers_csv).name != MARKERS or not _complete(target):
+        if Path(markers_csv).name != MARKERS or not results_complete(target):
             write_markers(exporters.read(markers_csv), target)
         source = "tracked"
     lower = "S1"

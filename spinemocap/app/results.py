@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import shutil
 import time
@@ -21,6 +22,8 @@ import exporters
 
 from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, fsync_dir, temp_name
 from ..markers import MarkerTable
+
+log = logging.getLogger(__name__)
 
 RESULTS_MANIFEST = "markers.manifest.json"
 RESULT_FILES = ("markers.csv", "markers.trc", "markers.c3d")
@@ -67,6 +70,17 @@ def _sha256(path: Path) -> str:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+def results_complete(out_dir: str | Path) -> bool:
+    """True when the marker files in ``out_dir`` are one complete set (:func:`results_run_id`);
+    False, with the reason logged, otherwise (the caller redoes them)."""
+    try:
+        results_run_id(out_dir)
+    except InputError as exc:
+        log.info("%s", exc)
+        return False
+    return True
 
 
 def results_run_id(out_dir: str | Path) -> str:

@@ -8,12 +8,11 @@ scaled to mm. Shape = anny's six phenotype values in [0, 1] (:data:`PHENOTYPE_KE
 
 from __future__ import annotations
 
-import functools
 import logging
 
 import numpy as np
 
-from ..skin import vertex_normals
+from ..skin import anny_model, vertex_normals
 from .base import (
     CANONICAL_JOINTS,
     BodyModel,
@@ -45,15 +44,6 @@ _JOINT_BONES = {
 }
 
 
-@functools.lru_cache(maxsize=1)
-def load_anny():
-    """anny's model, once per process (the first load on a machine compiles kernels, ~40 s)."""
-    import anny
-
-    log.info("loading the anny body model")
-    return anny.Anny()
-
-
 class AnnyModel(BodyModel):
     """anny behind the :class:`~spinemocap.bodymodel.base.BodyModel` interface."""
 
@@ -66,7 +56,7 @@ class AnnyModel(BodyModel):
         import torch
 
         self._torch = torch
-        self.model = load_anny()
+        self.model = anny_model()
         self.bone_labels = list(self.model.bone_labels)
         self._pose_bones = torch.tensor([self.bone_labels.index(b) for b in POSE_BONES])
         self._weights = self.model.vertex_bone_weights.double()  # (V, K)

@@ -148,9 +148,8 @@ def record(rest: RestBody, tape_markers: TapeMarkers, posed: Callable[[np.ndarra
     rng = np.random.default_rng(setup.seed)
     radius = setup.marker_diameter_mm / 2
     under_tape = _levels_under_tape(rest, tape_markers.z_range_mm)
-    skin_labels = list(PLUG_IN_GAIT) + [s for s in SPINE_MARKERS if spine and s not in PLUG_IN_GAIT
-                                        and s not in under_tape]
-    skin_labels = [s for s in skin_labels if s not in under_tape]
+    wanted = list(PLUG_IN_GAIT) + [s for s in SPINE_MARKERS if spine and s not in PLUG_IN_GAIT]
+    skin_labels = [s for s in wanted if s not in under_tape]
     labels_a, skin = skin_marker_binding(rest, skin_labels, radius, setup.misplacement_mm, rng)
     first = int(np.ceil(setup.clock_offset_s * setup.rate_hz - 1e-9))
     last = int(np.floor((duration_s + setup.clock_offset_s) * setup.rate_hz + 1e-9))

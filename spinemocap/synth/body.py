@@ -14,13 +14,12 @@ slightly different totals.
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
 
 import numpy as np
 
-from ..skin import SURFACE_LEVELS, psis_height, surface_level_heights
+from ..skin import SURFACE_LEVELS, anny_model, surface_level_heights
 
 log = logging.getLogger(__name__)
 
@@ -32,15 +31,6 @@ ANGLE_NAMES = ("flexion", "lateral_bending", "axial_rotation")
 # placed on anny from published surface anatomy by :func:`spinemocap.skin.surface_level_heights`
 # (see :meth:`Body.level_heights`), as the body models place theirs.
 LEVELS = SURFACE_LEVELS
-
-
-@functools.lru_cache(maxsize=1)
-def anny_model():
-    """The anny model, loaded once per process (the first load ever compiles kernels, ~40 s)."""
-    import anny
-
-    log.info("loading the anny body model")
-    return anny.Anny()
 
 
 def rotation_x(a: float) -> np.ndarray:
@@ -150,12 +140,6 @@ class Body:
         the ``neck01`` head (cervico-thoracic junction)."""
         names = list(SPINE_BONES) + ["neck01"]
         return np.array([self.rest_bone_heads[n] for n in names])
-
-    def psis_height(self) -> float:
-        """Rest height (mm) of the posterior superior iliac spines (the S2 level), from anny's hip
-        joint centres (see :func:`spinemocap.skin.psis_height`)."""
-        heads = self.rest_bone_heads
-        return psis_height(heads["upperleg01.L"], heads["upperleg01.R"])
 
     def level_heights(self) -> dict[str, float]:
         """Rest height z (mm) of each vertebral level in :data:`LEVELS`: S2 at the PSIS, C7 at

@@ -302,8 +302,12 @@ class Scene:
         # the lab's errors draw from their own streams, so turning them on changes nothing else
         self.sync_offsets_s = clock_offsets_s(len(self.rig), config.sync_error_ms,
                                               np.random.default_rng([self.rng_seed, 4]))
-        self.calibrated_rig, self.calibration_rms_px = perturb_rig(
-            self.rig, self._calibration_points(), config.calibration_error_px, np.random.default_rng([self.rng_seed, 3]))
+        if config.calibration_error_px > 0:  # posing the calibration frames costs a pass over the motion
+            self.calibrated_rig, self.calibration_rms_px = perturb_rig(
+                self.rig, self._calibration_points(), config.calibration_error_px,
+                np.random.default_rng([self.rng_seed, 3]))
+        else:
+            self.calibrated_rig, self.calibration_rms_px = self.rig, np.zeros(len(self.rig))
         self.balls = FallingBalls.generate(config.n_balls, config.duration_s, self.target, rng)
         self.band = SportsBraBand(self.body, self.body.level_heights()[config.band_level]) if config.band else None
         tone = config.skin_tone if config.skin_tone is not None else rng.uniform(0.0, 0.8)
