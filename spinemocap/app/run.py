@@ -45,10 +45,7 @@ class TrackingWarning(UserWarning):
     """A frame could not be solved (its dots are reported missing)."""
 
 
-
-
 # ---------------------------------------------------------------------- dot detection
-DotDetector = Callable[[int, list[np.ndarray], list[np.ndarray] | None], list[ViewDots]]
 
 
 def make_detector(name: str, rig: Rig | None = None, speed: SpeedOptions | None = None) -> CaptureDetector:

@@ -20,7 +20,6 @@ speed benchmark's peer.
 
 from __future__ import annotations
 
-import math
 import os
 import queue
 import threading
@@ -233,16 +232,13 @@ class CaptureDetector:
         boxes = self.detector.tape_boxes([images[c] for c in cameras])
         views = self._map(lambda k: self._detect(cameras[k], images[cameras[k]], boxes[k]), range(len(cameras)))
         self.searches["full"] += len(cameras)
-        if len(cameras) == len(images):
+        if self.predicts and len(cameras) == len(images):  # what prediction starts from (unused without it)
             self._since_full = 0
             self._remember(views)
         return views
 
     def _detect(self, camera: int, image: np.ndarray, boxes: list[Box] | None) -> ViewDots:
-        dots = self.detector.detect(image, camera=camera, boxes=boxes)
-        if dots.image is None:
-            dots.image = to_grey(image)
-        return dots
+        return self.detector.detect(image, camera=camera, boxes=boxes)
 
     def _remember(self, views: list[ViewDots]) -> None:
         for v in views:
@@ -314,9 +310,3 @@ def _mask_box(mask: np.ndarray | None) -> Box | None:
 def _dots_in_mask(camera: int, image: np.ndarray, mask: np.ndarray) -> ViewDots:
     uv, conf = find_dots(image, mask)
     return ViewDots(camera, uv, conf, mask=mask, image=to_grey(image))
-
-
-def search_share(searches: dict[str, int]) -> float:
-    """Share of camera images searched by prediction alone (no fallback)."""
-    total = searches["full"] + searches["predicted"]
-    return (searches["predicted"] - searches["fallback"]) / total if total else math.nan

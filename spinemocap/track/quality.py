@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..tape import TapeGraph
+from .continuity import row_centres
 
 FLAG_FACTORS = {
     "identity_kept": 0.5,
@@ -61,10 +62,10 @@ def unlabelled_dots(model: np.ndarray, points: np.ndarray, n_views: np.ndarray, 
     strong = np.asarray(points, float).reshape(-1, 3)[np.asarray(n_views) >= min_views]
     if not len(strong) or not np.isfinite(model).all():
         return 0
-    n_rows = int(graph.row.max()) + 1
+    centres = row_centres(model, graph)  # model is finite here: every row has its dots
+    n_rows = len(centres)
     if n_rows < 3:
         return 0
-    centres = np.stack([model[graph.row == r].mean(axis=0) for r in range(n_rows)])
     pitch = graph.spec.row_pitch_mm
     dist, nearest = cKDTree(model).query(strong)
     nearest_row = graph.row[nearest]
