@@ -47,7 +47,7 @@ from ..analysis.neutral import (  # noqa: E402
 )
 from ..analysis.shape import segments_of  # noqa: E402
 from ..capture import Capture  # noqa: E402
-from ..fileio import atomic_path, atomic_write, check_writable  # noqa: E402
+from ..fileio import atomic_path, atomic_write, check_writable, reading  # noqa: E402
 from .batch import ANGLES, SEGMENTS, SHAPE, load_results  # noqa: E402
 
 #: Per-trial numbers: (column name in the tables, angle statistic key in summary.json).
@@ -205,7 +205,13 @@ def _first_frames_words() -> str:
 
 
 def _read_angles(result: dict) -> pd.DataFrame:
-    return pd.read_csv(Path(result["out_dir"]) / ANGLES)
+    return _read_table(Path(result["out_dir"]) / ANGLES, "angles table")
+
+
+def _read_table(path: Path, what: str, **options) -> pd.DataFrame:
+    """A CSV the batch wrote; a damaged one is an InputError naming it."""
+    with reading(path, what):
+        return pd.read_csv(path, **options)
 
 
 def tracking_quality_table(results: list[dict]) -> pd.DataFrame:
@@ -480,14 +486,14 @@ def _trial_section(result: dict, neutral: Neutral | None) -> list[str]:
     if result["status"] != "ok":
         return [f"<p class='bad'><b>{key}</b>: failed: {html.escape(result.get('reason', ''))}</p>"]
     folder = Path(result["out_dir"])
-    angles = pd.read_csv(folder / ANGLES)
+    angles = _read_angles(result)
     parts = [f"<h3>{key} <span class='note'>({result.get('completeness_pct', float('nan')):.0f}% of dots observed"
              f"{'; neutral: ' + html.escape(neutral.source) if neutral else ''})</span></h3>"]
     if result.get("stats", {}).get("lumbar_flexion_valid", 1.0) == 0.0:
         parts.append(f"<p class='bad'>No lumbar angle in any frame: {html.escape(_lumbar_reason(result))}.</p>")
     ik = None
     if result.get("opensim", {}).get("status") == "ok":
-        ik = pd.read_csv(Path(result["opensim"]["out_dir"]) / "spine_angles.csv", comment="#")
+        ik = _read_table(Path(result["opensim"]["out_dir"]) / "spine_angles.csv", "OpenSim angles", comment="#")
         parts.append(f"<p class='note'>OpenSim IK: marker RMS {result['opensim']['marker_rms_mm']:.2f} mm, "
                      f"{result['opensim']['flagged_frames']} flagged frames (files in "
                      f"{html.escape(result['opensim']['out_dir'])})</p>")
@@ -498,8 +504,11 @@ def _trial_section(result: dict, neutral: Neutral | None) -> list[str]:
                      f"src='data:image/png;base64,{_trial_plot(angles, neutral, ik)}'>")
     except (KeyError, TypeError, ValueError) as exc:  # the page is written anyway, saying why
         parts.append(f"<p class='bad'>no plot: {html.escape(f'{type(exc).__name__}: {exc}')}</p>")
-    shape = json.loads((folder / SHAPE).read_text()) if (folder / SHAPE).is_file() else None
-    segments = pd.read_csv(folder / SEGMENTS) if (folder / SEGMENTS).is_file() else None
+    shape = None
+    if (folder / SHAPE).is_file():
+        with reading(folder / SHAPE, "spine shape"):
+            shape = json.loads((folder / SHAPE).read_text())
+    segments = _read_table(folder / SEGMENTS, "segmental angles") if (folder / SEGMENTS).is_file() else None
     parts.append(f"<img alt='spine shape and segmental angles: {key}' "
                  f"src='data:image/png;base64,{_spine_plot(shape, segments)}'>")
     return parts
