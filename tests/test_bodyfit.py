@@ -136,7 +136,8 @@ def test_real_plug_in_gait_trial_fits_with_trunk_rms(tmp_path, anny):
     tape = exporters.read(summary["tape_dots"])
     assert tape.labels == TapeSpec(n_rows=9).labels and np.isfinite(tape.positions()).all()
     assert {"C7", "T10", "CLAV", "STRN", "RBAK"} <= set(summary["trunk_markers"])
-    assert np.isfinite(summary["trunk_marker_rms_mm"])
+    # one key frame of a static trial fits to ~7 mm (trunk ~10 mm) with free per-marker offsets
+    assert summary["marker_rms_mm"] < 10 and summary["trunk_marker_rms_mm"] < 15
     assert len(summary["markers"]) >= 35
 
 

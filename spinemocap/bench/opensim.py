@@ -19,7 +19,6 @@ from __future__ import annotations
 import platform
 import tempfile
 import time
-import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -157,27 +156,16 @@ def tracked_markers(scene, progress: bool, cache: Path | None = None):
     read the markers from there when present, else write them there."""
     import exporters
 
-    from ..app.run import TrackingWarning, make_detector, run_tracking
+    from .analysis import tracked_markers as track_scene
 
     if cache is not None and cache.is_file():
         return exporters.read(cache)
 
-    detect = make_detector("net")
-
-    def views():
-        for frame in range(scene.n_frames):
-            rendered = scene.render(frame)
-            t0 = time.perf_counter()
-            yield frame, detect(frame, rendered.images, rendered.masks), 1000 * (time.perf_counter() - t0)
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", TrackingWarning)
-        result = run_tracking(views(), scene.calibrated_rig, scene.tape, scene.fps,  # the rig the lab has up=scene.subject()["up"],
-                              progress=progress, n_frames=scene.n_frames)
+    table = track_scene(scene, progress=progress)  # shipped detector, through the rig the lab calibrated
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
-        exporters.write(result.table, cache)
-    return result.table
+        exporters.write(table, cache)
+    return table
 
 
 def format_table(results: dict) -> str:

@@ -49,17 +49,9 @@ def read_results(path: Path):
     """A marker table from a results folder (``markers.csv``) or a marker file."""
     import exporters
 
-    from ..fileio import InputError
+    from .export import find_markers
 
-    if path.is_dir():
-        candidates = [path / name for name in ("markers.csv", "markers.parquet", "markers.c3d", "markers.trc")]
-        found = next((c for c in candidates if c.is_file()), None)
-        if found is None:
-            raise InputError(path, "no markers.csv/.parquet/.c3d/.trc in this results folder")
-        path = found
-    if not path.is_file():
-        raise InputError(path, "marker file not found")
-    return exporters.read(path)
+    return exporters.read(find_markers(path))
 
 
 def run_opensim_command(args: argparse.Namespace) -> int:

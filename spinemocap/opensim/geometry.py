@@ -292,9 +292,3 @@ def expected_marker_locations(geometry: SpineGeometry, rows: RowFrames, tape: Ta
         out[d] = R.T @ (on_skin - geometry.centre[k])
     return out
 
-
-def local_locations(geometry: SpineGeometry, static: np.ndarray, tape: TapeSpec) -> np.ndarray:
-    """(D, 3) measured static marker positions (mm) in the frame of the vertebra under each dot."""
-    graph = tape.graph
-    k = geometry.row_body[graph.row]
-    return np.einsum("dji,dj->di", geometry.frame[k], static - geometry.centre[k])
