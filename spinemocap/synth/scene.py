@@ -302,7 +302,7 @@ class Scene:
         # the lab's errors draw from their own streams, so turning them on changes nothing else
         self.sync_offsets_s = clock_offsets_s(len(self.rig), config.sync_error_ms,
                                               np.random.default_rng([self.rng_seed, 4]))
-        if config.calibration_error_px > 0:  # posing the calibration frames costs a pass over the motion
+        if (config.calibration_error_px or 0.0) > 0:  # posing the calibration frames costs a pass over the motion
             self.calibrated_rig, self.calibration_rms_px = perturb_rig(
                 self.rig, self._calibration_points(), config.calibration_error_px,
                 np.random.default_rng([self.rng_seed, 3]))
