@@ -176,11 +176,15 @@ def _lumbar_reason(result: dict) -> str:
 
 
 # ---------------------------------------------------------------------------------- neutral
-def trial_neutrals(results: list[dict]) -> dict[str, tuple[dict, str]]:
-    """Per analysed trial key: (:func:`neutral.neutral_summary` of its angles, where its neutral
-    came from). A subject's static trial (:func:`neutral.is_static_name`) is the neutral of all
-    the subject's trials; without one, each trial's first frames are."""
-    tables = {r["key"]: _read_angles(r) for r in results if r["status"] == "ok"}
+def read_trial_angles(results: list[dict]) -> dict[str, pd.DataFrame]:
+    """Each analysed trial's angles table (read once per report), by trial key."""
+    return {r["key"]: _read_angles(r) for r in results if r["status"] == "ok"}
+
+
+def trial_neutrals(results: list[dict], tables: dict[str, pd.DataFrame]) -> dict[str, tuple[dict, str]]:
+    """Per analysed trial key: (:func:`neutral.neutral_summary` of its angles ``tables``, where its
+    neutral came from). A subject's static trial (:func:`neutral.is_static_name`) is the neutral of
+    all the subject's trials; without one, each trial's first frames are."""
     static: dict[str, tuple[Neutral, str]] = {}
     for r in results:
         key = r["key"]
@@ -480,13 +484,14 @@ def _mean_sd(mean: float, sd: float) -> str:
     return f"{mean:.1f} ± {sd:.1f}" if np.isfinite(sd) else f"{mean:.1f}"
 
 
-def _trial_section(result: dict, neutral: Neutral | None) -> list[str]:
-    """One trial's heading, its problems in words, and its three pictures."""
+def _trial_section(result: dict, neutral: Neutral | None, angles: pd.DataFrame | None) -> list[str]:
+    """One trial's heading, its problems in words, and its three pictures (``angles``: its
+    angles table, None for a failed trial)."""
     key = html.escape(result["key"])
     if result["status"] != "ok":
         return [f"<p class='bad'><b>{key}</b>: failed: {html.escape(result.get('reason', ''))}</p>"]
+    assert angles is not None, "an analysed trial has an angles table"
     folder = Path(result["out_dir"])
-    angles = _read_angles(result)
     parts = [f"<h3>{key} <span class='note'>({result.get('completeness_pct', float('nan')):.0f}% of dots observed"
              f"{'; neutral: ' + html.escape(neutral.source) if neutral else ''})</span></h3>"]
     if result.get("stats", {}).get("lumbar_flexion_valid", 1.0) == 0.0:
@@ -519,7 +524,8 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
     out = Path(out)
     check_writable(out, "batch output folder")
     results = load_results(out)
-    relative = trial_neutrals(results)
+    angle_tables = read_trial_angles(results)
+    relative = trial_neutrals(results, angle_tables)
     trials = trial_table(results, relative)
     by_subject, by_condition = group_table(trials, "subject"), group_table(trials, "condition")
     problems = pd.concat([problem_table(results), empty_column_problems(trials)], ignore_index=True)
@@ -560,7 +566,7 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
                  "each vertebral segment.</p>")
     for r in results:
         neutral = _neutral_of(r, relative)
-        parts.extend(_trial_section(r, neutral))
+        parts.extend(_trial_section(r, neutral, angle_tables.get(r["key"])))
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title or out.name)}</title>"
             f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
     with atomic_write(out / "report.html") as handle:
