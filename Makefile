@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	$(PIP) install --upgrade pip
 	# CPU build of torch first: an unpinned torch would pull several GB of CUDA wheels.
 	$(PIP) install "torch==2.13.0"
-	$(PIP) install -e ".[test,opensim]"
+	$(PIP) install -e ".[test,opensim,bench]"
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -7,6 +7,7 @@ the peers are timed on their own in-memory objects, built beforehand and not tim
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import multiprocessing
 import statistics
@@ -20,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from exporters import read, write
-from spinemocap.fileio import atomic_write
+from spinemocap.fileio import InputError, atomic_write
 from spinemocap.markers import MarkerTable
 
 
@@ -56,7 +57,11 @@ def _opensim_peer(trc_path: str, folder: str, repeat: int) -> dict[str, float]:
 
 
 def _ezc3d_peer(table: MarkerTable, folder: Path, repeat: int) -> dict[str, float]:
-    import ezc3d
+    try:
+        import ezc3d
+    except ImportError as exc:
+        raise InputError("spinemocap bench export", "its C3D peer, ezc3d, is not installed: "
+                         f"pip install 'spinemocap[bench]' (`make` installs it); import failed with: {exc}") from None
 
     arrays = table.to_arrays()
     c = ezc3d.c3d()
@@ -86,6 +91,9 @@ def run_export_benchmark(n_frames: int = 548, n_markers: int = 32, repeat: int =
                                      "read_ms": _median_ms(lambda path=path: read(path), repeat),
                                      "bytes": path.stat().st_size}
         results["ezc3d_c3d"] = _ezc3d_peer(table, folder, repeat)
+        if importlib.util.find_spec("opensim") is None:  # not imported here: see _opensim_peer
+            raise InputError("spinemocap bench export", "its TRC peer, OpenSim's Python package, is not "
+                             "installed: pip install 'spinemocap[bench]' (`make` installs it)")
         with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
             results["opensim_trc"] = pool.submit(_opensim_peer, str(folder / "ours.trc"), tmp, repeat).result()
     print(f"{n_frames} frames x {n_markers} markers, median of {repeat} (ms)")
