@@ -72,8 +72,9 @@ def residuals_from_views(rig: Rig, board: BoardSpec, views: dict[str, dict[Hasha
     return {n: np.concatenate(v) if v else np.zeros((0, 4)) for n, v in out.items()}
 
 
-def camera_table(rig: Rig, residuals: Residuals | None = None) -> str:
-    """Per-camera text table: intrinsics, centre (mm), viewing direction and residual stats (px)."""
+def camera_table(rig: Rig, residuals: Residuals | None = None, observed: str = "board corners") -> str:
+    """Per-camera text table: intrinsics, centre (mm), viewing direction and residual stats (px)
+    of the ``observed`` points (named in the table's last line)."""
     head = f"{'camera':<10}{'size':>11}{'fx':>9}{'fy':>9}{'cx':>8}{'cy':>8}{'k1':>8}{'centre x,y,z (mm)':>25}{'looks along':>20}"
     if residuals is not None:
         head += f"{'obs':>6}{'RMS':>7}{'p95':>7}{'max':>7}"
@@ -92,7 +93,7 @@ def camera_table(rig: Rig, residuals: Residuals | None = None) -> str:
                 row += f"{0:>6}{'-':>7}{'-':>7}{'-':>7}"
         lines.append(row)
     if residuals is not None:
-        lines.append("residuals in px (reprojection error of board corners)")
+        lines.append(f"residuals in px (reprojection error of {observed})")
     return "\n".join(lines)
 
 

@@ -44,6 +44,7 @@ from spinemocap.geometry import distort
 
 from .boards import BoardDetection, BoardSpec, is_half_turn_symmetric
 from .ceres_ba import bundle_adjust_ceres, ceres_unsupported
+from .check import camera_table
 from .geometry import rigid_fit, rodrigues, transform_rig, triangulate
 
 log = logging.getLogger(__name__)
@@ -85,11 +86,7 @@ class ExtrinsicsResult:
         return float(np.sqrt(np.mean(v ** 2))) if len(v) else float("nan")
 
     def summary(self) -> str:
-        lines = [f"{'camera':<10}{'obs':>7}{'RMS px':>9}{'fx':>10}{'centre x':>11}{'y':>9}{'z':>9} (mm)"]
-        for cam in self.rig:
-            c = cam.center
-            lines.append(f"{cam.name:<10}{self.n_observations[cam.name]:>7}{self.rms_px[cam.name]:>9.3f}"
-                         f"{cam.K[0, 0]:>10.2f}{c[0]:>11.1f}{c[1]:>9.1f}{c[2]:>9.1f}")
+        lines = [camera_table(self.rig, self.residuals, "board corners")]
         lines.append(f"board geometry from triangulated corners: RMS {self.board_rms_mm:.3f} mm over "
                      f"{len(self.board_error_mm)} multi-camera frames")
         lines += [f"left out {name} frame {frame}: {why}" for (name, frame), why in self.rejected.items()]

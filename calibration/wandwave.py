@@ -41,6 +41,7 @@ from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import InputError, atomic_path
 
 from .boards import BoardDetection
+from .check import camera_table
 from .extrinsics import bundle_adjust, spanning_tree
 from .geometry import rigid_fit, transform_rig
 from .wand import WandSpec, WandViews, triangulate_markers
@@ -78,11 +79,7 @@ class WandWaveResult:
         i, j = self.wand.length_pair
         true = self.wand.distances[i, j]
         err = self.length_error_mm
-        lines = [f"{'camera':<10}{'obs':>7}{'RMS px':>9}{'centre x':>11}{'y':>9}{'z':>9} (mm)"]
-        for cam in self.rig:
-            c = cam.center
-            lines.append(f"{cam.name:<10}{self.n_observations[cam.name]:>7}{self.rms_px[cam.name]:>9.3f}"
-                         f"{c[0]:>11.1f}{c[1]:>9.1f}{c[2]:>9.1f}")
+        lines = [camera_table(self.rig, self.residuals, "wand markers")]
         lines.append(f"wand length {true:.1f} mm over {len(err)} frames in the volume: mean {true + err.mean():.2f} mm, "
                      f"error RMS {self.length_rms_mm:.3f} mm, SD {err.std():.3f} mm, max |error| "
                      f"{np.abs(err).max():.3f} mm")

@@ -156,7 +156,7 @@ def _read_cameras(paths: list[str]):
 
 def _extrinsics(args: argparse.Namespace) -> int:
     from calibration.boards import BoardSpec
-    from calibration.check import camera_table, plot_residuals, save_residuals
+    from calibration.check import plot_residuals, save_residuals
     from calibration.extrinsics import calibrate_extrinsics
     from calibration.formats import write_rig
 
@@ -171,7 +171,6 @@ def _extrinsics(args: argparse.Namespace) -> int:
     save_residuals(args.out, result.residuals)
     plot = args.plot or f"{args.out}.residuals.png"
     plot_residuals(result.rig, result.residuals, plot)
-    print(camera_table(result.rig, result.residuals))
     print(f"wrote {args.out} and {plot}")
     return 0
 
@@ -191,7 +190,7 @@ def parse_frames(text: str) -> list[int]:
 
 
 def _wand_wave(args: argparse.Namespace) -> int:
-    from calibration.check import camera_table, plot_residuals, save_residuals
+    from calibration.check import plot_residuals, save_residuals
     from calibration.formats import write_rig
     from calibration.wand import WandSpec, detect_wand_views, synchronized_frames
     from calibration.wandwave import calibrate_wand_wave, plot_length_error
@@ -208,7 +207,6 @@ def _wand_wave(args: argparse.Namespace) -> int:
     plot_residuals(result.rig, result.residuals, f"{args.out}.residuals.png")
     plot = args.plot or f"{args.out}.wand_length.png"
     plot_length_error(result, plot)
-    print(camera_table(result.rig, result.residuals))
     print(f"wrote {args.out}, {plot} and {args.out}.residuals.png")
     return 0
 
