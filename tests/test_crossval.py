@@ -39,7 +39,9 @@ def trial(tmp_path_factory):
     scene = build_scene(config)
     dots = np.array([scene.frame_dots(f) for f in range(scene.n_frames)])  # the studio's truth (skin strain on)
     dots += np.random.default_rng(1).normal(0.0, 0.1, dots.shape)
-    vicon = record_scene(scene)
+    from spinemocap.bodymodel.virtual_vicon import ViconSetup
+
+    vicon = record_scene(scene, ViconSetup(gap_share=0.02))  # the Vicon's ring sees every marker here: add dropouts
     return scene, dots, vicon
 
 
@@ -106,8 +108,10 @@ def test_synth_vicon_hook_writes_a_c3d_nexus_tools_read(tmp_path):
     from spinemocap.synth import SynthConfig
 
     np.savez(tmp_path / "groundtruth.npz", dots=np.zeros((4, 2, 3)))  # the studio's own truth, kept
+    from spinemocap.bodymodel.virtual_vicon import ViconSetup
+
     config = SynthConfig.preset("tiny")
-    vicon = write_virtual_vicon(config, tmp_path)
+    vicon = write_virtual_vicon(config, tmp_path, ViconSetup(gap_share=0.05))  # (tiny: no occlusion, no wand wave)
     c3d = ezc3d.c3d(str(tmp_path / "vicon.c3d"))
     assert c3d["parameters"]["POINT"]["RATE"]["value"][0] == 200.0
     labels = c3d["parameters"]["POINT"]["LABELS"]["value"]
