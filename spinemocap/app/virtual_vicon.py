@@ -109,8 +109,10 @@ def write_scene_vicon(scene, out: str | os.PathLike, setup: ViconSetup | None = 
                                     meta={"subject": "studio", "source": "virtual Vicon (spinemocap synth --vicon)"})
     exporters.write(table, out / "vicon.c3d")
     gt_path = out / "groundtruth.npz"
-    with np.load(gt_path) as existing:
-        arrays = {k: existing[k] for k in existing.files}
+    arrays: dict[str, np.ndarray] = {}
+    if gt_path.exists():  # the studio's own truth is kept
+        with np.load(gt_path) as existing:
+            arrays = {k: existing[k] for k in existing.files}
     arrays.update(vicon.groundtruth())
     if wave is not None:
         arrays.update(wave.groundtruth())
