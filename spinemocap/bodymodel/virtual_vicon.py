@@ -13,8 +13,9 @@ Frames are sampled at ``rate_hz`` on the Vicon clock over the studio's duration,
 noise.
 
 Gaps come from occlusion: the Vicon's cameras stand on a ring around the capture volume
-(:class:`ViconCameraRing`; by default 10 cameras, 3.5 m from the subject, alternately 2.6 m and
-1.8 m high, every camera seeing the whole volume: Vicon lenses are wide). A marker sample is
+(:class:`ViconCameraRing`; by default 8 cameras, as in a small gait lab, 3.5 m from the subject,
+alternately 2.6 m and 1.8 m high, every camera seeing the whole volume: Vicon lenses are wide;
+with 10 cameras not even the clavicle marker gaps at full flexion, with 8 it does). A marker sample is
 reconstructed only when at least ``min_cameras`` (2) cameras see it; a camera sees it when the
 marker does not face away (the angle between the skin normal under it and the direction to the
 camera is at most ``max_view_angle_deg``, 100 deg: the sphere floats its radius above the skin, so
@@ -53,10 +54,10 @@ class ViconCameraRing:
     is hidden from it only by the body or by facing away (``max_view_angle_deg`` between the skin
     normal and the direction to the camera)."""
 
-    n_cameras: int = 10
+    n_cameras: int = 8
     radius_mm: float = 3500.0
     heights_mm: tuple[float, ...] = (2600.0, 1800.0)
-    start_deg: float = 18.0
+    start_deg: float = 22.5
     azimuths_deg: tuple[float, ...] | None = None
     max_view_angle_deg: float = 100.0
 
