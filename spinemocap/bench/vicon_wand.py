@@ -5,8 +5,9 @@ the wand wave (:mod:`spinemocap.app.wand_wave`) is written; the wand co-registra
 with the capture's ``rig.toml`` rig) gives the rig -> Vicon transform and clock offset, scored
 against the truth (offset error ms, rotation error deg, point error mm over the true dots of the
 trial). Then the cross-validation of ``spinemocap crossval`` runs on the trial's exact dots plus
-``dot_noise_mm`` noise (a stand-in for tracked dots), once with the wand's transform (``--rig-vicon``)
-and once, the peer, with the transform estimated from the Vicon markers on the tape: offset and
+``dot_noise_mm`` noise (a stand-in for tracked dots), once with the wand's transform read back from
+the rig file as ``crossval --rig-vicon`` reads it (rigid: the wand's scale is not carried), and
+once, the peer, with the transform estimated from the Vicon markers on the tape: offset and
 transform errors and angle agreement for both. Also counted: the occlusion gaps of the Vicon.
 """
 
@@ -22,6 +23,7 @@ import numpy as np
 from calibration.wand import WandSpec, coregister, synchronized_frames
 
 from ..app.c3d_inputs import read_vicon_wand
+from ..app.crossval import rig_transform
 from ..app.virtual_vicon import write_scene_vicon
 from ..app.wand_wave import VICON_WAND_FILE, WAND_DIR, registration_errors
 from ..bodymodel.virtual_vicon import ViconSetup
@@ -63,7 +65,10 @@ def run_level(preset: str, realism: str, frames: int, fps: float, size: tuple[in
                                residual_rms_mm=float(np.sqrt(np.mean(np.square(list(reg.residual_mm.values()))))))
             rng = np.random.default_rng([seed, 5])
             noisy = dots + rng.normal(0.0, dot_noise_mm, dots.shape)
-            for name, transform in (("crossval_wand", (reg.scale * reg.R, reg.t)), ("crossval_markers", None)):
+            assert reg.rig_in_vicon is not None
+            reg.rig_in_vicon.to_toml(Path(tmp) / "rig_vicon.toml")  # as calibrate wand --out writes it
+            from_file = rig_transform(scene.calibrated_rig, Path(tmp) / "rig_vicon.toml")  # as crossval --rig-vicon
+            for name, transform in (("crossval_rig_vicon", from_file), ("crossval_markers", None)):
                 result = cross_validate(scene.times, noisy, scene.labels, scene.tape, vicon.time_s, vicon.positions,
                                         vicon.labels, setup.marker_diameter_mm, transform)
                 a = result.alignment
@@ -96,7 +101,7 @@ def format_table(rows: list[dict]) -> str:
     """Offset / rotation / point errors of the wand and of the two cross-validations per level."""
     lines = ["level  method                    offset err ms  rot err deg  point err mean/max mm  gaps %"]
     for row in rows:
-        for method in ("wand", "crossval_wand", "crossval_markers"):
+        for method in ("wand", "crossval_rig_vicon", "crossval_markers"):
             r = row.get(method)
             if not isinstance(r, dict):
                 lines.append(f"{row['realism']:6s} {method:25s} {r}")
