@@ -102,7 +102,7 @@ def write_scene_vicon(scene, out: str | os.PathLike, setup: ViconSetup | None = 
 
     setup = setup or ViconSetup()
     vicon = record_scene(scene, setup, progress=progress)
-    wave = write_wand_wave(scene, setup, out, wand_seconds, progress) if wand_seconds > 0 else None
+    wave = write_wand_wave(scene, setup, out, wand_seconds, progress) if wand_seconds != 0 else None
     out = Path(out)
     first = round(vicon.time_s[0] * vicon.setup.rate_hz)
     table = MarkerTable.from_arrays(vicon.labels, vicon.positions, vicon.setup.rate_hz, first_frame=first,

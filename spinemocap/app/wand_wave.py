@@ -154,6 +154,8 @@ def write_wand_wave(scene, setup: ViconSetup, out: str | os.PathLike, seconds: f
     warning) when the rig cannot film it: the whole T-wand in view of two cameras in less than
     :data:`MIN_SEEN_SHARE` of the frames (e.g. the ``tiny`` preset, whose 3 narrow views overlap
     only in a volume smaller than the wand)."""
+    if not seconds > 0:
+        raise InputError("--wand-seconds", f"must be positive (got {seconds:g}); 0 turns the wand wave off")
     wand = WandSpec()
     seed = int(scene.rng_seed)
     plan = plan_wave(scene.rig, scene.target, wand, scene.fps, seconds, seed)
@@ -171,13 +173,13 @@ def write_wand_wave(scene, setup: ViconSetup, out: str | os.PathLike, seconds: f
     vicon = truth_v + rng.normal(0.0, setup.noise_mm, truth_v.shape)
     out = Path(out)
     final = out / WAND_DIR
-    if final.exists():
-        raise InputError(final, "exists already; remove it to write a new wand wave")
     tmp = Path(tempfile.mkdtemp(prefix=f".{WAND_DIR}.", dir=out))
     try:
         _render_images(scene, wand, plan, seed, tmp, progress)
         write_vicon_wand_c3d(tmp / VICON_WAND_FILE, vicon, setup.rate_hz, wand)
         (tmp / "README.txt").write_text(wand_readme(out, scene.rig.names, plan, setup))
+        if final.exists():  # a wave of an earlier synth into the same folder: replaced, like its images
+            shutil.rmtree(final)
         os.replace(tmp, final)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
