@@ -26,7 +26,7 @@ from ..bodymodel.virtual_vicon import (
     record,
     tape_marker_layout,
 )
-from ..fileio import atomic_path
+from ..fileio import InputError, atomic_path
 from ..markers import MarkerTable
 from ..synth.motions import spine_motion
 from ..synth.scene import build_scene
@@ -100,9 +100,11 @@ def write_scene_vicon(scene, out: str | os.PathLike, setup: ViconSetup | None = 
     """:func:`write_virtual_vicon` for an already built studio scene."""
     from .wand_wave import write_wand_wave
 
+    if wand_seconds < 0:
+        raise InputError("--wand-seconds", f"must be positive (got {wand_seconds:g}); 0 turns the wand wave off")
     setup = setup or ViconSetup()
     vicon = record_scene(scene, setup, progress=progress)
-    wave = write_wand_wave(scene, setup, out, wand_seconds, progress) if wand_seconds != 0 else None
+    wave = write_wand_wave(scene, setup, out, wand_seconds, progress) if wand_seconds > 0 else None
     out = Path(out)
     first = round(vicon.time_s[0] * vicon.setup.rate_hz)
     table = MarkerTable.from_arrays(vicon.labels, vicon.positions, vicon.setup.rate_hz, first_frame=first,
