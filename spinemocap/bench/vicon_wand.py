@@ -92,9 +92,37 @@ def run_benchmark(levels: list[str], preset: str, frames: int, fps: float, size:
     report = {"levels": rows, "dot_noise_mm": dot_noise_mm, "wand_seconds": wand_seconds}
     with atomic_write(out) as handle:
         json.dump(report, handle, indent=2)
+    plot = Path(out).with_suffix(".png")
+    plot_errors(rows, plot)
     print(format_table(rows))
-    print(f"wrote {out}")
+    print(f"wrote {out} and {plot}")
     return report
+
+
+METHODS = {"wand": "calibrate wand", "crossval_rig_vicon": "crossval --rig-vicon", "crossval_markers": "crossval (tape markers)"}
+
+
+def plot_errors(rows: list[dict], path: Path) -> None:
+    """Bars of the offset (ms), rotation (deg) and mean point (mm) errors per level and method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = [("offset_error_ms", "|clock offset error| (ms)"), ("rotation_error_deg", "rotation error (deg)"),
+            ("point_error_mean_mm", "mean point error (mm)")]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), constrained_layout=True)
+    width = 0.8 / len(METHODS)
+    for ax, (key, title) in zip(axes, keys):
+        for m, (method, name) in enumerate(METHODS.items()):
+            values = [abs(r[method][key]) if isinstance(r.get(method), dict) else np.nan for r in rows]
+            ax.bar(np.arange(len(rows)) + (m - (len(METHODS) - 1) / 2) * width, values, width, label=name)
+        ax.set_xticks(np.arange(len(rows)), [r["realism"] for r in rows])
+        ax.set_title(title)
+    axes[0].legend(fontsize=8)
+    fig.suptitle("virtual Vicon: rig -> Vicon co-registration against the truth")
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 def format_table(rows: list[dict]) -> str:

@@ -239,6 +239,9 @@ def record(rest: RestBody, tape_markers: TapeMarkers, posed: Callable[[np.ndarra
     vicon_time = np.arange(first, last + 1) / setup.rate_hz
     studio_time = np.clip(vicon_time - setup.clock_offset_s, 0.0, duration_s)
     cameras = setup.cameras.centres(rest.vertices.mean(axis=0))
+    if ray_caster is not None and len(cameras) < setup.min_cameras:
+        raise ValueError(f"a Vicon ring of {len(cameras)} cameras cannot reconstruct markers that need "
+                         f"{setup.min_cameras} cameras")
     stride = max(1, int(round(setup.rate_hz / setup.occlusion_rate_hz)))
     under: np.ndarray | None = None  # per marker, the vertex whose normal is the skin's under it
     truth, seeing = [], []
