@@ -118,6 +118,8 @@ def run_synth(args: argparse.Namespace) -> int:
     from spinemocap.synth import write_capture
 
     config = config_from_args(args)
+    if args.wand_seconds < 0:
+        raise InputError("--wand-seconds", f"must be positive (got {args.wand_seconds:g}); 0 turns the wand wave off")
     try:
         out = write_capture(config, args.out, progress=not args.no_progress)
     except ValueError as exc:
