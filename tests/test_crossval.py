@@ -128,18 +128,25 @@ def test_synth_vicon_hook_writes_a_c3d_nexus_tools_read(tmp_path):
 
 
 def test_transform_from_the_wand_calibrated_rig():
-    """--rig-vicon: the same cameras' extrinsics in the rig and in the Vicon frame give X_v = R X + t."""
+    """--rig-vicon: the same cameras' extrinsics in the rig and in the Vicon frame (as the wand
+    writes it, camera coordinates in Vicon mm) give X_v = scale R X + t, the scale included."""
     from scipy.spatial.transform import Rotation
 
-    from spinemocap.crossval.register import transform_between_rigs
+    from spinemocap.crossval.register import Alignment, transform_between_rigs
 
     rng = np.random.default_rng(3)
     R = Rotation.from_euler("xyz", [1.0, -2.0, 75.0], degrees=True).as_matrix()
     t = np.array([300.0, -900.0, 12.0])
     cams_R = [Rotation.random(random_state=k).as_matrix() for k in range(4)]
     cams_t = [rng.normal(0, 1000, 3) for _ in range(4)]
+    scale = 0.9994  # the wand measured the rig 0.06 % small
     vicon_R = [Rc @ R.T for Rc in cams_R]
-    vicon_t = [tc - Rc @ R.T @ t for Rc, tc in zip(cams_R, cams_t)]
-    R_est, t_est = transform_between_rigs(cams_R, cams_t, vicon_R, vicon_t)
+    vicon_t = [scale * tc - Rc @ R.T @ t for Rc, tc in zip(cams_R, cams_t)]
+    R_est, t_est, scale_est = transform_between_rigs(cams_R, cams_t, vicon_R, vicon_t)
     np.testing.assert_allclose(R_est, R, atol=1e-9)
     np.testing.assert_allclose(t_est, t, atol=1e-6)
+    assert abs(scale_est - scale) < 1e-9
+    points = rng.normal(0, 500, (20, 3))
+    alignment = Alignment(R_est, t_est, 0.0, 0.0, 0, "offset", scale_est)
+    np.testing.assert_allclose(alignment.to_rig(alignment.to_vicon(points)), points, atol=1e-9)
+    np.testing.assert_allclose(alignment.to_vicon(points), scale * points @ R.T + t, atol=1e-6)

@@ -107,8 +107,8 @@ def test_calibrate_wand_recovers_the_transform_and_offset_and_crossval_uses_it(s
                  "--fps", str(scene.fps), "--out", str(rig_vicon)]) == 0
     offset_ms = float(re.search(r"time offset \(t_vicon - t_rgb\): ([-+.\d]+) ms", capsys.readouterr().out).group(1))
     truth = dict(np.load(out / "groundtruth.npz"))
-    R, t = rig_transform(scene.calibrated_rig, rig_vicon)
-    errors = registration_errors(truth, R, t, offset_ms / 1000)
+    R, t, scale = rig_transform(scene.calibrated_rig, rig_vicon)
+    errors = registration_errors(truth, scale * R, t, offset_ms / 1000)
     assert abs(errors["offset_error_ms"]) < 0.5
     assert errors["rotation_error_deg"] < 0.05 and errors["point_error_max_mm"] < 1.0, errors
 

@@ -19,7 +19,7 @@ from ..camera import Rig
 from ..capture import Capture
 from ..crossval.agreement import agreement
 from ..crossval.compare import CrossValidation, cross_validate
-from ..crossval.register import transform_between_rigs
+from ..crossval.register import RigToVicon, transform_between_rigs
 from ..fileio import InputError, atomic_write
 from ..markers import MarkerTable
 
@@ -38,8 +38,9 @@ def _dense(table) -> tuple[np.ndarray, np.ndarray, list[str]]:
     return time, arrays["positions"], list(arrays["labels"])
 
 
-def rig_transform(capture_rig: Rig, vicon_rig_path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Rig -> Vicon transform from the capture's rig and the same rig expressed in the Vicon frame."""
+def rig_transform(capture_rig: Rig, vicon_rig_path: str | os.PathLike) -> RigToVicon:
+    """Rig -> Vicon similarity (R, t mm, scale) from the capture's rig and the same rig expressed in
+    the Vicon frame (``spinemocap calibrate wand``'s output)."""
     vicon_rig = Rig.from_toml(vicon_rig_path)
     common = [n for n in capture_rig.names if n in vicon_rig.names]
     if not common:

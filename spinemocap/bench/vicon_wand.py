@@ -72,7 +72,7 @@ def run_level(preset: str, realism: str, frames: int, fps: float, size: tuple[in
                 result = cross_validate(scene.times, noisy, scene.labels, scene.tape, vicon.time_s, vicon.positions,
                                         vicon.labels, setup.marker_diameter_mm, transform)
                 a = result.alignment
-                row[name] = dict(registration_errors(truth, a.R, a.t, a.offset_s), estimated=a.estimated,
+                row[name] = dict(registration_errors(truth, a.scale * a.R, a.t, a.offset_s), estimated=a.estimated,
                                  angles={k: {m: v[m] for m in ("rmse_deg", "bias_deg", "icc", "cmc")}
                                          for k, v in result.summary["angles"].items()})
     finally:

@@ -18,7 +18,7 @@ import numpy as np
 from ..fileio import InputError
 from ..tape import TapeSpec
 from .agreement import agreement
-from .register import Alignment, estimate_alignment
+from .register import Alignment, RigToVicon, estimate_alignment
 from .tape_markers import (
     TAPE_MARKER,
     relative_angles,
@@ -99,7 +99,7 @@ def segment_angles(tape_points: dict[int, tuple[np.ndarray, np.ndarray, np.ndarr
 
 def cross_validate(tape_time: np.ndarray, tape_positions: np.ndarray, tape_labels: list[str], spec: TapeSpec,
                    vicon_time: np.ndarray, vicon_positions: np.ndarray, vicon_labels: list[str],
-                   marker_diameter_mm: float = 14.0, transform: tuple[np.ndarray, np.ndarray] | None = None,
+                   marker_diameter_mm: float = 14.0, transform: RigToVicon | None = None,
                    max_offset_s: float = 1.0,
                    reference: tuple[np.ndarray, np.ndarray, list[str]] | None = None) -> CrossValidation:
     """Compare tracked dots (F, D, 3) at ``tape_time`` with Vicon markers (N, M, 3) at
@@ -145,7 +145,8 @@ def cross_validate(tape_time: np.ndarray, tape_positions: np.ndarray, tape_label
     summary = {
         "alignment": alignment.to_dict(),
         "clock_offset_s": alignment.offset_s,
-        "transform": {"rotation": alignment.R.tolist(), "translation_mm": alignment.t.tolist()},
+        "transform": {"rotation": alignment.R.tolist(), "translation_mm": alignment.t.tolist(),
+                      "scale": alignment.scale},
         "shared_markers": shared,
         "marker_height_mm": height,
         "markers": markers,
