@@ -114,7 +114,8 @@ def test_anny_fit_recovers_a_known_pose_and_the_tape_on_it(anny):
 
 def test_anny_pose_kernel_matches_autograd_through_the_whole_skeleton(anny):
     """The fast per-frame path (numpy, posed bones only, analytic Jacobian) gives the torch
-    sparse path's points and its forward-mode Jacobian, at a non-zero pose and shape."""
+    sparse path's points and its forward-mode Jacobian, at a non-zero pose and shape; so does
+    the shape stage's sparse rest model."""
     from spinemocap.bodymodel.base import AutodiffPoseKernel, SurfaceAnchors
     from spinemocap.bodymodel.markersets import PLUG_IN_GAIT, place_markers
 
@@ -130,6 +131,12 @@ def test_anny_pose_kernel_matches_autograd_through_the_whole_skeleton(anny):
     assert jac.shape == (len(vertices), 3, anny.pose_size)
     np.testing.assert_allclose(points, ref_points, atol=1e-8)  # mm
     np.testing.assert_allclose(jac, ref_jac, atol=1e-8 * np.abs(ref_jac).max())
+    # the shape stage's path (torch shape: the rest model blended at the anchors' vertices only)
+    import torch
+
+    with torch.no_grad():
+        shaped = anny.points(torch.tensor(pose[None]), torch.tensor(shape), anchors)[0].numpy()
+    np.testing.assert_allclose(shaped, ref_points, atol=1e-8)
 
 
 def _run_bodyfit(tmp_path, name: str, frames: str, *extra: str) -> dict:

@@ -73,23 +73,60 @@ class AnnyModel(BodyModel):
         return np.full(len(PHENOTYPE_KEYS), 0.5)
 
     # ------------------------------------------------------------------ rest model
-    def _rest_model(self, shape) -> dict:
-        """anny's rest model (float64 torch, metres). A torch ``shape`` is differentiated
-        through; a numpy shape is fixed and its rest model cached (the fit's pose stage)."""
+    def _rest_model(self, shape, vertex_ids=None) -> dict:
+        """anny's rest model (float64 torch, metres): ``vertices`` (V, 3) (only the rows
+        ``vertex_ids`` are meaningful when given) and ``bone_poses`` (J, 4, 4). A torch ``shape``
+        is differentiated through, on the ``vertex_ids`` only when given (the fit's shape stage);
+        a numpy shape is fixed and its whole rest model cached (the fit's pose stage)."""
         torch = self._torch
         if isinstance(shape, torch.Tensor):
-            return self._compute_rest(shape)
+            return self._compute_rest(shape, vertex_ids)
         key = tuple(np.round(np.asarray(shape, float), 12))
         if key not in self._rest_cache:
             with torch.no_grad():
                 self._rest_cache = {key: self._compute_rest(torch.tensor(key, dtype=torch.float64))}
         return self._rest_cache[key]
 
-    def _compute_rest(self, shape) -> dict:
+    def _compute_rest(self, shape, vertex_ids=None) -> dict:
         pheno = {k: shape[i : i + 1].float() for i, k in enumerate(PHENOTYPE_KEYS)}
         coeffs = self.model.get_phenotype_blendshape_coefficients(**pheno)
-        rest = self.model.get_rest_model(coeffs)
-        return {"vertices": rest["rest_vertices"][0].double(), "bone_poses": rest["rest_bone_poses"][0].double()}
+        if vertex_ids is None or not self._sparse_rest_supported():
+            rest = self.model.get_rest_model(coeffs)
+            return {"vertices": rest["rest_vertices"][0].double(), "bone_poses": rest["rest_bone_poses"][0].double()}
+        return {"vertices": self._sparse_rest_vertices(coeffs, vertex_ids),
+                "bone_poses": self._rest_bone_poses(coeffs)[0].double()}
+
+    def _sparse_rest_supported(self) -> bool:
+        """Whether anny builds its rest bones the way :meth:`_rest_bone_poses` repeats
+        ("cached" orientations, anny 0.6)."""
+        m = self.model
+        return m.bone_orientation == "cached" and hasattr(m, "bone_orientation_blendshapes")
+
+    def _sparse_rest_vertices(self, coeffs, vertex_ids) -> object:
+        """(V, 3) rest vertices whose rows ``vertex_ids`` are blended (the others zero): the
+        full blend of 13718 vertices x 136 blend shapes was most of the shape stage."""
+        torch = self._torch
+        idx = torch.as_tensor(np.asarray(vertex_ids), dtype=torch.long)
+        m = self.model
+        part = m.template_vertices[idx][None] + torch.einsum("cpd,bc->bpd", m.blendshapes[:, idx], coeffs)
+        out = torch.zeros(m.template_vertices.shape, dtype=torch.float64)
+        return out.index_put((idx,), part[0].double())
+
+    def _rest_bone_poses(self, coeffs):
+        """(1, J, 4, 4) rest bone poses: anny's ``_get_cached_rest_model`` without the vertices."""
+        import roma
+
+        m = self.model
+        heads = m.template_bone_heads[None] + self._torch.einsum("cpd,bc->bpd", m.bone_heads_blendshapes, coeffs)
+        M = m.bone_template_orientation_matrices[None] + self._torch.einsum(
+            "ba,akij->bkij", coeffs, m.bone_orientation_blendshapes)
+        orientation = roma.special_procrustes(M)
+        if m.rest_orientation_refiner is not None:
+            orientation = m.rest_orientation_refiner(orientation, heads)
+        poses = roma.Rigid(linear=orientation, translation=heads).to_homogeneous()
+        if m.root_identity_orientation:
+            poses[:, 0, :3, :3] = self._torch.eye(3, dtype=poses.dtype)
+        return poses
 
     def rest(self, shape: np.ndarray | None = None) -> RestBody:
         """The body at the zero pose (anny's reference pose: standing, arms down), which is
@@ -128,7 +165,7 @@ class AnnyModel(BodyModel):
         with the blended rotation of its vertex relative to the zero pose."""
         torch = self._torch
         pose = torch.as_tensor(pose, dtype=torch.float64)
-        rest = self._rest_model(shape)
+        rest = self._rest_model(shape, anchors.vertices)
         idx = torch.as_tensor(np.asarray(anchors.vertices), dtype=torch.long)
         offsets = torch.as_tensor(anchors.offsets, dtype=torch.float64)
         zero = torch.zeros(1, pose.shape[1], dtype=torch.float64)
