@@ -7,10 +7,7 @@ is at the row's dot midpoint plus the tape normal times (tape thickness + marker
 The tape normal at a row: ``across x along`` with ``across`` = right dot - left dot and
 ``along`` = the next row's centre - the previous row's centre (outward from the back).
 
-Segment frames (x = the subject's left, y = backward, z = up along the tape) are built from
-triads (centre, left, right); angles between two frames use the studio's Cardan X-Y-Z sequence
-(flexion about x positive forward, lateral bending positive to the subject's right, axial
-rotation positive to the subject's left), in degrees.
+The beside markers give the Vicon side of the angle comparison (``spinemocap.app.crossval``).
 """
 
 from __future__ import annotations
@@ -67,27 +64,3 @@ def tape_marker_points(positions: np.ndarray, labels: list[str], spec: TapeSpec,
         names.append(name)
         points.append(centres[:, row] + height_mm * tape_normal(positions, spec, labels, row))
     return names, (np.stack(points, axis=1) if points else np.zeros((len(positions), 0, 3)))
-
-
-def triad_frame(centre: np.ndarray, left: np.ndarray, right: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """(F, 3, 3) segment frames, columns x (to the subject's left), y (backward), z (up)."""
-    x = left - right
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    z = up - np.einsum("fd,fd->f", up, x)[:, None] * x
-    z /= np.linalg.norm(z, axis=1, keepdims=True)
-    y = np.cross(z, x)
-    return np.stack([x, y, z], axis=2)
-
-
-def cardan_angles(R: np.ndarray) -> np.ndarray:
-    """(F, 3, 3) relative rotations -> (F, 3) [flexion, lateral bending, axial rotation] deg
-    for ``R = Rx(a) Ry(-lateral) Rz(c)``."""
-    b = np.arcsin(np.clip(R[:, 0, 2], -1, 1))
-    a = np.arctan2(-R[:, 1, 2], R[:, 2, 2])
-    c = np.arctan2(-R[:, 0, 1], R[:, 0, 0])
-    return np.degrees(np.column_stack([a, -b, c]))
-
-
-def relative_angles(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    """(F, 3) angles of the upper frame relative to the lower one (frames (F, 3, 3))."""
-    return cardan_angles(np.einsum("fji,fjk->fik", lower, upper))
