@@ -10,8 +10,8 @@ Vicon with a known clock offset and transform.
    Vicon frame, brought into the studio frame and clock with the true transform/offset and
    interpolated at the camera frames: the body-model ground truth of the paper.
 3. Both are scored against the exact dots: mean / median / 95th percentile (mm).
-4. Cross-validation: exact dots (+ noise) of a longer trial against the virtual Vicon: recovered
-   clock offset and transform errors and angle agreement.
+4. Cross-validation: exact dots (skin strain on, as the Vicon's tape markers; + noise) of a longer
+   trial against the virtual Vicon: recovered clock offset and transform errors and angle agreement.
 """
 
 from __future__ import annotations
@@ -29,10 +29,11 @@ from ..bodymodel.anny_body import AnnyModel
 from ..bodymodel.fit import FitOptions, MarkerFitter
 from ..bodymodel.markersets import place_markers
 from ..bodymodel.tape import lay_tape
-from ..bodymodel.virtual_vicon import ViconSetup
+from ..bodymodel.virtual_vicon import ViconSetup, VirtualVicon
 from ..crossval.compare import cross_validate
 from ..fileio import atomic_write
 from ..synth import SynthConfig, build_scene
+from ..synth.scene import Scene
 from .track import run_track_benchmark
 
 PAPER_STUDIO_MM = {"bodyfit": 24.75, "tracker": 4.12}
@@ -73,15 +74,23 @@ def bodyfit_dots(scene, vicon, key_frames: int, progress: bool, pose_jacobian: s
     return dots, numbers
 
 
-def crossval_numbers(seed: int, frames: int = 60, fps: float = 30.0, noise_mm: float = 0.3, rows: int = 9) -> dict:
-    """Cross-validation of exact dots (+ noise) against the virtual Vicon on a tiny-preset trial
-    with a ``rows``-row tape from S1."""
+def crossval_trial(seed: int, frames: int = 60, fps: float = 30.0, rows: int = 9, occlusion: bool = True
+                   ) -> tuple[Scene, np.ndarray, VirtualVicon]:
+    """The cross-validation trial: a tiny-preset scene with a ``rows``-row tape from S1, its exact
+    dots (F, D, 3) mm (the studio's truth, skin strain on, as the Vicon's tape markers ride the
+    strained skin) and its virtual Vicon recording (``occlusion``: gaps where the body hides markers)."""
     from ..app.virtual_vicon import record_scene
 
     scene = build_scene(SynthConfig.preset("tiny", frames=frames, fps=fps, rows=rows, seed=seed))
-    dots = np.array([scene.tape_on_skin.dot_positions(scene.frame_vertices(f)) for f in range(scene.n_frames)])
-    dots += np.random.default_rng(seed).normal(0.0, noise_mm, dots.shape)
-    vicon = record_scene(scene)
+    dots = np.array([scene.frame_dots(f) for f in range(scene.n_frames)])
+    return scene, dots, record_scene(scene, occlusion=occlusion)
+
+
+def crossval_numbers(seed: int, frames: int = 60, fps: float = 30.0, noise_mm: float = 0.3, rows: int = 9) -> dict:
+    """Cross-validation of the exact dots + ``noise_mm`` noise against the virtual Vicon on the
+    trial of :func:`crossval_trial`."""
+    scene, dots, vicon = crossval_trial(seed, frames, fps, rows)
+    dots = dots + np.random.default_rng(seed).normal(0.0, noise_mm, dots.shape)
     result = cross_validate(scene.times, dots, scene.labels, scene.tape, vicon.time_s, vicon.positions, vicon.labels)
     levels = LevelMap.from_row_levels(scene.tape_on_skin.row_levels, scene.tape.n_rows)
     subject = scene.subject()

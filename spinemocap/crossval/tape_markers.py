@@ -5,7 +5,10 @@ marker ``VT_Rnn`` is stuck on the tape's centre line midway between the row's tw
 ``VT_RnnL``/``VT_RnnR`` sit on the skin beside the tape. From the tracked dots, the centre marker
 is at the row's dot midpoint plus the tape normal times (tape thickness + marker radius).
 The tape normal at a row: ``across x along`` with ``across`` = right dot - left dot and
-``along`` = the next row's centre - the previous row's centre (outward from the back).
+``along`` the tape's direction at the row from the row centres: the next row's centre - the
+previous row's centre, and at an end row the one-sided second-order difference
+``-3 c[r] + 4 c[r+1] - c[r+2]`` (mirrored at the top), so that the normal is the one at the
+row, not at the midpoint of its first gap (outward from the back).
 
 The beside markers give the Vicon side of the angle comparison (``spinemocap.app.crossval``).
 """
@@ -38,11 +41,22 @@ def row_sides(positions: np.ndarray, spec: TapeSpec, labels: list[str], row: int
     return positions[:, labels.index(left)], positions[:, labels.index(right)]
 
 
+def row_tangent(centres: np.ndarray, row: int) -> np.ndarray:
+    """(F, 3) direction (not unit) of the tape at ``row`` from (F, n_rows, 3) row centres: central
+    difference inside, second-order one-sided at the end rows; NaN on a one-row tape."""
+    n = centres.shape[1]
+    if 0 < row < n - 1:
+        return centres[:, row + 1] - centres[:, row - 1]
+    step = 1 if row == 0 else -1
+    if n < 3:
+        return np.full(centres[:, row].shape, np.nan)
+    return step * (-3 * centres[:, row] + 4 * centres[:, row + step] - centres[:, row + 2 * step])
+
+
 def tape_normal(positions: np.ndarray, spec: TapeSpec, labels: list[str], row: int) -> np.ndarray:
     """(F, 3) unit outward tape normal at a row (see module docstring)."""
     centres = row_centres(positions, spec, labels)
-    lo, hi = max(row - 1, 0), min(row + 1, spec.n_rows - 1)
-    along = centres[:, hi] - centres[:, lo]
+    along = row_tangent(centres, row)
     left, right = row_sides(positions, spec, labels, row)
     n = np.cross(right - left, along)
     return n / np.linalg.norm(n, axis=1, keepdims=True)
