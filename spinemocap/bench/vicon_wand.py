@@ -6,7 +6,7 @@ with the capture's ``rig.toml`` rig) gives the rig -> Vicon transform and clock 
 against the truth (offset error ms, rotation error deg, point error mm over the true dots of the
 trial). Then the cross-validation of ``spinemocap crossval`` runs on the trial's exact dots plus
 ``dot_noise_mm`` noise (a stand-in for tracked dots), once with the wand's transform read back from
-the rig file as ``crossval --rig-vicon`` reads it (rigid: the wand's scale is not carried), and
+the rig file as ``crossval --rig-vicon`` reads it (a similarity: the wand's scale is carried), and
 once, the peer, with the transform estimated from the Vicon markers on the tape: offset and
 transform errors and angle agreement for both. Also counted: the occlusion gaps of the Vicon.
 """
@@ -73,6 +73,7 @@ def run_level(preset: str, realism: str, frames: int, fps: float, size: tuple[in
                                         vicon.labels, setup.marker_diameter_mm, transform)
                 a = result.alignment
                 row[name] = dict(registration_errors(truth, a.scale * a.R, a.t, a.offset_s), estimated=a.estimated,
+                                 scale=a.scale,
                                  angles={k: {m: v[m] for m in ("rmse_deg", "bias_deg", "icc", "cmc")}
                                          for k, v in result.summary["angles"].items()})
     finally:
