@@ -8,7 +8,9 @@ trial). Then the cross-validation of ``spinemocap crossval`` runs on the trial's
 ``dot_noise_mm`` noise (a stand-in for tracked dots), once with the wand's transform read back from
 the rig file as ``crossval --rig-vicon`` reads it (a similarity: the wand's scale is carried), and
 once, the peer, with the transform estimated from the Vicon markers on the tape: offset and
-transform errors and angle agreement for both. Also counted: the occlusion gaps of the Vicon.
+transform errors and angle agreement for both (the analysis's angles from neutral on both sides,
+as ``spinemocap crossval`` scores them: :func:`spinemocap.app.crossval.crossval_angles`). Also
+counted: the occlusion gaps of the Vicon.
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ import numpy as np
 
 from calibration.wand import WandSpec, coregister, synchronized_frames
 
+from ..analysis.levels import LevelMap
 from ..app.c3d_inputs import read_vicon_wand
-from ..app.crossval import rig_transform
+from ..app.crossval import crossval_angles, rig_transform
 from ..app.virtual_vicon import write_scene_vicon
 from ..app.wand_wave import VICON_WAND_FILE, WAND_DIR, registration_errors
 from ..bodymodel.virtual_vicon import ViconSetup
@@ -68,9 +71,13 @@ def run_level(preset: str, realism: str, frames: int, fps: float, size: tuple[in
             assert reg.rig_in_vicon is not None
             reg.rig_in_vicon.to_toml(Path(tmp) / "rig_vicon.toml")  # as calibrate wand --out writes it
             from_file = rig_transform(scene.calibrated_rig, Path(tmp) / "rig_vicon.toml")  # as crossval --rig-vicon
+            levels = LevelMap.from_row_levels(scene.tape_on_skin.row_levels, scene.tape.n_rows)
+            subject = scene.subject()
             for name, transform in (("crossval_rig_vicon", from_file), ("crossval_markers", None)):
                 result = cross_validate(scene.times, noisy, scene.labels, scene.tape, vicon.time_s, vicon.positions,
                                         vicon.labels, setup.marker_diameter_mm, transform)
+                crossval_angles(result, scene.times, noisy, scene.labels, scene.tape, levels, subject["up"],
+                                subject["facing"])
                 a = result.alignment
                 row[name] = dict(registration_errors(truth, a.scale * a.R, a.t, a.offset_s), estimated=a.estimated,
                                  scale=a.scale,
@@ -138,4 +145,7 @@ def format_table(rows: list[dict]) -> str:
             lines.append(f"{row['realism']:6s} {method:25s} {r['offset_error_ms']:+13.3f}  {r['rotation_error_deg']:11.4f}  "
                          f"{r['point_error_mean_mm']:10.3f} / {r['point_error_max_mm']:.3f}  "
                          f"{100 * row['vicon_occluded_share']:6.2f}")
+            if r.get("angles"):
+                lines.append("         angles RMSE deg / ICC: " + ", ".join(
+                    f"{k} {v['rmse_deg']:.2f} / {v['icc']:.3f}" for k, v in r["angles"].items()))
     return "\n".join(lines)
