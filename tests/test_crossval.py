@@ -207,3 +207,22 @@ def test_crossval_recovers_the_clock_and_frame_on_a_13_row_tape():
     assert abs(a.offset_s - s.clock_offset_s) < 1e-3
     points = dots.reshape(-1, 3)
     assert np.linalg.norm(a.to_vicon(points) - (points @ s.R.T + s.t), axis=1).max() < 1.0
+
+
+def test_tape_marker_points_on_a_curved_tape_at_every_row():
+    """A tape bent round a 300 mm cylinder (across the tape = its axis): the expected centre marker
+    is the surface point at the row plus the height along the radius, end rows included (a
+    one-sided chord to the next row would tilt the normal by half a row: 0.37 mm at 9 mm)."""
+    from spinemocap.crossval.tape_markers import tape_marker_points
+    from spinemocap.tape import TapeSpec
+
+    spec = TapeSpec(n_rows=9)
+    graph, radius, height = spec.graph, 300.0, 9.0
+    theta = graph.uv_mm[:, 1] / radius
+    dots = np.column_stack([graph.uv_mm[:, 0], radius * np.sin(theta), radius * np.cos(theta)])[None]
+    rows = [0, 4, 8]
+    names, expected = tape_marker_points(dots, list(graph.labels), spec, [f"VT_R{r + 1:02d}" for r in rows], height)
+    assert names == ["VT_R01", "VT_R05", "VT_R09"]
+    angle = np.array(rows) * spec.row_pitch_mm / radius
+    truth = (radius + height) * np.column_stack([np.zeros(3), np.sin(angle), np.cos(angle)])
+    assert np.abs(expected[0] - truth).max() < 0.05
