@@ -112,6 +112,33 @@ def test_anny_fit_recovers_a_known_pose_and_the_tape_on_it(anny):
     assert np.linalg.norm(fitted - true_dots, axis=2).mean() < 2.0  # mm
 
 
+def test_anny_pose_kernel_matches_autograd_through_the_whole_skeleton(anny):
+    """The fast per-frame path (numpy, posed bones only, analytic Jacobian) gives the torch
+    sparse path's points and its forward-mode Jacobian, at a non-zero pose and shape; so does
+    the shape stage's sparse rest model."""
+    from spinemocap.bodymodel.base import AutodiffPoseKernel, SurfaceAnchors
+    from spinemocap.bodymodel.markersets import PLUG_IN_GAIT, place_markers
+
+    shape = np.array([0.3, 0.6, 0.5, 0.4, 0.7, 0.5])
+    rest = anny.rest(shape)
+    _, vertices = place_markers(rest, list(PLUG_IN_GAIT) + ["T8", "L3"])
+    rng = np.random.default_rng(1)
+    anchors = SurfaceAnchors(vertices, rest.normals[vertices] * 9.5 + rng.normal(0.0, 5.0, (len(vertices), 3)))
+    pose = rng.normal(0.0, 0.3, anny.pose_size)
+    pose[:3] = [10.0, -30.0, 40.0]
+    points, jac = anny.pose_kernel(shape, anchors)(pose)
+    ref_points, ref_jac = AutodiffPoseKernel(anny, shape, anchors)(pose)
+    assert jac.shape == (len(vertices), 3, anny.pose_size)
+    np.testing.assert_allclose(points, ref_points, atol=1e-8)  # mm
+    np.testing.assert_allclose(jac, ref_jac, atol=1e-8 * np.abs(ref_jac).max())
+    # the shape stage's path (torch shape: the rest model blended at the anchors' vertices only)
+    import torch
+
+    with torch.no_grad():
+        shaped = anny.points(torch.tensor(pose[None]), torch.tensor(shape), anchors)[0].numpy()
+    np.testing.assert_allclose(shaped, ref_points, atol=1e-8)
+
+
 def _run_bodyfit(tmp_path, name: str, frames: str, *extra: str) -> dict:
     from spinemocap.cli import main
 

@@ -1,7 +1,27 @@
 """Cross-validation of a tracked capture against a Vicon C3D (``spinemocap crossval``): reads the
 files, runs :func:`spinemocap.crossval.compare.cross_validate`, writes summary.json, merged.c3d
 (tracked dots + ``VICON_*`` markers in the rig frame at the camera rate), angles.csv and an HTML
-page with plots."""
+page with plots.
+
+Angles, like with like (:func:`crossval_angles`): both systems get the analysis's definitions
+(:mod:`spinemocap.analysis.angles`): lumbar = the segment frame at ``T12/L1`` relative to the one
+at ``S1``, thoracic = the most cranial mapped level relative to ``T12/L1`` (the row-to-level map
+of the capture), :func:`~spinemocap.analysis.frames.cardan_angles` (flexion, lateral bending,
+axial rotation), each **from neutral** (:mod:`spinemocap.analysis.neutral`: minus its value in
+the trial's first frame that both systems measure), degrees.
+
+- Tape: :func:`~spinemocap.analysis.angles.compute_angles` on the tracked dots, exactly as
+  ``spinemocap angles`` / the batch report them (frame at a level: the midline spline's tangent
+  and the rows' L -> R axis there).
+- Vicon: the same frames from the markers beside the tape, ``VT_RnnL`` / ``VT_RnnR`` at the
+  triad rows (:func:`vicon_level_frames`): per frame the superior axis is the tangent, at the
+  level, of the not-a-knot cubic spline (a parabola for three rows, the chord for two) through the
+  rows' L/R midpoints, the right axis the rows' L -> R axis interpolated at the level (the end
+  row's beyond the outer rows), the tracks gap-filled and low-passed as the analysis does its
+  rows. A level more than one row pitch outside the triad rows has no Vicon frame, except
+  ``S1`` below them: then the Plug-in Gait pelvis (LASI, RASI, LPSI, RPSI) stands in for it, its
+  constant offset to the sacral skin removed by the neutral.
+"""
 
 from __future__ import annotations
 
@@ -9,23 +29,155 @@ import base64
 import io
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
+from scipy.interpolate import CubicSpline
 
 import exporters
 
+from ..analysis.angles import ANGLE_GROUPS, AngleSettings, compute_angles
+from ..analysis.curve import row_tracks
+from ..analysis.frames import PELVIS_MARKERS, cardan_angles, frame_from_axes, pelvis_frame_from_markers
+from ..analysis.levels import LevelMap
+from ..analysis.neutral import neutral_from_angles, relative_to_neutral
 from ..camera import Rig
 from ..capture import Capture
 from ..crossval.agreement import agreement
-from ..crossval.compare import CrossValidation, cross_validate
-from ..crossval.register import transform_between_rigs
+from ..crossval.compare import CrossValidation, cross_validate, set_angles, triad_rows
+from ..crossval.register import RigToVicon, transform_between_rigs
 from ..fileio import InputError, atomic_write
 from ..markers import MarkerTable
+from ..tape import TapeSpec
 
 # an angle whose ICC(2,1) is at or below this is flagged (poor agreement, Koo & Li 2016: < 0.5
 # poor, 0.5-0.75 moderate)
 ICC_FLAG = 0.75
+
+
+COMPARED = ANGLE_GROUPS["lumbar"] + ANGLE_GROUPS["thoracic"]
+
+
+def tape_angle_table(time_s: np.ndarray, positions: np.ndarray, labels: list[str], spec: TapeSpec,
+                     levels: LevelMap, up=(0.0, 0.0, 1.0), facing=(0.0, -1.0, 0.0),
+                     settings: AngleSettings | None = None) -> pd.DataFrame:
+    """The analysis's angle table (:attr:`SpineAngles.table`, deg) of tape dots (F, D, 3) mm at
+    ``time_s`` (a regular clock)."""
+    fps = 1.0 / float(np.median(np.diff(time_s))) if len(time_s) > 1 else 1.0
+    table = MarkerTable.from_arrays(labels, positions, fps)
+    return compute_angles(table, spec, levels, up, facing, settings or AngleSettings()).table
+
+
+def vicon_level_frames(positions: np.ndarray, labels: list[str], spec: TapeSpec, levels: LevelMap,
+                       names: list[str], fps: float, settings: AngleSettings | None = None
+                       ) -> dict[str, tuple[np.ndarray, str]]:
+    """Segment frames (F, 3, 3) (columns a, s, r, :mod:`spinemocap.analysis.frames`) at the
+    levels ``names`` from Vicon markers (F, M, 3) mm at the tape's frames (rig frame), and the
+    markers that define each (see the module docstring). All-NaN frames where no Vicon frame
+    exists, with the reason as the description."""
+    settings = settings or AngleSettings()
+    rows = triad_rows(labels, spec)
+    beside = np.full((len(positions), 2 * len(rows), 3), np.nan)
+    pseudo = []
+    for k, r in enumerate(rows):
+        for j, side in enumerate("LR"):
+            beside[:, 2 * k + j] = positions[:, labels.index(f"VT_R{r + 1:02d}{side}")]
+            pseudo.append(f"R{r + 1:02d}{side}")
+    tracks = row_tracks(beside, pseudo, spec, fps, settings.max_gap_s, settings.lowpass_hz)
+    v, centre, across = tracks.v[rows], tracks.centre[:, rows], tracks.transverse[:, rows]
+    used = ", ".join(f"VT_R{r + 1:02d}L/R" for r in rows)
+    out: dict[str, tuple[np.ndarray, str]] = {}
+    for name in names:
+        frames = np.full((len(positions), 3, 3), np.nan)
+        try:
+            at = levels.v_of(name, spec.row_pitch_mm)
+        except KeyError as exc:
+            out[name] = (frames, str(exc.args[0]))
+            continue
+        reach = settings.level_reach_rows * spec.row_pitch_mm + 1e-6
+        if len(rows) >= 2 and v[0] - reach <= at <= v[-1] + reach:
+            for f in range(len(positions)):
+                ok = np.isfinite(centre[f]).all(axis=1) & np.isfinite(across[f]).all(axis=1)
+                if ok.sum() >= 2 and v[ok][0] - reach <= at <= v[ok][-1] + reach:
+                    tangent = CubicSpline(v[ok], centre[f, ok], bc_type="not-a-knot", axis=0).derivative()(at)
+                    right = [np.interp(at, v[ok], across[f, ok, k]) for k in range(3)]
+                    frames[f] = frame_from_axes(tangent, np.array(right))
+            out[name] = (frames, f"tangent of the spline through the midpoints of {used} at {name}, "
+                                 f"L -> R of the same rows interpolated there")
+        elif name == settings.lower and set(PELVIS_MARKERS) <= set(labels):
+            _, frames = pelvis_frame_from_markers({m: positions[:, labels.index(m)] for m in PELVIS_MARKERS})
+            out[name] = (frames, "Plug-in Gait pelvis (LASI, RASI, LPSI, RPSI): no triad within a row of " + name)
+        else:
+            out[name] = (frames, f"no Vicon triad (VT_RnnL/R) within a row of {name} (triads at {used or 'none'})")
+    return out
+
+
+def vicon_angle_table(time_s: np.ndarray, positions: np.ndarray, labels: list[str], spec: TapeSpec,
+                      levels: LevelMap, settings: AngleSettings | None = None
+                      ) -> tuple[pd.DataFrame, dict[str, str]]:
+    """Lumbar and thoracic angles (deg, the analysis's columns) from Vicon markers (F, M, 3) at
+    the tape's times ``time_s``, and the markers defining each level's frame."""
+    settings = settings or AngleSettings()
+    if settings.upper is None:
+        settings = replace(settings, upper=list(levels.rows)[-1])
+    fps = 1.0 / float(np.median(np.diff(time_s))) if len(time_s) > 1 else 1.0
+    roles = {"lower": settings.lower, "thoracolumbar": settings.thoracolumbar, "upper": settings.upper}
+    frames = vicon_level_frames(positions, labels, spec, levels, list(roles.values()), fps, settings)
+    table = pd.DataFrame({"time": time_s})
+    for group, (lo, hi) in {"lumbar": ("lower", "thoracolumbar"), "thoracic": ("thoracolumbar", "upper")}.items():
+        values = cardan_angles(frames[roles[lo]][0], frames[roles[hi]][0])
+        for k, column in enumerate(ANGLE_GROUPS[group]):
+            table[column] = values[:, k]
+    return table, {name: described for name, (_, described) in frames.items()}
+
+
+def crossval_angles(result: CrossValidation, time_s: np.ndarray, positions: np.ndarray, labels: list[str],
+                    spec: TapeSpec, levels: LevelMap, up=(0.0, 0.0, 1.0), facing=(0.0, -1.0, 0.0),
+                    settings: AngleSettings | None = None) -> None:
+    """Lumbar and thoracic angles, from neutral, of the tape and of the Vicon (and of the
+    body-model reference when ``result`` has one), stored and scored in ``result`` (see the
+    module docstring)."""
+    settings = settings or AngleSettings()
+    if settings.upper is None:
+        settings = replace(settings, upper=list(levels.rows)[-1])
+
+    tape = tape_angle_table(time_s, positions, labels, spec, levels, up, facing, settings)
+    vicon, defined = vicon_angle_table(time_s, result.vicon_rig, result.vicon_labels, spec, levels, settings)
+    tables = {"tape": tape, "vicon": vicon}
+    if result.reference_rig is not None:
+        tables["reference"] = tape_angle_table(time_s, result.reference_rig, list(spec.graph.labels), spec, levels,
+                                               up, facing, settings)
+    # neutral: the first frame every system has every compared angle in (the Vicon's resampled
+    # markers may start after the tape's first frame)
+    complete = np.logical_and.reduce([np.isfinite(t[list(COMPARED)].to_numpy(float)).all(axis=1)
+                                      for t in tables.values()])
+    first = int(np.argmax(complete)) if complete.any() else 0
+    tables = {k: relative_to_neutral(t, neutral_from_angles(t.iloc[first:], 0.0)) for k, t in tables.items()}
+    angles = {c: (tables["tape"][c].to_numpy(float), tables["vicon"][c].to_numpy(float)) for c in COMPARED}
+    reference = None
+    if "reference" in tables:
+        reference = {c: (tables["tape"][c].to_numpy(float), tables["reference"][c].to_numpy(float)) for c in COMPARED}
+    convention = {
+        "definition": "spinemocap.analysis angles on both sides: lumbar = frame at "
+                      f"{settings.thoracolumbar} relative to {settings.lower}, thoracic = {settings.upper} relative to "
+                      f"{settings.thoracolumbar}; Cardan flexion (forward +), lateral bending (right +), axial "
+                      "rotation (left +); each minus its value in the neutral frame; tape minus Vicon",
+        "neutral_time_s": float(time_s[first]),
+        "level_rows": {name: _row_or_none(levels, name) for name in defined},
+        "tape_frames": "midline spline tangent and the rows' L -> R axis at each level (spinemocap angles)",
+        "vicon_frames": defined,
+    }
+    set_angles(result, angles, convention, reference)
+
+
+def _row_or_none(levels: LevelMap, name: str) -> float | None:
+    """The tape row (1-based) of a level, None where the map does not place it."""
+    try:
+        return levels.row_of(name)
+    except KeyError:
+        return None
 
 
 def _dense(table) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -38,8 +190,9 @@ def _dense(table) -> tuple[np.ndarray, np.ndarray, list[str]]:
     return time, arrays["positions"], list(arrays["labels"])
 
 
-def rig_transform(capture_rig: Rig, vicon_rig_path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Rig -> Vicon transform from the capture's rig and the same rig expressed in the Vicon frame."""
+def rig_transform(capture_rig: Rig, vicon_rig_path: str | os.PathLike) -> RigToVicon:
+    """Rig -> Vicon similarity (R, t mm, scale) from the capture's rig and the same rig expressed in
+    the Vicon frame (``spinemocap calibrate wand``'s output)."""
     vicon_rig = Rig.from_toml(vicon_rig_path)
     common = [n for n in capture_rig.names if n in vicon_rig.names]
     if not common:
@@ -52,11 +205,15 @@ def rig_transform(capture_rig: Rig, vicon_rig_path: str | os.PathLike) -> tuple[
 def crossval_files(tracked_path: str | os.PathLike, vicon_path: str | os.PathLike, capture_path: str | os.PathLike,
                    out: str | os.PathLike, rig_vicon: str | os.PathLike | None = None,
                    marker_diameter_mm: float = 14.0, max_offset_s: float = 1.0,
-                   reference_path: str | os.PathLike | None = None) -> tuple[CrossValidation, dict]:
+                   reference_path: str | os.PathLike | None = None,
+                   levels_path: str | os.PathLike | None = None) -> tuple[CrossValidation, dict]:
     """Run the cross-validation on files and write its outputs into ``out``; returns the result
     and the summary written to summary.json. ``reference_path``: body-model dots in the Vicon frame
     and clock (``spinemocap bodyfit --tape`` on the Vicon file: tape_dots.c3d), written as
-    ``REF_*`` beside the tracked dots in merged.c3d and compared with them."""
+    ``REF_*`` beside the tracked dots in merged.c3d and compared with them. ``levels_path``: the
+    row-to-level map (default: the capture's, as the batch finds it)."""
+    from .batch import find_level_map
+
     capture = Capture.open(capture_path)
     tracked = exporters.read(tracked_path)
     vicon = exporters.read(vicon_path)
@@ -66,6 +223,17 @@ def crossval_files(tracked_path: str | os.PathLike, vicon_path: str | os.PathLik
     reference = _dense(exporters.read(reference_path)) if reference_path else None
     result = cross_validate(t_time, t_pos, t_labels, capture.tape, v_time, v_pos, v_labels, marker_diameter_mm,
                             transform, max_offset_s, reference)
+    levels: LevelMap | None
+    try:
+        levels = LevelMap.from_toml(levels_path, capture.tape.n_rows) if levels_path else find_level_map(capture)[0]
+    except InputError as exc:
+        if levels_path:
+            raise
+        levels, result.summary["angles_skipped"] = None, str(exc)
+    if levels is not None and not triad_rows(v_labels, capture.tape):
+        levels, result.summary["angles_skipped"] = None, "the Vicon file has no triads (VT_RnnL/R) beside the tape"
+    if levels is not None:
+        crossval_angles(result, t_time, t_pos, t_labels, capture.tape, levels, capture.up, capture.facing)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     summary = dict(result.summary, tracked=str(tracked_path), vicon=str(vicon_path), capture=str(capture_path))
@@ -121,7 +289,13 @@ def write_report(path: Path, summary: dict, time_s: np.ndarray, angles: dict) ->
         parts.append(f"<tr><td>{name}</td><td>{s['rmse_deg']:.2f}</td><td>{s['bias_deg']:+.2f}</td>"
                      f"<td>[{s['loa_low_deg']:+.2f}, {s['loa_high_deg']:+.2f}]</td><td>{s['icc']:.3f}</td>"
                      f"<td>{s['cmc']:.3f}</td><td>{s['n']}</td></tr>")
-    parts.append(f"</table><p>{html.escape(summary['angle_convention'])}</p>")
+    convention = summary.get("angle_convention") or {}
+    if convention:
+        parts.append(f"</table><p>{html.escape(convention['definition'])}</p><ul>" + "".join(
+            f"<li>Vicon frame at {html.escape(level)}: {html.escape(text)}</li>"
+            for level, text in convention["vicon_frames"].items()) + "</ul>")
+    else:
+        parts.append(f"</table><p>No angles: {html.escape(summary.get('angles_skipped', ''))}</p>")
     if "reference" in summary:
         r = summary["reference"]
         parts.append("<h2>Body-model tape (REF_*) vs tracked dots</h2>"

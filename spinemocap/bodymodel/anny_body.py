@@ -16,6 +16,7 @@ from ..skin import anny_model, vertex_normals
 from .base import (
     CANONICAL_JOINTS,
     BodyModel,
+    PoseKernel,
     RestBody,
     SurfaceAnchors,
     apply_global,
@@ -72,23 +73,60 @@ class AnnyModel(BodyModel):
         return np.full(len(PHENOTYPE_KEYS), 0.5)
 
     # ------------------------------------------------------------------ rest model
-    def _rest_model(self, shape) -> dict:
-        """anny's rest model (float64 torch, metres). A torch ``shape`` is differentiated
-        through; a numpy shape is fixed and its rest model cached (the fit's pose stage)."""
+    def _rest_model(self, shape, vertex_ids=None) -> dict:
+        """anny's rest model (float64 torch, metres): ``vertices`` (V, 3) (only the rows
+        ``vertex_ids`` are meaningful when given) and ``bone_poses`` (J, 4, 4). A torch ``shape``
+        is differentiated through, on the ``vertex_ids`` only when given (the fit's shape stage);
+        a numpy shape is fixed and its whole rest model cached (the fit's pose stage)."""
         torch = self._torch
         if isinstance(shape, torch.Tensor):
-            return self._compute_rest(shape)
+            return self._compute_rest(shape, vertex_ids)
         key = tuple(np.round(np.asarray(shape, float), 12))
         if key not in self._rest_cache:
             with torch.no_grad():
                 self._rest_cache = {key: self._compute_rest(torch.tensor(key, dtype=torch.float64))}
         return self._rest_cache[key]
 
-    def _compute_rest(self, shape) -> dict:
+    def _compute_rest(self, shape, vertex_ids=None) -> dict:
         pheno = {k: shape[i : i + 1].float() for i, k in enumerate(PHENOTYPE_KEYS)}
         coeffs = self.model.get_phenotype_blendshape_coefficients(**pheno)
-        rest = self.model.get_rest_model(coeffs)
-        return {"vertices": rest["rest_vertices"][0].double(), "bone_poses": rest["rest_bone_poses"][0].double()}
+        if vertex_ids is None or not self._sparse_rest_supported():
+            rest = self.model.get_rest_model(coeffs)
+            return {"vertices": rest["rest_vertices"][0].double(), "bone_poses": rest["rest_bone_poses"][0].double()}
+        return {"vertices": self._sparse_rest_vertices(coeffs, vertex_ids),
+                "bone_poses": self._rest_bone_poses(coeffs)[0].double()}
+
+    def _sparse_rest_supported(self) -> bool:
+        """Whether anny builds its rest bones the way :meth:`_rest_bone_poses` repeats
+        ("cached" orientations, anny 0.6)."""
+        m = self.model
+        return m.bone_orientation == "cached" and hasattr(m, "bone_orientation_blendshapes")
+
+    def _sparse_rest_vertices(self, coeffs, vertex_ids) -> object:
+        """(V, 3) rest vertices whose rows ``vertex_ids`` are blended (the others zero): the
+        full blend of 13718 vertices x 136 blend shapes was most of the shape stage."""
+        torch = self._torch
+        idx = torch.as_tensor(np.asarray(vertex_ids), dtype=torch.long)
+        m = self.model
+        part = m.template_vertices[idx][None] + torch.einsum("cpd,bc->bpd", m.blendshapes[:, idx], coeffs)
+        out = torch.zeros(m.template_vertices.shape, dtype=torch.float64)
+        return out.index_put((idx,), part[0].double())
+
+    def _rest_bone_poses(self, coeffs):
+        """(1, J, 4, 4) rest bone poses: anny's ``_get_cached_rest_model`` without the vertices."""
+        import roma
+
+        m = self.model
+        heads = m.template_bone_heads[None] + self._torch.einsum("cpd,bc->bpd", m.bone_heads_blendshapes, coeffs)
+        M = m.bone_template_orientation_matrices[None] + self._torch.einsum(
+            "ba,akij->bkij", coeffs, m.bone_orientation_blendshapes)
+        orientation = roma.special_procrustes(M)
+        if m.rest_orientation_refiner is not None:
+            orientation = m.rest_orientation_refiner(orientation, heads)
+        poses = roma.Rigid(linear=orientation, translation=heads).to_homogeneous()
+        if m.root_identity_orientation:
+            poses[:, 0, :3, :3] = self._torch.eye(3, dtype=poses.dtype)
+        return poses
 
     def rest(self, shape: np.ndarray | None = None) -> RestBody:
         """The body at the zero pose (anny's reference pose: standing, arms down), which is
@@ -127,7 +165,7 @@ class AnnyModel(BodyModel):
         with the blended rotation of its vertex relative to the zero pose."""
         torch = self._torch
         pose = torch.as_tensor(pose, dtype=torch.float64)
-        rest = self._rest_model(shape)
+        rest = self._rest_model(shape, anchors.vertices)
         idx = torch.as_tensor(np.asarray(anchors.vertices), dtype=torch.long)
         offsets = torch.as_tensor(anchors.offsets, dtype=torch.float64)
         zero = torch.zeros(1, pose.shape[1], dtype=torch.float64)
@@ -143,6 +181,12 @@ class AnnyModel(BodyModel):
         T = self._bone_transforms(pose, rest["bone_poses"])[:, self._bones[idx]]  # (F, M, K, 4, 4)
         w = self._weights[idx]
         return (w[None, :, :, None, None] * T[..., :3, :]).sum(2)
+
+    def pose_kernel(self, shape: np.ndarray, anchors: SurfaceAnchors) -> "AnnyPoseKernel":
+        """The fast per-frame path for a fixed shape and fixed anchors: numpy forward kinematics
+        over the posed bones only and an analytic pose Jacobian (see :class:`AnnyPoseKernel`)."""
+        rest = self._rest_model(np.asarray(shape, float))
+        return AnnyPoseKernel(self, rest, anchors)
 
     def _pelvis(self, rest: dict) -> np.ndarray:
         heads = rest["bone_poses"][:, :3, 3].detach().numpy() * 1000.0
@@ -165,3 +209,155 @@ class AnnyModel(BodyModel):
                                    pose_parameterization="local-ref")["vertices"].double() * 1000.0
                 out.append(apply_global(verts, chunk, self._pelvis(rest)).float().numpy())
         return np.concatenate(out)
+
+
+def _rodrigues(rotvecs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) rotation vectors -> (N, 3, 3) matrices R and (N, 3, 3) right Jacobians J_r, with
+    R(w + d) ~ R(w) exp([J_r(w) d]x) (series near zero)."""
+    theta2 = (rotvecs * rotvecs).sum(-1)[:, None, None]
+    small = theta2 < 1e-10
+    safe2 = np.where(small, 1.0, theta2)
+    safe = np.sqrt(safe2)
+    a = np.where(small, 1 - theta2 / 6, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta2 / 24, (1 - np.cos(safe)) / safe2)
+    c = np.where(small, 1 / 6 - theta2 / 120, (safe - np.sin(safe)) / (safe2 * safe))
+    K = _skew(rotvecs)
+    KK = K @ K
+    eye = np.eye(3)
+    return eye + a * K + b * KK, eye - b * K + c * KK
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3) vectors -> (..., 3, 3) cross-product matrices."""
+    K = np.zeros(v.shape + (3,))
+    K[..., 0, 1], K[..., 0, 2] = -v[..., 2], v[..., 1]
+    K[..., 1, 0], K[..., 1, 2] = v[..., 2], -v[..., 0]
+    K[..., 2, 0], K[..., 2, 1] = -v[..., 1], v[..., 0]
+    return K
+
+
+class AnnyPoseKernel(PoseKernel):
+    """anny's sparse path for one shape and fixed anchors, in numpy, with its analytic Jacobian:
+    the per-frame pose stage of the marker fit.
+
+    anny's ``local-ref`` forward kinematics (``anny.utils.kinematics.forward_kinematic``): a bone
+    c of parent p with rest pose P_c = [R_c | h_c] and reference orientation U_c has the posed
+    pose W_c = W_p K_c, K_c = [U_p^T D_c U_c | U_p^T q_c] (q_c: its reference head offset), the
+    root's W_0 = I, and skins with T_c = W_c P_c^-1. Only the :data:`POSE_BONES` have a delta D_c,
+    so every other bone the anchors need is its nearest posed ancestor's W times a constant, and
+    only the 21 posed bones are chained per call (bones that move no anchor are skipped).
+
+    Jacobian: turning bone j's rotation vector w_j by d turns D_j into D_j exp([J_r(w_j) d]x),
+    i.e. every bone of j's subtree about j's posed head by the world vector V_j U_j^T J_r(w_j) d
+    (V_j: W_j's rotation). A skinned anchor moves by that rotation applied to the part of its
+    blend coming from the subtree. The global rotation and translation follow
+    :func:`~spinemocap.bodymodel.base.apply_global`. Units: mm, radians; float64.
+    """
+
+    def __init__(self, model: AnnyModel, rest: dict, anchors: SurfaceAnchors):
+        parents = [int(p) for p in model.model.bone_parents]
+        bone_poses = rest["bone_poses"].detach().numpy()
+        R, h = bone_poses[:, :3, :3], bone_poses[:, :3, 3]
+        reference = model.model.reference_bone_orientations
+        U = R if reference is None else reference.double().numpy()
+        A = np.concatenate([np.eye(3)[None], U[1:] @ R[1:].transpose(0, 2, 1)])
+        parent = np.array([0] + parents[1:])
+        q = np.einsum("nij,nj->ni", A[parent], h - h[parent])
+        self._posed = [model.bone_labels.index(b) for b in POSE_BONES]
+        self._Up_t = U[parent[self._posed]].transpose(0, 2, 1)
+        self._Uj = U[self._posed]
+        self._Kt = np.einsum("nij,nj->ni", self._Up_t, q[self._posed])
+        vertices = np.asarray(anchors.vertices)
+        weights = model._weights[vertices].numpy()  # (M, K)
+        bones = model._bones[vertices].numpy()  # (M, K)
+        used = sorted({int(b) for b, w in zip(bones.ravel(), weights.ravel()) if w > 0})
+        # constant K_c (4 x 4) of every bone; posed bones get theirs per call from D_c
+        Kc = np.zeros((len(parents), 4, 4))
+        Kc[:, :3, :3] = U[parent].transpose(0, 2, 1) @ U
+        Kc[:, :3, 3] = np.einsum("nji,nj->ni", U[parent], q)
+        Kc[:, 3, 3] = 1.0
+        self._K = Kc
+        posed_set = set(self._posed)
+
+        def anchor_of(bone: int) -> tuple[int, np.ndarray]:
+            """(nearest posed ancestor-or-self or -1 for the root, constant W_anchor^-1 W_bone)."""
+            chain = np.eye(4)
+            while bone not in posed_set and bone != 0:
+                chain = Kc[bone] @ chain
+                bone = parent[bone]
+            return (-1 if bone == 0 and 0 not in posed_set else self._posed.index(bone)), chain
+
+        self._posed_parent = [anchor_of(parents[j]) for j in self._posed]  # W_j = W_a C K_j(D_j)
+        assert all(a < i for i, (a, _) in enumerate(self._posed_parent)), "POSE_BONES must be in tree order"
+        used_anchor = [anchor_of(b) for b in used]
+        self._used_anchor = np.array([a for a, _ in used_anchor])
+        self._used_const = np.array([c for _, c in used_anchor])
+        P_inv = np.zeros((len(used), 4, 4))
+        P_inv[:, :3, :3] = R[used].transpose(0, 2, 1)
+        P_inv[:, :3, 3] = -np.einsum("nji,nj->ni", R[used], h[used])
+        P_inv[:, 3, 3] = 1.0
+        self._used_const = self._used_const @ P_inv  # T_c = W_a (C_c P_c^-1)
+        column = {b: i for i, b in enumerate(used)}
+        self._weights = np.where(weights > 0, weights, 0.0)
+        self._columns = np.array([[column.get(int(b), 0) for b in row] for row in bones])
+        # in_subtree[m, k, j]: anchor m's k-th influence lies in posed bone j's subtree
+        descends = np.zeros((len(parents), len(self._posed)), bool)
+        for c in range(len(parents)):
+            b = c
+            while True:
+                if b in posed_set:
+                    descends[c, self._posed.index(b)] = True
+                if b == 0:
+                    break
+                b = parent[b]
+        in_subtree = descends[bones] & (weights > 0)[..., None]  # (M, K, J)
+        self._subtree = in_subtree.transpose(0, 2, 1).astype(float)  # (M, J, K)
+        self._subtree_weight = self._subtree @ self._weights[..., None]  # (M, J, 1)
+        rest_points = rest["vertices"][vertices].detach().numpy()  # (M, 3) m
+        blend0 = self._blend(self._transforms(np.zeros(len(self._posed) * 3))[2])
+        offsets = np.asarray(anchors.offsets, float)
+        offsets_rest = np.einsum("mij,mj->mi", np.linalg.inv(blend0[:, :, :3]), offsets)  # blend-frame offsets
+        # each anchor as a homogeneous point in mm that every bone transform (in m) moves:
+        # T (1000 p + u) with the translation scaled by 1000
+        self._anchor_h = np.concatenate([1000.0 * rest_points + offsets_rest, np.full((len(rest_points), 1), 1000.0)],
+                                        axis=1)[:, None, :, None]  # (M, 1, 4, 1)
+        self._pelvis = model._pelvis(rest)
+
+    def _transforms(self, joint_rotvecs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Posed poses W_j (J, 4, 4) of the posed bones, their deltas' right Jacobians (J, 3, 3)
+        and the skinning transforms T_c (B, 4, 4) of the used bones (metres)."""
+        D, Jr = _rodrigues(joint_rotvecs.reshape(-1, 3))
+        rotations = self._Up_t @ D @ self._Uj  # K_j's rotation (J, 3, 3)
+        W = np.empty((len(self._posed) + 1, 4, 4))
+        W[-1] = np.eye(4)  # index -1: the root, W_0 = I
+        K = np.zeros((4, 4))
+        K[3, 3] = 1.0
+        for i, (a, C) in enumerate(self._posed_parent):
+            K[:3, :3], K[:3, 3] = rotations[i], self._Kt[i]
+            W[i] = W[a] @ C @ K
+        return W[:-1], Jr, W[self._used_anchor] @ self._used_const
+
+    def _blend(self, T: np.ndarray) -> np.ndarray:
+        """(M, 3, 4) skinning-weight blend of the used bones' transforms for each anchor."""
+        return np.einsum("mk,mkij->mij", self._weights, T[self._columns, :3, :])
+
+    def __call__(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Anchors (M, 3) mm (studio frame) for one pose vector (P,), and d anchors / d pose
+        (M, 3, P)."""
+        pose = np.asarray(pose, float)
+        W, Jr, T = self._transforms(pose[6:])
+        contrib = self._weights[..., None] * (T[self._columns, :3, :] @ self._anchor_h)[..., 0]  # (M, K, 3) mm
+        local = contrib.sum(1)
+        # subtree parts of each anchor about each posed bone's head (M, J, 3)
+        lever = self._subtree @ contrib - 1000.0 * self._subtree_weight * W[:, :3, 3]
+        axes = W[:, :3, :3] @ self._Uj.transpose(0, 2, 1) @ Jr  # (J, 3, 3) world turn per unit rotvec
+        joint_jac = -_skew(lever) @ axes[None]  # (M, J, 3, 3)
+        Rg, Jg = _rodrigues(pose[None, 3:6])
+        Rg, Jl = Rg[0], Jg[0].T
+        centred = (local - self._pelvis) @ Rg.T
+        M = len(local)
+        jac = np.empty((M, 3, len(pose)))
+        jac[:, :, 0:3] = np.eye(3)
+        jac[:, :, 3:6] = -_skew(centred) @ Jl
+        jac[:, :, 6:] = (Rg @ joint_jac).transpose(0, 2, 1, 3).reshape(M, 3, -1)
+        return centred + self._pelvis + pose[:3], jac

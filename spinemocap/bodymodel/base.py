@@ -97,12 +97,62 @@ class BodyModel(ABC):
     def vertices(self, pose: np.ndarray, shape: np.ndarray | None = None) -> np.ndarray:
         """Dense path: (F, P) poses -> (F, V, 3) mm vertices (numpy, float32)."""
 
+    def pose_kernel(self, shape: np.ndarray, anchors: SurfaceAnchors) -> "PoseKernel":
+        """The per-frame path for a fixed shape and fixed anchors: a callable pose (P,) ->
+        (anchors (M, 3) mm, d anchors / d pose (M, 3, P)). This default differentiates
+        :meth:`points` by batched forward-mode autograd; a backend may override it with an
+        analytic one (anny does)."""
+        return AutodiffPoseKernel(self, shape, anchors)
+
     def zero_pose(self, n_frames: int = 1) -> np.ndarray:
         return np.zeros((n_frames, self.pose_size))
 
     def joint_index(self, name: str) -> int:
         """Column of joint ``name``'s rotation vector in the pose vector (first of 3)."""
         return 6 + 3 * self.pose_joints.index(name)
+
+
+class PoseKernel(ABC):
+    """Anchors and their pose Jacobian for one shape and fixed anchors (see
+    :meth:`BodyModel.pose_kernel`)."""
+
+    @abstractmethod
+    def __call__(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(M, 3) mm anchor positions and (M, 3, P) d positions / d pose for one pose (P,)."""
+
+
+class AutodiffPoseKernel(PoseKernel):
+    """:class:`PoseKernel` of any backend through its torch sparse path: the Jacobian by one
+    batched forward-mode pass (:func:`batched_jacobian`)."""
+
+    def __init__(self, model: BodyModel, shape: np.ndarray, anchors: SurfaceAnchors):
+        self.model, self.shape = model, np.asarray(shape, float)
+        self.anchors = SurfaceAnchors(np.asarray(anchors.vertices), np.asarray(anchors.offsets, float))
+
+    def __call__(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        import torch
+
+        def flat(X):
+            return self.model.points(X, self.shape, self.anchors).reshape(len(X), -1)
+
+        with torch.no_grad():
+            points = self.model.points(torch.as_tensor(np.asarray(pose, float)[None]), self.shape, self.anchors)[0]
+        jac = batched_jacobian(flat, np.asarray(pose, float))
+        return points.numpy(), jac.reshape(len(self.anchors.vertices), 3, -1)
+
+
+def batched_jacobian(function, x: np.ndarray) -> np.ndarray:
+    """(R, N) Jacobian of a torch function mapping a batch of vectors (B, N) to residuals (B, R),
+    by forward-mode autograd in one batched pass: the batch holds N copies of ``x``, copy i
+    carrying tangent e_i (no vmap; ~1.5x faster than vectorised autograd through anny)."""
+    import torch
+    import torch.autograd.forward_ad as fwAD
+
+    n = len(x)
+    with torch.no_grad(), fwAD.dual_level():
+        dual = fwAD.make_dual(torch.as_tensor(x, dtype=torch.float64)[None].repeat(n, 1),
+                              torch.eye(n, dtype=torch.float64))
+        return fwAD.unpack_dual(function(dual)).tangent.numpy().T
 
 
 def rotvec_to_matrix(rotvec):

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import umeyama
-from .base import GLOBAL_ROTATION, TRANSLATION, BodyModel, SurfaceAnchors
+from .base import GLOBAL_ROTATION, TRANSLATION, BodyModel, PoseKernel, SurfaceAnchors, batched_jacobian
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +43,10 @@ class FitOptions:
     warm_iterations: int = 4  # a frame warm-started from the previous one (more changed nothing measurable)
     min_markers: int = 4
     fit_offsets: bool = True
+    # per-frame pose Jacobian: "kernel" = the backend's pose kernel (anny: analytic, numpy, the
+    # posed bones only); "autodiff" = the earlier path, one batched forward-mode pass through the
+    # whole torch skeleton (kept as the benchmark's peer)
+    pose_jacobian: str = "kernel"
 
 
 @dataclass
@@ -69,23 +73,30 @@ def levenberg_marquardt(residuals: Callable, x0: np.ndarray, iterations: int = 1
                         bounds: tuple[np.ndarray, np.ndarray] | None = None, tol: float = 1e-6,
                         jac: Callable[[np.ndarray], np.ndarray] | None = None,
                         max_iterations: int | None = None) -> tuple[np.ndarray, float]:
-    """Minimise ``|residuals(x)|^2`` (torch function of a float64 vector) from ``x0``; Jacobian
-    by forward-mode autograd (:func:`jacobian`, or ``jac(x)`` when given). Stops when a step gains
-    less than ``tol`` (relative), or after ``iterations`` once a step gains less than 1 %; at most
-    ``max_iterations`` (default ``iterations``). Returns (x, final cost)."""
+    """:func:`solve_lm` for ``residuals``, a torch function of a float64 vector; Jacobian by
+    forward-mode autograd (:func:`jacobian`) unless ``jac(x)`` is given. Returns (x, final cost)."""
     import torch
 
-    x = np.asarray(x0, float).copy()
-    lam = 1e-3
-
-    def evaluate(v: np.ndarray):
+    def evaluate(v: np.ndarray) -> np.ndarray:
         with torch.no_grad():
             return residuals(torch.as_tensor(v)).numpy()
 
+    return solve_lm(evaluate, jac or (lambda v: jacobian(residuals, v)), x0, iterations, bounds, tol, max_iterations)
+
+
+def solve_lm(evaluate: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
+             iterations: int = 10, bounds: tuple[np.ndarray, np.ndarray] | None = None, tol: float = 1e-6,
+             max_iterations: int | None = None) -> tuple[np.ndarray, float]:
+    """Minimise ``|evaluate(x)|^2`` (numpy residuals (R,), Jacobian ``jac(x)`` (R, N)) from
+    ``x0`` by Levenberg-Marquardt. Stops when a step gains less than ``tol`` (relative), or after
+    ``iterations`` once a step gains less than 1 %; at most ``max_iterations`` (default
+    ``iterations``). Returns (x, final cost)."""
+    x = np.asarray(x0, float).copy()
+    lam = 1e-3
     r = evaluate(x)
     cost = float(r @ r)
     for iteration in range(max(iterations, max_iterations or 0)):
-        J = jac(x) if jac is not None else jacobian(residuals, x)
+        J = jac(x)
         JtJ, g = J.T @ J, J.T @ r
         diag = np.maximum(np.diag(JtJ), 1e-9)
         improved = False
@@ -127,20 +138,6 @@ def jacobian(residuals: Callable, x: np.ndarray) -> np.ndarray:
             tangent[i] = 1.0
             columns.append(fwAD.unpack_dual(residuals(fwAD.make_dual(x_t, tangent))).tangent.numpy())
     return np.stack(columns, axis=1)
-
-
-def batched_jacobian(residuals: Callable, x: np.ndarray) -> np.ndarray:
-    """(R, N) Jacobian of a torch function mapping a batch of vectors (B, N) to residuals (B, R),
-    by forward-mode autograd in one batched pass: the batch holds N copies of ``x``, copy i
-    carrying tangent e_i (no vmap; ~1.5x faster than vectorised ``jacobian`` through anny)."""
-    import torch
-    import torch.autograd.forward_ad as fwAD
-
-    n = len(x)
-    with torch.no_grad(), fwAD.dual_level():
-        dual = fwAD.make_dual(torch.as_tensor(x, dtype=torch.float64)[None].repeat(n, 1),
-                              torch.eye(n, dtype=torch.float64))
-        return fwAD.unpack_dual(residuals(dual)).tangent.numpy().T
 
 
 class MarkerFitter:
@@ -198,6 +195,42 @@ class MarkerFitter:
                  iterations: int | None = None) -> tuple[np.ndarray, float]:
         """One frame's pose (P,) for (M, 3) observed markers, from ``x0``: ``iterations`` LM
         steps, more (up to ``pose_iterations``) while steps still gain over 1 %."""
+        if self.options.pose_jacobian == "autodiff":
+            return self._fit_pose_autodiff(observed, shape, offsets, x0, iterations)
+        o = self.options
+        kernel = self._kernel(shape, offsets)
+        ok = np.isfinite(observed).all(axis=-1)
+        target = observed[ok]
+        n_joint = len(x0) - 6
+        prior_jac = np.zeros((n_joint, len(x0)))
+        prior_jac[:, 6:] = np.eye(n_joint) / o.pose_sigma_rad
+        last: dict[str, np.ndarray] = {}
+
+        def evaluate(x: np.ndarray) -> np.ndarray:
+            points, jac = kernel(x)
+            last["x"], last["jac"] = x, jac[ok].reshape(-1, len(x)) / o.marker_sigma_mm
+            return np.concatenate([((points[ok] - target) / o.marker_sigma_mm).ravel(), x[6:] / o.pose_sigma_rad])
+
+        def jacobian_at(x: np.ndarray) -> np.ndarray:
+            if last.get("x") is not x:
+                evaluate(x)
+            return np.concatenate([last["jac"], prior_jac])
+
+        return solve_lm(evaluate, jacobian_at, x0, iterations or o.pose_iterations, max_iterations=o.pose_iterations)
+
+    def _kernel(self, shape: np.ndarray, offsets: np.ndarray) -> PoseKernel:
+        """The model's pose kernel for this shape and these offsets (the last one is kept)."""
+        key = (np.asarray(shape, float).tobytes(), np.asarray(offsets, float).tobytes())
+        if getattr(self, "_kernel_key", None) != key:
+            self._kernel_key = key
+            self._cached_kernel = self.model.pose_kernel(np.asarray(shape, float),
+                                                         SurfaceAnchors(self.vertices, np.asarray(offsets, float)))
+        return self._cached_kernel
+
+    def _fit_pose_autodiff(self, observed: np.ndarray, shape: np.ndarray, offsets: np.ndarray, x0: np.ndarray,
+                           iterations: int | None = None) -> tuple[np.ndarray, float]:
+        """:meth:`fit_pose` with the earlier Jacobian: one batched forward-mode autograd pass
+        through the backend's torch path (all of anny's 104 bones)."""
         import torch
 
         offsets_t = torch.as_tensor(offsets, dtype=torch.float64)
@@ -259,7 +292,16 @@ class MarkerFitter:
     def fit(self, markers: np.ndarray, static: np.ndarray | None = None, progress: bool = True,
             labels: list[str] | None = None) -> BodyFit:
         """Fit (F, M, 3) mm markers (NaN gaps); ``static`` (K, M, 3) frames of a static trial for
-        the shape stage (default: key frames of ``markers``)."""
+        the shape stage (default: key frames of ``markers``). Runs with one BLAS thread: its
+        matrices are small (~180 x 70), and threads fighting over a loaded machine made the
+        per-frame pose stage ~4x slower."""
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(limits=1, user_api="blas"):
+            return self._fit(markers, static, progress, labels)
+
+    def _fit(self, markers: np.ndarray, static: np.ndarray | None, progress: bool, labels: list[str] | None
+             ) -> BodyFit:
         import time
 
         from tqdm import tqdm

@@ -75,6 +75,9 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--key-frames", type=int, default=3, help="frames of the fit's shape stage")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, help="save every number to this JSON file")
+    p.add_argument("--no-peer", action="store_true",
+                   help="skip the peer fit (the earlier per-frame path: autograd through all bones)")
+    p.add_argument("--crossval-rows", type=int, default=9, help="tape rows of the cross-validation trial (default 9)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_bench_bodyfit)
 
@@ -83,7 +86,8 @@ def run_bench_bodyfit(args: argparse.Namespace) -> int:
     from ..bench.bodyfit import format_report, run_bodyfit_benchmark, save
 
     numbers = run_bodyfit_benchmark(args.preset, args.frames, args.misplacement, args.key_frames, args.seed,
-                                    progress=not args.no_progress)
+                                    progress=not args.no_progress, peer=not args.no_peer,
+                                    crossval_rows=args.crossval_rows)
     print(format_report(numbers))
     if args.json:
         save(numbers, args.json)

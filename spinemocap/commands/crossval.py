@@ -25,6 +25,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--reference", type=Path, help="body-model tape dots in the Vicon frame and clock ('spinemocap "
                    "bodyfit VICON.c3d --tape CAPTURE' -> tape_dots.c3d): compared with the tracked dots and written "
                    "as REF_* markers in merged.c3d")
+    p.add_argument("--levels", type=Path, help="row-to-level map TOML for the angles (default: the capture's "
+                   "levels.toml / [levels] / ground truth, as the batch finds it)")
     p.add_argument("--marker-diameter", type=float, default=14.0, help="Vicon marker diameter in mm (default 14)")
     p.add_argument("--max-offset", type=float, default=1.0, help="largest clock offset searched, s (default 1)")
     p.set_defaults(func=run_crossval)
@@ -34,7 +36,8 @@ def run_crossval(args: argparse.Namespace) -> int:
     from ..app.crossval import crossval_files
 
     result, summary = crossval_files(args.tracked, args.vicon, args.capture, args.out, args.rig_vicon,
-                                     args.marker_diameter, args.max_offset, args.reference)
+                                     args.marker_diameter, args.max_offset, args.reference,
+                                     args.levels)
     a = result.alignment
     print(f"clock offset (t_vicon - t_rgb) {1000 * a.offset_s:+.2f} ms; alignment residual {a.residual_mm:.2f} mm "
           f"over {a.n_frames} frames ({a.estimated} estimated)")
@@ -45,6 +48,8 @@ def run_crossval(args: argparse.Namespace) -> int:
         r = summary["reference"]
         print(f"body-fit tape vs tracked dots: mean {r['dot_distance_mean_mm']:.2f} mm, median "
               f"{r['dot_distance_median_mm']:.2f}, p95 {r['dot_distance_p95_mm']:.2f} mm over {r['n']} dot-frames")
+    if "angles_skipped" in summary:
+        print(f"WARNING: no angles compared: {summary['angles_skipped']}")
     if summary["angles_flagged"]:
         print(f"WARNING: poor agreement (ICC <= 0.75) for {', '.join(summary['angles_flagged'])}")
     print(f"wrote {args.out}/summary.json, merged.c3d, angles.csv, report.html")

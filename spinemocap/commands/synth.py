@@ -73,7 +73,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--video", action="store_true", help="write lossless videos instead of PNG images")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--vicon", action="store_true", help="also write vicon.c3d: a virtual Vicon (200 Hz, own frame and "
-                   "clock; truth in groundtruth.npz)")
+                   "clock, gaps where its camera ring loses sight of a marker; truth in groundtruth.npz), and a wand "
+                   "wave (wand/: images + Vicon C3D) for 'spinemocap calibrate wand'")
+    p.add_argument("--wand-seconds", type=float, default=4.0,
+                   help="length of the --vicon wand wave at the capture's frame rate (default 4; 0 = none)")
     p.set_defaults(func=run_synth)
 
 
@@ -115,6 +118,8 @@ def run_synth(args: argparse.Namespace) -> int:
     from spinemocap.synth import write_capture
 
     config = config_from_args(args)
+    if args.wand_seconds < 0:
+        raise InputError("--wand-seconds", f"must be positive (got {args.wand_seconds:g}); 0 turns the wand wave off")
     try:
         out = write_capture(config, args.out, progress=not args.no_progress)
     except ValueError as exc:
@@ -124,7 +129,10 @@ def run_synth(args: argparse.Namespace) -> int:
     if args.vicon:  # virtual Vicon (spinemocap/app/virtual_vicon.py)
         from ..app.virtual_vicon import write_virtual_vicon
 
-        write_virtual_vicon(config, out)
+        write_virtual_vicon(config, out, wand_seconds=args.wand_seconds, progress=not args.no_progress)
+        wand = out / "wand" / "README.txt"
+        print(f"virtual Vicon: {out}/vicon.c3d" + (f"; wand wave in {out}/wand/ (commands in {wand})"
+                                                    if wand.exists() else "; no wand wave (see the warning above)"))
     media = "videos/" if config.video else "images/"
     rows = Capture.open(out).tape.n_rows
     print(f"synthetic capture written to {out}/ ({config.frames} frames, {config.cameras} cameras, "

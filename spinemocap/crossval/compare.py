@@ -3,14 +3,13 @@
 Steps: the shared markers (Vicon markers on the tape's centre line, :mod:`.tape_markers`) give
 the clock offset and transform (:mod:`.register`, or the transform from the wand calibration);
 every Vicon marker is then resampled at the tape's frame times and brought into the rig frame;
-markers are compared with the tape points they sit on (and the nearest dot), and segment angles
-from the tape's rows with the same angles from the Vicon triads ``VT_Rnn`` (centre) /
-``VT_RnnL`` / ``VT_RnnR`` (beside the tape). Units: mm, s, degrees.
+markers are compared with the tape points they sit on (and the nearest dot). Angle waveforms of
+both systems are computed by the application layer (``spinemocap.app.crossval``: the analysis's
+angle definitions on both sides) and scored here by :func:`set_angles`. Units: mm, s, degrees.
 """
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,17 +17,8 @@ import numpy as np
 from ..fileio import InputError
 from ..tape import TapeSpec
 from .agreement import agreement
-from .register import Alignment, estimate_alignment
-from .tape_markers import (
-    TAPE_MARKER,
-    relative_angles,
-    row_centres,
-    row_sides,
-    tape_marker_points,
-    triad_frame,
-)
-
-ANGLE_NAMES = ("flexion", "lateral_bending", "axial_rotation")
+from .register import Alignment, RigToVicon, estimate_alignment
+from .tape_markers import TAPE_MARKER, tape_marker_points
 
 
 @dataclass
@@ -79,27 +69,9 @@ def triad_rows(vicon_labels: list[str], spec: TapeSpec) -> list[int]:
     return sorted(set(rows))
 
 
-def segment_angles(tape_points: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]], rows: list[int]
-                   ) -> dict[str, np.ndarray]:
-    """Angles of consecutive triads: ``lumbar_*`` (rows[0] -> rows[1]) and ``thoracic_*``
-    (rows[1] -> rows[2]); each triad (centre, left, right) (F, 3); ``up`` from the chord
-    between neighbouring triad centres."""
-    frames = {}
-    for i, r in enumerate(rows):
-        lo, hi = rows[max(i - 1, 0)], rows[min(i + 1, len(rows) - 1)]
-        up = tape_points[hi][0] - tape_points[lo][0]
-        frames[r] = triad_frame(*tape_points[r], up)
-    out = {}
-    for name, (a, b) in zip(("lumbar", "thoracic"), itertools.pairwise(rows)):
-        angles = relative_angles(frames[a], frames[b])
-        for k, angle in enumerate(ANGLE_NAMES):
-            out[f"{name}_{angle}"] = angles[:, k]
-    return out
-
-
 def cross_validate(tape_time: np.ndarray, tape_positions: np.ndarray, tape_labels: list[str], spec: TapeSpec,
                    vicon_time: np.ndarray, vicon_positions: np.ndarray, vicon_labels: list[str],
-                   marker_diameter_mm: float = 14.0, transform: tuple[np.ndarray, np.ndarray] | None = None,
+                   marker_diameter_mm: float = 14.0, transform: RigToVicon | None = None,
                    max_offset_s: float = 1.0,
                    reference: tuple[np.ndarray, np.ndarray, list[str]] | None = None) -> CrossValidation:
     """Compare tracked dots (F, D, 3) at ``tape_time`` with Vicon markers (N, M, 3) at
@@ -133,37 +105,42 @@ def cross_validate(tape_time: np.ndarray, tape_positions: np.ndarray, tape_label
             entry.update(rmse_mm=float(np.sqrt(np.mean(np.sum(diff[ok] ** 2, axis=1)))),
                          bias_mm=diff[ok].mean(axis=0).tolist(), n=int(ok.sum()))
         markers[label] = entry
-    angles: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    rows = triad_rows(vicon_labels, spec)
-    if len(rows) >= 2:
-        centres = row_centres(tape_positions, spec, tape_labels)
-        tape_triads = {r: (centres[:, r], *row_sides(tape_positions, spec, tape_labels, r)) for r in rows}
-        vicon_triads = {r: tuple(vicon_rig[:, vicon_labels.index(f"VT_R{r + 1:02d}{s}")] for s in ("", "L", "R"))
-                        for r in rows}
-        tape_angles, vicon_angles = segment_angles(tape_triads, rows), segment_angles(vicon_triads, rows)
-        angles = {name: (tape_angles[name], vicon_angles[name]) for name in tape_angles}
     summary = {
         "alignment": alignment.to_dict(),
         "clock_offset_s": alignment.offset_s,
-        "transform": {"rotation": alignment.R.tolist(), "translation_mm": alignment.t.tolist()},
+        "transform": {"rotation": alignment.R.tolist(), "translation_mm": alignment.t.tolist(),
+                      "scale": alignment.scale},
         "shared_markers": shared,
         "marker_height_mm": height,
         "markers": markers,
-        "angle_rows": [f"R{r + 1:02d}" for r in rows],
-        "angles": {name: agreement(a, b, "deg") for name, (a, b) in angles.items()},
-        "angle_convention": "tape minus Vicon; segment frames from triads at the rows listed in angle_rows "
-                            "(lumbar: first -> second, thoracic: second -> third); Cardan X-Y-Z, degrees",
+        "angles": {},
     }
-    result = CrossValidation(alignment, list(vicon_labels), vicon_rig, angles, summary)
+    result = CrossValidation(alignment, list(vicon_labels), vicon_rig, {}, summary)
     if reference is not None:
-        _compare_reference(result, reference, tape_time, tape_positions, tape_labels, spec, rows)
+        _compare_reference(result, reference, tape_time, tape_positions, tape_labels, spec)
     return result
 
 
+def set_angles(result: CrossValidation, angles: dict[str, tuple[np.ndarray, np.ndarray]], convention: dict,
+               reference_angles: dict[str, tuple[np.ndarray, np.ndarray]] | None = None) -> None:
+    """Store angle waveforms (name -> (tape (F,), Vicon (F,)) deg at the tape's frames) and
+    their agreement (tape minus Vicon: RMSE, bias, limits of agreement, ICC(2,1), CMC) in
+    ``result`` and its summary; ``convention`` says how both sides were computed;
+    ``reference_angles``: name -> (tape, body-model reference), scored likewise."""
+    result.angles = dict(angles)
+    result.summary["angles"] = {name: agreement(a, b, "deg") for name, (a, b) in angles.items()}
+    result.summary["angle_convention"] = convention
+    if reference_angles is not None and "reference" in result.summary:
+        result.reference_angles = dict(reference_angles)
+        result.summary["reference"]["angles"] = {name: agreement(t, r, "deg")
+                                                 for name, (t, r) in reference_angles.items()}
+
+
 def _compare_reference(result: CrossValidation, reference: tuple[np.ndarray, np.ndarray, list[str]],
-                       tape_time: np.ndarray, tape_positions: np.ndarray, tape_labels: list[str], spec: TapeSpec,
-                       rows: list[int]) -> None:
-    """Body-model dots vs tracked dots: per dot-frame distances and the same segment angles."""
+                       tape_time: np.ndarray, tape_positions: np.ndarray, tape_labels: list[str], spec: TapeSpec
+                       ) -> None:
+    """Body-model dots vs tracked dots: per dot-frame distances (``reference_rig``: the body-model
+    dots in the rig frame at the tape's times, tape labels, for the angles)."""
     ref_time, ref_positions, ref_labels = reference
     missing = [label for label in spec.graph.labels if label not in ref_labels]
     if missing:
@@ -177,16 +154,6 @@ def _compare_reference(result: CrossValidation, reference: tuple[np.ndarray, np.
     stats = {"dot_distance_mean_mm": float(d.mean()) if len(d) else float("nan"),
              "dot_distance_median_mm": float(np.median(d)) if len(d) else float("nan"),
              "dot_distance_p95_mm": float(np.percentile(d, 95)) if len(d) else float("nan"), "n": int(len(d))}
-    labels = list(spec.graph.labels)
-    angles: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    if len(rows) >= 2:
-        def triads(positions: np.ndarray, names: list[str]) -> dict:
-            centres = row_centres(positions, spec, names)
-            return {r: (centres[:, r], *row_sides(positions, spec, names, r)) for r in rows}
-
-        tape_angles = segment_angles(triads(tape_positions, tape_labels), rows)
-        ref_angles = segment_angles(triads(ref_rig, labels), rows)
-        angles = {name: (tape_angles[name], ref_angles[name]) for name in tape_angles}
-    stats["angles"] = {name: agreement(t, r, "deg") for name, (t, r) in angles.items()}
+    stats["angles"] = {}
     result.summary["reference"] = stats
-    result.reference_rig, result.reference_angles = ref_rig, angles
+    result.reference_rig = ref_rig

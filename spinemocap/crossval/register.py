@@ -20,11 +20,16 @@ from scipy.spatial.transform import Rotation
 from ..fileio import InputError
 from ..geometry import umeyama
 
+#: A rig -> Vicon similarity (R (3, 3), t (3,) mm, scale): ``X_vicon = scale R X_rig + t``.
+RigToVicon = tuple[np.ndarray, np.ndarray, float]
+
 
 @dataclass
 class Alignment:
-    """Rig -> Vicon: ``R`` (3, 3), ``t`` (3,) mm, ``offset_s``; ``residual_mm`` RMS over
-    ``n_frames`` matched frames; ``estimated`` says which of transform/offset were estimated."""
+    """Rig -> Vicon: ``X_vicon = scale R X_rig + t`` (``R`` (3, 3), ``t`` (3,) mm; ``scale`` is 1
+    unless a wand co-registration measured the rig's scale against the Vicon's), ``offset_s``;
+    ``residual_mm`` RMS over ``n_frames`` matched frames; ``estimated`` says which of
+    transform/offset were estimated."""
 
     R: np.ndarray
     t: np.ndarray
@@ -32,19 +37,21 @@ class Alignment:
     residual_mm: float
     n_frames: int
     estimated: str
+    scale: float = 1.0
 
     def to_vicon(self, points: np.ndarray) -> np.ndarray:
-        return np.asarray(points) @ self.R.T + self.t
+        return self.scale * np.asarray(points) @ self.R.T + self.t
 
     def to_rig(self, points: np.ndarray) -> np.ndarray:
-        return (np.asarray(points) - self.t) @ self.R
+        return (np.asarray(points) - self.t) @ self.R / self.scale
 
     def to_dict(self) -> dict:
         return {"clock_offset_s": self.offset_s, "clock_offset_ms": 1000 * self.offset_s,
                 "rotation": self.R.tolist(), "translation_mm": self.t.tolist(),
                 "rotation_xyz_deg": Rotation.from_matrix(self.R).as_euler("xyz", degrees=True).tolist(),
-                "residual_mm": self.residual_mm, "n_frames": self.n_frames, "estimated": self.estimated,
-                "convention": "X_vicon = R X_rig + t; t_vicon = t_rgb + clock_offset_s"}
+                "scale": self.scale, "residual_mm": self.residual_mm, "n_frames": self.n_frames,
+                "estimated": self.estimated,
+                "convention": "X_vicon = scale R X_rig + t; t_vicon = t_rgb + clock_offset_s"}
 
 
 def vicon_spline(time_s: np.ndarray, points: np.ndarray) -> tuple[CubicSpline, float, float]:
@@ -84,10 +91,11 @@ def coarse_offset(rig_time: np.ndarray, rig_points: np.ndarray, vicon_time: np.n
 
 def estimate_alignment(rig_time: np.ndarray, rig_points: np.ndarray, vicon_time: np.ndarray,
                        vicon_points: np.ndarray, max_offset_s: float = 1.0,
-                       transform: tuple[np.ndarray, np.ndarray] | None = None) -> Alignment:
+                       transform: RigToVicon | None = None) -> Alignment:
     """Align (F, K, 3) rig-frame points at ``rig_time`` with the same K markers (N, K, 3) in the
-    Vicon frame at ``vicon_time``. ``transform`` (R, t) known (e.g. from the wand calibration)
-    leaves only the clock offset to estimate."""
+    Vicon frame at ``vicon_time``. ``transform`` (R, t, scale) known (e.g. from the wand
+    calibration: :func:`transform_between_rigs`) leaves only the clock offset to estimate; else
+    a rigid transform is estimated with it."""
     spline, t_lo, t_hi = vicon_spline(vicon_time, vicon_points)
     tau0 = coarse_offset(rig_time, rig_points, vicon_time, vicon_points, max_offset_s)
     ok = np.isfinite(rig_points).all(axis=(1, 2)) & (rig_time + tau0 >= t_lo + 0.02) & (rig_time + tau0 <= t_hi - 0.02)
@@ -96,10 +104,11 @@ def estimate_alignment(rig_time: np.ndarray, rig_points: np.ndarray, vicon_time:
                                   "markers seen")
     source = rig_points[ok].reshape(-1, 3)
     times = rig_time[ok]
+    scale = 1.0
     if transform is None:
         R0, t0, _ = umeyama(source, spline(times + tau0).reshape(-1, 3), with_scale=False)
     else:
-        R0, t0 = np.asarray(transform[0], float), np.asarray(transform[1], float)
+        R0, t0, scale = np.asarray(transform[0], float), np.asarray(transform[1], float), float(transform[2])
     fixed = transform is not None
 
     def unpack(x: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -109,24 +118,30 @@ def estimate_alignment(rig_time: np.ndarray, rig_points: np.ndarray, vicon_time:
 
     def residuals(x: np.ndarray) -> np.ndarray:
         tau, R, t = unpack(x)
-        return (source @ R.T + t - spline(times + tau0 + tau).reshape(-1, 3)).ravel()
+        return (scale * source @ R.T + t - spline(times + tau0 + tau).reshape(-1, 3)).ravel()
 
     x0 = np.zeros(1) if fixed else np.concatenate([[0.0], Rotation.from_matrix(R0).as_rotvec(), t0])
-    scale = [1e-3] if fixed else [1e-3, 1e-3, 1e-3, 1e-3, 1.0, 1.0, 1.0]
-    fit = least_squares(residuals, x0, loss="soft_l1", f_scale=3.0, x_scale=scale)
+    x_scale = [1e-3] if fixed else [1e-3, 1e-3, 1e-3, 1e-3, 1.0, 1.0, 1.0]
+    fit = least_squares(residuals, x0, loss="soft_l1", f_scale=3.0, x_scale=x_scale)
     tau, R, t = unpack(fit.x)
     err = np.linalg.norm(residuals(fit.x).reshape(-1, 3), axis=1)
     return Alignment(R, np.asarray(t, float), float(tau0 + tau), float(np.sqrt(np.mean(err ** 2))), int(ok.sum()),
-                     "offset" if fixed else "offset+transform")
+                     "offset" if fixed else "offset+transform", scale)
 
 
 def transform_between_rigs(rig_R: list[np.ndarray], rig_t: list[np.ndarray], vicon_R: list[np.ndarray],
-                           vicon_t: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Rig -> Vicon transform from the same cameras' extrinsics in both frames (``x_c = R x + t``):
-    per camera ``X_v = R_v^T R_c X + R_v^T (t_c - t_v)``, averaged over cameras."""
-    Rs, ts = [], []
-    for Rc, tc, Rv, tv in zip(rig_R, rig_t, vicon_R, vicon_t):
-        Rs.append(Rv.T @ Rc)
-        ts.append(Rv.T @ (tc - tv))
-    R = Rotation.from_matrix(np.array(Rs)).mean().as_matrix()
-    return R, np.mean(ts, axis=0)
+                           vicon_t: list[np.ndarray]) -> RigToVicon:
+    """Rig -> Vicon similarity ``X_v = scale R X + t`` from the same cameras' extrinsics in both
+    frames (``x_c = R x + t``; the Vicon-frame rig as ``spinemocap calibrate wand`` writes it,
+    camera coordinates in Vicon mm). ``R``: the mean of the per-camera ``R_v^T R_c``; ``scale`` and
+    ``t``: least squares on the camera centres given ``R`` (the wand measures the rig's scale
+    against the Vicon's: a rigid transform would drop it; scale 1 with fewer than two cameras)."""
+    R = Rotation.from_matrix(np.array([Rv.T @ Rc for Rc, Rv in zip(rig_R, vicon_R)])).mean().as_matrix()
+    centres = np.array([-Rc.T @ tc for Rc, tc in zip(rig_R, rig_t)])
+    vicon_centres = np.array([-Rv.T @ tv for Rv, tv in zip(vicon_R, vicon_t)])
+    spread = (centres - centres.mean(axis=0)) @ R.T
+    scale = 1.0
+    if len(centres) >= 2 and np.sum(spread ** 2) > 1e-6:
+        scale = float(np.sum((vicon_centres - vicon_centres.mean(axis=0)) * spread) / np.sum(spread ** 2))
+    t = vicon_centres.mean(axis=0) - scale * centres.mean(axis=0) @ R.T
+    return R, t, scale

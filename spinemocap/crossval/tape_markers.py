@@ -5,12 +5,12 @@ marker ``VT_Rnn`` is stuck on the tape's centre line midway between the row's tw
 ``VT_RnnL``/``VT_RnnR`` sit on the skin beside the tape. From the tracked dots, the centre marker
 is at the row's dot midpoint plus the tape normal times (tape thickness + marker radius).
 The tape normal at a row: ``across x along`` with ``across`` = right dot - left dot and
-``along`` = the next row's centre - the previous row's centre (outward from the back).
+``along`` the tape's direction at the row from the row centres: the next row's centre - the
+previous row's centre, and at an end row the one-sided second-order difference
+``-3 c[r] + 4 c[r+1] - c[r+2]`` (mirrored at the top), so that the normal is the one at the
+row, not at the midpoint of its first gap (outward from the back).
 
-Segment frames (x = the subject's left, y = backward, z = up along the tape) are built from
-triads (centre, left, right); angles between two frames use the studio's Cardan X-Y-Z sequence
-(flexion about x positive forward, lateral bending positive to the subject's right, axial
-rotation positive to the subject's left), in degrees.
+The beside markers give the Vicon side of the angle comparison (``spinemocap.app.crossval``).
 """
 
 from __future__ import annotations
@@ -41,11 +41,22 @@ def row_sides(positions: np.ndarray, spec: TapeSpec, labels: list[str], row: int
     return positions[:, labels.index(left)], positions[:, labels.index(right)]
 
 
+def row_tangent(centres: np.ndarray, row: int) -> np.ndarray:
+    """(F, 3) direction (not unit) of the tape at ``row`` from (F, n_rows, 3) row centres: central
+    difference inside, second-order one-sided at the end rows; NaN on a one-row tape."""
+    n = centres.shape[1]
+    if 0 < row < n - 1:
+        return centres[:, row + 1] - centres[:, row - 1]
+    step = 1 if row == 0 else -1
+    if n < 3:
+        return np.full(centres[:, row].shape, np.nan)
+    return step * (-3 * centres[:, row] + 4 * centres[:, row + step] - centres[:, row + 2 * step])
+
+
 def tape_normal(positions: np.ndarray, spec: TapeSpec, labels: list[str], row: int) -> np.ndarray:
     """(F, 3) unit outward tape normal at a row (see module docstring)."""
     centres = row_centres(positions, spec, labels)
-    lo, hi = max(row - 1, 0), min(row + 1, spec.n_rows - 1)
-    along = centres[:, hi] - centres[:, lo]
+    along = row_tangent(centres, row)
     left, right = row_sides(positions, spec, labels, row)
     n = np.cross(right - left, along)
     return n / np.linalg.norm(n, axis=1, keepdims=True)
@@ -67,27 +78,3 @@ def tape_marker_points(positions: np.ndarray, labels: list[str], spec: TapeSpec,
         names.append(name)
         points.append(centres[:, row] + height_mm * tape_normal(positions, spec, labels, row))
     return names, (np.stack(points, axis=1) if points else np.zeros((len(positions), 0, 3)))
-
-
-def triad_frame(centre: np.ndarray, left: np.ndarray, right: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """(F, 3, 3) segment frames, columns x (to the subject's left), y (backward), z (up)."""
-    x = left - right
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    z = up - np.einsum("fd,fd->f", up, x)[:, None] * x
-    z /= np.linalg.norm(z, axis=1, keepdims=True)
-    y = np.cross(z, x)
-    return np.stack([x, y, z], axis=2)
-
-
-def cardan_angles(R: np.ndarray) -> np.ndarray:
-    """(F, 3, 3) relative rotations -> (F, 3) [flexion, lateral bending, axial rotation] deg
-    for ``R = Rx(a) Ry(-lateral) Rz(c)``."""
-    b = np.arcsin(np.clip(R[:, 0, 2], -1, 1))
-    a = np.arctan2(-R[:, 1, 2], R[:, 2, 2])
-    c = np.arctan2(-R[:, 0, 1], R[:, 0, 0])
-    return np.degrees(np.column_stack([a, -b, c]))
-
-
-def relative_angles(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    """(F, 3) angles of the upper frame relative to the lower one (frames (F, 3, 3))."""
-    return cardan_angles(np.einsum("fji,fjk->fik", lower, upper))
