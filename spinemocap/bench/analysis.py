@@ -237,6 +237,33 @@ def expected_change(applied_deg: np.ndarray, joints: dict[str, float], rest: dic
     return out
 
 
+def skin_expectation(scene, truth: MarkerTable, levels: LevelMap, settings: AngleSettings,
+                     pairs: dict[str, tuple[str, str]]) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Expected change from neutral (F, 3) deg per angle group of ``pairs`` (group -> (lower
+    level, upper level) of ``levels``) for ``scene``'s applied motion, and each level's
+    :func:`skin_turn_joints` at its rest height: :func:`expected_change` with the levels' segment
+    frames on the ground truth's first frame ``truth`` as rest frames."""
+    names = list(dict.fromkeys(name for pair in pairs.values() for name in pair))
+    rest_frames = level_frames(truth, scene.tape, levels, names, settings)
+    rest = {name: rest_frames[name][0][0] for name in names}
+    rows = scene.tape.n_rows
+    rest_dots = truth.to_arrays()["positions"][0]
+    row_z = np.array([np.nanmean(rest_dots[scene.tape.graph.row == r, 2]) for r in range(rows)])
+    chain = scene.body.spine_chain()[:, 2]
+    joints = {name: float(skin_turn_joints(np.interp(levels.row_of(name), np.arange(1, rows + 1), row_z), chain))
+              for name in names}
+    return expected_change(scene.angles_deg, joints, rest, pairs), joints
+
+
+def expected_between_rows(scene, truth: MarkerTable, lo: int, hi: int) -> np.ndarray:
+    """Expected change from the first frame (F, 3) deg of the angle between tape rows ``lo`` and
+    ``hi`` (1-based): :func:`skin_expectation`, the model ``bench angles`` scores against."""
+    levels = LevelMap({LOW: lo, HIGH: hi}, scene.tape.n_rows)
+    expected, _ = skin_expectation(scene, truth, levels, AngleSettings(lower=LOW, thoracolumbar=HIGH),
+                                   {"pair": (LOW, HIGH)})
+    return expected["pair"] - expected["pair"][0]
+
+
 def lab_scene(motion: str, frames: int, fps: float, rows: int, realism: str, seed: int = 0):
     """The studio scene of one benchmark motion (the ``artificial`` camera layout, 4 cameras)."""
     config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed,
@@ -250,17 +277,8 @@ def lab_expectation(scene, markers: MarkerTable, settings: AngleSettings) -> tup
     rows = scene.tape.n_rows
     levels = LevelMap.from_row_levels([str(x) for x in scene.tape_on_skin.row_levels], rows, source="studio row levels")
     upper = settings.upper or list(levels.rows)[-1]
-    names = [settings.lower, settings.thoracolumbar, upper]
-    rest_frames = level_frames(markers, scene.tape, levels, names, settings)
-    rest = {name: rest_frames[name][0][0] for name in names}
-    rest_dots = markers.to_arrays()["positions"][0]
-    graph = scene.tape.graph
-    row_z = np.array([np.nanmean(rest_dots[graph.row == r, 2]) for r in range(rows)])
-    chain = scene.body.spine_chain()[:, 2]
-    joints = {name: float(skin_turn_joints(np.interp(levels.row_of(name), np.arange(1, rows + 1), row_z), chain))
-              for name in names}
     pairs = {"lumbar": (settings.lower, settings.thoracolumbar), "thoracic": (settings.thoracolumbar, upper)}
-    expected = expected_change(scene.angles_deg, joints, rest, pairs)
+    expected, joints = skin_expectation(scene, markers, levels, settings, pairs)
     return levels, expected, {"levels": {g: list(p) for g, p in pairs.items()}, "skin_turn_joints": joints}
 
 
