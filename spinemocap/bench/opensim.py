@@ -11,8 +11,9 @@ rows are the ones nearest the middle of the lowest and highest anny bone segment
 and the expected change from the neutral first frame is ``bench angles``' skin model
 (:func:`spinemocap.bench.analysis.expected_between_rows`: the skin at a row turns with the
 fractional number of anny's spine joints at its rest height; Cardan angles of the two rows'
-turned rest frames). It replaced "(joints between the rows)/5 x applied", which the skin's
-linear-blend spread puts ~20 % off at full flexion. For ``mixed`` all three angles are scored.
+turned rest frames). It replaced "(joints between the rows)/5 x applied", so that both
+benchmarks score against one model (the change, measured: docs/BENCHMARKS.md, OpenSim section).
+For ``mixed`` all three angles are scored.
 The peer measures the same two rows with :func:`spinemocap.analysis.angles.compute_angles`.
 """
 
