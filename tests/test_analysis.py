@@ -156,3 +156,45 @@ def test_pelvis_from_real_vicon_c3d():
     assert np.median(s[:, 2]) > 0.9  # superior axis points up (Z) while walking
     dets = np.linalg.det(frames[ok])
     assert dets == pytest.approx(1.0)
+
+
+def _anterior_per_dot(dots: np.ndarray) -> np.ndarray:
+    """(F, D, 3) unit anterior axis (a = s x r) of each dot's row on a clean tape: s from the
+    neighbouring rows' L-R midpoints, r from L -> R."""
+    rows = np.array([int(label[1:3]) - 1 for label in TAPE.labels])
+    index = {label: k for k, label in enumerate(TAPE.labels)}
+    mid = np.stack([0.5 * (dots[:, index[f"R{r + 1:02d}L"]] + dots[:, index[f"R{r + 1:02d}R"]])
+                    for r in range(TAPE.n_rows)], axis=1)
+    superior = np.gradient(mid, axis=1)
+    right = dots[:, [index[f"R{r + 1:02d}R"] for r in range(TAPE.n_rows)]] - \
+        dots[:, [index[f"R{r + 1:02d}L"] for r in range(TAPE.n_rows)]]
+    anterior = np.cross(superior, right)
+    anterior /= np.linalg.norm(anterior, axis=2, keepdims=True)
+    return anterior[:, rows]
+
+
+def test_depth_error_growing_toward_the_midline_does_not_tilt_the_s1_tangent():
+    # Tracked dots over a bridged groove read deeper toward the tape's midline (C dots 0.3-1.1 mm
+    # below the L-R chord on the studio's lab captures, the truth flat), by an amount that changes
+    # with the pose. The rows alternate dots at +-7.5 mm and at -15/0/+15 mm, so L-R midpoints
+    # zig-zag between rows and the S1 end tangent tilted by 2-5 deg (lumbar flexion read 2.6 deg
+    # low). Row centres on the midline (u = 0) must leave the angles as on the clean tape.
+    amplitude = 30.0 * np.sin(np.linspace(0, np.pi, 11))
+    clean = _sequence(np.outer(amplitude, [1.0, 0.0, 0.0]), background=(-0.1, 0.0, 0.0))
+    dots = clean.to_arrays()["positions"]
+    u = TAPE.graph.uv_mm[:, 0]
+    depth_mm = np.linspace(0.2, 1.2, len(amplitude))[:, None] * (1 - (u / 15.0) ** 2)[None, :]
+    deeper = MarkerTable.from_arrays(TAPE.labels, dots + depth_mm[..., None] * _anterior_per_dot(dots), fps=100.0)
+    settings = AngleSettings(lowpass_hz=None)
+    exact = compute_angles(clean, TAPE, LEVELS, settings=settings).table["lumbar_flexion"].to_numpy()
+    measured = compute_angles(deeper, TAPE, LEVELS, settings=settings).table["lumbar_flexion"].to_numpy()
+    assert np.abs(measured - exact).max() < 0.2  # the L-R midpoints alone: 8.9 deg
+
+
+def test_a_column_shifted_row_does_not_move_the_other_rows_centres():
+    dots = bent_tape_dots(TAPE, uniform_bend(0, 300, np.array([40.0, 0, 0])))[None]
+    clean = row_tracks(dots, TAPE.labels, TAPE, fps=100.0, lowpass_hz=None).centre[0]
+    shifted = dots.copy()
+    shifted[0, TAPE.labels.index("R12C")] = dots[0, TAPE.labels.index("R12R")]  # C labelled on R's dot
+    centre = row_tracks(shifted, TAPE.labels, TAPE, fps=100.0, lowpass_hz=None).centre[0]
+    assert np.linalg.norm(centre - clean, axis=1).max() < 1e-6  # a 15 mm "sagitta" is no cross curvature

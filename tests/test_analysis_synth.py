@@ -61,3 +61,25 @@ def test_bland_altman_limits_and_bias():
     assert stats["rmse_deg"] == pytest.approx(np.sqrt(5.0))
     missing = fit_stats(np.full(5, np.nan), np.arange(5.0))
     assert missing["frames"] == 0 and missing["valid"] == 0.0 and np.isnan(missing["rmse_deg"])
+
+
+def test_the_peer_scores_the_previous_row_centres():
+    # bench angles' peer (tracked_lr_midpoints) is the tracked table without its C dots: the row
+    # centres are then the plain L-R midpoints, as before the midline correction
+    from spinemocap.analysis.bent_tape import bent_tape_dots, uniform_bend
+    from spinemocap.analysis.curve import row_tracks
+    from spinemocap.bench.analysis import without_middle_dots
+    from spinemocap.markers import MarkerTable
+    from spinemocap.tape import TapeSpec
+
+    tape = TapeSpec(n_rows=13)
+    dots = bent_tape_dots(tape, uniform_bend(0, 300, np.array([30.0, 0, 0])))[None]
+    dots[0, [k for k, label in enumerate(tape.labels) if label.endswith("C")], 1] += 1.0  # C dots 1 mm deeper
+    peer = without_middle_dots(MarkerTable.from_arrays(tape.labels, dots, fps=10.0)).to_arrays()
+    assert not any(str(label).endswith("C") for label in peer["labels"])
+    centre = row_tracks(peer["positions"], list(peer["labels"]), tape, 10.0, lowpass_hz=None).centre[0]
+    index = {label: k for k, label in enumerate(tape.labels)}
+    midpoints = np.array([0.5 * (dots[0, index[f"R{r:02d}L"]] + dots[0, index[f"R{r:02d}R"]]) for r in range(1, 14)])
+    assert centre == pytest.approx(midpoints)
+    full = row_tracks(dots, tape.labels, tape, 10.0, lowpass_hz=None).centre[0]
+    assert np.abs(full - midpoints).max() > 0.2  # the corrected centres differ where C reads deeper

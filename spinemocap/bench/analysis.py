@@ -237,6 +237,33 @@ def expected_change(applied_deg: np.ndarray, joints: dict[str, float], rest: dic
     return out
 
 
+def skin_expectation(scene, truth: MarkerTable, levels: LevelMap, settings: AngleSettings,
+                     pairs: dict[str, tuple[str, str]]) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Expected change from neutral (F, 3) deg per angle group of ``pairs`` (group -> (lower
+    level, upper level) of ``levels``) for ``scene``'s applied motion, and each level's
+    :func:`skin_turn_joints` at its rest height: :func:`expected_change` with the levels' segment
+    frames on the ground truth's first frame ``truth`` as rest frames."""
+    names = list(dict.fromkeys(name for pair in pairs.values() for name in pair))
+    rest_frames = level_frames(truth, scene.tape, levels, names, settings)
+    rest = {name: rest_frames[name][0][0] for name in names}
+    rows = scene.tape.n_rows
+    rest_dots = truth.to_arrays()["positions"][0]
+    row_z = np.array([np.nanmean(rest_dots[scene.tape.graph.row == r, 2]) for r in range(rows)])
+    chain = scene.body.spine_chain()[:, 2]
+    joints = {name: float(skin_turn_joints(np.interp(levels.row_of(name), np.arange(1, rows + 1), row_z), chain))
+              for name in names}
+    return expected_change(scene.angles_deg, joints, rest, pairs), joints
+
+
+def expected_between_rows(scene, truth: MarkerTable, lo: int, hi: int) -> np.ndarray:
+    """Expected change from the first frame (F, 3) deg of the angle between tape rows ``lo`` and
+    ``hi`` (1-based): :func:`skin_expectation`, the model ``bench angles`` scores against."""
+    levels = LevelMap({LOW: lo, HIGH: hi}, scene.tape.n_rows)
+    expected, _ = skin_expectation(scene, truth, levels, AngleSettings(lower=LOW, thoracolumbar=HIGH),
+                                   {"pair": (LOW, HIGH)})
+    return expected["pair"] - expected["pair"][0]
+
+
 def lab_scene(motion: str, frames: int, fps: float, rows: int, realism: str, seed: int = 0):
     """The studio scene of one benchmark motion (the ``artificial`` camera layout, 4 cameras)."""
     config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed,
@@ -250,18 +277,20 @@ def lab_expectation(scene, markers: MarkerTable, settings: AngleSettings) -> tup
     rows = scene.tape.n_rows
     levels = LevelMap.from_row_levels([str(x) for x in scene.tape_on_skin.row_levels], rows, source="studio row levels")
     upper = settings.upper or list(levels.rows)[-1]
-    names = [settings.lower, settings.thoracolumbar, upper]
-    rest_frames = level_frames(markers, scene.tape, levels, names, settings)
-    rest = {name: rest_frames[name][0][0] for name in names}
-    rest_dots = markers.to_arrays()["positions"][0]
-    graph = scene.tape.graph
-    row_z = np.array([np.nanmean(rest_dots[graph.row == r, 2]) for r in range(rows)])
-    chain = scene.body.spine_chain()[:, 2]
-    joints = {name: float(skin_turn_joints(np.interp(levels.row_of(name), np.arange(1, rows + 1), row_z), chain))
-              for name in names}
     pairs = {"lumbar": (settings.lower, settings.thoracolumbar), "thoracic": (settings.thoracolumbar, upper)}
-    expected = expected_change(scene.angles_deg, joints, rest, pairs)
+    expected, joints = skin_expectation(scene, markers, levels, settings, pairs)
     return levels, expected, {"levels": {g: list(p) for g, p in pairs.items()}, "skin_turn_joints": joints}
+
+
+#: The previous analysis in the same run: row centres as the plain L-R midpoints. Without ``C``
+#: dots :func:`spinemocap.analysis.curve.row_tracks` has no cross-sagitta to correct them with,
+#: which is exactly what it computed before the midline correction.
+PEER_SOURCE = "tracked_lr_midpoints"
+
+
+def without_middle_dots(table: MarkerTable) -> MarkerTable:
+    """``table`` without the 3-dot rows' ``C`` dots (see :data:`PEER_SOURCE`)."""
+    return table.select(labels=[label for label in table.labels if not label.endswith("C")])
 
 
 def tracked_markers(scene, detector: str = "net", mode: str = "sequence", progress: bool = True) -> MarkerTable:
@@ -379,6 +408,8 @@ def bench_lab_angles(motions=LAB_MOTIONS, frames: int = 30, fps: float = 10.0, r
             accuracy = evaluate_tracking(table, truth_dots, float(scene.tape.graph.rest_length_mm.min()))
             entry["tracked"] = score_lab_angles(compute_angles(table, scene.tape, levels, up, facing, settings).table,
                                                 expected)
+            entry[PEER_SOURCE] = score_lab_angles(
+                compute_angles(without_middle_dots(table), scene.tape, levels, up, facing, settings).table, expected)
             entry["tracking"] = {"mean_error_mm": accuracy.mean_error_mm, "p95_error_mm": accuracy.p95_error_mm,
                                  "label_swaps": accuracy.label_swaps, "frames_with_swaps": accuracy.frames_with_swaps,
                                  "frames_without_solution": accuracy.frames_without_solution,
@@ -392,13 +423,14 @@ def bench_lab_angles(motions=LAB_MOTIONS, frames: int = 30, fps: float = 10.0, r
 
 def headline(results: dict) -> dict[str, float]:
     """The issue's JSON keys: ``tracked_<motion>_rmse_deg`` and ``groundtruth_<motion>_rmse_deg``
-    (lumbar angle on the motion's own axis) for the single-axis motions present."""
+    (lumbar angle on the motion's own axis) for the single-axis motions present, and the peer's
+    ``tracked_lr_midpoints_<motion>_rmse_deg``."""
     out = {}
     for motion, axis in MOTION_AXIS.items():
         if motion not in results:
             continue
         column = LAB_ANGLES[axis]
-        for source in ("tracked", "groundtruth"):
+        for source in ("tracked", "groundtruth", PEER_SOURCE):
             if source in results[motion]:
                 out[f"{source}_{motion}_rmse_deg"] = results[motion][source][column]["rmse_deg"]
     return out

@@ -8,10 +8,13 @@ Per studio motion (``flexion``, ``lateral``, ``rotation``, ``mixed``) and marker
 project's sequence and signs) of the vertebra under the upper benchmark row relative to the one
 under the lower row, from the solved model's body orientations. As in ``bench angles``, the
 rows are the ones nearest the middle of the lowest and highest anny bone segments on the tape,
-and the expected change from the neutral first frame is (joints between them)/5 x applied. For
-``mixed`` all three angles are scored against that share of the applied angles (a combined
-motion: the per-axis split of a composed rotation is approximate). The peer measures the same
-two rows with :func:`spinemocap.analysis.angles.compute_angles`.
+and the expected change from the neutral first frame is ``bench angles``' skin model
+(:func:`spinemocap.bench.analysis.expected_between_rows`: the skin at a row turns with the
+fractional number of anny's spine joints at its rest height; Cardan angles of the two rows'
+turned rest frames). It replaced "(joints between the rows)/5 x applied", so that both
+benchmarks score against one model (the change, measured: docs/BENCHMARKS.md, OpenSim section).
+For ``mixed`` all three angles are scored.
+The peer measures the same two rows with :func:`spinemocap.analysis.angles.compute_angles`.
 """
 
 from __future__ import annotations
@@ -82,7 +85,7 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     from ..analysis.levels import LevelMap
     from ..markers import MarkerTable
     from ..opensim import OpenSimSettings, run_opensim
-    from .analysis import HIGH, LOW, studio_motion
+    from .analysis import HIGH, LOW, expected_between_rows, studio_motion
 
     data = studio_motion(motion, frames, fps, rows, realism=realism)
     tape = data["tape"]
@@ -92,9 +95,9 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
         markers = MarkerTable.from_arrays(data["labels"], data["dots"], fps=fps)
     applied = data["applied"] - data["applied"][0]
     axes = [AXES.index(motion)] if motion in AXES else [0, 1, 2]
-    expected = np.zeros_like(applied)
-    expected[:, axes] = data["share"] * applied[:, axes]
     lo, hi = data["rows"]
+    truth = MarkerTable.from_arrays(data["labels"], data["dots"], fps=fps)
+    expected = expected_between_rows(data["scene"], truth, lo, hi)
     levels = LevelMap.from_row_levels(data["row_levels"], tape.n_rows)
     with tempfile.TemporaryDirectory() as tmp:
         # the static trial is the neutral first frame: the studio's motions start moving at once
