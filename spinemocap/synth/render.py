@@ -134,6 +134,9 @@ class CameraRenderer:
         self.canvas_size = (w + 2 * margin_x, h + 2 * margin_y)
         self.map_x = (undistorted[:, 0] + margin_x).reshape(h, w).astype(np.float32)
         self.map_y = (undistorted[:, 1] + margin_y).reshape(h, w).astype(np.float32)
+        # canvas extent each output column / row reads from: bounds the lens pass of the mask
+        self._column_x_range = (self.map_x.min(axis=0), self.map_x.max(axis=0))
+        self._row_y_range = (self.map_y.min(axis=1), self.map_y.max(axis=1))
 
     def _point_camera(self, plotter) -> None:
         cam = self.camera
@@ -201,12 +204,55 @@ class CameraRenderer:
             rgb = cv2.resize(rgb, (w // self.supersample, h // self.supersample), interpolation=cv2.INTER_AREA)
         return rgb
 
-    def _through_lens(self, canvas: np.ndarray) -> np.ndarray:
+    def through_lens(self, canvas: np.ndarray) -> np.ndarray:
+        """Undistorted canvas (canvas pixels) -> distorted image (H, W), bilinear."""
         return cv2.remap(canvas, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    def _output_block(self, x0: int, y0: int, x1: int, y1: int) -> tuple[int, int, int, int] | None:
+        """Output pixel block (u0, v0, u1, v1) holding every output pixel whose bilinear taps can
+        touch the canvas rectangle [x0, x1) x [y0, y1) (conservative: per column and row extents
+        of the lens maps), or None when none can."""
+        (col_lo, col_hi), (row_lo, row_hi) = self._column_x_range, self._row_y_range
+        cols = np.flatnonzero((col_hi > x0 - 1) & (col_lo < x1))
+        rows = np.flatnonzero((row_hi > y0 - 1) & (row_lo < y1))
+        if len(cols) == 0 or len(rows) == 0:
+            return None
+        return int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
+
+    def _through_lens_window(self, window: np.ndarray, wx: int, wy: int) -> np.ndarray:
+        """Distorted (H, W) image of a canvas that is ``window`` (one channel) at canvas offset
+        (``wx``, ``wy``) and 0 elsewhere; only the output block that can see the window is
+        resampled (same pixels as :meth:`through_lens` of the whole canvas)."""
+        w, h = self.camera.size
+        W, H = self.canvas_size
+        out = np.zeros((h, w), window.dtype)
+        ch, cw = window.shape[:2]
+        block = self._output_block(wx, wy, wx + cw, wy + ch)
+        if block is None:
+            return out
+        u0, v0, u1, v1 = block
+        # the window padded with the canvas' zeros (2 px, inside the canvas), so that taps just
+        # outside the window read 0 as on the whole canvas, and border replication at the canvas
+        # edge replicates the same pixels
+        px0, py0 = max(wx - 2, 0), max(wy - 2, 0)
+        px1, py1 = min(wx + cw + 2, W), min(wy + ch + 2, H)
+        padded = np.zeros((py1 - py0, px1 - px0), window.dtype)
+        padded[wy - py0 : wy - py0 + ch, wx - px0 : wx - px0 + cw] = window
+        # integer shifts of float32 maps are exact, so the taps and weights are the same
+        map_x = self.map_x[v0:v1, u0:u1] - np.float32(px0)
+        map_y = self.map_y[v0:v1, u0:u1] - np.float32(py0)
+        out[v0:v1, u0:u1] = cv2.remap(padded, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return out
 
     def snapshot(self) -> np.ndarray:
         """Render what the plotter holds now, through the lens: distorted RGB (H, W, 3) uint8."""
-        return self._through_lens(self._canvas_snapshot())
+        return self.through_lens(self._canvas_snapshot())
+
+    def render_canvas(self, meshes: SceneMeshes) -> np.ndarray:
+        """Load ``meshes`` and render them: undistorted RGB canvas (canvas pixels) uint8. The
+        geometry stays loaded, so :meth:`render_mask_window` right after shows the same instant."""
+        self._update(meshes)
+        return self._canvas_snapshot()
 
     def _tape_region(self, tape_vertices: np.ndarray, pad: int = 4) -> tuple[int, int, int, int] | None:
         """Canvas rectangle (x0, y0, width, height) holding the tape's projection, or None."""
@@ -223,11 +269,18 @@ class CameraRenderer:
 
     def render(self, meshes: SceneMeshes, with_mask: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """Colour image (H, W, 3) RGB uint8 and tape mask (H, W) bool (None if not asked)."""
-        self._update(meshes)
-        rgb = self.snapshot()
+        rgb = self.through_lens(self.render_canvas(meshes))
         if not with_mask:
             return rgb, None
         return rgb, self._render_mask(meshes)
+
+    def render_reference(self, meshes: SceneMeshes, with_mask: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`render` as first written (the mask resampled over the whole canvas): the peer of
+        ``spinemocap bench render`` and the tests' reference."""
+        rgb = self.through_lens(self.render_canvas(meshes))
+        if not with_mask:
+            return rgb, None
+        return rgb, self._render_mask_reference(meshes)
 
     def _mask_window(self, width: int, height: int):
         """The unlit mask plotter, at least ``width`` x ``height`` canvas pixels large."""
@@ -253,25 +306,48 @@ class CameraRenderer:
         return plotter
 
     def _render_mask(self, meshes: SceneMeshes) -> np.ndarray:
-        """(H, W) bool tape silhouette, hidden by the body, band and occluders like the image."""
+        """(H, W) bool tape silhouette, hidden by the body, band and occluders like the image:
+        the mask window's green channel through the lens, resampled only where it can land."""
+        return self.mask_through_lens(self.render_mask_window(meshes))
+
+    def mask_through_lens(self, placed: tuple[np.ndarray, int, int] | None) -> np.ndarray:
+        """(H, W) bool tape mask from :meth:`render_mask_window`'s result (thread-safe: no VTK)."""
+        if placed is None:
+            return np.zeros(self.camera.size[::-1], bool)
+        window, wx, wy = placed
+        return self._through_lens_window(np.ascontiguousarray(window[..., 1]), wx, wy) > 127
+
+    def _render_mask_reference(self, meshes: SceneMeshes) -> np.ndarray:
+        """:meth:`_render_mask` as first written (the window pasted into a whole black canvas, all
+        of it resampled): the peer of ``spinemocap bench render`` and the tests' reference."""
         canvas = np.zeros((self.canvas_size[1], self.canvas_size[0], 3), np.uint8)
+        placed = self.render_mask_window(meshes)
+        if placed is not None:
+            window, wx, wy = placed
+            canvas[wy : wy + window.shape[0], wx : wx + window.shape[1]] = window
+        return self.through_lens(canvas)[..., 1] > 127
+
+    def render_mask_window(self, meshes: SceneMeshes) -> tuple[np.ndarray, int, int] | None:
+        """Render the unlit mask window around the tape: undistorted RGB (h, w, 3) uint8 of a
+        canvas rectangle and its origin (x, y) on the canvas (canvas pixels), or None when the
+        tape projects nowhere on the canvas."""
         region = self._tape_region(meshes.tape_vertices)
-        if region is not None:
-            x0, y0, w, h = region
-            plotter = self._mask_window(w, h)
-            cw, ch = self._mask_size
-            W, H = self.canvas_size
-            wx = int(np.clip(x0 - (cw - w) // 2, 0, W - cw))  # window origin on the canvas
-            wy = int(np.clip(y0 - (ch - h) // 2, 0, H - ch))
-            self._show_canvas_region(plotter, wx, wy, cw, ch)
-            if self._mask_occluder_actor is not None:
-                plotter.remove_actor(self._mask_occluder_actor, render=False)
-                self._mask_occluder_actor = None
-            if meshes.occluders is not None and meshes.occluders.n_points:
-                self._mask_occluder_actor = plotter.add_mesh(meshes.occluders, color="black", lighting=False,
-                                                             render=False)
-            canvas[wy : wy + ch, wx : wx + cw] = self._canvas_snapshot(plotter)
-        return self._through_lens(canvas)[..., 1] > 127
+        if region is None:
+            return None
+        x0, y0, w, h = region
+        plotter = self._mask_window(w, h)
+        cw, ch = self._mask_size
+        W, H = self.canvas_size
+        wx = int(np.clip(x0 - (cw - w) // 2, 0, W - cw))  # window origin on the canvas
+        wy = int(np.clip(y0 - (ch - h) // 2, 0, H - ch))
+        self._show_canvas_region(plotter, wx, wy, cw, ch)
+        if self._mask_occluder_actor is not None:
+            plotter.remove_actor(self._mask_occluder_actor, render=False)
+            self._mask_occluder_actor = None
+        if meshes.occluders is not None and meshes.occluders.n_points:
+            self._mask_occluder_actor = plotter.add_mesh(meshes.occluders, color="black", lighting=False,
+                                                         render=False)
+        return self._canvas_snapshot(plotter), wx, wy
 
     def close(self) -> None:
         self.plotter.close()
