@@ -511,11 +511,13 @@ class Scene:
         """Render one frame in every camera (each at its own clock's time): BGR images (with blur
         and noise) and tape masks.
 
-        VTK renders the cameras one after the other in this thread; each camera's lens
-        resampling, sensor noise and mask resampling run on a worker thread meanwhile (numpy and
-        OpenCV release the GIL), so they overlap the next camera's rendering. ``reference``
-        renders as the first studio did (one thread, the reference implementations): the peer
-        of ``spinemocap bench render``, same pixels."""
+        VTK renders the cameras one after the other in this thread, each only over the canvas
+        rectangle the scene covers in it; each camera's lens resampling, sensor noise and mask
+        resampling run on a worker thread meanwhile (numpy and OpenCV release the GIL), so they
+        overlap the next camera's rendering. ``reference`` renders as the first studio did (whole
+        canvas, one thread, the reference implementations): the peer of ``spinemocap bench
+        render`` and the tests' reference (same ground truth; images equal up to rounding on a
+        few anti-aliased edges, see :meth:`CameraRenderer.render_window`)."""
         if not 0 <= frame < self.n_frames:
             raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
         if reference:
@@ -525,10 +527,10 @@ class Scene:
         shared: dict[float, list[SceneMeshes]] = {}
         for c, renderer in enumerate(self.renderers):
             meshes = self._camera_meshes(frame, c, shared)
-            canvases = [renderer.render_canvas(meshes[0])]
+            windows = [renderer.render_window(meshes[0])]
             mask_window = renderer.render_mask_window(meshes[0]) if with_masks else None
-            canvases += [renderer.render_canvas(m) for m in meshes[1:]]
-            developing.append(pool.submit(self._develop, frame, c, canvases, mask_window, with_masks))
+            windows += [renderer.render_window(m) for m in meshes[1:]]
+            developing.append(pool.submit(self._develop, frame, c, windows, mask_window, with_masks))
         developed = [job.result() for job in developing]
         return RenderedFrame([image for image, _ in developed], [mask for _, mask in developed])
 
@@ -542,17 +544,18 @@ class Scene:
             shared[offset] = [self.meshes(frame, offset_s=offset)] + [self.meshes(time_s=t) for t in instants[1:]]
         return shared[offset]
 
-    def _develop(self, frame: int, camera: int, canvases: list[np.ndarray],
+    def _develop(self, frame: int, camera: int, windows: list[tuple[np.ndarray, int, int]],
                  mask_window: tuple[np.ndarray, int, int] | None, with_mask: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        """Rendered canvases of one camera -> BGR image (lens, exposure average, sensor) and tape
-        mask. No VTK: safe on a worker thread."""
+        """Rendered windows of one camera (:meth:`CameraRenderer.render_window`, the frame instant
+        then the exposure's) -> BGR image (lens, exposure average, sensor) and tape mask. No VTK:
+        safe on a worker thread."""
         renderer = self.renderers[camera]
-        rgb: np.ndarray = renderer.through_lens(canvases[0])
-        if len(canvases) > 1:
+        rgb: np.ndarray = renderer.image_through_lens(windows[0])
+        if len(windows) > 1:
             acc = rgb.astype(np.float32)
-            for canvas in canvases[1:]:
-                acc += renderer.through_lens(canvas)
-            rgb = acc / len(canvases)
+            for window in windows[1:]:
+                acc += renderer.image_through_lens(window)
+            rgb = acc / len(windows)
         mask = renderer.mask_through_lens(mask_window) if with_mask else None
         return self._sensor(rgb, frame, camera), mask
 
