@@ -68,17 +68,17 @@ def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds
         captures = {k: Capture(root=r, name=k, fps=scene.fps, n_frames=scene.n_frames, rig=scene.rig, tape=scene.tape)
                     for k, r in roots.items()}
         t0 = time.perf_counter()
-        for path in roots:  # warm-up: plotters, lens maps, mask windows, worker threads
-            render_frames(scene, roots[path], captures[path], [0], reference=path == "reference")
+        for kind in roots:  # warm-up: plotters, lens maps, mask windows, worker threads
+            render_frames(scene, roots[kind], captures[kind], [0], reference=kind == "reference")
         setup = time.perf_counter() - t0
         timed = range(1, frames + 1)
         seconds: dict[str, list[float]] = {"reference": [], "fast": []}
         loads = [_load_average()]
         for _ in range(rounds):
-            for path in ("reference", "fast"):
+            for kind in ("reference", "fast"):
                 t0 = time.perf_counter()
-                render_frames(scene, roots[path], captures[path], timed, reference=path == "reference")
-                seconds[path].append((time.perf_counter() - t0) / frames)
+                render_frames(scene, roots[kind], captures[kind], timed, reference=kind == "reference")
+                seconds[kind].append((time.perf_counter() - t0) / frames)
                 loads.append(_load_average())
         diffs, masks_equal = [], True
         for path in sorted(roots["fast"].rglob("*.png")):  # every file both paths wrote
