@@ -47,7 +47,7 @@ def visibility_table(frames: int = 548, seed: int = 0, progress: bool = True) ->
 
 
 def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds: int = 2,
-                      workdir: Path | None = None) -> dict:
+                      workdir: Path | None = None, occlusion: str = "none") -> dict:
     """Seconds per frame to render ``frames`` frames of a preset and write them as a capture does
     (images and tape masks as PNG), for the renderer as first written (the reference path:
     one thread, files written one after the other) and the current one, in the same process on
@@ -64,7 +64,7 @@ def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds
     from ..capture import Capture
     from ..synth.writer import render_frames
 
-    scene = build_scene(SynthConfig.preset(preset, frames=frames + 1, realism=realism))
+    scene = build_scene(SynthConfig.preset(preset, frames=frames + 1, realism=realism, occlusion=occlusion))
     with tempfile.TemporaryDirectory(prefix="bench-render-", dir=workdir) as tmp:
         roots = {"reference": Path(tmp) / "reference", "fast": Path(tmp) / "fast"}
         captures = {k: Capture(root=r, name=k, fps=scene.fps, n_frames=scene.n_frames, rig=scene.rig, tape=scene.tape)
@@ -99,7 +99,7 @@ def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds
     gt_per_frame = (time.perf_counter() - t0) / frames
     scene.close()
     reference_s, fast_s = min(seconds["reference"]), min(seconds["fast"])
-    return {"preset": preset, "realism": realism, "cameras": len(scene.rig), "size": list(scene.rig[0].size),
+    return {"preset": preset, "realism": realism, "occlusion": occlusion, "balls": scene.config.n_balls, "cameras": len(scene.rig), "size": list(scene.rig[0].size),
             "frames": frames, "rounds": rounds, "setup_s": setup,
             "reference_s_per_frame": reference_s, "fast_s_per_frame": fast_s, "speedup": reference_s / fast_s,
             "reference_s_per_frame_rounds": seconds["reference"], "fast_s_per_frame_rounds": seconds["fast"],
@@ -142,21 +142,22 @@ def plot_table(table: dict[str, np.ndarray], path: Path) -> None:
 
 
 def run_render_benchmark(frames: int, visibility_frames: int, out: Path, presets=("artificial", "studio"),
-                         realism: str = "lab", rounds: int = 2) -> dict:
+                         realism: str = "lab", rounds: int = 2, occlusion: str = "none") -> dict:
     """``spinemocap bench render``: render speed per preset against the first renderer, and the
     visibility table (skipped with ``visibility_frames`` 0)."""
     out.mkdir(parents=True, exist_ok=True)
     timings = []
     for preset in presets:
-        print(f"timing {preset} renders at the {realism} level ({frames} frames, images + masks written as PNG; "
+        print(f"timing {preset} renders at the {realism} level, occlusion {occlusion} ({frames} frames, images + "
+              f"masks written as PNG; "
               f"the first renderer and this one alternating, {rounds} rounds) ...")
-        timing = time_render_paths(preset, frames, realism, rounds, workdir=out)
+        timing = time_render_paths(preset, frames, realism, rounds, workdir=out, occlusion=occlusion)
         timings.append(timing)
         print(f"  {timing['cameras']} cameras {timing['size'][0]}x{timing['size'][1]}: first renderer "
               f"{timing['reference_s_per_frame']:.2f} s/frame ({timing['reference_cpu_s_per_frame']:.2f} CPU s), "
               f"this one {timing['fast_s_per_frame']:.2f} s/frame ({timing['fast_cpu_s_per_frame']:.2f} CPU s): "
               f"{timing['speedup']:.2f}x; images differ by max {timing['image_max_abs_diff']} / mean "
-              f"{timing['image_mean_abs_diff']:.4f} grey levels, masks "
+              f"{timing['image_mean_abs_diff']:.1e} grey levels, masks "
               f"{'identical' if timing['masks_identical'] else 'DIFFER'}; ground truth "
               f"{timing['groundtruth_s_per_frame'] * 1000:.0f} ms/frame; load {timing['load_average']}")
     rows = []

@@ -147,6 +147,8 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
                    help="comma-separated presets to time (default artificial,studio)")
     p.add_argument("--realism", choices=("ideal", "skin", "lab"), default="lab",
                    help="realism level of the timed scenes (default lab)")
+    p.add_argument("--occlusion", choices=("none", "light", "heavy"), default="none",
+                   help="falling balls in the timed scenes (default none; issue 11's sweep renders light)")
     p.add_argument("--rounds", type=int, default=2,
                    help="times the first renderer and this one alternate; the fastest round of each counts (default 2)")
     p.add_argument("--visibility-frames", type=int, default=548,
@@ -183,5 +185,6 @@ def run_bench_render(args: argparse.Namespace) -> int:
             SynthConfig.preset(name)
         except ValueError as exc:
             raise InputError("spinemocap bench render --presets", str(exc)) from exc
-    run_render_benchmark(args.frames, args.visibility_frames, args.out, presets, args.realism, args.rounds)
+    run_render_benchmark(args.frames, args.visibility_frames, args.out, presets, args.realism, args.rounds,
+                         args.occlusion)
     return 0
