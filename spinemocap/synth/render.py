@@ -11,6 +11,14 @@ The tape mask comes from a second, unlit window showing the same geometry: tape 
 holes) white, body, band and occluders black, so they hide the tape in the mask exactly as in the
 image. That window covers only the tape's bounding box on the canvas (exact shifted projection),
 which makes the mask pass cheap at high resolution.
+
+Speed (``spinemocap bench render``, ``docs/BENCHMARKS.md`` "Studio rendering speed"): the
+software rasteriser's cost grows with the window's pixels (4x multisampling), so the colour image
+too is rasterised only over the canvas rectangle the scene covers (:meth:`CameraRenderer.render_window`;
+the rest of the canvas is the empty background's colour), and each window draws only the occluder
+triangles that can reach it. The lens resampling then touches only the output pixels that can see
+the window. The renderer as first written stays reachable (:meth:`CameraRenderer.render_reference`,
+``Scene.render(..., reference=True)``) as the benchmark's peer and the tests' reference.
 """
 
 from __future__ import annotations
