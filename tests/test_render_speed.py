@@ -92,20 +92,3 @@ def test_window_resampling_equals_whole_canvas_resampling(distorted_renderer, co
     assert expected.any()
     np.testing.assert_array_equal(got, expected)
 
-
-def test_culling_falling_balls_keeps_every_pixel():
-    """With hundreds of balls in the air, the fast path draws only the ball triangles that can
-    reach each window; on views whose window is the whole canvas the pixels are the same."""
-    scene = build_scene(SynthConfig.preset("tiny", frames=2, rows=7, balls=2500, seed=3))
-    try:
-        fast, reference = scene.render(1), scene.render(1, reference=True)
-        assert scene.meshes(1).occluders.n_cells > 10_000  # plenty of ball triangles
-        whole = [r._scene_window_size == r.canvas_size for r in scene.renderers]
-        assert any(whole)  # the balls spread the window over the canvas
-        for is_whole, image, expected in zip(whole, fast.images, reference.images):
-            if is_whole:
-                np.testing.assert_array_equal(image, expected)
-        for mask, expected in zip(fast.masks, reference.masks):
-            np.testing.assert_array_equal(mask, expected)
-    finally:
-        scene.close()

@@ -15,9 +15,8 @@ which makes the mask pass cheap at high resolution.
 Speed (``spinemocap bench render``, ``docs/BENCHMARKS.md`` "Studio rendering speed"): the
 software rasteriser's cost grows with the window's pixels (4x multisampling), so the colour image
 too is rasterised only over the canvas rectangle the scene covers (:meth:`CameraRenderer.render_window`;
-the rest of the canvas is the empty background's colour), and each window draws only the occluder
-triangles that can reach it. The lens resampling then touches only the output pixels that can see
-the window. The renderer as first written stays reachable (:meth:`CameraRenderer.render_reference`,
+the rest of the canvas is the empty background's colour). The lens resampling then touches only the
+output pixels that can see the window. The renderer as first written stays reachable (:meth:`CameraRenderer.render_reference`,
 ``Scene.render(..., reference=True)``) as the benchmark's peer and the tests' reference.
 """
 
@@ -189,8 +188,8 @@ class CameraRenderer:
         self.plotter.add_light(fill)
 
     # ------------------------------------------------------------------ rendering
-    def _update(self, meshes: SceneMeshes, occluders: bool = True) -> None:
-        """Load the posed geometry of an instant (occluders too, unless ``occluders`` is False)."""
+    def _update(self, meshes: SceneMeshes) -> None:
+        """Load the posed geometry of an instant."""
         self.body.points = meshes.body_vertices
         self.body.point_data["Normals"] = meshes.body_normals
         self.body.point_data.active_normals = meshes.body_normals
@@ -198,8 +197,7 @@ class CameraRenderer:
         self.tape_solid.points = meshes.tape_vertices
         if self.band is not None and meshes.band_vertices is not None:
             self.band.points = meshes.band_vertices
-        if occluders:
-            self._show_occluders(meshes.occluders)
+        self._show_occluders(meshes.occluders)
 
     def _show_occluders(self, occluders: Any) -> None:
         """Draw ``occluders`` (PolyData or None) in the main window, in place of the last ones."""
@@ -210,31 +208,6 @@ class CameraRenderer:
             self.occluder_actor = self.plotter.add_mesh(occluders, color=self.appearance.skin_rgb,
                                                         ambient=0.15, diffuse=0.85, render=False)
             self.occluder_actor.GetProperty().SetInterpolationToGouraud()
-
-    def _occluders_seen(self, occluders: Any, rect: tuple[int, int, int, int]) -> Any:
-        """The occluder triangles that can cover a sample of the canvas rectangle ``rect`` (x0, y0,
-        width, height; canvas pixels): all but those whose pinhole projection lies wholly on one
-        side of it (1 px margin); triangles with a vertex behind the camera are kept. The dropped
-        triangles produce no fragment in a window showing ``rect``, so its pixels do not change;
-        the falling balls are most of the studio's triangles and most lie outside a tape window.
-        None when nothing is left; ``occluders`` itself when it is not all triangles."""
-        if occluders is None or not occluders.n_points or not occluders.is_all_triangles:
-            return occluders
-        faces = occluders.faces.reshape(-1, 4)[:, 1:]
-        uv = self.camera.project(np.asarray(occluders.points), distort=False) + np.array(self.margin)
-        x0, y0, w, h = rect
-        # outcodes: one bit per side of the rectangle a vertex lies beyond (NaN, behind the
-        # camera, compares False: no bit, kept); a triangle is outside when its three vertices
-        # share a bit
-        with np.errstate(invalid="ignore"):
-            code = ((uv[:, 0] < x0 - 1.0) * np.uint8(1) | (uv[:, 0] > x0 + w + 1.0) * np.uint8(2)
-                    | (uv[:, 1] < y0 - 1.0) * np.uint8(4) | (uv[:, 1] > y0 + h + 1.0) * np.uint8(8))
-        outside = (code[faces[:, 0]] & code[faces[:, 1]] & code[faces[:, 2]]) != 0
-        if outside.all():
-            return None
-        seen = occluders.copy(deep=False)  # same points and normals, fewer triangles
-        seen.faces = faces_to_vtk(faces[~outside])
-        return seen
 
     def _canvas_snapshot(self, plotter=None) -> np.ndarray:
         """Render a window as it is set now: undistorted RGB at canvas resolution."""
@@ -312,17 +285,18 @@ class CameraRenderer:
         Rasterising a smaller window is most of the gain on the studio's wide views; the window
         is an exact shifted pinhole projection, but its pixels can differ from the whole canvas'
         by rounding on a few anti-aliased edges (measured in ``docs/BENCHMARKS.md``)."""
-        self._update(meshes, occluders=False)
-        x0, y0, w, h = self._scene_region(meshes)
-        width, height = self._scene_window_size or (0, 0)
-        if w > width or h > height:  # grow (never shrink: a new size reallocates the framebuffers)
-            width, height = self._scene_window_size = self._window_size_for(w, h)
-        wx, wy = self._place_window((x0, y0, w, h), (width, height))
-        self._show_window(wx, wy, width, height)
-        self._show_occluders(self._occluders_seen(meshes.occluders, self._window))
+        self._update(meshes)
+        if self._scene_window_size == self.canvas_size:  # grown to the whole canvas: nothing to place
+            self._show_window(0, 0, *self.canvas_size)
+        else:
+            x0, y0, w, h = self._scene_region(meshes)
+            width, height = self._scene_window_size or (0, 0)
+            if w > width or h > height:  # grow (never shrink: a new size reallocates the framebuffers)
+                width, height = self._scene_window_size = self._window_size_for(w, h)
+            self._show_window(*self._place_window((x0, y0, w, h), (width, height)), width, height)
         if self._background is None:
             self._background = self._empty_pixel()
-        return self._canvas_snapshot(), wx, wy
+        return self._canvas_snapshot(), self._window[0], self._window[1]
 
     def image_through_lens(self, placed: tuple[np.ndarray, int, int]) -> np.ndarray:
         """Distorted RGB (H, W, 3) uint8 image from :meth:`render_window`'s result: the window
@@ -447,17 +421,16 @@ class CameraRenderer:
         """:meth:`_render_mask` as first written (the window pasted into a whole black canvas, all
         of it resampled): the peer of ``spinemocap bench render`` and the tests' reference."""
         canvas = np.zeros((self.canvas_size[1], self.canvas_size[0], 3), np.uint8)
-        placed = self.render_mask_window(meshes, cull=False)
+        placed = self.render_mask_window(meshes)
         if placed is not None:
             window, wx, wy = placed
             canvas[wy : wy + window.shape[0], wx : wx + window.shape[1]] = window
         return self.through_lens(canvas)[..., 1] > 127
 
-    def render_mask_window(self, meshes: SceneMeshes, cull: bool = True) -> tuple[np.ndarray, int, int] | None:
+    def render_mask_window(self, meshes: SceneMeshes) -> tuple[np.ndarray, int, int] | None:
         """Render the unlit mask window around the tape: undistorted RGB (h, w, 3) uint8 of a
         canvas rectangle and its origin (x, y) on the canvas (canvas pixels), or None when the
-        tape projects nowhere on the canvas. ``cull``: draw only the occluder triangles that can
-        reach the window (:meth:`_occluders_seen`; same pixels)."""
+        tape projects nowhere on the canvas."""
         region = self._tape_region(meshes.tape_vertices)
         if region is None:
             return None
@@ -469,9 +442,9 @@ class CameraRenderer:
         if self._mask_occluder_actor is not None:
             plotter.remove_actor(self._mask_occluder_actor, render=False)
             self._mask_occluder_actor = None
-        occluders = self._occluders_seen(meshes.occluders, (wx, wy, cw, ch)) if cull else meshes.occluders
-        if occluders is not None and occluders.n_points:
-            self._mask_occluder_actor = plotter.add_mesh(occluders, color="black", lighting=False, render=False)
+        if meshes.occluders is not None and meshes.occluders.n_points:
+            self._mask_occluder_actor = plotter.add_mesh(meshes.occluders, color="black", lighting=False,
+                                                         render=False)
         return self._canvas_snapshot(plotter), wx, wy
 
     def close(self) -> None:
