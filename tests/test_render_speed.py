@@ -92,3 +92,12 @@ def test_window_resampling_equals_whole_canvas_resampling(distorted_renderer, co
     assert expected.any()
     np.testing.assert_array_equal(got, expected)
 
+
+
+def test_bench_render_refuses_unknown_presets_and_empty_runs(tmp_path, capsys):
+    from spinemocap.cli import main
+
+    assert main(["bench", "render", "--presets", "artificial,nope", "--out", str(tmp_path)]) == 2
+    assert "unknown preset 'nope'" in capsys.readouterr().err
+    assert main(["bench", "render", "--frames", "0", "--out", str(tmp_path)]) == 2
+    assert "--frames >= 1" in capsys.readouterr().err
