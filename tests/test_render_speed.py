@@ -55,10 +55,14 @@ def test_fast_render_with_motion_blur_equals_reference_render(lab_scene, monkeyp
     assert_same_frames(lab_scene.render(1), lab_scene.render(1, reference=True))
 
 
-def test_sensor_without_noise_equals_reference(lab_scene, monkeypatch):
-    monkeypatch.setattr(lab_scene.config, "noise", 0.0)
-    rgb = np.random.default_rng(1).uniform(0, 255, (40, 50, 3)).astype(np.float32)
-    np.testing.assert_array_equal(lab_scene._sensor(rgb, 0, 1), lab_scene._sensor_reference(rgb, 0, 1))
+@pytest.mark.parametrize("noise", [0.0, 3.0])
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+def test_sensor_equals_reference_byte_for_byte(lab_scene, monkeypatch, noise, dtype):
+    """Same normal draws, same float32 sums: the in-place sensor gives the reference's bytes for
+    sharp (uint8) and motion-blurred (float32) images."""
+    monkeypatch.setattr(lab_scene.config, "noise", noise)
+    rgb = np.random.default_rng(1).uniform(0, 255, (40, 50, 3)).astype(dtype)
+    np.testing.assert_array_equal(lab_scene._sensor(rgb, 7, 1), lab_scene._sensor_reference(rgb, 7, 1))
 
 
 @pytest.fixture(scope="module")
