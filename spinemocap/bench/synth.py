@@ -11,6 +11,7 @@ Two measurements:
 from __future__ import annotations
 
 import json
+import os
 import platform
 import time
 from pathlib import Path
@@ -45,28 +46,75 @@ def visibility_table(frames: int = 548, seed: int = 0, progress: bool = True) ->
     return table
 
 
-def time_studio_render(frames: int = 3) -> dict[str, float]:
-    """Seconds per camera-frame (image + mask) at 2448x1600, and ground truth per frame."""
-    scene = build_scene(SynthConfig.preset("studio", frames=max(frames, 2) + 1))
+def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds: int = 2,
+                      workdir: Path | None = None, occlusion: str = "none") -> dict:
+    """Seconds per frame to render ``frames`` frames of a preset and write them as a capture does
+    (images and tape masks as PNG), for the renderer as first written (the reference path:
+    one thread, files written one after the other) and the current one, in the same process on
+    the same scene. The two alternate ``rounds`` times (reference first) so both see the same
+    machine load; the fastest round of each counts, in wall-clock and in CPU seconds of the
+    process (all threads: VTK's rasteriser and the workers; what survives a shared machine's
+    load best). Also: the pixel differences between the two
+    captures' files (max and mean absolute grey-level difference, masks identical or not) and
+    the ground-truth time per frame (ray-cast visibility, no rendering)."""
+    import tempfile
+
+    import cv2
+
+    from ..capture import Capture
+    from ..synth.writer import render_frames
+
+    scene = build_scene(SynthConfig.preset(preset, frames=frames + 1, realism=realism, occlusion=occlusion))
+    with tempfile.TemporaryDirectory(prefix="bench-render-", dir=workdir) as tmp:
+        roots = {"reference": Path(tmp) / "reference", "fast": Path(tmp) / "fast"}
+        captures = {k: Capture(root=r, name=k, fps=scene.fps, n_frames=scene.n_frames, rig=scene.rig, tape=scene.tape)
+                    for k, r in roots.items()}
+        t0 = time.perf_counter()
+        for kind in roots:  # warm-up: plotters, lens maps, mask windows, worker threads
+            render_frames(scene, roots[kind], captures[kind], [0], reference=kind == "reference")
+        setup = time.perf_counter() - t0
+        timed = range(1, frames + 1)
+        seconds: dict[str, list[float]] = {"reference": [], "fast": []}
+        cpu_seconds: dict[str, list[float]] = {"reference": [], "fast": []}
+        loads = [_load_average()]
+        for _ in range(rounds):
+            for kind in ("reference", "fast"):
+                t0, c0 = time.perf_counter(), time.process_time()
+                render_frames(scene, roots[kind], captures[kind], timed, reference=kind == "reference")
+                seconds[kind].append((time.perf_counter() - t0) / frames)
+                cpu_seconds[kind].append((time.process_time() - c0) / frames)
+                loads.append(_load_average())
+        diffs, masks_equal = [], True
+        for path in sorted(roots["fast"].rglob("*.png")):  # every file both paths wrote
+            written = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).astype(np.int16)
+            other = cv2.imread(str(roots["reference"] / path.relative_to(roots["fast"])), cv2.IMREAD_UNCHANGED)
+            diff = np.abs(written - other.astype(np.int16))
+            if "masks" in path.parts:
+                masks_equal &= not diff.any()
+            else:
+                diffs.append((int(diff.max()), float(diff.mean())))
     t0 = time.perf_counter()
-    scene.render(0)  # warm-up: creates the plotters and distortion maps
-    setup = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    for f in range(1, frames + 1):
-        scene.render(f)
-    per_camera_frame = (time.perf_counter() - t0) / (frames * len(scene.rig))
-    t0 = time.perf_counter()
-    for f in range(1, frames + 1):
-        scene.frame_groundtruth(f)
+    for frame in timed:
+        scene.frame_groundtruth(frame)
     gt_per_frame = (time.perf_counter() - t0) / frames
-    t0 = time.perf_counter()
-    for f in range(1, frames + 1):
-        scene.render(f, with_masks=False)
-    image_only = (time.perf_counter() - t0) / (frames * len(scene.rig))
     scene.close()
-    return {"setup_s": setup, "render_s_per_camera_frame": per_camera_frame,
-            "image_only_s_per_camera_frame": image_only, "groundtruth_s_per_frame": gt_per_frame,
-            "cameras": len(scene.rig), "size": list(scene.rig[0].size)}
+    reference_s, fast_s = min(seconds["reference"]), min(seconds["fast"])
+    return {"preset": preset, "realism": realism, "occlusion": occlusion, "balls": scene.config.n_balls, "cameras": len(scene.rig), "size": list(scene.rig[0].size),
+            "frames": frames, "rounds": rounds, "setup_s": setup,
+            "reference_s_per_frame": reference_s, "fast_s_per_frame": fast_s, "speedup": reference_s / fast_s,
+            "reference_s_per_frame_rounds": seconds["reference"], "fast_s_per_frame_rounds": seconds["fast"],
+            "reference_cpu_s_per_frame": min(cpu_seconds["reference"]), "fast_cpu_s_per_frame": min(cpu_seconds["fast"]),
+            "image_max_abs_diff": max(d for d, _ in diffs), "image_mean_abs_diff": float(np.mean([m for _, m in diffs])),
+            "masks_identical": bool(masks_equal), "groundtruth_s_per_frame": gt_per_frame,
+            "load_average": loads}
+
+
+def _load_average() -> float | None:
+    """The machine's 1-minute load average (None where the OS does not say)."""
+    try:
+        return round(os.getloadavg()[0], 2)
+    except (AttributeError, OSError):
+        return None
 
 
 def plot_table(table: dict[str, np.ndarray], path: Path) -> None:
@@ -93,15 +141,40 @@ def plot_table(table: dict[str, np.ndarray], path: Path) -> None:
     plt.close(fig)
 
 
-def run_render_benchmark(frames: int, visibility_frames: int, out: Path) -> dict:
+def run_render_benchmark(frames: int, visibility_frames: int, out: Path, presets=("artificial", "studio"),
+                         realism: str = "lab", rounds: int = 2, occlusion: str = "none") -> dict:
+    """``spinemocap bench render``: render speed per preset against the first renderer, and the
+    visibility table (skipped with ``visibility_frames`` 0)."""
     out.mkdir(parents=True, exist_ok=True)
-    print(f"timing studio renders ({frames} frames x 6 cameras at 2448x1600) ...")
-    timing = time_studio_render(frames)
-    print(f"  render (image + mask): {timing['render_s_per_camera_frame']:.2f} s per camera-frame")
-    print(f"  render (image only):   {timing['image_only_s_per_camera_frame']:.2f} s per camera-frame")
-    print(f"  ground truth:          {timing['groundtruth_s_per_frame'] * 1000:.0f} ms per frame (6 cameras)")
-    print(f"visibility table on the artificial preset ({visibility_frames} frames) ...")
-    table = visibility_table(visibility_frames)
+    timings = []
+    for preset in presets:
+        print(f"timing {preset} renders at the {realism} level, occlusion {occlusion} ({frames} frames, images + "
+              f"masks written as PNG; "
+              f"the first renderer and this one alternating, {rounds} rounds) ...")
+        timing = time_render_paths(preset, frames, realism, rounds, workdir=out, occlusion=occlusion)
+        timings.append(timing)
+        print(f"  {timing['cameras']} cameras {timing['size'][0]}x{timing['size'][1]}: first renderer "
+              f"{timing['reference_s_per_frame']:.2f} s/frame ({timing['reference_cpu_s_per_frame']:.2f} CPU s), "
+              f"this one {timing['fast_s_per_frame']:.2f} s/frame ({timing['fast_cpu_s_per_frame']:.2f} CPU s): "
+              f"{timing['speedup']:.2f}x; images differ by max {timing['image_max_abs_diff']} / mean "
+              f"{timing['image_mean_abs_diff']:.1e} grey levels, masks "
+              f"{'identical' if timing['masks_identical'] else 'DIFFER'}; ground truth "
+              f"{timing['groundtruth_s_per_frame'] * 1000:.0f} ms/frame; load {timing['load_average']}")
+    rows = []
+    if visibility_frames > 0:
+        print(f"visibility table on the artificial preset ({visibility_frames} frames) ...")
+        table = visibility_table(visibility_frames)
+        rows = _print_visibility_table(table)
+        plot_table(table, out / "visibility_table.png")
+    result = {"machine": f"{platform.machine()} {platform.processor()}".strip(), "cpus": os.cpu_count(),
+              "timing": timings, "visibility_frames": visibility_frames, "visibility": rows}
+    with atomic_write(out / "render_benchmark.json", "w") as handle:
+        json.dump(result, handle, indent=2)
+    print(f"wrote {out / 'render_benchmark.json'}" + (f" and {out / 'visibility_table.png'}" if rows else ""))
+    return result
+
+
+def _print_visibility_table(table: dict[str, np.ndarray]) -> list[dict]:
     rows = []
     print(f"  {'level':<6} {'balls':>6} | " + " ".join(f"{k} cams".rjust(15) for k in (4, 3, 2, 1, 0)))
     for level, counts in table.items():
@@ -113,13 +186,7 @@ def run_render_benchmark(frames: int, visibility_frames: int, out: Path) -> dict
                      "paper_share_percent": paper.round(2).tolist(),
                      "max_abs_diff_points": float(np.abs(share - paper).max())})
     print("  (paper's Table 2 shares in brackets)")
-    plot_table(table, out / "visibility_table.png")
-    result = {"machine": f"{platform.machine()} {platform.processor()}".strip(), "timing": timing,
-              "visibility_frames": visibility_frames, "visibility": rows}
-    with atomic_write(out / "render_benchmark.json", "w") as handle:
-        json.dump(result, handle, indent=2)
-    print(f"wrote {out / 'render_benchmark.json'} and {out / 'visibility_table.png'}")
-    return result
+    return rows
 
 
 # ---------------------------------------------------------------------- realism envelope

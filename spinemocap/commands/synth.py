@@ -1,5 +1,5 @@
 """``spinemocap synth OUT``: render a synthetic capture with exact ground truth;
-``spinemocap bench render``: render speed at the studio resolution and the occlusion table."""
+``spinemocap bench render``: render speed (against the first renderer) and the occlusion table."""
 
 from __future__ import annotations
 
@@ -147,11 +147,20 @@ def run_synth(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------- benchmark
 def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "render", help="synthetic studio: render time per camera-frame (studio 2448x1600) and the "
-                       "occlusion visibility table against the paper's Table 2")
-    p.add_argument("--frames", type=int, default=3, help="frames to time at the studio resolution")
+        "render", help="synthetic studio: seconds per rendered and written frame (artificial and studio presets, "
+                       "lab level) against the first renderer in the same run, and the occlusion visibility "
+                       "table against the paper's Table 2")
+    p.add_argument("--frames", type=int, default=3, help="frames to time per preset and renderer (default 3)")
+    p.add_argument("--presets", default="artificial,studio",
+                   help="comma-separated presets to time (default artificial,studio)")
+    p.add_argument("--realism", choices=("ideal", "skin", "lab"), default="lab",
+                   help="realism level of the timed scenes (default lab)")
+    p.add_argument("--occlusion", choices=("none", "light", "heavy"), default="none",
+                   help="falling balls in the timed scenes (default none; issue 11's sweep renders light)")
+    p.add_argument("--rounds", type=int, default=2,
+                   help="times the first renderer and this one alternate; the fastest round of each counts (default 2)")
     p.add_argument("--visibility-frames", type=int, default=548,
-                   help="frames of the artificial sequence for the visibility table (paper: 548)")
+                   help="frames of the artificial sequence for the visibility table (paper: 548; 0 skips it)")
     p.add_argument("--out", type=Path, default=Path("bench_out/render"), help="folder for the plot and numbers")
     p.set_defaults(func=run_bench_render)
     p = subparsers.add_parser(
@@ -173,6 +182,17 @@ def run_bench_studio(args: argparse.Namespace) -> int:
 
 def run_bench_render(args: argparse.Namespace) -> int:
     from spinemocap.bench.synth import run_render_benchmark
+    from spinemocap.fileio import InputError
+    from spinemocap.synth import SynthConfig
 
-    run_render_benchmark(args.frames, args.visibility_frames, args.out)
+    presets = [name.strip() for name in args.presets.split(",") if name.strip()]
+    if not presets or args.frames < 1 or args.rounds < 1:
+        raise InputError("spinemocap bench render", "need at least one preset, --frames >= 1 and --rounds >= 1")
+    for name in presets:
+        try:
+            SynthConfig.preset(name)
+        except ValueError as exc:
+            raise InputError("spinemocap bench render --presets", str(exc)) from exc
+    run_render_benchmark(args.frames, args.visibility_frames, args.out, presets, args.realism, args.rounds,
+                         args.occlusion)
     return 0

@@ -15,6 +15,8 @@ from __future__ import annotations
 import dataclasses
 import functools
 import logging
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -51,6 +53,9 @@ from .visibility import MeshRayCaster, dot_visibility
 log = logging.getLogger(__name__)
 
 POSE_CHUNK = 64  # frames posed together (anny is batched) and kept in memory
+# worker threads that develop rendered canvases (lens, noise, masks) while VTK renders the next
+# camera; one per core beyond the one VTK's render loop runs on, at least one
+DEVELOP_WORKERS = max(1, (os.cpu_count() or 2) - 1)
 SKIN_LIGHT = np.array([0.93, 0.78, 0.68])
 SKIN_DARK = np.array([0.42, 0.28, 0.20])
 
@@ -320,6 +325,7 @@ class Scene:
         )
         self.skin_tone = float(tone)
         self._renderers: list[CameraRenderer] | None = None
+        self._pool: ThreadPoolExecutor | None = None
 
     # ------------------------------------------------------------------ geometry per instant
     def _posed(self, frame: int | None = None, time_s: float | None = None,
@@ -501,27 +507,76 @@ class Scene:
             ]
         return self._renderers
 
-    def render(self, frame: int, with_masks: bool = True) -> RenderedFrame:
+    def render(self, frame: int, with_masks: bool = True, reference: bool = False) -> RenderedFrame:
         """Render one frame in every camera (each at its own clock's time): BGR images (with blur
-        and noise) and tape masks."""
+        and noise) and tape masks.
+
+        VTK renders the cameras one after the other in this thread, each only over the canvas
+        rectangle the scene covers in it; each camera's lens resampling, sensor noise and mask
+        resampling run on a worker thread meanwhile (numpy and OpenCV release the GIL), so they
+        overlap the next camera's rendering. ``reference`` renders as the first studio did (whole
+        canvas, one thread, the reference implementations): the peer of ``spinemocap bench
+        render`` and the tests' reference (same ground truth; images equal up to rounding on a
+        few anti-aliased edges, see :meth:`CameraRenderer.render_window`)."""
         if not 0 <= frame < self.n_frames:
             raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
+        if reference:
+            return self._render_reference(frame, with_masks)
+        pool = self._develop_pool()
+        developing = []
+        shared: dict[float, list[SceneMeshes]] = {}
+        for c, renderer in enumerate(self.renderers):
+            meshes = self._camera_meshes(frame, c, shared)
+            windows = [renderer.render_window(meshes[0])]
+            mask_window = renderer.render_mask_window(meshes[0]) if with_masks else None
+            windows += [renderer.render_window(m) for m in meshes[1:]]
+            developing.append(pool.submit(self._develop, frame, c, windows, mask_window, with_masks))
+        developed = [job.result() for job in developing]
+        return RenderedFrame([image for image, _ in developed], [mask for _, mask in developed])
+
+    def _camera_meshes(self, frame: int, camera: int, shared: dict[float, list[SceneMeshes]]) -> list[SceneMeshes]:
+        """The geometry camera ``camera`` sees during frame ``frame`` on its own clock: the frame
+        instant first, then the motion-blur instants; ``shared`` holds the frame's geometry per
+        clock offset (s), so cameras on the same clock pose once."""
+        offset = float(self.sync_offsets_s[camera])
+        if offset not in shared:
+            instants = self._exposure_instants(frame, offset)
+            shared[offset] = [self.meshes(frame, offset_s=offset)] + [self.meshes(time_s=t) for t in instants[1:]]
+        return shared[offset]
+
+    def _develop(self, frame: int, camera: int, windows: list[tuple[np.ndarray, int, int]],
+                 mask_window: tuple[np.ndarray, int, int] | None, with_mask: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """Rendered windows of one camera (:meth:`CameraRenderer.render_window`, the frame instant
+        then the exposure's) -> BGR image (lens, exposure average, sensor) and tape mask. No VTK:
+        safe on a worker thread."""
+        renderer = self.renderers[camera]
+        rgb: np.ndarray = renderer.image_through_lens(windows[0])
+        if len(windows) > 1:
+            acc = rgb.astype(np.float32)
+            for window in windows[1:]:
+                acc += renderer.image_through_lens(window)
+            rgb = acc / len(windows)
+        mask = renderer.mask_through_lens(mask_window) if with_mask else None
+        return self._sensor(rgb, frame, camera), mask
+
+    def _develop_pool(self) -> ThreadPoolExecutor:
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=DEVELOP_WORKERS, thread_name_prefix="synth-develop")
+        return self._pool
+
+    def _render_reference(self, frame: int, with_masks: bool) -> RenderedFrame:
+        """:meth:`render` as first written: one thread, reference lens, mask and sensor."""
         images, masks = [], []
         shared: dict[float, list[SceneMeshes]] = {}
         for c, renderer in enumerate(self.renderers):
-            offset = float(self.sync_offsets_s[c])
-            if offset not in shared:
-                instants = self._exposure_instants(frame, offset)
-                shared[offset] = ([self.meshes(frame, offset_s=offset)]
-                                  + [self.meshes(time_s=t) for t in instants[1:]])
-            meshes = shared[offset]
-            rgb, mask = renderer.render(meshes[0], with_mask=with_masks)
+            meshes = self._camera_meshes(frame, c, shared)
+            rgb, mask = renderer.render_reference(meshes[0], with_mask=with_masks)
             if len(meshes) > 1:
                 acc = rgb.astype(np.float32)
                 for m in meshes[1:]:
-                    acc += renderer.render(m, with_mask=False)[0]
+                    acc += renderer.render_reference(m, with_mask=False)[0]
                 rgb = acc / len(meshes)
-            images.append(self._sensor(rgb, frame, c))
+            images.append(self._sensor_reference(rgb, frame, c))
             masks.append(mask)
         return RenderedFrame(images, masks)
 
@@ -535,7 +590,25 @@ class Scene:
         return [t] + [float(x) for x in np.linspace(t - half, t + half, 7) if abs(x - t) > 1e-12]
 
     def _sensor(self, rgb: np.ndarray, frame: int, camera: int) -> np.ndarray:
-        """Sensor noise (seeded per frame and camera) and conversion to BGR uint8."""
+        """Sensor noise (seeded per frame and camera) and conversion to BGR uint8; ``rgb`` (H, W, 3)
+        in grey levels, uint8 or float32. Same pixels as :meth:`_sensor_reference`: the same
+        normal draws (``normal(0, s)`` is ``s * standard_normal()``, drawn by the same generator),
+        added in float32 in place."""
+        noise = float(self.config.noise or 0.0)
+        if noise > 0:
+            draws = np.random.default_rng([self.rng_seed, 2, frame, camera]).standard_normal(rgb.shape)
+            draws *= noise
+            image = draws.astype(np.float32)
+            del draws
+            image += rgb
+        else:
+            image = rgb.astype(np.float32)
+        image += np.float32(0.5)
+        np.clip(image, 0, 255, out=image)
+        return cv2.cvtColor(image.astype(np.uint8), cv2.COLOR_RGB2BGR)
+
+    def _sensor_reference(self, rgb: np.ndarray, frame: int, camera: int) -> np.ndarray:
+        """:meth:`_sensor` as first written: the peer of ``spinemocap bench render``."""
         image = rgb.astype(np.float32)
         noise = float(self.config.noise or 0.0)
         if noise > 0:
@@ -559,6 +632,9 @@ class Scene:
         }
 
     def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
         for r in self._renderers or []:
             r.close()
         self._renderers = None

@@ -15,6 +15,8 @@ Every file goes through :mod:`spinemocap.fileio`'s atomic writers.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -22,17 +24,67 @@ import numpy as np
 
 from ..capture import Capture
 from ..fileio import atomic_path, atomic_write, write_toml
-from .scene import Scene, SynthConfig, build_scene
+from .scene import DEVELOP_WORKERS, RenderedFrame, Scene, SynthConfig, build_scene
 
 VIDEO_FOURCC = "FFV1"  # lossless, so detection sees exactly the rendered pixels
 
 
-def _write_png(path: Path, image: np.ndarray) -> None:
+def write_png(path: Path, image: np.ndarray) -> None:
+    """Encode ``image`` (8-bit, BGR or grey) as PNG and write it atomically (thread-safe: OpenCV
+    encodes without the GIL)."""
     ok, data = cv2.imencode(".png", image)
     if not ok:
         raise RuntimeError(f"PNG encoding failed for {path}")
     with atomic_write(path, "wb") as handle:
         handle.write(data.tobytes())
+
+
+def frame_files(root: Path, capture: Capture, frame: int, rendered: RenderedFrame,
+                images: bool = True) -> list[tuple[Path, np.ndarray]]:
+    """(path, 8-bit image) of every PNG file of a rendered frame: the camera images (unless
+    ``images`` is False, for video captures) and the tape masks (255 = tape)."""
+    files = []
+    for cam, image, mask in zip(capture.rig.names, rendered.images, rendered.masks):
+        if images:
+            files.append((root / capture.image_pattern.format(camera=cam, frame=frame), image))
+        files.append((root / "masks" / cam / f"{frame:06d}.png", mask.astype(np.uint8) * 255))
+    return files
+
+
+def render_frames(scene: Scene, root: Path, capture: Capture, frames: Iterable[int], reference: bool = False,
+                  videos: dict | None = None) -> None:
+    """Render ``frames`` of ``scene`` and write their files under ``root`` (:func:`frame_files`;
+    camera images go to the ``videos`` writers by camera name instead, when given).
+
+    Each frame's PNG files are encoded and written on worker threads while the next frame
+    renders. ``reference``: as the first studio did (the reference renderer, files written one
+    after the other in this thread), the peer of ``spinemocap bench render``."""
+    if reference:
+        for frame in frames:
+            rendered = scene.render(frame, reference=True)
+            _write_video_frames(videos, scene, rendered)
+            for path, image in frame_files(root, capture, frame, rendered, images=videos is None):
+                write_png(path, image)
+        return
+    with ThreadPoolExecutor(max_workers=DEVELOP_WORKERS, thread_name_prefix="synth-png") as pool:
+        pending: list[Future] = []
+        for frame in frames:
+            rendered = scene.render(frame)
+            for job in pending:  # the previous frame's files, written while this one rendered
+                job.result()
+            _write_video_frames(videos, scene, rendered)
+            pending = [pool.submit(write_png, path, image)
+                       for path, image in frame_files(root, capture, frame, rendered, images=videos is None)]
+        for job in pending:
+            job.result()
+
+
+def _write_video_frames(videos: dict | None, scene: Scene, rendered: RenderedFrame) -> None:
+    """Append a frame's camera images to the open video writers (none: nothing to do)."""
+    if videos is None:
+        return
+    for cam, image in zip(scene.rig.names, rendered.images):
+        videos[cam].write(image)
 
 
 def write_groundtruth(scene: Scene, path: str | os.PathLike) -> Path:
@@ -57,15 +109,9 @@ def write_capture(config: SynthConfig, out_dir: str | os.PathLike, progress: boo
     try:
         if config.video:
             writers = _open_videos(root, capture, scene)
-        for frame in tqdm(range(scene.n_frames), desc=f"rendering {len(scene.rig)} cameras", unit="frame",
-                          disable=not progress):
-            rendered = scene.render(frame)
-            for cam, image, mask in zip(scene.rig.names, rendered.images, rendered.masks):
-                if config.video:
-                    writers[cam][0].write(image)
-                else:
-                    _write_png(root / capture.image_pattern.format(camera=cam, frame=frame), image)
-                _write_png(root / "masks" / cam / f"{frame:06d}.png", mask.astype(np.uint8) * 255)
+        frames = tqdm(range(scene.n_frames), desc=f"rendering {len(scene.rig)} cameras", unit="frame",
+                      disable=not progress)
+        render_frames(scene, root, capture, frames, videos={cam: w for cam, (w, _) in writers.items()} or None)
         for writer, context in writers.values():
             writer.release()
             context.__exit__(None, None, None)  # rename the finished video into place
