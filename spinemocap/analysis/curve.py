@@ -15,8 +15,7 @@ cross-sagitta), which is interpolated along the tape to every row, and each row'
 ``L``-``R`` midpoint plus the sagitta scaled to that row's dot offsets (x 1/4 for 2-dot rows; = the
 ``C`` dot for a 3-dot row). Without any ``C`` dot in a frame the ``L``-``R`` midpoints are used as
 they are, and a sagitta over 2.8 mm (a mislabelled row) is not used; a 3-dot row whose ``L`` or ``R``
-is missing falls back to its ``C`` dot (:func:`spinemocap.tape.row_midline_points`, shared with
-the OpenSim model's static rows). Row transverse
+is missing falls back to its ``C`` dot (:func:`spinemocap.tape.row_midline_points`). Row transverse
 axis: ``R - L`` (toward the subject's right), NaN when either is missing.
 
 Curve: per frame a cubic spline of the row centres against the row's rest position ``v`` along

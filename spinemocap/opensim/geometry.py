@@ -27,7 +27,7 @@ from typing import Protocol
 import numpy as np
 
 from ..fileio import InputError
-from ..tape import TapeSpec, row_midline_points
+from ..tape import TapeSpec
 from .anatomy import ANATOMY, VERTEBRAE, centre_spacing, skin_depth
 
 # caudal -> cranial: the model's chain of vertebral bodies (the pelvis carries S1)
@@ -80,7 +80,7 @@ def static_positions(positions: np.ndarray) -> np.ndarray:
 
 @dataclass
 class RowFrames:
-    """Per tape row (static, OpenSim axes, mm): centre (on the tape's midline), unit L->R axis, arc length of
+    """Per tape row (static, OpenSim axes, mm): centre (L/R mid), unit L->R axis, arc length of
     the centre along the midline from row 1; NaN for rows without both side dots."""
 
     centre: np.ndarray  # (R, 3)
@@ -94,26 +94,17 @@ class RowFrames:
 
 def row_frames(static: np.ndarray, tape: TapeSpec, source: str | None = None) -> RowFrames:
     """Row centres and transverse axes of the static tape; arc lengths between seen rows are
-    measured along the centres (rows not seen are interpolated in row index). A row's centre is
-    its point on the tape's midline (:func:`spinemocap.tape.row_midline_points`, the same as the
-    angle analysis): plain ``L``-``R`` midpoints zig-zag between the 2-dot and 3-dot rows on any
-    curvature across the tape. Rows without both side dots stay NaN (no L->R axis)."""
+    measured along the centres (rows not seen are interpolated in row index)."""
     graph = tape.graph
     R = tape.n_rows
-    midpoint = np.full((R, 3), np.nan)
-    middle = np.full((R, 3), np.nan)
+    centre = np.full((R, 3), np.nan)
     right = np.full((R, 3), np.nan)
     for r in range(R):
         left = static[(graph.row == r) & (np.array(graph.column) == "L")]
         rgt = static[(graph.row == r) & (np.array(graph.column) == "R")]
-        mid = static[(graph.row == r) & (np.array(graph.column) == "C")]
-        if len(mid):
-            middle[r] = mid[0]
         if len(left) and len(rgt) and np.isfinite(left[0]).all() and np.isfinite(rgt[0]).all():
-            midpoint[r] = 0.5 * (left[0] + rgt[0])
+            centre[r] = 0.5 * (left[0] + rgt[0])
             right[r] = _unit(rgt[0] - left[0])
-    centre = row_midline_points(midpoint[None], middle[None], tape)[0]
-    centre[~np.isfinite(right).all(axis=1)] = np.nan
     seen = np.isfinite(centre).all(axis=1)
     if seen.sum() < 3:
         raise InputError(source, f"the static trial shows only {int(seen.sum())} tape rows with both side dots; "
