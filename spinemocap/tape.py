@@ -241,3 +241,58 @@ def edge_neighbour_sets(edges: np.ndarray) -> list[np.ndarray]:
         members.discard(e)
         out.append(np.array(sorted(members), dtype=np.int64))
     return out
+
+
+#: The tightest curvature across the tape (radius, mm) a taut strip on a back can take: the
+#: cross-sagitta of a 3-dot row (+-``column_spacing_mm``, 15 mm by default) is then at most
+#: 15^2 / (2 x 40) = 2.8 mm; a longer one comes from mislabelled dots, not from the back.
+MIN_CROSS_RADIUS_MM = 40.0
+
+
+def row_rest_positions_mm(tape: TapeSpec) -> np.ndarray:
+    """(R,) each row's rest position ``v`` along the tape, mm from row 1 (tape frame)."""
+    graph = tape.graph
+    return graph.uv_mm[[graph.labels.index(f"R{r + 1:02d}L") for r in range(tape.n_rows)], 1]
+
+
+def row_midline_points(midpoint: np.ndarray, middle: np.ndarray, tape: TapeSpec) -> np.ndarray:
+    """The tape's midline point (u = 0) of every row, (F, R, 3) in the frame and unit of the inputs
+    (mm), from the rows' ``L``-``R`` midpoints ``midpoint`` (F, R, 3) and ``C`` dots ``middle``
+    (F, R, 3; NaN in 2-dot rows or where unseen).
+
+    Why: the rows alternate ``L``/``R`` dots 7.5 mm off the midline (2-dot rows) and
+    ``L``/``C``/``R`` at -15/0/+15 mm (3-dot rows), so the plain ``L``-``R`` midpoint lies on a
+    chord of the cross-section that is 4x deeper in 3-dot rows than in 2-dot rows: any curvature
+    across the tape (the back's, or a reconstruction's depth error growing toward the midline)
+    zig-zags the midpoints between neighbouring rows. The cross-section is taken as a parabola:
+    per frame the cross-sagitta ``C - midpoint`` measured on 3-dot rows is interpolated linearly
+    in ``v`` to every row (held constant beyond the outermost measured rows) and added, scaled to
+    each row's dot offsets (x 1 for 3-dot rows, x 1/4 for 2-dot rows), to the midpoint. A sagitta
+    longer than allowed by :data:`MIN_CROSS_RADIUS_MM` is a mislabelled row (a column shift puts
+    ``C`` 7.5-15 mm off the midpoint) and is not used; a frame without a usable sagitta keeps the
+    midpoints; a row without ``L`` or ``R`` falls back to its ``C`` dot.
+    """
+    v = row_rest_positions_mm(tape)
+    depth_factor = _chord_depth_factors(tape)
+    max_sagitta_mm = tape.column_spacing_mm**2 / (2 * MIN_CROSS_RADIUS_MM)
+    sagitta = middle - midpoint
+    measured = np.isfinite(sagitta).all(axis=2) & (np.linalg.norm(sagitta, axis=2) <= max_sagitta_mm)
+    out = midpoint.copy()
+    for f in np.flatnonzero(measured.any(axis=1)):
+        at = measured[f]
+        for k in range(3):
+            out[f, :, k] += depth_factor * np.interp(v, v[at], sagitta[f, at, k])
+    fallback = ~np.isfinite(out).all(axis=2) & np.isfinite(middle).all(axis=2)
+    out[fallback] = middle[fallback]
+    return out
+
+
+def _chord_depth_factors(tape: TapeSpec) -> np.ndarray:
+    """Per row (R,): how deep its ``L``-``R`` midpoint lies below the midline for a parabolic
+    cross-section, as a multiple of a 3-dot row's cross-sagitta ``(L + R) / 2 - C``: the mean
+    squared ``L``/``R`` offset over a 3-dot row's (1 for 3-dot rows, 1/4 for 2-dot rows)."""
+    graph = tape.graph
+    u = {label: abs(float(uv[0])) for label, uv in zip(graph.labels, graph.uv_mm)}
+    squared = np.array([0.5 * (u[f"R{r + 1:02d}L"] ** 2 + u[f"R{r + 1:02d}R"] ** 2) for r in range(tape.n_rows)])
+    wide = [squared[r] for r in range(tape.n_rows) if tape.row_sizes[r] == 3]
+    return squared / wide[0] if wide else np.zeros(tape.n_rows)

@@ -15,7 +15,7 @@ cross-sagitta), which is interpolated along the tape to every row, and each row'
 ``L``-``R`` midpoint plus the sagitta scaled to that row's dot offsets (x 1/4 for 2-dot rows; = the
 ``C`` dot for a 3-dot row). Without any ``C`` dot in a frame the ``L``-``R`` midpoints are used as
 they are, and a sagitta over 2.8 mm (a mislabelled row) is not used; a 3-dot row whose ``L`` or ``R``
-is missing falls back to its ``C`` dot. Row transverse
+is missing falls back to its ``C`` dot (:func:`spinemocap.tape.row_midline_points`). Row transverse
 axis: ``R - L`` (toward the subject's right), NaN when either is missing.
 
 Curve: per frame a cubic spline of the row centres against the row's rest position ``v`` along
@@ -42,14 +42,10 @@ import numpy as np
 from scipy.interpolate import CubicSpline, make_smoothing_spline
 from scipy.signal import butter, filtfilt
 
-from ..tape import TapeSpec
+from ..tape import TapeSpec, row_midline_points, row_rest_positions_mm
 
 #: Fewest observed rows a frame needs before a curve is fitted through them.
 MIN_ROWS = 4
-#: The tightest curvature across the tape (radius, mm) a taut strip on a back can take: the
-#: cross-sagitta of a 3-dot row (+-15 mm) is then at most 15^2 / (2 x 40) = 2.8 mm; a longer
-#: one comes from mislabelled dots, not from the back.
-MIN_CROSS_RADIUS_MM = 40.0
 
 
 @dataclass
@@ -79,7 +75,6 @@ def row_tracks(positions: np.ndarray, labels: list[str], tape: TapeSpec, fps: fl
     ``max_gap_s`` seconds are filled by linear interpolation in time; then each unbroken run is
     low-pass filtered at ``lowpass_hz`` (None: no filtering).
     """
-    graph = tape.graph
     index = {label: k for k, label in enumerate(labels)}
     F, R = positions.shape[0], tape.n_rows
     nan3 = np.full((F, 3), np.nan)
@@ -98,9 +93,8 @@ def row_tracks(positions: np.ndarray, labels: list[str], tape: TapeSpec, fps: fl
             middle[:, r] = dot(r, "C")
         across = right - left
         transverse[:, r] = across / np.linalg.norm(across, axis=1, keepdims=True)
-    v = graph.uv_mm[[graph.labels.index(f"R{r + 1:02d}L") for r in range(R)], 1]
-    max_sagitta = tape.column_spacing_mm**2 / (2 * MIN_CROSS_RADIUS_MM)
-    centre = midline_points(midpoint, middle, v, _chord_depth_factors(tape), max_sagitta)
+    v = row_rest_positions_mm(tape)
+    centre = row_midline_points(midpoint, middle, tape)
     observed = np.isfinite(centre).all(axis=2)
     max_gap = int(round(max_gap_s * fps))
     centre = _fill_short_gaps(centre, observed, max_gap)
@@ -110,40 +104,6 @@ def row_tracks(positions: np.ndarray, labels: list[str], tape: TapeSpec, fps: fl
         transverse = _lowpass(transverse, lowpass_hz, fps)
         transverse /= np.linalg.norm(transverse, axis=2, keepdims=True)
     return RowTracks(centre=centre, transverse=transverse, observed=observed, v=v)
-
-
-def _chord_depth_factors(tape: TapeSpec) -> np.ndarray:
-    """Per row (R,): how deep its ``L``-``R`` midpoint lies below the midline for a parabolic
-    cross-section, as a multiple of a 3-dot row's cross-sagitta ``(L + R) / 2 - C``: the mean
-    squared ``L``/``R`` offset over a 3-dot row's (1 for 3-dot rows, 1/4 for 2-dot rows)."""
-    graph = tape.graph
-    u = {label: abs(float(uv[0])) for label, uv in zip(graph.labels, graph.uv_mm)}
-    squared = np.array([0.5 * (u[f"R{r + 1:02d}L"] ** 2 + u[f"R{r + 1:02d}R"] ** 2) for r in range(tape.n_rows)])
-    wide = [squared[r] for r in range(tape.n_rows) if tape.row_sizes[r] == 3]
-    return squared / wide[0] if wide else np.zeros(tape.n_rows)
-
-
-def midline_points(midpoint: np.ndarray, middle: np.ndarray, v: np.ndarray, depth_factor: np.ndarray,
-                   max_sagitta_mm: float) -> np.ndarray:
-    """The tape's midline point of every row (F, R, 3) mm, from the ``L``-``R`` midpoints
-    ``midpoint`` (F, R, 3) and the ``C`` dots ``middle`` (F, R, 3; NaN in 2-dot rows or where
-    unseen) of rows at rest positions ``v`` (R,) mm; ``depth_factor`` (R,) from
-    :func:`_chord_depth_factors`. Per frame the cross-sagitta ``C - midpoint`` measured on 3-dot
-    rows is interpolated linearly in ``v`` to every row (held constant beyond the outermost
-    measured rows) and added, scaled, to the midpoint. A sagitta longer than ``max_sagitta_mm``
-    is no cross curvature but a mislabelled row (a column shift puts ``C`` 7.5-15 mm off the
-    midpoint) and is not used; a frame without a usable sagitta keeps the midpoints; a row
-    without ``L`` or ``R`` falls back to its ``C`` dot."""
-    sagitta = middle - midpoint
-    measured = np.isfinite(sagitta).all(axis=2) & (np.linalg.norm(sagitta, axis=2) <= max_sagitta_mm)
-    out = midpoint.copy()
-    for f in np.flatnonzero(measured.any(axis=1)):
-        at = measured[f]
-        for k in range(3):
-            out[f, :, k] += depth_factor * np.interp(v, v[at], sagitta[f, at, k])
-    fallback = ~np.isfinite(out).all(axis=2) & np.isfinite(middle).all(axis=2)
-    out[fallback] = middle[fallback]
-    return out
 
 
 def _fill_short_gaps(values: np.ndarray, valid: np.ndarray, max_gap: int) -> np.ndarray:
