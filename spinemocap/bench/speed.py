@@ -28,10 +28,11 @@ from typing import Callable
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from ..app.run import TrackingWarning, TrackResult, track_source
 from ..app.streaming import LEGACY, SpeedOptions
-from ..capture import Capture, FrameSource
+from ..capture import VIDEO_PATTERN, Capture, FrameSource, VideoWriter
 from ..fileio import atomic_write, read_toml, write_toml
 from ..track.evaluate import evaluate_tracking
 
@@ -93,35 +94,41 @@ class PeakMemory:
         self.peak_mib = self._peak - self._start
 
 
-def video_copy(png_capture: Path, out: Path) -> Path:
-    """The PNG capture ``png_capture`` as a capture of lossless FFV1 videos (one per camera) in
-    ``out``, with the same rig, manifest and ground truth."""
-    from ..synth.writer import VIDEO_FOURCC
-
+def video_copy(png_capture: Path, out: Path, codec: str = "utvideo") -> Path:
+    """The PNG capture ``png_capture`` as a capture of lossless videos (one per camera) in ``out``,
+    with the same rig, manifest and ground truth. ``codec``: ``utvideo`` (what captures are
+    written in now, :class:`~spinemocap.capture.VideoWriter`) or ``ffv1`` (the previous format,
+    through OpenCV: the decoding peer)."""
     capture = Capture.open(png_capture)
     source = capture.frame_source()
-    out.mkdir(parents=True, exist_ok=True)
-    writers = []
-    for cam in capture.rig:
-        path = out / capture.video_pattern.format(camera=cam.name)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*VIDEO_FOURCC), capture.fps, cam.size)  # type: ignore[attr-defined]
-        if not writer.isOpened():
-            raise RuntimeError(f"OpenCV cannot write {VIDEO_FOURCC} video to {path}")
-        writers.append(writer)
+    pattern = VIDEO_PATTERN if codec == "utvideo" else "videos/{camera}.mkv"
+    writers = [_video_writer(out / pattern.format(camera=cam.name), codec, capture.fps, cam.size) for cam in capture.rig]
     try:
-        for frame in range(capture.n_frames):
+        for frame in tqdm(range(capture.n_frames), desc=f"encoding {codec}", unit="frame", leave=False):
             for writer, image in zip(writers, source.read(frame)):
                 writer.write(image)
     finally:
         for writer in writers:
-            writer.release()
+            if isinstance(writer, VideoWriter):
+                writer.close()
+            else:
+                writer.release()
     for name in (capture.rig_file, "groundtruth.npz"):
         shutil.copy2(png_capture / name, out / name)
     manifest = read_toml(png_capture / "capture.toml")
-    manifest["capture"]["media"] = "video"
+    manifest["capture"].update(media="video", video_pattern=pattern)
     write_toml(out / "capture.toml", manifest)
     return out
+
+
+def _video_writer(path: Path, codec: str, fps: float, size: tuple[int, int]):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if codec == "utvideo":
+        return VideoWriter(path, fps, size)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), fps, size)  # type: ignore[attr-defined]
+    if not writer.isOpened():
+        raise RuntimeError(f"OpenCV cannot write FFV1 video to {path}")
+    return writer
 
 
 def replay_order(n_source: int, n_frames: int) -> list[int]:
