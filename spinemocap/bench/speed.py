@@ -293,23 +293,6 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
         say("warming up (2 frames, not timed: model loading, first-call set-up) ...")
         for options in (speed, LEGACY):
             _timed_run(capture.frame_source(), capture, options, mode, detector, False, range(min(2, frames)))
-        workers = speed.n_workers(len(capture.camera_names))
-        decoding = {"png": decode_speed(capture.frame_source(), capture.n_frames, workers)}
-        png = run("png", capture.frame_source(), speed)
-        peer = run("png_legacy", capture.frame_source(), LEGACY) if legacy else None
-        vid = None
-        if video:
-            video_dir, ffv1_dir = root / "video", root / "video_ffv1"
-            if not (video_dir / "capture.toml").is_file():
-                say("encoding the frames as lossless UT Video (not timed) ...")
-                video_copy(png_dir, video_dir)
-            decoding["video"] = decode_speed(Capture.open(video_dir).frame_source(), capture.n_frames, workers)
-            n_ffv1 = min(capture.n_frames, FFV1_FRAMES)  # the previous format's decoding: the peer
-            if not (ffv1_dir / "capture.toml").is_file():
-                say(f"encoding {n_ffv1} frames as FFV1, the previous video format (not timed) ...")
-                video_copy(png_dir, ffv1_dir, codec="ffv1", frames=n_ffv1)
-            decoding["video_ffv1_previous"] = decode_speed(Capture.open(ffv1_dir).frame_source(), n_ffv1, workers)
-            vid = run("video", Capture.open(video_dir).frame_source(), speed)
         mem = mem_peer = None
         if in_memory:
             # at most memory_frames decoded frames held (six 2448x1600 images are 70 MB a frame),
@@ -323,6 +306,24 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
             if legacy:
                 mem_peer = run("in_memory_legacy", frames_in_memory, LEGACY, gt)
             del held, frames_in_memory
+        workers = speed.n_workers(len(capture.camera_names))
+        decoding = {"png": decode_speed(capture.frame_source(), capture.n_frames, workers)}
+        vid = None
+        if video:
+            video_dir, ffv1_dir = root / "video", root / "video_ffv1"
+            if not (video_dir / "capture.toml").is_file():
+                say("encoding the frames as lossless UT Video (not timed) ...")
+                video_copy(png_dir, video_dir)
+            decoding["video"] = decode_speed(Capture.open(video_dir).frame_source(), capture.n_frames, workers)
+            n_ffv1 = min(capture.n_frames, FFV1_FRAMES)  # the previous format's decoding: the peer
+            if not (ffv1_dir / "capture.toml").is_file():
+                say(f"encoding {n_ffv1} frames as FFV1, the previous video format (not timed) ...")
+                video_copy(png_dir, ffv1_dir, codec="ffv1", frames=n_ffv1)
+            decoding["video_ffv1_previous"] = decode_speed(Capture.open(ffv1_dir).frame_source(), n_ffv1, workers)
+            vid = run("video", Capture.open(video_dir).frame_source(), speed)
+        say(f"  decoding alone: {decoding}")
+        png = run("png", capture.frame_source(), speed)
+        peer = run("png_legacy", capture.frame_source(), LEGACY) if legacy else None
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
