@@ -20,7 +20,7 @@ Folder layout::
     rig = "rig.toml"
     media = "images"                              # or "video"
     image_pattern = "images/{camera}/{frame:06d}.png"
-    video_pattern = "videos/{camera}.mkv"
+    video_pattern = "videos/{camera}.avi"
     [tape]                                        # spinemocap.tape.TapeSpec fields
     n_rows = 13
     [subject]

@@ -4,13 +4,15 @@ video, with the previous pipeline (:data:`spinemocap.app.streaming.LEGACY`) as t
 same run.
 
 The scene is rendered once into a capture folder of PNG images (``write_capture``) and copied
-into lossless FFV1 videos; rendering is not timed. Each run tracks the same frames with the
+into lossless UT Video videos (and its first frames into FFV1, the previous format, whose decoding
+alone is the video peer); rendering and encoding are not timed. Each run tracks the same frames with the
 shipped network detector and reports frames/s (wall time of detection + tracking, reading
 included, writing the outputs excluded), the mean time per stage per frame, the peak resident
 memory during the run above the memory before it (sampled every 20 ms), the detector's routes
 (predicted box / full search) and the accuracy against the ground truth, so a faster run that got
 worse shows it. ``speedup_vs_previous`` is the new pipeline's fps over the legacy one's on the
-same frames and source (PNG, the capture's own format).
+same frames and source (PNG, the capture's own format); ``speedup_vs_previous_in_memory`` the
+same from memory, where at most ``memory_frames`` decoded frames are held and replayed.
 """
 
 from __future__ import annotations
