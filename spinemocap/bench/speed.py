@@ -97,7 +97,8 @@ class PeakMemory:
         self.peak_mib = self._peak - self._start
 
 
-def video_copy(png_capture: Path, out: Path, codec: str = "utvideo", frames: int | None = None) -> Path:
+def video_copy(png_capture: Path, out: Path, codec: str = "utvideo", frames: int | None = None,
+               progress: bool = True) -> Path:
     """The PNG capture ``png_capture`` as a capture of lossless videos (one per camera) in ``out``,
     with the same rig, manifest and ground truth. ``codec``: ``utvideo`` (what captures are
     written in now, :class:`~spinemocap.capture.VideoWriter`) or ``ffv1`` (the previous format,
@@ -108,7 +109,8 @@ def video_copy(png_capture: Path, out: Path, codec: str = "utvideo", frames: int
     pattern = VIDEO_PATTERN if codec == "utvideo" else "videos/{camera}.mkv"
     writers = [_video_writer(out / pattern.format(camera=cam.name), codec, capture.fps, cam.size) for cam in capture.rig]
     try:
-        for frame in tqdm(range(n_frames), desc=f"encoding {codec}", unit="frame", leave=False):
+        for frame in tqdm(range(n_frames), desc=f"encoding {codec}", unit="frame", leave=False,
+                           disable=not progress):
             for writer, image in zip(writers, source.read(frame)):
                 writer.write(image)
     finally:
@@ -315,12 +317,12 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
             video_dir, ffv1_dir = root / "video", root / "video_ffv1"
             if not (video_dir / "capture.toml").is_file():
                 say("encoding the frames as lossless UT Video (not timed) ...")
-                video_copy(png_dir, video_dir)
+                video_copy(png_dir, video_dir, progress=progress)
             decoding["video"] = decode_speed(Capture.open(video_dir).frame_source(), capture.n_frames, workers)
             n_ffv1 = min(capture.n_frames, FFV1_FRAMES)  # the previous format's decoding: the peer
             if not (ffv1_dir / "capture.toml").is_file():
                 say(f"encoding {n_ffv1} frames as FFV1, the previous video format (not timed) ...")
-                video_copy(png_dir, ffv1_dir, codec="ffv1", frames=n_ffv1)
+                video_copy(png_dir, ffv1_dir, codec="ffv1", frames=n_ffv1, progress=progress)
             decoding["video_ffv1_previous"] = decode_speed(Capture.open(ffv1_dir).frame_source(), n_ffv1, workers)
             vid = run("video", Capture.open(video_dir).frame_source(), speed)
         say(f"  decoding alone: {decoding}")

@@ -156,14 +156,15 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     if base.sum() < 50 or len(dots) < 2:
         return Extended(base, dots, conf, snapped)
     dotted = keep_dotted(base, dots)
+    answer = dots, conf
     if dotted.sum() < base.sum():  # components without dots dropped: the edge levels change, find again
         base = dotted
         snapped = snap_to_edges(crop, base, p)
-        dots, conf = find_dots(crop, snapped, None, blob_params)
+        answer = find_dots(crop, snapped, None, blob_params)
     grey = to_grey(crop).astype(np.float32)
     threshold = dark_threshold(grey, base, p)
     if threshold is None:
-        return Extended(base, dots, conf, snapped)
+        return Extended(base, *answer, snapped)
     d = estimate_dot_diameter(base) or 4.0
     width = 2.0 * float(np.percentile(cv2.distanceTransform(base.view(np.uint8), cv2.DIST_L2, 5)[base], 98))
     area_per_dot = base.sum() / len(dots)
@@ -184,7 +185,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
         if _looks_like_tape(crop[box], region, dark[box], dots - [x, y], d, width, area_per_dot, p, blob_params):
             out[box] |= region
     if (out == base).all():
-        return Extended(base, dots, conf, snapped)
+        return Extended(base, *answer, snapped)
     # The tape grew (rare): its dots on the joined mask, where a dot straddling a join counts.
     snapped = snap_to_edges(crop, out, p)
     return Extended(out, *find_dots(crop, snapped, None, blob_params), snapped)
