@@ -6,7 +6,8 @@ Folder layout::
       capture.toml          # this module's manifest (below)
       rig.toml              # cameras, see spinemocap.camera
       images/<camera>/000000.png ...      (media = "images")
-      videos/<camera>.mkv                 (media = "video")
+      videos/<camera>.avi                 (media = "video"; lossless UT Video, see VideoWriter;
+                                           older captures: FFV1 .mkv, named in capture.toml)
       groundtruth.npz       # synthetic captures only
 
 ``capture.toml``::
@@ -19,7 +20,7 @@ Folder layout::
     rig = "rig.toml"
     media = "images"                              # or "video"
     image_pattern = "images/{camera}/{frame:06d}.png"
-    video_pattern = "videos/{camera}.mkv"
+    video_pattern = "videos/{camera}.avi"
     [tape]                                        # spinemocap.tape.TapeSpec fields
     n_rows = 13
     [subject]
@@ -36,6 +37,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from fractions import Fraction
 from pathlib import Path
 from typing import Protocol, Sequence, runtime_checkable
 
@@ -43,11 +45,15 @@ import cv2
 import numpy as np
 
 from .camera import Rig
-from .fileio import InputError, read_toml, reading, write_toml
+from .fileio import InputError, atomic_path, read_toml, reading, write_toml
 from .tape import TapeSpec
 
 MANIFEST = "capture.toml"
 MEDIA = ("images", "video")
+# New captures' videos: lossless UT Video in planar RGB (decodes ~7x cheaper than FFV1, whose
+# .mkv files of older captures stay readable: the manifest names each capture's own pattern).
+VIDEO_PATTERN = "videos/{camera}.avi"
+VIDEO_CODEC = "utvideo"
 MAX_FPS = 1e5
 
 
@@ -182,6 +188,45 @@ class VideoSource:
             if cap is not None:
                 cap.release()
         self._captures = [None] * len(self.paths)
+
+
+class VideoWriter:
+    """One camera's lossless video (:data:`VIDEO_CODEC`, planar RGB, so every BGR pixel comes
+    back exactly), written through PyAV to a temporary file that :meth:`close` renames into place
+    (:meth:`abort` drops it). ``fps`` frames/s, ``size`` (width, height) px. Reading needs no
+    PyAV: :class:`VideoSource` decodes it with OpenCV."""
+
+    def __init__(self, path: str | os.PathLike, fps: float, size: tuple[int, int]):
+        import av  # writing only: reading goes through OpenCV
+
+        self._place = atomic_path(path)
+        tmp = self._place.__enter__()
+        try:
+            self._container = av.open(str(tmp), "w")
+            self._stream = self._container.add_stream(VIDEO_CODEC, rate=Fraction(fps).limit_denominator(1001))
+            self._stream.width, self._stream.height = int(size[0]), int(size[1])
+            self._stream.pix_fmt = "gbrp"
+        except BaseException as exc:
+            self._place.__exit__(type(exc), exc, exc.__traceback__)
+            raise
+        self._frame_type = av.VideoFrame
+
+    def write(self, image_bgr: np.ndarray) -> None:
+        """Append one BGR uint8 image of the video's size."""
+        frame = self._frame_type.from_ndarray(np.ascontiguousarray(image_bgr), format="bgr24")
+        self._container.mux(self._stream.encode(frame))
+
+    def close(self) -> None:
+        """Finish the file and rename it into place."""
+        self._container.mux(self._stream.encode(None))
+        self._container.close()
+        self._place.__exit__(None, None, None)
+
+    def abort(self) -> None:
+        """Drop the unfinished file."""
+        self._container.close()
+        error = RuntimeError("aborted")
+        self._place.__exit__(RuntimeError, error, None)
 
 
 @dataclass

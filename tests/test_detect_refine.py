@@ -37,7 +37,7 @@ def test_extension_restores_a_tape_the_mask_stops_short_of(drawn):
     cut = drawn.mask.copy()
     cut[: ys[0] + (ys[-1] - ys[0]) // 2] = False  # the network saw only the lower half
     assert iou(cut, drawn.mask) < 0.6
-    out = extend_along_tape(drawn.image, cut)
+    out = extend_along_tape(drawn.image, cut).mask
     assert iou(snap_to_edges(drawn.image, out), drawn.mask) > 0.97
     assert len(find_dots(drawn.image, out)[0]) == len(drawn.uv)
 
@@ -57,7 +57,7 @@ def test_extension_ignores_dark_regions_without_dots_and_skin_coloured_occluders
     cv2.circle(ball.view(np.uint8), (int(xs.mean()), int(ys.min() + 60)), 30, 1, -1)
     image[ball] = skin_colour
     mask = drawn.mask & ~ball
-    out = extend_along_tape(image, mask)
+    out = extend_along_tape(image, mask).mask
     assert not (out & patch).any()
     assert (out & ball).sum() < 0.1 * ball.sum()  # only what the filled tape outline encloses
 
@@ -76,4 +76,4 @@ def test_a_tape_lighter_than_the_skin_is_left_to_the_network(drawn):
     off = cv2.dilate(drawn.mask.astype(np.uint8), k).astype(bool)
     assert (snap_to_edges(light, off) == off).all()
     half = drawn.mask & (np.arange(drawn.mask.shape[0])[:, None] > drawn.mask.shape[0] // 2)
-    assert (extend_along_tape(light, half) == half).all()
+    assert (extend_along_tape(light, half).mask == half).all()

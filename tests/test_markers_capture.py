@@ -81,3 +81,28 @@ def test_capture_errors_name_the_problem(tmp_path):
     (tmp_path / "images/cam0/000001.png").write_bytes(b"not a png")
     with pytest.raises(InputError, match="000001.png.*corrupt"):
         read_image(tmp_path / "images/cam0/000001.png")
+
+
+def test_videos_round_trip_losslessly_and_older_ffv1_videos_stay_readable(tmp_path):
+    import cv2
+
+    from spinemocap.capture import VideoSource, VideoWriter
+
+    rng = np.random.default_rng(0)
+    frames = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(3)]
+    new = VideoWriter(tmp_path / "videos" / "a.avi", 100.0, (64, 48))
+    old = cv2.VideoWriter(str(tmp_path / "videos" / "b.mkv"), cv2.VideoWriter_fourcc(*"FFV1"), 100.0, (64, 48))
+    for image in frames:
+        new.write(image)
+        old.write(image)
+    new.close()
+    old.release()
+    for pattern in ("videos/a.avi", "videos/b.mkv"):  # a name without {camera}: one camera
+        source = VideoSource(tmp_path, ["cam"], 3, pattern)
+        for f in (0, 2, 1):  # a jump back seeks
+            np.testing.assert_array_equal(source.read(f)[0], frames[f])
+    # an aborted video leaves no file behind
+    broken = VideoWriter(tmp_path / "videos" / "c.avi", 100.0, (64, 48))
+    broken.write(frames[0])
+    broken.abort()
+    assert sorted(p.name for p in (tmp_path / "videos").iterdir()) == ["a.avi", "b.mkv"]

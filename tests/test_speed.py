@@ -58,9 +58,15 @@ def test_prediction_finds_the_full_search_dots_on_the_studio():
     assert worst < 0.01
 
 
-def test_prediction_finds_the_full_search_dots_on_a_small_studio():
-    # the studio's six cameras at a quarter of the pixels, two frames (the default suite's version)
-    scene, images = _rendered("studio", 2, size=(1224, 800))
+@pytest.fixture(scope="module")
+def small_studio():
+    """The studio's six cameras at a quarter of the pixels, two frames (rendered once per module)."""
+    return _rendered("studio", 2, size=(1224, 800))
+
+
+def test_prediction_finds_the_full_search_dots_on_a_small_studio(small_studio):
+    # the default suite's version of the test above
+    scene, images = small_studio
     worst, searches = _prediction_vs_full(scene, images)
     assert searches["full"] == len(scene.rig)            # only the first frame searched in full
     assert searches["predicted"] == len(scene.rig) and searches["fallback"] == 0
@@ -124,3 +130,22 @@ def test_prefetching_reader_raises_the_readers_error_and_stops():
             got.append(frame)
     assert got == [0, 1]
     assert max(source.reads) == 2  # the reader stopped at the error
+
+
+def test_detector_dots_are_a_blob_pass_on_its_final_mask(small_studio):
+    # The clean-up's blob pass is reused as the detector's dots (no second pass): they must be
+    # the dots a separate pass over the detector's final mask finds (the pipeline before).
+    from spinemocap.detect import Detector, find_dots
+
+    _, images = small_studio
+    detector = Detector("net")
+    seen = 0
+    for frame_images in images:
+        for camera, image in enumerate(frame_images):
+            view = detector.detect(image, camera=camera)
+            uv, _ = find_dots(view.image, view.mask)
+            assert len(view) == len(uv), f"camera {camera}"
+            if len(uv):
+                assert np.linalg.norm(view.uv[:, None] - uv[None], axis=2).min(axis=1).max() < 0.01
+            seen += len(uv)
+    assert seen > 100  # the tape was in view: the comparison was not empty

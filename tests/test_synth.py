@@ -296,7 +296,7 @@ def test_video_capture_round_trips_losslessly(tmp_path):
     config = SynthConfig.preset("tiny", frames=2, size=(320, 240), video=True, noise=0.0)
     out = write_capture(config, tmp_path / "v", progress=False)
     capture = Capture.open(out)
-    assert capture.media == "video" and (out / "videos" / "cam1.mkv").is_file()
+    assert capture.media == "video" and (out / "videos" / "cam1.avi").is_file()
     assert not (out / "images").exists()
     frames = capture.frame_source().read(1)
     scene = build_scene(config)

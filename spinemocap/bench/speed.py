@@ -4,13 +4,15 @@ video, with the previous pipeline (:data:`spinemocap.app.streaming.LEGACY`) as t
 same run.
 
 The scene is rendered once into a capture folder of PNG images (``write_capture``) and copied
-into lossless FFV1 videos; rendering is not timed. Each run tracks the same frames with the
+into lossless UT Video videos (and its first frames into FFV1, the previous format, whose decoding
+alone is the video peer); rendering and encoding are not timed. Each run tracks the same frames with the
 shipped network detector and reports frames/s (wall time of detection + tracking, reading
 included, writing the outputs excluded), the mean time per stage per frame, the peak resident
 memory during the run above the memory before it (sampled every 20 ms), the detector's routes
 (predicted box / full search) and the accuracy against the ground truth, so a faster run that got
 worse shows it. ``speedup_vs_previous`` is the new pipeline's fps over the legacy one's on the
-same frames and source (PNG, the capture's own format).
+same frames and source (PNG, the capture's own format); ``speedup_vs_previous_in_memory`` the
+same from memory, where at most ``memory_frames`` decoded frames are held and replayed.
 """
 
 from __future__ import annotations
@@ -22,16 +24,17 @@ import tempfile
 import threading
 import time
 import warnings
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
 from typing import Callable
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from ..app.run import TrackingWarning, TrackResult, track_source
 from ..app.streaming import LEGACY, SpeedOptions
-from ..capture import Capture, FrameSource
+from ..capture import VIDEO_PATTERN, Capture, FrameSource, VideoWriter
 from ..fileio import atomic_write, read_toml, write_toml
 from ..track.evaluate import evaluate_tracking
 
@@ -39,6 +42,7 @@ from ..track.evaluate import evaluate_tracking
 # boxes' masks move a few dot centres by ~0.01 px), and no more swaps or unsolved frames.
 ACCURACY_TOLERANCE_MM = 0.01
 GOALS_FPS = {"in_memory_cpu2": 10.0, "video_cpu2": 5.0, "gpu": 100.0}
+FFV1_FRAMES = 10  # frames of the previous video format decoded as the decoding peer
 
 
 class MemorySource:
@@ -93,35 +97,44 @@ class PeakMemory:
         self.peak_mib = self._peak - self._start
 
 
-def video_copy(png_capture: Path, out: Path) -> Path:
-    """The PNG capture ``png_capture`` as a capture of lossless FFV1 videos (one per camera) in
-    ``out``, with the same rig, manifest and ground truth."""
-    from ..synth.writer import VIDEO_FOURCC
-
+def video_copy(png_capture: Path, out: Path, codec: str = "utvideo", frames: int | None = None,
+               progress: bool = True) -> Path:
+    """The PNG capture ``png_capture`` as a capture of lossless videos (one per camera) in ``out``,
+    with the same rig, manifest and ground truth. ``codec``: ``utvideo`` (what captures are
+    written in now, :class:`~spinemocap.capture.VideoWriter`) or ``ffv1`` (the previous format,
+    through OpenCV: the decoding peer); ``frames``: only the first so many."""
     capture = Capture.open(png_capture)
+    n_frames = capture.n_frames if frames is None else min(frames, capture.n_frames)
     source = capture.frame_source()
-    out.mkdir(parents=True, exist_ok=True)
-    writers = []
-    for cam in capture.rig:
-        path = out / capture.video_pattern.format(camera=cam.name)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*VIDEO_FOURCC), capture.fps, cam.size)  # type: ignore[attr-defined]
-        if not writer.isOpened():
-            raise RuntimeError(f"OpenCV cannot write {VIDEO_FOURCC} video to {path}")
-        writers.append(writer)
+    pattern = VIDEO_PATTERN if codec == "utvideo" else "videos/{camera}.mkv"
+    writers = [_video_writer(out / pattern.format(camera=cam.name), codec, capture.fps, cam.size) for cam in capture.rig]
     try:
-        for frame in range(capture.n_frames):
+        for frame in tqdm(range(n_frames), desc=f"encoding {codec}", unit="frame", leave=False,
+                           disable=not progress):
             for writer, image in zip(writers, source.read(frame)):
                 writer.write(image)
     finally:
         for writer in writers:
-            writer.release()
+            if isinstance(writer, VideoWriter):
+                writer.close()
+            else:
+                writer.release()
     for name in (capture.rig_file, "groundtruth.npz"):
         shutil.copy2(png_capture / name, out / name)
     manifest = read_toml(png_capture / "capture.toml")
-    manifest["capture"]["media"] = "video"
+    manifest["capture"].update(media="video", video_pattern=pattern, n_frames=n_frames)
     write_toml(out / "capture.toml", manifest)
     return out
+
+
+def _video_writer(path: Path, codec: str, fps: float, size: tuple[int, int]):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if codec == "utvideo":
+        return VideoWriter(path, fps, size)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), fps, size)  # type: ignore[attr-defined]
+    if not writer.isOpened():
+        raise RuntimeError(f"OpenCV cannot write FFV1 video to {path}")
+    return writer
 
 
 def replay_order(n_source: int, n_frames: int) -> list[int]:
@@ -160,10 +173,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
     decoded = [with_sensor_noise(source.read(f), sensor_noise, f) for f in range(capture.n_frames)]
     order = replay_order(capture.n_frames, frames)
     replayed = MemorySource([decoded[i] for i in order], capture.camera_names)
-    gt = dict(capture.groundtruth())
-    for key in ("dots", "visible", "dot_normals", "keypoints"):
-        if key in gt:
-            gt[key] = np.asarray(gt[key])[order]
+    gt = replayed_groundtruth(capture, order)
     say("warming up (2 frames, not timed) ...")
     for options in (speed, LEGACY) if legacy else (speed,):
         _timed_run(replayed, capture, options, mode, detector, False, range(2))
@@ -209,15 +219,26 @@ def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode:
     return result, wall, memory.peak_mib
 
 
-def decode_fps(source: FrameSource, n_frames: int, workers: int) -> float:
-    """Frames per second of decoding alone (every camera's image of each frame, cameras in
-    ``workers`` threads, no detection): the ceiling the source sets on tracking speed."""
+def decode_speed(source: FrameSource, n_frames: int, workers: int) -> dict:
+    """Decoding alone (every camera's image of each of the first ``n_frames`` frames, cameras in
+    ``workers`` threads, no detection): ``fps`` (wall) and ``cpu_s_per_frame`` (this process, all
+    threads): the ceiling the source sets on tracking speed."""
     from ..app.streaming import prefetched_frames
 
-    start = time.perf_counter()
+    cpu, start = time.process_time(), time.perf_counter()
     for _ in prefetched_frames(source, range(n_frames), workers=workers, prefetch=0):
         pass
-    return n_frames / (time.perf_counter() - start)
+    wall = time.perf_counter() - start
+    return {"frames": n_frames, "fps": n_frames / wall, "cpu_s_per_frame": (time.process_time() - cpu) / n_frames}
+
+
+def replayed_groundtruth(capture: Capture, order: list[int]) -> dict:
+    """The capture's ground truth for the frames ``order`` (source frame indices) in that order."""
+    gt = dict(capture.groundtruth())
+    for key in ("dots", "visible", "dot_normals", "keypoints"):
+        if key in gt:
+            gt[key] = np.asarray(gt[key])[order]
+    return gt
 
 
 def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, capture: Capture,
@@ -241,11 +262,12 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                         mode: str = "sequence", detector: str = "net", seed: int = 0,
                         workdir: Path | None = None, legacy: bool = True, video: bool = True,
                         in_memory: bool = True, speed: SpeedOptions | None = None, progress: bool = True,
-                        say: Callable[[str], None] = print, realism: str = "lab") -> dict:
+                        say: Callable[[str], None] = print, realism: str = "lab", memory_frames: int = 30) -> dict:
     """Render ``frames`` frames of the synthetic ``preset`` and time tracking them (see the module
     docstring). ``legacy``: also run the previous pipeline (the peer); ``workdir``: where the
     capture folders go (a temporary folder, removed afterwards, when None); ``realism``: the
-    studio's level (``lab``: tension, skin strain, the lab's inexact rig, sync error, noise)."""
+    studio's level (``lab``: tension, skin strain, the lab's inexact rig, sync error, noise);
+    ``memory_frames``: decoded frames held for the in-memory runs (replayed forward and backward)."""
     import torch
 
     from ..synth import SynthConfig, write_capture
@@ -263,37 +285,49 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
         capture = Capture.open(png_dir)
         runs = []
 
-        def run(name: str, source: FrameSource, options: SpeedOptions) -> dict:
+        def run(name: str, source: FrameSource, options: SpeedOptions, gt: dict | None = None) -> dict:
             say(f"tracking: {name} ...")
             result, wall, peak = _timed_run(source, capture, options, mode, detector, progress)
-            summary = _summary(name, result, wall, peak, capture)
+            summary = _summary(name, result, wall, peak, capture, gt)
             runs.append(summary)
-            say(f"  {summary['fps']:.2f} frames/s, mean error {summary['mean_error_mm']:.3f} mm")
+            say(f"  {summary['fps']:.2f} frames/s, {summary['cpu_s_per_frame']:.2f} CPU s/frame, "
+                f"mean error {summary['mean_error_mm']:.3f} mm")
             return summary
 
         say("warming up (2 frames, not timed: model loading, first-call set-up) ...")
         for options in (speed, LEGACY):
             _timed_run(capture.frame_source(), capture, options, mode, detector, False, range(min(2, frames)))
+        mem = mem_peer = None
+        if in_memory:
+            # at most memory_frames decoded frames held (six 2448x1600 images are 70 MB a frame),
+            # played forward and backward for all frames, the ground truth alike
+            source = capture.frame_source()
+            held = [source.read(f) for f in range(min(capture.n_frames, memory_frames))]
+            order = replay_order(len(held), capture.n_frames)
+            gt = replayed_groundtruth(capture, order)
+            frames_in_memory = MemorySource([held[i] for i in order], capture.camera_names)
+            mem = run("in_memory", frames_in_memory, speed, gt)
+            if legacy:
+                mem_peer = run("in_memory_legacy", frames_in_memory, LEGACY, gt)
+            del held, frames_in_memory
         workers = speed.n_workers(len(capture.camera_names))
-        decoding = {"png": decode_fps(capture.frame_source(), capture.n_frames, workers)}
-        png = run("png", capture.frame_source(), speed)
-        peer = run("png_legacy", capture.frame_source(), LEGACY) if legacy else None
+        decoding = {"png": decode_speed(capture.frame_source(), capture.n_frames, workers)}
         vid = None
         if video:
-            video_dir = root / "video"
+            video_dir, ffv1_dir = root / "video", root / "video_ffv1"
             if not (video_dir / "capture.toml").is_file():
-                say("encoding the frames as lossless FFV1 video (not timed) ...")
-                video_copy(png_dir, video_dir)
-            decoding["video"] = decode_fps(Capture.open(video_dir).frame_source(), capture.n_frames, workers)
+                say("encoding the frames as lossless UT Video (not timed) ...")
+                video_copy(png_dir, video_dir, progress=progress)
+            decoding["video"] = decode_speed(Capture.open(video_dir).frame_source(), capture.n_frames, workers)
+            n_ffv1 = min(capture.n_frames, FFV1_FRAMES)  # the previous format's decoding: the peer
+            if not (ffv1_dir / "capture.toml").is_file():
+                say(f"encoding {n_ffv1} frames as FFV1, the previous video format (not timed) ...")
+                video_copy(png_dir, ffv1_dir, codec="ffv1", frames=n_ffv1, progress=progress)
+            decoding["video_ffv1_previous"] = decode_speed(Capture.open(ffv1_dir).frame_source(), n_ffv1, workers)
             vid = run("video", Capture.open(video_dir).frame_source(), speed)
-        mem = None
-        if in_memory:
-            source = capture.frame_source()
-            frames_in_memory = [source.read(f) for f in range(capture.n_frames)]
-            mem = run("in_memory", MemorySource(frames_in_memory, capture.camera_names), speed)
-            if legacy:
-                run("in_memory_legacy", MemorySource(frames_in_memory, capture.camera_names), replace(LEGACY))
-            del frames_in_memory
+        say(f"  decoding alone: {decoding}")
+        png = run("png", capture.frame_source(), speed)
+        peer = run("png_legacy", capture.frame_source(), LEGACY) if legacy else None
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -309,9 +343,14 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
         "fps_video": vid["fps"] if vid else None,
         "fps_in_memory": mem["fps"] if mem else None,
         "speedup_vs_previous": png["fps"] / peer["fps"] if peer else None,
+        "speedup_vs_previous_in_memory": mem["fps"] / mem_peer["fps"] if mem and mem_peer else None,
+        "cpu_ratio_vs_previous_in_memory": (mem_peer["cpu_s_per_frame"] / mem["cpu_s_per_frame"]
+                                            if mem and mem_peer else None),
         "accuracy_not_worse": _not_worse(png, peer) if peer else None,
+        "accuracy_not_worse_in_memory": _not_worse(mem, mem_peer) if mem and mem_peer else None,
         "accuracy_tolerance_mm": ACCURACY_TOLERANCE_MM,
-        "decode_only_fps": decoding,
+        "memory_frames": memory_frames,
+        "decode_only": decoding,
         "runs": runs,
         "goals_fps": GOALS_FPS,
     }
@@ -335,10 +374,15 @@ def format_report(numbers: dict) -> str:
     for r in numbers["runs"]:
         lines.append(f"  {r['run']:<18}{r['fps']:>7.2f}{r['cpu_s_per_frame']:>8.2f}{r['peak_memory_mib']:>10.0f}{r['mean_error_mm']:>8.3f}"
                      f"{r['label_swaps']:>6}  " + " ".join(f"{r['stage_ms'][s]:>10.0f}" for s in stages))
-    if numbers.get("decode_only_fps"):
-        lines.append("  decoding alone (no detection), frames/s: "
-                     + ", ".join(f"{k} {v:.2f}" for k, v in numbers["decode_only_fps"].items()))
+    if numbers.get("decode_only"):
+        lines.append("  decoding alone (no detection): "
+                     + ", ".join(f"{k} {v['fps']:.2f} fps / {v['cpu_s_per_frame']:.2f} CPU s per frame"
+                                 for k, v in numbers["decode_only"].items()))
     if numbers["speedup_vs_previous"] is not None:
         lines.append(f"  speedup vs the previous pipeline (PNG): {numbers['speedup_vs_previous']:.2f}x; "
                      f"accuracy not worse: {numbers['accuracy_not_worse']}")
+    if numbers.get("speedup_vs_previous_in_memory") is not None:
+        lines.append(f"  in memory: {numbers['speedup_vs_previous_in_memory']:.2f}x the previous pipeline's frames/s, "
+                     f"{numbers['cpu_ratio_vs_previous_in_memory']:.2f}x less CPU per frame; "
+                     f"accuracy not worse: {numbers['accuracy_not_worse_in_memory']}")
     return "\n".join(lines)

@@ -23,6 +23,9 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-legacy", action="store_true", help="skip the previous pipeline (the peer)")
     p.add_argument("--no-video", action="store_true", help="skip the video run")
     p.add_argument("--no-memory", action="store_true", help="skip the in-memory runs")
+    p.add_argument("--memory-frames", type=int, default=30,
+                   help="decoded frames held for the in-memory runs, replayed forward and backward for --frames "
+                        "frames (each 2448x1600 frame of six cameras holds 70 MB; default 30)")
     p.add_argument("--workdir", type=Path, help="keep the rendered captures here (reused when present)")
     p.add_argument("--capture", type=Path, help="instead of rendering: a synthetic capture folder whose frames are "
                                                  "replayed forward and backward in memory for --frames frames "
@@ -51,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
         numbers = run_speed_benchmark(args.preset, args.frames, args.occlusion, args.mode, args.detector, args.seed,
                                       args.workdir, legacy=not args.no_legacy, video=not args.no_video,
                                       in_memory=not args.no_memory, speed=speed, progress=not args.no_progress,
-                                      realism=args.realism)
+                                      realism=args.realism, memory_frames=args.memory_frames)
     print(format_report(numbers))
     if args.json:
         save(numbers, args.json)

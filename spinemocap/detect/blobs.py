@@ -79,16 +79,26 @@ def _disc(diameter: float) -> np.ndarray:
 
 
 def _regions(mask: np.ndarray, pad: int, stride: int = 8) -> list[tuple[slice, slice]]:
-    """Padded bounding boxes of the mask's components, found on a ``stride``-times smaller copy
-    (a full-frame labelling would cost more than all the dot work together)."""
+    """Padded bounding boxes of the mask's components. The components are found on a
+    ``stride``-times smaller copy (a full-frame labelling would cost more than all the dot work
+    together); each box is then the exact extent of the mask's pixels in it, so the boxes do not
+    depend on where the mask lies on that coarse grid (a crop around the tape finds the dots the
+    whole frame finds)."""
     h, w = mask.shape
     hs, ws = -(-h // stride), -(-w // stride)
-    coarse = (cv2.resize(mask.view(np.uint8), (ws, hs), interpolation=cv2.INTER_AREA) > 0).view(np.uint8)
+    sy, sx = h / hs, w / ws  # the coarse pixel's size (stride, or a little less at odd sizes)
+    # x 255: a block with a single mask pixel stays non-zero (its area average is >= 255 / stride^2)
+    coarse = (cv2.resize(mask.view(np.uint8) * np.uint8(255), (ws, hs), interpolation=cv2.INTER_AREA) > 0).view(np.uint8)
     n, _, stats, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
     boxes = []
     for x, y, bw, bh, _area in stats[1:]:
-        y0, x0 = y * stride - pad, x * stride - pad
-        y1, x1 = (y + bh) * stride + pad, (x + bw) * stride + pad
+        ys = slice(int(y * sy), min(h, int(math.ceil((y + bh) * sy))))
+        xs = slice(int(x * sx), min(w, int(math.ceil((x + bw) * sx))))
+        rows, cols = np.flatnonzero(mask[ys, xs].any(axis=1)), np.flatnonzero(mask[ys, xs].any(axis=0))
+        if not len(rows):
+            continue
+        y0, y1 = ys.start + rows[0] - pad, ys.start + rows[-1] + 1 + pad
+        x0, x1 = xs.start + cols[0] - pad, xs.start + cols[-1] + 1 + pad
         boxes.append((slice(max(0, y0), min(h, y1)), slice(max(0, x0), min(w, x1))))
     return boxes
 
@@ -164,7 +174,7 @@ def _region_dots(
         scores.append(_confidence(area / dot_area, minor / major, fill, mean_contrast / 0.8))
     if not centres:
         return np.zeros((0, 2)), np.zeros(0)
-    return _merge_close(np.asarray(centres, float), np.asarray(scores, float), p.merge_distance * d)
+    return merge_close(np.asarray(centres, float), np.asarray(scores, float), p.merge_distance * d)
 
 
 def _typical_diameter(labels: np.ndarray, stats: np.ndarray, d_guess: float) -> float:
@@ -203,13 +213,16 @@ def _confidence(area_ratio: float, axis_ratio: float, fill: float, contrast_rati
     return float(size * round_ * solid * bright) ** 0.5
 
 
-def _merge_close(uv: np.ndarray, score: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+def merge_close(uv: np.ndarray, score: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Greedy: keep the best-scoring blob, drop others within ``radius`` of a kept one."""
     order = np.argsort(-score)
+    near = np.linalg.norm(uv[:, None] - uv[None], axis=2) < radius  # (N, N): one array op, not N^2 Python
+    covered = np.zeros(len(uv), bool)
     keep: list[int] = []
     for i in order:
-        if all(np.hypot(*(uv[i] - uv[j])) >= radius for j in keep):
+        if not covered[i]:
             keep.append(i)
+            covered |= near[i]
     keep.sort(key=lambda i: (uv[i, 1], uv[i, 0]))
     return uv[keep], score[keep]
 
@@ -257,5 +270,5 @@ def find_dots(
         return empty
     uv, conf = np.concatenate(uvs), np.concatenate(confs)
     if len(uvs) > 1:  # regions may overlap: a dot must not be reported twice
-        uv, conf = _merge_close(uv, conf, p.merge_distance * (d_global or 4.0))
+        uv, conf = merge_close(uv, conf, p.merge_distance * (d_global or 4.0))
     return uv, conf

@@ -24,6 +24,7 @@ import os
 import time
 from importlib import resources
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -32,14 +33,23 @@ import torch
 from ..capture import read_image, to_grey
 from ..fileio import InputError
 from ..views import ViewDots
-from .blobs import BlobParams, fill_holes, find_dots
+from .blobs import BlobParams, fill_holes, find_dots, merge_close
 from .classical import segment_classical
 from .dataset import CROP_PAD, WORK_WIDTH, crop_scale, frame_view
 from .instances import split_instances, union
-from .refine import RefineParams, components_touching, extend_along_tape, snap_to_edges
+from .refine import RefineParams, components_touching, extend_along_tape
 from .segnet import load_weights, pad_to_multiple, to_tensor
 
 SHIPPED_WEIGHTS = "tape_unet.pt"
+
+
+class MaskDots(NamedTuple):
+    """A camera image's tape mask (H, W) bool and the dots on it: ``uv`` (N, 2) px (x, y), ``confidence`` (N,)."""
+
+    mask: np.ndarray
+    uv: np.ndarray
+    confidence: np.ndarray
+
 NAMES = ("net", "classical")
 
 
@@ -53,7 +63,8 @@ class NetSegmenter:
 
     def __init__(self, weights: str | os.PathLike | None = None, refine: bool = True, threads: int | None = 1,
                  min_area_work_px: int = 4, box_logit: float = -1.0, max_grow: int = 3,
-                 refine_params: RefineParams | None = None, device: str = "auto"):
+                 refine_params: RefineParams | None = None, device: str = "auto",
+                 blob_params: BlobParams | None = None):
         self.weights_path = Path(weights) if weights else shipped_weights_path()
         self.model, self.metadata = load_weights(self.weights_path)
         # Channels-last weights match the layout of to_tensor's input (NHWC pixels viewed as NCHW),
@@ -65,6 +76,7 @@ class NetSegmenter:
         self.box_logit = box_logit  # stage-1 logit threshold for boxes (-1: p > 0.27)
         self.max_grow = max_grow    # times a box may grow to follow the tape out of it
         self.refine_params = refine_params or RefineParams()
+        self.blob_params = blob_params or BlobParams()  # the clean-up's dots are the detector's
         self.device = torch.device(resolve_device(device))
         self.model = self.model.to(self.device)
 
@@ -86,7 +98,7 @@ class NetSegmenter:
             h, w = image.shape[:2]
             view, _ = frame_view(image)
             return cv2.resize(self._logits(view), (w, h), interpolation=cv2.INTER_LINEAR) > 0
-        return self.segment_boxes(image, self.tape_boxes([image])[0])
+        return self.segment_boxes(image, self.tape_boxes([image])[0]).mask
 
     def tape_boxes(self, images: list[np.ndarray]) -> list[list[tuple[slice, slice]]]:
         """Stage 1 on several images at once (one batched network pass per image size): per
@@ -114,26 +126,35 @@ class NetSegmenter:
         return [padded_box(x * sx, y * sy, (x + bw) * sx, (y + bh) * sy, (h, w))
                 for x, y, bw, bh, area in stats[1:] if area >= self.min_area_work_px]
 
-    def segment_boxes(self, image: np.ndarray, boxes: list[tuple[slice, slice]]) -> np.ndarray:
+    def segment_boxes(self, image: np.ndarray, boxes: list[tuple[slice, slice]]) -> MaskDots:
         """Stages 2-3 (network per box, growth, full-resolution clean-up) in the given boxes:
-        the tape mask (H, W) bool. Stage 1's boxes give the full search; a box predicted from
-        earlier frames skips stage 1 (sequence mode)."""
+        the tape mask (H, W) bool and the dots the clean-up found in it (uv (N, 2) full-frame px,
+        confidence (N,); the detector's dots, found once). Stage 1's boxes give the full search;
+        a box predicted from earlier frames skips stage 1 (sequence mode)."""
         if self.threads:
             torch.set_num_threads(self.threads)
         h, w = image.shape[:2]
         mask = np.zeros((h, w), bool)
+        uvs, confs = [], []
         for box in boxes:
-            part = extend_along_tape(image[box], self._net_mask(image, box), self.refine_params)
+            part = extend_along_tape(image[box], self._net_mask(image, box), self.refine_params, self.blob_params)
             for _ in range(self.max_grow):
-                grown = _grown_box(part, box, (h, w))
+                grown = _grown_box(part.mask, box, (h, w))
                 if grown is None:
                     break
-                so_far = _moved(part, box, grown)  # the tape runs out of the box: follow it
+                so_far = _moved(part.mask, box, grown)  # the tape runs out of the box: follow it
                 seen = components_touching(self._net_mask(image, grown), so_far)
-                part = extend_along_tape(image[grown], so_far | seen, self.refine_params)
+                part = extend_along_tape(image[grown], so_far | seen, self.refine_params, self.blob_params)
                 box = grown
-            mask[box] |= snap_to_edges(image[box], part, self.refine_params)  # part belongs to the final box
-        return mask
+            mask[box] |= part.snapped  # part belongs to the final box
+            uvs.append(part.uv + [box[1].start, box[0].start])
+            confs.append(part.confidence)
+        if not uvs:
+            return MaskDots(mask, np.zeros((0, 2)), np.zeros(0))
+        uv, conf = np.concatenate(uvs), np.concatenate(confs)
+        if len(uvs) > 1:  # boxes may overlap: a dot must not be reported twice (as find_dots merges regions)
+            uv, conf = merge_close(uv, conf, self.blob_params.merge_distance * 4.0)
+        return MaskDots(mask, uv, conf)
 
     def _net_mask(self, image: np.ndarray, box: tuple[slice, slice]) -> np.ndarray:
         """Stage 2: the network's tape mask (bool, box size, holes filled) of one box."""
@@ -200,7 +221,7 @@ class Detector:
         self.name = name
         self.blob_params = blob_params or BlobParams()
         if name == "net":
-            self._segment = NetSegmenter(**options)
+            self._segment = NetSegmenter(blob_params=self.blob_params, **options)
         else:
             work_width = int(options.pop("work_width", 1600))
             if options:
@@ -222,12 +243,19 @@ class Detector:
         ``boxes`` (``net`` only): search only these full-resolution boxes (skips stage 1)."""
         if boxes is None:
             return union(self.instances(image_bgr), image_bgr.shape[:2])
+        return self._segment_with_dots(_check_image(image_bgr), boxes).mask
+
+    def _segment_with_dots(self, image_bgr: np.ndarray, boxes: list[tuple[slice, slice]]) -> MaskDots:
+        """``net`` in ``boxes``: the tape mask (union of its kept instances) and the dots the
+        clean-up found on it (those of dropped specks removed)."""
         if not isinstance(self._segment, NetSegmenter):
             raise ValueError("only the 'net' detector searches given boxes")
         t = time.perf_counter()
-        out = union(split_instances(self._segment.segment_boxes(_check_image(image_bgr), boxes)), image_bgr.shape[:2])
+        found = self._segment.segment_boxes(image_bgr, boxes)
+        mask = union(split_instances(found.mask), image_bgr.shape[:2])
         self.last_timings["segment_s"] = time.perf_counter() - t
-        return out
+        on_mask = _on_mask(found.uv, mask, self.blob_params)
+        return MaskDots(mask, found.uv[on_mask], found.confidence[on_mask])
 
     @property
     def searches_boxes(self) -> bool:
@@ -256,14 +284,36 @@ class Detector:
         ``expected_dot_px``: dot diameter in px; estimated from the mask width when None.
         ``boxes``: search only there (``net``; from :meth:`tape_boxes` or predicted), else the whole image."""
         image_bgr = _check_image(image_bgr)
-        mask = self.segment(image_bgr, boxes)
         grey = to_grey(image_bgr)  # once: the dots and MRF2 both use it
+        if self.searches_boxes and expected_dot_px is None:
+            # the clean-up finds the dots at full resolution: reuse them (one blob pass)
+            found = self._segment_with_dots(image_bgr, boxes if boxes is not None else self.tape_boxes([image_bgr])[0])
+            self.last_timings["dots_s"] = 0.0  # inside segment_s
+            return ViewDots(camera=camera, uv=found.uv, confidence=found.confidence, mask=found.mask, image=grey)
+        mask = self.segment(image_bgr, boxes)
         uv, conf = self.find_dots(grey, mask, expected_dot_px)
         return ViewDots(camera=camera, uv=uv, confidence=conf, mask=mask, image=grey)
 
     def detect_file(self, path: str | os.PathLike, camera: int = 0, expected_dot_px: float | None = None) -> ViewDots:
         """:meth:`detect` on an image file; a missing or corrupt file raises InputError naming it."""
         return self.detect(read_image(path), camera, expected_dot_px)
+
+
+def _on_mask(uv: np.ndarray, mask: np.ndarray, blob_params: BlobParams) -> np.ndarray:
+    """Which dots ``uv`` (N, 2) px lie on ``mask`` grown by the blob margin (of a 4 px dot at
+    least: dots on the tape's edge count, as :func:`find_dots` counts them); False for those of
+    components that were dropped."""
+    if not len(uv):
+        return np.zeros(0, bool)
+    h, w = mask.shape
+    ij = np.clip(np.round(uv).astype(int), 0, [w - 1, h - 1])
+    if mask[ij[:, 1], ij[:, 0]].all():
+        return np.ones(len(uv), bool)
+    r = int(np.ceil(blob_params.margin * 4.0)) + 1
+    ys = slice(max(0, ij[:, 1].min() - r), ij[:, 1].max() + r + 1)
+    xs = slice(max(0, ij[:, 0].min() - r), ij[:, 0].max() + r + 1)
+    grown = cv2.dilate(mask[ys, xs].view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    return grown[ij[:, 1] - ys.start, ij[:, 0] - xs.start].astype(bool)
 
 
 def _check_image(image: np.ndarray) -> np.ndarray:

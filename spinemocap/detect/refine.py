@@ -25,12 +25,13 @@ size, and return a bool mask; px are full-resolution image pixels.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 
 from ..capture import to_grey
-from .blobs import estimate_dot_diameter, fill_holes, find_dots
+from .blobs import BlobParams, estimate_dot_diameter, fill_holes, find_dots
 
 
 @dataclass
@@ -129,22 +130,41 @@ def keep_dotted(mask: np.ndarray, dots_uv: np.ndarray) -> np.ndarray:
     return components_touching(mask, at_dots)
 
 
-def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams | None = None) -> np.ndarray:
+class Extended(NamedTuple):
+    """:func:`extend_along_tape`'s answer: the mask and the dots it found on the way (the one blob
+    pass over the box that the detector reuses): ``uv`` (N, 2) px (x, y) in the crop, ``confidence`` (N,)."""
+
+    mask: np.ndarray
+    uv: np.ndarray
+    confidence: np.ndarray
+    snapped: np.ndarray  # ``snap_to_edges`` of ``mask``: the dots were found on it
+
+
+def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams | None = None,
+                      blob_params: BlobParams | None = None) -> Extended:
     """``mask`` (hole-filled), less its dot-less components, plus the dark regions touching it that
-    look like more of the same tape (see the module docstring). Unchanged when the mask shows
-    fewer than two dots (nothing to measure the tape by)."""
+    look like more of the same tape (see the module docstring), with the dots of the result (those
+    on the kept mask and the new ones of each region that joined it; ``blob_params`` for
+    :func:`find_dots`). The mask is unchanged when it shows fewer than two dots (nothing to
+    measure the tape by)."""
     p = params or RefineParams()
     base = fill_holes(mask)
-    if base.sum() < 50:
-        return base
-    dots, _ = find_dots(crop, base)
-    if len(dots) < 2:
-        return base
-    base = keep_dotted(base, dots)
+    # The dots are found on the mask snapped onto the tape's edge, as the final mask will be:
+    # their contrast and centres are measured on the tape's own pixels.
+    snapped = snap_to_edges(crop, base, p)
+    dots, conf = find_dots(crop, snapped, None, blob_params)
+    if base.sum() < 50 or len(dots) < 2:
+        return Extended(base, dots, conf, snapped)
+    dotted = keep_dotted(base, dots)
+    answer = dots, conf
+    if dotted.sum() < base.sum():  # components without dots dropped: the edge levels change, find again
+        base = dotted
+        snapped = snap_to_edges(crop, base, p)
+        answer = find_dots(crop, snapped, None, blob_params)
     grey = to_grey(crop).astype(np.float32)
     threshold = dark_threshold(grey, base, p)
     if threshold is None:
-        return base
+        return Extended(base, *answer, snapped)
     d = estimate_dot_diameter(base) or 4.0
     width = 2.0 * float(np.percentile(cv2.distanceTransform(base.view(np.uint8), cv2.DIST_L2, 5)[base], 98))
     area_per_dot = base.sum() / len(dots)
@@ -162,13 +182,17 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
             continue
         box = (slice(y, y + h), slice(x, x + w))
         region = labels[box] == i
-        if _looks_like_tape(crop[box], region, dark[box], dots - [x, y], d, width, area_per_dot, p):
+        if _looks_like_tape(crop[box], region, dark[box], dots - [x, y], d, width, area_per_dot, p, blob_params):
             out[box] |= region
-    return out
+    if (out == base).all():
+        return Extended(base, *answer, snapped)
+    # The tape grew (rare): its dots on the joined mask, where a dot straddling a join counts.
+    snapped = snap_to_edges(crop, out, p)
+    return Extended(out, *find_dots(crop, snapped, None, blob_params), snapped)
 
 
 def _looks_like_tape(crop: np.ndarray, region: np.ndarray, dark: np.ndarray, known_dots: np.ndarray, d: float,
-                     width: float, area_per_dot: float, p: RefineParams) -> bool:
+                     width: float, area_per_dot: float, p: RefineParams, blob_params: BlobParams | None = None) -> bool:
     """Does ``region`` (bool, crop-sized) look like more of the tape? ``known_dots``: dots already
     found on the tape, in this crop's px; ``d``, ``width``, ``area_per_dot``: the tape's dot
     diameter, width and area per dot, px."""
@@ -177,7 +201,7 @@ def _looks_like_tape(crop: np.ndarray, region: np.ndarray, dark: np.ndarray, kno
         return False
     if 2.0 * cv2.distanceTransform(region.view(np.uint8), cv2.DIST_L2, 5).max() > p.max_width_ratio * width:
         return False
-    new, _ = find_dots(crop, region)
+    new, _ = find_dots(crop, region, None, blob_params)
     if len(new) and len(known_dots):  # dots on the known tape's edge are found again: skip them
         new = new[np.linalg.norm(new[:, None] - known_dots[None], axis=2).min(axis=1) > 0.5 * d]
     return (len(new) >= p.min_new_dots and len(new) / area >= p.min_density_ratio / area_per_dot

@@ -4,7 +4,7 @@ Layout::
 
     OUT/capture.toml, rig.toml          (Capture.save; [subject] has up/facing and the phenotype;
                                          rig.toml is the calibrated rig: off by calibration_error_px)
-    OUT/images/<cam>/000000.png         (or OUT/videos/<cam>.mkv, lossless FFV1, with video=True)
+    OUT/images/<cam>/000000.png         (or OUT/videos/<cam>.avi, lossless UT Video, with video=True)
     OUT/masks/<cam>/000000.png          tape silhouettes (255 = tape), always images
     OUT/groundtruth.npz                 see Scene.groundtruth
     OUT/synth.toml                      the SynthConfig that made it
@@ -22,11 +22,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..capture import Capture
-from ..fileio import atomic_path, atomic_write, write_toml
+from ..capture import VIDEO_PATTERN, Capture, VideoWriter
+from ..fileio import atomic_write, write_toml
 from .scene import DEVELOP_WORKERS, RenderedFrame, Scene, SynthConfig, build_scene
-
-VIDEO_FOURCC = "FFV1"  # lossless, so detection sees exactly the rendered pixels
 
 
 def write_png(path: Path, image: np.ndarray) -> None:
@@ -103,7 +101,7 @@ def write_capture(config: SynthConfig, out_dir: str | os.PathLike, progress: boo
     scene = build_scene(config)
     media = "video" if config.video else "images"
     capture = Capture(root=root, name=config.name, fps=scene.fps, n_frames=scene.n_frames, rig=scene.calibrated_rig,
-                      tape=scene.tape, subject=scene.subject(), media=media)
+                      tape=scene.tape, subject=scene.subject(), media=media, video_pattern=VIDEO_PATTERN)
     root.mkdir(parents=True, exist_ok=True)
     writers = {}
     try:
@@ -111,15 +109,13 @@ def write_capture(config: SynthConfig, out_dir: str | os.PathLike, progress: boo
             writers = _open_videos(root, capture, scene)
         frames = tqdm(range(scene.n_frames), desc=f"rendering {len(scene.rig)} cameras", unit="frame",
                       disable=not progress)
-        render_frames(scene, root, capture, frames, videos={cam: w for cam, (w, _) in writers.items()} or None)
-        for writer, context in writers.values():
-            writer.release()
-            context.__exit__(None, None, None)  # rename the finished video into place
+        render_frames(scene, root, capture, frames, videos=writers or None)
+        for writer in writers.values():
+            writer.close()  # renames the finished video into place
         writers = {}
     finally:
-        for writer, context in writers.values():  # failure: drop partial videos
-            writer.release()
-            context.__exit__(RuntimeError, RuntimeError("aborted"), None)
+        for writer in writers.values():  # failure: drop partial videos
+            writer.abort()
         scene.close()
     write_groundtruth(scene, root / "groundtruth.npz")
     write_toml(root / "synth.toml", {"synth": config.to_dict()})
@@ -127,15 +123,6 @@ def write_capture(config: SynthConfig, out_dir: str | os.PathLike, progress: boo
     return root
 
 
-def _open_videos(root: Path, capture: Capture, scene: Scene) -> dict:
-    writers = {}
-    for cam in scene.rig:
-        context = atomic_path(root / capture.video_pattern.format(camera=cam.name))
-        tmp = context.__enter__()
-        fourcc = cv2.VideoWriter_fourcc(*VIDEO_FOURCC)  # type: ignore[attr-defined]
-        writer = cv2.VideoWriter(str(tmp), fourcc, scene.fps, cam.size)
-        if not writer.isOpened():
-            context.__exit__(RuntimeError, RuntimeError("codec"), None)
-            raise RuntimeError(f"OpenCV cannot write {VIDEO_FOURCC} video to {tmp}")
-        writers[cam.name] = (writer, context)
-    return writers
+def _open_videos(root: Path, capture: Capture, scene: Scene) -> dict[str, VideoWriter]:
+    return {cam.name: VideoWriter(root / capture.video_pattern.format(camera=cam.name), scene.fps, cam.size)
+            for cam in scene.rig}

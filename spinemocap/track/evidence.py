@@ -113,13 +113,17 @@ def build_evidence(
         grey = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY)
     else:
         grey = np.asarray(image)
-    grey = grey.astype(np.float32)
     h, w = grey.shape
     tape = np.ones((h, w), dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
     if tape.shape != (h, w):
         raise ValueError(f"mask shape {tape.shape} differs from image shape {(h, w)}")
     origin = (0.0, 0.0)
-    if crop_margin_px is not None and mask is not None and tape.any():
+    if crop_margin_px is not None and mask is not None and not tape.any():
+        # no tape in view: the cost is the same everywhere (the outside cost), so one pixel holds
+        # it (building it over the whole frame cost more than all the cameras that see the tape)
+        grey, tape = grey[:1, :1], tape[:1, :1]
+        h, w = 1, 1
+    elif crop_margin_px is not None and mask is not None:
         rows, cols = np.flatnonzero(tape.any(axis=1)), np.flatnonzero(tape.any(axis=0))
         m = int(np.ceil(crop_margin_px))
         y0, y1 = max(rows[0] - m, 0), min(rows[-1] + m + 1, h)
@@ -127,6 +131,7 @@ def build_evidence(
         grey, tape = grey[y0:y1, x0:x1], tape[y0:y1, x0:x1]
         h, w = grey.shape
         origin = (float(x0), float(y0))
+    grey = grey.astype(np.float32)  # after the crop: converting the whole frame cost more than the rest
     if blur_sigma_px is None:
         blur_sigma_px = 0.6 * estimate_dot_radius_px(tape, dot_to_width) if mask is not None else 1.5
     if downscale != 1.0:
