@@ -6,7 +6,9 @@ an interrupted or failing export never leaves a half-written file and never dest
 previous version. The temporary file is flushed and fsynced before the rename, gets the mode a
 plain ``open`` would give (``0o666`` minus the umask, or the replaced file's mode), and is named
 ``.~<target name>.<pid>.<random><suffix>``: one left behind by a killed process is removed the
-next time the same target is written (:func:`clean_stale_temps`).
+next time the same target is written (:func:`clean_stale_temps`). The folder is listed for that
+once per process (:func:`_stale_temps_by_target`), not on every write, so writing a long image
+sequence into one folder does not slow down as the folder fills.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import re
 import secrets
 import stat
 import tempfile
+import threading
 from pathlib import Path
 from typing import IO, Iterator
 
@@ -114,6 +117,47 @@ def clean_stale_temps(folder: str | os.PathLike, target: str | None = None) -> l
     return removed
 
 
+# Stale temporaries per folder, listed once per process: {(folder, device, inode): {target: paths}}.
+# A temporary is stale only when its writer is dead, and a dead writer writes no more, so the
+# first listing in this process sees every temporary left by processes dead by then; one left
+# by a writer killed later is removed by the next process that writes there (or by an explicit
+# :func:`clean_stale_temps`, as the results and batch writers call on their folders).
+_STALE_BY_FOLDER: dict[tuple[str, int, int], dict[str, list[Path]]] = {}
+_STALE_LOCK = threading.Lock()
+
+
+def _stale_temps_by_target(folder: Path) -> dict[str, list[Path]]:
+    """Stale temporaries in ``folder`` grouped by target name, listed on this process's first
+    write into the folder (keyed by path and inode)."""
+    info = folder.stat()
+    key = (str(folder.absolute()), info.st_dev, info.st_ino)
+    with _STALE_LOCK:
+        found = _STALE_BY_FOLDER.get(key)
+        if found is None:
+            found = {}
+            for entry in folder.iterdir():
+                match = _TEMP_NAME.match(entry.name)
+                if match and not _pid_alive(int(match["pid"])):
+                    found.setdefault(match["target"], []).append(entry)
+            _STALE_BY_FOLDER[key] = found
+        return found
+
+
+def _clean_stale_temps_of(path: Path) -> None:
+    """Remove what killed processes left while writing ``path`` (folder listed once per process)."""
+    import shutil
+
+    stale = _stale_temps_by_target(path.parent)
+    with _STALE_LOCK:
+        entries = stale.pop(path.name, [])
+    for entry in entries:
+        with contextlib.suppress(OSError):
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+
+
 def temp_name(path: Path, suffix: str | None = None) -> Path:
     """A fresh temporary name beside ``path`` (see the module docstring)."""
     suffix = path.suffix if suffix is None else suffix
@@ -154,7 +198,7 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", **open_kwargs) -> Ite
     left untouched."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    clean_stale_temps(path.parent, path.name)
+    _clean_stale_temps_of(path)
     tmp = temp_name(path, ".tmp")
     try:
         with open(tmp, "x" + mode.replace("w", ""), **open_kwargs) as handle:
@@ -173,7 +217,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     fsync it and rename it over ``path`` on success, delete it on failure."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    clean_stale_temps(path.parent, path.name)
+    _clean_stale_temps_of(path)
     tmp = temp_name(path)
     try:
         yield tmp

@@ -2,7 +2,10 @@
 
 Two measurements:
 1. render time per camera-frame of the ``studio`` preset (2448x1600, image + tape mask pass),
-   and the ground-truth (visibility ray casting) time per frame;
+   the ground-truth time per frame and the CPU time of three stages that are not rendering:
+   the visibility tests (:func:`spinemocap.synth.visibility.dot_visibility`), the scene's meshes
+   of every camera clock (body, tape, balls, band) and one atomic PNG-sized write into a folder
+   already holding thousands of files;
 2. the share of dot-frames seen by 4/3/2/1/0 cameras on the ``artificial`` preset for the
    occlusion levels none/light/heavy, next to the paper's Table 2 (0, 5000, 10000 balls).
    Visibility is purely geometric, so this needs no rendering.
@@ -10,11 +13,13 @@ Two measurements:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
 import time
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -93,10 +98,16 @@ def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds
                 masks_equal &= not diff.any()
             else:
                 diffs.append((int(diff.max()), float(diff.mean())))
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
+    with _visibility_cpu_time() as visibility_cpu:
+        for frame in timed:
+            scene.frame_groundtruth(frame)
+    gt_per_frame, gt_cpu_per_frame = (time.perf_counter() - t0) / frames, (time.process_time() - c0) / frames
+    c0 = time.process_time()
     for frame in timed:
-        scene.frame_groundtruth(frame)
-    gt_per_frame = (time.perf_counter() - t0) / frames
+        for offset in np.unique(scene.sync_offsets_s):
+            scene.meshes(frame, offset_s=float(offset))
+    meshes_cpu_per_frame = (time.process_time() - c0) / frames
     scene.close()
     reference_s, fast_s = min(seconds["reference"]), min(seconds["fast"])
     return {"preset": preset, "realism": realism, "occlusion": occlusion, "balls": scene.config.n_balls, "cameras": len(scene.rig), "size": list(scene.rig[0].size),
@@ -106,7 +117,53 @@ def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds
             "reference_cpu_s_per_frame": min(cpu_seconds["reference"]), "fast_cpu_s_per_frame": min(cpu_seconds["fast"]),
             "image_max_abs_diff": max(d for d, _ in diffs), "image_mean_abs_diff": float(np.mean([m for _, m in diffs])),
             "masks_identical": bool(masks_equal), "groundtruth_s_per_frame": gt_per_frame,
+            "groundtruth_cpu_s_per_frame": gt_cpu_per_frame, "visibility_cpu_s_per_frame": visibility_cpu[0] / frames,
+            "meshes_cpu_s_per_frame": meshes_cpu_per_frame, "clocks": int(len(np.unique(scene.sync_offsets_s))),
             "load_average": loads}
+
+
+@contextlib.contextmanager
+def _visibility_cpu_time() -> Iterator[list[float]]:
+    """CPU seconds spent on the studio's visibility while the block runs (``[seconds]``, filled
+    in as it goes): building the ray caster of each posed mesh and ``dot_visibility`` (the scene
+    module's two names are wrapped for the block)."""
+    from ..synth import scene as scene_module
+
+    spent = [0.0]
+    originals = {name: getattr(scene_module, name) for name in ("MeshRayCaster", "dot_visibility")}
+
+    def timing(inner):
+        def timed(*args, **kwargs):
+            c0 = time.process_time()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                spent[0] += time.process_time() - c0
+        return timed
+
+    for name, inner in originals.items():
+        setattr(scene_module, name, timing(inner))
+    try:
+        yield spent
+    finally:
+        for name, inner in originals.items():
+            setattr(scene_module, name, inner)
+
+
+def time_atomic_writes(folder: Path, files: int = 3000, size: int = 200_000) -> dict:
+    """CPU milliseconds per :func:`spinemocap.fileio.atomic_write` of ``size`` bytes (a PNG's
+    order) into one folder: the first 100 writes and the last 100 of ``files`` (does writing slow
+    down as the folder fills?)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    payload = os.urandom(size)
+    cpu_ms = []
+    for i in range(files):
+        c0 = time.process_time()
+        with atomic_write(folder / f"{i:06d}.png", "wb") as handle:
+            handle.write(payload)
+        cpu_ms.append((time.process_time() - c0) * 1000)
+    return {"files": files, "bytes": size, "first_100_cpu_ms": float(np.mean(cpu_ms[:100])),
+            "last_100_cpu_ms": float(np.mean(cpu_ms[-100:]))}
 
 
 def _load_average() -> float | None:
@@ -159,7 +216,16 @@ def run_render_benchmark(frames: int, visibility_frames: int, out: Path, presets
               f"{timing['speedup']:.2f}x; images differ by max {timing['image_max_abs_diff']} / mean "
               f"{timing['image_mean_abs_diff']:.1e} grey levels, masks "
               f"{'identical' if timing['masks_identical'] else 'DIFFER'}; ground truth "
-              f"{timing['groundtruth_s_per_frame'] * 1000:.0f} ms/frame; load {timing['load_average']}")
+              f"{timing['groundtruth_s_per_frame'] * 1000:.0f} ms/frame "
+              f"({timing['groundtruth_cpu_s_per_frame'] * 1000:.0f} CPU ms, visibility "
+              f"{timing['visibility_cpu_s_per_frame'] * 1000:.0f}); meshes of {timing['clocks']} clocks "
+              f"{timing['meshes_cpu_s_per_frame'] * 1000:.0f} CPU ms/frame; load {timing['load_average']}")
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="bench-writes-", dir=out) as tmp:
+        writes = time_atomic_writes(Path(tmp))
+    print(f"atomic writes into one folder of {writes['files']} files: {writes['first_100_cpu_ms']:.2f} CPU ms per "
+          f"write (first 100), {writes['last_100_cpu_ms']:.2f} (last 100)")
     rows = []
     if visibility_frames > 0:
         print(f"visibility table on the artificial preset ({visibility_frames} frames) ...")
@@ -167,7 +233,7 @@ def run_render_benchmark(frames: int, visibility_frames: int, out: Path, presets
         rows = _print_visibility_table(table)
         plot_table(table, out / "visibility_table.png")
     result = {"machine": f"{platform.machine()} {platform.processor()}".strip(), "cpus": os.cpu_count(),
-              "timing": timings, "visibility_frames": visibility_frames, "visibility": rows}
+              "timing": timings, "atomic_writes": writes, "visibility_frames": visibility_frames, "visibility": rows}
     with atomic_write(out / "render_benchmark.json", "w") as handle:
         json.dump(result, handle, indent=2)
     print(f"wrote {out / 'render_benchmark.json'}" + (f" and {out / 'visibility_table.png'}" if rows else ""))

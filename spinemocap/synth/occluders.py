@@ -16,6 +16,7 @@ on the ``artificial`` preset matches the paper's Table 2.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,20 +94,46 @@ def segments_blocked_by_spheres(origins: np.ndarray, ends: np.ndarray, centres: 
 
 
 def sphere_mesh(centres: np.ndarray, radii: np.ndarray, resolution: int = 16):
-    """One pyvista PolyData holding all spheres (empty PolyData when there are none)."""
+    """One pyvista PolyData holding all spheres (empty PolyData when there are none): the unit
+    sphere template scaled by each radius (mm) and moved to each centre (mm); normals are the
+    template's. The template and the triangle connectivity are cached (only the points change
+    from one instant to the next)."""
     import pyvista as pv
 
     if len(centres) == 0:
         return pv.PolyData()
-    unit = pv.Sphere(radius=1.0, theta_resolution=resolution, phi_resolution=resolution)
-    base_pts = np.asarray(unit.points)
-    base_faces = unit.faces.reshape(-1, 4)[:, 1:]
+    base_pts, _ = _unit_sphere(resolution)
     n = len(centres)
     pts = (base_pts[None] * radii[:, None, None] + centres[:, None, :]).reshape(-1, 3)
-    faces = (base_faces[None] + (np.arange(n) * len(base_pts))[:, None, None]).reshape(-1, 3)
-    mesh = pv.PolyData(pts, np.column_stack([np.full(len(faces), 3), faces]).ravel())
+    mesh = pv.PolyData.from_regular_faces(pts, _sphere_faces(resolution, n))
     mesh.point_data.active_normals = np.tile(base_pts, (n, 1))  # unit sphere: normal = position
     return mesh
+
+
+@functools.lru_cache(maxsize=4)
+def _unit_sphere(resolution: int) -> tuple[np.ndarray, np.ndarray]:
+    """Points (P, 3) and triangles (T, 3) of pyvista's unit sphere (read-only arrays)."""
+    import pyvista as pv
+
+    unit = pv.Sphere(radius=1.0, theta_resolution=resolution, phi_resolution=resolution)
+    points, faces = np.array(unit.points, float), unit.faces.reshape(-1, 4)[:, 1:].copy()
+    points.flags.writeable = faces.flags.writeable = False
+    return points, faces
+
+
+_FACES_CACHE: dict[int, np.ndarray] = {}
+
+
+def _sphere_faces(resolution: int, n: int) -> np.ndarray:
+    """(n * T, 3) triangles of ``n`` template spheres stored one after the other: a prefix of
+    the connectivity of the most spheres asked for so far (grown, never rebuilt per instant)."""
+    cached = _FACES_CACHE.get(resolution)
+    if cached is None or len(cached) < n * len(_unit_sphere(resolution)[1]):
+        base_pts, base_faces = _unit_sphere(resolution)
+        grow = max(n, 2 * (0 if cached is None else len(cached) // len(base_faces)))
+        cached = (base_faces[None] + (np.arange(grow) * len(base_pts))[:, None, None]).reshape(-1, 3)
+        _FACES_CACHE[resolution] = cached
+    return cached[: n * len(_unit_sphere(resolution)[1])]
 
 
 class SportsBraBand:
