@@ -20,7 +20,7 @@ from spinemocap.track.config import TrackerConfig
 from spinemocap.track.continuity import relabel_rows, row_shift
 from spinemocap.track.evaluate import label_swaps
 from spinemocap.track.pipeline import FrameTracker
-from spinemocap.track.quality import is_flagged, label_confidence
+from spinemocap.track.quality import flagged_from_confidence, is_flagged, label_confidence
 from spinemocap.track.rig_check import CalibrationWarning
 from spinemocap.track.rig_refine import RigRefineConfig, refine_rig
 from spinemocap.track.sequence import SequenceTracker
@@ -136,6 +136,61 @@ def test_an_ambiguous_resolve_keeps_the_previous_labels_and_flags_the_frame():
     assert np.linalg.norm(second.positions[seen] - dots[seen], axis=1).max() < 1.5
     assert is_flagged(second.flags) and not is_flagged(first.flags)
     assert label_confidence(second.status, second.flags).max() <= 0.5  # markers.csv's confidence
+
+
+def ghost_frame(rig: Rig, dots: np.ndarray, dot: int, offset_mm=(0.0, 12.0, 0.0), seen_by: int = 2) -> list:
+    """Blobs of the dots plus a ghost point ``offset_mm`` from dot ``dot`` seen by ``seen_by``
+    cameras only (a wrong blob pairing of a poor rig, 12 mm off the tape)."""
+    ghost = dots[dot] + np.asarray(offset_mm)
+    hidden = np.zeros((len(rig), len(dots) + 1), bool)
+    hidden[seen_by:, -1] = True
+    return blobs(rig, np.vstack([dots, ghost]), noise_px=0.2, hidden=hidden, seed=5)
+
+
+def test_a_dot_matched_to_a_ghost_is_moved_back_onto_the_tape_lattice():
+    """The 2 px benchmark's one swapped dot: the sequence's prediction strayed ~10 mm, a ghost
+    point lay within the observe radius, the true point did not; the dot took the ghost with
+    confidence 1.0. Its tape neighbours say where it must be."""
+    rig = rig_behind()
+    dots = tape_on_back(SPEC)
+    d = SPEC.graph.index("R08C")
+    views = ghost_frame(rig, dots, d)
+    model = dots.copy()
+    model[d] = dots[d] + [0.0, 13.0, 0.0]  # the stray prediction, 1 mm beyond the ghost
+    tracker = FrameTracker(rig, SPEC)
+    result = tracker.assign_status(model, tracker.candidates(views))
+    assert np.linalg.norm(result.positions[d] - dots[d]) < 1.0  # the true point, not the ghost
+    assert result.status[d] == "observed" and result.relocated[d] and result.relocated.sum() == 1
+    assert "dot_relocated" in result.flags and not is_flagged(result.flags)
+    confidence = label_confidence(result.status, result.flags, result.dot_flags())
+    assert confidence[d] == pytest.approx(0.8) and np.delete(confidence, d).min() == 1.0
+    # without the lattice check the ghost is taken: 12 mm off, nearer nothing, confidence 1.0
+    config = TrackerConfig()
+    unchecked = FrameTracker(rig, SPEC, dataclasses.replace(config, status=dataclasses.replace(config.status, lattice_check=False)))
+    wrong = unchecked.assign_status(model, unchecked.candidates(views))
+    assert np.linalg.norm(wrong.positions[d] - dots[d]) > 10.0 and not wrong.flags
+
+
+def test_an_end_dot_placed_by_extrapolation_flags_the_frame():
+    """The last row's dot strayed 15 mm off the tape, its blobs hidden and its row partner lost:
+    it is put back where the rows below extrapolate, and the frame is flagged (its label and
+    place are not vouched for)."""
+    rig = rig_behind()
+    dots = tape_on_back(SPEC)
+    end = np.flatnonzero(SPEC.graph.row == SPEC.n_rows - 1)
+    hidden = np.zeros((len(rig), len(dots)), bool)
+    hidden[:, end] = True
+    tracker = FrameTracker(rig, SPEC)
+    model = dots.copy()
+    model[end[0]] += [0.0, 15.0, 0.0]
+    model[end[1]] = np.nan
+    result = tracker.assign_status(model, tracker.candidates(blobs(rig, dots, noise_px=0.2, hidden=hidden)))
+    assert result.extrapolated[end[0]] and result.extrapolated.sum() == 1
+    assert result.status[end[0]] == "inferred"
+    assert np.linalg.norm(result.positions[end[0]] - dots[end[0]]) < 3.0
+    assert is_flagged(result.flags)
+    confidence = label_confidence(result.status, result.flags, result.dot_flags())
+    assert flagged_from_confidence(np.array(result.status)[None], confidence[None])[0]  # markers.csv tells it
 
 
 def test_relabel_rows_maps_a_two_row_shift_back_exactly():
