@@ -130,15 +130,27 @@ def describe(row: dict) -> str:
 
 def run_realism_benchmark(cases: list[Case], frames: int = 200, fps: float | None = None, preset: str = "artificial",
                           occlusion: str = "light", detector: str = "net", seed: int = 0, progress: bool = True,
-                          say: Callable[[str], None] = print) -> dict:
-    """Every case of ``cases`` (see :func:`sweep`); returns the JSON-ready numbers."""
+                          say: Callable[[str], None] = print,
+                          after_case: Callable[[dict], None] | None = None) -> dict:
+    """Every case of ``cases`` (see :func:`sweep`); returns the JSON-ready numbers.
+    ``after_case(numbers so far)`` is called after each case (the command saves them, so that a
+    sweep of hours stopped midway keeps the cases it finished)."""
     import platform
 
     start = time.perf_counter()
-    rows = [run_case(c, frames, fps, preset, occlusion, detector, seed, progress, say) for c in cases]
-    return {"preset": preset, "occlusion": occlusion, "frames": frames, "fps": fps, "detector": detector,
-            "seed": seed, "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
-            "wall_s": time.perf_counter() - start, "cases": rows, "goals": GOALS, "verdict": verdict(rows)}
+    rows: list[dict] = []
+
+    def numbers() -> dict:
+        return {"preset": preset, "occlusion": occlusion, "frames": frames, "fps": fps, "detector": detector,
+                "seed": seed, "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+                "wall_s": time.perf_counter() - start, "cases": rows, "goals": GOALS, "verdict": verdict(rows),
+                "complete": len(rows) == len(cases)}
+
+    for case in cases:
+        rows.append(run_case(case, frames, fps, preset, occlusion, detector, seed, progress, say))
+        if after_case is not None:
+            after_case(numbers())
+    return numbers()
 
 
 def verdict(rows: list[dict]) -> dict:
