@@ -22,7 +22,13 @@ from spinemocap.track.evaluate import label_swaps
 from spinemocap.track.pipeline import FrameTracker
 from spinemocap.track.quality import flagged_from_confidence, is_flagged, label_confidence
 from spinemocap.track.rig_check import CalibrationWarning
-from spinemocap.track.rig_refine import RigRefineConfig, refine_rig
+from spinemocap.track.rig_refine import (
+    RigRefineConfig,
+    apply_similarity,
+    frame_uncertainty_mm,
+    given_rig_disagreement_mm,
+    refine_rig,
+)
 from spinemocap.track.sequence import SequenceTracker
 from spinemocap.track.stretch import estimate_stretch, row_stretch
 
@@ -205,7 +211,7 @@ def test_relabel_rows_maps_a_two_row_shift_back_exactly():
 
 def test_refine_rig_lowers_the_residual_of_a_perturbed_rig():
     true_rig = rig_behind()
-    given = perturbed(true_rig, 0.09, seed=4)
+    given = perturbed(true_rig, 0.09, seed=1)
     poses = [p + [3.0 * f, 0.0, 0.0] for f, p in enumerate(drifting(tape_on_back(SPEC), 4, 5.0))]
     views = [(f, blobs(true_rig, p, noise_px=0.1, seed=f), 0.0) for f, p in enumerate(poses)]
     with warnings.catch_warnings():
@@ -215,6 +221,20 @@ def test_refine_rig_lowers_the_residual_of_a_perturbed_rig():
     assert refinement.before_px["all"] > 1.0  # triangulation spreads the 2 px over the views
     assert refinement.after_px["all"] < 0.3 * refinement.before_px["all"]
     assert set(refinement.after_px) == {"cam1", "cam2", "cam3", "cam4", "all"}
+
+
+def test_the_refined_rig_reports_how_far_the_given_cameras_disagree():
+    """A world similarity (invisible to the dots) is undone exactly by the closest gauge; a
+    camera moved on its own shows up as disagreement and as frame uncertainty."""
+    rig = rig_behind()
+    turn = cv2.Rodrigues(np.array([0.01, -0.02, 0.015]))[0]
+    moved = apply_similarity(rig, turn, np.array([30.0, -12.0, 5.0]), 1.002)
+    assert given_rig_disagreement_mm(moved, rig, 20.0, 0.5).max() < 1e-6
+    shifted = Rig([dataclasses.replace(c, t=c.t - c.R @ np.array([0.0, 0.0, 6.0])) if k == 2 else c
+                   for k, c in enumerate(rig)])  # camera 3's centre 6 mm off, its orientation kept
+    disagreement = given_rig_disagreement_mm(moved, shifted, 20.0, 0.5)
+    assert disagreement[2] == disagreement.max() and 2.0 < disagreement[2] < 6.0
+    assert 0.5 < frame_uncertainty_mm(disagreement) < 6.0
 
 
 def test_the_report_lists_flagged_frames_from_markers_csv(tmp_path):

@@ -20,8 +20,8 @@ those points, with the intrinsics' principal point and distortion held fixed.
   moved by the similarity closest to the given one, :func:`closest_gauge`; each camera's centre
   left over) and :func:`frame_uncertainty_mm` turns it into the uncertainty of the world frame
   that every absolute position keeps (reported, ``frame_uncertainty_mm``). Choosing that
-  closest similarity as the gauge was tried: on the benchmark's 2 px case it gave 1.66 mm
-  against 1.23 mm with the priors alone, within the ~1.5 mm frame uncertainty either way.
+  closest similarity as the gauge was tried: on the benchmark's 2 px case it gave 1.66-1.75 mm
+  against 1.19-1.23 mm with the priors alone, within the ~1.5 mm frame uncertainty either way.
 - Clock offsets (``sync=True``): camera ``c`` sees a dot at ``X + dt_c V`` where ``V`` is the
   dot's velocity along its tracked trajectory (mm/s, central differences) and ``dt_c`` the
   camera's offset (s) against the reference camera.
