@@ -4,7 +4,8 @@ Every observed dot-frame is a 3D point seen by >= 2 cameras at known blobs: a bu
 over the camera poses (and optionally a focal-length scale and a clock offset per camera) and
 those points, with the intrinsics' principal point and distortion held fixed.
 
-- Solver: scipy's ``least_squares`` (trust-region reflective, Huber loss of ``loss_scale_px``,
+- Solver: scipy's ``least_squares`` (trust-region reflective, Huber loss of ``loss_scale_px``
+  after a first solve at the given rig's robust residual level,
   sparse Jacobian: an observation depends on its camera's 6-8 parameters and its point's 3).
   pycolmap's Ceres adjuster needs a reconstruction object per frame set and offers no per-camera
   clock offset; scipy solves this size (a few thousand points) in seconds.
@@ -216,25 +217,28 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
     def reprojection(x: np.ndarray) -> np.ndarray:
         return np.linalg.norm(residuals(x)[: 2 * M].reshape(M, 2), axis=1)
 
-    def solve(x: np.ndarray, weight: np.ndarray):
+    def solve(x: np.ndarray, weight: np.ndarray, scale_px: float):
         def weighted(xx: np.ndarray) -> np.ndarray:
             r = residuals(xx)
             r[: 2 * M] *= np.repeat(weight, 2)
             return r
 
-        return least_squares(weighted, x, jac_sparsity=sparsity, loss="huber", f_scale=config.loss_scale_px,
+        return least_squares(weighted, x, jac_sparsity=sparsity, loss="huber", f_scale=scale_px,
                              x_scale="jac", method="trf", max_nfev=config.max_nfev)
 
     before = reprojection(x0)
     inlier = np.ones(M)
-    fit = solve(x0, inlier)
+    # the Huber scale starts at the given rig's own residual level: with every residual far in
+    # the loss's linear part (a 3 px rig against a 1 px scale) the solver stalled on its first
+    # steps and returned the given rig unchanged
+    fit = solve(x0, inlier, max(config.loss_scale_px, robust_rms(before)))
     # a blob paired with the wrong dot now and then (a few px off whatever the rig): drop the
     # observations far beyond the fitted residuals' spread and solve again
     after = reprojection(fit.x)
     limit = max(outlier_factor * robust_rms(after), 1.0)
     inlier = (after < limit).astype(float)
     if inlier.sum() < M:
-        fit = solve(fit.x, inlier)
+        fit = solve(fit.x, inlier, config.loss_scale_px)
         after = reprojection(fit.x)
     keep = inlier > 0
     before, after, obs_cam = before[keep], after[keep], prob.cam[keep]
