@@ -135,6 +135,10 @@ class TrackResult:
             before, after = self.refinement.before_px["all"], self.refinement.after_px["all"]
             lines.append(f"rig refined on {self.refinement.n_points} tracked dot-frames: reprojection RMS "
                          f"{before:.2f} -> {after:.2f} px (rig_refined.toml, rig_refine.json)")
+            uncertainty = self.refinement.extra.get("frame_uncertainty_mm", float("nan"))
+            if np.isfinite(uncertainty):
+                lines.append(f"the given rig's cameras disagree with the refined geometry: absolute positions keep "
+                             f"about {uncertainty:.1f} mm of its frame error (distances and angles do not)")
         flagged = q["flagged_frames"]
         if flagged:
             shown = ", ".join(str(f) for f in flagged[:12]) + (" ..." if len(flagged) > 12 else "")
@@ -203,7 +207,7 @@ def run_tracking(
     first = frame_ids[0] if frame_ids else 0
     if frame_ids and frame_ids != list(range(first, first + len(frame_ids))):
         raise ValueError("frames must be consecutive")
-    confidence = np.stack([label_confidence(s, r.flags) for s, r in zip(status, results)]) if results else None
+    confidence = np.stack([label_confidence(s, r.flags, r.dot_flags()) for s, r in zip(status, results)]) if results else None
     stretch = np.stack([row_stretch(p, tracker.graph)[0] for p in positions]) if results else None
     table = MarkerTable.from_arrays(tape.labels, positions, fps, status=status, n_views=n_views,
                                     residual=residual, first_frame=first, confidence=confidence, stretch=stretch,

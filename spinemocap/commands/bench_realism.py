@@ -41,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--cases", f"unknown cases {unknown}; choose from {list(known)}")
         cases = [known[n] for n in args.cases]
     numbers = run_realism_benchmark(cases, frames=args.frames, fps=args.fps, occlusion=args.occlusion,
-                                    detector=args.detector, seed=args.seed, progress=not args.no_progress)
+                                    detector=args.detector, seed=args.seed, progress=not args.no_progress,
+                                    after_case=lambda partial: save(partial, args.json, None))
     save(numbers, args.json, args.plot)
     print(format_table(numbers))
     for goal, state in numbers["verdict"].items():

@@ -23,7 +23,7 @@ Example ``tracker.toml`` (every key optional; unknown keys are an error)::
     adaptive_gate = true
 
 ``TrackerConfig.before_issue_11()`` is the tracker as it was before stretch adaptation, the
-rig-derived gate and label continuity (nominal spacing, fixed th1): the peer in ``bench realism``.
+rig-derived gate, label continuity and the lattice check (nominal spacing, fixed th1): the peer in ``bench realism``.
 """
 
 from __future__ import annotations
@@ -53,11 +53,20 @@ class EvidenceConfig:
 class StatusConfig:
     """Per-dot status: a model dot is ``observed`` when a candidate point of >= ``min_views``
     cameras lies within ``observe_radius_mm``; its output position is that triangulated point when
-    ``use_triangulated`` (the blobs are the most direct measurement), else the model's."""
+    ``use_triangulated`` (the blobs are the most direct measurement), else the model's.
+    ``lattice_check`` (beyond the paper): a dot farther than ``lattice_limit`` x the tape's
+    smallest dot spacing from where its tape neighbours put it (:mod:`spinemocap.track.lattice`,
+    Gaussian weights of ``lattice_sigma_mm`` on the tape) was matched to a ghost or a
+    neighbour's point, or placed wrong by the model: it is moved to the unclaimed candidate point
+    at that prediction (or, without one, inferred there) and marked relocated (its label
+    confidence lowered, see :mod:`spinemocap.track.quality`)."""
 
     observe_radius_mm: float = 7.0
     min_views: int = 2
     use_triangulated: bool = True
+    lattice_check: bool = True
+    lattice_limit: float = 0.3
+    lattice_sigma_mm: float = 20.0
 
 
 @dataclass
@@ -119,11 +128,12 @@ class TrackerConfig:
     @classmethod
     def before_issue_11(cls) -> "TrackerConfig":
         """The tracker before issue 11: the roll's nominal dot spacing, the fixed th1 gate, no
-        label-continuity check (kept as the benchmark's peer)."""
+        label-continuity or lattice check (kept as the benchmark's peer)."""
         config = cls()
         return dataclasses.replace(
             config, stretch=dataclasses.replace(config.stretch, adaptive=False),
             rig=dataclasses.replace(config.rig, adaptive_gate=False),
+            status=dataclasses.replace(config.status, lattice_check=False),
             sequence=dataclasses.replace(config.sequence, keep_identity=False))
 
     @classmethod

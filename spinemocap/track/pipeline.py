@@ -28,6 +28,7 @@ from .candidates import build_candidates
 from .config import TrackerConfig
 from .edges import build_edges
 from .evidence import build_evidence
+from .lattice import beyond_known_rows, off_lattice
 from .lp import select_edges
 from .mrf1 import fit_mrf1
 from .mrf2 import TemplateEvidenceScore, refine_mrf2
@@ -47,7 +48,8 @@ class FrameResult:
     (NaN for inferred/missing); ``stage_ms`` per stage; ``route``: ``full`` (LP + MRFs),
     ``carried`` (sequence mode: the previous solution explained the frame), ``failed``;
     ``flags``: quality flags (:mod:`spinemocap.track.quality`); ``stretch``: the dot spacing the
-    frame was solved with (ratio to the roll's spec); ``gate_px``: the candidate gate used."""
+    frame was solved with (ratio to the roll's spec); ``gate_px``: the candidate gate used; ``relocated``: dots the lattice check moved (see
+    :meth:`FrameTracker.relocate_off_lattice`)."""
 
     positions: np.ndarray
     status: np.ndarray
@@ -61,10 +63,21 @@ class FrameResult:
     stretch: StretchEstimate | None = None
     gate_px: float = float("nan")
     pixels: np.ndarray | None = None  # (D, C, 2) distorted px of the blobs of observed dots
+    relocated: np.ndarray | None = None  # (D,) bool: moved back onto the tape's lattice (quality)
+    extrapolated: np.ndarray | None = None  # (D,) bool: relocated, no candidate, beyond the known rows
 
     @property
     def solved(self) -> bool:
         return self.route != "failed"
+
+    def dot_flags(self) -> dict[str, np.ndarray]:
+        """Per-dot quality flags (name -> (D,) bool), see :mod:`spinemocap.track.quality`."""
+        out = {}
+        if self.relocated is not None and self.relocated.any():
+            out["dot_relocated"] = self.relocated
+        if self.extrapolated is not None and self.extrapolated.any():
+            out["dot_extrapolated"] = self.extrapolated
+        return out
 
     @classmethod
     def missing(cls, n_dots: int, stage_ms: dict, note: str) -> "FrameResult":
@@ -157,31 +170,88 @@ class FrameTracker:
         return result.positions
 
     def assign_status(self, model: np.ndarray, cloud: CandidateCloud) -> FrameResult:
-        """Observed where a >= min_views candidate lies within the radius, else inferred."""
+        """Observed where a >= min_views candidate lies within the radius, else inferred; then
+        the lattice check (``status.lattice_check``): dots off their neighbours' lattice are
+        moved to it (:meth:`relocate_off_lattice`)."""
         cfg = self.config.status
         usable = np.nonzero(cloud.n_views >= cfg.min_views)[0] if len(cloud) else np.zeros(0, np.int64)
         match = match_points(model, cloud.points[usable] if len(usable) else np.zeros((0, 3)),
                              cfg.observe_radius_mm)
-        seen = match >= 0
-        src = usable[match[seen]]
-        positions = model.copy()
-        if cfg.use_triangulated:
-            positions[seen] = cloud.points[src]
+        source = np.full(self.n_dots, -1, np.int64)
+        source[match >= 0] = usable[match[match >= 0]]
+        positions = self._placed(model, cloud, source)
+        relocated = np.zeros(self.n_dots, bool)
+        if cfg.lattice_check:
+            source, relocated = self.relocate_off_lattice(positions, model, cloud, source)
+            positions = self._placed(model, cloud, source, np.where(relocated[:, None], positions, model))
+        seen = source >= 0
+        status = np.where(seen, "observed", "inferred").astype(object)
+        status[~np.isfinite(positions).all(axis=1)] = "missing"
+        n_views = np.zeros(self.n_dots, np.int64)
+        n_views[seen] = cloud.n_views[source[seen]]
+        residual = np.full(self.n_dots, np.nan)
+        residual[seen] = cloud.residual[source[seen]]
+        pixels = np.full((self.n_dots, len(self.rig), 2), np.nan)
+        if cloud.pixels is not None:
+            pixels[seen] = cloud.pixels[source[seen]]
+        result = FrameResult(positions, status, n_views, residual, pixels=pixels, relocated=relocated,
+                             extrapolated=relocated & ~seen & beyond_known_rows(relocated, positions, self.graph))
+        if relocated.any():
+            result.flags.append("dot_relocated")
+        if result.extrapolated.any():
+            result.flags.append("dot_extrapolated")
+        return result
+
+    def _placed(self, model: np.ndarray, cloud: CandidateCloud, source: np.ndarray,
+                fallback: np.ndarray | None = None) -> np.ndarray:
+        """(D, 3) mm: dots with a candidate (``source`` >= 0) at its triangulated point (moved in
+        by the tape thickness, ``use_triangulated``), the others at ``fallback`` (default the
+        model)."""
+        positions = (model if fallback is None else fallback).copy()
+        seen = source >= 0
+        if self.config.status.use_triangulated and seen.any():
+            positions[seen] = cloud.points[source[seen]]
             thickness = self.graph.spec.thickness_mm
             if thickness and np.isfinite(model).all():
                 # triangulated points lie on the tape's top surface (the holes' rims), MRF2 reports
                 # the skin underneath: move them in by the same tape thickness
                 positions[seen] -= thickness * tape_frames(model, self.graph)[0][seen]
-        status = np.where(seen, "observed", "inferred").astype(object)
-        status[~np.isfinite(positions).all(axis=1)] = "missing"
-        n_views = np.zeros(self.n_dots, np.int64)
-        n_views[seen] = cloud.n_views[src]
-        residual = np.full(self.n_dots, np.nan)
-        residual[seen] = cloud.residual[src]
-        pixels = np.full((self.n_dots, len(self.rig), 2), np.nan)
-        if cloud.pixels is not None:
-            pixels[seen] = cloud.pixels[src]
-        return FrameResult(positions, status, n_views, residual, pixels=pixels)
+        return positions
+
+    def relocate_off_lattice(self, positions: np.ndarray, model: np.ndarray, cloud: CandidateCloud,
+                             source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Dots (``positions`` (D, 3) mm, candidate index ``source`` (D,), -1 = none) farther
+        than the lattice limit from their tape neighbours' prediction (:func:`.lattice.off_lattice`)
+        take the nearest unclaimed candidate of >= min_views cameras within that limit of the
+        prediction, else no candidate (inferred) and the prediction as position (``positions``
+        is updated in place for those). Returns the new ``source`` and the (D,) relocated mask.
+
+        A ghost point or a neighbour's point a few px from a dot's blobs matches within the
+        observe radius when the model or the sequence's prediction strayed; the tape around it
+        says where the dot must be (see :mod:`spinemocap.track.lattice`)."""
+        cfg = self.config.status
+        limit = cfg.lattice_limit * float(self.graph.rest_length_mm.min())
+        outlier, prediction = off_lattice(self.graph.uv_mm, positions, limit, cfg.lattice_sigma_mm)
+        outlier &= np.isfinite(prediction).all(axis=1)
+        source = source.copy()
+        if not outlier.any():
+            return source, outlier
+        claimed = set(source[(source >= 0) & ~outlier].tolist())
+        free = np.array([i for i in np.flatnonzero(cloud.n_views >= cfg.min_views) if i not in claimed], np.int64) \
+            if len(cloud) else np.zeros(0, np.int64)
+        for d in np.flatnonzero(outlier):
+            source[d] = -1
+            # the model's own place (MRF2 on the images) when it agrees with the lattice
+            consistent = np.isfinite(model[d]).all() and np.linalg.norm(model[d] - prediction[d]) < limit
+            positions[d] = model[d] if consistent else prediction[d]
+            if not len(free):
+                continue
+            dist = np.linalg.norm(cloud.points[free] - prediction[d], axis=1)
+            best = int(np.argmin(dist))
+            if dist[best] < limit:
+                source[d] = free[best]
+                free = np.delete(free, best)
+        return source, outlier
 
     def add_quality(self, result: FrameResult, cloud: CandidateCloud, stretch: StretchEstimate) -> FrameResult:
         """Flags of a solved frame (see :mod:`spinemocap.track.quality`) and its spacing/gate."""

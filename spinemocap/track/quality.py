@@ -4,7 +4,7 @@ A two-row label shift reprojects perfectly (every dot sits on a real dot, just t
 residuals alone never reveal it. Each frame therefore carries flags for the situations where the
 labels may be wrong, and each dot a label confidence in [0, 1]:
 
-``confidence = status factor x product of the frame's flag factors``
+``confidence = status factor x product of the frame's flag factors x the dot's own flag factors``
 
 - status factor: ``observed`` 1.0 (a triangulated point of >= 2 views is at the dot), ``inferred``
   0.6 (placed by the tape model only), ``missing`` 0;
@@ -14,10 +14,17 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
   0.5 (dots seen by >= 3 cameras just beyond an end of the labelled tape were left without a
   label: the template may sit a row or two off); ``stretch_implausible`` 0.5 (the solved tape's row pitch leaves the
   range a kinesiology tape can take); ``stretch_carried`` 0.9 (this frame's spacing could not be
-  measured, an earlier frame's was used); ``lp_relaxed`` 0.9 (the LP had to drop edges).
+  measured, an earlier frame's was used); ``lp_relaxed`` 0.9 (the LP had to drop edges);
+- per-dot flags (factor on the dots concerned only; the frame lists the flag): ``dot_relocated``
+  0.8 (the dot sat off its tape neighbours' lattice, matched to a ghost or a neighbour's point
+  under a poor rig, and was moved back onto it: :mod:`spinemocap.track.lattice`);
+  ``dot_extrapolated`` 0.5 (such a dot found no candidate point and its neighbours lie on one
+  side only: its place is an extrapolation along the tape, possibly a dot spacing off).
 
-A frame is *flagged* when it holds any flag but ``stretch_carried``/``lp_relaxed`` (both mild and
-frequent under occlusion).
+A frame is *flagged* when it holds any flag but the mild ``stretch_carried``, ``lp_relaxed`` and
+``dot_relocated`` (frequent under occlusion or a poor rig, and the relocated dots land within
+~2 mm of their truth). In ``markers.csv`` a flagged frame shows as a dot whose confidence is
+below 0.6 x its status factor (mild factors multiply to >= 0.648, doubting ones give <= 0.5).
 """
 
 from __future__ import annotations
@@ -36,14 +43,23 @@ FLAG_FACTORS = {
     "stretch_carried": 0.9,
     "lp_relaxed": 0.9,
 }
-MILD_FLAGS = frozenset({"stretch_carried", "lp_relaxed"})
+DOT_FLAG_FACTORS = {
+    "dot_relocated": 0.8,
+    "dot_extrapolated": 0.5,
+}
+MILD_FLAGS = frozenset({"stretch_carried", "lp_relaxed", "dot_relocated"})
 STATUS_FACTORS = {"observed": 1.0, "inferred": 0.6, "missing": 0.0}
 
 
-def label_confidence(status: np.ndarray, flags: list[str]) -> np.ndarray:
-    """(D,) confidence in [0, 1] from the dots' status (D,) and the frame's flags (see module)."""
+def label_confidence(status: np.ndarray, flags: list[str], dot_flags: dict[str, np.ndarray] | None = None) -> np.ndarray:
+    """(D,) confidence in [0, 1] from the dots' status (D,), the frame's flags and the per-dot
+    flags ``dot_flags`` (name -> (D,) bool; see module)."""
     frame = float(np.prod([FLAG_FACTORS.get(f, 1.0) for f in set(flags)])) if flags else 1.0
-    return np.array([STATUS_FACTORS.get(str(s), 0.0) for s in status]) * frame
+    out = np.array([STATUS_FACTORS.get(str(s), 0.0) for s in status]) * frame
+    for name, mask in (dot_flags or {}).items():
+        if mask is not None:
+            out[np.asarray(mask, bool)] *= DOT_FLAG_FACTORS[name]
+    return out
 
 
 def is_flagged(flags: list[str]) -> bool:
@@ -87,9 +103,9 @@ def stretch_plausible(along: np.ndarray, bounds: tuple[float, float]) -> bool:
 
 def flagged_from_confidence(status: np.ndarray, confidence: np.ndarray) -> np.ndarray:
     """(F,) bool from a marker table's (F, D) status and confidence columns: frames where some
-    dot's confidence sits below 0.75 x its status factor, i.e. a label-doubting flag was set
-    (the mild flags multiply to >= 0.81). Unknown confidences (NaN, older files) never flag."""
+    dot's confidence sits below 0.6 x its status factor, i.e. a label-doubting flag was set
+    (see module). Unknown confidences (NaN, older files) never flag."""
     factor = np.vectorize(lambda s: STATUS_FACTORS.get(str(s), 0.0))(status) if status.size else np.zeros(status.shape)
     with np.errstate(invalid="ignore"):
-        low = (factor > 0) & np.isfinite(confidence) & (confidence < 0.75 * factor)
+        low = (factor > 0) & np.isfinite(confidence) & (confidence < 0.6 * factor)
     return low.any(axis=1)

@@ -28,6 +28,7 @@ from ..views import ViewDots
 from .config import SequenceConfig
 from .continuity import relabel_rows, row_shift, shift_is_unambiguous
 from .edges import edge_bounds
+from .lattice import affine_from_neighbours
 from .pipeline import FrameResult, FrameTracker, match_points
 from .stretch import StretchEstimate
 from .types import CandidateCloud
@@ -105,7 +106,8 @@ class SequenceTracker:
         with timer("status"):
             kept = self.tracker.assign_status(model, cloud)
         kept.route, kept.lp_status = result.route, result.lp_status
-        kept.flags = [f for f in result.flags if f != "unlabelled_dots"] + ["identity_kept"]
+        dot_level = {"unlabelled_dots", "dot_relocated", "dot_extrapolated"}  # the re-solve's, not kept's
+        kept.flags = [f for f in result.flags if f not in dot_level] + kept.flags + ["identity_kept"]
         kept.note = f"the re-solve moved the labels by {shift} row(s); the previous identity was kept"
         kept.stretch, kept.gate_px = result.stretch, result.gate_px
         return kept
@@ -142,19 +144,12 @@ class SequenceTracker:
         return bool(((lengths > bounds[0]) & (lengths < bounds[1])).all())
 
     def _follow_neighbours(self, positions, predicted, seen, sigma_mm: float = 30.0) -> np.ndarray:
-        """Unmatched dots from this frame's matched dots alone (no drift from earlier frames): a
-        weighted affine map from the flat tape (u, v) to 3D, fitted per unmatched dot to the matched
-        dots with Gaussian weights on their tape distance (mm), evaluated at the dot's (u, v)."""
-        uv_seen = np.column_stack([self.uv[seen], np.ones(seen.sum())])  # (S, 3)
-        xyz_seen = positions[seen]
-        out = predicted[~seen].copy()
-        for k, uv in enumerate(self.uv[~seen]):
-            w = np.exp(-0.5 * ((self.uv[seen] - uv) ** 2).sum(axis=1) / sigma_mm**2)
-            if (w > 1e-3).sum() < 3:
-                w = np.ones_like(w)  # far from every match: fall back to a global affine fit
-            sw = np.sqrt(w)[:, None]
-            A, *_ = np.linalg.lstsq(uv_seen * sw, xyz_seen * sw, rcond=None)
-            out[k] = np.append(uv, 1.0) @ A
+        """Unmatched dots from this frame's matched dots alone (no drift from earlier frames): the
+        tape's local lattice (:func:`.lattice.affine_from_neighbours`) at each unmatched dot;
+        the prediction where it cannot be made."""
+        out = affine_from_neighbours(self.uv, positions, seen, np.flatnonzero(~seen), sigma_mm)
+        bad = ~np.isfinite(out).all(axis=1)
+        out[bad] = predicted[~seen][bad]
         return out
 
     def _remember(self, result: FrameResult) -> None:
