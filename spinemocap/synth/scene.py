@@ -454,8 +454,10 @@ class Scene:
         """
         from tqdm import tqdm
 
-        frames = [self.frame_groundtruth(f) for f in tqdm(range(self.n_frames), desc="ground truth",
-                                                          unit="frame", disable=self.n_frames < 50, leave=False)]
+        # a property takes no progress switch: the bar shows on a terminal only (tqdm's None), so
+        # `--no-progress` runs writing to a log stay clean
+        frames = [self.frame_groundtruth(f) for f in tqdm(range(self.n_frames), desc="ground truth", unit="frame",
+                                                          disable=True if self.n_frames < 50 else None, leave=False)]
         gt = {key: np.stack([fr[key] for fr in frames]) for key in frames[0]}
         gt.update(
             labels=np.array(self.labels),
