@@ -33,6 +33,8 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--sensor-noise", type=float, default=0.0,
                    help="with --capture: add this sensor noise (grey levels) to a capture rendered without it")
     p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA if torch sees it), cpu, cuda")
+    p.add_argument("--no-cpu-peer", action="store_true",
+                   help="with --capture on a GPU: skip the same pipeline on the CPU and the GPU-vs-CPU dot check")
     p.add_argument("--realism", default="lab", choices=("ideal", "skin", "lab"),
                    help="studio realism level (default lab: tape tension, skin strain, inexact rig, sync error)")
     p.add_argument("--seed", type=int, default=0)
@@ -49,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
                          device=args.device)
     if args.capture:
         numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_legacy,
-                                       speed, args.sensor_noise, progress=not args.no_progress)
+                                       speed, args.sensor_noise, progress=not args.no_progress,
+                                       cpu_peer=not args.no_cpu_peer)
     else:
         numbers = run_speed_benchmark(args.preset, args.frames, args.occlusion, args.mode, args.detector, args.seed,
                                       args.workdir, legacy=not args.no_legacy, video=not args.no_video,

@@ -88,7 +88,9 @@ class NetSegmenter:
         padded, (h, w) = pad_to_multiple(np.moveaxis(views, 0, 2), self.model.stride)
         padded = np.moveaxis(padded, 2, 0)
         with torch.inference_mode():
-            out = self.model(to_tensor(padded).to(self.device, non_blocking=True))[:, 0, :h, :w]
+            # the uint8 pixels travel to the device (a quarter of float32's bytes), converted there
+            pixels = torch.from_numpy(np.ascontiguousarray(padded)).to(self.device)
+            out = self.model(to_tensor(pixels))[:, 0, :h, :w]
             return out.float().cpu().numpy()
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
@@ -168,9 +170,17 @@ class NetSegmenter:
 
 
 def resolve_device(device: str = "auto") -> str:
-    """``auto`` -> ``cuda`` when torch sees a CUDA GPU, else ``cpu``; other names pass through."""
+    """``auto`` -> ``cuda`` when torch sees a CUDA GPU, else ``cpu``; ``cpu`` and ``cuda[:N]`` pass
+    through. InputError for another name, or ``cuda`` where torch sees no CUDA GPU."""
     if device == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cpu":
+        return device
+    if not device.startswith("cuda"):
+        raise InputError(None, f"unknown device {device!r} (choose auto, cpu or cuda)")
+    if not torch.cuda.is_available():
+        raise InputError(None, f"device {device!r} asked for, but torch sees no CUDA GPU "
+                               f"(torch {torch.__version__}); use --device cpu or auto")
     return device
 
 

@@ -61,13 +61,13 @@ class TapeUNet(nn.Module):
         return self.head(x)
 
 
-def to_tensor(images_bgr: np.ndarray) -> torch.Tensor:
-    """uint8 (H, W, 3) or (B, H, W, 3) BGR -> float (B, 3, H, W) in [-0.5, 0.5]."""
-    a = np.asarray(images_bgr)
-    if a.ndim == 3:
-        a = a[None]
-    t = torch.from_numpy(np.ascontiguousarray(a)).permute(0, 3, 1, 2).float()
-    return t / 255.0 - 0.5
+def to_tensor(images_bgr: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """uint8 (H, W, 3) or (B, H, W, 3) BGR -> float (B, 3, H, W) in [-0.5, 0.5], on the device of
+    the input (a uint8 tensor already on the GPU is converted there)."""
+    t = images_bgr if isinstance(images_bgr, torch.Tensor) else torch.from_numpy(np.ascontiguousarray(images_bgr))
+    if t.ndim == 3:
+        t = t[None]
+    return t.permute(0, 3, 1, 2).float() / 255.0 - 0.5
 
 
 def pad_to_multiple(image: np.ndarray, multiple: int) -> tuple[np.ndarray, tuple[int, int]]:
