@@ -68,3 +68,20 @@ def test_device_check_counts_identical_dots_as_identical(drawn_images):
     assert check["dots_cpu"] == check["dots_device"] > 0
     assert check["unmatched_cpu"] == check["unmatched_device"] == check["mask_pixels_differing"] == 0
     assert check["max_px"] == 0.0
+
+
+def test_opencv_threads_apply_while_detecting_and_are_restored():
+    import cv2
+
+    from spinemocap.app.streaming import CaptureDetector, SpeedOptions
+
+    before = cv2.getNumThreads()
+    wanted = 1 if before != 1 else 2
+    detect = CaptureDetector("mask", None, SpeedOptions(opencv_threads=wanted, workers=1))
+    try:
+        assert cv2.getNumThreads() == wanted
+    finally:
+        detect.close()
+    assert cv2.getNumThreads() == before
+    CaptureDetector("mask", None, SpeedOptions(workers=1)).close()  # None: OpenCV's setting untouched
+    assert cv2.getNumThreads() == before

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, Sequence
 
+import cv2
 import numpy as np
 
 from ..camera import Rig
@@ -49,6 +50,8 @@ class SpeedOptions:
     predicted dots' box grown by this before the training crops' padding;
     ``batch``: stage 1 of all cameras in one network pass (else one pass per camera);
     ``device``: where the network runs (``auto``: CUDA when torch sees it, else CPU);
+    ``opencv_threads``: OpenCV's own threads while detecting (None: leave OpenCV's setting; it is
+    restored afterwards);
     ``masks_always``: read ``masks/`` even when the detector does not use them (legacy only)."""
 
     workers: int = 0
@@ -59,6 +62,7 @@ class SpeedOptions:
     box_margin_px: float = 40.0
     batch: bool = True
     device: str = "auto"
+    opencv_threads: int | None = None
     masks_always: bool = False
 
     def n_workers(self, n_cameras: int) -> int:
@@ -176,6 +180,10 @@ class CaptureDetector:
             raise InputError(None, f"unknown detector {name!r} (choose net, classical or mask)")
         n = self.options.n_workers(len(rig) if rig is not None else os.cpu_count() or 1)
         self._pool = ThreadPoolExecutor(n, thread_name_prefix="detect") if n > 1 else None
+        self._opencv_threads_before: int | None = None
+        if self.options.opencv_threads is not None:
+            self._opencv_threads_before = cv2.getNumThreads()
+            cv2.setNumThreads(self.options.opencv_threads)
         self._last: np.ndarray | None = None        # (D, 3) dots of the last solved frame
         self._before_last: np.ndarray | None = None
         self._boxes: dict[int, Box] = {}             # camera -> last frame's tape box
@@ -197,6 +205,9 @@ class CaptureDetector:
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
+        if self._opencv_threads_before is not None:
+            cv2.setNumThreads(self._opencv_threads_before)
+            self._opencv_threads_before = None
 
     def _map(self, fn, items):
         return list(self._pool.map(fn, items)) if self._pool is not None else [fn(x) for x in items]

@@ -32,6 +32,8 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
                                                  "(for a machine that cannot render)")
     p.add_argument("--sensor-noise", type=float, default=0.0,
                    help="with --capture: add this sensor noise (grey levels) to a capture rendered without it")
+    p.add_argument("--opencv-threads", type=int, default=None,
+                   help="OpenCV's own threads while detecting (default: OpenCV's setting, one per core)")
     p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA if torch sees it), cpu, cuda")
     p.add_argument("--no-cpu-peer", action="store_true",
                    help="with --capture on a GPU: skip the same pipeline on the CPU and the GPU-vs-CPU dot check")
@@ -45,10 +47,10 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..app.streaming import SpeedOptions
-    from ..bench.speed import format_report, run_replay_benchmark, run_speed_benchmark, save
+    from ..bench.speed import format_report, plot_stages, run_replay_benchmark, run_speed_benchmark, save
 
     speed = SpeedOptions(workers=args.workers, refresh_every=args.refresh_every, predict=not args.no_predict,
-                         device=args.device)
+                         device=args.device, opencv_threads=args.opencv_threads)
     if args.capture:
         numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_legacy,
                                        speed, args.sensor_noise, progress=not args.no_progress,
@@ -61,5 +63,6 @@ def run(args: argparse.Namespace) -> int:
     print(format_report(numbers))
     if args.json:
         save(numbers, args.json)
-        print(f"numbers written to {args.json}")
+        plot = plot_stages(numbers, args.json.with_suffix(".png"))
+        print(f"numbers written to {args.json}, time per stage plotted in {plot}")
     return 0
