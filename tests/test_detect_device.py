@@ -85,3 +85,15 @@ def test_opencv_threads_apply_while_detecting_and_are_restored():
     assert cv2.getNumThreads() == before
     CaptureDetector("mask", None, SpeedOptions(workers=1)).close()  # None: OpenCV's setting untouched
     assert cv2.getNumThreads() == before
+
+
+def test_fast_percentile_is_numpys_bit_for_bit():
+    # the blob pass's per-dot percentile skips numpy's overhead; it must be numpy's number
+    from spinemocap.detect.blobs import percentile
+
+    rng = np.random.default_rng(1)
+    for trial in range(1000):
+        n = int(rng.integers(1, 300))
+        values = (rng.normal(0, 30, n) if trial % 2 else rng.integers(0, 255, n)).astype(np.float32)
+        for q in (0, 37.3, 50, 60, 98, 99.5, 100):
+            assert percentile(values, q) == float(np.percentile(values, q)), (n, q)

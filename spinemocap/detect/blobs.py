@@ -103,6 +103,23 @@ def _regions(mask: np.ndarray, pad: int, stride: int = 8) -> list[tuple[slice, s
     return boxes
 
 
+def percentile(values: np.ndarray, q: float) -> float:
+    """``float(np.percentile(values, q))`` (linear interpolation, ``q`` a Python number) of a 1-D
+    array without NaNs, bit for bit as numpy >= 2.4 computes it (in the values' dtype), without
+    numpy's general-purpose overhead: ~3 instead of ~120 us, and it runs once per dot."""
+    n = values.size
+    index = (n - 1) * (q / 100.0)
+    lo = math.floor(index)
+    if lo >= n - 1:
+        return float(values.max())
+    part = np.partition(values, (lo, lo + 1))
+    a, b = part[lo], part[lo + 1]
+    t = index - lo
+    as_dtype = values.dtype.type  # numpy rounds the weight to the values' dtype
+    diff = b - a
+    return float(b - diff * as_dtype(1.0 - t) if t >= 0.5 else a + diff * as_dtype(t))
+
+
 def _region_dots(
     grey: np.ndarray, filled: np.ndarray, region: np.ndarray, d: float, p: BlobParams, touches_border,
     size_from_blobs: bool = False,
@@ -118,7 +135,7 @@ def _region_dots(
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
     tophat = cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, kernel)
     smooth = cv2.GaussianBlur(tophat, (0, 0), max(0.5, d / 10.0))
-    contrast = float(np.percentile(smooth[filled], 99.5))
+    contrast = percentile(smooth[filled], 99.5)
     # Dots must stand out from the tape's own texture/noise (the median of the top-hat over the
     # tape, which dots cover only in small part): pure noise has no such outliers.
     texture = float(np.median(smooth[filled]))
@@ -162,7 +179,7 @@ def _region_dots(
         # so partially covered edge pixels weigh in proportion to their coverage.
         # Scale by this blob's own interior level, so its inside saturates at 1 and shading
         # across the dot (a gradient of skin brightness) cannot pull the centre.
-        level = float(np.percentile(tophat[ys, xs][blob], 60)) - floor
+        level = percentile(tophat[ys, xs][blob], 60) - floor
         weights = np.clip((tophat[ys, xs] - floor) / max(level, 1e-3), 0.0, 1.0) * support
         total = float(weights.sum())
         if total <= 0:
