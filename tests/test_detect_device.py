@@ -70,20 +70,27 @@ def test_device_check_counts_identical_dots_as_identical(drawn_images):
     assert check["max_px"] == 0.0
 
 
-def test_opencv_threads_apply_while_detecting_and_are_restored():
+def test_opencv_threads_apply_while_cameras_run_in_parallel_and_are_restored():
+    import os
+
     import cv2
 
-    from spinemocap.app.streaming import CaptureDetector, SpeedOptions
+    from spinemocap.app.streaming import LEGACY, CaptureDetector, SpeedOptions
 
     before = cv2.getNumThreads()
     wanted = 1 if before != 1 else 2
-    detect = CaptureDetector("mask", None, SpeedOptions(opencv_threads=wanted, workers=1))
+    CaptureDetector("mask", None, SpeedOptions(opencv_threads=wanted, workers=1)).close()
+    assert cv2.getNumThreads() == before  # cameras one after the other: OpenCV keeps its threads
+    detect = CaptureDetector("mask", None, LEGACY)
+    assert cv2.getNumThreads() == before  # the legacy path leaves OpenCV alone
+    detect.close()
+    if (os.cpu_count() or 1) < 2:
+        pytest.skip("one core: the cameras never run in parallel threads")
+    detect = CaptureDetector("mask", None, SpeedOptions(opencv_threads=wanted, workers=2))
     try:
         assert cv2.getNumThreads() == wanted
     finally:
         detect.close()
-    assert cv2.getNumThreads() == before
-    CaptureDetector("mask", None, SpeedOptions(workers=1)).close()  # None: OpenCV's setting untouched
     assert cv2.getNumThreads() == before
 
 

@@ -32,8 +32,9 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
                                                  "(for a machine that cannot render)")
     p.add_argument("--sensor-noise", type=float, default=0.0,
                    help="with --capture: add this sensor noise (grey levels) to a capture rendered without it")
-    p.add_argument("--opencv-threads", type=int, default=None,
-                   help="OpenCV's own threads while detecting (default: OpenCV's setting, one per core)")
+    p.add_argument("--opencv-threads", type=int, default=1,
+                   help="OpenCV's own threads per camera thread while the cameras are detected in parallel "
+                        "(default 1; 0: OpenCV's setting, one per core)")
     p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA if torch sees it), cpu, cuda")
     p.add_argument("--no-cpu-peer", action="store_true",
                    help="with --capture on a GPU: skip the same pipeline on the CPU and the GPU-vs-CPU dot check")
@@ -50,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from ..bench.speed import format_report, plot_stages, run_replay_benchmark, run_speed_benchmark, save
 
     speed = SpeedOptions(workers=args.workers, refresh_every=args.refresh_every, predict=not args.no_predict,
-                         device=args.device, opencv_threads=args.opencv_threads)
+                         device=args.device, opencv_threads=args.opencv_threads or None)
     if args.capture:
         numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_legacy,
                                        speed, args.sensor_noise, progress=not args.no_progress,

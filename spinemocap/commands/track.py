@@ -32,8 +32,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--refresh-every", type=int, default=10,
                    help="sequence mode: frames between full tape searches (between them the detector searches "
                         "only the tape box predicted from the previous frames)")
-    p.add_argument("--opencv-threads", type=int, default=None,
-                   help="OpenCV's own threads while detecting (default: OpenCV's setting, one per core)")
+    p.add_argument("--opencv-threads", type=int, default=1,
+                   help="OpenCV's own threads per camera thread while the cameras are detected in parallel "
+                        "(default 1; 0: OpenCV's setting, one per core)")
     p.add_argument("--device", default="auto",
                    help="where the tape network runs: auto (a CUDA GPU when torch sees one, else the CPU), cpu, cuda")
     p.add_argument("--legacy", action="store_true",
@@ -62,7 +63,7 @@ def run_track(args: argparse.Namespace) -> int:
         raise InputError("--refine-sync", "needs --refine-rig")
     refine = RigRefineConfig(sync=args.refine_sync) if args.refine_rig else None
     speed = LEGACY if args.legacy else SpeedOptions(workers=args.workers, refresh_every=args.refresh_every,
-                                                    device=args.device, opencv_threads=args.opencv_threads)
+                                                    device=args.device, opencv_threads=args.opencv_threads or None)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TrackingWarning)
