@@ -207,7 +207,8 @@ def run_tracking(
     first = frame_ids[0] if frame_ids else 0
     if frame_ids and frame_ids != list(range(first, first + len(frame_ids))):
         raise ValueError("frames must be consecutive")
-    confidence = np.stack([label_confidence(s, r.flags, r.dot_flags()) for s, r in zip(status, results)]) if results else None
+    confidence = np.stack([label_confidence(s, r.flags if r.solved else [*r.flags, "unsolved"], r.dot_flags())
+                           for s, r in zip(status, results)]) if results else None
     stretch = np.stack([row_stretch(p, tracker.graph)[0] for p in positions]) if results else None
     table = MarkerTable.from_arrays(tape.labels, positions, fps, status=status, n_views=n_views,
                                     residual=residual, first_frame=first, confidence=confidence, stretch=stretch,

@@ -28,7 +28,7 @@ from .candidates import build_candidates
 from .config import TrackerConfig
 from .edges import build_edges
 from .evidence import build_evidence
-from .lattice import beyond_known_rows, off_lattice
+from .lattice import beyond_known_rows, off_lattice, rows_beyond
 from .lp import select_edges
 from .mrf1 import fit_mrf1
 from .mrf2 import TemplateEvidenceScore, refine_mrf2
@@ -49,7 +49,8 @@ class FrameResult:
     ``carried`` (sequence mode: the previous solution explained the frame), ``failed``;
     ``flags``: quality flags (:mod:`spinemocap.track.quality`); ``stretch``: the dot spacing the
     frame was solved with (ratio to the roll's spec); ``gate_px``: the candidate gate used; ``relocated``: dots the lattice check moved (see
-    :meth:`FrameTracker.relocate_off_lattice`)."""
+    :meth:`FrameTracker.relocate_off_lattice`); ``unanchored``: inferred dots far beyond the
+    observed rows (see :meth:`FrameTracker.assign_status`)."""
 
     positions: np.ndarray
     status: np.ndarray
@@ -65,6 +66,7 @@ class FrameResult:
     pixels: np.ndarray | None = None  # (D, C, 2) distorted px of the blobs of observed dots
     relocated: np.ndarray | None = None  # (D,) bool: moved back onto the tape's lattice (quality)
     extrapolated: np.ndarray | None = None  # (D,) bool: relocated, no candidate, beyond the known rows
+    unanchored: np.ndarray | None = None  # (D,) bool: inferred, >= unanchored_rows beyond the observed rows
 
     @property
     def solved(self) -> bool:
@@ -77,6 +79,8 @@ class FrameResult:
             out["dot_relocated"] = self.relocated
         if self.extrapolated is not None and self.extrapolated.any():
             out["dot_extrapolated"] = self.extrapolated
+        if self.unanchored is not None and self.unanchored.any():
+            out["dot_unanchored"] = self.unanchored
         return out
 
     @classmethod
@@ -172,7 +176,9 @@ class FrameTracker:
     def assign_status(self, model: np.ndarray, cloud: CandidateCloud) -> FrameResult:
         """Observed where a >= min_views candidate lies within the radius, else inferred; then
         the lattice check (``status.lattice_check``): dots off their neighbours' lattice are
-        moved to it (:meth:`relocate_off_lattice`)."""
+        moved to it (:meth:`relocate_off_lattice`). Inferred dots ``status.unanchored_rows`` or
+        more rows beyond the outermost observed rows (the tape's end seen by no camera pair, so
+        placed and labelled by the model's extrapolation alone) are marked ``unanchored``."""
         cfg = self.config.status
         usable = np.nonzero(cloud.n_views >= cfg.min_views)[0] if len(cloud) else np.zeros(0, np.int64)
         match = match_points(model, cloud.points[usable] if len(usable) else np.zeros((0, 3)),
@@ -195,12 +201,18 @@ class FrameTracker:
         if cloud.pixels is not None:
             pixels[seen] = cloud.pixels[source[seen]]
         result = FrameResult(positions, status, n_views, residual, pixels=pixels, relocated=relocated,
-                             extrapolated=relocated & ~seen & beyond_known_rows(relocated, positions, self.graph))
-        if relocated.any():
-            result.flags.append("dot_relocated")
-        if result.extrapolated.any():
-            result.flags.append("dot_extrapolated")
+                             extrapolated=relocated & ~seen & beyond_known_rows(relocated, positions, self.graph),
+                             unanchored=self._unanchored(status))
+        result.flags.extend(result.dot_flags())
         return result
+
+    def _unanchored(self, status: np.ndarray) -> np.ndarray:
+        """(D,) bool: inferred dots >= ``status.unanchored_rows`` rows beyond the outermost rows
+        holding an observed dot (none when the setting is 0)."""
+        rows = self.config.status.unanchored_rows
+        if rows <= 0:
+            return np.zeros(len(status), bool)
+        return (status == "inferred") & (rows_beyond(status == "observed", self.graph) >= rows)
 
     def _placed(self, model: np.ndarray, cloud: CandidateCloud, source: np.ndarray,
                 fallback: np.ndarray | None = None) -> np.ndarray:
