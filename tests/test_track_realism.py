@@ -329,3 +329,24 @@ def test_a_resolve_after_an_unsolved_frame_with_an_unseen_tape_end_is_flagged():
     np.testing.assert_array_equal(last.unanchored, SPEC.graph.row >= SPEC.n_rows - 3)
     arrays = result.table.to_arrays()
     assert flagged_from_confidence(arrays["status"], arrays["confidence"]).tolist() == [False, True, True]
+
+
+def test_a_tape_end_the_model_left_off_its_points_is_anchored_back_on_them():
+    """``tension 30 % + skin``, frame 12: the model left the last two rows 8-20 mm off while
+    their points (>= 3 cameras) were there, beyond the observe radius: inferred, silently wrong.
+    Row by row outward, the observed dots' lattice finds them."""
+    rig = rig_behind()
+    dots = tape_on_back(SPEC)
+    top = SPEC.n_rows - 1
+    end = SPEC.graph.row >= top - 1
+    model = dots.copy()
+    model[:, 2] += 10.0 * np.clip(SPEC.graph.row - (top - 2), 0, None)  # 10, 20 mm out along the tape
+    tracker = FrameTracker(rig, SPEC)
+    result = tracker.assign_status(model, tracker.candidates(blobs(rig, dots, noise_px=0.2)))
+    assert (result.status == "observed").all() and result.relocated[end].all()
+    assert np.linalg.norm(result.positions - dots, axis=1).max() < 1.0
+    assert not result.unanchored.any() and not is_flagged(result.flags)
+    config = TrackerConfig()
+    off = FrameTracker(rig, SPEC, dataclasses.replace(config, status=dataclasses.replace(config.status, anchor_ends=False)))
+    left = off.assign_status(model, off.candidates(blobs(rig, dots, noise_px=0.2)))
+    assert (left.status[end] == "inferred").all() and is_flagged(left.flags)

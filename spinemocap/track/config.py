@@ -64,7 +64,10 @@ class StatusConfig:
     paper; 0 = off): an inferred dot this many rows or more beyond the last row holding an
     observed dot, toward the tape's end, has a place and label from the model alone, an
     extrapolation that misses by about half a dot spacing from two rows out
-    (:func:`spinemocap.track.lattice.rows_beyond`): it is marked unanchored and its frame flagged."""
+    (:func:`spinemocap.track.lattice.rows_beyond`): it is marked unanchored and its frame flagged.
+    Before that, ``anchor_ends`` looks for such dots' points one row out at a time where the
+    observed dots' lattice extrapolates them (:meth:`~spinemocap.track.pipeline.FrameTracker.anchor_tape_ends`;
+    dots so found count as relocated)."""
 
     observe_radius_mm: float = 7.0
     min_views: int = 2
@@ -73,6 +76,7 @@ class StatusConfig:
     lattice_limit: float = 0.3
     lattice_sigma_mm: float = 20.0
     unanchored_rows: int = 2
+    anchor_ends: bool = True
 
 
 @dataclass
@@ -142,7 +146,7 @@ class TrackerConfig:
         return dataclasses.replace(
             config, stretch=dataclasses.replace(config.stretch, adaptive=False),
             rig=dataclasses.replace(config.rig, adaptive_gate=False),
-            status=dataclasses.replace(config.status, lattice_check=False, unanchored_rows=0),
+            status=dataclasses.replace(config.status, lattice_check=False, unanchored_rows=0, anchor_ends=False),
             sequence=dataclasses.replace(config.sequence, keep_identity=False))
 
     @classmethod
