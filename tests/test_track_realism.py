@@ -29,7 +29,7 @@ from spinemocap.track.rig_refine import (
     given_rig_disagreement_mm,
     refine_rig,
 )
-from spinemocap.track.sequence import SequenceTracker
+from spinemocap.track.sequence import SequenceTracker, fill_and_smooth
 from spinemocap.track.stretch import estimate_stretch, row_stretch
 from spinemocap.views import ViewDots
 
@@ -350,3 +350,19 @@ def test_a_tape_end_the_model_left_off_its_points_is_anchored_back_on_them():
     off = FrameTracker(rig, SPEC, dataclasses.replace(config, status=dataclasses.replace(config.status, anchor_ends=False)))
     left = off.assign_status(model, off.candidates(blobs(rig, dots, noise_px=0.2)))
     assert (left.status[end] == "inferred").all() and is_flagged(left.flags)
+
+
+def test_smoothing_does_not_carry_a_flagged_frames_dots_into_its_neighbours():
+    """The 3 px capture's unflagged swaps: a flagged frame's end rows, 26-37 mm off, averaged into
+    the next frame's inferred rows moved them 9-10 mm, onto their neighbours' places."""
+    positions = np.zeros((5, 1, 3))
+    positions[3, 0, 0] = 30.0  # frame 3: the dot placed 30 mm off, the frame flagged
+    status = np.full((5, 1), "inferred", dtype=object)
+    doubted = np.zeros((5, 1), bool)
+    doubted[3] = True
+    config = TrackerConfig().sequence
+    blind, _ = fill_and_smooth(positions, status, config)
+    assert blind[2, 0, 0] == pytest.approx(10.0)  # without the flags: the good frame pulled 10 mm
+    out, _ = fill_and_smooth(positions, status, config, doubted)
+    assert out[2, 0, 0] == 0.0 and out[4, 0, 0] == 0.0  # the frames beside it keep their places
+    assert out[3, 0, 0] == pytest.approx(10.0)  # the flagged one still averages with them

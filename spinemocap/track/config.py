@@ -89,7 +89,8 @@ class SequenceConfig:
     ``warm_start``: MRF1 starts from the previous frame instead of the cubic template (off by
     default: after a fast move the previous dots are too far for particle BP to travel); ``gap_fill_frames``: frames without a
     solution between solved ones are interpolated in time up to this gap length;
-    ``smooth_inferred``: window (frames, odd) of a moving average over inferred stretches;
+    ``smooth_inferred``: window (frames, odd) of a moving average over inferred stretches
+    (``smooth_trusted_only``: flagged frames' samples enter no other frame's average);
     ``keep_identity``: a full re-solve that relabels the tape by up to ``max_row_shift`` rows
     against the previous frame is overruled (previous identity kept, frame flagged) unless the
     evidence is unambiguous (see :mod:`spinemocap.track.continuity`). By default every shift
@@ -104,6 +105,7 @@ class SequenceConfig:
     warm_start: bool = False
     gap_fill_frames: int = 10
     smooth_inferred: int = 3
+    smooth_trusted_only: bool = True
     keep_identity: bool = True
     max_row_shift: int = MAX_ROWS - 1
 
@@ -147,7 +149,7 @@ class TrackerConfig:
             config, stretch=dataclasses.replace(config.stretch, adaptive=False),
             rig=dataclasses.replace(config.rig, adaptive_gate=False),
             status=dataclasses.replace(config.status, lattice_check=False, unanchored_rows=0, anchor_ends=False),
-            sequence=dataclasses.replace(config.sequence, keep_identity=False))
+            sequence=dataclasses.replace(config.sequence, keep_identity=False, smooth_trusted_only=False))
 
     @classmethod
     def from_dict(cls, data: dict, source: str | None = None) -> "TrackerConfig":
