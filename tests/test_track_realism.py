@@ -366,3 +366,6 @@ def test_smoothing_does_not_carry_a_flagged_frames_dots_into_its_neighbours():
     out, _ = fill_and_smooth(positions, status, config, doubted)
     assert out[2, 0, 0] == 0.0 and out[4, 0, 0] == 0.0  # the frames beside it keep their places
     assert out[3, 0, 0] == pytest.approx(10.0)  # the flagged one still averages with them
+    moving = positions.copy()
+    moving[:, 0, 2] = 10.0 * np.arange(5)  # moving 10 mm a frame: a trusted frame's mean is unbiased
+    np.testing.assert_allclose(fill_and_smooth(moving, status, config, doubted)[0][[1, 2, 4], 0, 2], [10.0, 20.0, 40.0])

@@ -166,10 +166,11 @@ def fill_and_smooth(positions: np.ndarray, status: np.ndarray, config: SequenceC
     ``gap_fill_frames`` frames linearly in time (status ``inferred``), then replace inferred
     samples by a centred moving average of width ``smooth_inferred`` over the finite samples.
     ``doubted`` (F, D) bool (with ``smooth_trusted_only``): samples the tracker does not vouch
-    for (flagged frames, frames without a solution) enter no other sample's average, so that a
-    flagged frame's wrong end rows are not carried into the frames beside it (measured on the 3 px
-    benchmark capture: a good frame's inferred row, 2-3 mm off, moved 9-10 mm, onto its
-    neighbours' places, by a flagged frame whose rows were 26-37 mm off)."""
+    for (flagged frames, frames without a solution) enter no trusted sample's average (those
+    beside them keep their own places), so that a flagged frame's wrong end rows are not carried
+    into the frames beside it (measured on the 3 px benchmark capture: a good frame's inferred
+    row, 2-3 mm off, moved 9-10 mm, onto its neighbours' places, by a flagged frame whose rows
+    were 26-37 mm off)."""
     positions, status = positions.copy(), status.copy()
     F = len(positions)
     frames = np.arange(F)
@@ -208,26 +209,26 @@ def _short_gaps(finite: np.ndarray, max_len: int) -> np.ndarray:
 
 
 def _smooth_inferred(positions: np.ndarray, status: np.ndarray, w: int, trusted: np.ndarray | None = None) -> np.ndarray:
-    """Inferred samples replaced by the mean of the finite samples within ``w`` frames; with
-    ``trusted`` (F, D) bool only trusted samples count, plus the sample itself."""
+    """Inferred samples replaced by the mean of the finite samples within ``w`` frames. With
+    ``trusted`` (F, D) bool, a trusted sample whose window holds an untrusted one keeps its own
+    place (a one-sided mean would lag the motion by half a frame, the full one would import the
+    untrusted place)."""
     half = w // 2
-    padded = np.pad(positions, ((half, half), (0, 0), (0, 0)), mode="edge")
-    finite = np.isfinite(padded).all(axis=2, keepdims=True)
-    if trusted is not None:
-        finite &= np.pad(np.asarray(trusted, bool), ((half, half), (0, 0)), mode="edge")[:, :, None]
-    csum = np.cumsum(np.where(finite, padded, 0.0), axis=0)
-    ccount = np.cumsum(finite, axis=0)
-    csum = np.concatenate([np.zeros_like(csum[:1]), csum])
-    ccount = np.concatenate([np.zeros_like(ccount[:1]), ccount])
-    total = csum[w:] - csum[:-w]
-    count = ccount[w:] - ccount[:-w]
-    if trusted is not None:  # a doubted sample still averages with its trusted neighbours
-        own = ~np.asarray(trusted, bool)[:, :, None] & np.isfinite(positions).all(axis=2, keepdims=True)
-        total = total + np.where(own, np.nan_to_num(positions), 0.0)
-        count = count + own
+
+    def window_sum(values: np.ndarray) -> np.ndarray:
+        padded = np.pad(values, ((half, half),) + ((0, 0),) * (values.ndim - 1), mode="edge")
+        csum = np.concatenate([np.zeros_like(padded[:1]), np.cumsum(padded, axis=0)])
+        return csum[w:] - csum[:-w]
+
+    finite = np.isfinite(positions).all(axis=2, keepdims=True)
+    total = window_sum(np.where(finite, positions, 0.0))
+    count = window_sum(finite.astype(np.int64))
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = total / count
     out = positions.copy()
     pick = (status == "inferred") & np.isfinite(mean).all(axis=2)
+    if trusted is not None:
+        trusted = np.asarray(trusted, bool)
+        pick &= ~(trusted & (window_sum((~trusted).astype(np.int64)) > 0))
     out[pick] = mean[pick]
     return out
