@@ -29,8 +29,9 @@ from spinemocap.track.rig_refine import (
     given_rig_disagreement_mm,
     refine_rig,
 )
-from spinemocap.track.sequence import SequenceTracker
+from spinemocap.track.sequence import SequenceTracker, fill_and_smooth
 from spinemocap.track.stretch import estimate_stretch, row_stretch
+from spinemocap.views import ViewDots
 
 
 def stretched_tape(along: float, across: float = 1.0, uneven: float = 0.0, seed: int = 0) -> np.ndarray:
@@ -270,3 +271,101 @@ def test_the_report_lists_flagged_frames_from_markers_csv(tmp_path):
                                           "median_stretch": 1.0}]
     exporters.write(MarkerTable.from_arrays(SPEC.labels, dots, 100.0), tmp_path / "markers.csv")
     assert tracking_quality_table(results).empty  # nothing flagged (no confidence known): no section
+
+
+def test_an_unobserved_tape_end_placed_by_the_model_alone_flags_its_dots_and_the_frame():
+    """The 3 px benchmark's silent swaps: the tape's last rows seen by no camera pair, the model
+    (a re-solve) put them off together, so they agree with one another and the lattice check
+    passes them; labels a dot spacing off with no flag. Dots two or more rows beyond the last
+    observed row are placed by extrapolation alone: flagged per dot and per frame."""
+    rig = rig_behind()
+    dots = tape_on_back(SPEC)
+    top = SPEC.n_rows - 1
+    hidden = np.zeros((len(rig), len(dots)), bool)
+    hidden[:, SPEC.graph.row >= top - 2] = True  # the last three rows unseen
+    end = SPEC.graph.row >= top - 2
+    model = dots.copy()  # the end bent sideways, 8 mm more per row (as the re-solve did at 3 px)
+    model[:, 0] += 8.0 * np.clip(SPEC.graph.row - (top - 3), 0, None)
+    views = blobs(rig, dots, noise_px=0.2, hidden=hidden)
+    config = TrackerConfig()
+    unchecked = FrameTracker(rig, SPEC, dataclasses.replace(config, status=dataclasses.replace(config.status, unanchored_rows=0)))
+    silent = unchecked.assign_status(model, unchecked.candidates(views))
+    assert label_swaps(silent.positions[None], dots[None], 15.0)[0][end].sum() >= 2  # precondition: wrong labels...
+    assert not is_flagged(silent.flags)  # ... that passed every other check
+    tracker = FrameTracker(rig, SPEC)
+    result = tracker.assign_status(model, tracker.candidates(views))
+    assert (result.status[end] == "inferred").all() and (result.status[~end] == "observed").mean() > 0.9
+    beyond_two = SPEC.graph.row >= top - 1  # one row out stays unflagged (extrapolation holds there)
+    np.testing.assert_array_equal(result.unanchored, beyond_two)
+    assert "dot_unanchored" in result.flags and is_flagged(result.flags)
+    confidence = label_confidence(result.status, result.flags, result.dot_flags())
+    assert confidence[beyond_two].max() == pytest.approx(0.3)
+    assert confidence[~end & (result.status == "observed")].min() == 1.0
+    assert flagged_from_confidence(np.array(result.status)[None], confidence[None])[0]  # markers.csv tells it
+    # the peer (before issue 11) keeps the check off
+    assert TrackerConfig.before_issue_11().status.unanchored_rows == 0
+
+
+def test_a_resolve_after_an_unsolved_frame_with_an_unseen_tape_end_is_flagged():
+    """In sequence mode, after a frame without a solution, the re-solve of a frame whose last
+    four rows no camera sees (too few dots for the previous frame to explain it): the re-solve
+    slides the template by 4 rows; the previous identity is kept (all 4 rows back, not only 2),
+    and the unseen end rows, extrapolated from the rows seen, are flagged per dot in the markers'
+    confidence and per frame."""
+    rig = rig_behind()
+    poses = drifting(tape_on_back(SPEC), 3)
+    hidden = np.zeros((len(rig), SPEC.n_dots), bool)
+    hidden[:, SPEC.graph.row >= SPEC.n_rows - 4] = True
+    views = [(0, blobs(rig, poses[0], noise_px=0.2, seed=0), 0.0),
+             (1, [ViewDots(c, np.zeros((0, 2)), np.zeros(0)) for c in range(len(rig))], 0.0),
+             (2, blobs(rig, poses[2], noise_px=0.2, hidden=hidden, seed=2), 0.0)]
+    with pytest.warns(TrackingWarning):
+        result = run_tracking(iter(views), rig, SPEC, fps=100.0, mode="sequence", progress=False)
+    assert not result.frames[1].solved and result.frames[2].route == "full"
+    last = result.frames[2]
+    assert "identity_kept" in last.flags and "dot_unanchored" in last.flags and 2 in result.flagged_frames()
+    swapped = label_swaps(last.positions[None], poses[2][None], 15.0)[0]
+    assert not swapped[~last.unanchored].any()  # the rows seen keep their labels; the rest is flagged
+    np.testing.assert_array_equal(last.unanchored, SPEC.graph.row >= SPEC.n_rows - 3)
+    arrays = result.table.to_arrays()
+    assert flagged_from_confidence(arrays["status"], arrays["confidence"]).tolist() == [False, True, True]
+
+
+def test_a_tape_end_the_model_left_off_its_points_is_anchored_back_on_them():
+    """``tension 30 % + skin``, frame 12: the model left the last two rows 8-20 mm off while
+    their points (>= 3 cameras) were there, beyond the observe radius: inferred, silently wrong.
+    Row by row outward, the observed dots' lattice finds them."""
+    rig = rig_behind()
+    dots = tape_on_back(SPEC)
+    top = SPEC.n_rows - 1
+    end = SPEC.graph.row >= top - 1
+    model = dots.copy()
+    model[:, 2] += 10.0 * np.clip(SPEC.graph.row - (top - 2), 0, None)  # 10, 20 mm out along the tape
+    tracker = FrameTracker(rig, SPEC)
+    result = tracker.assign_status(model, tracker.candidates(blobs(rig, dots, noise_px=0.2)))
+    assert (result.status == "observed").all() and result.relocated[end].all()
+    assert np.linalg.norm(result.positions - dots, axis=1).max() < 1.0
+    assert not result.unanchored.any() and not is_flagged(result.flags)
+    config = TrackerConfig()
+    off = FrameTracker(rig, SPEC, dataclasses.replace(config, status=dataclasses.replace(config.status, anchor_ends=False)))
+    left = off.assign_status(model, off.candidates(blobs(rig, dots, noise_px=0.2)))
+    assert (left.status[end] == "inferred").all() and is_flagged(left.flags)
+
+
+def test_smoothing_does_not_carry_a_flagged_frames_dots_into_its_neighbours():
+    """The 3 px capture's unflagged swaps: a flagged frame's end rows, 26-37 mm off, averaged into
+    the next frame's inferred rows moved them 9-10 mm, onto their neighbours' places."""
+    positions = np.zeros((5, 1, 3))
+    positions[3, 0, 0] = 30.0  # frame 3: the dot placed 30 mm off, the frame flagged
+    status = np.full((5, 1), "inferred", dtype=object)
+    doubted = np.zeros((5, 1), bool)
+    doubted[3] = True
+    config = TrackerConfig().sequence
+    blind, _ = fill_and_smooth(positions, status, config)
+    assert blind[2, 0, 0] == pytest.approx(10.0)  # without the flags: the good frame pulled 10 mm
+    out, _ = fill_and_smooth(positions, status, config, doubted)
+    assert out[2, 0, 0] == 0.0 and out[4, 0, 0] == 0.0  # the frames beside it keep their places
+    assert out[3, 0, 0] == pytest.approx(10.0)  # the flagged one still averages with them
+    moving = positions.copy()
+    moving[:, 0, 2] = 10.0 * np.arange(5)  # moving 10 mm a frame: a trusted frame's mean is unbiased
+    np.testing.assert_allclose(fill_and_smooth(moving, status, config, doubted)[0][[1, 2, 4], 0, 2], [10.0, 20.0, 40.0])

@@ -203,11 +203,13 @@ def run_tracking(
     n_views = np.stack([r.n_views for r in results]) if results else np.zeros((0, tracker.n_dots), int)
     residual = np.stack([r.residual for r in results]) if results else np.zeros((0, tracker.n_dots))
     if carry is not None and len(results):
-        positions, status = fill_and_smooth(positions, status, config.sequence)
+        doubted = np.array([[is_flagged(r.flags) or not r.solved] * tracker.n_dots for r in results])
+        positions, status = fill_and_smooth(positions, status, config.sequence, doubted)
     first = frame_ids[0] if frame_ids else 0
     if frame_ids and frame_ids != list(range(first, first + len(frame_ids))):
         raise ValueError("frames must be consecutive")
-    confidence = np.stack([label_confidence(s, r.flags, r.dot_flags()) for s, r in zip(status, results)]) if results else None
+    confidence = np.stack([label_confidence(s, r.flags if r.solved else [*r.flags, "unsolved"], r.dot_flags())
+                           for s, r in zip(status, results)]) if results else None
     stretch = np.stack([row_stretch(p, tracker.graph)[0] for p in positions]) if results else None
     table = MarkerTable.from_arrays(tape.labels, positions, fps, status=status, n_views=n_views,
                                     residual=residual, first_frame=first, confidence=confidence, stretch=stretch,

@@ -23,7 +23,7 @@ Example ``tracker.toml`` (every key optional; unknown keys are an error)::
     adaptive_gate = true
 
 ``TrackerConfig.before_issue_11()`` is the tracker as it was before stretch adaptation, the
-rig-derived gate, label continuity and the lattice check (nominal spacing, fixed th1): the peer in ``bench realism``.
+rig-derived gate, label continuity, the lattice check and the unanchored-end check (nominal spacing, fixed th1): the peer in ``bench realism``.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ import os
 from dataclasses import dataclass, field
 
 from ..fileio import InputError, read_toml
+from ..tape import MAX_ROWS
 from .candidates import CandidateConfig
 from .edges import EdgeConfig
 from .lp import LPConfig
@@ -59,7 +60,14 @@ class StatusConfig:
     Gaussian weights of ``lattice_sigma_mm`` on the tape) was matched to a ghost or a
     neighbour's point, or placed wrong by the model: it is moved to the unclaimed candidate point
     at that prediction (or, without one, inferred there) and marked relocated (its label
-    confidence lowered, see :mod:`spinemocap.track.quality`)."""
+    confidence lowered, see :mod:`spinemocap.track.quality`). ``unanchored_rows`` (beyond the
+    paper; 0 = off): an inferred dot this many rows or more beyond the last row holding an
+    observed dot, toward the tape's end, has a place and label from the model alone, an
+    extrapolation that misses by about half a dot spacing from two rows out
+    (:func:`spinemocap.track.lattice.rows_beyond`): it is marked unanchored and its frame flagged.
+    Before that, ``anchor_ends`` looks for such dots' points one row out at a time where the
+    observed dots' lattice extrapolates them (:meth:`~spinemocap.track.pipeline.FrameTracker.anchor_tape_ends`;
+    dots so found count as relocated)."""
 
     observe_radius_mm: float = 7.0
     min_views: int = 2
@@ -67,6 +75,8 @@ class StatusConfig:
     lattice_check: bool = True
     lattice_limit: float = 0.3
     lattice_sigma_mm: float = 20.0
+    unanchored_rows: int = 2
+    anchor_ends: bool = True
 
 
 @dataclass
@@ -79,10 +89,14 @@ class SequenceConfig:
     ``warm_start``: MRF1 starts from the previous frame instead of the cubic template (off by
     default: after a fast move the previous dots are too far for particle BP to travel); ``gap_fill_frames``: frames without a
     solution between solved ones are interpolated in time up to this gap length;
-    ``smooth_inferred``: window (frames, odd) of a moving average over inferred stretches;
+    ``smooth_inferred``: window (frames, odd) of a moving average over inferred stretches
+    (``smooth_trusted_only``: flagged frames' samples enter no other frame's average);
     ``keep_identity``: a full re-solve that relabels the tape by up to ``max_row_shift`` rows
     against the previous frame is overruled (previous identity kept, frame flagged) unless the
-    evidence is unambiguous (see :mod:`spinemocap.track.continuity`)."""
+    evidence is unambiguous (see :mod:`spinemocap.track.continuity`). By default every shift
+    is searched: with one end of the tape unseen a re-solve can slide the template by more than
+    two rows (the last 4 rows of 13 hidden: 4 rows, and a search up to 2 then relabelled it
+    by 2 only, leaving every label 2 rows off)."""
 
     skip_lp: bool = True
     match_radius_mm: float = 8.0
@@ -91,8 +105,9 @@ class SequenceConfig:
     warm_start: bool = False
     gap_fill_frames: int = 10
     smooth_inferred: int = 3
+    smooth_trusted_only: bool = True
     keep_identity: bool = True
-    max_row_shift: int = 2
+    max_row_shift: int = MAX_ROWS - 1
 
 
 _SECTIONS = {
@@ -128,13 +143,13 @@ class TrackerConfig:
     @classmethod
     def before_issue_11(cls) -> "TrackerConfig":
         """The tracker before issue 11: the roll's nominal dot spacing, the fixed th1 gate, no
-        label-continuity or lattice check (kept as the benchmark's peer)."""
+        label-continuity, lattice or unanchored-end check (kept as the benchmark's peer)."""
         config = cls()
         return dataclasses.replace(
             config, stretch=dataclasses.replace(config.stretch, adaptive=False),
             rig=dataclasses.replace(config.rig, adaptive_gate=False),
-            status=dataclasses.replace(config.status, lattice_check=False),
-            sequence=dataclasses.replace(config.sequence, keep_identity=False))
+            status=dataclasses.replace(config.status, lattice_check=False, unanchored_rows=0, anchor_ends=False),
+            sequence=dataclasses.replace(config.sequence, keep_identity=False, smooth_trusted_only=False))
 
     @classmethod
     def from_dict(cls, data: dict, source: str | None = None) -> "TrackerConfig":

@@ -28,7 +28,7 @@ from .candidates import build_candidates
 from .config import TrackerConfig
 from .edges import build_edges
 from .evidence import build_evidence
-from .lattice import beyond_known_rows, off_lattice
+from .lattice import affine_from_neighbours, beyond_known_rows, off_lattice, rows_beyond
 from .lp import select_edges
 from .mrf1 import fit_mrf1
 from .mrf2 import TemplateEvidenceScore, refine_mrf2
@@ -49,7 +49,8 @@ class FrameResult:
     ``carried`` (sequence mode: the previous solution explained the frame), ``failed``;
     ``flags``: quality flags (:mod:`spinemocap.track.quality`); ``stretch``: the dot spacing the
     frame was solved with (ratio to the roll's spec); ``gate_px``: the candidate gate used; ``relocated``: dots the lattice check moved (see
-    :meth:`FrameTracker.relocate_off_lattice`)."""
+    :meth:`FrameTracker.relocate_off_lattice`); ``unanchored``: inferred dots far beyond the
+    observed rows (see :meth:`FrameTracker.assign_status`)."""
 
     positions: np.ndarray
     status: np.ndarray
@@ -65,6 +66,7 @@ class FrameResult:
     pixels: np.ndarray | None = None  # (D, C, 2) distorted px of the blobs of observed dots
     relocated: np.ndarray | None = None  # (D,) bool: moved back onto the tape's lattice (quality)
     extrapolated: np.ndarray | None = None  # (D,) bool: relocated, no candidate, beyond the known rows
+    unanchored: np.ndarray | None = None  # (D,) bool: inferred, >= unanchored_rows beyond the observed rows
 
     @property
     def solved(self) -> bool:
@@ -77,6 +79,8 @@ class FrameResult:
             out["dot_relocated"] = self.relocated
         if self.extrapolated is not None and self.extrapolated.any():
             out["dot_extrapolated"] = self.extrapolated
+        if self.unanchored is not None and self.unanchored.any():
+            out["dot_unanchored"] = self.unanchored
         return out
 
     @classmethod
@@ -172,7 +176,10 @@ class FrameTracker:
     def assign_status(self, model: np.ndarray, cloud: CandidateCloud) -> FrameResult:
         """Observed where a >= min_views candidate lies within the radius, else inferred; then
         the lattice check (``status.lattice_check``): dots off their neighbours' lattice are
-        moved to it (:meth:`relocate_off_lattice`)."""
+        moved to it (:meth:`relocate_off_lattice`). Inferred dots ``status.unanchored_rows`` or
+        more rows beyond the outermost observed rows (the tape's end seen by no camera pair, so
+        placed and labelled by the model's extrapolation alone) are marked ``unanchored``, after
+        :meth:`anchor_tape_ends` (``status.anchor_ends``) looked for their points."""
         cfg = self.config.status
         usable = np.nonzero(cloud.n_views >= cfg.min_views)[0] if len(cloud) else np.zeros(0, np.int64)
         match = match_points(model, cloud.points[usable] if len(usable) else np.zeros((0, 3)),
@@ -184,6 +191,11 @@ class FrameTracker:
         if cfg.lattice_check:
             source, relocated = self.relocate_off_lattice(positions, model, cloud, source)
             positions = self._placed(model, cloud, source, np.where(relocated[:, None], positions, model))
+        if cfg.anchor_ends:
+            source, anchored = self.anchor_tape_ends(positions, cloud, source)
+            if anchored.any():
+                positions = self._placed(model, cloud, source, positions)
+                relocated |= anchored
         seen = source >= 0
         status = np.where(seen, "observed", "inferred").astype(object)
         status[~np.isfinite(positions).all(axis=1)] = "missing"
@@ -195,12 +207,58 @@ class FrameTracker:
         if cloud.pixels is not None:
             pixels[seen] = cloud.pixels[source[seen]]
         result = FrameResult(positions, status, n_views, residual, pixels=pixels, relocated=relocated,
-                             extrapolated=relocated & ~seen & beyond_known_rows(relocated, positions, self.graph))
-        if relocated.any():
-            result.flags.append("dot_relocated")
-        if result.extrapolated.any():
-            result.flags.append("dot_extrapolated")
+                             extrapolated=relocated & ~seen & beyond_known_rows(relocated, positions, self.graph),
+                             unanchored=self._unanchored(status))
+        result.flags.extend(result.dot_flags())
         return result
+
+    def anchor_tape_ends(self, positions: np.ndarray, cloud: CandidateCloud,
+                         source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Inferred dots just beyond the outermost observed rows (``positions`` (D, 3) mm, candidate
+        index ``source`` (D,), -1 = none) take the unclaimed candidate point of >= 3 cameras
+        nearest to where the observed dots' lattice extrapolates them one row out
+        (:func:`.lattice.affine_from_neighbours`, weights of ``status.lattice_sigma_mm``), when it
+        lies within ``status.observe_radius_mm``; row by row outward while dots are found.
+        Returns the new ``source`` and the (D,) mask of dots so anchored.
+
+        The model (MRF1/MRF2) can leave a tape end it saw no points for 8-20 mm off, beyond the
+        observe radius of the points that are there (measured: ``tension 30 % + skin``, the last
+        two rows; under a 3 px rig the first two); one row out the lattice of the observed dots
+        lands 3-5 mm from the truth (see :mod:`.lattice`), and >= 3-camera points are rarely ghosts."""
+        cfg = self.config.status
+        source, positions = source.copy(), positions.copy()
+        anchored = np.zeros(self.n_dots, bool)
+        finite = np.isfinite(positions).all(axis=1)
+        strong = set(np.flatnonzero(cloud.n_views >= 3).tolist()) if len(cloud) else set()
+        free = strong - set(source[source >= 0].tolist())
+        while free:
+            observed = source >= 0
+            front = np.flatnonzero(finite & ~observed & (rows_beyond(observed, self.graph) == 1))
+            if not len(front) or observed.sum() < 3:
+                break
+            predicted = affine_from_neighbours(self.graph.uv_mm, positions, observed, front, cfg.lattice_sigma_mm)
+            found = False
+            for d, p in zip(front, predicted):
+                if not free or not np.isfinite(p).all():
+                    continue
+                options = np.fromiter(free, np.int64)
+                dist = np.linalg.norm(cloud.points[options] - p, axis=1)
+                if dist.min() < cfg.observe_radius_mm:
+                    source[d] = options[int(np.argmin(dist))]
+                    positions[d] = cloud.points[source[d]]  # the next row out extrapolates from it
+                    free.discard(int(source[d]))
+                    anchored[d] = found = True
+            if not found:
+                break
+        return source, anchored
+
+    def _unanchored(self, status: np.ndarray) -> np.ndarray:
+        """(D,) bool: inferred dots >= ``status.unanchored_rows`` rows beyond the outermost rows
+        holding an observed dot (none when the setting is 0)."""
+        rows = self.config.status.unanchored_rows
+        if rows <= 0:
+            return np.zeros(len(status), bool)
+        return (status == "inferred") & (rows_beyond(status == "observed", self.graph) >= rows)
 
     def _placed(self, model: np.ndarray, cloud: CandidateCloud, source: np.ndarray,
                 fallback: np.ndarray | None = None) -> np.ndarray:

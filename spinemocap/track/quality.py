@@ -13,13 +13,17 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
   by whole rows against the previous frame because the evidence demanded it); ``unlabelled_dots``
   0.5 (dots seen by >= 3 cameras just beyond an end of the labelled tape were left without a
   label: the template may sit a row or two off); ``stretch_implausible`` 0.5 (the solved tape's row pitch leaves the
-  range a kinesiology tape can take); ``stretch_carried`` 0.9 (this frame's spacing could not be
+  range a kinesiology tape can take); ``unsolved`` 0.5 (the frame had no solution: its dots,
+  where given, were interpolated in time between solved frames); ``stretch_carried`` 0.9 (this frame's spacing could not be
   measured, an earlier frame's was used); ``lp_relaxed`` 0.9 (the LP had to drop edges);
 - per-dot flags (factor on the dots concerned only; the frame lists the flag): ``dot_relocated``
   0.8 (the dot sat off its tape neighbours' lattice, matched to a ghost or a neighbour's point
   under a poor rig, and was moved back onto it: :mod:`spinemocap.track.lattice`);
   ``dot_extrapolated`` 0.5 (such a dot found no candidate point and its neighbours lie on one
-  side only: its place is an extrapolation along the tape, possibly a dot spacing off).
+  side only: its place is an extrapolation along the tape, possibly a dot spacing off);
+  ``dot_unanchored`` 0.5 (an inferred dot two or more rows beyond the last row with an observed
+  dot: the tape's end seen by no camera pair, placed and labelled by the model alone, which
+  misses there by half a dot spacing or more, see :func:`spinemocap.track.lattice.rows_beyond`).
 
 A frame is *flagged* when it holds any flag but the mild ``stretch_carried``, ``lp_relaxed`` and
 ``dot_relocated`` (frequent under occlusion or a poor rig, and the relocated dots land within
@@ -40,12 +44,14 @@ FLAG_FACTORS = {
     "relabelled": 0.5,
     "unlabelled_dots": 0.5,
     "stretch_implausible": 0.5,
+    "unsolved": 0.5,
     "stretch_carried": 0.9,
     "lp_relaxed": 0.9,
 }
 DOT_FLAG_FACTORS = {
     "dot_relocated": 0.8,
     "dot_extrapolated": 0.5,
+    "dot_unanchored": 0.5,
 }
 MILD_FLAGS = frozenset({"stretch_carried", "lp_relaxed", "dot_relocated"})
 STATUS_FACTORS = {"observed": 1.0, "inferred": 0.6, "missing": 0.0}

@@ -106,7 +106,7 @@ class SequenceTracker:
         with timer("status"):
             kept = self.tracker.assign_status(model, cloud)
         kept.route, kept.lp_status = result.route, result.lp_status
-        dot_level = {"unlabelled_dots", "dot_relocated", "dot_extrapolated"}  # the re-solve's, not kept's
+        dot_level = {"unlabelled_dots", "dot_relocated", "dot_extrapolated", "dot_unanchored"}  # the re-solve's, not kept's
         kept.flags = [f for f in result.flags if f not in dot_level] + kept.flags + ["identity_kept"]
         kept.note = f"the re-solve moved the labels by {shift} row(s); the previous identity was kept"
         kept.stretch, kept.gate_px = result.stretch, result.gate_px
@@ -160,10 +160,17 @@ class SequenceTracker:
         self.last = result.positions.copy()
 
 
-def fill_and_smooth(positions: np.ndarray, status: np.ndarray, config: SequenceConfig) -> tuple[np.ndarray, np.ndarray]:
+def fill_and_smooth(positions: np.ndarray, status: np.ndarray, config: SequenceConfig,
+                    doubted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Post-process a tracked sequence (F, D, 3) / (F, D): interpolate gaps of up to
     ``gap_fill_frames`` frames linearly in time (status ``inferred``), then replace inferred
-    samples by a centred moving average of width ``smooth_inferred`` over the finite samples."""
+    samples by a centred moving average of width ``smooth_inferred`` over the finite samples.
+    ``doubted`` (F, D) bool (with ``smooth_trusted_only``): samples the tracker does not vouch
+    for (flagged frames, frames without a solution) enter no trusted sample's average (those
+    beside them keep their own places), so that a flagged frame's wrong end rows are not carried
+    into the frames beside it (measured on the 3 px benchmark capture: a good frame's inferred
+    row, 2-3 mm off, moved 9-10 mm, onto its neighbours' places, by a flagged frame whose rows
+    were 26-37 mm off)."""
     positions, status = positions.copy(), status.copy()
     F = len(positions)
     frames = np.arange(F)
@@ -178,7 +185,10 @@ def fill_and_smooth(positions: np.ndarray, status: np.ndarray, config: SequenceC
             status[gaps, d] = "inferred"
     w = int(config.smooth_inferred)
     if w >= 3 and F >= w:
-        positions = _smooth_inferred(positions, status, w)
+        trusted = None
+        if doubted is not None and config.smooth_trusted_only:
+            trusted = ~np.asarray(doubted, bool)
+        positions = _smooth_inferred(positions, status, w, trusted)
     return positions, status
 
 
@@ -198,19 +208,27 @@ def _short_gaps(finite: np.ndarray, max_len: int) -> np.ndarray:
     return out
 
 
-def _smooth_inferred(positions: np.ndarray, status: np.ndarray, w: int) -> np.ndarray:
+def _smooth_inferred(positions: np.ndarray, status: np.ndarray, w: int, trusted: np.ndarray | None = None) -> np.ndarray:
+    """Inferred samples replaced by the mean of the finite samples within ``w`` frames. With
+    ``trusted`` (F, D) bool, a trusted sample whose window holds an untrusted one keeps its own
+    place (a one-sided mean would lag the motion by half a frame, the full one would import the
+    untrusted place)."""
     half = w // 2
-    padded = np.pad(positions, ((half, half), (0, 0), (0, 0)), mode="edge")
-    finite = np.isfinite(padded).all(axis=2, keepdims=True)
-    csum = np.cumsum(np.where(finite, padded, 0.0), axis=0)
-    ccount = np.cumsum(finite, axis=0)
-    csum = np.concatenate([np.zeros_like(csum[:1]), csum])
-    ccount = np.concatenate([np.zeros_like(ccount[:1]), ccount])
-    total = csum[w:] - csum[:-w]
-    count = ccount[w:] - ccount[:-w]
+
+    def window_sum(values: np.ndarray) -> np.ndarray:
+        padded = np.pad(values, ((half, half),) + ((0, 0),) * (values.ndim - 1), mode="edge")
+        csum = np.concatenate([np.zeros_like(padded[:1]), np.cumsum(padded, axis=0)])
+        return csum[w:] - csum[:-w]
+
+    finite = np.isfinite(positions).all(axis=2, keepdims=True)
+    total = window_sum(np.where(finite, positions, 0.0))
+    count = window_sum(finite.astype(np.int64))
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = total / count
     out = positions.copy()
     pick = (status == "inferred") & np.isfinite(mean).all(axis=2)
+    if trusted is not None:
+        trusted = np.asarray(trusted, bool)
+        pick &= ~(trusted & (window_sum((~trusted).astype(np.int64)) > 0))
     out[pick] = mean[pick]
     return out
