@@ -20,7 +20,9 @@ the level it was rendered with) keep the tracker's blob-to-dot assignment and sc
 - ``refined_shape``: the same after removing the best similarity onto the truth (the error the
   refinement's geometry leaves; the rest is the world frame);
 - ``frame_uncertainty``: what ``rig_refine.json`` reports as the frame error left;
-- peers, other gauges for the same refined geometry: ``cloud_gauge`` (the refined dots moved by
+- peers: ``fixed_priors``, ``--refine-rig`` as it was before (fixed prior widths of 20 mm and
+  0.5 deg for every camera, :data:`FIXED_PRIORS`), and other gauges for the same refined
+  geometry: ``cloud_gauge`` (the refined dots moved by
   the similarity that best fits them onto the given rig's own triangulation of the same
   dot-frames, :func:`cloud_gauge`) and ``closest_cameras`` (the refined cameras moved by the
   similarity closest to the given cameras, :func:`~spinemocap.track.rig_refine.closest_gauge`).
@@ -54,7 +56,8 @@ from ..track.rig_refine import RigRefineConfig, apply_similarity, closest_gauge,
 from .realism import _render
 
 TRACKED_WITH_PX = 2.0  # the calibration error of the rig the scene is tracked with
-GAUGES = ("given", "refined", "cloud_gauge", "closest_cameras")
+GAUGES = ("given", "refined", "fixed_priors", "cloud_gauge", "closest_cameras")
+FIXED_PRIORS = RigRefineConfig(centre_prior_mm=20.0, rotation_prior_deg=0.5)  # the widths before this benchmark
 
 
 @dataclass
@@ -151,12 +154,16 @@ def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig |
     given_table, refined_table = table_with(given), table_with(refinement.rig)
     observed = result.table.to_arrays()["status"] == "observed"
     fit = cloud_gauge(refined_table.positions()[observed], given_table.positions()[observed])
-    closest = closest_gauge(refinement.rig, given, config.centre_prior_mm, config.rotation_prior_deg)
+    closest = closest_gauge(refinement.rig, given, np.array(list(refinement.extra["centre_prior_mm"].values())),
+                            np.array(list(refinement.extra["rotation_prior_deg"].values())))
+    before = refine_rig(given, result.pixels(), result.table.positions(), scene.fps, FIXED_PRIORS)
     row = {"given": mean_error_mm(given_table, scene.truth), "refined": mean_error_mm(refined_table, scene.truth),
+           "fixed_priors": mean_error_mm(table_with(before.rig), scene.truth),
            "cloud_gauge": mean_error_mm(table_with(apply_similarity(refinement.rig, *fit)), scene.truth),
            "closest_cameras": mean_error_mm(table_with(apply_similarity(refinement.rig, *closest)), scene.truth),
            "refined_shape": shape_error_mm(refined_table, scene.truth),
            "frame_uncertainty": refinement.extra["frame_uncertainty_mm"],
+           "fixed_priors_frame_uncertainty": before.extra["frame_uncertainty_mm"],
            "rig_rms_before_px": refinement.before_px["all"], "rig_rms_after_px": refinement.after_px["all"]}
     return row
 
@@ -186,7 +193,7 @@ def run_gauge_benchmark(seeds: Sequence[int], levels: Sequence[float], rigs: int
 
 def summarize(rows: list[dict]) -> dict:
     """Per level: mean, median and worst of each gauge, the shape error and the reported frame
-    uncertainty, and how often the refined dots beat the given rig's."""
+    uncertainty, and how often the refined dots beat the given rig's and the fixed priors'."""
     out = {}
     for level in sorted({r["level_px"] for r in rows}):
         sel = [r for r in rows if r["level_px"] == level]
@@ -196,6 +203,7 @@ def summarize(rows: list[dict]) -> dict:
             stats[key] = {"mean": float(np.mean(v)), "median": float(np.median(v)), "max": float(np.max(v))}
         stats["n"] = len(sel)
         stats["refined_better_than_given"] = int(sum(r["refined"] < r["given"] for r in sel))
+        stats["refined_better_than_fixed_priors"] = int(sum(r["refined"] < r["fixed_priors"] for r in sel))
         stats["refined_at_most_1mm"] = int(sum(r["refined"] <= 1.0 for r in sel))
         out[f"{level:g}"] = stats
     return out
@@ -203,12 +211,14 @@ def summarize(rows: list[dict]) -> dict:
 
 def format_table(numbers: dict) -> str:
     """A Markdown table: per level, mean (median, worst) mm of each gauge."""
-    lines = ["| calibration error | rigs | given rig (no refinement) | `--refine-rig` (priors gauge) | frame removed "
-             "(shape) | reported frame uncertainty | peer: cloud gauge | peer: closest cameras | refined <= 1.0 mm |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| calibration error | rigs | given rig (no refinement) | `--refine-rig` | frame removed (shape) | "
+             "reported frame uncertainty | peer: fixed priors (before) | peer: cloud gauge | peer: closest cameras | "
+             "refined <= 1.0 mm |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for level, s in numbers["summary"].items():
         cells = [f"{s[k]['mean']:.2f} ({s[k]['median']:.2f}, {s[k]['max']:.2f})"
-                 for k in ("given", "refined", "refined_shape", "frame_uncertainty", "cloud_gauge", "closest_cameras")]
+                 for k in ("given", "refined", "refined_shape", "frame_uncertainty", "fixed_priors", "cloud_gauge",
+                           "closest_cameras")]
         lines.append(f"| {level} px | {s['n']} | " + " | ".join(cells) + f" | {s['refined_at_most_1mm']} of {s['n']} |")
     return "\n".join(lines)
 
@@ -231,7 +241,8 @@ def plot(numbers: dict, path: Path) -> None:
 
     rows = numbers["rows"]
     fig, ax = plt.subplots(figsize=(8, 5))
-    series = (("given", "given rig", "tab:red"), ("refined", "--refine-rig (priors gauge)", "tab:blue"),
+    series = (("given", "given rig", "tab:red"), ("refined", "--refine-rig", "tab:blue"),
+              ("fixed_priors", "peer: fixed priors (before)", "tab:cyan"),
               ("cloud_gauge", "peer: cloud gauge", "tab:orange"), ("closest_cameras", "peer: closest cameras", "tab:purple"),
               ("refined_shape", "refined, frame removed", "tab:green"),
               ("frame_uncertainty", "reported frame uncertainty", "tab:gray"))
