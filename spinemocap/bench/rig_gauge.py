@@ -169,26 +169,34 @@ def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig |
 
 
 def run_gauge_benchmark(seeds: Sequence[int], levels: Sequence[float], rigs: int, frames: int = 30, fps: float = 25.0,
-                        detector: str = "net", progress: bool = True,
-                        say: Callable[[str], None] = print) -> dict:
+                        detector: str = "net", progress: bool = True, say: Callable[[str], None] = print,
+                        after_scene: Callable[[dict], None] | None = None) -> dict:
     """Every scene of ``seeds`` x every level of ``levels`` (px) x ``rigs`` seeded calibrations;
-    returns the JSON-ready numbers (rows and per-level summaries)."""
+    returns the JSON-ready numbers (rows and per-level summaries). ``after_scene(numbers so
+    far)`` is called after each scene (the command saves them)."""
     import platform
 
     from tqdm import tqdm
 
     start = time.perf_counter()
     rows: list[dict] = []
+
+    def numbers() -> dict:
+        return {"seeds": list(seeds), "levels_px": list(levels), "rigs_per_level": rigs, "frames": frames, "fps": fps,
+                "detector": detector, "tracked_with_px": TRACKED_WITH_PX,
+                "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+                "wall_s": time.perf_counter() - start, "rows": rows, "summary": summarize(rows)}
+
     for seed in seeds:
         say(f"[scene {seed}] render + track {frames} frames at {fps:g} fps with its {TRACKED_WITH_PX:g} px rig")
         scene = track_scene(seed, frames, fps, detector, progress)
         jobs = [(level, k, rig) for level in levels for k, rig in enumerate(calibrations(scene, level, rigs))]
         for level, k, rig in tqdm(jobs, desc=f"scene {seed}: refine", unit="rig", disable=not progress, leave=False):
             rows.append({"seed": seed, "level_px": level, "rig": k, **score_calibration(scene, rig)})
-    return {"seeds": list(seeds), "levels_px": list(levels), "rigs_per_level": rigs, "frames": frames, "fps": fps,
-            "detector": detector, "tracked_with_px": TRACKED_WITH_PX,
-            "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
-            "wall_s": time.perf_counter() - start, "rows": rows, "summary": summarize(rows)}
+            say(f"  {level:g} px, rig {k}: " + ", ".join(f"{key} {rows[-1][key]:.2f}" for key in GAUGES) + " mm")
+        if after_scene is not None:
+            after_scene(numbers())
+    return numbers()
 
 
 def summarize(rows: list[dict]) -> dict:

@@ -36,7 +36,8 @@ def run(args: argparse.Namespace) -> int:
     if args.rigs < 1 or args.frames < 2 or any(not 0 < level <= 20 for level in args.levels):
         raise InputError("bench gauge", "--rigs must be >= 1, --frames >= 2 and every level in (0, 20] px")
     numbers = run_gauge_benchmark(args.seeds, args.levels, args.rigs, frames=args.frames, fps=args.fps,
-                                  detector=args.detector, progress=not args.no_progress)
+                                  detector=args.detector, progress=not args.no_progress,
+                                  after_scene=lambda partial: save(partial, args.json, None))
     save(numbers, args.json, args.plot)
     print(format_table(numbers))
     print(f"numbers written to {args.json}" + (f", plot to {args.plot}" if args.plot else ""))
