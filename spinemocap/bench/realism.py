@@ -196,11 +196,16 @@ def format_table(numbers: dict) -> str:
     return "\n".join(lines)
 
 
+def save_json(numbers: dict, json_path: Path) -> None:
+    """The numbers as indented JSON, written atomically (the folder made if needed)."""
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(json_path) as fh:
+        json.dump(numbers, fh, indent=2, default=float)
+
+
 def save(numbers: dict, json_path: Path | None, plot_path: Path | None) -> None:
     if json_path:
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_write(json_path) as fh:
-            json.dump(numbers, fh, indent=2, default=float)
+        save_json(numbers, json_path)
     if plot_path:
         plot(numbers, plot_path)
 

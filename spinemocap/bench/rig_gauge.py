@@ -16,13 +16,14 @@ for every level and every seeded rig written by the studio's perturbation
 the level it was rendered with) keep the tracker's blob-to-dot assignment and score:
 
 - ``given``: the dots triangulated with the given rig (the tracker without ``--refine-rig``);
-- ``refined``: after ``--refine-rig`` (the shipped gauge: priors toward the given cameras);
+- ``refined``: after ``--refine-rig`` (the shipped gauge: weak priors toward the given cameras);
 - ``refined_shape``: the same after removing the best similarity onto the truth (the error the
   refinement's geometry leaves; the rest is the world frame);
 - ``frame_uncertainty``: what ``rig_refine.json`` reports as the frame error left;
-- peers: ``fixed_priors``, ``--refine-rig`` as it was before (fixed prior widths of 20 mm and
-  0.5 deg for every camera, :data:`FIXED_PRIORS`), and other gauges for the same refined
-  geometry: ``cloud_gauge`` (the refined dots moved by
+- peers: ``residual_priors``, ``--refine-rig`` with prior widths sized from each given
+  camera's own residual (:data:`RESIDUAL_PRIORS`, :func:`~spinemocap.track.rig_refine.residual_priors`)
+  instead of the fixed 20 mm / 0.5 deg, and other gauges for the same refined geometry:
+  ``cloud_gauge`` (the refined dots moved by
   the similarity that best fits them onto the given rig's own triangulation of the same
   dot-frames, :func:`cloud_gauge`) and ``closest_cameras`` (the refined cameras moved by the
   similarity closest to the given cameras, :func:`~spinemocap.track.rig_refine.closest_gauge`).
@@ -33,7 +34,6 @@ Errors are mean mm over the tracked dot-frames against the ground truth (as ``be
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 import warnings
 from dataclasses import dataclass
@@ -44,7 +44,7 @@ import numpy as np
 
 from ..app.run import TrackingWarning, TrackResult, apply_refined_rig, make_detector, run_tracking
 from ..camera import Rig
-from ..fileio import atomic_path, atomic_write
+from ..fileio import atomic_path
 from ..geometry import umeyama
 from ..markers import MarkerTable
 from ..synth import SynthConfig, build_scene
@@ -53,11 +53,11 @@ from ..tape import TapeSpec
 from ..track.config import TrackerConfig
 from ..track.rig_check import CalibrationWarning
 from ..track.rig_refine import RigRefineConfig, apply_similarity, closest_gauge, refine_rig
-from .realism import _render
+from .realism import _render, save_json
 
 TRACKED_WITH_PX = 2.0  # the calibration error of the rig the scene is tracked with
-GAUGES = ("given", "refined", "fixed_priors", "cloud_gauge", "closest_cameras")
-FIXED_PRIORS = RigRefineConfig(centre_prior_mm=20.0, rotation_prior_deg=0.5)  # the widths before this benchmark
+GAUGES = ("given", "refined", "residual_priors", "cloud_gauge", "closest_cameras")
+RESIDUAL_PRIORS = RigRefineConfig(centre_prior_mm=None, rotation_prior_deg=None)  # widths from each camera's residual
 
 
 @dataclass
@@ -156,14 +156,14 @@ def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig |
     fit = cloud_gauge(refined_table.positions()[observed], given_table.positions()[observed])
     closest = closest_gauge(refinement.rig, given, np.array(list(refinement.extra["centre_prior_mm"].values())),
                             np.array(list(refinement.extra["rotation_prior_deg"].values())))
-    before = refine_rig(given, result.pixels(), result.table.positions(), scene.fps, FIXED_PRIORS)
+    sized = refine_rig(given, result.pixels(), result.table.positions(), scene.fps, RESIDUAL_PRIORS)
     row = {"given": mean_error_mm(given_table, scene.truth), "refined": mean_error_mm(refined_table, scene.truth),
-           "fixed_priors": mean_error_mm(table_with(before.rig), scene.truth),
+           "residual_priors": mean_error_mm(table_with(sized.rig), scene.truth),
            "cloud_gauge": mean_error_mm(table_with(apply_similarity(refinement.rig, *fit)), scene.truth),
            "closest_cameras": mean_error_mm(table_with(apply_similarity(refinement.rig, *closest)), scene.truth),
            "refined_shape": shape_error_mm(refined_table, scene.truth),
            "frame_uncertainty": refinement.extra["frame_uncertainty_mm"],
-           "fixed_priors_frame_uncertainty": before.extra["frame_uncertainty_mm"],
+           "residual_priors_frame_uncertainty": sized.extra["frame_uncertainty_mm"],
            "rig_rms_before_px": refinement.before_px["all"], "rig_rms_after_px": refinement.after_px["all"]}
     return row
 
@@ -201,7 +201,7 @@ def run_gauge_benchmark(seeds: Sequence[int], levels: Sequence[float], rigs: int
 
 def summarize(rows: list[dict]) -> dict:
     """Per level: mean, median and worst of each gauge, the shape error and the reported frame
-    uncertainty, and how often the refined dots beat the given rig's and the fixed priors'."""
+    uncertainty, and how often the refined dots beat the given rig's and the residual-sized priors'."""
     out = {}
     for level in sorted({r["level_px"] for r in rows}):
         sel = [r for r in rows if r["level_px"] == level]
@@ -211,7 +211,7 @@ def summarize(rows: list[dict]) -> dict:
             stats[key] = {"mean": float(np.mean(v)), "median": float(np.median(v)), "max": float(np.max(v))}
         stats["n"] = len(sel)
         stats["refined_better_than_given"] = int(sum(r["refined"] < r["given"] for r in sel))
-        stats["refined_better_than_fixed_priors"] = int(sum(r["refined"] < r["fixed_priors"] for r in sel))
+        stats["refined_better_than_residual_priors"] = int(sum(r["refined"] < r["residual_priors"] for r in sel))
         stats["refined_at_most_1mm"] = int(sum(r["refined"] <= 1.0 for r in sel))
         out[f"{level:g}"] = stats
     return out
@@ -220,12 +220,12 @@ def summarize(rows: list[dict]) -> dict:
 def format_table(numbers: dict) -> str:
     """A Markdown table: per level, mean (median, worst) mm of each gauge."""
     lines = ["| calibration error | rigs | given rig (no refinement) | `--refine-rig` | frame removed (shape) | "
-             "reported frame uncertainty | peer: fixed priors (before) | peer: cloud gauge | peer: closest cameras | "
+             "reported frame uncertainty | peer: residual-sized priors | peer: cloud gauge | peer: closest cameras | "
              "refined <= 1.0 mm |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for level, s in numbers["summary"].items():
         cells = [f"{s[k]['mean']:.2f} ({s[k]['median']:.2f}, {s[k]['max']:.2f})"
-                 for k in ("given", "refined", "refined_shape", "frame_uncertainty", "fixed_priors", "cloud_gauge",
+                 for k in ("given", "refined", "refined_shape", "frame_uncertainty", "residual_priors", "cloud_gauge",
                            "closest_cameras")]
         lines.append(f"| {level} px | {s['n']} | " + " | ".join(cells) + f" | {s['refined_at_most_1mm']} of {s['n']} |")
     return "\n".join(lines)
@@ -233,9 +233,7 @@ def format_table(numbers: dict) -> str:
 
 def save(numbers: dict, json_path: Path | None, plot_path: Path | None) -> None:
     if json_path:
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_write(json_path) as fh:
-            json.dump(numbers, fh, indent=2, default=float)
+        save_json(numbers, json_path)
     if plot_path:
         plot(numbers, plot_path)
 
@@ -250,7 +248,7 @@ def plot(numbers: dict, path: Path) -> None:
     rows = numbers["rows"]
     fig, ax = plt.subplots(figsize=(8, 5))
     series = (("given", "given rig", "tab:red"), ("refined", "--refine-rig", "tab:blue"),
-              ("fixed_priors", "peer: fixed priors (before)", "tab:cyan"),
+              ("residual_priors", "peer: residual-sized priors", "tab:cyan"),
               ("cloud_gauge", "peer: cloud gauge", "tab:orange"), ("closest_cameras", "peer: closest cameras", "tab:purple"),
               ("refined_shape", "refined, frame removed", "tab:green"),
               ("frame_uncertainty", "reported frame uncertainty", "tab:gray"))

@@ -14,19 +14,19 @@ those points, with the intrinsics' principal point and distortion held fixed.
   priors pull every camera's centre and rotation toward the given rig, so the correction is the
   smallest one in the gauge directions: the refined rig keeps the given rig's average frame and
   metric size (each camera's own error partly averages out, where fixing one ``reference``
-  camera would carry that camera's whole error into every point). The priors' widths follow the
-  given rig's own calibration error (:func:`residual_priors`: each camera's residual on the
-  capture's dots, x ``prior_scale``, as an angle and as a centre shift at its distance to the
-  dots), not fixed numbers: a lab's 0.3 px rig is held ten times tighter than a 3 px one, and
-  the priors also hold the directions a shallow tape hardly constrains (a camera's distance
-  traded against its focal length) near the calibration. Over 3 rendered scenes x seeded
-  studio calibrations (``spinemocap bench gauge``, docs/BENCHMARKS.md) this gave a smaller
-  world-frame error at 2-3 px than the former fixed widths (20 mm, 0.5 deg); fixed widths can
-  still be given (``centre_prior_mm``, ``rotation_prior_deg``). Other gauges measured there and
-  not kept: the similarity closest to the given cameras (:func:`closest_gauge`) and the
-  similarity that fits the refined dots onto the given rig's own triangulation of them (the
-  ``cloud`` gauge: it keeps the part of the given rig's error that is a similarity on the
-  dots, which is most of it).
+  camera would carry that camera's whole error into every point). The widths (20 mm, 0.5 deg:
+  a rotation and a shift that move the dots' images about as much at ~2 m) are wide against a
+  calibration's real errors (~2-3 mm, ~0.05 deg at 2 px), so the data settle everything they
+  can see and the priors only pick the gauge. Measured over 3 rendered scenes x 4 seeded studio
+  calibrations per level (``spinemocap bench gauge``, docs/BENCHMARKS.md) against other gauges
+  for the same refined geometry, none better on average at 1-2 px: widths sized from each
+  camera's own residual (:func:`residual_priors`, ``centre_prior_mm=None``: a real prior of
+  the calibration's size; better at 3 px, worse at 0.5-2 px), the similarity closest to the
+  given cameras (:func:`closest_gauge`), and the similarity that fits the refined dots onto
+  the given rig's own triangulation of them (a gauge from the data: best at 0.5 px, much worse
+  at 2-3 px, where most of the given rig's error on the dots is itself a similarity and is
+  kept). The refined dots' shape is as good as the true rig's at every level; the rest is the
+  given rig's world frame.
   What the given rig's frame errs by cannot be removed by any choice of gauge: ``rig_refine.json``
   reports ``frame_uncertainty_mm``, the larger of two rough estimates: how far the given cameras
   disagree with the refined geometry (:func:`given_rig_disagreement_mm`,
@@ -64,18 +64,19 @@ class RigRefineConfig:
     """``max_frames``: frames used (evenly spread); ``focal``: refine a focal scale per camera;
     ``sync``: refine a clock offset per camera; ``outlier_factor``: see module.
     Priors toward the given cameras (see module): ``centre_prior_mm`` / ``rotation_prior_deg``
-    fixed widths for every camera, or None (default): each camera's widths from its own
-    residual on the capture's dots, ``prior_scale`` x that residual (at least ``min_prior_px``)
-    turned into an angle (/ focal length) and a centre shift (x the camera's distance to the
-    dots), see :func:`residual_priors`."""
+    fixed widths for every camera (default 20 mm, 0.5 deg), or None: each camera's widths from
+    its own residual on the capture's dots, ``prior_scale`` x that residual (at least
+    ``min_prior_px``) turned into an angle (/ focal length) and a centre shift (x the camera's
+    distance to the dots), see :func:`residual_priors` (measured, not better on average:
+    module docstring)."""
 
     max_frames: int = 120
     focal: bool = True
     sync: bool = False
     reference: int | None = None
     loss_scale_px: float = 1.0
-    centre_prior_mm: float | None = None
-    rotation_prior_deg: float | None = None
+    centre_prior_mm: float | None = 20.0
+    rotation_prior_deg: float | None = 0.5
     prior_scale: float = 2.0
     min_prior_px: float = 0.2
     max_nfev: int = 100
