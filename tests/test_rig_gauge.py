@@ -100,3 +100,18 @@ def test_refinement_leaves_only_the_world_frame():
         refinement = refine_rig(given, pixels, triangulated(given, pixels), 100.0, RigRefineConfig())
         assert shape_error(triangulated(given, pixels).reshape(-1, 3)) > 1.8 * floor
         assert shape_error(triangulated(refinement.rig, pixels).reshape(-1, 3)) < 1.05 * floor
+
+
+def test_shape_error_takes_the_world_frame_out_of_a_tracked_table():
+    from spinemocap.bench.rig_gauge import mean_error_mm, shape_error_mm
+    from spinemocap.markers import MarkerTable
+
+    truth = sequence(4)
+    turn = cv2.Rodrigues(np.array([0.004, 0.0, -0.003]))[0]
+    tracked = 1.002 * truth @ turn.T + [1.5, -0.8, 2.0]  # a world frame off by a similarity, shape exact
+    status = np.full(truth.shape[:2], "observed", dtype=object)
+    status[1, :3] = "missing"
+    tracked[1, :3] = np.nan
+    table = MarkerTable.from_arrays(SPEC.labels, tracked, 100.0, status=status)
+    assert mean_error_mm(table, truth) > 1.5
+    assert shape_error_mm(table, truth) < 1e-6
