@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 from test_track_stages import SPEC, rig_behind, tape_on_back
 
-from spinemocap.bench.rig_gauge import cloud_gauge
+from spinemocap.bench.frame_error import cloud_gauge
 from spinemocap.camera import Rig
 from spinemocap.geometry import triangulate_dlt
 from spinemocap.synth.lab_errors import perturb_rig
@@ -103,7 +103,7 @@ def test_refinement_leaves_only_the_world_frame():
 
 
 def test_shape_error_takes_the_world_frame_out_of_a_tracked_table():
-    from spinemocap.bench.rig_gauge import mean_error_mm, shape_error_mm
+    from spinemocap.bench.frame_error import mean_error_mm, shape_error_mm
     from spinemocap.markers import MarkerTable
 
     truth = sequence(4)

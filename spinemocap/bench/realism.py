@@ -29,6 +29,7 @@ from ..track.config import TrackerConfig
 from ..track.evaluate import evaluate_tracking
 from ..track.rig_check import CalibrationWarning
 from ..track.rig_refine import RigRefineConfig, refine_rig
+from .frame_error import shape_error_mm, truth_of
 
 
 @dataclass(frozen=True)
@@ -120,10 +121,8 @@ def run_case(case: Case, frames: int, fps: float | None, preset: str, occlusion:
 
 
 def _shape_error(table, gt: dict) -> float:
-    """Mean error (mm) left once the world frame is taken out (see :mod:`.rig_gauge`): the rest
+    """Mean error (mm) left once the world frame is taken out (see :mod:`.frame_error`): the rest
     of a refined rig's error is the given rig's frame, which no residual shows."""
-    from .rig_gauge import shape_error_mm, truth_of  # rig_gauge builds on this module
-
     return shape_error_mm(table, truth_of(table, gt))
 
 

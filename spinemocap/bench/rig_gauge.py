@@ -21,12 +21,13 @@ the level it was rendered with) keep the tracker's blob-to-dot assignment and sc
   refinement's geometry leaves; the rest is the world frame);
 - ``frame_uncertainty``: what ``rig_refine.json`` reports as the frame error left;
 - peers: ``residual_priors``, ``--refine-rig`` with prior widths sized from each given
-  camera's own residual (:data:`RESIDUAL_PRIORS`, :func:`~spinemocap.track.rig_refine.residual_priors`)
-  instead of the fixed 20 mm / 0.5 deg, and other gauges for the same refined geometry:
-  ``cloud_gauge`` (the refined dots moved by
-  the similarity that best fits them onto the given rig's own triangulation of the same
-  dot-frames, :func:`cloud_gauge`) and ``closest_cameras`` (the refined cameras moved by the
-  similarity closest to the given cameras, :func:`~spinemocap.track.rig_refine.closest_gauge`).
+  camera's own residual (:data:`RESIDUAL_PRIORS`,
+  :func:`~spinemocap.track.rig_refine.residual_priors`) instead of the fixed 20 mm / 0.5 deg, and
+  two other gauges for the same refined geometry: ``cloud_gauge`` (the refined dots moved by the
+  similarity that best fits them onto the given rig's own triangulation of the same dot-frames,
+  :func:`~spinemocap.bench.frame_error.cloud_gauge`) and ``closest_cameras`` (the refined cameras
+  moved by the similarity closest to the given cameras,
+  :func:`~spinemocap.track.rig_refine.closest_gauge`).
 
 Errors are mean mm over the tracked dot-frames against the ground truth (as ``bench realism``).
 """
@@ -45,7 +46,6 @@ import numpy as np
 from ..app.run import TrackingWarning, TrackResult, apply_refined_rig, make_detector, run_tracking
 from ..camera import Rig
 from ..fileio import atomic_path
-from ..geometry import umeyama
 from ..markers import MarkerTable
 from ..synth import SynthConfig, build_scene
 from ..synth.lab_errors import perturb_rig
@@ -53,6 +53,7 @@ from ..tape import TapeSpec
 from ..track.config import TrackerConfig
 from ..track.rig_check import CalibrationWarning
 from ..track.rig_refine import RigRefineConfig, apply_similarity, closest_gauge, refine_rig
+from .frame_error import cloud_gauge, mean_error_mm, shape_error_mm, truth_of
 from .realism import _render, save_json
 
 TRACKED_WITH_PX = 2.0  # the calibration error of the rig the scene is tracked with
@@ -90,13 +91,6 @@ def track_scene(seed: int, frames: int, fps: float, detector: str = "net", progr
                         scene.tape, truth_of(result.table, scene.groundtruth))
 
 
-def truth_of(table: MarkerTable, groundtruth: dict) -> np.ndarray:
-    """(F, D, 3) mm: the studio's true dots for the table's frames, in the table's label order."""
-    gt_labels = [str(x) for x in groundtruth.get("labels", table.labels)]
-    order = [gt_labels.index(label) for label in table.labels]
-    return np.asarray(groundtruth["dots"], float)[table.frames][:, order]
-
-
 def calibrations(scene: TrackedScene, level_px: float, count: int) -> list[Rig]:
     """``count`` seeded rigs off by ``level_px`` (the studio's perturbation of the true rig);
     at :data:`TRACKED_WITH_PX` the scene's own written rig comes first."""
@@ -107,39 +101,6 @@ def calibrations(scene: TrackedScene, level_px: float, count: int) -> list[Rig]:
         rigs.append(perturb_rig(scene.true_rig, scene.calibration_points, level_px, rng)[0])
         k += 1
     return rigs
-
-
-def cloud_gauge(points: np.ndarray, target: np.ndarray, with_scale: bool = True,
-                rounds: int = 3) -> tuple[np.ndarray, np.ndarray, float]:
-    """The similarity ``(R, t, s)`` (``x -> s R x + t``, mm) that best fits ``points`` (N, 3) onto
-    ``target`` (N, 3), rows with NaN ignored; robust: after each fit the pairs beyond 3x the
-    median distance (at least 0.5 mm) are left out of the next."""
-    ok = np.isfinite(points).all(axis=1) & np.isfinite(target).all(axis=1)
-    src, dst = points[ok], target[ok]
-    if len(src) < 3:
-        raise ValueError(f"only {len(src)} point pairs; a similarity needs 3")
-    keep = np.ones(len(src), bool)
-    for _ in range(rounds):
-        R, t, s = umeyama(src[keep], dst[keep], with_scale=with_scale)
-        distance = np.linalg.norm(s * src @ R.T + t - dst, axis=1)
-        keep = distance <= max(3.0 * float(np.median(distance)), 0.5)
-    return R, t, s
-
-
-def shape_error_mm(table: MarkerTable, truth: np.ndarray) -> float:
-    """Mean error (mm) of the tracked dots after the best similarity onto the truth: what is left
-    once the world frame (position, orientation, scale) is taken out."""
-    positions, status = table.positions(), table.to_arrays()["status"]
-    tracked = status != "missing"
-    R, t, s = cloud_gauge(positions[tracked], truth[tracked])
-    moved = s * positions[tracked] @ R.T + t
-    return float(np.nanmean(np.linalg.norm(moved - truth[tracked], axis=1)))
-
-
-def mean_error_mm(table: MarkerTable, truth: np.ndarray) -> float:
-    """Mean error (mm) over the tracked dot-frames."""
-    tracked = table.to_arrays()["status"] != "missing"
-    return float(np.nanmean(np.linalg.norm(table.positions()[tracked] - truth[tracked], axis=1)))
 
 
 def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig | None = None) -> dict:
