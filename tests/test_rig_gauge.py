@@ -115,3 +115,11 @@ def test_shape_error_takes_the_world_frame_out_of_a_tracked_table():
     table = MarkerTable.from_arrays(SPEC.labels, tracked, 100.0, status=status)
     assert mean_error_mm(table, truth) > 1.5
     assert shape_error_mm(table, truth) < 1e-6
+
+
+def test_bench_gauge_refuses_a_bad_sweep_before_rendering(tmp_path, capsys):
+    from spinemocap.cli import main
+
+    code = main(["bench", "gauge", "--json", str(tmp_path / "g.json"), "--levels", "2", "25", "--no-progress"])
+    assert code != 0 and "every level in (0, 20] px" in capsys.readouterr().err
+    assert not (tmp_path / "g.json").exists()
