@@ -137,8 +137,8 @@ class TrackResult:
                          f"{before:.2f} -> {after:.2f} px (rig_refined.toml, rig_refine.json)")
             uncertainty = self.refinement.extra.get("frame_uncertainty_mm", float("nan"))
             if np.isfinite(uncertainty):
-                lines.append(f"the given rig's cameras disagree with the refined geometry: absolute positions keep "
-                             f"about {uncertainty:.1f} mm of its frame error (distances and angles do not)")
+                lines.append(f"absolute positions keep about {uncertainty:.1f} mm of the given rig's world-frame error "
+                             "(no residual sees it; distances and angles do not)")
         flagged = q["flagged_frames"]
         if flagged:
             shown = ", ".join(str(f) for f in flagged[:12]) + (" ..." if len(flagged) > 12 else "")

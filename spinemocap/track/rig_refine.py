@@ -11,18 +11,28 @@ those points, with the intrinsics' principal point and distortion held fixed.
   clock offset; scipy solves this size (a few thousand points) in seconds.
 - Gauge: the dots alone fix neither the world frame nor the scale (a similarity common to all
   cameras moves every triangulated dot and changes no residual). By default no camera is held;
-  weak priors pull every camera's centre (``centre_prior_mm``) and rotation
-  (``rotation_prior_deg``) toward the given rig, so the correction is the smallest one in the
-  gauge directions: the refined rig keeps the given rig's average frame and metric size (each
-  camera's own error partly averages out, where fixing one ``reference`` camera would carry
-  that camera's whole error into every point). What the given rig's frame errs by cannot be
-  removed by any choice of gauge: the refined geometry only shows how much the given cameras
-  disagree with one another. :func:`given_rig_disagreement_mm` measures that (the refined rig
-  moved by the similarity closest to the given one, :func:`closest_gauge`; each camera's centre
-  left over) and :func:`frame_uncertainty_mm` turns it into the uncertainty of the world frame
-  that every absolute position keeps (reported, ``frame_uncertainty_mm``). Choosing that
-  closest similarity as the gauge was tried: on the benchmark's 2 px case it gave 1.66-1.75 mm
-  against 1.19-1.23 mm with the priors alone, within the ~1.5 mm frame uncertainty either way.
+  priors pull every camera's centre and rotation toward the given rig, so the correction is the
+  smallest one in the gauge directions: the refined rig keeps the given rig's average frame and
+  metric size (each camera's own error partly averages out, where fixing one ``reference``
+  camera would carry that camera's whole error into every point). The widths (20 mm, 0.5 deg:
+  a rotation and a shift that move the dots' images about as much at ~2 m) are wide against a
+  calibration's real errors (~2-3 mm, ~0.05 deg at 2 px), so the data settle everything they
+  can see and the priors only pick the gauge. Measured over 3 rendered scenes x 4 seeded studio
+  calibrations per level (``spinemocap bench gauge``, docs/BENCHMARKS.md) against other gauges
+  for the same refined geometry, none better on average at 1-2 px: widths sized from each
+  camera's own residual (:func:`residual_priors`, ``centre_prior_mm=None``: a real prior of
+  the calibration's size; better at 3 px, worse at 0.5-2 px), the similarity closest to the
+  given cameras (:func:`closest_gauge`), and the similarity that fits the refined dots onto
+  the given rig's own triangulation of them (a gauge from the data: best at 0.5 px, much worse
+  at 2-3 px, where most of the given rig's error on the dots is itself a similarity and is
+  kept). The refined dots' shape is as good as the true rig's at every level; the rest is the
+  given rig's world frame.
+  What the given rig's frame errs by cannot be removed by any choice of gauge: ``rig_refine.json``
+  reports ``frame_uncertainty_mm``, the larger of two rough estimates: how far the given cameras
+  disagree with the refined geometry (:func:`given_rig_disagreement_mm`,
+  :func:`frame_uncertainty_mm`) and what the given rig's residuals imply for the frame it
+  defines (:meth:`GivenRigError.frame_uncertainty_mm`; the disagreement alone under-reports
+  once the priors hold the cameras near their calibration).
 - Clock offsets (``sync=True``): camera ``c`` sees a dot at ``X + dt_c V`` where ``V`` is the
   dot's velocity along its tracked trajectory (mm/s, central differences) and ``dt_c`` the
   camera's offset (s) against the reference camera.
@@ -52,16 +62,23 @@ from .rig_check import robust_rms
 @dataclass
 class RigRefineConfig:
     """``max_frames``: frames used (evenly spread); ``focal``: refine a focal scale per camera;
-    ``sync``: refine a clock offset per camera; ``outlier_factor``: see module; the rest: see
-    module."""
+    ``sync``: refine a clock offset per camera; ``outlier_factor``: see module.
+    Priors toward the given cameras (see module): ``centre_prior_mm`` / ``rotation_prior_deg``
+    fixed widths for every camera (default 20 mm, 0.5 deg), or None: each camera's widths from
+    its own residual on the capture's dots, ``prior_scale`` x that residual (at least
+    ``min_prior_px``) turned into an angle (/ focal length) and a centre shift (x the camera's
+    distance to the dots), see :func:`residual_priors` (measured, not better on average:
+    module docstring)."""
 
     max_frames: int = 120
     focal: bool = True
     sync: bool = False
     reference: int | None = None
     loss_scale_px: float = 1.0
-    centre_prior_mm: float = 20.0
-    rotation_prior_deg: float = 0.5
+    centre_prior_mm: float | None = 20.0
+    rotation_prior_deg: float | None = 0.5
+    prior_scale: float = 2.0
+    min_prior_px: float = 0.2
     max_nfev: int = 100
     outlier_factor: float = 4.0
 
@@ -188,14 +205,17 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
         dt = cams[:, -1] if config.sync else np.zeros(C)
         return R, cams[:, 3:6], K, dt
 
+    given_error = GivenRigError.measure(rig, prob)
+    sigma_centre, sigma_rotation = residual_priors(given_error, config)
+
     def residuals(x: np.ndarray) -> np.ndarray:
         cams, X = unpack(x)
         R, t, K, dt = camera_arrays(cams)
         world = X[prob.point] + dt[prob.cam, None] * prob.velocity[prob.point]
         reproj = (_project(K[prob.cam], dist0[prob.cam], R[prob.cam], t[prob.cam], world) - prob.uv).ravel()
         centres = -np.einsum("cji,cj->ci", R, t)
-        prior_c = ((centres - centres0) / config.centre_prior_mm).ravel()
-        prior_r = ((cams[:, :3] - rvec0) / np.deg2rad(config.rotation_prior_deg)).ravel()
+        prior_c = ((centres - centres0) / sigma_centre[:, None]).ravel()
+        prior_r = ((cams[:, :3] - rvec0) / sigma_rotation[:, None]).ravel()
         return np.concatenate([reproj, prior_c, prior_r])
 
     sparsity = lil_matrix((2 * M + 6 * C, len(x0)), dtype=int)
@@ -246,17 +266,79 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
     R, t, K, dt = camera_arrays(cams)
     refined = Rig([dataclasses.replace(c, K=K[i], R=cv2.Rodrigues(cv2.Rodrigues(R[i])[0])[0], t=t[i].copy())
                    for i, c in enumerate(rig)])
-    disagreement = given_rig_disagreement_mm(refined, rig, config.centre_prior_mm, config.rotation_prior_deg)
+    disagreement = given_rig_disagreement_mm(refined, rig, sigma_centre, np.degrees(sigma_rotation))
     return RigRefinement(
         rig=refined, before_px=_per_camera_rms(before, obs_cam, rig), after_px=_per_camera_rms(after, obs_cam, rig),
         sync_offsets_ms={n: float(1000 * dt[i]) for i, n in enumerate(rig.names)}, n_points=P, n_observations=M,
         extra={"frames_used": int(len(frames)), "solver": "scipy least_squares (trf, huber)",
                "outliers_dropped": int(M - keep.sum()),
                "given_rig_disagreement_mm": dict(zip(rig.names, disagreement.tolist())),
-               "frame_uncertainty_mm": frame_uncertainty_mm(disagreement),
+               "frame_uncertainty_mm": max(frame_uncertainty_mm(disagreement), given_error.frame_uncertainty_mm()),
+               "frame_uncertainty_from_disagreement_mm": frame_uncertainty_mm(disagreement),
+               "frame_uncertainty_from_residuals_mm": given_error.frame_uncertainty_mm(),
+               "centre_prior_mm": dict(zip(rig.names, sigma_centre.tolist())),
+               "rotation_prior_deg": dict(zip(rig.names, np.degrees(sigma_rotation).tolist())),
                "focal_scale": {n: float(cams[i, 6]) if config.focal else 1.0 for i, n in enumerate(rig.names)},
                "camera_moved_mm": {n: float(np.linalg.norm(refined[i].center - centres0[i])) for i, n in enumerate(rig.names)}},
     )
+
+
+@dataclass
+class GivenRigError:
+    """What the capture's own dots say of each given camera's calibration error: its residual
+    (robust RMS, distorted px) against the dots triangulated with the given rig, its focal length
+    (px) and its distance to the dots (median, mm). ``shift_mm``: that residual as a shift at
+    the dots (residual x distance / focal)."""
+
+    residual_px: np.ndarray  # (C,)
+    focal_px: np.ndarray  # (C,)
+    distance_mm: np.ndarray  # (C,)
+
+    @property
+    def shift_mm(self) -> np.ndarray:
+        return self.residual_px * self.distance_mm / self.focal_px
+
+    @classmethod
+    def measure(cls, rig: Rig, prob: _Problem) -> GivenRigError:
+        residual, distance = np.full(len(rig), np.nan), np.full(len(rig), np.nan)
+        for c, cam in enumerate(rig):
+            rows = prob.cam == c
+            if rows.any():
+                points = prob.start[prob.point[rows]]
+                residual[c] = robust_rms(np.linalg.norm(cam.project(points) - prob.uv[rows], axis=1))
+                distance[c] = float(np.median(np.linalg.norm(points - cam.center, axis=1)))
+        seen = np.isfinite(distance)
+        distance[~seen] = np.median(distance[seen]) if seen.any() else 1000.0
+        residual[~seen] = np.median(residual[seen]) if seen.any() else 0.0
+        return cls(residual, np.array([0.5 * (cam.K[0, 0] + cam.K[1, 1]) for cam in rig]), distance)
+
+    def frame_uncertainty_mm(self) -> float:
+        """A rough uncertainty (mm, mean 3D) of the world frame the given rig defines, as if each
+        camera's error acted on the frame as independent noise of its measured size: ``rho`` =
+        RMS of ``shift_mm`` (2D, per camera) triangulated from C views, 3 rho / (2 sqrt(C)) RMS in
+        3D, x 0.92 for the mean of a 3D norm."""
+        rho = float(np.sqrt(np.mean(self.shift_mm**2)))
+        return 0.92 * 3 * rho / (2 * np.sqrt(len(self.shift_mm)))
+
+
+def residual_priors(error: GivenRigError, config: RigRefineConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(C,) centre prior widths (mm) and (C,) rotation prior widths (rad) of the cameras.
+
+    Fixed widths where ``config`` gives them; otherwise from what each given camera's residual
+    on the capture's dots (:class:`GivenRigError`) says of its calibration error:
+    ``prior_scale`` x that residual (at least ``min_prior_px``) is an angle of residual / focal
+    length (rad) and, at the camera's distance to the dots, a centre shift of that angle x
+    distance: a rotation and a shift that move the dots' images as much. A calibration's errors
+    are of that size (the rig reprojects its own calibration volume with about that residual),
+    so the priors let the data correct them where it can and hold each camera near its
+    calibration where the dots say little: the world frame, and the directions a shallow tape
+    hardly constrains (a camera's distance traded against its focal length)."""
+    C = len(error.residual_px)
+    angle = config.prior_scale * np.maximum(error.residual_px, config.min_prior_px) / error.focal_px
+    rotation = np.full(C, np.radians(config.rotation_prior_deg)) if config.rotation_prior_deg is not None else angle
+    centre = (np.full(C, float(config.centre_prior_mm)) if config.centre_prior_mm is not None
+              else angle * error.distance_mm)
+    return centre, rotation
 
 
 def apply_similarity(rig: Rig, R: np.ndarray, t: np.ndarray, s: float) -> Rig:
@@ -271,11 +353,12 @@ def apply_similarity(rig: Rig, R: np.ndarray, t: np.ndarray, s: float) -> Rig:
     return Rig(cameras)
 
 
-def closest_gauge(refined: Rig, given: Rig, centre_sigma_mm: float,
-                  rotation_sigma_deg: float) -> tuple[np.ndarray, np.ndarray, float]:
+def closest_gauge(refined: Rig, given: Rig, centre_sigma_mm: float | np.ndarray,
+                  rotation_sigma_deg: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """The similarity ``(R, t, s)`` (``x -> s R x + t``, mm) that moves ``refined`` closest to
     ``given``: least squares over the cameras of the centre differences / ``centre_sigma_mm`` and
-    the orientation differences (rotation vectors) / ``rotation_sigma_deg``. Under a world
+    the orientation differences (rotation vectors) / ``rotation_sigma_deg`` (either: one width
+    or one per camera). Under a world
     similarity the cameras' relative geometry is unchanged, so the refined rig's fit to the dots
     is kept; only where the world sits (position, orientation, metric scale) is chosen, from
     all cameras together. Starts from the centres' Umeyama fit."""
@@ -285,7 +368,8 @@ def closest_gauge(refined: Rig, given: Rig, centre_sigma_mm: float,
     c_given = np.stack([c.center for c in given])
     R_ref = np.stack([c.R for c in refined])
     R_given = np.stack([c.R for c in given])
-    sigma_r = np.radians(rotation_sigma_deg)
+    sigma_c = np.broadcast_to(np.asarray(centre_sigma_mm, float), (len(refined),))[:, None]
+    sigma_r = np.broadcast_to(np.radians(np.asarray(rotation_sigma_deg, float)), (len(refined),))[:, None]
     if len(refined) >= 3:
         R0, t0, s0 = umeyama(c_ref, c_given, with_scale=True)
     else:
@@ -296,16 +380,16 @@ def closest_gauge(refined: Rig, given: Rig, centre_sigma_mm: float,
 
     def residuals(x: np.ndarray) -> np.ndarray:
         R, t, s = unpack(x)
-        centre = ((s * c_ref @ R.T + t - c_given) / centre_sigma_mm).ravel()
-        turn = [cv2.Rodrigues(Rg @ (Rr @ R.T).T)[0].ravel() for Rr, Rg in zip(R_ref, R_given)]
-        return np.concatenate([centre, np.ravel(turn) / sigma_r])
+        centre = ((s * c_ref @ R.T + t - c_given) / sigma_c).ravel()
+        turn = np.array([cv2.Rodrigues(Rg @ (Rr @ R.T).T)[0].ravel() for Rr, Rg in zip(R_ref, R_given)])
+        return np.concatenate([centre, (turn / sigma_r).ravel()])
 
     fit = least_squares(residuals, np.zeros(7), method="lm")
     return unpack(fit.x)
 
 
-def given_rig_disagreement_mm(refined: Rig, given: Rig, centre_sigma_mm: float,
-                              rotation_sigma_deg: float) -> np.ndarray:
+def given_rig_disagreement_mm(refined: Rig, given: Rig, centre_sigma_mm: float | np.ndarray,
+                              rotation_sigma_deg: float | np.ndarray) -> np.ndarray:
     """(C,) mm: how far each given camera's centre lies from the refined rig moved onto the given
     one by :func:`closest_gauge`, i.e. the given rig's per-camera errors the dots reveal."""
     moved = apply_similarity(refined, *closest_gauge(refined, given, centre_sigma_mm, rotation_sigma_deg))

@@ -1,0 +1,232 @@
+"""The world frame after ``--refine-rig``, over many calibrations (``spinemocap bench gauge``,
+issue 11).
+
+``--refine-rig`` fixes the cameras' relative geometry from the tracked dots, but no residual
+says where the world is: a similarity common to all cameras moves every dot and changes no
+reprojection. The refinement picks it with weak priors toward the given cameras (see
+:mod:`spinemocap.track.rig_refine`), so what is left of the error is the given rig's own frame
+error, which differs from one calibration to the next. One seeded case (``bench realism``'s
+``calibration 2.0 px``) says little about it; this benchmark measures it over several scenes
+and several seeded calibrations per error level.
+
+Per scene (``artificial`` preset, light occlusion, shipped detector): render and detect once,
+track once in sequence mode with the scene's own 2 px rig (what ``bench realism`` does), then
+for every level and every seeded rig written by the studio's perturbation
+(:func:`spinemocap.synth.lab_errors.perturb_rig`; the scene's own written rig is the first at
+the level it was rendered with) keep the tracker's blob-to-dot assignment and score:
+
+- ``given``: the dots triangulated with the given rig (the tracker without ``--refine-rig``);
+- ``refined``: after ``--refine-rig`` (the shipped gauge: weak priors toward the given cameras);
+- ``refined_shape``: the same after removing the best similarity onto the truth (the error the
+  refinement's geometry leaves; the rest is the world frame);
+- ``frame_uncertainty``: what ``rig_refine.json`` reports as the frame error left;
+- peers: ``residual_priors``, ``--refine-rig`` with prior widths sized from each given
+  camera's own residual (:data:`RESIDUAL_PRIORS`,
+  :func:`~spinemocap.track.rig_refine.residual_priors`) instead of the fixed 20 mm / 0.5 deg, and
+  two other gauges for the same refined geometry: ``cloud_gauge`` (the refined dots moved by the
+  similarity that best fits them onto the given rig's own triangulation of the same dot-frames,
+  :func:`~spinemocap.bench.frame_error.cloud_gauge`) and ``closest_cameras`` (the refined cameras
+  moved by the similarity closest to the given cameras,
+  :func:`~spinemocap.track.rig_refine.closest_gauge`).
+
+Errors are mean mm over the tracked dot-frames against the ground truth (as ``bench realism``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..app.run import TrackingWarning, TrackResult, apply_refined_rig, make_detector, run_tracking
+from ..camera import Rig
+from ..fileio import atomic_path
+from ..markers import MarkerTable
+from ..synth import SynthConfig, build_scene
+from ..synth.lab_errors import perturb_rig
+from ..tape import TapeSpec
+from ..track.config import TrackerConfig
+from ..track.rig_check import CalibrationWarning
+from ..track.rig_refine import RigRefineConfig, apply_similarity, closest_gauge, refine_rig
+from .frame_error import cloud_gauge, mean_error_mm, shape_error_mm, truth_of
+from .realism import _render, save_json
+
+TRACKED_WITH_PX = 2.0  # the calibration error of the rig the scene is tracked with
+GAUGES = ("given", "refined", "residual_priors", "cloud_gauge", "closest_cameras")
+RESIDUAL_PRIORS = RigRefineConfig(centre_prior_mm=None, rotation_prior_deg=None)  # widths from each camera's residual
+
+
+@dataclass
+class TrackedScene:
+    """One rendered and tracked scene: what the refinement needs, and the truth."""
+
+    seed: int
+    fps: float
+    true_rig: Rig
+    written_rig: Rig
+    calibration_points: np.ndarray  # (N, 3) mm: the true dots the studio's calibration error is measured on
+    result: TrackResult
+    tape: TapeSpec
+    truth: np.ndarray  # (F, D, 3) mm, in the table's label order
+
+
+def track_scene(seed: int, frames: int, fps: float, detector: str = "net", progress: bool = False) -> TrackedScene:
+    """Render the ``artificial`` preset (light occlusion, ideal realism but a
+    :data:`TRACKED_WITH_PX` rig) and track it in sequence mode with the written rig."""
+    synth = SynthConfig.preset("artificial", occlusion="light", seed=seed, frames=frames, fps=fps,
+                               realism="ideal", calibration_error_px=TRACKED_WITH_PX)
+    scene = build_scene(synth)
+    views = _render(scene, make_detector(detector), synth.frames, progress)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TrackingWarning)
+        warnings.simplefilter("ignore", CalibrationWarning)
+        result = run_tracking(iter(views), scene.calibrated_rig, scene.tape, scene.fps, up=scene.subject()["up"],
+                              mode="sequence", config=TrackerConfig(), progress=False, n_frames=len(views))
+    return TrackedScene(seed, scene.fps, scene.rig, scene.calibrated_rig, scene._calibration_points(), result,
+                        scene.tape, truth_of(result.table, scene.groundtruth))
+
+
+def calibrations(scene: TrackedScene, level_px: float, count: int) -> list[Rig]:
+    """``count`` seeded rigs off by ``level_px`` (the studio's perturbation of the true rig);
+    at :data:`TRACKED_WITH_PX` the scene's own written rig comes first."""
+    rigs = [scene.written_rig] if level_px == TRACKED_WITH_PX else []
+    k = 0
+    while len(rigs) < count:
+        rng = np.random.default_rng([scene.seed, 1000 + k])
+        rigs.append(perturb_rig(scene.true_rig, scene.calibration_points, level_px, rng)[0])
+        k += 1
+    return rigs
+
+
+def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig | None = None) -> dict:
+    """Every gauge's mean error (mm) for one given rig (see module)."""
+    config = config or RigRefineConfig()
+    result = scene.result
+    refinement = refine_rig(given, result.pixels(), result.table.positions(), scene.fps, config)
+
+    def table_with(rig: Rig) -> MarkerTable:
+        return apply_refined_rig(result, dataclasses.replace(refinement, rig=rig), scene.tape)
+
+    given_table, refined_table = table_with(given), table_with(refinement.rig)
+    observed = result.table.to_arrays()["status"] == "observed"
+    fit = cloud_gauge(refined_table.positions()[observed], given_table.positions()[observed])
+    closest = closest_gauge(refinement.rig, given, np.array(list(refinement.extra["centre_prior_mm"].values())),
+                            np.array(list(refinement.extra["rotation_prior_deg"].values())))
+    sized = refine_rig(given, result.pixels(), result.table.positions(), scene.fps, RESIDUAL_PRIORS)
+    row = {"given": mean_error_mm(given_table, scene.truth), "refined": mean_error_mm(refined_table, scene.truth),
+           "residual_priors": mean_error_mm(table_with(sized.rig), scene.truth),
+           "cloud_gauge": mean_error_mm(table_with(apply_similarity(refinement.rig, *fit)), scene.truth),
+           "closest_cameras": mean_error_mm(table_with(apply_similarity(refinement.rig, *closest)), scene.truth),
+           "refined_shape": shape_error_mm(refined_table, scene.truth),
+           "frame_uncertainty": refinement.extra["frame_uncertainty_mm"],
+           "residual_priors_frame_uncertainty": sized.extra["frame_uncertainty_mm"],
+           "rig_rms_before_px": refinement.before_px["all"], "rig_rms_after_px": refinement.after_px["all"]}
+    return row
+
+
+def run_gauge_benchmark(seeds: Sequence[int], levels: Sequence[float], rigs: int, frames: int = 30, fps: float = 25.0,
+                        detector: str = "net", progress: bool = True, say: Callable[[str], None] = print,
+                        after_scene: Callable[[dict], None] | None = None) -> dict:
+    """Every scene of ``seeds`` x every level of ``levels`` (px) x ``rigs`` seeded calibrations;
+    returns the JSON-ready numbers (rows and per-level summaries). ``after_scene(numbers so
+    far)`` is called after each scene (the command saves them)."""
+    import platform
+
+    from tqdm import tqdm
+
+    start = time.perf_counter()
+    rows: list[dict] = []
+
+    def numbers() -> dict:
+        return {"seeds": list(seeds), "levels_px": list(levels), "rigs_per_level": rigs, "frames": frames, "fps": fps,
+                "detector": detector, "tracked_with_px": TRACKED_WITH_PX,
+                "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+                "wall_s": time.perf_counter() - start, "rows": rows, "summary": summarize(rows)}
+
+    for seed in seeds:
+        say(f"[scene {seed}] render + track {frames} frames at {fps:g} fps with its {TRACKED_WITH_PX:g} px rig")
+        scene = track_scene(seed, frames, fps, detector, progress)
+        jobs = [(level, k, rig) for level in levels for k, rig in enumerate(calibrations(scene, level, rigs))]
+        for level, k, rig in tqdm(jobs, desc=f"scene {seed}: refine", unit="rig", disable=not progress, leave=False):
+            rows.append({"seed": seed, "level_px": level, "rig": k, **score_calibration(scene, rig)})
+            say(f"  {level:g} px, rig {k}: " + ", ".join(f"{key} {rows[-1][key]:.2f}" for key in GAUGES) + " mm")
+        if after_scene is not None:
+            after_scene(numbers())
+    return numbers()
+
+
+def summarize(rows: list[dict]) -> dict:
+    """Per level: mean, median and worst of each gauge, the shape error and the reported frame
+    uncertainty, and how often the refined dots beat the given rig's and the residual-sized priors'."""
+    out = {}
+    for level in sorted({r["level_px"] for r in rows}):
+        sel = [r for r in rows if r["level_px"] == level]
+        stats = {}
+        for key in (*GAUGES, "refined_shape", "frame_uncertainty"):
+            v = np.array([r[key] for r in sel], float)
+            stats[key] = {"mean": float(np.mean(v)), "median": float(np.median(v)), "max": float(np.max(v))}
+        stats["n"] = len(sel)
+        stats["refined_better_than_given"] = int(sum(r["refined"] < r["given"] for r in sel))
+        stats["refined_better_than_residual_priors"] = int(sum(r["refined"] < r["residual_priors"] for r in sel))
+        stats["refined_at_most_1mm"] = int(sum(r["refined"] <= 1.0 for r in sel))
+        out[f"{level:g}"] = stats
+    return out
+
+
+def format_table(numbers: dict) -> str:
+    """A Markdown table: per level, mean (median, worst) mm of each gauge."""
+    lines = ["| calibration error | rigs | given rig (no refinement) | `--refine-rig` | frame removed (shape) | "
+             "reported frame uncertainty | peer: residual-sized priors | peer: cloud gauge | peer: closest cameras | "
+             "refined <= 1.0 mm |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for level, s in numbers["summary"].items():
+        cells = [f"{s[k]['mean']:.2f} ({s[k]['median']:.2f}, {s[k]['max']:.2f})"
+                 for k in ("given", "refined", "refined_shape", "frame_uncertainty", "residual_priors", "cloud_gauge",
+                           "closest_cameras")]
+        lines.append(f"| {level} px | {s['n']} | " + " | ".join(cells) + f" | {s['refined_at_most_1mm']} of {s['n']} |")
+    return "\n".join(lines)
+
+
+def save(numbers: dict, json_path: Path | None, plot_path: Path | None) -> None:
+    if json_path:
+        save_json(numbers, json_path)
+    if plot_path:
+        plot(numbers, plot_path)
+
+
+def plot(numbers: dict, path: Path) -> None:
+    """Each calibration's mean error per gauge against its level (dots), means joined by lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = numbers["rows"]
+    fig, ax = plt.subplots(figsize=(8, 5))
+    series = (("given", "given rig", "tab:red"), ("refined", "--refine-rig", "tab:blue"),
+              ("residual_priors", "peer: residual-sized priors", "tab:cyan"),
+              ("cloud_gauge", "peer: cloud gauge", "tab:orange"), ("closest_cameras", "peer: closest cameras", "tab:purple"),
+              ("refined_shape", "refined, frame removed", "tab:green"),
+              ("frame_uncertainty", "reported frame uncertainty", "tab:gray"))
+    levels = sorted({r["level_px"] for r in rows})
+    for k, (key, label, colour) in enumerate(series):
+        offset = (k - len(series) / 2) * 0.04
+        ax.scatter([r["level_px"] + offset for r in rows], [r[key] for r in rows], s=10, color=colour, alpha=0.5)
+        ax.plot(np.array(levels) + offset, [np.mean([r[key] for r in rows if r["level_px"] == lv]) for lv in levels],
+                "-o", color=colour, label=label)
+    ax.axhline(1.0, color="k", ls=":", lw=1, label="goal 1.0 mm at 2 px (refined)")
+    ax.set_xlabel("calibration error of the given rig (px RMS)")
+    ax.set_ylabel("mean dot error (mm)")
+    ax.set_yscale("log")
+    ax.legend(fontsize=8)
+    ax.set_title(f"bench gauge: scenes {numbers['seeds']}, {numbers['rigs_per_level']} rigs per level, "
+                 f"{numbers['frames']} frames at {numbers['fps']:g} fps", fontsize=10)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
