@@ -59,7 +59,9 @@ class StatusConfig:
     Gaussian weights of ``lattice_sigma_mm`` on the tape) was matched to a ghost or a
     neighbour's point, or placed wrong by the model: it is moved to the unclaimed candidate point
     at that prediction (or, without one, inferred there) and marked relocated (its label
-    confidence lowered, see :mod:`spinemocap.track.quality`)."""
+    confidence lowered, see :mod:`spinemocap.track.quality`). Unobserved dots ``extrapolated_rows``
+    or more rows beyond the outermost observed row are marked extrapolated (their place along
+    the tape is an extrapolation: :func:`spinemocap.track.pipeline.rows_beyond_observed`)."""
 
     observe_radius_mm: float = 7.0
     min_views: int = 2
@@ -67,6 +69,7 @@ class StatusConfig:
     lattice_check: bool = True
     lattice_limit: float = 0.3
     lattice_sigma_mm: float = 20.0
+    extrapolated_rows: int = 2
 
 
 @dataclass

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from ..camera import Rig
-from ..tape import TapeSpec
+from ..tape import TapeGraph, TapeSpec
 from ..timing import StageTimer
 from ..views import ViewDots
 from .candidates import build_candidates
@@ -99,6 +99,19 @@ def match_points(model: np.ndarray, points: np.ndarray, radius_mm: float) -> np.
     good = dist[rows, cols] < radius_mm
     out[np.nonzero(ok)[0][rows[good]]] = cols[good]
     return out
+
+
+def rows_beyond_observed(observed: np.ndarray, graph: TapeGraph, min_rows: int) -> np.ndarray:
+    """(D,) bool: unobserved dots ``min_rows`` or more rows beyond the outermost row with an
+    observed dot (``observed`` (D,) bool), at either end of the tape. Their place along the tape
+    is an extrapolation with the frame's mean stretch; where the stretch is uneven (a flexed
+    back's lumbar rows 20-30 % longer than its thoracic rows) it drifts by ~5-10 mm a row, i.e.
+    a label off after two or three rows. Everything when no dot is observed."""
+    if not observed.any():
+        return np.ones(len(observed), bool)
+    seen_rows = graph.row[observed]
+    beyond = np.maximum(seen_rows.min() - graph.row, graph.row - seen_rows.max())
+    return ~observed & (beyond >= min_rows)
 
 
 class FrameTracker:
@@ -194,8 +207,10 @@ class FrameTracker:
         pixels = np.full((self.n_dots, len(self.rig), 2), np.nan)
         if cloud.pixels is not None:
             pixels[seen] = cloud.pixels[source[seen]]
+        extrapolated = relocated & ~seen & beyond_known_rows(relocated, positions, self.graph)
+        extrapolated |= rows_beyond_observed(seen, self.graph, cfg.extrapolated_rows)
         result = FrameResult(positions, status, n_views, residual, pixels=pixels, relocated=relocated,
-                             extrapolated=relocated & ~seen & beyond_known_rows(relocated, positions, self.graph))
+                             extrapolated=extrapolated)
         if relocated.any():
             result.flags.append("dot_relocated")
         if result.extrapolated.any():

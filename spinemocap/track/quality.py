@@ -19,7 +19,9 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
   0.8 (the dot sat off its tape neighbours' lattice, matched to a ghost or a neighbour's point
   under a poor rig, and was moved back onto it: :mod:`spinemocap.track.lattice`);
   ``dot_extrapolated`` 0.5 (such a dot found no candidate point and its neighbours lie on one
-  side only: its place is an extrapolation along the tape, possibly a dot spacing off).
+  side only: its place is an extrapolation along the tape, possibly a dot spacing off; also
+  any unobserved dot two or more rows beyond the outermost observed row, placed with the mean
+  stretch of the rows seen: ``status.extrapolated_rows``).
 
 A frame is *flagged* when it holds any flag but the mild ``stretch_carried``, ``lp_relaxed`` and
 ``dot_relocated`` (frequent under occlusion or a poor rig, and the relocated dots land within

@@ -1,0 +1,74 @@
+"""A back at full flexion (issue 11, the `flexion (lab)` benchmark case): the lumbar rows of the
+tape stretch 20-30 % more than its thoracic rows, so the dots' arc positions hold two periods.
+The stretch estimate must give the tape's mean pitch (not the lumbar one: a template a row too
+long then slid the labels by two rows with perfect residuals), and dots the tracker can only
+extrapolate far beyond the rows it sees must flag the frame.
+
+Blobs are projections of dots laid on a curved back (see test_track_stages): no rendering."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from test_track_stages import SPEC, blobs, rig_behind, tape_on_back
+
+from spinemocap.track.evaluate import label_swaps
+from spinemocap.track.pipeline import FrameTracker, rows_beyond_observed
+from spinemocap.track.quality import is_flagged
+from spinemocap.track.stretch import estimate_stretch, row_stretch
+
+
+@dataclasses.dataclass
+class _SpecLike:
+    graph: object
+
+
+def flexed_tape(lumbar: float = 1.53, thoracic: float = 1.26) -> np.ndarray:
+    """(D, 3) dots of SPEC with the lower half of the row gaps ``lumbar`` times the spec's pitch
+    and the upper half ``thoracic`` times it (the truth at the benchmark's full flexion)."""
+    n_gaps = SPEC.n_rows - 1
+    ratio = np.where(np.arange(n_gaps) < n_gaps // 2, lumbar, thoracic)
+    rows_v = np.concatenate([[0.0], np.cumsum(SPEC.row_pitch_mm * ratio)])
+    laid = dataclasses.replace(SPEC.graph, uv_mm=np.column_stack([SPEC.graph.uv_mm[:, 0], rows_v[SPEC.graph.row]]))
+    return tape_on_back(_SpecLike(laid))
+
+
+def test_the_stretch_estimate_of_an_unevenly_stretched_tape_is_its_mean_pitch():
+    rig = rig_behind()
+    dots = flexed_tape()
+    cloud = FrameTracker(rig, SPEC).candidates(blobs(rig, dots, noise_px=0.2))
+    along = row_stretch(dots, SPEC.graph)[0]
+    estimate = estimate_stretch(cloud.points, SPEC)
+    assert estimate.source == "data"
+    assert estimate.along == pytest.approx(float(np.mean(along)), abs=0.03)  # the periodogram said 1.55
+    assert estimate.along_min == pytest.approx(float(along.min()), abs=0.05)
+    assert estimate.along_max == pytest.approx(float(along.max()), abs=0.05)
+
+
+def test_a_flexed_back_keeps_every_label():
+    rig = rig_behind()
+    dots = flexed_tape()
+    result = FrameTracker(rig, SPEC).solve(blobs(rig, dots, noise_px=0.2))
+    assert not label_swaps(result.positions[None], dots[None], 15.0).any()
+    observed = result.status == "observed"
+    assert observed.sum() >= 28
+    assert np.linalg.norm(result.positions - dots, axis=1)[observed].max() < 2.0
+
+
+def test_dots_extrapolated_two_rows_beyond_the_seen_rows_flag_the_frame():
+    graph = SPEC.graph
+    observed = graph.row <= SPEC.n_rows - 4  # the last three rows hidden
+    beyond = rows_beyond_observed(observed, graph, 2)
+    assert set(graph.row[beyond]) == {SPEC.n_rows - 2, SPEC.n_rows - 1}
+    assert not rows_beyond_observed(np.ones(len(observed), bool), graph, 2).any()
+
+    rig = rig_behind()
+    dots = flexed_tape()
+    hidden = np.zeros((len(rig), len(dots)), bool)
+    hidden[:, ~observed] = True
+    tracker = FrameTracker(rig, SPEC)
+    result = tracker.assign_status(dots, tracker.candidates(blobs(rig, dots, noise_px=0.2, hidden=hidden)))
+    assert result.extrapolated is not None and (result.extrapolated == beyond).all()
+    assert "dot_extrapolated" in result.flags and is_flagged(result.flags)
