@@ -14,9 +14,11 @@ import numpy as np
 import pytest
 from test_track_stages import SPEC, blobs, rig_behind, tape_on_back
 
+from spinemocap.track.config import TrackerConfig
 from spinemocap.track.evaluate import label_swaps
 from spinemocap.track.pipeline import FrameTracker, rows_beyond_observed
 from spinemocap.track.quality import is_flagged
+from spinemocap.track.sequence import SequenceTracker
 from spinemocap.track.stretch import estimate_stretch, row_stretch
 
 
@@ -47,14 +49,30 @@ def test_the_stretch_estimate_of_an_unevenly_stretched_tape_is_its_mean_pitch():
     assert estimate.along_max == pytest.approx(float(along.max()), abs=0.05)
 
 
-def test_a_flexed_back_keeps_every_label():
+def test_a_flexed_back_keeps_every_label_and_hidden_rows_follow_their_neighbours():
+    """Frame 1 sees the whole flexed tape; frame 2 (re-solved in full) hides the last three,
+    thoracic rows: the re-solve would lay them with the mean stretch of the rows it sees (the
+    lumbar ones, longer), they follow their observed neighbours from frame 1 instead."""
     rig = rig_behind()
     dots = flexed_tape()
-    result = FrameTracker(rig, SPEC).solve(blobs(rig, dots, noise_px=0.2))
-    assert not label_swaps(result.positions[None], dots[None], 15.0).any()
-    observed = result.status == "observed"
+    config = TrackerConfig()
+    config.sequence.skip_lp = False  # every frame a full re-solve
+    sequence = SequenceTracker(FrameTracker(rig, SPEC, config))
+    first = sequence.step(blobs(rig, dots, noise_px=0.2), {})
+    assert not label_swaps(first.positions[None], dots[None], 15.0).any()
+    observed = first.status == "observed"
     assert observed.sum() >= 28
-    assert np.linalg.norm(result.positions - dots, axis=1)[observed].max() < 2.0
+    assert np.linalg.norm(first.positions - dots, axis=1)[observed].max() < 2.0
+
+    moved = dots + [0.0, 0.0, 2.0]
+    hidden_rows = SPEC.graph.row >= SPEC.n_rows - 3
+    hidden = np.zeros((len(rig), len(dots)), bool)
+    hidden[:, hidden_rows] = True
+    second = sequence.step(blobs(rig, moved, noise_px=0.2, hidden=hidden), {})
+    assert not label_swaps(second.positions[None], moved[None], 15.0).any()
+    error = np.linalg.norm(second.positions - moved, axis=1)
+    assert error[hidden_rows].max() < 4.0  # laid with the seen rows' mean stretch: ~10 mm at the end
+    assert "dot_extrapolated" in second.flags
 
 
 def test_dots_extrapolated_two_rows_beyond_the_seen_rows_flag_the_frame():
