@@ -60,7 +60,7 @@ class StatusConfig:
     neighbour's point, or placed wrong by the model: it is moved to the unclaimed candidate point
     at that prediction (or, without one, inferred there) and marked relocated (its label
     confidence lowered, see :mod:`spinemocap.track.quality`). Unobserved dots ``extrapolated_rows``
-    or more rows beyond the outermost observed row are marked extrapolated (their place along
+    (0: off) or more rows beyond the outermost observed row are marked extrapolated (their place along
     the tape is an extrapolation: :func:`spinemocap.track.pipeline.rows_beyond_observed`)."""
 
     observe_radius_mm: float = 7.0
@@ -85,7 +85,9 @@ class SequenceConfig:
     ``smooth_inferred``: window (frames, odd) of a moving average over inferred stretches;
     ``keep_identity``: a full re-solve that relabels the tape by up to ``max_row_shift`` rows
     against the previous frame is overruled (previous identity kept, frame flagged) unless the
-    evidence is unambiguous (see :mod:`spinemocap.track.continuity`)."""
+    evidence is unambiguous (see :mod:`spinemocap.track.continuity`); ``follow_hidden_rows``: after
+    a full re-solve, unobserved rows beyond the observed ones move with their observed tape
+    neighbours from the prediction instead of the re-solve's mean-stretch placement."""
 
     skip_lp: bool = True
     match_radius_mm: float = 8.0
@@ -96,6 +98,7 @@ class SequenceConfig:
     smooth_inferred: int = 3
     keep_identity: bool = True
     max_row_shift: int = 2
+    follow_hidden_rows: bool = True
 
 
 _SECTIONS = {
@@ -136,8 +139,8 @@ class TrackerConfig:
         return dataclasses.replace(
             config, stretch=dataclasses.replace(config.stretch, adaptive=False),
             rig=dataclasses.replace(config.rig, adaptive_gate=False),
-            status=dataclasses.replace(config.status, lattice_check=False),
-            sequence=dataclasses.replace(config.sequence, keep_identity=False))
+            status=dataclasses.replace(config.status, lattice_check=False, extrapolated_rows=0),
+            sequence=dataclasses.replace(config.sequence, keep_identity=False, follow_hidden_rows=False))
 
     @classmethod
     def from_dict(cls, data: dict, source: str | None = None) -> "TrackerConfig":

@@ -208,7 +208,8 @@ class FrameTracker:
         if cloud.pixels is not None:
             pixels[seen] = cloud.pixels[source[seen]]
         extrapolated = relocated & ~seen & beyond_known_rows(relocated, positions, self.graph)
-        extrapolated |= rows_beyond_observed(seen, self.graph, cfg.extrapolated_rows)
+        if cfg.extrapolated_rows > 0:
+            extrapolated |= rows_beyond_observed(seen, self.graph, cfg.extrapolated_rows)
         result = FrameResult(positions, status, n_views, residual, pixels=pixels, relocated=relocated,
                              extrapolated=extrapolated)
         if relocated.any():

@@ -78,7 +78,7 @@ class SequenceTracker:
             return result
         if self.config.keep_identity:
             result = self._keep_identity(result, views, cloud, stretch, stage_ms)
-        if "relabelled" not in result.flags:
+        if self.config.follow_hidden_rows and "relabelled" not in result.flags:
             self._hidden_rows_follow(result)
         return result
 
