@@ -90,3 +90,19 @@ def test_dots_extrapolated_two_rows_beyond_the_seen_rows_flag_the_frame():
     result = tracker.assign_status(dots, tracker.candidates(blobs(rig, dots, noise_px=0.2, hidden=hidden)))
     assert result.extrapolated is not None and (result.extrapolated == beyond).all()
     assert "dot_extrapolated" in result.flags and is_flagged(result.flags)
+
+
+def test_a_row_closer_to_its_neighbour_than_any_pitch_in_the_points_flags_the_frame():
+    """The last row carried a third of a pitch toward its neighbour (a row taking its neighbour's
+    place on the way to a label shift): inside the range a tape can take (0.68-2.0 x the spec),
+    outside the pitches this frame's points show."""
+    rig = rig_behind()
+    dots = tape_on_back(SPEC)
+    tracker = FrameTracker(rig, SPEC)
+    cloud = tracker.candidates(blobs(rig, dots, noise_px=0.2))
+    stretch = tracker.measure_stretch(cloud)
+    assert "stretch_implausible" not in tracker.add_quality(tracker.assign_status(dots, cloud), cloud, stretch).flags
+    result = tracker.assign_status(dots, cloud)
+    last = SPEC.graph.row == SPEC.n_rows - 1
+    result.positions[last] -= [0.0, 0.0, 0.35 * SPEC.row_pitch_mm]  # the tape runs along +Z
+    assert "stretch_implausible" in tracker.add_quality(result, cloud, stretch).flags
