@@ -11,9 +11,12 @@ module measures the spacing from the frame's own points before any labelling:
   periodic with the row pitch (every row, 2- or 3-dot, sits at one arc position). A Rayleigh
   periodogram ``R(p) = |sum exp(2 pi i s / p)| / N`` over pitches from ``along_range`` of the spec
   peaks at the true pitch and at its integer fractions (p/2, p/3 are periodic too); the largest
-  pitch among the near-best local maxima is taken. The rows' arc positions, assigned by that
-  period, then give the pitch between neighbouring rows (``row_pitch_mm``: how the stretch varies
-  along the tape).
+  pitch among the near-best local maxima is taken. Where the rows can be told apart in the arc
+  positions (:func:`row_gaps`), the pitch is instead the rows' arc span over the rows it spans,
+  the mean pitch, and their gaps are the local pitches: at full flexion the lumbar rows are
+  20-30 % longer than the thoracic ones, the periodogram then peaks at both and the rule above
+  took the lumbar pitch (a template a row too long). Otherwise the rows' arc positions, assigned
+  by the period, give the pitch between neighbouring rows (how the stretch varies along the tape).
 - **across** (column spacing): the median nearest-neighbour distance in the range of a row's
   dot spacing (the nearest other dot of every tape dot is its row neighbour: 15 mm across vs
   >= 23 mm to the next row for any along stretch >= 0.9).
