@@ -96,7 +96,9 @@ class SequenceConfig:
     evidence is unambiguous (see :mod:`spinemocap.track.continuity`). By default every shift
     is searched: with one end of the tape unseen a re-solve can slide the template by more than
     two rows (the last 4 rows of 13 hidden: 4 rows, and a search up to 2 then relabelled it
-    by 2 only, leaving every label 2 rows off)."""
+    by 2 only, leaving every label 2 rows off); ``follow_hidden_rows``: after
+    a full re-solve, unobserved rows beyond the observed ones move with their observed tape
+    neighbours from the prediction instead of the re-solve's mean-stretch placement."""
 
     skip_lp: bool = True
     match_radius_mm: float = 8.0
@@ -108,6 +110,7 @@ class SequenceConfig:
     smooth_trusted_only: bool = True
     keep_identity: bool = True
     max_row_shift: int = MAX_ROWS - 1
+    follow_hidden_rows: bool = True
 
 
 _SECTIONS = {
@@ -149,7 +152,8 @@ class TrackerConfig:
             config, stretch=dataclasses.replace(config.stretch, adaptive=False),
             rig=dataclasses.replace(config.rig, adaptive_gate=False),
             status=dataclasses.replace(config.status, lattice_check=False, unanchored_rows=0, anchor_ends=False),
-            sequence=dataclasses.replace(config.sequence, keep_identity=False, smooth_trusted_only=False))
+            sequence=dataclasses.replace(config.sequence, keep_identity=False, smooth_trusted_only=False,
+                                         follow_hidden_rows=False))
 
     @classmethod
     def from_dict(cls, data: dict, source: str | None = None) -> "TrackerConfig":

@@ -26,6 +26,7 @@ from ..timing import StageTimer
 from ..views import ViewDots
 from .candidates import build_candidates
 from .config import TrackerConfig
+from .continuity import row_centres
 from .edges import build_edges
 from .evidence import build_evidence
 from .lattice import affine_from_neighbours, beyond_known_rows, off_lattice, rows_beyond
@@ -327,7 +328,16 @@ class FrameTracker:
         lo, hi = self.config.stretch.along_range
         if not stretch_plausible(row_stretch(result.positions, self.graph)[0], (lo * 0.85, hi * 1.15)):
             flags.append("stretch_implausible")
+        elif stretch.source == "data" and not stretch_plausible(self._row_gaps(result.positions),
+                                                                (stretch.along_min * 0.85, stretch.along_max * 1.15)):
+            flags.append("stretch_implausible")  # rows closer/farther than any pitch seen in the points
         return result
+
+    def _row_gaps(self, positions: np.ndarray) -> np.ndarray:
+        """(n_rows - 1,) distance between neighbouring rows' centres over the spec's pitch: a
+        row carrying its neighbour's label sits a fraction of a pitch from it (NaN: row missing)."""
+        centres = row_centres(positions, self.graph)
+        return np.linalg.norm(np.diff(centres, axis=0), axis=1) / self.tape.row_pitch_mm
 
     # ------------------------------------------------------------------ whole frame
     def solve(self, views: Sequence[ViewDots], previous: np.ndarray | None = None,

@@ -13,7 +13,8 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
   by whole rows against the previous frame because the evidence demanded it); ``unlabelled_dots``
   0.5 (dots seen by >= 3 cameras just beyond an end of the labelled tape were left without a
   label: the template may sit a row or two off); ``stretch_implausible`` 0.5 (the solved tape's row pitch leaves the
-  range a kinesiology tape can take); ``unsolved`` 0.5 (the frame had no solution: its dots,
+  range a kinesiology tape can take, or two neighbouring rows lie more than 15 % closer or
+  farther than any row pitch measured in the frame's points); ``unsolved`` 0.5 (the frame had no solution: its dots,
   where given, were interpolated in time between solved frames); ``stretch_carried`` 0.9 (this frame's spacing could not be
   measured, an earlier frame's was used); ``lp_relaxed`` 0.9 (the LP had to drop edges);
 - per-dot flags (factor on the dots concerned only; the frame lists the flag): ``dot_relocated``

@@ -28,7 +28,7 @@ from ..views import ViewDots
 from .config import SequenceConfig
 from .continuity import relabel_rows, row_shift, shift_is_unambiguous
 from .edges import edge_bounds
-from .lattice import affine_from_neighbours
+from .lattice import affine_from_neighbours, rows_beyond
 from .pipeline import FrameResult, FrameTracker, match_points
 from .stretch import StretchEstimate
 from .types import CandidateCloud
@@ -74,9 +74,31 @@ class SequenceTracker:
         warm_start = self.last is not None and self.config.warm_start
         result = self.tracker.solve(views, previous=self.last, cloud=cloud, stage_ms=stage_ms,
                                     warm_start=warm_start, stretch=stretch)
-        if self.last is None or not result.solved or not self.config.keep_identity:
+        if self.last is None or not result.solved:
             return result
-        return self._keep_identity(result, views, cloud, stretch, stage_ms)
+        if self.config.keep_identity:
+            result = self._keep_identity(result, views, cloud, stretch, stage_ms)
+        if self.config.follow_hidden_rows and "relabelled" not in result.flags:
+            self._hidden_rows_follow(result)
+        return result
+
+    def _hidden_rows_follow(self, result: FrameResult, sigma_mm: float = 30.0) -> None:
+        """Unobserved dots beyond the re-solve's outermost observed rows move with the observed
+        dots near them on the tape (the predicted dots shifted by their Gaussian-weighted mean
+        displacement, ``sigma_mm`` on the tape), in place of the re-solve's placement. The
+        re-solve lays hidden rows with the mean stretch of the rows it sees, which at full
+        flexion (lumbar rows 20-30 % longer than thoracic ones) overshoots by a row within
+        three rows; the last frames saw them with their own stretch."""
+        predicted = self.predict()
+        observed = result.status == "observed"
+        hidden = ~observed & (rows_beyond(observed, self.tracker.graph) >= 1) & np.isfinite(predicted).all(axis=1)
+        moved = observed & np.isfinite(predicted).all(axis=1)
+        if not hidden.any() or moved.sum() < 3:
+            return
+        shift = result.positions[moved] - predicted[moved]
+        gap = self.uv[hidden][:, None, :] - self.uv[moved][None, :, :]
+        w = np.exp(-0.5 * (gap**2).sum(axis=2) / sigma_mm**2) + 1e-12
+        result.positions[hidden] = predicted[hidden] + (w @ shift) / w.sum(axis=1, keepdims=True)
 
     def _keep_identity(self, result: FrameResult, views, cloud: CandidateCloud, stretch: StretchEstimate,
                        stage_ms: dict) -> FrameResult:

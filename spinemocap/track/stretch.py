@@ -11,9 +11,12 @@ module measures the spacing from the frame's own points before any labelling:
   periodic with the row pitch (every row, 2- or 3-dot, sits at one arc position). A Rayleigh
   periodogram ``R(p) = |sum exp(2 pi i s / p)| / N`` over pitches from ``along_range`` of the spec
   peaks at the true pitch and at its integer fractions (p/2, p/3 are periodic too); the largest
-  pitch among the near-best local maxima is taken. The rows' arc positions, assigned by that
-  period, then give the pitch between neighbouring rows (``row_pitch_mm``: how the stretch varies
-  along the tape).
+  pitch among the near-best local maxima is taken. Where the rows can be told apart in the arc
+  positions (:func:`row_gaps`), the pitch is instead the rows' arc span over the rows it spans,
+  the mean pitch, and their gaps are the local pitches: at full flexion the lumbar rows are
+  20-30 % longer than the thoracic ones, the periodogram then peaks at both and the rule above
+  took the lumbar pitch (a template a row too long). Otherwise the rows' arc positions, assigned
+  by the period, give the pitch between neighbouring rows (how the stretch varies along the tape).
 - **across** (column spacing): the median nearest-neighbour distance in the range of a row's
   dot spacing (the nearest other dot of every tape dot is its row neighbour: 15 mm across vs
   >= 23 mm to the next row for any along stretch >= 0.9).
@@ -117,6 +120,37 @@ def local_pitches(arc: np.ndarray, pitch: float, min_per_row: int = 1) -> np.nda
     return np.asarray(out, float)
 
 
+def row_gaps(arc: np.ndarray, min_pitch_mm: float, min_per_row: int = 2, min_rows: int = 4,
+             max_gap_rows: int = 2) -> tuple[np.ndarray, float] | None:
+    """Rows told apart in the points' arc positions (N,) mm, whatever the stretch along the tape:
+    ``(local pitches (K,) mm between neighbouring rows, mean pitch mm over the rows seen)``, or
+    None when the rows are not clear.
+
+    A row's dots share one arc position (within a few mm: the tape's twist and the fitted curve's
+    error), neighbouring rows lie >= ``min_pitch_mm`` apart: sorted arc positions split into
+    groups at gaps over 0.4 x ``min_pitch_mm``; groups of >= ``min_per_row`` points are rows (a
+    lone point may be a ghost). The gap between two neighbouring rows' median arcs spans one row,
+    or a whole number of rows where rows were not seen (``round(gap / median gap)``, up to
+    ``max_gap_rows``; more, or a gap of less than 0.6 x the median, and the rows are not clear).
+    The mean pitch is the rows' arc span over the number of rows it spans: the uniform pitch
+    that lays a template of the right length over a tape stretched unevenly (the lumbar rows of a
+    flexed back are 20-30 % longer than the thoracic rows; the periodogram then has two peaks)."""
+    order = np.sort(np.asarray(arc, float))
+    if len(order) < min_per_row * min_rows:
+        return None
+    breaks = np.flatnonzero(np.diff(order) > 0.4 * min_pitch_mm) + 1
+    groups = [g for g in np.split(order, breaks) if len(g) >= min_per_row]
+    if len(groups) < min_rows:
+        return None
+    centres = np.array([float(np.median(g)) for g in groups])
+    gaps = np.diff(centres)
+    unit = float(np.median(gaps))
+    spans = np.round(gaps / unit).astype(np.int64)
+    if (gaps < 0.6 * unit).any() or (spans > max_gap_rows).any() or (spans < 1).any():
+        return None
+    return gaps[spans == 1], float(gaps.sum() / spans.sum())
+
+
 def across_spacing(points: np.ndarray, spec_spacing: float, across_range: tuple[float, float]) -> float | None:
     """Median nearest-neighbour distance (mm) within the plausible row-neighbour range, or None."""
     if len(points) < 2:
@@ -150,9 +184,13 @@ def estimate_stretch(points: np.ndarray, spec: TapeSpec, config: StretchConfig |
         return dataclasses.replace(carried, coherence=coherence)
     across = across_spacing(points, spec.column_spacing_mm, config.across_range)
     across_ratio = float(np.clip(across / spec.column_spacing_mm, *config.across_range)) if across else fallback.across
-    local = local_pitches(arc, pitch) / spec.row_pitch_mm
+    rows = row_gaps(arc, spec.row_pitch_mm * config.along_range[0])
+    if rows is not None:  # rows told apart: the mean pitch over the tape, and its local pitches
+        local, along = rows[0] / spec.row_pitch_mm, rows[1] / spec.row_pitch_mm
+    else:  # the periodogram's period (uneven stretch biases it toward the longest local pitch)
+        local, along = local_pitches(arc, pitch) / spec.row_pitch_mm, pitch / spec.row_pitch_mm
     local = local[(local > config.along_range[0] * 0.8) & (local < config.along_range[1] * 1.2)]
-    along = pitch / spec.row_pitch_mm
+    along = float(np.clip(along, *config.along_range))
     return StretchEstimate(
         along=along, across=across_ratio,
         along_min=float(min(local.min(), along)) if len(local) else along,

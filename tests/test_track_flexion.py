@@ -1,0 +1,109 @@
+"""A back at full flexion (issue 11, the `flexion (lab)` benchmark case): the lumbar rows of the
+tape stretch 20-30 % more than its thoracic rows, so the dots' arc positions hold two periods.
+The stretch estimate must give the tape's mean pitch (not the lumbar one: a template a row too
+long then slid the labels by two rows with perfect residuals), and dots the tracker can only
+extrapolate far beyond the rows it sees must flag the frame.
+
+Blobs are projections of dots laid on a curved back (see test_track_stages): no rendering."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from test_track_stages import SPEC, blobs, rig_behind, tape_on_back
+
+from spinemocap.track.config import TrackerConfig
+from spinemocap.track.evaluate import label_swaps
+from spinemocap.track.lattice import rows_beyond
+from spinemocap.track.pipeline import FrameTracker
+from spinemocap.track.quality import is_flagged
+from spinemocap.track.sequence import SequenceTracker
+from spinemocap.track.stretch import estimate_stretch, row_stretch
+
+
+@dataclasses.dataclass
+class _SpecLike:
+    graph: object
+
+
+def flexed_tape(lumbar: float = 1.53, thoracic: float = 1.26) -> np.ndarray:
+    """(D, 3) dots of SPEC with the lower half of the row gaps ``lumbar`` times the spec's pitch
+    and the upper half ``thoracic`` times it (the truth at the benchmark's full flexion)."""
+    n_gaps = SPEC.n_rows - 1
+    ratio = np.where(np.arange(n_gaps) < n_gaps // 2, lumbar, thoracic)
+    rows_v = np.concatenate([[0.0], np.cumsum(SPEC.row_pitch_mm * ratio)])
+    laid = dataclasses.replace(SPEC.graph, uv_mm=np.column_stack([SPEC.graph.uv_mm[:, 0], rows_v[SPEC.graph.row]]))
+    return tape_on_back(_SpecLike(laid))
+
+
+def test_the_stretch_estimate_of_an_unevenly_stretched_tape_is_its_mean_pitch():
+    rig = rig_behind()
+    dots = flexed_tape()
+    cloud = FrameTracker(rig, SPEC).candidates(blobs(rig, dots, noise_px=0.2))
+    along = row_stretch(dots, SPEC.graph)[0]
+    estimate = estimate_stretch(cloud.points, SPEC)
+    assert estimate.source == "data"
+    assert estimate.along == pytest.approx(float(np.mean(along)), abs=0.03)  # the periodogram said 1.55
+    assert estimate.along_min == pytest.approx(float(along.min()), abs=0.05)
+    assert estimate.along_max == pytest.approx(float(along.max()), abs=0.05)
+
+
+def test_a_flexed_back_keeps_every_label_and_hidden_rows_follow_their_neighbours():
+    """Frame 1 sees the whole flexed tape; frame 2 (re-solved in full) hides the last three,
+    thoracic rows: the re-solve would lay them with the mean stretch of the rows it sees (the
+    lumbar ones, longer), they follow their observed neighbours from frame 1 instead."""
+    rig = rig_behind()
+    dots = flexed_tape()
+    config = TrackerConfig()
+    config.sequence.skip_lp = False  # every frame a full re-solve
+    sequence = SequenceTracker(FrameTracker(rig, SPEC, config))
+    first = sequence.step(blobs(rig, dots, noise_px=0.2), {})
+    assert not label_swaps(first.positions[None], dots[None], 15.0).any()
+    observed = first.status == "observed"
+    assert observed.sum() >= 28
+    assert np.linalg.norm(first.positions - dots, axis=1)[observed].max() < 2.0
+
+    moved = dots + [0.0, 0.0, 2.0]
+    hidden_rows = SPEC.graph.row >= SPEC.n_rows - 3
+    hidden = np.zeros((len(rig), len(dots)), bool)
+    hidden[:, hidden_rows] = True
+    second = sequence.step(blobs(rig, moved, noise_px=0.2, hidden=hidden), {})
+    assert not label_swaps(second.positions[None], moved[None], 15.0).any()
+    error = np.linalg.norm(second.positions - moved, axis=1)
+    assert error[hidden_rows].max() < 4.0  # laid with the seen rows' mean stretch: ~10 mm at the end
+    assert "dot_unanchored" in second.flags
+
+
+def test_dots_inferred_two_rows_beyond_the_seen_rows_flag_the_frame():
+    graph = SPEC.graph
+    observed = graph.row <= SPEC.n_rows - 4  # the last three rows hidden
+    beyond = rows_beyond(observed, graph) >= 2
+    assert set(graph.row[beyond]) == {SPEC.n_rows - 2, SPEC.n_rows - 1}
+    assert not (rows_beyond(np.ones(len(observed), bool), graph) >= 1).any()
+
+    rig = rig_behind()
+    dots = flexed_tape()
+    hidden = np.zeros((len(rig), len(dots)), bool)
+    hidden[:, ~observed] = True
+    tracker = FrameTracker(rig, SPEC)
+    result = tracker.assign_status(dots, tracker.candidates(blobs(rig, dots, noise_px=0.2, hidden=hidden)))
+    assert result.unanchored is not None and (result.unanchored == beyond).all()
+    assert "dot_unanchored" in result.flags and is_flagged(result.flags)
+
+
+def test_a_row_closer_to_its_neighbour_than_any_pitch_in_the_points_flags_the_frame():
+    """The last row carried a third of a pitch toward its neighbour (a row taking its neighbour's
+    place on the way to a label shift): inside the range a tape can take (0.68-2.0 x the spec),
+    outside the pitches this frame's points show."""
+    rig = rig_behind()
+    dots = tape_on_back(SPEC)
+    tracker = FrameTracker(rig, SPEC)
+    cloud = tracker.candidates(blobs(rig, dots, noise_px=0.2))
+    stretch = tracker.measure_stretch(cloud)
+    assert "stretch_implausible" not in tracker.add_quality(tracker.assign_status(dots, cloud), cloud, stretch).flags
+    result = tracker.assign_status(dots, cloud)
+    last = SPEC.graph.row == SPEC.n_rows - 1
+    result.positions[last] -= [0.0, 0.0, 0.35 * SPEC.row_pitch_mm]  # the tape runs along +Z
+    assert "stretch_implausible" in tracker.add_quality(result, cloud, stretch).flags
