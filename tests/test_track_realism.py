@@ -28,6 +28,7 @@ from spinemocap.track.rig_refine import (
     frame_uncertainty_mm,
     given_rig_disagreement_mm,
     refine_rig,
+    retriangulate,
 )
 from spinemocap.track.sequence import SequenceTracker, fill_and_smooth
 from spinemocap.track.stretch import estimate_stretch, row_stretch
@@ -369,3 +370,22 @@ def test_smoothing_does_not_carry_a_flagged_frames_dots_into_its_neighbours():
     moving = positions.copy()
     moving[:, 0, 2] = 10.0 * np.arange(5)  # moving 10 mm a frame: a trusted frame's mean is unbiased
     np.testing.assert_allclose(fill_and_smooth(moving, status, config, doubted)[0][[1, 2, 4], 0, 2], [10.0, 20.0, 40.0])
+
+
+def test_retriangulation_keeps_no_point_that_misses_its_own_blobs():
+    """Under a refined rig an observed dot is re-triangulated from its blobs; one whose point misses
+    a blob by more than ``max_reprojection_px`` (here a blob 40 px off in one of three cameras) is
+    not taken: it moves with the frame's similarity like an inferred dot."""
+    rig = rig_behind()
+    dots = tape_on_back(SPEC)
+    pixels = np.stack([cam.project(dots) for cam in rig], axis=1)[None]  # (1, D, C, 2)
+    pixels[0, :, 3] = np.nan  # three cameras per dot
+    pixels[0, 5, 0] += (40.0, 0.0)
+    status = np.full((1, len(dots)), "observed", dtype=object)
+    shifted = dots[None] + (0.7, -0.4, 0.3)  # where the given rig had put them
+    out = retriangulate(rig, pixels, shifted, status)
+    others = np.arange(len(dots)) != 5
+    assert np.abs(out[0, others] - dots[others]).max() < 1e-3  # re-triangulated from exact blobs
+    assert np.linalg.norm(out[0, 5] - dots[5]) < 0.05  # moved with the others' similarity
+    kept = retriangulate(rig, pixels, shifted, status, max_reprojection_px=np.inf)
+    assert np.linalg.norm(kept[0, 5] - dots[5]) > 3.0  # taken as triangulated: the check mattered
