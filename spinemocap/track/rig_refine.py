@@ -56,6 +56,7 @@ from scipy.sparse import lil_matrix
 
 from ..camera import Rig
 from ..geometry import distort, triangulate_dlt
+from .candidates import reprojection_errors
 from .rig_check import robust_rms
 
 
@@ -436,7 +437,8 @@ def retriangulate(rig: Rig, pixels: np.ndarray, positions: np.ndarray, status: n
             if rows.any():
                 undist[rows, c] = cam.undistort_points(pixels[f, rows, c])
         new = triangulate_dlt(P, undist[obs], used[obs])
-        fits = _worst_reprojection_px(rig, new, pixels[f, obs], used[obs]) <= max_reprojection_px
+        errors = reprojection_errors(P, new, undist[obs], used[obs])  # NaN: unused, or behind the camera
+        fits = (np.isfinite(errors) == used[obs]).all(axis=1) & (np.nan_to_num(errors) <= max_reprojection_px).all(axis=1)
         if thickness_mm and normals is not None:
             new = new - thickness_mm * normals[f, obs]
         old = positions[f, obs]
@@ -450,15 +452,3 @@ def retriangulate(rig: Rig, pixels: np.ndarray, positions: np.ndarray, status: n
             out[f, rest] = s * positions[f, rest] @ Rm.T + tm
     return out
 
-
-def _worst_reprojection_px(rig: Rig, points: np.ndarray, pixels: np.ndarray, used: np.ndarray) -> np.ndarray:
-    """(N,) px: the largest distance between each point (N, 3) mm projected into the cameras that
-    saw it (``used`` (N, C)) and its blob there (``pixels`` (N, C, 2) distorted px); inf when the
-    point is not finite."""
-    worst = np.where(np.isfinite(points).all(axis=1), 0.0, np.inf)
-    for c, cam in enumerate(rig):
-        rows = used[:, c] & np.isfinite(worst)
-        if rows.any():
-            miss = np.linalg.norm(cam.project(points[rows]) - pixels[rows, c], axis=1)
-            worst[rows] = np.maximum(worst[rows], miss)
-    return worst
