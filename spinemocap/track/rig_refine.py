@@ -418,7 +418,7 @@ def retriangulate(rig: Rig, pixels: np.ndarray, positions: np.ndarray, status: n
     does), the other finite dots moved with the observed ones by a per-frame similarity fit.
 
     A re-triangulated point that misses one of its own blobs by more than ``max_reprojection_px``
-    (distorted px) is not taken: the linear triangulation can land 15-25 mm off although the
+    (undistorted px), or that lies behind a camera that saw it, is not taken: the linear triangulation can land 15-25 mm off although the
     blobs agree with the refined rig to ~1 px (measured: ``bench realism`` "calibration 1.0 px",
     200 frames, two observed 3-camera dot-frames, 24-27 px from their blobs, counted as swaps in
     unflagged frames); such a dot moves with the frame's similarity like an inferred one."""
