@@ -202,11 +202,14 @@ def save_json(numbers: dict, json_path: Path) -> None:
         json.dump(numbers, fh, indent=2, default=float)
 
 
-def save(numbers: dict, json_path: Path | None, plot_path: Path | None) -> None:
+def save(numbers: dict, json_path: Path | None, plot_path: Path | None,
+         draw: Callable[[dict, Path], None] | None = None) -> None:
+    """The numbers as JSON and, with ``plot_path``, their plot (``draw``, default this benchmark's
+    :func:`plot`; ``bench gauge`` passes its own)."""
     if json_path:
         save_json(numbers, json_path)
     if plot_path:
-        plot(numbers, plot_path)
+        (draw or plot)(numbers, plot_path)
 
 
 def plot(numbers: dict, path: Path) -> None:

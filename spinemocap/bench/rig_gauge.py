@@ -54,7 +54,7 @@ from ..track.config import TrackerConfig
 from ..track.rig_check import CalibrationWarning
 from ..track.rig_refine import RigRefineConfig, apply_similarity, closest_gauge, refine_rig
 from .frame_error import cloud_gauge, mean_error_mm, shape_error_mm, truth_of
-from .realism import _render, save_json
+from .realism import _render
 
 TRACKED_WITH_PX = 2.0  # the calibration error of the rig the scene is tracked with
 GAUGES = ("given", "refined", "residual_priors", "cloud_gauge", "closest_cameras")
@@ -190,13 +190,6 @@ def format_table(numbers: dict) -> str:
                            "closest_cameras")]
         lines.append(f"| {level} px | {s['n']} | " + " | ".join(cells) + f" | {s['refined_at_most_1mm']} of {s['n']} |")
     return "\n".join(lines)
-
-
-def save(numbers: dict, json_path: Path | None, plot_path: Path | None) -> None:
-    if json_path:
-        save_json(numbers, json_path)
-    if plot_path:
-        plot(numbers, plot_path)
 
 
 def plot(numbers: dict, path: Path) -> None:

@@ -30,7 +30,8 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..bench.rig_gauge import format_table, run_gauge_benchmark, save
+    from ..bench.realism import save
+    from ..bench.rig_gauge import format_table, plot, run_gauge_benchmark
     from ..fileio import InputError
 
     if args.rigs < 1 or args.frames < 2 or any(not 0 < level <= 20 for level in args.levels):
@@ -38,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     numbers = run_gauge_benchmark(args.seeds, args.levels, args.rigs, frames=args.frames, fps=args.fps,
                                   detector=args.detector, progress=not args.no_progress,
                                   after_scene=lambda partial: save(partial, args.json, None))
-    save(numbers, args.json, args.plot)
+    save(numbers, args.json, args.plot, plot)
     print(format_table(numbers))
     print(f"numbers written to {args.json}" + (f", plot to {args.plot}" if args.plot else ""))
     return 0
