@@ -203,7 +203,7 @@ def run_tracking(
     n_views = np.stack([r.n_views for r in results]) if results else np.zeros((0, tracker.n_dots), int)
     residual = np.stack([r.residual for r in results]) if results else np.zeros((0, tracker.n_dots))
     if carry is not None and len(results):
-        doubted = np.array([[is_flagged(r.flags) or not r.solved] * tracker.n_dots for r in results])
+        doubted = np.repeat([[is_flagged(r.flags) or not r.solved] for r in results], tracker.n_dots, axis=1)
         positions, status = fill_and_smooth(positions, status, config.sequence, doubted)
     first = frame_ids[0] if frame_ids else 0
     if frame_ids and frame_ids != list(range(first, first + len(frame_ids))):

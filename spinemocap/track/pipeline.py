@@ -328,12 +328,12 @@ class FrameTracker:
         lo, hi = self.config.stretch.along_range
         if not stretch_plausible(row_stretch(result.positions, self.graph)[0], (lo * 0.85, hi * 1.15)):
             flags.append("stretch_implausible")
-        elif stretch.source == "data" and not stretch_plausible(self._row_gaps(result.positions),
+        elif stretch.source == "data" and not stretch_plausible(self._solved_row_pitches(result.positions),
                                                                 (stretch.along_min * 0.85, stretch.along_max * 1.15)):
             flags.append("stretch_implausible")  # rows closer/farther than any pitch seen in the points
         return result
 
-    def _row_gaps(self, positions: np.ndarray) -> np.ndarray:
+    def _solved_row_pitches(self, positions: np.ndarray) -> np.ndarray:
         """(n_rows - 1,) distance between neighbouring rows' centres over the spec's pitch: a
         row carrying its neighbour's label sits a fraction of a pitch from it (NaN: row missing)."""
         centres = row_centres(positions, self.graph)
