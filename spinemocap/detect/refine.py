@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from ..capture import to_grey
-from .blobs import BlobParams, estimate_dot_diameter, fill_holes, find_dots
+from .blobs import DEFAULT_DOT_TO_WIDTH, BlobParams, fill_holes, find_dots, percentile
 
 
 @dataclass
@@ -60,28 +60,71 @@ def _shrink(mask: np.ndarray, radius: int) -> np.ndarray:
     return cv2.erode(mask.view(np.uint8), _disc(radius)).view(bool)
 
 
-def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float) -> tuple[np.ndarray, np.ndarray] | None:
+def _near(mask: np.ndarray, margin: int) -> tuple[slice, slice] | None:
+    """The bounding box of ``mask``'s pixels grown by ``margin`` px (clipped), None when empty.
+    A dilation or erosion by a radius <= ``margin`` inside this box is the whole mask's (outside
+    it both are empty), at a fraction of the cost: the stage-2 box is ~4x the tape's extent."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not len(rows):
+        return None
+    h, w = mask.shape
+    return (slice(max(0, int(rows[0]) - margin), min(h, int(rows[-1]) + 1 + margin)),
+            slice(max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + 1 + margin)))
+
+
+def _median(values: np.ndarray):
+    """``np.median`` of a 1-D array without NaNs, bit for bit (the same partition and mean),
+    without its general-purpose overhead."""
+    n = values.size
+    k = n // 2
+    if n % 2:
+        return np.partition(values, k)[k]
+    part = np.partition(values, (k - 1, k))
+    return np.mean(part[k - 1:k + 1])
+
+
+class _Levels(NamedTuple):
+    """Where the tape and the skin are sampled (bool masks of the crop) and their median grey levels."""
+
+    tape: np.ndarray
+    ring: np.ndarray
+    tape_median: np.floating
+    ring_median: np.floating
+
+
+def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float) -> _Levels | None:
     """Pixels that sample the tape (inside the mask, away from its edge, darker than the median
     there, i.e. not a dot) and the skin (a ring just outside the mask). None when either is thin
     or the tape is not clearly darker than the skin (a light tape, a wrong mask): the steps
-    that use them then leave the mask alone."""
-    inner = _shrink(mask, band + 1)
-    ring = _grow(mask, 3 * band + 1) & ~_grow(mask, band + 1)
-    if inner.sum() < 20 or ring.sum() < 20:
+    that use them then leave the mask alone. ``grey`` float32."""
+    near = _near(mask, 3 * band + 1)
+    if near is None:
         return None
-    tape = inner & (grey <= np.median(grey[inner]))
-    if np.median(grey[ring]) - np.median(grey[tape]) < min_contrast:
+    m = mask[near]
+    inner_near = _shrink(m, band + 1)
+    ring_near = _grow(m, 3 * band + 1) & ~_grow(m, band + 1)
+    if np.count_nonzero(inner_near) < 20 or np.count_nonzero(ring_near) < 20:
         return None
-    return tape, ring
+    g = grey[near]
+    inner_grey = g[inner_near]
+    tape_near = inner_near & (g <= _median(inner_grey))
+    tape_median, ring_median = _median(g[tape_near]), _median(g[ring_near])
+    if ring_median - tape_median < min_contrast:
+        return None
+    tape, ring = np.zeros(mask.shape, bool), np.zeros(mask.shape, bool)
+    tape[near], ring[near] = tape_near, ring_near
+    return _Levels(tape, ring, tape_median, ring_median)
 
 
 def dark_threshold(grey: np.ndarray, mask: np.ndarray, params: RefineParams) -> float | None:
     """Grey level midway between the tape (median of its dark pixels) and the skin around it."""
-    samples = _levels(grey, mask, params.band_px, params.min_contrast)
+    return _midway(_levels(grey, mask, params.band_px, params.min_contrast))
+
+
+def _midway(samples: _Levels | None) -> float | None:
     if samples is None:
         return None
-    tape, ring = samples
-    return 0.5 * (float(np.median(grey[tape])) + float(np.median(grey[ring])))
+    return 0.5 * (float(samples.tape_median) + float(samples.ring_median))
 
 
 def _local_mean(grey: np.ndarray, weight: np.ndarray, sigma: float, fallback: float) -> np.ndarray:
@@ -104,14 +147,20 @@ def snap_to_edges(crop: np.ndarray, mask: np.ndarray, params: RefineParams | Non
     if not mask.any():
         return mask
     grey = to_grey(crop).astype(np.float32)
-    samples = _levels(grey, mask, p.band_px, p.min_contrast)
+    return _snap(grey, mask, p, _levels(grey, mask, p.band_px, p.min_contrast))
+
+
+def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels | None) -> np.ndarray:
+    """:func:`snap_to_edges` given ``grey`` (float32) and the mask's :func:`_levels`."""
     if samples is None:
         return mask
-    tape, ring = samples
-    tape_level = _local_mean(grey, tape.astype(np.float32), p.level_sigma_px, float(np.median(grey[tape])))
-    skin_level = _local_mean(grey, ring.astype(np.float32), p.level_sigma_px, float(np.median(grey[ring])))
-    band = _grow(mask, p.band_px) & ~_shrink(mask, p.band_px)
-    snapped = (mask & ~band) | (band & (grey < 0.5 * (tape_level + skin_level)))
+    tape_level = _local_mean(grey, samples.tape.astype(np.float32), p.level_sigma_px, float(samples.tape_median))
+    skin_level = _local_mean(grey, samples.ring.astype(np.float32), p.level_sigma_px, float(samples.ring_median))
+    near = _near(mask, p.band_px)
+    m = mask[near]
+    band = _grow(m, p.band_px) & ~_shrink(m, p.band_px)
+    snapped = mask.copy()
+    snapped[near] = (m & ~band) | (band & (grey[near] < 0.5 * (tape_level[near] + skin_level[near])))
     return fill_holes(snapped)
 
 
@@ -148,26 +197,38 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     :func:`find_dots`). The mask is unchanged when it shows fewer than two dots (nothing to
     measure the tape by)."""
     p = params or RefineParams()
+    grey_u8 = to_grey(crop)  # once: the snapping, the dots and the extension all read it
+    grey = grey_u8.astype(np.float32)
     base = fill_holes(mask)
+
+    def snapped_with_levels(m: np.ndarray) -> tuple[np.ndarray, _Levels | None]:
+        # the tape and skin levels of ``m``: for the snap, and (of the kept mask) the extension's threshold
+        if not m.any():
+            return m, None
+        samples = _levels(grey, m, p.band_px, p.min_contrast)
+        return _snap(grey, m, p, samples), samples
+
     # The dots are found on the mask snapped onto the tape's edge, as the final mask will be:
     # their contrast and centres are measured on the tape's own pixels.
-    snapped = snap_to_edges(crop, base, p)
-    dots, conf = find_dots(crop, snapped, None, blob_params)
-    if base.sum() < 50 or len(dots) < 2:
+    snapped, samples = snapped_with_levels(base)
+    dots, conf = find_dots(grey_u8, snapped, None, blob_params)
+    base_area = int(np.count_nonzero(base))
+    if base_area < 50 or len(dots) < 2:
         return Extended(base, dots, conf, snapped)
     dotted = keep_dotted(base, dots)
     answer = dots, conf
-    if dotted.sum() < base.sum():  # components without dots dropped: the edge levels change, find again
+    if np.count_nonzero(dotted) < base_area:  # components without dots dropped: the edge levels change, find again
         base = dotted
-        snapped = snap_to_edges(crop, base, p)
-        answer = find_dots(crop, snapped, None, blob_params)
-    grey = to_grey(crop).astype(np.float32)
-    threshold = dark_threshold(grey, base, p)
+        base_area = int(np.count_nonzero(base))
+        snapped, samples = snapped_with_levels(base)
+        answer = find_dots(grey_u8, snapped, None, blob_params)
+    threshold = _midway(samples)
     if threshold is None:
         return Extended(base, *answer, snapped)
-    d = estimate_dot_diameter(base) or 4.0
-    width = 2.0 * float(np.percentile(cv2.distanceTransform(base.view(np.uint8), cv2.DIST_L2, 5)[base], 98))
-    area_per_dot = base.sum() / len(dots)
+    dist = cv2.distanceTransform(base.view(np.uint8), cv2.DIST_L2, 5)
+    width = 2.0 * percentile(dist[base], 98)  # as estimate_dot_diameter measures it (dist > 0 is base)
+    d = max(width * DEFAULT_DOT_TO_WIDTH, 2.0)
+    area_per_dot = base_area / len(dots)
     dark = grey < threshold
     # Candidate regions: dark pixels outside the mask that touch it, with what they enclose.
     n, labels = cv2.connectedComponents((dark & ~base).view(np.uint8), connectivity=8)
@@ -182,13 +243,13 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
             continue
         box = (slice(y, y + h), slice(x, x + w))
         region = labels[box] == i
-        if _looks_like_tape(crop[box], region, dark[box], dots - [x, y], d, width, area_per_dot, p, blob_params):
+        if _looks_like_tape(grey_u8[box], region, dark[box], dots - [x, y], d, width, area_per_dot, p, blob_params):
             out[box] |= region
     if (out == base).all():
         return Extended(base, *answer, snapped)
     # The tape grew (rare): its dots on the joined mask, where a dot straddling a join counts.
-    snapped = snap_to_edges(crop, out, p)
-    return Extended(out, *find_dots(crop, snapped, None, blob_params), snapped)
+    snapped, _ = snapped_with_levels(out)
+    return Extended(out, *find_dots(grey_u8, snapped, None, blob_params), snapped)
 
 
 def _looks_like_tape(crop: np.ndarray, region: np.ndarray, dark: np.ndarray, known_dots: np.ndarray, d: float,
