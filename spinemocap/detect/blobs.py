@@ -120,6 +120,17 @@ def percentile(values: np.ndarray, q: float) -> float:
     return float(b - diff * as_dtype(1.0 - t) if t >= 0.5 else a + diff * as_dtype(t))
 
 
+def median(values: np.ndarray):
+    """``np.median`` of a 1-D array without NaNs, bit for bit (the same partition and mean, in
+    the values' dtype), without its general-purpose overhead."""
+    n = values.size
+    k = n // 2
+    if n % 2:
+        return np.partition(values, k)[k]
+    part = np.partition(values, (k - 1, k))
+    return np.mean(part[k - 1:k + 1])
+
+
 def _region_dots(
     grey: np.ndarray, filled: np.ndarray, region: np.ndarray, d: float, p: BlobParams, touches_border,
     size_from_blobs: bool = False,
@@ -127,7 +138,10 @@ def _region_dots(
     """Dots in one region of interest: ``grey`` float32 crop, ``filled`` the hole-filled mask
     crop, ``region`` the mask grown by the margin (where dot pixels may lie); ``touches_border``
     tells whether a crop box (y, x, h, w) touches the frame border (a cut dot's centre is wrong).
-    ``size_from_blobs``: ``d`` is only a guess from the mask width; measure it on the blobs."""
+    ``size_from_blobs``: ``d`` is only a guess from the mask width; measure it on the blobs.
+    All blobs are measured together (:class:`_Blobs`, :func:`_ring_pixels`: array operations,
+    no Python per blob beyond its scalar tests); the same dots as one blob at a time, to float
+    rounding (sums in float64 instead of float32: < 1e-4 px)."""
     # The top-hat keeps bright structures smaller than its kernel: the dots. Skin around the tape
     # is a large bright area and vanishes, so it never merges with a dot at the tape's edge.
     # A square kernel: OpenCV decomposes it into two 1D passes (a disc costs ~10x more).
@@ -135,76 +149,193 @@ def _region_dots(
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
     tophat = cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, kernel)
     smooth = cv2.GaussianBlur(tophat, (0, 0), max(0.5, d / 10.0))
-    contrast = percentile(smooth[filled], 99.5)
+    on_tape = smooth[filled]
+    contrast = percentile(on_tape, 99.5)
     # Dots must stand out from the tape's own texture/noise (the median of the top-hat over the
     # tape, which dots cover only in small part): pure noise has no such outliers.
-    texture = float(np.median(smooth[filled]))
+    texture = float(median(on_tape))
     if contrast < max(p.min_contrast, p.min_contrast_to_texture * texture):
         return np.zeros((0, 2)), np.zeros(0)
     binary = ((smooth > 0.5 * contrast) & region).astype(np.uint8)
     # Top-hat of plain tape is noise-positive: measure that floor on tape pixels, subtract it.
     tape_px = filled & (binary == 0)
-    floor = float(np.median(tophat[tape_px])) if tape_px.any() else 0.0
+    floor = float(median(tophat[tape_px])) if tape_px.any() else 0.0
     scale = max(contrast - floor, 1e-3)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
+    if n <= 1:
+        return np.zeros((0, 2)), np.zeros(0)
+    blobs = _Blobs(labels, stats)
     if size_from_blobs:
-        d = _typical_diameter(labels, stats, d)
+        d = _typical_diameter(blobs, d)
     dot_area = math.pi * d * d / 4.0
     rim = max(2, int(math.ceil(0.3 * d)))
-    grow = _disc(2 * rim - 1)
-    centres, scores = [], []
-    for i in range(1, n):
-        x, y, bw, bh, area = stats[i]
-        if not p.min_area * dot_area <= area <= p.max_area * dot_area:
-            continue
-        ys, xs = slice(max(0, y - rim), y + bh + rim), slice(max(0, x - rim), x + bw + rim)
-        window = labels[ys, xs]
-        blob = window == i
-        shape = _ellipse_shape(blob)
-        if shape is None:
-            continue
-        major, minor = shape
+    area = stats[:, cv2.CC_STAT_AREA]
+    x, y = stats[:, cv2.CC_STAT_LEFT], stats[:, cv2.CC_STAT_TOP]
+    # shapes measured in each blob's window (its box grown by the rim), as cv2.moments there
+    major, minor = blobs.ellipse_axes(np.maximum(0, x - rim), np.maximum(0, y - rim))
+    with np.errstate(divide="ignore", invalid="ignore"):
         fill = area / (math.pi * major * minor / 4.0)
-        if major > p.max_major * d or minor < p.min_axis_ratio * major or fill < p.min_fill:
-            continue
+    candidate = ((p.min_area * dot_area <= area) & (area <= p.max_area * dot_area)
+                 & ~(major > p.max_major * d) & ~(minor < p.min_axis_ratio * major) & ~(fill < p.min_fill))
+    candidate[0] = False
+    # Each candidate's support: its pixels and the background within the rim of it (pixels of
+    # other blobs excluded); supports of close dots share background pixels.
+    ring = _ring_pixels(labels, candidate, _disc(2 * rim - 1))
+    ring_share = blobs.ring_share(ring, filled)
+    level = blobs.percentiles(tophat, 60) - floor
+    sums = blobs.weighted_sums(ring, candidate, tophat, floor, np.maximum(level, 1e-3))
+    mean_smooth = blobs.means(smooth)
+    centres, scores = [], []
+    for i in np.flatnonzero(candidate):
         # A dot is a hole in the tape: its surrounding ring lies on the tape. Bright slivers of
         # skin beside the tape's end or cut off by the frame border fail this.
-        support = cv2.dilate(blob.astype(np.uint8), grow).astype(bool) & ((window == 0) | blob)
-        ring = support & ~blob
-        if ring.any() and filled[ys, xs][ring].mean() < p.min_ring_on_tape:
-            continue
-        if touches_border(y, x, bh, bw):
+        bw, bh = stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]
+        if ring_share[i] < p.min_ring_on_tape or touches_border(y[i], x[i], bh, bw):
             continue
         # Sub-pixel centre: top-hat intensity (floor removed, clipped) over the blob plus a rim,
-        # so partially covered edge pixels weigh in proportion to their coverage.
-        # Scale by this blob's own interior level, so its inside saturates at 1 and shading
-        # across the dot (a gradient of skin brightness) cannot pull the centre.
-        level = percentile(tophat[ys, xs][blob], 60) - floor
-        weights = np.clip((tophat[ys, xs] - floor) / max(level, 1e-3), 0.0, 1.0) * support
-        total = float(weights.sum())
+        # so partially covered edge pixels weigh in proportion to their coverage, scaled by this
+        # blob's own interior level (its inside saturates at 1 and shading across the dot
+        # cannot pull the centre).
+        total, sx, sy = sums[i]
         if total <= 0:
             continue
-        cx = float(weights.sum(axis=0) @ np.arange(xs.start, xs.start + blob.shape[1])) / total
-        cy = float(weights.sum(axis=1) @ np.arange(ys.start, ys.start + blob.shape[0])) / total
-        centres.append((cx, cy))
-        mean_contrast = (float(smooth[ys, xs][blob].mean()) - floor) / scale
-        scores.append(_confidence(area / dot_area, minor / major, fill, mean_contrast / 0.8))
+        centres.append((sx / total, sy / total))
+        mean_contrast = (mean_smooth[i] - floor) / scale
+        scores.append(_confidence(area[i] / dot_area, minor[i] / major[i], fill[i], mean_contrast / 0.8))
     if not centres:
         return np.zeros((0, 2)), np.zeros(0)
     return merge_close(np.asarray(centres, float), np.asarray(scores, float), p.merge_distance * d)
 
 
-def _typical_diameter(labels: np.ndarray, stats: np.ndarray, d_guess: float) -> float:
+class _Blobs:
+    """Per-label sums over a label image (label 0: background), all labels at once: pixel
+    counts and exact integer coordinate moments (float64 holds them exactly)."""
+
+    def __init__(self, labels: np.ndarray, stats: np.ndarray):
+        self.n = len(stats)
+        self.stats = stats
+        ys, xs = np.nonzero(labels)
+        self.ys, self.xs = ys, xs
+        self.lab = labels[ys, xs]
+        fx, fy = xs.astype(np.float64), ys.astype(np.float64)
+        count = lambda w=None: np.bincount(self.lab, weights=w, minlength=self.n)  # noqa: E731
+        self.s1, self.sx, self.sy = count(), count(fx), count(fy)
+        self.sxx, self.syy, self.sxy = count(fx * fx), count(fy * fy), count(fx * fy)
+
+    def ellipse_axes(self, ox: np.ndarray, oy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Full major/minor axes (px) of each label's moment ellipse, the moments taken with
+        the origin at (``ox``, ``oy``) per label: :func:`_ellipse_shape` of ``cv2.moments`` in
+        that window, bit for bit (the same exact raw moments, the same formulas)."""
+        ox, oy = ox.astype(np.float64), oy.astype(np.float64)
+        m00 = self.s1
+        m10, m01 = self.sx - ox * m00, self.sy - oy * m00
+        m20 = self.sxx - 2 * ox * self.sx + ox * ox * m00
+        m02 = self.syy - 2 * oy * self.sy + oy * oy * m00
+        m11 = self.sxy - ox * self.sy - oy * self.sx + ox * oy * m00
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / m00
+            cx, cy = m10 * inv, m01 * inv
+            mu20, mu11, mu02 = (m20 - m10 * cx) / m00, (m11 - m10 * cy) / m00, (m02 - m01 * cy) / m00
+        # Python's float ** 2 (C pow) is not always x * x to the last bit: squared as _ellipse_shape squares
+        squared = np.array([v ** 2 for v in (mu20 - mu02).tolist()], dtype=np.float64)
+        common = np.sqrt(np.maximum(0.0, 4 * mu11 * mu11 + squared))
+        l1 = (mu20 + mu02 + common) / 2
+        l2 = (mu20 + mu02 - common) / 2
+        return 4 * np.sqrt(np.maximum(l1, 1 / 12)), 4 * np.sqrt(np.maximum(l2, 1 / 12))
+
+    def means(self, image: np.ndarray) -> np.ndarray:
+        """Mean of ``image`` over each label's pixels (float64 sums)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.bincount(self.lab, weights=image[self.ys, self.xs], minlength=self.n) / self.s1
+
+    def percentiles(self, image: np.ndarray, q: float) -> np.ndarray:
+        """:func:`percentile` ``q`` of ``image`` over each label's pixels, bit for bit (NaN for
+        an empty label)."""
+        values = image[self.ys, self.xs]
+        order = np.lexsort((values, self.lab))
+        v = values[order]
+        counts = self.s1.astype(np.int64)
+        start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        index = (counts - 1) * (q / 100.0)
+        lo = np.floor(index).astype(np.int64)
+        t = index - lo
+        out = np.full(self.n, np.nan)
+        ok = counts > 0
+        top = ok & (lo >= counts - 1)
+        out[top] = v[start[top] + counts[top] - 1]  # the maximum
+        mid = ok & ~top
+        a, b = v[start[mid] + lo[mid]], v[start[mid] + lo[mid] + 1]
+        diff = b - a
+        tm = t[mid]
+        as_dtype = values.dtype.type  # numpy rounds the weight to the values' dtype
+        out[mid] = np.where(tm >= 0.5, b - diff * (1.0 - tm).astype(as_dtype), a + diff * tm.astype(as_dtype))
+        return out
+
+    def ring_share(self, ring: tuple[np.ndarray, np.ndarray, np.ndarray], filled: np.ndarray) -> np.ndarray:
+        """Per label: the share of its ring pixels (``ring``: ys, xs, label) on the tape (1 when it has none)."""
+        ys, xs, owner = ring
+        n_ring = np.bincount(owner, minlength=self.n)
+        on = np.bincount(owner, weights=filled[ys, xs], minlength=self.n)
+        return np.where(n_ring > 0, on / np.maximum(n_ring, 1), 1.0)
+
+    def weighted_sums(self, ring: tuple[np.ndarray, np.ndarray, np.ndarray], candidate: np.ndarray,
+                      tophat: np.ndarray, floor: float, level: np.ndarray) -> np.ndarray:
+        """Per candidate label (total, sum x w, sum y w) of the centre weights over its support
+        (its pixels and its ``ring`` pixels): the top-hat less ``floor``, over the label's
+        ``level``, clipped to [0, 1] (float32 per pixel as numpy computes it with Python
+        scalars; float64 sums)."""
+        own = candidate[self.lab]
+        ys = np.concatenate([self.ys[own], ring[0]])
+        xs = np.concatenate([self.xs[own], ring[1]])
+        owner = np.concatenate([self.lab[own], ring[2]])
+        lv = level.astype(np.float32)
+        w = np.clip((tophat[ys, xs] - np.float32(floor)) / lv[owner], 0.0, 1.0).astype(np.float64)
+        return np.stack([np.bincount(owner, weights=w, minlength=self.n),
+                         np.bincount(owner, weights=w * xs, minlength=self.n),
+                         np.bincount(owner, weights=w * ys, minlength=self.n)], axis=1)
+
+
+def _ring_pixels(labels: np.ndarray, candidate: np.ndarray, grow: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The background pixels within ``grow`` (a symmetric structuring element) of each candidate
+    blob, as (ys, xs, label) triples; a pixel within reach of several candidates appears once
+    for each (what dilating each blob on its own gives, without a dilation per blob)."""
+    n = len(candidate)
+    dtype = np.uint16 if n < 65535 else np.float32
+    cand = np.where(candidate, np.arange(n), 0)[labels].astype(dtype)
+    none = np.iinfo(np.uint16).max if dtype == np.uint16 else np.float32(n + 1)
+    highest = cv2.dilate(cand, grow)
+    lowest = cv2.erode(np.where(cand > 0, cand, none).astype(dtype), grow)
+    reached = (labels == 0) & (highest > 0)
+    shared = reached & (highest != lowest)
+    ys1, xs1 = np.nonzero(reached & ~shared)  # one candidate within reach: the dilation's label
+    owner1 = highest[ys1, xs1].astype(np.int64)
+    ys2, xs2 = np.nonzero(shared)  # several: every candidate label within the element around it
+    if not len(ys2):
+        return ys1, xs1, owner1
+    r = grow.shape[0] // 2
+    dy, dx = np.nonzero(grow)
+    yy, xx = ys2[:, None] + (dy - r)[None], xs2[:, None] + (dx - r)[None]
+    h, w = labels.shape
+    inside = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
+    near = np.where(inside, cand[np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)], 0).astype(np.int64)
+    pixel = np.broadcast_to(np.arange(len(ys2))[:, None], near.shape)
+    keep = near > 0
+    key = np.unique(pixel[keep] * n + near[keep])
+    which, owner2 = key // n, key % n
+    return (np.concatenate([ys1, ys2[which]]), np.concatenate([xs1, xs2[which]]),
+            np.concatenate([owner1, owner2]))
+
+
+def _typical_diameter(blobs: "_Blobs", d_guess: float) -> float:
     """Median longest axis of the blobs plausibly dots. Seen obliquely, the tape (and the width
     guess) shrinks across but not along the tape, so the dots' long axis keeps the true size."""
     guess_area = math.pi * d_guess * d_guess / 4.0
-    majors = []
-    for i in range(1, len(stats)):
-        x, y, bw, bh, area = stats[i]
-        if 0.3 * guess_area <= area <= 6 * guess_area:
-            shape = _ellipse_shape(labels[y:y + bh, x:x + bw] == i)
-            if shape is not None:
-                majors.append(shape[0])
+    stats = blobs.stats
+    area = stats[:, cv2.CC_STAT_AREA]
+    plausible = (0.3 * guess_area <= area) & (area <= 6 * guess_area)
+    plausible[0] = False
+    majors, _ = blobs.ellipse_axes(stats[:, cv2.CC_STAT_LEFT], stats[:, cv2.CC_STAT_TOP])  # moments in the blob's box
+    majors = majors[plausible]
     return max(d_guess, float(np.median(majors))) if len(majors) >= 3 else d_guess
 
 

@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from ..capture import to_grey
-from .blobs import DEFAULT_DOT_TO_WIDTH, BlobParams, fill_holes, find_dots, percentile
+from .blobs import DEFAULT_DOT_TO_WIDTH, BlobParams, fill_holes, find_dots, median, percentile
 
 
 @dataclass
@@ -72,17 +72,6 @@ def _near(mask: np.ndarray, margin: int) -> tuple[slice, slice] | None:
             slice(max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + 1 + margin)))
 
 
-def _median(values: np.ndarray):
-    """``np.median`` of a 1-D array without NaNs, bit for bit (the same partition and mean),
-    without its general-purpose overhead."""
-    n = values.size
-    k = n // 2
-    if n % 2:
-        return np.partition(values, k)[k]
-    part = np.partition(values, (k - 1, k))
-    return np.mean(part[k - 1:k + 1])
-
-
 class _Levels(NamedTuple):
     """Where the tape and the skin are sampled (bool masks of the crop) and their median grey levels."""
 
@@ -107,8 +96,8 @@ def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float) 
         return None
     g = grey[near]
     inner_grey = g[inner_near]
-    tape_near = inner_near & (g <= _median(inner_grey))
-    tape_median, ring_median = _median(g[tape_near]), _median(g[ring_near])
+    tape_near = inner_near & (g <= median(inner_grey))
+    tape_median, ring_median = median(g[tape_near]), median(g[ring_near])
     if ring_median - tape_median < min_contrast:
         return None
     tape, ring = np.zeros(mask.shape, bool), np.zeros(mask.shape, bool)
