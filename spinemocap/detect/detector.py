@@ -36,7 +36,7 @@ from ..views import ViewDots
 from .blobs import BlobParams, fill_holes, find_dots, merge_close
 from .classical import segment_classical
 from .dataset import CROP_PAD, WORK_WIDTH, crop_scale, frame_view
-from .instances import split_instances, union
+from .instances import kept_instances, split_instances, union
 from .refine import RefineParams, components_touching, extend_along_tape
 from .segnet import load_weights, pad_to_multiple, to_tensor
 
@@ -262,7 +262,7 @@ class Detector:
             raise ValueError("only the 'net' detector searches given boxes")
         t = time.perf_counter()
         found = self._segment.segment_boxes(image_bgr, boxes)
-        mask = union(split_instances(found.mask), image_bgr.shape[:2])
+        mask = kept_instances(found.mask)
         self.last_timings["segment_s"] = time.perf_counter() - t
         on_mask = _on_mask(found.uv, mask, self.blob_params)
         return MaskDots(mask, found.uv[on_mask], found.confidence[on_mask])

@@ -156,16 +156,23 @@ def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels 
 def components_touching(mask: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """The components of ``mask`` (8-connected) that overlap ``reference`` (both bool, same shape)."""
     n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    hit = np.unique(labels[mask & reference])
-    return np.isin(labels, hit[hit > 0])
+    return _labelled(labels, n, labels[mask & reference])
+
+
+def _labelled(labels: np.ndarray, n: int, chosen: np.ndarray) -> np.ndarray:
+    """Where ``labels`` (n labels, 0 the background) is one of ``chosen``: a lookup table, not
+    ``np.isin`` (a pass per label)."""
+    table = np.zeros(n, bool)
+    table[chosen] = True
+    table[0] = False
+    return table[labels]
 
 
 def keep_dotted(mask: np.ndarray, dots_uv: np.ndarray) -> np.ndarray:
     """The components of ``mask`` that contain at least one of ``dots_uv`` ((N, 2) px, x y)."""
-    at_dots = np.zeros_like(mask)
     ij = np.clip(np.round(dots_uv).astype(int), 0, [mask.shape[1] - 1, mask.shape[0] - 1]).reshape(-1, 2)
-    at_dots[ij[:, 1], ij[:, 0]] = True
-    return components_touching(mask, at_dots)
+    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    return _labelled(labels, n, labels[ij[:, 1], ij[:, 0]])
 
 
 class Extended(NamedTuple):
@@ -221,8 +228,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     dark = grey < threshold
     # Candidate regions: dark pixels outside the mask that touch it, with what they enclose.
     n, labels = cv2.connectedComponents((dark & ~base).view(np.uint8), connectivity=8)
-    touching = np.unique(labels[_grow(base, 1) & ~base])
-    pieces = np.isin(labels, touching[touching > 0])
+    pieces = _labelled(labels, n, labels[_grow(base, 1) & ~base])
     candidates = fill_holes(base | pieces) & ~base
     n, labels, stats, _ = cv2.connectedComponentsWithStats(candidates.view(np.uint8), connectivity=8)
     out = base.copy()
