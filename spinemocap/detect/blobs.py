@@ -125,8 +125,8 @@ def median(values: np.ndarray):
     the values' dtype), without its general-purpose overhead."""
     n = values.size
     k = n // 2
-    if n % 2:
-        return np.partition(values, k)[k]
+    if n % 2:  # numpy takes the mean of the middle value too (an integer array's median is float64)
+        return np.mean(np.partition(values, k)[k:k + 1])
     part = np.partition(values, (k - 1, k))
     return np.mean(part[k - 1:k + 1])
 
