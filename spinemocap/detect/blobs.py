@@ -106,7 +106,7 @@ def _regions(mask: np.ndarray, pad: int, stride: int = 8) -> list[tuple[slice, s
 def percentile(values: np.ndarray, q: float) -> float:
     """``float(np.percentile(values, q))`` (linear interpolation, ``q`` a Python number) of a 1-D
     array without NaNs, bit for bit as numpy >= 2.4 computes it (in the values' dtype), without
-    numpy's general-purpose overhead: ~3 instead of ~120 us, and it runs once per dot."""
+    numpy's general-purpose overhead: ~3 instead of ~120 us (a few calls per region of interest)."""
     n = values.size
     index = (n - 1) * (q / 100.0)
     lo = math.floor(index)
@@ -224,8 +224,9 @@ class _Blobs:
 
     def ellipse_axes(self, ox: np.ndarray, oy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Full major/minor axes (px) of each label's moment ellipse, the moments taken with
-        the origin at (``ox``, ``oy``) per label: :func:`_ellipse_shape` of ``cv2.moments`` in
-        that window, bit for bit (the same exact raw moments, the same formulas)."""
+        the origin at (``ox``, ``oy``) per label: the ellipse of ``cv2.moments`` of the blob in
+        that window, bit for bit (the same exact integer raw moments, OpenCV's formulas for the
+        central ones); a single pixel has variance 1/12 per axis (pixel quantisation)."""
         ox, oy = ox.astype(np.float64), oy.astype(np.float64)
         m00 = self.s1
         m10, m01 = self.sx - ox * m00, self.sy - oy * m00
@@ -236,7 +237,7 @@ class _Blobs:
             inv = 1.0 / m00
             cx, cy = m10 * inv, m01 * inv
             mu20, mu11, mu02 = (m20 - m10 * cx) / m00, (m11 - m10 * cy) / m00, (m02 - m01 * cy) / m00
-        # Python's float ** 2 (C pow) is not always x * x to the last bit: squared as _ellipse_shape squares
+        # Python's float ** 2 (C pow) is not always x * x to the last bit: squared as the one-blob pass squared
         squared = np.array([v ** 2 for v in (mu20 - mu02).tolist()], dtype=np.float64)
         common = np.sqrt(np.maximum(0.0, 4 * mu11 * mu11 + squared))
         l1 = (mu20 + mu02 + common) / 2
@@ -337,19 +338,6 @@ def _typical_diameter(blobs: "_Blobs", d_guess: float) -> float:
     majors, _ = blobs.ellipse_axes(stats[:, cv2.CC_STAT_LEFT], stats[:, cv2.CC_STAT_TOP])  # moments in the blob's box
     majors = majors[plausible]
     return max(d_guess, float(np.median(majors))) if len(majors) >= 3 else d_guess
-
-
-def _ellipse_shape(blob: np.ndarray) -> tuple[float, float] | None:
-    """Full major/minor axis lengths (px) of the ellipse with the blob's second moments."""
-    m = cv2.moments(blob.astype(np.uint8), binaryImage=True)
-    if m["m00"] <= 0:
-        return None
-    mu20, mu02, mu11 = m["mu20"] / m["m00"], m["mu02"] / m["m00"], m["mu11"] / m["m00"]
-    common = math.sqrt(max(0.0, 4 * mu11 * mu11 + (mu20 - mu02) ** 2))
-    l1 = (mu20 + mu02 + common) / 2
-    l2 = (mu20 + mu02 - common) / 2
-    # Pixel quantisation: a single pixel has variance 1/12 per axis.
-    return 4 * math.sqrt(max(l1, 1 / 12)), 4 * math.sqrt(max(l2, 1 / 12))
 
 
 def _confidence(area_ratio: float, axis_ratio: float, fill: float, contrast_ratio: float) -> float:
