@@ -69,6 +69,7 @@ class TrackResult:
     calibration_warning: str | None = None
     refinement: RigRefinement | None = None
     detector_searches: dict[str, int] = field(default_factory=dict)  # camera images per detection route
+    detector_info: dict = field(default_factory=dict)  # CaptureDetector.info: parallel mode, workers' start-up and CPU
 
     def stage_ms(self) -> dict[str, float]:
         """Mean time per stage per frame (ms), over all frames."""
@@ -286,6 +287,7 @@ def track_source(
     finally:
         detect.close()
     result.detector_searches = dict(detect.searches)
+    result.detector_info = dict(detect.info)
     return result
 
 
