@@ -10,8 +10,9 @@ one camera image there, writes its grey image (MRF2's evidence) next to it in th
 returns the dots plus the tape mask as its bounding box and the crop inside it (the mask is empty
 elsewhere), so only a few kB travel back through the pool's pipe.
 
-The block holds one frame: detection of a frame ends before the next frame's images are copied
-in (sequence-mode prediction needs the previous frame solved anyway). Workers ignore SIGINT (the
+Detection of a frame ends before the next one's starts (sequence-mode prediction needs the
+previous frame solved). The reading thread copies the next frames into a ring of blocks while a
+frame is detected (:meth:`CameraProcesses.stage`), so the copy is off the tracker's path. Workers ignore SIGINT (the
 parent stops them: Ctrl-C ends the run in the parent, which terminates its workers) and exit by
 themselves when the parent dies.
 """
@@ -40,10 +41,53 @@ Slot = tuple[int, tuple[int, ...]]
 
 START_TIMEOUT_S = 180.0  # workers import torch and load the network: minutes at most on a loaded machine
 STOP_GRACE_S = 2.0       # terminated workers get this long before they are killed
+MAX_ATTACHED = 16        # blocks a worker keeps mapped (the ring and the direct block: a few)
 
 
 class ProcessesUnavailable(RuntimeError):
     """The worker processes could not be started (the caller falls back to threads)."""
+
+
+class _Block:
+    """One frame's images and grey images in a shared-memory block (made on first use, made
+    again when the images' shapes change)."""
+
+    def __init__(self) -> None:
+        self.memory: shared_memory.SharedMemory | None = None
+        self.layout: list[tuple[Slot, Slot]] = []   # per camera: (image, grey) slots
+        self._key: tuple = ()
+
+    def fill(self, images: Sequence[np.ndarray]) -> None:
+        key = tuple((im.shape, im.dtype.str) for im in images)
+        if self.memory is None or key != self._key:
+            self.free()
+            layout, offset = [], 0
+            for im in images:
+                if im.dtype != np.uint8:
+                    raise ValueError(f"camera images must be uint8, got {im.dtype}")
+                image_slot = (offset, tuple(im.shape))
+                offset += _aligned(im.nbytes)
+                grey_slot = (offset, tuple(im.shape[:2]))
+                offset += _aligned(im.shape[0] * im.shape[1])
+                layout.append((image_slot, grey_slot))
+            self.memory = shared_memory.SharedMemory(create=True, size=max(offset, 1))
+            self.layout, self._key = layout, key
+        for im, (image_slot, _) in zip(images, self.layout):
+            np.copyto(_view(self.memory, image_slot, np.uint8), im)
+
+    def free(self) -> None:
+        if self.memory is not None:
+            self.memory.close()
+            self.memory.unlink()
+            self.memory = None
+
+
+class StagedImages(list):
+    """A frame's camera images already copied into a block of ``owner`` (by :meth:`CameraProcesses.stage`)."""
+
+    def __init__(self, images: Sequence[np.ndarray], owner: "CameraProcesses", block: _Block):
+        super().__init__(images)
+        self.owner, self.block = owner, block
 
 
 class CameraProcesses:
@@ -51,15 +95,20 @@ class CameraProcesses:
 
     :meth:`detect` takes a frame's images (BGR uint8, one per camera) and per camera either a list
     of boxes to search or None (the full two-stage search, stage 1 on that image alone), and
-    returns :class:`ViewDots` exactly as ``Detector.detect`` in this process would. Raises
-    :class:`ProcessesUnavailable` when the processes cannot start; :meth:`close` stops them and
-    frees the shared memory (also on Ctrl-C)."""
+    returns :class:`ViewDots` exactly as ``Detector.detect`` in this process would. A reading
+    thread may copy frames into shared memory ahead of detection with :meth:`stage` (a ring of
+    ``staged`` blocks: at most ``staged - 1`` frames staged ahead of the one being detected).
+    Raises :class:`ProcessesUnavailable` when the processes cannot start; :meth:`close` stops them
+    and frees the shared memory (also on Ctrl-C)."""
 
-    def __init__(self, name: str, n: int, device: str = "cpu"):
+    def __init__(self, name: str, n: int, device: str = "cpu", staged: int = 0):
         self.name, self.n, self.device = name, n, device
-        self._block: shared_memory.SharedMemory | None = None
-        self._layout: list[tuple[Slot, Slot]] = []   # per camera: (image, grey) slots
-        self._key: tuple = ()
+        self._ring = [_Block() for _ in range(staged)]
+        self._next = 0
+        self._direct = _Block()          # frames not staged are copied here when detected
+        self._last: _Block | None = None  # the block of the last detection
+        self._lock = threading.Lock()
+        self._closed = False
         self.startup_s = self.cpu_s = float("nan")  # start-up wall s; workers' CPU s after it (at close)
         try:
             self._pool = ProcessPoolExecutor(n, mp_context=mp.get_context("spawn"), initializer=_worker_start,
@@ -75,45 +124,46 @@ class CameraProcesses:
             raise ProcessesUnavailable(f"{type(exc).__name__}: {exc}") from exc
 
     # ------------------------------------------------------------------ per frame
+    def stage(self, images: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """Copy a frame's images into the next block of the ring (from the reading thread, ahead
+        of :meth:`detect`); the images as :class:`StagedImages` (unchanged without a ring)."""
+        with self._lock:  # not while close() frees the blocks
+            if not self._ring or self._closed:
+                return list(images)
+            block = self._ring[self._next]
+            self._next = (self._next + 1) % len(self._ring)
+            block.fill(images)
+            return StagedImages(images, self, block)
+
     def detect(self, images: Sequence[np.ndarray], cameras: Sequence[int], boxes: Sequence[list[Box] | None],
                copy: bool = True) -> list[ViewDots]:
         """Detect the images of ``cameras`` (indices into ``images``, one BGR uint8 image per
         camera), camera ``cameras[k]`` in the boxes ``boxes[k]`` (None: the full search); one
-        :class:`ViewDots` per entry of ``cameras``. ``copy=False``: the block already holds these
-        images (a second pass over the same frame)."""
-        block = self._fill(images) if copy or self._block is None else self._block
-        futures = [self._pool.submit(_worker_detect, block.name, self._layout[c], c, None if b is None else list(b))
+        :class:`ViewDots` per entry of ``cameras``. ``copy=False``: the last detection's block
+        already holds these images (a second pass over the same frame)."""
+        if isinstance(images, StagedImages) and images.owner is self:
+            block = images.block
+        elif copy or self._last is None:
+            block = self._direct
+            block.fill(images)
+        else:
+            block = self._last
+        self._last = block
+        memory = block.memory
+        assert memory is not None
+        futures = [self._pool.submit(_worker_detect, memory.name, block.layout[c], c, None if b is None else list(b))
                    for c, b in zip(cameras, boxes)]
         return [self._view_dots(block, c, future.result()) for c, future in zip(cameras, futures)]
 
-    def _view_dots(self, block: shared_memory.SharedMemory, camera: int, result: tuple) -> ViewDots:
+    def _view_dots(self, block: _Block, camera: int, result: tuple) -> ViewDots:
         uv, confidence, box, crop = result
-        grey_slot = self._layout[camera][1]
-        grey = np.array(_view(block, grey_slot, np.uint8))  # a copy: the block is reused for the next frame
+        grey_slot = block.layout[camera][1]
+        assert block.memory is not None
+        grey = np.array(_view(block.memory, grey_slot, np.uint8))  # a copy: the block is reused
         mask = np.zeros(grey_slot[1][:2], bool)  # calloc: pages are touched only where the crop goes
         if box is not None:
             mask[box] = crop
         return ViewDots(camera=camera, uv=uv, confidence=confidence, mask=mask, image=grey)
-
-    def _fill(self, images: Sequence[np.ndarray]) -> shared_memory.SharedMemory:
-        """Copy the images into the shared block (re-made when the images' shapes change)."""
-        key = tuple((im.shape, im.dtype.str) for im in images)
-        if self._block is None or key != self._key:
-            self._free_block()
-            layout, offset = [], 0
-            for im in images:
-                if im.dtype != np.uint8:
-                    raise ValueError(f"camera images must be uint8, got {im.dtype}")
-                image_slot = (offset, tuple(im.shape))
-                offset += _aligned(im.nbytes)
-                grey_slot = (offset, tuple(im.shape[:2]))
-                offset += _aligned(im.shape[0] * im.shape[1])
-                layout.append((image_slot, grey_slot))
-            self._block = shared_memory.SharedMemory(create=True, size=max(offset, 1))
-            self._layout, self._key = layout, key
-        for im, (image_slot, _) in zip(images, self._layout):
-            np.copyto(_view(self._block, image_slot, np.uint8), im)
-        return self._block
 
     def workers_cpu_s(self) -> float:
         """CPU seconds (user + system) the live workers have used so far (NaN without psutil)."""
@@ -149,13 +199,10 @@ class CameraProcesses:
                     process.kill()
                     process.join(1.0)
             self._pool = None
-        self._free_block()
-
-    def _free_block(self) -> None:
-        if self._block is not None:
-            self._block.close()
-            self._block.unlink()
-            self._block = None
+        with self._lock:
+            self._closed = True
+            for block in [*self._ring, self._direct]:
+                block.free()
 
 
 def _aligned(nbytes: int, to: int = 64) -> int:
@@ -201,9 +248,8 @@ def _worker_ready(pause_s: float) -> int:
 def _attached(name: str) -> shared_memory.SharedMemory:
     blocks = _STATE["blocks"]
     if name not in blocks:
-        for old in blocks.values():  # the parent made a new block: the old one is gone
-            old.close()
-        blocks.clear()
+        while len(blocks) >= MAX_ATTACHED:  # blocks the parent has made again (new image shapes)
+            blocks.pop(next(iter(blocks))).close()
         # the parent owns and unlinks the block (spawned workers share its resource tracker, so
         # their registration of the attachment is the parent's own)
         blocks[name] = shared_memory.SharedMemory(name=name)

@@ -247,7 +247,8 @@ def source_views(source: FrameSource, frames: Sequence[int], detect: CaptureDete
     speed = speed or SpeedOptions()
     read_masks = (detect.needs_masks or speed.masks_always) and mask_dir is not None and mask_dir.is_dir()
     frames_in = prefetched_frames(source, frames, mask_dir if read_masks else None,
-                                  workers=speed.n_workers(len(source.camera_names)), prefetch=speed.prefetch)
+                                  workers=speed.n_workers(len(source.camera_names)), prefetch=speed.prefetch,
+                                  stage=detect.stage if detect.parallel == "processes" else None)
     t0 = time.perf_counter()
     for frame, images, masks in frames_in:
         views = detect(frame, images, masks if detect.needs_masks else None)

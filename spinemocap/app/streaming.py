@@ -32,7 +32,7 @@ from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -117,15 +117,19 @@ def _read_frame(source: FrameSource, frame: int, pool: ThreadPoolExecutor | None
 
 
 def prefetched_frames(source: FrameSource, frames: Sequence[int], mask_dir: Path | None = None,
-                      workers: int = 1, prefetch: int = 2
+                      workers: int = 1, prefetch: int = 2, stage: Callable[[list[np.ndarray]], list[np.ndarray]] | None = None
                       ) -> Iterator[tuple[int, list[np.ndarray], list[np.ndarray] | None]]:
     """Yield ``(frame, images, masks)`` (BGR uint8 per camera; masks only from ``mask_dir``,
     else None). Cameras are decoded by ``workers`` threads; with ``prefetch`` > 0 a background
-    thread keeps up to that many frames decoded ahead. Errors of the reader are raised here."""
+    thread keeps up to that many frames decoded ahead. ``stage``: applied to each frame's images
+    by the reader (:meth:`CaptureDetector.stage`: copied into the camera processes' shared
+    memory ahead of detection). Errors of the reader are raised here."""
     pool = ThreadPoolExecutor(workers, thread_name_prefix="read") if workers > 1 else None
 
     def load(frame: int):
         images = _read_frame(source, frame, pool)
+        if stage is not None:
+            images = stage(images)
         masks = read_masks(mask_dir, source.camera_names, frame, images) if mask_dir is not None else None
         return frame, images, masks
 
@@ -239,8 +243,9 @@ class CaptureDetector:
         from ..detect.detector import resolve_device
 
         device = resolve_device(self.options.device) if self.name == "net" else "cpu"
+        staged = self.options.prefetch + 2 if self.options.prefetch > 0 else 0  # see CameraProcesses.stage
         try:
-            return CameraProcesses(self.name, self._n, device)
+            return CameraProcesses(self.name, self._n, device, staged=staged)
         except ProcessesUnavailable as exc:
             self._fall_back(f"camera worker processes could not start ({exc})")
             return None
@@ -255,6 +260,12 @@ class CaptureDetector:
         if self.options.opencv_threads is not None:
             self._opencv_threads_before = cv2.getNumThreads()
             cv2.setNumThreads(self.options.opencv_threads)
+
+    def stage(self, images: list[np.ndarray]) -> list[np.ndarray]:
+        """For the reading thread: with camera processes, copy a frame's images into their shared
+        memory ahead of its detection (the frame must then be detected in reading order)."""
+        processes = self._processes
+        return processes.stage(images) if processes is not None else images
 
     def close(self) -> None:
         """Stop the worker processes or threads (also after Ctrl-C) and restore OpenCV's threads."""
