@@ -266,3 +266,23 @@ def test_detector_dots_are_a_blob_pass_on_its_final_mask(small_studio):
                 assert np.linalg.norm(view.uv[:, None] - uv[None], axis=2).min(axis=1).max() < 0.01
             seen += len(uv)
     assert seen > 100  # the tape was in view: the comparison was not empty
+
+
+def test_too_little_shared_memory_falls_back_to_threads(small_studio, monkeypatch):
+    # a block larger than /dev/shm's free space would kill the process when written (SIGBUS):
+    # it is refused first and the frame detected in threads, with a warning naming the cause
+    from spinemocap.app import camera_processes
+    from spinemocap.app.streaming import ParallelFallbackWarning
+
+    scene, images = small_studio
+    serial = CaptureDetector("net", scene.rig, SpeedOptions(workers=1, predict=False))
+    processes = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, parallel="processes", predict=False))
+    try:
+        monkeypatch.setattr(camera_processes, "shared_memory_free", lambda: 1024)
+        with pytest.warns(ParallelFallbackWarning, match="/dev/shm.*MiB free"):
+            views = processes(0, images[0], None)
+        assert processes.parallel == "threads"
+        _assert_same_views(serial(0, images[0], None), views)
+    finally:
+        serial.close()
+        processes.close()

@@ -45,7 +45,19 @@ MAX_ATTACHED = 16        # blocks a worker keeps mapped (the ring and the direct
 
 
 class ProcessesUnavailable(RuntimeError):
-    """The worker processes could not be started (the caller falls back to threads)."""
+    """The worker processes could not be started, or their shared memory cannot hold a frame
+    (the caller falls back to threads)."""
+
+
+def shared_memory_free() -> int | None:
+    """Bytes free where POSIX shared memory lives (``/dev/shm`` on Linux; None where unknown).
+    A block larger than this is created without complaint but kills the process (SIGBUS) when
+    its pages are written, so blocks are checked against it first."""
+    try:
+        stat = os.statvfs("/dev/shm")
+    except OSError:
+        return None
+    return stat.f_bavail * stat.f_frsize
 
 
 class _Block:
@@ -70,6 +82,10 @@ class _Block:
                 grey_slot = (offset, tuple(im.shape[:2]))
                 offset += _aligned(im.shape[0] * im.shape[1])
                 layout.append((image_slot, grey_slot))
+            free = shared_memory_free()
+            if free is not None and offset > free:
+                raise ProcessesUnavailable(f"shared memory (/dev/shm) has {free / 2**20:.0f} MiB free, a frame "
+                                           f"needs {offset / 2**20:.0f} MiB")
             self.memory = shared_memory.SharedMemory(create=True, size=max(offset, 1))
             self.layout, self._key = layout, key
         for im, (image_slot, _) in zip(images, self.layout):
@@ -132,7 +148,10 @@ class CameraProcesses:
                 return list(images)
             block = self._ring[self._next]
             self._next = (self._next + 1) % len(self._ring)
-            block.fill(images)
+            try:
+                block.fill(images)
+            except ProcessesUnavailable:  # no room: detect() copies the frame (and says so)
+                return list(images)
             return StagedImages(images, self, block)
 
     def detect(self, images: Sequence[np.ndarray], cameras: Sequence[int], boxes: Sequence[list[Box] | None],

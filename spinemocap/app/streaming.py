@@ -330,12 +330,13 @@ class CaptureDetector:
         if self._processes is not None:
             try:
                 return self._processes.detect(images, cameras, boxes, copy)
-            except BrokenProcessPool as exc:
+            except (BrokenProcessPool, ProcessesUnavailable) as exc:
                 self._processes.close()
                 self._processes = None
-                self._fall_back(f"a camera worker process died ({exc})")
+                why = "a camera worker process died" if isinstance(exc, BrokenProcessPool) else "camera worker processes"
+                self._fall_back(f"{why} ({exc})")
                 self._start_threads()
-                self.info["parallel"] = "threads (processes died)"
+                self.info["parallel"] = "threads (fallback from processes)"
         return self._map(lambda k: self._detect(cameras[k], images[cameras[k]], boxes[k]), range(len(cameras)))
 
     def _detect(self, camera: int, image: np.ndarray, boxes: list[Box] | None) -> ViewDots:
