@@ -47,7 +47,22 @@ from .camera_processes import CameraProcesses, ProcessesUnavailable, mask_box
 log = logging.getLogger(__name__)
 
 Box = tuple[slice, slice]
-PARALLEL = ("processes", "threads")
+PARALLEL = ("auto", "processes", "threads")
+# ``auto``: processes from this many CPU cores on. Measured (issue 15, docs/BENCHMARKS.md): on the
+# 2-core VM threads were faster (processes cost more CPU per frame: the copies into shared memory,
+# the workers' own overhead, and there are no spare cores to gain); on the 16-core H100 machine
+# processes were. Between 2 and 16 cores nothing was measured: 8 is a guess.
+PROCESSES_FROM_CORES = 8
+
+
+def resolve_parallel(mode: str, cores: int | None = None) -> str:
+    """``processes`` or ``threads`` for ``mode`` (``auto``: by the number of CPU cores)."""
+    if mode not in PARALLEL:
+        raise InputError(None, f"unknown parallel mode {mode!r} (choose {', '.join(PARALLEL)})")
+    if mode != "auto":
+        return mode
+    cores = cores if cores is not None else os.cpu_count() or 1
+    return "processes" if cores >= PROCESSES_FROM_CORES else "threads"
 
 
 class ParallelFallbackWarning(UserWarning):
@@ -59,7 +74,8 @@ class SpeedOptions:
     """How a capture is read and detected. ``workers``: processes or threads for the cameras (0:
     one per CPU core, at most one per camera; 1: one camera after the other in this process);
     ``parallel``: ``processes`` (worker processes, :mod:`~spinemocap.app.camera_processes`; the
-    reading of images stays in threads) or ``threads``; ``prefetch``: frames decoded ahead of the tracker (0: read
+    reading of images stays in threads), ``threads`` or ``auto`` (processes from
+    :data:`PROCESSES_FROM_CORES` cores on, else threads; see :func:`resolve_parallel`); ``prefetch``: frames decoded ahead of the tracker (0: read
     when needed); ``predict``: sequence mode searches the predicted tape box; ``refresh_every``:
     frames between full searches; ``min_dot_share``: a predicted box must find this share of the
     previous frame's dots in its camera, else that camera is searched in full; ``box_margin_px``:
@@ -74,7 +90,7 @@ class SpeedOptions:
     ``masks_always``: read ``masks/`` even when the detector does not use them (legacy only)."""
 
     workers: int = 0
-    parallel: str = "processes"
+    parallel: str = "auto"
     prefetch: int = 2
     predict: bool = True
     refresh_every: int = 10
@@ -204,13 +220,12 @@ class CaptureDetector:
             self.detector = Detector(name=name, device=self.options.device) if name == "net" else Detector(name=name)
         elif name != "mask":
             raise InputError(None, f"unknown detector {name!r} (choose net, classical or mask)")
-        if self.options.parallel not in PARALLEL:
-            raise InputError(None, f"unknown parallel mode {self.options.parallel!r} (choose {' or '.join(PARALLEL)})")
+        mode = resolve_parallel(self.options.parallel)
         self._n = self.options.n_workers(len(rig) if rig is not None else os.cpu_count() or 1)
         self._processes: CameraProcesses | None = None
         self._pool: ThreadPoolExecutor | None = None
         self._opencv_threads_before: int | None = None
-        if self._n > 1 and self.options.parallel == "processes" and self.detector is not None:
+        if self._n > 1 and mode == "processes" and self.detector is not None:
             self._processes = self._start_processes()
         if self._n > 1 and self._processes is None:
             self._start_threads()

@@ -33,7 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..app.run import TrackingWarning, TrackResult, track_source
-from ..app.streaming import LEGACY, SpeedOptions
+from ..app.streaming import LEGACY, SpeedOptions, resolve_parallel
 from ..capture import VIDEO_PATTERN, Capture, FrameSource, VideoWriter
 from ..fileio import atomic_write, read_toml, write_toml
 from ..track.evaluate import evaluate_tracking
@@ -171,16 +171,16 @@ def with_sensor_noise(images: list[np.ndarray], sigma: float, seed: int) -> list
 def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence", detector: str = "net",
                          legacy: bool = True, speed: SpeedOptions | None = None, sensor_noise: float = 0.0,
                          progress: bool = True, say: Callable[[str], None] = print, cpu_peer: bool = True,
-                         threads_peer: bool = True, video_frames: int = 0, workdir: Path | None = None) -> dict:
+                         parallel_peer: bool = True, video_frames: int = 0, workdir: Path | None = None) -> dict:
     """In-memory speed of an existing synthetic capture (e.g. a few frames carried to a machine
     that cannot render): its frames played forward and backward (:func:`replay_order`) for
     ``frames`` frames, the ground truth replayed alike; the new pipeline and the legacy peer.
     When the network runs on a GPU, ``cpu_peer`` also runs the same pipeline on the CPU in the
     same run (``speedup_vs_cpu``) and every source frame is detected on both to compare the dots
-    (``device_check``). With cameras in worker processes, ``threads_peer`` also runs them in
-    threads (the previous setting; ``speedup_vs_threads``). ``video_frames`` > 0: the first so
-    many replayed frames (noise included) are also written as lossless UT Video into ``workdir``
-    (reused when there) and tracked from it, the cameras in processes and in threads. Ground-truth masks are not replayed (the legacy peer reads none here)."""
+    (``device_check``). ``parallel_peer``: the cameras also in the other parallel mode (processes
+    or threads; ``speedup_processes_vs_threads``, ``same_output_processes_threads``).
+    ``video_frames`` > 0: the first so many replayed frames (noise included) are also written as
+    lossless UT Video into ``workdir`` (reused when there) and tracked from it, in both modes. Ground-truth masks are not replayed (the legacy peer reads none here)."""
     from ..detect.detector import resolve_device
 
     speed = speed or SpeedOptions()
@@ -192,8 +192,11 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
     replayed = MemorySource([decoded[i] for i in order], capture.camera_names)
     gt = replayed_groundtruth(capture, order)
     configs = [("in_memory", speed)]
-    if threads_peer and speed.parallel == "processes":
-        configs.append(("in_memory_threads", replace(speed, parallel="threads")))
+    mode = resolve_parallel(speed.parallel)
+    other = "threads" if mode == "processes" else "processes"
+    speed = replace(speed, parallel=mode)
+    if parallel_peer and speed.n_workers(len(capture.rig)) > 1:
+        configs.append((f"in_memory_{other}", replace(speed, parallel=other)))
     if device != "cpu" and cpu_peer:
         configs.append(("in_memory_cpu", replace(speed, device="cpu")))
     if legacy:
@@ -212,10 +215,10 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
     fps_video = None
     if video_frames > 0:
         fps_video = _replayed_video_runs(capture, replayed, gt, video_frames, workdir, speed, mode, detector,
-                                         progress, say, runs, threads_peer)
+                                         progress, say, runs, parallel_peer)
     by_name = {r["run"]: r for r in runs}
     new, peer, cpu = by_name["in_memory"], by_name.get("in_memory_legacy"), by_name.get("in_memory_cpu")
-    threads = by_name.get("in_memory_threads")
+    by_mode = {mode: by_name["in_memory"], other: by_name.get(f"in_memory_{other}")}
     check = None
     if cpu is not None:
         say("detecting every source frame on the CPU and on the GPU (same dots?) ...")
@@ -230,10 +233,12 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
         "accuracy_not_worse": _not_worse(new, peer) if peer else None,
         "speedup_vs_cpu": new["fps"] / cpu["fps"] if cpu else None,
         "accuracy_not_worse_vs_cpu": _not_worse(new, cpu) if cpu else None,
-        "speedup_vs_threads": new["fps"] / threads["fps"] if threads else None,
+        "parallel": mode,
+        "speedup_processes_vs_threads": (by_mode["processes"]["fps"] / by_mode["threads"]["fps"]
+                                         if by_mode[other] else None),
         # bit for bit the same tracked positions with the cameras in processes as in threads
-        "same_output_as_threads": (bool(np.array_equal(positions["in_memory"], positions["in_memory_threads"],
-                                                       equal_nan=True)) if threads else None),
+        "same_output_processes_threads": (bool(np.array_equal(positions["in_memory"], positions[f"in_memory_{other}"],
+                                                              equal_nan=True)) if by_mode[other] else None),
         "device_check": check,
         "accuracy_tolerance_mm": ACCURACY_TOLERANCE_MM, "runs": runs, "goals_fps": GOALS_FPS,
     }
@@ -241,17 +246,18 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
 
 def _replayed_video_runs(capture: Capture, replayed: MemorySource, gt: dict, n_frames: int, workdir: Path | None,
                          speed: SpeedOptions, mode: str, detector: str, progress: bool, say: Callable[[str], None],
-                         runs: list[dict], threads_peer: bool) -> float:
-    """Track the first ``n_frames`` replayed frames from a lossless UT Video copy (``video``, and
-    ``video_threads`` with the cameras in threads when ``speed`` has processes); returns the fps."""
+                         runs: list[dict], parallel_peer: bool) -> float:
+    """Track the first ``n_frames`` replayed frames from a lossless UT Video copy (``video`` with
+    ``speed``, and ``video_<other mode>`` with the cameras in the other parallel mode); returns the fps."""
     video_dir = Path(workdir or tempfile.mkdtemp(prefix="spinemocap-speed-")) / f"video_replayed{n_frames}"
     if not (video_dir / "capture.toml").is_file():
         say(f"encoding {n_frames} replayed frames as lossless UT Video (not timed) ...")
         video_copy(capture.root, video_dir, frames=n_frames, progress=progress, source=replayed, groundtruth=gt)
     video = Capture.open(video_dir)
     configs = [("video", speed)]
-    if threads_peer and speed.parallel == "processes":
-        configs.append(("video_threads", replace(speed, parallel="threads")))
+    other = "threads" if speed.parallel == "processes" else "processes"
+    if parallel_peer and speed.n_workers(len(video.rig)) > 1:
+        configs.append((f"video_{other}", replace(speed, parallel=other)))
     for name, options in configs:
         say(f"tracking: {name} ...")
         result, wall, peak = _timed_run(video.frame_source(), video, options, mode, detector, progress, masks=False)
@@ -533,9 +539,10 @@ def format_report(numbers: dict) -> str:
         source = "PNG" if numbers.get("fps_png") is not None else "in memory"
         lines.append(f"  speedup vs the previous pipeline ({source}): {numbers['speedup_vs_previous']:.2f}x; "
                      f"accuracy not worse: {numbers['accuracy_not_worse']}")
-    if numbers.get("speedup_vs_threads") is not None:
-        lines.append(f"  cameras in processes: {numbers['speedup_vs_threads']:.2f}x the frames/s of cameras in threads; "
-                     f"same tracked positions: {numbers['same_output_as_threads']}")
+    if numbers.get("speedup_processes_vs_threads") is not None:
+        lines.append(f"  cameras in processes: {numbers['speedup_processes_vs_threads']:.2f}x the frames/s of cameras in "
+                     f"threads (in memory; default here: {numbers['parallel']}); same tracked positions: "
+                     f"{numbers['same_output_processes_threads']}")
     if numbers.get("speedup_vs_cpu") is not None:
         lines.append(f"  network on {numbers['device']}: {numbers['speedup_vs_cpu']:.2f}x the same pipeline's frames/s "
                      f"on the CPU; accuracy not worse: {numbers['accuracy_not_worse_vs_cpu']}")

@@ -19,10 +19,10 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--detector", choices=("net", "classical", "mask"), default="net")
     p.add_argument("--workers", type=int, default=0,
                    help="processes or threads for the cameras (0: one per CPU core, at most one per camera)")
-    p.add_argument("--parallel", choices=("processes", "threads"), default="processes",
-                   help="cameras in worker processes (default) or threads; with processes, the in-memory and "
-                        "video runs are repeated with threads as the peer (--no-threads-peer skips that)")
-    p.add_argument("--no-threads-peer", action="store_true", help="skip the cameras-in-threads peer")
+    p.add_argument("--parallel", choices=("auto", "processes", "threads"), default="auto",
+                   help="cameras in worker processes or threads (auto, the default: processes from 8 CPU cores "
+                        "on); the in-memory and video runs are repeated in the other mode as the peer")
+    p.add_argument("--no-parallel-peer", action="store_true", help="skip the run in the other parallel mode")
     p.add_argument("--video-frames", type=int, default=0,
                    help="with --capture: also write the first so many replayed frames as lossless video (into "
                         "--workdir) and track them from it")
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     if args.capture:
         numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_legacy,
                                        speed, args.sensor_noise, progress=not args.no_progress,
-                                       cpu_peer=not args.no_cpu_peer, threads_peer=not args.no_threads_peer,
+                                       cpu_peer=not args.no_cpu_peer, parallel_peer=not args.no_parallel_peer,
                                        video_frames=args.video_frames, workdir=args.workdir)
     else:
         numbers = run_speed_benchmark(args.preset, args.frames, args.occlusion, args.mode, args.detector, args.seed,
