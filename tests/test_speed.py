@@ -297,3 +297,22 @@ def test_auto_parallel_mode_follows_the_cores():
     assert resolve_parallel("threads", 64) == "threads" and resolve_parallel("processes", 1) == "processes"
     with pytest.raises(InputError, match="unknown parallel mode"):
         resolve_parallel("fibres")
+
+
+@pytest.mark.slow  # ~45 s on the 2-core machine: six runs, three of them starting worker processes
+def test_replay_benchmark_runs_both_parallel_modes_from_memory_and_video(tmp_path):
+    from spinemocap.bench.speed import format_report, run_replay_benchmark
+    from spinemocap.synth import SynthConfig, write_capture
+
+    root = write_capture(SynthConfig.preset("tiny", frames=3), tmp_path / "capture", progress=False)
+    numbers = run_replay_benchmark(root, 5, legacy=False, speed=SpeedOptions(workers=2, parallel="threads"),
+                                   sensor_noise=3.0, progress=False, say=lambda _: None, video_frames=3,
+                                   workdir=tmp_path / "work")
+    runs = {r["run"]: r for r in numbers["runs"]}
+    assert set(runs) == {"in_memory", "in_memory_processes", "video", "video_processes"}
+    assert runs["in_memory"]["parallel"] == "threads" and runs["in_memory_processes"]["parallel"] == "processes"
+    assert runs["in_memory_processes"]["workers_startup_s"] > 0  # not timed, but reported
+    assert numbers["same_output_processes_threads"] is True
+    assert numbers["speedup_processes_vs_threads"] > 0 and numbers["fps_video"] > 0
+    assert runs["video"]["frames"] == 3 and runs["in_memory"]["frames"] == 5
+    assert "cameras in processes" in format_report(numbers)

@@ -192,9 +192,9 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
     replayed = MemorySource([decoded[i] for i in order], capture.camera_names)
     gt = replayed_groundtruth(capture, order)
     configs = [("in_memory", speed)]
-    mode = resolve_parallel(speed.parallel)
-    other = "threads" if mode == "processes" else "processes"
-    speed = replace(speed, parallel=mode)
+    parallel = resolve_parallel(speed.parallel)
+    other = "threads" if parallel == "processes" else "processes"
+    speed = replace(speed, parallel=parallel)
     if parallel_peer and speed.n_workers(len(capture.rig)) > 1:
         configs.append((f"in_memory_{other}", replace(speed, parallel=other)))
     if device != "cpu" and cpu_peer:
@@ -218,7 +218,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
                                          progress, say, runs, parallel_peer)
     by_name = {r["run"]: r for r in runs}
     new, peer, cpu = by_name["in_memory"], by_name.get("in_memory_legacy"), by_name.get("in_memory_cpu")
-    by_mode = {mode: by_name["in_memory"], other: by_name.get(f"in_memory_{other}")}
+    by_mode = {parallel: by_name["in_memory"], other: by_name.get(f"in_memory_{other}")}
     check = None
     if cpu is not None:
         say("detecting every source frame on the CPU and on the GPU (same dots?) ...")
@@ -233,7 +233,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
         "accuracy_not_worse": _not_worse(new, peer) if peer else None,
         "speedup_vs_cpu": new["fps"] / cpu["fps"] if cpu else None,
         "accuracy_not_worse_vs_cpu": _not_worse(new, cpu) if cpu else None,
-        "parallel": mode,
+        "parallel": parallel,
         "speedup_processes_vs_threads": (by_mode["processes"]["fps"] / by_mode["threads"]["fps"]
                                          if by_mode[other] else None),
         # bit for bit the same tracked positions with the cameras in processes as in threads
