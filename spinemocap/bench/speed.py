@@ -180,7 +180,8 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
     (``device_check``). ``parallel_peer``: the cameras also in the other parallel mode (processes
     or threads; ``speedup_processes_vs_threads``, ``same_output_processes_threads``).
     ``video_frames`` > 0: the first so many replayed frames (noise included) are also written as
-    lossless UT Video into ``workdir`` (reused when there) and tracked from it, in both modes. Ground-truth masks are not replayed (the legacy peer reads none here)."""
+    lossless UT Video into ``workdir`` (reused when there) and tracked from it, in both modes.
+    Ground-truth masks are not replayed (the legacy peer reads none here)."""
     from ..detect.detector import resolve_device
 
     speed = speed or SpeedOptions()
@@ -191,10 +192,10 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
     order = replay_order(capture.n_frames, frames)
     replayed = MemorySource([decoded[i] for i in order], capture.camera_names)
     gt = replayed_groundtruth(capture, order)
-    configs = [("in_memory", speed)]
     parallel = resolve_parallel(speed.parallel)
     other = "threads" if parallel == "processes" else "processes"
     speed = replace(speed, parallel=parallel)
+    configs = [("in_memory", speed)]
     if parallel_peer and speed.n_workers(len(capture.rig)) > 1:
         configs.append((f"in_memory_{other}", replace(speed, parallel=other)))
     if device != "cpu" and cpu_peer:
