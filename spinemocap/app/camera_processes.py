@@ -138,6 +138,9 @@ class CameraProcesses:
         except Exception as exc:
             self.close()
             raise ProcessesUnavailable(f"{type(exc).__name__}: {exc}") from exc
+        except BaseException:  # Ctrl-C while the workers start: stop them too
+            self.close()
+            raise
 
     # ------------------------------------------------------------------ per frame
     def stage(self, images: Sequence[np.ndarray]) -> list[np.ndarray]:
