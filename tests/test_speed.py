@@ -185,7 +185,10 @@ def test_ctrl_c_stops_tracking_with_camera_processes(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "spinemocap", "track", str(root), "--out", str(tmp_path / "out"),
                              "--workers", "2", "--parallel", "processes", "--no-progress"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            start_new_session=True)
+                            start_new_session=True,
+                            # Ctrl-C's default action even when this test runs in a background job
+                            # (whose children inherit SIGINT ignored, and Python keeps it so)
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         parent = psutil.Process(proc.pid)
         end = time.monotonic() + 120
