@@ -123,6 +123,7 @@ def test_camera_processes_give_the_serial_views_on_a_small_studio(small_studio):
         serial.close()
         processes.close()
     assert processes.info["workers_cpu_s"] > 0  # the workers' CPU is measured (bench speed adds it)
+    assert processes.info["slowest_camera_ms"] > 0
 
 
 def test_a_dead_camera_process_falls_back_to_threads_with_the_same_views(small_studio):

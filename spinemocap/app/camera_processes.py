@@ -126,6 +126,7 @@ class CameraProcesses:
         self._lock = threading.Lock()
         self._closed = False
         self.startup_s = self.cpu_s = float("nan")  # start-up wall s; workers' CPU s after it (at close)
+        self.calls, self.slowest_s = 0, 0.0  # detect() calls; sum over them of the slowest worker's seconds
         try:
             self._pool = ProcessPoolExecutor(n, mp_context=mp.get_context("spawn"), initializer=_worker_start,
                                              initargs=(os.getpid(), name, device))
@@ -175,7 +176,10 @@ class CameraProcesses:
         assert memory is not None
         futures = [self._pool.submit(_worker_detect, memory.name, block.layout[c], c, None if b is None else list(b))
                    for c, b in zip(cameras, boxes)]
-        return [self._view_dots(block, c, future.result()) for c, future in zip(cameras, futures)]
+        results = [future.result() for future in futures]
+        self.calls += 1
+        self.slowest_s += max((r[-1] for r in results), default=0.0)
+        return [self._view_dots(block, c, result[:-1]) for c, result in zip(cameras, results)]
 
     def _view_dots(self, block: _Block, camera: int, result: tuple) -> ViewDots:
         uv, confidence, box, crop = result
@@ -279,8 +283,9 @@ def _attached(name: str) -> shared_memory.SharedMemory:
 
 
 def _worker_detect(name: str, slots: tuple[Slot, Slot], camera: int, boxes: list[Box] | None):
-    """One camera image: (uv, confidence, mask box or None, mask crop or None); the grey image
-    is written into its slot of the shared block."""
+    """One camera image: (uv, confidence, mask box or None, mask crop or None, seconds spent);
+    the grey image is written into its slot of the shared block."""
+    start = time.perf_counter()
     detector = _STATE["detector"]
     block = _attached(name)
     image = _view(block, slots[0], np.uint8)
@@ -289,7 +294,8 @@ def _worker_detect(name: str, slots: tuple[Slot, Slot], camera: int, boxes: list
     view = detector.detect(image, camera=camera, boxes=boxes)
     np.copyto(_view(block, slots[1], np.uint8), view.image)
     box = mask_box(view.mask)
-    return view.uv, view.confidence, box, None if box is None else np.ascontiguousarray(view.mask[box])
+    crop = None if box is None else np.ascontiguousarray(view.mask[box])
+    return view.uv, view.confidence, box, crop, time.perf_counter() - start
 
 
 def mask_box(mask: np.ndarray | None) -> Box | None:

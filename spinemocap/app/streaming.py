@@ -286,7 +286,11 @@ class CaptureDetector:
         """Stop the worker processes or threads (also after Ctrl-C) and restore OpenCV's threads."""
         if self._processes is not None:
             self._processes.close()
-            self.info.update(startup_s=self._processes.startup_s, workers_cpu_s=self._processes.cpu_s)
+            processes = self._processes
+            self.info.update(startup_s=processes.startup_s, workers_cpu_s=processes.cpu_s,
+                             # per detection pass, the slowest camera's time in its worker (ms): what
+                             # the pass costs at best; the rest of detect's time is the round trip
+                             slowest_camera_ms=1000 * processes.slowest_s / max(processes.calls, 1))
             self._processes = None
         if self._pool is not None:
             self._pool.shutdown(wait=True)

@@ -383,6 +383,7 @@ def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, captu
         "cores_used": getattr(result, "cpu_s", float("nan")) / wall if wall > 0 else float("nan"),
         "parallel": result.detector_info.get("parallel"), "workers": result.detector_info.get("workers"),
         "workers_startup_s": result.detector_info.get("startup_s"),
+        "slowest_camera_ms": result.detector_info.get("slowest_camera_ms"),
         "stage_ms": result.stage_ms(), "peak_memory_mib": peak_mib, "routes": result.routes(),
         "detector_searches": result.detector_searches,
         "mean_error_mm": acc.mean_error_mm, "p95_error_mm": acc.p95_error_mm,
