@@ -73,7 +73,8 @@ def test_prediction_finds_the_full_search_dots_on_a_small_studio(small_studio):
     assert worst < 0.01
 
 
-def test_parallel_path_gives_the_serial_output():
+@pytest.mark.parametrize("parallel", ["threads", "processes"])
+def test_parallel_path_gives_the_serial_output(parallel):
     from spinemocap.bench.speed import MemorySource
 
     scene, images = _rendered("tiny", 3)
@@ -84,11 +85,131 @@ def test_parallel_path_gives_the_serial_output():
                             progress=False, speed=options)
 
     serial = track(SpeedOptions(workers=1, prefetch=0))
-    parallel = track(SpeedOptions(workers=3, prefetch=2))
-    a, b = serial.table.to_arrays(), parallel.table.to_arrays()
+    parallel_run = track(SpeedOptions(workers=3, prefetch=2, parallel=parallel))
+    assert serial.detector_info["parallel"] == "serial"
+    assert parallel_run.detector_info["parallel"] == parallel  # it did run in parallel (no fallback)
+    a, b = serial.table.to_arrays(), parallel_run.table.to_arrays()
     np.testing.assert_array_equal(a["positions"], b["positions"])
     assert (a["status"] == b["status"]).all()
-    assert serial.detector_searches == parallel.detector_searches
+    assert serial.detector_searches == parallel_run.detector_searches
+
+
+def _assert_same_views(a, b):
+    assert len(a) == len(b)
+    for va, vb in zip(a, b):
+        assert va.camera == vb.camera
+        np.testing.assert_array_equal(va.uv, vb.uv)
+        np.testing.assert_array_equal(va.confidence, vb.confidence)
+        np.testing.assert_array_equal(va.mask, vb.mask)
+        np.testing.assert_array_equal(va.image, vb.image)
+
+
+def test_camera_processes_give_the_serial_views_on_a_small_studio(small_studio):
+    # full search (stage 1 batched over the cameras in this process, one image per pass in a
+    # worker) and the predicted boxes: the same dots, masks and grey images bit for bit
+    scene, images = small_studio
+    gt = scene.groundtruth["dots"]
+    serial = CaptureDetector("net", scene.rig, SpeedOptions(workers=1))
+    processes = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, parallel="processes"))
+    try:
+        assert processes.parallel == "processes"
+        for f, frame_images in enumerate(images):
+            _assert_same_views(serial(f, frame_images, None), processes(f, frame_images, None))
+            serial.observe(f, gt[f])
+            processes.observe(f, gt[f])
+        assert serial.searches == processes.searches and processes.searches["predicted"] == len(scene.rig)
+        assert sum(len(v) for v in processes(9, images[1], None)) > 50  # the tape was in view
+    finally:
+        serial.close()
+        processes.close()
+    assert processes.info["workers_cpu_s"] > 0  # the workers' CPU is measured (bench speed adds it)
+    assert processes.info["slowest_camera_ms"] > 0
+
+
+def test_a_dead_camera_process_falls_back_to_threads_with_the_same_views(small_studio):
+    import os
+    import signal
+    import time
+
+    from spinemocap.app.streaming import ParallelFallbackWarning
+
+    scene, images = small_studio
+    serial = CaptureDetector("net", scene.rig, SpeedOptions(workers=1, predict=False))
+    processes = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, parallel="processes", predict=False))
+    try:
+        _assert_same_views(serial(0, images[0], None), processes(0, images[0], None))
+        os.kill(processes._processes.pids[0], signal.SIGKILL)
+        time.sleep(0.5)
+        with pytest.warns(ParallelFallbackWarning, match="died"):
+            views = processes(1, images[1], None)
+        assert processes.parallel == "threads"
+        _assert_same_views(serial(1, images[1], None), views)
+    finally:
+        serial.close()
+        processes.close()
+
+
+def test_processes_that_cannot_start_fall_back_to_threads(monkeypatch):
+    from spinemocap.app import camera_processes, streaming
+
+    def cannot_start(*args, **kwargs):
+        raise camera_processes.ProcessesUnavailable("OSError: no processes here")
+
+    monkeypatch.setattr(streaming, "CameraProcesses", cannot_start)
+    scene, _ = _rendered("tiny", 1)
+    with pytest.warns(streaming.ParallelFallbackWarning, match="could not start.*no processes here.*threads"):
+        detector = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, parallel="processes"))
+    try:
+        assert detector.parallel == "threads"
+    finally:
+        detector.close()
+
+
+@pytest.mark.slow  # ~45 s on the 2-core machine, most of it rendering the capture
+def test_ctrl_c_stops_tracking_with_camera_processes(tmp_path):
+    # a real `spinemocap track` with cameras in worker processes, Ctrl-C sent to its process
+    # group as a terminal does: it exits within seconds and leaves no worker behind
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    import psutil
+
+    from spinemocap.synth import SynthConfig, write_capture
+
+    root = write_capture(SynthConfig.preset("tiny", frames=60), tmp_path / "capture", progress=False)
+    env = {**os.environ, "OMP_NUM_THREADS": "1",
+           "PYTHONPATH": f"{Path(__file__).resolve().parents[1]}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    proc = subprocess.Popen([sys.executable, "-m", "spinemocap", "track", str(root), "--out", str(tmp_path / "out"),
+                             "--workers", "2", "--parallel", "processes", "--no-progress"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True,
+                            # Ctrl-C's default action even when this test runs in a background job
+                            # (whose children inherit SIGINT ignored, and Python keeps it so)
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        parent = psutil.Process(proc.pid)
+        end = time.monotonic() + 120
+        workers: list = []
+        while len(workers) < 2:  # both camera workers up (the resource tracker is a child too)
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < end, "the workers did not start"
+            workers = [p for p in parent.children(recursive=True) if "resource_tracker" not in " ".join(p.cmdline())]
+            time.sleep(0.2)
+        time.sleep(3.0)  # tracking under way
+        children = parent.children(recursive=True)
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(timeout=20)
+        assert proc.returncode != 0
+        _, still = psutil.wait_procs(children, timeout=5)
+        assert not still, f"left behind: {still}"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
 
 
 def test_masks_are_read_only_for_the_mask_detector(tmp_path):
@@ -149,3 +270,53 @@ def test_detector_dots_are_a_blob_pass_on_its_final_mask(small_studio):
                 assert np.linalg.norm(view.uv[:, None] - uv[None], axis=2).min(axis=1).max() < 0.01
             seen += len(uv)
     assert seen > 100  # the tape was in view: the comparison was not empty
+
+
+def test_too_little_shared_memory_falls_back_to_threads(small_studio, monkeypatch):
+    # a block larger than /dev/shm's free space would kill the process when written (SIGBUS):
+    # it is refused first and the frame detected in threads, with a warning naming the cause
+    from spinemocap.app import camera_processes
+    from spinemocap.app.streaming import ParallelFallbackWarning
+
+    scene, images = small_studio
+    serial = CaptureDetector("net", scene.rig, SpeedOptions(workers=1, predict=False))
+    processes = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, parallel="processes", predict=False))
+    try:
+        monkeypatch.setattr(camera_processes, "shared_memory_free", lambda: 1024)
+        with pytest.warns(ParallelFallbackWarning, match="/dev/shm.*MiB free"):
+            views = processes(0, images[0], None)
+        assert processes.parallel == "threads"
+        _assert_same_views(serial(0, images[0], None), views)
+    finally:
+        serial.close()
+        processes.close()
+
+
+def test_auto_parallel_mode_follows_the_cores():
+    from spinemocap.app.streaming import PROCESSES_FROM_CORES, resolve_parallel
+
+    assert resolve_parallel("auto", 2) == "threads"  # measured faster on the 2-core VM
+    assert resolve_parallel("auto", 16) == "processes"  # measured faster on 16 cores (H100 machine)
+    assert resolve_parallel("auto", PROCESSES_FROM_CORES) == "processes"
+    assert resolve_parallel("threads", 64) == "threads" and resolve_parallel("processes", 1) == "processes"
+    with pytest.raises(InputError, match="unknown parallel mode"):
+        resolve_parallel("fibres")
+
+
+@pytest.mark.slow  # ~45 s on the 2-core machine: six runs, three of them starting worker processes
+def test_replay_benchmark_runs_both_parallel_modes_from_memory_and_video(tmp_path):
+    from spinemocap.bench.speed import format_report, run_replay_benchmark
+    from spinemocap.synth import SynthConfig, write_capture
+
+    root = write_capture(SynthConfig.preset("tiny", frames=3), tmp_path / "capture", progress=False)
+    numbers = run_replay_benchmark(root, 5, legacy=False, speed=SpeedOptions(workers=2, parallel="threads"),
+                                   sensor_noise=3.0, progress=False, say=lambda _: None, video_frames=3,
+                                   workdir=tmp_path / "work")
+    runs = {r["run"]: r for r in numbers["runs"]}
+    assert set(runs) == {"in_memory", "in_memory_processes", "video", "video_processes"}
+    assert runs["in_memory"]["parallel"] == "threads" and runs["in_memory_processes"]["parallel"] == "processes"
+    assert runs["in_memory_processes"]["workers_startup_s"] > 0  # not timed, but reported
+    assert numbers["same_output_processes_threads"] is True
+    assert numbers["speedup_processes_vs_threads"] > 0 and numbers["fps_video"] > 0
+    assert runs["video"]["frames"] == 3 and runs["in_memory"]["frames"] == 5
+    assert "cameras in processes" in format_report(numbers)

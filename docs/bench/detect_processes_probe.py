@@ -27,7 +27,8 @@ def _camera(capture_dir: str, camera: int, frames: int, device: str, noise: floa
     import cv2
     import torch
 
-    from spinemocap.app.streaming import _mask_box, _training_padded_box
+    from spinemocap.app.camera_processes import mask_box
+    from spinemocap.app.streaming import _training_padded_box
     from spinemocap.bench.speed import replay_order, with_sensor_noise
     from spinemocap.capture import Capture
     from spinemocap.detect import Detector
@@ -47,7 +48,7 @@ def _camera(capture_dir: str, camera: int, frames: int, device: str, noise: floa
         image = images[order[k]]
         boxes = detector.tape_boxes([image])[0] if box is None or k % 10 == 0 else [box]
         view = detector.detect(image, camera=camera, boxes=boxes)
-        found = _mask_box(view.mask)
+        found = mask_box(view.mask)
         box = None if found is None else _training_padded_box(
             found[1].start - 40.0, found[0].start - 40.0, found[1].stop + 40.0, found[0].stop + 40.0, image.shape[:2])
         dots += len(view)

@@ -69,6 +69,7 @@ class TrackResult:
     calibration_warning: str | None = None
     refinement: RigRefinement | None = None
     detector_searches: dict[str, int] = field(default_factory=dict)  # camera images per detection route
+    detector_info: dict = field(default_factory=dict)  # CaptureDetector.info: parallel mode, workers' start-up and CPU
 
     def stage_ms(self) -> dict[str, float]:
         """Mean time per stage per frame (ms), over all frames."""
@@ -246,7 +247,8 @@ def source_views(source: FrameSource, frames: Sequence[int], detect: CaptureDete
     speed = speed or SpeedOptions()
     read_masks = (detect.needs_masks or speed.masks_always) and mask_dir is not None and mask_dir.is_dir()
     frames_in = prefetched_frames(source, frames, mask_dir if read_masks else None,
-                                  workers=speed.n_workers(len(source.camera_names)), prefetch=speed.prefetch)
+                                  workers=speed.n_workers(len(source.camera_names)), prefetch=speed.prefetch,
+                                  stage=detect.stage if detect.parallel == "processes" else None)
     t0 = time.perf_counter()
     for frame, images, masks in frames_in:
         views = detect(frame, images, masks if detect.needs_masks else None)
@@ -286,6 +288,7 @@ def track_source(
     finally:
         detect.close()
     result.detector_searches = dict(detect.searches)
+    result.detector_info = dict(detect.info)
     return result
 
 

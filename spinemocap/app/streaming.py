@@ -5,8 +5,11 @@ parallel, and detection by prediction in sequence mode.
   in a background thread that stays ``prefetch`` frames ahead of the tracker (a bounded queue:
   memory stays flat however long the sequence). Ground-truth tape masks are read only when the
   detector uses them (``mask``).
-- :class:`CaptureDetector` runs the detector on all cameras of a frame in a thread pool (OpenCV
-  and torch release the GIL) with stage 1 of the ``net`` detector batched across cameras. In
+- :class:`CaptureDetector` runs the detector on all cameras of a frame in parallel: in worker
+  processes (:mod:`spinemocap.app.camera_processes`, one detector each, images through shared
+  memory; ``parallel="processes"``) or in a thread pool (``"threads"``: OpenCV and torch release
+  the GIL, detection's Python clean-up does not), with stage 1 of the ``net`` detector batched
+  across cameras in threads (one image per pass in processes: the same boxes). In
   sequence mode it is told each solved frame (:meth:`CaptureDetector.observe`): the dots, moved
   on by their velocity, are projected into every camera and the network searches only that
   predicted tape box (stage 1, the whole-frame pass, is skipped). A camera falls back to the full
@@ -20,13 +23,16 @@ speed benchmark's peer.
 
 from __future__ import annotations
 
+import logging
 import os
 import queue
 import threading
+import warnings
 from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -36,14 +42,40 @@ from ..capture import FrameSource, check_image_size, read_image, to_grey
 from ..detect import find_dots
 from ..fileio import InputError
 from ..views import ViewDots
+from .camera_processes import CameraProcesses, ProcessesUnavailable, mask_box
+
+log = logging.getLogger(__name__)
 
 Box = tuple[slice, slice]
+PARALLEL = ("auto", "processes", "threads")
+# ``auto``: processes from this many CPU cores on. Measured (issue 15, docs/BENCHMARKS.md): on the
+# 2-core VM threads were faster (processes cost more CPU per frame: the copies into shared memory,
+# the workers' own overhead, and there are no spare cores to gain); on the 16-core H100 machine
+# processes were. Between 2 and 16 cores nothing was measured: 8 is a guess.
+PROCESSES_FROM_CORES = 8
+
+
+def resolve_parallel(mode: str, cores: int | None = None) -> str:
+    """``processes`` or ``threads`` for ``mode`` (``auto``: by the number of CPU cores)."""
+    if mode not in PARALLEL:
+        raise InputError(None, f"unknown parallel mode {mode!r} (choose {', '.join(PARALLEL)})")
+    if mode != "auto":
+        return mode
+    cores = cores if cores is not None else os.cpu_count() or 1
+    return "processes" if cores >= PROCESSES_FROM_CORES else "threads"
+
+
+class ParallelFallbackWarning(UserWarning):
+    """Camera worker processes could not start (or died); the cameras run in threads instead."""
 
 
 @dataclass(frozen=True)
 class SpeedOptions:
-    """How a capture is read and detected. ``workers``: threads for the cameras (0: one per CPU
-    core, at most one per camera); ``prefetch``: frames decoded ahead of the tracker (0: read
+    """How a capture is read and detected. ``workers``: processes or threads for the cameras (0:
+    one per CPU core, at most one per camera; 1: one camera after the other in this process);
+    ``parallel``: ``processes`` (worker processes, :mod:`~spinemocap.app.camera_processes`; the
+    reading of images stays in threads), ``threads`` or ``auto`` (processes from
+    :data:`PROCESSES_FROM_CORES` cores on, else threads; see :func:`resolve_parallel`); ``prefetch``: frames decoded ahead of the tracker (0: read
     when needed); ``predict``: sequence mode searches the predicted tape box; ``refresh_every``:
     frames between full searches; ``min_dot_share``: a predicted box must find this share of the
     previous frame's dots in its camera, else that camera is searched in full; ``box_margin_px``:
@@ -58,6 +90,7 @@ class SpeedOptions:
     ``masks_always``: read ``masks/`` even when the detector does not use them (legacy only)."""
 
     workers: int = 0
+    parallel: str = "auto"
     prefetch: int = 2
     predict: bool = True
     refresh_every: int = 10
@@ -72,7 +105,7 @@ class SpeedOptions:
         return max(1, min(n_cameras, self.workers or os.cpu_count() or 1))
 
 
-LEGACY = SpeedOptions(workers=1, prefetch=0, predict=False, batch=False, device="cpu", opencv_threads=None,
+LEGACY = SpeedOptions(workers=1, parallel="threads", prefetch=0, predict=False, batch=False, device="cpu", opencv_threads=None,
                       masks_always=True)
 
 
@@ -100,15 +133,19 @@ def _read_frame(source: FrameSource, frame: int, pool: ThreadPoolExecutor | None
 
 
 def prefetched_frames(source: FrameSource, frames: Sequence[int], mask_dir: Path | None = None,
-                      workers: int = 1, prefetch: int = 2
+                      workers: int = 1, prefetch: int = 2, stage: Callable[[list[np.ndarray]], list[np.ndarray]] | None = None
                       ) -> Iterator[tuple[int, list[np.ndarray], list[np.ndarray] | None]]:
     """Yield ``(frame, images, masks)`` (BGR uint8 per camera; masks only from ``mask_dir``,
     else None). Cameras are decoded by ``workers`` threads; with ``prefetch`` > 0 a background
-    thread keeps up to that many frames decoded ahead. Errors of the reader are raised here."""
+    thread keeps up to that many frames decoded ahead. ``stage``: applied to each frame's images
+    by the reader (:meth:`CaptureDetector.stage`: copied into the camera processes' shared
+    memory ahead of detection). Errors of the reader are raised here."""
     pool = ThreadPoolExecutor(workers, thread_name_prefix="read") if workers > 1 else None
 
     def load(frame: int):
         images = _read_frame(source, frame, pool)
+        if stage is not None:
+            images = stage(images)
         masks = read_masks(mask_dir, source.camera_names, frame, images) if mask_dir is not None else None
         return frame, images, masks
 
@@ -166,8 +203,9 @@ class CaptureDetector:
     """``(frame, images, masks) -> [ViewDots per camera]`` for one rig (see the module docstring).
 
     ``name``: ``net`` / ``classical`` (:class:`spinemocap.detect.Detector`) or ``mask`` (dots
-    inside given tape masks). Call :meth:`observe` with each frame's solved dots (mm, world) to
-    enable prediction; :meth:`close` ends the thread pool."""
+    inside given tape masks; always in threads: finding dots in given masks is cheap). Call
+    :meth:`observe` with each frame's solved dots (mm, world) to enable prediction; :meth:`close`
+    ends the worker processes or threads."""
 
     def __init__(self, name: str, rig: Rig | None = None, options: SpeedOptions | None = None):
         self.name = name
@@ -182,12 +220,18 @@ class CaptureDetector:
             self.detector = Detector(name=name, device=self.options.device) if name == "net" else Detector(name=name)
         elif name != "mask":
             raise InputError(None, f"unknown detector {name!r} (choose net, classical or mask)")
-        n = self.options.n_workers(len(rig) if rig is not None else os.cpu_count() or 1)
-        self._pool = ThreadPoolExecutor(n, thread_name_prefix="detect") if n > 1 else None
+        mode = resolve_parallel(self.options.parallel)
+        self._n = self.options.n_workers(len(rig) if rig is not None else os.cpu_count() or 1)
+        self._processes: CameraProcesses | None = None
+        self._pool: ThreadPoolExecutor | None = None
         self._opencv_threads_before: int | None = None
-        if self.options.opencv_threads is not None and n > 1:
-            self._opencv_threads_before = cv2.getNumThreads()
-            cv2.setNumThreads(self.options.opencv_threads)
+        if self._n > 1 and mode == "processes" and self.detector is not None:
+            self._processes = self._start_processes()
+        if self._n > 1 and self._processes is None:
+            self._start_threads()
+        # how the cameras ran: parallel mode and workers; with processes their start-up (wall s)
+        # and the CPU s they used after it (set by close: this process's CPU clock misses them)
+        self.info: dict = {"parallel": self.parallel, "workers": self._n}
         self._last: np.ndarray | None = None        # (D, 3) dots of the last solved frame
         self._before_last: np.ndarray | None = None
         self._boxes: dict[int, Box] = {}             # camera -> last frame's tape box
@@ -205,7 +249,49 @@ class CaptureDetector:
         return (self.options.predict and self.rig is not None and self.detector is not None
                 and self.detector.searches_boxes)
 
+    @property
+    def parallel(self) -> str:
+        """How the cameras run now: ``processes``, ``threads`` or ``serial``."""
+        return "processes" if self._processes is not None else "threads" if self._pool is not None else "serial"
+
+    def _start_processes(self) -> CameraProcesses | None:
+        from ..detect.detector import resolve_device
+
+        device = resolve_device(self.options.device) if self.name == "net" else "cpu"
+        staged = self.options.prefetch + 2 if self.options.prefetch > 0 else 0  # see CameraProcesses.stage
+        try:
+            return CameraProcesses(self.name, self._n, device, staged=staged)
+        except ProcessesUnavailable as exc:
+            self._fall_back(f"camera worker processes could not start ({exc})")
+            return None
+
+    def _fall_back(self, why: str) -> None:
+        message = f"{why}; detecting the cameras in {self._n} threads instead"
+        log.warning("%s", message)
+        warnings.warn(message, ParallelFallbackWarning, stacklevel=3)
+
+    def _start_threads(self) -> None:
+        self._pool = ThreadPoolExecutor(self._n, thread_name_prefix="detect")
+        if self.options.opencv_threads is not None:
+            self._opencv_threads_before = cv2.getNumThreads()
+            cv2.setNumThreads(self.options.opencv_threads)
+
+    def stage(self, images: list[np.ndarray]) -> list[np.ndarray]:
+        """For the reading thread: with camera processes, copy a frame's images into their shared
+        memory ahead of its detection (the frame must then be detected in reading order)."""
+        processes = self._processes
+        return processes.stage(images) if processes is not None else images
+
     def close(self) -> None:
+        """Stop the worker processes or threads (also after Ctrl-C) and restore OpenCV's threads."""
+        if self._processes is not None:
+            self._processes.close()
+            processes = self._processes
+            self.info.update(startup_s=processes.startup_s, workers_cpu_s=processes.cpu_s,
+                             # per detection pass, the slowest camera's time in its worker (ms): what
+                             # the pass costs at best; the rest of detect's time is the round trip
+                             slowest_camera_ms=1000 * processes.slowest_s / max(processes.calls, 1))
+            self._processes = None
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
@@ -226,31 +312,51 @@ class CaptureDetector:
             if self.detector is not None and self.detector.searches_boxes and self.options.batch:
                 return self._full(images, range(len(images)))
             self.searches["full"] += len(images)
-            return self._map(lambda c: self._detect(c, images[c], None), range(len(images)))
+            return self._run(images, range(len(images)), [None] * len(images))
         predicted = self._predicted_boxes(images)
         if predicted is None:
             return self._full(images, range(len(images)))
-        views = self._map(lambda c: self._detect(c, images[c], _listed(predicted[c])), range(len(images)))
+        views = self._run(images, range(len(images)), [_listed(box) for box in predicted])
         self.searches["predicted"] += len(images)
         redo = [c for c, v in enumerate(views) if len(v) < self.options.min_dot_share * self._counts.get(c, 0)]
         if redo:
             self.searches["fallback"] += len(redo)
-            for c, v in zip(redo, self._full(images, redo)):
+            for c, v in zip(redo, self._full(images, redo, copy=False)):
                 views[c] = v
         self._since_full += 1
         self._remember(views)
         return views
 
-    def _full(self, images: list[np.ndarray], cameras: Sequence[int]) -> list[ViewDots]:
-        """Full two-stage search of the given cameras (stage 1 batched over them)."""
+    def _full(self, images: list[np.ndarray], cameras: Sequence[int], copy: bool = True) -> list[ViewDots]:
+        """Full two-stage search of the given cameras (stage 1 batched over them in this process;
+        in worker processes each does its camera's stage 1: the same boxes)."""
         cameras = list(cameras)
-        boxes = self.detector.tape_boxes([images[c] for c in cameras])
-        views = self._map(lambda k: self._detect(cameras[k], images[cameras[k]], boxes[k]), range(len(cameras)))
+        if self._processes is not None:
+            views = self._run(images, cameras, [None] * len(cameras), copy)
+        else:
+            views = self._run(images, cameras, self.detector.tape_boxes([images[c] for c in cameras]))
         self.searches["full"] += len(cameras)
         if self.predicts and len(cameras) == len(images):  # what prediction starts from (unused without it)
             self._since_full = 0
             self._remember(views)
         return views
+
+    def _run(self, images: list[np.ndarray], cameras: Sequence[int], boxes: Sequence[list[Box] | None],
+             copy: bool = True) -> list[ViewDots]:
+        """Detect ``images[c]`` for each ``c`` in ``cameras`` in ``boxes[k]`` (None: the full
+        search), in the worker processes or threads; processes that die fall back to threads."""
+        cameras = list(cameras)
+        if self._processes is not None:
+            try:
+                return self._processes.detect(images, cameras, boxes, copy)
+            except (BrokenProcessPool, ProcessesUnavailable) as exc:
+                self._processes.close()
+                self._processes = None
+                why = "a camera worker process died" if isinstance(exc, BrokenProcessPool) else "camera worker processes"
+                self._fall_back(f"{why} ({exc})")
+                self._start_threads()
+                self.info["parallel"] = "threads (fallback from processes)"
+        return self._map(lambda k: self._detect(cameras[k], images[cameras[k]], boxes[k]), range(len(cameras)))
 
     def _detect(self, camera: int, image: np.ndarray, boxes: list[Box] | None) -> ViewDots:
         return self.detector.detect(image, camera=camera, boxes=boxes)
@@ -258,7 +364,7 @@ class CaptureDetector:
     def _remember(self, views: list[ViewDots]) -> None:
         for v in views:
             self._counts[v.camera] = len(v)
-            box = _mask_box(v.mask)
+            box = mask_box(v.mask)
             if box is None:
                 self._boxes.pop(v.camera, None)
             else:
@@ -310,16 +416,6 @@ def _training_padded_box(x0: float, y0: float, x1: float, y1: float, shape: tupl
 
 def _listed(box: Box | None) -> list[Box]:
     return [] if box is None else [box]
-
-
-def _mask_box(mask: np.ndarray | None) -> Box | None:
-    """Bounding box of a bool mask's pixels, or None when empty."""
-    if mask is None:
-        return None
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    if not len(rows):
-        return None
-    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
 def _dots_in_mask(camera: int, image: np.ndarray, mask: np.ndarray) -> ViewDots:

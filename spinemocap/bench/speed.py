@@ -33,7 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..app.run import TrackingWarning, TrackResult, track_source
-from ..app.streaming import LEGACY, SpeedOptions
+from ..app.streaming import LEGACY, SpeedOptions, resolve_parallel
 from ..capture import VIDEO_PATTERN, Capture, FrameSource, VideoWriter
 from ..fileio import atomic_write, read_toml, write_toml
 from ..track.evaluate import evaluate_tracking
@@ -42,6 +42,7 @@ from ..track.evaluate import evaluate_tracking
 # boxes' masks move a few dot centres by ~0.01 px), and no more swaps or unsolved frames.
 ACCURACY_TOLERANCE_MM = 0.01
 GOALS_FPS = {"in_memory_cpu2": 10.0, "video_cpu2": 5.0, "gpu": 100.0}
+REPLAYED = ("dots", "visible", "dot_normals", "keypoints")  # per-frame ground truth (replayed alike)
 FFV1_FRAMES = 10  # frames of the previous video format decoded as the decoding peer
 
 
@@ -98,14 +99,15 @@ class PeakMemory:
 
 
 def video_copy(png_capture: Path, out: Path, codec: str = "utvideo", frames: int | None = None,
-               progress: bool = True) -> Path:
+               progress: bool = True, source: FrameSource | None = None, groundtruth: dict | None = None) -> Path:
     """The PNG capture ``png_capture`` as a capture of lossless videos (one per camera) in ``out``,
     with the same rig, manifest and ground truth. ``codec``: ``utvideo`` (what captures are
     written in now, :class:`~spinemocap.capture.VideoWriter`) or ``ffv1`` (the previous format,
-    through OpenCV: the decoding peer); ``frames``: only the first so many."""
+    through OpenCV: the decoding peer); ``frames``: only the first so many; ``source`` and
+    ``groundtruth``: other frames of the same rig and their ground truth (a replayed capture)."""
     capture = Capture.open(png_capture)
-    n_frames = capture.n_frames if frames is None else min(frames, capture.n_frames)
-    source = capture.frame_source()
+    source = source or capture.frame_source()
+    n_frames = source.n_frames if frames is None else min(frames, source.n_frames)
     pattern = VIDEO_PATTERN if codec == "utvideo" else "videos/{camera}.mkv"
     writers = [_video_writer(out / pattern.format(camera=cam.name), codec, capture.fps, cam.size) for cam in capture.rig]
     try:
@@ -119,8 +121,12 @@ def video_copy(png_capture: Path, out: Path, codec: str = "utvideo", frames: int
                 writer.close()
             else:
                 writer.release()
-    for name in (capture.rig_file, "groundtruth.npz"):
-        shutil.copy2(png_capture / name, out / name)
+    shutil.copy2(png_capture / capture.rig_file, out / capture.rig_file)
+    if groundtruth is None:
+        shutil.copy2(png_capture / "groundtruth.npz", out / "groundtruth.npz")
+    else:
+        np.savez(out / "groundtruth.npz", **{k: np.asarray(v)[:n_frames] if k in REPLAYED else v
+                                             for k, v in groundtruth.items()})
     manifest = read_toml(png_capture / "capture.toml")
     manifest["capture"].update(media="video", video_pattern=pattern, n_frames=n_frames)
     write_toml(out / "capture.toml", manifest)
@@ -164,13 +170,18 @@ def with_sensor_noise(images: list[np.ndarray], sigma: float, seed: int) -> list
 
 def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence", detector: str = "net",
                          legacy: bool = True, speed: SpeedOptions | None = None, sensor_noise: float = 0.0,
-                         progress: bool = True, say: Callable[[str], None] = print, cpu_peer: bool = True) -> dict:
+                         progress: bool = True, say: Callable[[str], None] = print, cpu_peer: bool = True,
+                         parallel_peer: bool = True, video_frames: int = 0, workdir: Path | None = None) -> dict:
     """In-memory speed of an existing synthetic capture (e.g. a few frames carried to a machine
     that cannot render): its frames played forward and backward (:func:`replay_order`) for
     ``frames`` frames, the ground truth replayed alike; the new pipeline and the legacy peer.
     When the network runs on a GPU, ``cpu_peer`` also runs the same pipeline on the CPU in the
     same run (``speedup_vs_cpu``) and every source frame is detected on both to compare the dots
-    (``device_check``). Ground-truth masks are not replayed (the legacy peer reads none here)."""
+    (``device_check``). ``parallel_peer``: the cameras also in the other parallel mode (processes
+    or threads; ``speedup_processes_vs_threads``, ``same_output_processes_threads``).
+    ``video_frames`` > 0: the first so many replayed frames (noise included) are also written as
+    lossless UT Video into ``workdir`` (reused when there) and tracked from it, in both modes.
+    Ground-truth masks are not replayed (the legacy peer reads none here)."""
     from ..detect.detector import resolve_device
 
     speed = speed or SpeedOptions()
@@ -181,7 +192,12 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
     order = replay_order(capture.n_frames, frames)
     replayed = MemorySource([decoded[i] for i in order], capture.camera_names)
     gt = replayed_groundtruth(capture, order)
+    parallel = resolve_parallel(speed.parallel)
+    other = "threads" if parallel == "processes" else "processes"
+    speed = replace(speed, parallel=parallel)
     configs = [("in_memory", speed)]
+    if parallel_peer and speed.n_workers(len(capture.rig)) > 1:
+        configs.append((f"in_memory_{other}", replace(speed, parallel=other)))
     if device != "cpu" and cpu_peer:
         configs.append(("in_memory_cpu", replace(speed, device="cpu")))
     if legacy:
@@ -189,15 +205,21 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
     say(f"warming up (2 frames per run, not timed; network on {device}) ...")
     for _, options in configs:
         _timed_run(replayed, capture, options, mode, detector, False, range(2), masks=False)
-    runs = []
+    runs, positions = [], {}
     for name, options in configs:
         say(f"tracking: {name} ...")
         result, wall, peak = _timed_run(replayed, capture, options, mode, detector, progress, masks=False)
         runs.append(_summary(name, result, wall, peak, capture, gt))
+        positions[name] = result.table.to_arrays()["positions"]
         say(f"  {runs[-1]['fps']:.2f} frames/s, {runs[-1]['cpu_s_per_frame']:.3f} CPU s/frame, "
             f"mean error {runs[-1]['mean_error_mm']:.3f} mm")
+    fps_video = None
+    if video_frames > 0:
+        fps_video = _replayed_video_runs(capture, replayed, gt, video_frames, workdir, speed, mode, detector,
+                                         progress, say, runs, parallel_peer)
     by_name = {r["run"]: r for r in runs}
     new, peer, cpu = by_name["in_memory"], by_name.get("in_memory_legacy"), by_name.get("in_memory_cpu")
+    by_mode = {parallel: by_name["in_memory"], other: by_name.get(f"in_memory_{other}")}
     check = None
     if cpu is not None:
         say("detecting every source frame on the CPU and on the GPU (same dots?) ...")
@@ -207,14 +229,42 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
         "preset": f"capture {capture.name} replayed", "source_frames": capture.n_frames, "frames": frames,
         "sensor_noise": sensor_noise, "cameras": len(capture.rig), "image_size": list(capture.rig[0].size),
         "mode": mode, "detector": detector, "device": device, "machine": machine_info(),
-        "speed_options": asdict(speed), "fps_in_memory": new["fps"], "fps_png": None, "fps_video": None,
+        "speed_options": asdict(speed), "fps_in_memory": new["fps"], "fps_png": None, "fps_video": fps_video,
         "speedup_vs_previous": new["fps"] / peer["fps"] if peer else None,
         "accuracy_not_worse": _not_worse(new, peer) if peer else None,
         "speedup_vs_cpu": new["fps"] / cpu["fps"] if cpu else None,
         "accuracy_not_worse_vs_cpu": _not_worse(new, cpu) if cpu else None,
+        "parallel": parallel,
+        "speedup_processes_vs_threads": (by_mode["processes"]["fps"] / by_mode["threads"]["fps"]
+                                         if by_mode[other] else None),
+        # bit for bit the same tracked positions with the cameras in processes as in threads
+        "same_output_processes_threads": (bool(np.array_equal(positions["in_memory"], positions[f"in_memory_{other}"],
+                                                              equal_nan=True)) if by_mode[other] else None),
         "device_check": check,
         "accuracy_tolerance_mm": ACCURACY_TOLERANCE_MM, "runs": runs, "goals_fps": GOALS_FPS,
     }
+
+
+def _replayed_video_runs(capture: Capture, replayed: MemorySource, gt: dict, n_frames: int, workdir: Path | None,
+                         speed: SpeedOptions, mode: str, detector: str, progress: bool, say: Callable[[str], None],
+                         runs: list[dict], parallel_peer: bool) -> float:
+    """Track the first ``n_frames`` replayed frames from a lossless UT Video copy (``video`` with
+    ``speed``, and ``video_<other mode>`` with the cameras in the other parallel mode); returns the fps."""
+    video_dir = Path(workdir or tempfile.mkdtemp(prefix="spinemocap-speed-")) / f"video_replayed{n_frames}"
+    if not (video_dir / "capture.toml").is_file():
+        say(f"encoding {n_frames} replayed frames as lossless UT Video (not timed) ...")
+        video_copy(capture.root, video_dir, frames=n_frames, progress=progress, source=replayed, groundtruth=gt)
+    video = Capture.open(video_dir)
+    configs = [("video", speed)]
+    other = "threads" if speed.parallel == "processes" else "processes"
+    if parallel_peer and speed.n_workers(len(video.rig)) > 1:
+        configs.append((f"video_{other}", replace(speed, parallel=other)))
+    for name, options in configs:
+        say(f"tracking: {name} ...")
+        result, wall, peak = _timed_run(video.frame_source(), video, options, mode, detector, progress, masks=False)
+        runs.append(_summary(name, result, wall, peak, video))
+        say(f"  {runs[-1]['fps']:.2f} frames/s, {runs[-1]['cpu_s_per_frame']:.3f} CPU s/frame")
+    return runs[-len(configs)]["fps"]
 
 
 def machine_info() -> dict:
@@ -287,6 +337,13 @@ def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode:
                               mask_dir=capture.root / "masks" if masks else None)
         wall = time.perf_counter() - start
         result.cpu_s = time.process_time() - cpu_start  # type: ignore[attr-defined]
+    # camera worker processes: their start-up (importing torch, loading the network: seconds, once
+    # per run, not per frame) is not timed; the CPU they used after it is added to this process's
+    info = result.detector_info
+    if np.isfinite(info.get("startup_s", np.nan)):
+        wall -= info["startup_s"]
+    if np.isfinite(info.get("workers_cpu_s", np.nan)):
+        result.cpu_s += info["workers_cpu_s"]  # type: ignore[attr-defined]
     return result, wall, memory.peak_mib
 
 
@@ -306,7 +363,7 @@ def decode_speed(source: FrameSource, n_frames: int, workers: int) -> dict:
 def replayed_groundtruth(capture: Capture, order: list[int]) -> dict:
     """The capture's ground truth for the frames ``order`` (source frame indices) in that order."""
     gt = dict(capture.groundtruth())
-    for key in ("dots", "visible", "dot_normals", "keypoints"):
+    for key in REPLAYED:
         if key in gt:
             gt[key] = np.asarray(gt[key])[order]
     return gt
@@ -322,6 +379,11 @@ def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, captu
         # CPU seconds of this process (all threads) per frame: less sensitive than wall time to
         # other programs on a shared machine; cores / this = fps on an idle machine at best
         "cpu_s_per_frame": getattr(result, "cpu_s", float("nan")) / max(n, 1),
+        # cores busy on average = CPU s per frame x frames/s
+        "cores_used": getattr(result, "cpu_s", float("nan")) / wall if wall > 0 else float("nan"),
+        "parallel": result.detector_info.get("parallel"), "workers": result.detector_info.get("workers"),
+        "workers_startup_s": result.detector_info.get("startup_s"),
+        "slowest_camera_ms": result.detector_info.get("slowest_camera_ms"),
         "stage_ms": result.stage_ms(), "peak_memory_mib": peak_mib, "routes": result.routes(),
         "detector_searches": result.detector_searches,
         "mean_error_mm": acc.mean_error_mm, "p95_error_mm": acc.p95_error_mm,
@@ -463,13 +525,13 @@ def plot_stages(numbers: dict, path: Path) -> Path:
 def format_report(numbers: dict) -> str:
     """A table of the runs: fps, per-stage ms, peak memory, accuracy."""
     stages = list(numbers["runs"][0]["stage_ms"]) if numbers["runs"] else []
-    head = f"  {'run':<18}{'fps':>7}{'cpu s/f':>8}{'peak MiB':>10}{'err mm':>8}{'swaps':>6}  " + " ".join(f"{s:>10}" for s in stages)
+    head = f"  {'run':<18}{'fps':>7}{'cpu s/f':>8}{'cores':>6}{'peak MiB':>10}{'err mm':>8}{'swaps':>6}  " + " ".join(f"{s:>10}" for s in stages)
     lines = [f"\nspeed: {numbers['preset']} x {numbers['frames']} frames, {numbers['cameras']} cameras "
              f"{numbers['image_size'][0]}x{numbers['image_size'][1]}, mode {numbers['mode']}, detector "
              f"{numbers['detector']}; {numbers['machine']['cpu_cores']} CPU cores (load {numbers['machine']['load_average_1min']:.1f}), "
              f"GPU {numbers['machine']['gpu'] or 'none'}", head]
     for r in numbers["runs"]:
-        lines.append(f"  {r['run']:<18}{r['fps']:>7.2f}{r['cpu_s_per_frame']:>8.2f}{r['peak_memory_mib']:>10.0f}{r['mean_error_mm']:>8.3f}"
+        lines.append(f"  {r['run']:<18}{r['fps']:>7.2f}{r['cpu_s_per_frame']:>8.2f}{r['cores_used']:>6.2f}{r['peak_memory_mib']:>10.0f}{r['mean_error_mm']:>8.3f}"
                      f"{r['label_swaps']:>6}  " + " ".join(f"{r['stage_ms'][s]:>10.0f}" for s in stages))
     if numbers.get("decode_only"):
         lines.append("  decoding alone (no detection): "
@@ -479,6 +541,10 @@ def format_report(numbers: dict) -> str:
         source = "PNG" if numbers.get("fps_png") is not None else "in memory"
         lines.append(f"  speedup vs the previous pipeline ({source}): {numbers['speedup_vs_previous']:.2f}x; "
                      f"accuracy not worse: {numbers['accuracy_not_worse']}")
+    if numbers.get("speedup_processes_vs_threads") is not None:
+        lines.append(f"  cameras in processes: {numbers['speedup_processes_vs_threads']:.2f}x the frames/s of cameras in "
+                     f"threads (in memory; default here: {numbers['parallel']}); same tracked positions: "
+                     f"{numbers['same_output_processes_threads']}")
     if numbers.get("speedup_vs_cpu") is not None:
         lines.append(f"  network on {numbers['device']}: {numbers['speedup_vs_cpu']:.2f}x the same pipeline's frames/s "
                      f"on the CPU; accuracy not worse: {numbers['accuracy_not_worse_vs_cpu']}")

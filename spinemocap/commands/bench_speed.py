@@ -17,7 +17,15 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--occlusion", default="none", choices=("none", "light", "heavy"))
     p.add_argument("--mode", choices=("sequence", "paper"), default="sequence")
     p.add_argument("--detector", choices=("net", "classical", "mask"), default="net")
-    p.add_argument("--workers", type=int, default=0, help="threads for the cameras (0: one per CPU core)")
+    p.add_argument("--workers", type=int, default=0,
+                   help="processes or threads for the cameras (0: one per CPU core, at most one per camera)")
+    p.add_argument("--parallel", choices=("auto", "processes", "threads"), default="auto",
+                   help="cameras in worker processes or threads (auto, the default: processes from 8 CPU cores "
+                        "on); the in-memory and video runs are repeated in the other mode as the peer")
+    p.add_argument("--no-parallel-peer", action="store_true", help="skip the run in the other parallel mode")
+    p.add_argument("--video-frames", type=int, default=0,
+                   help="with --capture: also write the first so many replayed frames as lossless video (into "
+                        "--workdir) and track them from it")
     p.add_argument("--refresh-every", type=int, default=10, help="frames between full detector searches")
     p.add_argument("--no-predict", action="store_true", help="full detector search in every frame")
     p.add_argument("--no-legacy", action="store_true", help="skip the previous pipeline (the peer)")
@@ -50,12 +58,13 @@ def run(args: argparse.Namespace) -> int:
     from ..app.streaming import SpeedOptions
     from ..bench.speed import format_report, plot_stages, run_replay_benchmark, run_speed_benchmark, save
 
-    speed = SpeedOptions(workers=args.workers, refresh_every=args.refresh_every, predict=not args.no_predict,
-                         device=args.device, opencv_threads=args.opencv_threads or None)
+    speed = SpeedOptions(workers=args.workers, parallel=args.parallel, refresh_every=args.refresh_every,
+                         predict=not args.no_predict, device=args.device, opencv_threads=args.opencv_threads or None)
     if args.capture:
         numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_legacy,
                                        speed, args.sensor_noise, progress=not args.no_progress,
-                                       cpu_peer=not args.no_cpu_peer)
+                                       cpu_peer=not args.no_cpu_peer, parallel_peer=not args.no_parallel_peer,
+                                       video_frames=args.video_frames, workdir=args.workdir)
     else:
         numbers = run_speed_benchmark(args.preset, args.frames, args.occlusion, args.mode, args.detector, args.seed,
                                       args.workdir, legacy=not args.no_legacy, video=not args.no_video,

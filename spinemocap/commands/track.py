@@ -28,7 +28,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="tape/dot detector; 'mask' finds dots inside the capture's masks/ (synthetic captures)")
     p.add_argument("--config", type=Path, help="tracker settings (TOML, see spinemocap.track.config)")
     p.add_argument("--frames", help="frame range A:B (B exclusive), default all")
-    p.add_argument("--workers", type=int, default=0, help="threads for the cameras (default 0: one per CPU core)")
+    p.add_argument("--workers", type=int, default=0,
+                   help="processes or threads for the cameras (default 0: one per CPU core, at most one per camera; "
+                        "1: one camera after the other)")
+    p.add_argument("--parallel", choices=("auto", "processes", "threads"), default="auto",
+                   help="cameras in worker processes (one detector each, images through shared memory; falls back "
+                        "to threads with a warning where processes cannot start) or in threads; auto (default): "
+                        "processes from 8 CPU cores on, threads below (measured faster on 2 cores)")
     p.add_argument("--refresh-every", type=int, default=10,
                    help="sequence mode: frames between full tape searches (between them the detector searches "
                         "only the tape box predicted from the previous frames)")
@@ -62,7 +68,8 @@ def run_track(args: argparse.Namespace) -> int:
     if args.refine_sync and not args.refine_rig:
         raise InputError("--refine-sync", "needs --refine-rig")
     refine = RigRefineConfig(sync=args.refine_sync) if args.refine_rig else None
-    speed = LEGACY if args.legacy else SpeedOptions(workers=args.workers, refresh_every=args.refresh_every,
+    speed = LEGACY if args.legacy else SpeedOptions(workers=args.workers, parallel=args.parallel,
+                                                    refresh_every=args.refresh_every,
                                                     device=args.device, opencv_threads=args.opencv_threads or None)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
