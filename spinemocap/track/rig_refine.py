@@ -41,8 +41,9 @@ World frame from a reference object (``control``, :class:`ControlPoints`): marke
 world positions (a lab's L-frame, :mod:`spinemocap.reference`) seen at known blobs add their
 reprojection errors to the problem (weighted by ``reference_weight``), with the known positions
 held fixed. They see what the dots cannot: the world frame. The solve starts from the given rig
-shifted onto the reference (the mean offset of its triangulation of the markers). The report's ``world_frame`` says where the frame came from
-(``reference`` or ``given rig``) and, with a reference, the fit: each marker's reprojection error
+shifted onto the reference (the mean offset of its triangulation of the markers). The report's
+``world_frame`` says where the frame came from (``reference`` or ``given rig``) and, with a
+reference, the fit: each marker's reprojection error
 (px) under the refined rig and its re-triangulated distance from the design (mm); markers the
 refined rig cannot fit (beyond ``reference_limit_px``) make :class:`ReferenceFitError` (a wrong
 design or pose in ``reference.toml``, or a marker mistaken), never a quietly bent rig. A pose
@@ -243,7 +244,7 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
     # given frame itself the solver's sparse steps crept along the dots' flat gauge directions
     # and stopped short of a frame 5-15 mm away; a start rotated by the similarity fitted on the
     # markers (or on a dots-only refinement) converged worse than a shift (measured on a
-    # rendered 2 px capture: 0.31-0.36 mm against 0.44-0.87 mm)
+    # rendered 2 px capture, before TIGHT_LSMR: 0.31-0.36 mm against 0.44-0.87 mm)
     seen = _triangulate_markers(rig, control)
     ok = np.isfinite(seen).all(axis=1)
     shift = (control.world_mm[ok] - seen[ok]).mean(axis=0)
@@ -266,11 +267,7 @@ def _refine(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float, con
         np.zeros((0, 2)),)
     ctrl_world = control.world_mm[ctrl_marker] if control is not None else np.zeros((0, 3))
     Q = len(ctrl_cam)
-    given_error = GivenRigError.measure(rig, prob)
-    # with a reference the solve starts in its frame (the given rig and the dots moved by the
-    # similarity that puts the given rig's triangulation of the markers on their known places):
-    # from the given frame the solver crept along the dots' flat gauge directions and stopped
-    # short of a frame 5-15 mm away
+    given_error = GivenRigError.measure(rig, prob)  # before any move: the given rig's own residuals
     start_rig = rig
     if start is not None:
         start_rig, prob = _moved(rig, prob, start)
