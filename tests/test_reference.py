@@ -133,8 +133,8 @@ def test_reference_file_round_trip_and_bad_designs(tmp_path):
 def test_the_studio_renders_the_lframe_where_its_pose_projects(tmp_path):
     """The studio's L-frame is in the images for real: its markers are found, with the lab's 2 px
     rig saying where to look, near where the true rig projects its known pose (measured: 0.01-0.08
-    px, 0.22 px for a marker seen against the bright arm); the same scene without it shows no
-    marker there. The capture folder carries
+    px; a marker seen against the bright arm, whose edge is not in the image, is left out); the
+    same scene without it shows no marker there. The capture folder carries
     its design and pose (reference.toml, named by capture.toml)."""
     from dataclasses import replace
 
@@ -150,18 +150,19 @@ def test_the_studio_renders_the_lframe_where_its_pose_projects(tmp_path):
     images = scene.render(0, with_masks=False).images
     plain = build_scene(replace(config, reference=False)).render(0, with_masks=False).images
     truth = scene.groundtruth
-    errors = []
+    errors, found_by = [], np.zeros(scene.reference.n_markers, int)
     for c, (image, without) in enumerate(zip(images, plain)):
         seen = truth["reference_visible"][0, c]
         assert seen.sum() >= 4
         found = find_reference_markers(image, scene.calibrated_rig[c], scene.reference)
         error = np.linalg.norm(found - truth["reference_uv"][c], axis=1)
-        errors += list(error[seen])
+        errors += list(error[seen & np.isfinite(error)])
+        found_by += np.isfinite(error)
         at = np.round(truth["reference_uv"][c][seen]).astype(int)
         assert (to_grey(image)[at[:, 1], at[:, 0]] > 230).all()  # the bright markers
         assert (to_grey(image)[at[:, 1], at[:, 0]] != to_grey(without)[at[:, 1], at[:, 0]]).all()
         assert np.isnan(find_reference_markers(without, scene.calibrated_rig[c], scene.reference)).all()
-    assert np.median(errors) < 0.08 and max(errors) < 0.3, errors
+    assert len(errors) >= 15 and (found_by >= 2).all() and max(errors) < 0.1, errors
     capture = Capture.open(write_capture(config, tmp_path / "cap", progress=False))
     assert capture.reference_file == "reference.toml"
     assert np.allclose(capture.reference().world_mm, scene.reference.world_mm)
