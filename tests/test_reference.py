@@ -174,5 +174,8 @@ def test_the_studio_renders_the_lframe_where_its_pose_projects(tmp_path):
     moved.to_toml(tmp_path / "moved.toml")
     with pytest.raises(InputError, match=r"moved.toml.*only 0 markers seen by >= 2 cameras"):
         capture_control_points(capture, range(1), tmp_path / "moved.toml")
+    (capture.root / "reference.toml").unlink()  # capture.toml names a file that is not there
+    with pytest.raises(InputError, match="capture.toml.*reference = 'reference.toml': no such file"):
+        capture.reference()
     with pytest.raises(ValueError, match="does not fit the views"):
         build_scene(SynthConfig.preset("tiny", frames=1, reference=True))
