@@ -142,7 +142,7 @@ def run_synth(args: argparse.Namespace) -> int:
     rows = Capture.open(out).tape.n_rows
     print(f"synthetic capture written to {out}/ ({config.frames} frames, {config.cameras} cameras, "
           f"{rows}-row tape from {config.tape_start}, {config.n_balls} balls): capture.toml, rig.toml, {media}, "
-          f"masks/, groundtruth.npz")
+          f"masks/, groundtruth.npz" + (", reference.toml (the L-frame beside the subject)" if config.reference else ""))
     print(f"realism {config.realism}: skin strain x{config.skin_strain:g}, tape tension {100 * config.tape_tension:g} %, "
           f"calibration error {config.calibration_error_px:g} px (rig.toml), sync error {config.sync_error_ms:g} ms, "
           f"sensor noise {config.noise:g}")
