@@ -18,6 +18,7 @@ Folder layout::
     n_frames = 548
     cameras = ["cam1", "cam2", "cam3", "cam4"]
     rig = "rig.toml"
+    reference = "reference.toml"                  # optional: a reference object of known geometry
     media = "images"                              # or "video"
     image_pattern = "images/{camera}/{frame:06d}.png"
     video_pattern = "videos/{camera}.avi"
@@ -46,6 +47,7 @@ import numpy as np
 
 from .camera import Rig
 from .fileio import InputError, atomic_path, read_toml, reading, write_toml
+from .reference import ReferenceObject
 from .tape import TapeSpec
 
 MANIFEST = "capture.toml"
@@ -244,6 +246,7 @@ class Capture:
     image_pattern: str = "images/{camera}/{frame:06d}.png"
     video_pattern: str = "videos/{camera}.mkv"
     rig_file: str = "rig.toml"
+    reference_file: str | None = None
 
     @property
     def camera_names(self) -> list[str]:
@@ -289,6 +292,17 @@ class Capture:
             return None
         gt = self.groundtruth()
         return [str(x) for x in gt["row_levels"]] if "row_levels" in gt else None
+
+    def reference(self) -> ReferenceObject | None:
+        """The reference object named by ``[capture] reference`` (see :mod:`spinemocap.reference`),
+        or None when the manifest names none; :class:`InputError` naming the file when it is missing
+        or wrong."""
+        if self.reference_file is None:
+            return None
+        path = self.root / self.reference_file
+        if not path.is_file():
+            raise InputError(self.root / MANIFEST, f"reference = {self.reference_file!r}: no such file in {self.root}")
+        return ReferenceObject.from_toml(path)
 
     def frame_source(self) -> FrameSource:
         """The capture's frames; every image is checked against its camera's size in the rig."""
@@ -336,6 +350,7 @@ class Capture:
                     "name": self.name, "fps": self.fps, "n_frames": self.n_frames,
                     "cameras": self.camera_names, "rig": self.rig_file, "media": self.media,
                     "image_pattern": self.image_pattern, "video_pattern": self.video_pattern,
+                    **({"reference": self.reference_file} if self.reference_file else {}),
                 },
                 "tape": self.tape.to_dict(),
                 "subject": self.subject,
@@ -402,6 +417,7 @@ def capture_settings(data: dict, manifest: Path) -> dict:
         rig_file = _typed(section, "rig", (str,), "rig.toml")
         media = _typed(section, "media", (str,), "images")
         name = _typed(section, "name", (str, int), manifest.parent.name)
+        reference = _typed(section, "reference", (str,), "") or None
         patterns = {key: _typed(section, key, (str,), getattr(Capture, key))
                     for key in ("image_pattern", "video_pattern")}
     except InputError as exc:
@@ -427,4 +443,5 @@ def capture_settings(data: dict, manifest: Path) -> dict:
     if problems:
         raise InputError(manifest, "; ".join(problems))
     return {"name": str(name), "fps": fps, "n_frames": int(n_frames), "cameras": list(cameras),
-            "subject": dict(data.get("subject", {})), "media": media, "rig_file": rig_file, **patterns}
+            "subject": dict(data.get("subject", {})), "media": media, "rig_file": rig_file,
+            "reference_file": reference, **patterns}

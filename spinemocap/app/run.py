@@ -23,16 +23,25 @@ from ..camera import Rig
 from ..capture import Capture, FrameSource
 from ..fileio import InputError, check_writable
 from ..markers import MarkerTable
+from ..reference import ReferenceObject
 from ..tape import TapeSpec
 from ..track.config import TrackerConfig
 from ..track.pipeline import STAGES, FrameResult, FrameTracker
 from ..track.quality import is_flagged, label_confidence
 from ..track.rig_check import CalibrationWarning, RigResiduals
-from ..track.rig_refine import RigRefineConfig, RigRefinement, refine_rig, retriangulate
+from ..track.rig_refine import (
+    ControlPoints,
+    ReferenceFitError,
+    RigRefineConfig,
+    RigRefinement,
+    refine_rig,
+    retriangulate,
+)
 from ..track.sequence import SequenceTracker, fill_and_smooth
 from ..track.stretch import row_stretch
 from ..track.template import tape_frames
 from ..views import ViewDots
+from .reference import observe_reference, pose_doubt, source_images
 from .results import TrackingStopped, write_markers
 from .streaming import CaptureDetector, SpeedOptions, prefetched_frames
 
@@ -137,7 +146,15 @@ class TrackResult:
             lines.append(f"rig refined on {self.refinement.n_points} tracked dot-frames: reprojection RMS "
                          f"{before:.2f} -> {after:.2f} px (rig_refined.toml, rig_refine.json)")
             uncertainty = self.refinement.extra.get("frame_uncertainty_mm", float("nan"))
-            if np.isfinite(uncertainty):
+            frame = self.refinement.extra.get("world_frame", {})
+            if frame.get("source") == "reference":
+                lines.append(f"world frame from the reference object {frame['name']!r}: {len(frame['markers_used'])} "
+                             f"markers, {frame['observations']} camera views, fit {frame['fit_rms_px']:.2f} px RMS, "
+                             f"markers re-triangulated {frame['fit_rms_mm']:.2f} mm RMS from the design (the given rig "
+                             f"had them {frame['given_frame_offset_mm']:.1f} mm off)")
+                if frame.get("pose_warning"):
+                    lines.append("WARNING " + frame["pose_warning"])
+            elif np.isfinite(uncertainty):
                 lines.append(f"absolute positions keep about {uncertainty:.1f} mm of the given rig's world-frame error "
                              "(no residual sees it; distances and angles do not)")
         flagged = q["flagged_frames"]
@@ -324,28 +341,68 @@ def track_capture_result(
     refine: RigRefineConfig | None = None,
     stop: Callable[[], bool] | None = None,
     speed: SpeedOptions | None = None,
+    reference: str | Path | None = None,
 ) -> TrackResult:
     """:func:`track_capture` returning the whole :class:`TrackResult` (quality flags, rig
     residuals). ``refine``: bundle-adjust the rig on the tracked dots afterwards
     (``--refine-rig``): the refined rig goes to ``out_dir/rig_refined.toml`` with the residuals
     before/after in ``out_dir/rig_refine.json``, and the observed dots are re-triangulated with it
-    (labels unchanged, :func:`apply_refined_rig`)."""
+    (labels unchanged, :func:`apply_refined_rig`).
+
+    With a reference object (``reference``: a ``reference.toml``, else the one ``capture.toml``
+    names; :mod:`spinemocap.reference`) the refinement holds its markers as control points, so the
+    refined rig's world frame is the reference's. Its markers are looked for before tracking:
+    too few found is an :class:`InputError` naming the reference file, as is a refined rig that
+    cannot fit them; a reference frame far from the given rig's is a warning (see
+    :func:`spinemocap.app.reference.pose_doubt`)."""
     capture = Capture.open(capture_dir)
     check_writable(out_dir)
     if mode not in MODES:
         raise InputError(capture_dir, f"unknown tracking mode {mode!r}; choose from {MODES}")
     frame_range = frames if isinstance(frames, range) else parse_frames(frames, capture.n_frames)
+    control, reference_path = None, None
+    if refine is not None:
+        control, reference_path = capture_control_points(capture, frame_range, reference)
     result = track_source(capture.frame_source(), capture.rig, capture.tape, capture.fps, frame_range,
                           up=capture.up, mode=mode, config=config, detector=detector, progress=progress,
                           speed=speed, mask_dir=capture.root / "masks",
                           meta={"subject": capture.subject.get("id", ""), "source": str(capture.root)},
                           stop=stop)
     if refine is not None:
-        result.refinement = refine_rig(capture.rig, result.pixels(), result.table.positions(), capture.fps, refine)
+        try:
+            result.refinement = refine_rig(capture.rig, result.pixels(), result.table.positions(), capture.fps, refine,
+                                           control)
+        except ReferenceFitError as exc:
+            raise InputError(reference_path, str(exc)) from None
+        doubt = pose_doubt(result.refinement)
+        if doubt:
+            result.refinement.extra["world_frame"]["pose_warning"] = doubt
+            warnings.warn(doubt, CalibrationWarning, stacklevel=2)
         write_refinement(result.refinement, out_dir)
         result.table = apply_refined_rig(result, result.refinement, capture.tape)
     write_markers(result.table, out_dir)
     return result
+
+
+def capture_control_points(capture: Capture, frames: Sequence[int], reference: str | Path | None = None
+                           ) -> tuple[ControlPoints | None, Path | None]:
+    """The reference object's markers in a few of ``frames`` (``reference``: a reference file,
+    else the capture's own; none: ``(None, None)``) and the file it came from. :class:`InputError`
+    naming that file when they cannot fix a world frame (fewer than 3 markers found in >= 2
+    cameras)."""
+    if reference is not None:
+        path: Path | None = Path(reference)
+        obj: ReferenceObject | None = ReferenceObject.from_toml(reference)
+    else:
+        obj = capture.reference()
+        path = capture.root / capture.reference_file if capture.reference_file else None
+    if obj is None:
+        return None, None
+    control = observe_reference(capture.rig, obj, source_images(capture.frame_source(), frames))
+    if control.problems():
+        raise InputError(path, "; ".join(control.problems()) + ": the markers were looked for where the given rig "
+                               "projects the design and pose of this file; check both (mm, world Z up)")
+    return control, path
 
 
 def apply_refined_rig(result: TrackResult, refinement: RigRefinement, tape: TapeSpec) -> MarkerTable:

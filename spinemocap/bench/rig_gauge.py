@@ -29,6 +29,14 @@ the level it was rendered with) keep the tracker's blob-to-dot assignment and sc
   moved by the similarity closest to the given cameras,
   :func:`~spinemocap.track.rig_refine.closest_gauge`).
 
+With ``reference`` (``--reference``) every scene also has the studio's L-frame beside the subject
+(:mod:`spinemocap.synth.reference`, rendered in the images) and every calibration is refined a
+second time with its markers as control points (:func:`spinemocap.app.reference.observe_reference`
+found with that given rig, ``refine_rig(..., control=...)``): ``reference`` is that error, beside
+``refined`` (the same capture and rig without the reference) in the same run; ``reference_shape``,
+``reference_fit_px`` / ``reference_fit_mm`` (the markers' fit) and ``given_frame_offset_mm`` come
+with it.
+
 Errors are mean mm over the tracked dot-frames against the ground truth (as ``bench realism``).
 """
 
@@ -43,21 +51,24 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..app.reference import REFERENCE_FRAMES, observe_reference
 from ..app.run import TrackingWarning, TrackResult, apply_refined_rig, make_detector, run_tracking
 from ..camera import Rig
 from ..fileio import atomic_path
 from ..markers import MarkerTable
+from ..reference import ReferenceObject
 from ..synth import SynthConfig, build_scene
 from ..synth.lab_errors import perturb_rig
 from ..tape import TapeSpec
 from ..track.config import TrackerConfig
 from ..track.rig_check import CalibrationWarning
-from ..track.rig_refine import RigRefineConfig, apply_similarity, closest_gauge, refine_rig
+from ..track.rig_refine import ReferenceFitError, RigRefineConfig, apply_similarity, closest_gauge, refine_rig
 from .frame_error import cloud_gauge, mean_error_mm, shape_error_mm, truth_of
 from .realism import _render
 
 TRACKED_WITH_PX = 2.0  # the calibration error of the rig the scene is tracked with
 GAUGES = ("given", "refined", "residual_priors", "cloud_gauge", "closest_cameras")
+REFERENCE_KEYS = ("reference", "reference_shape", "reference_fit_px", "reference_fit_mm", "given_frame_offset_mm")
 RESIDUAL_PRIORS = RigRefineConfig(centre_prior_mm=None, rotation_prior_deg=None)  # widths from each camera's residual
 
 
@@ -73,13 +84,18 @@ class TrackedScene:
     result: TrackResult
     tape: TapeSpec
     truth: np.ndarray  # (F, D, 3) mm, in the table's label order
+    reference: ReferenceObject | None = None
+    reference_images: list | None = None  # grey images (per camera) of a few frames, to find its markers in
 
 
-def track_scene(seed: int, frames: int, fps: float, detector: str = "net", progress: bool = False) -> TrackedScene:
+def track_scene(seed: int, frames: int, fps: float, detector: str = "net", progress: bool = False,
+                reference: bool = False, size: tuple[int, int] | None = None) -> TrackedScene:
     """Render the ``artificial`` preset (light occlusion, ideal realism but a
-    :data:`TRACKED_WITH_PX` rig) and track it in sequence mode with the written rig."""
+    :data:`TRACKED_WITH_PX` rig; ``reference``: with the studio's L-frame; ``size`` another image
+    size, the same framing) and track it in sequence mode with the written rig."""
     synth = SynthConfig.preset("artificial", occlusion="light", seed=seed, frames=frames, fps=fps,
-                               realism="ideal", calibration_error_px=TRACKED_WITH_PX)
+                               realism="ideal", calibration_error_px=TRACKED_WITH_PX, reference=reference,
+                               **({"size": size} if size else {}))
     scene = build_scene(synth)
     views = _render(scene, make_detector(detector), synth.frames, progress)
     with warnings.catch_warnings():
@@ -87,8 +103,11 @@ def track_scene(seed: int, frames: int, fps: float, detector: str = "net", progr
         warnings.simplefilter("ignore", CalibrationWarning)
         result = run_tracking(iter(views), scene.calibrated_rig, scene.tape, scene.fps, up=scene.subject()["up"],
                               mode="sequence", config=TrackerConfig(), progress=False, n_frames=len(views))
+    picks = np.unique(np.linspace(0, len(views) - 1, min(REFERENCE_FRAMES, len(views))).round().astype(int))
+    images = [[view.image for view in views[k][1]] for k in picks] if reference else None
+    scene.close()
     return TrackedScene(seed, scene.fps, scene.rig, scene.calibrated_rig, scene._calibration_points(), result,
-                        scene.tape, truth_of(result.table, scene.groundtruth))
+                        scene.tape, truth_of(result.table, scene.groundtruth), scene.reference, images)
 
 
 def calibrations(scene: TrackedScene, level_px: float, count: int) -> list[Rig]:
@@ -126,15 +145,37 @@ def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig |
            "frame_uncertainty": refinement.extra["frame_uncertainty_mm"],
            "residual_priors_frame_uncertainty": sized.extra["frame_uncertainty_mm"],
            "rig_rms_before_px": refinement.before_px["all"], "rig_rms_after_px": refinement.after_px["all"]}
+    if scene.reference is not None:
+        row.update(score_with_reference(scene, given, config, table_with))
     return row
+
+
+def score_with_reference(scene: TrackedScene, given: Rig, config: RigRefineConfig,
+                         table_with: Callable[[Rig], MarkerTable]) -> dict:
+    """``--refine-rig`` with the scene's reference object as control points, found with the
+    ``given`` rig (see module); a reference that cannot be used is recorded, not hidden."""
+    assert scene.reference is not None and scene.reference_images is not None
+    result = scene.result
+    control = observe_reference(given, scene.reference, scene.reference_images)
+    try:
+        refinement = refine_rig(given, result.pixels(), result.table.positions(), scene.fps, config, control)
+    except ReferenceFitError as exc:
+        return {"reference_error": str(exc)}
+    table = table_with(refinement.rig)
+    frame = refinement.extra["world_frame"]
+    return {"reference": mean_error_mm(table, scene.truth), "reference_shape": shape_error_mm(table, scene.truth),
+            "reference_fit_px": frame["fit_rms_px"], "reference_fit_mm": frame["fit_rms_mm"],
+            "reference_observations": frame["observations"], "given_frame_offset_mm": frame["given_frame_offset_mm"],
+            "reference_rig_rms_after_px": refinement.after_px["all"]}
 
 
 def run_gauge_benchmark(seeds: Sequence[int], levels: Sequence[float], rigs: int, frames: int = 30, fps: float = 25.0,
                         detector: str = "net", progress: bool = True, say: Callable[[str], None] = print,
-                        after_scene: Callable[[dict], None] | None = None) -> dict:
+                        after_scene: Callable[[dict], None] | None = None, reference: bool = False) -> dict:
     """Every scene of ``seeds`` x every level of ``levels`` (px) x ``rigs`` seeded calibrations;
     returns the JSON-ready numbers (rows and per-level summaries). ``after_scene(numbers so
-    far)`` is called after each scene (the command saves them)."""
+    far)`` is called after each scene (the command saves them). ``reference``: scenes with the
+    studio's L-frame, each calibration also refined with it (see module)."""
     import platform
 
     from tqdm import tqdm
@@ -144,17 +185,19 @@ def run_gauge_benchmark(seeds: Sequence[int], levels: Sequence[float], rigs: int
 
     def numbers() -> dict:
         return {"seeds": list(seeds), "levels_px": list(levels), "rigs_per_level": rigs, "frames": frames, "fps": fps,
-                "detector": detector, "tracked_with_px": TRACKED_WITH_PX,
+                "detector": detector, "tracked_with_px": TRACKED_WITH_PX, "reference": reference,
                 "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
                 "wall_s": time.perf_counter() - start, "rows": rows, "summary": summarize(rows)}
 
     for seed in seeds:
         say(f"[scene {seed}] render + track {frames} frames at {fps:g} fps with its {TRACKED_WITH_PX:g} px rig")
-        scene = track_scene(seed, frames, fps, detector, progress)
+        scene = track_scene(seed, frames, fps, detector, progress, reference=reference)
         jobs = [(level, k, rig) for level in levels for k, rig in enumerate(calibrations(scene, level, rigs))]
         for level, k, rig in tqdm(jobs, desc=f"scene {seed}: refine", unit="rig", disable=not progress, leave=False):
             rows.append({"seed": seed, "level_px": level, "rig": k, **score_calibration(scene, rig)})
-            say(f"  {level:g} px, rig {k}: " + ", ".join(f"{key} {rows[-1][key]:.2f}" for key in GAUGES) + " mm")
+            say(f"  {level:g} px, rig {k}: " + ", ".join(f"{key} {rows[-1][key]:.2f}" for key in (*GAUGES, "reference")
+                                                         if key in rows[-1]) + " mm"
+                + (f"; reference not used: {rows[-1]['reference_error']}" if "reference_error" in rows[-1] else ""))
         if after_scene is not None:
             after_scene(numbers())
     return numbers()
@@ -167,13 +210,18 @@ def summarize(rows: list[dict]) -> dict:
     for level in sorted({r["level_px"] for r in rows}):
         sel = [r for r in rows if r["level_px"] == level]
         stats = {}
-        for key in (*GAUGES, "refined_shape", "frame_uncertainty"):
-            v = np.array([r[key] for r in sel], float)
-            stats[key] = {"mean": float(np.mean(v)), "median": float(np.median(v)), "max": float(np.max(v))}
+        for key in (*GAUGES, "refined_shape", "frame_uncertainty", *REFERENCE_KEYS):
+            v = np.array([r[key] for r in sel if key in r], float)
+            if len(v):
+                stats[key] = {"mean": float(np.mean(v)), "median": float(np.median(v)), "max": float(np.max(v)),
+                              "n": len(v)}
         stats["n"] = len(sel)
         stats["refined_better_than_given"] = int(sum(r["refined"] < r["given"] for r in sel))
         stats["refined_better_than_residual_priors"] = int(sum(r["refined"] < r["residual_priors"] for r in sel))
         stats["refined_at_most_1mm"] = int(sum(r["refined"] <= 1.0 for r in sel))
+        if any("reference" in r or "reference_error" in r for r in sel):
+            stats["reference_at_most_1mm"] = int(sum(r.get("reference", np.inf) <= 1.0 for r in sel))
+            stats["reference_not_used"] = int(sum("reference_error" in r for r in sel))
         out[f"{level:g}"] = stats
     return out
 
@@ -189,6 +237,17 @@ def format_table(numbers: dict) -> str:
                  for k in ("given", "refined", "refined_shape", "frame_uncertainty", "residual_priors", "cloud_gauge",
                            "closest_cameras")]
         lines.append(f"| {level} px | {s['n']} | " + " | ".join(cells) + f" | {s['refined_at_most_1mm']} of {s['n']} |")
+    if any("reference" in s for s in numbers["summary"].values()):
+        lines += ["", "| calibration error | rigs | `--refine-rig` without the reference | with the reference (L-frame) | "
+                      "with it, frame removed (shape) | markers' fit px | markers' fit mm | given rig's frame at the "
+                      "reference, mm | with reference <= 1.0 mm | reference not used |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
+        for level, s in numbers["summary"].items():
+            if "reference" not in s:
+                continue
+            cells = [f"{s[k]['mean']:.2f} ({s[k]['median']:.2f}, {s[k]['max']:.2f})" for k in ("refined", *REFERENCE_KEYS)]
+            lines.append(f"| {level} px | {s['n']} | " + " | ".join(cells)
+                         + f" | {s['reference_at_most_1mm']} of {s['n']} | {s['reference_not_used']} |")
     return "\n".join(lines)
 
 
@@ -205,13 +264,16 @@ def plot(numbers: dict, path: Path) -> None:
               ("residual_priors", "peer: residual-sized priors", "tab:cyan"),
               ("cloud_gauge", "peer: cloud gauge", "tab:orange"), ("closest_cameras", "peer: closest cameras", "tab:purple"),
               ("refined_shape", "refined, frame removed", "tab:green"),
-              ("frame_uncertainty", "reported frame uncertainty", "tab:gray"))
+              ("frame_uncertainty", "reported frame uncertainty", "tab:gray"),
+              ("reference", "--refine-rig with the reference (L-frame)", "tab:brown"))
     levels = sorted({r["level_px"] for r in rows})
+    series = tuple(item for item in series if any(item[0] in r for r in rows))
     for k, (key, label, colour) in enumerate(series):
         offset = (k - len(series) / 2) * 0.04
-        ax.scatter([r["level_px"] + offset for r in rows], [r[key] for r in rows], s=10, color=colour, alpha=0.5)
-        ax.plot(np.array(levels) + offset, [np.mean([r[key] for r in rows if r["level_px"] == lv]) for lv in levels],
-                "-o", color=colour, label=label)
+        have = [r for r in rows if key in r]
+        ax.scatter([r["level_px"] + offset for r in have], [r[key] for r in have], s=10, color=colour, alpha=0.5)
+        ax.plot(np.array(levels) + offset, [np.mean([r[key] for r in have if r["level_px"] == lv] or [np.nan])
+                                            for lv in levels], "-o", color=colour, label=label)
     ax.axhline(1.0, color="k", ls=":", lw=1, label="goal 1.0 mm at 2 px (refined)")
     ax.set_xlabel("calibration error of the given rig (px RMS)")
     ax.set_ylabel("mean dot error (mm)")

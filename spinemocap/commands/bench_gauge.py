@@ -25,6 +25,9 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=30, help="frames per scene (default 30)")
     p.add_argument("--fps", type=float, default=25.0, help="frame rate (default 25)")
     p.add_argument("--detector", choices=("net", "classical", "mask"), default="net")
+    p.add_argument("--reference", action="store_true",
+                   help="render the studio's L-frame beside the subject and refine every calibration also with its "
+                        "markers as control points (the world frame from the reference), beside the refinement without")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
 
@@ -38,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("bench gauge", "--rigs must be >= 1, --frames >= 2 and every level in (0, 20] px")
     numbers = run_gauge_benchmark(args.seeds, args.levels, args.rigs, frames=args.frames, fps=args.fps,
                                   detector=args.detector, progress=not args.no_progress,
-                                  after_scene=lambda partial: save(partial, args.json, None))
+                                  after_scene=lambda partial: save(partial, args.json, None), reference=args.reference)
     save(numbers, args.json, args.plot, plot)
     print(format_table(numbers))
     print(f"numbers written to {args.json}" + (f", plot to {args.plot}" if args.plot else ""))

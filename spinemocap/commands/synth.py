@@ -61,6 +61,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "reproject with this RMS per camera; the images stay exact, groundtruth.npz keeps the true rig")
     p.add_argument("--sync-error", type=float, metavar="MS",
                    help="per-camera clock offsets with this RMS (ms): each camera renders at its own offset times")
+    p.add_argument("--reference", action="store_true",
+                   help="an L-frame of five markers on a stand beside the subject, in view of the cameras (artificial "
+                        "and studio layouts): rendered in the images, its design and pose in reference.toml (named by "
+                        "capture.toml), for spinemocap track --refine-rig to fix the world frame with")
     p.add_argument("--blur", type=float, help="motion blur: exposure as a fraction of the frame interval (0..1)")
     p.add_argument("--noise", type=float, help="sensor noise, standard deviation in grey levels")
     p.add_argument("--distortion", type=float, help="lens distortion scale (0 = ideal pinhole, 1 = mild)")
@@ -99,6 +103,7 @@ def config_from_args(args: argparse.Namespace):
         "tape_start": args.tape_start, "realism": args.realism, "skin_strain": args.skin_strain, "tape_tension": args.tape_tension,
         "calibration_error_px": args.calibration_error, "sync_error_ms": args.sync_error, "blur": args.blur, "noise": args.noise, "distortion": args.distortion,
         "supersample": args.supersample, "seed": args.seed, "video": args.video or None,
+        "reference": args.reference or None,
         "phenotype": phenotype or None, "name": args.out.name,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}
@@ -137,7 +142,7 @@ def run_synth(args: argparse.Namespace) -> int:
     rows = Capture.open(out).tape.n_rows
     print(f"synthetic capture written to {out}/ ({config.frames} frames, {config.cameras} cameras, "
           f"{rows}-row tape from {config.tape_start}, {config.n_balls} balls): capture.toml, rig.toml, {media}, "
-          f"masks/, groundtruth.npz")
+          f"masks/, groundtruth.npz" + (", reference.toml (the L-frame beside the subject)" if config.reference else ""))
     print(f"realism {config.realism}: skin strain x{config.skin_strain:g}, tape tension {100 * config.tape_tension:g} %, "
           f"calibration error {config.calibration_error_px:g} px (rig.toml), sync error {config.sync_error_ms:g} ms, "
           f"sensor noise {config.noise:g}")

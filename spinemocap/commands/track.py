@@ -50,6 +50,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="bundle-adjust the camera poses (and a focal scale per camera) on the tracked dots, "
                         "write DIR/rig_refined.toml with the residuals before/after in DIR/rig_refine.json and "
                         "re-triangulate the observed dots with it")
+    p.add_argument("--reference", type=Path, metavar="FILE",
+                   help="with --refine-rig: a reference object of known geometry in view (reference.toml: markers in "
+                        "its own frame and its pose in the world, see spinemocap.reference) whose markers fix the "
+                        "refined rig's world frame; default: the one capture.toml names, if any")
     p.add_argument("--refine-sync", action="store_true",
                    help="with --refine-rig: also estimate a clock offset per camera (ms, against the first)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -67,6 +71,8 @@ def run_track(args: argparse.Namespace) -> int:
     config = TrackerConfig.from_toml(args.config) if args.config else None
     if args.refine_sync and not args.refine_rig:
         raise InputError("--refine-sync", "needs --refine-rig")
+    if args.reference and not args.refine_rig:
+        raise InputError("--reference", "needs --refine-rig (the reference fixes the refined rig's world frame)")
     refine = RigRefineConfig(sync=args.refine_sync) if args.refine_rig else None
     speed = LEGACY if args.legacy else SpeedOptions(workers=args.workers, parallel=args.parallel,
                                                     refresh_every=args.refresh_every,
@@ -78,7 +84,10 @@ def run_track(args: argparse.Namespace) -> int:
         try:
             result = track_capture_result(args.capture, args.out, mode=args.mode, config=config,
                                           detector=args.detector, frames=args.frames,
-                                          progress=not args.no_progress, refine=refine, speed=speed)
+                                          progress=not args.no_progress, refine=refine, speed=speed,
+                                          reference=args.reference)
+        except InputError:
+            raise
         except ValueError as exc:
             if refine is None:
                 raise

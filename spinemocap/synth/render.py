@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from ..camera import Camera
+from .reference import ReferenceMeshes
 
 NEAR_MM, FAR_MM = 50.0, 50_000.0
 
@@ -56,6 +57,8 @@ class Appearance:
     skin_rgb: tuple[float, float, float]
     tape_rgb: tuple[float, float, float] = (0.08, 0.08, 0.10)
     background_rgb: tuple[float, float, float] = (0.35, 0.36, 0.38)
+    reference_frame_rgb: tuple[float, float, float] = (0.20, 0.20, 0.21)  # dark anodised aluminium
+    reference_marker_rgb: tuple[float, float, float] = (0.95, 0.95, 0.95)  # retro-reflective, lit by the camera
     band_rgb: tuple[float, float, float] = (0.15, 0.25, 0.55)
     light_position: tuple[float, float, float] = (0.0, 3000.0, 3000.0)
     light_intensity: float = 0.9
@@ -78,8 +81,14 @@ class CameraRenderer:
 
     def __init__(self, camera: Camera, body_faces: np.ndarray, tape_faces_holes: np.ndarray,
                  tape_faces_solid: np.ndarray, appearance: Appearance,
-                 band_faces: np.ndarray | None = None, supersample: int = 1):
+                 band_faces: np.ndarray | None = None, supersample: int = 1,
+                 reference: ReferenceMeshes | None = None):
+        """``reference``: a static reference object (:mod:`spinemocap.synth.reference`) drawn in
+        every image: its bars lit like the scene, its markers as uniform bright discs (ambient
+        light only: retro-reflectors under the camera's ring light); black in the tape mask."""
         import pyvista as pv
+
+        from .occluders import sphere_mesh
 
         self.camera = camera
         self.supersample = int(supersample)
@@ -107,6 +116,21 @@ class CameraRenderer:
             self.band_actor = self.plotter.add_mesh(self.band, color=appearance.band_rgb,
                                                     ambient=0.2, diffuse=0.8)
         self.occluder_actor: Any = None
+        self.reference_meshes: list[Any] = []  # static: the reference object's frame and markers
+        self.reference_actors: list[Any] = []
+        self._static_points = np.zeros((0, 3))
+        if reference is not None:
+            frame = pv.PolyData.from_regular_faces(reference.frame_vertices, reference.frame_faces)
+            markers = sphere_mesh(reference.marker_centres, np.full(len(reference.marker_centres), reference.marker_radius),
+                                  resolution=24)
+            self.reference_meshes = [frame, markers]
+            self.reference_actors = [
+                self.plotter.add_mesh(frame, color=appearance.reference_frame_rgb, ambient=0.2, diffuse=0.8,
+                                      specular=0.0),
+                self.plotter.add_mesh(markers, color=appearance.reference_marker_rgb, ambient=1.0, diffuse=0.0,
+                                      specular=0.0),
+            ]
+            self._static_points = np.concatenate([reference.frame_vertices, np.asarray(markers.points)])
         self._add_lights(pv, appearance)
         self._point_camera(self.plotter)
         self._window = (0, 0, *self.canvas_size)  # canvas rectangle the main window shows
@@ -315,7 +339,8 @@ class CameraRenderer:
 
     def _empty_pixel(self) -> np.ndarray:
         """(3,) uint8 RGB the main window renders where nothing is drawn (the background)."""
-        actors = [a for a in (self.body_actor, self.tape_actor, self.band_actor, self.occluder_actor) if a is not None]
+        actors = [a for a in (self.body_actor, self.tape_actor, self.band_actor, self.occluder_actor,
+                              *self.reference_actors) if a is not None]
         shown = [bool(a.GetVisibility()) for a in actors]
         for actor in actors:
             actor.SetVisibility(False)
@@ -340,7 +365,7 @@ class CameraRenderer:
         """Canvas rectangle (x0, y0, width, height) holding the projection of everything drawn
         (body, tape, band, occluders), ``pad`` pixels wider; the whole canvas when a point lies
         closer than the near plane (its triangles' projection is unbounded)."""
-        parts = [meshes.body_vertices, meshes.tape_vertices]
+        parts = [meshes.body_vertices, meshes.tape_vertices, self._static_points]
         if meshes.band_vertices is not None:
             parts.append(meshes.band_vertices)
         if meshes.occluders is not None and meshes.occluders.n_points:
@@ -400,6 +425,8 @@ class CameraRenderer:
         plotter.add_mesh(self.tape_solid, color="white", lighting=False)
         if self.band is not None:
             plotter.add_mesh(self.band, color="black", lighting=False)
+        for mesh in self.reference_meshes:
+            plotter.add_mesh(mesh, color="black", lighting=False)
         self._point_camera(plotter)
         plotter.camera_set = True
         self.mask_plotter, self._mask_size, self._mask_occluder_actor = plotter, size, None

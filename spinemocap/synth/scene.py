@@ -36,6 +36,7 @@ from .occluders import (
     balls_for,
     sphere_mesh,
 )
+from .reference import ReferenceMeshes, reference_meshes, studio_reference
 from .render import Appearance, CameraRenderer, SceneMeshes
 from .rigs import LAYOUTS, arc_rig
 from .skin_strain import SkinStrain
@@ -107,6 +108,9 @@ class SynthConfig:
     lengths) so that the true dots reproject through it with this RMS per camera, while the images
     come from the true rig (kept in the ground truth); ``sync_error_ms``: RMS of per-camera clock
     offsets (each camera renders at its own offset times). See :mod:`spinemocap.synth.lab_errors`.
+    ``reference``: an L-frame of five markers stands beside the subject in view of the cameras
+    (:mod:`spinemocap.synth.reference`): rendered in the images, its design and pose written to
+    ``reference.toml`` (what a lab enters), its markers' true projections in the ground truth.
     """
 
     layout: str = "tiny"  # the preset whose camera layout is used (rigs.LAYOUTS)
@@ -133,6 +137,7 @@ class SynthConfig:
     calibration_error_px: float | None = None
     sync_error_ms: float | None = None
     supersample: int = 1
+    reference: bool = False
     video: bool = False
     name: str = "synthetic"
 
@@ -313,6 +318,10 @@ class Scene:
                 np.random.default_rng([self.rng_seed, 3]))
         else:
             self.calibrated_rig, self.calibration_rms_px = self.rig, np.zeros(len(self.rig))
+        # the reference object stands still: placed after the rig, it draws from no random stream
+        self.reference = studio_reference(self.target, self.rig) if config.reference else None
+        self.reference_meshes: ReferenceMeshes | None = (reference_meshes(self.reference)
+                                                         if self.reference is not None else None)
         self.balls = FallingBalls.generate(config.n_balls, config.duration_s, self.target, rng)
         self.band = SportsBraBand(self.body, self.body.level_heights()[config.band_level]) if config.band else None
         tone = config.skin_tone if config.skin_tone is not None else rng.uniform(0.0, 0.8)
@@ -385,12 +394,48 @@ class Scene:
             band_vertices=self._band_vertices(v, n),
         )
 
-    def _occluding_mesh(self, v: np.ndarray, n: np.ndarray) -> MeshRayCaster:
-        if self.band is None:
-            return MeshRayCaster(v, self.body.faces)
-        band_v = self._band_vertices(v, n)
-        faces = np.concatenate([self.body.faces, self.band.faces + len(v)])
-        return MeshRayCaster(np.concatenate([v, band_v]), faces)
+    def _occluding_mesh(self, v: np.ndarray, n: np.ndarray, with_reference: bool = True) -> MeshRayCaster:
+        """The posed body (with the band) and, unless told otherwise, the reference object."""
+        parts = [(v, self.body.faces)]
+        if self.band is not None:
+            parts.append((self._band_vertices(v, n), self.band.faces))
+        if with_reference and self._reference_solid is not None:
+            parts.append(self._reference_solid)
+        vertices, faces, offset = [], [], 0
+        for pv_, pf in parts:
+            vertices.append(pv_)
+            faces.append(pf + offset)
+            offset += len(pv_)
+        return MeshRayCaster(np.concatenate(vertices), np.concatenate(faces))
+
+    @cached_property
+    def _reference_solid(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(vertices, faces) of the reference object's bars, pole and marker spheres (world mm)."""
+        meshes = self.reference_meshes
+        if meshes is None:
+            return None
+        spheres = sphere_mesh(meshes.marker_centres, np.full(len(meshes.marker_centres), meshes.marker_radius))
+        sphere_faces = np.asarray(spheres.faces).reshape(-1, 4)[:, 1:]
+        return (np.concatenate([meshes.frame_vertices, np.asarray(spheres.points)]),
+                np.concatenate([meshes.frame_faces, sphere_faces + len(meshes.frame_vertices)]))
+
+    def _reference_visibility(self, rig: Rig, v: np.ndarray, n: np.ndarray, centres: np.ndarray,
+                              radii: np.ndarray) -> np.ndarray:
+        """(C, N) bool: the reference markers each camera of ``rig`` sees (inside its image, not
+        hidden by the body or a ball). A sphere faces every camera: its visible disc is the one
+        normal to the ray, so each camera is tested with the normals pointing at it."""
+        assert self.reference is not None
+        world = self.reference.world_mm
+        caster = self._occluding_mesh(v, n, with_reference=False)  # a marker's own sphere is not an occluder
+        out = np.zeros((len(rig), len(world)), bool)
+        for c, cam in enumerate(rig):
+            toward = cam.center - world
+            toward /= np.linalg.norm(toward, axis=1, keepdims=True)
+            single = rig.subset([cam.name])
+            # the segment starts on the sphere's near side (RAY_LIFT_MM beyond its centre is inside it)
+            out[c] = dot_visibility(single, world, toward, cam.project(world)[None], caster, centres, radii,
+                                    self.reference.marker_diameter_mm / 2)[0]
+        return out
 
     def frame_groundtruth(self, frame: int) -> dict[str, np.ndarray]:
         """Ground truth of one frame (see :attr:`groundtruth` for the keys and units). Dots,
@@ -402,6 +447,8 @@ class Scene:
         dots, normals = tape.dots(), tape.dot_normals()
         uv = np.empty((len(self.rig), len(dots), 2))
         visible = np.empty((len(self.rig), len(dots)), dtype=bool)
+        n_ref = self.reference.n_markers if self.reference is not None else 0
+        reference_visible = np.zeros((len(self.rig), n_ref), dtype=bool)
         for offset in np.unique(self.sync_offsets_s):
             cams = np.flatnonzero(self.sync_offsets_s == offset)
             if offset == 0.0:
@@ -416,10 +463,15 @@ class Scene:
             uv[cams] = uv_c
             visible[cams] = dot_visibility(rig, dots_c, normals_c, uv_c, self._occluding_mesh(v_c, n_c), centres,
                                            radii, self.tape.dot_diameter_mm / 2)
-        return {
+            if n_ref:
+                reference_visible[cams] = self._reference_visibility(rig, v_c, n_c, centres, radii)
+        out = {
             "dots": dots, "dot_normals": normals, "uv": uv, "visible": visible,
             "keypoints": tos.keypoints.points(v, self.body.faces),
         }
+        if n_ref:
+            out["reference_visible"] = reference_visible
+        return out
 
     @cached_property
     def groundtruth(self) -> dict[str, np.ndarray]:
@@ -436,6 +488,10 @@ class Scene:
         :mod:`spinemocap.synth.body`); ``level_names`` (L,) str vertebral levels S2..C7 and their
         junctions (``"T12/L1"``, upper level first) with ``level_rows`` (L,) the fractional 1-based
         row where each lies on the rest tape (NaN off the tape); ``camera_names``.
+
+        With a reference object (``config.reference``): ``reference_labels`` (N,),
+        ``reference_world_mm`` (N, 3) its markers' true centres, ``reference_uv`` (C, N, 2) their
+        distorted projections through the true rig, ``reference_visible`` (F, C, N) bool.
 
         The tape's true layout (the tracker is given only the roll's spec in ``capture.toml``):
         ``tape_tension`` the nominal taping tension; ``laid_stretch`` (n_rows - 1,) the laid arc
@@ -477,6 +533,10 @@ class Scene:
             rig_R=np.stack([c.R for c in self.rig]), rig_t=np.stack([c.t for c in self.rig]),
             calibration_rms_px=self.calibration_rms_px.copy(), sync_offset_s=self.sync_offsets_s.copy(),
         )
+        if self.reference is not None:
+            world = self.reference.world_mm
+            gt.update(reference_labels=np.array(self.reference.labels), reference_world_mm=world,
+                      reference_uv=self.rig.project(world))
         return gt
 
     def layout_truth(self, dots: np.ndarray) -> dict[str, np.ndarray]:
@@ -504,7 +564,8 @@ class Scene:
             strip = self.tape_on_skin.strip
             self._renderers = [
                 CameraRenderer(cam, self.body.faces, strip.faces_holes, strip.faces_solid, self.appearance,
-                               band_faces=None if self.band is None else self.band.faces, supersample=self.config.supersample)
+                               band_faces=None if self.band is None else self.band.faces, supersample=self.config.supersample,
+                               reference=self.reference_meshes)
                 for cam in self.rig
             ]
         return self._renderers

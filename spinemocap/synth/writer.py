@@ -8,6 +8,8 @@ Layout::
     OUT/masks/<cam>/000000.png          tape silhouettes (255 = tape), always images
     OUT/groundtruth.npz                 see Scene.groundtruth
     OUT/synth.toml                      the SynthConfig that made it
+    OUT/reference.toml                  with ``reference``: the L-frame's design and pose (what a
+                                         lab enters; capture.toml names it)
 
 Every file goes through :mod:`spinemocap.fileio`'s atomic writers.
 """
@@ -101,7 +103,8 @@ def write_capture(config: SynthConfig, out_dir: str | os.PathLike, progress: boo
     scene = build_scene(config)
     media = "video" if config.video else "images"
     capture = Capture(root=root, name=config.name, fps=scene.fps, n_frames=scene.n_frames, rig=scene.calibrated_rig,
-                      tape=scene.tape, subject=scene.subject(), media=media, video_pattern=VIDEO_PATTERN)
+                      tape=scene.tape, subject=scene.subject(), media=media, video_pattern=VIDEO_PATTERN,
+                      reference_file="reference.toml" if scene.reference is not None else None)
     root.mkdir(parents=True, exist_ok=True)
     writers = {}
     try:
@@ -119,6 +122,8 @@ def write_capture(config: SynthConfig, out_dir: str | os.PathLike, progress: boo
         scene.close()
     write_groundtruth(scene, root / "groundtruth.npz")
     write_toml(root / "synth.toml", {"synth": config.to_dict()})
+    if scene.reference is not None:
+        scene.reference.to_toml(root / "reference.toml")
     capture.save()  # last: a folder with capture.toml is complete
     return root
 

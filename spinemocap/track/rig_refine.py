@@ -37,6 +37,19 @@ those points, with the intrinsics' principal point and distortion held fixed.
   dot's velocity along its tracked trajectory (mm/s, central differences) and ``dt_c`` the
   camera's offset (s) against the reference camera.
 
+World frame from a reference object (``control``, :class:`ControlPoints`): markers at known
+world positions (a lab's L-frame, :mod:`spinemocap.reference`) seen at known blobs add their
+reprojection errors to the problem (weighted by ``reference_weight``), with the known positions
+held fixed. They see what the dots cannot: the world frame. The solve starts from the given rig
+shifted onto the reference (the mean offset of its triangulation of the markers). The report's
+``world_frame`` says where the frame came from (``reference`` or ``given rig``) and, with a
+reference, the fit: each marker's reprojection error
+(px) under the refined rig and its re-triangulated distance from the design (mm); markers the
+refined rig cannot fit (beyond ``reference_limit_px``) make :class:`ReferenceFitError` (a wrong
+design or pose in ``reference.toml``, or a marker mistaken), never a quietly bent rig. A pose
+shifted as a whole fits perfectly and moves the world with it; what shows it is the size of the
+move against the given rig's own frame (``given_frame_offset_mm``, warned about by the caller).
+
 The residual reported before/after is the RMS reprojection error (distorted px) of the
 observations kept (before: points triangulated from their blobs with the given rig). Now and then
 a blob was paired with a neighbouring dot's point (a few px off whatever the rig): after a first
@@ -69,7 +82,10 @@ class RigRefineConfig:
     its own residual on the capture's dots, ``prior_scale`` x that residual (at least
     ``min_prior_px``) turned into an angle (/ focal length) and a centre shift (x the camera's
     distance to the dots), see :func:`residual_priors` (measured, not better on average:
-    module docstring)."""
+    module docstring). With a reference object: ``reference_weight`` scales its markers'
+    residuals (each is a median over frames, ~0.05 px against ~0.13 px for a dot: 3 measured
+    better than 1 and 10 on a rendered capture), ``reference_limit_px`` the least fit beyond
+    which a marker makes :class:`ReferenceFitError`."""
 
     max_frames: int = 120
     focal: bool = True
@@ -82,6 +98,51 @@ class RigRefineConfig:
     min_prior_px: float = 0.2
     max_nfev: int = 100
     outlier_factor: float = 4.0
+    reference_limit_px: float = 1.0
+    reference_weight: float = 3.0
+
+
+# lsmr's tolerances for the trust-region steps with a reference: at scipy's defaults the inexact
+# steps along the dots' flat gauge directions stopped the solve with the markers 0.2 px off (tape
+# 0.74 mm off on a rendered 1 px capture; 0.04 px and 0.39 mm with these). The solve without a
+# reference keeps the defaults (its gauge is the priors' choice anyway).
+TIGHT_LSMR = {"atol": 1e-12, "btol": 1e-12}
+
+
+@dataclass
+class ControlPoints:
+    """A reference object's markers as control points: ``world_mm`` (N, 3) their known world
+    positions, ``pixels`` (C, N, 2) distorted px where each camera sees them (NaN: not seen),
+    ``labels`` (N,), ``name`` the object's (for messages)."""
+
+    labels: list[str]
+    world_mm: np.ndarray
+    pixels: np.ndarray
+    name: str = "reference"
+
+    def observations(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(cam (M,), marker (M,), uv (M, 2)) of every finite observation."""
+        seen = np.isfinite(self.pixels).all(axis=2)
+        cam, marker = np.nonzero(seen)
+        return cam, marker, self.pixels[cam, marker]
+
+    def problems(self) -> list[str]:
+        """Why these control points cannot fix a world frame (empty when they can): at least 3
+        markers not on one line each seen by >= 2 cameras."""
+        seen = np.isfinite(self.pixels).all(axis=2).sum(axis=0)
+        usable = seen >= 2
+        if usable.sum() < 3:
+            return [f"{self.name}: only {int(usable.sum())} markers seen by >= 2 cameras (need 3 not on one line; "
+                    "per marker: " + ", ".join(f"{lb} {int(n)}" for lb, n in zip(self.labels, seen)) + " cameras)"]
+        pts = self.world_mm[usable] - self.world_mm[usable].mean(axis=0)
+        spread = np.linalg.svd(pts, compute_uv=False)
+        if spread[1] < 1e-3 * spread[0]:
+            return [f"{self.name}: the markers seen by >= 2 cameras lie on one line"]
+        return []
+
+
+class ReferenceFitError(ValueError):
+    """The refined rig cannot fit the reference object's markers where their design puts them."""
 
 
 @dataclass
@@ -167,11 +228,34 @@ def _per_camera_rms(errors: np.ndarray, cam: np.ndarray, rig: Rig) -> dict[str, 
 
 
 def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
-               config: RigRefineConfig | None = None) -> RigRefinement:
+               config: RigRefineConfig | None = None, control: ControlPoints | None = None) -> RigRefinement:
     """Bundle-adjust ``rig`` on tracked dots: ``pixels`` (F, D, C, 2) distorted blob centres of
     the observed dots (NaN elsewhere), ``positions`` (F, D, 3) mm their tracked trajectories
-    (velocities for the clock offsets), ``fps`` frames per second. See module."""
+    (velocities for the clock offsets), ``fps`` frames per second; ``control``: a reference
+    object's markers (fix the world frame; :class:`ReferenceFitError` when they do not fit). See
+    module."""
     config = config or RigRefineConfig()
+    if control is None:
+        return _refine(rig, pixels, positions, fps, config)
+    if control.problems():
+        raise ReferenceFitError("; ".join(control.problems()))
+    # the solve starts with the given rig (and its dots) shifted onto the reference: the mean
+    # offset of the given rig's triangulation of the markers from their known places. From the
+    # given frame itself the solver's sparse steps crept along the dots' flat gauge directions
+    # and stopped short of a frame 5-15 mm away; a start rotated by the similarity fitted on the
+    # markers (or on a dots-only refinement) converged worse than a shift (measured on a
+    # rendered 2 px capture, before TIGHT_LSMR: 0.31-0.36 mm against 0.44-0.87 mm)
+    seen = _triangulate_markers(rig, control)
+    ok = np.isfinite(seen).all(axis=1)
+    shift = (control.world_mm[ok] - seen[ok]).mean(axis=0)
+    return _refine(rig, pixels, positions, fps, config, control, (np.eye(3), shift, 1.0))
+
+
+def _refine(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float, config: RigRefineConfig,
+            control: ControlPoints | None = None,
+            start: tuple[np.ndarray, np.ndarray, float] | None = None) -> RigRefinement:
+    """:func:`refine_rig`'s bundle adjustment; ``start``: a world similarity applied to the given
+    rig and the dots before solving (the priors then hold the cameras near the moved rig)."""
     outlier_factor = config.outlier_factor
     F = len(positions)
     frames = np.unique(np.linspace(0, F - 1, min(config.max_frames, F)).round().astype(int)) if F else np.zeros(0, int)
@@ -179,13 +263,22 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
     if len(prob.start) < 10:
         raise ValueError(f"only {len(prob.start)} dot-frames seen by >= 2 cameras; cannot refine the rig")
     C, P, M = len(rig), len(prob.start), len(prob.cam)
+    ctrl_cam, ctrl_marker, ctrl_uv = control.observations() if control is not None else (np.zeros(0, int),) * 2 + (
+        np.zeros((0, 2)),)
+    ctrl_world = control.world_mm[ctrl_marker] if control is not None else np.zeros((0, 3))
+    Q = len(ctrl_cam)
+    given_error = GivenRigError.measure(rig, prob)  # before any move: the given rig's own residuals
+    start_rig = rig
+    if start is not None:
+        start_rig, prob = _moved(rig, prob, start)
     ref = config.reference
-    rvec0 = np.stack([c.rvec for c in rig])
+    rvec0 = np.stack([c.rvec for c in start_rig])
     n_cam = 6 + int(config.focal) + int(config.sync)
-    K0 = np.stack([c.K for c in rig])
-    dist0 = np.stack([c.dist for c in rig])
-    centres0 = np.stack([c.center for c in rig])
-    cam0 = np.concatenate([np.concatenate([c.rvec, c.t, [1.0] * int(config.focal), [0.0] * int(config.sync)]) for c in rig])
+    K0 = np.stack([c.K for c in start_rig])
+    dist0 = np.stack([c.dist for c in start_rig])
+    centres0 = np.stack([c.center for c in start_rig])
+    cam0 = np.concatenate([np.concatenate([c.rvec, c.t, [1.0] * int(config.focal), [0.0] * int(config.sync)])
+                           for c in start_rig])
     x0 = np.concatenate([cam0, prob.start.ravel()])
     ref_block = cam0[ref * n_cam:(ref + 1) * n_cam].copy() if ref is not None else None
 
@@ -206,7 +299,6 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
         dt = cams[:, -1] if config.sync else np.zeros(C)
         return R, cams[:, 3:6], K, dt
 
-    given_error = GivenRigError.measure(rig, prob)
     sigma_centre, sigma_rotation = residual_priors(given_error, config)
 
     def residuals(x: np.ndarray) -> np.ndarray:
@@ -217,9 +309,11 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
         centres = -np.einsum("cji,cj->ci", R, t)
         prior_c = ((centres - centres0) / sigma_centre[:, None]).ravel()
         prior_r = ((cams[:, :3] - rvec0) / sigma_rotation[:, None]).ravel()
-        return np.concatenate([reproj, prior_c, prior_r])
+        ctrl = config.reference_weight * (_project(K[ctrl_cam], dist0[ctrl_cam], R[ctrl_cam], t[ctrl_cam], ctrl_world)
+                                          - ctrl_uv).ravel()
+        return np.concatenate([reproj, prior_c, prior_r, ctrl])
 
-    sparsity = lil_matrix((2 * M + 6 * C, len(x0)), dtype=int)
+    sparsity = lil_matrix((2 * M + 6 * C + 2 * Q, len(x0)), dtype=int)
     rows = np.arange(M)
     for k in range(n_cam):
         sparsity[2 * rows, prob.cam * n_cam + k] = 1
@@ -230,6 +324,10 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
     for c in range(C):
         sparsity[2 * M + 3 * c: 2 * M + 3 * c + 3, c * n_cam: c * n_cam + 6] = 1
         sparsity[2 * M + 3 * C + 3 * c: 2 * M + 3 * C + 3 * c + 3, c * n_cam: c * n_cam + 3] = 1
+    ctrl_rows = 2 * M + 6 * C + 2 * np.arange(Q)
+    for k in range(min(n_cam, 7)):  # a static marker: no clock offset
+        sparsity[ctrl_rows, ctrl_cam * n_cam + k] = 1
+        sparsity[ctrl_rows + 1, ctrl_cam * n_cam + k] = 1
     if ref is not None:
         sparsity[:, ref * n_cam:(ref + 1) * n_cam] = 0
     if config.sync:
@@ -245,7 +343,8 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
             return r
 
         return least_squares(weighted, x, jac_sparsity=sparsity, loss="huber", f_scale=scale_px,
-                             x_scale="jac", method="trf", max_nfev=config.max_nfev)
+                             x_scale="jac", method="trf", max_nfev=config.max_nfev,
+                             **({"tr_options": TIGHT_LSMR} if control is not None else {}))
 
     before = reprojection(x0)
     inlier = np.ones(M)
@@ -268,20 +367,88 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
     refined = Rig([dataclasses.replace(c, K=K[i], R=cv2.Rodrigues(cv2.Rodrigues(R[i])[0])[0], t=t[i].copy())
                    for i, c in enumerate(rig)])
     disagreement = given_rig_disagreement_mm(refined, rig, sigma_centre, np.degrees(sigma_rotation))
+    frame_uncertainty = max(frame_uncertainty_mm(disagreement), given_error.frame_uncertainty_mm())
+    world_frame: dict = {"source": "given rig"}
+    if control is not None:
+        limit = max(config.reference_limit_px, outlier_factor * robust_rms(after))
+        world_frame = reference_fit(refined, rig, control, limit)
+        if world_frame["bad_markers"]:
+            raise ReferenceFitError(
+                f"{control.name}: the refined rig cannot fit markers {world_frame['bad_markers']} where the reference's "
+                f"design and pose put them (reprojection RMS per marker, px: "
+                + ", ".join(f"{k} {v:.2f}" for k, v in world_frame["marker_rms_px"].items())
+                + f"; limit {limit:.2f} px): check the design (marker positions, mm) and pose in the reference file, "
+                "or that nothing else was taken for these markers")
+        frame_uncertainty = world_frame["fit_rms_mm"]
     return RigRefinement(
         rig=refined, before_px=_per_camera_rms(before, obs_cam, rig), after_px=_per_camera_rms(after, obs_cam, rig),
         sync_offsets_ms={n: float(1000 * dt[i]) for i, n in enumerate(rig.names)}, n_points=P, n_observations=M,
         extra={"frames_used": int(len(frames)), "solver": "scipy least_squares (trf, huber)",
                "outliers_dropped": int(M - keep.sum()),
                "given_rig_disagreement_mm": dict(zip(rig.names, disagreement.tolist())),
-               "frame_uncertainty_mm": max(frame_uncertainty_mm(disagreement), given_error.frame_uncertainty_mm()),
+               "world_frame": world_frame,
+               "frame_uncertainty_mm": frame_uncertainty,
                "frame_uncertainty_from_disagreement_mm": frame_uncertainty_mm(disagreement),
                "frame_uncertainty_from_residuals_mm": given_error.frame_uncertainty_mm(),
                "centre_prior_mm": dict(zip(rig.names, sigma_centre.tolist())),
                "rotation_prior_deg": dict(zip(rig.names, np.degrees(sigma_rotation).tolist())),
                "focal_scale": {n: float(cams[i, 6]) if config.focal else 1.0 for i, n in enumerate(rig.names)},
-               "camera_moved_mm": {n: float(np.linalg.norm(refined[i].center - centres0[i])) for i, n in enumerate(rig.names)}},
+               "camera_moved_mm": {n: float(np.linalg.norm(refined[i].center - rig[i].center))
+                                   for i, n in enumerate(rig.names)}},
     )
+
+
+def _moved(rig: Rig, prob: _Problem, similarity: tuple[np.ndarray, np.ndarray, float]) -> tuple[Rig, _Problem]:
+    """``rig`` and the problem's start points (and velocities) moved by a world similarity (the
+    reprojections are unchanged)."""
+    R, t, s = similarity
+    moved = dataclasses.replace(prob, start=s * prob.start @ R.T + t, velocity=s * prob.velocity @ R.T)
+    return apply_similarity(rig, R, t, s), moved
+
+
+def _triangulate_markers(rig: Rig, control: ControlPoints) -> np.ndarray:
+    """(N, 3) mm: each marker triangulated from its blobs with ``rig`` (NaN where < 2 cameras)."""
+    P = np.stack([c.projection_matrix for c in rig])
+    seen = np.isfinite(control.pixels).all(axis=2)  # (C, N)
+    undist = np.zeros(control.pixels.shape)
+    for c, cam in enumerate(rig):
+        if seen[c].any():
+            undist[c, seen[c]] = cam.undistort_points(control.pixels[c, seen[c]])
+    out = triangulate_dlt(P, undist.transpose(1, 0, 2), seen.T)
+    out[seen.sum(axis=0) < 2] = np.nan
+    return out
+
+
+def reference_fit(refined: Rig, given: Rig, control: ControlPoints, limit_px: float) -> dict:
+    """How well ``refined`` fits the reference's markers (the report's ``world_frame``):
+    per-marker reprojection RMS (px) and re-triangulated distance from the design (mm), their
+    overall RMS (``fit_rms_px``, ``fit_rms_mm``), the markers beyond ``limit_px``
+    (``bad_markers``), and ``given_frame_offset_mm``: how far the given rig's own triangulation
+    of the markers lies from the design (mean, mm; the given rig's world-frame error at the
+    reference, or a reference pose shifted as a whole)."""
+    cam, marker, uv = control.observations()
+    errors = np.array([float(np.linalg.norm(refined[c].project(control.world_mm[m][None])[0] - p))
+                       for c, m, p in zip(cam, marker, uv)])
+    per_marker_px = {control.labels[m]: float(np.sqrt(np.mean(errors[marker == m] ** 2)))
+                     for m in np.unique(marker)}
+    refined_xyz = _triangulate_markers(refined, control)
+    given_xyz = _triangulate_markers(given, control)
+    miss = np.linalg.norm(refined_xyz - control.world_mm, axis=1)
+    given_miss = np.linalg.norm(given_xyz - control.world_mm, axis=1)
+    seen = np.isfinite(control.pixels).all(axis=2)
+    return {
+        "source": "reference", "name": control.name,
+        "markers_used": [control.labels[m] for m in np.unique(marker)],
+        "cameras_per_marker": dict(zip(control.labels, seen.sum(axis=0).tolist())),
+        "observations": int(len(cam)),
+        "marker_rms_px": per_marker_px,
+        "marker_error_mm": {lb: float(d) for lb, d in zip(control.labels, miss) if np.isfinite(d)},
+        "fit_rms_px": float(np.sqrt(np.mean(errors**2))),
+        "fit_rms_mm": float(np.sqrt(np.nanmean(miss**2))) if np.isfinite(miss).any() else float("nan"),
+        "limit_px": float(limit_px),
+        "bad_markers": [lb for lb, v in per_marker_px.items() if v > limit_px],
+        "given_frame_offset_mm": float(np.nanmean(given_miss)) if np.isfinite(given_miss).any() else float("nan"),
+    }
 
 
 @dataclass
