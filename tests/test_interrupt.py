@@ -47,7 +47,10 @@ def _start(study: Path, out: Path, *extra: str) -> subprocess.Popen:
            "OMP_NUM_THREADS": "1"}
     return subprocess.Popen([sys.executable, "-m", "spinemocap", "-q", "batch", str(study / "manifest.csv"),
                              "--out", str(out), "--source", "groundtruth", "--workers", "2", *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            # Ctrl-C's default action even when the suite runs in a background job
+                            # (whose children inherit SIGINT ignored, and Python keeps it so)
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _wait_for(condition, timeout: float, proc: subprocess.Popen) -> None:
