@@ -15,10 +15,11 @@ import pytest
 from test_track_stages import SPEC, blobs, rig_behind, tape_on_back
 
 from spinemocap.track.config import TrackerConfig
+from spinemocap.track.continuity import other_shifts
 from spinemocap.track.evaluate import label_swaps
 from spinemocap.track.lattice import rows_beyond
 from spinemocap.track.pipeline import FrameTracker
-from spinemocap.track.quality import is_flagged
+from spinemocap.track.quality import is_flagged, label_confidence
 from spinemocap.track.sequence import SequenceTracker
 from spinemocap.track.stretch import estimate_stretch, row_stretch
 
@@ -107,3 +108,36 @@ def test_a_row_closer_to_its_neighbour_than_any_pitch_in_the_points_flags_the_fr
     last = SPEC.graph.row == SPEC.n_rows - 1
     result.positions[last] -= [0.0, 0.0, 0.35 * SPEC.row_pitch_mm]  # the tape runs along +Z
     assert "stretch_implausible" in tracker.add_quality(result, cloud, stretch).flags
+
+
+def test_a_capture_that_starts_with_the_tape_end_unseen_doubts_every_label_until_the_rows_show():
+    """The first frame of a capture (no previous identity) sees all but the last three rows of
+    the flexed tape: a labelling two rows toward the sacrum explains its points as well (the
+    benchmark's ``flexion (lab)`` tracked from frame 130 took the wrong one and carried it for 70
+    frames, the observed dots at confidence 1.0). No wrongly labelled dot may look trusted: the
+    frames are flagged ``identity_unsure`` until the rows come into view, which then give the
+    right labels (re-solved) and an unflagged frame."""
+    rig = rig_behind()
+    dots = flexed_tape(1.4, 1.4)
+    sequence = SequenceTracker(FrameTracker(rig, SPEC, TrackerConfig()))
+    last_rows = {3: SPEC.graph.row >= SPEC.n_rows - 3, 1: SPEC.graph.row >= SPEC.n_rows - 1}
+    results = []
+    for k, unseen in enumerate((3, 3, 1, 1)):
+        moved = dots + [0.0, 0.0, 1.5 * k]
+        hidden = np.repeat(last_rows[unseen][None], len(rig), axis=0)
+        result = sequence.step(blobs(rig, moved, noise_px=0.2, hidden=hidden, seed=k), {})
+        swapped = label_swaps(result.positions[None], moved[None], 15.0)[0]
+        confidence = label_confidence(result.status, result.flags, result.dot_flags())
+        assert confidence[swapped].max(initial=0.0) <= 0.5, (k, result.flags)  # wrong labels never look right
+        assert "identity_unsure" in result.flags or unseen == 1
+        results.append((result, swapped))
+    final, swapped = results[-1]
+    assert not swapped.any() and not is_flagged(final.flags)
+
+
+def test_other_shifts_are_the_whole_row_labellings_that_fit_the_observed_dots():
+    graph = SPEC.graph
+    assert other_shifts(np.ones(SPEC.n_dots, bool), graph) == []
+    assert other_shifts(graph.row <= SPEC.n_rows - 4, graph) == [2]  # odd shifts put a C dot on a 2-dot row
+    no_centre = (graph.row <= SPEC.n_rows - 2) & (np.asarray(graph.column) != "C")
+    assert other_shifts(no_centre, graph) == [1]

@@ -98,7 +98,11 @@ class SequenceConfig:
     two rows (the last 4 rows of 13 hidden: 4 rows, and a search up to 2 then relabelled it
     by 2 only, leaving every label 2 rows off); ``follow_hidden_rows``: after
     a full re-solve, unobserved rows beyond the observed ones move with their observed tape
-    neighbours from the prediction instead of the re-solve's mean-stretch placement."""
+    neighbours from the prediction instead of the re-solve's mean-stretch placement;
+    ``pin_identity``: until a frame's observed rows admit no other whole-row labelling (the
+    first frame's labels are its own guess when an end of the tape is unseen), every frame is
+    flagged ``identity_unsure`` and a carried frame leaving strong points unlabelled beyond an
+    end of the tape is re-solved (see :mod:`spinemocap.track.sequence`)."""
 
     skip_lp: bool = True
     match_radius_mm: float = 8.0
@@ -111,6 +115,7 @@ class SequenceConfig:
     keep_identity: bool = True
     max_row_shift: int = MAX_ROWS - 1
     follow_hidden_rows: bool = True
+    pin_identity: bool = True
 
 
 _SECTIONS = {
@@ -153,7 +158,7 @@ class TrackerConfig:
             rig=dataclasses.replace(config.rig, adaptive_gate=False),
             status=dataclasses.replace(config.status, lattice_check=False, unanchored_rows=0, anchor_ends=False),
             sequence=dataclasses.replace(config.sequence, keep_identity=False, smooth_trusted_only=False,
-                                         follow_hidden_rows=False))
+                                         follow_hidden_rows=False, pin_identity=False))
 
     @classmethod
     def from_dict(cls, data: dict, source: str | None = None) -> "TrackerConfig":

@@ -12,6 +12,10 @@ A shift is accepted only when the evidence is unambiguous (:func:`shift_is_unamb
 re-solve observes dots in the rows that keeping the previous identity would push off the tape's
 end, i.e. the previous labelling cannot explain what the cameras see. Otherwise the re-solve's
 geometry is relabelled with the previous identity (:func:`relabel_rows`) and the frame flagged.
+
+A capture's first frame has no previous identity: when one end of the tape is unseen, labellings
+two (or more) rows apart can explain the observed dots equally well (:func:`other_shifts`), and
+nothing but a row beyond the other end coming into view tells them apart.
 """
 
 from __future__ import annotations
@@ -60,6 +64,22 @@ def shift_is_unambiguous(observed: np.ndarray, graph: TapeGraph, shift: int) -> 
     n_rows = int(graph.row.max()) + 1
     dropped = np.arange(n_rows)[(np.arange(n_rows) - shift < 0) | (np.arange(n_rows) - shift >= n_rows)]
     return bool(observed[np.isin(graph.row, dropped)].sum() >= 2)
+
+
+def other_shifts(observed: np.ndarray, graph: TapeGraph) -> list[int]:
+    """Whole-row shifts ``k != 0`` under which every ``observed`` (D,) bool dot (row ``r``, column
+    ``c``) lands on a dot of the tape (row ``r + k`` has a column ``c``): the other labellings of
+    the same observed points, one per shift. Odd shifts need no observed C dot (2- and 3-dot
+    rows alternate); with the tape's both end rows observed there is none. Empty without
+    observed dots too (nothing to relabel)."""
+    rows, columns = np.asarray(graph.row), np.asarray(graph.column)
+    n_rows = int(rows.max()) + 1
+    seen = {(int(r), str(c)) for r, c in zip(rows[observed], columns[observed])}
+    if not seen:
+        return []
+    tape = {(int(r), str(c)) for r, c in zip(rows, columns)}
+    lo, hi = min(r for r, _ in seen), max(r for r, _ in seen)
+    return [k for k in range(-lo, n_rows - hi) if k and all((r + k, c) in tape for r, c in seen)]
 
 
 def relabel_rows(new: np.ndarray, graph: TapeGraph, shift: int) -> np.ndarray:

@@ -10,7 +10,10 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
   0.6 (placed by the tape model only), ``missing`` 0;
 - flags (factor): ``identity_kept`` 0.5 (the re-solve wanted another labelling, the previous
   frame's was kept, see :mod:`spinemocap.track.continuity`); ``relabelled`` 0.5 (the labels moved
-  by whole rows against the previous frame because the evidence demanded it); ``unlabelled_dots``
+  by whole rows against the previous frame because the evidence demanded it); ``identity_unsure``
+  0.5 (sequence mode: no frame so far saw enough rows to rule out a labelling shifted by whole
+  rows, e.g. a capture that starts with one end of the tape unseen: every label may be rows off,
+  see :func:`spinemocap.track.continuity.other_shifts`); ``unlabelled_dots``
   0.5 (dots seen by >= 3 cameras just beyond an end of the labelled tape were left without a
   label: the template may sit a row or two off); ``stretch_implausible`` 0.5 (the solved tape's row pitch leaves the
   range a kinesiology tape can take, or two neighbouring rows lie more than 15 % closer or
@@ -43,6 +46,7 @@ from .continuity import row_centres
 FLAG_FACTORS = {
     "identity_kept": 0.5,
     "relabelled": 0.5,
+    "identity_unsure": 0.5,
     "unlabelled_dots": 0.5,
     "stretch_implausible": 0.5,
     "unsolved": 0.5,

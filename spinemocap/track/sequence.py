@@ -13,6 +13,11 @@ Per frame (``mode = "sequence"``):
    re-solve that relabels the tape by whole rows against the prediction is overruled unless the
    evidence is unambiguous (:mod:`spinemocap.track.continuity`: previous identity kept, frame
    flagged ``identity_kept``; accepted shifts are flagged ``relabelled``).
+The first frame's identity comes from that frame alone: while the rows observed so far admit
+another whole-row labelling (one end of the tape unseen, e.g. a capture that starts at full
+flexion; :func:`~spinemocap.track.continuity.other_shifts`), every frame is flagged
+``identity_unsure`` and a carried frame that leaves strong points unlabelled beyond an end of the
+tape is re-solved, so that the rows coming into view correct the labels (``pin_identity``).
 Both routes work with the frame's measured dot spacing (:mod:`spinemocap.track.stretch`).
 After the sequence, short gaps (frames without a solution) are interpolated in time and
 inferred stretches smoothed (:func:`fill_and_smooth`).
@@ -26,7 +31,7 @@ from ..tape import TapeSpec
 from ..timing import StageTimer
 from ..views import ViewDots
 from .config import SequenceConfig
-from .continuity import relabel_rows, row_shift, shift_is_unambiguous
+from .continuity import other_shifts, relabel_rows, row_shift, shift_is_unambiguous
 from .edges import edge_bounds
 from .lattice import affine_from_neighbours, rows_beyond
 from .pipeline import FrameResult, FrameTracker, match_points
@@ -44,6 +49,7 @@ class SequenceTracker:
         self.before_last: np.ndarray | None = None
         self.uv = tracker.graph.uv_mm
         self.solid = tracker.graph.solid_edges
+        self.pinned = False  # the identity told by the observed rows (no other labelling fits them)
 
     def predict(self) -> np.ndarray:
         """Constant-velocity prediction (mm) from the last two solved frames."""
@@ -63,11 +69,33 @@ class SequenceTracker:
             result = self._carry(views, cloud, timer, tape)
             if result is not None:
                 self.tracker.add_quality(result, cloud, stretch)
+                if self._identity_unsure() and "unlabelled_dots" in result.flags:
+                    result = None  # dots beyond the labelled end may tell the identity: re-solve
         if result is None:
             result = self._solve_full(views, cloud, stage_ms, stretch)
         result.stage_ms = stage_ms
+        self._pin_identity(result)
         self._remember(result)
         return result
+
+    # ------------------------------------------------------------------ identity
+    def _identity_unsure(self) -> bool:
+        return self.config.pin_identity and not self.pinned
+
+    def _pin_identity(self, result: FrameResult) -> None:
+        """Until the observed rows of a frame admit no other whole-row labelling, flag every frame
+        ``identity_unsure``: the labels were chosen on a first frame that could not tell them
+        (measured: ``flexion (lab)`` tracked from frame 130, full flexion, the top two rows
+        undetected: the first frame's two offsets two rows apart scored 10.13 / 10.21 mm chamfer
+        and 0.466 / 0.454 image cost, and the wrong one, taken, was carried for 70 frames with
+        the observed dots at confidence 1.0)."""
+        if not self._identity_unsure() or not result.solved:
+            return
+        if other_shifts(result.status == "observed", self.tracker.graph):
+            result.flags.append("identity_unsure")
+            result.note = result.note or "no frame so far has seen enough rows to tell the labels from a shift by whole rows"
+        else:
+            self.pinned = True
 
     # ------------------------------------------------------------------ routes
     def _solve_full(self, views, cloud: CandidateCloud, stage_ms: dict, stretch: StretchEstimate) -> FrameResult:
@@ -178,7 +206,8 @@ class SequenceTracker:
         if not result.solved:
             self.before_last = None  # velocity across a gap is unknown
             return
-        self.before_last = self.last
+        # across an accepted relabelling the labels' velocity is rows, not motion
+        self.before_last = None if "relabelled" in result.flags else self.last
         self.last = result.positions.copy()
 
 
