@@ -292,13 +292,11 @@ def test_too_little_shared_memory_falls_back_to_threads(small_studio, monkeypatc
         processes.close()
 
 
-def test_auto_parallel_mode_follows_the_cores():
-    from spinemocap.app.streaming import PROCESSES_FROM_CORES, resolve_parallel
+def test_parallel_mode_defaults_to_threads_and_unknown_modes_are_refused():
+    from spinemocap.app.streaming import SpeedOptions, resolve_parallel
 
-    assert resolve_parallel("auto", 2) == "threads"  # measured faster on the 2-core VM
-    assert resolve_parallel("auto", 16) == "processes"  # measured faster on 16 cores (H100 machine)
-    assert resolve_parallel("auto", PROCESSES_FROM_CORES) == "processes"
-    assert resolve_parallel("threads", 64) == "threads" and resolve_parallel("processes", 1) == "processes"
+    assert SpeedOptions().parallel == "threads"  # measured as fast or faster on 2 and 16 cores
+    assert resolve_parallel("threads") == "threads" and resolve_parallel("processes") == "processes"
     with pytest.raises(InputError, match="unknown parallel mode"):
         resolve_parallel("fibres")
 

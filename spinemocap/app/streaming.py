@@ -47,22 +47,17 @@ from .camera_processes import CameraProcesses, ProcessesUnavailable, mask_box
 log = logging.getLogger(__name__)
 
 Box = tuple[slice, slice]
-PARALLEL = ("auto", "processes", "threads")
-# ``auto``: processes from this many CPU cores on. Measured (issue 15, docs/BENCHMARKS.md): on the
-# 2-core VM threads were faster (processes cost more CPU per frame: the copies into shared memory,
-# the workers' own overhead, and there are no spare cores to gain); on the 16-core H100 machine
-# processes were. Between 2 and 16 cores nothing was measured: 8 is a guess.
-PROCESSES_FROM_CORES = 8
+PARALLEL = ("threads", "processes")
+# Threads are the default: with the cheaper clean-up (issue 15, docs/BENCHMARKS.md) they were as fast
+# as worker processes or faster on both machines measured (the 2-core VM: processes 0.80-0.89x;
+# the 16-core H100 machine: 0.95-0.97x), and they need no shared memory or start-up.
 
 
-def resolve_parallel(mode: str, cores: int | None = None) -> str:
-    """``processes`` or ``threads`` for ``mode`` (``auto``: by the number of CPU cores)."""
+def resolve_parallel(mode: str) -> str:
+    """``mode`` checked against :data:`PARALLEL` (``processes`` or ``threads``)."""
     if mode not in PARALLEL:
         raise InputError(None, f"unknown parallel mode {mode!r} (choose {', '.join(PARALLEL)})")
-    if mode != "auto":
-        return mode
-    cores = cores if cores is not None else os.cpu_count() or 1
-    return "processes" if cores >= PROCESSES_FROM_CORES else "threads"
+    return mode
 
 
 class ParallelFallbackWarning(UserWarning):
@@ -74,9 +69,8 @@ class SpeedOptions:
     """How a capture is read and detected. ``workers``: processes or threads for the cameras (0:
     one per CPU core, at most one per camera; 1: one camera after the other in this process);
     ``parallel``: ``processes`` (worker processes, :mod:`~spinemocap.app.camera_processes`; the
-    reading of images stays in threads), ``threads`` or ``auto`` (processes from
-    :data:`PROCESSES_FROM_CORES` cores on, else threads; see :func:`resolve_parallel`); ``prefetch``: frames decoded ahead of the tracker (0: read
-    when needed); ``predict``: sequence mode searches the predicted tape box; ``refresh_every``:
+    reading of images stays in threads) or ``threads`` (the default); ``prefetch``: frames decoded
+    ahead of the tracker (0: read when needed); ``predict``: sequence mode searches the predicted tape box; ``refresh_every``:
     frames between full searches; ``min_dot_share``: a predicted box must find this share of the
     previous frame's dots in its camera, else that camera is searched in full; ``box_margin_px``:
     predicted dots' box grown by this before the training crops' padding;
@@ -90,7 +84,7 @@ class SpeedOptions:
     ``masks_always``: read ``masks/`` even when the detector does not use them (legacy only)."""
 
     workers: int = 0
-    parallel: str = "auto"
+    parallel: str = "threads"
     prefetch: int = 2
     predict: bool = True
     refresh_every: int = 10

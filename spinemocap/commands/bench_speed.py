@@ -19,9 +19,9 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--detector", choices=("net", "classical", "mask"), default="net")
     p.add_argument("--workers", type=int, default=0,
                    help="processes or threads for the cameras (0: one per CPU core, at most one per camera)")
-    p.add_argument("--parallel", choices=("auto", "processes", "threads"), default="auto",
-                   help="cameras in worker processes or threads (auto, the default: processes from 8 CPU cores "
-                        "on); the in-memory and video runs are repeated in the other mode as the peer")
+    p.add_argument("--parallel", choices=("threads", "processes"), default="threads",
+                   help="cameras in threads (the default) or worker processes; the in-memory and video runs are "
+                        "repeated in the other mode as the peer")
     p.add_argument("--no-parallel-peer", action="store_true", help="skip the run in the other parallel mode")
     p.add_argument("--video-frames", type=int, default=0,
                    help="with --capture: also write the first so many replayed frames as lossless video (into "

@@ -31,10 +31,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=0,
                    help="processes or threads for the cameras (default 0: one per CPU core, at most one per camera; "
                         "1: one camera after the other)")
-    p.add_argument("--parallel", choices=("auto", "processes", "threads"), default="auto",
+    p.add_argument("--parallel", choices=("threads", "processes"), default="threads",
                    help="cameras in worker processes (one detector each, images through shared memory; falls back "
-                        "to threads with a warning where processes cannot start) or in threads; auto (default): "
-                        "processes from 8 CPU cores on, threads below (measured faster on 2 cores)")
+                        "to threads with a warning where processes cannot start) or in threads (default: measured as fast or "
+                        "faster on 2 and 16 cores)")
     p.add_argument("--refresh-every", type=int, default=10,
                    help="sequence mode: frames between full tape searches (between them the detector searches "
                         "only the tape box predicted from the previous frames)")
