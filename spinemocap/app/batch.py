@@ -41,7 +41,6 @@ import json
 import logging
 import os
 import signal
-import threading
 import time
 import uuid
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -62,6 +61,7 @@ from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps
 from ..markers import MarkerTable
 from .c3d_inputs import read_pelvis_c3d
 from .results import TrackingStopped, results_complete
+from .worker_processes import exit_with_parent, join_or_kill
 
 log = logging.getLogger("spinemocap.batch")
 
@@ -516,13 +516,7 @@ def _worker_init(parent_pid: int) -> None:
     interrupt the running trial (KeyboardInterrupt: its atomic writes remove their temporary
     files) or, when idle, exit quietly."""
     signal.signal(signal.SIGINT, _worker_sigint)
-    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
-
-
-def _watch_parent(parent_pid: int) -> None:
-    while os.getppid() == parent_pid:
-        time.sleep(0.5)
-    os._exit(1)  # the batch is gone: stop now; the next run removes this trial's temporary files
+    exit_with_parent(parent_pid)  # the next run removes a killed trial's temporary files
 
 
 def _worker_sigint(signum, frame) -> None:
@@ -564,12 +558,7 @@ def _stop_pool(pool: ProcessPoolExecutor, futures: list) -> None:
     for process in processes:
         with contextlib.suppress(OSError, ValueError, AttributeError):
             os.kill(process.pid, signal.SIGINT)
-    deadline = time.monotonic() + STOP_GRACE_S
-    for process in processes:
-        process.join(max(deadline - time.monotonic(), 0.0))
-        if process.is_alive():
-            process.kill()
-            process.join(1.0)
+    join_or_kill(processes, STOP_GRACE_S)
     pool.shutdown(wait=False, cancel_futures=True)
 
 

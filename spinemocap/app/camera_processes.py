@@ -32,6 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from ..views import ViewDots
+from .worker_processes import exit_with_parent, join_or_kill
 
 log = logging.getLogger(__name__)
 
@@ -218,12 +219,7 @@ class CameraProcesses:
             for process in processes:
                 if process.is_alive():
                     process.terminate()
-            deadline = time.monotonic() + STOP_GRACE_S
-            for process in processes:
-                process.join(max(deadline - time.monotonic(), 0.0))
-                if process.is_alive():
-                    process.kill()
-                    process.join(1.0)
+            join_or_kill(processes, STOP_GRACE_S)
             self._pool = None
         with self._lock:
             self._closed = True
@@ -248,7 +244,7 @@ def _worker_start(parent_pid: int, name: str, device: str) -> None:
     """Each worker: Ctrl-C is the parent's to handle; exit when the parent is gone; one torch
     and one OpenCV thread (the parallelism is the processes); its own detector."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
+    exit_with_parent(parent_pid)
     import cv2
     import torch
 
@@ -258,12 +254,6 @@ def _worker_start(parent_pid: int, name: str, device: str) -> None:
     cv2.setNumThreads(1)
     _STATE["detector"] = Detector(name, device=device) if name == "net" else Detector(name)
     _STATE["blocks"] = {}
-
-
-def _exit_with_parent(parent_pid: int) -> None:
-    while os.getppid() == parent_pid:
-        time.sleep(0.5)
-    os._exit(1)
 
 
 def _worker_ready(pause_s: float) -> int:
