@@ -184,12 +184,10 @@ def _observations(pixels: np.ndarray, positions: np.ndarray, fps: float, rig: Ri
     cams, pts, uvs, vel, start = [], [], [], [], []
     P = np.stack([c.projection_matrix for c in rig])
     for f in frames:
+        undist = _undistorted(rig, pixels[f], seen[f])
         for d in np.flatnonzero(seen[f].sum(axis=1) >= 2):
             used = seen[f, d]
-            undist = np.full((len(rig), 2), np.nan)
-            for c in np.flatnonzero(used):
-                undist[c] = rig[c].undistort_points(pixels[f, d, c][None])[0]
-            X = triangulate_dlt(P, np.nan_to_num(undist)[None], used[None])[0]
+            X = triangulate_dlt(P, undist[d][None], used[None])[0]
             if not np.isfinite(X).all():
                 continue
             p = len(start)
@@ -237,8 +235,9 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
     config = config or RigRefineConfig()
     if control is None:
         return _refine(rig, pixels, positions, fps, config)
-    if control.problems():
-        raise ReferenceFitError("; ".join(control.problems()))
+    problems = control.problems()
+    if problems:
+        raise ReferenceFitError("; ".join(problems))
     # the solve starts with the given rig (and its dots) shifted onto the reference: the mean
     # offset of the given rig's triangulation of the markers from their known places. From the
     # given frame itself the solver's sparse steps crept along the dots' flat gauge directions
@@ -409,13 +408,19 @@ def _moved(rig: Rig, prob: _Problem, similarity: tuple[np.ndarray, np.ndarray, f
 def _triangulate_markers(rig: Rig, control: ControlPoints) -> np.ndarray:
     """(N, 3) mm: each marker triangulated from its blobs with ``rig`` (NaN where < 2 cameras)."""
     P = np.stack([c.projection_matrix for c in rig])
-    seen = np.isfinite(control.pixels).all(axis=2)  # (C, N)
-    undist = np.zeros(control.pixels.shape)
+    pixels = control.pixels.transpose(1, 0, 2)  # (N, C, 2)
+    seen = np.isfinite(pixels).all(axis=2)
+    out = triangulate_dlt(P, _undistorted(rig, pixels, seen), seen)
+    out[seen.sum(axis=1) < 2] = np.nan
+    return out
+
+
+def _undistorted(rig: Rig, pixels: np.ndarray, used: np.ndarray) -> np.ndarray:
+    """(N, C, 2) undistorted px of the distorted ``pixels`` (N, C, 2) where ``used`` (N, C); 0 elsewhere."""
+    out = np.zeros(pixels.shape)
     for c, cam in enumerate(rig):
-        if seen[c].any():
-            undist[c, seen[c]] = cam.undistort_points(control.pixels[c, seen[c]])
-    out = triangulate_dlt(P, undist.transpose(1, 0, 2), seen.T)
-    out[seen.sum(axis=0) < 2] = np.nan
+        if used[:, c].any():
+            out[used[:, c], c] = cam.undistort_points(pixels[used[:, c], c])
     return out
 
 
@@ -598,11 +603,7 @@ def retriangulate(rig: Rig, pixels: np.ndarray, positions: np.ndarray, status: n
         obs = (status[f] == "observed") & (used.sum(axis=1) >= 2)
         if not obs.any():
             continue
-        undist = np.zeros(pixels[f].shape)
-        for c, cam in enumerate(rig):
-            rows = obs & used[:, c]
-            if rows.any():
-                undist[rows, c] = cam.undistort_points(pixels[f, rows, c])
+        undist = _undistorted(rig, pixels[f], used & obs[:, None])
         new = triangulate_dlt(P, undist[obs], used[obs])
         errors = reprojection_errors(P, new, undist[obs], used[obs])  # NaN: unused, or behind the camera
         fits = (np.isfinite(errors) == used[obs]).all(axis=1) & (np.nan_to_num(errors) <= max_reprojection_px).all(axis=1)
