@@ -106,3 +106,26 @@ def test_videos_round_trip_losslessly_and_older_ffv1_videos_stay_readable(tmp_pa
     broken.write(frames[0])
     broken.abort()
     assert sorted(p.name for p in (tmp_path / "videos").iterdir()) == ["a.avi", "b.mkv"]
+
+
+def test_damaged_videos_give_an_error_naming_the_file(tmp_path):
+    from spinemocap.capture import VideoSource, VideoWriter
+
+    rng = np.random.default_rng(1)
+    frames = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(6)]
+    writer = VideoWriter(tmp_path / "videos" / "a.avi", 100.0, (64, 48))
+    for image in frames:
+        writer.write(image)
+    writer.close()
+    whole = (tmp_path / "videos" / "a.avi").read_bytes()
+    with pytest.raises(InputError, match=r"a\.avi.*6 frames, capture.toml says n_frames = 9"):
+        VideoSource(tmp_path, ["cam"], 9, "videos/a.avi")
+    (tmp_path / "videos" / "a.avi").write_bytes(b"RIFF" + bytes(200))
+    with pytest.raises(InputError, match=r"a\.avi.*cannot be opened"):
+        VideoSource(tmp_path, ["cam"], 6, "videos/a.avi")
+    # cut after the first frames: the frames before the cut decode, a later one is an error
+    (tmp_path / "videos" / "a.avi").write_bytes(whole[: len(whole) // 2])
+    source = VideoSource(tmp_path, ["cam"], 6, "videos/a.avi")
+    np.testing.assert_array_equal(source.read(0)[0], frames[0])
+    with pytest.raises(InputError, match=r"a\.avi.*cannot decode frame 5"):
+        source.read(5)
