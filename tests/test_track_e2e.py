@@ -83,3 +83,18 @@ def test_track_refine_rig_writes_the_refined_rig_with_its_residuals(capture, tmp
     table = pd.read_csv(tmp_path / "markers.csv")
     assert {"confidence", "stretch"} <= set(table.columns)
     assert table["confidence"].between(0, 1).all()
+
+
+def test_calibration_warning_points_to_the_refinement_once_refined(capture, tmp_path):
+    from spinemocap.app.run import track_capture_result
+    from spinemocap.track.rig_check import REFINE_ADVICE
+    from spinemocap.track.rig_refine import RigRefineConfig
+
+    result = track_capture_result(capture, tmp_path, detector="mask", progress=False, refine=RigRefineConfig())
+    # this capture's rig is good: give it the warning a 2 px rig gets
+    result.calibration_warning = f"calibration: camera(s) cam1 reproject the capture's own dots with 2.10 px RMS; {REFINE_ADVICE}"
+    refined = result.summary()
+    assert REFINE_ADVICE not in refined and "the rig was refined on these dots (--refine-rig" in refined
+    assert result.quality()["calibration_warning"] in refined
+    result.refinement = None  # not refined: the advice stays
+    assert REFINE_ADVICE in result.summary()

@@ -28,7 +28,7 @@ from ..tape import TapeSpec
 from ..track.config import TrackerConfig
 from ..track.pipeline import STAGES, FrameResult, FrameTracker
 from ..track.quality import is_flagged, label_confidence
-from ..track.rig_check import CalibrationWarning, RigResiduals
+from ..track.rig_check import REFINE_ADVICE, CalibrationWarning, RigResiduals
 from ..track.rig_refine import (
     ControlPoints,
     ReferenceFitError,
@@ -124,8 +124,17 @@ class TrackResult:
             "stretch_across": float(np.median(across)) if across else None,
             "gate_px": float(np.median(gates)) if gates else None,
             "rig_rms_px": ({n: float(r) for n, r in zip(res.cameras, res.rms_px)} if res is not None else None),
-            "calibration_warning": self.calibration_warning,
+            "calibration_warning": self._calibration_warning(),
         }
+
+    def _calibration_warning(self) -> str | None:
+        """The tracker's calibration warning; after ``--refine-rig`` its advice to refine is
+        replaced by where the refinement is reported."""
+        if self.calibration_warning is None or self.refinement is None:
+            return self.calibration_warning
+        after = self.refinement.after_px["all"]
+        return self.calibration_warning.replace(
+            REFINE_ADVICE, f"the rig was refined on these dots (--refine-rig: {after:.2f} px RMS after, rig_refine.json).")
 
     def summary(self) -> str:
         """What the tracker can and cannot vouch for, in a few lines (end of ``spinemocap track``)."""

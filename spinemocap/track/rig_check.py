@@ -27,6 +27,9 @@ from ..views import ViewDots
 from .candidates import CandidateConfig, build_candidates
 from .types import CandidateCloud
 
+#: The calibration warning's advice (replaced once ``--refine-rig`` has run, see ``TrackResult.quality``).
+REFINE_ADVICE = "consider `spinemocap track --refine-rig` or recalibrating."
+
 
 class CalibrationWarning(UserWarning):
     """The rig reprojects the capture's own dots poorly (cameras named in the message)."""
@@ -151,8 +154,7 @@ class RigMonitor:
         return (f"calibration: camera(s) {', '.join(high)} reproject the capture's own dots with "
                 f"{', '.join(f'{r:.2f}' for n, r in zip(res.cameras, res.rms_px) if n in high)} px RMS "
                 f"(> {self.config.warn_px} px); candidate gate widened to {self.gate_px():.1f} px. "
-                f"Positions carry about 1-1.5 mm of bias per px; consider `spinemocap track --refine-rig` "
-                f"or recalibrating.")
+                f"Positions carry about 1-1.5 mm of bias per px; {REFINE_ADVICE}")
 
 
 @dataclass
