@@ -34,7 +34,7 @@ from calibration.formats.qualisys import read_qca
 from exporters import ExportWarning
 from spinemocap.analysis.levels import LevelMap
 from spinemocap.camera import Camera, Rig
-from spinemocap.capture import Capture
+from spinemocap.capture import Capture, VideoSource, VideoWriter
 from spinemocap.markers import MarkerTable
 from spinemocap.tape import TapeSpec
 
@@ -104,6 +104,39 @@ def seeds_capture(folder: Path) -> dict[str, bytes]:
     return {"images": text, "video": video + b'\n[levels]\nS1 = 1\nL3 = 5\n'}
 
 
+VIDEO_FRAMES, VIDEO_SIZE = 4, (64, 48)
+
+
+def seeds_video(folder: Path) -> dict[str, bytes]:
+    """A capture's lossless UT Video (as written now) and an FFV1 .mkv (older captures)."""
+    import cv2
+
+    rng = np.random.default_rng(5)
+    frames = [rng.integers(0, 256, (VIDEO_SIZE[1], VIDEO_SIZE[0], 3), dtype=np.uint8) for _ in range(VIDEO_FRAMES)]
+    new = VideoWriter(folder / "a.avi", 100.0, VIDEO_SIZE)
+    old = cv2.VideoWriter(str(folder / "b.mkv"), cv2.VideoWriter_fourcc(*"FFV1"), 100.0, VIDEO_SIZE)
+    for image in frames:
+        new.write(image)
+        old.write(image)
+    new.close()
+    old.release()
+    return {"utvideo": (folder / "a.avi").read_bytes(), "ffv1": (folder / "b.mkv").read_bytes()}
+
+
+def read_video(path: Path) -> list[np.ndarray]:
+    """Every frame of one camera's video, as tracking reads them (the rig's size checked)."""
+    source = VideoSource(path.parent, ["cam"], VIDEO_FRAMES, path.name, sizes=[VIDEO_SIZE])
+    try:
+        return [source.read_camera(0, f) for f in (0, 1, 3, 2)]  # a jump back seeks
+    finally:
+        source.close()
+
+
+def video_problems(frames: list[np.ndarray]) -> list[str]:
+    shape = (VIDEO_SIZE[1], VIDEO_SIZE[0], 3)
+    return [f"frame {k}: {f.dtype} {f.shape}" for k, f in enumerate(frames) if f.dtype != np.uint8 or f.shape != shape]
+
+
 LEVEL_SEEDS = {
     "table": b'[levels]\nS1 = 1\nL3 = 5\n"T12/L1" = 7.5\nT10 = 9\n',
     "top": b'S1 = 1.0\nL1 = 6\nT7 = 9\n',
@@ -132,6 +165,8 @@ FORMATS = {
             _table_problems, None),
     "parquet": (".parquet", lambda d: seeds_tables(d, ".parquet"), BINARY_MUTATORS,
                 partial(exporters.read, format="parquet"), _table_problems, None),
+    # a seed per container: cases are written under the .avi name, which FFmpeg ignores (it probes the content)
+    "video": (".avi", seeds_video, BINARY_MUTATORS, read_video, video_problems, None),
 }
 
 
