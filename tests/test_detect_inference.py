@@ -111,3 +111,23 @@ def test_bfloat16_is_an_option_and_an_unknown_precision_is_an_input_error():
     assert np.mean((logits > 0) == (ref > 0)) > 0.99  # the same picture, not the same numbers
     with pytest.raises(InputError, match="unknown network precision"):
         Detector("net", precision="float16")
+
+
+def test_torch_threads_are_set_only_when_they_differ(monkeypatch):
+    from spinemocap.detect.detector import NetSegmenter
+
+    seg = NetSegmenter(device="cpu", threads=1)
+    image = _views()[0]
+    before = torch.get_num_threads()
+    calls = []
+    real = torch.set_num_threads
+    monkeypatch.setattr(torch, "set_num_threads", lambda n: (calls.append(n), real(n)))
+    try:
+        real(2)
+        seg.tape_boxes([image])
+        assert torch.get_num_threads() == 1 and calls == [1]  # set when it differed ...
+        seg.tape_boxes([image])
+        seg.segment_boxes(image, [(slice(0, 40), slice(0, 60))])
+        assert calls == [1]                                   # ... and not again
+    finally:
+        real(before)

@@ -87,6 +87,13 @@ class NetSegmenter:
         self.device = torch.device(resolve_device(device))
         self.model = self.model.to(device=self.device, dtype=self.dtype)
 
+    def _use_threads(self) -> None:
+        """torch's threads for this calling thread, set only when they differ: a
+        ``torch.set_num_threads`` call slows the network passes after it (measured ~3 ms, ~20 %,
+        per pass when set before every pass; docs/BENCHMARKS.md, issue 15)."""
+        if self.threads and torch.get_num_threads() != self.threads:
+            torch.set_num_threads(self.threads)
+
     def _logits(self, view: np.ndarray) -> np.ndarray:
         return self._logits_batch(view[None])[0]
 
@@ -101,8 +108,7 @@ class NetSegmenter:
             return out.float().cpu().numpy()
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
-        if self.threads:
-            torch.set_num_threads(self.threads)
+        self._use_threads()
         if not self.refine:
             h, w = image.shape[:2]
             view, _ = frame_view(image)
@@ -112,8 +118,7 @@ class NetSegmenter:
     def tape_boxes(self, images: list[np.ndarray]) -> list[list[tuple[slice, slice]]]:
         """Stage 1 on several images at once (one batched network pass per image size): per
         image, the padded full-resolution boxes around the coarse mask's components."""
-        if self.threads:
-            torch.set_num_threads(self.threads)
+        self._use_threads()
         views = [frame_view(image)[0] for image in images]
         out: list[list[tuple[slice, slice]]] = [[] for _ in images]
         by_shape: dict[tuple, list[int]] = {}
@@ -140,8 +145,7 @@ class NetSegmenter:
         the tape mask (H, W) bool and the dots the clean-up found in it (uv (N, 2) full-frame px,
         confidence (N,); the detector's dots, found once). Stage 1's boxes give the full search;
         a box predicted from earlier frames skips stage 1 (sequence mode)."""
-        if self.threads:
-            torch.set_num_threads(self.threads)
+        self._use_threads()
         h, w = image.shape[:2]
         mask = np.zeros((h, w), bool)
         uvs, confs = [], []
