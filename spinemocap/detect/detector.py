@@ -70,11 +70,11 @@ class NetSegmenter:
         net, self.metadata = load_weights(self.weights_path)
         # The inference form: batch norm folded into the convolutions, no concatenation copies,
         # channels-last weights (the layout of to_tensor's input); the same logits up to float
-        # rounding, ~25 % less CPU per pass (docs/BENCHMARKS.md, issue 15).
+        # rounding, ~19 % less CPU per pass in the detector (docs/BENCHMARKS.md, issue 15).
         self.model = inference_net(net)
         if precision not in PRECISIONS:
             raise InputError(None, f"unknown network precision {precision!r} (choose {' or '.join(PRECISIONS)})")
-        # bfloat16 (an option, not the default): ~1.4x faster passes on a CPU with AVX-512 BF16,
+        # bfloat16 (an option, not the default): ~45 % less CPU per pass on a CPU with AVX-512 BF16,
         # but a few dots change (docs/BENCHMARKS.md, issue 15).
         self.dtype = torch.bfloat16 if precision == "bfloat16" else torch.float32
         self.refine = refine  # False: stage 1 only, upsampled (a quick look; no boxes)

@@ -61,7 +61,6 @@ class TapeUNet(nn.Module):
         return self.head(x)
 
 
-
 class InferenceUNet(nn.Module):
     """A :class:`TapeUNet` in eval mode rewritten for fast inference; same logits up to float
     rounding (see tests/test_detect_inference.py), built by :func:`inference_net`.
@@ -72,7 +71,7 @@ class InferenceUNet(nn.Module):
       skip connection as two convolutions whose results are added (the channels of a convolution
       over a concatenation are a sum over the concatenated parts), so no concatenated copy is made.
     Weights are channels-last: the layout of :func:`to_tensor`'s input (NHWC pixels viewed as
-    NCHW), so no convolution converts layouts. Plain tensors ops only: runs on any device/dtype."""
+    NCHW), so no convolution converts layouts. Plain tensor ops only: runs on any device/dtype."""
 
     def __init__(self, model: TapeUNet):
         super().__init__()
