@@ -38,7 +38,7 @@ from .classical import segment_classical
 from .dataset import CROP_PAD, WORK_WIDTH, crop_scale, frame_view
 from .instances import kept_instances, split_instances, union
 from .refine import RefineParams, components_touching, extend_along_tape
-from .segnet import load_weights, pad_to_multiple, to_tensor
+from .segnet import inference_net, load_weights, pad_to_multiple, to_tensor
 
 SHIPPED_WEIGHTS = "tape_unet.pt"
 
@@ -51,6 +51,7 @@ class MaskDots(NamedTuple):
     confidence: np.ndarray
 
 NAMES = ("net", "classical")
+PRECISIONS = ("float32", "bfloat16")  # of the network's arithmetic
 
 
 def shipped_weights_path() -> Path:
@@ -64,12 +65,18 @@ class NetSegmenter:
     def __init__(self, weights: str | os.PathLike | None = None, refine: bool = True, threads: int | None = 1,
                  min_area_work_px: int = 4, box_logit: float = -1.0, max_grow: int = 3,
                  refine_params: RefineParams | None = None, device: str = "auto",
-                 blob_params: BlobParams | None = None):
+                 blob_params: BlobParams | None = None, precision: str = "float32"):
         self.weights_path = Path(weights) if weights else shipped_weights_path()
-        self.model, self.metadata = load_weights(self.weights_path)
-        # Channels-last weights match the layout of to_tensor's input (NHWC pixels viewed as NCHW),
-        # so no convolution converts layouts (same results, ~5 % faster per frame on CPU).
-        self.model = self.model.to(memory_format=torch.channels_last)
+        net, self.metadata = load_weights(self.weights_path)
+        # The inference form: batch norm folded into the convolutions, no concatenation copies,
+        # channels-last weights (the layout of to_tensor's input); the same logits up to float
+        # rounding, ~19 % less CPU per pass in the detector (docs/BENCHMARKS.md, issue 15).
+        self.model = inference_net(net)
+        if precision not in PRECISIONS:
+            raise InputError(None, f"unknown network precision {precision!r} (choose {' or '.join(PRECISIONS)})")
+        # bfloat16 (an option, not the default): ~45 % less CPU per pass on a CPU with AVX-512 BF16,
+        # but a few dots change (docs/BENCHMARKS.md, issue 15).
+        self.dtype = torch.bfloat16 if precision == "bfloat16" else torch.float32
         self.refine = refine  # False: stage 1 only, upsampled (a quick look; no boxes)
         self.threads = threads
         self.min_area_work_px = min_area_work_px
@@ -78,7 +85,14 @@ class NetSegmenter:
         self.refine_params = refine_params or RefineParams()
         self.blob_params = blob_params or BlobParams()  # the clean-up's dots are the detector's
         self.device = torch.device(resolve_device(device))
-        self.model = self.model.to(self.device)
+        self.model = self.model.to(device=self.device, dtype=self.dtype)
+
+    def _use_threads(self) -> None:
+        """torch's threads for this calling thread, set only when they differ: a
+        ``torch.set_num_threads`` call slows the network passes after it (measured ~3 ms, ~20 %,
+        per pass when set before every pass; docs/BENCHMARKS.md, issue 15)."""
+        if self.threads and torch.get_num_threads() != self.threads:
+            torch.set_num_threads(self.threads)
 
     def _logits(self, view: np.ndarray) -> np.ndarray:
         return self._logits_batch(view[None])[0]
@@ -90,12 +104,11 @@ class NetSegmenter:
         with torch.inference_mode():
             # the uint8 pixels travel to the device (a quarter of float32's bytes), converted there
             pixels = torch.from_numpy(np.ascontiguousarray(padded)).to(self.device)
-            out = self.model(to_tensor(pixels))[:, 0, :h, :w]
+            out = self.model(to_tensor(pixels).to(self.dtype))[:, 0, :h, :w]
             return out.float().cpu().numpy()
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
-        if self.threads:
-            torch.set_num_threads(self.threads)
+        self._use_threads()
         if not self.refine:
             h, w = image.shape[:2]
             view, _ = frame_view(image)
@@ -105,8 +118,7 @@ class NetSegmenter:
     def tape_boxes(self, images: list[np.ndarray]) -> list[list[tuple[slice, slice]]]:
         """Stage 1 on several images at once (one batched network pass per image size): per
         image, the padded full-resolution boxes around the coarse mask's components."""
-        if self.threads:
-            torch.set_num_threads(self.threads)
+        self._use_threads()
         views = [frame_view(image)[0] for image in images]
         out: list[list[tuple[slice, slice]]] = [[] for _ in images]
         by_shape: dict[tuple, list[int]] = {}
@@ -133,8 +145,7 @@ class NetSegmenter:
         the tape mask (H, W) bool and the dots the clean-up found in it (uv (N, 2) full-frame px,
         confidence (N,); the detector's dots, found once). Stage 1's boxes give the full search;
         a box predicted from earlier frames skips stage 1 (sequence mode)."""
-        if self.threads:
-            torch.set_num_threads(self.threads)
+        self._use_threads()
         h, w = image.shape[:2]
         mask = np.zeros((h, w), bool)
         uvs, confs = [], []
@@ -220,7 +231,8 @@ class Detector:
 
     ``name``: ``"net"`` (options: ``weights`` path, ``refine`` two-stage on/off, ``threads`` torch
     threads, default 1: a working-resolution image gains little from more, and the tracker runs
-    cameras or frames in parallel processes; ``None`` leaves torch's setting alone) or
+    cameras or frames in parallel processes; ``None`` leaves torch's setting alone; ``precision``
+    ``float32`` (default) or ``bfloat16``, the network's arithmetic) or
     ``"classical"`` (options: ``work_width``); ``blob_params``: :class:`BlobParams` for the dots;
     ``dot_to_width``: dot diameter / tape width, used to guess the dot size from the mask when
     :meth:`detect` gets no ``expected_dot_px``."""

@@ -61,6 +61,83 @@ class TapeUNet(nn.Module):
         return self.head(x)
 
 
+class InferenceUNet(nn.Module):
+    """A :class:`TapeUNet` in eval mode rewritten for fast inference; same logits up to float
+    rounding (see tests/test_detect_inference.py), built by :func:`inference_net`.
+
+    - Batch norm (eval mode: a per-channel scale and shift) is folded into the weights and a bias
+      of the convolution before it, so no separate normalisation pass runs.
+    - The first convolution of each decoder block reads the upsampled coarser features and the
+      skip connection as two convolutions whose results are added (the channels of a convolution
+      over a concatenation are a sum over the concatenated parts), so no concatenated copy is made.
+    Weights are channels-last: the layout of :func:`to_tensor`'s input (NHWC pixels viewed as
+    NCHW), so no convolution converts layouts. Plain tensor ops only: runs on any device/dtype."""
+
+    def __init__(self, model: TapeUNet):
+        super().__init__()
+        if model.training:
+            raise ValueError("inference_net needs a model in eval mode (batch norm uses its running statistics)")
+        self.channels = model.channels
+        self.down = nn.ParameterList()  # per level: w1, b1, w2, b2
+        for block in model.down:
+            self.down.extend(_folded_block(block))
+        self.up = nn.ParameterList()    # per level: w1 (coarse part), w1 (skip part), b1, w2, b2
+        for block, c_skip in zip(model.up, reversed(self.channels[:-1])):
+            w1, b1, w2, b2 = _folded_block(block)
+            c_coarse = w1.shape[1] - c_skip  # forward concatenates [upsampled, skip]
+            self.up.extend([_param(w1[:, :c_coarse]), _param(w1[:, c_coarse:]), b1, w2, b2])
+        self.head_w = _param(model.head.weight.detach())
+        self.head_b = _param(model.head.bias.detach())
+        self.requires_grad_(False)
+
+    @property
+    def stride(self) -> int:
+        return 2 ** (len(self.channels) - 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        skips = []
+        d = list(self.down)
+        for i in range(len(self.channels)):
+            if i:
+                x = F.max_pool2d(x, 2)
+            x = F.relu_(F.conv2d(x, d[4 * i], d[4 * i + 1], padding=1))
+            x = F.relu_(F.conv2d(x, d[4 * i + 2], d[4 * i + 3], padding=1))
+            skips.append(x)
+        u = list(self.up)
+        for i, skip in enumerate(reversed(skips[:-1])):
+            w_coarse, w_skip, b1, w2, b2 = u[5 * i:5 * i + 5]
+            x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            y = F.conv2d(skip, w_skip, b1, padding=1)
+            y += F.conv2d(x, w_coarse, None, padding=1)
+            x = F.relu_(F.conv2d(F.relu_(y), w2, b2, padding=1))
+        return F.conv2d(x, self.head_w, self.head_b)
+
+
+def _param(t: torch.Tensor) -> nn.Parameter:
+    return nn.Parameter(t.detach().clone().contiguous(memory_format=torch.channels_last) if t.ndim == 4
+                        else t.detach().clone(), requires_grad=False)
+
+
+def _folded_block(block: ConvBlock) -> list[nn.Parameter]:
+    """[w1, b1, w2, b2] of a ConvBlock with each batch norm folded into its convolution:
+    BN(conv(x, w)) = conv(x, w * s) + (beta - mean * s), s = gamma / sqrt(var + eps)."""
+    out = []
+    for conv, bn in ((block[0], block[1]), (block[3], block[4])):
+        assert isinstance(conv, nn.Conv2d) and isinstance(bn, nn.BatchNorm2d)
+        scale = bn.weight.detach().double() / torch.sqrt(bn.running_var.double() + bn.eps)
+        w = conv.weight.detach().double() * scale[:, None, None, None]
+        b = bn.bias.detach().double() - bn.running_mean.double() * scale
+        if conv.bias is not None:
+            b = b + conv.bias.detach().double() * scale
+        out += [_param(w.float()), _param(b.float())]
+    return out
+
+
+def inference_net(model: TapeUNet) -> InferenceUNet:
+    """The fast inference form of an eval-mode ``model`` (:class:`InferenceUNet`), on the CPU in
+    float32; move it with ``.to(device)`` / ``.to(dtype)`` like any module."""
+    return InferenceUNet(model)
+
 def to_tensor(images_bgr: np.ndarray | torch.Tensor) -> torch.Tensor:
     """uint8 (H, W, 3) or (B, H, W, 3) BGR -> float (B, 3, H, W) in [-0.5, 0.5], on the device of
     the input (a uint8 tensor already on the GPU is converted there)."""
