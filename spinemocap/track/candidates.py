@@ -165,9 +165,62 @@ class _Views:
 
 
 def _triangulate_compact(P: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
+    """:func:`~spinemocap.geometry.triangulate_dlt` of each row on its used cameras, without an SVD
+    per row: the DLT's null vector ``(X, 1)`` is the smallest eigenvector of ``A^T A``, found by a
+    few Newton steps on ``A^T A v = lambda v`` whose residuals are computed from ``A`` itself (not
+    from the squared matrix), so the same points to rounding (<= 1e-9 mm against LAPACK's SVD on
+    the studio's frames) in a fraction of the time (LAPACK's per-matrix SVD cost ~6 us a row).
+    Rows with fewer than two cameras, or whose steps have not settled, take the SVD."""
+    n = len(uv)
+    points = np.full((n, 3), np.nan)
+    n_used = used.sum(axis=1)
+    fast = n_used >= 2
+    if fast.any():
+        cams = used[fast].any(axis=0)  # cameras no row uses add only zero rows: leave them out
+        points[fast] = _dlt_newton(P[cams], uv[fast][:, cams], used[fast][:, cams])
+        unsettled = fast & ~np.isfinite(points).all(axis=1)
+        fast &= ~unsettled
+    rest = np.flatnonzero(~fast & (n_used > 0))
+    if len(rest):
+        points[rest] = _dlt_svd(P, uv[rest], used[rest])
+    return points
+
+
+def _dlt_newton(P: np.ndarray, uv: np.ndarray, used: np.ndarray, steps: int = 3) -> np.ndarray:
+    """(N, 3) DLT points of rows with >= 2 used cameras; NaN rows where the Newton steps did not
+    settle to rounding (the caller takes the SVD there). ``A`` is built as
+    :func:`~spinemocap.geometry.triangulate_dlt` builds it (row-normalised, zero rows for unused
+    cameras); with ``v = (X, 1)`` the DLT solves ``G X + g = lambda X`` (``G``, ``g``: the blocks
+    of ``A^T A``; ``lambda = |A v|^2 / |v|^2``, the smallest eigenvalue): started from the
+    inhomogeneous least-squares point ``-G^-1 g``, each step corrects by ``G^-1`` times the
+    stationarity residual computed from ``A``."""
+    rows_u = uv[:, :, 0:1] * P[None, :, 2, :] - P[None, :, 0, :]  # (N, C, 4)
+    rows_v = uv[:, :, 1:2] * P[None, :, 2, :] - P[None, :, 1, :]
+    A = np.concatenate([rows_u, rows_v], axis=1) * np.tile(used, (1, 2))[:, :, None]
+    A /= np.maximum(np.linalg.norm(A, axis=2, keepdims=True), 1e-12)
+    A1, a4 = A[:, :, :3], A[:, :, 3]
+    G = np.einsum("nki,nkj->nij", A1, A1)
+    g = np.einsum("nki,nk->ni", A1, a4)
+    a, b, c, d, e, f = G[:, 0, 0], G[:, 0, 1], G[:, 0, 2], G[:, 1, 1], G[:, 1, 2], G[:, 2, 2]
+    i00, i01, i02 = d * f - e * e, c * e - b * f, b * e - c * d
+    i11, i12, i22 = a * f - c * c, b * c - a * e, a * d - b * b
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        det = a * i00 + b * i01 + c * i02
+        inv = np.stack([i00, i01, i02, i01, i11, i12, i02, i12, i22], axis=1).reshape(-1, 3, 3) / det[:, None, None]
+        X = -np.einsum("nij,nj->ni", inv, g)
+        for _ in range(steps):
+            r = np.einsum("nki,ni->nk", A1, X) + a4
+            lam = (r * r).sum(axis=1) / (1.0 + (X * X).sum(axis=1))
+            step = np.einsum("nij,nj->ni", inv, np.einsum("nki,nk->ni", A1, r) - lam[:, None] * X)
+            X = X - step
+        settled = np.abs(step).max(axis=1) <= 1e-12 * (1.0 + np.abs(X).max(axis=1))
+    X[~settled] = np.nan
+    return X
+
+
+def _dlt_svd(P: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
     """:func:`~spinemocap.geometry.triangulate_dlt` of each row on its used cameras only (rows
-    grouped by their set of cameras): the same linear systems without their zero rows, so the
-    same points to rounding (~1e-10 mm), in about half the SVD time."""
+    grouped by their set of cameras): the same linear systems without their zero rows."""
     points = np.full((len(uv), 3), np.nan)
     camera_set = used @ (1 << np.arange(used.shape[1]))  # each row's cameras as bits
     order = np.argsort(camera_set, kind="stable")
