@@ -119,12 +119,16 @@ class _Views:
                 uv[rows, c] = self.uv[c][blob_ids[rows, c]]
         return uv, used
 
+    def keys(self, blob_ids: np.ndarray) -> np.ndarray:
+        """(N,) int64: each row of blob ids as one integer (equal rows, equal keys)."""
+        return (np.asarray(blob_ids, np.int64) + 1) @ self._digits
+
     def solve(self, blob_ids: np.ndarray, th1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Triangulate each row of blob ids; returns points (N, 3), RMS residual (N,) and a
         validity mask (N,) = finite, in front of all used cameras, max error below th1."""
         if th1 != self._th1:
             self._forget(th1)
-        keys = (np.asarray(blob_ids, np.int64) + 1) @ self._digits
+        keys = self.keys(blob_ids)
         pos = np.minimum(np.searchsorted(self._keys, keys), max(len(self._keys) - 1, 0))
         known = (self._keys[pos] == keys) if len(self._keys) else np.zeros(len(keys), bool)
         if not known.all():
@@ -150,10 +154,12 @@ class _Views:
         uv, used = self.gather(blob_ids)
         points = _triangulate_compact(self.P, uv, used)
         err = reprojection_errors(self.P, points, uv, used)
-        with np.errstate(invalid="ignore"):
-            ok = np.isfinite(points).all(axis=1) & ~(np.isnan(err) & used).any(axis=1)
-            ok &= np.nanmax(np.where(used, err, 0.0), axis=1) < th1
-            rms = np.sqrt(np.nanmean(np.where(used, err**2, np.nan), axis=1))
+        seen = used & ~np.isnan(err)  # the used views with a reprojection (in front of the camera)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ok = np.isfinite(points).all(axis=1) & ~(used & ~seen).any(axis=1)
+            # np.nanmax / np.nanmean over the used views, without the nan-functions' overhead (same sums)
+            ok &= np.where(seen, err, 0.0).max(axis=1) < th1
+            rms = np.sqrt(np.where(seen, err**2, 0.0).sum(axis=1) / seen.sum(axis=1))
         return points, rms, ok
 
     def normals(self, points: np.ndarray, blob_ids: np.ndarray) -> np.ndarray:
@@ -186,7 +192,7 @@ def _triangulate_compact(P: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.
     return points
 
 
-def _dlt_newton(P: np.ndarray, uv: np.ndarray, used: np.ndarray, steps: int = 3) -> np.ndarray:
+def _dlt_newton(P: np.ndarray, uv: np.ndarray, used: np.ndarray, steps: int = 4) -> np.ndarray:
     """(N, 3) DLT points of rows with >= 2 used cameras; NaN rows where the Newton steps did not
     settle to rounding (the caller takes the SVD there). ``A`` is built as
     :func:`~spinemocap.geometry.triangulate_dlt` builds it (row-normalised, zero rows for unused
@@ -198,24 +204,32 @@ def _dlt_newton(P: np.ndarray, uv: np.ndarray, used: np.ndarray, steps: int = 3)
     rows_v = uv[:, :, 1:2] * P[None, :, 2, :] - P[None, :, 1, :]
     A = np.concatenate([rows_u, rows_v], axis=1) * np.tile(used, (1, 2))[:, :, None]
     A /= np.maximum(np.linalg.norm(A, axis=2, keepdims=True), 1e-12)
-    A1, a4 = A[:, :, :3], A[:, :, 3]
-    G = np.einsum("nki,nkj->nij", A1, A1)
-    g = np.einsum("nki,nk->ni", A1, a4)
-    a, b, c, d, e, f = G[:, 0, 0], G[:, 0, 1], G[:, 0, 2], G[:, 1, 1], G[:, 1, 2], G[:, 2, 2]
-    i00, i01, i02 = d * f - e * e, c * e - b * f, b * e - c * d
-    i11, i12, i22 = a * f - c * c, b * c - a * e, a * d - b * b
+    A1, a4 = A[:, :, :3], A[:, :, 3:]
+    At = A1.transpose(0, 2, 1)
+    G = At @ A1  # (N, 3, 3): only steers the steps; the point they settle at is set by the residuals
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        det = a * i00 + b * i01 + c * i02
-        inv = np.stack([i00, i01, i02, i01, i11, i12, i02, i12, i22], axis=1).reshape(-1, 3, 3) / det[:, None, None]
-        X = -np.einsum("nij,nj->ni", inv, g)
+        X = -(_inverse3(G) @ (At @ a4))  # (N, 3, 1)
+        inv = None
         for _ in range(steps):
-            r = np.einsum("nki,ni->nk", A1, X) + a4
-            lam = (r * r).sum(axis=1) / (1.0 + (X * X).sum(axis=1))
-            step = np.einsum("nij,nj->ni", inv, np.einsum("nki,nk->ni", A1, r) - lam[:, None] * X)
+            r = A1 @ X + a4
+            lam = (r * r).sum(axis=1, keepdims=True) / (1.0 + (X * X).sum(axis=1, keepdims=True))
+            if inv is None:  # (G - lambda I)^-1 at the first eigenvalue estimate: the steps then converge fast
+                inv = _inverse3(G - lam * np.eye(3))
+            step = inv @ (At @ r - lam * X)
             X = X - step
+        X, step = X[:, :, 0], step[:, :, 0]
         settled = np.abs(step).max(axis=1) <= 1e-12 * (1.0 + np.abs(X).max(axis=1))
     X[~settled] = np.nan
     return X
+
+
+def _inverse3(G: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) inverses of symmetric (N, 3, 3) matrices by their cofactors (inf/NaN where singular)."""
+    a, b, c, d, e, f = G[:, 0, 0], G[:, 0, 1], G[:, 0, 2], G[:, 1, 1], G[:, 1, 2], G[:, 2, 2]
+    i00, i01, i02 = d * f - e * e, c * e - b * f, b * e - c * d
+    i11, i12, i22 = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * i00 + b * i01 + c * i02
+    return np.stack([i00, i01, i02, i01, i11, i12, i02, i12, i22], axis=1).reshape(-1, 3, 3) / det[:, None, None]
 
 
 def _dlt_svd(P: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
