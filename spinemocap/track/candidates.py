@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 from ..camera import Rig
 from ..geometry import triangulate_dlt
 from ..views import ViewDots
+from .lattice import inverse_sym3
 from .types import CandidateCloud
 
 
@@ -208,28 +209,19 @@ def _dlt_newton(P: np.ndarray, uv: np.ndarray, used: np.ndarray, steps: int = 4)
     At = A1.transpose(0, 2, 1)
     G = At @ A1  # (N, 3, 3): only steers the steps; the point they settle at is set by the residuals
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        X = -(_inverse3(G) @ (At @ a4))  # (N, 3, 1)
+        X = -(inverse_sym3(G) @ (At @ a4))  # (N, 3, 1)
         inv = None
         for _ in range(steps):
             r = A1 @ X + a4
             lam = (r * r).sum(axis=1, keepdims=True) / (1.0 + (X * X).sum(axis=1, keepdims=True))
             if inv is None:  # (G - lambda I)^-1 at the first eigenvalue estimate: the steps then converge fast
-                inv = _inverse3(G - lam * np.eye(3))
+                inv = inverse_sym3(G - lam * np.eye(3))
             step = inv @ (At @ r - lam * X)
             X = X - step
         X, step = X[:, :, 0], step[:, :, 0]
         settled = np.abs(step).max(axis=1) <= 1e-12 * (1.0 + np.abs(X).max(axis=1))
     X[~settled] = np.nan
     return X
-
-
-def _inverse3(G: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) inverses of symmetric (N, 3, 3) matrices by their cofactors (inf/NaN where singular)."""
-    a, b, c, d, e, f = G[:, 0, 0], G[:, 0, 1], G[:, 0, 2], G[:, 1, 1], G[:, 1, 2], G[:, 2, 2]
-    i00, i01, i02 = d * f - e * e, c * e - b * f, b * e - c * d
-    i11, i12, i22 = a * f - c * c, b * c - a * e, a * d - b * b
-    det = a * i00 + b * i01 + c * i02
-    return np.stack([i00, i01, i02, i01, i11, i12, i02, i12, i22], axis=1).reshape(-1, 3, 3) / det[:, None, None]
 
 
 def _dlt_svd(P: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
