@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 
 from ..geometry import umeyama
 from ..tape import TapeGraph
+from .lattice import row_index
 from .normals import NormalField, _unit
 
 
@@ -225,12 +226,12 @@ def tape_frames(positions: np.ndarray, tape: TapeGraph) -> tuple[np.ndarray, np.
     the next row's (one-sided at the ends), ``normal = across x along`` points out of the back.
     Because labels fix handedness, this needs no external normal."""
     pos = np.asarray(positions, dtype=float)
-    n_rows = int(tape.row.max()) + 1
-    row_centre = np.stack([pos[tape.row == r].mean(axis=0) for r in range(n_rows)])
-    row_across = np.stack(
-        [pos[(tape.row == r) & (np.array(tape.column) == "R")][0] - pos[(tape.row == r) & (np.array(tape.column) == "L")][0]
-         for r in range(n_rows)]
-    )
+    rows = row_index(tape)
+    n_rows = len(rows.count)
+    if (rows.left < 0).any() or (rows.right < 0).any():
+        raise IndexError("every row of the tape needs an L and an R dot")
+    row_centre = rows.sums(pos) / rows.count[:, None]  # each row's mean, its members added in order
+    row_across = pos[rows.right] - pos[rows.left]
     if n_rows > 1:
         row_along = np.gradient(row_centre, axis=0)
     else:  # a single row has no longitudinal direction; take any perpendicular
