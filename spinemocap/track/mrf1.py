@@ -98,7 +98,8 @@ class AlignmentMRF:
         stretch = 0.5 * (xs[:, :, None, 3] + xt[:, None, :, 3])
         normal_part = np.einsum("mabk,mk->mab", p, self.edge_normals[edge_index])
         short = length < self.config.d_min_mm
-        barrier = np.where(short, np.exp(np.minimum(self.config.d_min_mm - length, 50.0)) ** 2, 0.0)
+        barrier = np.zeros_like(length)  # the exponential only where it applies (few entries): same values
+        barrier[short] = np.exp(np.minimum(self.config.d_min_mm - length[short], 50.0)) ** 2
         w = lambda arr: arr[edge_index][:, None, None]  # noqa: E731
         return (
             w(self.w1) * (length - stretch * rest) ** 2

@@ -140,10 +140,15 @@ def row_gaps(arc: np.ndarray, min_pitch_mm: float, min_per_row: int = 2, min_row
     if len(order) < min_per_row * min_rows:
         return None
     breaks = np.flatnonzero(np.diff(order) > 0.4 * min_pitch_mm) + 1
-    groups = [g for g in np.split(order, breaks) if len(g) >= min_per_row]
-    if len(groups) < min_rows:
+    starts = np.concatenate([[0], breaks])
+    sizes = np.diff(np.concatenate([starts, [len(order)]]))
+    starts, sizes = starts[sizes >= min_per_row], sizes[sizes >= min_per_row]
+    if len(starts) < min_rows:
         return None
-    centres = np.array([float(np.median(g)) for g in groups])
+    # each group's median (the groups are runs of the sorted arcs): its middle value, or the mean
+    # of its two middle values, as np.median computes them
+    mid = starts + sizes // 2
+    centres = np.where(sizes % 2 == 1, order[mid], (order[mid - 1] + order[mid]) / 2.0)
     gaps = np.diff(centres)
     unit = float(np.median(gaps))
     spans = np.round(gaps / unit).astype(np.int64)
