@@ -298,12 +298,18 @@ def _merge_round(views: _Views, ids: np.ndarray, points: np.ndarray, config: Can
 
 def _unique_rows(ids: np.ndarray) -> np.ndarray:
     """The distinct rows of ``ids`` in lexicographic order (``np.unique(ids, axis=0)``, faster)."""
+    return ids[_unique_row_index(ids)]
+
+
+def _unique_row_index(ids: np.ndarray) -> np.ndarray:
+    """Indices of one row per distinct row of ``ids``, the rows in lexicographic order."""
     if len(ids) < 2:
-        return ids
-    ordered = ids[np.lexsort(ids.T[::-1])]
+        return np.arange(len(ids))
+    order = np.lexsort(ids.T[::-1])
+    ordered = ids[order]
     distinct = np.ones(len(ordered), bool)
     distinct[1:] = (ordered[1:] != ordered[:-1]).any(axis=1)
-    return ordered[distinct]
+    return order[distinct]
 
 
 def suppress_dominated(ids: np.ndarray) -> np.ndarray:
@@ -337,8 +343,8 @@ def build_candidates(rig: Rig, views: Sequence[ViewDots], config: CandidateConfi
         ids, points, n_merged = _merge_round(v, ids, points, config)
         if n_merged == 0:
             break
-        ids = _unique_rows(ids)
-        points, _, _ = v.solve(ids, config.th1_px)
+        distinct = _unique_row_index(ids)  # equal rows hold equal (remembered) points
+        ids, points = ids[distinct], points[distinct]
     if config.suppress_dominated and len(ids):
         ids = ids[suppress_dominated(ids)]
     points, residual, _ = v.solve(ids, config.th1_px) if len(ids) else (np.zeros((0, 3)), np.zeros(0), None)
