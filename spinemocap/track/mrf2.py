@@ -222,12 +222,15 @@ class RefinementMRF:
         live in :meth:`unary_t`; here only the midpoint's ``-2 theta5 I_c(x_st)``."""
         c = self.config
         vis = self.edge_visible[edge_index].T  # (C, M)
-        p = xs[:, :, None, :] - xt[:, None, :, :]
         mid = 0.5 * (xs[:, :, None, :] + xt[:, None, :, :])
         contrast = -2.0 * self._weighted_sum(lambda cams: self.image_costs(mid, cams), vis[:, :, None, None])
-        length = torch.sqrt((p * p).sum(dim=3) + 1e-12)
-        along_normal = (p * self.edge_normal[edge_index][:, None, None, :]).sum(dim=3)
-        off_axis = (p * self.edge_alpha[edge_index][:, None, None, :]).sum(dim=3)
+        # p = xs - xt (M, Qs, Qt, 3) by components: the same sums as (p * p).sum(dim=3) and
+        # (p * n).sum(dim=3), without the strided reductions
+        dx, dy, dz = (xs[:, :, None, i] - xt[:, None, :, i] for i in range(3))
+        length = torch.sqrt((dx * dx + dy * dy + dz * dz) + 1e-12)
+        normal, alpha = self.edge_normal[edge_index], self.edge_alpha[edge_index]
+        along_normal = dx * normal[:, 0, None, None] + dy * normal[:, 1, None, None] + dz * normal[:, 2, None, None]
+        off_axis = dx * alpha[:, 0, None, None] + dy * alpha[:, 1, None, None] + dz * alpha[:, 2, None, None]
         rest = self.rest[edge_index][:, None, None]
         return (
             c.theta5 * contrast
