@@ -204,7 +204,7 @@ class RefinementMRF:
         against the costs), evaluating the costs only in the cameras with a nonzero weight: the
         others add exact zeros (the costs are finite), so the same sums."""
         cams = (weight != 0).reshape(weight.shape[0], -1).any(dim=1)
-        if bool(cams.all()):
+        if bool(cams.all()) or not bool(cams.any()):
             return (costs(None) * weight).sum(dim=0)
         return (costs(cams) * weight[cams]).sum(dim=0)
 
