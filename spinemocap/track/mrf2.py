@@ -91,10 +91,14 @@ class _TorchRig:
 
     def project(self, x: torch.Tensor, cams: torch.Tensor | None = None) -> torch.Tensor:
         """``cams``: (C,) bool, project into those cameras only (-> (C', ..., 2), the same values)."""
+        u, v = self.project_uv(x, cams)
+        return torch.stack([u, v], dim=-1).reshape(u.shape[0], *x.shape[:-1], 2)
+
+    def project_uv(self, x: torch.Tensor, cams: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`project` of the points x (..., 3) flattened, as the pixel columns u and rows v
+        (C', N) each (u NaN behind the camera)."""
         R, t, K, dist = (self.R, self.t, self.K, self.dist) if cams is None else \
             (self.R[cams], self.t[cams], self.K[cams], self.dist[cams])
-        c = R.shape[0]
-        shape = x.shape[:-1]
         flat = x.reshape(1, -1, 3)
         xc = flat @ R.transpose(1, 2) + t[:, None, :]  # (C, N, 3)
         z = xc[..., 2].clamp(min=1e-6)
@@ -108,7 +112,7 @@ class _TorchRig:
         v = K[:, 1, 1, None] * yd + K[:, 1, 2, None]
         behind = xc[..., 2] <= 1e-6
         u = torch.where(behind, torch.full_like(u, float("nan")), u)
-        return torch.stack([u, v], dim=-1).reshape(c, *shape, 2)
+        return u, v
 
 
 class RefinementMRF:
@@ -194,8 +198,8 @@ class RefinementMRF:
     def image_costs(self, x: torch.Tensor, cams: torch.Tensor | None = None) -> torch.Tensor:
         """(C, ...) evidence cost of points x (..., 3) in every camera (0 where none); with
         ``cams`` (C,) bool in those cameras only (C', ...)."""
-        uv = self.cams.project(x, cams)  # (C, ..., 2)
-        cost = self.stack.sample_torch(uv.reshape(uv.shape[0], -1, 2), cams).reshape(uv.shape[:-1])
+        u, v = self.cams.project_uv(x, cams)  # (C, N) each
+        cost = self.stack.sample_uv(u, v, cams).reshape((u.shape[0],) + x.shape[:-1])
         return cost if self.config.cost_cap is None else cost.clamp(max=self.config.cost_cap)
 
     @staticmethod
