@@ -54,7 +54,7 @@ class SpineCurve:
         step = np.linalg.norm(np.diff(self.dense, axis=0), axis=1)
         self.arc = np.concatenate([[0.0], np.cumsum(step)])
         self.axis = axis
-        self._tangent = _unit(np.gradient(self.dense, axis=0))
+        self._tangents: np.ndarray | None = None  # unit tangents at the samples, when first asked for
         self._tree = cKDTree(self.dense)
 
     @property
@@ -70,6 +70,12 @@ class SpineCurve:
         """(N, 3) unit tangents (direction of increasing s)."""
         s = np.asarray(s, dtype=float)
         return _unit(np.column_stack([np.interp(s, self.arc, self._tangent[:, i]) for i in range(3)]))
+
+    @property
+    def _tangent(self) -> np.ndarray:
+        if self._tangents is None:  # not needed for arc coordinates (the spacing estimate, every frame)
+            self._tangents = _unit(np.gradient(self.dense, axis=0))
+        return self._tangents
 
     def arc_of(self, points: np.ndarray) -> np.ndarray:
         """(N,) arc length of the curve sample nearest to each of (N, 3) points."""
