@@ -240,6 +240,11 @@ def _dlt_svd(P: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
 
 def _pairwise_points(views: _Views, config: CandidateConfig) -> np.ndarray:
     """Blob-id rows (N, C) of all two-view triangulations passing epipolar and th1 checks."""
+    return _pairwise_rows(views, config)[0]
+
+
+def _pairwise_rows(views: _Views, config: CandidateConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_pairwise_points` with the rows' points (N, 3) and RMS residuals (N,)."""
     epi_tol = config.epipolar_px if config.epipolar_px is not None else 2.0 * config.th1_px
     rows = []
     C = views.n_cameras
@@ -253,29 +258,36 @@ def _pairwise_points(views: _Views, config: CandidateConfig) -> np.ndarray:
             ids[:, a], ids[:, b] = ia, ib
             rows.append(ids)
     if not rows:
-        return np.zeros((0, C), dtype=np.int64)
+        return np.zeros((0, C), dtype=np.int64), np.zeros((0, 3)), np.zeros(0)
     ids = np.concatenate(rows)
-    _, _, ok = views.solve(ids, config.th1_px)
-    return ids[ok]
+    points, rms, ok = views.solve(ids, config.th1_px)
+    return ids[ok], points[ok], rms[ok]
 
 
-def _merge_round(views: _Views, ids: np.ndarray, points: np.ndarray, config: CandidateConfig):
+def _merge_round(views: _Views, ids: np.ndarray, points: np.ndarray, config: CandidateConfig,
+                 rms: np.ndarray | None = None):
     """One merge round: among point pairs closer than th2 without conflicting blobs and whose
     merged point passes th1, merge every pair that is each endpoint's closest valid partner.
-    Returns the new (ids, points) and the number of merges."""
+    Returns the new (ids, points) and the number of merges; with the points' RMS residuals
+    ``rms`` given, (ids, points, merges, rms)."""
+    out = _merge(views, ids, points, config, np.zeros(len(ids)) if rms is None else rms)
+    return out[:3] if rms is None else out
+
+
+def _merge(views: _Views, ids: np.ndarray, points: np.ndarray, config: CandidateConfig, rms: np.ndarray):
     pairs = cKDTree(points).query_pairs(config.th2_mm, output_type="ndarray")
     if not len(pairs):
-        return ids, points, 0
+        return ids, points, 0, rms
     bi, bj = ids[pairs[:, 0]], ids[pairs[:, 1]]
     conflict = ((bi >= 0) & (bj >= 0) & (bi != bj)).any(axis=1)
     pairs, bi, bj = pairs[~conflict], bi[~conflict], bj[~conflict]
     if not len(pairs):
-        return ids, points, 0
+        return ids, points, 0, rms
     union = np.where(bi >= 0, bi, bj)
-    merged, _, ok = views.solve(union, config.th1_px)
-    pairs, union, merged = pairs[ok], union[ok], merged[ok]
+    merged, merged_rms, ok = views.solve(union, config.th1_px)
+    pairs, union, merged, merged_rms = pairs[ok], union[ok], merged[ok], merged_rms[ok]
     if not len(pairs):
-        return ids, points, 0
+        return ids, points, 0, rms
     # Mutual-best matching, vectorised: each point's closest valid partner.
     dist = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
     n = len(points)
@@ -293,7 +305,7 @@ def _merge_round(views: _Views, ids: np.ndarray, points: np.ndarray, config: Can
     keep[pairs[chosen].ravel()] = False
     new_ids = np.concatenate([ids[keep], union[chosen]])
     new_points = np.concatenate([points[keep], merged[chosen]])
-    return new_ids, new_points, len(chosen)
+    return new_ids, new_points, len(chosen), np.concatenate([rms[keep], merged_rms[chosen]])
 
 
 def _unique_rows(ids: np.ndarray) -> np.ndarray:
@@ -337,17 +349,19 @@ def build_candidates(rig: Rig, views: Sequence[ViewDots], config: CandidateConfi
     if len(views) != len(rig):
         raise ValueError(f"{len(views)} views for a rig of {len(rig)} cameras")
     v = _Views(rig, views)
-    ids = _unique_rows(_pairwise_points(v, config))
-    points, _, _ = v.solve(ids, config.th1_px)
+    # the rows carry their (remembered) points and residuals along: equal rows, equal values
+    ids, points, residual = _pairwise_rows(v, config)
+    distinct = _unique_row_index(ids)
+    ids, points, residual = ids[distinct], points[distinct], residual[distinct]
     for _ in range(config.max_merge_rounds):
-        ids, points, n_merged = _merge_round(v, ids, points, config)
+        ids, points, n_merged, residual = _merge_round(v, ids, points, config, residual)
         if n_merged == 0:
             break
-        distinct = _unique_row_index(ids)  # equal rows hold equal (remembered) points
-        ids, points = ids[distinct], points[distinct]
+        distinct = _unique_row_index(ids)
+        ids, points, residual = ids[distinct], points[distinct], residual[distinct]
     if config.suppress_dominated and len(ids):
-        ids = ids[suppress_dominated(ids)]
-    points, residual, _ = v.solve(ids, config.th1_px) if len(ids) else (np.zeros((0, 3)), np.zeros(0), None)
+        keep = suppress_dominated(ids)
+        ids, points, residual = ids[keep], points[keep], residual[keep]
     normals = v.normals(points, ids) if len(ids) else np.zeros((0, 3))
     return CandidateCloud(points=points.reshape(-1, 3), normals=normals, blob_ids=ids, residual=residual,
                           pixels=blob_pixels(views, ids))
