@@ -222,3 +222,18 @@ def test_chamfer_is_the_norm_formula_bit_for_bit():
     dist = np.linalg.norm(templates[:, :, None, :] - points[None, None, :, :], axis=3)
     reference = np.minimum(dist.min(axis=2), 20.0).mean(axis=1) + np.minimum(dist.min(axis=1), 20.0).mean(axis=1)
     np.testing.assert_array_equal(template._chamfer(templates, points, 20.0), reference)
+
+
+def test_epipolar_distance_is_the_plain_formula_bit_for_bit():
+    from spinemocap.track.candidates import epipolar_distance
+
+    rng = np.random.default_rng(8)
+    for _ in range(50):
+        F = rng.normal(size=(3, 3))
+        x1, x2 = rng.uniform(0, 2448, (int(rng.integers(1, 40)), 2)), rng.uniform(0, 2448, (int(rng.integers(1, 40)), 2))
+        h1, h2 = np.column_stack([x1, np.ones(len(x1))]), np.column_stack([x2, np.ones(len(x2))])
+        algebraic = h1 @ F.T @ h2.T
+        reference = np.maximum(np.abs(algebraic) / np.linalg.norm((h2 @ F)[:, :2], axis=1)[None, :],
+                               np.abs(algebraic) / np.linalg.norm((h1 @ F.T)[:, :2], axis=1, keepdims=True))
+        np.testing.assert_array_equal(epipolar_distance(F, x1, x2), reference)
+        np.testing.assert_array_equal(epipolar_distance(F, x1, x2, h1, h2), reference)

@@ -62,16 +62,18 @@ def _fundamental_cached(P1: bytes, P2: bytes) -> np.ndarray:
     return F
 
 
-def epipolar_distance(F: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+def epipolar_distance(F: np.ndarray, x1: np.ndarray, x2: np.ndarray,
+                      h1: np.ndarray | None = None, h2: np.ndarray | None = None) -> np.ndarray:
     """(N1, N2) symmetric epipolar distance (px, the larger of both directions) between undistorted
-    pixels ``x1`` (N1, 2) of camera 1 and ``x2`` (N2, 2) of camera 2."""
-    h1 = np.column_stack([x1, np.ones(len(x1))])
-    h2 = np.column_stack([x2, np.ones(len(x2))])
+    pixels ``x1`` (N1, 2) of camera 1 and ``x2`` (N2, 2) of camera 2 (``h1``, ``h2``: the same
+    pixels homogeneous, (N, 3) with a last column of ones, when the caller has them)."""
+    h1 = np.column_stack([x1, np.ones(len(x1))]) if h1 is None else h1
+    h2 = np.column_stack([x2, np.ones(len(x2))]) if h2 is None else h2
     lines2 = h1 @ F.T  # (N1, 3) epipolar lines in image 2
     lines1 = h2 @ F  # (N2, 3) epipolar lines in image 1
-    algebraic = h1 @ F.T @ h2.T  # (N1, N2) x2^T F x1
-    d2 = np.abs(algebraic) / np.linalg.norm(lines2[:, :2], axis=1, keepdims=True)
-    d1 = np.abs(algebraic) / np.linalg.norm(lines1[:, :2], axis=1)[None, :]
+    algebraic = np.abs(lines2 @ h2.T)  # (N1, N2) |x2^T F x1|
+    d2 = algebraic / np.linalg.norm(lines2[:, :2], axis=1, keepdims=True)
+    d1 = algebraic / np.linalg.norm(lines1[:, :2], axis=1)[None, :]
     return np.maximum(d1, d2)
 
 
@@ -97,6 +99,7 @@ class _Views:
         self.P = np.stack([cam.projection_matrix for cam in rig])
         self.centers = np.stack([cam.center for cam in rig])
         self.uv = [cam.undistort_points(v.uv) if len(v) else np.zeros((0, 2)) for cam, v in zip(rig, views)]
+        self.homogeneous = [np.column_stack([uv, np.ones(len(uv))]) for uv in self.uv]  # for the epipolar search
         self.n_cameras = len(rig)
         # each row of blob ids (-1 .. n-1 per camera) as one integer: digits of base n + 1
         base = max([len(uv) for uv in self.uv] + [1]) + 1
@@ -253,7 +256,8 @@ def _pairwise_rows(views: _Views, config: CandidateConfig) -> tuple[np.ndarray, 
             if not len(views.uv[a]) or not len(views.uv[b]):
                 continue
             F = _fundamental_cached(views.P[a].tobytes(), views.P[b].tobytes())
-            ia, ib = np.nonzero(epipolar_distance(F, views.uv[a], views.uv[b]) < epi_tol)
+            distance = epipolar_distance(F, views.uv[a], views.uv[b], views.homogeneous[a], views.homogeneous[b])
+            ia, ib = np.nonzero(distance < epi_tol)
             ids = np.full((len(ia), C), -1, dtype=np.int64)
             ids[:, a], ids[:, b] = ia, ib
             rows.append(ids)
