@@ -202,15 +202,18 @@ def _dlt_newton(P: np.ndarray, uv: np.ndarray, used: np.ndarray, steps: int = 4)
     :func:`~spinemocap.geometry.triangulate_dlt` builds it (row-normalised, zero rows for unused
     cameras); with ``v = (X, 1)`` the DLT solves ``G X + g = lambda X`` (``G``, ``g``: the blocks
     of ``A^T A``; ``lambda = |A v|^2 / |v|^2``, the smallest eigenvalue): started from the
-    inhomogeneous least-squares point ``-G^-1 g``, each step corrects by ``G^-1`` times the
-    stationarity residual computed from ``A``."""
+    inhomogeneous least-squares point ``-G^-1 g``, each step corrects by ``(G - lambda_0 I)^-1``
+    (``lambda_0``: the first eigenvalue estimate) times the stationarity residual
+    ``A1^T A v - lambda X`` computed from ``A``. ``G`` only steers the steps; the point they
+    settle at is set by the residuals, so it is as accurate as ``A`` allows (Newton on the squared
+    matrix alone left 1.7e-8 mm)."""
     rows_u = uv[:, :, 0:1] * P[None, :, 2, :] - P[None, :, 0, :]  # (N, C, 4)
     rows_v = uv[:, :, 1:2] * P[None, :, 2, :] - P[None, :, 1, :]
     A = np.concatenate([rows_u, rows_v], axis=1) * np.tile(used, (1, 2))[:, :, None]
     A /= np.maximum(np.linalg.norm(A, axis=2, keepdims=True), 1e-12)
     A1, a4 = A[:, :, :3], A[:, :, 3:]
     At = A1.transpose(0, 2, 1)
-    G = At @ A1  # (N, 3, 3): only steers the steps; the point they settle at is set by the residuals
+    G = At @ A1  # (N, 3, 3)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         X = -(inverse_sym3(G) @ (At @ a4))  # (N, 3, 1)
         inv = None
