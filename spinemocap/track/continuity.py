@@ -23,17 +23,18 @@ from __future__ import annotations
 import numpy as np
 
 from ..tape import TapeGraph
+from .lattice import row_index
 
 
 def row_centres(positions: np.ndarray, graph: TapeGraph) -> np.ndarray:
     """(n_rows, 3) centre of each row's finite dots (NaN when none)."""
-    n_rows = int(graph.row.max()) + 1
-    out = np.full((n_rows, 3), np.nan)
-    for r in range(n_rows):
-        members = positions[graph.row == r]
-        members = members[np.isfinite(members).all(axis=1)]
-        if len(members):
-            out[r] = members.mean(axis=0)
+    rows = row_index(graph)
+    positions = np.asarray(positions, float)
+    finite = np.isfinite(positions).all(axis=1)
+    count = rows.sums(finite.astype(float))  # finite members per row
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = rows.sums(np.where(finite[:, None], positions, 0.0)) / count[:, None]  # members added in order
+    out[count == 0] = np.nan
     return out
 
 

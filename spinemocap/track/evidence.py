@@ -63,20 +63,27 @@ class EvidenceStack:
         self._scale = torch.from_numpy(scale)[:, None]
         self._origin = torch.from_numpy(origin)[:, None, :]
 
-    def sample_torch(self, uv: torch.Tensor) -> torch.Tensor:
+    def sample_torch(self, uv: torch.Tensor, cams: torch.Tensor | None = None) -> torch.Tensor:
         """uv (C, N, 2) full-resolution pixels, camera c in row c -> (C, N) bilinear costs,
-        differentiable in uv; points off the canvas read the border (the outside cost)."""
+        differentiable in uv; points off the canvas read the border (the outside cost).
+        ``cams`` (C_all,) bool: uv holds those cameras' rows only."""
+        return self.sample_uv(uv[..., 0], uv[..., 1], cams)
+
+    def sample_uv(self, u: torch.Tensor, v: torch.Tensor, cams: torch.Tensor | None = None) -> torch.Tensor:
+        """:meth:`sample_torch` of the pixel columns ``u`` and rows ``v`` (C, N) each."""
         h, w = self.shape
-        local = uv - self._origin
-        x = torch.nan_to_num((local[..., 0] * self._scale + 1.0), nan=-1.0).clamp(0, w - 1)
-        y = torch.nan_to_num((local[..., 1] * self._scale + 1.0), nan=-1.0).clamp(0, h - 1)
+        origin, scale, base = (self._origin, self._scale, self._base) if cams is None else \
+            (self._origin[cams], self._scale[cams], self._base[cams])
+        x = torch.nan_to_num(((u - origin[..., 0]) * scale + 1.0), nan=-1.0).clamp(0, w - 1)
+        y = torch.nan_to_num(((v - origin[..., 1]) * scale + 1.0), nan=-1.0).clamp(0, h - 1)
         x0 = x.detach().floor().clamp(max=w - 2)
         y0 = y.detach().floor().clamp(max=h - 2)
         fx, fy = x - x0, y - y0
-        idx = self._base + y0.long() * w + x0.long()
+        idx = base + y0.long() * w + x0.long()
         flat = self._flat
-        top = flat[idx] * (1 - fx) + flat[idx + 1] * fx
-        bottom = flat[idx + w] * (1 - fx) + flat[idx + w + 1] * fx
+        gx = 1 - fx
+        top = flat[idx] * gx + flat[idx + 1] * fx
+        bottom = flat[idx + w] * gx + flat[idx + w + 1] * fx
         return top * (1 - fy) + bottom * fy
 
 

@@ -32,22 +32,57 @@ def affine_from_neighbours(uv: np.ndarray, positions: np.ndarray, known: np.ndar
     """(T, 3) mm: each target dot (indices ``targets``) predicted from the ``known`` (D,) bool dots
     other than itself: a weighted affine map flat tape ``uv`` (D, 2) mm -> ``positions`` (D, 3) mm
     with weights ``exp(-d^2 / 2 sigma^2)`` on the tape distance ``d``; when fewer than 3 known
-    dots carry weight, a global affine fit. NaN where fewer than 3 known dots remain."""
+    dots carry weight, a global affine fit. NaN where fewer than 3 known dots remain.
+
+    All targets at once: each target's weighted least-squares fit in coordinates centred on it
+    (the prediction is then the fit's constant term), by its 3 x 3 normal equations refined with
+    residuals taken from the data (so the least-squares solution to rounding, as
+    ``np.linalg.lstsq`` per target gives it); targets whose known dots do not span the tape's
+    plane (a rank-deficient fit) take ``lstsq`` itself."""
     targets = np.asarray(targets, np.int64)
     out = np.full((len(targets), 3), np.nan)
-    for k, i in enumerate(targets):
-        use = known.copy()
-        use[i] = False
-        if use.sum() < 3:
-            continue
-        design = np.column_stack([uv[use], np.ones(use.sum())])
-        w = np.exp(-0.5 * ((uv[use] - uv[i]) ** 2).sum(axis=1) / sigma_mm**2)
-        if (w > 1e-3).sum() < 3:
-            w = np.ones_like(w)  # far from every known dot: a global affine fit
-        sw = np.sqrt(w)[:, None]
-        A, *_ = np.linalg.lstsq(design * sw, positions[use] * sw, rcond=None)
-        out[k] = np.append(uv[i], 1.0) @ A
+    if not len(targets):
+        return out
+    T = len(targets)
+    use = np.repeat(np.asarray(known, bool)[None, :], T, axis=0)
+    use[np.arange(T), targets] = False
+    active = use.sum(axis=1) >= 3
+    gap = uv[None, :, :] - uv[targets][:, None, :]  # (T, D, 2): the design, centred on the target
+    w = np.where(use, np.exp(-0.5 * ((uv[None, :, :] - uv[targets][:, None, :]) ** 2).sum(axis=2) / sigma_mm**2), 0.0)
+    few = ((w > 1e-3) & use).sum(axis=1) < 3
+    w[few] = use[few]  # far from every known dot: a global affine fit
+    design = np.concatenate([gap, np.ones(gap.shape[:2] + (1,))], axis=2)  # (T, D, 3)
+    Y = np.where(use[:, :, None], positions[None, :, :], 0.0)  # (T, D, 3)
+    Dw = design.transpose(0, 2, 1) * w[:, None, :]  # (T, 3, D)
+    M = Dw @ design
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        inv = inverse_sym3(M)
+        A = inv @ (Dw @ Y)
+        for _ in range(3):  # iterative refinement: residuals from the data, not the normal equations
+            A = A + inv @ (Dw @ (Y - design @ A))
+        scale = np.sqrt(np.abs(M[:, 0, 0] * M[:, 1, 1] * M[:, 2, 2]))
+        solid = active & np.isfinite(A).all(axis=(1, 2)) & (np.abs(np.linalg.det(M)) > 1e-9 * scale)
+    out[solid] = A[solid, 2, :]
+    for k in np.flatnonzero(active & ~solid):  # the known dots on a line: lstsq's minimum-norm fit
+        out[k] = _affine_lstsq(uv, positions, use[k], w[k][use[k]], targets[k])
     return out
+
+
+def _affine_lstsq(uv: np.ndarray, positions: np.ndarray, use: np.ndarray, w: np.ndarray, i: int) -> np.ndarray:
+    """One target's weighted affine fit by ``np.linalg.lstsq`` (uncentred, as first written)."""
+    design = np.column_stack([uv[use], np.ones(use.sum())])
+    sw = np.sqrt(w)[:, None]
+    A, *_ = np.linalg.lstsq(design * sw, positions[use] * sw, rcond=None)
+    return np.append(uv[i], 1.0) @ A
+
+
+def inverse_sym3(M: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) inverses of symmetric (N, 3, 3) matrices by their cofactors (inf/NaN where singular)."""
+    a, b, c, d, e, f = M[:, 0, 0], M[:, 0, 1], M[:, 0, 2], M[:, 1, 1], M[:, 1, 2], M[:, 2, 2]
+    i00, i01, i02 = d * f - e * e, c * e - b * f, b * e - c * d
+    i11, i12, i22 = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * i00 + b * i01 + c * i02
+    return np.stack([i00, i01, i02, i01, i11, i12, i02, i12, i22], axis=1).reshape(-1, 3, 3) / det[:, None, None]
 
 
 def off_lattice(uv: np.ndarray, positions: np.ndarray, limit_mm: float, sigma_mm: float = 30.0,
@@ -78,18 +113,57 @@ def off_lattice(uv: np.ndarray, positions: np.ndarray, limit_mm: float, sigma_mm
         outlier[worst] = True
 
 
+class RowIndex:
+    """A tape graph's rows as index arrays (built once per graph, :func:`row_index`): ``members``
+    (n_rows, k_max) dot indices of each row in label order, padded with 0, ``valid`` (n_rows,
+    k_max) which entries are dots, ``count`` (n_rows,), ``left`` / ``right`` (n_rows,) the first
+    L / R dot of each row (-1: none)."""
+
+    def __init__(self, graph: TapeGraph):
+        rows = np.asarray(graph.row)
+        n_rows = int(rows.max()) + 1
+        groups = [np.flatnonzero(rows == r) for r in range(n_rows)]
+        k_max = max(len(g) for g in groups)
+        self.members = np.zeros((n_rows, k_max), np.int64)
+        self.valid = np.zeros((n_rows, k_max), bool)
+        for r, g in enumerate(groups):
+            self.members[r, :len(g)] = g
+            self.valid[r, :len(g)] = True
+        self.count = self.valid.sum(axis=1)
+        column = np.array(graph.column)
+        self.left = np.array([next((i for i in g if column[i] == "L"), -1) for g in groups], np.int64)
+        self.right = np.array([next((i for i in g if column[i] == "R"), -1) for g in groups], np.int64)
+
+    def sums(self, values: np.ndarray) -> np.ndarray:
+        """(n_rows, ...) sum of each row's entries of ``values`` (D, ...), added in label order
+        (as summing each row's members alone adds them; padding adds exact zeros)."""
+        gathered = values[self.members]
+        mask = self.valid.reshape(self.valid.shape + (1,) * (values.ndim - 1))
+        return np.where(mask, gathered, 0.0).sum(axis=1)
+
+
+_ROW_INDEX: dict[int, tuple[TapeGraph, RowIndex]] = {}
+
+
+def row_index(graph: TapeGraph) -> RowIndex:
+    """The :class:`RowIndex` of ``graph``, remembered (the graph is held, so its id stays its own)."""
+    entry = _ROW_INDEX.get(id(graph))
+    if entry is None or entry[0] is not graph:
+        if len(_ROW_INDEX) > 256:
+            _ROW_INDEX.clear()
+        entry = _ROW_INDEX[id(graph)] = (graph, RowIndex(graph))
+    return entry[1]
+
+
 def beyond_known_rows(excluded: np.ndarray, positions: np.ndarray, graph: TapeGraph) -> np.ndarray:
     """(D,) bool: dots whose row has no other known dot (finite and not ``excluded``) both at or
     below and at or above it on the tape, i.e. whose lattice prediction extrapolates along the
     tape (1-2 dot spacings off on a poor frame) instead of interpolating between neighbours."""
     known = np.isfinite(positions).all(axis=1) & ~excluded
-    out = np.zeros(len(positions), bool)
-    for d in range(len(positions)):
-        others = known.copy()
-        others[d] = False
-        rows = graph.row[others]
-        out[d] = not ((rows <= graph.row[d]).any() and (rows >= graph.row[d]).any())
-    return out
+    rows = np.asarray(graph.row)
+    below = (known[None, :] & (rows[None, :] <= rows[:, None])).sum(axis=1) - known  # other known dots at or below
+    above = (known[None, :] & (rows[None, :] >= rows[:, None])).sum(axis=1) - known  # ... at or above
+    return ~((below > 0) & (above > 0))
 
 
 def rows_beyond(anchored: np.ndarray, graph: TapeGraph) -> np.ndarray:

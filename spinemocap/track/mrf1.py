@@ -92,20 +92,45 @@ class AlignmentMRF:
         return np.minimum(dist, self.config.unary_cap_mm) + out_of_bounds
 
     def pairwise(self, xs: np.ndarray, xt: np.ndarray, edge_index: np.ndarray) -> np.ndarray:
-        p = xs[:, :, None, :3] - xt[:, None, :, :3]  # (M, Qs, Qt, 3)
-        length = np.sqrt((p * p).sum(axis=3))
+        # p = xs - xt (M, Qs, Qt, 3) by components, the terms built in place (arrays of M Qs Qt
+        # floats, a few MB: fresh ones cost page faults): the same values as |p| =
+        # sqrt((p * p).sum(axis=3)), np.einsum("mabk,mk->mab", p, n) (whose terms numpy adds as
+        # (x + z) + y) and the plain expression of Eq. 8
+        dx = np.subtract(xs[:, :, None, 0], xt[:, None, :, 0])
+        dy = np.subtract(xs[:, :, None, 1], xt[:, None, :, 1])
+        dz = np.subtract(xs[:, :, None, 2], xt[:, None, :, 2])
+        length = dx * dx
+        tmp = np.multiply(dy, dy)
+        length += tmp
+        np.multiply(dz, dz, out=tmp)
+        length += tmp
+        np.sqrt(length, out=length)
+        n = self.edge_normals[edge_index]
+        normal_part = np.multiply(dx, n[:, 0, None, None], out=dx)
+        normal_part += np.multiply(dz, n[:, 2, None, None], out=dz)
+        normal_part += np.multiply(dy, n[:, 1, None, None], out=dy)
         rest = self.rest[edge_index][:, None, None]
-        stretch = 0.5 * (xs[:, :, None, 3] + xt[:, None, :, 3])
-        normal_part = np.einsum("mabk,mk->mab", p, self.edge_normals[edge_index])
-        short = length < self.config.d_min_mm
-        barrier = np.where(short, np.exp(np.minimum(self.config.d_min_mm - length, 50.0)) ** 2, 0.0)
         w = lambda arr: arr[edge_index][:, None, None]  # noqa: E731
-        return (
-            w(self.w1) * (length - stretch * rest) ** 2
-            + w(self.w2) * normal_part**2
-            + w(self.w3) * barrier
-            + w(self.w4) * (length - rest) ** 2
-        )
+        # w1 (|p| - d L)^2 with d the edge's mean stretch, 0.5 (d_s + d_t)
+        out = np.add(xs[:, :, None, 3], xt[:, None, :, 3], out=dz)
+        out *= 0.5
+        out *= rest
+        np.subtract(length, out, out=out)
+        np.square(out, out=out)
+        out *= w(self.w1)
+        np.square(normal_part, out=normal_part)  # + w2 <p, n>^2
+        normal_part *= w(self.w2)
+        out += normal_part
+        short = length < self.config.d_min_mm  # + w3 exp(d_min - |p|)^2 where |p| < d_min
+        barrier = np.zeros_like(length)  # the exponential only where it applies (few entries): same values
+        barrier[short] = np.exp(np.minimum(self.config.d_min_mm - length[short], 50.0)) ** 2
+        barrier *= w(self.w3)
+        out += barrier
+        np.subtract(length, rest, out=length)  # + w4 (|p| - L)^2
+        np.square(length, out=length)
+        length *= w(self.w4)
+        out += length
+        return out
 
     def extra_proposals(self, state: np.ndarray) -> np.ndarray:
         """P_knn: the k nearest feasible points of each node, with the node's own d."""

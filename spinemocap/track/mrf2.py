@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 import torch
@@ -89,23 +89,30 @@ class _TorchRig:
         self.centers = np.stack([c.center for c in rig])
         self.sizes = [c.size for c in rig]
 
-    def project(self, x: torch.Tensor) -> torch.Tensor:
-        c = self.R.shape[0]
-        shape = x.shape[:-1]
+    def project(self, x: torch.Tensor, cams: torch.Tensor | None = None) -> torch.Tensor:
+        """``cams``: (C,) bool, project into those cameras only (-> (C', ..., 2), the same values)."""
+        u, v = self.project_uv(x, cams)
+        return torch.stack([u, v], dim=-1).reshape(u.shape[0], *x.shape[:-1], 2)
+
+    def project_uv(self, x: torch.Tensor, cams: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`project` of the points x (..., 3) flattened, as the pixel columns u and rows v
+        (C', N) each (u NaN behind the camera)."""
+        R, t, K, dist = (self.R, self.t, self.K, self.dist) if cams is None else \
+            (self.R[cams], self.t[cams], self.K[cams], self.dist[cams])
         flat = x.reshape(1, -1, 3)
-        xc = flat @ self.R.transpose(1, 2) + self.t[:, None, :]  # (C, N, 3)
+        xc = flat @ R.transpose(1, 2) + t[:, None, :]  # (C, N, 3)
         z = xc[..., 2].clamp(min=1e-6)
         xn, yn = xc[..., 0] / z, xc[..., 1] / z
-        k1, k2, p1, p2, k3 = (self.dist[:, i, None] for i in range(5))
+        k1, k2, p1, p2, k3 = (dist[:, i, None] for i in range(5))
         r2 = xn * xn + yn * yn
         radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
         xd = xn * radial + 2 * p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
         yd = yn * radial + p1 * (r2 + 2 * yn * yn) + 2 * p2 * xn * yn
-        u = self.K[:, 0, 0, None] * xd + self.K[:, 0, 1, None] * yd + self.K[:, 0, 2, None]
-        v = self.K[:, 1, 1, None] * yd + self.K[:, 1, 2, None]
+        u = K[:, 0, 0, None] * xd + K[:, 0, 1, None] * yd + K[:, 0, 2, None]
+        v = K[:, 1, 1, None] * yd + K[:, 1, 2, None]
         behind = xc[..., 2] <= 1e-6
         u = torch.where(behind, torch.full_like(u, float("nan")), u)
-        return torch.stack([u, v], dim=-1).reshape(c, *shape, 2)
+        return u, v
 
 
 class RefinementMRF:
@@ -188,17 +195,27 @@ class RefinementMRF:
         return out
 
     # ------------------------------------------------------------------ energy terms (torch)
-    def image_costs(self, x: torch.Tensor) -> torch.Tensor:
-        """(C, ...) evidence cost of points x (..., 3) in every camera (0 where none)."""
-        uv = self.cams.project(x)  # (C, ..., 2)
-        cost = self.stack.sample_torch(uv.reshape(uv.shape[0], -1, 2)).reshape(uv.shape[:-1])
+    def image_costs(self, x: torch.Tensor, cams: torch.Tensor | None = None) -> torch.Tensor:
+        """(C, ...) evidence cost of points x (..., 3) in every camera (0 where none); with
+        ``cams`` (C,) bool in those cameras only (C', ...)."""
+        u, v = self.cams.project_uv(x, cams)  # (C, N) each
+        cost = self.stack.sample_uv(u, v, cams).reshape((u.shape[0],) + x.shape[:-1])
         return cost if self.config.cost_cap is None else cost.clamp(max=self.config.cost_cap)
+
+    @staticmethod
+    def _weighted_sum(costs: Callable[[torch.Tensor | None], torch.Tensor], weight: torch.Tensor) -> torch.Tensor:
+        """``(costs(None) * weight).sum(dim=0)`` over cameras (weight (C, ...) broadcasting
+        against the costs), evaluating the costs only in the cameras with a nonzero weight: the
+        others add exact zeros (the costs are finite), so the same sums."""
+        cams = (weight != 0).reshape(weight.shape[0], -1).any(dim=1)
+        if bool(cams.all()) or not bool(cams.any()):
+            return (costs(None) * weight).sum(dim=0)
+        return (costs(cams) * weight[cams]).sum(dim=0)
 
     def unary_t(self, x: torch.Tensor) -> torch.Tensor:
         """x (D, Q, 3) -> (D, Q): Eq. 10 plus theta5's per-node part of Eq. 11 (plus the anchor of
         unseen dots)."""
-        costs = self.image_costs(x)  # (C, D, Q)
-        image = (costs * self.unary_weight.T[:, :, None]).sum(dim=0)
+        image = self._weighted_sum(lambda cams: self.image_costs(x, cams), self.unary_weight.T[:, :, None])  # (D, Q)
         if not self.config.anchor_unseen or not bool(self.unseen.any()):
             return image
         pull = ((x - self.start[:, None, :]) ** 2).sum(dim=2)
@@ -209,12 +226,15 @@ class RefinementMRF:
         live in :meth:`unary_t`; here only the midpoint's ``-2 theta5 I_c(x_st)``."""
         c = self.config
         vis = self.edge_visible[edge_index].T  # (C, M)
-        p = xs[:, :, None, :] - xt[:, None, :, :]
         mid = 0.5 * (xs[:, :, None, :] + xt[:, None, :, :])
-        contrast = -2.0 * (self.image_costs(mid) * vis[:, :, None, None]).sum(dim=0)
-        length = torch.sqrt((p * p).sum(dim=3) + 1e-12)
-        along_normal = (p * self.edge_normal[edge_index][:, None, None, :]).sum(dim=3)
-        off_axis = (p * self.edge_alpha[edge_index][:, None, None, :]).sum(dim=3)
+        contrast = -2.0 * self._weighted_sum(lambda cams: self.image_costs(mid, cams), vis[:, :, None, None])
+        # p = xs - xt (M, Qs, Qt, 3) by components: the same sums as (p * p).sum(dim=3) and
+        # (p * n).sum(dim=3), without the strided reductions
+        dx, dy, dz = (xs[:, :, None, i] - xt[:, None, :, i] for i in range(3))
+        length = torch.sqrt((dx * dx + dy * dy + dz * dz) + 1e-12)
+        normal, alpha = self.edge_normal[edge_index], self.edge_alpha[edge_index]
+        along_normal = dx * normal[:, 0, None, None] + dy * normal[:, 1, None, None] + dz * normal[:, 2, None, None]
+        off_axis = dx * alpha[:, 0, None, None] + dy * alpha[:, 1, None, None] + dz * alpha[:, 2, None, None]
         rest = self.rest[edge_index][:, None, None]
         return (
             c.theta5 * contrast

@@ -254,7 +254,13 @@ class ParticleBP:
     @staticmethod
     def _distinct_best(beliefs: np.ndarray, particles: np.ndarray, n: int) -> np.ndarray:
         """(D, n) indices of the n lowest-belief particles per node, duplicates pushed last."""
-        same = np.all(np.isclose(particles[:, :, None, :], particles[:, None, :, :], rtol=0, atol=1e-9), axis=3)
+        a, b = particles[:, :, None, :], particles[:, None, :, :]
+        # np.isclose(a, b, rtol=0, atol=1e-9) without its overhead: |a - b| <= atol, or equal infinities
+        with np.errstate(invalid="ignore"):
+            close = np.abs(a - b) <= 1e-9
+        if not np.isfinite(particles).all():
+            close |= (a == b) & np.isinf(a)
+        same = np.all(close, axis=3)
         earlier = np.tril(np.ones(same.shape[1:], dtype=bool), k=-1)
         duplicate = np.any(same & earlier[None], axis=2)
         ranked = np.where(duplicate, np.inf, beliefs)

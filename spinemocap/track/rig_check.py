@@ -99,6 +99,16 @@ def robust_rms(errors: np.ndarray) -> float:
     return float(np.sqrt(np.median(errors**2) * 2.0 / 1.386))
 
 
+def _median(values: list[float]) -> float:
+    """``float(np.median(values))`` of a short list (the middle value, or the mean of the two
+    middle values as np.median takes it) without numpy's per-call cost."""
+    if any(v != v for v in values):  # NaN: np.median's answer
+        return float("nan")
+    ordered = sorted(values)
+    k = len(ordered) // 2
+    return float(ordered[k]) if len(ordered) % 2 else float((ordered[k - 1] + ordered[k]) / 2)
+
+
 class RigMonitor:
     """Running per-camera residuals over the capture and the candidate gate they imply."""
 
@@ -109,13 +119,24 @@ class RigMonitor:
         self.history: list[list[float]] = [[] for _ in range(len(rig))]
         self.counts = np.zeros(len(rig), np.int64)
         self.warned = False
+        self._rms_key: tuple | None = None  # the history the cached per-camera RMS below was taken from
+        self._rms = np.zeros(0)
 
     @property
     def measured(self) -> bool:
         return any(self.history)
 
+    def _running_rms(self) -> np.ndarray:
+        """(C,) median of each camera's last ``window`` frame RMS values (NaN: none), remembered
+        until the history grows (asked for two to three times a frame)."""
+        key = (self.config.window, tuple(len(h) for h in self.history))
+        if key != self._rms_key:
+            self._rms = np.array([_median(h[-self.config.window:]) if h else np.nan for h in self.history])
+            self._rms_key = key
+        return self._rms
+
     def residuals(self) -> RigResiduals:
-        rms = np.array([float(np.median(h[-self.config.window:])) if h else np.nan for h in self.history])
+        rms = self._running_rms().copy()
         finite = rms[np.isfinite(rms)]
         overall = float(np.sqrt(np.mean(finite**2))) if len(finite) else float("nan")
         return RigResiduals(list(self.rig.names), rms, self.counts.copy(), overall)
@@ -124,7 +145,7 @@ class RigMonitor:
         """th1 for the next frame (px)."""
         if not self.config.adaptive_gate or not self.measured:
             return self.base.th1_px
-        rms = self.residuals().rms_px
+        rms = self._running_rms()
         worst = float(np.nanmax(rms)) if np.isfinite(rms).any() else 0.0
         gate = self.config.gate_factor * worst + self.config.gate_margin_px
         return float(np.clip(gate, self.base.th1_px, self.config.max_gate_px))

@@ -37,6 +37,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..tape import TapeGraph, TapeSpec
+from .lattice import row_index
 
 
 @dataclass
@@ -139,10 +140,15 @@ def row_gaps(arc: np.ndarray, min_pitch_mm: float, min_per_row: int = 2, min_row
     if len(order) < min_per_row * min_rows:
         return None
     breaks = np.flatnonzero(np.diff(order) > 0.4 * min_pitch_mm) + 1
-    groups = [g for g in np.split(order, breaks) if len(g) >= min_per_row]
-    if len(groups) < min_rows:
+    starts = np.concatenate([[0], breaks])
+    sizes = np.diff(np.concatenate([starts, [len(order)]]))
+    starts, sizes = starts[sizes >= min_per_row], sizes[sizes >= min_per_row]
+    if len(starts) < min_rows:
         return None
-    centres = np.array([float(np.median(g)) for g in groups])
+    # each group's median (the groups are runs of the sorted arcs): its middle value, or the mean
+    # of its two middle values, as np.median computes them
+    mid = starts + sizes // 2
+    centres = np.where(sizes % 2 == 1, order[mid], (order[mid - 1] + order[mid]) / 2.0)
     gaps = np.diff(centres)
     unit = float(np.median(gaps))
     spans = np.round(gaps / unit).astype(np.int64)
@@ -235,13 +241,14 @@ def row_stretch(positions: np.ndarray, graph: TapeGraph) -> tuple[np.ndarray, np
     pos = np.asarray(positions, float)
     spec = graph.spec
     n_rows = spec.n_rows
+    rows = row_index(graph)
     centre = np.full((n_rows, 3), np.nan)
-    for r in range(n_rows):
-        members = pos[graph.row == r]
-        if len(members) == 3:
-            centre[r] = members[1]  # the C dot sits on the midline
-        else:
-            centre[r] = members.mean(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        found = rows.sums(pos) / rows.count[:, None]  # each row's mean (members added in order) ...
+    three = rows.count == 3
+    found[three] = pos[rows.members[three, 1]]  # ... but of a 3-dot row its C dot, on the midline
+    found[rows.count == 0] = np.nan
+    centre[:len(found)] = found[:n_rows]
     gaps = np.linalg.norm(np.diff(centre, axis=0), axis=1) / spec.row_pitch_mm  # (n_rows - 1,)
     sides = np.stack([np.concatenate([[np.nan], gaps]), np.concatenate([gaps, [np.nan]])])  # below, above
     count_rows = np.isfinite(sides).sum(axis=0)

@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 
 from ..geometry import umeyama
 from ..tape import TapeGraph
+from .lattice import row_index
 from .normals import NormalField, _unit
 
 
@@ -53,7 +54,7 @@ class SpineCurve:
         step = np.linalg.norm(np.diff(self.dense, axis=0), axis=1)
         self.arc = np.concatenate([[0.0], np.cumsum(step)])
         self.axis = axis
-        self._tangent = _unit(np.gradient(self.dense, axis=0))
+        self._tangents: np.ndarray | None = None  # unit tangents at the samples, when first asked for
         self._tree = cKDTree(self.dense)
 
     @property
@@ -69,6 +70,12 @@ class SpineCurve:
         """(N, 3) unit tangents (direction of increasing s)."""
         s = np.asarray(s, dtype=float)
         return _unit(np.column_stack([np.interp(s, self.arc, self._tangent[:, i]) for i in range(3)]))
+
+    @property
+    def _tangent(self) -> np.ndarray:
+        if self._tangents is None:  # not needed for arc coordinates (the spacing estimate, every frame)
+            self._tangents = _unit(np.gradient(self.dense, axis=0))
+        return self._tangents
 
     def arc_of(self, points: np.ndarray) -> np.ndarray:
         """(N,) arc length of the curve sample nearest to each of (N, 3) points."""
@@ -111,7 +118,10 @@ def lay_along(
 def _chamfer(templates: np.ndarray, points: np.ndarray, cap_mm: float) -> np.ndarray:
     """Symmetric capped chamfer distance (mm) between each of C templates (C, D, 3) and the
     feasible points (K, 3): (C,)."""
-    dist = np.linalg.norm(templates[:, :, None, :] - points[None, None, :, :], axis=3)  # (C, D, K)
+    # |template dot - point| (C, D, K) by components: the same sums as np.linalg.norm(..., axis=3)
+    # without its strided reduction
+    dx, dy, dz = (templates[:, :, None, i] - points[None, None, :, i] for i in range(3))
+    dist = np.sqrt(dx * dx + dy * dy + dz * dz)
     dots_to_points = np.minimum(dist.min(axis=2), cap_mm).mean(axis=1)
     points_to_dots = np.minimum(dist.min(axis=1), cap_mm).mean(axis=1)
     return dots_to_points + points_to_dots
@@ -225,12 +235,12 @@ def tape_frames(positions: np.ndarray, tape: TapeGraph) -> tuple[np.ndarray, np.
     the next row's (one-sided at the ends), ``normal = across x along`` points out of the back.
     Because labels fix handedness, this needs no external normal."""
     pos = np.asarray(positions, dtype=float)
-    n_rows = int(tape.row.max()) + 1
-    row_centre = np.stack([pos[tape.row == r].mean(axis=0) for r in range(n_rows)])
-    row_across = np.stack(
-        [pos[(tape.row == r) & (np.array(tape.column) == "R")][0] - pos[(tape.row == r) & (np.array(tape.column) == "L")][0]
-         for r in range(n_rows)]
-    )
+    rows = row_index(tape)
+    n_rows = len(rows.count)
+    if (rows.left < 0).any() or (rows.right < 0).any():
+        raise IndexError("every row of the tape needs an L and an R dot")
+    row_centre = rows.sums(pos) / rows.count[:, None]  # each row's mean, its members added in order
+    row_across = pos[rows.right] - pos[rows.left]
     if n_rows > 1:
         row_along = np.gradient(row_centre, axis=0)
     else:  # a single row has no longitudinal direction; take any perpendicular

@@ -1,0 +1,239 @@
+"""The tracker's per-frame 3D stages, made cheaper for issue 15, compute what the straightforward
+code computed: each fast path against the loop or library call it replaced (kept here as the
+reference), bit for bit where only the bookkeeping changed, to rounding where the arithmetic did."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from spinemocap.camera import Camera, Rig
+from spinemocap.tape import TapeSpec
+from spinemocap.track import continuity, lattice, stretch, template
+from spinemocap.track.evidence import EvidenceImage
+from spinemocap.track.mrf1 import AlignmentMRF, MRF1Config
+from spinemocap.track.mrf2 import MRF2Config, RefinementMRF
+from spinemocap.track.normals import NormalField
+from spinemocap.track.pbp import ParticleBP
+
+GRAPH = TapeSpec(n_rows=13).graph
+
+
+def _flat_tape_in_space(rng, graph=GRAPH):
+    """The flat tape (u, v, 0) turned, scaled and moved somewhere in a 2 m room, with noise."""
+    q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    flat = np.column_stack([graph.uv_mm, np.zeros(graph.n_dots)])
+    return flat @ q.T * rng.uniform(0.9, 1.3) + rng.normal(0, 1.5, (graph.n_dots, 3)) + rng.uniform(-2000, 2000, 3)
+
+
+def _affine_reference(uv, positions, known, targets, sigma_mm=30.0):
+    """affine_from_neighbours as first written: one np.linalg.lstsq per target."""
+    out = np.full((len(targets), 3), np.nan)
+    for k, i in enumerate(targets):
+        use = known.copy()
+        use[i] = False
+        if use.sum() < 3:
+            continue
+        design = np.column_stack([uv[use], np.ones(use.sum())])
+        w = np.exp(-0.5 * ((uv[use] - uv[i]) ** 2).sum(axis=1) / sigma_mm**2)
+        if (w > 1e-3).sum() < 3:
+            w = np.ones_like(w)
+        sw = np.sqrt(w)[:, None]
+        A, *_ = np.linalg.lstsq(design * sw, positions[use] * sw, rcond=None)
+        out[k] = np.append(uv[i], 1.0) @ A
+    return out
+
+
+def test_affine_from_neighbours_is_the_per_target_least_squares_fit():
+    rng = np.random.default_rng(0)
+    uv, rows = GRAPH.uv_mm, GRAPH.row
+    for trial in range(120):
+        positions = _flat_tape_in_space(rng)
+        known = rng.random(GRAPH.n_dots) < rng.uniform(0.05, 1.0)
+        if trial % 6 == 0:  # one row only: its dots lie on a line of the flat tape (rank-deficient fit)
+            known = rows == rows[rng.integers(GRAPH.n_dots)]
+        if trial % 9 == 0:  # far from every known dot: the global fit
+            known = rows <= 1
+        targets = np.arange(GRAPH.n_dots)
+        fast = lattice.affine_from_neighbours(uv, positions, known, targets)
+        slow = _affine_reference(uv, positions, known, targets)
+        np.testing.assert_array_equal(np.isnan(fast), np.isnan(slow))
+        np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-7)  # mm, at ~2 m from the origin
+    assert np.isnan(lattice.affine_from_neighbours(uv, positions, rows < 0, targets)).all()  # nothing known
+
+
+def _row_loops(positions, excluded, graph):
+    """tape_frames' row centres/across vectors, row_centres, row_stretch's centres and
+    beyond_known_rows, as the per-row loops computed them."""
+    n_rows = int(graph.row.max()) + 1
+    column = np.array(graph.column)
+    centre = np.stack([positions[graph.row == r].mean(axis=0) for r in range(n_rows)])
+    across = np.stack([positions[(graph.row == r) & (column == "R")][0] - positions[(graph.row == r) & (column == "L")][0]
+                       for r in range(n_rows)])
+    finite_centre = np.full((n_rows, 3), np.nan)
+    stretch_centre = np.full((n_rows, 3), np.nan)
+    for r in range(n_rows):
+        members = positions[graph.row == r]
+        stretch_centre[r] = members[1] if len(members) == 3 else members.mean(axis=0)
+        members = members[np.isfinite(members).all(axis=1)]
+        if len(members):
+            finite_centre[r] = members.mean(axis=0)
+    known = np.isfinite(positions).all(axis=1) & ~excluded
+    beyond = np.zeros(len(positions), bool)
+    for d in range(len(positions)):
+        others = known.copy()
+        others[d] = False
+        r = graph.row[others]
+        beyond[d] = not ((r <= graph.row[d]).any() and (r >= graph.row[d]).any())
+    return centre, across, finite_centre, stretch_centre, beyond
+
+
+def test_row_index_gives_the_per_row_loops_bit_for_bit():
+    rng = np.random.default_rng(1)
+    for graph in (GRAPH, TapeSpec(n_rows=5).graph):
+        rows = lattice.row_index(graph)
+        assert lattice.row_index(graph) is rows  # built once per graph
+        for trial in range(60):
+            positions = _flat_tape_in_space(rng, graph)
+            if trial % 3 == 0:
+                positions[rng.random(graph.n_dots) < 0.3] = np.nan
+            excluded = rng.random(graph.n_dots) < 0.3
+            centre, across, finite_centre, stretch_centre, beyond = _row_loops(positions, excluded, graph)
+            np.testing.assert_array_equal(rows.sums(positions) / rows.count[:, None], centre)
+            np.testing.assert_array_equal(positions[rows.right] - positions[rows.left], across)
+            np.testing.assert_array_equal(continuity.row_centres(positions, graph), finite_centre)
+            np.testing.assert_array_equal(lattice.beyond_known_rows(excluded, positions, graph), beyond)
+            # row_stretch's along values come from its row centres: the same centres, the same values
+            pitch = np.linalg.norm(np.diff(stretch_centre, axis=0), axis=1) / graph.spec.row_pitch_mm
+            along = stretch.row_stretch(positions, graph)[0]
+            for r in range(1, int(graph.row.max())):
+                sides = pitch[[r - 1, r]]
+                if np.isfinite(sides).all():
+                    assert along[graph.row == r][0] == sides.sum() / 2
+            if not np.isnan(positions).any():
+                normal, across_unit, _ = template.tape_frames(positions, graph)
+                assert np.allclose(np.linalg.norm(normal, axis=1), 1.0) and np.allclose((normal * across_unit).sum(axis=1), 0.0)
+
+
+def test_row_gaps_takes_each_rows_median_as_numpy_does():
+    rng = np.random.default_rng(2)
+    found = 0
+    for _ in range(400):
+        arc = np.repeat(np.cumsum(rng.uniform(22, 30, rng.integers(3, 14))), rng.integers(1, 4))
+        arc = rng.permutation(arc + rng.normal(0, 1.0, len(arc)))
+        got = stretch.row_gaps(arc, 20.0)
+        order = np.sort(arc)
+        groups = [g for g in np.split(order, np.flatnonzero(np.diff(order) > 8.0) + 1) if len(g) >= 2]
+        if len(groups) < 4:
+            assert got is None
+            continue
+        centres = np.array([float(np.median(g)) for g in groups])
+        gaps = np.diff(centres)
+        spans = np.round(gaps / np.median(gaps)).astype(np.int64)
+        if (gaps < 0.6 * np.median(gaps)).any() or (spans > 2).any() or (spans < 1).any():
+            assert got is None
+            continue
+        found += 1
+        np.testing.assert_array_equal(got[0], gaps[spans == 1])
+        assert got[1] == float(gaps.sum() / spans.sum())
+    assert found > 50
+
+
+def test_mrf1_pairwise_is_the_strided_formula_bit_for_bit():
+    rng = np.random.default_rng(3)
+    points = _flat_tape_in_space(rng)
+    model = AlignmentMRF(points, NormalField(points, np.tile([0.0, 0.0, 1.0], (len(points), 1))), GRAPH, MRF1Config())
+    for trial in range(8):
+        x = np.concatenate([points[:, None, :] + rng.normal(0, 6, (len(points), 20, 3)),
+                            rng.uniform(0.7, 1.4, (len(points), 20, 1))], axis=2)
+        model.prepare(x[:, 0])
+        e = model.edges
+        sel = np.arange(len(e)) if trial % 2 else rng.choice(len(e), 25)
+        xs, xt = x[e[sel, 0]], x[e[sel, 1]]
+        p = xs[:, :, None, :3] - xt[:, None, :, :3]
+        length = np.sqrt((p * p).sum(axis=3))
+        rest = model.rest[sel][:, None, None]
+        stretch_ = 0.5 * (xs[:, :, None, 3] + xt[:, None, :, 3])
+        normal_part = np.einsum("mabk,mk->mab", p, model.edge_normals[sel])
+        d_min = model.config.d_min_mm
+        barrier = np.where(length < d_min, np.exp(np.minimum(d_min - length, 50.0)) ** 2, 0.0)
+        w1, w2, w3, w4 = (arr[sel][:, None, None] for arr in (model.w1, model.w2, model.w3, model.w4))
+        reference = w1 * (length - stretch_ * rest) ** 2 + w2 * normal_part**2 + w3 * barrier + w4 * (length - rest) ** 2
+        assert (length < d_min).any()  # the barrier is exercised
+        np.testing.assert_array_equal(model.pairwise(xs, xt, sel), reference)
+
+
+@pytest.fixture(scope="module")
+def mrf2_model():
+    """An MRF2 over a tape in front of five cameras: one without an image, one whose view holds
+    no tape (a uniform cost at the cap: it sees no dot), one looking at the tape's back."""
+    rng = np.random.default_rng(4)
+    positions = np.column_stack([GRAPH.uv_mm, np.zeros(GRAPH.n_dots)]) + [0.0, 0.0, 1000.0]
+    target = positions.mean(axis=0)
+    size = (640, 480)
+    cams = [Camera.look_at(f"c{i}", target + offset, target, size, 900.0, up=(0.0, 1.0, 0.0))
+            for i, offset in enumerate([(-400, 0, 1500), (400, 0, 1500), (0, -300, 1500), (0, 300, 1500), (0, 0, -1500)])]
+    evidence: list[EvidenceImage | None] = [
+        EvidenceImage(cost=rng.uniform(0, 1, (size[1], size[0])).astype(np.float32), scale=1.0, outside_cost=1.5)
+        for _ in range(2)]
+    evidence += [None, EvidenceImage(cost=np.full((1, 1), 2.0, np.float32), scale=1.0, outside_cost=2.0),
+                 EvidenceImage(cost=rng.uniform(0, 1, (size[1], size[0])).astype(np.float32), scale=1.0, outside_cost=1.5)]
+    model = RefinementMRF(GRAPH, Rig(cams), evidence, MRF2Config())
+    model.start = torch.from_numpy(positions.copy())
+    model.prepare(positions)
+    return model, positions
+
+
+def test_mrf2_costs_skip_unseeing_cameras_with_the_same_sums(mrf2_model, monkeypatch):
+    model, positions = mrf2_model
+    seeing = model.visible.numpy().any(axis=0)
+    assert seeing[:2].all() and not seeing[2:].any()  # two cameras see dots, three see none
+    rng = np.random.default_rng(5)
+    x = positions[:, None, :] + rng.normal(0, 3, (len(positions), 10, 3))
+    e = model.edges
+    fast = model.unary(x), model.pairwise(x[e[:, 0]], x[e[:, 1]], np.arange(len(e)))
+    monkeypatch.setattr(RefinementMRF, "_weighted_sum", staticmethod(lambda costs, weight: (costs(None) * weight).sum(dim=0)))
+    plain = model.unary(x), model.pairwise(x[e[:, 0]], x[e[:, 1]], np.arange(len(e)))
+    for a, b in zip(fast, plain):
+        np.testing.assert_array_equal(a, b)
+    model.unary_weight = torch.zeros_like(model.unary_weight)  # no camera at all
+    np.testing.assert_array_equal(model.unary(x), np.zeros(x.shape[:2]))
+
+
+def test_distinct_particles_are_numpys_isclose():
+    rng = np.random.default_rng(6)
+    for trial in range(100):
+        d, p, s = (int(v) for v in rng.integers(1, 30, 3))
+        particles = np.round(rng.normal(0, 2, (d, p, s)), 1)  # many duplicates ...
+        particles[rng.random(particles.shape) < 0.05] += 5e-10  # ... some within the tolerance
+        if trial % 5 == 0:
+            particles[rng.random(particles.shape) < 0.05] = np.inf
+        beliefs = rng.normal(size=(d, p))
+        same = np.all(np.isclose(particles[:, :, None, :], particles[:, None, :, :], rtol=0, atol=1e-9), axis=3)
+        duplicate = np.any(same & np.tril(np.ones((p, p), bool), k=-1)[None], axis=2)
+        reference = np.argsort(np.where(duplicate, np.inf, beliefs), axis=1, kind="stable")[:, :3]
+        np.testing.assert_array_equal(ParticleBP._distinct_best(beliefs, particles, 3), reference)
+
+
+def test_chamfer_is_the_norm_formula_bit_for_bit():
+    rng = np.random.default_rng(7)
+    templates, points = rng.normal(0, 200, (30, GRAPH.n_dots, 3)), rng.normal(0, 200, (25, 3))
+    dist = np.linalg.norm(templates[:, :, None, :] - points[None, None, :, :], axis=3)
+    reference = np.minimum(dist.min(axis=2), 20.0).mean(axis=1) + np.minimum(dist.min(axis=1), 20.0).mean(axis=1)
+    np.testing.assert_array_equal(template._chamfer(templates, points, 20.0), reference)
+
+
+def test_epipolar_distance_is_the_plain_formula_bit_for_bit():
+    from spinemocap.track.candidates import epipolar_distance
+
+    rng = np.random.default_rng(8)
+    for _ in range(50):
+        F = rng.normal(size=(3, 3))
+        x1, x2 = rng.uniform(0, 2448, (int(rng.integers(1, 40)), 2)), rng.uniform(0, 2448, (int(rng.integers(1, 40)), 2))
+        h1, h2 = np.column_stack([x1, np.ones(len(x1))]), np.column_stack([x2, np.ones(len(x2))])
+        algebraic = h1 @ F.T @ h2.T
+        reference = np.maximum(np.abs(algebraic) / np.linalg.norm((h2 @ F)[:, :2], axis=1)[None, :],
+                               np.abs(algebraic) / np.linalg.norm((h1 @ F.T)[:, :2], axis=1, keepdims=True))
+        np.testing.assert_array_equal(epipolar_distance(F, x1, x2), reference)
+        np.testing.assert_array_equal(epipolar_distance(F, x1, x2, h1, h2), reference)
