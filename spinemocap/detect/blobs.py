@@ -54,13 +54,91 @@ class BlobParams:
     dot_to_width: float = DEFAULT_DOT_TO_WIDTH
 
 
+def mask_box(mask: np.ndarray, margin: int = 0) -> tuple[slice, slice] | None:
+    """The bounding box of ``mask``'s pixels grown by ``margin`` px (clipped to the mask), None
+    when it is empty."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not len(rows):
+        return None
+    h, w = mask.shape
+    return (slice(max(0, int(rows[0]) - margin), min(h, int(rows[-1]) + 1 + margin)),
+            slice(max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + 1 + margin)))
+
+
 def fill_holes(mask: np.ndarray) -> np.ndarray:
-    """Fill the holes of every component of a bool mask (the dots, if the mask excludes them)."""
-    m = mask.astype(np.uint8)
+    """Fill the holes of every component of a bool mask (the dots, if the mask excludes them).
+    Traced in the mask's box grown by 1 px (a zero frame around it, or the image's own border
+    where the box reaches it): the same contours as in the whole image, shifted."""
+    out = np.zeros(mask.shape, bool)
+    box = mask_box(mask, 1)
+    if box is None:
+        return out
+    m = mask[box].astype(np.uint8)
     contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     filled = np.zeros_like(m)
     cv2.drawContours(filled, contours, -1, 1, thickness=cv2.FILLED)
-    return filled.astype(bool)
+    out[box] = filled.view(bool)
+    return out
+
+
+def _area_table(ssize: int, dsize: int, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """OpenCV's ``computeResizeAreaTab`` along one axis (``ssize`` -> ``dsize`` px, a non-integer
+    scale), the entries whose source pixel lies in [``lo``, ``hi``): destination index, source
+    index, weight (float32, as OpenCV rounds it) and the entry's rank among its destination's
+    entries (OpenCV adds them in this order)."""
+    scale = 1.0 / (dsize / ssize)
+    dx = np.arange(dsize)
+    fsx1 = dx * scale
+    fsx2 = fsx1 + scale
+    cell = np.minimum(scale, ssize - fsx1)
+    sx2 = np.minimum(np.floor(fsx2), ssize - 1)
+    sx1 = np.minimum(np.ceil(fsx1), sx2)
+    pre, post = sx1 - fsx1 > 1e-3, fsx2 - sx2 > 1e-3
+    count = pre.astype(np.int64) + (sx2 - sx1).astype(np.int64) + post
+    di = np.repeat(dx, count)
+    rank = np.arange(len(di)) - np.repeat(np.cumsum(count) - count, count)
+    first, last = np.repeat(pre, count) & (rank == 0), np.repeat(post, count) & (rank == np.repeat(count, count) - 1)
+    si = np.where(first, np.repeat(sx1, count) - 1,
+                  np.where(last, np.repeat(sx2, count), np.repeat(sx1, count) + rank - np.repeat(pre, count)))
+    weight = np.where(first, np.repeat((sx1 - fsx1) / cell, count),
+                      np.where(last, np.repeat(np.minimum(np.minimum(fsx2 - sx2, 1.0), cell) / cell, count),
+                               np.repeat(1.0 / cell, count))).astype(np.float32)
+    keep = (si >= lo) & (si < hi)
+    di, si, weight = di[keep], si[keep].astype(np.int64), weight[keep]
+    rank = np.arange(len(di)) - np.searchsorted(di, di)  # entries of zero pixels left out: adding 0 changes no sum
+    return di, si, weight, rank
+
+
+def area_shrink(parts: np.ndarray, shape: tuple[int, int], box: tuple[slice, slice], dsize: tuple[int, int]) -> np.ndarray:
+    """``cv2.resize(image, dsize, interpolation=cv2.INTER_AREA)`` of float32 images of ``shape``
+    (h, w) that are zero outside ``box``, given ``parts`` (k, box h, box w) float32, their pixels
+    in the box: (k, dsize h, dsize w) float32, bit for bit OpenCV's (its weights, its order of
+    float32 sums: each row's weighted sum across, then the rows'), at the cost of the box only.
+    OpenCV's own call on the whole images where it takes another route (an integer scale)."""
+    h, w = shape
+    dw, dh = dsize
+    k = len(parts)
+    sx, sy = 1.0 / (dw / w), 1.0 / (dh / h)
+    if (abs(sx - round(sx)) < np.finfo(float).eps and abs(sy - round(sy)) < np.finfo(float).eps) or sx < 1 or sy < 1:
+        whole = np.zeros((k, h, w), np.float32)
+        whole[:, box[0], box[1]] = parts
+        return np.stack([cv2.resize(image, dsize, interpolation=cv2.INTER_AREA) for image in whole])
+    y0, x0 = box[0].start, box[1].start
+    xd, xs, xw, xr = _area_table(w, dw, x0, box[1].stop)
+    yd, ys, yw, yr = _area_table(h, dh, y0, box[0].stop)
+    out = np.zeros((k, dh, dw), np.float32)
+    if not len(xd) or not len(yd):
+        return out
+    c0, r0 = xd[0], yd[0]
+    across = np.zeros((k, parts.shape[1], xd[-1] + 1 - c0), np.float32)
+    for rank in range(int(xr.max()) + 1):
+        e = xr == rank
+        across[:, :, xd[e] - c0] += parts[:, :, xs[e] - x0] * xw[e]
+    down = out[:, r0:yd[-1] + 1, c0:xd[-1] + 1]
+    for rank in range(int(yr.max()) + 1):
+        e = yr == rank
+        down[:, yd[e] - r0] += across[:, ys[e] - y0] * yw[e][:, None]
+    return out
 
 
 def estimate_dot_diameter(mask: np.ndarray, dot_to_width: float = DEFAULT_DOT_TO_WIDTH) -> float | None:
@@ -69,7 +147,7 @@ def estimate_dot_diameter(mask: np.ndarray, dot_to_width: float = DEFAULT_DOT_TO
     if not mask.any():
         return None
     dist = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
-    width = 2.0 * float(np.percentile(dist[dist > 0], 98))
+    width = 2.0 * percentile(dist[dist > 0], 98)  # np.percentile, bit for bit
     return max(width * dot_to_width, 2.0)
 
 
