@@ -282,7 +282,7 @@ def test_area_shrink_of_a_box_is_opencvs_inter_area_bit_for_bit():
         whole = np.zeros((2, h, w), np.float32)
         whole[:, y0:y1, x0:x1] = parts
         size = (max(1, w // 4), max(1, h // 4)) if trial % 3 else (max(1, w // 8), max(1, h // 8))
-        got = blobs.area_shrink(parts, (h, w), (slice(y0, y1), slice(x0, x1)), size)
+        got = blobs.area_shrink(np.ascontiguousarray(parts.transpose(2, 0, 1)), (h, w), (slice(y0, y1), slice(x0, x1)), size)
         for k in range(2):
             assert np.array_equal(got[k], cv2.resize(whole[k], size, interpolation=cv2.INTER_AREA)), (h, w, y0, y1, x0, x1)
 

@@ -24,6 +24,7 @@ Coordinates: pixel centres at integer positions (OpenCV convention), ``uv = (x, 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -57,12 +58,11 @@ class BlobParams:
 def mask_box(mask: np.ndarray, margin: int = 0) -> tuple[slice, slice] | None:
     """The bounding box of ``mask``'s pixels grown by ``margin`` px (clipped to the mask), None
     when it is empty."""
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    if not len(rows):
+    x, y, bw, bh = cv2.boundingRect(mask.view(np.uint8))  # one pass in OpenCV (numpy's any() takes two)
+    if bw == 0:
         return None
     h, w = mask.shape
-    return (slice(max(0, int(rows[0]) - margin), min(h, int(rows[-1]) + 1 + margin)),
-            slice(max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + 1 + margin)))
+    return (slice(max(0, y - margin), min(h, y + bh + margin)), slice(max(0, x - margin), min(w, x + bw + margin)))
 
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:
@@ -81,11 +81,11 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def _area_table(ssize: int, dsize: int, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+@functools.lru_cache(maxsize=512)
+def _area_table_whole(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """OpenCV's ``computeResizeAreaTab`` along one axis (``ssize`` -> ``dsize`` px, a non-integer
-    scale), the entries whose source pixel lies in [``lo``, ``hi``): destination index, source
-    index, weight (float32, as OpenCV rounds it) and the entry's rank among its destination's
-    entries (OpenCV adds them in this order)."""
+    scale): destination index, source index and weight (float32, as OpenCV rounds it) of each
+    entry, in OpenCV's order (by destination, then source). Cached: crops of one size repeat."""
     scale = 1.0 / (dsize / ssize)
     dx = np.arange(dsize)
     fsx1 = dx * scale
@@ -95,33 +95,42 @@ def _area_table(ssize: int, dsize: int, lo: int, hi: int) -> tuple[np.ndarray, n
     sx1 = np.minimum(np.ceil(fsx1), sx2)
     pre, post = sx1 - fsx1 > 1e-3, fsx2 - sx2 > 1e-3
     count = pre.astype(np.int64) + (sx2 - sx1).astype(np.int64) + post
-    di = np.repeat(dx, count)
-    rank = np.arange(len(di)) - np.repeat(np.cumsum(count) - count, count)
-    first, last = np.repeat(pre, count) & (rank == 0), np.repeat(post, count) & (rank == np.repeat(count, count) - 1)
-    si = np.where(first, np.repeat(sx1, count) - 1,
-                  np.where(last, np.repeat(sx2, count), np.repeat(sx1, count) + rank - np.repeat(pre, count)))
-    weight = np.where(first, np.repeat((sx1 - fsx1) / cell, count),
-                      np.where(last, np.repeat(np.minimum(np.minimum(fsx2 - sx2, 1.0), cell) / cell, count),
-                               np.repeat(1.0 / cell, count))).astype(np.float32)
-    keep = (si >= lo) & (si < hi)
-    di, si, weight = di[keep], si[keep].astype(np.int64), weight[keep]
+    entry = np.repeat(dx, count)  # the destination of each entry
+    rank = np.arange(len(entry)) - (np.cumsum(count) - count)[entry]
+    first, last = pre[entry] & (rank == 0), post[entry] & (rank == count[entry] - 1)
+    si = np.where(first, sx1[entry] - 1, np.where(last, sx2[entry], sx1[entry] + rank - pre[entry]))
+    weight = np.where(first, ((sx1 - fsx1) / cell)[entry],
+                      np.where(last, (np.minimum(np.minimum(fsx2 - sx2, 1.0), cell) / cell)[entry],
+                               (1.0 / cell)[entry])).astype(np.float32)
+    for a in (entry, si, weight):
+        a.flags.writeable = False
+    return entry, si.astype(np.int64), weight
+
+
+def _area_table(ssize: int, dsize: int, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_area_table_whole`'s entries whose source pixel lies in [``lo``, ``hi``), with
+    each entry's rank among its destination's entries (OpenCV adds them in this order)."""
+    di, si, weight = _area_table_whole(ssize, dsize)
+    keep = slice(int(np.searchsorted(si, lo)), int(np.searchsorted(si, hi)))  # si ascends with the entries
+    di, si, weight = di[keep], si[keep], weight[keep]
     rank = np.arange(len(di)) - np.searchsorted(di, di)  # entries of zero pixels left out: adding 0 changes no sum
     return di, si, weight, rank
 
 
-def area_shrink(parts: np.ndarray, shape: tuple[int, int], box: tuple[slice, slice], dsize: tuple[int, int]) -> np.ndarray:
+def area_shrink(columns: np.ndarray, shape: tuple[int, int], box: tuple[slice, slice], dsize: tuple[int, int]) -> np.ndarray:
     """``cv2.resize(image, dsize, interpolation=cv2.INTER_AREA)`` of float32 images of ``shape``
-    (h, w) that are zero outside ``box``, given ``parts`` (k, box h, box w) float32, their pixels
-    in the box: (k, dsize h, dsize w) float32, bit for bit OpenCV's (its weights, its order of
+    (h, w) that are zero outside ``box``, given ``columns`` (box w, k, box h) float32, their pixels
+    in the box, transposed (the summed axis first: whole rows are gathered, not strided picks):
+    (k, dsize h, dsize w) float32, bit for bit OpenCV's (its weights, its order of
     float32 sums: each row's weighted sum across, then the rows'), at the cost of the box only.
     OpenCV's own call on the whole images where it takes another route (an integer scale)."""
     h, w = shape
     dw, dh = dsize
-    k = len(parts)
+    k = columns.shape[1]
     sx, sy = 1.0 / (dw / w), 1.0 / (dh / h)
     if (abs(sx - round(sx)) < np.finfo(float).eps and abs(sy - round(sy)) < np.finfo(float).eps) or sx < 1 or sy < 1:
         whole = np.zeros((k, h, w), np.float32)
-        whole[:, box[0], box[1]] = parts
+        whole[:, box[0], box[1]] = columns.transpose(1, 2, 0)
         return np.stack([cv2.resize(image, dsize, interpolation=cv2.INTER_AREA) for image in whole])
     y0, x0 = box[0].start, box[1].start
     xd, xs, xw, xr = _area_table(w, dw, x0, box[1].stop)
@@ -129,15 +138,21 @@ def area_shrink(parts: np.ndarray, shape: tuple[int, int], box: tuple[slice, sli
     out = np.zeros((k, dh, dw), np.float32)
     if not len(xd) or not len(yd):
         return out
-    c0, r0 = xd[0], yd[0]
-    across = np.zeros((k, parts.shape[1], xd[-1] + 1 - c0), np.float32)
-    for rank in range(int(xr.max()) + 1):
+    # Across each row, then down, each as OpenCV adds: a destination pixel's weighted pixels one
+    # after the other in its table's order (rank by rank; the first rank covers every destination
+    # pixel: 0 + x is x).
+    across = columns[xs[xr == 0] - x0] * xw[xr == 0][:, None, None]
+    c0 = xd[0]
+    for rank in range(1, int(xr.max()) + 1):
         e = xr == rank
-        across[:, :, xd[e] - c0] += parts[:, :, xs[e] - x0] * xw[e]
-    down = out[:, r0:yd[-1] + 1, c0:xd[-1] + 1]
-    for rank in range(int(yr.max()) + 1):
+        across[xd[e] - c0] += columns[xs[e] - x0] * xw[e][:, None, None]
+    rows = np.ascontiguousarray(across.transpose(2, 1, 0))  # (box h, k, shrunk w)
+    down = rows[ys[yr == 0] - y0] * yw[yr == 0][:, None, None]
+    r0 = yd[0]
+    for rank in range(1, int(yr.max()) + 1):
         e = yr == rank
-        down[:, yd[e] - r0] += across[:, ys[e] - y0] * yw[e][:, None]
+        down[yd[e] - r0] += rows[ys[e] - y0] * yw[e][:, None, None]
+    out[:, r0:yd[-1] + 1, c0:xd[-1] + 1] = down.transpose(1, 0, 2)
     return out
 
 
@@ -165,18 +180,25 @@ def _regions(mask: np.ndarray, pad: int, stride: int = 8) -> list[tuple[slice, s
     h, w = mask.shape
     hs, ws = -(-h // stride), -(-w // stride)
     sy, sx = h / hs, w / ws  # the coarse pixel's size (stride, or a little less at odd sizes)
-    # x 255: a block with a single mask pixel stays non-zero (its area average is >= 255 / stride^2)
-    coarse = (cv2.resize(mask.view(np.uint8) * np.uint8(255), (ws, hs), interpolation=cv2.INTER_AREA) > 0).view(np.uint8)
+    # x 255: a block with a single mask pixel stays non-zero (its area average is >= 255 / stride^2).
+    # OpenCV's uint8 INTER_AREA of the mask: its float sums (area_shrink, on the mask's box only)
+    # rounded to the nearest even integer, as OpenCV rounds them to uint8.
+    box = mask_box(mask)
+    if box is None:
+        return []
+    columns = cv2.transpose(mask[box].view(np.uint8)) * np.float32(255)  # (box w, box h)
+    sums = area_shrink(columns[:, None], (h, w), box, (ws, hs))[0]
+    coarse = (np.rint(sums) > 0).view(np.uint8)
     n, _, stats, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
     boxes = []
     for x, y, bw, bh, _area in stats[1:]:
         ys = slice(int(y * sy), min(h, int(math.ceil((y + bh) * sy))))
         xs = slice(int(x * sx), min(w, int(math.ceil((x + bw) * sx))))
-        rows, cols = np.flatnonzero(mask[ys, xs].any(axis=1)), np.flatnonzero(mask[ys, xs].any(axis=0))
-        if not len(rows):
+        extent = mask_box(mask[ys, xs])
+        if extent is None:
             continue
-        y0, y1 = ys.start + rows[0] - pad, ys.start + rows[-1] + 1 + pad
-        x0, x1 = xs.start + cols[0] - pad, xs.start + cols[-1] + 1 + pad
+        y0, y1 = ys.start + extent[0].start - pad, ys.start + extent[0].stop + pad
+        x0, x1 = xs.start + extent[1].start - pad, xs.start + extent[1].stop + pad
         boxes.append((slice(max(0, y0), min(h, y1)), slice(max(0, x0), min(w, x1))))
     return boxes
 
@@ -415,7 +437,7 @@ def _typical_diameter(blobs: "_Blobs", d_guess: float) -> float:
     plausible[0] = False
     majors, _ = blobs.ellipse_axes(stats[:, cv2.CC_STAT_LEFT], stats[:, cv2.CC_STAT_TOP])  # moments in the blob's box
     majors = majors[plausible]
-    return max(d_guess, float(np.median(majors))) if len(majors) >= 3 else d_guess
+    return max(d_guess, float(median(majors))) if len(majors) >= 3 else d_guess  # np.median, bit for bit
 
 
 def _confidence(area_ratio: float, axis_ratio: float, fill: float, contrast_ratio: float) -> float:

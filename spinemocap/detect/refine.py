@@ -145,12 +145,18 @@ def _local_means(grey: np.ndarray, samples: _Levels, sigma: float) -> tuple[np.n
     the blur and the way back on the whole grid and crop as before."""
     h, w = grey.shape
     small = (max(1, w // 4), max(1, h // 4))
-    g = grey[samples.box].astype(np.float32)
-    tape, ring = samples.tape.astype(np.float32), samples.ring.astype(np.float32)
-    shrunk = area_shrink(np.stack([g * tape, tape, g * ring, ring]), (h, w), samples.box, small)
+    # the four images to shrink, in the box and transposed (as area_shrink takes them)
+    g = cv2.transpose(grey[samples.box]) if grey.dtype == np.uint8 else np.ascontiguousarray(grey[samples.box].T)
+    columns = np.empty((g.shape[0], 4, g.shape[1]), np.float32)
+    for k, weight in ((0, samples.tape), (2, samples.ring)):
+        wt = cv2.transpose(weight.view(np.uint8))
+        np.multiply(g, wt, out=columns[:, k], dtype=np.float32)  # grey x 0 or 1: exact as in float32
+        columns[:, k + 1] = wt
+    shrunk = area_shrink(columns, (h, w), samples.box, small)
     s = max(sigma / 4, 0.5)
     levels = []
     for k, fallback in ((0, samples.tape_median), (2, samples.ring_median)):
+        # one blur per image (a four-channel blur rounds differently at some sizes)
         num, den = cv2.GaussianBlur(shrunk[k], (0, 0), s), cv2.GaussianBlur(shrunk[k + 1], (0, 0), s)
         mean = np.where(den > 1e-3, num / np.maximum(den, 1e-6), float(fallback)).astype(np.float32)
         levels.append(cv2.resize(mean, (w, h), interpolation=cv2.INTER_LINEAR))
