@@ -130,6 +130,48 @@ def test_median_is_numpys_bit_for_bit():
         assert ours == numpys and type(ours) is type(numpys)
 
 
+def test_percentile_and_median_from_one_partition_are_numpys():
+    rng = np.random.default_rng(13)
+    for n in list(range(1, 12)) + [200, 201, 5001]:
+        values = rng.gamma(2.0, 3.0, n).astype(np.float32)
+        for q in (60.0, 98.0, 99.5):
+            pct, med = blobs._percentile_and_median(values, q)
+            assert pct == float(np.percentile(values, q)) and med == float(np.median(values)), (n, q)
+
+
+def _reference_regions(mask, pad, stride=8):
+    # the coarse grid by OpenCV's uint8 INTER_AREA of the whole mask (the code before)
+    h, w = mask.shape
+    hs, ws = -(-h // stride), -(-w // stride)
+    sy, sx = h / hs, w / ws
+    coarse = (cv2.resize(mask.view(np.uint8) * np.uint8(255), (ws, hs), interpolation=cv2.INTER_AREA) > 0).view(np.uint8)
+    n, _, stats, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
+    boxes = []
+    for x, y, bw, bh, _area in stats[1:]:
+        ys = slice(int(y * sy), min(h, int(math.ceil((y + bh) * sy))))
+        xs = slice(int(x * sx), min(w, int(math.ceil((x + bw) * sx))))
+        rows, cols = np.flatnonzero(mask[ys, xs].any(axis=1)), np.flatnonzero(mask[ys, xs].any(axis=0))
+        if not len(rows):
+            continue
+        y0, y1 = ys.start + rows[0] - pad, ys.start + rows[-1] + 1 + pad
+        x0, x1 = xs.start + cols[0] - pad, xs.start + cols[-1] + 1 + pad
+        boxes.append((slice(max(0, y0), min(h, y1)), slice(max(0, x0), min(w, x1))))
+    return boxes
+
+
+def test_regions_from_the_masks_box_are_the_whole_masks():
+    rng = np.random.default_rng(14)
+    for trial in range(120):  # sparse specks: the coarse grid's partly covered cells decide
+        h, w = (int(v) for v in rng.integers(8, 400, 2))
+        if trial % 4 == 0:
+            h, w = h // 8 * 8 + 8, w // 8 * 8 + 8  # integer scales: OpenCV's other route
+        mask = np.zeros((h, w), bool)
+        for _ in range(int(rng.integers(0, 25))):
+            y, x = int(rng.integers(0, h)), int(rng.integers(0, w))
+            mask[y:y + int(rng.integers(1, 6)), x:x + int(rng.integers(1, 6))] = True
+        assert blobs._regions(mask, 5) == _reference_regions(mask, 5), (h, w)
+
+
 def test_dot_size_guess_percentile_is_numpys():
     rng = np.random.default_rng(12)
     for _ in range(10):

@@ -58,10 +58,18 @@ class BlobParams:
 def mask_box(mask: np.ndarray, margin: int = 0) -> tuple[slice, slice] | None:
     """The bounding box of ``mask``'s pixels grown by ``margin`` px (clipped to the mask), None
     when it is empty."""
-    x, y, bw, bh = cv2.boundingRect(mask.view(np.uint8))  # one pass in OpenCV (numpy's any() takes two)
-    if bw == 0:
-        return None
     h, w = mask.shape
+    if mask.size >= 1 << 20 and mask.flags.c_contiguous and w % 8 == 0:
+        # a whole frame: its rows 8 pixels at a time, then OpenCV's pass over the rows with pixels
+        rows = np.flatnonzero(mask.view(np.uint64).max(axis=1))
+        if not len(rows):
+            return None
+        y, bh = int(rows[0]), int(rows[-1]) + 1 - int(rows[0])
+        x, _, bw, _ = cv2.boundingRect(mask[y:y + bh].view(np.uint8))
+    else:
+        x, y, bw, bh = cv2.boundingRect(mask.view(np.uint8))  # one pass in OpenCV (numpy's any() takes two)
+        if bw == 0:
+            return None
     return (slice(max(0, y - margin), min(h, y + bh + margin)), slice(max(0, x - margin), min(w, x + bw + margin)))
 
 
@@ -220,6 +228,27 @@ def percentile(values: np.ndarray, q: float) -> float:
     return float(b - diff * as_dtype(1.0 - t) if t >= 0.5 else a + diff * as_dtype(t))
 
 
+def _percentile_and_median(values: np.ndarray, q: float) -> tuple[float, float]:
+    """``(percentile(values, q), float(median(values)))`` from one partition (the same order
+    statistics, so the same values bit for bit)."""
+    n = values.size
+    index = (n - 1) * (q / 100.0)
+    lo = math.floor(index)
+    k = n // 2
+    kth = {k, k - 1} if n % 2 == 0 else {k}
+    kth |= {lo, lo + 1} if lo < n - 1 else {n - 1}
+    part = np.partition(values, sorted(kth))
+    if lo >= n - 1:
+        pct = float(part[n - 1])  # the maximum
+    else:
+        a, b = part[lo], part[lo + 1]
+        t = index - lo
+        as_dtype = values.dtype.type
+        diff = b - a
+        pct = float(b - diff * as_dtype(1.0 - t) if t >= 0.5 else a + diff * as_dtype(t))
+    return pct, float(np.mean(part[k:k + 1]) if n % 2 else np.mean(part[k - 1:k + 1]))
+
+
 def median(values: np.ndarray):
     """``np.median`` of a 1-D array without NaNs, bit for bit (the same partition and mean, in
     the values' dtype), without its general-purpose overhead."""
@@ -249,11 +278,9 @@ def _region_dots(
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
     tophat = cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, kernel)
     smooth = cv2.GaussianBlur(tophat, (0, 0), max(0.5, d / 10.0))
-    on_tape = smooth[filled]
-    contrast = percentile(on_tape, 99.5)
     # Dots must stand out from the tape's own texture/noise (the median of the top-hat over the
     # tape, which dots cover only in small part): pure noise has no such outliers.
-    texture = float(median(on_tape))
+    contrast, texture = _percentile_and_median(smooth[filled], 99.5)
     if contrast < max(p.min_contrast, p.min_contrast_to_texture * texture):
         return np.zeros((0, 2)), np.zeros(0)
     binary = ((smooth > 0.5 * contrast) & region).astype(np.uint8)
@@ -402,10 +429,12 @@ def _ring_pixels(labels: np.ndarray, candidate: np.ndarray, grow: np.ndarray) ->
     for each (what dilating each blob on its own gives, without a dilation per blob)."""
     n = len(candidate)
     dtype = np.uint16 if n < 65535 else np.float32
-    cand = np.where(candidate, np.arange(n), 0)[labels].astype(dtype)
-    none = np.iinfo(np.uint16).max if dtype == np.uint16 else np.float32(n + 1)
+    cand = np.where(candidate, np.arange(n), 0).astype(dtype)[labels]
     highest = cv2.dilate(cand, grow)
-    lowest = cv2.erode(np.where(cand > 0, cand, none).astype(dtype), grow)
+    if dtype == np.uint16:  # the lowest candidate label within reach, less 1: 0 wraps to 65535 (none)
+        lowest = cv2.erode(cand - np.uint16(1), grow) + np.uint16(1)  # none wraps back to 0
+    else:
+        lowest = cv2.erode(np.where(cand > 0, cand, np.float32(n + 1)).astype(dtype), grow)
     reached = (labels == 0) & (highest > 0)
     shared = reached & (highest != lowest)
     ys1, xs1 = np.nonzero(reached & ~shared)  # one candidate within reach: the dilation's label

@@ -24,6 +24,7 @@ size, and return a bool mask; px are full-resolution image pixels.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -61,6 +62,18 @@ def _shrink(mask: np.ndarray, radius: int) -> np.ndarray:
     return cv2.erode(mask.view(np.uint8), _disc(radius)).view(bool)
 
 
+@functools.lru_cache(maxsize=16)
+def _disc_sum(radius: int, first: int) -> bool:
+    """Is the disc of ``radius`` the disc of ``first`` grown by the disc of ``radius - first``,
+    with every offset reached through a point between 0 and it (so that the two dilations in turn
+    give the one dilation also at an image's border)? True for 10 = 3 + 7 (the levels' ring)."""
+    outer, a, b = ({(int(y) - r, int(x) - r) for y, x in zip(*np.nonzero(_disc(r)))} for r in (radius, first, radius - first))
+    def between(u, v):
+        return all(min(0, vi) <= ui <= max(0, vi) for ui, vi in zip(u, v))
+    sums = {(u[0] + v[0], u[1] + v[1]) for u in a for v in b}
+    return sums == outer and all(any(between(u, v) and (v[0] - u[0], v[1] - u[1]) in b for u in a) for v in outer)
+
+
 def _near(mask: np.ndarray, margin: int) -> tuple[slice, slice] | None:
     """The bounding box of ``mask``'s pixels grown by ``margin`` px (clipped), None when empty.
     A dilation or erosion by a radius <= ``margin`` inside this box is the whole mask's (outside
@@ -78,6 +91,7 @@ class _Levels(NamedTuple):
     ring: np.ndarray
     tape_median: np.floating
     ring_median: np.floating
+    grown: np.ndarray  # the mask grown by the snap's band, in ``box`` (the snap reuses it)
 
 
 def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float) -> _Levels | None:
@@ -91,7 +105,10 @@ def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float) 
         return None
     m = mask[near]
     inner = _shrink(m, band + 1)
-    ring = _grow(m, 3 * band + 1) & ~_grow(m, band + 1)
+    grown = _grow(m, band)
+    # the ring's outer disc as the band's disc grown by the rest (10 = 3 + 7: half the work)
+    outer = _grow(grown, 2 * band + 1) if _disc_sum(3 * band + 1, band) else _grow(m, 3 * band + 1)
+    ring = outer & ~_grow(m, band + 1)
     if np.count_nonzero(inner) < 20 or np.count_nonzero(ring) < 20:
         return None
     g = grey[near]
@@ -106,7 +123,7 @@ def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float) 
         tape_median, ring_median = median(g[tape]), median(g[ring])
     if ring_median - tape_median < min_contrast:
         return None
-    return _Levels(near, tape, ring, tape_median, ring_median)
+    return _Levels(near, tape, ring, tape_median, ring_median, grown)
 
 
 def _histogram(grey: np.ndarray, where: np.ndarray) -> np.ndarray:
@@ -180,7 +197,10 @@ def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels 
     tape_level, skin_level = _local_means(grey, samples, p.level_sigma_px)
     near = _near(mask, p.band_px)
     m = mask[near]
-    band = _grow(m, p.band_px) & ~_shrink(m, p.band_px)
+    # the mask grown by the band: the levels' (their box holds this one: a wider margin)
+    oy, ox = near[0].start - samples.box[0].start, near[1].start - samples.box[1].start
+    grown = samples.grown[oy:oy + m.shape[0], ox:ox + m.shape[1]]
+    band = grown & ~_shrink(m, p.band_px)
     snapped = mask.copy()
     snapped[near] = (m & ~band) | (band & (grey[near] < 0.5 * (tape_level[near] + skin_level[near])))
     return fill_holes(snapped)
