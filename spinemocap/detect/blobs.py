@@ -312,26 +312,24 @@ def _region_dots(
     level = blobs.percentiles(tophat, 60) - floor
     sums = blobs.weighted_sums(ring, candidate, tophat, floor, np.maximum(level, 1e-3))
     mean_smooth = blobs.means(smooth)
-    centres, scores = [], []
-    for i in np.flatnonzero(candidate):
-        # A dot is a hole in the tape: its surrounding ring lies on the tape. Bright slivers of
-        # skin beside the tape's end or cut off by the frame border fail this.
-        bw, bh = stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]
-        if ring_share[i] < p.min_ring_on_tape or touches_border(y[i], x[i], bh, bw):
-            continue
-        # Sub-pixel centre: top-hat intensity (floor removed, clipped) over the blob plus a rim,
-        # so partially covered edge pixels weigh in proportion to their coverage, scaled by this
-        # blob's own interior level (its inside saturates at 1 and shading across the dot
-        # cannot pull the centre).
-        total, sx, sy = sums[i]
-        if total <= 0:
-            continue
-        centres.append((sx / total, sy / total))
-        mean_contrast = (mean_smooth[i] - floor) / scale
-        scores.append(_confidence(area[i] / dot_area, minor[i] / major[i], fill[i], mean_contrast / 0.8))
-    if not centres:
+    # A dot is a hole in the tape: its surrounding ring lies on the tape. Bright slivers of skin
+    # beside the tape's end or cut off by the frame border fail this. (All candidates at once:
+    # ``touches_border`` takes arrays.)
+    i = np.flatnonzero(candidate)
+    bw, bh = stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]
+    total = sums[i, 0]
+    i = i[~(ring_share[i] < p.min_ring_on_tape) & ~np.asarray(touches_border(y[i], x[i], bh, bw), bool) & ~(total <= 0)]
+    if not len(i):
         return np.zeros((0, 2)), np.zeros(0)
-    return merge_close(np.asarray(centres, float), np.asarray(scores, float), p.merge_distance * d)
+    # Sub-pixel centre: top-hat intensity (floor removed, clipped) over the blob plus a rim, so
+    # partially covered edge pixels weigh in proportion to their coverage, scaled by this blob's
+    # own interior level (its inside saturates at 1 and shading across the dot cannot pull the centre).
+    total, sx, sy = sums[i, 0], sums[i, 1], sums[i, 2]
+    centres = np.stack([sx / total, sy / total], axis=1)
+    mean_contrast = (mean_smooth[i] - floor) / scale
+    scores = np.array([_confidence(*v) for v in zip((area[i] / dot_area).tolist(), (minor[i] / major[i]).tolist(),
+                                                    fill[i].tolist(), (mean_contrast / 0.8).tolist())], float)
+    return merge_close(centres, scores, p.merge_distance * d)
 
 
 class _Blobs:
@@ -380,8 +378,12 @@ class _Blobs:
         """:func:`percentile` ``q`` of ``image`` over each label's pixels, bit for bit (NaN for
         an empty label)."""
         values = image[self.ys, self.xs]
-        order = np.lexsort((values, self.lab))
-        v = values[order]
+        if values.dtype == np.float32 and not np.signbit(values).any():
+            # label, then value, as one int64 key (a non-negative float32's bits ascend with it): one sort
+            key = np.sort((self.lab.astype(np.int64) << 32) | values.view(np.uint32))
+            v = (key & 0xFFFFFFFF).astype(np.uint32).view(np.float32)
+        else:
+            v = values[np.lexsort((values, self.lab))]
         counts = self.s1.astype(np.int64)
         start = np.concatenate([[0], np.cumsum(counts)[:-1]])
         index = (counts - 1) * (q / 100.0)
@@ -523,8 +525,8 @@ def find_dots(
         if d is None or filled.sum() < 0.5 * math.pi * d * d / 4:
             continue
         region = cv2.dilate(filled.astype(np.uint8), _disc(2 * p.margin * d + 1)).astype(bool)
-        def touches_border(y, x, bh, bw, ys=ys, xs=xs):
-            return ys.start + y <= 0 or xs.start + x <= 0 or ys.start + y + bh >= H or xs.start + x + bw >= W
+        def touches_border(y, x, bh, bw, ys=ys, xs=xs):  # numbers or arrays
+            return (ys.start + y <= 0) | (xs.start + x <= 0) | (ys.start + y + bh >= H) | (xs.start + x + bw >= W)
 
         uv, conf = _region_dots(grey[ys, xs].astype(np.float32), filled, region, d, p, touches_border,
                                 size_from_blobs=d_global is None)
