@@ -187,7 +187,9 @@ def test_all_blobs_moments_are_cv2_moments_bit_for_bit():
         n, labels, stats, _ = cv2.connectedComponentsWithStats(_random_blobs(rng), connectivity=8)
         rim = int(rng.integers(2, 6))
         x0, y0 = np.maximum(0, stats[:, 0] - rim), np.maximum(0, stats[:, 1] - rim)
-        major, minor = _Blobs(labels, stats).ellipse_axes(x0, y0)
+        ours = _Blobs(labels, n)
+        assert (ours.stats[1:] == stats[1:]).all() and ours.stats.dtype == stats.dtype  # OpenCV's statistics
+        major, minor = ours.ellipse_axes(x0, y0)
         for i in range(1, n):
             x, y, bw, bh, _area = stats[i]
             window = labels[y0[i]:y + bh + rim, x0[i]:x + bw + rim] == i
@@ -197,11 +199,13 @@ def test_all_blobs_moments_are_cv2_moments_bit_for_bit():
 def test_per_label_percentiles_are_numpys():
     rng = np.random.default_rng(4)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(_random_blobs(rng), connectivity=8)
-    values = rng.normal(20, 10, labels.shape).astype(np.float32)
-    for q in (0, 37.5, 60, 99.5, 100):
-        ours = _Blobs(labels, stats).percentiles(values, q)
-        for i in range(1, n):
-            assert ours[i] == float(np.percentile(values[labels == i], q)), (i, q)
+    signed = rng.normal(20, 10, labels.shape).astype(np.float32)  # sorted by label and value
+    tophat = np.abs(np.round(signed))  # non-negative, with ties: sorted as one int64 key
+    for values in (signed, tophat, np.abs(signed)):
+        for q in (0, 37.5, 60, 99.5, 100):
+            ours = _Blobs(labels, n).percentiles(values, q)
+            for i in range(1, n):
+                assert ours[i] == float(np.percentile(values[labels == i], q)), (i, q)
 
 
 def test_ring_pixels_are_each_blobs_own_dilation():

@@ -288,10 +288,11 @@ def _region_dots(
     tape_px = filled & (binary == 0)
     floor = float(median(tophat[tape_px])) if tape_px.any() else 0.0
     scale = max(contrast - floor, 1e-3)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
+    n, labels = cv2.connectedComponents(binary, connectivity=8)  # statistics below: ~4x cheaper than OpenCV's
     if n <= 1:
         return np.zeros((0, 2)), np.zeros(0)
-    blobs = _Blobs(labels, stats)
+    blobs = _Blobs(labels, n)
+    stats = blobs.stats
     if size_from_blobs:
         d = _typical_diameter(blobs, d)
     dot_area = math.pi * d * d / 4.0
@@ -336,9 +337,8 @@ class _Blobs:
     """Per-label sums over a label image (label 0: background), all labels at once: pixel
     counts and exact integer coordinate moments (float64 holds them exactly)."""
 
-    def __init__(self, labels: np.ndarray, stats: np.ndarray):
-        self.n = len(stats)
-        self.stats = stats
+    def __init__(self, labels: np.ndarray, n: int):
+        self.n = n
         ys, xs = np.nonzero(labels)
         self.ys, self.xs = ys, xs
         self.lab = labels[ys, xs]
@@ -346,6 +346,17 @@ class _Blobs:
         count = lambda w=None: np.bincount(self.lab, weights=w, minlength=self.n)  # noqa: E731
         self.s1, self.sx, self.sy = count(), count(fx), count(fy)
         self.sxx, self.syy, self.sxy = count(fx * fx), count(fy * fy), count(fx * fy)
+        # OpenCV's component statistics (left, top, width, height, area; int32) of labels >= 1; the
+        # background's row (label 0) holds the whole image's box and its pixel count
+        h, w = labels.shape
+        low = np.full((2, n), np.iinfo(np.int64).max)
+        high = np.full((2, n), -1)
+        for k, v in enumerate((xs, ys)):
+            np.minimum.at(low[k], self.lab, v)
+            np.maximum.at(high[k], self.lab, v)
+        stats = np.stack([low[0], low[1], high[0] + 1 - low[0], high[1] + 1 - low[1], self.s1.astype(np.int64)], axis=1)
+        stats[0] = (0, 0, w, h, labels.size - len(ys))
+        self.stats = stats.astype(np.int32)
 
     def ellipse_axes(self, ox: np.ndarray, oy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Full major/minor axes (px) of each label's moment ellipse, the moments taken with
