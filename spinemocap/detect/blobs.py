@@ -457,14 +457,14 @@ def _ring_pixels(labels: np.ndarray, candidate: np.ndarray, grow: np.ndarray) ->
         return ys1, xs1, owner1
     r = grow.shape[0] // 2
     dy, dx = np.nonzero(grow)
-    yy, xx = ys2[:, None] + (dy - r)[None], xs2[:, None] + (dx - r)[None]
-    h, w = labels.shape
-    inside = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
-    near = np.where(inside, cand[np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)], 0).astype(np.int64)
-    pixel = np.broadcast_to(np.arange(len(ys2))[:, None], near.shape)
-    keep = near > 0
-    key = np.unique(pixel[keep] * n + near[keep])
-    which, owner2 = key // n, key % n
+    padded = cv2.copyMakeBorder(cand, r, r, r, r, cv2.BORDER_CONSTANT, value=0)  # outside: no candidate
+    width = padded.shape[1]
+    near = padded.ravel()[((ys2 + r) * width + xs2 + r)[:, None] + (dy - r) * width + (dx - r)]
+    # each pixel's distinct candidate labels in ascending order (as a sort of (pixel, label) keys gives them)
+    near = np.sort(near, axis=1)
+    first = near > 0
+    first[:, 1:] &= near[:, 1:] != near[:, :-1]
+    which, owner2 = np.nonzero(first)[0], near[first].astype(np.int64)
     return (np.concatenate([ys1, ys2[which]]), np.concatenate([xs1, xs2[which]]),
             np.concatenate([owner1, owner2]))
 
@@ -494,7 +494,8 @@ def _confidence(area_ratio: float, axis_ratio: float, fill: float, contrast_rati
 def merge_close(uv: np.ndarray, score: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Greedy: keep the best-scoring blob, drop others within ``radius`` of a kept one."""
     order = np.argsort(-score)
-    near = np.linalg.norm(uv[:, None] - uv[None], axis=2) < radius  # (N, N): one array op, not N^2 Python
+    dx, dy = uv[:, None, 0] - uv[None, :, 0], uv[:, None, 1] - uv[None, :, 1]
+    near = np.sqrt(dx * dx + dy * dy) < radius  # (N, N): np.linalg.norm's values, not N^2 Python
     covered = np.zeros(len(uv), bool)
     keep: list[int] = []
     for i in order:
