@@ -169,8 +169,9 @@ def estimate_dot_diameter(mask: np.ndarray, dot_to_width: float = DEFAULT_DOT_TO
     the distance-to-edge values spread evenly over [0, w/2], so w ~ 2 x their 98th percentile."""
     if not mask.any():
         return None
-    dist = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
-    width = 2.0 * percentile(dist[dist > 0], 98)  # np.percentile, bit for bit
+    mask = mask.astype(bool, copy=False)
+    dist = cv2.distanceTransform(mask.view(np.uint8), cv2.DIST_L2, 5)
+    width = 2.0 * percentile(dist[mask], 98)  # np.percentile of dist > 0 (the mask's pixels), bit for bit
     return max(width * dot_to_width, 2.0)
 
 
@@ -525,8 +526,6 @@ def find_dots(
         raise ValueError(f"mask shape {mask.shape} differs from image shape {grey.shape}")
     empty = (np.zeros((0, 2)), np.zeros(0))
     H, W = grey.shape
-    if not mask.any():
-        return empty
     uvs, confs = [], []
     # Coarse boxes first (cheap on the whole frame); all further work happens inside them.
     d_global = expected_dot_px
@@ -534,9 +533,9 @@ def find_dots(
     for ys, xs in _regions(mask, pad):
         filled = fill_holes(mask[ys, xs])
         d = d_global or estimate_dot_diameter(filled, p.dot_to_width)
-        if d is None or filled.sum() < 0.5 * math.pi * d * d / 4:
+        if d is None or np.count_nonzero(filled) < 0.5 * math.pi * d * d / 4:
             continue
-        region = cv2.dilate(filled.astype(np.uint8), _disc(2 * p.margin * d + 1)).astype(bool)
+        region = cv2.dilate(filled.view(np.uint8), _disc(2 * p.margin * d + 1)).view(bool)
         def touches_border(y, x, bh, bw, ys=ys, xs=xs):  # numbers or arrays
             return (ys.start + y <= 0) | (xs.start + x <= 0) | (ys.start + y + bh >= H) | (xs.start + x + bw >= W)
 
