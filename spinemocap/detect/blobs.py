@@ -115,14 +115,22 @@ def _area_table_whole(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, n
     return entry, si.astype(np.int64), weight
 
 
-def _area_table(ssize: int, dsize: int, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_area_table_whole`'s entries whose source pixel lies in [``lo``, ``hi``), with
-    each entry's rank among its destination's entries (OpenCV adds them in this order)."""
+def _area_table(ssize: int, dsize: int, lo: int, hi: int) -> tuple[int, np.ndarray, np.ndarray] | None:
+    """:func:`_area_table_whole`'s entries whose source pixel lies in [``lo``, ``hi``) (the
+    others weigh zero pixels: adding 0 changes no sum), as a dense table: the first destination
+    index, and per destination (rows) its entries in OpenCV's order (columns): source index less
+    ``lo`` and weight, padded with zero weights at the end. None when no entry is left."""
     di, si, weight = _area_table_whole(ssize, dsize)
-    keep = slice(int(np.searchsorted(si, lo)), int(np.searchsorted(si, hi)))  # si ascends with the entries
-    di, si, weight = di[keep], si[keep], weight[keep]
-    rank = np.arange(len(di)) - np.searchsorted(di, di)  # entries of zero pixels left out: adding 0 changes no sum
-    return di, si, weight, rank
+    a, b = int(np.searchsorted(si, lo)), int(np.searchsorted(si, hi))  # si ascends with the entries
+    if a == b:
+        return None
+    di, si, weight = di[a:b], si[a:b], weight[a:b]
+    first = int(di[0])
+    rank = np.arange(len(di)) - np.searchsorted(di, di)
+    source = np.zeros((int(di[-1]) + 1 - first, int(rank.max()) + 1), np.int64)
+    weights = np.zeros(source.shape, np.float32)
+    source[di - first, rank], weights[di - first, rank] = si - lo, weight
+    return first, source, weights
 
 
 def area_shrink(columns: np.ndarray, shape: tuple[int, int], box: tuple[slice, slice], dsize: tuple[int, int]) -> np.ndarray:
@@ -141,26 +149,31 @@ def area_shrink(columns: np.ndarray, shape: tuple[int, int], box: tuple[slice, s
         whole[:, box[0], box[1]] = columns.transpose(1, 2, 0)
         return np.stack([cv2.resize(image, dsize, interpolation=cv2.INTER_AREA) for image in whole])
     y0, x0 = box[0].start, box[1].start
-    xd, xs, xw, xr = _area_table(w, dw, x0, box[1].stop)
-    yd, ys, yw, yr = _area_table(h, dh, y0, box[0].stop)
+    across_table = _area_table(w, dw, x0, box[1].stop)
+    down_table = _area_table(h, dh, y0, box[0].stop)
     out = np.zeros((k, dh, dw), np.float32)
-    if not len(xd) or not len(yd):
+    if across_table is None or down_table is None:
         return out
     # Across each row, then down, each as OpenCV adds: a destination pixel's weighted pixels one
-    # after the other in its table's order (rank by rank; the first rank covers every destination
-    # pixel: 0 + x is x).
-    across = columns[xs[xr == 0] - x0] * xw[xr == 0][:, None, None]
-    c0 = xd[0]
-    for rank in range(1, int(xr.max()) + 1):
-        e = xr == rank
-        across[xd[e] - c0] += columns[xs[e] - x0] * xw[e][:, None, None]
+    # after the other in its table's order (0 + x is x; the padding adds zeros at the end).
+    c0, source, weights = across_table
+    across = _weighted_rows(columns, source, weights)  # (shrunk w, k, box h)
     rows = np.ascontiguousarray(across.transpose(2, 1, 0))  # (box h, k, shrunk w)
-    down = rows[ys[yr == 0] - y0] * yw[yr == 0][:, None, None]
-    r0 = yd[0]
-    for rank in range(1, int(yr.max()) + 1):
-        e = yr == rank
-        down[yd[e] - r0] += rows[ys[e] - y0] * yw[e][:, None, None]
-    out[:, r0:yd[-1] + 1, c0:xd[-1] + 1] = down.transpose(1, 0, 2)
+    r0, source, weights = down_table
+    down = _weighted_rows(rows, source, weights)  # (shrunk h, k, shrunk w)
+    out[:, r0:r0 + down.shape[0], c0:c0 + down.shape[2]] = down.transpose(1, 0, 2)
+    return out
+
+
+def _weighted_rows(rows: np.ndarray, source: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Per destination i: sum over j in order of ``rows[source[i, j]] * weights[i, j]`` (float32,
+    one product and one sum at a time, as OpenCV's area resize adds them)."""
+    out = rows[source[:, 0]]
+    out *= weights[:, 0, None, None]
+    for j in range(1, source.shape[1]):
+        term = rows[source[:, j]]
+        term *= weights[:, j, None, None]
+        out += term
     return out
 
 
