@@ -367,6 +367,21 @@ def test_box_pieces_are_the_whole_images():
         assert (_darker(grey, t) == (grey.astype(np.float32) < np.float32(t))).all()
 
 
+def test_large_components_are_opencvs():
+    from spinemocap.detect.refine import _large_components
+
+    rng = np.random.default_rng(15)
+    for count in (3, 12, 60):  # few large components (one at a time) and many (OpenCV's statistics)
+        mask = _random_blobs(rng, (200, 300), count=count).astype(bool)
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=8)
+        expected = [(x, y, w, h, labels[y:y + h, x:x + w] == i) for i, (x, y, w, h, area) in enumerate(stats)
+                    if i and area >= 20]
+        got = list(_large_components(mask, 20))
+        assert len(got) == len(expected) > 0
+        for a, b in zip(got, expected):
+            assert a[:4] == tuple(int(v) for v in b[:4]) and (a[4] == b[4]).all()
+
+
 def test_kept_instances_are_the_union_of_the_instances():
     rng = np.random.default_rng(6)
     for _ in range(10):

@@ -307,13 +307,8 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     box = _near(joined, 1)
     oy, ox = box[0].start, box[1].start
     candidates = fill_holes(joined[box]) & ~base[box]
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(candidates.view(np.uint8), connectivity=8)
     out, grew = base.copy(), False
-    for i in range(1, n):
-        x, y, w, h, area = stats[i]
-        if area < 0.5 * area_per_dot:
-            continue
-        region = labels[y:y + h, x:x + w] == i
+    for x, y, w, h, region in _large_components(candidates, 0.5 * area_per_dot):
         x, y = x + ox, y + oy
         at = (slice(y, y + h), slice(x, x + w))
         if _looks_like_tape(grey[at], region, dark[at], dots - [x, y], d, width, area_per_dot, p, blob_params):
@@ -324,6 +319,30 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     # The tape grew (rare): its dots on the joined mask, where a dot straddling a join counts.
     snapped, _ = snapped_with_levels(out)
     return Extended(out, *find_dots(grey, snapped, None, blob_params), snapped)
+
+
+def _large_components(mask: np.ndarray, min_area: float):
+    """(x, y, w, h, bool mask of the box) of each 8-connected component of ``mask`` with at least
+    ``min_area`` pixels, in label order. Labels, then their areas from a histogram, and the boxes
+    of the few large ones one at a time: OpenCV's statistics of all labels cost ~4x the labelling
+    (with many large ones, or a large mask, OpenCV's statistics all the same)."""
+    m = mask.view(np.uint8)
+    if m.size <= 200_000:  # fewer than 65535 components (8-connected: one pixel in four at most)
+        n, labels = cv2.connectedComponentsWithAlgorithm(m, 8, cv2.CV_16U, cv2.CCL_DEFAULT)
+        if n <= 1:
+            return
+        areas = cv2.calcHist([labels], [0], None, [n], [0, n]).ravel()  # exact below 2^24 px
+        large = np.flatnonzero(areas[1:] >= min_area) + 1
+        if len(large) <= 8:
+            for i in large:
+                own = labels == i
+                x, y, w, h = cv2.boundingRect(own.view(np.uint8))
+                yield x, y, w, h, own[y:y + h, x:x + w]
+            return
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    for i in np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1:
+        x, y, w, h, _ = (int(v) for v in stats[i])
+        yield x, y, w, h, labels[y:y + h, x:x + w] == i
 
 
 def _darker(grey: np.ndarray, threshold: float) -> np.ndarray:
