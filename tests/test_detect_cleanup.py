@@ -18,7 +18,7 @@ from spinemocap.detect import blobs
 from spinemocap.detect.blobs import _Blobs, _ring_pixels, fill_holes, median, merge_close
 from spinemocap.detect.drawn import draw_sample
 from spinemocap.detect.instances import kept_instances, split_instances, union
-from spinemocap.detect.refine import RefineParams, _histogram_median, _levels, _local_means, _snap
+from spinemocap.detect.refine import RefineParams, _levels, _local_means, _snap
 
 
 # ---------------------------------------------------------------- the pass before (reference)
@@ -125,7 +125,7 @@ def test_median_is_numpys_bit_for_bit():
             assert ours == numpys and np.asarray(ours).dtype == np.asarray(numpys).dtype, (n, values.dtype)
         # the levels' median of grey levels from their histogram: np.median of them as float32
         levels = rng.integers(0, 256, n).astype(np.uint8)
-        ours = _histogram_median(np.bincount(levels, minlength=256))
+        ours = blobs.histogram_median(np.bincount(levels, minlength=256))
         numpys = np.median(levels.astype(np.float32))
         assert ours == numpys and type(ours) is type(numpys)
 
@@ -235,7 +235,7 @@ def _detect_comparing_blob_passes(images, monkeypatch) -> tuple[int, float, floa
 
     def both(grey, filled, region, d, p, touches_border, size_from_blobs=False):
         uv, conf = real(grey, filled, region, d, p, touches_border, size_from_blobs)
-        ref_uv, ref_conf = _reference_region_dots(grey, filled, region, d, p, touches_border, size_from_blobs)
+        ref_uv, ref_conf = _reference_region_dots(grey.astype(np.float32), filled, region, d, p, touches_border, size_from_blobs)
         assert uv.shape == ref_uv.shape
         if len(uv):
             worst["px"] = max(worst["px"], float(np.abs(uv - ref_uv).max()))

@@ -263,6 +263,18 @@ def _percentile_and_median(values: np.ndarray, q: float) -> tuple[float, float]:
     return pct, float(np.mean(part[k:k + 1]) if n % 2 else np.mean(part[k - 1:k + 1]))
 
 
+def histogram_median(counts: np.ndarray) -> np.float32:
+    """``np.median`` of the float32 values of the integer levels counted in ``counts`` (index =
+    level), bit for bit: the middle value, or the float32 mean of the middle two (exact)."""
+    cumulative = np.cumsum(counts)
+    n = int(cumulative[-1])
+    upper = int(np.searchsorted(cumulative, n // 2 + 1))  # the value of rank n // 2 (from 0)
+    if n % 2:
+        return np.float32(upper)
+    lower = int(np.searchsorted(cumulative, n // 2))  # rank n // 2 - 1
+    return np.float32((lower + upper) / 2)
+
+
 def median(values: np.ndarray):
     """``np.median`` of a 1-D array without NaNs, bit for bit (the same partition and mean, in
     the values' dtype), without its general-purpose overhead."""
@@ -278,7 +290,7 @@ def _region_dots(
     grey: np.ndarray, filled: np.ndarray, region: np.ndarray, d: float, p: BlobParams, touches_border,
     size_from_blobs: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Dots in one region of interest: ``grey`` float32 crop, ``filled`` the hole-filled mask
+    """Dots in one region of interest: ``grey`` uint8 (or float32) crop, ``filled`` the hole-filled mask
     crop, ``region`` the mask grown by the margin (where dot pixels may lie); ``touches_border``
     tells whether a crop box (y, x, h, w) touches the frame border (a cut dot's centre is wrong).
     ``size_from_blobs``: ``d`` is only a guess from the mask width; measure it on the blobs.
@@ -290,7 +302,10 @@ def _region_dots(
     # A square kernel: OpenCV decomposes it into two 1D passes (a disc costs ~10x more).
     k = int(round(1.4 * d + 2)) | 1
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
-    tophat = cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, kernel)
+    # On uint8 grey levels: the same top-hat values (integers: the grey less its opening) for a
+    # quarter of the bytes, and their median from a histogram.
+    tophat_levels = cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, kernel) if grey.dtype == np.uint8 else None
+    tophat = tophat_levels.astype(np.float32) if tophat_levels is not None else cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, kernel)
     smooth = cv2.GaussianBlur(tophat, (0, 0), max(0.5, d / 10.0))
     # Dots must stand out from the tape's own texture/noise (the median of the top-hat over the
     # tape, which dots cover only in small part): pure noise has no such outliers.
@@ -300,7 +315,12 @@ def _region_dots(
     binary = ((smooth > 0.5 * contrast) & region).astype(np.uint8)
     # Top-hat of plain tape is noise-positive: measure that floor on tape pixels, subtract it.
     tape_px = filled & (binary == 0)
-    floor = float(median(tophat[tape_px])) if tape_px.any() else 0.0
+    if not tape_px.any():
+        floor = 0.0
+    elif tophat_levels is not None:  # np.median of the float32 values, bit for bit
+        floor = float(histogram_median(cv2.calcHist([tophat_levels], [0], tape_px.view(np.uint8), [256], [0, 256]).ravel()))
+    else:
+        floor = float(median(tophat[tape_px]))
     scale = max(contrast - floor, 1e-3)
     n, labels = cv2.connectedComponents(binary, connectivity=8)  # statistics below: ~4x cheaper than OpenCV's
     if n <= 1:
@@ -552,7 +572,7 @@ def find_dots(
         def touches_border(y, x, bh, bw, ys=ys, xs=xs):  # numbers or arrays
             return (ys.start + y <= 0) | (xs.start + x <= 0) | (ys.start + y + bh >= H) | (xs.start + x + bw >= W)
 
-        uv, conf = _region_dots(grey[ys, xs].astype(np.float32), filled, region, d, p, touches_border,
+        uv, conf = _region_dots(grey[ys, xs], filled, region, d, p, touches_border,
                                 size_from_blobs=d_global is None)
         if len(uv):
             uvs.append(uv + [xs.start, ys.start])

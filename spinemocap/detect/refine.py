@@ -33,7 +33,17 @@ import cv2
 import numpy as np
 
 from ..capture import to_grey
-from .blobs import DEFAULT_DOT_TO_WIDTH, BlobParams, area_shrink, fill_holes, find_dots, mask_box, median, percentile
+from .blobs import (
+    DEFAULT_DOT_TO_WIDTH,
+    BlobParams,
+    area_shrink,
+    fill_holes,
+    find_dots,
+    histogram_median,
+    mask_box,
+    median,
+    percentile,
+)
 
 
 @dataclass
@@ -114,10 +124,10 @@ def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float) 
     g = grey[near]
     if g.dtype == np.uint8:
         inner_hist = _histogram(g, inner)
-        inner_median = _histogram_median(inner_hist)
+        inner_median = histogram_median(inner_hist)
         tape = inner & (g <= inner_median)
         inner_hist[int(inner_median) + 1:] = 0  # the tape's pixels: the inner ones up to the median
-        tape_median, ring_median = _histogram_median(inner_hist), _histogram_median(_histogram(g, ring))
+        tape_median, ring_median = histogram_median(inner_hist), histogram_median(_histogram(g, ring))
     else:
         tape = inner & (g <= median(g[inner]))
         tape_median, ring_median = median(g[tape]), median(g[ring])
@@ -129,18 +139,6 @@ def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float) 
 def _histogram(grey: np.ndarray, where: np.ndarray) -> np.ndarray:
     """Counts (256,) int64 of the uint8 ``grey`` levels at ``where`` (one OpenCV call)."""
     return cv2.calcHist([grey], [0], where.view(np.uint8), [256], [0, 256]).ravel().astype(np.int64)
-
-
-def _histogram_median(counts: np.ndarray) -> np.float32:
-    """``np.median`` of the float32 values of grey levels counted in ``counts``, bit for bit (the
-    middle value, or the float32 mean of the middle two)."""
-    cumulative = np.cumsum(counts)
-    n = int(cumulative[-1])
-    upper = int(np.searchsorted(cumulative, n // 2 + 1))  # the value of rank n // 2 (from 0)
-    if n % 2:
-        return np.float32(upper)
-    lower = int(np.searchsorted(cumulative, n // 2))  # rank n // 2 - 1
-    return np.float32((lower + upper) / 2)  # exact: grey levels are integers
 
 
 def dark_threshold(grey: np.ndarray, mask: np.ndarray, params: RefineParams) -> float | None:
