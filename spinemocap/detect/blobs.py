@@ -73,12 +73,13 @@ def mask_box(mask: np.ndarray, margin: int = 0) -> tuple[slice, slice] | None:
     return (slice(max(0, y - margin), min(h, y + bh + margin)), slice(max(0, x - margin), min(w, x + bw + margin)))
 
 
-def fill_holes(mask: np.ndarray) -> np.ndarray:
+def fill_holes(mask: np.ndarray, box: tuple[slice, slice] | None = None) -> np.ndarray:
     """Fill the holes of every component of a bool mask (the dots, if the mask excludes them).
     Traced in the mask's box grown by 1 px (a zero frame around it, or the image's own border
-    where the box reaches it): the same contours as in the whole image, shifted."""
+    where the box reaches it): the same contours as in the whole image, shifted. ``box``: such
+    a box when known (any box holding the mask's pixels and a 1 px frame, or the border)."""
     out = np.zeros(mask.shape, bool)
-    box = mask_box(mask, 1)
+    box = mask_box(mask, 1) if box is None else box
     if box is None:
         return out
     m = mask[box].astype(np.uint8)

@@ -84,11 +84,16 @@ def _disc_sum(radius: int, first: int) -> bool:
     return sums == outer and all(any(between(u, v) and (v[0] - u[0], v[1] - u[1]) in b for u in a) for v in outer)
 
 
-def _near(mask: np.ndarray, margin: int) -> tuple[slice, slice] | None:
+def _near(mask: np.ndarray, margin: int, box: tuple[slice, slice] | None = None) -> tuple[slice, slice] | None:
     """The bounding box of ``mask``'s pixels grown by ``margin`` px (clipped), None when empty.
     A dilation or erosion by a radius <= ``margin`` inside this box is the whole mask's (outside
-    it both are empty), at a fraction of the cost: the stage-2 box is ~4x the tape's extent."""
-    return mask_box(mask, margin)
+    it both are empty), at a fraction of the cost: the stage-2 box is ~4x the tape's extent.
+    ``box``: the mask's own box (margin 0) when known (it is then grown, not measured again)."""
+    if box is None:
+        return mask_box(mask, margin)
+    h, w = mask.shape
+    return (slice(max(0, box[0].start - margin), min(h, box[0].stop + margin)),
+            slice(max(0, box[1].start - margin), min(w, box[1].stop + margin)))
 
 
 class _Levels(NamedTuple):
@@ -104,13 +109,14 @@ class _Levels(NamedTuple):
     grown: np.ndarray  # the mask grown by the snap's band, in ``box`` (the snap reuses it)
 
 
-def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float) -> _Levels | None:
+def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float,
+            box: tuple[slice, slice] | None = None) -> _Levels | None:
     """Pixels that sample the tape (inside the mask, away from its edge, darker than the median
     there, i.e. not a dot) and the skin (a ring just outside the mask). None when either is thin
     or the tape is not clearly darker than the skin (a light tape, a wrong mask): the steps
     that use them then leave the mask alone. ``grey`` uint8 (the medians from grey-level
-    histograms: ``np.median``'s values) or float32."""
-    near = _near(mask, 3 * band + 1)
+    histograms: ``np.median``'s values) or float32; ``box``: the mask's box, when known."""
+    near = _near(mask, 3 * band + 1, box)
     if near is None:
         return None
     m = mask[near]
@@ -188,12 +194,13 @@ def snap_to_edges(crop: np.ndarray, mask: np.ndarray, params: RefineParams | Non
     return _snap(grey, mask, p, _levels(grey, mask, p.band_px, p.min_contrast))
 
 
-def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels | None) -> np.ndarray:
+def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels | None,
+          box: tuple[slice, slice] | None = None) -> np.ndarray:
     """:func:`snap_to_edges` given ``grey`` (uint8 or float32) and the mask's :func:`_levels`."""
     if samples is None:
         return mask
     tape_level, skin_level = _local_means(grey, samples, p.level_sigma_px)
-    near = _near(mask, p.band_px)
+    near = _near(mask, p.band_px, box)
     m = mask[near]
     # the mask grown by the band: the levels' (their box holds this one: a wider margin)
     oy, ox = near[0].start - samples.box[0].start, near[1].start - samples.box[1].start
@@ -201,7 +208,7 @@ def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels 
     band = grown & ~_shrink(m, p.band_px)
     snapped = mask.copy()
     snapped[near] = (m & ~band) | (band & (grey[near] < 0.5 * (tape_level[near] + skin_level[near])))
-    return fill_holes(snapped)
+    return fill_holes(snapped, _near(snapped, p.band_px + 1, box))  # the snapped mask lies in ``near``
 
 
 def components_touching(mask: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -227,10 +234,10 @@ def _labelled(labels: np.ndarray, n: int, chosen: np.ndarray) -> np.ndarray:
     return table[labels]
 
 
-def keep_dotted(mask: np.ndarray, dots_uv: np.ndarray) -> np.ndarray:
+def keep_dotted(mask: np.ndarray, dots_uv: np.ndarray, box: tuple[slice, slice] | None = None) -> np.ndarray:
     """The components of ``mask`` that contain at least one of ``dots_uv`` ((N, 2) px, x y)."""
     ij = np.clip(np.round(dots_uv).astype(int), 0, [mask.shape[1] - 1, mask.shape[0] - 1]).reshape(-1, 2)
-    box = _near(mask, 0)
+    box = _near(mask, 0, box)
     out = np.zeros(mask.shape, bool)
     if box is None:
         return out
@@ -263,33 +270,36 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     grey = to_grey(crop)  # uint8, once: the snapping, the dots and the extension all read it
     base = fill_holes(mask)
 
-    def snapped_with_levels(m: np.ndarray) -> tuple[np.ndarray, _Levels | None]:
-        # the tape and skin levels of ``m``: for the snap, and (of the kept mask) the extension's threshold
-        if not m.any():
+    def snapped_with_levels(m: np.ndarray, box: tuple[slice, slice] | None) -> tuple[np.ndarray, _Levels | None]:
+        # the tape and skin levels of ``m`` (its box ``box``): for the snap, and (of the kept mask)
+        # the extension's threshold
+        if box is None:
             return m, None
-        samples = _levels(grey, m, p.band_px, p.min_contrast)
-        return _snap(grey, m, p, samples), samples
+        samples = _levels(grey, m, p.band_px, p.min_contrast, box)
+        return _snap(grey, m, p, samples, box), samples
 
     # The dots are found on the mask snapped onto the tape's edge, as the final mask will be:
     # their contrast and centres are measured on the tape's own pixels.
-    snapped, samples = snapped_with_levels(base)
+    base_box = _near(base, 0)
+    snapped, samples = snapped_with_levels(base, base_box)
     dots, conf = find_dots(grey, snapped, None, blob_params)
     base_area = int(np.count_nonzero(base))
     if base_area < 50 or len(dots) < 2:
         return Extended(base, dots, conf, snapped)
-    dotted = keep_dotted(base, dots)
+    dotted = keep_dotted(base, dots, base_box)
     answer = dots, conf
     if np.count_nonzero(dotted) < base_area:  # components without dots dropped: the edge levels change, find again
         base = dotted
         base_area = int(np.count_nonzero(base))
-        snapped, samples = snapped_with_levels(base)
+        base_box = _near(base, 0)
+        snapped, samples = snapped_with_levels(base, base_box)
         answer = find_dots(grey, snapped, None, blob_params)
     threshold = _midway(samples)
     if threshold is None:
         return Extended(base, *answer, snapped)
     # The tape's width from the distances to its edge, in the mask's box and a 2 px frame: the
     # 5 x 5 chamfer's steps reach 2 px, so every pixel's nearest background lies in there.
-    near = _near(base, 2)
+    near = _near(base, 2, base_box)
     inside = base[near]
     dist = cv2.distanceTransform(inside.view(np.uint8), cv2.DIST_L2, 5)
     width = 2.0 * percentile(dist[inside], 98)  # as estimate_dot_diameter measures it (dist > 0 is base)
@@ -298,7 +308,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     dark = _darker(grey, threshold)
     # Candidate regions: dark pixels outside the mask that touch it, with what they enclose.
     n, labels = cv2.connectedComponents((dark & ~base).view(np.uint8), connectivity=8)
-    rim = _near(base, 1)
+    rim = _near(base, 1, base_box)
     pieces = _labelled(labels, n, labels[rim][_grow(base[rim], 1) & ~base[rim]])
     joined = base | pieces
     # ... all of them within the box of the mask and the pieces (their holes too)
@@ -315,7 +325,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     if not grew:
         return Extended(base, *answer, snapped)
     # The tape grew (rare): its dots on the joined mask, where a dot straddling a join counts.
-    snapped, _ = snapped_with_levels(out)
+    snapped, _ = snapped_with_levels(out, _near(out, 0))
     return Extended(out, *find_dots(grey, snapped, None, blob_params), snapped)
 
 
