@@ -18,7 +18,7 @@ from spinemocap.detect import blobs
 from spinemocap.detect.blobs import _Blobs, _ring_pixels, fill_holes, median, merge_close
 from spinemocap.detect.drawn import draw_sample
 from spinemocap.detect.instances import kept_instances, split_instances, union
-from spinemocap.detect.refine import RefineParams, _levels, _local_mean, _snap
+from spinemocap.detect.refine import RefineParams, _levels, _local_means, _snap
 
 
 # ---------------------------------------------------------------- the pass before (reference)
@@ -123,6 +123,62 @@ def test_median_is_numpys_bit_for_bit():
                        rng.integers(0, 4, n).astype(np.float32)):
             ours, numpys = median(values), np.median(values)
             assert ours == numpys and np.asarray(ours).dtype == np.asarray(numpys).dtype, (n, values.dtype)
+        # the levels' median of grey levels from their histogram: np.median of them as float32
+        levels = rng.integers(0, 256, n).astype(np.uint8)
+        ours = blobs.histogram_median(np.bincount(levels, minlength=256))
+        numpys = np.median(levels.astype(np.float32))
+        assert ours == numpys and type(ours) is type(numpys)
+
+
+def test_percentile_and_median_from_one_partition_are_numpys():
+    rng = np.random.default_rng(13)
+    for n in list(range(1, 12)) + [200, 201, 5001]:
+        values = rng.gamma(2.0, 3.0, n).astype(np.float32)
+        for q in (60.0, 98.0, 99.5):
+            pct, med = blobs._percentile_and_median(values, q)
+            assert pct == float(np.percentile(values, q)) and med == float(np.median(values)), (n, q)
+
+
+def _reference_regions(mask, pad, stride=8):
+    # the coarse grid by OpenCV's uint8 INTER_AREA of the whole mask (the code before)
+    h, w = mask.shape
+    hs, ws = -(-h // stride), -(-w // stride)
+    sy, sx = h / hs, w / ws
+    coarse = (cv2.resize(mask.view(np.uint8) * np.uint8(255), (ws, hs), interpolation=cv2.INTER_AREA) > 0).view(np.uint8)
+    n, _, stats, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
+    boxes = []
+    for x, y, bw, bh, _area in stats[1:]:
+        ys = slice(int(y * sy), min(h, int(math.ceil((y + bh) * sy))))
+        xs = slice(int(x * sx), min(w, int(math.ceil((x + bw) * sx))))
+        rows, cols = np.flatnonzero(mask[ys, xs].any(axis=1)), np.flatnonzero(mask[ys, xs].any(axis=0))
+        if not len(rows):
+            continue
+        y0, y1 = ys.start + rows[0] - pad, ys.start + rows[-1] + 1 + pad
+        x0, x1 = xs.start + cols[0] - pad, xs.start + cols[-1] + 1 + pad
+        boxes.append((slice(max(0, y0), min(h, y1)), slice(max(0, x0), min(w, x1))))
+    return boxes
+
+
+def test_regions_from_the_masks_box_are_the_whole_masks():
+    rng = np.random.default_rng(14)
+    for trial in range(120):  # sparse specks: the coarse grid's partly covered cells decide
+        h, w = (int(v) for v in rng.integers(8, 400, 2))
+        if trial % 4 == 0:
+            h, w = h // 8 * 8 + 8, w // 8 * 8 + 8  # integer scales: OpenCV's other route
+        mask = np.zeros((h, w), bool)
+        for _ in range(int(rng.integers(0, 25))):
+            y, x = int(rng.integers(0, h)), int(rng.integers(0, w))
+            mask[y:y + int(rng.integers(1, 6)), x:x + int(rng.integers(1, 6))] = True
+        assert blobs._regions(mask, 5) == _reference_regions(mask, 5), (h, w)
+
+
+def test_dot_size_guess_percentile_is_numpys():
+    rng = np.random.default_rng(12)
+    for _ in range(10):
+        mask = _random_blobs(rng, count=60).astype(bool)
+        dist = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
+        expected = max(2.0 * float(np.percentile(dist[dist > 0], 98)) * 0.2, 2.0)
+        assert blobs.estimate_dot_diameter(mask, 0.2) == expected
 
 
 def test_all_blobs_moments_are_cv2_moments_bit_for_bit():
@@ -131,7 +187,9 @@ def test_all_blobs_moments_are_cv2_moments_bit_for_bit():
         n, labels, stats, _ = cv2.connectedComponentsWithStats(_random_blobs(rng), connectivity=8)
         rim = int(rng.integers(2, 6))
         x0, y0 = np.maximum(0, stats[:, 0] - rim), np.maximum(0, stats[:, 1] - rim)
-        major, minor = _Blobs(labels, stats).ellipse_axes(x0, y0)
+        ours = _Blobs(labels, n)
+        assert (ours.stats[1:] == stats[1:]).all() and ours.stats.dtype == stats.dtype  # OpenCV's statistics
+        major, minor = ours.ellipse_axes(x0, y0)
         for i in range(1, n):
             x, y, bw, bh, _area = stats[i]
             window = labels[y0[i]:y + bh + rim, x0[i]:x + bw + rim] == i
@@ -141,11 +199,13 @@ def test_all_blobs_moments_are_cv2_moments_bit_for_bit():
 def test_per_label_percentiles_are_numpys():
     rng = np.random.default_rng(4)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(_random_blobs(rng), connectivity=8)
-    values = rng.normal(20, 10, labels.shape).astype(np.float32)
-    for q in (0, 37.5, 60, 99.5, 100):
-        ours = _Blobs(labels, stats).percentiles(values, q)
-        for i in range(1, n):
-            assert ours[i] == float(np.percentile(values[labels == i], q)), (i, q)
+    signed = rng.normal(20, 10, labels.shape).astype(np.float32)  # sorted by label and value
+    tophat = np.abs(np.round(signed))  # non-negative, with ties: sorted as one int64 key
+    for values in (signed, tophat, np.abs(signed)):
+        for q in (0, 37.5, 60, 99.5, 100):
+            ours = _Blobs(labels, n).percentiles(values, q)
+            for i in range(1, n):
+                assert ours[i] == float(np.percentile(values[labels == i], q)), (i, q)
 
 
 def test_ring_pixels_are_each_blobs_own_dilation():
@@ -175,7 +235,7 @@ def _detect_comparing_blob_passes(images, monkeypatch) -> tuple[int, float, floa
 
     def both(grey, filled, region, d, p, touches_border, size_from_blobs=False):
         uv, conf = real(grey, filled, region, d, p, touches_border, size_from_blobs)
-        ref_uv, ref_conf = _reference_region_dots(grey, filled, region, d, p, touches_border, size_from_blobs)
+        ref_uv, ref_conf = _reference_region_dots(grey.astype(np.float32), filled, region, d, p, touches_border, size_from_blobs)
         assert uv.shape == ref_uv.shape
         if len(uv):
             worst["px"] = max(worst["px"], float(np.abs(uv - ref_uv).max()))
@@ -215,26 +275,111 @@ def _reference_levels(grey, mask, band, min_contrast):
     return tape, ring
 
 
+def _reference_local_mean(grey, weight, sigma, fallback):
+    # the levels on the whole crop (the code before): OpenCV's INTER_AREA shrink of the whole crop
+    h, w = grey.shape
+    small = (max(1, w // 4), max(1, h // 4))
+    g = cv2.resize(grey * weight, small, interpolation=cv2.INTER_AREA)
+    wt = cv2.resize(weight, small, interpolation=cv2.INTER_AREA)
+    s = max(sigma / 4, 0.5)
+    num, den = cv2.GaussianBlur(g, (0, 0), s), cv2.GaussianBlur(wt, (0, 0), s)
+    mean = np.where(den > 1e-3, num / np.maximum(den, 1e-6), fallback).astype(np.float32)
+    return cv2.resize(mean, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
 @pytest.mark.parametrize("shift", [0, 30, -30])
 def test_levels_and_snap_in_the_masks_box_are_the_whole_crops(shift):
     # the drawn tape's mask, too wide, moved so that it also touches the crop's border (shift != 0)
     sample = draw_sample(np.random.default_rng(3), size=(480, 640), px_per_mm=1.4, n_rows=9)
-    grey = cv2.cvtColor(sample.image, cv2.COLOR_BGR2GRAY).astype(np.float32)
-    mask = np.roll(sample.mask, shift, axis=1)
+    # 477 x 635: the 4x smaller grid's scale is not an integer (OpenCV's general INTER_AREA route)
+    grey = cv2.cvtColor(sample.image, cv2.COLOR_BGR2GRAY).astype(np.float32)[:477, :635]
+    mask = np.roll(sample.mask, shift, axis=1)[:477, :635]
     mask = fill_holes(cv2.dilate(mask.view(np.uint8), np.ones((5, 5), np.uint8)).view(bool))
     p = RefineParams()
-    ours = _levels(grey, mask, p.band_px, p.min_contrast)
     tape, ring = _reference_levels(grey, mask, p.band_px, p.min_contrast)
-    assert (ours.tape == tape).all() and (ours.ring == ring).all()
-    assert ours.tape_median == np.median(grey[tape]) and ours.ring_median == np.median(grey[ring])
+    for image in (grey, grey.astype(np.uint8)):  # medians by partition (float32) and by histogram (uint8)
+        ours = _levels(image, mask, p.band_px, p.min_contrast)
+        whole_tape, whole_ring = np.zeros_like(mask), np.zeros_like(mask)
+        whole_tape[ours.box], whole_ring[ours.box] = ours.tape, ours.ring
+        assert (whole_tape == tape).all() and (whole_ring == ring).all()
+        assert ours.tape_median == np.median(grey[tape]) and ours.ring_median == np.median(grey[ring])
+        assert type(ours.tape_median) is type(np.median(grey[tape]))
+        # the levels from the samples' box: the whole crop's, bit for bit
+        tape_level = _reference_local_mean(grey, tape.astype(np.float32), p.level_sigma_px, float(np.median(grey[tape])))
+        skin_level = _reference_local_mean(grey, ring.astype(np.float32), p.level_sigma_px, float(np.median(grey[ring])))
+        levels = _local_means(image, ours, p.level_sigma_px)
+        assert (levels[0] == tape_level).all() and (levels[1] == skin_level).all()
     # the snap on the band in the mask's box: the whole crop's snap
-    tape_level = _local_mean(grey, tape.astype(np.float32), p.level_sigma_px, float(np.median(grey[tape])))
-    skin_level = _local_mean(grey, ring.astype(np.float32), p.level_sigma_px, float(np.median(grey[ring])))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * p.band_px + 1,) * 2)
     band = cv2.dilate(mask.view(np.uint8), disc).view(bool) & ~cv2.erode(mask.view(np.uint8), disc).view(bool)
     expected = fill_holes((mask & ~band) | (band & (grey < 0.5 * (tape_level + skin_level))))
     snapped = _snap(grey, mask, p, ours)
     assert (snapped == expected).all() and snapped.sum() < mask.sum()  # the too-wide outline moved in
+
+
+def test_area_shrink_of_a_box_is_opencvs_inter_area_bit_for_bit():
+    rng = np.random.default_rng(8)
+    for trial in range(150):
+        h, w = (int(v) for v in rng.integers(1, 400, 2))
+        y0, x0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+        y1, x1 = int(rng.integers(y0 + 1, h + 1)), int(rng.integers(x0 + 1, w + 1))
+        parts = (rng.integers(0, 256, (2, y1 - y0, x1 - x0)) * rng.random((2, y1 - y0, x1 - x0))).astype(np.float32)
+        parts[1] = parts[1] > 50  # a weight mask and a weighted image, as the levels shrink them
+        whole = np.zeros((2, h, w), np.float32)
+        whole[:, y0:y1, x0:x1] = parts
+        size = (max(1, w // 4), max(1, h // 4)) if trial % 3 else (max(1, w // 8), max(1, h // 8))
+        got = blobs.area_shrink(np.ascontiguousarray(parts.transpose(2, 0, 1)), (h, w), (slice(y0, y1), slice(x0, x1)), size)
+        for k in range(2):
+            assert np.array_equal(got[k], cv2.resize(whole[k], size, interpolation=cv2.INTER_AREA)), (h, w, y0, y1, x0, x1)
+
+
+def _reference_fill_holes(mask):
+    m = mask.astype(np.uint8)
+    contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    filled = np.zeros_like(m)
+    cv2.drawContours(filled, contours, -1, 1, thickness=cv2.FILLED)
+    return filled.astype(bool)
+
+
+def test_box_pieces_are_the_whole_images():
+    # hole filling, dotted components, touching components and the distance transform in the
+    # mask's box: the whole image's, also where the mask touches the image's border
+    from spinemocap.detect.refine import _darker, components_touching, keep_dotted
+
+    rng = np.random.default_rng(9)
+    for trial in range(20):
+        mask = np.zeros((200, 260), bool)
+        y, x = (0, 0) if trial % 4 == 0 else (int(rng.integers(0, 60)), int(rng.integers(0, 80)))
+        mask[y:y + 140, x:x + 180] = _random_blobs(rng, (140, 180), count=25).astype(bool)
+        mask[y + 20:y + 60, x + 30:x + 90] ^= _random_blobs(rng, (40, 60), count=6).astype(bool)  # holes
+        assert (fill_holes(mask) == _reference_fill_holes(mask)).all()
+        dots = rng.uniform([-5, -5], [265, 205], (15, 2))
+        n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+        ij = np.clip(np.round(dots).astype(int), 0, [259, 199])
+        assert (keep_dotted(mask, dots) == np.isin(labels, labels[ij[:, 1], ij[:, 0]]) & mask).all()
+        reference = rng.random(mask.shape) < 0.001
+        assert (components_touching(mask, reference) == np.isin(labels, labels[mask & reference]) & mask).all()
+        whole = cv2.distanceTransform(mask.view(np.uint8), cv2.DIST_L2, 5)
+        box = blobs.mask_box(mask, 2)
+        assert np.array_equal(cv2.distanceTransform(mask[box].view(np.uint8), cv2.DIST_L2, 5), whole[box])
+    grey = rng.integers(0, 256, (50, 60)).astype(np.uint8)
+    for t in (-3.0, 0.0, 0.25, 17.5, 99.75, 100.0, 254.5, 255.0, 255.25, 300.0):
+        assert (_darker(grey, t) == (grey.astype(np.float32) < np.float32(t))).all()
+
+
+def test_large_components_are_opencvs():
+    from spinemocap.detect.refine import _large_components
+
+    rng = np.random.default_rng(15)
+    for count in (3, 12, 60):  # few large components (one at a time) and many (OpenCV's statistics)
+        mask = _random_blobs(rng, (200, 300), count=count).astype(bool)
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=8)
+        expected = [(x, y, w, h, labels[y:y + h, x:x + w] == i) for i, (x, y, w, h, area) in enumerate(stats)
+                    if i and area >= 20]
+        got = list(_large_components(mask, 20))
+        assert len(got) == len(expected) > 0
+        for a, b in zip(got, expected):
+            assert a[:4] == tuple(int(v) for v in b[:4]) and (a[4] == b[4]).all()
 
 
 def test_kept_instances_are_the_union_of_the_instances():

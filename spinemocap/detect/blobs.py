@@ -24,6 +24,7 @@ Coordinates: pixel centres at integer positions (OpenCV convention), ``uv = (x, 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -54,13 +55,127 @@ class BlobParams:
     dot_to_width: float = DEFAULT_DOT_TO_WIDTH
 
 
-def fill_holes(mask: np.ndarray) -> np.ndarray:
-    """Fill the holes of every component of a bool mask (the dots, if the mask excludes them)."""
-    m = mask.astype(np.uint8)
+def mask_box(mask: np.ndarray, margin: int = 0) -> tuple[slice, slice] | None:
+    """The bounding box of ``mask``'s pixels grown by ``margin`` px (clipped to the mask), None
+    when it is empty."""
+    h, w = mask.shape
+    if mask.size >= 1 << 20 and mask.flags.c_contiguous and w % 8 == 0:
+        # a whole frame: its rows 8 pixels at a time, then OpenCV's pass over the rows with pixels
+        rows = np.flatnonzero(mask.view(np.uint64).max(axis=1))
+        if not len(rows):
+            return None
+        y, bh = int(rows[0]), int(rows[-1]) + 1 - int(rows[0])
+        x, _, bw, _ = cv2.boundingRect(mask[y:y + bh].view(np.uint8))
+    else:
+        x, y, bw, bh = cv2.boundingRect(mask.view(np.uint8))  # one pass in OpenCV (numpy's any() takes two)
+        if bw == 0:
+            return None
+    return (slice(max(0, y - margin), min(h, y + bh + margin)), slice(max(0, x - margin), min(w, x + bw + margin)))
+
+
+def fill_holes(mask: np.ndarray, box: tuple[slice, slice] | None = None) -> np.ndarray:
+    """Fill the holes of every component of a bool mask (the dots, if the mask excludes them).
+    Traced in the mask's box grown by 1 px (a zero frame around it, or the image's own border
+    where the box reaches it): the same contours as in the whole image, shifted. ``box``: such
+    a box when known (any box holding the mask's pixels and a 1 px frame, or the border)."""
+    out = np.zeros(mask.shape, bool)
+    box = mask_box(mask, 1) if box is None else box
+    if box is None:
+        return out
+    m = mask[box].astype(np.uint8)
     contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     filled = np.zeros_like(m)
     cv2.drawContours(filled, contours, -1, 1, thickness=cv2.FILLED)
-    return filled.astype(bool)
+    out[box] = filled.view(bool)
+    return out
+
+
+@functools.lru_cache(maxsize=512)
+def _area_table_whole(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """OpenCV's ``computeResizeAreaTab`` along one axis (``ssize`` -> ``dsize`` px, a non-integer
+    scale): destination index, source index and weight (float32, as OpenCV rounds it) of each
+    entry, in OpenCV's order (by destination, then source). Cached: crops of one size repeat."""
+    scale = 1.0 / (dsize / ssize)
+    dx = np.arange(dsize)
+    fsx1 = dx * scale
+    fsx2 = fsx1 + scale
+    cell = np.minimum(scale, ssize - fsx1)
+    sx2 = np.minimum(np.floor(fsx2), ssize - 1)
+    sx1 = np.minimum(np.ceil(fsx1), sx2)
+    pre, post = sx1 - fsx1 > 1e-3, fsx2 - sx2 > 1e-3
+    count = pre.astype(np.int64) + (sx2 - sx1).astype(np.int64) + post
+    entry = np.repeat(dx, count)  # the destination of each entry
+    rank = np.arange(len(entry)) - (np.cumsum(count) - count)[entry]
+    first, last = pre[entry] & (rank == 0), post[entry] & (rank == count[entry] - 1)
+    si = np.where(first, sx1[entry] - 1, np.where(last, sx2[entry], sx1[entry] + rank - pre[entry]))
+    weight = np.where(first, ((sx1 - fsx1) / cell)[entry],
+                      np.where(last, (np.minimum(np.minimum(fsx2 - sx2, 1.0), cell) / cell)[entry],
+                               (1.0 / cell)[entry])).astype(np.float32)
+    for a in (entry, si, weight):
+        a.flags.writeable = False
+    return entry, si.astype(np.int64), weight
+
+
+def _area_table(ssize: int, dsize: int, lo: int, hi: int) -> tuple[int, np.ndarray, np.ndarray] | None:
+    """:func:`_area_table_whole`'s entries whose source pixel lies in [``lo``, ``hi``) (the
+    others weigh zero pixels: adding 0 changes no sum), as a dense table: the first destination
+    index, and per destination (rows) its entries in OpenCV's order (columns): source index less
+    ``lo`` and weight, padded with zero weights at the end. None when no entry is left."""
+    di, si, weight = _area_table_whole(ssize, dsize)
+    a, b = int(np.searchsorted(si, lo)), int(np.searchsorted(si, hi))  # si ascends with the entries
+    if a == b:
+        return None
+    di, si, weight = di[a:b], si[a:b], weight[a:b]
+    first = int(di[0])
+    rank = np.arange(len(di)) - np.searchsorted(di, di)
+    source = np.zeros((int(di[-1]) + 1 - first, int(rank.max()) + 1), np.int64)
+    weights = np.zeros(source.shape, np.float32)
+    source[di - first, rank], weights[di - first, rank] = si - lo, weight
+    return first, source, weights
+
+
+def area_shrink(columns: np.ndarray, shape: tuple[int, int], box: tuple[slice, slice], dsize: tuple[int, int]) -> np.ndarray:
+    """``cv2.resize(image, dsize, interpolation=cv2.INTER_AREA)`` of float32 images of ``shape``
+    (h, w) that are zero outside ``box``, given ``columns`` (box w, k, box h) float32, their pixels
+    in the box, transposed (the summed axis first: whole rows are gathered, not strided picks):
+    (k, dsize h, dsize w) float32, bit for bit OpenCV's (its weights, its order of
+    float32 sums: each row's weighted sum across, then the rows'), at the cost of the box only.
+    OpenCV's own call on the whole images where it takes another route (an integer scale)."""
+    h, w = shape
+    dw, dh = dsize
+    k = columns.shape[1]
+    sx, sy = 1.0 / (dw / w), 1.0 / (dh / h)
+    if (abs(sx - round(sx)) < np.finfo(float).eps and abs(sy - round(sy)) < np.finfo(float).eps) or sx < 1 or sy < 1:
+        whole = np.zeros((k, h, w), np.float32)
+        whole[:, box[0], box[1]] = columns.transpose(1, 2, 0)
+        return np.stack([cv2.resize(image, dsize, interpolation=cv2.INTER_AREA) for image in whole])
+    y0, x0 = box[0].start, box[1].start
+    across_table = _area_table(w, dw, x0, box[1].stop)
+    down_table = _area_table(h, dh, y0, box[0].stop)
+    out = np.zeros((k, dh, dw), np.float32)
+    if across_table is None or down_table is None:
+        return out
+    # Across each row, then down, each as OpenCV adds: a destination pixel's weighted pixels one
+    # after the other in its table's order (0 + x is x; the padding adds zeros at the end).
+    c0, source, weights = across_table
+    across = _weighted_rows(columns, source, weights)  # (shrunk w, k, box h)
+    rows = np.ascontiguousarray(across.transpose(2, 1, 0))  # (box h, k, shrunk w)
+    r0, source, weights = down_table
+    down = _weighted_rows(rows, source, weights)  # (shrunk h, k, shrunk w)
+    out[:, r0:r0 + down.shape[0], c0:c0 + down.shape[2]] = down.transpose(1, 0, 2)
+    return out
+
+
+def _weighted_rows(rows: np.ndarray, source: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Per destination i: sum over j in order of ``rows[source[i, j]] * weights[i, j]`` (float32,
+    one product and one sum at a time, as OpenCV's area resize adds them)."""
+    out = rows[source[:, 0]]
+    out *= weights[:, 0, None, None]
+    for j in range(1, source.shape[1]):
+        term = rows[source[:, j]]
+        term *= weights[:, j, None, None]
+        out += term
+    return out
 
 
 def estimate_dot_diameter(mask: np.ndarray, dot_to_width: float = DEFAULT_DOT_TO_WIDTH) -> float | None:
@@ -68,8 +183,9 @@ def estimate_dot_diameter(mask: np.ndarray, dot_to_width: float = DEFAULT_DOT_TO
     the distance-to-edge values spread evenly over [0, w/2], so w ~ 2 x their 98th percentile."""
     if not mask.any():
         return None
-    dist = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
-    width = 2.0 * float(np.percentile(dist[dist > 0], 98))
+    mask = mask.astype(bool, copy=False)
+    dist = cv2.distanceTransform(mask.view(np.uint8), cv2.DIST_L2, 5)
+    width = 2.0 * percentile(dist[mask], 98)  # np.percentile of dist > 0 (the mask's pixels), bit for bit
     return max(width * dot_to_width, 2.0)
 
 
@@ -87,18 +203,25 @@ def _regions(mask: np.ndarray, pad: int, stride: int = 8) -> list[tuple[slice, s
     h, w = mask.shape
     hs, ws = -(-h // stride), -(-w // stride)
     sy, sx = h / hs, w / ws  # the coarse pixel's size (stride, or a little less at odd sizes)
-    # x 255: a block with a single mask pixel stays non-zero (its area average is >= 255 / stride^2)
-    coarse = (cv2.resize(mask.view(np.uint8) * np.uint8(255), (ws, hs), interpolation=cv2.INTER_AREA) > 0).view(np.uint8)
+    # x 255: a block with a single mask pixel stays non-zero (its area average is >= 255 / stride^2).
+    # OpenCV's uint8 INTER_AREA of the mask: its float sums (area_shrink, on the mask's box only)
+    # rounded to the nearest even integer, as OpenCV rounds them to uint8.
+    box = mask_box(mask)
+    if box is None:
+        return []
+    columns = cv2.transpose(mask[box].view(np.uint8)) * np.float32(255)  # (box w, box h)
+    sums = area_shrink(columns[:, None], (h, w), box, (ws, hs))[0]
+    coarse = (np.rint(sums) > 0).view(np.uint8)
     n, _, stats, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
     boxes = []
     for x, y, bw, bh, _area in stats[1:]:
         ys = slice(int(y * sy), min(h, int(math.ceil((y + bh) * sy))))
         xs = slice(int(x * sx), min(w, int(math.ceil((x + bw) * sx))))
-        rows, cols = np.flatnonzero(mask[ys, xs].any(axis=1)), np.flatnonzero(mask[ys, xs].any(axis=0))
-        if not len(rows):
+        extent = mask_box(mask[ys, xs])
+        if extent is None:
             continue
-        y0, y1 = ys.start + rows[0] - pad, ys.start + rows[-1] + 1 + pad
-        x0, x1 = xs.start + cols[0] - pad, xs.start + cols[-1] + 1 + pad
+        y0, y1 = ys.start + extent[0].start - pad, ys.start + extent[0].stop + pad
+        x0, x1 = xs.start + extent[1].start - pad, xs.start + extent[1].stop + pad
         boxes.append((slice(max(0, y0), min(h, y1)), slice(max(0, x0), min(w, x1))))
     return boxes
 
@@ -120,6 +243,39 @@ def percentile(values: np.ndarray, q: float) -> float:
     return float(b - diff * as_dtype(1.0 - t) if t >= 0.5 else a + diff * as_dtype(t))
 
 
+def _percentile_and_median(values: np.ndarray, q: float) -> tuple[float, float]:
+    """``(percentile(values, q), float(median(values)))`` from one partition (the same order
+    statistics, so the same values bit for bit)."""
+    n = values.size
+    index = (n - 1) * (q / 100.0)
+    lo = math.floor(index)
+    k = n // 2
+    kth = {k, k - 1} if n % 2 == 0 else {k}
+    kth |= {lo, lo + 1} if lo < n - 1 else {n - 1}
+    part = np.partition(values, sorted(kth))
+    if lo >= n - 1:
+        pct = float(part[n - 1])  # the maximum
+    else:
+        a, b = part[lo], part[lo + 1]
+        t = index - lo
+        as_dtype = values.dtype.type
+        diff = b - a
+        pct = float(b - diff * as_dtype(1.0 - t) if t >= 0.5 else a + diff * as_dtype(t))
+    return pct, float(np.mean(part[k:k + 1]) if n % 2 else np.mean(part[k - 1:k + 1]))
+
+
+def histogram_median(counts: np.ndarray) -> np.float32:
+    """``np.median`` of the float32 values of the integer levels counted in ``counts`` (index =
+    level), bit for bit: the middle value, or the float32 mean of the middle two (exact)."""
+    cumulative = np.cumsum(counts)
+    n = int(cumulative[-1])
+    upper = int(np.searchsorted(cumulative, n // 2 + 1))  # the value of rank n // 2 (from 0)
+    if n % 2:
+        return np.float32(upper)
+    lower = int(np.searchsorted(cumulative, n // 2))  # rank n // 2 - 1
+    return np.float32((lower + upper) / 2)
+
+
 def median(values: np.ndarray):
     """``np.median`` of a 1-D array without NaNs, bit for bit (the same partition and mean, in
     the values' dtype), without its general-purpose overhead."""
@@ -135,7 +291,7 @@ def _region_dots(
     grey: np.ndarray, filled: np.ndarray, region: np.ndarray, d: float, p: BlobParams, touches_border,
     size_from_blobs: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Dots in one region of interest: ``grey`` float32 crop, ``filled`` the hole-filled mask
+    """Dots in one region of interest: ``grey`` uint8 (or float32) crop, ``filled`` the hole-filled mask
     crop, ``region`` the mask grown by the margin (where dot pixels may lie); ``touches_border``
     tells whether a crop box (y, x, h, w) touches the frame border (a cut dot's centre is wrong).
     ``size_from_blobs``: ``d`` is only a guess from the mask width; measure it on the blobs.
@@ -147,24 +303,31 @@ def _region_dots(
     # A square kernel: OpenCV decomposes it into two 1D passes (a disc costs ~10x more).
     k = int(round(1.4 * d + 2)) | 1
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
-    tophat = cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, kernel)
+    # On uint8 grey levels: the same top-hat values (integers: the grey less its opening) for a
+    # quarter of the bytes, and their median from a histogram.
+    tophat_levels = cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, kernel) if grey.dtype == np.uint8 else None
+    tophat = tophat_levels.astype(np.float32) if tophat_levels is not None else cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, kernel)
     smooth = cv2.GaussianBlur(tophat, (0, 0), max(0.5, d / 10.0))
-    on_tape = smooth[filled]
-    contrast = percentile(on_tape, 99.5)
     # Dots must stand out from the tape's own texture/noise (the median of the top-hat over the
     # tape, which dots cover only in small part): pure noise has no such outliers.
-    texture = float(median(on_tape))
+    contrast, texture = _percentile_and_median(smooth[filled], 99.5)
     if contrast < max(p.min_contrast, p.min_contrast_to_texture * texture):
         return np.zeros((0, 2)), np.zeros(0)
     binary = ((smooth > 0.5 * contrast) & region).astype(np.uint8)
     # Top-hat of plain tape is noise-positive: measure that floor on tape pixels, subtract it.
     tape_px = filled & (binary == 0)
-    floor = float(median(tophat[tape_px])) if tape_px.any() else 0.0
+    if not tape_px.any():
+        floor = 0.0
+    elif tophat_levels is not None:  # np.median of the float32 values, bit for bit
+        floor = float(histogram_median(cv2.calcHist([tophat_levels], [0], tape_px.view(np.uint8), [256], [0, 256]).ravel()))
+    else:
+        floor = float(median(tophat[tape_px]))
     scale = max(contrast - floor, 1e-3)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
+    n, labels = cv2.connectedComponents(binary, connectivity=8)  # statistics below: ~4x cheaper than OpenCV's
     if n <= 1:
         return np.zeros((0, 2)), np.zeros(0)
-    blobs = _Blobs(labels, stats)
+    blobs = _Blobs(labels, n)
+    stats = blobs.stats
     if size_from_blobs:
         d = _typical_diameter(blobs, d)
     dot_area = math.pi * d * d / 4.0
@@ -185,35 +348,32 @@ def _region_dots(
     level = blobs.percentiles(tophat, 60) - floor
     sums = blobs.weighted_sums(ring, candidate, tophat, floor, np.maximum(level, 1e-3))
     mean_smooth = blobs.means(smooth)
-    centres, scores = [], []
-    for i in np.flatnonzero(candidate):
-        # A dot is a hole in the tape: its surrounding ring lies on the tape. Bright slivers of
-        # skin beside the tape's end or cut off by the frame border fail this.
-        bw, bh = stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]
-        if ring_share[i] < p.min_ring_on_tape or touches_border(y[i], x[i], bh, bw):
-            continue
-        # Sub-pixel centre: top-hat intensity (floor removed, clipped) over the blob plus a rim,
-        # so partially covered edge pixels weigh in proportion to their coverage, scaled by this
-        # blob's own interior level (its inside saturates at 1 and shading across the dot
-        # cannot pull the centre).
-        total, sx, sy = sums[i]
-        if total <= 0:
-            continue
-        centres.append((sx / total, sy / total))
-        mean_contrast = (mean_smooth[i] - floor) / scale
-        scores.append(_confidence(area[i] / dot_area, minor[i] / major[i], fill[i], mean_contrast / 0.8))
-    if not centres:
+    # A dot is a hole in the tape: its surrounding ring lies on the tape. Bright slivers of skin
+    # beside the tape's end or cut off by the frame border fail this. (All candidates at once:
+    # ``touches_border`` takes arrays.)
+    i = np.flatnonzero(candidate)
+    bw, bh = stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]
+    total = sums[i, 0]
+    i = i[~(ring_share[i] < p.min_ring_on_tape) & ~np.asarray(touches_border(y[i], x[i], bh, bw), bool) & ~(total <= 0)]
+    if not len(i):
         return np.zeros((0, 2)), np.zeros(0)
-    return merge_close(np.asarray(centres, float), np.asarray(scores, float), p.merge_distance * d)
+    # Sub-pixel centre: top-hat intensity (floor removed, clipped) over the blob plus a rim, so
+    # partially covered edge pixels weigh in proportion to their coverage, scaled by this blob's
+    # own interior level (its inside saturates at 1 and shading across the dot cannot pull the centre).
+    total, sx, sy = sums[i, 0], sums[i, 1], sums[i, 2]
+    centres = np.stack([sx / total, sy / total], axis=1)
+    mean_contrast = (mean_smooth[i] - floor) / scale
+    scores = np.array([_confidence(*v) for v in zip((area[i] / dot_area).tolist(), (minor[i] / major[i]).tolist(),
+                                                    fill[i].tolist(), (mean_contrast / 0.8).tolist())], float)
+    return merge_close(centres, scores, p.merge_distance * d)
 
 
 class _Blobs:
     """Per-label sums over a label image (label 0: background), all labels at once: pixel
     counts and exact integer coordinate moments (float64 holds them exactly)."""
 
-    def __init__(self, labels: np.ndarray, stats: np.ndarray):
-        self.n = len(stats)
-        self.stats = stats
+    def __init__(self, labels: np.ndarray, n: int):
+        self.n = n
         ys, xs = np.nonzero(labels)
         self.ys, self.xs = ys, xs
         self.lab = labels[ys, xs]
@@ -221,6 +381,17 @@ class _Blobs:
         count = lambda w=None: np.bincount(self.lab, weights=w, minlength=self.n)  # noqa: E731
         self.s1, self.sx, self.sy = count(), count(fx), count(fy)
         self.sxx, self.syy, self.sxy = count(fx * fx), count(fy * fy), count(fx * fy)
+        # OpenCV's component statistics (left, top, width, height, area; int32) of labels >= 1; the
+        # background's row (label 0) holds the whole image's box and its pixel count
+        h, w = labels.shape
+        low = np.full((2, n), np.iinfo(np.int64).max)
+        high = np.full((2, n), -1)
+        for k, v in enumerate((xs, ys)):
+            np.minimum.at(low[k], self.lab, v)
+            np.maximum.at(high[k], self.lab, v)
+        stats = np.stack([low[0], low[1], high[0] + 1 - low[0], high[1] + 1 - low[1], self.s1.astype(np.int64)], axis=1)
+        stats[0] = (0, 0, w, h, labels.size - len(ys))
+        self.stats = stats.astype(np.int32)
 
     def ellipse_axes(self, ox: np.ndarray, oy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Full major/minor axes (px) of each label's moment ellipse, the moments taken with
@@ -253,8 +424,12 @@ class _Blobs:
         """:func:`percentile` ``q`` of ``image`` over each label's pixels, bit for bit (NaN for
         an empty label)."""
         values = image[self.ys, self.xs]
-        order = np.lexsort((values, self.lab))
-        v = values[order]
+        if values.dtype == np.float32 and not np.signbit(values).any():
+            # label, then value, as one int64 key (a non-negative float32's bits ascend with it): one sort
+            key = np.sort((self.lab.astype(np.int64) << 32) | values.view(np.uint32))
+            v = (key & 0xFFFFFFFF).astype(np.uint32).view(np.float32)
+        else:
+            v = values[np.lexsort((values, self.lab))]
         counts = self.s1.astype(np.int64)
         start = np.concatenate([[0], np.cumsum(counts)[:-1]])
         index = (counts - 1) * (q / 100.0)
@@ -302,10 +477,12 @@ def _ring_pixels(labels: np.ndarray, candidate: np.ndarray, grow: np.ndarray) ->
     for each (what dilating each blob on its own gives, without a dilation per blob)."""
     n = len(candidate)
     dtype = np.uint16 if n < 65535 else np.float32
-    cand = np.where(candidate, np.arange(n), 0)[labels].astype(dtype)
-    none = np.iinfo(np.uint16).max if dtype == np.uint16 else np.float32(n + 1)
+    cand = np.where(candidate, np.arange(n), 0).astype(dtype)[labels]
     highest = cv2.dilate(cand, grow)
-    lowest = cv2.erode(np.where(cand > 0, cand, none).astype(dtype), grow)
+    if dtype == np.uint16:  # the lowest candidate label within reach, less 1: 0 wraps to 65535 (none)
+        lowest = cv2.erode(cand - np.uint16(1), grow) + np.uint16(1)  # none wraps back to 0
+    else:
+        lowest = cv2.erode(np.where(cand > 0, cand, np.float32(n + 1)).astype(dtype), grow)
     reached = (labels == 0) & (highest > 0)
     shared = reached & (highest != lowest)
     ys1, xs1 = np.nonzero(reached & ~shared)  # one candidate within reach: the dilation's label
@@ -315,14 +492,14 @@ def _ring_pixels(labels: np.ndarray, candidate: np.ndarray, grow: np.ndarray) ->
         return ys1, xs1, owner1
     r = grow.shape[0] // 2
     dy, dx = np.nonzero(grow)
-    yy, xx = ys2[:, None] + (dy - r)[None], xs2[:, None] + (dx - r)[None]
-    h, w = labels.shape
-    inside = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
-    near = np.where(inside, cand[np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)], 0).astype(np.int64)
-    pixel = np.broadcast_to(np.arange(len(ys2))[:, None], near.shape)
-    keep = near > 0
-    key = np.unique(pixel[keep] * n + near[keep])
-    which, owner2 = key // n, key % n
+    padded = cv2.copyMakeBorder(cand, r, r, r, r, cv2.BORDER_CONSTANT, value=0)  # outside: no candidate
+    width = padded.shape[1]
+    near = padded.ravel()[((ys2 + r) * width + xs2 + r)[:, None] + (dy - r) * width + (dx - r)]
+    # each pixel's distinct candidate labels in ascending order (as a sort of (pixel, label) keys gives them)
+    near = np.sort(near, axis=1)
+    first = near > 0
+    first[:, 1:] &= near[:, 1:] != near[:, :-1]
+    which, owner2 = np.nonzero(first)[0], near[first].astype(np.int64)
     return (np.concatenate([ys1, ys2[which]]), np.concatenate([xs1, xs2[which]]),
             np.concatenate([owner1, owner2]))
 
@@ -337,7 +514,7 @@ def _typical_diameter(blobs: "_Blobs", d_guess: float) -> float:
     plausible[0] = False
     majors, _ = blobs.ellipse_axes(stats[:, cv2.CC_STAT_LEFT], stats[:, cv2.CC_STAT_TOP])  # moments in the blob's box
     majors = majors[plausible]
-    return max(d_guess, float(np.median(majors))) if len(majors) >= 3 else d_guess
+    return max(d_guess, float(median(majors))) if len(majors) >= 3 else d_guess  # np.median, bit for bit
 
 
 def _confidence(area_ratio: float, axis_ratio: float, fill: float, contrast_ratio: float) -> float:
@@ -352,7 +529,8 @@ def _confidence(area_ratio: float, axis_ratio: float, fill: float, contrast_rati
 def merge_close(uv: np.ndarray, score: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Greedy: keep the best-scoring blob, drop others within ``radius`` of a kept one."""
     order = np.argsort(-score)
-    near = np.linalg.norm(uv[:, None] - uv[None], axis=2) < radius  # (N, N): one array op, not N^2 Python
+    dx, dy = uv[:, None, 0] - uv[None, :, 0], uv[:, None, 1] - uv[None, :, 1]
+    near = np.sqrt(dx * dx + dy * dy) < radius  # (N, N): np.linalg.norm's values, not N^2 Python
     covered = np.zeros(len(uv), bool)
     keep: list[int] = []
     for i in order:
@@ -382,8 +560,6 @@ def find_dots(
         raise ValueError(f"mask shape {mask.shape} differs from image shape {grey.shape}")
     empty = (np.zeros((0, 2)), np.zeros(0))
     H, W = grey.shape
-    if not mask.any():
-        return empty
     uvs, confs = [], []
     # Coarse boxes first (cheap on the whole frame); all further work happens inside them.
     d_global = expected_dot_px
@@ -391,13 +567,13 @@ def find_dots(
     for ys, xs in _regions(mask, pad):
         filled = fill_holes(mask[ys, xs])
         d = d_global or estimate_dot_diameter(filled, p.dot_to_width)
-        if d is None or filled.sum() < 0.5 * math.pi * d * d / 4:
+        if d is None or np.count_nonzero(filled) < 0.5 * math.pi * d * d / 4:
             continue
-        region = cv2.dilate(filled.astype(np.uint8), _disc(2 * p.margin * d + 1)).astype(bool)
-        def touches_border(y, x, bh, bw, ys=ys, xs=xs):
-            return ys.start + y <= 0 or xs.start + x <= 0 or ys.start + y + bh >= H or xs.start + x + bw >= W
+        region = cv2.dilate(filled.view(np.uint8), _disc(2 * p.margin * d + 1)).view(bool)
+        def touches_border(y, x, bh, bw, ys=ys, xs=xs):  # numbers or arrays
+            return (ys.start + y <= 0) | (xs.start + x <= 0) | (ys.start + y + bh >= H) | (xs.start + x + bw >= W)
 
-        uv, conf = _region_dots(grey[ys, xs].astype(np.float32), filled, region, d, p, touches_border,
+        uv, conf = _region_dots(grey[ys, xs], filled, region, d, p, touches_border,
                                 size_from_blobs=d_global is None)
         if len(uv):
             uvs.append(uv + [xs.start, ys.start])

@@ -5,17 +5,25 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .blobs import mask_box
+
 
 def _kept_components(mask: np.ndarray, min_area_px: float, min_share: float):
-    """The box holding ``mask``'s pixels, its component labels there and the kept labels,
-    largest first (None when the mask is empty). Only the box is labelled: a full-frame
-    labelling costs more than the rest."""
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    if len(rows) == 0:
+    """The box holding ``mask``'s pixels, its component labels there (uint16 while they fit) and
+    the kept labels, largest first (None when the mask is empty). Only the box is labelled: a
+    full-frame labelling costs more than the rest; the areas come from a histogram of the labels
+    (OpenCV's component statistics cost ~4x the labelling)."""
+    box = mask_box(mask)
+    if box is None:
         return None
-    box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask[box].view(np.uint8), connectivity=8)
-    areas = stats[1:, cv2.CC_STAT_AREA]
+    m = mask[box].view(np.uint8)
+    n, labels = cv2.connectedComponentsWithAlgorithm(m, 8, cv2.CV_16U if m.size < 1 << 24 else cv2.CV_32S,
+                                                     cv2.CCL_DEFAULT)
+    if labels.dtype == np.uint16 and n <= 65536:
+        counts = cv2.calcHist([labels], [0], None, [n], [0, n]).ravel()  # exact below 2^24 px
+        areas = counts[1:].astype(np.int32)  # int32 as OpenCV's statistics: argsort orders ties as before
+    else:
+        areas = np.bincount(labels.ravel(), minlength=n)[1:].astype(np.int32)
     floor = max(min_area_px, min_share * areas.max())
     order = np.argsort(-areas)
     kept = [int(i) + 1 for i in order[areas[order] >= floor]]
@@ -47,9 +55,16 @@ def kept_instances(mask: np.ndarray, min_area_px: float = 0.0, min_share: float 
     found = _kept_components(mask, min_area_px, min_share)
     if found is not None:
         box, labels, kept = found
-        table = np.zeros(labels.max() + 1, bool)
-        table[kept] = True
-        out[box] = table[labels]
+        n = int(labels.max()) + 1
+        if len(kept) == n - 1:  # every component kept (the usual case): the mask itself
+            out[box] = mask[box]
+        else:
+            table = np.zeros(max(n, 256), bool)
+            table[kept] = True
+            if n <= 256:  # OpenCV's table lookup on bytes: several times faster than indexing by labels
+                out[box] = cv2.LUT(labels.astype(np.uint8), table[:256].view(np.uint8)).view(bool)
+            else:
+                out[box] = table[labels]
     return out
 
 

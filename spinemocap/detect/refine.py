@@ -24,6 +24,8 @@ size, and return a bool mask; px are full-resolution image pixels.
 
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -31,7 +33,17 @@ import cv2
 import numpy as np
 
 from ..capture import to_grey
-from .blobs import DEFAULT_DOT_TO_WIDTH, BlobParams, fill_holes, find_dots, median, percentile
+from .blobs import (
+    DEFAULT_DOT_TO_WIDTH,
+    BlobParams,
+    area_shrink,
+    fill_holes,
+    find_dots,
+    histogram_median,
+    mask_box,
+    median,
+    percentile,
+)
 
 
 @dataclass
@@ -60,49 +72,79 @@ def _shrink(mask: np.ndarray, radius: int) -> np.ndarray:
     return cv2.erode(mask.view(np.uint8), _disc(radius)).view(bool)
 
 
-def _near(mask: np.ndarray, margin: int) -> tuple[slice, slice] | None:
+@functools.lru_cache(maxsize=16)
+def _disc_sum(radius: int, first: int) -> bool:
+    """Is the disc of ``radius`` the disc of ``first`` grown by the disc of ``radius - first``,
+    with every offset reached through a point between 0 and it (so that the two dilations in turn
+    give the one dilation also at an image's border)? True for 10 = 3 + 7 (the levels' ring)."""
+    outer, a, b = ({(int(y) - r, int(x) - r) for y, x in zip(*np.nonzero(_disc(r)))} for r in (radius, first, radius - first))
+    def between(u, v):
+        return all(min(0, vi) <= ui <= max(0, vi) for ui, vi in zip(u, v))
+    sums = {(u[0] + v[0], u[1] + v[1]) for u in a for v in b}
+    return sums == outer and all(any(between(u, v) and (v[0] - u[0], v[1] - u[1]) in b for u in a) for v in outer)
+
+
+def _near(mask: np.ndarray, margin: int, box: tuple[slice, slice] | None = None) -> tuple[slice, slice] | None:
     """The bounding box of ``mask``'s pixels grown by ``margin`` px (clipped), None when empty.
     A dilation or erosion by a radius <= ``margin`` inside this box is the whole mask's (outside
-    it both are empty), at a fraction of the cost: the stage-2 box is ~4x the tape's extent."""
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    if not len(rows):
-        return None
+    it both are empty), at a fraction of the cost: the stage-2 box is ~4x the tape's extent.
+    ``box``: the mask's own box (margin 0) when known (it is then grown, not measured again)."""
+    if box is None:
+        return mask_box(mask, margin)
     h, w = mask.shape
-    return (slice(max(0, int(rows[0]) - margin), min(h, int(rows[-1]) + 1 + margin)),
-            slice(max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + 1 + margin)))
+    return (slice(max(0, box[0].start - margin), min(h, box[0].stop + margin)),
+            slice(max(0, box[1].start - margin), min(w, box[1].stop + margin)))
 
 
 class _Levels(NamedTuple):
-    """Where the tape and the skin are sampled (bool masks of the crop) and their median grey levels."""
+    """Where the tape and the skin are sampled and their median grey levels: ``tape`` and ``ring``
+    are bool masks of the crop's part ``box`` (the mask's box grown by the ring's reach; neither
+    has a pixel outside it)."""
 
+    box: tuple[slice, slice]
     tape: np.ndarray
     ring: np.ndarray
     tape_median: np.floating
     ring_median: np.floating
+    grown: np.ndarray  # the mask grown by the snap's band, in ``box`` (the snap reuses it)
 
 
-def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float) -> _Levels | None:
+def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float,
+            box: tuple[slice, slice] | None = None) -> _Levels | None:
     """Pixels that sample the tape (inside the mask, away from its edge, darker than the median
     there, i.e. not a dot) and the skin (a ring just outside the mask). None when either is thin
     or the tape is not clearly darker than the skin (a light tape, a wrong mask): the steps
-    that use them then leave the mask alone. ``grey`` float32."""
-    near = _near(mask, 3 * band + 1)
+    that use them then leave the mask alone. ``grey`` uint8 (the medians from grey-level
+    histograms: ``np.median``'s values) or float32; ``box``: the mask's box, when known."""
+    near = _near(mask, 3 * band + 1, box)
     if near is None:
         return None
     m = mask[near]
-    inner_near = _shrink(m, band + 1)
-    ring_near = _grow(m, 3 * band + 1) & ~_grow(m, band + 1)
-    if np.count_nonzero(inner_near) < 20 or np.count_nonzero(ring_near) < 20:
+    inner = _shrink(m, band + 1)
+    grown = _grow(m, band)
+    # the ring's outer disc as the band's disc grown by the rest (10 = 3 + 7: half the work)
+    outer = _grow(grown, 2 * band + 1) if _disc_sum(3 * band + 1, band) else _grow(m, 3 * band + 1)
+    ring = outer & ~_grow(m, band + 1)
+    if np.count_nonzero(inner) < 20 or np.count_nonzero(ring) < 20:
         return None
     g = grey[near]
-    inner_grey = g[inner_near]
-    tape_near = inner_near & (g <= median(inner_grey))
-    tape_median, ring_median = median(g[tape_near]), median(g[ring_near])
+    if g.dtype == np.uint8:
+        inner_hist = _histogram(g, inner)
+        inner_median = histogram_median(inner_hist)
+        tape = inner & (g <= inner_median)
+        inner_hist[int(inner_median) + 1:] = 0  # the tape's pixels: the inner ones up to the median
+        tape_median, ring_median = histogram_median(inner_hist), histogram_median(_histogram(g, ring))
+    else:
+        tape = inner & (g <= median(g[inner]))
+        tape_median, ring_median = median(g[tape]), median(g[ring])
     if ring_median - tape_median < min_contrast:
         return None
-    tape, ring = np.zeros(mask.shape, bool), np.zeros(mask.shape, bool)
-    tape[near], ring[near] = tape_near, ring_near
-    return _Levels(tape, ring, tape_median, ring_median)
+    return _Levels(near, tape, ring, tape_median, ring_median, grown)
+
+
+def _histogram(grey: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """Counts (256,) int64 of the uint8 ``grey`` levels at ``where`` (one OpenCV call)."""
+    return cv2.calcHist([grey], [0], where.view(np.uint8), [256], [0, 256]).ravel().astype(np.int64)
 
 
 def dark_threshold(grey: np.ndarray, mask: np.ndarray, params: RefineParams) -> float | None:
@@ -116,17 +158,30 @@ def _midway(samples: _Levels | None) -> float | None:
     return 0.5 * (float(samples.tape_median) + float(samples.ring_median))
 
 
-def _local_mean(grey: np.ndarray, weight: np.ndarray, sigma: float, fallback: float) -> np.ndarray:
-    """Weighted Gaussian mean of ``grey`` over the pixels in ``weight``; computed on a 4x
-    smaller grid (the levels vary slowly) and ``fallback`` where no weight is near."""
+def _local_means(grey: np.ndarray, samples: _Levels, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """The local tape and skin levels (float32, crop-sized): for each, the Gaussian mean of
+    ``grey`` weighted by its sample pixels, computed on a 4x smaller grid (the levels vary slowly),
+    and its median where no sample is near. The grid's ``INTER_AREA`` shrink runs on the samples'
+    box only (:func:`area_shrink`: the weights are zero outside it; OpenCV's values bit for bit),
+    the blur and the way back on the whole grid and crop as before."""
     h, w = grey.shape
     small = (max(1, w // 4), max(1, h // 4))
-    g = cv2.resize(grey * weight, small, interpolation=cv2.INTER_AREA)
-    wt = cv2.resize(weight, small, interpolation=cv2.INTER_AREA)
+    # the four images to shrink, in the box and transposed (as area_shrink takes them)
+    g = cv2.transpose(grey[samples.box]) if grey.dtype == np.uint8 else np.ascontiguousarray(grey[samples.box].T)
+    columns = np.empty((g.shape[0], 4, g.shape[1]), np.float32)
+    for k, weight in ((0, samples.tape), (2, samples.ring)):
+        wt = cv2.transpose(weight.view(np.uint8))
+        np.multiply(g, wt, out=columns[:, k], dtype=np.float32)  # grey x 0 or 1: exact as in float32
+        columns[:, k + 1] = wt
+    shrunk = area_shrink(columns, (h, w), samples.box, small)
     s = max(sigma / 4, 0.5)
-    num, den = cv2.GaussianBlur(g, (0, 0), s), cv2.GaussianBlur(wt, (0, 0), s)
-    mean = np.where(den > 1e-3, num / np.maximum(den, 1e-6), fallback).astype(np.float32)
-    return cv2.resize(mean, (w, h), interpolation=cv2.INTER_LINEAR)
+    levels = []
+    for k, fallback in ((0, samples.tape_median), (2, samples.ring_median)):
+        # one blur per image (a four-channel blur rounds differently at some sizes)
+        num, den = cv2.GaussianBlur(shrunk[k], (0, 0), s), cv2.GaussianBlur(shrunk[k + 1], (0, 0), s)
+        mean = np.where(den > 1e-3, num / np.maximum(den, 1e-6), float(fallback)).astype(np.float32)
+        levels.append(cv2.resize(mean, (w, h), interpolation=cv2.INTER_LINEAR))
+    return levels[0], levels[1]
 
 
 def snap_to_edges(crop: np.ndarray, mask: np.ndarray, params: RefineParams | None = None) -> np.ndarray:
@@ -135,28 +190,35 @@ def snap_to_edges(crop: np.ndarray, mask: np.ndarray, params: RefineParams | Non
     p = params or RefineParams()
     if not mask.any():
         return mask
-    grey = to_grey(crop).astype(np.float32)
+    grey = to_grey(crop)
     return _snap(grey, mask, p, _levels(grey, mask, p.band_px, p.min_contrast))
 
 
-def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels | None) -> np.ndarray:
-    """:func:`snap_to_edges` given ``grey`` (float32) and the mask's :func:`_levels`."""
+def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels | None,
+          box: tuple[slice, slice] | None = None) -> np.ndarray:
+    """:func:`snap_to_edges` given ``grey`` (uint8 or float32) and the mask's :func:`_levels`."""
     if samples is None:
         return mask
-    tape_level = _local_mean(grey, samples.tape.astype(np.float32), p.level_sigma_px, float(samples.tape_median))
-    skin_level = _local_mean(grey, samples.ring.astype(np.float32), p.level_sigma_px, float(samples.ring_median))
-    near = _near(mask, p.band_px)
+    tape_level, skin_level = _local_means(grey, samples, p.level_sigma_px)
+    near = _near(mask, p.band_px, box)
     m = mask[near]
-    band = _grow(m, p.band_px) & ~_shrink(m, p.band_px)
+    # the mask grown by the band: the levels' (their box holds this one: a wider margin)
+    oy, ox = near[0].start - samples.box[0].start, near[1].start - samples.box[1].start
+    grown = samples.grown[oy:oy + m.shape[0], ox:ox + m.shape[1]]
+    band = grown & ~_shrink(m, p.band_px)
     snapped = mask.copy()
     snapped[near] = (m & ~band) | (band & (grey[near] < 0.5 * (tape_level[near] + skin_level[near])))
-    return fill_holes(snapped)
+    return fill_holes(snapped, _near(snapped, p.band_px + 1, box))  # the snapped mask lies in ``near``
 
 
 def components_touching(mask: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """The components of ``mask`` (8-connected) that overlap ``reference`` (both bool, same shape)."""
-    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    return _labelled(labels, n, labels[mask & reference])
+    box = _near(mask, 0)
+    out = np.zeros(mask.shape, bool)
+    if box is not None:  # components of the mask's box: the whole mask's
+        n, labels = cv2.connectedComponents(mask[box].astype(np.uint8), connectivity=8)
+        out[box] = _labelled(labels, n, labels[reference[box] & mask[box]])
+    return out
 
 
 def _labelled(labels: np.ndarray, n: int, chosen: np.ndarray) -> np.ndarray:
@@ -172,11 +234,19 @@ def _labelled(labels: np.ndarray, n: int, chosen: np.ndarray) -> np.ndarray:
     return table[labels]
 
 
-def keep_dotted(mask: np.ndarray, dots_uv: np.ndarray) -> np.ndarray:
+def keep_dotted(mask: np.ndarray, dots_uv: np.ndarray, box: tuple[slice, slice] | None = None) -> np.ndarray:
     """The components of ``mask`` that contain at least one of ``dots_uv`` ((N, 2) px, x y)."""
     ij = np.clip(np.round(dots_uv).astype(int), 0, [mask.shape[1] - 1, mask.shape[0] - 1]).reshape(-1, 2)
-    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    return _labelled(labels, n, labels[ij[:, 1], ij[:, 0]])
+    box = _near(mask, 0, box)
+    out = np.zeros(mask.shape, bool)
+    if box is None:
+        return out
+    # components labelled in the mask's box (the whole mask's); a dot outside it is on none
+    n, labels = cv2.connectedComponents(mask[box].astype(np.uint8), connectivity=8)
+    y, x = ij[:, 1] - box[0].start, ij[:, 0] - box[1].start
+    inside = (y >= 0) & (y < labels.shape[0]) & (x >= 0) & (x < labels.shape[1])
+    out[box] = _labelled(labels, n, labels[y[inside], x[inside]])
+    return out
 
 
 class Extended(NamedTuple):
@@ -197,58 +267,104 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     :func:`find_dots`). The mask is unchanged when it shows fewer than two dots (nothing to
     measure the tape by)."""
     p = params or RefineParams()
-    grey_u8 = to_grey(crop)  # once: the snapping, the dots and the extension all read it
-    grey = grey_u8.astype(np.float32)
+    grey = to_grey(crop)  # uint8, once: the snapping, the dots and the extension all read it
     base = fill_holes(mask)
 
-    def snapped_with_levels(m: np.ndarray) -> tuple[np.ndarray, _Levels | None]:
-        # the tape and skin levels of ``m``: for the snap, and (of the kept mask) the extension's threshold
-        if not m.any():
+    def snapped_with_levels(m: np.ndarray, box: tuple[slice, slice] | None) -> tuple[np.ndarray, _Levels | None]:
+        # the tape and skin levels of ``m`` (its box ``box``): for the snap, and (of the kept mask)
+        # the extension's threshold
+        if box is None:
             return m, None
-        samples = _levels(grey, m, p.band_px, p.min_contrast)
-        return _snap(grey, m, p, samples), samples
+        samples = _levels(grey, m, p.band_px, p.min_contrast, box)
+        return _snap(grey, m, p, samples, box), samples
 
     # The dots are found on the mask snapped onto the tape's edge, as the final mask will be:
     # their contrast and centres are measured on the tape's own pixels.
-    snapped, samples = snapped_with_levels(base)
-    dots, conf = find_dots(grey_u8, snapped, None, blob_params)
+    base_box = _near(base, 0)
+    snapped, samples = snapped_with_levels(base, base_box)
+    dots, conf = find_dots(grey, snapped, None, blob_params)
     base_area = int(np.count_nonzero(base))
     if base_area < 50 or len(dots) < 2:
         return Extended(base, dots, conf, snapped)
-    dotted = keep_dotted(base, dots)
+    dotted = keep_dotted(base, dots, base_box)
     answer = dots, conf
     if np.count_nonzero(dotted) < base_area:  # components without dots dropped: the edge levels change, find again
         base = dotted
         base_area = int(np.count_nonzero(base))
-        snapped, samples = snapped_with_levels(base)
-        answer = find_dots(grey_u8, snapped, None, blob_params)
+        base_box = _near(base, 0)
+        snapped, samples = snapped_with_levels(base, base_box)
+        answer = find_dots(grey, snapped, None, blob_params)
     threshold = _midway(samples)
     if threshold is None:
         return Extended(base, *answer, snapped)
-    dist = cv2.distanceTransform(base.view(np.uint8), cv2.DIST_L2, 5)
-    width = 2.0 * percentile(dist[base], 98)  # as estimate_dot_diameter measures it (dist > 0 is base)
+    # The tape's width from the distances to its edge, in the mask's box and a 2 px frame: the
+    # 5 x 5 chamfer's steps reach 2 px, so every pixel's nearest background lies in there.
+    near = _near(base, 2, base_box)
+    inside = base[near]
+    dist = cv2.distanceTransform(inside.view(np.uint8), cv2.DIST_L2, 5)
+    width = 2.0 * percentile(dist[inside], 98)  # as estimate_dot_diameter measures it (dist > 0 is base)
     d = max(width * DEFAULT_DOT_TO_WIDTH, 2.0)
     area_per_dot = base_area / len(dots)
-    dark = grey < threshold
+    dark = _darker(grey, threshold)
     # Candidate regions: dark pixels outside the mask that touch it, with what they enclose.
     n, labels = cv2.connectedComponents((dark & ~base).view(np.uint8), connectivity=8)
-    pieces = _labelled(labels, n, labels[_grow(base, 1) & ~base])
-    candidates = fill_holes(base | pieces) & ~base
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(candidates.view(np.uint8), connectivity=8)
-    out = base.copy()
-    for i in range(1, n):
-        x, y, w, h, area = stats[i]
-        if area < 0.5 * area_per_dot:
-            continue
-        box = (slice(y, y + h), slice(x, x + w))
-        region = labels[box] == i
-        if _looks_like_tape(grey_u8[box], region, dark[box], dots - [x, y], d, width, area_per_dot, p, blob_params):
-            out[box] |= region
-    if (out == base).all():
+    rim = _near(base, 1, base_box)
+    pieces = _labelled(labels, n, labels[rim][_grow(base[rim], 1) & ~base[rim]])
+    joined = base | pieces
+    # ... all of them within the box of the mask and the pieces (their holes too)
+    box = _near(joined, 1)
+    oy, ox = box[0].start, box[1].start
+    candidates = fill_holes(joined[box]) & ~base[box]
+    out, grew = base.copy(), False
+    for x, y, w, h, region in _large_components(candidates, 0.5 * area_per_dot):
+        x, y = x + ox, y + oy
+        at = (slice(y, y + h), slice(x, x + w))
+        if _looks_like_tape(grey[at], region, dark[at], dots - [x, y], d, width, area_per_dot, p, blob_params):
+            out[at] |= region
+            grew = True
+    if not grew:
         return Extended(base, *answer, snapped)
     # The tape grew (rare): its dots on the joined mask, where a dot straddling a join counts.
-    snapped, _ = snapped_with_levels(out)
-    return Extended(out, *find_dots(grey_u8, snapped, None, blob_params), snapped)
+    snapped, _ = snapped_with_levels(out, _near(out, 0))
+    return Extended(out, *find_dots(grey, snapped, None, blob_params), snapped)
+
+
+def _large_components(mask: np.ndarray, min_area: float):
+    """(x, y, w, h, bool mask of the box) of each 8-connected component of ``mask`` with at least
+    ``min_area`` pixels, in label order. Labels, then their areas from a histogram, and the boxes
+    of the few large ones one at a time: OpenCV's statistics of all labels cost ~4x the labelling
+    (with many large ones, or a large mask, OpenCV's statistics all the same)."""
+    m = mask.view(np.uint8)
+    if m.size <= 200_000:  # fewer than 65535 components (8-connected: one pixel in four at most)
+        n, labels = cv2.connectedComponentsWithAlgorithm(m, 8, cv2.CV_16U, cv2.CCL_DEFAULT)
+        if n <= 1:
+            return
+        areas = cv2.calcHist([labels], [0], None, [n], [0, n]).ravel()  # exact below 2^24 px
+        large = np.flatnonzero(areas[1:] >= min_area) + 1
+        if len(large) <= 8:
+            for i in large:
+                own = labels == i
+                x, y, w, h = cv2.boundingRect(own.view(np.uint8))
+                yield x, y, w, h, own[y:y + h, x:x + w]
+            return
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    for i in np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1:
+        x, y, w, h, _ = (int(v) for v in stats[i])
+        yield x, y, w, h, labels[y:y + h, x:x + w] == i
+
+
+def _darker(grey: np.ndarray, threshold: float) -> np.ndarray:
+    """``grey < np.float32(threshold)`` (the float32 comparison), as one uint8 comparison when
+    ``grey`` is uint8 (its levels are integers: below the threshold is below its ceiling)."""
+    t = np.float32(threshold)
+    if grey.dtype != np.uint8:
+        return grey < t
+    ceiling = math.ceil(float(t))
+    if ceiling > 255:
+        return np.ones(grey.shape, bool)
+    if ceiling <= 0:
+        return np.zeros(grey.shape, bool)
+    return grey < np.uint8(ceiling)
 
 
 def _looks_like_tape(crop: np.ndarray, region: np.ndarray, dark: np.ndarray, known_dots: np.ndarray, d: float,

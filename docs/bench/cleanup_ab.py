@@ -1,0 +1,118 @@
+"""Issue 15: the detector's clean-up (stages 2-3 after the network) before and after a change, on
+a capture's frames: the same dots and masks, and CPU ms per camera image and per frame, the two
+versions alternating image by image in one process (the same load for both).
+
+1. A tracking run (``track_source``, frames in memory, cameras serial) records what the tracker
+   hands the detector per camera image: its boxes (full search every 10th frame, predicted boxes
+   in between) and the network's mask of every box (the network is not timed: it is the same code).
+2. Both versions then clean up every recorded image with those network masks
+   (``Detector._segment_with_dots``: extension, snap, dots, kept instances).
+
+The previous package is imported under another name, e.g.
+
+    mkdir -p /tmp/before && git archive f1ffc42 spinemocap | tar -x -C /tmp/before
+    mv /tmp/before/spinemocap /tmp/before/spinemocap_before
+    OMP_NUM_THREADS=1 python docs/bench/cleanup_ab.py CAPTURE_DIR /tmp/before --frames 20 --rounds 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import threading
+import time
+import warnings
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("capture", type=Path)
+    parser.add_argument("before", type=Path, help="a folder holding the previous package as spinemocap_before/")
+    parser.add_argument("--frames", type=int, default=20)
+    parser.add_argument("--rounds", type=int, default=5)
+    args = parser.parse_args()
+    cv2.setNumThreads(1)  # as the tracker's camera threads set it
+
+    sys.path.insert(0, str(args.before))
+    import spinemocap_before.detect.detector as before_detector
+
+    import spinemocap.detect.detector as after_detector
+    from spinemocap.app.run import track_source
+    from spinemocap.app.streaming import SpeedOptions
+    from spinemocap.bench.speed import MemorySource
+    from spinemocap.capture import Capture
+
+    cap = Capture.open(args.capture)
+    source = cap.frame_source()
+    frames = [source.read(f) for f in range(args.frames)]
+    where = {id(image): (f, c) for f, images in enumerate(frames) for c, image in enumerate(images)}
+
+    # 1. record the tracker's boxes and the network's masks
+    calls, nets, current = [], {}, {}
+    segment_boxes, net_mask = after_detector.NetSegmenter.segment_boxes, after_detector.NetSegmenter._net_mask
+
+    def recording_segment_boxes(self, image, boxes):
+        current[0] = where[id(image)]
+        calls.append((current[0], list(boxes)))
+        return segment_boxes(self, image, boxes)
+
+    def recording_net_mask(self, image, box):
+        mask = net_mask(self, image, box)
+        nets[(current[0], _key(box))] = mask.copy()
+        return mask
+
+    after_detector.NetSegmenter.segment_boxes = recording_segment_boxes
+    after_detector.NetSegmenter._net_mask = recording_net_mask
+    warnings.simplefilter("ignore")
+    result = track_source(MemorySource(frames, list(source.camera_names)), cap.rig, cap.tape, cap.fps,
+                          range(args.frames), up=cap.up, progress=False, speed=SpeedOptions(workers=1, prefetch=0))
+    after_detector.NetSegmenter.segment_boxes = segment_boxes
+    print(f"recorded {len(calls)} camera images ({result.detector_searches}), {len(nets)} network masks")
+
+    # 2. both versions on the recorded images, the network's masks replayed
+    for module in (after_detector, before_detector):
+        module.NetSegmenter._net_mask = lambda self, image, box: nets[(current[threading.get_ident()], _key(box))]
+    detectors = {"before": before_detector.Detector("net"), "after": after_detector.Detector("net")}
+
+    def clean_up(name, key, boxes):
+        current[threading.get_ident()] = key
+        return detectors[name]._segment_with_dots(frames[key[0]][key[1]], boxes)
+
+    dots = worst = 0.0
+    for key, boxes in calls:
+        a, b = clean_up("before", key, boxes), clean_up("after", key, boxes)
+        if len(a.uv) != len(b.uv) or not (a.mask == b.mask).all():
+            raise SystemExit(f"frame {key[0]} camera {key[1]}: other dots or mask ({len(a.uv)} vs {len(b.uv)} dots)")
+        dots += len(a.uv)
+        worst = max(worst, float(np.abs(a.uv - b.uv).max()) if len(a.uv) else 0.0)
+    print(f"same masks and dot counts on every image ({int(dots)} dots), largest position difference {worst:.2g} px")
+
+    cpu: dict[str, list[float]] = {"before": [], "after": []}
+    for r in range(args.rounds):
+        total = {"before": 0.0, "after": 0.0}
+        for key, boxes in calls:
+            for name in (("before", "after") if r % 2 == 0 else ("after", "before")):
+                t = time.thread_time()
+                clean_up(name, key, boxes)
+                total[name] += time.thread_time() - t
+        for name in total:
+            cpu[name].append(total[name])
+        print(f"round {r}: before {total['before'] * 1e3 / args.frames:.1f}, after {total['after'] * 1e3 / args.frames:.1f} "
+              f"CPU ms/frame, ratio {total['after'] / total['before']:.3f} (1-min load {os.getloadavg()[0]:.1f})")
+    for name, values in cpu.items():
+        m = float(np.median(values))
+        print(f"{name}: median {m * 1e3 / args.frames:.1f} CPU ms/frame, {m * 1e3 / len(calls):.2f} ms/camera image")
+    print(f"after / before (medians): {np.median(cpu['after']) / np.median(cpu['before']):.3f}")
+
+
+def _key(box) -> tuple[int, int, int, int]:
+    return box[0].start, box[0].stop, box[1].start, box[1].stop
+
+
+if __name__ == "__main__":
+    main()
