@@ -5,6 +5,7 @@ the prefetching reader hands its errors to the consumer."""
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -318,3 +319,105 @@ def test_replay_benchmark_runs_both_parallel_modes_from_memory_and_video(tmp_pat
     assert numbers["speedup_processes_vs_threads"] > 0 and numbers["fps_video"] > 0
     assert runs["video"]["frames"] == 3 and runs["in_memory"]["frames"] == 5
     assert "cameras in processes" in format_report(numbers)
+
+
+# ---------------------------------------------------------------- detection ahead of the tracker
+def test_detection_ahead_without_prediction_gives_the_serial_output():
+    # lookahead 1: frame t+1 detected while the tracker solves frame t; without prediction
+    # (per-frame mode) nothing depends on the tracker, so the output is the serial one exactly
+    from spinemocap.bench.speed import MemorySource
+
+    scene, images = _rendered("tiny", 3)
+    source = MemorySource(images, scene.rig.names)
+
+    def track(options, mode):
+        return track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], mode=mode,
+                            progress=False, speed=options)
+
+    for mode in ("paper", "sequence"):
+        options = SpeedOptions(workers=2, predict=mode == "sequence")
+        serial, ahead = track(options, mode), track(replace(options, lookahead=1), mode)
+        a, b = serial.table.to_arrays(), ahead.table.to_arrays()
+        if mode == "paper":
+            np.testing.assert_array_equal(a["positions"], b["positions"])
+            assert (a["status"] == b["status"]).all()
+            assert serial.detector_searches == ahead.detector_searches
+        else:  # predicted boxes from one frame earlier: same dots here, up to rounding of the crops
+            np.testing.assert_allclose(a["positions"], b["positions"], atol=0.05)
+            assert (a["status"] == b["status"]).all()
+
+
+def test_prediction_from_two_frames_back_finds_the_full_search_dots_on_a_small_studio(small_studio):
+    # lookahead 1: the box of a frame is predicted from the solved frame two before it (here the
+    # first frame's dots, no velocity known) and the previous frame's mask, with the wider margin
+    scene, images = small_studio
+    gt = scene.groundtruth["dots"]
+    full = CaptureDetector("net", scene.rig, SpeedOptions(predict=False, workers=1))
+    ahead = CaptureDetector("net", scene.rig, SpeedOptions(refresh_every=1000, workers=1, lookahead=1))
+    try:
+        ahead(0, images[0], None)  # nothing solved yet: full search
+        ahead.observe(0, gt[0])
+        ahead(1, images[0], None)  # frame 1 (the same image): frame -1 was not solved -> full search
+        assert ahead.searches == {"full": 2 * len(scene.rig), "predicted": 0, "fallback": 0}
+        views = ahead(2, images[1], None)  # predicted from frame 0 over two frames
+        assert ahead.searches["predicted"] == len(scene.rig) and ahead.searches["fallback"] == 0
+        assert _same_dots(full(1, images[1], None), views) < 0.01
+        assert sum(len(v) for v in views) > 50  # the tape was in view
+    finally:
+        full.close()
+        ahead.close()
+
+
+class _Recorder:
+    """A detector for :func:`detected_ahead` that records how far the tracker had got when each
+    frame was detected, and fails on frame ``fail``."""
+
+    needs_masks = False
+
+    def __init__(self, done: list, fail: int = -1):
+        self.done, self.fail, self.seen = done, fail, []
+
+    def __call__(self, frame, images, masks):
+        if frame == self.fail:
+            raise InputError(f"frame{frame}.png", "image file not found")
+        self.seen.append((frame, len(self.done)))
+        return [frame]
+
+
+def test_detection_ahead_stays_at_most_lookahead_frames_ahead_and_overlaps():
+    import time
+
+    from spinemocap.app.streaming import detected_ahead
+
+    frames = [(f, [np.zeros((2, 2, 3), np.uint8)], None) for f in range(8)]
+    for lookahead in (1, 2):
+        done: list = []
+        detect = _Recorder(done)
+        for frame, views, wait_ms in detected_ahead(iter(frames), detect, lookahead):
+            assert views == [frame] and wait_ms >= 0
+            time.sleep(0.03)  # the tracker's work: detection runs meanwhile
+            done.append(frame)
+        assert [f for f, _ in detect.seen] == list(range(8))
+        # frame i was detected only once the tracker was done with frame i - 1 - lookahead ...
+        assert all(n >= i - lookahead for i, n in detect.seen)
+        # ... and while it was still on an earlier frame (the overlap)
+        assert any(n < i for i, n in detect.seen)
+
+
+def test_detection_ahead_raises_the_detectors_error_and_closing_stops_it():
+    import threading
+
+    from spinemocap.app.streaming import detected_ahead
+
+    frames = [(f, [np.zeros((2, 2, 3), np.uint8)], None) for f in range(6)]
+    got: list = []
+    with pytest.raises(InputError, match="frame3.png"):
+        for frame, _, _ in detected_ahead(iter(frames), _Recorder(got, fail=3), 1):
+            got.append(frame)
+    assert got == [0, 1, 2]
+    assert not any(t.name == "detect-ahead" for t in threading.enumerate())
+    # the tracker stops early (an error, Ctrl-C): closing the generator ends the thread
+    ahead = detected_ahead(iter(frames), _Recorder([]), 1)
+    next(ahead)
+    ahead.close()
+    assert not any(t.name == "detect-ahead" for t in threading.enumerate())
