@@ -167,7 +167,8 @@ def test_processes_that_cannot_start_fall_back_to_threads(monkeypatch):
 
 
 @pytest.mark.slow  # ~45 s on the 2-core machine, most of it rendering the capture
-def test_ctrl_c_stops_tracking_with_camera_processes(tmp_path):
+@pytest.mark.parametrize("lookahead", ["0", "1"])  # 1: detection runs a frame ahead in its own thread
+def test_ctrl_c_stops_tracking_with_camera_processes(tmp_path, lookahead):
     # a real `spinemocap track` with cameras in worker processes, Ctrl-C sent to its process
     # group as a terminal does: it exits within seconds and leaves no worker behind
     import os
@@ -185,7 +186,7 @@ def test_ctrl_c_stops_tracking_with_camera_processes(tmp_path):
     env = {**os.environ, "OMP_NUM_THREADS": "1",
            "PYTHONPATH": f"{Path(__file__).resolve().parents[1]}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
     proc = subprocess.Popen([sys.executable, "-m", "spinemocap", "track", str(root), "--out", str(tmp_path / "out"),
-                             "--workers", "2", "--parallel", "processes", "--no-progress"],
+                             "--workers", "2", "--parallel", "processes", "--lookahead", lookahead, "--no-progress"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
                             start_new_session=True,
                             # Ctrl-C's default action even when this test runs in a background job
@@ -421,3 +422,25 @@ def test_detection_ahead_raises_the_detectors_error_and_closing_stops_it():
     next(ahead)
     ahead.close()
     assert not any(t.name == "detect-ahead" for t in threading.enumerate())
+
+
+def test_stopping_the_tracker_ends_the_detection_running_ahead():
+    # the tracker stops (Ctrl-C sets the stop flag of `spinemocap track`) while detection runs a
+    # frame ahead in its thread: the run ends with TrackingStopped, no thread is left behind
+    import threading
+
+    from spinemocap.app.results import TrackingStopped
+    from spinemocap.bench.speed import MemorySource
+
+    scene, images = _rendered("tiny", 6)
+    source = MemorySource(images, scene.rig.names)
+    asked: list = []
+
+    def stop() -> bool:
+        asked.append(1)
+        return len(asked) > 2
+
+    with pytest.raises(TrackingStopped, match="before frame 2"):
+        track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], progress=False,
+                     speed=SpeedOptions(workers=2, lookahead=1), stop=stop)
+    assert not any(t.name == "detect-ahead" or t.name.startswith("detect_") for t in threading.enumerate())

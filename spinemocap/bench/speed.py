@@ -266,14 +266,18 @@ def lookahead_numbers(runs: list[dict], speed: SpeedOptions, positions: dict[str
         return {}
     ahead, exact = (by_name["in_memory"], by_name[peer_name]) if speed.lookahead > 0 else (by_name[peer_name], by_name["in_memory"])
     a, b = positions.get("in_memory"), positions.get(peer_name)
-    differ = None
+    differ = share = None
     if a is not None and b is not None and a.shape == b.shape:
         both = np.isfinite(a).all(axis=-1) & np.isfinite(b).all(axis=-1)
-        differ = float(np.linalg.norm(a - b, axis=-1)[both].max()) if both.any() else 0.0
+        distance = np.linalg.norm(a - b, axis=-1)[both]
+        differ = float(distance.max()) if both.any() else 0.0
+        share = float(np.mean(distance > 0.1)) if both.any() else 0.0
     return {"speedup_lookahead_in_memory": ahead["fps"] / exact["fps"],
             "cpu_s_per_frame_lookahead": ahead["cpu_s_per_frame"], "cpu_s_per_frame_exact": exact["cpu_s_per_frame"],
             "lookahead_accuracy_not_worse": _not_worse(ahead, exact),
             "lookahead_max_difference_mm": differ,
+            # share of the (frame, dot) positions tracked in both that moved by more than 0.1 mm
+            "lookahead_share_over_0p1mm": share,
             "lookahead_same_missing": bool(np.array_equal(np.isnan(a), np.isnan(b))) if differ is not None else None}
 
 
@@ -362,13 +366,14 @@ def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode:
     ``masks``: the capture's ground-truth ``masks/`` may be read (False for a replayed source)."""
     with warnings.catch_warnings(), PeakMemory() as memory:
         warnings.simplefilter("ignore", TrackingWarning)
-        cpu_start = time.process_time()
+        cpu_start, thread_start = time.process_time(), time.thread_time()
         start = time.perf_counter()
         result = track_source(source, capture.rig, capture.tape, capture.fps, frames, up=capture.up, mode=mode,
                               detector=detector, progress=progress, speed=speed,
                               mask_dir=capture.root / "masks" if masks else None)
         wall = time.perf_counter() - start
         result.cpu_s = time.process_time() - cpu_start  # type: ignore[attr-defined]
+        result.main_thread_cpu_s = time.thread_time() - thread_start  # type: ignore[attr-defined]
     # camera worker processes: their start-up (importing torch, loading the network: seconds, once
     # per run, not per frame) is not timed; the CPU they used after it is added to this process's
     info = result.detector_info
@@ -413,6 +418,10 @@ def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, captu
         "cpu_s_per_frame": getattr(result, "cpu_s", float("nan")) / max(n, 1),
         # cores busy on average = CPU s per frame x frames/s
         "cores_used": getattr(result, "cpu_s", float("nan")) / wall if wall > 0 else float("nan"),
+        # CPU s per frame of the thread that runs the tracker (with lookahead 0 it also drives
+        # detection), and of the camera worker processes: where the CPU goes
+        "main_thread_cpu_s_per_frame": getattr(result, "main_thread_cpu_s", float("nan")) / max(n, 1),
+        "workers_cpu_s_per_frame": result.detector_info.get("workers_cpu_s", 0.0) / max(n, 1),
         "parallel": result.detector_info.get("parallel"), "workers": result.detector_info.get("workers"),
         "lookahead": options.lookahead if options is not None else None,
         "workers_startup_s": result.detector_info.get("startup_s"),
@@ -601,7 +610,8 @@ def format_report(numbers: dict) -> str:
         lines.append(f"  detection ahead of the tracker: {numbers['speedup_lookahead_in_memory']:.2f}x the frames/s of the "
                      f"exact serial order (in memory; CPU s per frame {numbers['cpu_s_per_frame_lookahead']:.3f} vs "
                      f"{numbers['cpu_s_per_frame_exact']:.3f}); accuracy not worse: {numbers['lookahead_accuracy_not_worse']}; "
-                     f"largest difference {numbers['lookahead_max_difference_mm']:.4f} mm")
+                     f"largest difference {numbers['lookahead_max_difference_mm']:.4f} mm, "
+                     f"{100 * numbers['lookahead_share_over_0p1mm']:.2f} % of dots > 0.1 mm")
     if numbers.get("speedup_vs_cpu") is not None:
         lines.append(f"  network on {numbers['device']}: {numbers['speedup_vs_cpu']:.2f}x the same pipeline's frames/s "
                      f"on the CPU; accuracy not worse: {numbers['accuracy_not_worse_vs_cpu']}")
