@@ -444,3 +444,30 @@ def test_stopping_the_tracker_ends_the_detection_running_ahead():
         track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], progress=False,
                      speed=SpeedOptions(workers=2, lookahead=1), stop=stop)
     assert not any(t.name == "detect-ahead" or t.name.startswith("detect_") for t in threading.enumerate())
+
+
+def test_lookahead_numbers_compare_the_run_ahead_with_the_exact_order():
+    from spinemocap.bench.speed import lookahead_numbers
+
+    def run(name, fps, cpu, error):
+        return {"run": name, "fps": fps, "cpu_s_per_frame": cpu, "mean_error_mm": error, "label_swaps": 0,
+                "frames_without_solution": 0}
+
+    exact = np.zeros((4, 2, 3))
+    ahead = exact.copy()
+    ahead[1, 0, 0] = 0.5          # one of 8 dot positions moved by 0.5 mm
+    ahead[2, 1] = exact[2, 1] = np.nan
+    runs = [run("in_memory", 3.0, 0.2, 0.50), run("in_memory_lookahead0", 2.0, 0.18, 0.50)]
+    numbers = lookahead_numbers(runs, SpeedOptions(lookahead=1),
+                                {"in_memory": ahead, "in_memory_lookahead0": exact})
+    assert numbers["speedup_lookahead_in_memory"] == pytest.approx(1.5)
+    assert numbers["cpu_s_per_frame_lookahead"] == 0.2 and numbers["cpu_s_per_frame_exact"] == 0.18
+    assert numbers["lookahead_max_difference_mm"] == pytest.approx(0.5)
+    assert numbers["lookahead_share_over_0p1mm"] == pytest.approx(1 / 7)
+    assert numbers["lookahead_accuracy_not_worse"] and numbers["lookahead_same_missing"]
+    # the default (lookahead 0) with lookahead 1 as the peer: the ratio the other way round
+    runs = [run("in_memory", 2.0, 0.18, 0.50), run("in_memory_lookahead1", 3.0, 0.2, 0.60)]
+    numbers = lookahead_numbers(runs, SpeedOptions(), {"in_memory": exact, "in_memory_lookahead1": ahead})
+    assert numbers["speedup_lookahead_in_memory"] == pytest.approx(1.5)
+    assert not numbers["lookahead_accuracy_not_worse"]  # 0.1 mm worse on average
+    assert lookahead_numbers(runs[:1], SpeedOptions(), {}) == {}  # no peer ran
