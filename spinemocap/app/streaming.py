@@ -303,6 +303,7 @@ class CaptureDetector:
         self._boxes: dict[int, Box] = {}             # camera -> last frame's tape box
         self._counts: dict[int, int] = {}            # camera -> dots found in the last frame
         self._since_full = 0
+        self._first: int | None = None               # the first frame detected (by prediction's rules)
         self.searches = {"full": 0, "predicted": 0, "fallback": 0}  # camera images per route
 
     @property
@@ -454,8 +455,17 @@ class CaptureDetector:
         or a refresh is due). The dots come from the frame ``1 + lookahead`` before ``frame``;
         the boxes of the last detected frame (``frame - 1``) move with them."""
         steps = 1 + self.options.lookahead
+        if self._first is None:
+            self._first = frame
+        if self._since_full + 1 >= self.options.refresh_every:
+            return None
         last = self._observed.get(frame - steps)
-        if last is None or self._since_full + 1 >= self.options.refresh_every:
+        if last is None:
+            if frame - steps < self._first and self._boxes:
+                # the sequence's first frames ahead of the tracker: no solved frame can be there
+                # yet; the last detected frame's tape boxes, with the margin (as lookahead 0
+                # predicts the second frame: the same full-search schedule)
+                return self._boxes_alone(images, self.options.box_margin_px)
             return None
         before_last = self._observed.get(frame - steps - 1)
         velocity = np.nan_to_num(last - before_last) if before_last is not None else np.zeros_like(last)
@@ -480,6 +490,15 @@ class CaptureDetector:
             y0, y1 = min(y0, ys.start + shift[1]), max(y1, ys.stop + shift[1])
             m = self.options.box_margin_px + (steps - 1) * self.options.lookahead_margin_px
             out[c] = _training_padded_box(x0 - m, y0 - m, x1 + m, y1 + m, shape)
+        return out
+
+    def _boxes_alone(self, images: list[np.ndarray], margin: float) -> list[Box | None]:
+        """The last detected frame's tape box of each camera grown by ``margin`` (None: no tape there)."""
+        out: list[Box | None] = [None] * len(images)
+        for c, (ys, xs) in self._boxes.items():
+            if c < len(images):
+                out[c] = _training_padded_box(xs.start - margin, ys.start - margin, xs.stop + margin, ys.stop + margin,
+                                              images[c].shape[:2])
         return out
 
 
