@@ -18,7 +18,9 @@ parallel, and detection by prediction in sequence mode.
 - :func:`detected_ahead` (``SpeedOptions.lookahead`` > 0) detects frame t+1 in a background
   thread while the tracker solves frame t, so detection (in the camera processes or threads) and
   the tracker run at the same time; the boxes of frame t+1 are then predicted from frame t-1 over
-  two frames with a wider margin. ``lookahead=0`` keeps the exact serial order.
+  two frames (``lookahead_margin_px`` wider per extra frame, 0 by default). ``lookahead=0`` (the
+  default) keeps the exact serial order. Measured on the shared 2-core VM it did not pay
+  reproducibly (docs/BENCHMARKS.md, issue 15, "Detection ahead of the tracker").
 
 :data:`LEGACY` reproduces the pipeline before issue 15 (one camera after the other, no
 prefetching, masks read whenever the capture has them, the full search in every frame): the
