@@ -5,6 +5,7 @@ the prefetching reader hands its errors to the consumer."""
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -166,7 +167,8 @@ def test_processes_that_cannot_start_fall_back_to_threads(monkeypatch):
 
 
 @pytest.mark.slow  # ~45 s on the 2-core machine, most of it rendering the capture
-def test_ctrl_c_stops_tracking_with_camera_processes(tmp_path):
+@pytest.mark.parametrize("lookahead", ["0", "1"])  # 1: detection runs a frame ahead in its own thread
+def test_ctrl_c_stops_tracking_with_camera_processes(tmp_path, lookahead):
     # a real `spinemocap track` with cameras in worker processes, Ctrl-C sent to its process
     # group as a terminal does: it exits within seconds and leaves no worker behind
     import os
@@ -184,7 +186,7 @@ def test_ctrl_c_stops_tracking_with_camera_processes(tmp_path):
     env = {**os.environ, "OMP_NUM_THREADS": "1",
            "PYTHONPATH": f"{Path(__file__).resolve().parents[1]}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
     proc = subprocess.Popen([sys.executable, "-m", "spinemocap", "track", str(root), "--out", str(tmp_path / "out"),
-                             "--workers", "2", "--parallel", "processes", "--no-progress"],
+                             "--workers", "2", "--parallel", "processes", "--lookahead", lookahead, "--no-progress"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
                             start_new_session=True,
                             # Ctrl-C's default action even when this test runs in a background job
@@ -318,3 +320,157 @@ def test_replay_benchmark_runs_both_parallel_modes_from_memory_and_video(tmp_pat
     assert numbers["speedup_processes_vs_threads"] > 0 and numbers["fps_video"] > 0
     assert runs["video"]["frames"] == 3 and runs["in_memory"]["frames"] == 5
     assert "cameras in processes" in format_report(numbers)
+
+
+# ---------------------------------------------------------------- detection ahead of the tracker
+def test_detection_ahead_without_prediction_gives_the_serial_output():
+    # lookahead 1: frame t+1 detected while the tracker solves frame t; without prediction
+    # (per-frame mode) nothing depends on the tracker, so the output is the serial one exactly
+    from spinemocap.bench.speed import MemorySource
+
+    scene, images = _rendered("tiny", 3)
+    source = MemorySource(images, scene.rig.names)
+
+    def track(options, mode):
+        return track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], mode=mode,
+                            progress=False, speed=options)
+
+    for mode in ("paper", "sequence"):
+        options = SpeedOptions(workers=2, predict=mode == "sequence")
+        serial, ahead = track(options, mode), track(replace(options, lookahead=1), mode)
+        a, b = serial.table.to_arrays(), ahead.table.to_arrays()
+        if mode == "paper":
+            np.testing.assert_array_equal(a["positions"], b["positions"])
+            assert (a["status"] == b["status"]).all()
+            assert serial.detector_searches == ahead.detector_searches
+        else:  # predicted boxes from one frame earlier: same dots here, up to rounding of the crops
+            np.testing.assert_allclose(a["positions"], b["positions"], atol=0.05)
+            assert (a["status"] == b["status"]).all()
+
+
+def test_prediction_from_two_frames_back_finds_the_full_search_dots_on_a_small_studio(small_studio):
+    # lookahead 1: the box of a frame is predicted from the solved frame two before it (here the
+    # first frame's dots, no velocity known) and the previous frame's mask, with the wider margin
+    scene, images = small_studio
+    gt = scene.groundtruth["dots"]
+    full = CaptureDetector("net", scene.rig, SpeedOptions(predict=False, workers=1))
+    ahead = CaptureDetector("net", scene.rig, SpeedOptions(refresh_every=1000, workers=1, lookahead=1))
+    try:
+        n = len(scene.rig)
+        first = ahead(0, images[0], None)  # nothing solved yet: full search
+        # frame 1 (the same image), detected before frame 0 is solved: frame 0's boxes alone,
+        # as lookahead 0 would predict it (the same full-search schedule); the same dots
+        assert _same_dots(first, ahead(1, images[0], None)) < 0.01
+        assert ahead.searches == {"full": n, "predicted": n, "fallback": 0}
+        ahead.observe(0, gt[0])
+        views = ahead(2, images[1], None)  # predicted from frame 0 over two frames
+        assert ahead.searches == {"full": n, "predicted": 2 * n, "fallback": 0}
+        assert _same_dots(full(1, images[1], None), views) < 0.01
+        assert sum(len(v) for v in views) > 50  # the tape was in view
+    finally:
+        full.close()
+        ahead.close()
+
+
+class _Recorder:
+    """A detector for :func:`detected_ahead` that records how far the tracker had got when each
+    frame was detected, and fails on frame ``fail``."""
+
+    needs_masks = False
+
+    def __init__(self, done: list, fail: int = -1):
+        self.done, self.fail, self.seen = done, fail, []
+
+    def __call__(self, frame, images, masks):
+        if frame == self.fail:
+            raise InputError(f"frame{frame}.png", "image file not found")
+        self.seen.append((frame, len(self.done)))
+        return [frame]
+
+
+def test_detection_ahead_stays_at_most_lookahead_frames_ahead_and_overlaps():
+    import time
+
+    from spinemocap.app.streaming import detected_ahead
+
+    frames = [(f, [np.zeros((2, 2, 3), np.uint8)], None) for f in range(8)]
+    for lookahead in (1, 2):
+        done: list = []
+        detect = _Recorder(done)
+        for frame, views, wait_ms in detected_ahead(iter(frames), detect, lookahead):
+            assert views == [frame] and wait_ms >= 0
+            time.sleep(0.03)  # the tracker's work: detection runs meanwhile
+            done.append(frame)
+        assert [f for f, _ in detect.seen] == list(range(8))
+        # frame i was detected only once the tracker was done with frame i - 1 - lookahead ...
+        assert all(n >= i - lookahead for i, n in detect.seen)
+        # ... and while it was still on an earlier frame (the overlap)
+        assert any(n < i for i, n in detect.seen)
+
+
+def test_detection_ahead_raises_the_detectors_error_and_closing_stops_it():
+    import threading
+
+    from spinemocap.app.streaming import detected_ahead
+
+    frames = [(f, [np.zeros((2, 2, 3), np.uint8)], None) for f in range(6)]
+    got: list = []
+    with pytest.raises(InputError, match="frame3.png"):
+        for frame, _, _ in detected_ahead(iter(frames), _Recorder(got, fail=3), 1):
+            got.append(frame)
+    assert got == [0, 1, 2]
+    assert not any(t.name == "detect-ahead" for t in threading.enumerate())
+    # the tracker stops early (an error, Ctrl-C): closing the generator ends the thread
+    ahead = detected_ahead(iter(frames), _Recorder([]), 1)
+    next(ahead)
+    ahead.close()
+    assert not any(t.name == "detect-ahead" for t in threading.enumerate())
+
+
+def test_stopping_the_tracker_ends_the_detection_running_ahead():
+    # the tracker stops (Ctrl-C sets the stop flag of `spinemocap track`) while detection runs a
+    # frame ahead in its thread: the run ends with TrackingStopped, no thread is left behind
+    import threading
+
+    from spinemocap.app.results import TrackingStopped
+    from spinemocap.bench.speed import MemorySource
+
+    scene, images = _rendered("tiny", 6)
+    source = MemorySource(images, scene.rig.names)
+    asked: list = []
+
+    def stop() -> bool:
+        asked.append(1)
+        return len(asked) > 2
+
+    with pytest.raises(TrackingStopped, match="before frame 2"):
+        track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], progress=False,
+                     speed=SpeedOptions(workers=2, lookahead=1), stop=stop)
+    assert not any(t.name == "detect-ahead" or t.name.startswith("detect_") for t in threading.enumerate())
+
+
+def test_lookahead_numbers_compare_the_run_ahead_with_the_exact_order():
+    from spinemocap.bench.speed import lookahead_numbers
+
+    def run(name, fps, cpu, error):
+        return {"run": name, "fps": fps, "cpu_s_per_frame": cpu, "mean_error_mm": error, "label_swaps": 0,
+                "frames_without_solution": 0}
+
+    exact = np.zeros((4, 2, 3))
+    ahead = exact.copy()
+    ahead[1, 0, 0] = 0.5          # one of 8 dot positions moved by 0.5 mm
+    ahead[2, 1] = exact[2, 1] = np.nan
+    runs = [run("in_memory", 3.0, 0.2, 0.50), run("in_memory_lookahead0", 2.0, 0.18, 0.50)]
+    numbers = lookahead_numbers(runs, SpeedOptions(lookahead=1),
+                                {"in_memory": ahead, "in_memory_lookahead0": exact})
+    assert numbers["speedup_lookahead_in_memory"] == pytest.approx(1.5)
+    assert numbers["cpu_s_per_frame_lookahead"] == 0.2 and numbers["cpu_s_per_frame_exact"] == 0.18
+    assert numbers["lookahead_max_difference_mm"] == pytest.approx(0.5)
+    assert numbers["lookahead_share_over_0p1mm"] == pytest.approx(1 / 7)
+    assert numbers["lookahead_accuracy_not_worse"] and numbers["lookahead_same_missing"]
+    # the default (lookahead 0) with lookahead 1 as the peer: the ratio the other way round
+    runs = [run("in_memory", 2.0, 0.18, 0.50), run("in_memory_lookahead1", 3.0, 0.2, 0.60)]
+    numbers = lookahead_numbers(runs, SpeedOptions(), {"in_memory": exact, "in_memory_lookahead1": ahead})
+    assert numbers["speedup_lookahead_in_memory"] == pytest.approx(1.5)
+    assert not numbers["lookahead_accuracy_not_worse"]  # 0.1 mm worse on average
+    assert lookahead_numbers(runs[:1], SpeedOptions(), {}) == {}  # no peer ran

@@ -43,7 +43,7 @@ from ..track.template import tape_frames
 from ..views import ViewDots
 from .reference import observe_reference, pose_doubt, source_images
 from .results import TrackingStopped, write_markers
-from .streaming import CaptureDetector, SpeedOptions, prefetched_frames
+from .streaming import CaptureDetector, SpeedOptions, detected_ahead, prefetched_frames
 
 log = logging.getLogger(__name__)
 
@@ -275,6 +275,9 @@ def source_views(source: FrameSource, frames: Sequence[int], detect: CaptureDete
     frames_in = prefetched_frames(source, frames, mask_dir if read_masks else None,
                                   workers=speed.n_workers(len(source.camera_names)), prefetch=speed.prefetch,
                                   stage=detect.stage if detect.parallel == "processes" else None)
+    if speed.lookahead > 0:
+        yield from detected_ahead(frames_in, detect, speed.lookahead)
+        return
     t0 = time.perf_counter()
     for frame, images, masks in frames_in:
         views = detect(frame, images, masks if detect.needs_masks else None)
@@ -305,13 +308,15 @@ def track_source(
     if mode != "sequence":  # every frame on its own: no prediction from earlier frames
         speed = replace(speed, predict=False)
     detect = make_detector(detector, rig, speed)
+    views = source_views(source, frames, detect, speed, mask_dir)
     try:
         result = run_tracking(
-            source_views(source, frames, detect, speed, mask_dir), rig, tape, fps, up=up, mode=mode,
+            views, rig, tape, fps, up=up, mode=mode,
             config=config, progress=progress, n_frames=len(frames), meta={**(meta or {}), "detector": detector},
             on_frame=lambda frame, r: detect.observe(frame, r.positions if r.solved else None), stop=stop,
         )
     finally:
+        views.close()  # a detection running ahead of the tracker ends before its detector closes
         detect.close()
     result.detector_searches = dict(detect.searches)
     result.detector_info = dict(detect.info)

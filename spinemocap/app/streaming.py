@@ -15,6 +15,12 @@ parallel, and detection by prediction in sequence mode.
   predicted tape box (stage 1, the whole-frame pass, is skipped). A camera falls back to the full
   two-stage search when its box finds fewer than ``min_dot_share`` of the dots it found in the
   previous frame, and every camera does every ``refresh_every`` frames.
+- :func:`detected_ahead` (``SpeedOptions.lookahead`` > 0) detects frame t+1 in a background
+  thread while the tracker solves frame t, so detection (in the camera processes or threads) and
+  the tracker run at the same time; the boxes of frame t+1 are then predicted from frame t-1 over
+  two frames (``lookahead_margin_px`` wider per extra frame, 0 by default). ``lookahead=0`` (the
+  default) keeps the exact serial order. Measured on the shared 2-core VM it did not pay
+  reproducibly (docs/BENCHMARKS.md, issue 15, "Detection ahead of the tracker").
 
 :data:`LEGACY` reproduces the pipeline before issue 15 (one camera after the other, no
 prefetching, masks read whenever the capture has them, the full search in every frame): the
@@ -27,6 +33,7 @@ import logging
 import os
 import queue
 import threading
+import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -81,7 +88,16 @@ class SpeedOptions:
     16-core machine OpenCV's pool of one thread per core otherwise spins on the small images: 40 %
     more CPU per frame at the same frames/s; no difference measured on 2 cores); None: leave
     OpenCV's setting;
-    ``masks_always``: read ``masks/`` even when the detector does not use them (legacy only)."""
+    ``masks_always``: read ``masks/`` even when the detector does not use them (legacy only);
+    ``lookahead``: frames whose detection may run ahead of the tracker (0: frame t+1 is detected
+    after frame t is solved, the exact serial order; 1: frame t+1 is detected, in a background
+    thread, while the tracker solves frame t, so detection and tracking use two cores at once;
+    its predicted boxes then come from the frame before, extrapolated over ``lookahead + 1``
+    frames with the margin grown by ``lookahead_margin_px`` per extra frame (default 0: on the
+    studio capture the boxes' 40 px margin already holds the tape two frames on, and the tracked
+    dots stayed within 5e-5 mm of lookahead 0's; 20 px more moved them by up to 6e-4 mm and cost
+    CPU; a box that misses the tape falls back to the full search as with lookahead 0); without
+    prediction the output is the serial one exactly)."""
 
     workers: int = 0
     parallel: str = "threads"
@@ -94,13 +110,15 @@ class SpeedOptions:
     device: str = "auto"
     opencv_threads: int | None = 1
     masks_always: bool = False
+    lookahead: int = 0
+    lookahead_margin_px: float = 0.0
 
     def n_workers(self, n_cameras: int) -> int:
         return max(1, min(n_cameras, self.workers or os.cpu_count() or 1))
 
 
 LEGACY = SpeedOptions(workers=1, parallel="threads", prefetch=0, predict=False, batch=False, device="cpu", opencv_threads=None,
-                      masks_always=True)
+                      masks_always=True, lookahead=0)
 
 
 # ---------------------------------------------------------------------- reading
@@ -192,6 +210,63 @@ def _in_background(load, frames: Sequence[int], depth: int):
         thread.join()
 
 
+def detected_ahead(frames_in: Iterator[tuple[int, list[np.ndarray], list[np.ndarray] | None]],
+                   detect: "CaptureDetector", lookahead: int) -> Iterator[tuple[int, list, float]]:
+    """Yield ``(frame, views, wait_ms)`` for the tracker with detection in a background thread that
+    runs up to ``lookahead`` frames ahead of it: the ``i``-th frame is detected once the tracker
+    has asked for frame ``i - lookahead``, i.e. is done with every frame before it (and has told
+    the detector their dots: ``run_tracking`` calls ``on_frame`` before it asks for the next
+    frame). So frame t+1 is detected while the tracker solves frame t (two cores busy), memory
+    stays bounded, and the prediction of frame ``i`` always starts from the same solved frame
+    (``i - 1 - lookahead``): the output does not depend on the threads' timing. ``wait_ms``: the
+    time the tracker waited for the frame. Errors of the reader or detector are raised here;
+    closing this generator (the tracker stopped, Ctrl-C) stops the thread and waits for it."""
+    ready = threading.Condition()
+    state = {"taken": 0, "stop": False}
+    out: queue.Queue = queue.Queue()
+    done = object()
+
+    def work() -> None:
+        try:
+            for i, (frame, images, masks) in enumerate(frames_in):
+                with ready:
+                    while state["taken"] < i - lookahead and not state["stop"]:
+                        ready.wait(0.1)
+                    if state["stop"]:
+                        return
+                out.put((frame, detect(frame, images, masks if detect.needs_masks else None)))
+            out.put(done)
+        except BaseException as exc:  # handed to the tracker's thread, raised there
+            out.put(exc)
+        finally:
+            close = getattr(frames_in, "close", None)
+            if close is not None:
+                close()
+
+    thread = threading.Thread(target=work, name="detect-ahead", daemon=True)
+    thread.start()
+    try:
+        taken = 0
+        while True:
+            with ready:
+                state["taken"] = taken
+                ready.notify_all()
+            t0 = time.perf_counter()
+            item = out.get()
+            if item is done:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            frame, views = item
+            yield frame, views, 1000 * (time.perf_counter() - t0)
+            taken += 1
+    finally:
+        with ready:
+            state["stop"] = True
+            ready.notify_all()
+        thread.join()
+
+
 # ---------------------------------------------------------------------- detection
 class CaptureDetector:
     """``(frame, images, masks) -> [ViewDots per camera]`` for one rig (see the module docstring).
@@ -226,11 +301,11 @@ class CaptureDetector:
         # how the cameras ran: parallel mode and workers; with processes their start-up (wall s)
         # and the CPU s they used after it (set by close: this process's CPU clock misses them)
         self.info: dict = {"parallel": self.parallel, "workers": self._n}
-        self._last: np.ndarray | None = None        # (D, 3) dots of the last solved frame
-        self._before_last: np.ndarray | None = None
+        self._observed: dict[int, np.ndarray | None] = {}  # frame -> its solved dots (D, 3), None: unsolved
         self._boxes: dict[int, Box] = {}             # camera -> last frame's tape box
         self._counts: dict[int, int] = {}            # camera -> dots found in the last frame
         self._since_full = 0
+        self._first: int | None = None               # the first frame detected (by prediction's rules)
         self.searches = {"full": 0, "predicted": 0, "fallback": 0}  # camera images per route
 
     @property
@@ -307,7 +382,7 @@ class CaptureDetector:
                 return self._full(images, range(len(images)))
             self.searches["full"] += len(images)
             return self._run(images, range(len(images)), [None] * len(images))
-        predicted = self._predicted_boxes(images)
+        predicted = self._predicted_boxes(frame, images)
         if predicted is None:
             return self._full(images, range(len(images)))
         views = self._run(images, range(len(images)), [_listed(box) for box in predicted])
@@ -366,21 +441,39 @@ class CaptureDetector:
 
     # ------------------------------------------------------------------ prediction
     def observe(self, frame: int, positions: np.ndarray | None) -> None:
-        """The tracker's dots of ``frame`` (D, 3) mm, world (None or all-NaN: not solved)."""
-        if positions is None or not np.isfinite(positions).any():
-            self._last = self._before_last = None
-            return
-        self._before_last, self._last = self._last, np.asarray(positions, float).copy()
+        """The tracker's dots of ``frame`` (D, 3) mm, world (None or all-NaN: not solved). Frames
+        are numbered consecutively; detecting frame f predicts from frames f - 1 - lookahead and
+        the one before it (:class:`SpeedOptions`), so the prediction does not depend on how far
+        the tracker has got (the same dots however the threads are timed)."""
+        solved = positions is not None and np.isfinite(positions).any()
+        self._observed[frame] = np.asarray(positions, float).copy() if solved else None
+        keep = self.options.lookahead + 3
+        for old in [f for f in list(self._observed) if f <= frame - keep]:
+            self._observed.pop(old, None)
 
-    def _predicted_boxes(self, images: list[np.ndarray]) -> list[Box | None] | None:
+    def _predicted_boxes(self, frame: int, images: list[np.ndarray]) -> list[Box | None] | None:
         """Per camera the box to search (None: the camera saw no tape in the last frame or no
         predicted dot falls into its image; nothing to search), or None when the whole frame needs the full search (no solved previous frame,
-        or a refresh is due)."""
-        if self._last is None or self._since_full + 1 >= self.options.refresh_every:
+        or a refresh is due). The dots come from the frame ``1 + lookahead`` before ``frame``;
+        the boxes of the last detected frame (``frame - 1``) move with them."""
+        steps = 1 + self.options.lookahead
+        if self._first is None:
+            self._first = frame
+        if self._since_full + 1 >= self.options.refresh_every:
             return None
-        last = self._last
-        velocity = np.nan_to_num(last - self._before_last) if self._before_last is not None else 0.0
-        predicted = last + velocity
+        last = self._observed.get(frame - steps)
+        if last is None:
+            if frame - steps < self._first and self._boxes:
+                # the sequence's first frames ahead of the tracker: no solved frame can be there
+                # yet; the last detected frame's tape boxes, with the margin (as lookahead 0
+                # predicts the second frame: the same full-search schedule)
+                return self._boxes_alone(images, self.options.box_margin_px)
+            return None
+        before_last = self._observed.get(frame - steps - 1)
+        velocity = np.nan_to_num(last - before_last) if before_last is not None else np.zeros_like(last)
+        predicted = last + steps * velocity
+        if steps > 1:  # where the dots were in the last detected frame, the one the boxes come from
+            last = last + (steps - 1) * velocity
         ok = np.isfinite(predicted).all(axis=1)
         out: list[Box | None] = [None] * len(images)
         for c, (cam, image) in enumerate(zip(self.rig, images)):
@@ -397,8 +490,17 @@ class CaptureDetector:
             ys, xs = self._boxes[c]
             x0, x1 = min(x0, xs.start + shift[0]), max(x1, xs.stop + shift[0])
             y0, y1 = min(y0, ys.start + shift[1]), max(y1, ys.stop + shift[1])
-            m = self.options.box_margin_px
+            m = self.options.box_margin_px + (steps - 1) * self.options.lookahead_margin_px
             out[c] = _training_padded_box(x0 - m, y0 - m, x1 + m, y1 + m, shape)
+        return out
+
+    def _boxes_alone(self, images: list[np.ndarray], margin: float) -> list[Box | None]:
+        """The last detected frame's tape box of each camera grown by ``margin`` (None: no tape there)."""
+        out: list[Box | None] = [None] * len(images)
+        for c, (ys, xs) in self._boxes.items():
+            if c < len(images):
+                out[c] = _training_padded_box(xs.start - margin, ys.start - margin, xs.stop + margin, ys.stop + margin,
+                                              images[c].shape[:2])
         return out
 
 

@@ -171,7 +171,8 @@ def with_sensor_noise(images: list[np.ndarray], sigma: float, seed: int) -> list
 def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence", detector: str = "net",
                          legacy: bool = True, speed: SpeedOptions | None = None, sensor_noise: float = 0.0,
                          progress: bool = True, say: Callable[[str], None] = print, cpu_peer: bool = True,
-                         parallel_peer: bool = True, video_frames: int = 0, workdir: Path | None = None) -> dict:
+                         parallel_peer: bool = True, video_frames: int = 0, workdir: Path | None = None,
+                         lookahead_peer: bool = False) -> dict:
     """In-memory speed of an existing synthetic capture (e.g. a few frames carried to a machine
     that cannot render): its frames played forward and backward (:func:`replay_order`) for
     ``frames`` frames, the ground truth replayed alike; the new pipeline and the legacy peer.
@@ -181,6 +182,8 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
     or threads; ``speedup_processes_vs_threads``, ``same_output_processes_threads``).
     ``video_frames`` > 0: the first so many replayed frames (noise included) are also written as
     lossless UT Video into ``workdir`` (reused when there) and tracked from it, in both modes.
+    ``lookahead_peer``: also the same pipeline with the other ``lookahead`` (0 when ``speed``
+    looks ahead, else 1; :func:`lookahead_numbers`).
     Ground-truth masks are not replayed (the legacy peer reads none here)."""
     from ..detect.detector import resolve_device
 
@@ -198,6 +201,8 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
     configs = [("in_memory", speed)]
     if parallel_peer and speed.n_workers(len(capture.rig)) > 1:
         configs.append((f"in_memory_{other}", replace(speed, parallel=other)))
+    if lookahead_peer:
+        configs.append((f"in_memory_lookahead{_peer_lookahead(speed)}", replace(speed, lookahead=_peer_lookahead(speed))))
     if device != "cpu" and cpu_peer:
         configs.append(("in_memory_cpu", replace(speed, device="cpu")))
     if legacy:
@@ -209,7 +214,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
     for name, options in configs:
         say(f"tracking: {name} ...")
         result, wall, peak = _timed_run(replayed, capture, options, mode, detector, progress, masks=False)
-        runs.append(_summary(name, result, wall, peak, capture, gt))
+        runs.append(_summary(name, result, wall, peak, capture, gt, options))
         positions[name] = result.table.to_arrays()["positions"]
         say(f"  {runs[-1]['fps']:.2f} frames/s, {runs[-1]['cpu_s_per_frame']:.3f} CPU s/frame, "
             f"mean error {runs[-1]['mean_error_mm']:.3f} mm")
@@ -241,8 +246,39 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
         "same_output_processes_threads": (bool(np.array_equal(positions["in_memory"], positions[f"in_memory_{other}"],
                                                               equal_nan=True)) if by_mode[other] else None),
         "device_check": check,
+        **lookahead_numbers(runs, speed, positions),
         "accuracy_tolerance_mm": ACCURACY_TOLERANCE_MM, "runs": runs, "goals_fps": GOALS_FPS,
     }
+
+
+def _peer_lookahead(speed: SpeedOptions) -> int:
+    """The lookahead of the peer run: the exact serial order (0) when ``speed`` looks ahead, else 1."""
+    return 0 if speed.lookahead > 0 else 1
+
+
+def lookahead_numbers(runs: list[dict], speed: SpeedOptions, positions: dict[str, np.ndarray]) -> dict:
+    """The in-memory run against its peer with the other lookahead (when it ran): the frames/s
+    ratio of detection ahead (lookahead > 0) over the exact serial order (0), the CPU per frame of
+    each, accuracy not worse, and the largest distance (mm) between the two runs' tracked dots."""
+    peer_name = f"in_memory_lookahead{_peer_lookahead(speed)}"
+    by_name = {r["run"]: r for r in runs}
+    if peer_name not in by_name or "in_memory" not in by_name:
+        return {}
+    ahead, exact = (by_name["in_memory"], by_name[peer_name]) if speed.lookahead > 0 else (by_name[peer_name], by_name["in_memory"])
+    a, b = positions.get("in_memory"), positions.get(peer_name)
+    differ = share = None
+    if a is not None and b is not None and a.shape == b.shape:
+        both = np.isfinite(a).all(axis=-1) & np.isfinite(b).all(axis=-1)
+        distance = np.linalg.norm(a - b, axis=-1)[both]
+        differ = float(distance.max()) if both.any() else 0.0
+        share = float(np.mean(distance > 0.1)) if both.any() else 0.0
+    return {"speedup_lookahead_in_memory": ahead["fps"] / exact["fps"],
+            "cpu_s_per_frame_lookahead": ahead["cpu_s_per_frame"], "cpu_s_per_frame_exact": exact["cpu_s_per_frame"],
+            "lookahead_accuracy_not_worse": _not_worse(ahead, exact),
+            "lookahead_max_difference_mm": differ,
+            # share of the (frame, dot) positions tracked in both that moved by more than 0.1 mm
+            "lookahead_share_over_0p1mm": share,
+            "lookahead_same_missing": bool(np.array_equal(np.isnan(a), np.isnan(b))) if differ is not None else None}
 
 
 def _replayed_video_runs(capture: Capture, replayed: MemorySource, gt: dict, n_frames: int, workdir: Path | None,
@@ -330,13 +366,14 @@ def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode:
     ``masks``: the capture's ground-truth ``masks/`` may be read (False for a replayed source)."""
     with warnings.catch_warnings(), PeakMemory() as memory:
         warnings.simplefilter("ignore", TrackingWarning)
-        cpu_start = time.process_time()
+        cpu_start, thread_start = time.process_time(), time.thread_time()
         start = time.perf_counter()
         result = track_source(source, capture.rig, capture.tape, capture.fps, frames, up=capture.up, mode=mode,
                               detector=detector, progress=progress, speed=speed,
                               mask_dir=capture.root / "masks" if masks else None)
         wall = time.perf_counter() - start
         result.cpu_s = time.process_time() - cpu_start  # type: ignore[attr-defined]
+        result.main_thread_cpu_s = time.thread_time() - thread_start  # type: ignore[attr-defined]
     # camera worker processes: their start-up (importing torch, loading the network: seconds, once
     # per run, not per frame) is not timed; the CPU they used after it is added to this process's
     info = result.detector_info
@@ -370,7 +407,7 @@ def replayed_groundtruth(capture: Capture, order: list[int]) -> dict:
 
 
 def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, capture: Capture,
-             gt: dict | None = None) -> dict:
+             gt: dict | None = None, options: SpeedOptions | None = None) -> dict:
     gt = gt if gt is not None else capture.groundtruth()
     acc = evaluate_tracking(result.table, gt, float(capture.tape.graph.rest_length_mm.min()), result.stage_ms())
     n = len(result.frames)
@@ -381,7 +418,12 @@ def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, captu
         "cpu_s_per_frame": getattr(result, "cpu_s", float("nan")) / max(n, 1),
         # cores busy on average = CPU s per frame x frames/s
         "cores_used": getattr(result, "cpu_s", float("nan")) / wall if wall > 0 else float("nan"),
+        # CPU s per frame of the thread that runs the tracker (with lookahead 0 it also drives
+        # detection), and of the camera worker processes: where the CPU goes
+        "main_thread_cpu_s_per_frame": getattr(result, "main_thread_cpu_s", float("nan")) / max(n, 1),
+        "workers_cpu_s_per_frame": result.detector_info.get("workers_cpu_s", 0.0) / max(n, 1),
         "parallel": result.detector_info.get("parallel"), "workers": result.detector_info.get("workers"),
+        "lookahead": options.lookahead if options is not None else None,
         "workers_startup_s": result.detector_info.get("startup_s"),
         "slowest_camera_ms": result.detector_info.get("slowest_camera_ms"),
         "stage_ms": result.stage_ms(), "peak_memory_mib": peak_mib, "routes": result.routes(),
@@ -395,12 +437,15 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                         mode: str = "sequence", detector: str = "net", seed: int = 0,
                         workdir: Path | None = None, legacy: bool = True, video: bool = True,
                         in_memory: bool = True, speed: SpeedOptions | None = None, progress: bool = True,
-                        say: Callable[[str], None] = print, realism: str = "lab", memory_frames: int = 30) -> dict:
+                        say: Callable[[str], None] = print, realism: str = "lab", memory_frames: int = 30,
+                        parallel_peer: bool = False, lookahead_peer: bool = False) -> dict:
     """Render ``frames`` frames of the synthetic ``preset`` and time tracking them (see the module
     docstring). ``legacy``: also run the previous pipeline (the peer); ``workdir``: where the
     capture folders go (a temporary folder, removed afterwards, when None); ``realism``: the
     studio's level (``lab``: tension, skin strain, the lab's inexact rig, sync error, noise);
-    ``memory_frames``: decoded frames held for the in-memory runs (replayed forward and backward)."""
+    ``memory_frames``: decoded frames held for the in-memory runs (replayed forward and backward);
+    ``parallel_peer`` / ``lookahead_peer``: the in-memory run also with the cameras in the other
+    parallel mode / with the other lookahead (:func:`lookahead_numbers`; the video run too)."""
     from ..synth import SynthConfig, write_capture
 
     speed = speed or SpeedOptions()
@@ -416,10 +461,13 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
         capture = Capture.open(png_dir)
         runs = []
 
+        positions: dict[str, np.ndarray] = {}
+
         def run(name: str, source: FrameSource, options: SpeedOptions, gt: dict | None = None) -> dict:
             say(f"tracking: {name} ...")
             result, wall, peak = _timed_run(source, capture, options, mode, detector, progress)
-            summary = _summary(name, result, wall, peak, capture, gt)
+            summary = _summary(name, result, wall, peak, capture, gt, options)
+            positions[name] = result.table.to_arrays()["positions"]
             runs.append(summary)
             say(f"  {summary['fps']:.2f} frames/s, {summary['cpu_s_per_frame']:.2f} CPU s/frame, "
                 f"mean error {summary['mean_error_mm']:.3f} mm")
@@ -438,6 +486,15 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
             gt = replayed_groundtruth(capture, order)
             frames_in_memory = MemorySource([held[i] for i in order], capture.camera_names)
             mem = run("in_memory", frames_in_memory, speed, gt)
+            other = "threads" if speed.parallel == "processes" else "processes"
+            if parallel_peer:
+                run(f"in_memory_{other}", frames_in_memory, replace(speed, parallel=other), gt)
+            if lookahead_peer:
+                peer_speed = replace(speed, lookahead=_peer_lookahead(speed))
+                run(f"in_memory_lookahead{peer_speed.lookahead}", frames_in_memory, peer_speed, gt)
+                if parallel_peer:
+                    run(f"in_memory_{other}_lookahead{peer_speed.lookahead}", frames_in_memory,
+                        replace(peer_speed, parallel=other), gt)
             if legacy:
                 mem_peer = run("in_memory_legacy", frames_in_memory, LEGACY, gt)
             del held, frames_in_memory
@@ -456,6 +513,9 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                 video_copy(png_dir, ffv1_dir, codec="ffv1", frames=n_ffv1, progress=progress)
             decoding["video_ffv1_previous"] = decode_speed(Capture.open(ffv1_dir).frame_source(), n_ffv1, workers)
             vid = run("video", Capture.open(video_dir).frame_source(), speed)
+            if lookahead_peer:
+                peer_speed = replace(speed, lookahead=_peer_lookahead(speed))
+                run(f"video_lookahead{peer_speed.lookahead}", Capture.open(video_dir).frame_source(), peer_speed)
         say(f"  decoding alone: {decoding}")
         png = run("png", capture.frame_source(), speed)
         peer = run("png_legacy", capture.frame_source(), LEGACY) if legacy else None
@@ -477,6 +537,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
         "accuracy_not_worse_in_memory": _not_worse(mem, mem_peer) if mem and mem_peer else None,
         "accuracy_tolerance_mm": ACCURACY_TOLERANCE_MM,
         "memory_frames": memory_frames,
+        **lookahead_numbers(runs, speed, positions),
         "decode_only": decoding,
         "runs": runs,
         "goals_fps": GOALS_FPS,
@@ -545,6 +606,12 @@ def format_report(numbers: dict) -> str:
         lines.append(f"  cameras in processes: {numbers['speedup_processes_vs_threads']:.2f}x the frames/s of cameras in "
                      f"threads (in memory; default here: {numbers['parallel']}); same tracked positions: "
                      f"{numbers['same_output_processes_threads']}")
+    if numbers.get("speedup_lookahead_in_memory") is not None:
+        lines.append(f"  detection ahead of the tracker: {numbers['speedup_lookahead_in_memory']:.2f}x the frames/s of the "
+                     f"exact serial order (in memory; CPU s per frame {numbers['cpu_s_per_frame_lookahead']:.3f} vs "
+                     f"{numbers['cpu_s_per_frame_exact']:.3f}); accuracy not worse: {numbers['lookahead_accuracy_not_worse']}; "
+                     f"largest difference {numbers['lookahead_max_difference_mm']:.4f} mm, "
+                     f"{100 * numbers['lookahead_share_over_0p1mm']:.2f} % of dots > 0.1 mm")
     if numbers.get("speedup_vs_cpu") is not None:
         lines.append(f"  network on {numbers['device']}: {numbers['speedup_vs_cpu']:.2f}x the same pipeline's frames/s "
                      f"on the CPU; accuracy not worse: {numbers['accuracy_not_worse_vs_cpu']}")

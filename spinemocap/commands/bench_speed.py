@@ -23,6 +23,11 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
                    help="cameras in threads (the default) or worker processes; the in-memory and video runs are "
                         "repeated in the other mode as the peer")
     p.add_argument("--no-parallel-peer", action="store_true", help="skip the run in the other parallel mode")
+    p.add_argument("--lookahead", type=int, default=None,
+                   help="frames detection may run ahead of the tracker (default: the pipeline's; 0: frame t+1 "
+                        "detected after frame t is solved, the exact serial order; 1: while it is solved)")
+    p.add_argument("--no-lookahead-peer", action="store_true",
+                   help="skip the runs with the other lookahead (0 when --lookahead > 0, else 1)")
     p.add_argument("--video-frames", type=int, default=0,
                    help="with --capture: also write the first so many replayed frames as lossless video (into "
                         "--workdir) and track them from it")
@@ -55,21 +60,30 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from ..app.streaming import SpeedOptions
     from ..bench.speed import format_report, plot_stages, run_replay_benchmark, run_speed_benchmark, save
+    from ..fileio import InputError
 
     speed = SpeedOptions(workers=args.workers, parallel=args.parallel, refresh_every=args.refresh_every,
                          predict=not args.no_predict, device=args.device, opencv_threads=args.opencv_threads or None)
+    if args.lookahead is not None:
+        if args.lookahead < 0:
+            raise InputError("--lookahead", f"must be 0 or more, got {args.lookahead}")
+        speed = replace(speed, lookahead=args.lookahead)
     if args.capture:
         numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_legacy,
                                        speed, args.sensor_noise, progress=not args.no_progress,
                                        cpu_peer=not args.no_cpu_peer, parallel_peer=not args.no_parallel_peer,
-                                       video_frames=args.video_frames, workdir=args.workdir)
+                                       video_frames=args.video_frames, workdir=args.workdir,
+                                       lookahead_peer=not args.no_lookahead_peer)
     else:
         numbers = run_speed_benchmark(args.preset, args.frames, args.occlusion, args.mode, args.detector, args.seed,
                                       args.workdir, legacy=not args.no_legacy, video=not args.no_video,
                                       in_memory=not args.no_memory, speed=speed, progress=not args.no_progress,
-                                      realism=args.realism, memory_frames=args.memory_frames)
+                                      realism=args.realism, memory_frames=args.memory_frames,
+                                      parallel_peer=not args.no_parallel_peer, lookahead_peer=not args.no_lookahead_peer)
     print(format_report(numbers))
     if args.json:
         save(numbers, args.json)

@@ -6,6 +6,7 @@ import argparse
 import logging
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 from spinemocap.capture import Capture
@@ -35,6 +36,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="cameras in worker processes (one detector each, images through shared memory; falls back "
                         "to threads with a warning where processes cannot start) or in threads (default: measured as fast or "
                         "faster on 2 and 16 cores)")
+    p.add_argument("--lookahead", type=int, default=None,
+                   help="sequence mode: frames detection may run ahead of the tracker (0: frame t+1 is detected "
+                        "after frame t is solved, the exact serial order; 1: while frame t is solved, predicting "
+                        "its tape boxes from frame t-1; default: the pipeline's)")
     p.add_argument("--refresh-every", type=int, default=10,
                    help="sequence mode: frames between full tape searches (between them the detector searches "
                         "only the tape box predicted from the previous frames)")
@@ -77,6 +82,10 @@ def run_track(args: argparse.Namespace) -> int:
     speed = LEGACY if args.legacy else SpeedOptions(workers=args.workers, parallel=args.parallel,
                                                     refresh_every=args.refresh_every,
                                                     device=args.device, opencv_threads=args.opencv_threads or None)
+    if args.lookahead is not None and not args.legacy:
+        if args.lookahead < 0:
+            raise InputError("--lookahead", f"must be 0 or more, got {args.lookahead}")
+        speed = replace(speed, lookahead=args.lookahead)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TrackingWarning)
