@@ -129,3 +129,16 @@ def test_damaged_videos_give_an_error_naming_the_file(tmp_path):
     np.testing.assert_array_equal(source.read(0)[0], frames[0])
     with pytest.raises(InputError, match=r"a\.avi.*cannot decode frame 5"):
         source.read(5)
+
+
+def test_videos_without_pyav_give_an_error_naming_the_file(tmp_path, monkeypatch):
+    import sys
+
+    from spinemocap.capture import VideoDecoder, VideoWriter
+
+    monkeypatch.setitem(sys.modules, "av", None)  # as in an installation that lacks PyAV
+    with pytest.raises(InputError, match=r"a\.avi.*PyAV"):
+        VideoDecoder(tmp_path / "a.avi")
+    with pytest.raises(InputError, match=r"b\.avi.*PyAV"):
+        VideoWriter(tmp_path / "b.avi", 100.0, (64, 48))
+    assert not list(tmp_path.iterdir())
