@@ -382,6 +382,23 @@ def test_large_components_are_opencvs():
             assert a[:4] == tuple(int(v) for v in b[:4]) and (a[4] == b[4]).all()
 
 
+def test_component_labels_and_areas_are_opencvs_also_for_speckle_beyond_uint16():
+    from spinemocap.detect.blobs import labelled_components
+
+    rng = np.random.default_rng(16)
+    speckle = np.zeros((600, 600), bool)
+    speckle[::2, ::2] = True  # 90,000 one-pixel components: more labels than uint16 holds
+    speckle[100:140, 100:140] = True  # and one large one (with the speckle it touches)
+    for mask in (_random_blobs(rng, (200, 300), count=40).astype(bool), speckle):
+        n, labels, areas = labelled_components(mask)
+        m, expected_labels, stats, _ = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=8)
+        assert n == m and (labels == expected_labels).all()
+        assert (areas[1:] == stats[1:, cv2.CC_STAT_AREA]).all()
+    # the detector's instance filter keeps the large component and drops the speckle, no error
+    _, labels, _ = labelled_components(speckle)
+    assert (kept_instances(speckle, min_share=0.02) == (labels == labels[120, 120])).all()
+
+
 def test_kept_instances_are_the_union_of_the_instances():
     rng = np.random.default_rng(6)
     for _ in range(10):

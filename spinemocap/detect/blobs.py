@@ -73,6 +73,23 @@ def mask_box(mask: np.ndarray, margin: int = 0) -> tuple[slice, slice] | None:
     return (slice(max(0, y - margin), min(h, y + bh + margin)), slice(max(0, x - margin), min(w, x + bw + margin)))
 
 
+def labelled_components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """8-connected components of a bool or uint8 mask: ``(n, labels, areas)``, ``n`` labels with
+    the background's 0, ``areas`` (n,) int32 pixels per label. Labels are uint16 where they fit,
+    their counts a histogram (exact below 2^24 px); OpenCV's component statistics would cost ~4x
+    the labelling. A mask with more than 65535 components (speckle) is labelled in int32."""
+    m = mask.view(np.uint8)
+    if m.size < 1 << 24:
+        try:
+            n, labels = cv2.connectedComponentsWithAlgorithm(m, 8, cv2.CV_16U, cv2.CCL_DEFAULT)
+        except cv2.error:  # OpenCV stops when the labels overflow uint16
+            pass
+        else:
+            return n, labels, cv2.calcHist([labels], [0], None, [n], [0, n]).ravel().astype(np.int32)
+    n, labels = cv2.connectedComponentsWithAlgorithm(m, 8, cv2.CV_32S, cv2.CCL_DEFAULT)
+    return n, labels, np.bincount(labels.ravel(), minlength=n).astype(np.int32)
+
+
 def fill_holes(mask: np.ndarray, box: tuple[slice, slice] | None = None) -> np.ndarray:
     """Fill the holes of every component of a bool mask (the dots, if the mask excludes them).
     Traced in the mask's box grown by 1 px (a zero frame around it, or the image's own border

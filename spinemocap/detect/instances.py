@@ -5,25 +5,18 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .blobs import mask_box
+from .blobs import labelled_components, mask_box
 
 
 def _kept_components(mask: np.ndarray, min_area_px: float, min_share: float):
-    """The box holding ``mask``'s pixels, its component labels there (uint16 while they fit) and
-    the kept labels, largest first (None when the mask is empty). Only the box is labelled: a
-    full-frame labelling costs more than the rest; the areas come from a histogram of the labels
-    (OpenCV's component statistics cost ~4x the labelling)."""
+    """The box holding ``mask``'s pixels, its component labels there (:func:`labelled_components`)
+    and the kept labels, largest first (None when the mask is empty). Only the box is labelled: a
+    full-frame labelling costs more than the rest."""
     box = mask_box(mask)
     if box is None:
         return None
-    m = mask[box].view(np.uint8)
-    n, labels = cv2.connectedComponentsWithAlgorithm(m, 8, cv2.CV_16U if m.size < 1 << 24 else cv2.CV_32S,
-                                                     cv2.CCL_DEFAULT)
-    if labels.dtype == np.uint16 and n <= 65536:
-        counts = cv2.calcHist([labels], [0], None, [n], [0, n]).ravel()  # exact below 2^24 px
-        areas = counts[1:].astype(np.int32)  # int32 as OpenCV's statistics: argsort orders ties as before
-    else:
-        areas = np.bincount(labels.ravel(), minlength=n)[1:].astype(np.int32)
+    _, labels, areas = labelled_components(mask[box])
+    areas = areas[1:]  # int32 as OpenCV's statistics: argsort orders ties as before
     floor = max(min_area_px, min_share * areas.max())
     order = np.argsort(-areas)
     kept = [int(i) + 1 for i in order[areas[order] >= floor]]

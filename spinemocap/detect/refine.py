@@ -40,6 +40,7 @@ from .blobs import (
     fill_holes,
     find_dots,
     histogram_median,
+    labelled_components,
     mask_box,
     median,
     percentile,
@@ -331,23 +332,17 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
 
 def _large_components(mask: np.ndarray, min_area: float):
     """(x, y, w, h, bool mask of the box) of each 8-connected component of ``mask`` with at least
-    ``min_area`` pixels, in label order. Labels, then their areas from a histogram, and the boxes
-    of the few large ones one at a time: OpenCV's statistics of all labels cost ~4x the labelling
-    (with many large ones, or a large mask, OpenCV's statistics all the same)."""
-    m = mask.view(np.uint8)
-    if m.size <= 200_000:  # fewer than 65535 components (8-connected: one pixel in four at most)
-        n, labels = cv2.connectedComponentsWithAlgorithm(m, 8, cv2.CV_16U, cv2.CCL_DEFAULT)
-        if n <= 1:
-            return
-        areas = cv2.calcHist([labels], [0], None, [n], [0, n]).ravel()  # exact below 2^24 px
-        large = np.flatnonzero(areas[1:] >= min_area) + 1
-        if len(large) <= 8:
-            for i in large:
-                own = labels == i
-                x, y, w, h = cv2.boundingRect(own.view(np.uint8))
-                yield x, y, w, h, own[y:y + h, x:x + w]
-            return
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    ``min_area`` pixels, in label order. Labels and areas (:func:`labelled_components`), then the
+    boxes of the few large ones one at a time (with many large ones, OpenCV's statistics)."""
+    _, labels, areas = labelled_components(mask)
+    large = np.flatnonzero(areas[1:] >= min_area) + 1
+    if len(large) <= 8:
+        for i in large:
+            own = labels == i
+            x, y, w, h = cv2.boundingRect(own.view(np.uint8))
+            yield x, y, w, h, own[y:y + h, x:x + w]
+        return
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=8)
     for i in np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1:
         x, y, w, h, _ = (int(v) for v in stats[i])
         yield x, y, w, h, labels[y:y + h, x:x + w] == i
