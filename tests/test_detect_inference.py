@@ -14,7 +14,7 @@ import torch
 from spinemocap.detect import Detector
 from spinemocap.detect.detector import shipped_weights_path
 from spinemocap.detect.drawn import draw_sample
-from spinemocap.detect.segnet import TapeUNet, inference_net, load_weights, pad_to_multiple, to_tensor
+from spinemocap.detect.segnet import InferenceUNet, TapeUNet, load_weights, pad_to_multiple, to_tensor
 from spinemocap.fileio import InputError
 
 # float32 logits are tens in magnitude; folding and splitting reorder the sums, nothing else
@@ -37,7 +37,7 @@ def _logits(model: torch.nn.Module, view: np.ndarray) -> torch.Tensor:
 
 def test_inference_form_gives_the_plain_modules_logits_for_the_shipped_weights():
     plain, _ = load_weights(shipped_weights_path())
-    fast = inference_net(plain)
+    fast = InferenceUNet(plain)
     assert fast.stride == plain.stride
     for view in _views():
         ref, got = _logits(plain, view), _logits(fast, view)
@@ -60,12 +60,12 @@ def test_folding_uses_every_batch_norm_statistic():
             m.weight.data.uniform_(0.5, 2)
             m.bias.data.uniform_(-1, 1)
     plain.eval()
-    fast = inference_net(plain)
+    fast = InferenceUNet(plain)
     for view in _views(5):
         ref, got = _logits(plain, view), _logits(fast, view)
         assert torch.allclose(got, ref, rtol=1e-5, atol=1e-5), float((got - ref).abs().max())
     with pytest.raises(ValueError, match="eval mode"):
-        inference_net(plain.train())
+        InferenceUNet(plain.train())
 
 
 def _plain_detector() -> Detector:

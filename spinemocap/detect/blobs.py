@@ -253,9 +253,12 @@ def percentile(values: np.ndarray, q: float) -> float:
     if lo >= n - 1:
         return float(values.max())
     part = np.partition(values, (lo, lo + 1))
-    a, b = part[lo], part[lo + 1]
-    t = index - lo
-    as_dtype = values.dtype.type  # numpy rounds the weight to the values' dtype
+    return _between(part[lo], part[lo + 1], index - lo, values.dtype.type)
+
+
+def _between(a, b, t: float, as_dtype) -> float:
+    """numpy's linear interpolation from ``a`` to ``b`` at ``t`` in [0, 1), the weight rounded to
+    the values' dtype as numpy rounds it."""
     diff = b - a
     return float(b - diff * as_dtype(1.0 - t) if t >= 0.5 else a + diff * as_dtype(t))
 
@@ -270,14 +273,8 @@ def _percentile_and_median(values: np.ndarray, q: float) -> tuple[float, float]:
     kth = {k, k - 1} if n % 2 == 0 else {k}
     kth |= {lo, lo + 1} if lo < n - 1 else {n - 1}
     part = np.partition(values, sorted(kth))
-    if lo >= n - 1:
-        pct = float(part[n - 1])  # the maximum
-    else:
-        a, b = part[lo], part[lo + 1]
-        t = index - lo
-        as_dtype = values.dtype.type
-        diff = b - a
-        pct = float(b - diff * as_dtype(1.0 - t) if t >= 0.5 else a + diff * as_dtype(t))
+    # the maximum, or between the two order statistics as percentile() takes them
+    pct = float(part[n - 1]) if lo >= n - 1 else _between(part[lo], part[lo + 1], index - lo, values.dtype.type)
     return pct, float(np.mean(part[k:k + 1]) if n % 2 else np.mean(part[k - 1:k + 1]))
 
 

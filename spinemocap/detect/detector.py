@@ -38,7 +38,7 @@ from .classical import segment_classical
 from .dataset import CROP_PAD, WORK_WIDTH, crop_scale, frame_view
 from .instances import kept_instances, split_instances, union
 from .refine import RefineParams, components_touching, extend_along_tape
-from .segnet import inference_net, load_weights, pad_to_multiple, to_tensor
+from .segnet import InferenceUNet, load_weights, pad_to_multiple, to_tensor
 
 SHIPPED_WEIGHTS = "tape_unet.pt"
 
@@ -71,7 +71,7 @@ class NetSegmenter:
         # The inference form: batch norm folded into the convolutions, no concatenation copies,
         # channels-last weights (the layout of to_tensor's input); the same logits up to float
         # rounding, ~19 % less CPU per pass in the detector (docs/BENCHMARKS.md, issue 15).
-        self.model = inference_net(net)
+        self.model = InferenceUNet(net)
         if precision not in PRECISIONS:
             raise InputError(None, f"unknown network precision {precision!r} (choose {' or '.join(PRECISIONS)})")
         # bfloat16 (an option, not the default): ~45 % less CPU per pass on a CPU with AVX-512 BF16,

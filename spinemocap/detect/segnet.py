@@ -63,7 +63,7 @@ class TapeUNet(nn.Module):
 
 class InferenceUNet(nn.Module):
     """A :class:`TapeUNet` in eval mode rewritten for fast inference; same logits up to float
-    rounding (see tests/test_detect_inference.py), built by :func:`inference_net`.
+    rounding (see tests/test_detect_inference.py).
 
     - Batch norm (eval mode: a per-channel scale and shift) is folded into the weights and a bias
       of the convolution before it, so no separate normalisation pass runs.
@@ -76,7 +76,7 @@ class InferenceUNet(nn.Module):
     def __init__(self, model: TapeUNet):
         super().__init__()
         if model.training:
-            raise ValueError("inference_net needs a model in eval mode (batch norm uses its running statistics)")
+            raise ValueError("InferenceUNet needs a model in eval mode (batch norm uses its running statistics)")
         self.channels = model.channels
         self.down = nn.ParameterList()  # per level: w1, b1, w2, b2
         for block in model.down:
@@ -132,11 +132,6 @@ def _folded_block(block: ConvBlock) -> list[nn.Parameter]:
         out += [_param(w.float()), _param(b.float())]
     return out
 
-
-def inference_net(model: TapeUNet) -> InferenceUNet:
-    """The fast inference form of an eval-mode ``model`` (:class:`InferenceUNet`), on the CPU in
-    float32; move it with ``.to(device)`` / ``.to(dtype)`` like any module."""
-    return InferenceUNet(model)
 
 def to_tensor(images_bgr: np.ndarray | torch.Tensor) -> torch.Tensor:
     """uint8 (H, W, 3) or (B, H, W, 3) BGR -> float (B, 3, H, W) in [-0.5, 0.5], on the device of
