@@ -474,3 +474,14 @@ def test_lookahead_numbers_compare_the_run_ahead_with_the_exact_order():
     assert numbers["speedup_lookahead_in_memory"] == pytest.approx(1.5)
     assert not numbers["lookahead_accuracy_not_worse"]  # 0.1 mm worse on average
     assert lookahead_numbers(runs[:1], SpeedOptions(), {}) == {}  # no peer ran
+
+
+def test_a_negative_lookahead_is_refused_by_the_options_and_both_commands(tmp_path, capsys):
+    from spinemocap.cli import main
+
+    with pytest.raises(InputError, match="--lookahead.*0 or more"):
+        SpeedOptions(lookahead=-1)
+    for argv in (["track", str(tmp_path), "--out", str(tmp_path / "o"), "--lookahead", "-1"],
+                 ["bench", "speed", "--preset", "tiny", "--lookahead", "-1"]):
+        assert main(argv) == 2
+        assert "--lookahead: must be 0 or more, got -1" in capsys.readouterr().err

@@ -113,6 +113,10 @@ class SpeedOptions:
     lookahead: int = 0
     lookahead_margin_px: float = 0.0
 
+    def __post_init__(self) -> None:
+        if self.lookahead < 0:
+            raise InputError("--lookahead", f"must be 0 or more, got {self.lookahead}")
+
     def n_workers(self, n_cameras: int) -> int:
         return max(1, min(n_cameras, self.workers or os.cpu_count() or 1))
 

@@ -60,18 +60,13 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from ..app.streaming import SpeedOptions
     from ..bench.speed import format_report, plot_stages, run_replay_benchmark, run_speed_benchmark, save
-    from ..fileio import InputError
 
+    lookahead = {} if args.lookahead is None else {"lookahead": args.lookahead}  # else the pipeline's default
     speed = SpeedOptions(workers=args.workers, parallel=args.parallel, refresh_every=args.refresh_every,
-                         predict=not args.no_predict, device=args.device, opencv_threads=args.opencv_threads or None)
-    if args.lookahead is not None:
-        if args.lookahead < 0:
-            raise InputError("--lookahead", f"must be 0 or more, got {args.lookahead}")
-        speed = replace(speed, lookahead=args.lookahead)
+                         predict=not args.no_predict, device=args.device, opencv_threads=args.opencv_threads or None,
+                         **lookahead)
     if args.capture:
         numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_legacy,
                                        speed, args.sensor_noise, progress=not args.no_progress,

@@ -6,7 +6,6 @@ import argparse
 import logging
 import time
 import warnings
-from dataclasses import replace
 from pathlib import Path
 
 from spinemocap.capture import Capture
@@ -79,13 +78,10 @@ def run_track(args: argparse.Namespace) -> int:
     if args.reference and not args.refine_rig:
         raise InputError("--reference", "needs --refine-rig (the reference fixes the refined rig's world frame)")
     refine = RigRefineConfig(sync=args.refine_sync) if args.refine_rig else None
+    lookahead = {} if args.lookahead is None else {"lookahead": args.lookahead}  # else the pipeline's default
     speed = LEGACY if args.legacy else SpeedOptions(workers=args.workers, parallel=args.parallel,
-                                                    refresh_every=args.refresh_every,
-                                                    device=args.device, opencv_threads=args.opencv_threads or None)
-    if args.lookahead is not None and not args.legacy:
-        if args.lookahead < 0:
-            raise InputError("--lookahead", f"must be 0 or more, got {args.lookahead}")
-        speed = replace(speed, lookahead=args.lookahead)
+                                                    refresh_every=args.refresh_every, device=args.device,
+                                                    opencv_threads=args.opencv_threads or None, **lookahead)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TrackingWarning)
