@@ -48,7 +48,8 @@ def _straightforward(monkeypatch):
         return points, rms, ok
 
     monkeypatch.setattr(candidates._Views, "solve", solve)
-    monkeypatch.setattr(candidates, "_unique_rows", lambda ids: np.unique(ids, axis=0) if len(ids) else ids)
+    monkeypatch.setattr(candidates, "_unique_row_index",
+                        lambda ids: np.unique(ids, axis=0, return_index=True)[1] if len(ids) else np.arange(len(ids)))
     monkeypatch.setattr(candidates, "_fundamental_cached",
                         lambda a, b: candidates.fundamental_matrix(np.frombuffer(a).reshape(3, 4),
                                                                    np.frombuffer(b).reshape(3, 4)))
@@ -71,7 +72,7 @@ def test_fast_search_finds_the_same_candidates_on_a_studio_frame(studio_frame, m
 def test_remembered_rows_are_the_rows_solved_again(studio_frame):
     rig, views = studio_frame
     v = candidates._Views(rig, views)
-    rows = candidates._pairwise_points(v, candidates.CandidateConfig())
+    rows = candidates._pairwise_rows(v, candidates.CandidateConfig())[0]
     first = v.solve(rows, 2.0)
     shuffled = np.random.default_rng(0).permutation(len(rows))
     again = v.solve(np.concatenate([rows[shuffled], rows[:3]]), 2.0)      # remembered, other order
@@ -82,10 +83,12 @@ def test_remembered_rows_are_the_rows_solved_again(studio_frame):
         np.testing.assert_array_equal(a[shuffled], c)
 
 
-def test_unique_rows_and_compact_dlt_agree_with_the_library():
+def test_unique_row_index_and_compact_dlt_agree_with_the_library():
     rng = np.random.default_rng(1)
     ids = rng.integers(-1, 4, (500, 6))
-    np.testing.assert_array_equal(candidates._unique_rows(ids), np.unique(ids, axis=0))
+    rows, first = np.unique(ids, axis=0, return_index=True)
+    np.testing.assert_array_equal(candidates._unique_row_index(ids), first)
+    np.testing.assert_array_equal(ids[candidates._unique_row_index(ids)], rows)
     P = rng.normal(size=(6, 3, 4))
     uv = rng.normal(size=(500, 6, 2))
     used = rng.random((500, 6)) < 0.5

@@ -244,13 +244,9 @@ def _dlt_svd(P: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
     return points
 
 
-def _pairwise_points(views: _Views, config: CandidateConfig) -> np.ndarray:
-    """Blob-id rows (N, C) of all two-view triangulations passing epipolar and th1 checks."""
-    return _pairwise_rows(views, config)[0]
-
-
 def _pairwise_rows(views: _Views, config: CandidateConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_pairwise_points` with the rows' points (N, 3) and RMS residuals (N,)."""
+    """Blob-id rows (N, C) of all two-view triangulations passing epipolar and th1 checks, with
+    their points (N, 3) and RMS residuals (N,)."""
     epi_tol = config.epipolar_px if config.epipolar_px is not None else 2.0 * config.th1_px
     rows = []
     C = views.n_cameras
@@ -271,17 +267,11 @@ def _pairwise_rows(views: _Views, config: CandidateConfig) -> tuple[np.ndarray, 
     return ids[ok], points[ok], rms[ok]
 
 
-def _merge_round(views: _Views, ids: np.ndarray, points: np.ndarray, config: CandidateConfig,
-                 rms: np.ndarray | None = None):
+def _merge_round(views: _Views, ids: np.ndarray, points: np.ndarray, config: CandidateConfig, rms: np.ndarray):
     """One merge round: among point pairs closer than th2 without conflicting blobs and whose
     merged point passes th1, merge every pair that is each endpoint's closest valid partner.
-    Returns the new (ids, points) and the number of merges; with the points' RMS residuals
-    ``rms`` given, (ids, points, merges, rms)."""
-    out = _merge(views, ids, points, config, np.zeros(len(ids)) if rms is None else rms)
-    return out[:3] if rms is None else out
-
-
-def _merge(views: _Views, ids: np.ndarray, points: np.ndarray, config: CandidateConfig, rms: np.ndarray):
+    ``rms``: the points' RMS residuals (px). Returns the new (ids, points), the number of merges
+    and the new points' residuals."""
     pairs = cKDTree(points).query_pairs(config.th2_mm, output_type="ndarray")
     if not len(pairs):
         return ids, points, 0, rms
@@ -315,13 +305,9 @@ def _merge(views: _Views, ids: np.ndarray, points: np.ndarray, config: Candidate
     return new_ids, new_points, len(chosen), np.concatenate([rms[keep], merged_rms[chosen]])
 
 
-def _unique_rows(ids: np.ndarray) -> np.ndarray:
-    """The distinct rows of ``ids`` in lexicographic order (``np.unique(ids, axis=0)``, faster)."""
-    return ids[_unique_row_index(ids)]
-
-
 def _unique_row_index(ids: np.ndarray) -> np.ndarray:
-    """Indices of one row per distinct row of ``ids``, the rows in lexicographic order."""
+    """Index of the first of each distinct row of ``ids``, the rows in lexicographic order
+    (``np.unique(ids, axis=0, return_index=True)[1]``, faster)."""
     if len(ids) < 2:
         return np.arange(len(ids))
     order = np.lexsort(ids.T[::-1])
