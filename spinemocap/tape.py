@@ -227,6 +227,40 @@ class TapeGraph:
         """(D, 3) rest positions in a tape-local 3D frame: x = u, y = v, z = 0."""
         return np.column_stack([self.uv_mm, np.zeros(self.n_dots)])
 
+    @cached_property
+    def row_index(self) -> "RowIndex":
+        """The rows as index arrays (:class:`RowIndex`), built when first asked for."""
+        return RowIndex(self)
+
+
+class RowIndex:
+    """A tape graph's rows as index arrays (:attr:`TapeGraph.row_index`, built once per graph):
+    ``members`` (n_rows, k_max) dot indices of each row in label order, padded with 0, ``valid``
+    (n_rows, k_max) which entries are dots, ``count`` (n_rows,), ``left`` / ``right`` (n_rows,) the first
+    L / R dot of each row (-1: none)."""
+
+    def __init__(self, graph: "TapeGraph"):
+        rows = np.asarray(graph.row)
+        n_rows = int(rows.max()) + 1
+        groups = [np.flatnonzero(rows == r) for r in range(n_rows)]
+        k_max = max(len(g) for g in groups)
+        self.members = np.zeros((n_rows, k_max), np.int64)
+        self.valid = np.zeros((n_rows, k_max), bool)
+        for r, g in enumerate(groups):
+            self.members[r, :len(g)] = g
+            self.valid[r, :len(g)] = True
+        self.count = self.valid.sum(axis=1)
+        column = np.array(graph.column)
+        self.left = np.array([next((i for i in g if column[i] == "L"), -1) for g in groups], np.int64)
+        self.right = np.array([next((i for i in g if column[i] == "R"), -1) for g in groups], np.int64)
+
+    def sums(self, values: np.ndarray) -> np.ndarray:
+        """(n_rows, ...) sum of each row's entries of ``values`` (D, ...), added in label order
+        (as summing each row's members alone adds them; padding adds exact zeros)."""
+        gathered = values[self.members]
+        mask = self.valid.reshape(self.valid.shape + (1,) * (values.ndim - 1))
+        return np.where(mask, gathered, 0.0).sum(axis=1)
+
 
 def edge_neighbour_sets(edges: np.ndarray) -> list[np.ndarray]:
     """For each edge (row of ``edges``), the indices of the other edges sharing an endpoint."""

@@ -23,12 +23,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..tape import TapeGraph
-from .lattice import row_index
 
 
 def row_centres(positions: np.ndarray, graph: TapeGraph) -> np.ndarray:
     """(n_rows, 3) centre of each row's finite dots (NaN when none)."""
-    rows = row_index(graph)
+    rows = graph.row_index
     positions = np.asarray(positions, float)
     finite = np.isfinite(positions).all(axis=1)
     count = rows.sums(finite.astype(float))  # finite members per row

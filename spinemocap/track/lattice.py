@@ -113,48 +113,6 @@ def off_lattice(uv: np.ndarray, positions: np.ndarray, limit_mm: float, sigma_mm
         outlier[worst] = True
 
 
-class RowIndex:
-    """A tape graph's rows as index arrays (built once per graph, :func:`row_index`): ``members``
-    (n_rows, k_max) dot indices of each row in label order, padded with 0, ``valid`` (n_rows,
-    k_max) which entries are dots, ``count`` (n_rows,), ``left`` / ``right`` (n_rows,) the first
-    L / R dot of each row (-1: none)."""
-
-    def __init__(self, graph: TapeGraph):
-        rows = np.asarray(graph.row)
-        n_rows = int(rows.max()) + 1
-        groups = [np.flatnonzero(rows == r) for r in range(n_rows)]
-        k_max = max(len(g) for g in groups)
-        self.members = np.zeros((n_rows, k_max), np.int64)
-        self.valid = np.zeros((n_rows, k_max), bool)
-        for r, g in enumerate(groups):
-            self.members[r, :len(g)] = g
-            self.valid[r, :len(g)] = True
-        self.count = self.valid.sum(axis=1)
-        column = np.array(graph.column)
-        self.left = np.array([next((i for i in g if column[i] == "L"), -1) for g in groups], np.int64)
-        self.right = np.array([next((i for i in g if column[i] == "R"), -1) for g in groups], np.int64)
-
-    def sums(self, values: np.ndarray) -> np.ndarray:
-        """(n_rows, ...) sum of each row's entries of ``values`` (D, ...), added in label order
-        (as summing each row's members alone adds them; padding adds exact zeros)."""
-        gathered = values[self.members]
-        mask = self.valid.reshape(self.valid.shape + (1,) * (values.ndim - 1))
-        return np.where(mask, gathered, 0.0).sum(axis=1)
-
-
-_ROW_INDEX: dict[int, tuple[TapeGraph, RowIndex]] = {}
-
-
-def row_index(graph: TapeGraph) -> RowIndex:
-    """The :class:`RowIndex` of ``graph``, remembered (the graph is held, so its id stays its own)."""
-    entry = _ROW_INDEX.get(id(graph))
-    if entry is None or entry[0] is not graph:
-        if len(_ROW_INDEX) > 256:
-            _ROW_INDEX.clear()
-        entry = _ROW_INDEX[id(graph)] = (graph, RowIndex(graph))
-    return entry[1]
-
-
 def beyond_known_rows(excluded: np.ndarray, positions: np.ndarray, graph: TapeGraph) -> np.ndarray:
     """(D,) bool: dots whose row has no other known dot (finite and not ``excluded``) both at or
     below and at or above it on the tape, i.e. whose lattice prediction extrapolates along the

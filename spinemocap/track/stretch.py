@@ -37,7 +37,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..tape import TapeGraph, TapeSpec
-from .lattice import row_index
 
 
 @dataclass
@@ -241,7 +240,7 @@ def row_stretch(positions: np.ndarray, graph: TapeGraph) -> tuple[np.ndarray, np
     pos = np.asarray(positions, float)
     spec = graph.spec
     n_rows = spec.n_rows
-    rows = row_index(graph)
+    rows = graph.row_index
     centre = np.full((n_rows, 3), np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
         found = rows.sums(pos) / rows.count[:, None]  # each row's mean (members added in order) ...

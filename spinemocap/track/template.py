@@ -24,7 +24,6 @@ from scipy.spatial import cKDTree
 
 from ..geometry import umeyama
 from ..tape import TapeGraph
-from .lattice import row_index
 from .normals import NormalField, _unit
 
 
@@ -235,7 +234,7 @@ def tape_frames(positions: np.ndarray, tape: TapeGraph) -> tuple[np.ndarray, np.
     the next row's (one-sided at the ends), ``normal = across x along`` points out of the back.
     Because labels fix handedness, this needs no external normal."""
     pos = np.asarray(positions, dtype=float)
-    rows = row_index(tape)
+    rows = tape.row_index
     n_rows = len(rows.count)
     if (rows.left < 0).any() or (rows.right < 0).any():
         raise IndexError("every row of the tape needs an L and an R dot")
