@@ -239,14 +239,17 @@ class VideoSource:
         self.sizes = list(sizes) if sizes is not None else [None] * len(camera_names)
         self.paths = [self.root / pattern.format(camera=cam) for cam in self.camera_names]
         self._decoders: list[VideoDecoder | None] = [None] * len(self.paths)
-        for path, cam in zip(self.paths, self.camera_names):
-            if not path.is_file():
-                raise InputError(path, f"video for camera {cam!r} is missing")
-            decoder = VideoDecoder(path)
-            count = decoder.n_frames
-            decoder.close()
-            if count and count != self.n_frames:
-                raise InputError(path, f"video has {count} frames, capture.toml says n_frames = {self.n_frames}")
+        try:
+            for k, (path, cam) in enumerate(zip(self.paths, self.camera_names)):
+                if not path.is_file():
+                    raise InputError(path, f"video for camera {cam!r} is missing")
+                decoder = self._decoders[k] = VideoDecoder(path)  # kept open for the reads
+                count = decoder.n_frames
+                if count and count != self.n_frames:
+                    raise InputError(path, f"video has {count} frames, capture.toml says n_frames = {self.n_frames}")
+        except BaseException:
+            self.close()  # the cameras' videos opened so far
+            raise
 
     def read_camera(self, camera: int, frame: int) -> np.ndarray:
         """One camera's image (``camera``: index in rig order). Each camera has its own decoder,
