@@ -63,14 +63,14 @@ class EvidenceStack:
         self._scale = torch.from_numpy(scale)[:, None]
         self._origin = torch.from_numpy(origin)[:, None, :]
 
-    def sample_torch(self, uv: torch.Tensor, cams: torch.Tensor | None = None) -> torch.Tensor:
+    def sample_torch(self, uv: torch.Tensor) -> torch.Tensor:
         """uv (C, N, 2) full-resolution pixels, camera c in row c -> (C, N) bilinear costs,
-        differentiable in uv; points off the canvas read the border (the outside cost).
-        ``cams`` (C_all,) bool: uv holds those cameras' rows only."""
-        return self.sample_uv(uv[..., 0], uv[..., 1], cams)
+        differentiable in uv; points off the canvas read the border (the outside cost)."""
+        return self.sample_uv(uv[..., 0], uv[..., 1])
 
     def sample_uv(self, u: torch.Tensor, v: torch.Tensor, cams: torch.Tensor | None = None) -> torch.Tensor:
-        """:meth:`sample_torch` of the pixel columns ``u`` and rows ``v`` (C, N) each."""
+        """:meth:`sample_torch` of the pixel columns ``u`` and rows ``v`` (C, N) each; ``cams``
+        (C_all,) bool: ``u`` and ``v`` hold those cameras' rows only."""
         h, w = self.shape
         origin, scale, base = (self._origin, self._scale, self._base) if cams is None else \
             (self._origin[cams], self._scale[cams], self._base[cams])

@@ -89,14 +89,14 @@ class _TorchRig:
         self.centers = np.stack([c.center for c in rig])
         self.sizes = [c.size for c in rig]
 
-    def project(self, x: torch.Tensor, cams: torch.Tensor | None = None) -> torch.Tensor:
-        """``cams``: (C,) bool, project into those cameras only (-> (C', ..., 2), the same values)."""
-        u, v = self.project_uv(x, cams)
+    def project(self, x: torch.Tensor) -> torch.Tensor:
+        u, v = self.project_uv(x)
         return torch.stack([u, v], dim=-1).reshape(u.shape[0], *x.shape[:-1], 2)
 
     def project_uv(self, x: torch.Tensor, cams: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`project` of the points x (..., 3) flattened, as the pixel columns u and rows v
-        (C', N) each (u NaN behind the camera)."""
+        (C', N) each (u NaN behind the camera); ``cams``: (C,) bool, into those cameras only (the
+        same values)."""
         R, t, K, dist = (self.R, self.t, self.K, self.dist) if cams is None else \
             (self.R[cams], self.t[cams], self.K[cams], self.dist[cams])
         flat = x.reshape(1, -1, 3)
