@@ -115,6 +115,87 @@ class _TorchRig:
         return u, v
 
 
+class _ImageCosts:
+    """The capped image costs of :class:`RefinementMRF` (``_TorchRig.project_uv``, then
+    ``EvidenceStack.sample_uv``, then the cap) in numpy, for particle BP's evaluations (no
+    gradients): the same IEEE operations in the same order on the points' coordinates as flat
+    rows and the cameras' constants as (C, 1) columns, so the same values bit for bit (pinned
+    against the torch path in ``tests/test_track_fast_paths.py``), without torch's per-operation
+    cost, the strided component reads and the per-call camera indexing (a camera subset's
+    constants are sliced once and kept). The 3x3 rotation as ``(x r0 + y r1) + z r2``: the
+    order in which MKL's batched matmul sums the three products (checked by the same test)."""
+
+    def __init__(self, cams: _TorchRig, stack: EvidenceStack, cap: float | None):
+        R, t, K, dist = (a.numpy() for a in (cams.R, cams.t, cams.K, cams.dist))
+        flat = stack._flat.numpy()
+        self.h, self.w = stack.shape
+        w = self.w
+        # the four bilinear corners as shifted views of the canvas: flat[idx + 1] is flat1[idx]
+        self.flat, self.flat1, self.flatw, self.flatw1 = flat, flat[1:], flat[w:], flat[w + 1:]
+        self.cap = cap
+        column = {
+            "r": [[R[:, i, j, None].copy() for j in range(3)] for i in range(3)],
+            "t": [t[:, i, None].copy() for i in range(3)],
+            "k1": dist[:, 0, None].copy(), "k2": dist[:, 1, None].copy(), "p1": dist[:, 2, None].copy(),
+            "p2": dist[:, 3, None].copy(), "k3": dist[:, 4, None].copy(),
+            "two_p1": 2 * dist[:, 2, None], "two_p2": 2 * dist[:, 3, None],
+            "fx": K[:, 0, 0, None].copy(), "skew": K[:, 0, 1, None].copy(), "cx": K[:, 0, 2, None].copy(),
+            "fy": K[:, 1, 1, None].copy(), "cy": K[:, 1, 2, None].copy(),
+            "ox": stack._origin.numpy()[:, 0, 0, None].copy(), "oy": stack._origin.numpy()[:, 0, 1, None].copy(),
+            "scale": stack._scale.numpy().copy(), "base": stack._base.numpy().copy(),
+        }
+        self._all = column
+        self._subsets: dict[bytes, dict] = {}
+
+    def _constants(self, cams: np.ndarray | None) -> dict:
+        if cams is None:
+            return self._all
+        key = cams.tobytes()
+        got = self._subsets.get(key)
+        if got is None:
+            def pick(v):
+                return [pick(a) for a in v] if isinstance(v, list) else v[cams]
+            got = self._subsets[key] = {k: pick(v) for k, v in self._all.items()}
+        return got
+
+    def __call__(self, px: np.ndarray, py: np.ndarray, pz: np.ndarray, cams: np.ndarray | None = None) -> np.ndarray:
+        """Costs (C', N) of the points with coordinates ``px``, ``py``, ``pz`` (N,) each, in the
+        cameras ``cams`` (int indices, or None: all)."""
+        k = self._constants(cams)
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = k["r"]
+        t0, t1, t2 = k["t"]
+        xc0 = px * r00 + py * r01 + pz * r02 + t0
+        xc1 = px * r10 + py * r11 + pz * r12 + t1
+        xc2 = px * r20 + py * r21 + pz * r22 + t2
+        z = np.maximum(xc2, 1e-6)
+        xn, yn = xc0 / z, xc1 / z
+        r2 = xn * xn + yn * yn
+        radial = 1 + r2 * (k["k1"] + r2 * (k["k2"] + r2 * k["k3"]))
+        xd = xn * radial + k["two_p1"] * xn * yn + k["p2"] * (r2 + 2 * xn * xn)
+        yd = yn * radial + k["p1"] * (r2 + 2 * yn * yn) + k["two_p2"] * xn * yn
+        u = k["fx"] * xd + k["skew"] * yd + k["cx"]
+        v = k["fy"] * yd + k["cy"]
+        # sample_uv: NaN (behind the camera, or NaN points) reads column / row 0, as its
+        # nan_to_num(nan=-1) and clamp(0, .) do; fmax/fmin map NaN to 0 and clamp infinities alike
+        h, w = self.h, self.w
+        x = np.fmin(np.fmax((u - k["ox"]) * k["scale"] + 1.0, 0.0), w - 1)
+        y = np.fmin(np.fmax((v - k["oy"]) * k["scale"] + 1.0, 0.0), h - 1)
+        behind = xc2 <= 1e-6
+        if behind.any():
+            x[behind] = 0.0
+        xi = x.astype(np.int64)  # floor: x >= 0
+        yi = y.astype(np.int64)
+        np.minimum(xi, w - 2, out=xi)
+        np.minimum(yi, h - 2, out=yi)
+        fx, fy = x - xi, y - yi
+        idx = k["base"] + yi * w + xi
+        gx = 1 - fx
+        top = self.flat.take(idx) * gx + self.flat1.take(idx) * fx
+        bottom = self.flatw.take(idx) * gx + self.flatw1.take(idx) * fx
+        cost = top * (1 - fy) + bottom * fy
+        return cost if self.cap is None else np.minimum(cost, self.cap, out=cost)
+
+
 class RefinementMRF:
     """The MRF2 energy as a :class:`~spinemocap.track.pbp.PairwiseModel` (states (x, y, z))."""
 
@@ -150,6 +231,8 @@ class RefinementMRF:
         self.edge_visible = torch.zeros((len(self.edges), n_cam), dtype=torch.float64)
         self.edge_normal = torch.zeros((len(self.edges), 3), dtype=torch.float64)
         self.edge_alpha = torch.zeros((len(self.edges), 3), dtype=torch.float64)
+        self._costs = _ImageCosts(self.cams, self.stack, config.cost_cap)
+        self._prepared: tuple[tuple, dict] | None = None
 
     # ------------------------------------------------------------------ state-dependent parts
     def prepare(self, state: np.ndarray) -> None:
@@ -160,8 +243,7 @@ class RefinementMRF:
         if self.config.cost_cap is not None:
             # a view whose cost is already at the cap (an occluder, or off the tape) carries no
             # information about this dot: it does not count as seeing it
-            with torch.no_grad():
-                at_cap = self.image_costs(torch.from_numpy(state)).numpy().T >= self.config.cost_cap - 1e-9
+            at_cap = self._costs(state[:, 0], state[:, 1], state[:, 2]).T >= self.config.cost_cap - 1e-9
             visible &= ~at_cap
         self.visible = torch.from_numpy(visible.astype(np.float64))
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
@@ -250,17 +332,96 @@ class RefinementMRF:
         return self.unary_t(x[:, None]).sum() + pair.sum()
 
     # ------------------------------------------------------------------ PairwiseModel (numpy)
+    # The same energy as unary_t / pairwise_t, computed in numpy by the same IEEE operations in the
+    # same order (bit for bit; tests/test_track_fast_paths.py pins them): particle BP evaluates it
+    # ~30 times per iteration on a few thousand points, where torch's per-operation cost, the
+    # strided reads of (..., 3) tensors and the per-call camera indexing dominated.
+    def _numpy_parameters(self) -> dict:
+        """numpy views of the parameters ``prepare`` set (and the cameras with a nonzero weight),
+        made again whenever one of those tensors was replaced."""
+        key = (self.unary_weight, self.edge_visible, self.edge_normal, self.edge_alpha, self.unseen, self.start, self.rest)
+        if self._prepared is not None and all(a is b for a, b in zip(self._prepared[0], key)):
+            return self._prepared[1]
+        n_cam = len(self.rig)
+
+        def used(weight):  # (C, K) -> the cameras whose weight is nonzero somewhere, and their rows
+            cams = np.flatnonzero((weight != 0).any(axis=1))
+            if len(cams) == n_cam:
+                return None, weight
+            return cams, weight[cams]
+
+        ucams, uw = used(self.unary_weight.numpy().T)
+        ecams, ev = used(self.edge_visible.numpy().T)
+        coef = None
+        if self.config.anchor_unseen and bool(self.unseen.any()):
+            # the torch expression's own factor (its dtype included: a float times a bool tensor)
+            coef = (self.config.anchor_unseen * self.unseen[:, None]).numpy()
+        params = {"ucams": ucams, "uw": uw, "ecams": ecams, "ev": ev, "coef": coef, "start": self.start.numpy(),
+                  "normal": self.edge_normal.numpy(), "alpha": self.edge_alpha.numpy(), "rest": self.rest.numpy()}
+        self._prepared = (key, params)
+        return params
+
+    def _weighted_costs(self, px, py, pz, cams, weight: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+        """``sum_c cost_c(points) * weight_c``: the points' coordinates (N,) each, ``weight``
+        (C', M) for the cameras ``cams`` (None: all; an empty selection: no camera), each of the M
+        weights shared by N / M consecutive points -> ``shape`` (N values). Cameras are added one
+        after another from zero, as torch's ``sum(dim=0)`` does."""
+        if cams is not None and len(cams) == 0:
+            return np.zeros(shape)
+        costs = self._costs(px, py, pz, cams)
+        m = weight.shape[1]
+        per = len(px) // m if m else 0
+        return np.add.reduce(costs.reshape(len(costs), m, per) * weight[:, :, None], axis=0).reshape(shape)
+
     def unary(self, x: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return self.unary_t(torch.from_numpy(np.ascontiguousarray(x, dtype=np.float64))).numpy()
+        """:meth:`unary_t` in numpy (the same values)."""
+        x = np.asarray(x, dtype=np.float64)
+        p = self._numpy_parameters()
+        flat = x.reshape(-1, 3)
+        image = self._weighted_costs(flat[:, 0], flat[:, 1], flat[:, 2], p["ucams"], p["uw"], x.shape[:2])
+        if p["coef"] is None:
+            return image
+        d = x - p["start"][:, None, :]
+        return image + p["coef"] * (d**2).sum(axis=2)
+
+    def unary_rows(self, nodes: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """:meth:`unary` of single points: node ``nodes[k]`` at ``x[k]`` (K, 3) -> (K,) (the
+        same values as the matching entries of :meth:`unary`)."""
+        x = np.asarray(x, dtype=np.float64)
+        p = self._numpy_parameters()
+        image = self._weighted_costs(x[:, 0], x[:, 1], x[:, 2], p["ucams"], p["uw"][:, nodes], (len(x),))
+        if p["coef"] is None:
+            return image
+        d = x - p["start"][nodes]
+        return image + p["coef"][nodes, 0] * (d**2).sum(axis=1)
 
     def pairwise(self, xs: np.ndarray, xt: np.ndarray, edge_index: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return self.pairwise_t(
-                torch.from_numpy(np.ascontiguousarray(xs, dtype=np.float64)),
-                torch.from_numpy(np.ascontiguousarray(xt, dtype=np.float64)),
-                torch.from_numpy(np.asarray(edge_index)),
-            ).numpy()
+        """:meth:`pairwise_t` in numpy (the same values)."""
+        c = self.config
+        xs = np.asarray(xs, dtype=np.float64)
+        xt = np.asarray(xt, dtype=np.float64)
+        edge_index = np.asarray(edge_index)
+        p = self._numpy_parameters()
+        m, qs, qt = len(xs), xs.shape[1], xt.shape[1]
+        sx, sy, sz = (xs[:, :, None, i] for i in range(3))
+        tx, ty, tz = (xt[:, None, :, i] for i in range(3))
+        mx, my, mz = (0.5 * (a + b) for a, b in ((sx, tx), (sy, ty), (sz, tz)))
+        weighted = self._weighted_costs(mx.ravel(), my.ravel(), mz.ravel(), p["ecams"], p["ev"][:, edge_index], (m, qs, qt))
+        contrast = -2.0 * weighted
+        dx, dy, dz = sx - tx, sy - ty, sz - tz
+        # torch's float64 sqrt, not numpy's: it is not always correctly rounded (1 ulp on ~1 % of
+        # values with AVX-512), and the values are to stay those of pairwise_t
+        length = torch.sqrt(torch.from_numpy((dx * dx + dy * dy + dz * dz) + 1e-12)).numpy()
+        normal, alpha = p["normal"][edge_index], p["alpha"][edge_index]
+        along_normal = dx * normal[:, 0, None, None] + dy * normal[:, 1, None, None] + dz * normal[:, 2, None, None]
+        off_axis = dx * alpha[:, 0, None, None] + dy * alpha[:, 1, None, None] + dz * alpha[:, 2, None, None]
+        rest = p["rest"][edge_index][:, None, None]
+        return (
+            c.theta5 * contrast
+            + c.theta6 * along_normal**2
+            + c.theta7 * off_axis**2
+            + c.theta8 * (length - rest) ** 2
+        )
 
     def extra_proposals(self, state: np.ndarray) -> np.ndarray | None:
         """P_knn: the nearest feasible points (when given) within a dot radius of the estimate."""

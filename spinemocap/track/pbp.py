@@ -37,7 +37,10 @@ class PairwiseModel(Protocol):
     ``pairwise(xs, xt, edge_index)``: xs (M, Qs, S) states of the edges' first nodes, xt (M, Qt, S)
     of their second nodes, for the M edges ``edge_index`` -> (M, Qs, Qt) costs.
     ``prepare(state)``: refresh state-dependent parameters (normals, directions) from the current
-    estimate (D, S) before an iteration. ``extra_proposals(state)``: (D, K, S) or None."""
+    estimate (D, S) before an iteration. ``extra_proposals(state)``: (D, K, S) or None.
+    Optional ``unary_rows(nodes, x)``: nodes (K,), x (K, S) -> (K,), the unary cost of node
+    ``nodes[k]`` at ``x[k]`` (the same values as ``unary``); with it the slice sampler evaluates
+    beliefs only for its chains still open."""
 
     edges: np.ndarray
 
@@ -203,9 +206,14 @@ class ParticleBP:
         cost = self.model.pairwise(particles[e0], particles[e1], np.arange(len(self.edges)))
         return np.concatenate([cost, cost.transpose(0, 2, 1)], axis=0)
 
-    def _belief_at(self, points: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph) -> np.ndarray:
+    def _belief_at(self, points: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph,
+                   wanted: np.ndarray | None = None) -> np.ndarray:
         """Belief of every node at new points (D, Q, S): unary plus, for each neighbour, the min
-        over its kept particles (D, P, S) of pre + pairwise. ``pre`` (2E, P) as from the sweeps."""
+        over its kept particles (D, P, S) of pre + pairwise. ``pre`` (2E, P) as from the sweeps.
+        ``wanted`` (D, Q) bool: only those entries are needed (the others are returned as
+        anything); with a model that has ``unary_rows`` only they are evaluated."""
+        if wanted is not None and not wanted.all() and hasattr(self.model, "unary_rows"):
+            return self._belief_at_wanted(points, kept, pre, graph, wanted)
         belief = self.model.unary(points)
         if graph.n_edges == 0:
             return belief
@@ -217,6 +225,30 @@ class ParticleBP:
         # messages e1 -> e0 evaluated at new states of e0
         to_first = (pre[e:, None, :] + self.model.pairwise(points[e0], kept[e1], all_edges)).min(axis=2)
         return belief + graph.incidence @ np.concatenate([to_second, to_first], axis=0)
+
+    def _belief_at_wanted(self, points: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph,
+                          wanted: np.ndarray) -> np.ndarray:
+        """:meth:`_belief_at` at the ``wanted`` (D, Q) entries only (0 elsewhere), the same values:
+        a node's belief at a point depends on that point alone (its neighbours' particles are the
+        kept ones), the costs are computed element by element, and the messages into each node
+        are summed by the same matrix product of the same shape (unwanted entries 0)."""
+        model, e = self.model, graph.n_edges
+        nodes, chains = np.nonzero(wanted)
+        belief = np.zeros(wanted.shape)
+        belief[nodes, chains] = model.unary_rows(nodes, points[nodes, chains])  # type: ignore[attr-defined]  # optional, checked by _belief_at
+        if e == 0:
+            return belief
+        e0, e1 = self.edges[:, 0], self.edges[:, 1]
+        msgs = np.zeros((2 * e, wanted.shape[1]))
+        # messages e0 -> e1 at the wanted new states of e1
+        m, q = np.nonzero(wanted[e1])
+        cost = model.pairwise(kept[e0[m]], points[e1[m], q][:, None, :], m)  # (K, P, 1)
+        msgs[m, q] = (pre[m] + cost[:, :, 0]).min(axis=1)
+        # messages e1 -> e0 at the wanted new states of e0
+        m, q = np.nonzero(wanted[e0])
+        cost = model.pairwise(points[e0[m], q][:, None, :], kept[e1[m]], m)  # (K, 1, P)
+        msgs[e + m, q] = (pre[e + m] + cost[:, 0, :]).min(axis=1)
+        return belief + graph.incidence @ msgs
 
     def _slice_sample(self, start: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph, width: np.ndarray):
         """One hyper-rectangle slice-sampling step (Neal 2003, Sec. 5.1: a randomly placed box of
@@ -232,7 +264,8 @@ class ParticleBP:
         new_x = x.copy()
         for _ in range(cfg.slice_steps):
             cand = lo + (hi - lo) * rng.random(x.shape)
-            ok = (self._belief_at(cand, kept, pre, graph) < level) & ~done
+            # chains already done need no belief (their candidates are not taken)
+            ok = (self._belief_at(cand, kept, pre, graph, ~done) < level) & ~done
             new_x[ok] = cand[ok]
             done |= ok
             if done.all():
