@@ -233,9 +233,25 @@ class RefinementMRF:
         self.edge_alpha = torch.zeros((len(self.edges), 3), dtype=torch.float64)
         self._costs = _ImageCosts(self.cams, self.stack, config.cost_cap)
         self._prepared: tuple[tuple, dict] | None = None
+        self._prepared_from: tuple[np.ndarray, tuple] | None = None
 
     # ------------------------------------------------------------------ state-dependent parts
+    def _prepared_parameters(self) -> tuple:
+        return (self.visible, self.edge_visible, self.unary_weight, self.unseen, self.edge_normal, self.edge_alpha)
+
     def prepare(self, state: np.ndarray) -> None:
+        """Set the state-dependent parameters (visibility, weights, edge directions) from
+        ``state`` (D, 3); nothing to do when they were set from the same state (particle BP
+        prepares again after an iteration that kept the state) and not replaced since."""
+        state = np.asarray(state, dtype=np.float64)
+        last = self._prepared_from
+        if last is not None and all(a is b for a, b in zip(last[1], self._prepared_parameters())) \
+                and np.array_equal(last[0], state):
+            return
+        self._prepare(state)
+        self._prepared_from = (state.copy(), self._prepared_parameters())
+
+    def _prepare(self, state: np.ndarray) -> None:
         normal, across, along = tape_frames(state, self.tape)
         if self.fixed_normals is not None:
             normal = self.fixed_normals

@@ -201,10 +201,32 @@ class ParticleBP:
 
     # ------------------------------------------------------------------ batch costs
     def _directed_costs(self, particles: np.ndarray) -> np.ndarray:
-        """(2E, Pa, Pa) pairwise costs for messages in both directions."""
+        """(2E, Pa, Pa) pairwise costs for messages in both directions. With a model that has
+        ``unary_rows`` (its costs element by element), a node's repeated particles (the state
+        among the kept ones, proposals that did not move) are evaluated once: the same table."""
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
-        cost = self.model.pairwise(particles[e0], particles[e1], np.arange(len(self.edges)))
+        if hasattr(self.model, "unary_rows") and len(self.edges):
+            cost = self._pairwise_distinct(particles)
+        else:
+            cost = self.model.pairwise(particles[e0], particles[e1], np.arange(len(self.edges)))
         return np.concatenate([cost, cost.transpose(0, 2, 1)], axis=0)
+
+    def _pairwise_distinct(self, particles: np.ndarray) -> np.ndarray:
+        """``model.pairwise(particles[e0], particles[e1], all edges)`` (E, Pa, Pa), each pair of
+        distinct particle values evaluated once (pairs of a row of M = 1) and copied to its repeats."""
+        e0, e1 = self.edges[:, 0], self.edges[:, 1]
+        n = particles.shape[1]
+        bits = np.ascontiguousarray(particles, dtype=np.float64).view(np.int64)  # the same bits: NaN, -0.0 too
+        same = (bits[:, :, None, :] == bits[:, None, :, :]).all(axis=3)
+        first = same.argmax(axis=2)  # (D, Pa): the first particle with the same value
+        if (first == np.arange(n)).mean() > 0.95:
+            return self.model.pairwise(particles[e0], particles[e1], np.arange(len(self.edges)))
+        single = first == np.arange(n)
+        m, i, j = np.nonzero(single[e0][:, :, None] & single[e1][:, None, :])
+        values = self.model.pairwise(particles[e0[m], i][:, None, :], particles[e1[m], j][:, None, :], m)[:, 0, 0]
+        slot = np.zeros((len(e0), n, n), dtype=np.int64)
+        slot[m, i, j] = np.arange(len(m))
+        return values[slot[np.arange(len(e0))[:, None, None], first[e0][:, :, None], first[e1][:, None, :]]]
 
     def _belief_at(self, points: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph,
                    wanted: np.ndarray | None = None) -> np.ndarray:
