@@ -185,20 +185,164 @@ def mrf2_model():
     return model, positions
 
 
-def test_mrf2_costs_skip_unseeing_cameras_with_the_same_sums(mrf2_model, monkeypatch):
+def _torch_energy(model, x, xs=None, xt=None, edge_index=None):
+    """The MRF2 energy terms as written in torch (unary_t / pairwise_t), every camera's costs
+    evaluated and weighted (the straightforward sums)."""
+    plain = staticmethod(lambda costs, weight: (costs(None) * weight).sum(dim=0))
+    with torch.no_grad(), pytest.MonkeyPatch.context() as mp:
+        mp.setattr(RefinementMRF, "_weighted_sum", plain)
+        unary = model.unary_t(torch.from_numpy(x)).numpy()
+        if xs is None:
+            return unary, None
+        pair = model.pairwise_t(torch.from_numpy(xs), torch.from_numpy(xt), torch.from_numpy(edge_index)).numpy()
+    return unary, pair
+
+
+def test_mrf2_costs_skip_unseeing_cameras_with_the_same_sums(mrf2_model):
     model, positions = mrf2_model
     seeing = model.visible.numpy().any(axis=0)
     assert seeing[:2].all() and not seeing[2:].any()  # two cameras see dots, three see none
     rng = np.random.default_rng(5)
     x = positions[:, None, :] + rng.normal(0, 3, (len(positions), 10, 3))
     e = model.edges
+    plain = _torch_energy(model, x, x[e[:, 0]], x[e[:, 1]], np.arange(len(e)))
     fast = model.unary(x), model.pairwise(x[e[:, 0]], x[e[:, 1]], np.arange(len(e)))
-    monkeypatch.setattr(RefinementMRF, "_weighted_sum", staticmethod(lambda costs, weight: (costs(None) * weight).sum(dim=0)))
-    plain = model.unary(x), model.pairwise(x[e[:, 0]], x[e[:, 1]], np.arange(len(e)))
     for a, b in zip(fast, plain):
         np.testing.assert_array_equal(a, b)
     model.unary_weight = torch.zeros_like(model.unary_weight)  # no camera at all
     np.testing.assert_array_equal(model.unary(x), np.zeros(x.shape[:2]))
+    model.prepare(positions)  # the same state, but a parameter replaced since: prepared again
+    assert model.unary_weight.numpy().any()
+
+
+def _mrf2_scene(rng, cost_cap=1.0, distorted=True, half=False):
+    """Five cameras around a tape (one behind it, one without an image, lens distortion on two),
+    random cost images; ``half``: the images cover the left half of the frames only (dots on the
+    right read the outside cost: at the cap, unseen)."""
+    positions = np.column_stack([GRAPH.uv_mm, np.zeros(GRAPH.n_dots)]) + [0.0, 0.0, 1000.0]
+    positions += rng.normal(0, 1.0, positions.shape)
+    target = positions.mean(axis=0)
+    size = (640, 480)
+    cams = [Camera.look_at(f"c{i}", target + offset, target, size, 900.0, up=(0.0, 1.0, 0.0))
+            for i, offset in enumerate([(-400, 0, 1500), (400, 0, 1500), (0, -300, 1500), (0, 300, 1500), (0, 0, -1500)])]
+    if distorted:
+        for cam in cams[:2]:
+            cam.dist = np.array([0.1, -0.05, 0.001, -0.002, 0.01])
+    width = size[0] // 2 if half else size[0]
+    evidence: list[EvidenceImage | None] = [
+        EvidenceImage(cost=rng.uniform(0, 1, (size[1], width)).astype(np.float32), scale=1.0, outside_cost=1.5,
+                      origin=(0.0, 0.0) if c != 1 else (3.5, -2.0)) for c in range(2)]
+    evidence += [None, EvidenceImage(cost=rng.uniform(0, 1, (size[1] // 2, width // 2)).astype(np.float32), scale=0.5,
+                                     outside_cost=1.2),
+                 EvidenceImage(cost=np.full((1, 1), 2.0, np.float32), scale=1.0, outside_cost=2.0)]
+    return positions, Rig(cams), evidence, MRF2Config(cost_cap=cost_cap)
+
+
+@pytest.mark.parametrize("cost_cap, distorted, half", [(1.0, True, False), (None, True, False), (1.0, False, True)])
+def test_mrf2_numpy_costs_are_the_torch_energy_bit_for_bit(cost_cap, distorted, half):
+    """RefinementMRF.unary / unary_rows / pairwise (numpy, what particle BP calls) against
+    unary_t / pairwise_t (torch, what the polish differentiates): points near the tape, far off
+    it, behind cameras (spread 3000 mm), a NaN point; unseen dots (their anchor term)."""
+    rng = np.random.default_rng(11)
+    positions, rig, evidence, config = _mrf2_scene(rng, cost_cap, distorted, half)
+    model = RefinementMRF(GRAPH, rig, evidence, config)
+    model.start = torch.from_numpy(positions + rng.normal(0, 2.0, positions.shape))
+    model.prepare(positions)
+    if half:
+        assert model.unseen.numpy().any() and not model.unseen.numpy().all()
+    e = model.edges
+    for spread in (0.5, 3.0, 300.0, 3000.0):
+        x = positions[:, None, :] + rng.normal(0, spread, (len(positions), 7, 3))
+        x[3, 2] = np.nan
+        unary, pair = _torch_energy(model, x, x[e[:, 0]], x[e[:, 1], :5], np.arange(len(e)))
+        np.testing.assert_array_equal(model.unary(x), unary)
+        np.testing.assert_array_equal(model.pairwise(x[e[:, 0]], x[e[:, 1], :5], np.arange(len(e))), pair)
+        nodes = rng.integers(0, len(positions), 40)
+        chains = rng.integers(0, 7, 40)
+        np.testing.assert_array_equal(model.unary_rows(nodes, x[nodes, chains]), unary[nodes, chains])
+        sel = rng.choice(len(e), 17)  # some edges, repeated, in any order, one particle against many
+        xs, xt = x[e[sel, 0], :1], x[e[sel, 1]]
+        np.testing.assert_array_equal(model.pairwise(xs, xt, sel), _torch_energy(model, x, xs, xt, sel)[1])
+    assert model.unary_rows(np.zeros(0, np.int64), np.zeros((0, 3))).shape == (0,)
+
+
+class _PlainMRF2:
+    """A RefinementMRF seen as particle BP saw it before the fast paths: the torch energy with
+    every camera's costs, prepared on every call, no ``unary_rows`` (so no open-chain beliefs and
+    no shared evaluation of repeated particles)."""
+
+    def __init__(self, model):
+        self.model, self.edges = model, model.edges
+
+    def prepare(self, state):
+        self.model._prepare(state)
+
+    def extra_proposals(self, state):
+        return self.model.extra_proposals(state)
+
+    def unary(self, x):
+        return _torch_energy(self.model, np.ascontiguousarray(x, dtype=np.float64))[0]
+
+    def pairwise(self, xs, xt, edge_index):
+        x0 = np.zeros((1, 1, 3))
+        return _torch_energy(self.model, x0, np.ascontiguousarray(xs, dtype=np.float64),
+                             np.ascontiguousarray(xt, dtype=np.float64), np.asarray(edge_index))[1]
+
+
+@pytest.mark.parametrize("half", [False, True])
+def test_mrf2_particle_bp_is_the_straightforward_run_bit_for_bit(half):
+    """The whole particle BP of MRF2 (the same random stream) with the numpy costs, the slice
+    sampler's beliefs for open chains only, the repeated particles' costs shared and prepare
+    skipped for an unchanged state, against the straightforward run: the same state, energies,
+    particles and beliefs. Feasible points near some dots and far from others make the k-NN
+    proposals repeat the state (repeated particles)."""
+    rng = np.random.default_rng(12 + half)
+    positions, rig, evidence, config = _mrf2_scene(rng, half=half)
+    feasible = positions[rng.random(len(positions)) < 0.5] + rng.normal(0, 1.0, (1, 3))
+    init = positions + rng.normal(0, 1.5, positions.shape)
+    runs = []
+    for plain in (False, True):
+        model = RefinementMRF(GRAPH, rig, evidence, config, feasible_points=feasible)
+        model.start = torch.from_numpy(init.copy())
+        engine = ParticleBP(_PlainMRF2(model) if plain else model, config.pbp(), np.random.default_rng(5))
+        runs.append(engine.run(init))
+    fast, plain_run = runs
+    assert len(fast.energy_history) == config.iterations + 1 and any(fast.accepted)
+    np.testing.assert_array_equal(fast.state, plain_run.state)
+    np.testing.assert_array_equal(fast.energy_history, plain_run.energy_history)
+    np.testing.assert_array_equal(fast.particles, plain_run.particles)
+    np.testing.assert_array_equal(fast.beliefs, plain_run.beliefs)
+
+
+def test_open_chain_beliefs_and_shared_repeats_are_the_full_tables(mrf2_model):
+    """_belief_at with a ``wanted`` mask gives the full evaluation's values at the wanted entries;
+    the directed cost table with repeated particles (exact repeats, NaN, -0.0 beside 0.0) is the
+    one evaluated pair by pair."""
+    model, positions = mrf2_model
+    rng = np.random.default_rng(13)
+    engine = ParticleBP(model, MRF2Config().pbp(), rng)
+    from spinemocap.track.pbp import _Graph
+
+    graph = _Graph(engine.edges, len(positions))
+    kept = positions[:, None, :] + rng.normal(0, 2, (len(positions), 4, 3))
+    pre = rng.normal(0, 1, (2 * len(engine.edges), 4))
+    points = positions[:, None, :] + rng.normal(0, 2, (len(positions), 4, 3))
+    full = engine._belief_at(points, kept, pre, graph)
+    for fraction in (0.9, 0.5, 0.1, 0.0):
+        wanted = rng.random(full.shape) < fraction
+        got = engine._belief_at(points, kept, pre, graph, wanted)
+        np.testing.assert_array_equal(got[wanted], full[wanted])
+    aug = positions[:, None, :] + rng.normal(0, 2, (len(positions), 11, 3))
+    aug[:, 4] = aug[:, 0]
+    aug[:, 9:] = aug[:, 4:5]
+    aug[2, 5] = np.nan
+    aug[2, 6] = np.nan
+    aug[3, 7] = [0.0, 0.0, 1000.0]
+    aug[3, 8] = [-0.0, 0.0, 1000.0]
+    e = engine.edges
+    reference = model.pairwise(aug[e[:, 0]], aug[e[:, 1]], np.arange(len(e)))
+    np.testing.assert_array_equal(engine._pairwise_distinct(aug), reference)
+    np.testing.assert_array_equal(engine._directed_costs(aug), np.concatenate([reference, reference.transpose(0, 2, 1)]))
 
 
 def test_distinct_particles_are_numpys_isclose():
