@@ -145,6 +145,7 @@ class _ImageCosts:
             "scale": stack._scale.numpy().copy(), "base": stack._base.numpy().copy(),
         }
         self._all = column
+        column["unit_scale"] = bool((column["scale"] == 1.0).all())
         self._subsets: dict[bytes, dict] = {}
 
     def _constants(self, cams: np.ndarray | None) -> dict:
@@ -155,13 +156,28 @@ class _ImageCosts:
         if got is None:
             def pick(v):
                 return [pick(a) for a in v] if isinstance(v, list) else v[cams]
-            got = self._subsets[key] = {k: pick(v) for k, v in self._all.items()}
+            got = {k: pick(v) for k, v in self._all.items() if k != "unit_scale"}
+            got["unit_scale"] = bool((got["scale"] == 1.0).all())
+            self._subsets[key] = got
         return got
+
+    CHUNK = 1024  # points per pass: the temporaries stay in the cache (and off fresh pages)
 
     def __call__(self, px: np.ndarray, py: np.ndarray, pz: np.ndarray, cams: np.ndarray | None = None) -> np.ndarray:
         """Costs (C', N) of the points with coordinates ``px``, ``py``, ``pz`` (N,) each, in the
-        cameras ``cams`` (int indices, or None: all)."""
+        cameras ``cams`` (int indices, or None: all); in passes of ``CHUNK`` points (element by
+        element: the same values)."""
         k = self._constants(cams)
+        n = len(px)
+        if n <= 2 * self.CHUNK:
+            return self._costs(px, py, pz, k)
+        out = np.empty((len(k["base"]), n))
+        for a in range(0, n, self.CHUNK):
+            b = min(a + self.CHUNK, n)
+            out[:, a:b] = self._costs(px[a:b], py[a:b], pz[a:b], k)
+        return out
+
+    def _costs(self, px: np.ndarray, py: np.ndarray, pz: np.ndarray, k: dict) -> np.ndarray:
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = k["r"]
         t0, t1, t2 = k["t"]
         xc0 = px * r00 + py * r01 + pz * r02 + t0
@@ -178,11 +194,14 @@ class _ImageCosts:
         # sample_uv: NaN (behind the camera, or NaN points) reads column / row 0, as its
         # nan_to_num(nan=-1) and clamp(0, .) do; fmax/fmin map NaN to 0 and clamp infinities alike
         h, w = self.h, self.w
-        x = np.fmin(np.fmax((u - k["ox"]) * k["scale"] + 1.0, 0.0), w - 1)
-        y = np.fmin(np.fmax((v - k["oy"]) * k["scale"] + 1.0, 0.0), h - 1)
-        behind = xc2 <= 1e-6
-        if behind.any():
-            x[behind] = 0.0
+        if k["unit_scale"]:  # (u - ox) * 1.0 is u - ox
+            x = np.fmin(np.fmax((u - k["ox"]) + 1.0, 0.0), w - 1)
+            y = np.fmin(np.fmax((v - k["oy"]) + 1.0, 0.0), h - 1)
+        else:
+            x = np.fmin(np.fmax((u - k["ox"]) * k["scale"] + 1.0, 0.0), w - 1)
+            y = np.fmin(np.fmax((v - k["oy"]) * k["scale"] + 1.0, 0.0), h - 1)
+        if np.fmin.reduce(xc2, axis=None, initial=np.inf) <= 1e-6:  # behind a camera (NaN is not)
+            x[xc2 <= 1e-6] = 0.0
         xi = x.astype(np.int64)  # floor: x >= 0
         yi = y.astype(np.int64)
         np.minimum(xi, w - 2, out=xi)
