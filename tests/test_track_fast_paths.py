@@ -381,3 +381,24 @@ def test_epipolar_distance_is_the_plain_formula_bit_for_bit():
                                np.abs(algebraic) / np.linalg.norm((h1 @ F.T)[:, :2], axis=1, keepdims=True))
         np.testing.assert_array_equal(epipolar_distance(F, x1, x2), reference)
         np.testing.assert_array_equal(epipolar_distance(F, x1, x2, h1, h2), reference)
+
+
+def test_evidence_canvas_in_float32_samples_the_float64_values():
+    """EvidenceStack keeps build_evidence's float32 costs in a float32 canvas: every sample
+    (bilinear, off the images, behind the window) equals the float64 canvas's; a cost image in
+    float64, or an outside cost float32 cannot hold, keeps the float64 canvas."""
+    from spinemocap.track.evidence import EvidenceStack
+
+    rng = np.random.default_rng(14)
+    images = [EvidenceImage(cost=rng.uniform(0, 1, (60, 80)).astype(np.float32), scale=1.0, outside_cost=1.25),
+              None,
+              EvidenceImage(cost=rng.uniform(0, 2, (30, 50)).astype(np.float32), scale=0.5, outside_cost=2.0,
+                            origin=(10.0, 5.5))]
+    wide = [None if e is None else EvidenceImage(cost=e.cost.astype(np.float64), scale=e.scale, outside_cost=e.outside_cost,
+                                                 origin=e.origin) for e in images]
+    single, double = EvidenceStack(images), EvidenceStack(wide)
+    assert single._flat.dtype == torch.float32 and double._flat.dtype == torch.float64
+    uv = torch.from_numpy(rng.uniform(-20, 120, (3, 500, 2)))
+    np.testing.assert_array_equal(single.sample_torch(uv).numpy(), double.sample_torch(uv).numpy())
+    odd = [EvidenceImage(cost=images[0].cost, scale=1.0, outside_cost=1.1)]
+    assert EvidenceStack(odd)._flat.dtype == torch.float64

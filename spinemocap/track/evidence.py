@@ -49,7 +49,11 @@ class EvidenceStack:
         present = [e for e in evidence if e is not None]
         h = max((e.shape[0] for e in present), default=1) + 2
         w = max((e.shape[1] for e in present), default=1) + 2
-        canvas = np.zeros((len(evidence), 1, h, w), dtype=np.float64)
+        # float32 where the cost images and outside costs are (build_evidence's: each outside cost is
+        # a cost image's maximum): the samples promote each corner exactly to float64, so the same
+        # values from half the memory
+        single = all(e.cost.dtype == np.float32 and float(np.float32(e.outside_cost)) == e.outside_cost for e in present)
+        canvas = np.zeros((len(evidence), 1, h, w), dtype=np.float32 if single else np.float64)
         scale, origin = np.ones(len(evidence)), np.zeros((len(evidence), 2))
         for c, e in enumerate(evidence):
             if e is None:
