@@ -314,6 +314,25 @@ def test_mrf2_particle_bp_is_the_straightforward_run_bit_for_bit(half):
     np.testing.assert_array_equal(fast.beliefs, plain_run.beliefs)
 
 
+class _NoRows:
+    """A model seen without its optional fast-path members (``unary_rows``, ``symmetric_pairwise``)."""
+
+    def __init__(self, model):
+        self.edges, self.unary, self.pairwise = model.edges, model.unary, model.pairwise
+        self.prepare, self.extra_proposals = model.prepare, model.extra_proposals
+
+
+def test_mrf2_pairwise_is_symmetric_bit_for_bit(mrf2_model):
+    model, positions = mrf2_model
+    rng = np.random.default_rng(15)
+    e = model.edges
+    for spread in (0.0, 2.0, 50.0):
+        xs = positions[e[:, 0]][:, None, :] + rng.normal(0, spread, (len(e), 4, 3))
+        xt = positions[e[:, 1]][:, None, :] + rng.normal(0, spread, (len(e), 3, 3))
+        np.testing.assert_array_equal(model.pairwise(xs, xt, np.arange(len(e))),
+                                      model.pairwise(xt, xs, np.arange(len(e))).transpose(0, 2, 1))
+
+
 def test_open_chain_beliefs_and_shared_repeats_are_the_full_tables(mrf2_model):
     """_belief_at with a ``wanted`` mask gives the full evaluation's values at the wanted entries;
     the directed cost table with repeated particles (exact repeats, NaN, -0.0 beside 0.0) is the
@@ -327,7 +346,9 @@ def test_open_chain_beliefs_and_shared_repeats_are_the_full_tables(mrf2_model):
     kept = positions[:, None, :] + rng.normal(0, 2, (len(positions), 4, 3))
     pre = rng.normal(0, 1, (2 * len(engine.edges), 4))
     points = positions[:, None, :] + rng.normal(0, 2, (len(positions), 4, 3))
-    full = engine._belief_at(points, kept, pre, graph)
+    plain = ParticleBP(_NoRows(model), MRF2Config().pbp(), rng)  # unary on all points, one call per direction
+    full = plain._belief_at(points, kept, pre, graph)
+    np.testing.assert_array_equal(engine._belief_at(points, kept, pre, graph), full)
     for fraction in (0.9, 0.5, 0.1, 0.0):
         wanted = rng.random(full.shape) < fraction
         got = engine._belief_at(points, kept, pre, graph, wanted)

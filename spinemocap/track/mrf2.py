@@ -218,6 +218,10 @@ class _ImageCosts:
 class RefinementMRF:
     """The MRF2 energy as a :class:`~spinemocap.track.pbp.PairwiseModel` (states (x, y, z))."""
 
+    # the pairwise cost of (xs, xt) is that of (xt, xs), bit for bit: the midpoint's sum commutes,
+    # and p = xs - xt only changes sign (exactly) before every use is squared
+    symmetric_pairwise = True
+
     def __init__(
         self,
         tape: TapeGraph,

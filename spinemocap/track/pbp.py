@@ -40,7 +40,9 @@ class PairwiseModel(Protocol):
     estimate (D, S) before an iteration. ``extra_proposals(state)``: (D, K, S) or None.
     Optional ``unary_rows(nodes, x)``: nodes (K,), x (K, S) -> (K,), the unary cost of node
     ``nodes[k]`` at ``x[k]`` (the same values as ``unary``); with it the slice sampler evaluates
-    beliefs only for its chains still open."""
+    beliefs only for its chains still open, and repeated particles share their pairwise costs.
+    Optional ``symmetric_pairwise = True``: ``pairwise(xs, xt, i)`` is ``pairwise(xt, xs, i)``
+    transposed, bit for bit (beliefs then evaluate both message directions in one call)."""
 
     edges: np.ndarray
 
@@ -234,8 +236,9 @@ class ParticleBP:
         over its kept particles (D, P, S) of pre + pairwise. ``pre`` (2E, P) as from the sweeps.
         ``wanted`` (D, Q) bool: only those entries are needed (the others are returned as
         anything); with a model that has ``unary_rows`` only they are evaluated."""
-        if wanted is not None and not wanted.all() and hasattr(self.model, "unary_rows"):
-            return self._belief_at_wanted(points, kept, pre, graph, wanted)
+        if hasattr(self.model, "unary_rows"):
+            return self._belief_at_wanted(points, kept, pre, graph,
+                                          np.ones(points.shape[:2], bool) if wanted is None else wanted)
         belief = self.model.unary(points)
         if graph.n_edges == 0:
             return belief
@@ -262,14 +265,19 @@ class ParticleBP:
             return belief
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
         msgs = np.zeros((2 * e, wanted.shape[1]))
-        # messages e0 -> e1 at the wanted new states of e1
-        m, q = np.nonzero(wanted[e1])
-        cost = model.pairwise(kept[e0[m]], points[e1[m], q][:, None, :], m)  # (K, P, 1)
-        msgs[m, q] = (pre[m] + cost[:, :, 0]).min(axis=1)
-        # messages e1 -> e0 at the wanted new states of e0
-        m, q = np.nonzero(wanted[e0])
-        cost = model.pairwise(points[e0[m], q][:, None, :], kept[e1[m]], m)  # (K, 1, P)
-        msgs[e + m, q] = (pre[e + m] + cost[:, 0, :]).min(axis=1)
+        m1, q1 = np.nonzero(wanted[e1])  # messages e0 -> e1 at the wanted new states of e1
+        m2, q2 = np.nonzero(wanted[e0])  # messages e1 -> e0 at the wanted new states of e0
+        if getattr(model, "symmetric_pairwise", False):
+            # pairwise(a, b) is pairwise(b, a) transposed: both directions in one evaluation
+            cost = model.pairwise(np.concatenate([kept[e0[m1]], kept[e1[m2]]]),
+                                  np.concatenate([points[e1[m1], q1], points[e0[m2], q2]])[:, None, :],
+                                  np.concatenate([m1, m2]))[:, :, 0]
+            to_second, to_first = cost[: len(m1)], cost[len(m1):]
+        else:
+            to_second = model.pairwise(kept[e0[m1]], points[e1[m1], q1][:, None, :], m1)[:, :, 0]  # (K, P)
+            to_first = model.pairwise(points[e0[m2], q2][:, None, :], kept[e1[m2]], m2)[:, 0, :]
+        msgs[m1, q1] = (pre[m1] + to_second).min(axis=1)
+        msgs[e + m2, q2] = (pre[e + m2] + to_first).min(axis=1)
         return belief + graph.incidence @ msgs
 
     def _slice_sample(self, start: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph, width: np.ndarray):
