@@ -107,3 +107,31 @@ def test_runtime_choices():
         NetSegmenter(runtime="onnxruntime", precision="bfloat16")
     bf16 = NetSegmenter(precision="bfloat16")  # auto: bfloat16 stays on torch
     assert bf16.runtime == "torch" and bf16.onnx is None
+
+
+def test_padded_channels_change_no_logit():
+    """The export pads every level to 16 channels (zero weights): the same logits in torch."""
+    from spinemocap.detect.segnet import _channels_padded
+
+    net = InferenceUNet(load_weights(shipped_weights_path())[0])
+    padded = _channels_padded(net, 16)
+    assert net.channels[0] % 16 != 0 and all(c % 16 == 0 for c in padded.channels)
+    assert padded.down[0].shape[0] == 16 and net.down[0].shape[0] == net.channels[0]  # the original is untouched
+    for view in _views(4):
+        ref, got = _torch_logits(net, view), _torch_logits(padded, view)
+        assert np.abs(got - ref).max() <= 1e-5
+
+
+def test_export_happens_once_per_weights(nets):
+    from spinemocap.detect import segnet
+
+    net, onnx = nets
+    again = OnnxUNet(net, threads=1)
+    assert again.model_bytes is onnx.model_bytes  # the same weights: no second export
+    other = InferenceUNet(load_weights(shipped_weights_path())[0])
+    with torch.no_grad():
+        other.head_b += 1.0  # other weights: exported anew, and the logits follow them
+    moved = OnnxUNet(other, threads=1)
+    assert moved.model_bytes is not onnx.model_bytes and len(segnet._EXPORTED) >= 2
+    view = _views()[2][None]
+    assert np.abs(moved(view) - onnx(view) - 1.0).max() <= LOGIT_ATOL

@@ -60,7 +60,9 @@ def shipped_weights_path() -> Path:
 
 
 class NetSegmenter:
-    """Two-stage segmentation with :class:`TapeUNet` (see the module docstring)."""
+    """Two-stage segmentation with :class:`TapeUNet` (see the module docstring). ``runtime``:
+    what runs the network's passes, ``auto`` (ONNX Runtime for float32 on the CPU where
+    onnxruntime and onnx import, else torch), ``onnxruntime`` or ``torch``."""
 
     def __init__(self, weights: str | os.PathLike | None = None, refine: bool = True, threads: int | None = 1,
                  min_area_work_px: int = 4, box_logit: float = -1.0, max_grow: int = 3,

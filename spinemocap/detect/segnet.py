@@ -207,28 +207,20 @@ class OnnxUNet:
     the 2x upsampling fused in its blocked-channel (NCHWc) layout.
 
     The model is exported at construction from the given module's weights (in memory, nothing
-    written to disk) with torch's TorchScript-based exporter (it needs the ``onnx`` package, not
-    ``onnxscript``). Input: uint8 BGR pixels (B, H, W, 3) with H and W multiples of
-    :attr:`stride` (:func:`pad_to_multiple`); the scaling of :func:`to_tensor` is in the graph.
-    ``threads``: ONNX Runtime's threads per pass (``None``: its default, all cores); set once, at
-    construction. ImportError when ``onnxruntime`` or ``onnx`` is missing."""
+    written to disk; ~0.4 s, once per process for given weights, see :func:`_onnx_model`) with
+    torch's TorchScript-based exporter (it needs the ``onnx`` package, not ``onnxscript``).
+    Input: uint8 BGR pixels (B, H, W, 3) with H and W multiples of :attr:`stride`
+    (:func:`pad_to_multiple`); the scaling of :func:`to_tensor` is in the graph. Any H, W and B:
+    no shape is specialised. ``threads``: ONNX Runtime's threads per pass (``None``: its
+    default, all cores); set once, at construction. ``run`` may be called from several threads
+    at once. ImportError when ``onnxruntime`` or ``onnx`` is missing."""
 
     def __init__(self, net: InferenceUNet, threads: int | None = 1, channel_multiple: int = 16, concat: bool = True):
-        import io
-        import warnings
-
         import onnx  # noqa: F401  (the exporter needs it; fail here, early, with ImportError)
         import onnxruntime as ort
 
         self.stride = net.stride
-        form = _PixelsToLogits(_channels_padded(net, channel_multiple).float().cpu(), concat).eval()
-        example = torch.zeros(1, 2 * self.stride, 2 * self.stride, 3, dtype=torch.uint8)
-        buf = io.BytesIO()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # the TorchScript-based exporter is deprecated (still shipped)
-            torch.onnx.export(form, (example,), buf, dynamo=False, input_names=["pixels"], output_names=["logits"],
-                              dynamic_axes={"pixels": {0: "b", 1: "h", 2: "w"}, "logits": {0: "b", 1: "h", 2: "w"}},
-                              opset_version=17)
+        self.model_bytes = _onnx_model(net, channel_multiple, concat)
         options = ort.SessionOptions()
         options.intra_op_num_threads = int(threads) if threads else 0
         options.inter_op_num_threads = 1
@@ -236,12 +228,40 @@ class OnnxUNet:
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")  # no busy-waiting threads
         options.log_severity_level = 3
-        self._model_bytes = buf.getvalue()
-        self.session = ort.InferenceSession(self._model_bytes, options, providers=["CPUExecutionProvider"])
+        self.session = ort.InferenceSession(self.model_bytes, options, providers=["CPUExecutionProvider"])
 
     def __call__(self, pixels: np.ndarray) -> np.ndarray:
         """Logits (B, H, W) float32 of uint8 BGR pixels (B, H, W, 3)."""
         return self.session.run(None, {"pixels": np.ascontiguousarray(pixels, dtype=np.uint8)})[0]
+
+
+_EXPORTED: dict[tuple, bytes] = {}  # ONNX models exported in this process, by weights and form
+
+
+def _onnx_model(net: InferenceUNet, channel_multiple: int, concat: bool) -> bytes:
+    """The ONNX model (serialised) of ``net`` in the form of :class:`_PixelsToLogits`, its channels
+    padded to ``channel_multiple``; exported once per process for the same weights (keyed by a
+    hash of every parameter, so another weights file or a changed module exports anew)."""
+    import hashlib
+    import io
+    import warnings
+
+    digest = hashlib.sha256()
+    for name, p in net.state_dict().items():
+        digest.update(name.encode())
+        digest.update(p.detach().float().cpu().contiguous().numpy().tobytes())
+    key = (digest.hexdigest(), net.channels, channel_multiple, concat)
+    if key not in _EXPORTED:
+        form = _PixelsToLogits(_channels_padded(net, channel_multiple).float().cpu(), concat).eval()
+        example = torch.zeros(1, 2 * net.stride, 2 * net.stride, 3, dtype=torch.uint8)
+        buf = io.BytesIO()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the TorchScript-based exporter is deprecated (still shipped in torch 2.13)
+            torch.onnx.export(form, (example,), buf, dynamo=False, input_names=["pixels"], output_names=["logits"],
+                              dynamic_axes={"pixels": {0: "b", 1: "h", 2: "w"}, "logits": {0: "b", 1: "h", 2: "w"}},
+                              opset_version=17)
+        _EXPORTED[key] = buf.getvalue()
+    return _EXPORTED[key]
 
 
 def to_tensor(images_bgr: np.ndarray | torch.Tensor) -> torch.Tensor:
