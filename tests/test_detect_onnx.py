@@ -135,3 +135,18 @@ def test_export_happens_once_per_weights(nets):
     assert moved.model_bytes is not onnx.model_bytes and len(segnet._EXPORTED) >= 2
     view = _views()[2][None]
     assert np.abs(moved(view) - onnx(view) - 1.0).max() <= LOGIT_ATOL
+
+
+def test_a_failing_export_falls_back_to_torch_with_a_warning(monkeypatch, nets):
+    from spinemocap.detect import segnet
+
+    def refuse(*args, **kwargs):
+        raise RuntimeError("exporter refused")
+
+    monkeypatch.setattr(segnet, "_EXPORTED", {})  # nothing cached: the export runs
+    monkeypatch.setattr(torch.onnx, "export", refuse)
+    with pytest.warns(RuntimeWarning, match="exporter refused"):
+        seg = NetSegmenter(device="cpu")
+    assert seg.runtime == "torch" and seg.onnx is None
+    with pytest.raises(InputError, match="failed to load the network"):
+        NetSegmenter(device="cpu", runtime="onnxruntime")

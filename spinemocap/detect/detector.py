@@ -88,9 +88,10 @@ class NetSegmenter:
         self.blob_params = blob_params or BlobParams()  # the clean-up's dots are the detector's
         self.device = torch.device(resolve_device(device))
         self.model = self.model.to(device=self.device, dtype=self.dtype)
-        # The runtime of the passes: ONNX Runtime for float32 on the CPU (~30 % less CPU per pass,
+        # The runtime of the passes: ONNX Runtime for float32 on the CPU (14-22 % less CPU per pass,
         # the same dots; docs/BENCHMARKS.md, issue 15), else torch (the GPU, bfloat16, and the
-        # fallback where onnxruntime/onnx cannot be imported). ``self.runtime`` says which runs.
+        # fallback where onnxruntime/onnx cannot be imported or the export fails). ``self.runtime``
+        # says which runs.
         if runtime not in RUNTIMES:
             raise InputError(None, f"unknown network runtime {runtime!r} (choose {', '.join(RUNTIMES)})")
         self.onnx: OnnxUNet | None = None
@@ -101,6 +102,14 @@ class NetSegmenter:
                 if runtime == "onnxruntime":
                     raise InputError(None, f"network runtime 'onnxruntime' asked for, but {exc.name or exc} "
                                            "cannot be imported (pip install onnxruntime onnx)") from exc
+            except Exception as exc:  # the exporter or ONNX Runtime refused (another torch or ORT version)
+                import warnings
+
+                if runtime == "onnxruntime":
+                    raise InputError(None, f"network runtime 'onnxruntime' failed to load the network "
+                                           f"({exc.__class__.__name__}: {exc})") from exc
+                warnings.warn(f"ONNX Runtime could not load the network ({exc.__class__.__name__}: {exc}); "
+                              "the network runs on torch (same dots, more CPU)", RuntimeWarning, stacklevel=2)
         elif runtime == "onnxruntime":
             raise InputError(None, "network runtime 'onnxruntime' runs float32 on the CPU only "
                                    f"(asked: {precision} on {self.device})")

@@ -202,9 +202,10 @@ def _channels_padded(net: InferenceUNet, multiple: int) -> InferenceUNet:
 
 class OnnxUNet:
     """An :class:`InferenceUNet` run by ONNX Runtime on the CPU: the same logits up to float
-    rounding (tests/test_detect_onnx.py), ~30 % less CPU per pass than torch on this project's
-    2-core CPU (docs/BENCHMARKS.md, issue 15): ONNX Runtime runs the convolutions, the ReLUs and
-    the 2x upsampling fused in its blocked-channel (NCHWc) layout.
+    rounding (tests/test_detect_onnx.py) for 14-22 % less CPU per pass than torch in the detector
+    on this project's 2-core CPU, 24-43 % for the network alone (docs/BENCHMARKS.md, issue 15):
+    ONNX Runtime runs the convolutions (ReLUs fused), the pooling and the 2x upsampling in its
+    blocked-channel (NCHWc) layout.
 
     The model is exported at construction from the given module's weights (in memory, nothing
     written to disk; ~0.4 s, once per process for given weights, see :func:`_onnx_model`) with
@@ -212,8 +213,7 @@ class OnnxUNet:
     Input: uint8 BGR pixels (B, H, W, 3) with H and W multiples of :attr:`stride`
     (:func:`pad_to_multiple`); the scaling of :func:`to_tensor` is in the graph. Any H, W and B:
     no shape is specialised. ``threads``: ONNX Runtime's threads per pass (``None``: its
-    default, all cores); set once, at construction. ``run`` may be called from several threads
-    at once. ImportError when ``onnxruntime`` or ``onnx`` is missing."""
+    default, all cores); set once, at construction. Several threads may call it at once. ImportError when ``onnxruntime`` or ``onnx`` is missing."""
 
     def __init__(self, net: InferenceUNet, threads: int | None = 1, channel_multiple: int = 16, concat: bool = True):
         import onnx  # noqa: F401  (the exporter needs it; fail here, early, with ImportError)
