@@ -69,7 +69,7 @@ def test_folding_uses_every_batch_norm_statistic():
 
 
 def _plain_detector() -> Detector:
-    det = Detector("net")
+    det = Detector("net", runtime="torch")  # the module below runs (not ONNX Runtime's export)
     det._segment.model = load_weights(det._segment.weights_path)[0].to(memory_format=torch.channels_last)
     return det
 

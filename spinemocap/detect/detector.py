@@ -38,7 +38,7 @@ from .classical import segment_classical
 from .dataset import CROP_PAD, WORK_WIDTH, crop_scale, frame_view
 from .instances import kept_instances, split_instances, union
 from .refine import RefineParams, components_touching, extend_along_tape
-from .segnet import InferenceUNet, load_weights, pad_to_multiple, to_tensor
+from .segnet import RUNTIMES, InferenceUNet, OnnxUNet, load_weights, pad_to_multiple, to_tensor
 
 SHIPPED_WEIGHTS = "tape_unet.pt"
 
@@ -60,12 +60,14 @@ def shipped_weights_path() -> Path:
 
 
 class NetSegmenter:
-    """Two-stage segmentation with :class:`TapeUNet` (see the module docstring)."""
+    """Two-stage segmentation with :class:`TapeUNet` (see the module docstring). ``runtime``:
+    what runs the network's passes, ``auto`` (ONNX Runtime for float32 on the CPU where
+    onnxruntime and onnx import, else torch), ``onnxruntime`` or ``torch``."""
 
     def __init__(self, weights: str | os.PathLike | None = None, refine: bool = True, threads: int | None = 1,
                  min_area_work_px: int = 4, box_logit: float = -1.0, max_grow: int = 3,
                  refine_params: RefineParams | None = None, device: str = "auto",
-                 blob_params: BlobParams | None = None, precision: str = "float32"):
+                 blob_params: BlobParams | None = None, precision: str = "float32", runtime: str = "auto"):
         self.weights_path = Path(weights) if weights else shipped_weights_path()
         net, self.metadata = load_weights(self.weights_path)
         # The inference form: batch norm folded into the convolutions, no concatenation copies,
@@ -86,6 +88,32 @@ class NetSegmenter:
         self.blob_params = blob_params or BlobParams()  # the clean-up's dots are the detector's
         self.device = torch.device(resolve_device(device))
         self.model = self.model.to(device=self.device, dtype=self.dtype)
+        # The runtime of the passes: ONNX Runtime for float32 on the CPU (14-22 % less CPU per pass,
+        # the same dots; docs/BENCHMARKS.md, issue 15), else torch (the GPU, bfloat16, and the
+        # fallback where onnxruntime/onnx cannot be imported or the export fails). ``self.runtime``
+        # says which runs.
+        if runtime not in RUNTIMES:
+            raise InputError(None, f"unknown network runtime {runtime!r} (choose {', '.join(RUNTIMES)})")
+        self.onnx: OnnxUNet | None = None
+        if runtime != "torch" and self.device.type == "cpu" and self.dtype == torch.float32:
+            try:
+                self.onnx = OnnxUNet(self.model, threads)
+            except ImportError as exc:
+                if runtime == "onnxruntime":
+                    raise InputError(None, f"network runtime 'onnxruntime' asked for, but {exc.name or exc} "
+                                           "cannot be imported (pip install onnxruntime onnx)") from exc
+            except Exception as exc:  # the exporter or ONNX Runtime refused (another torch or ORT version)
+                import warnings
+
+                if runtime == "onnxruntime":
+                    raise InputError(None, f"network runtime 'onnxruntime' failed to load the network "
+                                           f"({exc.__class__.__name__}: {exc})") from exc
+                warnings.warn(f"ONNX Runtime could not load the network ({exc.__class__.__name__}: {exc}); "
+                              "the network runs on torch (same dots, more CPU)", RuntimeWarning, stacklevel=2)
+        elif runtime == "onnxruntime":
+            raise InputError(None, "network runtime 'onnxruntime' runs float32 on the CPU only "
+                                   f"(asked: {precision} on {self.device})")
+        self.runtime = "onnxruntime" if self.onnx is not None else "torch"
 
     def _use_threads(self) -> None:
         """torch's threads for this calling thread, set only when they differ: a
@@ -101,6 +129,8 @@ class NetSegmenter:
         """Logits (B, h, w) of equally sized BGR views (B, h, w, 3) in one network pass."""
         padded, (h, w) = pad_to_multiple(np.moveaxis(views, 0, 2), self.model.stride)
         padded = np.moveaxis(padded, 2, 0)
+        if self.onnx is not None:
+            return self.onnx(padded)[:, :h, :w]
         with torch.inference_mode():
             # the uint8 pixels travel to the device (a quarter of float32's bytes), converted there
             pixels = torch.from_numpy(np.ascontiguousarray(padded)).to(self.device)

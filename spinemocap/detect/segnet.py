@@ -10,6 +10,8 @@ Inputs: float tensor (B, 3, H, W), BGR scaled to [0, 1] and centred (``x - 0.5``
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import torch
 from torch import nn
@@ -131,6 +133,135 @@ def _folded_block(block: ConvBlock) -> list[nn.Parameter]:
             b = b + conv.bias.detach().double() * scale
         out += [_param(w.float()), _param(b.float())]
     return out
+
+
+RUNTIMES = ("auto", "onnxruntime", "torch")  # what runs the detector's passes (auto: onnxruntime where it can)
+
+
+class _PixelsToLogits(nn.Module):
+    """uint8 BGR pixels (B, H, W, 3) -> logits (B, H, W): :func:`to_tensor` and the forward pass
+    of an :class:`InferenceUNet` in one graph, for the ONNX export. Two differences, the same
+    logits: the upsampling is by a constant factor 2 (equal to upsampling to the skip's size where
+    every side is a multiple of the stride, as :func:`pad_to_multiple` makes it; ONNX Runtime
+    runs a constant-factor resize in its blocked layout), and ``concat`` (else summed convolutions)
+    sets how each decoder block reads the upsampled features and the skip connection."""
+
+    def __init__(self, net: InferenceUNet, concat: bool):
+        super().__init__()
+        self.net = net
+        self.concat = concat
+
+    def forward(self, pixels: torch.Tensor) -> torch.Tensor:
+        net, x = self.net, to_tensor(pixels)
+        skips = []
+        d, u = list(net.down), list(net.up)
+        for i in range(len(net.channels)):
+            if i:
+                x = F.max_pool2d(x, 2)
+            x = F.relu(F.conv2d(x, d[4 * i], d[4 * i + 1], padding=1))
+            x = F.relu(F.conv2d(x, d[4 * i + 2], d[4 * i + 3], padding=1))
+            skips.append(x)
+        for i, skip in enumerate(reversed(skips[:-1])):
+            w_coarse, w_skip, b1, w2, b2 = u[5 * i:5 * i + 5]
+            x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+            if self.concat:
+                y = F.conv2d(torch.cat([x, skip], dim=1), torch.cat([w_coarse, w_skip], dim=1), b1, padding=1)
+            else:
+                y = F.conv2d(skip, w_skip, b1, padding=1) + F.conv2d(x, w_coarse, None, padding=1)
+            x = F.relu(F.conv2d(F.relu(y), w2, b2, padding=1))
+        return F.conv2d(x, net.head_w, net.head_b)[:, 0]
+
+
+def _channels_padded(net: InferenceUNet, multiple: int) -> InferenceUNet:
+    """A copy of ``net`` whose levels have a multiple of ``multiple`` channels each. The added
+    channels have zero weights and biases: they stay 0 through every ReLU and add nothing to the
+    next convolution, so the logits are the same. (ONNX Runtime's blocked layout holds 16
+    channels per block with AVX-512; a level of 12 channels runs its convolutions in the plain
+    layout, with conversions before and after each.)"""
+    out = copy.deepcopy(net)
+    cs = [-(-c // multiple) * multiple for c in net.channels]
+
+    def pad(t: torch.Tensor, n_out: int, n_in: int | None = None) -> nn.Parameter:
+        z = torch.zeros((n_out,) if n_in is None else (n_out, n_in, *t.shape[2:]), dtype=t.dtype, device=t.device)
+        z[tuple(slice(0, n) for n in t.shape)] = t
+        return _param(z)
+
+    d, u = out.down, out.up
+    for i, c in enumerate(cs):
+        c_in = cs[i - 1] if i else 3
+        d[4 * i], d[4 * i + 1] = pad(d[4 * i], c, c_in), pad(d[4 * i + 1], c)
+        d[4 * i + 2], d[4 * i + 3] = pad(d[4 * i + 2], c, c), pad(d[4 * i + 3], c)
+    for j in range(len(cs) - 1):
+        c, c_coarse = cs[len(cs) - 2 - j], cs[len(cs) - 1 - j]
+        u[5 * j], u[5 * j + 1], u[5 * j + 2] = pad(u[5 * j], c, c_coarse), pad(u[5 * j + 1], c, c), pad(u[5 * j + 2], c)
+        u[5 * j + 3], u[5 * j + 4] = pad(u[5 * j + 3], c, c), pad(u[5 * j + 4], c)
+    out.head_w = pad(out.head_w, 1, cs[0])
+    out.channels = tuple(cs)
+    return out
+
+
+class OnnxUNet:
+    """An :class:`InferenceUNet` run by ONNX Runtime on the CPU: the same logits up to float
+    rounding (tests/test_detect_onnx.py) for 14-22 % less CPU per pass than torch in the detector
+    on this project's 2-core CPU, 24-43 % for the network alone (docs/BENCHMARKS.md, issue 15):
+    ONNX Runtime runs the convolutions (ReLUs fused), the pooling and the 2x upsampling in its
+    blocked-channel (NCHWc) layout.
+
+    The model is exported at construction from the given module's weights (in memory, nothing
+    written to disk; ~0.4 s, once per process for given weights, see :func:`_onnx_model`) with
+    torch's TorchScript-based exporter (it needs the ``onnx`` package, not ``onnxscript``).
+    Input: uint8 BGR pixels (B, H, W, 3) with H and W multiples of :attr:`stride`
+    (:func:`pad_to_multiple`); the scaling of :func:`to_tensor` is in the graph. Any H, W and B:
+    no shape is specialised. ``threads``: ONNX Runtime's threads per pass (``None``: its
+    default, all cores); set once, at construction. Several threads may call it at once. ImportError when ``onnxruntime`` or ``onnx`` is missing."""
+
+    def __init__(self, net: InferenceUNet, threads: int | None = 1, channel_multiple: int = 16, concat: bool = True):
+        import onnx  # noqa: F401  (the exporter needs it; fail here, early, with ImportError)
+        import onnxruntime as ort
+
+        self.stride = net.stride
+        self.model_bytes = _onnx_model(net, channel_multiple, concat)
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = int(threads) if threads else 0
+        options.inter_op_num_threads = 1
+        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")  # no busy-waiting threads
+        options.log_severity_level = 3
+        self.session = ort.InferenceSession(self.model_bytes, options, providers=["CPUExecutionProvider"])
+
+    def __call__(self, pixels: np.ndarray) -> np.ndarray:
+        """Logits (B, H, W) float32 of uint8 BGR pixels (B, H, W, 3)."""
+        return self.session.run(None, {"pixels": np.ascontiguousarray(pixels, dtype=np.uint8)})[0]
+
+
+_EXPORTED: dict[tuple, bytes] = {}  # ONNX models exported in this process, by weights and form
+
+
+def _onnx_model(net: InferenceUNet, channel_multiple: int, concat: bool) -> bytes:
+    """The ONNX model (serialised) of ``net`` in the form of :class:`_PixelsToLogits`, its channels
+    padded to ``channel_multiple``; exported once per process for the same weights (keyed by a
+    hash of every parameter, so another weights file or a changed module exports anew)."""
+    import hashlib
+    import io
+    import warnings
+
+    digest = hashlib.sha256()
+    for name, p in net.state_dict().items():
+        digest.update(name.encode())
+        digest.update(p.detach().float().cpu().contiguous().numpy().tobytes())
+    key = (digest.hexdigest(), net.channels, channel_multiple, concat)
+    if key not in _EXPORTED:
+        form = _PixelsToLogits(_channels_padded(net, channel_multiple).float().cpu(), concat).eval()
+        example = torch.zeros(1, 2 * net.stride, 2 * net.stride, 3, dtype=torch.uint8)
+        buf = io.BytesIO()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the TorchScript-based exporter is deprecated (still shipped in torch 2.13)
+            torch.onnx.export(form, (example,), buf, dynamo=False, input_names=["pixels"], output_names=["logits"],
+                              dynamic_axes={"pixels": {0: "b", 1: "h", 2: "w"}, "logits": {0: "b", 1: "h", 2: "w"}},
+                              opset_version=17)
+        _EXPORTED[key] = buf.getvalue()
+    return _EXPORTED[key]
 
 
 def to_tensor(images_bgr: np.ndarray | torch.Tensor) -> torch.Tensor:
