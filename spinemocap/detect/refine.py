@@ -270,6 +270,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     p = params or RefineParams()
     grey = to_grey(crop)  # uint8, once: the snapping, the dots and the extension all read it
     base = fill_holes(mask)
+    memo: dict = {}  # find_dots' regions already searched on ``grey`` (a region whose mask is unchanged)
 
     def snapped_with_levels(m: np.ndarray, box: tuple[slice, slice] | None) -> tuple[np.ndarray, _Levels | None]:
         # the tape and skin levels of ``m`` (its box ``box``): for the snap, and (of the kept mask)
@@ -283,7 +284,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     # their contrast and centres are measured on the tape's own pixels.
     base_box = _near(base, 0)
     snapped, samples = snapped_with_levels(base, base_box)
-    dots, conf = find_dots(grey, snapped, None, blob_params)
+    dots, conf = find_dots(grey, snapped, None, blob_params, memo)
     base_area = int(np.count_nonzero(base))
     if base_area < 50 or len(dots) < 2:
         return Extended(base, dots, conf, snapped)
@@ -294,7 +295,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
         base_area = int(np.count_nonzero(base))
         base_box = _near(base, 0)
         snapped, samples = snapped_with_levels(base, base_box)
-        answer = find_dots(grey, snapped, None, blob_params)
+        answer = find_dots(grey, snapped, None, blob_params, memo)
     threshold = _midway(samples)
     if threshold is None:
         return Extended(base, *answer, snapped)
@@ -327,7 +328,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
         return Extended(base, *answer, snapped)
     # The tape grew (rare): its dots on the joined mask, where a dot straddling a join counts.
     snapped, _ = snapped_with_levels(out, _near(out, 0))
-    return Extended(out, *find_dots(grey, snapped, None, blob_params), snapped)
+    return Extended(out, *find_dots(grey, snapped, None, blob_params, memo), snapped)
 
 
 def _large_components(mask: np.ndarray, min_area: float):
