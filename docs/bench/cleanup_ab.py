@@ -56,10 +56,10 @@ def main() -> None:
     calls, nets, current = [], {}, {}
     segment_boxes, net_mask = after_detector.NetSegmenter.segment_boxes, after_detector.NetSegmenter._net_mask
 
-    def recording_segment_boxes(self, image, boxes):
+    def recording_segment_boxes(self, image, boxes, *grey):
         current[0] = where[id(image)]
         calls.append((current[0], list(boxes)))
-        return segment_boxes(self, image, boxes)
+        return segment_boxes(self, image, boxes, *grey)
 
     def recording_net_mask(self, image, box):
         mask = net_mask(self, image, box)

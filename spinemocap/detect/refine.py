@@ -36,6 +36,7 @@ from ..capture import to_grey
 from .blobs import (
     DEFAULT_DOT_TO_WIDTH,
     BlobParams,
+    _nonzero,
     area_shrink,
     fill_holes,
     find_dots,
@@ -208,7 +209,13 @@ def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels 
     grown = samples.grown[oy:oy + m.shape[0], ox:ox + m.shape[1]]
     band = grown & ~_shrink(m, p.band_px)
     snapped = mask.copy()
-    snapped[near] = (m & ~band) | (band & (grey[near] < 0.5 * (tape_level[near] + skin_level[near])))
+    inside = m & ~band
+    # the band's pixels re-decided (a thin outline: the levels are compared there only, the same
+    # float32 sums and comparisons pixel by pixel)
+    ys, xs = _nonzero(band)
+    gy, gx = ys + near[0].start, xs + near[1].start  # in the crop
+    inside[ys, xs] = grey[gy, gx] < 0.5 * (tape_level[gy, gx] + skin_level[gy, gx])
+    snapped[near] = inside
     return fill_holes(snapped, _near(snapped, p.band_px + 1, box))  # the snapped mask lies in ``near``
 
 
