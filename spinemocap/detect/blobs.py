@@ -327,7 +327,9 @@ def _region_dots(
     contrast, texture = _percentile_and_median(smooth[filled], 99.5)
     if contrast < max(p.min_contrast, p.min_contrast_to_texture * texture):
         return np.zeros((0, 2)), np.zeros(0)
-    binary = ((smooth > 0.5 * contrast) & region).astype(np.uint8)
+    binary = np.greater(smooth, 0.5 * contrast)
+    binary &= region
+    binary = binary.view(np.uint8)  # 0 / 1
     # Top-hat of plain tape is noise-positive: measure that floor on tape pixels, subtract it.
     tape_px = filled & (binary == 0)
     if not tape_px.any():
@@ -514,11 +516,16 @@ def _ring_pixels(labels: np.ndarray, candidate: np.ndarray, grow: np.ndarray,
         y0, x0 = max(0, box[0].start - r), max(0, box[1].start - r)
         labels = labels[y0:min(h, box[0].stop + r), x0:min(w, box[1].stop + r)]
     n = len(candidate)
-    dtype = np.uint16 if n < 65535 else np.float32
-    cand = np.where(candidate, np.arange(n), 0).astype(dtype)[labels]
+    dtype = np.uint8 if n < 255 else np.uint16 if n < 65535 else np.float32
+    if dtype == np.uint8:  # OpenCV's byte table lookup (labels < 255): cheaper than indexing by int32 labels
+        table = np.zeros(256, np.uint8)
+        table[:n] = np.where(candidate, np.arange(n), 0)
+        cand = cv2.LUT(labels.astype(np.uint8), table)
+    else:
+        cand = np.where(candidate, np.arange(n), 0).astype(dtype)[labels]
     highest = cv2.dilate(cand, grow)
-    if dtype == np.uint16:  # the lowest candidate label within reach, less 1: 0 wraps to 65535 (none)
-        lowest = cv2.erode(cand - np.uint16(1), grow) + np.uint16(1)  # none wraps back to 0
+    if dtype != np.float32:  # the lowest candidate label within reach, less 1: 0 wraps to the top (none)
+        lowest = cv2.erode(cand - dtype(1), grow) + dtype(1)  # none wraps back to 0
     else:
         lowest = cv2.erode(np.where(cand > 0, cand, np.float32(n + 1)).astype(dtype), grow)
     # the reached pixels once (one pass), then split: one candidate within reach or several

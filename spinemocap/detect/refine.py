@@ -177,13 +177,40 @@ def _local_means(grey: np.ndarray, samples: _Levels, sigma: float) -> tuple[np.n
         columns[:, k + 1] = wt
     shrunk = area_shrink(columns, (h, w), samples.box, small)
     s = max(sigma / 4, 0.5)
+    rows = _blur_rows(shrunk, s)
     levels = []
     for k, fallback in ((0, samples.tape_median), (2, samples.ring_median)):
         # one blur per image (a four-channel blur rounds differently at some sizes)
-        num, den = cv2.GaussianBlur(shrunk[k], (0, 0), s), cv2.GaussianBlur(shrunk[k + 1], (0, 0), s)
+        num, den = _row_blur(shrunk[k], s, rows), _row_blur(shrunk[k + 1], s, rows)
         mean = np.where(den > 1e-3, num / np.maximum(den, 1e-6), float(fallback)).astype(np.float32)
         levels.append(cv2.resize(mean, (w, h), interpolation=cv2.INTER_LINEAR))
     return levels[0], levels[1]
+
+
+def _blur_rows(images: np.ndarray, sigma: float) -> tuple[int, int, int, int] | None:
+    """Rows of ``images`` (k, h, w) float32 for :func:`_row_blur`: ``(a, b, c, d)``, the blur of
+    rows ``a:b`` holds that of the whole images' rows ``c:d``, and outside ``c:d`` the whole
+    images' blur is 0 (None: all zero). The rows with a non-zero pixel, grown by the Gaussian's
+    reach (OpenCV's float kernel: 4 sigma each side, taken 1 more) for ``c:d`` and twice for
+    ``a:b`` (rows mirrored at a cut lie in the zero rows: those of the whole images)."""
+    nonzero = np.flatnonzero(images.any(axis=(0, 2)))
+    if not len(nonzero):
+        return None
+    h = images.shape[1]
+    reach = math.ceil(4 * sigma) + 1
+    first, last = int(nonzero[0]), int(nonzero[-1]) + 1
+    return max(0, first - 2 * reach), min(h, last + 2 * reach), max(0, first - reach), min(h, last + reach)
+
+
+def _row_blur(image: np.ndarray, sigma: float, rows: tuple[int, int, int, int] | None) -> np.ndarray:
+    """``cv2.GaussianBlur(image, (0, 0), sigma)`` (float32, default border) from its rows that
+    :func:`_blur_rows` gives: the same values bit for bit (each output pixel is the same sums of
+    the same pixels at the same place in a row of the same width; only whole rows are cut)."""
+    out = np.zeros_like(image)
+    if rows is not None:
+        a, b, c, d = rows
+        out[c:d] = cv2.GaussianBlur(image[a:b], (0, 0), sigma)[c - a:d - a]
+    return out
 
 
 def snap_to_edges(crop: np.ndarray, mask: np.ndarray, params: RefineParams | None = None) -> np.ndarray:
