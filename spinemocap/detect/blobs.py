@@ -599,6 +599,7 @@ def find_dots(
     expected_dot_px: float | None = None,
     params: BlobParams | None = None,
     memo: dict | None = None,
+    hole_free: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Bright round dots inside ``mask``.
 
@@ -608,7 +609,9 @@ def find_dots(
     ``memo``: a dict shared by calls on the same ``image`` with the same ``expected_dot_px`` and
     ``params`` (e.g. one mask and the same mask less a few components): a region of interest
     whose box and mask pixels an earlier call saw is not searched again (its dots are those of
-    that call: the search reads nothing else).
+    that call: the search reads nothing else). ``hole_free``: ``mask`` has no holes (e.g.
+    :func:`fill_holes`' answer): the regions' hole filling is skipped (any box of a hole-free
+    mask is hole-free: a hole there would be one of the mask).
     """
     p = params or BlobParams()
     grey = to_grey(image)
@@ -631,7 +634,7 @@ def find_dots(
                     uvs.append(uv)
                     confs.append(conf)
                 continue
-        uv, conf = _roi_dots(grey, mask, ys, xs, d_global, p)
+        uv, conf = _roi_dots(grey, mask, ys, xs, d_global, p, hole_free)
         if len(uv):
             uv = uv + [xs.start, ys.start]
             uvs.append(uv)
@@ -647,10 +650,10 @@ def find_dots(
 
 
 def _roi_dots(grey: np.ndarray, mask: np.ndarray, ys: slice, xs: slice, d_global: float | None,
-              p: BlobParams) -> tuple[np.ndarray, np.ndarray]:
+              p: BlobParams, hole_free: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """:func:`find_dots`' search of one region of interest (``ys``, ``xs``): uv in the region's px."""
     H, W = grey.shape
-    filled = fill_holes(mask[ys, xs])
+    filled = mask[ys, xs].copy() if hole_free else fill_holes(mask[ys, xs])
     d = d_global or estimate_dot_diameter(filled, p.dot_to_width)
     if d is None or np.count_nonzero(filled) < 0.5 * math.pi * d * d / 4:
         return np.zeros((0, 2)), np.zeros(0)

@@ -315,10 +315,11 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
         return _snap(grey, m, p, samples, box), samples
 
     # The dots are found on the mask snapped onto the tape's edge, as the final mask will be:
-    # their contrast and centres are measured on the tape's own pixels.
+    # their contrast and centres are measured on the tape's own pixels. The snapped mask has no
+    # holes (fill_holes' answer, or the filled mask itself, or some of its components).
     base_box = _near(base, 0)
     snapped, samples = snapped_with_levels(base, base_box)
-    dots, conf = find_dots(grey, snapped, None, blob_params, memo)
+    dots, conf = find_dots(grey, snapped, None, blob_params, memo, hole_free=True)
     base_area = int(np.count_nonzero(base))
     if base_area < 50 or len(dots) < 2:
         return Extended(base, dots, conf, snapped)
@@ -329,7 +330,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
         base_area = int(np.count_nonzero(base))
         base_box = _near(base, 0)
         snapped, samples = snapped_with_levels(base, base_box)
-        answer = find_dots(grey, snapped, None, blob_params, memo)
+        answer = find_dots(grey, snapped, None, blob_params, memo, hole_free=True)
     threshold = _midway(samples)
     if threshold is None:
         return Extended(base, *answer, snapped)
