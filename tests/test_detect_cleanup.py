@@ -420,3 +420,134 @@ def test_network_on_the_gpu_finds_the_cpus_dots(drawn_images):
         a, b = on_cpu.detect(image, camera=camera), on_gpu.detect(image, camera=camera)
         assert len(a) == len(b) > 0
         assert np.abs(a.uv - b.uv).max() < 0.01
+
+
+# ---------------------------------------------------------------- issue 15, clean-up round 4: the same work on less
+def _reference_ring_pixels(labels, candidate, grow):
+    """The ring pixels as computed before (uint16 labels over the whole label image, the reached
+    pixels split by two 2-D nonzero passes): the triples and their order."""
+    n = len(candidate)
+    cand = np.where(candidate, np.arange(n), 0).astype(np.uint16)[labels]
+    highest = cv2.dilate(cand, grow)
+    lowest = cv2.erode(cand - np.uint16(1), grow) + np.uint16(1)
+    reached = (labels == 0) & (highest > 0)
+    shared = reached & (highest != lowest)
+    ys1, xs1 = np.nonzero(reached & ~shared)
+    owner1 = highest[ys1, xs1].astype(np.int64)
+    ys2, xs2 = np.nonzero(shared)
+    r = grow.shape[0] // 2
+    dy, dx = np.nonzero(grow)
+    padded = cv2.copyMakeBorder(cand, r, r, r, r, cv2.BORDER_CONSTANT, value=0)
+    width = padded.shape[1]
+    near = np.sort(padded.ravel()[((ys2 + r) * width + xs2 + r)[:, None] + (dy - r) * width + (dx - r)], axis=1)
+    first = near > 0
+    first[:, 1:] &= near[:, 1:] != near[:, :-1]
+    which, owner2 = np.nonzero(first)[0], near[first].astype(np.int64)
+    return (np.concatenate([ys1, ys2[which]]), np.concatenate([xs1, xs2[which]]), np.concatenate([owner1, owner2]))
+
+
+@pytest.mark.parametrize("count, shape", [(30, (120, 160)), (500, (400, 600))])  # byte labels; beyond 255 labels
+def test_ring_pixels_in_the_candidates_box_are_the_whole_images_in_the_same_order(count, shape):
+    # the order matters: the centre weights are summed in it (float64 bincount)
+    rng = np.random.default_rng(21)
+    for radius in (1, 2, 4):
+        grow = blobs._disc(2 * radius + 1)
+        for _ in range(4):
+            n, labels, stats, _ = cv2.connectedComponentsWithStats(_random_blobs(rng, shape, count=count), connectivity=8)
+            assert (n >= 255) == (count == 500)
+            candidate = rng.random(n) < 0.7
+            candidate[0] = False
+            if rng.random() < 0.5:  # candidates in one part of the image only: a small box
+                candidate &= stats[:, cv2.CC_STAT_LEFT] < shape[1] // 3
+            expected = _reference_ring_pixels(labels, candidate, grow)
+            c = np.flatnonzero(candidate)
+            x, y, w, h = (stats[c, k] for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT))
+            box = (slice(int(y.min()), int((y + h).max())), slice(int(x.min()), int((x + w).max())))
+            for ours in (_ring_pixels(labels, candidate, grow), _ring_pixels(labels, candidate, grow, box)):
+                for a, b in zip(ours, expected):
+                    assert a.dtype == b.dtype and np.array_equal(a, b)
+
+
+def test_nonzero_from_one_flat_pass_is_numpys():
+    rng = np.random.default_rng(2)
+    arrays = [np.zeros((0, 5), bool), np.zeros((5, 0), bool), np.ones((1, 1), bool), np.zeros((7, 9), bool)]
+    arrays += [rng.random((int(rng.integers(1, 90)), int(rng.integers(1, 90)))) < rng.uniform(0, 1) for _ in range(30)]
+    arrays.append((rng.random((60, 80)) < 0.3)[5:50:2, 3:70])  # not contiguous
+    for a in arrays:
+        ys, xs = blobs._nonzero(a)
+        ref_ys, ref_xs = np.nonzero(a)
+        assert np.array_equal(ys, ref_ys) and np.array_equal(xs, ref_xs) and ys.dtype == ref_ys.dtype
+
+
+def test_blur_of_the_rows_holding_samples_is_opencvs_whole_blur_bit_for_bit():
+    from spinemocap.detect.refine import _blur_rows, _row_blur
+
+    rng = np.random.default_rng(8)
+    for _ in range(300):
+        h, w = int(rng.integers(1, 700)), int(rng.integers(1, 300))
+        sigma = float(rng.choice([0.5, 1.3, 3.0, 4.7]))
+        images = np.zeros((2, h, w), np.float32)
+        if rng.random() < 0.9:  # else: all zero
+            y0, x0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+            y1, x1 = int(rng.integers(y0 + 1, h + 1)), int(rng.integers(x0 + 1, w + 1))
+            values = rng.random((2, y1 - y0, x1 - x0)) * 255 * (rng.random((2, y1 - y0, x1 - x0)) < 0.5)
+            images[:, y0:y1, x0:x1] = values.astype(np.float32)
+        rows = _blur_rows(images, sigma)
+        for image in images:
+            ours, expected = _row_blur(image, sigma, rows), cv2.GaussianBlur(image, (0, 0), sigma)
+            assert np.array_equal(ours.view(np.uint32), expected.view(np.uint32))  # also the zeros' sign
+
+
+def test_find_dots_memo_and_hole_free_mask_give_the_dots_found_without_them(monkeypatch):
+    from spinemocap.detect.blobs import find_dots
+
+    rng = np.random.default_rng(13)
+    searched = []
+    real = blobs._roi_dots
+    monkeypatch.setattr(blobs, "_roi_dots", lambda *a: (searched.append(a[2:4]), real(*a))[1])
+    for size, ppm in [((480, 640), 1.4), ((800, 600), 2.2)]:
+        sample = draw_sample(rng, size=size, px_per_mm=ppm, noise=2.0)
+        grey = cv2.cvtColor(sample.image, cv2.COLOR_BGR2GRAY)
+        tape = fill_holes(sample.mask)
+        specks = np.zeros_like(tape)
+        for _ in range(3):  # dot-less specks away from the tape: regions of their own
+            y, x = int(rng.integers(0, size[1] - 12)), int(rng.integers(0, size[0] - 12))
+            if not cv2.dilate(tape.view(np.uint8), np.ones((61, 61), np.uint8))[y:y + 12, x:x + 12].any():
+                specks[y:y + 6, x:x + 9] = True
+        assert specks.any()
+        memo: dict = {}
+        for mask in (tape | specks, tape):  # the mask, then the mask less its specks (extend_along_tape's passes)
+            expected = find_dots(grey, mask)
+            searched.clear()
+            ours = find_dots(grey, mask, None, None, memo, hole_free=True)
+            assert np.array_equal(ours[0], expected[0]) and np.array_equal(ours[1], expected[1])
+            assert len(expected[0]) > 10
+        assert not searched  # the tape's regions were searched in the first call: found in the memo
+
+
+def test_clean_up_from_the_grey_image_is_the_clean_up_from_the_colour_image(drawn_images):
+    from spinemocap.capture import to_grey
+    from spinemocap.detect import Detector
+
+    detector = Detector("net", device="cpu")
+    for image in drawn_images:
+        boxes = detector.tape_boxes([image])[0]
+        a = detector._segment_with_dots(image, boxes)
+        b = detector._segment_with_dots(image, boxes, to_grey(image))
+        assert len(a.uv) > 10 and np.array_equal(a.uv, b.uv) and np.array_equal(a.confidence, b.confidence)
+        assert np.array_equal(a.mask, b.mask)
+
+
+def test_any_box_of_a_filled_mask_has_no_holes():
+    # find_dots(hole_free=True) skips the regions' hole filling on fill_holes' answer
+    rng = np.random.default_rng(17)
+    for _ in range(300):
+        h, w = int(rng.integers(3, 100)), int(rng.integers(3, 100))
+        mask = rng.random((h, w)) < rng.uniform(0.2, 0.8)  # speckle: many holes, components, border contacts
+        filled = fill_holes(mask)
+        assert np.array_equal(fill_holes(filled), filled)
+        for _ in range(5):
+            y0, x0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+            y1, x1 = int(rng.integers(y0 + 1, h + 1)), int(rng.integers(x0 + 1, w + 1))
+            box = filled[y0:y1, x0:x1]
+            assert np.array_equal(fill_holes(box), box)

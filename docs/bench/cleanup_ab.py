@@ -6,13 +6,18 @@ versions alternating image by image in one process (the same load for both).
    hands the detector per camera image: its boxes (full search every 10th frame, predicted boxes
    in between) and the network's mask of every box (the network is not timed: it is the same code).
 2. Both versions then clean up every recorded image with those network masks
-   (``Detector._segment_with_dots``: extension, snap, dots, kept instances).
+   (``Detector._segment_with_dots``: extension, snap, dots, kept instances). ``--grey``: the
+   'after' version is given the image's grey levels, as ``Detector.detect`` gives them since
+   the clean-up's fourth round (it converts the image once for MRF2 anyway): not timed.
+   Dots (positions and confidences) and masks are compared bit for bit.
 
 The previous package is imported under another name, e.g.
 
     mkdir -p /tmp/before && git archive f1ffc42 spinemocap | tar -x -C /tmp/before
     mv /tmp/before/spinemocap /tmp/before/spinemocap_before
     OMP_NUM_THREADS=1 python docs/bench/cleanup_ab.py CAPTURE_DIR /tmp/before --frames 20 --rounds 5
+    # frames 40-79 (the heavy flexion part), the grey image given to the new version
+    OMP_NUM_THREADS=1 python docs/bench/cleanup_ab.py CAPTURE_DIR /tmp/before --first 40 --frames 40 --grey
 """
 
 from __future__ import annotations
@@ -33,7 +38,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("capture", type=Path)
     parser.add_argument("before", type=Path, help="a folder holding the previous package as spinemocap_before/")
+    parser.add_argument("--first", type=int, default=0, help="first frame tracked")
     parser.add_argument("--frames", type=int, default=20)
+    parser.add_argument("--grey", action="store_true", help="give the 'after' version the grey image (not timed)")
     parser.add_argument("--rounds", type=int, default=5)
     args = parser.parse_args()
     cv2.setNumThreads(1)  # as the tracker's camera threads set it
@@ -45,21 +52,23 @@ def main() -> None:
     from spinemocap.app.run import track_source
     from spinemocap.app.streaming import SpeedOptions
     from spinemocap.bench.speed import MemorySource
-    from spinemocap.capture import Capture
+    from spinemocap.capture import Capture, to_grey
 
     cap = Capture.open(args.capture)
     source = cap.frame_source()
-    frames = [source.read(f) for f in range(args.frames)]
+    span = range(args.first, args.first + args.frames)
+    frames = [source.read(f) if f in span else [] for f in range(span.stop)]
     where = {id(image): (f, c) for f, images in enumerate(frames) for c, image in enumerate(images)}
+    greys = {(f, c): to_grey(image) for f, images in enumerate(frames) for c, image in enumerate(images)} if args.grey else {}
 
     # 1. record the tracker's boxes and the network's masks
     calls, nets, current = [], {}, {}
     segment_boxes, net_mask = after_detector.NetSegmenter.segment_boxes, after_detector.NetSegmenter._net_mask
 
-    def recording_segment_boxes(self, image, boxes):
+    def recording_segment_boxes(self, image, boxes, *grey):
         current[0] = where[id(image)]
         calls.append((current[0], list(boxes)))
-        return segment_boxes(self, image, boxes)
+        return segment_boxes(self, image, boxes, *grey)
 
     def recording_net_mask(self, image, box):
         mask = net_mask(self, image, box)
@@ -70,7 +79,7 @@ def main() -> None:
     after_detector.NetSegmenter._net_mask = recording_net_mask
     warnings.simplefilter("ignore")
     result = track_source(MemorySource(frames, list(source.camera_names)), cap.rig, cap.tape, cap.fps,
-                          range(args.frames), up=cap.up, progress=False, speed=SpeedOptions(workers=1, prefetch=0))
+                          span, up=cap.up, progress=False, speed=SpeedOptions(workers=1, prefetch=0))
     after_detector.NetSegmenter.segment_boxes = segment_boxes
     print(f"recorded {len(calls)} camera images ({result.detector_searches}), {len(nets)} network masks")
 
@@ -81,12 +90,14 @@ def main() -> None:
 
     def clean_up(name, key, boxes):
         current[threading.get_ident()] = key
+        if name == "after" and greys:
+            return detectors[name]._segment_with_dots(frames[key[0]][key[1]], boxes, greys[key])
         return detectors[name]._segment_with_dots(frames[key[0]][key[1]], boxes)
 
     dots = worst = 0.0
     for key, boxes in calls:
         a, b = clean_up("before", key, boxes), clean_up("after", key, boxes)
-        if len(a.uv) != len(b.uv) or not (a.mask == b.mask).all():
+        if len(a.uv) != len(b.uv) or not (a.mask == b.mask).all() or not (a.confidence == b.confidence).all():
             raise SystemExit(f"frame {key[0]} camera {key[1]}: other dots or mask ({len(a.uv)} vs {len(b.uv)} dots)")
         dots += len(a.uv)
         worst = max(worst, float(np.abs(a.uv - b.uv).max()) if len(a.uv) else 0.0)

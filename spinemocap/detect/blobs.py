@@ -327,7 +327,9 @@ def _region_dots(
     contrast, texture = _percentile_and_median(smooth[filled], 99.5)
     if contrast < max(p.min_contrast, p.min_contrast_to_texture * texture):
         return np.zeros((0, 2)), np.zeros(0)
-    binary = ((smooth > 0.5 * contrast) & region).astype(np.uint8)
+    binary = np.greater(smooth, 0.5 * contrast)
+    binary &= region
+    binary = binary.view(np.uint8)  # 0 / 1
     # Top-hat of plain tape is noise-positive: measure that floor on tape pixels, subtract it.
     tape_px = filled & (binary == 0)
     if not tape_px.any():
@@ -340,7 +342,7 @@ def _region_dots(
     n, labels = cv2.connectedComponents(binary, connectivity=8)  # statistics below: ~4x cheaper than OpenCV's
     if n <= 1:
         return np.zeros((0, 2)), np.zeros(0)
-    blobs = _Blobs(labels, n)
+    blobs = _Blobs(labels, n, binary.view(bool))
     stats = blobs.stats
     if size_from_blobs:
         d = _typical_diameter(blobs, d)
@@ -357,7 +359,14 @@ def _region_dots(
     candidate[0] = False
     # Each candidate's support: its pixels and the background within the rim of it (pixels of
     # other blobs excluded); supports of close dots share background pixels.
-    ring = _ring_pixels(labels, candidate, _disc(2 * rim - 1))
+    c = np.flatnonzero(candidate)
+    if not len(c):
+        return np.zeros((0, 2)), np.zeros(0)
+    # the candidates' box (their statistics): the rings are found there, grown by the rim
+    cx, cy = x[c], y[c]
+    box = (slice(int(cy.min()), int((cy + stats[c, cv2.CC_STAT_HEIGHT]).max())),
+           slice(int(cx.min()), int((cx + stats[c, cv2.CC_STAT_WIDTH]).max())))
+    ring = _ring_pixels(labels, candidate, _disc(2 * rim - 1), box)
     ring_share = blobs.ring_share(ring, filled)
     level = blobs.percentiles(tophat, 60) - floor
     sums = blobs.weighted_sums(ring, candidate, tophat, floor, np.maximum(level, 1e-3))
@@ -382,13 +391,20 @@ def _region_dots(
     return merge_close(centres, scores, p.merge_distance * d)
 
 
+def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.nonzero`` of a 2-D bool array (rows, columns; row-major order), from one flat pass:
+    numpy's 2-D nonzero costs several times more."""
+    return np.divmod(np.flatnonzero(mask), max(1, mask.shape[1]))
+
+
 class _Blobs:
     """Per-label sums over a label image (label 0: background), all labels at once: pixel
-    counts and exact integer coordinate moments (float64 holds them exactly)."""
+    counts and exact integer coordinate moments (float64 holds them exactly). ``foreground``:
+    the bool mask of the labelled pixels when at hand (found from it: a bool pass is cheaper)."""
 
-    def __init__(self, labels: np.ndarray, n: int):
+    def __init__(self, labels: np.ndarray, n: int, foreground: np.ndarray | None = None):
         self.n = n
-        ys, xs = np.nonzero(labels)
+        ys, xs = _nonzero(labels != 0 if foreground is None else foreground)
         self.ys, self.xs = ys, xs
         self.lab = labels[ys, xs]
         fx, fy = xs.astype(np.float64), ys.astype(np.float64)
@@ -485,26 +501,45 @@ class _Blobs:
                          np.bincount(owner, weights=w * ys, minlength=self.n)], axis=1)
 
 
-def _ring_pixels(labels: np.ndarray, candidate: np.ndarray, grow: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _ring_pixels(labels: np.ndarray, candidate: np.ndarray, grow: np.ndarray,
+                 box: tuple[slice, slice] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The background pixels within ``grow`` (a symmetric structuring element) of each candidate
     blob, as (ys, xs, label) triples; a pixel within reach of several candidates appears once
-    for each (what dilating each blob on its own gives, without a dilation per blob)."""
+    for each (what dilating each blob on its own gives, without a dilation per blob). Order: the
+    pixels with one candidate in reach (row-major), then those with several (row-major, their
+    labels ascending). ``box``: a box holding every candidate's pixels (e.g. their bounding box):
+    the work is done there grown by the element's reach (no ring pixel lies farther; outside it
+    no candidate is in reach), the same triples in the same order."""
+    r = grow.shape[0] // 2
+    if box is not None:
+        h, w = labels.shape
+        y0, x0 = max(0, box[0].start - r), max(0, box[1].start - r)
+        labels = labels[y0:min(h, box[0].stop + r), x0:min(w, box[1].stop + r)]
     n = len(candidate)
-    dtype = np.uint16 if n < 65535 else np.float32
-    cand = np.where(candidate, np.arange(n), 0).astype(dtype)[labels]
+    dtype = np.uint8 if n < 255 else np.uint16 if n < 65535 else np.float32
+    if dtype == np.uint8:  # OpenCV's byte table lookup (labels < 255): cheaper than indexing by int32 labels
+        table = np.zeros(256, np.uint8)
+        table[:n] = np.where(candidate, np.arange(n), 0)
+        cand = cv2.LUT(labels.astype(np.uint8), table)
+    else:
+        cand = np.where(candidate, np.arange(n), 0).astype(dtype)[labels]
     highest = cv2.dilate(cand, grow)
-    if dtype == np.uint16:  # the lowest candidate label within reach, less 1: 0 wraps to 65535 (none)
-        lowest = cv2.erode(cand - np.uint16(1), grow) + np.uint16(1)  # none wraps back to 0
+    if dtype != np.float32:  # the lowest candidate label within reach, less 1: 0 wraps to the top (none)
+        lowest = cv2.erode(cand - dtype(1), grow) + dtype(1)  # none wraps back to 0
     else:
         lowest = cv2.erode(np.where(cand > 0, cand, np.float32(n + 1)).astype(dtype), grow)
-    reached = (labels == 0) & (highest > 0)
-    shared = reached & (highest != lowest)
-    ys1, xs1 = np.nonzero(reached & ~shared)  # one candidate within reach: the dilation's label
-    owner1 = highest[ys1, xs1].astype(np.int64)
-    ys2, xs2 = np.nonzero(shared)  # several: every candidate label within the element around it
+    # the reached pixels once (one pass), then split: one candidate within reach or several
+    ys, xs = _nonzero((labels == 0) & (highest > 0))
+    high = highest[ys, xs]
+    several = high != lowest[ys, xs]
+    one = ~several
+    ys1, xs1, owner1 = ys[one], xs[one], high[one].astype(np.int64)  # one candidate: the dilation's label
+    ys2, xs2 = ys[several], xs[several]  # several: every candidate label within the element around it
+    if box is not None:
+        ys1 += y0
+        xs1 += x0
     if not len(ys2):
         return ys1, xs1, owner1
-    r = grow.shape[0] // 2
     dy, dx = np.nonzero(grow)
     padded = cv2.copyMakeBorder(cand, r, r, r, r, cv2.BORDER_CONSTANT, value=0)  # outside: no candidate
     width = padded.shape[1]
@@ -513,7 +548,10 @@ def _ring_pixels(labels: np.ndarray, candidate: np.ndarray, grow: np.ndarray) ->
     near = np.sort(near, axis=1)
     first = near > 0
     first[:, 1:] &= near[:, 1:] != near[:, :-1]
-    which, owner2 = np.nonzero(first)[0], near[first].astype(np.int64)
+    which, owner2 = _nonzero(first)[0], near[first].astype(np.int64)
+    if box is not None:
+        ys2 += y0
+        xs2 += x0
     return (np.concatenate([ys1, ys2[which]]), np.concatenate([xs1, xs2[which]]),
             np.concatenate([owner1, owner2]))
 
@@ -560,12 +598,20 @@ def find_dots(
     mask: np.ndarray,
     expected_dot_px: float | None = None,
     params: BlobParams | None = None,
+    memo: dict | None = None,
+    hole_free: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Bright round dots inside ``mask``.
 
     ``image``: BGR or grey uint8 (H, W[, 3]); ``mask``: (H, W) bool tape mask (holes allowed);
     ``expected_dot_px``: dot diameter in px, estimated from the mask width when None.
     Returns ``uv`` (N, 2) float px sub-pixel centres (x, y) and ``confidence`` (N,) in [0, 1].
+    ``memo``: a dict shared by calls on the same ``image`` with the same ``expected_dot_px`` and
+    ``params`` (e.g. one mask and the same mask less a few components): a region of interest
+    whose box and mask pixels an earlier call saw is not searched again (its dots are those of
+    that call: the search reads nothing else). ``hole_free``: ``mask`` has no holes (e.g.
+    :func:`fill_holes`' answer): the regions' hole filling is skipped (any box of a hole-free
+    mask is hole-free: a hole there would be one of the mask).
     """
     p = params or BlobParams()
     grey = to_grey(image)
@@ -579,22 +625,41 @@ def find_dots(
     d_global = expected_dot_px
     pad = int(math.ceil(p.margin * (d_global or 8.0))) + 4
     for ys, xs in _regions(mask, pad):
-        filled = fill_holes(mask[ys, xs])
-        d = d_global or estimate_dot_diameter(filled, p.dot_to_width)
-        if d is None or np.count_nonzero(filled) < 0.5 * math.pi * d * d / 4:
-            continue
-        region = cv2.dilate(filled.view(np.uint8), _disc(2 * p.margin * d + 1)).view(bool)
-        def touches_border(y, x, bh, bw, ys=ys, xs=xs):  # numbers or arrays
-            return (ys.start + y <= 0) | (xs.start + x <= 0) | (ys.start + y + bh >= H) | (xs.start + x + bw >= W)
-
-        uv, conf = _region_dots(grey[ys, xs], filled, region, d, p, touches_border,
-                                size_from_blobs=d_global is None)
+        key = None
+        if memo is not None:
+            key = (ys.start, ys.stop, xs.start, xs.stop, mask[ys, xs].tobytes())
+            if key in memo:
+                uv, conf = memo[key]
+                if len(uv):
+                    uvs.append(uv)
+                    confs.append(conf)
+                continue
+        uv, conf = _roi_dots(grey, mask, ys, xs, d_global, p, hole_free)
         if len(uv):
-            uvs.append(uv + [xs.start, ys.start])
+            uv = uv + [xs.start, ys.start]
+            uvs.append(uv)
             confs.append(conf)
+        if key is not None:
+            memo[key] = uv, conf
     if not uvs:
         return empty
     uv, conf = np.concatenate(uvs), np.concatenate(confs)
     if len(uvs) > 1:  # regions may overlap: a dot must not be reported twice
         uv, conf = merge_close(uv, conf, p.merge_distance * (d_global or 4.0))
     return uv, conf
+
+
+def _roi_dots(grey: np.ndarray, mask: np.ndarray, ys: slice, xs: slice, d_global: float | None,
+              p: BlobParams, hole_free: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`find_dots`' search of one region of interest (``ys``, ``xs``): uv in the region's px."""
+    H, W = grey.shape
+    filled = mask[ys, xs].copy() if hole_free else fill_holes(mask[ys, xs])
+    d = d_global or estimate_dot_diameter(filled, p.dot_to_width)
+    if d is None or np.count_nonzero(filled) < 0.5 * math.pi * d * d / 4:
+        return np.zeros((0, 2)), np.zeros(0)
+    region = cv2.dilate(filled.view(np.uint8), _disc(2 * p.margin * d + 1)).view(bool)
+
+    def touches_border(y, x, bh, bw):  # numbers or arrays
+        return (ys.start + y <= 0) | (xs.start + x <= 0) | (ys.start + y + bh >= H) | (xs.start + x + bw >= W)
+
+    return _region_dots(grey[ys, xs], filled, region, d, p, touches_border, size_from_blobs=d_global is None)

@@ -170,24 +170,26 @@ class NetSegmenter:
         return [padded_box(x * sx, y * sy, (x + bw) * sx, (y + bh) * sy, (h, w))
                 for x, y, bw, bh, area in stats[1:] if area >= self.min_area_work_px]
 
-    def segment_boxes(self, image: np.ndarray, boxes: list[tuple[slice, slice]]) -> MaskDots:
+    def segment_boxes(self, image: np.ndarray, boxes: list[tuple[slice, slice]], grey: np.ndarray | None = None) -> MaskDots:
         """Stages 2-3 (network per box, growth, full-resolution clean-up) in the given boxes:
         the tape mask (H, W) bool and the dots the clean-up found in it (uv (N, 2) full-frame px,
         confidence (N,); the detector's dots, found once). Stage 1's boxes give the full search;
-        a box predicted from earlier frames skips stage 1 (sequence mode)."""
+        a box predicted from earlier frames skips stage 1 (sequence mode). ``grey``: ``image``'s
+        grey levels when at hand (the clean-up reads only those)."""
         self._use_threads()
+        source = image if grey is None else grey
         h, w = image.shape[:2]
         mask = np.zeros((h, w), bool)
         uvs, confs = [], []
         for box in boxes:
-            part = extend_along_tape(image[box], self._net_mask(image, box), self.refine_params, self.blob_params)
+            part = extend_along_tape(source[box], self._net_mask(image, box), self.refine_params, self.blob_params)
             for _ in range(self.max_grow):
                 grown = _grown_box(part.mask, box, (h, w))
                 if grown is None:
                     break
                 so_far = _moved(part.mask, box, grown)  # the tape runs out of the box: follow it
                 seen = components_touching(self._net_mask(image, grown), so_far)
-                part = extend_along_tape(image[grown], so_far | seen, self.refine_params, self.blob_params)
+                part = extend_along_tape(source[grown], so_far | seen, self.refine_params, self.blob_params)
                 box = grown
             mask[box] |= part.snapped  # part belongs to the final box
             uvs.append(part.uv + [box[1].start, box[0].start])
@@ -297,13 +299,14 @@ class Detector:
             return union(self.instances(image_bgr), image_bgr.shape[:2])
         return self._segment_with_dots(_check_image(image_bgr), boxes).mask
 
-    def _segment_with_dots(self, image_bgr: np.ndarray, boxes: list[tuple[slice, slice]]) -> MaskDots:
+    def _segment_with_dots(self, image_bgr: np.ndarray, boxes: list[tuple[slice, slice]],
+                           grey: np.ndarray | None = None) -> MaskDots:
         """``net`` in ``boxes``: the tape mask (union of its kept instances) and the dots the
         clean-up found on it (those of dropped specks removed)."""
         if not isinstance(self._segment, NetSegmenter):
             raise ValueError("only the 'net' detector searches given boxes")
         t = time.perf_counter()
-        found = self._segment.segment_boxes(image_bgr, boxes)
+        found = self._segment.segment_boxes(image_bgr, boxes, grey)
         mask = kept_instances(found.mask)
         self.last_timings["segment_s"] = time.perf_counter() - t
         on_mask = _on_mask(found.uv, mask, self.blob_params)
@@ -339,7 +342,7 @@ class Detector:
         grey = to_grey(image_bgr)  # once: the dots and MRF2 both use it
         if self.searches_boxes and expected_dot_px is None:
             # the clean-up finds the dots at full resolution: reuse them (one blob pass)
-            found = self._segment_with_dots(image_bgr, boxes if boxes is not None else self.tape_boxes([image_bgr])[0])
+            found = self._segment_with_dots(image_bgr, boxes if boxes is not None else self.tape_boxes([image_bgr])[0], grey)
             self.last_timings["dots_s"] = 0.0  # inside segment_s
             return ViewDots(camera=camera, uv=found.uv, confidence=found.confidence, mask=found.mask, image=grey)
         mask = self.segment(image_bgr, boxes)

@@ -36,6 +36,7 @@ from ..capture import to_grey
 from .blobs import (
     DEFAULT_DOT_TO_WIDTH,
     BlobParams,
+    _nonzero,
     area_shrink,
     fill_holes,
     find_dots,
@@ -176,13 +177,40 @@ def _local_means(grey: np.ndarray, samples: _Levels, sigma: float) -> tuple[np.n
         columns[:, k + 1] = wt
     shrunk = area_shrink(columns, (h, w), samples.box, small)
     s = max(sigma / 4, 0.5)
+    rows = _blur_rows(shrunk, s)
     levels = []
     for k, fallback in ((0, samples.tape_median), (2, samples.ring_median)):
         # one blur per image (a four-channel blur rounds differently at some sizes)
-        num, den = cv2.GaussianBlur(shrunk[k], (0, 0), s), cv2.GaussianBlur(shrunk[k + 1], (0, 0), s)
+        num, den = _row_blur(shrunk[k], s, rows), _row_blur(shrunk[k + 1], s, rows)
         mean = np.where(den > 1e-3, num / np.maximum(den, 1e-6), float(fallback)).astype(np.float32)
         levels.append(cv2.resize(mean, (w, h), interpolation=cv2.INTER_LINEAR))
     return levels[0], levels[1]
+
+
+def _blur_rows(images: np.ndarray, sigma: float) -> tuple[int, int, int, int] | None:
+    """Rows of ``images`` (k, h, w) float32 for :func:`_row_blur`: ``(a, b, c, d)``, the blur of
+    rows ``a:b`` holds that of the whole images' rows ``c:d``, and outside ``c:d`` the whole
+    images' blur is 0 (None: all zero). The rows with a non-zero pixel, grown by the Gaussian's
+    reach (OpenCV's float kernel: 4 sigma each side, taken 1 more) for ``c:d`` and twice for
+    ``a:b`` (rows mirrored at a cut lie in the zero rows: those of the whole images)."""
+    nonzero = np.flatnonzero(images.any(axis=(0, 2)))
+    if not len(nonzero):
+        return None
+    h = images.shape[1]
+    reach = math.ceil(4 * sigma) + 1
+    first, last = int(nonzero[0]), int(nonzero[-1]) + 1
+    return max(0, first - 2 * reach), min(h, last + 2 * reach), max(0, first - reach), min(h, last + reach)
+
+
+def _row_blur(image: np.ndarray, sigma: float, rows: tuple[int, int, int, int] | None) -> np.ndarray:
+    """``cv2.GaussianBlur(image, (0, 0), sigma)`` (float32, default border) from its rows that
+    :func:`_blur_rows` gives: the same values bit for bit (each output pixel is the same sums of
+    the same pixels at the same place in a row of the same width; only whole rows are cut)."""
+    out = np.zeros_like(image)
+    if rows is not None:
+        a, b, c, d = rows
+        out[c:d] = cv2.GaussianBlur(image[a:b], (0, 0), sigma)[c - a:d - a]
+    return out
 
 
 def snap_to_edges(crop: np.ndarray, mask: np.ndarray, params: RefineParams | None = None) -> np.ndarray:
@@ -208,7 +236,13 @@ def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels 
     grown = samples.grown[oy:oy + m.shape[0], ox:ox + m.shape[1]]
     band = grown & ~_shrink(m, p.band_px)
     snapped = mask.copy()
-    snapped[near] = (m & ~band) | (band & (grey[near] < 0.5 * (tape_level[near] + skin_level[near])))
+    inside = m & ~band
+    # the band's pixels re-decided (a thin outline: the levels are compared there only, the same
+    # float32 sums and comparisons pixel by pixel)
+    ys, xs = _nonzero(band)
+    gy, gx = ys + near[0].start, xs + near[1].start  # in the crop
+    inside[ys, xs] = grey[gy, gx] < 0.5 * (tape_level[gy, gx] + skin_level[gy, gx])
+    snapped[near] = inside
     return fill_holes(snapped, _near(snapped, p.band_px + 1, box))  # the snapped mask lies in ``near``
 
 
@@ -270,6 +304,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     p = params or RefineParams()
     grey = to_grey(crop)  # uint8, once: the snapping, the dots and the extension all read it
     base = fill_holes(mask)
+    memo: dict = {}  # find_dots' regions already searched on ``grey`` (a region whose mask is unchanged)
 
     def snapped_with_levels(m: np.ndarray, box: tuple[slice, slice] | None) -> tuple[np.ndarray, _Levels | None]:
         # the tape and skin levels of ``m`` (its box ``box``): for the snap, and (of the kept mask)
@@ -280,10 +315,11 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
         return _snap(grey, m, p, samples, box), samples
 
     # The dots are found on the mask snapped onto the tape's edge, as the final mask will be:
-    # their contrast and centres are measured on the tape's own pixels.
+    # their contrast and centres are measured on the tape's own pixels. The snapped mask has no
+    # holes (fill_holes' answer, or the filled mask itself, or some of its components).
     base_box = _near(base, 0)
     snapped, samples = snapped_with_levels(base, base_box)
-    dots, conf = find_dots(grey, snapped, None, blob_params)
+    dots, conf = find_dots(grey, snapped, None, blob_params, memo, hole_free=True)
     base_area = int(np.count_nonzero(base))
     if base_area < 50 or len(dots) < 2:
         return Extended(base, dots, conf, snapped)
@@ -294,7 +330,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
         base_area = int(np.count_nonzero(base))
         base_box = _near(base, 0)
         snapped, samples = snapped_with_levels(base, base_box)
-        answer = find_dots(grey, snapped, None, blob_params)
+        answer = find_dots(grey, snapped, None, blob_params, memo, hole_free=True)
     threshold = _midway(samples)
     if threshold is None:
         return Extended(base, *answer, snapped)
@@ -327,7 +363,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
         return Extended(base, *answer, snapped)
     # The tape grew (rare): its dots on the joined mask, where a dot straddling a join counts.
     snapped, _ = snapped_with_levels(out, _near(out, 0))
-    return Extended(out, *find_dots(grey, snapped, None, blob_params), snapped)
+    return Extended(out, *find_dots(grey, snapped, None, blob_params, memo), snapped)
 
 
 def _large_components(mask: np.ndarray, min_area: float):
