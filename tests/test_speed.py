@@ -128,67 +128,35 @@ def test_camera_processes_give_the_serial_views_on_a_small_studio(small_studio):
 
 
 def test_camera_threads_give_the_serial_views_on_a_small_studio(small_studio):
+    import threading
+
     # threads: each camera's full search does its own stage 1 in the pool (serial: stage 1 batched
-    # over the cameras), the costliest camera first: the same dots, masks and grey images bit for bit
+    # over the cameras): the same dots, masks and grey images bit for bit
     scene, images = small_studio
     gt = scene.groundtruth["dots"]
     serial = CaptureDetector("net", scene.rig, SpeedOptions(workers=1))
     threads = CaptureDetector("net", scene.rig, SpeedOptions(workers=2))
+    stage1_threads: list = []
+    tape_boxes = threads.detector.tape_boxes
+
+    def recorded(batch):  # the real stage 1, noting the thread it ran in and the images per pass
+        stage1_threads.append((threading.current_thread().name, len(batch)))
+        return tape_boxes(batch)
+
+    threads.detector.tape_boxes = recorded
     try:
-        assert threads.parallel == "threads" and threads.stage1_in_pool and threads.longest_first
+        assert threads.parallel == "threads" and threads.stage1_in_pool
         for f, frame_images in enumerate(images):
             _assert_same_views(serial(f, frame_images, None), threads(f, frame_images, None))
             serial.observe(f, gt[f])
             threads.observe(f, gt[f])
         assert serial.searches == threads.searches and threads.searches["predicted"] == len(scene.rig)
-        # the pool learnt each camera's cost, for the full search and the predicted box apart
-        assert sorted(threads._cost) == sorted((c, full) for c in range(len(scene.rig)) for full in (True, False))
+        # the first frame's full search: one stage-1 pass per camera, all in the pool's threads
+        assert len(stage1_threads) == len(scene.rig)
+        assert all(name.startswith("detect") and n == 1 for name, n in stage1_threads)
     finally:
         serial.close()
         threads.close()
-
-
-def test_the_camera_pool_starts_the_costliest_first_and_keeps_the_order():
-    import threading
-    import time
-
-    detect = CaptureDetector("mask", None, SpeedOptions(workers=2))
-    started: list = []
-    lock = threading.Lock()
-
-    def work(x):
-        with lock:
-            started.append(x)
-        time.sleep(0.02)
-        return 10 * x
-
-    cost = {0: 0.1, 1: 0.5, 2: 0.2, 3: 0.9, 4: 0.0, 5: 0.3}
-    try:
-        assert detect.parallel == "threads"
-        assert detect._map(work, range(6), cost=cost.get) == [0, 10, 20, 30, 40, 50]
-        by_cost = sorted(cost, key=lambda x: -cost[x])   # 3 1 5 2 0 4
-        # two threads: each pair starts before the next pair (a thread takes the next task when free)
-        assert [set(started[i:i + 2]) for i in (0, 2, 4)] == [set(by_cost[i:i + 2]) for i in (0, 2, 4)]
-        started.clear()
-        detect.longest_first = False                  # items' order
-        assert detect._map(work, range(6), cost=cost.get) == [0, 10, 20, 30, 40, 50]
-        assert [set(started[i:i + 2]) for i in (0, 2, 4)] == [{0, 1}, {2, 3}, {4, 5}]
-
-        def fail(x):
-            with lock:
-                started.append(x)
-            if x == 0:
-                raise InputError("cam1", "broken")
-            time.sleep(0.1)
-            return x
-
-        started.clear()
-        with pytest.raises(InputError, match="broken"):  # an error (or Ctrl-C): what has not started never starts
-            detect._map(fail, range(6), cost=lambda x: 1.0 if x == 0 else 0.0)
-        time.sleep(0.3)
-        assert 0 in started and len(started) < 6
-    finally:
-        detect.close()
 
 
 def test_a_dead_camera_process_falls_back_to_threads_with_the_same_views(small_studio):

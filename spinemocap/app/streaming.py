@@ -10,8 +10,7 @@ parallel, and detection by prediction in sequence mode.
   memory; ``parallel="processes"``) or in a thread pool (``"threads"``: OpenCV and torch release
   the GIL, detection's Python clean-up does not). Each camera's full search runs its own stage 1
   of the ``net`` detector in its thread or worker (batched across the cameras only when they run
-  one after the other: the same boxes), and the threads start the cameras whose last detection
-  took longest first, so the two threads finish closer together. In
+  one after the other: the same boxes). In
   sequence mode it is told each solved frame (:meth:`CaptureDetector.observe`): the dots, moved
   on by their velocity, are projected into every camera and the network searches only that
   predicted tape box (stage 1, the whole-frame pass, is skipped). A camera falls back to the full
@@ -282,11 +281,10 @@ class CaptureDetector:
     :meth:`observe` with each frame's solved dots (mm, world) to enable prediction; :meth:`close`
     ends the worker processes or threads."""
 
-    # with cameras in threads: each camera's full search does its own stage 1 in the pool (not all
-    # cameras' stage 1 batched in the calling thread while the pool waits: the same boxes), and the
-    # pool starts the cameras whose last detection took longest first
+    # with cameras in threads: each camera's full search does its own stage 1 in the pool, beside
+    # the other cameras' work (False: all cameras' stage 1 batched in the calling thread while the
+    # pool waits, as before; the same boxes)
     stage1_in_pool: bool = True
-    longest_first: bool = True
 
     def __init__(self, name: str, rig: Rig | None = None, options: SpeedOptions | None = None):
         self.name = name
@@ -319,8 +317,6 @@ class CaptureDetector:
         self._since_full = 0
         self._first: int | None = None               # the first frame detected (by prediction's rules)
         self.searches = {"full": 0, "predicted": 0, "fallback": 0}  # camera images per route
-        # (camera, full search?) -> CPU s of its last detection in a thread: the pool's order
-        self._cost: dict[tuple[int, bool], float] = {}
 
     @property
     def needs_masks(self) -> bool:
@@ -382,21 +378,8 @@ class CaptureDetector:
             cv2.setNumThreads(self._opencv_threads_before)
             self._opencv_threads_before = None
 
-    def _map(self, fn, items, cost: Callable[[int], float] | None = None):
-        """``[fn(x) for x in items]``, in the thread pool when there is one. ``cost(x)``: the
-        expected time of ``fn(x)``; the pool then starts the costliest first (longest processing
-        time first: the threads finish closer together), the results still in ``items``' order."""
-        items = list(items)
-        if self._pool is None:
-            return [fn(x) for x in items]
-        order = range(len(items)) if cost is None or not self.longest_first else \
-            sorted(range(len(items)), key=lambda k: -cost(items[k]))
-        futures = {k: self._pool.submit(fn, items[k]) for k in order}
-        try:
-            return [futures[k].result() for k in range(len(items))]
-        finally:  # an error or Ctrl-C: what has not started does not start
-            for future in futures.values():
-                future.cancel()
+    def _map(self, fn, items):
+        return list(self._pool.map(fn, items)) if self._pool is not None else [fn(x) for x in items]
 
     # ------------------------------------------------------------------ per frame
     def __call__(self, frame: int, images: list[np.ndarray], masks: list[np.ndarray] | None) -> list[ViewDots]:
@@ -453,14 +436,10 @@ class CaptureDetector:
                 self._fall_back(f"{why} ({exc})")
                 self._start_threads()
                 self.info["parallel"] = "threads (fallback from processes)"
-        return self._map(lambda k: self._detect(cameras[k], images[cameras[k]], boxes[k]), range(len(cameras)),
-                         cost=lambda k: self._cost.get((cameras[k], boxes[k] is None), 0.0))
+        return self._map(lambda k: self._detect(cameras[k], images[cameras[k]], boxes[k]), range(len(cameras)))
 
     def _detect(self, camera: int, image: np.ndarray, boxes: list[Box] | None) -> ViewDots:
-        start = time.thread_time()
-        view = self.detector.detect(image, camera=camera, boxes=boxes)
-        self._cost[camera, boxes is None] = time.thread_time() - start
-        return view
+        return self.detector.detect(image, camera=camera, boxes=boxes)
 
     def _remember(self, views: list[ViewDots]) -> None:
         for v in views:
