@@ -508,6 +508,50 @@ def test_lookahead_numbers_compare_the_run_ahead_with_the_exact_order():
     assert lookahead_numbers(runs[:1], SpeedOptions(), {}) == {}  # no peer ran
 
 
+def test_busy_threads_limit_the_camera_threads_and_keep_the_output():
+    # the tracker's thread and the camera threads share `busy_threads` slots: with 1, no two camera
+    # detections overlap; with lookahead 1 and 2 slots, the same positions as without a limit
+    import threading
+
+    from spinemocap.bench.speed import MemorySource
+
+    scene, images = _rendered("tiny", 3)
+    detect = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, busy_threads=1))
+    running, most = [0], [0]
+    lock = threading.Lock()
+    inner = detect.detector.detect
+
+    def counted(*args, **kwargs):  # the real detection, counting how many run at once
+        with lock:
+            running[0] += 1
+            most[0] = max(most[0], running[0])
+        try:
+            return inner(*args, **kwargs)
+        finally:
+            with lock:
+                running[0] -= 1
+
+    detect.detector.detect = counted
+    try:
+        assert detect.parallel == "threads"
+        for f, frame_images in enumerate(images):
+            detect(f, frame_images, None)
+    finally:
+        detect.close()
+    assert most[0] == 1
+    source = MemorySource(images, scene.rig.names)
+
+    def track(options):
+        return track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], progress=False,
+                            speed=options).table.to_arrays()
+
+    free, limited = track(SpeedOptions(workers=2, lookahead=1)), track(SpeedOptions(workers=2, lookahead=1, busy_threads=2))
+    np.testing.assert_array_equal(free["positions"], limited["positions"])
+    assert (free["status"] == limited["status"]).all()
+    with pytest.raises(InputError, match="--busy-threads"):
+        SpeedOptions(busy_threads=-1)
+
+
 def test_a_negative_lookahead_is_refused_by_the_options_and_both_commands(tmp_path, capsys):
     from spinemocap.cli import main
 

@@ -98,7 +98,13 @@ class SpeedOptions:
     studio capture the boxes' 40 px margin already holds the tape two frames on, and the tracked
     dots stayed within 5e-5 mm of lookahead 0's; 20 px more moved them by up to 6e-4 mm and cost
     CPU; a box that misses the tape falls back to the full search as with lookahead 0); without
-    prediction the output is the serial one exactly)."""
+    prediction the output is the serial one exactly);
+    ``busy_threads``: with cameras in threads, at most this many of the camera threads and the
+    tracker's thread compute at once (a camera's detection and the tracker's frame each hold one
+    of that many slots; 0: no limit, the default). With ``lookahead`` the tracker and two camera
+    threads otherwise share two cores three ways; the output is the same either way (only when
+    each runs changes), and it was not measured on an idle machine (docs/BENCHMARKS.md, issue 15,
+    "Where the extra CPU of threads and lookahead goes")."""
 
     workers: int = 0
     parallel: str = "threads"
@@ -113,10 +119,13 @@ class SpeedOptions:
     masks_always: bool = False
     lookahead: int = 0
     lookahead_margin_px: float = 0.0
+    busy_threads: int = 0
 
     def __post_init__(self) -> None:
         if self.lookahead < 0:
             raise InputError("--lookahead", f"must be 0 or more, got {self.lookahead}")
+        if self.busy_threads < 0:
+            raise InputError("--busy-threads", f"must be 0 (no limit) or more, got {self.busy_threads}")
 
     def n_workers(self, n_cameras: int) -> int:
         return max(1, min(n_cameras, self.workers or os.cpu_count() or 1))
@@ -308,6 +317,8 @@ class CaptureDetector:
             self._processes = self._start_processes()
         if self._n > 1 and self._processes is None:
             self._start_threads()
+        # slots the camera threads and the tracker's thread (run_tracking's ``busy``) share
+        self.slots = threading.BoundedSemaphore(self.options.busy_threads) if self.options.busy_threads > 0 else None
         # how the cameras ran: parallel mode and workers; with processes their start-up (wall s)
         # and the CPU s they used after it (set by close: this process's CPU clock misses them)
         self.info: dict = {"parallel": self.parallel, "workers": self._n}
@@ -439,7 +450,10 @@ class CaptureDetector:
         return self._map(lambda k: self._detect(cameras[k], images[cameras[k]], boxes[k]), range(len(cameras)))
 
     def _detect(self, camera: int, image: np.ndarray, boxes: list[Box] | None) -> ViewDots:
-        return self.detector.detect(image, camera=camera, boxes=boxes)
+        if self.slots is None or self._pool is None:
+            return self.detector.detect(image, camera=camera, boxes=boxes)
+        with self.slots:
+            return self.detector.detect(image, camera=camera, boxes=boxes)
 
     def _remember(self, views: list[ViewDots]) -> None:
         for v in views:
