@@ -82,7 +82,9 @@ class SpeedOptions:
     frames between full searches; ``min_dot_share``: a predicted box must find this share of the
     previous frame's dots in its camera, else that camera is searched in full; ``box_margin_px``:
     predicted dots' box grown by this before the training crops' padding;
-    ``batch``: stage 1 of all cameras in one network pass (else one pass per camera);
+    ``batch``: stage 1 of all cameras in one network pass (else one pass per camera) when the
+    cameras run one after the other (in threads or processes each camera's full search runs its
+    own pass in its thread or worker, beside the other cameras' work);
     ``device``: where the network runs (``auto``: CUDA when torch sees it, else CPU);
     ``opencv_threads``: OpenCV's own threads while the cameras are detected in parallel threads
     (``n_workers`` > 1; restored afterwards). 1: each camera thread runs OpenCV serially (on a
