@@ -130,12 +130,12 @@ def test_camera_processes_give_the_serial_views_on_a_small_studio(small_studio):
 def test_camera_threads_give_the_serial_views_on_a_small_studio(small_studio):
     import threading
 
-    # threads: each camera's full search does its own stage 1 in the pool (serial: stage 1 batched
-    # over the cameras): the same dots, masks and grey images bit for bit
+    # threads with stage1_in_pool: each camera's full search does its own stage 1 in the pool
+    # (serial: stage 1 batched over the cameras): the same dots, masks and grey images bit for bit
     scene, images = small_studio
     gt = scene.groundtruth["dots"]
     serial = CaptureDetector("net", scene.rig, SpeedOptions(workers=1))
-    threads = CaptureDetector("net", scene.rig, SpeedOptions(workers=2))
+    threads = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, stage1_in_pool=True))
     stage1_threads: list = []
     tape_boxes = threads.detector.tape_boxes
 
@@ -145,7 +145,7 @@ def test_camera_threads_give_the_serial_views_on_a_small_studio(small_studio):
 
     threads.detector.tape_boxes = recorded
     try:
-        assert threads.parallel == "threads" and threads.stage1_in_pool
+        assert threads.parallel == "threads"
         for f, frame_images in enumerate(images):
             _assert_same_views(serial(f, frame_images, None), threads(f, frame_images, None))
             serial.observe(f, gt[f])

@@ -1,15 +1,15 @@
 """Where the CPU of cameras in threads, detection ahead of the tracker and worker processes goes:
 speed options A/B, alternating in one process, on a capture's frames held in memory.
 
-    python docs/bench/threads_ab.py CAPTURE_DIR T:o,T,L:o,L --frames 40:80 --reps 4
+    python docs/bench/threads_ab.py CAPTURE_DIR T,T:p,L,L:p --frames 40:80 --reps 4
     python docs/bench/threads_ab.py CAPTURE_DIR S,T,L --frames 40:80 --reps 1 --instrument
 
-A configuration is ``BASE[@SWITCH_MS][:o]``: BASE ``S`` (cameras one after the other), ``T``
+A configuration is ``BASE[@SWITCH_MS][:p]``: BASE ``S`` (cameras one after the other), ``T``
 (threads, the default), ``L`` (threads, ``lookahead=1``), ``LB`` (``L`` with ``busy_threads=2``:
 the tracker and the camera threads share two slots), ``P`` (worker processes), ``PL`` (processes,
 ``lookahead=1``); ``@SWITCH_MS`` sets ``sys.setswitchinterval`` (ms; 5 by default) for
-that run; ``:o`` the camera threads' full search as before (stage 1 of all cameras batched in the
-calling thread while the pool waits; ``CaptureDetector.stage1_in_pool = False``). Per run:
+that run; ``:p`` each camera thread's full search runs its own stage 1 (``stage1_in_pool=True``;
+without it, the default: stage 1 of all cameras batched in the calling thread while the pool waits). Per run:
 frames/s, CPU s per frame (this process plus the camera workers), cores used, user/system CPU,
 minor page faults and context switches per frame (``getrusage``), accuracy against the ground
 truth (frames numbered from the range's start), the detector's routes, and the largest position
@@ -124,11 +124,10 @@ class ThreadCPU:
 
 
 def run(config: str, capture: Capture, source: MemorySource, truth: dict, instrumented: bool) -> tuple[dict, np.ndarray]:
-    base, _, old = config.partition(":")
+    base, _, flags = config.partition(":")
     base, _, switch_ms = base.partition("@")
     sys.setswitchinterval(float(switch_ms) / 1000 if switch_ms else 0.005)
-    streaming.CaptureDetector.stage1_in_pool = old != "o"
-    options = SpeedOptions(**CONFIGS[base])
+    options = SpeedOptions(**CONFIGS[base], stage1_in_pool="p" in flags)
     n = source.n_frames
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -43,8 +43,8 @@ def main() -> None:
         groups[-1].append((camera, cpu))
     stage1 = args.stage1_ms / 1000
     frame = 0
-    totals = {"stage 1 batched, camera order (before)": 0.0, "stage 1 batched, longest first": 0.0,
-              "stage 1 in the pool, camera order (now)": 0.0, "stage 1 in the pool, longest first": 0.0}
+    totals = {"stage 1 batched, camera order (default)": 0.0, "stage 1 batched, longest first": 0.0,
+              "stage 1 in the pool, camera order (stage1_in_pool)": 0.0, "stage 1 in the pool, longest first": 0.0}
     last: dict[tuple[int, bool], float] = {}
     for group in groups:
         full = len(group) < args.cameras or frame % args.refresh_every == 0
@@ -53,9 +53,9 @@ def main() -> None:
         with_stage1 = [cpu + (stage1 if full else 0.0) for cpu in times]
         longest = sorted(range(len(group)), key=lambda k: -last.get((group[k][0], full), 0.0))
         batched = stage1 * len(group) if full else 0.0
-        totals["stage 1 batched, camera order (before)"] += batched + makespan(times)
+        totals["stage 1 batched, camera order (default)"] += batched + makespan(times)
         totals["stage 1 batched, longest first"] += batched + makespan([times[k] for k in longest])
-        totals["stage 1 in the pool, camera order (now)"] += makespan(with_stage1)
+        totals["stage 1 in the pool, camera order (stage1_in_pool)"] += makespan(with_stage1)
         totals["stage 1 in the pool, longest first"] += makespan([with_stage1[k] for k in longest])
         for (camera, _), t in zip(group, with_stage1):
             last[camera, full] = t

@@ -8,9 +8,9 @@ parallel, and detection by prediction in sequence mode.
 - :class:`CaptureDetector` runs the detector on all cameras of a frame in parallel: in worker
   processes (:mod:`spinemocap.app.camera_processes`, one detector each, images through shared
   memory; ``parallel="processes"``) or in a thread pool (``"threads"``: OpenCV and torch release
-  the GIL, detection's Python clean-up does not). Each camera's full search runs its own stage 1
-  of the ``net`` detector in its thread or worker (batched across the cameras only when they run
-  one after the other: the same boxes). In
+  the GIL, detection's Python clean-up does not), with stage 1 of the ``net`` detector batched
+  across cameras in threads (one image per pass in processes, and in threads with
+  ``SpeedOptions.stage1_in_pool``: the same boxes). In
   sequence mode it is told each solved frame (:meth:`CaptureDetector.observe`): the dots, moved
   on by their velocity, are projected into every camera and the network searches only that
   predicted tape box (stage 1, the whole-frame pass, is skipped). A camera falls back to the full
@@ -82,9 +82,9 @@ class SpeedOptions:
     frames between full searches; ``min_dot_share``: a predicted box must find this share of the
     previous frame's dots in its camera, else that camera is searched in full; ``box_margin_px``:
     predicted dots' box grown by this before the training crops' padding;
-    ``batch``: stage 1 of all cameras in one network pass (else one pass per camera) when the
-    cameras run one after the other (in threads or processes each camera's full search runs its
-    own pass in its thread or worker, beside the other cameras' work);
+    ``batch``: stage 1 of all cameras in one network pass (else one pass per camera; in worker
+    processes, and in threads with ``stage1_in_pool``, each camera's full search runs its own pass
+    in its worker or thread);
     ``device``: where the network runs (``auto``: CUDA when torch sees it, else CPU);
     ``opencv_threads``: OpenCV's own threads while the cameras are detected in parallel threads
     (``n_workers`` > 1; restored afterwards). 1: each camera thread runs OpenCV serially (on a
@@ -106,7 +106,12 @@ class SpeedOptions:
     of that many slots; 0: no limit, the default). With ``lookahead`` the tracker and two camera
     threads otherwise share two cores three ways; the output is the same either way (only when
     each runs changes), and it was not measured on an idle machine (docs/BENCHMARKS.md, issue 15,
-    "Where the extra CPU of threads and lookahead goes")."""
+    "Where the extra CPU of threads and lookahead goes");
+    ``stage1_in_pool``: with cameras in threads, each camera's full search runs its own stage 1 in
+    its camera thread, beside the other cameras' work, instead of all cameras' stage 1 batched in
+    the calling thread while the camera threads wait (the same boxes, the same output bit for bit;
+    simulated 7 % less detection time per frame on two cores, not shown on the shared VM: off by
+    default until measured on an idle machine, docs/BENCHMARKS.md)."""
 
     workers: int = 0
     parallel: str = "threads"
@@ -122,6 +127,7 @@ class SpeedOptions:
     lookahead: int = 0
     lookahead_margin_px: float = 0.0
     busy_threads: int = 0
+    stage1_in_pool: bool = False
 
     def __post_init__(self) -> None:
         if self.lookahead < 0:
@@ -292,11 +298,6 @@ class CaptureDetector:
     :meth:`observe` with each frame's solved dots (mm, world) to enable prediction; :meth:`close`
     ends the worker processes or threads."""
 
-    # with cameras in threads: each camera's full search does its own stage 1 in the pool, beside
-    # the other cameras' work (False: all cameras' stage 1 batched in the calling thread while the
-    # pool waits, as before; the same boxes)
-    stage1_in_pool: bool = True
-
     def __init__(self, name: str, rig: Rig | None = None, options: SpeedOptions | None = None):
         self.name = name
         self.rig = rig
@@ -420,11 +421,11 @@ class CaptureDetector:
         return views
 
     def _full(self, images: list[np.ndarray], cameras: Sequence[int], copy: bool = True) -> list[ViewDots]:
-        """Full two-stage search of the given cameras (stage 1 batched over them when the cameras
-        run one after the other; in threads or worker processes each does its camera's stage 1 in
-        the pool, beside the other cameras' work: the same boxes)."""
+        """Full two-stage search of the given cameras (stage 1 batched over them in this process;
+        in worker processes, and in threads with ``stage1_in_pool``, each does its camera's stage 1
+        in the pool, beside the other cameras' work: the same boxes)."""
         cameras = list(cameras)
-        if self._processes is not None or (self._pool is not None and self.stage1_in_pool):
+        if self._processes is not None or (self._pool is not None and self.options.stage1_in_pool):
             views = self._run(images, cameras, [None] * len(cameras), copy)
         else:
             views = self._run(images, cameras, self.detector.tape_boxes([images[c] for c in cameras]))
