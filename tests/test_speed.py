@@ -127,6 +127,38 @@ def test_camera_processes_give_the_serial_views_on_a_small_studio(small_studio):
     assert processes.info["slowest_camera_ms"] > 0
 
 
+def test_camera_threads_give_the_serial_views_on_a_small_studio(small_studio):
+    import threading
+
+    # threads with stage1_in_pool: each camera's full search does its own stage 1 in the pool
+    # (serial: stage 1 batched over the cameras): the same dots, masks and grey images bit for bit
+    scene, images = small_studio
+    gt = scene.groundtruth["dots"]
+    serial = CaptureDetector("net", scene.rig, SpeedOptions(workers=1))
+    threads = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, stage1_in_pool=True))
+    stage1_threads: list = []
+    tape_boxes = threads.detector.tape_boxes
+
+    def recorded(batch):  # the real stage 1, noting the thread it ran in and the images per pass
+        stage1_threads.append((threading.current_thread().name, len(batch)))
+        return tape_boxes(batch)
+
+    threads.detector.tape_boxes = recorded
+    try:
+        assert threads.parallel == "threads"
+        for f, frame_images in enumerate(images):
+            _assert_same_views(serial(f, frame_images, None), threads(f, frame_images, None))
+            serial.observe(f, gt[f])
+            threads.observe(f, gt[f])
+        assert serial.searches == threads.searches and threads.searches["predicted"] == len(scene.rig)
+        # the first frame's full search: one stage-1 pass per camera, all in the pool's threads
+        assert len(stage1_threads) == len(scene.rig)
+        assert all(name.startswith("detect") and n == 1 for name, n in stage1_threads)
+    finally:
+        serial.close()
+        threads.close()
+
+
 def test_a_dead_camera_process_falls_back_to_threads_with_the_same_views(small_studio):
     import os
     import signal
@@ -474,6 +506,50 @@ def test_lookahead_numbers_compare_the_run_ahead_with_the_exact_order():
     assert numbers["speedup_lookahead_in_memory"] == pytest.approx(1.5)
     assert not numbers["lookahead_accuracy_not_worse"]  # 0.1 mm worse on average
     assert lookahead_numbers(runs[:1], SpeedOptions(), {}) == {}  # no peer ran
+
+
+def test_busy_threads_limit_the_camera_threads_and_keep_the_output():
+    # the tracker's thread and the camera threads share `busy_threads` slots: with 1, no two camera
+    # detections overlap; with lookahead 1 and 2 slots, the same positions as without a limit
+    import threading
+
+    from spinemocap.bench.speed import MemorySource
+
+    scene, images = _rendered("tiny", 3)
+    detect = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, busy_threads=1))
+    running, most = [0], [0]
+    lock = threading.Lock()
+    inner = detect.detector.detect
+
+    def counted(*args, **kwargs):  # the real detection, counting how many run at once
+        with lock:
+            running[0] += 1
+            most[0] = max(most[0], running[0])
+        try:
+            return inner(*args, **kwargs)
+        finally:
+            with lock:
+                running[0] -= 1
+
+    detect.detector.detect = counted
+    try:
+        assert detect.parallel == "threads"
+        for f, frame_images in enumerate(images):
+            detect(f, frame_images, None)
+    finally:
+        detect.close()
+    assert most[0] == 1
+    source = MemorySource(images, scene.rig.names)
+
+    def track(options):
+        return track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], progress=False,
+                            speed=options).table.to_arrays()
+
+    free, limited = track(SpeedOptions(workers=2, lookahead=1)), track(SpeedOptions(workers=2, lookahead=1, busy_threads=2))
+    np.testing.assert_array_equal(free["positions"], limited["positions"])
+    assert (free["status"] == limited["status"]).all()
+    with pytest.raises(InputError, match="--busy-threads"):
+        SpeedOptions(busy_threads=-1)
 
 
 def test_a_negative_lookahead_is_refused_by_the_options_and_both_commands(tmp_path, capsys):

@@ -9,7 +9,8 @@ parallel, and detection by prediction in sequence mode.
   processes (:mod:`spinemocap.app.camera_processes`, one detector each, images through shared
   memory; ``parallel="processes"``) or in a thread pool (``"threads"``: OpenCV and torch release
   the GIL, detection's Python clean-up does not), with stage 1 of the ``net`` detector batched
-  across cameras in threads (one image per pass in processes: the same boxes). In
+  across cameras in threads (one image per pass in processes, and in threads with
+  ``SpeedOptions.stage1_in_pool``: the same boxes). In
   sequence mode it is told each solved frame (:meth:`CaptureDetector.observe`): the dots, moved
   on by their velocity, are projected into every camera and the network searches only that
   predicted tape box (stage 1, the whole-frame pass, is skipped). A camera falls back to the full
@@ -81,7 +82,9 @@ class SpeedOptions:
     frames between full searches; ``min_dot_share``: a predicted box must find this share of the
     previous frame's dots in its camera, else that camera is searched in full; ``box_margin_px``:
     predicted dots' box grown by this before the training crops' padding;
-    ``batch``: stage 1 of all cameras in one network pass (else one pass per camera);
+    ``batch``: stage 1 of all cameras in one network pass (else one pass per camera; in worker
+    processes, and in threads with ``stage1_in_pool``, each camera's full search runs its own pass
+    in its worker or thread);
     ``device``: where the network runs (``auto``: CUDA when torch sees it, else CPU);
     ``opencv_threads``: OpenCV's own threads while the cameras are detected in parallel threads
     (``n_workers`` > 1; restored afterwards). 1: each camera thread runs OpenCV serially (on a
@@ -97,7 +100,18 @@ class SpeedOptions:
     studio capture the boxes' 40 px margin already holds the tape two frames on, and the tracked
     dots stayed within 5e-5 mm of lookahead 0's; 20 px more moved them by up to 6e-4 mm and cost
     CPU; a box that misses the tape falls back to the full search as with lookahead 0); without
-    prediction the output is the serial one exactly)."""
+    prediction the output is the serial one exactly);
+    ``busy_threads``: with cameras in threads, at most this many of the camera threads and the
+    tracker's thread compute at once (a camera's detection and the tracker's frame each hold one
+    of that many slots; 0: no limit, the default). With ``lookahead`` the tracker and two camera
+    threads otherwise share two cores three ways; the output is the same either way (only when
+    each runs changes), and it was not measured on an idle machine (docs/BENCHMARKS.md, issue 15,
+    "Where the extra CPU of threads and lookahead goes");
+    ``stage1_in_pool``: with cameras in threads, each camera's full search runs its own stage 1 in
+    its camera thread, beside the other cameras' work, instead of all cameras' stage 1 batched in
+    the calling thread while the camera threads wait (the same boxes, the same output bit for bit;
+    simulated 7 % less detection time per frame on two cores, not shown on the shared VM: off by
+    default until measured on an idle machine, docs/BENCHMARKS.md)."""
 
     workers: int = 0
     parallel: str = "threads"
@@ -112,10 +126,14 @@ class SpeedOptions:
     masks_always: bool = False
     lookahead: int = 0
     lookahead_margin_px: float = 0.0
+    busy_threads: int = 0
+    stage1_in_pool: bool = False
 
     def __post_init__(self) -> None:
         if self.lookahead < 0:
             raise InputError("--lookahead", f"must be 0 or more, got {self.lookahead}")
+        if self.busy_threads < 0:
+            raise InputError("--busy-threads", f"must be 0 (no limit) or more, got {self.busy_threads}")
 
     def n_workers(self, n_cameras: int) -> int:
         return max(1, min(n_cameras, self.workers or os.cpu_count() or 1))
@@ -302,6 +320,8 @@ class CaptureDetector:
             self._processes = self._start_processes()
         if self._n > 1 and self._processes is None:
             self._start_threads()
+        # slots the camera threads and the tracker's thread (run_tracking's ``busy``) share
+        self.slots = threading.BoundedSemaphore(self.options.busy_threads) if self.options.busy_threads > 0 else None
         # how the cameras ran: parallel mode and workers; with processes their start-up (wall s)
         # and the CPU s they used after it (set by close: this process's CPU clock misses them)
         self.info: dict = {"parallel": self.parallel, "workers": self._n}
@@ -402,9 +422,10 @@ class CaptureDetector:
 
     def _full(self, images: list[np.ndarray], cameras: Sequence[int], copy: bool = True) -> list[ViewDots]:
         """Full two-stage search of the given cameras (stage 1 batched over them in this process;
-        in worker processes each does its camera's stage 1: the same boxes)."""
+        in worker processes, and in threads with ``stage1_in_pool``, each does its camera's stage 1
+        in the pool, beside the other cameras' work: the same boxes)."""
         cameras = list(cameras)
-        if self._processes is not None:
+        if self._processes is not None or (self._pool is not None and self.options.stage1_in_pool):
             views = self._run(images, cameras, [None] * len(cameras), copy)
         else:
             views = self._run(images, cameras, self.detector.tape_boxes([images[c] for c in cameras]))
@@ -432,7 +453,10 @@ class CaptureDetector:
         return self._map(lambda k: self._detect(cameras[k], images[cameras[k]], boxes[k]), range(len(cameras)))
 
     def _detect(self, camera: int, image: np.ndarray, boxes: list[Box] | None) -> ViewDots:
-        return self.detector.detect(image, camera=camera, boxes=boxes)
+        if self.slots is None or self._pool is None:
+            return self.detector.detect(image, camera=camera, boxes=boxes)
+        with self.slots:
+            return self.detector.detect(image, camera=camera, boxes=boxes)
 
     def _remember(self, views: list[ViewDots]) -> None:
         for v in views:
