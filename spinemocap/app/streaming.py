@@ -432,7 +432,13 @@ class CaptureDetector:
         return self._map(lambda k: self._detect(cameras[k], images[cameras[k]], boxes[k]), range(len(cameras)))
 
     def _detect(self, camera: int, image: np.ndarray, boxes: list[Box] | None) -> ViewDots:
-        return self.detector.detect(image, camera=camera, boxes=boxes)
+        # In sequence tracking (prediction on) each frame's views are dropped once the frame is
+        # solved, and MRF2 reads the grey images in few frames: they are made when read. Without
+        # prediction (the benchmarks keep every frame's views) they are made now, holding a third
+        # of the colour image's memory. With camera processes (here after they died) the images
+        # may lie in shared memory that later frames reuse: made now.
+        later = self.predicts and self.options.parallel != "processes"
+        return self.detector.detect(image, camera=camera, boxes=boxes, grey_now=not later)
 
     def _remember(self, views: list[ViewDots]) -> None:
         for v in views:
