@@ -80,7 +80,9 @@ class SpeedOptions:
     ahead of the tracker (0: read when needed); ``predict``: sequence mode searches the predicted tape box; ``refresh_every``:
     frames between full searches; ``min_dot_share``: a predicted box must find this share of the
     previous frame's dots in its camera, else that camera is searched in full; ``box_margin_px``:
-    predicted dots' box grown by this before the training crops' padding;
+    predicted dots' box grown by this before the training crops' padding (which adds half the box
+    per side; 20 px: on the studio capture 40 px cost 12 % more detection CPU per frame for no
+    better dots, and 10 px began to miss dots, more fallbacks; docs/BENCHMARKS.md, issue 15);
     ``batch``: stage 1 of all cameras in one network pass (else one pass per camera);
     ``device``: where the network runs (``auto``: CUDA when torch sees it, else CPU);
     ``opencv_threads``: OpenCV's own threads while the cameras are detected in parallel threads
@@ -94,9 +96,9 @@ class SpeedOptions:
     thread, while the tracker solves frame t, so detection and tracking use two cores at once;
     its predicted boxes then come from the frame before, extrapolated over ``lookahead + 1``
     frames with the margin grown by ``lookahead_margin_px`` per extra frame (default 0: on the
-    studio capture the boxes' 40 px margin already holds the tape two frames on, and the tracked
-    dots stayed within 5e-5 mm of lookahead 0's; 20 px more moved them by up to 6e-4 mm and cost
-    CPU; a box that misses the tape falls back to the full search as with lookahead 0); without
+    studio capture the boxes' margin, then 40 px, already held the tape two frames on, and the
+    tracked dots stayed within 5e-5 mm of lookahead 0's; 20 px more moved them by up to 6e-4 mm and
+    cost CPU; a box that misses the tape falls back to the full search as with lookahead 0); without
     prediction the output is the serial one exactly)."""
 
     workers: int = 0
@@ -105,7 +107,7 @@ class SpeedOptions:
     predict: bool = True
     refresh_every: int = 10
     min_dot_share: float = 0.8
-    box_margin_px: float = 40.0
+    box_margin_px: float = 20.0
     batch: bool = True
     device: str = "auto"
     opencv_threads: int | None = 1
