@@ -38,8 +38,9 @@ class ViewDots:
     @property
     def image(self) -> np.ndarray | None:
         """The grey image (H, W) uint8 or None (made from the colour image on the first read)."""
-        if self._image is None and self._colour is not None:
-            self._image = to_grey(self._colour)
+        colour = self._colour  # read once: another thread may convert it meanwhile (the same pixels)
+        if self._image is None and colour is not None:
+            self._image = to_grey(colour)
             self._colour = None
         return self._image
 
