@@ -96,8 +96,8 @@ class SpeedOptions:
     thread, while the tracker solves frame t, so detection and tracking use two cores at once;
     its predicted boxes then come from the frame before, extrapolated over ``lookahead + 1``
     frames with the margin grown by ``lookahead_margin_px`` per extra frame (default 0: on the
-    studio capture the boxes' margin, then 40 px, already held the tape two frames on, and the
-    tracked dots stayed within 5e-5 mm of lookahead 0's; 20 px more moved them by up to 6e-4 mm and
+    studio capture the boxes' margin, then 40 px, already held the tape two frames on (20 px too:
+    the same routes, frames 40-79), and the tracked dots stayed within 5e-5 mm of lookahead 0's; 20 px more moved them by up to 6e-4 mm and
     cost CPU; a box that misses the tape falls back to the full search as with lookahead 0); without
     prediction the output is the serial one exactly)."""
 
