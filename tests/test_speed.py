@@ -508,50 +508,6 @@ def test_lookahead_numbers_compare_the_run_ahead_with_the_exact_order():
     assert lookahead_numbers(runs[:1], SpeedOptions(), {}) == {}  # no peer ran
 
 
-def test_busy_threads_limit_the_camera_threads_and_keep_the_output():
-    # the tracker's thread and the camera threads share `busy_threads` slots: with 1, no two camera
-    # detections overlap; with lookahead 1 and 2 slots, the same positions as without a limit
-    import threading
-
-    from spinemocap.bench.speed import MemorySource
-
-    scene, images = _rendered("tiny", 3)
-    detect = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, busy_threads=1))
-    running, most = [0], [0]
-    lock = threading.Lock()
-    inner = detect.detector.detect
-
-    def counted(*args, **kwargs):  # the real detection, counting how many run at once
-        with lock:
-            running[0] += 1
-            most[0] = max(most[0], running[0])
-        try:
-            return inner(*args, **kwargs)
-        finally:
-            with lock:
-                running[0] -= 1
-
-    detect.detector.detect = counted
-    try:
-        assert detect.parallel == "threads"
-        for f, frame_images in enumerate(images):
-            detect(f, frame_images, None)
-    finally:
-        detect.close()
-    assert most[0] == 1
-    source = MemorySource(images, scene.rig.names)
-
-    def track(options):
-        return track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], progress=False,
-                            speed=options).table.to_arrays()
-
-    free, limited = track(SpeedOptions(workers=2, lookahead=1)), track(SpeedOptions(workers=2, lookahead=1, busy_threads=2))
-    np.testing.assert_array_equal(free["positions"], limited["positions"])
-    assert (free["status"] == limited["status"]).all()
-    with pytest.raises(InputError, match="--busy-threads"):
-        SpeedOptions(busy_threads=-1)
-
-
 def test_a_negative_lookahead_is_refused_by_the_options_and_both_commands(tmp_path, capsys):
     from spinemocap.cli import main
 
@@ -561,3 +517,69 @@ def test_a_negative_lookahead_is_refused_by_the_options_and_both_commands(tmp_pa
                  ["bench", "speed", "--preset", "tiny", "--lookahead", "-1"]):
         assert main(argv) == 2
         assert "--lookahead: must be 0 or more, got -1" in capsys.readouterr().err
+
+
+def test_views_of_sequence_detection_make_the_grey_image_when_read(small_studio):
+    # Prediction on (sequence tracking): the views hold the colour image and make the grey one
+    # when MRF2 reads it: the same pixels as the detector's eager grey image, and the colour image
+    # is let go then. Without prediction (benchmarks keep every frame's views) it is made at once.
+    from spinemocap.capture import to_grey
+
+    scene, images = small_studio
+    gt = scene.groundtruth["dots"]
+    eager = CaptureDetector("net", scene.rig, SpeedOptions(predict=False, workers=1))
+    lazy = CaptureDetector("net", scene.rig, SpeedOptions(workers=1))
+    try:
+        for f, frame_images in enumerate(images):
+            a, b = eager(f, frame_images, None), lazy(f, frame_images, None)
+            assert all(v._colour is None and v._image is not None for v in a)
+            assert all(v._colour is frame_images[v.camera] and v._image is None for v in b)
+            for va, vb in zip(a, b):
+                np.testing.assert_array_equal(vb.image, va.image)
+                np.testing.assert_array_equal(vb.image, to_grey(frame_images[vb.camera]))
+                assert vb._colour is None and vb.image is vb.image  # converted once, then kept
+            lazy.observe(f, gt[f])
+        assert lazy.searches["predicted"] == len(scene.rig)  # the second frame was predicted
+    finally:
+        eager.close()
+        lazy.close()
+
+
+def test_a_view_takes_the_grey_or_the_colour_image_not_both():
+    from spinemocap.views import ViewDots
+
+    colour = np.random.default_rng(0).integers(0, 256, (6, 8, 3), dtype=np.uint8)
+    with pytest.raises(ValueError):
+        ViewDots(0, np.zeros((0, 2)), np.zeros(0), image=colour[:, :, 0], colour=colour)
+    view = ViewDots(0, np.zeros((0, 2)), np.zeros(0), colour=colour)
+    view.image = None  # set: the colour image no longer stands for it
+    assert view.image is None and ViewDots(1, np.zeros((0, 2)), np.zeros(0)).image is None
+
+
+def test_kept_instances_within_the_searched_boxes_are_the_full_frame_ones(small_studio):
+    # _segment_with_dots labels the mask's instances only inside the union of the final boxes:
+    # the mask must be the full-frame labelling's, also where specks are dropped
+    from spinemocap.detect import Detector
+    from spinemocap.detect.instances import kept_instances
+
+    _, images = small_studio
+    detector = Detector("net")
+    segmenter = detector._segment
+    all_boxes = detector.tape_boxes(images[0])
+    camera = max(range(len(all_boxes)), key=lambda c: len(all_boxes[c]))  # a camera that sees the tape
+    image, boxes = images[0][camera], all_boxes[camera]
+    found = segmenter.segment_boxes(image, boxes)
+    assert found.box is not None and found.mask[found.box].sum() == found.mask.sum() > 0
+    np.testing.assert_array_equal(detector._segment_with_dots(image, boxes).mask, kept_instances(found.mask))
+    # a speck far from the tape (a false positive of another box) is dropped the same way
+    h, w = found.mask.shape
+    speck = (slice(h - 12, h - 9), slice(w - 12, w - 9))
+    speckled = found.mask.copy()
+    speckled[speck] = True
+    union = (slice(min(found.box[0].start, speck[0].start), h), slice(min(found.box[1].start, speck[1].start), w))
+    cropped = np.zeros_like(speckled)
+    cropped[union] = kept_instances(speckled[union])
+    np.testing.assert_array_equal(cropped, kept_instances(speckled))
+    assert not cropped[speck].any()
+    # no box searched: an empty mask
+    assert not detector._segment_with_dots(image, []).mask.any()

@@ -5,8 +5,7 @@ speed options A/B, alternating in one process, on a capture's frames held in mem
     python docs/bench/threads_ab.py CAPTURE_DIR S,T,L --frames 40:80 --reps 1 --instrument
 
 A configuration is ``BASE[@SWITCH_MS][:p]``: BASE ``S`` (cameras one after the other), ``T``
-(threads, the default), ``L`` (threads, ``lookahead=1``), ``LB`` (``L`` with ``busy_threads=2``:
-the tracker and the camera threads share two slots), ``P`` (worker processes), ``PL`` (processes,
+(threads, the default), ``L`` (threads, ``lookahead=1``), ``P`` (worker processes), ``PL`` (processes,
 ``lookahead=1``); ``@SWITCH_MS`` sets ``sys.setswitchinterval`` (ms; 5 by default) for
 that run; ``:p`` each camera thread's full search runs its own stage 1 (``stage1_in_pool=True``;
 without it, the default: stage 1 of all cameras batched in the calling thread while the pool waits). Per run:
@@ -41,7 +40,7 @@ from spinemocap.bench.speed import MemorySource
 from spinemocap.capture import Capture
 from spinemocap.track.evaluate import evaluate_tracking
 
-CONFIGS = {"S": dict(workers=1), "T": dict(), "L": dict(lookahead=1), "LB": dict(lookahead=1, busy_threads=2),
+CONFIGS = {"S": dict(workers=1), "T": dict(), "L": dict(lookahead=1),
            "P": dict(parallel="processes"), "PL": dict(parallel="processes", lookahead=1)}
 STAGES: dict[str, list] = {}  # stage -> [calls, CPU s, wall s]
 PER_CAMERA: list = []          # (camera, full search?, CPU s) per camera detection

@@ -12,7 +12,6 @@ from __future__ import annotations
 import logging
 import time
 import warnings
-from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
@@ -193,7 +192,6 @@ def run_tracking(
     meta: dict | None = None,
     stop: Callable[[], bool] | None = None,
     on_frame: Callable[[int, FrameResult], None] | None = None,
-    busy: AbstractContextManager | None = None,
 ) -> TrackResult:
     """Track a sequence. ``views_per_frame`` yields ``(frame, views, detect_ms)``.
 
@@ -201,8 +199,7 @@ def run_tracking(
     solution gives ``missing`` rows and a :class:`TrackingWarning`, never an exception.
     ``stop``: asked before every frame; True ends the run with :class:`TrackingStopped`.
     ``on_frame(frame, result)`` is called after each frame, before the next is asked for
-    (detection by prediction learns the dots there). ``busy``: held while a frame is solved (the
-    slots it shares with the camera threads, :attr:`CaptureDetector.slots`)."""
+    (detection by prediction learns the dots there)."""
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}; choose from {MODES}")
     config = config or TrackerConfig()
@@ -215,8 +212,7 @@ def run_tracking(
             raise TrackingStopped(f"tracking stopped before frame {frame}")
         stage_ms = {"detect": detect_ms}
         try:
-            with busy if busy is not None else nullcontext():
-                result = carry.step(views, stage_ms) if carry else tracker.solve(views, stage_ms=stage_ms)
+            result = carry.step(views, stage_ms) if carry else tracker.solve(views, stage_ms=stage_ms)
         except InputError:
             raise
         except Exception as exc:  # one unsolvable frame must not end the sequence: report it missing
@@ -318,7 +314,6 @@ def track_source(
             views, rig, tape, fps, up=up, mode=mode,
             config=config, progress=progress, n_frames=len(frames), meta={**(meta or {}), "detector": detector},
             on_frame=lambda frame, r: detect.observe(frame, r.positions if r.solved else None), stop=stop,
-            busy=detect.slots if detect.parallel == "threads" else None,
         )
     finally:
         views.close()  # a detection running ahead of the tracker ends before its detector closes

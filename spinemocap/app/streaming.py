@@ -81,7 +81,9 @@ class SpeedOptions:
     ahead of the tracker (0: read when needed); ``predict``: sequence mode searches the predicted tape box; ``refresh_every``:
     frames between full searches; ``min_dot_share``: a predicted box must find this share of the
     previous frame's dots in its camera, else that camera is searched in full; ``box_margin_px``:
-    predicted dots' box grown by this before the training crops' padding;
+    predicted dots' box grown by this before the training crops' padding (which adds half the box
+    per side; 20 px: on the studio capture 40 px cost 12 % more detection CPU per frame for no
+    better dots, and 10 px began to miss dots, more fallbacks; docs/BENCHMARKS.md, issue 15);
     ``batch``: stage 1 of all cameras in one network pass (else one pass per camera; in worker
     processes, and in threads with ``stage1_in_pool``, each camera's full search runs its own pass
     in its worker or thread);
@@ -97,16 +99,11 @@ class SpeedOptions:
     thread, while the tracker solves frame t, so detection and tracking use two cores at once;
     its predicted boxes then come from the frame before, extrapolated over ``lookahead + 1``
     frames with the margin grown by ``lookahead_margin_px`` per extra frame (default 0: on the
-    studio capture the boxes' 40 px margin already holds the tape two frames on, and the tracked
-    dots stayed within 5e-5 mm of lookahead 0's; 20 px more moved them by up to 6e-4 mm and cost
-    CPU; a box that misses the tape falls back to the full search as with lookahead 0); without
-    prediction the output is the serial one exactly);
-    ``busy_threads``: with cameras in threads, at most this many of the camera threads and the
-    tracker's thread compute at once (a camera's detection and the tracker's frame each hold one
-    of that many slots; 0: no limit, the default). With ``lookahead`` the tracker and two camera
-    threads otherwise share two cores three ways; the output is the same either way (only when
-    each runs changes), and it was not measured on an idle machine (docs/BENCHMARKS.md, issue 15,
-    "Where the extra CPU of threads and lookahead goes");
+    studio capture the boxes' margin already holds the tape two frames on: the same routes; a box
+    that misses the tape falls back to the full search as with lookahead 0). The boxes, and so the
+    dots, are not lookahead 0's: on frames 40-79 of the studio capture 18 of 40 frames moved by
+    more than 1e-6 mm, at most 3.1 mm, with the same accuracy (mean 1.137 against 1.133 mm, 0
+    swaps); without prediction the output is the serial one exactly);
     ``stage1_in_pool``: with cameras in threads, each camera's full search runs its own stage 1 in
     its camera thread, beside the other cameras' work, instead of all cameras' stage 1 batched in
     the calling thread while the camera threads wait (the same boxes, the same output bit for bit;
@@ -119,21 +116,18 @@ class SpeedOptions:
     predict: bool = True
     refresh_every: int = 10
     min_dot_share: float = 0.8
-    box_margin_px: float = 40.0
+    box_margin_px: float = 20.0
     batch: bool = True
     device: str = "auto"
     opencv_threads: int | None = 1
     masks_always: bool = False
     lookahead: int = 0
     lookahead_margin_px: float = 0.0
-    busy_threads: int = 0
     stage1_in_pool: bool = False
 
     def __post_init__(self) -> None:
         if self.lookahead < 0:
             raise InputError("--lookahead", f"must be 0 or more, got {self.lookahead}")
-        if self.busy_threads < 0:
-            raise InputError("--busy-threads", f"must be 0 (no limit) or more, got {self.busy_threads}")
 
     def n_workers(self, n_cameras: int) -> int:
         return max(1, min(n_cameras, self.workers or os.cpu_count() or 1))
@@ -320,8 +314,6 @@ class CaptureDetector:
             self._processes = self._start_processes()
         if self._n > 1 and self._processes is None:
             self._start_threads()
-        # slots the camera threads and the tracker's thread (run_tracking's ``busy``) share
-        self.slots = threading.BoundedSemaphore(self.options.busy_threads) if self.options.busy_threads > 0 else None
         # how the cameras ran: parallel mode and workers; with processes their start-up (wall s)
         # and the CPU s they used after it (set by close: this process's CPU clock misses them)
         self.info: dict = {"parallel": self.parallel, "workers": self._n}
@@ -453,10 +445,13 @@ class CaptureDetector:
         return self._map(lambda k: self._detect(cameras[k], images[cameras[k]], boxes[k]), range(len(cameras)))
 
     def _detect(self, camera: int, image: np.ndarray, boxes: list[Box] | None) -> ViewDots:
-        if self.slots is None or self._pool is None:
-            return self.detector.detect(image, camera=camera, boxes=boxes)
-        with self.slots:
-            return self.detector.detect(image, camera=camera, boxes=boxes)
+        # In sequence tracking (prediction on) each frame's views are dropped once the frame is
+        # solved, and MRF2 reads the grey images in few frames: they are made when read. Without
+        # prediction (the benchmarks keep every frame's views) they are made now, holding a third
+        # of the colour image's memory. With camera processes (here after they died) the images
+        # may lie in shared memory that later frames reuse: made now.
+        later = self.predicts and self.options.parallel != "processes"
+        return self.detector.detect(image, camera=camera, boxes=boxes, grey_now=not later)
 
     def _remember(self, views: list[ViewDots]) -> None:
         for v in views:

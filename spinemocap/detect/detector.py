@@ -44,11 +44,13 @@ SHIPPED_WEIGHTS = "tape_unet.pt"
 
 
 class MaskDots(NamedTuple):
-    """A camera image's tape mask (H, W) bool and the dots on it: ``uv`` (N, 2) px (x, y), ``confidence`` (N,)."""
+    """A camera image's tape mask (H, W) bool and the dots on it: ``uv`` (N, 2) px (x, y), ``confidence`` (N,);
+    ``box``: a box holding every pixel of the mask (None: the mask may lie anywhere)."""
 
     mask: np.ndarray
     uv: np.ndarray
     confidence: np.ndarray
+    box: tuple[slice, slice] | None = None
 
 NAMES = ("net", "classical")
 PRECISIONS = ("float32", "bfloat16")  # of the network's arithmetic
@@ -181,6 +183,7 @@ class NetSegmenter:
         h, w = image.shape[:2]
         mask = np.zeros((h, w), bool)
         uvs, confs = [], []
+        y0, x0, y1, x1 = h, w, 0, 0  # the final boxes' union: the mask lies there
         for box in boxes:
             part = extend_along_tape(source[box], self._net_mask(image, box), self.refine_params, self.blob_params)
             for _ in range(self.max_grow):
@@ -194,12 +197,14 @@ class NetSegmenter:
             mask[box] |= part.snapped  # part belongs to the final box
             uvs.append(part.uv + [box[1].start, box[0].start])
             confs.append(part.confidence)
+            y0, x0 = min(y0, box[0].start), min(x0, box[1].start)
+            y1, x1 = max(y1, box[0].stop), max(x1, box[1].stop)
         if not uvs:
-            return MaskDots(mask, np.zeros((0, 2)), np.zeros(0))
+            return MaskDots(mask, np.zeros((0, 2)), np.zeros(0), (slice(0, 0), slice(0, 0)))
         uv, conf = np.concatenate(uvs), np.concatenate(confs)
         if len(uvs) > 1:  # boxes may overlap: a dot must not be reported twice (as find_dots merges regions)
             uv, conf = merge_close(uv, conf, self.blob_params.merge_distance * 4.0)
-        return MaskDots(mask, uv, conf)
+        return MaskDots(mask, uv, conf, (slice(y0, y1), slice(x0, x1)))
 
     def _net_mask(self, image: np.ndarray, box: tuple[slice, slice]) -> np.ndarray:
         """Stage 2: the network's tape mask (bool, box size, holes filled) of one box."""
@@ -307,7 +312,11 @@ class Detector:
             raise ValueError("only the 'net' detector searches given boxes")
         t = time.perf_counter()
         found = self._segment.segment_boxes(image_bgr, boxes, grey)
-        mask = kept_instances(found.mask)
+        if found.box is None:
+            mask = kept_instances(found.mask)
+        else:  # the same instances, labelled within the searched boxes (no full-frame passes)
+            mask = np.zeros_like(found.mask)
+            mask[found.box] = kept_instances(found.mask[found.box])
         self.last_timings["segment_s"] = time.perf_counter() - t
         on_mask = _on_mask(found.uv, mask, self.blob_params)
         return MaskDots(mask, found.uv[on_mask], found.confidence[on_mask])
@@ -334,17 +343,23 @@ class Detector:
         return out
 
     def detect(self, image_bgr: np.ndarray, camera: int = 0, expected_dot_px: float | None = None,
-               boxes: list[tuple[slice, slice]] | None = None) -> ViewDots:
+               boxes: list[tuple[slice, slice]] | None = None, grey_now: bool = True) -> ViewDots:
         """Mask + dots of one camera image as :class:`ViewDots` (with the grey image for MRF2).
         ``expected_dot_px``: dot diameter in px; estimated from the mask width when None.
-        ``boxes``: search only there (``net``; from :meth:`tape_boxes` or predicted), else the whole image."""
+        ``boxes``: search only there (``net``; from :meth:`tape_boxes` or predicted), else the whole image.
+        ``grey_now=False``: the view holds the colour image and makes the grey one when it is first
+        read (the same pixels; a tracker that reads it in few frames skips the conversion in the others)."""
         image_bgr = _check_image(image_bgr)
-        grey = to_grey(image_bgr)  # once: the dots and MRF2 both use it
         if self.searches_boxes and expected_dot_px is None:
-            # the clean-up finds the dots at full resolution: reuse them (one blob pass)
+            # the clean-up finds the dots at full resolution: reuse them (one blob pass); it reads
+            # the grey image when one is made now, else it converts only its boxes
+            grey = to_grey(image_bgr) if grey_now else None
             found = self._segment_with_dots(image_bgr, boxes if boxes is not None else self.tape_boxes([image_bgr])[0], grey)
             self.last_timings["dots_s"] = 0.0  # inside segment_s
+            if grey is None:
+                return ViewDots(camera=camera, uv=found.uv, confidence=found.confidence, mask=found.mask, colour=image_bgr)
             return ViewDots(camera=camera, uv=found.uv, confidence=found.confidence, mask=found.mask, image=grey)
+        grey = to_grey(image_bgr)  # once: the dots and MRF2 both use it
         mask = self.segment(image_bgr, boxes)
         uv, conf = self.find_dots(grey, mask, expected_dot_px)
         return ViewDots(camera=camera, uv=uv, confidence=conf, mask=mask, image=grey)
