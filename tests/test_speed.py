@@ -130,12 +130,13 @@ def test_camera_processes_give_the_serial_views_on_a_small_studio(small_studio):
 def test_camera_threads_give_the_serial_views_on_a_small_studio(small_studio):
     import threading
 
-    # threads with stage1_in_pool: each camera's full search does its own stage 1 in the pool
-    # (serial: stage 1 batched over the cameras): the same dots, masks and grey images bit for bit
+    # threads (default options, network on the CPU): each camera's full search does its own stage 1
+    # in the pool (serial: stage 1 batched over the cameras): the same dots, masks and grey images
+    # bit for bit
     scene, images = small_studio
     gt = scene.groundtruth["dots"]
     serial = CaptureDetector("net", scene.rig, SpeedOptions(workers=1))
-    threads = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, stage1_in_pool=True))
+    threads = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, device="cpu"))
     stage1_threads: list = []
     tape_boxes = threads.detector.tape_boxes
 
@@ -157,6 +158,18 @@ def test_camera_threads_give_the_serial_views_on_a_small_studio(small_studio):
     finally:
         serial.close()
         threads.close()
+    # stage1_in_pool=False: one batched pass for all cameras in the calling thread, the same views
+    serial = CaptureDetector("net", scene.rig, SpeedOptions(workers=1))  # anew: no frame observed
+    batched = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, device="cpu", stage1_in_pool=False))
+    stage1_threads.clear()
+    tape_boxes = batched.detector.tape_boxes
+    batched.detector.tape_boxes = recorded
+    try:
+        _assert_same_views(serial(0, images[0], None), batched(0, images[0], None))
+        assert stage1_threads == [(threading.current_thread().name, len(scene.rig))]
+    finally:
+        serial.close()
+        batched.close()
 
 
 def test_a_dead_camera_process_falls_back_to_threads_with_the_same_views(small_studio):

@@ -8,7 +8,7 @@ A configuration is ``BASE[@SWITCH_MS][:p]``: BASE ``S`` (cameras one after the o
 (threads, the default), ``L`` (threads, ``lookahead=1``), ``P`` (worker processes), ``PL`` (processes,
 ``lookahead=1``); ``@SWITCH_MS`` sets ``sys.setswitchinterval`` (ms; 5 by default) for
 that run; ``:p`` each camera thread's full search runs its own stage 1 (``stage1_in_pool=True``;
-without it, the default: stage 1 of all cameras batched in the calling thread while the pool waits). Per run:
+without it: stage 1 of all cameras batched in the calling thread while the pool waits, the default before it was measured on an idle machine). Per run:
 frames/s, CPU s per frame (this process plus the camera workers), cores used, user/system CPU,
 minor page faults and context switches per frame (``getrusage``), accuracy against the ground
 truth (frames numbered from the range's start), the detector's routes, and the largest position

@@ -9,7 +9,7 @@ parallel, and detection by prediction in sequence mode.
   processes (:mod:`spinemocap.app.camera_processes`, one detector each, images through shared
   memory; ``parallel="processes"``) or in a thread pool (``"threads"``: OpenCV and torch release
   the GIL, detection's Python clean-up does not), with stage 1 of the ``net`` detector batched
-  across cameras in threads (one image per pass in processes, and in threads with
+  across cameras on a GPU (one image per pass in processes, and in the camera threads on the CPU,
   ``SpeedOptions.stage1_in_pool``: the same boxes). In
   sequence mode it is told each solved frame (:meth:`CaptureDetector.observe`): the dots, moved
   on by their velocity, are projected into every camera and the network searches only that
@@ -104,11 +104,12 @@ class SpeedOptions:
     dots, are not lookahead 0's: on frames 40-79 of the studio capture 18 of 40 frames moved by
     more than 1e-6 mm, at most 3.1 mm, with the same accuracy (mean 1.137 against 1.133 mm, 0
     swaps); without prediction the output is the serial one exactly);
-    ``stage1_in_pool``: with cameras in threads, each camera's full search runs its own stage 1 in
-    its camera thread, beside the other cameras' work, instead of all cameras' stage 1 batched in
-    the calling thread while the camera threads wait (the same boxes, the same output bit for bit;
-    simulated 7 % less detection time per frame on two cores, not shown on the shared VM: off by
-    default until measured on an idle machine, docs/BENCHMARKS.md)."""
+    ``stage1_in_pool``: with cameras in threads and the network on the CPU, each camera's full
+    search runs its own stage 1 in its camera thread, beside the other cameras' work, instead of
+    all cameras' stage 1 batched in the calling thread while the camera threads wait (the same
+    boxes, the same output bit for bit; on the idle 2-core VM, 100 studio frames in memory,
+    1.06-1.10x the frames/s at the same CPU, docs/BENCHMARKS.md issue 15). On a GPU stage 1 stays
+    batched (one pass for all cameras; not measured in the pool)."""
 
     workers: int = 0
     parallel: str = "threads"
@@ -123,7 +124,7 @@ class SpeedOptions:
     masks_always: bool = False
     lookahead: int = 0
     lookahead_margin_px: float = 0.0
-    stage1_in_pool: bool = False
+    stage1_in_pool: bool = True
 
     def __post_init__(self) -> None:
         if self.lookahead < 0:
@@ -305,6 +306,8 @@ class CaptureDetector:
             self.detector = Detector(name=name, device=self.options.device) if name == "net" else Detector(name=name)
         elif name != "mask":
             raise InputError(None, f"unknown detector {name!r} (choose net, classical or mask)")
+        # stage 1 per camera in the pool on the CPU; on a GPU one batched pass serves all cameras
+        self._stage1_in_pool = self.options.stage1_in_pool and self._network_on_cpu()
         mode = resolve_parallel(self.options.parallel)
         self._n = self.options.n_workers(len(rig) if rig is not None else os.cpu_count() or 1)
         self._processes: CameraProcesses | None = None
@@ -338,6 +341,11 @@ class CaptureDetector:
     def parallel(self) -> str:
         """How the cameras run now: ``processes``, ``threads`` or ``serial``."""
         return "processes" if self._processes is not None else "threads" if self._pool is not None else "serial"
+
+    def _network_on_cpu(self) -> bool:
+        from ..detect.detector import resolve_device
+
+        return self.name != "net" or resolve_device(self.options.device) == "cpu"
 
     def _start_processes(self) -> CameraProcesses | None:
         from ..detect.detector import resolve_device
@@ -414,10 +422,10 @@ class CaptureDetector:
 
     def _full(self, images: list[np.ndarray], cameras: Sequence[int], copy: bool = True) -> list[ViewDots]:
         """Full two-stage search of the given cameras (stage 1 batched over them in this process;
-        in worker processes, and in threads with ``stage1_in_pool``, each does its camera's stage 1
-        in the pool, beside the other cameras' work: the same boxes)."""
+        in worker processes, and in threads with ``stage1_in_pool`` on the CPU, each does its
+        camera's stage 1 in the pool, beside the other cameras' work: the same boxes)."""
         cameras = list(cameras)
-        if self._processes is not None or (self._pool is not None and self.options.stage1_in_pool):
+        if self._processes is not None or (self._pool is not None and self._stage1_in_pool):
             views = self._run(images, cameras, [None] * len(cameras), copy)
         else:
             views = self._run(images, cameras, self.detector.tape_boxes([images[c] for c in cameras]))
