@@ -150,3 +150,39 @@ def test_a_failing_export_falls_back_to_torch_with_a_warning(monkeypatch, nets):
     assert seg.runtime == "torch" and seg.onnx is None
     with pytest.raises(InputError, match="failed to load the network"):
         NetSegmenter(device="cpu", runtime="onnxruntime")
+
+
+def test_an_exporter_wanting_another_package_falls_back_with_a_warning(monkeypatch, nets):
+    # an ImportError inside torch's exporter is not "onnxruntime is not installed": said, not silent
+    from spinemocap.detect import segnet
+
+    def wants(*args, **kwargs):
+        raise ModuleNotFoundError("No module named 'onnxscript'", name="onnxscript")
+
+    monkeypatch.setattr(segnet, "_EXPORTED", {})
+    monkeypatch.setattr(torch.onnx, "export", wants)
+    with pytest.warns(RuntimeWarning, match="exporter needs onnxscript"):
+        seg = NetSegmenter(device="cpu")
+    assert seg.runtime == "torch" and seg.onnx is None
+    with pytest.raises(InputError, match="failed to load the network.*onnxscript"):
+        NetSegmenter(device="cpu", runtime="onnxruntime")
+
+
+def test_a_session_computing_other_logits_is_refused_at_load(monkeypatch, nets):
+    # the session is checked against the torch module at construction: an export that runs but
+    # computes another network's logits (here: a real export of other weights) is not used
+    from spinemocap.detect import segnet
+
+    net, _ = nets
+    other = InferenceUNet(load_weights(shipped_weights_path())[0])
+    with torch.no_grad():
+        other.head_b += 1.0
+    wrong = segnet._onnx_model(other, 16, True)
+    monkeypatch.setattr(segnet, "_onnx_model", lambda *args: wrong)
+    with pytest.raises(RuntimeError, match="logits differ from torch's by 1"):
+        OnnxUNet(net, threads=1)
+    with pytest.warns(RuntimeWarning, match="logits differ"):
+        seg = NetSegmenter(device="cpu")
+    assert seg.runtime == "torch" and seg.onnx is None
+    with pytest.raises(InputError, match="failed to load the network"):
+        NetSegmenter(device="cpu", runtime="onnxruntime")

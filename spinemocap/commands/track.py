@@ -46,7 +46,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="OpenCV's own threads per camera thread while the cameras are detected in parallel "
                         "(default 1; 0: OpenCV's setting, one per core)")
     p.add_argument("--device", default="auto",
-                   help="where the tape network runs: auto (a CUDA GPU when torch sees one, else the CPU), cpu, cuda")
+                   help="where the tape network runs: auto (a CUDA GPU when torch sees one, else the CPU), cpu, cuda "
+                        "(on the CPU through ONNX Runtime where it is installed, else torch)")
     p.add_argument("--legacy", action="store_true",
                    help="the pipeline before issue 15 (one camera after the other, no prefetching, full tape "
                         "search in every frame): for comparisons")

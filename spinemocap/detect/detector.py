@@ -266,10 +266,14 @@ def padded_box(x0: float, y0: float, x1: float, y1: float, shape: tuple[int, int
 class Detector:
     """Tape and dot detector for single camera images (BGR uint8, any size).
 
-    ``name``: ``"net"`` (options: ``weights`` path, ``refine`` two-stage on/off, ``threads`` torch
-    threads, default 1: a working-resolution image gains little from more, and the tracker runs
-    cameras or frames in parallel processes; ``None`` leaves torch's setting alone; ``precision``
-    ``float32`` (default) or ``bfloat16``, the network's arithmetic) or
+    ``name``: ``"net"`` (options: ``weights`` path, ``refine`` two-stage on/off, ``threads`` the
+    network's threads per pass, default 1: a working-resolution image gains little from more, and
+    the tracker runs cameras or frames in parallel threads or processes; ``None`` leaves torch's
+    setting alone, and gives ONNX Runtime its default, all cores; ``precision`` ``float32``
+    (default) or ``bfloat16``, the network's arithmetic; ``runtime`` what runs the passes:
+    ``auto`` (default: ONNX Runtime for float32 on the CPU where onnxruntime and onnx import and
+    the export loads, else torch with a RuntimeWarning when the export failed), ``onnxruntime``
+    (InputError where it cannot run) or ``torch``; ``device``) or
     ``"classical"`` (options: ``work_width``); ``blob_params``: :class:`BlobParams` for the dots;
     ``dot_to_width``: dot diameter / tape width, used to guess the dot size from the mask when
     :meth:`detect` gets no ``expected_dot_px``."""

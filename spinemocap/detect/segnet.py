@@ -213,14 +213,21 @@ class OnnxUNet:
     Input: uint8 BGR pixels (B, H, W, 3) with H and W multiples of :attr:`stride`
     (:func:`pad_to_multiple`); the scaling of :func:`to_tensor` is in the graph. Any H, W and B:
     no shape is specialised. ``threads``: ONNX Runtime's threads per pass (``None``: its
-    default, all cores); set once, at construction. Several threads may call it at once. ImportError when ``onnxruntime`` or ``onnx`` is missing."""
+    default, all cores); set once, at construction. Several threads may call it at once.
+    ImportError when ``onnxruntime`` or ``onnx`` is missing; RuntimeError when the exporter needs
+    another package, or when the session's logits of a small fixed input (one pass at
+    construction) are not the module's up to float rounding or cannot be computed: a runtime
+    that would answer wrongly or fail later is found while the detector can still fall back."""
 
     def __init__(self, net: InferenceUNet, threads: int | None = 1, channel_multiple: int = 16, concat: bool = True):
         import onnx  # noqa: F401  (the exporter needs it; fail here, early, with ImportError)
         import onnxruntime as ort
 
         self.stride = net.stride
-        self.model_bytes = _onnx_model(net, channel_multiple, concat)
+        try:
+            self.model_bytes = _onnx_model(net, channel_multiple, concat)
+        except ImportError as exc:  # inside torch's exporter: not "onnxruntime or onnx is missing"
+            raise RuntimeError(f"torch's ONNX exporter needs {exc.name or exc}") from exc
         options = ort.SessionOptions()
         options.intra_op_num_threads = int(threads) if threads else 0
         options.inter_op_num_threads = 1
@@ -229,6 +236,19 @@ class OnnxUNet:
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")  # no busy-waiting threads
         options.log_severity_level = 3
         self.session = ort.InferenceSession(self.model_bytes, options, providers=["CPUExecutionProvider"])
+        self._check(net)
+
+    CHECK_RTOL = 1e-3  # of the largest logit: float rounding is ~1e-6 of it, a wrong graph ~1
+
+    def _check(self, net: InferenceUNet) -> None:
+        """One pass on a fixed pseudo-random input of 4x4 strides against ``net``'s torch logits."""
+        pixels = np.random.default_rng(0).integers(0, 256, (1, 4 * self.stride, 4 * self.stride, 3), dtype=np.uint8)
+        with torch.inference_mode():
+            ref = net(to_tensor(pixels))[:, 0].float().numpy()
+        got = self(pixels)
+        err = float(np.abs(got - ref).max()) if got.shape == ref.shape else float("inf")
+        if not err <= self.CHECK_RTOL * max(1.0, float(np.abs(ref).max())):
+            raise RuntimeError(f"ONNX Runtime's logits differ from torch's by {err:.3g} on a test input")
 
     def __call__(self, pixels: np.ndarray) -> np.ndarray:
         """Logits (B, H, W) float32 of uint8 BGR pixels (B, H, W, 3)."""
