@@ -96,7 +96,8 @@ class InferenceUNet(nn.Module):
     def stride(self) -> int:
         return 2 ** (len(self.channels) - 1)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def encode(self, x: torch.Tensor) -> list[torch.Tensor]:
+        """The encoder's features of each level, finest first (the last is the bottom level)."""
         skips = []
         d = list(self.down)
         for i in range(len(self.channels)):
@@ -105,6 +106,11 @@ class InferenceUNet(nn.Module):
             x = F.relu_(F.conv2d(x, d[4 * i], d[4 * i + 1], padding=1))
             x = F.relu_(F.conv2d(x, d[4 * i + 2], d[4 * i + 3], padding=1))
             skips.append(x)
+        return skips
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        skips = self.encode(x)
+        x = skips[-1]
         u = list(self.up)
         for i, skip in enumerate(reversed(skips[:-1])):
             w_coarse, w_skip, b1, w2, b2 = u[5 * i:5 * i + 5]
@@ -152,15 +158,9 @@ class _PixelsToLogits(nn.Module):
         self.concat = concat
 
     def forward(self, pixels: torch.Tensor) -> torch.Tensor:
-        net, x = self.net, to_tensor(pixels)
-        skips = []
-        d, u = list(net.down), list(net.up)
-        for i in range(len(net.channels)):
-            if i:
-                x = F.max_pool2d(x, 2)
-            x = F.relu(F.conv2d(x, d[4 * i], d[4 * i + 1], padding=1))
-            x = F.relu(F.conv2d(x, d[4 * i + 2], d[4 * i + 3], padding=1))
-            skips.append(x)
+        net = self.net
+        skips = net.encode(to_tensor(pixels))
+        x, u = skips[-1], list(net.up)
         for i, skip in enumerate(reversed(skips[:-1])):
             w_coarse, w_skip, b1, w2, b2 = u[5 * i:5 * i + 5]
             x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
