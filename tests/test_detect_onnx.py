@@ -137,34 +137,23 @@ def test_export_happens_once_per_weights(nets):
     assert np.abs(moved(view) - onnx(view) - 1.0).max() <= LOGIT_ATOL
 
 
-def test_a_failing_export_falls_back_to_torch_with_a_warning(monkeypatch, nets):
+@pytest.mark.parametrize("failure, said", [
+    (RuntimeError("exporter refused"), "exporter refused"),
+    # an ImportError inside torch's exporter is not "onnxruntime is not installed": said, not silent
+    (ModuleNotFoundError("No module named 'onnxscript'", name="onnxscript"), "exporter needs onnxscript"),
+])
+def test_a_failing_export_falls_back_to_torch_with_a_warning(monkeypatch, nets, failure, said):
     from spinemocap.detect import segnet
 
     def refuse(*args, **kwargs):
-        raise RuntimeError("exporter refused")
+        raise failure
 
     monkeypatch.setattr(segnet, "_EXPORTED", {})  # nothing cached: the export runs
     monkeypatch.setattr(torch.onnx, "export", refuse)
-    with pytest.warns(RuntimeWarning, match="exporter refused"):
+    with pytest.warns(RuntimeWarning, match=said):
         seg = NetSegmenter(device="cpu")
     assert seg.runtime == "torch" and seg.onnx is None
-    with pytest.raises(InputError, match="failed to load the network"):
-        NetSegmenter(device="cpu", runtime="onnxruntime")
-
-
-def test_an_exporter_wanting_another_package_falls_back_with_a_warning(monkeypatch, nets):
-    # an ImportError inside torch's exporter is not "onnxruntime is not installed": said, not silent
-    from spinemocap.detect import segnet
-
-    def wants(*args, **kwargs):
-        raise ModuleNotFoundError("No module named 'onnxscript'", name="onnxscript")
-
-    monkeypatch.setattr(segnet, "_EXPORTED", {})
-    monkeypatch.setattr(torch.onnx, "export", wants)
-    with pytest.warns(RuntimeWarning, match="exporter needs onnxscript"):
-        seg = NetSegmenter(device="cpu")
-    assert seg.runtime == "torch" and seg.onnx is None
-    with pytest.raises(InputError, match="failed to load the network.*onnxscript"):
+    with pytest.raises(InputError, match=f"failed to load the network.*{said}"):
         NetSegmenter(device="cpu", runtime="onnxruntime")
 
 
