@@ -318,9 +318,9 @@ class Detector:
         found = self._segment.segment_boxes(image_bgr, boxes, grey)
         if found.box is None:
             mask = kept_instances(found.mask)
-        else:  # the same instances, labelled within the searched boxes (no full-frame passes)
-            mask = np.zeros_like(found.mask)
-            mask[found.box] = kept_instances(found.mask[found.box])
+        else:  # the same instances, labelled within the searched boxes (the mask is empty outside them)
+            mask = found.mask
+            mask[found.box] = kept_instances(mask[found.box])
         self.last_timings["segment_s"] = time.perf_counter() - t
         on_mask = _on_mask(found.uv, mask, self.blob_params)
         return MaskDots(mask, found.uv[on_mask], found.confidence[on_mask])
