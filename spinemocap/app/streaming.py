@@ -456,11 +456,9 @@ class CaptureDetector:
         # In sequence tracking (prediction on) each frame's views are dropped once the frame is
         # solved, and MRF2 reads the grey images in few frames: they are made when read. Without
         # prediction (the benchmarks keep every frame's views) they are made now, holding a third
-        # of the colour image's memory. With camera processes (here after they died) made now, as
-        # the workers' views carry them (the images here are the reader's own arrays either way:
-        # StagedImages holds them, only the workers' copies lie in shared memory).
-        later = self.predicts and self.options.parallel != "processes"
-        return self.detector.detect(image, camera=camera, boxes=boxes, grey_now=not later)
+        # of the colour image's memory. (The images here are the reader's own arrays, also after
+        # camera processes fell back to threads: only the workers' copies lie in shared memory.)
+        return self.detector.detect(image, camera=camera, boxes=boxes, grey_now=not self.predicts)
 
     def _remember(self, views: list[ViewDots]) -> None:
         for v in views:
