@@ -596,3 +596,111 @@ def test_kept_instances_within_the_searched_boxes_are_the_full_frame_ones(small_
     assert not cropped[speck].any()
     # no box searched: an empty mask
     assert not detector._segment_with_dots(image, []).mask.any()
+
+
+# ---------------------------------------------------------------- cameras streamed through the frames
+@pytest.mark.parametrize("mode", ["sequence", "paper"])
+def test_streamed_cameras_give_the_frame_by_frame_output(monkeypatch, mode):
+    # lookahead >= 1 with the cameras in threads: each camera runs through the frames on its own
+    # (CaptureDetector.stream); the output is that of detecting frame by frame with the same
+    # lookahead in one thread (detected_ahead), whatever the threads' timing
+    import threading
+
+    from spinemocap.bench.speed import MemorySource
+
+    scene, images = _rendered("tiny", 6)
+    source = MemorySource(images, scene.rig.names)
+    where: set = set()
+    inner = CaptureDetector._camera_view
+
+    def spied(self, camera, image, plan):
+        where.add(threading.current_thread().name)
+        return inner(self, camera, image, plan)
+
+    monkeypatch.setattr(CaptureDetector, "_camera_view", spied)
+
+    def track(**options):
+        return track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], mode=mode,
+                            progress=False, speed=SpeedOptions(refresh_every=4, **options))
+
+    for lookahead in (1, 2):
+        where.clear()
+        frame_by_frame = track(workers=1, lookahead=lookahead)
+        assert not where  # one camera after the other: frame by frame
+        streamed = track(workers=3, lookahead=lookahead)
+        assert where and all(name.startswith("detect_") for name in where)  # streamed, in the camera threads
+        a, b = frame_by_frame.table.to_arrays(), streamed.table.to_arrays()
+        np.testing.assert_array_equal(a["positions"], b["positions"])
+        assert (a["status"] == b["status"]).all()
+        assert frame_by_frame.detector_searches == streamed.detector_searches
+        if mode == "sequence":
+            assert streamed.detector_searches["predicted"] > 0
+    assert not any(t.name == "detect-stream" for t in threading.enumerate())
+
+
+def _streaming_detector(monkeypatch, log: list, fail: int | None = None, cost_s: float = 0.0):
+    """A CaptureDetector with two camera threads whose detection is a recorder: ``log`` gets
+    (frame, camera, frames the tracker has solved so far) per detection; frame ``fail`` raises."""
+    import time
+
+    from spinemocap.synth import SynthConfig, build_scene
+
+    scene = build_scene(SynthConfig.preset("tiny", frames=1))
+    detect = CaptureDetector("net", scene.rig, SpeedOptions(workers=2))
+    solved: list = []
+
+    def camera_view(camera, image, plan):
+        if image == fail:
+            raise InputError(f"frame{image}.png", "cannot be read")
+        time.sleep(cost_s)
+        log.append((image, camera, len(solved)))
+        return (image, camera)
+
+    monkeypatch.setattr(detect, "_camera_view", camera_view)
+    monkeypatch.setattr(detect, "_plan", lambda frame: frame)
+    return detect, solved
+
+
+def test_streamed_cameras_wait_for_the_frame_their_boxes_come_from_and_overlap_the_tracker(monkeypatch):
+    import time
+
+    frames = [(f, [f, f], None) for f in range(8)]  # the "images" are the frame numbers
+    for lookahead in (1, 2):
+        log: list = []
+        detect, solved = _streaming_detector(monkeypatch, log, cost_s=0.005)
+        try:
+            for frame, views, wait_ms in detect.stream(iter(frames), lookahead):
+                assert views == [(frame, 0), (frame, 1)] and wait_ms >= 0
+                time.sleep(0.03)  # the tracker's work: the cameras run meanwhile
+                solved.append(frame)
+        finally:
+            detect.close()
+        assert solved == list(range(8))
+        for camera in (0, 1):  # each camera's frames in order, once
+            assert [f for f, c, _ in log if c == camera] == list(range(8))
+        # frame i started only once the tracker had solved frame i - 1 - lookahead ...
+        assert all(n >= frame - lookahead for frame, _, n in log)
+        # ... and while the tracker was still on an earlier frame (the overlap)
+        assert any(n < frame for frame, _, n in log)
+
+
+def test_streamed_cameras_raise_the_detectors_error_and_closing_stops_them(monkeypatch):
+    import threading
+
+    frames = [(f, [f, f], None) for f in range(6)]
+    got: list = []
+    detect, solved = _streaming_detector(monkeypatch, [], fail=3)
+    try:
+        with pytest.raises(InputError, match="frame3.png"):
+            for frame, _, _ in detect.stream(iter(frames), 1):
+                got.append(frame)
+                solved.append(frame)
+        assert got == [0, 1, 2]
+        assert not any(t.name == "detect-stream" for t in threading.enumerate())
+        # the tracker stops early (an error, Ctrl-C): closing the generator ends the reading thread
+        stream = detect.stream(iter(frames), 1)
+        next(stream)
+        stream.close()
+        assert not any(t.name == "detect-stream" for t in threading.enumerate())
+    finally:
+        detect.close()

@@ -275,6 +275,9 @@ def source_views(source: FrameSource, frames: Sequence[int], detect: CaptureDete
     frames_in = prefetched_frames(source, frames, mask_dir if read_masks else None,
                                   workers=speed.n_workers(len(source.camera_names)), prefetch=speed.prefetch,
                                   stage=detect.stage if detect.parallel == "processes" else None)
+    if speed.lookahead > 0 and detect.streams:
+        yield from detect.stream(frames_in, speed.lookahead)
+        return
     if speed.lookahead > 0:
         yield from detected_ahead(frames_in, detect, speed.lookahead)
         return

@@ -326,6 +326,7 @@ class CaptureDetector:
         self._since_full = 0
         self._first: int | None = None               # the first frame detected (by prediction's rules)
         self.searches = {"full": 0, "predicted": 0, "fallback": 0}  # camera images per route
+        self._searches_lock = threading.Lock()
 
     @property
     def needs_masks(self) -> bool:
@@ -406,19 +407,23 @@ class CaptureDetector:
                 return self._full(images, range(len(images)))
             self.searches["full"] += len(images)
             return self._run(images, range(len(images)), [None] * len(images))
-        predicted = self._predicted_boxes(frame, images)
-        if predicted is None:
+        plan = self._plan(frame)
+        if plan.full:
             return self._full(images, range(len(images)))
-        views = self._run(images, range(len(images)), [_listed(box) for box in predicted])
+        boxes = [self._camera_box(c, plan, image.shape[:2]) for c, image in enumerate(images)]
+        views = self._run(images, range(len(images)), [_listed(box) for box in boxes])
         self.searches["predicted"] += len(images)
-        redo = [c for c, v in enumerate(views) if len(v) < self.options.min_dot_share * self._counts.get(c, 0)]
+        redo = [c for c, v in enumerate(views) if self._too_few(v)]
         if redo:
             self.searches["fallback"] += len(redo)
             for c, v in zip(redo, self._full(images, redo, copy=False)):
                 views[c] = v
-        self._since_full += 1
         self._remember(views)
         return views
+
+    def _too_few(self, view: ViewDots) -> bool:
+        """Did a predicted box find fewer than ``min_dot_share`` of the camera's last frame's dots?"""
+        return len(view) < self.options.min_dot_share * self._counts.get(view.camera, 0)
 
     def _full(self, images: list[np.ndarray], cameras: Sequence[int], copy: bool = True) -> list[ViewDots]:
         """Full two-stage search of the given cameras (stage 1 batched over them in this process;
@@ -431,7 +436,6 @@ class CaptureDetector:
             views = self._run(images, cameras, self.detector.tape_boxes([images[c] for c in cameras]))
         self.searches["full"] += len(cameras)
         if self.predicts and len(cameras) == len(images):  # what prediction starts from (unused without it)
-            self._since_full = 0
             self._remember(views)
         return views
 
@@ -460,6 +464,25 @@ class CaptureDetector:
         # camera processes fell back to threads: only the workers' copies lie in shared memory.)
         return self.detector.detect(image, camera=camera, boxes=boxes, grey_now=not self.predicts)
 
+    def _camera_view(self, camera: int, image: np.ndarray, plan: "_Plan") -> ViewDots:
+        """One camera's view of a frame searched by ``plan`` (:meth:`_plan`), with its fallback
+        to the full search, remembered for its next frame: what :meth:`__call__` does for each
+        camera, for one camera alone (:meth:`stream`; a camera's frames in order, different
+        cameras at once)."""
+        if plan.full:
+            view, routes = self._detect(camera, image, None), ("full",)
+        else:
+            box = self._camera_box(camera, plan, image.shape[:2])
+            view, routes = self._detect(camera, image, _listed(box)), ("predicted",)
+            if self._too_few(view):
+                view, routes = self._detect(camera, image, None), ("predicted", "fallback", "full")
+        with self._searches_lock:
+            for route in routes:
+                self.searches[route] += 1
+        if self.predicts:
+            self._remember([view])
+        return view
+
     def _remember(self, views: list[ViewDots]) -> None:
         for v in views:
             self._counts[v.camera] = len(v)
@@ -468,6 +491,135 @@ class CaptureDetector:
                 self._boxes.pop(v.camera, None)
             else:
                 self._boxes[v.camera] = box
+
+    # ------------------------------------------------------------------ streamed cameras
+    @property
+    def streams(self) -> bool:
+        """Can the cameras run through the frames on their own (:meth:`stream`): threads, a
+        detector that reads images (not ``mask``)?"""
+        return self._pool is not None and self.detector is not None
+
+    def stream(self, frames_in: Iterator[tuple[int, list[np.ndarray], list[np.ndarray] | None]],
+               lookahead: int) -> Iterator[tuple[int, list[ViewDots], float]]:
+        """Yield ``(frame, views, wait_ms)`` in order, the cameras in the thread pool, each
+        running through the frames on its own: camera c starts frame i once it is done with
+        frame i - 1 and, with prediction, once the tracker has solved frame i - 1 - ``lookahead``
+        (whose dots predict frame i's boxes, :meth:`_plan`; :meth:`observe` is called before
+        the tracker asks for the next frame), so no camera waits for the slowest camera of a
+        frame, and with ``lookahead`` >= 1 the cameras work on frame t + 1 while the tracker
+        solves frame t. The views are those :meth:`__call__` gives frame by frame with the same
+        ``lookahead``. ``wait_ms``: the time the tracker waited for the frame. Errors of the
+        reader or of a camera are raised here; closing the generator (the tracker stopped,
+        Ctrl-C) stops the reading and waits for the detections running."""
+        if not self.streams:
+            raise ValueError("stream() needs the cameras in threads and a detector that reads images")
+        pool = self._pool
+        steps = 1 + lookahead
+        cond = threading.Condition()
+        # by frame index, dropped when handed to the tracker: (frame, images), plan, views, cameras left
+        read: dict[int, tuple[int, list[np.ndarray]]] = {}
+        plans: dict[int, _Plan] = {}
+        views: dict[int, list[ViewDots | None]] = {}
+        left: dict[int, int] = {}
+        next_index: dict[int, int] = {}  # camera -> the index of its next frame
+        busy: set[int] = set()           # cameras with a detection in the pool
+        state: dict = {"read": 0, "planned": 0, "observed": 0, "cameras": 0, "ended": False, "stop": False,
+                       "error": None, "error_at": None}  # the error and the frame index it belongs to
+
+        def plan_ready(i: int) -> bool:  # under cond
+            if not self.predicts or i == 0:
+                return True
+            if i - steps >= 0:
+                return state["observed"] >= i - steps + 1
+            return left.get(i - 1, 0) == 0  # the first frames: their boxes come from the last detected frame
+
+        def advance() -> None:  # under cond: plan the next frames, start the cameras that can go
+            while state["planned"] < state["read"] and plan_ready(state["planned"]):
+                i = state["planned"]
+                plans[i] = self._plan(read[i][0]) if self.predicts else _FULL
+                state["planned"] = i + 1
+            for camera in range(state["cameras"]):
+                i = next_index.get(camera, 0)
+                failed = state["error_at"] is not None and i >= state["error_at"]
+                if camera not in busy and i < state["planned"] and not state["stop"] and not failed:
+                    busy.add(camera)
+                    pool.submit(detect_one, camera, i)
+
+        def fail(exc: BaseException, i: int) -> None:  # under cond: the frames before i are still handed out
+            if state["error_at"] is None or i < state["error_at"]:
+                state["error"], state["error_at"] = exc, i
+            cond.notify_all()
+
+        def detect_one(camera: int, i: int) -> None:
+            try:
+                view = self._camera_view(camera, read[i][1][camera], plans[i])
+                with cond:
+                    views[i][camera] = view
+                    left[i] -= 1
+                    next_index[camera] = i + 1
+                    busy.discard(camera)
+                    advance()
+                    cond.notify_all()
+            except BaseException as exc:  # handed to the tracker's thread, raised there
+                with cond:
+                    busy.discard(camera)
+                    fail(exc, i)
+
+        def read_frames() -> None:
+            try:
+                for i, (frame, images, _masks) in enumerate(frames_in):
+                    with cond:
+                        while i > state["observed"] + lookahead and not state["stop"]:
+                            cond.wait(0.1)
+                        if state["stop"]:
+                            return
+                        read[i], views[i], left[i] = (frame, images), [None] * len(images), len(images)
+                        state["read"], state["cameras"] = i + 1, len(images)
+                        advance()
+                        cond.notify_all()
+            except BaseException as exc:
+                with cond:
+                    fail(exc, state["read"])
+            finally:
+                with cond:
+                    state["ended"] = True
+                    cond.notify_all()
+                close = getattr(frames_in, "close", None)
+                if close is not None:
+                    close()
+
+        reader = threading.Thread(target=read_frames, name="detect-stream", daemon=True)
+        reader.start()
+        try:
+            i = 0
+            while True:
+                t0 = time.perf_counter()
+                with cond:
+                    while (left.get(i) != 0 and not (state["error_at"] is not None and i >= state["error_at"])
+                           and not (state["ended"] and i >= state["read"])):
+                        cond.wait(0.1)
+                    if state["error_at"] is not None and i >= state["error_at"]:
+                        raise state["error"]
+                    if i >= state["read"]:
+                        return
+                    (frame, _), frame_views = read.pop(i), views.pop(i)
+                    plans.pop(i)
+                    left.pop(i)
+                wait_ms = 1000 * (time.perf_counter() - t0)
+                yield frame, frame_views, wait_ms  # type: ignore[misc]
+                with cond:  # the tracker has solved the frame and told observe()
+                    state["observed"] = i + 1
+                    advance()
+                    cond.notify_all()
+                i += 1
+        finally:
+            with cond:
+                state["stop"] = True
+                cond.notify_all()
+            reader.join()
+            with cond:
+                while busy:
+                    cond.wait(0.1)
 
     # ------------------------------------------------------------------ prediction
     def observe(self, frame: int, positions: np.ndarray | None) -> None:
@@ -481,57 +633,74 @@ class CaptureDetector:
         for old in [f for f in list(self._observed) if f <= frame - keep]:
             self._observed.pop(old, None)
 
-    def _predicted_boxes(self, frame: int, images: list[np.ndarray]) -> list[Box | None] | None:
-        """Per camera the box to search (None: the camera saw no tape in the last frame or no
-        predicted dot falls into its image; nothing to search), or None when the whole frame needs the full search (no solved previous frame,
-        or a refresh is due). The dots come from the frame ``1 + lookahead`` before ``frame``;
-        the boxes of the last detected frame (``frame - 1``) move with them."""
+    def _plan(self, frame: int) -> "_Plan":
+        """How ``frame``'s cameras are searched (called for the frames in order): in full (the
+        first frame, no solved frame to predict from, or a refresh is due: every
+        ``refresh_every`` planned frames) or in the boxes predicted from the dots of the frame
+        ``1 + lookahead`` before it, moved on by their velocity (:meth:`_camera_box`). The
+        sequence's first frames ahead of the tracker (no solved frame can be there yet) search
+        the last detected frame's tape boxes with the margin (as lookahead 0 predicts the second
+        frame: the same full-search schedule). A camera's fallback to the full search does not
+        move the schedule."""
         steps = 1 + self.options.lookahead
         if self._first is None:
             self._first = frame
         if self._since_full + 1 >= self.options.refresh_every:
-            return None
+            return self._planned(_FULL)
         last = self._observed.get(frame - steps)
         if last is None:
-            if frame - steps < self._first and self._boxes:
-                # the sequence's first frames ahead of the tracker: no solved frame can be there
-                # yet; the last detected frame's tape boxes, with the margin (as lookahead 0
-                # predicts the second frame: the same full-search schedule)
-                return self._boxes_alone(images, self.options.box_margin_px)
-            return None
+            return self._planned(_BOXES_ALONE if frame - steps < self._first and self._boxes else _FULL)
         before_last = self._observed.get(frame - steps - 1)
         velocity = np.nan_to_num(last - before_last) if before_last is not None else np.zeros_like(last)
         predicted = last + steps * velocity
         if steps > 1:  # where the dots were in the last detected frame, the one the boxes come from
             last = last + (steps - 1) * velocity
         ok = np.isfinite(predicted).all(axis=1)
-        out: list[Box | None] = [None] * len(images)
-        for c, (cam, image) in enumerate(zip(self.rig, images)):
-            shape = image.shape[:2]
-            now, before = cam.project(predicted[ok]), cam.project(last[ok])
-            inside = cam.in_image(now) & np.isfinite(before).all(axis=1)
-            if c not in self._boxes or not inside.any():
-                # no tape here in the last frame, or predicted outside the image: nothing to
-                # search (a tape coming into view is found by the next full search)
-                continue
-            x0, x1 = now[inside, 0].min(), now[inside, 0].max()
-            y0, y1 = now[inside, 1].min(), now[inside, 1].max()
-            shift = np.median(now[inside] - before[inside], axis=0)  # last frame's outline moved with the dots
-            ys, xs = self._boxes[c]
-            x0, x1 = min(x0, xs.start + shift[0]), max(x1, xs.stop + shift[0])
-            y0, y1 = min(y0, ys.start + shift[1]), max(y1, ys.stop + shift[1])
-            m = self.options.box_margin_px + (steps - 1) * self.options.lookahead_margin_px
-            out[c] = _training_padded_box(x0 - m, y0 - m, x1 + m, y1 + m, shape)
-        return out
+        return self._planned(_Plan(False, predicted[ok], last[ok]))
 
-    def _boxes_alone(self, images: list[np.ndarray], margin: float) -> list[Box | None]:
-        """The last detected frame's tape box of each camera grown by ``margin`` (None: no tape there)."""
-        out: list[Box | None] = [None] * len(images)
-        for c, (ys, xs) in self._boxes.items():
-            if c < len(images):
-                out[c] = _training_padded_box(xs.start - margin, ys.start - margin, xs.stop + margin, ys.stop + margin,
-                                              images[c].shape[:2])
-        return out
+    def _planned(self, plan: "_Plan") -> "_Plan":
+        self._since_full = 0 if plan.full else self._since_full + 1
+        return plan
+
+    def _camera_box(self, camera: int, plan: "_Plan", shape: tuple[int, int]) -> Box | None:
+        """The box to search in camera ``camera`` (image ``shape``) by ``plan``: the predicted
+        dots' outline joined with the camera's last tape box moved with them, grown by the margin
+        and padded like the training crops; None (nothing to search) when the camera saw no tape
+        in its last frame or no predicted dot falls into its image (a tape coming into view is
+        found by the next full search). Needs only this camera's last frame."""
+        if camera not in self._boxes:
+            return None
+        ys, xs = self._boxes[camera]
+        m = self.options.box_margin_px
+        if plan.predicted is None:  # the last frame's box alone
+            return _training_padded_box(xs.start - m, ys.start - m, xs.stop + m, ys.stop + m, shape)
+        cam = self.rig[camera]
+        now, before = cam.project(plan.predicted), cam.project(plan.last)
+        inside = cam.in_image(now) & np.isfinite(before).all(axis=1)
+        if not inside.any():
+            return None
+        x0, x1 = now[inside, 0].min(), now[inside, 0].max()
+        y0, y1 = now[inside, 1].min(), now[inside, 1].max()
+        shift = np.median(now[inside] - before[inside], axis=0)  # last frame's outline moved with the dots
+        x0, x1 = min(x0, xs.start + shift[0]), max(x1, xs.stop + shift[0])
+        y0, y1 = min(y0, ys.start + shift[1]), max(y1, ys.stop + shift[1])
+        m += self.options.lookahead * self.options.lookahead_margin_px
+        return _training_padded_box(x0 - m, y0 - m, x1 + m, y1 + m, shape)
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """How one frame's cameras are searched: ``full`` (every camera in full), else the boxes
+    predicted from the dots ``predicted`` (D, 3) mm, world, which were at ``last`` in the frame
+    the cameras' last tape boxes come from (both None: those boxes alone, with the margin)."""
+
+    full: bool
+    predicted: np.ndarray | None = None
+    last: np.ndarray | None = None
+
+
+_FULL = _Plan(True)
+_BOXES_ALONE = _Plan(False)
 
 
 def _training_padded_box(x0: float, y0: float, x1: float, y1: float, shape: tuple[int, int]) -> Box:
