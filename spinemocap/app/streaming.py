@@ -16,12 +16,13 @@ parallel, and detection by prediction in sequence mode.
   predicted tape box (stage 1, the whole-frame pass, is skipped). A camera falls back to the full
   two-stage search when its box finds fewer than ``min_dot_share`` of the dots it found in the
   previous frame, and every camera does every ``refresh_every`` frames.
-- :func:`detected_ahead` (``SpeedOptions.lookahead`` > 0) detects frame t+1 in a background
-  thread while the tracker solves frame t, so detection (in the camera processes or threads) and
-  the tracker run at the same time; the boxes of frame t+1 are then predicted from frame t-1 over
-  two frames (``lookahead_margin_px`` wider per extra frame, 0 by default). ``lookahead=0`` (the
-  default) keeps the exact serial order. Measured on the shared 2-core VM it did not pay
-  reproducibly (docs/BENCHMARKS.md, issue 15, "Detection ahead of the tracker").
+- With ``SpeedOptions.lookahead`` > 0 frame t+1 is detected while the tracker solves frame t, so
+  detection and the tracker run at the same time; the boxes of frame t+1 are then predicted from
+  frame t-1 over two frames (``lookahead_margin_px`` wider per extra frame, 0 by default). With
+  the cameras in threads :meth:`CaptureDetector.stream` runs each camera through the frames on
+  its own (no camera waits for the slowest camera of a frame); otherwise :func:`detected_ahead`
+  detects whole frames in a background thread. Both give the same output. ``lookahead=0`` (the
+  default) keeps the exact serial order (docs/BENCHMARKS.md, issue 15).
 
 :data:`LEGACY` reproduces the pipeline before issue 15 (one camera after the other, no
 prefetching, masks read whenever the capture has them, the full search in every frame): the
@@ -95,8 +96,10 @@ class SpeedOptions:
     OpenCV's setting;
     ``masks_always``: read ``masks/`` even when the detector does not use them (legacy only);
     ``lookahead``: frames whose detection may run ahead of the tracker (0: frame t+1 is detected
-    after frame t is solved, the exact serial order; 1: frame t+1 is detected, in a background
-    thread, while the tracker solves frame t, so detection and tracking use two cores at once;
+    after frame t is solved, the exact serial order; 1: frame t+1 is detected while the tracker
+    solves frame t, so detection and tracking use two cores at once (with cameras in threads each
+    camera runs through the frames on its own, :meth:`CaptureDetector.stream`; else whole frames
+    in a background thread);
     its predicted boxes then come from the frame before, extrapolated over ``lookahead + 1``
     frames with the margin grown by ``lookahead_margin_px`` per extra frame (default 0: on the
     studio capture the boxes' margin already holds the tape two frames on: the same routes; a box
