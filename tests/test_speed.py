@@ -491,7 +491,8 @@ def test_stopping_the_tracker_ends_the_detection_running_ahead():
     with pytest.raises(TrackingStopped, match="before frame 2"):
         track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], progress=False,
                      speed=SpeedOptions(workers=2, lookahead=1), stop=stop)
-    assert not any(t.name == "detect-ahead" or t.name.startswith("detect_") for t in threading.enumerate())
+    assert not any(t.name in ("detect-ahead", "detect-stream") or t.name.startswith("detect_")
+                   for t in threading.enumerate())
 
 
 def test_lookahead_numbers_compare_the_run_ahead_with_the_exact_order():
