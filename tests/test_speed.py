@@ -705,3 +705,18 @@ def test_streamed_cameras_raise_the_detectors_error_and_closing_stops_them(monke
         assert not any(t.name == "detect-stream" for t in threading.enumerate())
     finally:
         detect.close()
+
+
+def test_the_networks_precision_reaches_the_detector_and_unknown_ones_are_refused():
+    import torch
+
+    from spinemocap.synth import SynthConfig, build_scene
+
+    scene = build_scene(SynthConfig.preset("tiny", frames=1))
+    detect = CaptureDetector("net", scene.rig, SpeedOptions(workers=1, precision="bfloat16"))
+    try:
+        assert detect.detector._segment.dtype == torch.bfloat16
+    finally:
+        detect.close()
+    with pytest.raises(InputError, match="precision 'pixels'"):
+        CaptureDetector("net", scene.rig, SpeedOptions(workers=1, precision="pixels"))

@@ -108,7 +108,8 @@ class StagedImages(list):
 
 
 class CameraProcesses:
-    """A pool of ``n`` processes detecting camera images with ``Detector(name, device=device)``.
+    """A pool of ``n`` processes detecting camera images with ``Detector(name, device=device,
+    precision=precision)``.
 
     :meth:`detect` takes a frame's images (BGR uint8, one per camera) and per camera either a list
     of boxes to search or None (the full two-stage search, stage 1 on that image alone), and
@@ -118,7 +119,7 @@ class CameraProcesses:
     Raises :class:`ProcessesUnavailable` when the processes cannot start; :meth:`close` stops them
     and frees the shared memory (also on Ctrl-C)."""
 
-    def __init__(self, name: str, n: int, device: str = "cpu", staged: int = 0):
+    def __init__(self, name: str, n: int, device: str = "cpu", staged: int = 0, precision: str = "float32"):
         self.name, self.n, self.device = name, n, device
         self._ring = [_Block() for _ in range(staged)]
         self._next = 0
@@ -130,7 +131,7 @@ class CameraProcesses:
         self.calls, self.slowest_s = 0, 0.0  # detect() calls; sum over them of the slowest worker's seconds
         try:
             self._pool = ProcessPoolExecutor(n, mp_context=mp.get_context("spawn"), initializer=_worker_start,
-                                             initargs=(os.getpid(), name, device))
+                                             initargs=(os.getpid(), name, device, precision))
             # every worker up, its detector loaded (an import or CUDA failure shows here, not mid-run)
             started = time.perf_counter()
             pids = [self._pool.submit(_worker_ready, 0.2) for _ in range(n)]
@@ -240,7 +241,7 @@ def _view(block: shared_memory.SharedMemory, slot: Slot, dtype) -> np.ndarray:
 _STATE: dict = {}
 
 
-def _worker_start(parent_pid: int, name: str, device: str) -> None:
+def _worker_start(parent_pid: int, name: str, device: str, precision: str = "float32") -> None:
     """Each worker: Ctrl-C is the parent's to handle; exit when the parent is gone; one torch
     and one OpenCV thread (the parallelism is the processes); its own detector."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -252,7 +253,7 @@ def _worker_start(parent_pid: int, name: str, device: str) -> None:
 
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
-    _STATE["detector"] = Detector(name, device=device) if name == "net" else Detector(name)
+    _STATE["detector"] = Detector(name, device=device, precision=precision) if name == "net" else Detector(name)
     _STATE["blocks"] = {}
 
 

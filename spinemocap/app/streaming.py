@@ -89,6 +89,7 @@ class SpeedOptions:
     processes, and in threads with ``stage1_in_pool``, each camera's full search runs its own pass
     in its worker or thread);
     ``device``: where the network runs (``auto``: CUDA when torch sees it, else CPU);
+    ``precision``: the network's arithmetic (``spinemocap.detect.Detector``'s ``precision``);
     ``opencv_threads``: OpenCV's own threads while the cameras are detected in parallel threads
     (``n_workers`` > 1; restored afterwards). 1: each camera thread runs OpenCV serially (on a
     16-core machine OpenCV's pool of one thread per core otherwise spins on the small images: 40 %
@@ -128,6 +129,7 @@ class SpeedOptions:
     lookahead: int = 0
     lookahead_margin_px: float = 0.0
     stage1_in_pool: bool = True
+    precision: str = "float32"
 
     def __post_init__(self) -> None:
         if self.lookahead < 0:
@@ -306,7 +308,8 @@ class CaptureDetector:
                 from ..detect import Detector
             except ImportError as exc:
                 raise InputError(None, f"detector {name!r} is not available in this installation ({exc})") from exc
-            self.detector = Detector(name=name, device=self.options.device) if name == "net" else Detector(name=name)
+            self.detector = (Detector(name=name, device=self.options.device, precision=self.options.precision)
+                             if name == "net" else Detector(name=name))
         elif name != "mask":
             raise InputError(None, f"unknown detector {name!r} (choose net, classical or mask)")
         # stage 1 per camera in the pool on the CPU; on a GPU one batched pass serves all cameras
@@ -357,7 +360,8 @@ class CaptureDetector:
         device = resolve_device(self.options.device) if self.name == "net" else "cpu"
         staged = self.options.prefetch + 2 if self.options.prefetch > 0 else 0  # see CameraProcesses.stage
         try:
-            return CameraProcesses(self.name, self._n, device, staged=staged)
+            return CameraProcesses(self.name, self._n, device, staged=staged,
+                                   precision=self.options.precision if self.name == "net" else "float32")
         except ProcessesUnavailable as exc:
             self._fall_back(f"camera worker processes could not start ({exc})")
             return None

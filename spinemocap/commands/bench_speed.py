@@ -49,6 +49,9 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
                    help="OpenCV's own threads per camera thread while the cameras are detected in parallel "
                         "(default 1; 0: OpenCV's setting, one per core)")
     p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA if torch sees it), cpu, cuda")
+    p.add_argument("--precision", default=None,
+                   help="the tape network's arithmetic: float32, int8 (ONNX Runtime on the CPU), bfloat16 (torch); "
+                        "default: the pipeline's")
     p.add_argument("--no-cpu-peer", action="store_true",
                    help="with --capture on a GPU: skip the same pipeline on the CPU and the GPU-vs-CPU dot check")
     p.add_argument("--realism", default="lab", choices=("ideal", "skin", "lab"),
@@ -63,10 +66,12 @@ def run(args: argparse.Namespace) -> int:
     from ..app.streaming import SpeedOptions
     from ..bench.speed import format_report, plot_stages, run_replay_benchmark, run_speed_benchmark, save
 
-    lookahead = {} if args.lookahead is None else {"lookahead": args.lookahead}  # else the pipeline's default
+    chosen: dict = {} if args.lookahead is None else {"lookahead": args.lookahead}  # else the pipeline's defaults
+    if args.precision is not None:
+        chosen["precision"] = args.precision
     speed = SpeedOptions(workers=args.workers, parallel=args.parallel, refresh_every=args.refresh_every,
                          predict=not args.no_predict, device=args.device, opencv_threads=args.opencv_threads or None,
-                         **lookahead)
+                         **chosen)
     if args.capture:
         numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_legacy,
                                        speed, args.sensor_noise, progress=not args.no_progress,

@@ -48,6 +48,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--device", default="auto",
                    help="where the tape network runs: auto (a CUDA GPU when torch sees one, else the CPU), cpu, cuda "
                         "(on the CPU through ONNX Runtime where it is installed, else torch)")
+    p.add_argument("--precision", default=None,
+                   help="the tape network's arithmetic: float32, int8 (ONNX Runtime on the CPU), bfloat16 (torch); "
+                        "default: the pipeline's")
     p.add_argument("--legacy", action="store_true",
                    help="the pipeline before issue 15 (one camera after the other, no prefetching, full tape "
                         "search in every frame): for comparisons")
@@ -79,10 +82,12 @@ def run_track(args: argparse.Namespace) -> int:
     if args.reference and not args.refine_rig:
         raise InputError("--reference", "needs --refine-rig (the reference fixes the refined rig's world frame)")
     refine = RigRefineConfig(sync=args.refine_sync) if args.refine_rig else None
-    lookahead = {} if args.lookahead is None else {"lookahead": args.lookahead}  # else the pipeline's default
+    chosen: dict = {} if args.lookahead is None else {"lookahead": args.lookahead}  # else the pipeline's defaults
+    if args.precision is not None:
+        chosen["precision"] = args.precision
     speed = LEGACY if args.legacy else SpeedOptions(workers=args.workers, parallel=args.parallel,
                                                     refresh_every=args.refresh_every, device=args.device,
-                                                    opencv_threads=args.opencv_threads or None, **lookahead)
+                                                    opencv_threads=args.opencv_threads or None, **chosen)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TrackingWarning)
