@@ -104,3 +104,18 @@ def test_an_int8_model_computing_other_logits_is_refused_at_load(monkeypatch, de
         OnnxUNet(net, threads=1, precision="int8")
     with pytest.raises(InputError, match=r"\(int8\) failed to load the network"):
         NetSegmenter(precision="int8")
+
+
+def test_without_vnni_the_weights_take_7_bits(monkeypatch, detectors):
+    # x86 int8 kernels without VNNI can saturate: there the weights are quantized to 7 bits. Run
+    # here (a VNNI CPU or not), that model too must find the float32 dots.
+    from spinemocap.detect import segnet
+
+    vnni = segnet.cpu_has_vnni()
+    monkeypatch.setattr(segnet, "cpu_has_vnni", lambda: not vnni)
+    other = Detector("net", precision="int8")
+    assert other._segment.onnx.model_bytes != detectors[1]._segment.onnx.model_bytes
+    image = draw_sample(np.random.default_rng(12), size=(640, 480), px_per_mm=1.6, noise=2.0).image
+    a, b = detectors[0].detect(image), other.detect(image)
+    assert len(a) == len(b) > 10
+    assert np.linalg.norm(a.uv[:, None] - b.uv[None], axis=2).min(axis=1).max() <= 0.25

@@ -304,7 +304,19 @@ def _onnx_model(net: InferenceUNet, channel_multiple: int, concat: bool) -> byte
     return _EXPORTED[key]
 
 
-_INT8: dict[bytes, bytes] = {}  # int8 models made in this process, by their float model's digest
+_INT8: dict[tuple[bytes, bool], bytes] = {}  # int8 models made in this process, by float model digest and range
+
+
+def cpu_has_vnni() -> bool:
+    """Whether this CPU has VNNI (AVX-512 VNNI or AVX-VNNI) by Linux's ``/proc/cpuinfo``; False
+    where that cannot be read. Without VNNI, x86 int8 kernels multiply uint8 by int8 in 16-bit
+    pairs that can saturate (ONNX Runtime PR #12088), so weights are then quantized to 7 bits."""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            flags = next((line for line in fh if line.startswith("flags")), "").split()
+    except OSError:
+        return False
+    return "avx512_vnni" in flags or "avx_vnni" in flags
 
 
 def _calibration_inputs(stride: int, n: int = 24, seed: int = 0) -> list[np.ndarray]:
@@ -332,8 +344,9 @@ def _calibration_inputs(stride: int, n: int = 24, seed: int = 0) -> list[np.ndar
 def _int8_model(model_bytes: bytes, stride: int) -> bytes:
     """The float ONNX model quantized to int8 by ONNX Runtime (static QDQ: int8 weights per
     tensor, uint8 activations whose ranges are the minima/maxima over :func:`_calibration_inputs`);
-    made once per process for the same float model. ONNX Runtime's quantizer works on files: a
-    temporary folder holds them while it runs."""
+    made once per process for the same float model. On a CPU without VNNI (:func:`cpu_has_vnni`)
+    the weights use 7 bits (``reduce_range``), against the saturation of its int8 kernels. ONNX
+    Runtime's quantizer works on files: a temporary folder holds them while it runs."""
     import hashlib
     import logging
     import tempfile
@@ -347,7 +360,8 @@ def _int8_model(model_bytes: bytes, stride: int) -> bytes:
         quantize_static,
     )
 
-    key = hashlib.sha256(model_bytes).digest()
+    reduce_range = not cpu_has_vnni()
+    key = (hashlib.sha256(model_bytes).digest(), reduce_range)
     if key not in _INT8:
         inputs = iter(_calibration_inputs(stride))
 
@@ -356,19 +370,22 @@ def _int8_model(model_bytes: bytes, stride: int) -> bytes:
                 x = next(inputs, None)
                 return None if x is None else {"pixels": x}
 
-        root = logging.getLogger()
-        level = root.level
-        root.setLevel(logging.ERROR)  # the quantizer advises pre-processing through the root logger
+        def advice(record: logging.LogRecord) -> bool:  # the quantizer's advice to pre-process the model
+            return "pre-process" not in record.getMessage() and "pre-processing" not in record.getMessage()
+
+        root = logging.getLogger()  # where the quantizer logs it
+        root.addFilter(advice)
         try:
             with tempfile.TemporaryDirectory(prefix="spinemocap-int8-") as tmp:
                 src, dst = Path(tmp) / "float32.onnx", Path(tmp) / "int8.onnx"
                 src.write_bytes(model_bytes)
                 quantize_static(str(src), str(dst), _Reader(), quant_format=QuantFormat.QDQ, per_channel=False,
+                                reduce_range=reduce_range,
                                 activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
                                 calibrate_method=CalibrationMethod.MinMax)
                 _INT8[key] = dst.read_bytes()
         finally:
-            root.setLevel(level)
+            root.removeFilter(advice)
     return _INT8[key]
 
 
