@@ -72,6 +72,17 @@ def test_int8_detector_finds_the_float32_dots(detectors):
     assert total > 50
 
 
+def test_int8_session_runs_from_several_threads_at_once(detectors):
+    from concurrent.futures import ThreadPoolExecutor
+
+    onnx = detectors[1]._segment.onnx
+    views = _views(9)
+    alone = [onnx(v[None]) for v in views]
+    with ThreadPoolExecutor(4) as pool:
+        together = list(pool.map(lambda v: onnx(v[None]), views * 4))
+    assert all(np.array_equal(a, b) for a, b in zip(alone * 4, together))
+
+
 def test_int8_model_is_made_once_per_process(detectors):
     again = NetSegmenter(precision="int8")
     assert again.onnx is not None and again.onnx.model_bytes is detectors[1]._segment.onnx.model_bytes
