@@ -278,7 +278,8 @@ class Detector:
     network's threads per pass, default 1: a working-resolution image gains little from more, and
     the tracker runs cameras or frames in parallel threads or processes; ``None`` leaves torch's
     setting alone, and gives ONNX Runtime its default, all cores; ``precision`` ``float32``
-    (default) or ``bfloat16``, the network's arithmetic; ``runtime`` what runs the passes:
+    (default), ``bfloat16`` (torch) or ``int8`` (ONNX Runtime on the CPU, calibrated on drawn
+    tapes; InputError where it cannot run), the network's arithmetic; ``runtime`` what runs the passes:
     ``auto`` (default: ONNX Runtime for float32 on the CPU where onnxruntime and onnx import and
     the export loads, else torch with a RuntimeWarning when the export failed), ``onnxruntime``
     (InputError where it cannot run) or ``torch``; ``device``) or
