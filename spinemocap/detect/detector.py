@@ -53,7 +53,7 @@ class MaskDots(NamedTuple):
     box: tuple[slice, slice] | None = None
 
 NAMES = ("net", "classical")
-PRECISIONS = ("float32", "bfloat16")  # of the network's arithmetic
+PRECISIONS = ("float32", "bfloat16", "int8")  # of the network's arithmetic
 
 
 def shipped_weights_path() -> Path:
@@ -79,7 +79,10 @@ class NetSegmenter:
         if precision not in PRECISIONS:
             raise InputError(None, f"unknown network precision {precision!r} (choose {' or '.join(PRECISIONS)})")
         # bfloat16 (an option, not the default): ~45 % less CPU per pass on a CPU with AVX-512 BF16,
-        # but a few dots change (docs/BENCHMARKS.md, issue 15).
+        # but a few dots change (docs/BENCHMARKS.md, issue 15). int8 (an option, not the default):
+        # ONNX Runtime's int8 kernels on the CPU, calibrated on drawn tapes; a few dots change, and
+        # int8 kernels differ between CPUs (VNNI or not): docs/BENCHMARKS.md, issue 15.
+        self.precision = precision
         self.dtype = torch.bfloat16 if precision == "bfloat16" else torch.float32
         self.refine = refine  # False: stage 1 only, upsampled (a quick look; no boxes)
         self.threads = threads
@@ -97,18 +100,23 @@ class NetSegmenter:
         if runtime not in RUNTIMES:
             raise InputError(None, f"unknown network runtime {runtime!r} (choose {', '.join(RUNTIMES)})")
         self.onnx: OnnxUNet | None = None
+        if precision == "int8" and (runtime == "torch" or self.device.type != "cpu"):
+            raise InputError(None, f"network precision 'int8' runs on ONNX Runtime on the CPU only "
+                                   f"(asked: runtime {runtime} on {self.device})")
         if runtime != "torch" and self.device.type == "cpu" and self.dtype == torch.float32:
+            # int8 asked for: no silent fallback to float32 (the caller chose the arithmetic)
+            explicit = runtime == "onnxruntime" or precision == "int8"
             try:
-                self.onnx = OnnxUNet(self.model, threads)
+                self.onnx = OnnxUNet(self.model, threads, precision="int8" if precision == "int8" else "float32")
             except ImportError as exc:
-                if runtime == "onnxruntime":
+                if explicit:
                     raise InputError(None, f"network runtime 'onnxruntime' asked for, but {exc.name or exc} "
                                            "cannot be imported (pip install onnxruntime onnx)") from exc
             except Exception as exc:  # the exporter or ONNX Runtime refused (another torch or ORT version)
                 import warnings
 
-                if runtime == "onnxruntime":
-                    raise InputError(None, f"network runtime 'onnxruntime' failed to load the network "
+                if explicit:
+                    raise InputError(None, f"network runtime 'onnxruntime' ({precision}) failed to load the network "
                                            f"({exc.__class__.__name__}: {exc})") from exc
                 warnings.warn(f"ONNX Runtime could not load the network ({exc.__class__.__name__}: {exc}); "
                               "the network runs on torch (same dots, more CPU)", RuntimeWarning, stacklevel=2)
@@ -270,7 +278,8 @@ class Detector:
     network's threads per pass, default 1: a working-resolution image gains little from more, and
     the tracker runs cameras or frames in parallel threads or processes; ``None`` leaves torch's
     setting alone, and gives ONNX Runtime its default, all cores; ``precision`` ``float32``
-    (default) or ``bfloat16``, the network's arithmetic; ``runtime`` what runs the passes:
+    (default), ``bfloat16`` (torch) or ``int8`` (ONNX Runtime on the CPU, calibrated on drawn
+    tapes; InputError where it cannot run), the network's arithmetic; ``runtime`` what runs the passes:
     ``auto`` (default: ONNX Runtime for float32 on the CPU where onnxruntime and onnx import and
     the export loads, else torch with a RuntimeWarning when the export failed), ``onnxruntime``
     (InputError where it cannot run) or ``torch``; ``device``) or

@@ -141,7 +141,8 @@ def _folded_block(block: ConvBlock) -> list[nn.Parameter]:
     return out
 
 
-RUNTIMES = ("auto", "onnxruntime", "torch")  # what runs the detector's passes (auto: onnxruntime where it can)
+RUNTIMES = ("auto", "onnxruntime", "torch")
+ONNX_PRECISIONS = ("float32", "int8")  # of :class:`OnnxUNet`'s arithmetic  # what runs the detector's passes (auto: onnxruntime where it can)
 
 
 class _PixelsToLogits(nn.Module):
@@ -219,15 +220,21 @@ class OnnxUNet:
     construction) are not the module's up to float rounding or cannot be computed: a runtime
     that would answer wrongly or fail later is found while the detector can still fall back."""
 
-    def __init__(self, net: InferenceUNet, threads: int | None = 1, channel_multiple: int = 16, concat: bool = True):
+    def __init__(self, net: InferenceUNet, threads: int | None = 1, channel_multiple: int = 16, concat: bool = True,
+                 precision: str = "float32"):
         import onnx  # noqa: F401  (the exporter needs it; fail here, early, with ImportError)
         import onnxruntime as ort
 
+        if precision not in ONNX_PRECISIONS:
+            raise ValueError(f"unknown ONNX Runtime precision {precision!r} (choose {' or '.join(ONNX_PRECISIONS)})")
         self.stride = net.stride
+        self.precision = precision
         try:
             self.model_bytes = _onnx_model(net, channel_multiple, concat)
         except ImportError as exc:  # inside torch's exporter: not "onnxruntime or onnx is missing"
             raise RuntimeError(f"torch's ONNX exporter needs {exc.name or exc}") from exc
+        if precision == "int8":
+            self.model_bytes = _int8_model(self.model_bytes, self.stride)
         options = ort.SessionOptions()
         options.intra_op_num_threads = int(threads) if threads else 0
         options.inter_op_num_threads = 1
@@ -239,14 +246,27 @@ class OnnxUNet:
         self._check(net)
 
     CHECK_RTOL = 1e-3  # of the largest logit: float rounding is ~1e-6 of it, a wrong graph ~1
+    CHECK_SIGNS_INT8 = 0.98  # int8: the share of pixels whose logit has torch's sign, on a drawn tape
 
     def _check(self, net: InferenceUNet) -> None:
-        """One pass on a fixed pseudo-random input of 4x4 strides against ``net``'s torch logits."""
-        pixels = np.random.default_rng(0).integers(0, 256, (1, 4 * self.stride, 4 * self.stride, 3), dtype=np.uint8)
+        """float32: one pass on a fixed pseudo-random input of 4x4 strides against ``net``'s torch
+        logits. int8 (logits move by a few % of their range): one pass on a drawn tape, whose
+        mask's pixels must mostly keep the sign of torch's logits."""
+        if self.precision == "int8":
+            pixels = _calibration_inputs(self.stride, n=1, seed=12345)[0]
+        else:
+            pixels = np.random.default_rng(0).integers(0, 256, (1, 4 * self.stride, 4 * self.stride, 3), dtype=np.uint8)
         with torch.inference_mode():
             ref = net(to_tensor(pixels))[:, 0].float().numpy()
         got = self(pixels)
-        err = float(np.abs(got - ref).max()) if got.shape == ref.shape else float("inf")
+        if got.shape != ref.shape:
+            raise RuntimeError(f"ONNX Runtime's logits have shape {got.shape}, torch's {ref.shape}")
+        if self.precision == "int8":
+            same = float(np.mean((got > 0) == (ref > 0)))
+            if not same >= self.CHECK_SIGNS_INT8:
+                raise RuntimeError(f"ONNX Runtime's int8 logits have torch's sign on only {same:.1%} of a test input")
+            return
+        err = float(np.abs(got - ref).max())
         if not err <= self.CHECK_RTOL * max(1.0, float(np.abs(ref).max())):
             raise RuntimeError(f"ONNX Runtime's logits differ from torch's by {err:.3g} on a test input")
 
@@ -282,6 +302,91 @@ def _onnx_model(net: InferenceUNet, channel_multiple: int, concat: bool) -> byte
                               opset_version=17)
         _EXPORTED[key] = buf.getvalue()
     return _EXPORTED[key]
+
+
+_INT8: dict[tuple[bytes, bool], bytes] = {}  # int8 models made in this process, by float model digest and range
+
+
+def cpu_has_vnni() -> bool:
+    """Whether this CPU has VNNI (AVX-512 VNNI or AVX-VNNI) by Linux's ``/proc/cpuinfo``; False
+    where that cannot be read. Without VNNI, x86 int8 kernels multiply uint8 by int8 in 16-bit
+    pairs that can saturate (ONNX Runtime PR #12088), so weights are then quantized to 7 bits."""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            flags = next((line for line in fh if line.startswith("flags")), "").split()
+    except OSError:
+        return False
+    return "avx512_vnni" in flags or "avx_vnni" in flags
+
+
+def _calibration_inputs(stride: int, n: int = 24, seed: int = 0) -> list[np.ndarray]:
+    """Network inputs (1, H, W, 3) uint8 for the int8 calibration: drawn tapes
+    (:mod:`spinemocap.detect.drawn`; no data is shipped) in the two kinds of view the detector
+    feeds the network: a crop around the tape at working resolution (tape across most of it) and,
+    every fourth, a whole frame (a small tape in a large background), sizes varied."""
+    from .drawn import draw_sample
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        if i % 4 == 3:  # a whole frame at 256 px wide: the tape is a small part of it
+            sample = draw_sample(rng, size=(256, 168), px_per_mm=float(rng.uniform(0.15, 0.3)),
+                                 n_rows=int(rng.integers(7, 14)), supersample=4, noise=3.0)
+        else:  # a stage-2 crop: long side 256 px
+            short = int(rng.integers(64, 200))
+            size = (short, 256) if rng.random() < 0.7 else (256, short)
+            sample = draw_sample(rng, size=size, px_per_mm=float(rng.uniform(0.35, 0.8)),
+                                 n_rows=int(rng.integers(5, 14)), supersample=4, noise=3.0)
+        out.append(pad_to_multiple(sample.image, stride)[0][None])
+    return out
+
+
+def _int8_model(model_bytes: bytes, stride: int) -> bytes:
+    """The float ONNX model quantized to int8 by ONNX Runtime (static QDQ: int8 weights per
+    tensor, uint8 activations whose ranges are the minima/maxima over :func:`_calibration_inputs`);
+    made once per process for the same float model. On a CPU without VNNI (:func:`cpu_has_vnni`)
+    the weights use 7 bits (``reduce_range``), against the saturation of its int8 kernels. ONNX
+    Runtime's quantizer works on files: a temporary folder holds them while it runs."""
+    import hashlib
+    import logging
+    import tempfile
+    from pathlib import Path
+
+    from onnxruntime.quantization import (
+        CalibrationDataReader,
+        CalibrationMethod,
+        QuantFormat,
+        QuantType,
+        quantize_static,
+    )
+
+    reduce_range = not cpu_has_vnni()
+    key = (hashlib.sha256(model_bytes).digest(), reduce_range)
+    if key not in _INT8:
+        inputs = iter(_calibration_inputs(stride))
+
+        class _Reader(CalibrationDataReader):
+            def get_next(self):
+                x = next(inputs, None)
+                return None if x is None else {"pixels": x}
+
+        def advice(record: logging.LogRecord) -> bool:  # the quantizer's advice to pre-process the model
+            return "pre-process" not in record.getMessage() and "pre-processing" not in record.getMessage()
+
+        root = logging.getLogger()  # where the quantizer logs it
+        root.addFilter(advice)
+        try:
+            with tempfile.TemporaryDirectory(prefix="spinemocap-int8-") as tmp:
+                src, dst = Path(tmp) / "float32.onnx", Path(tmp) / "int8.onnx"
+                src.write_bytes(model_bytes)
+                quantize_static(str(src), str(dst), _Reader(), quant_format=QuantFormat.QDQ, per_channel=False,
+                                reduce_range=reduce_range,
+                                activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
+                                calibrate_method=CalibrationMethod.MinMax)
+                _INT8[key] = dst.read_bytes()
+        finally:
+            root.removeFilter(advice)
+    return _INT8[key]
 
 
 def to_tensor(images_bgr: np.ndarray | torch.Tensor) -> torch.Tensor:
