@@ -720,3 +720,32 @@ def test_the_networks_precision_reaches_the_detector_and_unknown_ones_are_refuse
         detect.close()
     with pytest.raises(InputError, match="precision 'pixels'"):
         CaptureDetector("net", scene.rig, SpeedOptions(workers=1, precision="pixels"))
+
+
+def test_the_automatic_precision_is_int8_only_on_a_cpu_with_vnni_and_falls_back_to_float32(monkeypatch):
+    import warnings
+
+    from spinemocap.detect import detector as detector_module
+    from spinemocap.detect.detector import NetSegmenter, auto_precision
+
+    monkeypatch.setattr(detector_module, "cpu_has_vnni", lambda: True)
+    assert auto_precision("cpu") == "int8"
+    assert auto_precision("cpu", runtime="torch") == "float32"
+    monkeypatch.setattr(detector_module, "cpu_has_vnni", lambda: False)
+    assert auto_precision("cpu") == "float32"
+    # chosen automatically, an int8 model that cannot load gives float32 with a warning (asked
+    # for, it is an InputError: test_detect_int8)
+    monkeypatch.setattr(detector_module, "auto_precision", lambda device, runtime: "int8")
+
+    def refuse(self, *args, precision="float32", **kwargs):
+        if precision == "int8":
+            raise RuntimeError("no int8 kernels here")
+        return real_init(self, *args, precision=precision, **kwargs)
+
+    real_init = detector_module.OnnxUNet.__init__
+    monkeypatch.setattr(detector_module.OnnxUNet, "__init__", refuse)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        segmenter = NetSegmenter(device="cpu", precision="auto")
+    assert segmenter.precision == "float32" and segmenter.runtime == "onnxruntime"
+    assert any("int8" in str(w.message) for w in caught)

@@ -38,7 +38,7 @@ from .classical import segment_classical
 from .dataset import CROP_PAD, WORK_WIDTH, crop_scale, frame_view
 from .instances import kept_instances, split_instances, union
 from .refine import RefineParams, components_touching, extend_along_tape
-from .segnet import RUNTIMES, InferenceUNet, OnnxUNet, load_weights, pad_to_multiple, to_tensor
+from .segnet import RUNTIMES, InferenceUNet, OnnxUNet, cpu_has_vnni, load_weights, pad_to_multiple, to_tensor
 
 SHIPPED_WEIGHTS = "tape_unet.pt"
 
@@ -76,8 +76,11 @@ class NetSegmenter:
         # channels-last weights (the layout of to_tensor's input); the same logits up to float
         # rounding, ~19 % less CPU per pass in the detector (docs/BENCHMARKS.md, issue 15).
         self.model = InferenceUNet(net)
+        auto = precision == "auto"
+        if auto:
+            precision = auto_precision(device, runtime)
         if precision not in PRECISIONS:
-            raise InputError(None, f"unknown network precision {precision!r} (choose {' or '.join(PRECISIONS)})")
+            raise InputError(None, f"unknown network precision {precision!r} (choose auto, {', '.join(PRECISIONS)})")
         # bfloat16 (an option, not the default): ~45 % less CPU per pass on a CPU with AVX-512 BF16,
         # but a few dots change (docs/BENCHMARKS.md, issue 15). int8 (an option, not the default):
         # ONNX Runtime's int8 kernels on the CPU, calibrated on drawn tapes; a few dots change, and
@@ -105,9 +108,9 @@ class NetSegmenter:
                                    f"(asked: runtime {runtime} on {self.device})")
         if runtime != "torch" and self.device.type == "cpu" and self.dtype == torch.float32:
             # int8 asked for: no silent fallback to float32 (the caller chose the arithmetic)
-            explicit = runtime == "onnxruntime" or precision == "int8"
+            explicit = runtime == "onnxruntime" or (precision == "int8" and not auto)
             try:
-                self.onnx = OnnxUNet(self.model, threads, precision="int8" if precision == "int8" else "float32")
+                self.onnx = self._onnx_session(threads, auto)
             except ImportError as exc:
                 if explicit:
                     raise InputError(None, f"network runtime 'onnxruntime' asked for, but {exc.name or exc} "
@@ -124,6 +127,20 @@ class NetSegmenter:
             raise InputError(None, "network runtime 'onnxruntime' runs float32 on the CPU only "
                                    f"(asked: {precision} on {self.device})")
         self.runtime = "onnxruntime" if self.onnx is not None else "torch"
+
+    def _onnx_session(self, threads: int | None, auto: bool) -> OnnxUNet:
+        """The ONNX Runtime session in ``self.precision``; int8 chosen by ``auto`` falls back to
+        float32, with a RuntimeWarning, when it cannot load (int8 asked for raises)."""
+        if self.precision == "int8" and auto:
+            try:
+                return OnnxUNet(self.model, threads, precision="int8")
+            except Exception as exc:
+                import warnings
+
+                warnings.warn(f"the network's int8 arithmetic could not load ({exc.__class__.__name__}: {exc}); "
+                              "it runs in float32", RuntimeWarning, stacklevel=3)
+                self.precision = "float32"
+        return OnnxUNet(self.model, threads, precision="int8" if self.precision == "int8" else "float32")
 
     def _use_threads(self) -> None:
         """torch's threads for this calling thread, set only when they differ: a
@@ -225,6 +242,19 @@ class NetSegmenter:
         return fill_holes(cv2.resize(logits, (cw, ch), interpolation=cv2.INTER_LINEAR) > 0)
 
 
+def auto_precision(device: str = "auto", runtime: str = "auto") -> str:
+    """The network's arithmetic for ``precision="auto"``: ``int8`` (ONNX Runtime) where the
+    network runs on a CPU with VNNI through ONNX Runtime (~37 % less CPU per pass, the same
+    accuracy on the issue's studio capture; docs/BENCHMARKS.md, issue 15), else ``float32``
+    (a GPU, torch asked for, a CPU without VNNI: its int8 speed is unmeasured, or onnxruntime
+    missing)."""
+    import importlib.util
+
+    if runtime == "torch" or resolve_device(device) != "cpu" or not cpu_has_vnni():
+        return "float32"
+    return "int8" if importlib.util.find_spec("onnxruntime") is not None else "float32"
+
+
 def resolve_device(device: str = "auto") -> str:
     """``auto`` -> ``cuda`` when torch sees a CUDA GPU, else ``cpu``; ``cpu`` and ``cuda[:N]`` pass
     through. InputError for another name, or ``cuda`` where torch sees no CUDA GPU."""
@@ -278,8 +308,9 @@ class Detector:
     network's threads per pass, default 1: a working-resolution image gains little from more, and
     the tracker runs cameras or frames in parallel threads or processes; ``None`` leaves torch's
     setting alone, and gives ONNX Runtime its default, all cores; ``precision`` ``float32``
-    (default), ``bfloat16`` (torch) or ``int8`` (ONNX Runtime on the CPU, calibrated on drawn
-    tapes; InputError where it cannot run), the network's arithmetic; ``runtime`` what runs the passes:
+    (default), ``bfloat16`` (torch), ``int8`` (ONNX Runtime on the CPU, calibrated on drawn
+    tapes; InputError where it cannot run) or ``auto`` (int8 on a CPU with VNNI, float32
+    elsewhere or when int8 cannot load: :func:`auto_precision`; the tracker's default), the network's arithmetic; ``runtime`` what runs the passes:
     ``auto`` (default: ONNX Runtime for float32 on the CPU where onnxruntime and onnx import and
     the export loads, else torch with a RuntimeWarning when the export failed), ``onnxruntime``
     (InputError where it cannot run) or ``torch``; ``device``) or
