@@ -551,3 +551,40 @@ def test_any_box_of_a_filled_mask_has_no_holes():
             y1, x1 = int(rng.integers(y0 + 1, h + 1)), int(rng.integers(x0 + 1, w + 1))
             box = filled[y0:y1, x0:x1]
             assert np.array_equal(fill_holes(box), box)
+
+
+def test_area_table_from_the_cached_dense_table_keeps_opencvs_entries_in_order():
+    """The restricted table (zero weights for the entries outside the box, before and after the
+    others) holds exactly the whole table's entries with a source in the box, in OpenCV's order,
+    and the box's destinations; the shrink from it is OpenCV's (the test above)."""
+    rng = np.random.default_rng(15)
+    for _ in range(400):
+        ssize = int(rng.integers(2, 900))
+        dsize = max(1, ssize // int(rng.choice([4, 8])) + int(rng.integers(0, 2)))
+        lo = int(rng.integers(0, ssize))
+        hi = int(rng.integers(lo + 1, ssize + 1))
+        di, si, weight = blobs._area_table_whole(ssize, dsize)
+        keep = (si >= lo) & (si < hi)
+        got = blobs._area_table(ssize, dsize, lo, hi)
+        if not keep.any():
+            assert got is None
+            continue
+        first, source, weights = got
+        assert first == int(di[keep][0]) and first + len(source) == int(di[keep][-1]) + 1
+        assert (source >= 0).all() and (source < hi - lo).all()
+        for row in range(len(source)):
+            own = keep & (di == first + row)
+            nonzero = weights[row] != 0
+            assert np.array_equal(source[row][nonzero], si[own] - lo) and np.array_equal(weights[row][nonzero], weight[own])
+
+
+def test_confidences_of_arrays_are_confidence_per_blob_bit_for_bit():
+    rng = np.random.default_rng(16)
+    n = 5000
+    area = np.concatenate([rng.random(n) * 3, [0.0, 1e-3, 1e-4, 1.0, 2.5]])
+    axis = np.concatenate([rng.random(n), [0.6, 0.0, 1.0, 0.59999, 0.3]])
+    fill = np.concatenate([rng.random(n) * 1.2, [0.5, 0.9, 0.3, 1.0, -0.0]])
+    contrast = np.concatenate([rng.random(n) * 2 - 0.5, [0.0, -0.0, 1.0, 1.2, np.nan]])
+    expected = np.array([blobs._confidence(*v) for v in zip(area.tolist(), axis.tolist(), fill.tolist(), contrast.tolist())])
+    got = blobs._confidences(area, axis, fill, contrast)
+    assert got.dtype == np.float64 and np.array_equal(got.view(np.uint64), expected.view(np.uint64))

@@ -133,22 +133,40 @@ def _area_table_whole(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, n
     return entry, si.astype(np.int64), weight
 
 
+@functools.lru_cache(maxsize=512)
+def _area_table_dense(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_area_table_whole` as a dense table, cached: per destination (rows) its entries in
+    OpenCV's order (columns), source index and weight, padded at the end with zero weights (source
+    the destination's last one); and per destination its first and last source index."""
+    di, si, weight = _area_table_whole(ssize, dsize)
+    rank = np.arange(len(di)) - np.searchsorted(di, di)
+    last = np.searchsorted(di, np.arange(dsize), side="right") - 1  # each destination's last entry
+    source = np.repeat(si[last][:, None], int(rank.max()) + 1, axis=1)
+    weights = np.zeros(source.shape, np.float32)
+    source[di, rank], weights[di, rank] = si, weight
+    first_source, last_source = source[:, 0].copy(), si[last]
+    for a in (source, weights, first_source, last_source):
+        a.flags.writeable = False
+    return source, weights, first_source, last_source
+
+
 def _area_table(ssize: int, dsize: int, lo: int, hi: int) -> tuple[int, np.ndarray, np.ndarray] | None:
     """:func:`_area_table_whole`'s entries whose source pixel lies in [``lo``, ``hi``) (the
     others weigh zero pixels: adding 0 changes no sum), as a dense table: the first destination
     index, and per destination (rows) its entries in OpenCV's order (columns): source index less
-    ``lo`` and weight, padded with zero weights at the end. None when no entry is left."""
-    di, si, weight = _area_table_whole(ssize, dsize)
-    a, b = int(np.searchsorted(si, lo)), int(np.searchsorted(si, hi))  # si ascends with the entries
-    if a == b:
+    ``lo`` and weight, the entries outside [``lo``, ``hi``) with zero weights (before and after
+    the others: 0 + x is x, x + 0 is x for the non-negative sums this serves), and the padding's.
+    None when no entry is left. From the cached whole-axis table (:func:`_area_table_dense`)."""
+    source, weights, first_source, last_source = _area_table_dense(ssize, dsize)
+    a, b = int(np.searchsorted(last_source, lo)), int(np.searchsorted(first_source, hi))
+    if a >= b:
         return None
-    di, si, weight = di[a:b], si[a:b], weight[a:b]
-    first = int(di[0])
-    rank = np.arange(len(di)) - np.searchsorted(di, di)
-    source = np.zeros((int(di[-1]) + 1 - first, int(rank.max()) + 1), np.int64)
-    weights = np.zeros(source.shape, np.float32)
-    source[di - first, rank], weights[di - first, rank] = si - lo, weight
-    return first, source, weights
+    source, weights = source[a:b] - lo, weights[a:b]
+    outside = (source < 0) | (source >= hi - lo)
+    if outside.any():
+        weights = np.where(outside, np.float32(0), weights)
+        source = np.clip(source, 0, hi - lo - 1)
+    return a, source, weights
 
 
 def area_shrink(columns: np.ndarray, shape: tuple[int, int], box: tuple[slice, slice], dsize: tuple[int, int]) -> np.ndarray:
@@ -386,8 +404,7 @@ def _region_dots(
     total, sx, sy = sums[i, 0], sums[i, 1], sums[i, 2]
     centres = np.stack([sx / total, sy / total], axis=1)
     mean_contrast = (mean_smooth[i] - floor) / scale
-    scores = np.array([_confidence(*v) for v in zip((area[i] / dot_area).tolist(), (minor[i] / major[i]).tolist(),
-                                                    fill[i].tolist(), (mean_contrast / 0.8).tolist())], float)
+    scores = _confidences(area[i] / dot_area, minor[i] / major[i], fill[i], mean_contrast / 0.8)
     return merge_close(centres, scores, p.merge_distance * d)
 
 
@@ -576,6 +593,27 @@ def _confidence(area_ratio: float, axis_ratio: float, fill: float, contrast_rati
     solid = min(1.0, max(0.0, (fill - 0.5) / 0.4))
     bright = min(1.0, max(0.0, contrast_ratio))
     return float(size * round_ * solid * bright) ** 0.5
+
+
+_SIZE_SPREAD = 2 * 0.6 ** 2  # the same float as _confidence's folded constant
+
+
+def _confidences(area_ratio: np.ndarray, axis_ratio: np.ndarray, fill: np.ndarray, contrast_ratio: np.ndarray) -> np.ndarray:
+    """:func:`_confidence` of each element (float64 arrays), bit for bit: its ``min`` / ``max``
+    (as Python picks: the first argument unless the second is strictly smaller / larger) and
+    divisions as array operations, only ``math.exp``, ``math.log`` and the powers per element
+    (one list comprehension: numpy's exp and log may round differently), the product in the
+    same left-to-right order."""
+    size_in = np.where(1e-3 > area_ratio, 1e-3, area_ratio).tolist()
+    q = axis_ratio / 0.6
+    round_ = np.where(q < 1.0, q, 1.0)
+    f = (fill - 0.5) / 0.4
+    f = np.where(f > 0.0, f, 0.0)
+    solid = np.where(f < 1.0, f, 1.0)
+    c = np.where(contrast_ratio > 0.0, contrast_ratio, 0.0)
+    bright = np.where(c < 1.0, c, 1.0)
+    return np.array([(math.exp(-(math.log(a) ** 2) / _SIZE_SPREAD) * r * s * b) ** 0.5
+                     for a, r, s, b in zip(size_in, round_.tolist(), solid.tolist(), bright.tolist())], float)
 
 
 def merge_close(uv: np.ndarray, score: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
