@@ -137,16 +137,31 @@ def _area_table_whole(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, n
 def _area_table_dense(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_area_table_whole` as a dense table, cached: per destination (rows) its entries in
     OpenCV's order (columns), source index and weight, padded at the end with zero weights (source
-    the destination's last one); and per destination its first and last source index."""
-    di, si, weight = _area_table_whole(ssize, dsize)
-    rank = np.arange(len(di)) - np.searchsorted(di, di)
-    last = np.searchsorted(di, np.arange(dsize), side="right") - 1  # each destination's last entry
-    source = np.repeat(si[last][:, None], int(rank.max()) + 1, axis=1)
-    weights = np.zeros(source.shape, np.float32)
-    source[di, rank], weights[di, rank] = si, weight
-    first_source, last_source = source[:, 0].copy(), si[last]
-    for a in (source, weights, first_source, last_source):
-        a.flags.writeable = False
+    the destination's last one); and per destination its first and last source index. Built
+    directly (a destination's sources are consecutive: the partial one before, the whole ones,
+    the partial one after), with the same float64 expressions per destination as the whole table's."""
+    scale = 1.0 / (dsize / ssize)
+    dx = np.arange(dsize)
+    fsx1 = dx * scale
+    fsx2 = fsx1 + scale
+    cell = np.minimum(scale, ssize - fsx1)
+    sx2 = np.minimum(np.floor(fsx2), ssize - 1)
+    sx1 = np.minimum(np.ceil(fsx1), sx2)
+    pre, post = sx1 - fsx1 > 1e-3, fsx2 - sx2 > 1e-3
+    whole = (sx2 - sx1).astype(np.int64)
+    count = pre.astype(np.int64) + whole + post
+    first_source = sx1.astype(np.int64) - pre
+    last_source = first_source + count - 1
+    rank = np.arange(int(count.max()))[None]
+    source = np.minimum(first_source[:, None] + rank, last_source[:, None])
+    weight_pre, weight_whole = (sx1 - fsx1) / cell, 1.0 / cell
+    weight_post = np.minimum(np.minimum(fsx2 - sx2, 1.0), cell) / cell
+    weights = np.where(pre[:, None] & (rank == 0), weight_pre[:, None],
+                       np.where(rank < (pre + whole)[:, None], weight_whole[:, None],
+                                np.where(post[:, None] & (rank == count[:, None] - 1), weight_post[:, None], 0.0)))
+    weights = weights.astype(np.float32)
+    for v in (source, weights, first_source, last_source):
+        v.flags.writeable = False
     return source, weights, first_source, last_source
 
 
@@ -158,7 +173,7 @@ def _area_table(ssize: int, dsize: int, lo: int, hi: int) -> tuple[int, np.ndarr
     the others: 0 + x is x, x + 0 is x for the non-negative sums this serves), and the padding's.
     None when no entry is left. From the cached whole-axis table (:func:`_area_table_dense`)."""
     source, weights, first_source, last_source = _area_table_dense(ssize, dsize)
-    a, b = int(np.searchsorted(last_source, lo)), int(np.searchsorted(first_source, hi))
+    a, b = int(last_source.searchsorted(lo)), int(first_source.searchsorted(hi))
     if a >= b:
         return None
     source, weights = source[a:b] - lo, weights[a:b]
@@ -167,6 +182,9 @@ def _area_table(ssize: int, dsize: int, lo: int, hi: int) -> tuple[int, np.ndarr
         weights = np.where(outside, np.float32(0), weights)
         source = np.clip(source, 0, hi - lo - 1)
     return a, source, weights
+
+
+_EPS = float(np.finfo(float).eps)
 
 
 def area_shrink(columns: np.ndarray, shape: tuple[int, int], box: tuple[slice, slice], dsize: tuple[int, int]) -> np.ndarray:
@@ -180,7 +198,7 @@ def area_shrink(columns: np.ndarray, shape: tuple[int, int], box: tuple[slice, s
     dw, dh = dsize
     k = columns.shape[1]
     sx, sy = 1.0 / (dw / w), 1.0 / (dh / h)
-    if (abs(sx - round(sx)) < np.finfo(float).eps and abs(sy - round(sy)) < np.finfo(float).eps) or sx < 1 or sy < 1:
+    if (abs(sx - round(sx)) < _EPS and abs(sy - round(sy)) < _EPS) or sx < 1 or sy < 1:
         whole = np.zeros((k, h, w), np.float32)
         whole[:, box[0], box[1]] = columns.transpose(1, 2, 0)
         return np.stack([cv2.resize(image, dsize, interpolation=cv2.INTER_AREA) for image in whole])
@@ -301,10 +319,10 @@ def histogram_median(counts: np.ndarray) -> np.float32:
     level), bit for bit: the middle value, or the float32 mean of the middle two (exact)."""
     cumulative = np.cumsum(counts)
     n = int(cumulative[-1])
-    upper = int(np.searchsorted(cumulative, n // 2 + 1))  # the value of rank n // 2 (from 0)
+    upper = int(cumulative.searchsorted(n // 2 + 1))  # the value of rank n // 2 (from 0)
     if n % 2:
         return np.float32(upper)
-    lower = int(np.searchsorted(cumulative, n // 2))  # rank n // 2 - 1
+    lower = int(cumulative.searchsorted(n // 2))  # rank n // 2 - 1
     return np.float32((lower + upper) / 2)
 
 
@@ -411,7 +429,7 @@ def _region_dots(
 def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.nonzero`` of a 2-D bool array (rows, columns; row-major order), from one flat pass:
     numpy's 2-D nonzero costs several times more."""
-    return np.divmod(np.flatnonzero(mask), max(1, mask.shape[1]))
+    return np.divmod(mask.ravel().nonzero()[0], max(1, mask.shape[1]))  # np.flatnonzero without its wrappers
 
 
 class _Blobs:
@@ -621,13 +639,18 @@ def merge_close(uv: np.ndarray, score: np.ndarray, radius: float) -> tuple[np.nd
     order = np.argsort(-score)
     dx, dy = uv[:, None, 0] - uv[None, :, 0], uv[:, None, 1] - uv[None, :, 1]
     near = np.sqrt(dx * dx + dy * dy) < radius  # (N, N): np.linalg.norm's values, not N^2 Python
-    covered = np.zeros(len(uv), bool)
-    keep: list[int] = []
-    for i in order:
-        if not covered[i]:
-            keep.append(i)
-            covered |= near[i]
-    keep.sort(key=lambda i: (uv[i, 1], uv[i, 0]))
+    if np.count_nonzero(near) == np.count_nonzero(near.diagonal()):
+        keep = order  # no blob near another (the usual case): the greedy pass keeps them all, in this order
+    else:
+        covered = np.zeros(len(uv), bool)
+        kept: list[int] = []
+        for i in order.tolist():
+            if not covered[i]:
+                kept.append(i)
+                covered |= near[i]
+        keep = np.array(kept, np.int64)
+    # by (y, x), ties in the greedy order: a stable sort, as Python's sort by the (y, x) tuples
+    keep = keep[np.lexsort((uv[keep, 0], uv[keep, 1]))]
     return uv[keep], score[keep]
 
 
