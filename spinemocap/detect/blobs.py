@@ -180,7 +180,7 @@ def _area_table(ssize: int, dsize: int, lo: int, hi: int) -> tuple[int, np.ndarr
     outside = (source < 0) | (source >= hi - lo)
     if outside.any():
         weights = np.where(outside, np.float32(0), weights)
-        source = np.clip(source, 0, hi - lo - 1)
+        source = np.minimum(np.maximum(source, 0), hi - lo - 1)
     return a, source, weights
 
 
@@ -530,7 +530,8 @@ class _Blobs:
         xs = np.concatenate([self.xs[own], ring[1]])
         owner = np.concatenate([self.lab[own], ring[2]])
         lv = level.astype(np.float32)
-        w = np.clip((tophat[ys, xs] - np.float32(floor)) / lv[owner], 0.0, 1.0).astype(np.float64)
+        # clipped to [0, 1] (np.clip's values; a -0.0 it would make +0.0 adds nothing to the sums either)
+        w = np.minimum(np.maximum((tophat[ys, xs] - np.float32(floor)) / lv[owner], np.float32(0)), np.float32(1)).astype(np.float64)
         return np.stack([np.bincount(owner, weights=w, minlength=self.n),
                          np.bincount(owner, weights=w * xs, minlength=self.n),
                          np.bincount(owner, weights=w * ys, minlength=self.n)], axis=1)
