@@ -111,7 +111,8 @@ def fill_holes(mask: np.ndarray, box: tuple[slice, slice] | None = None) -> np.n
 def _area_table_whole(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """OpenCV's ``computeResizeAreaTab`` along one axis (``ssize`` -> ``dsize`` px, a non-integer
     scale): destination index, source index and weight (float32, as OpenCV rounds it) of each
-    entry, in OpenCV's order (by destination, then source). Cached: crops of one size repeat."""
+    entry, in OpenCV's order (by destination, then source): the reference form of the dense table
+    :func:`_area_table` reads (:func:`_area_table_dense`, built directly; the tests compare them)."""
     scale = 1.0 / (dsize / ssize)
     dx = np.arange(dsize)
     fsx1 = dx * scale
