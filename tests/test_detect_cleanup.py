@@ -551,3 +551,88 @@ def test_any_box_of_a_filled_mask_has_no_holes():
             y1, x1 = int(rng.integers(y0 + 1, h + 1)), int(rng.integers(x0 + 1, w + 1))
             box = filled[y0:y1, x0:x1]
             assert np.array_equal(fill_holes(box), box)
+
+
+def test_area_table_from_the_cached_dense_table_keeps_opencvs_entries_in_order():
+    """The restricted table (zero weights for the entries outside the box, before and after the
+    others) holds exactly the whole table's entries with a source in the box, in OpenCV's order,
+    and the box's destinations; the shrink from it is OpenCV's (the test above)."""
+    rng = np.random.default_rng(15)
+    for _ in range(400):
+        ssize = int(rng.integers(2, 900))
+        dsize = max(1, ssize // int(rng.choice([4, 8])) + int(rng.integers(0, 2)))
+        lo = int(rng.integers(0, ssize))
+        hi = int(rng.integers(lo + 1, ssize + 1))
+        di, si, weight = blobs._area_table_whole(ssize, dsize)
+        keep = (si >= lo) & (si < hi)
+        got = blobs._area_table(ssize, dsize, lo, hi)
+        if not keep.any():
+            assert got is None
+            continue
+        first, source, weights = got
+        assert first == int(di[keep][0]) and first + len(source) == int(di[keep][-1]) + 1
+        assert (source >= 0).all() and (source < hi - lo).all()
+        for row in range(len(source)):
+            own = keep & (di == first + row)
+            nonzero = weights[row] != 0
+            assert np.array_equal(source[row][nonzero], si[own] - lo) and np.array_equal(weights[row][nonzero], weight[own])
+
+
+def test_confidences_of_arrays_are_confidence_per_blob_bit_for_bit():
+    rng = np.random.default_rng(16)
+    n = 5000
+    area = np.concatenate([rng.random(n) * 3, [0.0, 1e-3, 1e-4, 1.0, 2.5]])
+    axis = np.concatenate([rng.random(n), [0.6, 0.0, 1.0, 0.59999, 0.3]])
+    fill = np.concatenate([rng.random(n) * 1.2, [0.5, 0.9, 0.3, 1.0, -0.0]])
+    contrast = np.concatenate([rng.random(n) * 2 - 0.5, [0.0, -0.0, 1.0, 1.2, np.nan]])
+    expected = np.array([blobs._confidence(*v) for v in zip(area.tolist(), axis.tolist(), fill.tolist(), contrast.tolist())])
+    got = blobs._confidences(area, axis, fill, contrast)
+    assert got.dtype == np.float64 and np.array_equal(got.view(np.uint64), expected.view(np.uint64))
+
+
+def test_dense_area_table_is_the_whole_table_densified():
+    """The directly built dense table holds the whole table's entries per destination, in order,
+    then zero-weight padding (its source the destination's last one)."""
+    for ssize in list(range(1, 120)) + [401, 517, 1000, 1601, 2448]:
+        for dsize in sorted({max(1, ssize // 4), max(1, ssize // 8), max(1, ssize // 4 + 1), max(1, ssize // 3)}):
+            if dsize > ssize:
+                continue
+            di, si, weight = blobs._area_table_whole(ssize, dsize)
+            source, weights, first_source, last_source = blobs._area_table_dense(ssize, dsize)
+            assert source.shape[0] == dsize and weights.dtype == np.float32
+            for d in range(dsize):
+                own = di == d
+                n = int(own.sum())
+                assert np.array_equal(source[d, :n], si[own]) and np.array_equal(weights[d, :n], weight[own]), (ssize, dsize, d)
+                assert (weights[d, n:] == 0).all() and (source[d, n:] == si[own][-1]).all()
+                assert first_source[d] == si[own][0] and last_source[d] == si[own][-1]
+
+
+def _reference_merge_close(uv, score, radius):
+    """The greedy merge one blob at a time (the code before its array form)."""
+    order = np.argsort(-score)
+    keep: list[int] = []
+    for i in order:
+        if all(np.linalg.norm(uv[i] - uv[j]) >= radius for j in keep):
+            keep.append(int(i))
+    keep.sort(key=lambda i: (uv[i, 1], uv[i, 0]))
+    return uv[keep], score[keep]
+
+
+def test_merge_close_fast_path_and_greedy_path_keep_the_reference_blobs_in_its_order():
+    rng = np.random.default_rng(17)
+    cases = []
+    for n in (1, 2, 5, 30, 80):
+        spread = np.full((n, 2), 400.0)
+        cases.append((rng.random((n, 2)) * spread, rng.random(n), 3.0))        # far apart: the fast path
+        cases.append((rng.random((n, 2)) * 20.0, rng.random(n), 3.0))          # crowded: the greedy pass
+        cases.append((np.round(rng.random((n, 2)) * 10.0), np.round(rng.random(n), 1), 2.0))  # ties in score and position
+    cases.append((np.array([[5.0, 5.0], [5.0, 5.0], [1.0, 5.0]]), np.array([0.5, 0.5, 0.9]), 0.0))  # radius 0: all kept
+    fast = 0
+    for uv, score, radius in cases:
+        d = np.sqrt(((uv[:, None] - uv[None]) ** 2).sum(axis=2))
+        fast += int(np.count_nonzero(d < radius) == np.count_nonzero(np.diagonal(d < radius)))
+        got_uv, got_score = merge_close(uv, score, radius)
+        want_uv, want_score = _reference_merge_close(uv, score, radius)
+        assert np.array_equal(got_uv, want_uv) and np.array_equal(got_score, want_score)
+    assert 4 <= fast < len(cases)  # both paths were taken

@@ -9,6 +9,8 @@ versions alternating image by image in one process (the same load for both).
    (``Detector._segment_with_dots``: extension, snap, dots, kept instances). ``--grey``: the
    'after' version is given the image's grey levels, as ``Detector.detect`` gives them since
    the clean-up's fourth round (it converts the image once for MRF2 anyway): not timed.
+   ``--grey-before``: the previous version is given it too (a previous version from that round
+   on takes it), so that both are timed as ``detect()`` runs them.
    Dots (positions and confidences) and masks are compared bit for bit.
 
 The previous package is imported under another name, e.g.
@@ -18,6 +20,8 @@ The previous package is imported under another name, e.g.
     OMP_NUM_THREADS=1 python docs/bench/cleanup_ab.py CAPTURE_DIR /tmp/before --frames 20 --rounds 5
     # frames 40-79 (the heavy flexion part), the grey image given to the new version
     OMP_NUM_THREADS=1 python docs/bench/cleanup_ab.py CAPTURE_DIR /tmp/before --first 40 --frames 40 --grey
+    # both versions given the grey image (the previous one takes it too)
+    OMP_NUM_THREADS=1 python docs/bench/cleanup_ab.py CAPTURE_DIR /tmp/before --first 40 --frames 40 --grey --grey-before
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ def main() -> None:
     parser.add_argument("--first", type=int, default=0, help="first frame tracked")
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--grey", action="store_true", help="give the 'after' version the grey image (not timed)")
+    parser.add_argument("--grey-before", action="store_true", help="with --grey: give it to the previous version too")
     parser.add_argument("--rounds", type=int, default=5)
     args = parser.parse_args()
     cv2.setNumThreads(1)  # as the tracker's camera threads set it
@@ -90,7 +95,7 @@ def main() -> None:
 
     def clean_up(name, key, boxes):
         current[threading.get_ident()] = key
-        if name == "after" and greys:
+        if greys and (name == "after" or args.grey_before):
             return detectors[name]._segment_with_dots(frames[key[0]][key[1]], boxes, greys[key])
         return detectors[name]._segment_with_dots(frames[key[0]][key[1]], boxes)
 

@@ -111,7 +111,8 @@ def fill_holes(mask: np.ndarray, box: tuple[slice, slice] | None = None) -> np.n
 def _area_table_whole(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """OpenCV's ``computeResizeAreaTab`` along one axis (``ssize`` -> ``dsize`` px, a non-integer
     scale): destination index, source index and weight (float32, as OpenCV rounds it) of each
-    entry, in OpenCV's order (by destination, then source). Cached: crops of one size repeat."""
+    entry, in OpenCV's order (by destination, then source): the reference form of the dense table
+    :func:`_area_table` reads (:func:`_area_table_dense`, built directly; the tests compare them)."""
     scale = 1.0 / (dsize / ssize)
     dx = np.arange(dsize)
     fsx1 = dx * scale
@@ -133,22 +134,58 @@ def _area_table_whole(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, n
     return entry, si.astype(np.int64), weight
 
 
+@functools.lru_cache(maxsize=512)
+def _area_table_dense(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_area_table_whole` as a dense table, cached: per destination (rows) its entries in
+    OpenCV's order (columns), source index and weight, padded at the end with zero weights (source
+    the destination's last one); and per destination its first and last source index. Built
+    directly (a destination's sources are consecutive: the partial one before, the whole ones,
+    the partial one after), with the same float64 expressions per destination as the whole table's."""
+    scale = 1.0 / (dsize / ssize)
+    dx = np.arange(dsize)
+    fsx1 = dx * scale
+    fsx2 = fsx1 + scale
+    cell = np.minimum(scale, ssize - fsx1)
+    sx2 = np.minimum(np.floor(fsx2), ssize - 1)
+    sx1 = np.minimum(np.ceil(fsx1), sx2)
+    pre, post = sx1 - fsx1 > 1e-3, fsx2 - sx2 > 1e-3
+    whole = (sx2 - sx1).astype(np.int64)
+    count = pre.astype(np.int64) + whole + post
+    first_source = sx1.astype(np.int64) - pre
+    last_source = first_source + count - 1
+    rank = np.arange(int(count.max()))[None]
+    source = np.minimum(first_source[:, None] + rank, last_source[:, None])
+    weight_pre, weight_whole = (sx1 - fsx1) / cell, 1.0 / cell
+    weight_post = np.minimum(np.minimum(fsx2 - sx2, 1.0), cell) / cell
+    weights = np.where(pre[:, None] & (rank == 0), weight_pre[:, None],
+                       np.where(rank < (pre + whole)[:, None], weight_whole[:, None],
+                                np.where(post[:, None] & (rank == count[:, None] - 1), weight_post[:, None], 0.0)))
+    weights = weights.astype(np.float32)
+    for v in (source, weights, first_source, last_source):
+        v.flags.writeable = False
+    return source, weights, first_source, last_source
+
+
 def _area_table(ssize: int, dsize: int, lo: int, hi: int) -> tuple[int, np.ndarray, np.ndarray] | None:
     """:func:`_area_table_whole`'s entries whose source pixel lies in [``lo``, ``hi``) (the
     others weigh zero pixels: adding 0 changes no sum), as a dense table: the first destination
     index, and per destination (rows) its entries in OpenCV's order (columns): source index less
-    ``lo`` and weight, padded with zero weights at the end. None when no entry is left."""
-    di, si, weight = _area_table_whole(ssize, dsize)
-    a, b = int(np.searchsorted(si, lo)), int(np.searchsorted(si, hi))  # si ascends with the entries
-    if a == b:
+    ``lo`` and weight, the entries outside [``lo``, ``hi``) with zero weights (before and after
+    the others: 0 + x is x, x + 0 is x for the non-negative sums this serves), and the padding's.
+    None when no entry is left. From the cached whole-axis table (:func:`_area_table_dense`)."""
+    source, weights, first_source, last_source = _area_table_dense(ssize, dsize)
+    a, b = int(last_source.searchsorted(lo)), int(first_source.searchsorted(hi))
+    if a >= b:
         return None
-    di, si, weight = di[a:b], si[a:b], weight[a:b]
-    first = int(di[0])
-    rank = np.arange(len(di)) - np.searchsorted(di, di)
-    source = np.zeros((int(di[-1]) + 1 - first, int(rank.max()) + 1), np.int64)
-    weights = np.zeros(source.shape, np.float32)
-    source[di - first, rank], weights[di - first, rank] = si - lo, weight
-    return first, source, weights
+    source, weights = source[a:b] - lo, weights[a:b]
+    outside = (source < 0) | (source >= hi - lo)
+    if outside.any():
+        weights = np.where(outside, np.float32(0), weights)
+        source = np.minimum(np.maximum(source, 0), hi - lo - 1)
+    return a, source, weights
+
+
+_EPS = float(np.finfo(float).eps)
 
 
 def area_shrink(columns: np.ndarray, shape: tuple[int, int], box: tuple[slice, slice], dsize: tuple[int, int]) -> np.ndarray:
@@ -162,7 +199,7 @@ def area_shrink(columns: np.ndarray, shape: tuple[int, int], box: tuple[slice, s
     dw, dh = dsize
     k = columns.shape[1]
     sx, sy = 1.0 / (dw / w), 1.0 / (dh / h)
-    if (abs(sx - round(sx)) < np.finfo(float).eps and abs(sy - round(sy)) < np.finfo(float).eps) or sx < 1 or sy < 1:
+    if (abs(sx - round(sx)) < _EPS and abs(sy - round(sy)) < _EPS) or sx < 1 or sy < 1:
         whole = np.zeros((k, h, w), np.float32)
         whole[:, box[0], box[1]] = columns.transpose(1, 2, 0)
         return np.stack([cv2.resize(image, dsize, interpolation=cv2.INTER_AREA) for image in whole])
@@ -283,10 +320,10 @@ def histogram_median(counts: np.ndarray) -> np.float32:
     level), bit for bit: the middle value, or the float32 mean of the middle two (exact)."""
     cumulative = np.cumsum(counts)
     n = int(cumulative[-1])
-    upper = int(np.searchsorted(cumulative, n // 2 + 1))  # the value of rank n // 2 (from 0)
+    upper = int(cumulative.searchsorted(n // 2 + 1))  # the value of rank n // 2 (from 0)
     if n % 2:
         return np.float32(upper)
-    lower = int(np.searchsorted(cumulative, n // 2))  # rank n // 2 - 1
+    lower = int(cumulative.searchsorted(n // 2))  # rank n // 2 - 1
     return np.float32((lower + upper) / 2)
 
 
@@ -386,15 +423,14 @@ def _region_dots(
     total, sx, sy = sums[i, 0], sums[i, 1], sums[i, 2]
     centres = np.stack([sx / total, sy / total], axis=1)
     mean_contrast = (mean_smooth[i] - floor) / scale
-    scores = np.array([_confidence(*v) for v in zip((area[i] / dot_area).tolist(), (minor[i] / major[i]).tolist(),
-                                                    fill[i].tolist(), (mean_contrast / 0.8).tolist())], float)
+    scores = _confidences(area[i] / dot_area, minor[i] / major[i], fill[i], mean_contrast / 0.8)
     return merge_close(centres, scores, p.merge_distance * d)
 
 
 def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.nonzero`` of a 2-D bool array (rows, columns; row-major order), from one flat pass:
     numpy's 2-D nonzero costs several times more."""
-    return np.divmod(np.flatnonzero(mask), max(1, mask.shape[1]))
+    return np.divmod(mask.ravel().nonzero()[0], max(1, mask.shape[1]))  # np.flatnonzero without its wrappers
 
 
 class _Blobs:
@@ -495,7 +531,8 @@ class _Blobs:
         xs = np.concatenate([self.xs[own], ring[1]])
         owner = np.concatenate([self.lab[own], ring[2]])
         lv = level.astype(np.float32)
-        w = np.clip((tophat[ys, xs] - np.float32(floor)) / lv[owner], 0.0, 1.0).astype(np.float64)
+        # clipped to [0, 1] (np.clip's values; a -0.0 it would make +0.0 adds nothing to the sums either)
+        w = np.minimum(np.maximum((tophat[ys, xs] - np.float32(floor)) / lv[owner], np.float32(0)), np.float32(1)).astype(np.float64)
         return np.stack([np.bincount(owner, weights=w, minlength=self.n),
                          np.bincount(owner, weights=w * xs, minlength=self.n),
                          np.bincount(owner, weights=w * ys, minlength=self.n)], axis=1)
@@ -578,18 +615,44 @@ def _confidence(area_ratio: float, axis_ratio: float, fill: float, contrast_rati
     return float(size * round_ * solid * bright) ** 0.5
 
 
+_SIZE_SPREAD = 2 * 0.6 ** 2  # the same float as _confidence's folded constant
+
+
+def _confidences(area_ratio: np.ndarray, axis_ratio: np.ndarray, fill: np.ndarray, contrast_ratio: np.ndarray) -> np.ndarray:
+    """:func:`_confidence` of each element (float64 arrays), bit for bit: its ``min`` / ``max``
+    (as Python picks: the first argument unless the second is strictly smaller / larger) and
+    divisions as array operations, only ``math.exp``, ``math.log`` and the powers per element
+    (one list comprehension: numpy's exp and log may round differently), the product in the
+    same left-to-right order."""
+    size_in = np.where(1e-3 > area_ratio, 1e-3, area_ratio).tolist()
+    q = axis_ratio / 0.6
+    round_ = np.where(q < 1.0, q, 1.0)
+    f = (fill - 0.5) / 0.4
+    f = np.where(f > 0.0, f, 0.0)
+    solid = np.where(f < 1.0, f, 1.0)
+    c = np.where(contrast_ratio > 0.0, contrast_ratio, 0.0)
+    bright = np.where(c < 1.0, c, 1.0)
+    return np.array([(math.exp(-(math.log(a) ** 2) / _SIZE_SPREAD) * r * s * b) ** 0.5
+                     for a, r, s, b in zip(size_in, round_.tolist(), solid.tolist(), bright.tolist())], float)
+
+
 def merge_close(uv: np.ndarray, score: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Greedy: keep the best-scoring blob, drop others within ``radius`` of a kept one."""
     order = np.argsort(-score)
     dx, dy = uv[:, None, 0] - uv[None, :, 0], uv[:, None, 1] - uv[None, :, 1]
     near = np.sqrt(dx * dx + dy * dy) < radius  # (N, N): np.linalg.norm's values, not N^2 Python
-    covered = np.zeros(len(uv), bool)
-    keep: list[int] = []
-    for i in order:
-        if not covered[i]:
-            keep.append(i)
-            covered |= near[i]
-    keep.sort(key=lambda i: (uv[i, 1], uv[i, 0]))
+    if np.count_nonzero(near) == np.count_nonzero(near.diagonal()):
+        keep = order  # no blob near another (the usual case): the greedy pass keeps them all, in this order
+    else:
+        covered = np.zeros(len(uv), bool)
+        kept: list[int] = []
+        for i in order.tolist():
+            if not covered[i]:
+                kept.append(i)
+                covered |= near[i]
+        keep = np.array(kept, np.int64)
+    # by (y, x), ties in the greedy order: a stable sort, as Python's sort by the (y, x) tuples
+    keep = keep[np.lexsort((uv[keep, 0], uv[keep, 1]))]
     return uv[keep], score[keep]
 
 

@@ -182,7 +182,7 @@ def _local_means(grey: np.ndarray, samples: _Levels, sigma: float) -> tuple[np.n
     for k, fallback in ((0, samples.tape_median), (2, samples.ring_median)):
         # one blur per image (a four-channel blur rounds differently at some sizes)
         num, den = _row_blur(shrunk[k], s, rows), _row_blur(shrunk[k + 1], s, rows)
-        mean = np.where(den > 1e-3, num / np.maximum(den, 1e-6), float(fallback)).astype(np.float32)
+        mean = np.where(den > 1e-3, num / np.maximum(den, 1e-6), float(fallback)).astype(np.float32, copy=False)
         levels.append(cv2.resize(mean, (w, h), interpolation=cv2.INTER_LINEAR))
     return levels[0], levels[1]
 
@@ -240,8 +240,8 @@ def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels 
     # the band's pixels re-decided (a thin outline: the levels are compared there only, the same
     # float32 sums and comparisons pixel by pixel)
     ys, xs = _nonzero(band)
-    gy, gx = ys + near[0].start, xs + near[1].start  # in the crop
-    inside[ys, xs] = grey[gy, gx] < 0.5 * (tape_level[gy, gx] + skin_level[gy, gx])
+    at = (ys + near[0].start) * tape_level.shape[1] + xs + near[1].start  # flat, in the (contiguous) levels
+    inside[ys, xs] = grey[near][ys, xs] < 0.5 * (tape_level.ravel().take(at) + skin_level.ravel().take(at))
     snapped[near] = inside
     return fill_holes(snapped, _near(snapped, p.band_px + 1, box))  # the snapped mask lies in ``near``
 
