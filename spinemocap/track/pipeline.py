@@ -156,11 +156,14 @@ class FrameTracker:
             return select_edges(cloud, edge_cloud, tape, self.config.lp)
 
     def evidence(self, views: Sequence[ViewDots]) -> list | None:
-        """MRF2's per-camera cost images (None when no view has an image)."""
-        if not any(v.image is not None for v in views):
+        """MRF2's per-camera cost images (None when no view has an image). A view that holds its
+        colour image is read as it is: the evidence converts only its window to grey (the same
+        pixels), not the whole frame."""
+        images = [v.held_image for v in views]
+        if all(image is None for image in images):
             return None
-        return [build_evidence(v.image, v.mask, downscale=self.config.evidence.downscale)
-                if v.image is not None else None for v in views]
+        return [build_evidence(image, v.mask, downscale=self.config.evidence.downscale)
+                if image is not None else None for image, v in zip(images, views)]
 
     def refine(self, positions: np.ndarray, views: Sequence[ViewDots],
                feasible_points: np.ndarray | None = None, evidence: list | None = None,
