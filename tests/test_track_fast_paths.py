@@ -604,3 +604,33 @@ def test_tracker_evidence_reads_colour_views_without_converting_the_frame():
         assert (e.outside_cost, e.origin) == (reference.outside_cost, reference.origin)
     assert views[0].image is not None and views[0].held_image is views[0].image  # converted on request, then held
     assert tracker.evidence([ViewDots(c, empty, np.zeros(0)) for c in range(3)]) is None
+
+
+def test_tracker_evidence_threads_build_the_serial_images():
+    """The cost images built by the tracker's evidence threads are those built one after another in
+    the calling thread, in the cameras' order (cameras without an image: None)."""
+    import dataclasses
+
+    from spinemocap.track.config import EvidenceConfig, TrackerConfig
+    from spinemocap.track.pipeline import FrameTracker
+    from spinemocap.views import ViewDots
+
+    rng = np.random.default_rng(24)
+    cams = [Camera.look_at(f"c{i}", (x, 0.0, 1500.0), (0.0, 0.0, 0.0), (220, 150), 300.0, up=(0.0, 1.0, 0.0))
+            for i, x in enumerate((-300.0, -100.0, 100.0, 300.0, 0.0))]
+    bands = [(40, 90, 30, 200), (0, 30, 100, 220), (120, 150, 0, 60), (60, 100, 50, 150)]
+    images = [_taped_image(rng, band=b) for b in bands]
+    empty = np.zeros((0, 2))
+    views = [ViewDots(c, empty, np.zeros(0), mask, colour=image) for c, (image, mask) in enumerate(images)]
+    views.insert(2, ViewDots(4, empty, np.zeros(0)))
+    results = []
+    for threads in (1, 2, 3):
+        config = dataclasses.replace(TrackerConfig(), evidence=EvidenceConfig(threads=threads))
+        tracker = FrameTracker(Rig(cams), TapeSpec(n_rows=13), config)
+        results.append(tracker.evidence(views))
+        assert (tracker._pool is None) == (threads == 1)
+    for got in results[1:]:
+        assert got[2] is None
+        for a, b in zip(results[0][:2] + results[0][3:], got[:2] + got[3:]):
+            np.testing.assert_array_equal(a.cost.view(np.int32), b.cost.view(np.int32))
+            assert (a.outside_cost, a.origin) == (b.outside_cost, b.origin)

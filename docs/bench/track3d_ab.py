@@ -11,9 +11,11 @@ frames, and views that hold their colour image, as sequence tracking's do, make 
 in each run as a real run does; the reading is left out of the CPU totals).
 
 Stage times are this thread's CPU (the stage timer's clock swapped for ``time.thread_time``), so
-they survive a shared machine's load better than wall time. The peer package is imported under
-another name (``sm_peer``) from ``PEER/spinemocap``. Views hold the grey images and masks MRF2
-needs: ~45 MB per 6-camera 2448x1600 frame on disk.
+they survive a shared machine's load better than wall time. The tracker's evidence threads
+(``EvidenceConfig.threads``) are not in them: ``process_cpu`` counts every thread of the process,
+``wall`` the elapsed time (both without the reading of ``--fresh``). The peer package is imported under
+another name (``sm_peer``) from ``PEER/spinemocap``. Views hold the grey (or colour) images and
+masks MRF2 needs: ~45 MB (~94 MB) per 6-camera 2448x1600 frame on disk.
 """
 
 from __future__ import annotations
@@ -130,29 +132,34 @@ def compare(views_dir: Path, capture_dir: Path, peer: Path, reps: int, fresh: bo
     n = len(files)
 
     def run(name):
-        loading = [0.0]
+        loading = np.zeros(3)  # thread CPU, process CPU, wall
+
+        def clocks():
+            return np.array([time.thread_time(), time.process_time(), time.perf_counter()])
 
         def frames():
             for f in range(n):
                 if views is not None:
                     yield f, views[f], 0.0
                     continue
-                t = time.thread_time()
+                t = clocks()
                 v = pickle.loads(files[f].read_bytes())  # fresh views: nothing made lazily by an earlier run
-                loading[0] += time.thread_time() - t
+                loading[:] += clocks() - t
                 yield f, v, 0.0
 
-        c0 = time.thread_time()
+        c0 = clocks()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             result = runners[name](frames(), cap.rig, cap.tape, cap.fps, up=cap.up, progress=False, n_frames=n)
-        cpu = 1000 * (time.thread_time() - c0 - loading[0]) / n
+        cpu, process_cpu, wall = 1000 * (clocks() - c0 - loading) / n
         per = {
             "all frames": {k: sum(fr.stage_ms.get(k, 0.0) for fr in result.frames) / n for k in STAGES},
             "frames 1..": {k: sum(fr.stage_ms.get(k, 0.0) for fr in result.frames[1:]) / max(n - 1, 1) for k in STAGES},
             "frame 0": {k: result.frames[0].stage_ms.get(k, 0.0) for k in STAGES},
         }
-        per["all frames"]["cpu_total"] = cpu
+        per["all frames"]["cpu_total"] = cpu  # this thread's
+        per["all frames"]["process_cpu"] = process_cpu  # all threads' (the tracker's own threads too)
+        per["all frames"]["wall"] = wall
         return per, result
 
     run("this"), run("peer")  # warm-up

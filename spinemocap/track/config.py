@@ -45,9 +45,13 @@ from .stretch import StretchConfig
 
 @dataclass
 class EvidenceConfig:
-    """MRF2's image evidence: ``downscale`` of the cost images (1 = full resolution)."""
+    """MRF2's image evidence: ``downscale`` of the cost images (1 = full resolution); ``threads``:
+    the cameras' cost images are built by this many threads (the tracker's own; 1: one after
+    another in the calling thread). Each image is built alone (OpenCV and numpy release the GIL
+    for most of the work), so the same images either way."""
 
     downscale: float = 1.0
+    threads: int = 2
 
 
 @dataclass
