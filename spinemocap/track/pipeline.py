@@ -170,7 +170,7 @@ class FrameTracker:
         build = functools.partial(build_evidence, downscale=self.config.evidence.downscale)
         threads = self.config.evidence.threads
         if threads > 1 and len(jobs) > 1:
-            # while the tracker works the camera threads wait for it: a core is free
+            # while the tracker works the camera threads wait for it: a core may be free
             built = iter(list(self._evidence_pool(threads).map(lambda job: build(*job), jobs)))
         else:
             built = iter([build(*job) for job in jobs])
