@@ -48,5 +48,14 @@ class ViewDots:
     def image(self, value: np.ndarray | None) -> None:
         self._image, self._colour = value, None
 
+    @property
+    def held_image(self) -> np.ndarray | None:
+        """The grey image when it is made, else the colour image (None when the view holds neither),
+        without converting anything: for readers that need only a window of it (MRF2's evidence
+        converts its window of the colour image, the same pixels as that window of :attr:`image`)."""
+        colour = self._colour  # read first: a conversion in another thread sets the grey image before it drops the colour one
+        grey = self._image
+        return grey if grey is not None else colour
+
     def __len__(self) -> int:
         return len(self.uv)

@@ -89,6 +89,11 @@ def test_unique_row_index_and_compact_dlt_agree_with_the_library():
     rows, first = np.unique(ids, axis=0, return_index=True)
     np.testing.assert_array_equal(candidates._unique_row_index(ids), first)
     np.testing.assert_array_equal(ids[candidates._unique_row_index(ids)], rows)
+    # many blobs, rows repeated in shuffled order; ids too large for one integer per row (the
+    # lexsort path); ids below -1 (not blob ids: the lexsort path as well)
+    for ids in (rng.integers(-1, 300, (400, 6)), rng.integers(-1, 2**20, (300, 6)), rng.integers(-3, 5, (300, 6))):
+        ids = np.concatenate([ids, ids[rng.permutation(len(ids))[:150]]])
+        np.testing.assert_array_equal(candidates._unique_row_index(ids), np.unique(ids, axis=0, return_index=True)[1])
     P = rng.normal(size=(6, 3, 4))
     uv = rng.normal(size=(500, 6, 2))
     used = rng.random((500, 6)) < 0.5

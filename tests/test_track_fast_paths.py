@@ -423,3 +423,214 @@ def test_evidence_canvas_in_float32_samples_the_float64_values():
     np.testing.assert_array_equal(single.sample_torch(uv).numpy(), double.sample_torch(uv).numpy())
     odd = [EvidenceImage(cost=images[0].cost, scale=1.0, outside_cost=1.1)]
     assert EvidenceStack(odd)._flat.dtype == torch.float64
+
+
+def _costs_reference(costs, px, py, pz, k):
+    """``_ImageCosts._costs`` as one expression per quantity (a fresh array per operation): the
+    code the in-place passes replaced."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = k["r"]
+    t0, t1, t2 = k["t"]
+    xc0 = px * r00 + py * r01 + pz * r02 + t0
+    xc1 = px * r10 + py * r11 + pz * r12 + t1
+    xc2 = px * r20 + py * r21 + pz * r22 + t2
+    z = np.maximum(xc2, 1e-6)
+    xn, yn = xc0 / z, xc1 / z
+    r2 = xn * xn + yn * yn
+    radial = 1 + r2 * (k["k1"] + r2 * (k["k2"] + r2 * k["k3"]))
+    xd = xn * radial + k["two_p1"] * xn * yn + k["p2"] * (r2 + 2 * xn * xn)
+    yd = yn * radial + k["p1"] * (r2 + 2 * yn * yn) + k["two_p2"] * xn * yn
+    u = k["fx"] * xd + k["skew"] * yd + k["cx"]
+    v = k["fy"] * yd + k["cy"]
+    h, w = costs.h, costs.w
+    x = np.fmin(np.fmax((u - k["ox"]) * k["scale"] + 1.0, 0.0), w - 1)
+    y = np.fmin(np.fmax((v - k["oy"]) * k["scale"] + 1.0, 0.0), h - 1)
+    x[xc2 <= 1e-6] = 0.0
+    xi = np.minimum(x.astype(np.int64), w - 2)
+    yi = np.minimum(y.astype(np.int64), h - 2)
+    fx, fy = x - xi, y - yi
+    idx = k["base"] + yi * w + xi
+    flat = costs.flat
+    top = flat[idx] * (1 - fx) + flat[idx + 1] * fx
+    bottom = flat[idx + w] * (1 - fx) + flat[idx + w + 1] * fx
+    cost = top * (1 - fy) + bottom * fy
+    return cost if costs.cap is None else np.minimum(cost, costs.cap)
+
+
+@pytest.mark.parametrize("cost_cap, distorted, half, wide", [(1.0, True, False, False), (None, True, True, False),
+                                                             (1.0, False, True, True)])
+def test_mrf2_image_costs_in_place_are_the_expressions_bit_for_bit(cost_cap, distorted, half, wide):
+    """The image costs computed in a few buffers in place (``_ImageCosts._costs``) against one
+    fresh array per operation: every camera and camera subsets, scales 1 and 0.5, float32 and
+    float64 (``wide``) canvases, points near the tape, far off it, behind cameras, NaN and
+    infinite points; single points and passes of many."""
+
+    rng = np.random.default_rng(21)
+    positions, rig, evidence, config = _mrf2_scene(rng, cost_cap, distorted, half)
+    # float32 costs with outside costs float32 holds give a float32 canvas; float64 costs a float64 one
+    evidence = [None if e is None else EvidenceImage(cost=e.cost.astype(np.float64 if wide else np.float32), scale=e.scale,
+                                                     outside_cost=float(np.float32(e.outside_cost)), origin=e.origin)
+                for e in evidence]
+    model = RefinementMRF(GRAPH, rig, evidence, config)
+    costs = model._costs
+    assert costs.flat.dtype == (np.float64 if wide else np.float32)
+    x = np.concatenate([positions[rng.integers(0, len(positions), 300)] + rng.normal(0, s, (300, 3))
+                        for s in (0.5, 5.0, 300.0, 3000.0)])
+    x[:3] = [np.nan, 0.0, 1000.0], [np.inf, 0.0, 1000.0], [0.0, -np.inf, np.nan]
+    for cams in (None, np.array([0, 1, 3]), np.array([4]), np.array([1, 3])):
+        k = costs._constants(cams)
+        for n in (1, 17, len(x)):
+            px, py, pz = (np.ascontiguousarray(x[:n, i]) for i in range(3))
+            with np.errstate(invalid="ignore", over="ignore"):  # the infinite points
+                got = costs._costs(px, py, pz, k)
+                ref = _costs_reference(costs, px, py, pz, k)
+            assert got.dtype == ref.dtype == np.float64
+            np.testing.assert_array_equal(got.view(np.int64), ref.view(np.int64))
+    assert any(not costs._constants(c)["unit_scale"] for c in (None, np.array([1, 3])))  # scale 0.5 exercised
+
+
+def _evidence_reference(image, mask, downscale=1.0, blur_sigma_px=None, outside_slope=0.05, dot_to_width=0.2,
+                        crop_margin_px=64.0):
+    """``build_evidence`` as written before: the whole frame converted to grey first, the mask's
+    columns searched over all rows, a fresh array per operation."""
+    import cv2
+
+    from spinemocap.track.evidence import EvidenceImage, estimate_dot_radius_px
+
+    grey = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY) if image.ndim == 3 else np.asarray(image)
+    h, w = grey.shape
+    tape = np.ones((h, w), dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    origin = (0.0, 0.0)
+    if crop_margin_px is not None and mask is not None and not tape.any():
+        grey, tape = grey[:1, :1], tape[:1, :1]
+        h, w = 1, 1
+    elif crop_margin_px is not None and mask is not None:
+        rows, cols = np.flatnonzero(tape.any(axis=1)), np.flatnonzero(tape.any(axis=0))
+        m = int(np.ceil(crop_margin_px))
+        y0, y1 = max(rows[0] - m, 0), min(rows[-1] + m + 1, h)
+        x0, x1 = max(cols[0] - m, 0), min(cols[-1] + m + 1, w)
+        grey, tape = grey[y0:y1, x0:x1], tape[y0:y1, x0:x1]
+        h, w = grey.shape
+        origin = (float(x0), float(y0))
+    grey = grey.astype(np.float32)
+    if blur_sigma_px is None:
+        blur_sigma_px = 0.6 * estimate_dot_radius_px(tape, dot_to_width) if mask is not None else 1.5
+    if downscale != 1.0:
+        size = (max(1, int(round(w * downscale))), max(1, int(round(h * downscale))))
+        grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
+        tape = cv2.resize(tape.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    sigma = blur_sigma_px * downscale
+    if sigma > 0.3 and tape.any():
+        dark = np.float32(np.percentile(grey[tape], 1))
+        grey = cv2.GaussianBlur(np.where(tape, grey, dark), (0, 0), sigma)
+    elif sigma > 0.3:
+        grey = cv2.GaussianBlur(grey, (0, 0), sigma)
+    if tape.any():
+        lo, hi = np.percentile(grey[tape], [1, 99.5])
+    else:
+        lo, hi = float(grey.min()), float(grey.max())
+    cost = 1.0 - np.clip((grey - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
+    if not tape.all():
+        with np.errstate(over="ignore"):
+            outside = cv2.distanceTransform((~tape).astype(np.uint8), cv2.DIST_L2, 5) / downscale
+        cost = np.where(tape, cost, 1.0 + outside_slope * outside)
+    outside_cost = float(cost.max()) if cost.size else 1.0
+    return EvidenceImage(cost=cost.astype(np.float32), scale=float(downscale), outside_cost=outside_cost, origin=origin)
+
+
+def _taped_image(rng, shape=(150, 220), band=(40, 90, 30, 200)):
+    """A colour image with a dark tape band (rows, columns of ``band``) holding bright dots, and its mask."""
+    image = rng.integers(90, 200, shape + (3,), dtype=np.uint8)  # skin-like, noisy, colour channels differ
+    y0, y1, x0, x1 = band
+    mask = np.zeros(shape, bool)
+    mask[y0:y1, x0:x1] = True
+    mask[y0 + 5, x1:] = True  # a thin spur running to the image's edge
+    image[mask] = rng.integers(10, 40, (int(mask.sum()), 3), dtype=np.uint8)
+    for cy in range(y0 + 8, y1 - 4, 16):
+        for cx in range(x0 + 8, x1 - 4, 16):
+            image[cy - 2 : cy + 3, cx - 2 : cx + 3] = rng.integers(200, 255, 3, dtype=np.uint8)
+    return image, mask
+
+
+@pytest.mark.parametrize("options", [{}, {"downscale": 0.5}, {"blur_sigma_px": 0.2}, {"crop_margin_px": None},
+                                     {"crop_margin_px": 7.5, "outside_slope": 0.3}])
+def test_evidence_from_the_colour_window_is_the_whole_frames_grey_bit_for_bit(options):
+    """build_evidence on the colour image (its window converted to grey) and on the grey image,
+    against the code it replaced (the whole frame converted first, fresh arrays): the same cost
+    image, outside cost and origin; a mask at the image's edge, a mask without tape, no mask."""
+    from spinemocap.capture import to_grey
+    from spinemocap.track.evidence import build_evidence
+
+    rng = np.random.default_rng(22)
+    cases = [_taped_image(rng), _taped_image(rng, band=(0, 30, 100, 220)), _taped_image(rng, band=(120, 150, 0, 60))]
+    image, mask = cases[0]
+    cases += [(image, np.zeros_like(mask)), (image, None)]
+    for image, mask in cases:
+        reference = _evidence_reference(to_grey(image), mask, **options)
+        for given in (image, to_grey(image)):
+            with np.errstate(over="ignore"):
+                got = build_evidence(given, mask, **options)
+            assert got.cost.dtype == reference.cost.dtype == np.float32
+            np.testing.assert_array_equal(got.cost.view(np.int32), reference.cost.view(np.int32))
+            assert (got.outside_cost, got.origin, got.scale) == (reference.outside_cost, reference.origin, reference.scale)
+        colour_reference = _evidence_reference(image, mask, **options)  # the old colour path: the same
+        np.testing.assert_array_equal(colour_reference.cost, reference.cost)
+
+
+def test_tracker_evidence_reads_colour_views_without_converting_the_frame():
+    """FrameTracker.evidence on views that hold their colour images: the cost images of their grey
+    images, bit for bit, and the views keep the colour images (no whole-frame grey image made);
+    ``held_image`` hands out what a view holds without converting."""
+    from spinemocap.capture import to_grey
+    from spinemocap.track.evidence import build_evidence
+    from spinemocap.track.pipeline import FrameTracker
+    from spinemocap.views import ViewDots
+
+    rng = np.random.default_rng(23)
+    spec = TapeSpec(n_rows=13)
+    cams = [Camera.look_at(f"c{i}", (x, 0.0, 1500.0), (0.0, 0.0, 0.0), (220, 150), 300.0, up=(0.0, 1.0, 0.0))
+            for i, x in enumerate((-300.0, 300.0, 0.0))]
+    tracker = FrameTracker(Rig(cams), spec)
+    (a, mask_a), (b, mask_b) = _taped_image(rng), _taped_image(rng, band=(0, 30, 100, 220))
+    empty = np.zeros((0, 2))
+    views = [ViewDots(0, empty, np.zeros(0), mask_a, colour=a), ViewDots(1, empty, np.zeros(0), mask_b, image=to_grey(b)),
+             ViewDots(2, empty, np.zeros(0), mask_a)]
+    assert views[0].held_image is a and views[1].held_image is views[1]._image and views[2].held_image is None
+    got = tracker.evidence(views)
+    assert views[0]._image is None and views[0]._colour is a  # not converted
+    assert got[2] is None
+    for e, (image, mask) in zip(got[:2], ((a, mask_a), (b, mask_b))):
+        reference = build_evidence(to_grey(image), mask)
+        np.testing.assert_array_equal(e.cost, reference.cost)
+        assert (e.outside_cost, e.origin) == (reference.outside_cost, reference.origin)
+    assert views[0].image is not None and views[0].held_image is views[0].image  # converted on request, then held
+    assert tracker.evidence([ViewDots(c, empty, np.zeros(0)) for c in range(3)]) is None
+
+
+def test_tracker_evidence_threads_build_the_serial_images():
+    """The cost images built by the tracker's evidence threads are those built one after another in
+    the calling thread, in the cameras' order (cameras without an image: None)."""
+    import dataclasses
+
+    from spinemocap.track.config import EvidenceConfig, TrackerConfig
+    from spinemocap.track.pipeline import FrameTracker
+    from spinemocap.views import ViewDots
+
+    rng = np.random.default_rng(24)
+    cams = [Camera.look_at(f"c{i}", (x, 0.0, 1500.0), (0.0, 0.0, 0.0), (220, 150), 300.0, up=(0.0, 1.0, 0.0))
+            for i, x in enumerate((-300.0, -100.0, 100.0, 300.0, 0.0))]
+    bands = [(40, 90, 30, 200), (0, 30, 100, 220), (120, 150, 0, 60), (60, 100, 50, 150)]
+    images = [_taped_image(rng, band=b) for b in bands]
+    empty = np.zeros((0, 2))
+    views = [ViewDots(c, empty, np.zeros(0), mask, colour=image) for c, (image, mask) in enumerate(images)]
+    views.insert(2, ViewDots(4, empty, np.zeros(0)))
+    results = []
+    for threads in (1, 2, 3):
+        config = dataclasses.replace(TrackerConfig(), evidence=EvidenceConfig(threads=threads))
+        tracker = FrameTracker(Rig(cams), TapeSpec(n_rows=13), config)
+        results.append(tracker.evidence(views))
+        assert (tracker._pool is None) == (threads == 1)
+    for got in results[1:]:
+        assert got[2] is None
+        for a, b in zip(results[0][:2] + results[0][3:], got[:2] + got[3:]):
+            np.testing.assert_array_equal(a.cost.view(np.int32), b.cost.view(np.int32))
+            assert (a.outside_cost, a.origin) == (b.outside_cost, b.origin)

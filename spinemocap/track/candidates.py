@@ -307,9 +307,15 @@ def _merge_round(views: _Views, ids: np.ndarray, points: np.ndarray, config: Can
 
 def _unique_row_index(ids: np.ndarray) -> np.ndarray:
     """Index of the first of each distinct row of ``ids``, the rows in lexicographic order
-    (``np.unique(ids, axis=0, return_index=True)[1]``, faster)."""
+    (``np.unique(ids, axis=0, return_index=True)[1]``, faster): each row of ids >= -1 as one
+    integer whose most significant digit is the first column (the same order), sorted stably."""
     if len(ids) < 2:
         return np.arange(len(ids))
+    n_cols = ids.shape[1]
+    base = int(ids.max()) + 2
+    if ids.min() >= -1 and n_cols * np.log2(base) < 62:
+        keys = (np.asarray(ids, np.int64) + 1) @ (base ** np.arange(n_cols - 1, -1, -1, dtype=np.int64))
+        return np.unique(keys, return_index=True)[1]
     order = np.lexsort(ids.T[::-1])
     ordered = ids[order]
     distinct = np.ones(len(ordered), bool)

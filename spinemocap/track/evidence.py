@@ -16,6 +16,8 @@ import cv2
 import numpy as np
 import torch
 
+from ..capture import to_grey
+
 
 @dataclass
 class EvidenceImage:
@@ -120,11 +122,10 @@ def build_evidence(
     the dot radius estimated from the mask width. With ``crop_margin_px`` the cost is built only
     in the mask's bounding box grown by that margin (the rest reads the outside cost): the tape
     fills a small part of a frame, so this saves most of the work; None keeps the whole image."""
-    if image.ndim == 3:
-        grey = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY)
-    else:
-        grey = np.asarray(image)
-    h, w = grey.shape
+    # a colour image is converted to grey after the crop, in the window only (the conversion is per
+    # pixel: the same grey values as the window of the whole frame's grey image)
+    grey = np.asarray(image)
+    h, w = grey.shape[:2]
     tape = np.ones((h, w), dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
     if tape.shape != (h, w):
         raise ValueError(f"mask shape {tape.shape} differs from image shape {(h, w)}")
@@ -133,38 +134,54 @@ def build_evidence(
         # no tape in view: the cost is the same everywhere (the outside cost), so one pixel holds
         # it (building it over the whole frame cost more than all the cameras that see the tape)
         grey, tape = grey[:1, :1], tape[:1, :1]
-        h, w = 1, 1
     elif crop_margin_px is not None and mask is not None:
-        rows, cols = np.flatnonzero(tape.any(axis=1)), np.flatnonzero(tape.any(axis=0))
+        rows = np.flatnonzero(tape.any(axis=1))
+        cols = np.flatnonzero(tape[rows[0] : rows[-1] + 1].any(axis=0))  # the tape's columns lie in its rows
         m = int(np.ceil(crop_margin_px))
         y0, y1 = max(rows[0] - m, 0), min(rows[-1] + m + 1, h)
         x0, x1 = max(cols[0] - m, 0), min(cols[-1] + m + 1, w)
         grey, tape = grey[y0:y1, x0:x1], tape[y0:y1, x0:x1]
-        h, w = grey.shape
         origin = (float(x0), float(y0))
+    if grey.ndim == 3:
+        grey = to_grey(np.ascontiguousarray(grey))
+    h, w = grey.shape
     grey = grey.astype(np.float32)  # after the crop: converting the whole frame cost more than the rest
+    tape = np.ascontiguousarray(tape)
     if blur_sigma_px is None:
-        blur_sigma_px = 0.6 * estimate_dot_radius_px(tape, dot_to_width) if mask is not None else 1.5
+        # the mask as 0/1 bytes without a copy: what estimate_dot_radius_px makes of it
+        blur_sigma_px = 0.6 * estimate_dot_radius_px(tape.view(np.uint8), dot_to_width) if mask is not None else 1.5
     if downscale != 1.0:
         size = (max(1, int(round(w * downscale))), max(1, int(round(h * downscale))))
         grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
         tape = cv2.resize(tape.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
     sigma = blur_sigma_px * downscale
-    if sigma > 0.3 and tape.any():
+    any_tape = bool(tape.any())
+    off = np.logical_not(tape)
+    if sigma > 0.3 and any_tape:
         # off-tape pixels take the tape's dark level first, so bright skin beside the tape does not
-        # bleed into the blurred tape border and pose as a dot
+        # bleed into the blurred tape border and pose as a dot (grey is this function's own copy)
         dark = np.float32(np.percentile(grey[tape], 1))
-        grey = cv2.GaussianBlur(np.where(tape, grey, dark), (0, 0), sigma)
+        np.copyto(grey, dark, where=off)
+        grey = cv2.GaussianBlur(grey, (0, 0), sigma)
     elif sigma > 0.3:
         grey = cv2.GaussianBlur(grey, (0, 0), sigma)
-    if tape.any():
+    if any_tape:
         lo, hi = np.percentile(grey[tape], [1, 99.5])
     else:
         lo, hi = float(grey.min()), float(grey.max())
-    cost = 1.0 - np.clip((grey - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
+    # 1 - clip((grey - lo) / max(hi - lo, 1e-6), 0, 1) in place, in the type numpy gives grey - lo
+    # (float64 from the percentiles, float32 from the Python floats of an image without tape)
+    cost = np.subtract(grey, lo, dtype=np.result_type(grey, lo))
+    cost /= max(hi - lo, 1e-6)
+    np.clip(cost, 0.0, 1.0, out=cost)
+    np.subtract(1.0, cost, out=cost)
     if not tape.all():
-        outside = cv2.distanceTransform((~tape).astype(np.uint8), cv2.DIST_L2, 5) / downscale
-        cost = np.where(tape, cost, 1.0 + outside_slope * outside)
+        outside = cv2.distanceTransform(off.view(np.uint8), cv2.DIST_L2, 5)
+        if downscale != 1.0:  # x / 1.0 is x
+            outside /= downscale
+        outside *= outside_slope  # 1 + outside_slope * outside, in float32 as the distances are
+        outside += 1.0
+        np.copyto(cost, outside, where=off)
     outside_cost = float(cost.max()) if cost.size else 1.0
     return EvidenceImage(cost=cost.astype(np.float32), scale=float(downscale), outside_cost=outside_cost,
                          origin=origin)

@@ -178,41 +178,98 @@ class _ImageCosts:
         return out
 
     def _costs(self, px: np.ndarray, py: np.ndarray, pz: np.ndarray, k: dict) -> np.ndarray:
+        """The costs of one pass. Each line is the torch expression's operations in its order
+        (``a * b + c * d + e`` as ``((a b) + (c d)) + e``), written into a few (C', N) buffers
+        in place instead of a fresh array per operation (the same values: only where they are
+        stored differs; products and sums of two terms are taken in either order, which IEEE
+        arithmetic gives bit for bit)."""
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = k["r"]
         t0, t1, t2 = k["t"]
-        xc0 = px * r00 + py * r01 + pz * r02 + t0
-        xc1 = px * r10 + py * r11 + pz * r12 + t1
-        xc2 = px * r20 + py * r21 + pz * r22 + t2
+        mul = np.multiply
+        tmp = np.empty((len(t0), len(px)))
+        # camera coordinates: px * r00 + py * r01 + pz * r02 + t0
+        xc0 = mul(px, r00)
+        xc0 += mul(py, r01, out=tmp)
+        xc0 += mul(pz, r02, out=tmp)
+        xc0 += t0
+        xc1 = mul(px, r10)
+        xc1 += mul(py, r11, out=tmp)
+        xc1 += mul(pz, r12, out=tmp)
+        xc1 += t1
+        xc2 = mul(px, r20)
+        xc2 += mul(py, r21, out=tmp)
+        xc2 += mul(pz, r22, out=tmp)
+        xc2 += t2
         z = np.maximum(xc2, 1e-6)
-        xn, yn = xc0 / z, xc1 / z
-        r2 = xn * xn + yn * yn
-        radial = 1 + r2 * (k["k1"] + r2 * (k["k2"] + r2 * k["k3"]))
-        xd = xn * radial + k["two_p1"] * xn * yn + k["p2"] * (r2 + 2 * xn * xn)
-        yd = yn * radial + k["p1"] * (r2 + 2 * yn * yn) + k["two_p2"] * xn * yn
-        u = k["fx"] * xd + k["skew"] * yd + k["cx"]
-        v = k["fy"] * yd + k["cy"]
+        xn = np.divide(xc0, z, out=xc0)
+        yn = np.divide(xc1, z, out=xc1)
+        r2 = mul(xn, xn, out=z)  # xn * xn + yn * yn
+        r2 += mul(yn, yn, out=tmp)
+        radial = mul(r2, k["k3"])  # 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        radial += k["k2"]
+        radial *= r2
+        radial += k["k1"]
+        radial *= r2
+        radial += 1
+        xd = mul(xn, radial)  # xn * radial + two_p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
+        mul(k["two_p1"], xn, out=tmp)
+        tmp *= yn
+        xd += tmp
+        mul(xn, 2, out=tmp)
+        tmp *= xn
+        tmp += r2
+        tmp *= k["p2"]
+        xd += tmp
+        yd = mul(yn, radial, out=radial)  # yn * radial + p1 * (r2 + 2 * yn * yn) + two_p2 * xn * yn
+        mul(yn, 2, out=tmp)
+        tmp *= yn
+        tmp += r2
+        tmp *= k["p1"]
+        yd += tmp
+        mul(k["two_p2"], xn, out=tmp)
+        tmp *= yn
+        yd += tmp
+        u = mul(k["fx"], xd, out=xd)  # fx * xd + skew * yd + cx
+        u += mul(k["skew"], yd, out=tmp)
+        u += k["cx"]
+        v = mul(k["fy"], yd, out=yd)  # fy * yd + cy
+        v += k["cy"]
         # sample_uv: NaN (behind the camera, or NaN points) reads column / row 0, as its
         # nan_to_num(nan=-1) and clamp(0, .) do; fmax/fmin map NaN to 0 and clamp infinities alike
         h, w = self.h, self.w
-        if k["unit_scale"]:  # (u - ox) * 1.0 is u - ox
-            x = np.fmin(np.fmax((u - k["ox"]) + 1.0, 0.0), w - 1)
-            y = np.fmin(np.fmax((v - k["oy"]) + 1.0, 0.0), h - 1)
-        else:
-            x = np.fmin(np.fmax((u - k["ox"]) * k["scale"] + 1.0, 0.0), w - 1)
-            y = np.fmin(np.fmax((v - k["oy"]) * k["scale"] + 1.0, 0.0), h - 1)
+        u -= k["ox"]
+        v -= k["oy"]
+        if not k["unit_scale"]:  # (u - ox) * 1.0 is u - ox
+            u *= k["scale"]
+            v *= k["scale"]
+        u += 1.0
+        v += 1.0
+        x = np.fmin(np.fmax(u, 0.0, out=u), w - 1, out=u)
+        y = np.fmin(np.fmax(v, 0.0, out=v), h - 1, out=v)
         if np.fmin.reduce(xc2, axis=None, initial=np.inf) <= 1e-6:  # behind a camera (NaN is not)
             x[xc2 <= 1e-6] = 0.0
         xi = x.astype(np.int64)  # floor: x >= 0
         yi = y.astype(np.int64)
         np.minimum(xi, w - 2, out=xi)
         np.minimum(yi, h - 2, out=yi)
-        fx, fy = x - xi, y - yi
-        idx = k["base"] + yi * w + xi
-        gx = 1 - fx
-        top = self.flat.take(idx) * gx + self.flat1.take(idx) * fx
-        bottom = self.flatw.take(idx) * gx + self.flatw1.take(idx) * fx
-        cost = top * (1 - fy) + bottom * fy
-        return cost if self.cap is None else np.minimum(cost, self.cap, out=cost)
+        fx = np.subtract(x, xi, out=x)
+        fy = np.subtract(y, yi, out=y)
+        yi *= w  # idx = base + yi * w + xi
+        yi += k["base"]
+        yi += xi
+        idx = yi
+        gx = np.subtract(1, fx, out=xc2)
+        # top = flat[idx] * gx + flat1[idx] * fx; bottom likewise one row down; then
+        # top * (1 - fy) + bottom * fy (the canvas' float32 corners promote exactly)
+        corner = self.flat.take(idx)
+        top = mul(corner, gx, out=tmp)
+        top += mul(self.flat1.take(idx, out=corner), fx, out=r2)
+        bottom = mul(self.flatw.take(idx, out=corner), gx, out=gx)
+        bottom += mul(self.flatw1.take(idx, out=corner), fx, out=fx)
+        top *= np.subtract(1, fy, out=r2)
+        bottom *= fy
+        top += bottom
+        return top if self.cap is None else np.minimum(top, self.cap, out=top)
 
 
 class RefinementMRF:

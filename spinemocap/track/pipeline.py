@@ -14,6 +14,9 @@ application layer's :mod:`spinemocap.app.run`.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import weakref
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -118,6 +121,7 @@ class FrameTracker:
         self.rng = np.random.default_rng(self.config.seed)
         self.monitor = RigMonitor(rig, self.config.candidates, self.config.rig)
         self.stretch = StretchEstimate.nominal()  # the last spacing measured on a frame
+        self._pool: tuple[int, ThreadPoolExecutor] | None = None  # the evidence threads, started when first needed
 
     @property
     def n_dots(self) -> int:
@@ -156,11 +160,31 @@ class FrameTracker:
             return select_edges(cloud, edge_cloud, tape, self.config.lp)
 
     def evidence(self, views: Sequence[ViewDots]) -> list | None:
-        """MRF2's per-camera cost images (None when no view has an image)."""
-        if not any(v.image is not None for v in views):
+        """MRF2's per-camera cost images (None when no view has an image). A view that holds its
+        colour image is read as it is: the evidence converts only its window to grey (the same
+        pixels), not the whole frame."""
+        images = [v.held_image for v in views]
+        jobs = [(image, v.mask) for image, v in zip(images, views) if image is not None]
+        if not jobs:
             return None
-        return [build_evidence(v.image, v.mask, downscale=self.config.evidence.downscale)
-                if v.image is not None else None for v in views]
+        build = functools.partial(build_evidence, downscale=self.config.evidence.downscale)
+        threads = self.config.evidence.threads
+        if threads > 1 and len(jobs) > 1:
+            # while the tracker works the camera threads wait for it: a core may be free
+            built = iter(list(self._evidence_pool(threads).map(lambda job: build(*job), jobs)))
+        else:
+            built = iter([build(*job) for job in jobs])
+        return [next(built) if image is not None else None for image in images]
+
+    def _evidence_pool(self, threads: int) -> ThreadPoolExecutor:
+        """The tracker's evidence threads (shut down when the tracker goes)."""
+        if self._pool is None or self._pool[0] != threads:
+            if self._pool is not None:
+                self._pool[1].shutdown(wait=False)
+            pool = ThreadPoolExecutor(threads, thread_name_prefix="evidence")
+            weakref.finalize(self, pool.shutdown, wait=False)
+            self._pool = (threads, pool)
+        return self._pool[1]
 
     def refine(self, positions: np.ndarray, views: Sequence[ViewDots],
                feasible_points: np.ndarray | None = None, evidence: list | None = None,
