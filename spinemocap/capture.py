@@ -6,7 +6,7 @@ Folder layout::
       capture.toml          # this module's manifest (below)
       rig.toml              # cameras, see spinemocap.camera
       images/<camera>/000000.png ...      (media = "images")
-      videos/<camera>.avi                 (media = "video"; lossless UT Video, see VideoWriter;
+      videos/<camera>.avi                 (media = "video"; lossless UT Video or uncompressed BGR, see VideoWriter;
                                            older captures: FFV1 .mkv, named in capture.toml)
       groundtruth.npz       # synthetic captures only
 
@@ -59,8 +59,8 @@ VIDEO_PATTERN = "videos/{camera}.avi"
 VIDEO_CODEC = "utvideo"
 # The lossless codecs VideoWriter writes, and the pixel format each stores BGR images in: UT Video
 # (planar RGB, Huffman-coded: 0.57x the raw size on the lab-realism studio capture, ~28 CPU ms to
-# decode a 2448x1600 image) or uncompressed BGR (``rawvideo``: 1.77x UT Video's size, decoding is
-# a copy; docs/BENCHMARKS.md, issue 15)
+# decode a 2448x1600 image) or uncompressed BGR (``rawvideo``: 1.77x UT Video's size; a frame is
+# the bytes read, nothing to decode; docs/BENCHMARKS.md, issue 15, branch vdec)
 VIDEO_CODECS = {"utvideo": "gbrp", "rawvideo": "bgr24"}
 MAX_FPS = 1e5
 # A VideoDecoder's BGR arrays kept for reuse once the caller drops them (a new 11.75 MB array makes
