@@ -6,7 +6,7 @@ Folder layout::
       capture.toml          # this module's manifest (below)
       rig.toml              # cameras, see spinemocap.camera
       images/<camera>/000000.png ...      (media = "images")
-      videos/<camera>.avi                 (media = "video"; lossless UT Video, see VideoWriter;
+      videos/<camera>.avi                 (media = "video"; lossless UT Video or uncompressed BGR, see VideoWriter;
                                            older captures: FFV1 .mkv, named in capture.toml)
       groundtruth.npz       # synthetic captures only
 
@@ -37,6 +37,7 @@ benchmark can render and track without writing images to disk.
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -56,7 +57,16 @@ MEDIA = ("images", "video")
 # .mkv files of older captures stay readable: the manifest names each capture's own pattern).
 VIDEO_PATTERN = "videos/{camera}.avi"
 VIDEO_CODEC = "utvideo"
+# The lossless codecs VideoWriter writes, and the pixel format each stores BGR images in: UT Video
+# (planar RGB, Huffman-coded: 0.57x the raw size on the lab-realism studio capture, ~28 CPU ms to
+# decode a 2448x1600 image) or uncompressed BGR (``rawvideo``: 1.77x UT Video's size; a frame is
+# the bytes read, nothing to decode; docs/BENCHMARKS.md, issue 15, branch vdec)
+VIDEO_CODECS = {"utvideo": "gbrp", "rawvideo": "bgr24"}
 MAX_FPS = 1e5
+# A VideoDecoder's BGR arrays kept for reuse once the caller drops them (a new 11.75 MB array makes
+# the kernel zero its pages again on every frame): the most frames of one camera held at once
+# that still reuse (the tracker's reader holds about 4: prefetched, being detected, being solved)
+REUSED_BUFFERS = 6
 
 
 @runtime_checkable
@@ -173,6 +183,7 @@ class VideoDecoder:
         self._start = self._stream.start_time or 0
         self._frames = self._container.decode(self._stream)
         self._next = 0
+        self._buffers: list[np.ndarray] = []  # BGR arrays handed out, reused once free (_bgr)
 
     @property
     def n_frames(self) -> int:
@@ -201,7 +212,28 @@ class VideoDecoder:
         if index != frame:
             raise InputError(self.path, f"cannot decode frame {frame} (the video skips from it to frame {index})")
         self._next = frame + 1
-        return _bgr(decoded)
+        return self._bgr(decoded)
+
+    def _bgr(self, decoded) -> np.ndarray:
+        """``decoded`` as BGR uint8. Planar RGB is interleaved into one of the arrays this decoder
+        handed out before once nothing else holds it (no reference left but the decoder's own: a
+        held image, or a view of it, is never overwritten), else into a new one: a new 11.75 MB
+        array costs the kernel's zeroing of its pages on every frame. (BGR frames, ``rawvideo``,
+        come as a view of the frame FFmpeg read: no copy.)"""
+        if decoded.format.name != "gbrp":
+            return _bgr(decoded)
+        shape = (decoded.height, decoded.width, 3)
+        out = None
+        for k in range(len(self._buffers)):
+            # references: the list's and getrefcount's argument, none outside this decoder
+            if sys.getrefcount(self._buffers[k]) == 2 and self._buffers[k].shape == shape:
+                out = self._buffers[k]
+                break
+        if out is None:
+            out = np.empty(shape, np.uint8)
+            if len(self._buffers) < REUSED_BUFFERS:
+                self._buffers.append(out)
+        return _bgr(decoded, out)
 
     def _index(self, decoded) -> int:
         if decoded.pts is None:
@@ -218,13 +250,15 @@ class VideoDecoder:
         self._container.close()
 
 
-def _bgr(decoded) -> np.ndarray:
-    """A decoded PyAV video frame as a new BGR uint8 array."""
+def _bgr(decoded, out: np.ndarray | None = None) -> np.ndarray:
+    """A decoded PyAV video frame as a BGR uint8 array. Planar RGB is interleaved by OpenCV,
+    without FFmpeg's colour conversion, into ``out`` (H, W, 3) when given, else a new array;
+    other formats go through PyAV (BGR itself: a view of the frame's memory)."""
     if decoded.format.name != "gbrp":
         return decoded.to_ndarray(format="bgr24")
     height, width = decoded.height, decoded.width
     g, b, r = (np.frombuffer(plane, np.uint8).reshape(height, plane.line_size)[:, :width] for plane in decoded.planes)
-    return cv2.merge([b, g, r])
+    return cv2.merge([b, g, r], out) if out is not None else cv2.merge([b, g, r])
 
 
 class VideoSource:
@@ -278,20 +312,22 @@ class VideoSource:
 
 
 class VideoWriter:
-    """One camera's lossless video (:data:`VIDEO_CODEC`, planar RGB, so every BGR pixel comes
-    back exactly), written through PyAV to a temporary file that :meth:`close` renames into place
-    (:meth:`abort` drops it). ``fps`` frames/s, ``size`` (width, height) px; read back by
-    :class:`VideoDecoder`."""
+    """One camera's lossless video (``codec``: one of :data:`VIDEO_CODECS`, :data:`VIDEO_CODEC`
+    by default; planar RGB or BGR, so every BGR pixel comes back exactly), written through PyAV to
+    a temporary file that :meth:`close` renames into place (:meth:`abort` drops it). ``fps``
+    frames/s, ``size`` (width, height) px; read back by :class:`VideoDecoder`."""
 
-    def __init__(self, path: str | os.PathLike, fps: float, size: tuple[int, int]):
+    def __init__(self, path: str | os.PathLike, fps: float, size: tuple[int, int], codec: str = VIDEO_CODEC):
+        if codec not in VIDEO_CODECS:
+            raise InputError(path, f"unknown video codec {codec!r} (choose {', '.join(VIDEO_CODECS)})")
         av = _pyav(path)
         self._place = atomic_path(path)
         tmp = self._place.__enter__()
         try:
             self._container = av.open(str(tmp), "w")
-            self._stream = self._container.add_stream(VIDEO_CODEC, rate=Fraction(fps).limit_denominator(1001))
+            self._stream = self._container.add_stream(codec, rate=Fraction(fps).limit_denominator(1001))
             self._stream.width, self._stream.height = int(size[0]), int(size[1])
-            self._stream.pix_fmt = "gbrp"
+            self._stream.pix_fmt = VIDEO_CODECS[codec]
         except BaseException as exc:
             self._place.__exit__(type(exc), exc, exc.__traceback__)
             raise

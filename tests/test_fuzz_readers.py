@@ -108,19 +108,24 @@ VIDEO_FRAMES, VIDEO_SIZE = 4, (64, 48)
 
 
 def seeds_video(folder: Path) -> dict[str, bytes]:
-    """A capture's lossless UT Video (as written now) and an FFV1 .mkv (older captures)."""
+    """A capture's lossless UT Video (as written by default), uncompressed BGR (the writer's other
+    codec) and an FFV1 .mkv (older captures)."""
     import cv2
 
     rng = np.random.default_rng(5)
     frames = [rng.integers(0, 256, (VIDEO_SIZE[1], VIDEO_SIZE[0], 3), dtype=np.uint8) for _ in range(VIDEO_FRAMES)]
     new = VideoWriter(folder / "a.avi", 100.0, VIDEO_SIZE)
+    raw = VideoWriter(folder / "c.avi", 100.0, VIDEO_SIZE, codec="rawvideo")
     old = cv2.VideoWriter(str(folder / "b.mkv"), cv2.VideoWriter_fourcc(*"FFV1"), 100.0, VIDEO_SIZE)
     for image in frames:
         new.write(image)
+        raw.write(image)
         old.write(image)
     new.close()
+    raw.close()
     old.release()
-    return {"utvideo": (folder / "a.avi").read_bytes(), "ffv1": (folder / "b.mkv").read_bytes()}
+    return {"utvideo": (folder / "a.avi").read_bytes(), "rawvideo": (folder / "c.avi").read_bytes(),
+            "ffv1": (folder / "b.mkv").read_bytes()}
 
 
 def read_video(path: Path) -> list[np.ndarray]:

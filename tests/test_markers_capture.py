@@ -83,14 +83,15 @@ def test_capture_errors_name_the_problem(tmp_path):
         read_image(tmp_path / "images/cam0/000001.png")
 
 
-def test_videos_round_trip_losslessly_and_older_ffv1_videos_stay_readable(tmp_path):
+@pytest.mark.parametrize("codec", ["utvideo", "rawvideo"])
+def test_videos_round_trip_losslessly_and_older_ffv1_videos_stay_readable(tmp_path, codec):
     import cv2
 
     from spinemocap.capture import VideoSource, VideoWriter
 
     rng = np.random.default_rng(0)
     frames = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(3)]
-    new = VideoWriter(tmp_path / "videos" / "a.avi", 100.0, (64, 48))
+    new = VideoWriter(tmp_path / "videos" / "a.avi", 100.0, (64, 48), codec=codec)
     old = cv2.VideoWriter(str(tmp_path / "videos" / "b.mkv"), cv2.VideoWriter_fourcc(*"FFV1"), 100.0, (64, 48))
     for image in frames:
         new.write(image)
@@ -102,10 +103,54 @@ def test_videos_round_trip_losslessly_and_older_ffv1_videos_stay_readable(tmp_pa
         for f in (0, 2, 1):  # a jump back seeks
             np.testing.assert_array_equal(source.read(f)[0], frames[f])
     # an aborted video leaves no file behind
-    broken = VideoWriter(tmp_path / "videos" / "c.avi", 100.0, (64, 48))
+    broken = VideoWriter(tmp_path / "videos" / "c.avi", 100.0, (64, 48), codec=codec)
     broken.write(frames[0])
     broken.abort()
     assert sorted(p.name for p in (tmp_path / "videos").iterdir()) == ["a.avi", "b.mkv"]
+    with pytest.raises(InputError, match=r"d\.avi.*unknown video codec 'huffyuv'"):
+        VideoWriter(tmp_path / "videos" / "d.avi", 100.0, (64, 48), codec="huffyuv")
+
+
+def test_video_images_held_by_the_caller_are_never_overwritten(tmp_path):
+    """The decoder interleaves each UT Video frame into an array it handed out before only once
+    nothing else holds that array: images (or views of them) kept by the caller keep their pixels,
+    a dropped one is reused, and a prefetching reader in another thread gets every frame right."""
+    from spinemocap.app.streaming import prefetched_frames
+    from spinemocap.capture import REUSED_BUFFERS, VideoDecoder, VideoSource, VideoWriter
+
+    n = 2 * REUSED_BUFFERS + 3
+    rng = np.random.default_rng(2)
+    frames = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(n)]
+    writer = VideoWriter(tmp_path / "a.avi", 100.0, (64, 48))
+    for image in frames:
+        writer.write(image)
+    writer.close()
+    decoder = VideoDecoder(tmp_path / "a.avi")
+    first = decoder.read(0)
+    view = decoder.read(1)[10:20, 5:9, 1]  # only a view of frame 1 kept
+    held = [decoder.read(f) for f in range(2, n)]  # more than the decoder keeps for reuse
+    np.testing.assert_array_equal(first, frames[0])
+    np.testing.assert_array_equal(view, frames[1][10:20, 5:9, 1])
+    for f, image in enumerate(held, start=2):
+        np.testing.assert_array_equal(image, frames[f])
+    decoder.close()
+    decoder = VideoDecoder(tmp_path / "a.avi")
+    addresses = set()
+    for f in range(n):  # each image dropped before the next read: one array serves them all
+        image = decoder.read(f)
+        np.testing.assert_array_equal(image, frames[f])
+        addresses.add(image.ctypes.data)
+        del image
+    decoder.close()
+    assert len(addresses) == 1
+    source = VideoSource(tmp_path, ["cam", "cam2"], n, "a.avi")  # two cameras: reader threads
+    kept: list = []
+    for frame, images, _ in prefetched_frames(source, range(n), workers=2, prefetch=2):
+        kept = (kept + [images])[-2:]  # the consumer holds the last two frames, as the tracker does
+        for earlier, images_then in zip(range(frame - len(kept) + 1, frame + 1), kept):
+            for image in images_then:
+                np.testing.assert_array_equal(image, frames[earlier])
+    source.close()
 
 
 def test_damaged_videos_give_an_error_naming_the_file(tmp_path):

@@ -4,7 +4,8 @@ video, with the previous pipeline (:data:`spinemocap.app.streaming.LEGACY`) as t
 same run.
 
 The scene is rendered once into a capture folder of PNG images (``write_capture``) and copied
-into lossless UT Video videos (and its first frames into FFV1, the previous format, whose decoding
+into lossless videos (UT Video by default, ``video_codec``: any of the writer's codecs, e.g.
+uncompressed ``rawvideo``; and its first frames into FFV1, the previous format, whose decoding
 alone is the video peer); rendering and encoding are not timed. Each run tracks the same frames with the
 shipped network detector and reports frames/s (wall time of detection + tracking, reading
 included, writing the outputs excluded), the mean time per stage per frame, the peak resident
@@ -34,8 +35,8 @@ from tqdm import tqdm
 
 from ..app.run import TrackingWarning, TrackResult, track_source
 from ..app.streaming import LEGACY, SpeedOptions, resolve_parallel
-from ..capture import VIDEO_PATTERN, Capture, FrameSource, VideoWriter
-from ..fileio import atomic_write, read_toml, write_toml
+from ..capture import VIDEO_CODEC, VIDEO_CODECS, VIDEO_PATTERN, Capture, FrameSource, VideoWriter
+from ..fileio import InputError, atomic_write, read_toml, write_toml
 from ..track.evaluate import evaluate_tracking
 
 # "Not worse": mean error within this of the peer's (sub-pixel differences of the predicted
@@ -98,17 +99,18 @@ class PeakMemory:
         self.peak_mib = self._peak - self._start
 
 
-def video_copy(png_capture: Path, out: Path, codec: str = "utvideo", frames: int | None = None,
+def video_copy(png_capture: Path, out: Path, codec: str = VIDEO_CODEC, frames: int | None = None,
                progress: bool = True, source: FrameSource | None = None, groundtruth: dict | None = None) -> Path:
     """The PNG capture ``png_capture`` as a capture of lossless videos (one per camera) in ``out``,
-    with the same rig, manifest and ground truth. ``codec``: ``utvideo`` (what captures are
-    written in now, :class:`~spinemocap.capture.VideoWriter`) or ``ffv1`` (the previous format,
-    through OpenCV: the decoding peer); ``frames``: only the first so many; ``source`` and
+    with the same rig, manifest and ground truth. ``codec``: one of
+    :data:`~spinemocap.capture.VIDEO_CODECS` (:class:`~spinemocap.capture.VideoWriter`: UT Video,
+    what captures are written in by default, or uncompressed ``rawvideo``) or ``ffv1`` (the
+    previous format, through OpenCV: the decoding peer); ``frames``: only the first so many; ``source`` and
     ``groundtruth``: other frames of the same rig and their ground truth (a replayed capture)."""
     capture = Capture.open(png_capture)
     source = source or capture.frame_source()
     n_frames = source.n_frames if frames is None else min(frames, source.n_frames)
-    pattern = VIDEO_PATTERN if codec == "utvideo" else "videos/{camera}.mkv"
+    pattern = VIDEO_PATTERN if codec in VIDEO_CODECS else "videos/{camera}.mkv"
     writers = [_video_writer(out / pattern.format(camera=cam.name), codec, capture.fps, cam.size) for cam in capture.rig]
     try:
         for frame in tqdm(range(n_frames), desc=f"encoding {codec}", unit="frame", leave=False,
@@ -135,8 +137,8 @@ def video_copy(png_capture: Path, out: Path, codec: str = "utvideo", frames: int
 
 def _video_writer(path: Path, codec: str, fps: float, size: tuple[int, int]):
     path.parent.mkdir(parents=True, exist_ok=True)
-    if codec == "utvideo":
-        return VideoWriter(path, fps, size)
+    if codec in VIDEO_CODECS:
+        return VideoWriter(path, fps, size, codec)
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), fps, size)  # type: ignore[attr-defined]
     if not writer.isOpened():
         raise RuntimeError(f"OpenCV cannot write FFV1 video to {path}")
@@ -438,15 +440,21 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                         workdir: Path | None = None, legacy: bool = True, video: bool = True,
                         in_memory: bool = True, speed: SpeedOptions | None = None, progress: bool = True,
                         say: Callable[[str], None] = print, realism: str = "lab", memory_frames: int = 30,
-                        parallel_peer: bool = False, lookahead_peer: bool = False) -> dict:
+                        parallel_peer: bool = False, lookahead_peer: bool = False,
+                        video_codec: str = VIDEO_CODEC) -> dict:
     """Render ``frames`` frames of the synthetic ``preset`` and time tracking them (see the module
     docstring). ``legacy``: also run the previous pipeline (the peer); ``workdir``: where the
     capture folders go (a temporary folder, removed afterwards, when None); ``realism``: the
     studio's level (``lab``: tension, skin strain, the lab's inexact rig, sync error, noise);
     ``memory_frames``: decoded frames held for the in-memory runs (replayed forward and backward);
     ``parallel_peer`` / ``lookahead_peer``: the in-memory run also with the cameras in the other
-    parallel mode / with the other lookahead (:func:`lookahead_numbers`; the video run too)."""
+    parallel mode / with the other lookahead (:func:`lookahead_numbers`; the video run too);
+    ``video_codec``: the lossless codec the video run reads (:data:`~spinemocap.capture.VIDEO_CODECS`;
+    its copy goes to ``video`` for UT Video, else ``video_<codec>``)."""
     from ..synth import SynthConfig, write_capture
+
+    if video_codec not in VIDEO_CODECS:
+        raise InputError(None, f"unknown video codec {video_codec!r} (choose {', '.join(VIDEO_CODECS)})")
 
     speed = speed or SpeedOptions()
     config = SynthConfig.preset(preset, frames=frames, occlusion=occlusion, seed=seed, realism=realism)
@@ -502,10 +510,11 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
         decoding = {"png": decode_speed(capture.frame_source(), capture.n_frames, workers)}
         vid = None
         if video:
-            video_dir, ffv1_dir = root / "video", root / "video_ffv1"
+            video_dir = root / ("video" if video_codec == "utvideo" else f"video_{video_codec}")
+            ffv1_dir = root / "video_ffv1"
             if not (video_dir / "capture.toml").is_file():
-                say("encoding the frames as lossless UT Video (not timed) ...")
-                video_copy(png_dir, video_dir, progress=progress)
+                say(f"encoding the frames as lossless video ({video_codec}, not timed) ...")
+                video_copy(png_dir, video_dir, codec=video_codec, progress=progress)
             decoding["video"] = decode_speed(Capture.open(video_dir).frame_source(), capture.n_frames, workers)
             n_ffv1 = min(capture.n_frames, FFV1_FRAMES)  # the previous format's decoding: the peer
             if not (ffv1_dir / "capture.toml").is_file():
@@ -528,6 +537,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
         "speed_options": asdict(speed),
         "fps_png": png["fps"],
         "fps_video": vid["fps"] if vid else None,
+        "video_codec": video_codec if vid else None,
         "fps_in_memory": mem["fps"] if mem else None,
         "speedup_vs_previous": png["fps"] / peer["fps"] if peer else None,
         "speedup_vs_previous_in_memory": mem["fps"] / mem_peer["fps"] if mem and mem_peer else None,

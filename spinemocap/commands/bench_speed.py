@@ -35,6 +35,9 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-predict", action="store_true", help="full detector search in every frame")
     p.add_argument("--no-legacy", action="store_true", help="skip the previous pipeline (the peer)")
     p.add_argument("--no-video", action="store_true", help="skip the video run")
+    p.add_argument("--video-codec", default="utvideo", choices=("utvideo", "rawvideo"),
+                   help="the video run's lossless codec: UT Video (what captures are written in by default) or "
+                        "uncompressed BGR (1.77x the files, decoding is a copy)")
     p.add_argument("--no-memory", action="store_true", help="skip the in-memory runs")
     p.add_argument("--memory-frames", type=int, default=30,
                    help="decoded frames held for the in-memory runs, replayed forward and backward for --frames "
@@ -83,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
                                       args.workdir, legacy=not args.no_legacy, video=not args.no_video,
                                       in_memory=not args.no_memory, speed=speed, progress=not args.no_progress,
                                       realism=args.realism, memory_frames=args.memory_frames,
-                                      parallel_peer=not args.no_parallel_peer, lookahead_peer=not args.no_lookahead_peer)
+                                      parallel_peer=not args.no_parallel_peer, lookahead_peer=not args.no_lookahead_peer,
+                                      video_codec=args.video_codec)
     print(format_report(numbers))
     if args.json:
         save(numbers, args.json)
