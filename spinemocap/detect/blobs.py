@@ -107,12 +107,10 @@ def fill_holes(mask: np.ndarray, box: tuple[slice, slice] | None = None) -> np.n
     return out
 
 
-@functools.lru_cache(maxsize=512)
-def _area_table_whole(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """OpenCV's ``computeResizeAreaTab`` along one axis (``ssize`` -> ``dsize`` px, a non-integer
-    scale): destination index, source index and weight (float32, as OpenCV rounds it) of each
-    entry, in OpenCV's order (by destination, then source): the reference form of the dense table
-    :func:`_area_table` reads (:func:`_area_table_dense`, built directly; the tests compare them)."""
+def _area_cells(ssize: int, dsize: int) -> tuple[np.ndarray, ...]:
+    """Per destination px of OpenCV's area resize along one axis (``ssize`` -> ``dsize``):
+    its index, source span [fsx1, fsx2), cell width, first and last whole source px, and whether
+    a partial source px comes before / after them (float64, OpenCV's expressions)."""
     scale = 1.0 / (dsize / ssize)
     dx = np.arange(dsize)
     fsx1 = dx * scale
@@ -120,7 +118,16 @@ def _area_table_whole(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, n
     cell = np.minimum(scale, ssize - fsx1)
     sx2 = np.minimum(np.floor(fsx2), ssize - 1)
     sx1 = np.minimum(np.ceil(fsx1), sx2)
-    pre, post = sx1 - fsx1 > 1e-3, fsx2 - sx2 > 1e-3
+    return dx, fsx1, fsx2, cell, sx1, sx2, sx1 - fsx1 > 1e-3, fsx2 - sx2 > 1e-3
+
+
+@functools.lru_cache(maxsize=512)
+def _area_table_whole(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """OpenCV's ``computeResizeAreaTab`` along one axis (``ssize`` -> ``dsize`` px, a non-integer
+    scale): destination index, source index and weight (float32, as OpenCV rounds it) of each
+    entry, in OpenCV's order (by destination, then source): the reference form of the dense table
+    :func:`_area_table` reads (:func:`_area_table_dense`, built directly; the tests compare them)."""
+    dx, fsx1, fsx2, cell, sx1, sx2, pre, post = _area_cells(ssize, dsize)
     count = pre.astype(np.int64) + (sx2 - sx1).astype(np.int64) + post
     entry = np.repeat(dx, count)  # the destination of each entry
     rank = np.arange(len(entry)) - (np.cumsum(count) - count)[entry]
@@ -141,14 +148,7 @@ def _area_table_dense(ssize: int, dsize: int) -> tuple[np.ndarray, np.ndarray, n
     the destination's last one); and per destination its first and last source index. Built
     directly (a destination's sources are consecutive: the partial one before, the whole ones,
     the partial one after), with the same float64 expressions per destination as the whole table's."""
-    scale = 1.0 / (dsize / ssize)
-    dx = np.arange(dsize)
-    fsx1 = dx * scale
-    fsx2 = fsx1 + scale
-    cell = np.minimum(scale, ssize - fsx1)
-    sx2 = np.minimum(np.floor(fsx2), ssize - 1)
-    sx1 = np.minimum(np.ceil(fsx1), sx2)
-    pre, post = sx1 - fsx1 > 1e-3, fsx2 - sx2 > 1e-3
+    dx, fsx1, fsx2, cell, sx1, sx2, pre, post = _area_cells(ssize, dsize)
     whole = (sx2 - sx1).astype(np.int64)
     count = pre.astype(np.int64) + whole + post
     first_source = sx1.astype(np.int64) - pre
