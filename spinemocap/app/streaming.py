@@ -234,6 +234,13 @@ def _in_background(load, frames: Sequence[int], depth: int):
         thread.join()
 
 
+def _close(frames: Iterator) -> None:
+    """Close a frame iterator that can be closed (a generator: its reading thread stops)."""
+    close = getattr(frames, "close", None)
+    if close is not None:
+        close()
+
+
 def detected_ahead(frames_in: Iterator[tuple[int, list[np.ndarray], list[np.ndarray] | None]],
                    detect: "CaptureDetector", lookahead: int) -> Iterator[tuple[int, list, float]]:
     """Yield ``(frame, views, wait_ms)`` for the tracker with detection in a background thread that
@@ -263,9 +270,7 @@ def detected_ahead(frames_in: Iterator[tuple[int, list[np.ndarray], list[np.ndar
         except BaseException as exc:  # handed to the tracker's thread, raised there
             out.put(exc)
         finally:
-            close = getattr(frames_in, "close", None)
-            if close is not None:
-                close()
+            _close(frames_in)
 
     thread = threading.Thread(target=work, name="detect-ahead", daemon=True)
     thread.start()
@@ -593,9 +598,7 @@ class CaptureDetector:
                 with cond:
                     state["ended"] = True
                     cond.notify_all()
-                close = getattr(frames_in, "close", None)
-                if close is not None:
-                    close()
+                _close(frames_in)
 
         reader = threading.Thread(target=read_frames, name="detect-stream", daemon=True)
         reader.start()
