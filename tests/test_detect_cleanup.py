@@ -18,7 +18,7 @@ from spinemocap.detect import blobs
 from spinemocap.detect.blobs import _Blobs, _ring_pixels, fill_holes, median, merge_close
 from spinemocap.detect.drawn import draw_sample
 from spinemocap.detect.instances import kept_instances, split_instances, union
-from spinemocap.detect.refine import RefineParams, _levels, _local_means, _snap
+from spinemocap.detect.refine import RefineParams, _band_levels, _levels, _snap
 
 
 # ---------------------------------------------------------------- the pass before (reference)
@@ -288,7 +288,7 @@ def _reference_local_mean(grey, weight, sigma, fallback):
 
 
 @pytest.mark.parametrize("shift", [0, 30, -30])
-def test_levels_and_snap_in_the_masks_box_are_the_whole_crops(shift):
+def test_levels_in_the_masks_box_are_the_whole_crops_and_the_band_levels_and_snap_are_close(shift):
     # the drawn tape's mask, too wide, moved so that it also touches the crop's border (shift != 0)
     sample = draw_sample(np.random.default_rng(3), size=(480, 640), px_per_mm=1.4, n_rows=9)
     # 477 x 635: the 4x smaller grid's scale is not an integer (OpenCV's general INTER_AREA route)
@@ -304,17 +304,23 @@ def test_levels_and_snap_in_the_masks_box_are_the_whole_crops(shift):
         assert (whole_tape == tape).all() and (whole_ring == ring).all()
         assert ours.tape_median == np.median(grey[tape]) and ours.ring_median == np.median(grey[ring])
         assert type(ours.tape_median) is type(np.median(grey[tape]))
-        # the levels from the samples' box: the whole crop's, bit for bit
+        # the levels measured at the band's pixels only (every second sample, the grid around the
+        # samples' box): within a grey level of the whole crop's levels (OpenCV's shrink, blur, enlargement)
         tape_level = _reference_local_mean(grey, tape.astype(np.float32), p.level_sigma_px, float(np.median(grey[tape])))
         skin_level = _reference_local_mean(grey, ring.astype(np.float32), p.level_sigma_px, float(np.median(grey[ring])))
-        levels = _local_means(image, ours, p.level_sigma_px)
-        assert (levels[0] == tape_level).all() and (levels[1] == skin_level).all()
-    # the snap on the band in the mask's box: the whole crop's snap
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * p.band_px + 1,) * 2)
-    band = cv2.dilate(mask.view(np.uint8), disc).view(bool) & ~cv2.erode(mask.view(np.uint8), disc).view(bool)
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * p.band_px + 1,) * 2)
+        band = cv2.dilate(mask.view(np.uint8), disc).view(bool) & ~cv2.erode(mask.view(np.uint8), disc).view(bool)
+        ys, xs = np.nonzero(band)
+        tape_at, skin_at = _band_levels(image, ours, p.level_sigma_px, ys, xs)
+        assert tape_at.shape == skin_at.shape == ys.shape
+        assert np.median(skin_level[band]) - np.median(tape_level[band]) > 50  # far apart: a 1-level error is small
+        for at, level in ((tape_at, tape_level[band]), (skin_at, skin_level[band])):
+            error = np.abs(at - level)  # larger only where few samples are near (cells' fractional edges)
+            assert error.mean() < 0.3 and np.percentile(error, 99) < 2.0  # the levels lie > 50 apart
+    # the snap on the band in the mask's box: the whole crop's snap but for a few band pixels at the threshold
     expected = fill_holes((mask & ~band) | (band & (grey < 0.5 * (tape_level + skin_level))))
     snapped = _snap(grey, mask, p, ours)
-    assert (snapped == expected).all() and snapped.sum() < mask.sum()  # the too-wide outline moved in
+    assert (snapped != expected).sum() <= 0.005 * band.sum() and snapped.sum() < mask.sum()  # the too-wide outline moved in
 
 
 def test_area_shrink_of_a_box_is_opencvs_inter_area_bit_for_bit():
@@ -477,25 +483,6 @@ def test_nonzero_from_one_flat_pass_is_numpys():
         ys, xs = blobs._nonzero(a)
         ref_ys, ref_xs = np.nonzero(a)
         assert np.array_equal(ys, ref_ys) and np.array_equal(xs, ref_xs) and ys.dtype == ref_ys.dtype
-
-
-def test_blur_of_the_rows_holding_samples_is_opencvs_whole_blur_bit_for_bit():
-    from spinemocap.detect.refine import _blur_rows, _row_blur
-
-    rng = np.random.default_rng(8)
-    for _ in range(300):
-        h, w = int(rng.integers(1, 700)), int(rng.integers(1, 300))
-        sigma = float(rng.choice([0.5, 1.3, 3.0, 4.7]))
-        images = np.zeros((2, h, w), np.float32)
-        if rng.random() < 0.9:  # else: all zero
-            y0, x0 = int(rng.integers(0, h)), int(rng.integers(0, w))
-            y1, x1 = int(rng.integers(y0 + 1, h + 1)), int(rng.integers(x0 + 1, w + 1))
-            values = rng.random((2, y1 - y0, x1 - x0)) * 255 * (rng.random((2, y1 - y0, x1 - x0)) < 0.5)
-            images[:, y0:y1, x0:x1] = values.astype(np.float32)
-        rows = _blur_rows(images, sigma)
-        for image in images:
-            ours, expected = _row_blur(image, sigma, rows), cv2.GaussianBlur(image, (0, 0), sigma)
-            assert np.array_equal(ours.view(np.uint32), expected.view(np.uint32))  # also the zeros' sign
 
 
 def test_find_dots_memo_and_hole_free_mask_give_the_dots_found_without_them(monkeypatch):

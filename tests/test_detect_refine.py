@@ -77,3 +77,29 @@ def test_a_tape_lighter_than_the_skin_is_left_to_the_network(drawn):
     assert (snap_to_edges(light, off) == off).all()
     half = drawn.mask & (np.arange(drawn.mask.shape[0])[:, None] > drawn.mask.shape[0] // 2)
     assert (extend_along_tape(light, half).mask == half).all()
+
+
+def test_a_dropped_dotless_component_leaves_the_tapes_snap_dots_and_levels_as_without_it(drawn):
+    # a dark stripe without dots far from the tape (a shadow the network answered on): dropped,
+    # and the tape's snapped outline, dots and levels are (nearly) those of the tape alone, though
+    # they are not measured again without it (the first snap and levels are kept, less the stripe)
+    from spinemocap.capture import to_grey
+    from spinemocap.detect.refine import RefineParams, _kept_levels, _levels, _near
+
+    image = drawn.image.copy()
+    stray = np.zeros_like(drawn.mask)
+    stray[20:60, 20:300] = True
+    image[stray] = np.median(drawn.image[drawn.mask], axis=0)
+    alone, with_stray = extend_along_tape(image, drawn.mask), extend_along_tape(image, drawn.mask | stray)
+    assert not (with_stray.mask & stray).any() and not (with_stray.snapped & stray).any()
+    assert (with_stray.mask == alone.mask).all()
+    assert (with_stray.snapped != alone.snapped).sum() <= 0.01 * alone.snapped.sum()
+    assert len(with_stray.uv) == len(alone.uv) >= 20
+    assert np.abs(np.sort(with_stray.uv, axis=0) - np.sort(alone.uv, axis=0)).max() < 0.2
+    grey, p = to_grey(image), RefineParams()
+    both = _levels(grey, drawn.mask | stray, p.band_px, p.min_contrast)
+    kept = _kept_levels(grey, both, drawn.mask, _near(drawn.mask, 0), p)
+    own = _levels(grey, drawn.mask, p.band_px, p.min_contrast)
+    assert kept is not None and not (kept.tape[stray[kept.box]]).any()
+    assert abs(float(kept.tape_median) - float(own.tape_median)) <= 2
+    assert abs(float(kept.ring_median) - float(own.ring_median)) <= 2

@@ -37,7 +37,6 @@ from .blobs import (
     DEFAULT_DOT_TO_WIDTH,
     BlobParams,
     _nonzero,
-    area_shrink,
     fill_holes,
     find_dots,
     histogram_median,
@@ -144,6 +143,32 @@ def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float,
     return _Levels(near, tape, ring, tape_median, ring_median, grown)
 
 
+def _kept_levels(grey: np.ndarray, samples: _Levels | None, kept: np.ndarray, kept_box: tuple[slice, slice] | None,
+                 p: RefineParams) -> _Levels | None:
+    """``samples`` (:func:`_levels` of a mask) less those of the components the mask lost, ``kept``
+    its remaining components (bool, crop-sized; ``kept_box`` their box): the tape's samples on
+    ``kept``, the skin's within the ring's reach of its box, their medians again (None, as
+    :func:`_levels` answers, when either is thin or the tape is not clearly darker)."""
+    if samples is None or kept_box is None:
+        return None
+    reach = _near(kept, 3 * p.band_px + 1, kept_box)
+    on_kept = kept[samples.box]
+    near_kept = np.zeros_like(on_kept)
+    near_kept[max(0, reach[0].start - samples.box[0].start):reach[0].stop - samples.box[0].start,
+              max(0, reach[1].start - samples.box[1].start):reach[1].stop - samples.box[1].start] = True
+    tape, ring = samples.tape & on_kept, samples.ring & near_kept
+    if np.count_nonzero(tape) < 10 or np.count_nonzero(ring) < 20:
+        return None
+    g = grey[samples.box]
+    if g.dtype == np.uint8:
+        tape_median, ring_median = histogram_median(_histogram(g, tape)), histogram_median(_histogram(g, ring))
+    else:
+        tape_median, ring_median = median(g[tape]), median(g[ring])
+    if ring_median - tape_median < p.min_contrast:
+        return None
+    return samples._replace(tape=tape, ring=ring, tape_median=tape_median, ring_median=ring_median)
+
+
 def _histogram(grey: np.ndarray, where: np.ndarray) -> np.ndarray:
     """Counts (256,) int64 of the uint8 ``grey`` levels at ``where`` (one OpenCV call)."""
     return cv2.calcHist([grey], [0], where.view(np.uint8), [256], [0, 256]).ravel().astype(np.int64)
@@ -160,57 +185,46 @@ def _midway(samples: _Levels | None) -> float | None:
     return 0.5 * (float(samples.tape_median) + float(samples.ring_median))
 
 
-def _local_means(grey: np.ndarray, samples: _Levels, sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """The local tape and skin levels (float32, crop-sized): for each, the Gaussian mean of
-    ``grey`` weighted by its sample pixels, computed on a 4x smaller grid (the levels vary slowly),
-    and its median where no sample is near. The grid's ``INTER_AREA`` shrink runs on the samples'
-    box only (:func:`area_shrink`: the weights are zero outside it; OpenCV's values bit for bit),
-    the blur and the way back on the whole grid and crop as before."""
+def _band_levels(grey: np.ndarray, samples: _Levels, sigma: float, ys: np.ndarray, xs: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The local tape and skin levels (float32, (N,)) at the crop pixels (``ys``, ``xs``) (the
+    snap's band): for each, the Gaussian mean (``sigma`` px) of ``grey`` weighted by its sample
+    pixels, and its median where no sample is near. The means live on a 4x smaller grid (the
+    levels vary slowly): the samples' grey levels are summed into its cells straight from their
+    pixels (each pixel in the cell that holds its top left corner: OpenCV's ``INTER_AREA`` shrink
+    to within the cells' fractional edges), the grid blurred, and read bilinearly at the band's
+    pixels only (``cv2.resize``'s ``INTER_LINEAR`` coordinates) instead of enlarged to the crop.
+    Session 27 (cleanup6): about a fifth of the whole-crop shrink, blur and enlargement's CPU; the
+    levels within ~1 grey level of theirs (tests/test_detect_cleanup.py)."""
     h, w = grey.shape
-    small = (max(1, w // 4), max(1, h // 4))
-    # the four images to shrink, in the box and transposed (as area_shrink takes them)
-    g = cv2.transpose(grey[samples.box]) if grey.dtype == np.uint8 else np.ascontiguousarray(grey[samples.box].T)
-    columns = np.empty((g.shape[0], 4, g.shape[1]), np.float32)
-    for k, weight in ((0, samples.tape), (2, samples.ring)):
-        wt = cv2.transpose(weight.view(np.uint8))
-        np.multiply(g, wt, out=columns[:, k], dtype=np.float32)  # grey x 0 or 1: exact as in float32
-        columns[:, k + 1] = wt
-    shrunk = area_shrink(columns, (h, w), samples.box, small)
+    sw, sh = max(1, w // 4), max(1, h // 4)
     s = max(sigma / 4, 0.5)
-    rows = _blur_rows(shrunk, s)
-    levels = []
-    for k, fallback in ((0, samples.tape_median), (2, samples.ring_median)):
-        # one blur per image (a four-channel blur rounds differently at some sizes)
-        num, den = _row_blur(shrunk[k], s, rows), _row_blur(shrunk[k + 1], s, rows)
-        mean = np.where(den > 1e-3, num / np.maximum(den, 1e-6), float(fallback)).astype(np.float32, copy=False)
-        levels.append(cv2.resize(mean, (w, h), interpolation=cv2.INTER_LINEAR))
-    return levels[0], levels[1]
-
-
-def _blur_rows(images: np.ndarray, sigma: float) -> tuple[int, int, int, int] | None:
-    """Rows of ``images`` (k, h, w) float32 for :func:`_row_blur`: ``(a, b, c, d)``, the blur of
-    rows ``a:b`` holds that of the whole images' rows ``c:d``, and outside ``c:d`` the whole
-    images' blur is 0 (None: all zero). The rows with a non-zero pixel, grown by the Gaussian's
-    reach (OpenCV's float kernel: 4 sigma each side, taken 1 more) for ``c:d`` and twice for
-    ``a:b`` (rows mirrored at a cut lie in the zero rows: those of the whole images)."""
-    nonzero = np.flatnonzero(images.any(axis=(0, 2)))
-    if not len(nonzero):
-        return None
-    h = images.shape[1]
-    reach = math.ceil(4 * sigma) + 1
-    first, last = int(nonzero[0]), int(nonzero[-1]) + 1
-    return max(0, first - 2 * reach), min(h, last + 2 * reach), max(0, first - reach), min(h, last + reach)
-
-
-def _row_blur(image: np.ndarray, sigma: float, rows: tuple[int, int, int, int] | None) -> np.ndarray:
-    """``cv2.GaussianBlur(image, (0, 0), sigma)`` (float32, default border) from its rows that
-    :func:`_blur_rows` gives: the same values bit for bit (each output pixel is the same sums of
-    the same pixels at the same place in a row of the same width; only whole rows are cut)."""
-    out = np.zeros_like(image)
-    if rows is not None:
-        a, b, c, d = rows
-        out[c:d] = cv2.GaussianBlur(image[a:b], (0, 0), sigma)[c - a:d - a]
-    return out
+    (y0, y1), (x0, x1) = ((part.start, part.stop) for part in samples.box)
+    # the grid's cells around the samples' box only, with the blur's reach (4 s, OpenCV's float
+    # kernel) of empty cells round it: the band lies in the box, nothing is sampled outside it
+    reach = math.ceil(4 * s) + 1
+    cy0, cy1 = max(0, y0 * sh // h - reach), min(sh, (y1 - 1) * sh // h + 1 + reach)
+    cx0, cx1 = max(0, x0 * sw // w - reach), min(sw, (x1 - 1) * sw // w + 1 + reach)
+    gh, gw = cy1 - cy0, cx1 - cx0
+    g = grey[samples.box]
+    cell_row = (np.arange(y0, y1) * sh // h - cy0) * gw  # each pixel's cell, by row and by column
+    cell_column = np.arange(x0, x1) * sw // w - cx0
+    grid = np.empty((gh * gw, 4), np.float64)
+    for k, weight in ((0, samples.tape), (2, samples.ring)):
+        py, px = _nonzero(weight)
+        cell = cell_row[py] + cell_column[px]
+        grid[:, k] = np.bincount(cell, weights=g[py, px], minlength=gh * gw)
+        grid[:, k + 1] = np.bincount(cell, minlength=gh * gw)
+    grid *= (sh * sw) / (h * w)  # the cells' area averages
+    blurred = cv2.GaussianBlur(grid.astype(np.float32).reshape(gh, gw, 4), (0, 0), s)
+    num, den = blurred[..., 0::2], blurred[..., 1::2]
+    fallback = np.array([samples.tape_median, samples.ring_median], np.float32)
+    mean = np.where(den > 1e-3, num / np.maximum(den, 1e-6), fallback).astype(np.float32)
+    # cv2.resize's INTER_LINEAR source coordinates (clamped at the whole grid's edges)
+    map_x = (np.clip((xs + 0.5) * (sw / w) - 0.5, 0, sw - 1) - cx0).astype(np.float32).reshape(1, -1)
+    map_y = (np.clip((ys + 0.5) * (sh / h) - 0.5, 0, sh - 1) - cy0).astype(np.float32).reshape(1, -1)
+    at = cv2.remap(np.ascontiguousarray(mean), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return at[0, :, 0], at[0, :, 1]
 
 
 def snap_to_edges(crop: np.ndarray, mask: np.ndarray, params: RefineParams | None = None) -> np.ndarray:
@@ -228,7 +242,6 @@ def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels 
     """:func:`snap_to_edges` given ``grey`` (uint8 or float32) and the mask's :func:`_levels`."""
     if samples is None:
         return mask
-    tape_level, skin_level = _local_means(grey, samples, p.level_sigma_px)
     near = _near(mask, p.band_px, box)
     m = mask[near]
     # the mask grown by the band: the levels' (their box holds this one: a wider margin)
@@ -237,11 +250,11 @@ def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels 
     band = grown & ~_shrink(m, p.band_px)
     snapped = mask.copy()
     inside = m & ~band
-    # the band's pixels re-decided (a thin outline: the levels are compared there only, the same
-    # float32 sums and comparisons pixel by pixel)
+    # the band's pixels re-decided (a thin outline: the levels are measured there only)
     ys, xs = _nonzero(band)
-    at = (ys + near[0].start) * tape_level.shape[1] + xs + near[1].start  # flat, in the (contiguous) levels
-    inside[ys, xs] = grey[near][ys, xs] < 0.5 * (tape_level.ravel().take(at) + skin_level.ravel().take(at))
+    if len(ys):
+        tape_level, skin_level = _band_levels(grey, samples, p.level_sigma_px, ys + near[0].start, xs + near[1].start)
+        inside[ys, xs] = grey[near][ys, xs] < 0.5 * (tape_level + skin_level)
     snapped[near] = inside
     return fill_holes(snapped, _near(snapped, p.band_px + 1, box))  # the snapped mask lies in ``near``
 
@@ -325,12 +338,15 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
         return Extended(base, dots, conf, snapped)
     dotted = keep_dotted(base, dots, base_box)
     answer = dots, conf
-    if np.count_nonzero(dotted) < base_area:  # components without dots dropped: the edge levels change, find again
+    if np.count_nonzero(dotted) < base_area:
+        # components without dots dropped: their snapped outlines go, the dots stay (they had none)
+        # and the tape and skin levels are those of the kept components' samples (session 27,
+        # cleanup6: not snapped, levelled and searched again; the local levels are 12 px means)
         base = dotted
         base_area = int(np.count_nonzero(base))
         base_box = _near(base, 0)
-        snapped, samples = snapped_with_levels(base, base_box)
-        answer = find_dots(grey, snapped, None, blob_params, memo, hole_free=True)
+        snapped = components_touching(snapped, base)
+        samples = _kept_levels(grey, samples, base, base_box, p)
     threshold = _midway(samples)
     if threshold is None:
         return Extended(base, *answer, snapped)
