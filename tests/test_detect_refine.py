@@ -103,3 +103,16 @@ def test_a_dropped_dotless_component_leaves_the_tapes_snap_dots_and_levels_as_wi
     assert kept is not None and not (kept.tape[stray[kept.box]]).any()
     assert abs(float(kept.tape_median) - float(own.tape_median)) <= 2
     assert abs(float(kept.ring_median) - float(own.ring_median)) <= 2
+
+
+def test_a_tape_grown_along_the_dark_region_reports_the_new_regions_dots_and_snapped_outline(drawn):
+    # the network saw only the lower half: the upper half joins, its dots (found while testing the
+    # region, in the region's own crop) come back at their place in the box, with the known ones
+    ys = np.flatnonzero(drawn.mask.any(axis=1))
+    cut = drawn.mask.copy()
+    cut[: ys[0] + (ys[-1] - ys[0]) // 2] = False
+    out = extend_along_tape(drawn.image, cut)
+    assert iou(out.snapped, drawn.mask) > 0.97 and (out.mask >= cut).all()
+    assert len(out.uv) == len(drawn.uv) and len(out.confidence) == len(out.uv)
+    distance = np.linalg.norm(out.uv[:, None] - np.asarray(drawn.uv)[None], axis=2)
+    assert distance.min(axis=1).max() < 1.0 and distance.min(axis=0).max() < 1.0  # each drawn dot found once
