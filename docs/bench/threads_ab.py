@@ -4,11 +4,20 @@ speed options A/B, alternating in one process, on a capture's frames held in mem
     python docs/bench/threads_ab.py CAPTURE_DIR T,T:p,L,L:p --frames 40:80 --reps 4
     python docs/bench/threads_ab.py CAPTURE_DIR S,T,L --frames 40:80 --reps 1 --instrument
 
-A configuration is ``BASE[@SWITCH_MS][:p]``: BASE ``S`` (cameras one after the other), ``T``
+A configuration is ``BASE[@SWITCH_MS][:p][+NAME=VALUE...]``: BASE ``S`` (cameras one after the other), ``T``
 (threads, the default), ``L`` (threads, ``lookahead=1``), ``P`` (worker processes), ``PL`` (processes,
 ``lookahead=1``); ``@SWITCH_MS`` sets ``sys.setswitchinterval`` (ms; 5 by default) for
 that run; ``:p`` each camera thread's full search runs its own stage 1 (``stage1_in_pool=True``;
-without it: stage 1 of all cameras batched in the calling thread while the pool waits, the default before it was measured on an idle machine). Per run:
+without it: stage 1 of all cameras batched in the calling thread while the pool waits, the default before it was measured on an idle machine);
+``+NAME=VALUE``: a ``SpeedOptions`` field (an int where VALUE is one), e.g. ``T:p+refresh_every=30``,
+``T:p+refresh=camera+refresh_settled_every=30``, or ``+prestep=K``: ``detect.dataset.AREA_PRESTEP``
+(stage 1's integer area step; 1: the one-step area resize). Session 27 (fullsearch), refresh schedules:
+
+    python docs/bench/threads_ab.py CAPTURE_DIR T:p,T:p+refresh_every=30,T:p+refresh=camera --frames 40:80 --reps 4
+    python docs/bench/threads_ab.py CAPTURE_DIR T:p,T:p+prestep=1 --frames 0:100 --reps 1 --from-disk
+
+``--from-disk``: the frames are read from the capture's files in every run (for accuracy over a
+long range without holding it in memory; the CPU then includes decoding). Per run:
 frames/s, CPU s per frame (this process plus the camera workers), cores used, user/system CPU,
 minor page faults and context switches per frame (``getrusage``), accuracy against the ground
 truth (frames numbered from the range's start), the detector's routes, and the largest position
@@ -38,6 +47,7 @@ from spinemocap.app.run import parse_frames, track_source
 from spinemocap.app.streaming import SpeedOptions
 from spinemocap.bench.speed import MemorySource
 from spinemocap.capture import Capture
+from spinemocap.detect import dataset
 from spinemocap.track.evaluate import evaluate_tracking
 
 CONFIGS = {"S": dict(workers=1), "T": dict(), "L": dict(lookahead=1),
@@ -45,6 +55,7 @@ CONFIGS = {"S": dict(workers=1), "T": dict(), "L": dict(lookahead=1),
 STAGES: dict[str, list] = {}  # stage -> [calls, CPU s, wall s]
 PER_CAMERA: list = []          # (camera, full search?, CPU s) per camera detection
 _lock = threading.Lock()
+PRESTEP = dataset.AREA_PRESTEP
 
 
 def _timed(owner, attr: str, key: str) -> None:
@@ -122,11 +133,14 @@ class ThreadCPU:
         return out
 
 
-def run(config: str, capture: Capture, source: MemorySource, truth: dict, instrumented: bool) -> tuple[dict, np.ndarray]:
-    base, _, flags = config.partition(":")
+def run(config: str, capture: Capture, source, truth: dict, instrumented: bool) -> tuple[dict, np.ndarray]:
+    config_main, *settings = config.split("+")
+    base, _, flags = config_main.partition(":")
     base, _, switch_ms = base.partition("@")
+    fields = {k: int(v) if v.isdigit() else v for k, v in (item.split("=", 1) for item in settings)}
+    dataset.AREA_PRESTEP = fields.pop("prestep", PRESTEP)
     sys.setswitchinterval(float(switch_ms) / 1000 if switch_ms else 0.005)
-    options = SpeedOptions(**CONFIGS[base], stage1_in_pool="p" in flags)
+    options = SpeedOptions(**CONFIGS[base], stage1_in_pool="p" in flags, **fields)
     n = source.n_frames
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -141,6 +155,7 @@ def run(config: str, capture: Capture, source: MemorySource, truth: dict, instru
         cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
         after = resource.getrusage(resource.RUSAGE_SELF)
     sys.setswitchinterval(0.005)
+    dataset.AREA_PRESTEP = PRESTEP
     workers = result.detector_info.get("workers_cpu_s", 0.0) or 0.0
     accuracy = evaluate_tracking(result.table, truth, float(capture.tape.graph.rest_length_mm.min()))
     out = {"config": config, "fps": n / wall, "cpu_s_per_frame": (cpu + workers) / n, "cores": (cpu + workers) / wall,
@@ -169,19 +184,14 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, help=".npy of the frames' images (made when missing)")
     parser.add_argument("--percam", type=Path, help="with --instrument: JSON of each camera detection's CPU s")
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--from-disk", action="store_true", help="read the frames from the capture's files in every run")
     args = parser.parse_args()
     capture = Capture.open(args.capture)
     frames = parse_frames(args.frames, capture.n_frames)
     reader = capture.frame_source()
-    if args.cache is not None and args.cache.is_file():
-        images = np.load(args.cache)
-    else:
-        images = np.stack([np.stack(reader.read(f)) for f in frames])
-        if args.cache is not None:
-            np.save(args.cache, images)
-    source = MemorySource([list(frame) for frame in images], list(reader.camera_names))
     truth = {k: (v[frames.start:frames.stop] if k in ("dots", "visible", "keypoints") else v)
              for k, v in capture.groundtruth().items()}
+    source = FramesOnDisk(reader, frames) if args.from_disk else _in_memory(args, reader, frames)
     if args.instrument:
         instrument()
     configs = args.configs.split(",")
@@ -199,6 +209,31 @@ def main() -> None:
         args.percam.write_text(json.dumps(PER_CAMERA))
     if args.json is not None:
         args.json.write_text(json.dumps(runs, indent=1))
+
+
+class FramesOnDisk:
+    """The frames ``frames`` of a capture's reader, renumbered from 0, read from disk when asked."""
+
+    def __init__(self, reader, frames: range) -> None:
+        self.reader, self.frames = reader, frames
+        self.camera_names = list(reader.camera_names)
+        self.n_frames = len(frames)
+
+    def read(self, frame: int) -> list[np.ndarray]:
+        return self.reader.read(self.frames[frame])
+
+    def read_camera(self, camera: int, frame: int) -> np.ndarray:
+        return self.reader.read_camera(camera, self.frames[frame])
+
+
+def _in_memory(args, reader, frames: range) -> MemorySource:
+    if args.cache is not None and args.cache.is_file():
+        images = np.load(args.cache)
+    else:
+        images = np.stack([np.stack(reader.read(f)) for f in frames])
+        if args.cache is not None:
+            np.save(args.cache, images)
+    return MemorySource([list(frame) for frame in images], list(reader.camera_names))
 
 
 if __name__ == "__main__":
