@@ -690,12 +690,13 @@ class CaptureDetector:
         """How ``frame``'s cameras are searched (called for the frames in order): in full (the
         first frame, no solved frame to predict from, or with ``refresh="frame"`` a refresh is
         due: every ``refresh_every`` planned frames; with ``refresh="camera"`` each camera's own
-        refresh is decided when it is detected, :meth:`_refresh_due`) or in the boxes predicted from the dots of the frame
-        ``1 + lookahead`` before it, moved on by their velocity (:meth:`_camera_box`). The
-        sequence's first frames ahead of the tracker (no solved frame can be there yet) search
-        the last detected frame's tape boxes with the margin (as lookahead 0 predicts the second
-        frame: the same full-search schedule). A camera's fallback to the full search does not
-        move the schedule."""
+        refresh is decided when it is detected, :meth:`_refresh_due`) or in the boxes predicted
+        from the dots of the frame ``1 + lookahead`` before it, moved on by their velocity
+        (:meth:`_camera_box`). The sequence's first frames ahead of the tracker (no solved frame
+        can be there yet) search the last detected frame's tape boxes with the margin (as
+        lookahead 0 predicts the second frame: the same full-search schedule). A camera's
+        fallback to the full search does not move the ``frame`` schedule (it restarts that
+        camera's ``camera`` schedule)."""
         steps = 1 + self.options.lookahead
         if self._first is None:
             self._first = frame
