@@ -94,11 +94,17 @@ def test_settled_cameras_refresh_less_often_and_cameras_at_the_edge_keep_the_per
     assert np.all(np.diff(full_at) == 3)
 
 
-def test_unknown_refresh_schedules_and_periods_are_refused():
+def test_unknown_refresh_schedules_and_periods_are_refused_by_the_options_and_both_commands(tmp_path, capsys):
+    from spinemocap.cli import main
+
     with pytest.raises(InputError, match="refresh"):
         SpeedOptions(refresh="sometimes")
     with pytest.raises(InputError, match="refresh-every"):
         SpeedOptions(refresh_every=0)
+    for argv in (["track", str(tmp_path), "--out", str(tmp_path / "o"), "--refresh", "camera", "--refresh-every", "0"],
+                 ["bench", "speed", "--preset", "tiny", "--refresh", "camera", "--refresh-every", "0"]):
+        assert main(argv) == 2
+        assert "--refresh-every: must be 1 or more" in capsys.readouterr().err
 
 
 @pytest.fixture(scope="module")

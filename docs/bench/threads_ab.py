@@ -17,7 +17,8 @@ without it: stage 1 of all cameras batched in the calling thread while the pool 
     python docs/bench/threads_ab.py CAPTURE_DIR T:p,T:p+prestep=1 --frames 0:100 --reps 1 --from-disk
 
 ``--from-disk``: the frames are read from the capture's files in every run (for accuracy over a
-long range without holding it in memory; the CPU then includes decoding). Per run:
+long range without holding it in memory; the CPU then includes decoding); ``--per-frame``: each
+frame's mean error too. Per run:
 frames/s, CPU s per frame (this process plus the camera workers), cores used, user/system CPU,
 minor page faults and context switches per frame (``getrusage``), accuracy against the ground
 truth (frames numbered from the range's start), the detector's routes, and the largest position
@@ -55,6 +56,7 @@ CONFIGS = {"S": dict(workers=1), "T": dict(), "L": dict(lookahead=1),
 STAGES: dict[str, list] = {}  # stage -> [calls, CPU s, wall s]
 PER_CAMERA: list = []          # (camera, full search?, CPU s) per camera detection
 _lock = threading.Lock()
+PER_FRAME: list[bool] = []     # --per-frame given
 PRESTEP = dataset.AREA_PRESTEP
 
 
@@ -166,12 +168,25 @@ def run(config: str, capture: Capture, source, truth: dict, instrumented: bool) 
            "mean_mm": accuracy.mean_error_mm, "p95_mm": accuracy.p95_error_mm, "swaps": accuracy.label_swaps,
            "routes": result.detector_searches, "parallel": result.detector_info.get("parallel"),
            "load": os.getloadavg()[0]}
+    if PER_FRAME:
+        out["frame_mean_mm"] = [round(float(x), 4) for x in _frame_errors(result.table, truth)]
     if threads is not None:
         out["thread_cpu_ms_per_frame"] = {k: round(1000 * v / n, 1) for k, v in sorted(threads.finish().items())
                                           if v > 0.005}
         out["stage_calls_cpu_wall_ms_per_frame"] = {k: (v[0], round(1000 * v[1] / n, 1), round(1000 * v[2] / n, 1))
                                                     for k, v in STAGES.items()}
     return out, result.table.positions()
+
+
+def _frame_errors(table, truth: dict) -> np.ndarray:
+    """Each frame's mean dot error (mm) over its tracked dots (NaN: none), as evaluate_tracking."""
+    arrays = table.to_arrays()
+    labels = [str(x) for x in arrays["labels"]]
+    gt_labels = [str(x) for x in truth.get("labels", labels)]
+    order = [gt_labels.index(label) for label in labels]
+    err = np.linalg.norm(arrays["positions"] - np.asarray(truth["dots"], float)[arrays["frames"]][:, order], axis=2)
+    err[arrays["status"] == "missing"] = np.nan
+    return np.nanmean(err, axis=1)
 
 
 def main() -> None:
@@ -185,7 +200,10 @@ def main() -> None:
     parser.add_argument("--percam", type=Path, help="with --instrument: JSON of each camera detection's CPU s")
     parser.add_argument("--json", type=Path)
     parser.add_argument("--from-disk", action="store_true", help="read the frames from the capture's files in every run")
+    parser.add_argument("--per-frame", action="store_true", help="each frame's mean error (mm) in the output")
     args = parser.parse_args()
+    if args.per_frame:
+        PER_FRAME.append(True)
     capture = Capture.open(args.capture)
     frames = parse_frames(args.frames, capture.n_frames)
     reader = capture.frame_source()
