@@ -111,3 +111,41 @@ def test_cli_finetune_from_shipped_weights_on_coco_labels(tmp_path, capsys):
     assert meta["command"].startswith("spinemocap detector finetune") and "--epochs 1" in meta["command"]
     det = Detector("net", weights=out / "weights.pt")
     assert det.segment(cv2.imread(str(images / "img00.png"))).shape == truth["img00.png"].shape
+
+
+def _exact_area_weights(n_in: int, n_out: int) -> np.ndarray:
+    """(n_out, n_in): destination cell j's share of source pixel i (the overlap of
+    [j, j + 1) * n_in / n_out with [i, i + 1), over the cell's length)."""
+    scale = n_in / n_out
+    lo, hi = np.arange(n_out)[:, None] * scale, (np.arange(n_out)[:, None] + 1) * scale
+    px = np.arange(n_in)[None, :]
+    return np.clip(np.minimum(hi, px + 1) - np.maximum(lo, px), 0, None) / scale
+
+
+def _exact_area_average(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``image`` (H, W, 3) averaged over the destination cells of ``size`` (w, h), float."""
+    wy, wx = _exact_area_weights(image.shape[0], size[1]), _exact_area_weights(image.shape[1], size[0])
+    return np.stack([wy @ image[..., c].astype(np.float64) @ wx.T for c in range(3)], axis=-1)
+
+
+def test_stage1_area_resize_is_close_to_the_exact_area_average_on_a_random_image():
+    from spinemocap.detect.dataset import AREA_PRESTEP, area_reduced, frame_view
+
+    assert AREA_PRESTEP > 1
+    k = AREA_PRESTEP
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 256, (800, 1224, 3), dtype=np.uint8)   # the studio's aspect, a quarter of the pixels
+    small, _ = frame_view(image, width=128)
+    h, w = small.shape[:2]
+    exact = _exact_area_average(image, (w, h))
+    # the one-step area resize is the exact average up to rounding
+    assert np.abs(area_reduced(image, (w, h), prestep=1) - exact).max() <= 0.5 + 1e-3
+    # with the pre-step a cell's edge that falls inside a block of k source px shares the block
+    # evenly: the weights move by at most 2 (k - 1) / k px (L1) at each of the cell's two edges
+    # per axis, over the cell's scale px; the levels by half the L1 times 255, plus the
+    # pre-step's and the final rounding
+    scale = 1224 / w
+    assert np.abs(small - exact).max() <= 0.5 * 255 * (2 * 2 * 2 * (k - 1) / k) / scale + 1.0
+    # an image constant over k x k blocks loses nothing in the pre-step: the exact average
+    blocks = np.repeat(np.repeat(image[: 800 // k, : 1224 // k], k, axis=0), k, axis=1)
+    assert np.abs(frame_view(blocks, width=128)[0] - _exact_area_average(blocks, (w, h))).max() <= 0.5 + 1e-3

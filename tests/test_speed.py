@@ -406,10 +406,10 @@ def test_prediction_from_two_frames_back_finds_the_full_search_dots_on_a_small_s
         # frame 1 (the same image), detected before frame 0 is solved: frame 0's boxes alone,
         # as lookahead 0 would predict it (the same full-search schedule); the same dots
         assert _same_dots(first, ahead(1, images[0], None)) < 0.01
-        assert ahead.searches == {"full": n, "predicted": n, "fallback": 0}
+        assert ahead.searches == {"full": n, "predicted": n, "fallback": 0, "refresh": 0}
         ahead.observe(0, gt[0])
         views = ahead(2, images[1], None)  # predicted from frame 0 over two frames
-        assert ahead.searches == {"full": n, "predicted": 2 * n, "fallback": 0}
+        assert ahead.searches == {"full": n, "predicted": 2 * n, "fallback": 0, "refresh": 0}
         assert _same_dots(full(1, images[1], None), views) < 0.01
         assert sum(len(v) for v in views) > 50  # the tape was in view
     finally:

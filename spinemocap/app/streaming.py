@@ -15,7 +15,10 @@ parallel, and detection by prediction in sequence mode.
   on by their velocity, are projected into every camera and the network searches only that
   predicted tape box (stage 1, the whole-frame pass, is skipped). A camera falls back to the full
   two-stage search when its box finds fewer than ``min_dot_share`` of the dots it found in the
-  previous frame, and every camera does every ``refresh_every`` frames.
+  previous frame, and every camera does every ``refresh_every`` frames: all cameras in the same
+  frame (``refresh="frame"``) or each camera on its own schedule, the cameras' refreshes spread
+  over the period (``refresh="camera"``; a camera that found all its dots well inside its image
+  may then wait ``refresh_settled_every`` frames).
 - With ``SpeedOptions.lookahead`` > 0 frame t+1 is detected while the tracker solves frame t, so
   detection and the tracker run at the same time; the boxes of frame t+1 are then predicted from
   frame t-1 over two frames (``lookahead_margin_px`` wider per extra frame, 0 by default). With
@@ -57,6 +60,8 @@ log = logging.getLogger(__name__)
 
 Box = tuple[slice, slice]
 PARALLEL = ("threads", "processes")
+REFRESH = ("frame", "camera")
+SETTLED_EDGE_PX = 64  # a settled camera's tape box lies at least this far inside its image (px)
 # Threads are the default: with the cheaper clean-up (issue 15, docs/BENCHMARKS.md) they were as fast
 # as worker processes or faster on both machines measured (the 2-core VM: processes 0.80-0.89x;
 # the 16-core H100 machine: 0.95-0.97x), and they need no shared memory or start-up.
@@ -115,7 +120,16 @@ class SpeedOptions:
     all cameras' stage 1 batched in the calling thread while the camera threads wait (the same
     boxes, the same output bit for bit; on the idle 2-core VM, 100 studio frames in memory,
     1.06-1.10x the frames/s at the same CPU, docs/BENCHMARKS.md issue 15). On a GPU stage 1 stays
-    batched (one pass for all cameras; not measured in the pool)."""
+    batched (one pass for all cameras; not measured in the pool);
+    ``refresh``: how the periodic full searches are scheduled: ``frame`` (every camera in the
+    same frame, every ``refresh_every`` planned frames) or ``camera`` (each camera every
+    ``refresh_every`` frames after its last full search, whatever its route; after a frame
+    searched in full the cameras' next refreshes are spread over the period, so no frame pays
+    every camera's full search at once); a camera with no tape in its last frame finds a tape
+    coming into view within ``refresh_every`` frames either way;
+    ``refresh_settled_every``: with ``refresh="camera"``, the period of a *settled* camera, one
+    whose last search found at least the dots of the search before it and whose tape box lies
+    at least ``SETTLED_EDGE_PX`` inside its image (0: as ``refresh_every``)."""
 
     workers: int = 0
     parallel: str = "threads"
@@ -132,10 +146,21 @@ class SpeedOptions:
     lookahead_margin_px: float = 0.0
     stage1_in_pool: bool = True
     precision: str = "auto"
+    refresh: str = "frame"
+    refresh_settled_every: int = 0
 
     def __post_init__(self) -> None:
         if self.lookahead < 0:
             raise InputError("--lookahead", f"must be 0 or more, got {self.lookahead}")
+        if self.refresh not in REFRESH:
+            raise InputError("--refresh", f"unknown refresh schedule {self.refresh!r} (choose {', '.join(REFRESH)})")
+        if self.refresh_every < 1 or self.refresh_settled_every < 0:
+            raise InputError("--refresh-every", f"must be 1 or more (settled: 0 or more), got {self.refresh_every}, "
+                             f"{self.refresh_settled_every}")
+
+    def camera_period(self, settled: bool) -> int:
+        """Frames between a camera's full searches (``refresh="camera"``)."""
+        return self.refresh_settled_every if settled and self.refresh_settled_every > 0 else self.refresh_every
 
     def n_workers(self, n_cameras: int) -> int:
         return max(1, min(n_cameras, self.workers or os.cpu_count() or 1))
@@ -337,8 +362,10 @@ class CaptureDetector:
         self._boxes: dict[int, Box] = {}             # camera -> last frame's tape box
         self._counts: dict[int, int] = {}            # camera -> dots found in the last frame
         self._since_full = 0
+        self._since_search: dict[int, int] = {}      # camera -> predicted frames since its full search
+        self._settled: dict[int, bool] = {}          # camera -> settled (SpeedOptions.refresh_settled_every)
         self._first: int | None = None               # the first frame detected (by prediction's rules)
-        self.searches = {"full": 0, "predicted": 0, "fallback": 0}  # camera images per route
+        self.searches = {"full": 0, "predicted": 0, "fallback": 0, "refresh": 0}  # camera images per route
         self._searches_lock = threading.Lock()
 
     @property
@@ -423,15 +450,24 @@ class CaptureDetector:
             return self._run(images, range(len(images)), [None] * len(images))
         plan = self._plan(frame)
         if plan.full:
-            return self._full(images, range(len(images)))
-        boxes = [self._camera_box(c, plan, image.shape[:2]) for c, image in enumerate(images)]
-        views = self._run(images, range(len(images)), [_listed(box) for box in boxes])
-        self.searches["predicted"] += len(images)
-        redo = [c for c, v in enumerate(views) if self._too_few(v)]
+            views = self._full(images, range(len(images)))
+            for c in range(len(images)):
+                self._searched(c, full=True, whole_frame=True)
+            return views
+        refresh = [self._refresh_due(c) for c in range(len(images))]
+        boxes = [None if refresh[c] else _listed(self._camera_box(c, plan, image.shape[:2]))
+                 for c, image in enumerate(images)]
+        views = self._run(images, range(len(images)), boxes)
+        self.searches["predicted"] += len(images) - sum(refresh)
+        self.searches["refresh"] += sum(refresh)
+        self.searches["full"] += sum(refresh)
+        redo = [c for c, v in enumerate(views) if not refresh[c] and self._too_few(v)]
         if redo:
             self.searches["fallback"] += len(redo)
             for c, v in zip(redo, self._full(images, redo, copy=False)):
                 views[c] = v
+        for c in range(len(images)):
+            self._searched(c, full=refresh[c] or c in redo, whole_frame=False)
         self._remember(views)
         return views
 
@@ -485,6 +521,8 @@ class CaptureDetector:
         cameras at once)."""
         if plan.full:
             view, routes = self._detect(camera, image, None), ("full",)
+        elif self.predicts and self._refresh_due(camera):
+            view, routes = self._detect(camera, image, None), ("refresh", "full")
         else:
             box = self._camera_box(camera, plan, image.shape[:2])
             view, routes = self._detect(camera, image, _listed(box)), ("predicted",)
@@ -494,13 +532,16 @@ class CaptureDetector:
             for route in routes:
                 self.searches[route] += 1
         if self.predicts:
+            self._searched(camera, full="full" in routes, whole_frame=plan.full)
             self._remember([view])
         return view
 
     def _remember(self, views: list[ViewDots]) -> None:
         for v in views:
-            self._counts[v.camera] = len(v)
             box = mask_box(v.mask)
+            self._settled[v.camera] = (box is not None and len(v) >= self._counts.get(v.camera, 0)
+                                       and _well_inside(box, v.mask.shape[:2], SETTLED_EDGE_PX))
+            self._counts[v.camera] = len(v)
             if box is None:
                 self._boxes.pop(v.camera, None)
             else:
@@ -647,17 +688,19 @@ class CaptureDetector:
 
     def _plan(self, frame: int) -> "_Plan":
         """How ``frame``'s cameras are searched (called for the frames in order): in full (the
-        first frame, no solved frame to predict from, or a refresh is due: every
-        ``refresh_every`` planned frames) or in the boxes predicted from the dots of the frame
-        ``1 + lookahead`` before it, moved on by their velocity (:meth:`_camera_box`). The
-        sequence's first frames ahead of the tracker (no solved frame can be there yet) search
-        the last detected frame's tape boxes with the margin (as lookahead 0 predicts the second
-        frame: the same full-search schedule). A camera's fallback to the full search does not
-        move the schedule."""
+        first frame, no solved frame to predict from, or with ``refresh="frame"`` a refresh is
+        due: every ``refresh_every`` planned frames; with ``refresh="camera"`` each camera's own
+        refresh is decided when it is detected, :meth:`_refresh_due`) or in the boxes predicted
+        from the dots of the frame ``1 + lookahead`` before it, moved on by their velocity
+        (:meth:`_camera_box`). The sequence's first frames ahead of the tracker (no solved frame
+        can be there yet) search the last detected frame's tape boxes with the margin (as
+        lookahead 0 predicts the second frame: the same full-search schedule). A camera's
+        fallback to the full search does not move the ``frame`` schedule (it restarts that
+        camera's ``camera`` schedule)."""
         steps = 1 + self.options.lookahead
         if self._first is None:
             self._first = frame
-        if self._since_full + 1 >= self.options.refresh_every:
+        if self.options.refresh == "frame" and self._since_full + 1 >= self.options.refresh_every:
             return self._planned(_FULL)
         last = self._observed.get(frame - steps)
         if last is None:
@@ -669,6 +712,25 @@ class CaptureDetector:
             last = last + (steps - 1) * velocity
         ok = np.isfinite(predicted).all(axis=1)
         return self._planned(_Plan(False, predicted[ok], last[ok]))
+
+    def _refresh_due(self, camera: int) -> bool:
+        """Is ``camera``'s periodic full search due in the frame being detected
+        (``refresh="camera"``)? Reads only this camera's own state (its frames come in order)."""
+        if self.options.refresh != "camera":
+            return False
+        period = self.options.camera_period(self._settled.get(camera, False))
+        return self._since_search.get(camera, 0) + 1 >= period
+
+    def _searched(self, camera: int, full: bool, whole_frame: bool) -> None:
+        """Count ``camera``'s frames since its last full search. After a frame searched in full
+        camera c starts ``c * refresh_every // cameras`` frames into its period: the cameras'
+        refreshes spread over it."""
+        if not full:
+            self._since_search[camera] = self._since_search.get(camera, 0) + 1
+        elif whole_frame and self.rig is not None:
+            self._since_search[camera] = camera * self.options.refresh_every // len(self.rig)
+        else:
+            self._since_search[camera] = 0
 
     def _planned(self, plan: "_Plan") -> "_Plan":
         self._since_full = 0 if plan.full else self._since_full + 1
@@ -719,6 +781,13 @@ def _training_padded_box(x0: float, y0: float, x1: float, y1: float, shape: tupl
     from ..detect.detector import padded_box
 
     return padded_box(max(0.0, x0), max(0.0, y0), min(float(shape[1]), x1), min(float(shape[0]), y1), shape)
+
+
+def _well_inside(box: Box, shape: tuple[int, int], edge_px: float) -> bool:
+    """Does ``box`` lie at least ``edge_px`` from every edge of an image of ``shape`` (h, w)?"""
+    ys, xs = box
+    return (ys.start >= edge_px and xs.start >= edge_px and shape[0] - ys.stop >= edge_px
+            and shape[1] - xs.stop >= edge_px)
 
 
 def _listed(box: Box | None) -> list[Box]:

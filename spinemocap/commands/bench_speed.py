@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .track import add_refresh_arguments, refresh_options
+
 
 def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -31,7 +33,7 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--video-frames", type=int, default=0,
                    help="with --capture: also write the first so many replayed frames as lossless video (into "
                         "--workdir) and track them from it")
-    p.add_argument("--refresh-every", type=int, default=10, help="frames between full detector searches")
+    add_refresh_arguments(p)
     p.add_argument("--no-predict", action="store_true", help="full detector search in every frame")
     p.add_argument("--no-legacy", action="store_true", help="skip the previous pipeline (the peer)")
     p.add_argument("--no-video", action="store_true", help="skip the video run")
@@ -72,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
     chosen: dict = {} if args.lookahead is None else {"lookahead": args.lookahead}  # else the pipeline's defaults
     if args.precision is not None:
         chosen["precision"] = args.precision
-    speed = SpeedOptions(workers=args.workers, parallel=args.parallel, refresh_every=args.refresh_every,
+    chosen.update(refresh_options(args))
+    speed = SpeedOptions(workers=args.workers, parallel=args.parallel,
                          predict=not args.no_predict, device=args.device, opencv_threads=args.opencv_threads or None,
                          **chosen)
     if args.capture:

@@ -10,6 +10,26 @@ from pathlib import Path
 
 from spinemocap.capture import Capture
 
+
+def add_refresh_arguments(p: argparse.ArgumentParser) -> None:
+    """Sequence mode's schedule of full tape searches (``SpeedOptions.refresh*``); unset: the pipeline's."""
+    p.add_argument("--refresh-every", type=int, default=None,
+                   help="sequence mode: frames between full tape searches (between them the detector searches "
+                        "only the tape box predicted from the previous frames; default: the pipeline's)")
+    p.add_argument("--refresh", choices=("frame", "camera"), default=None,
+                   help="sequence mode: full searches of all cameras in the same frame, or each camera on its own "
+                        "schedule, the cameras spread over the period (default: the pipeline's)")
+    p.add_argument("--refresh-settled-every", type=int, default=None,
+                   help="with --refresh camera: frames between full searches of a camera that found all its dots "
+                        "well inside its image (0: as --refresh-every; default: the pipeline's)")
+
+
+def refresh_options(args: argparse.Namespace) -> dict:
+    """The ``SpeedOptions`` fields :func:`add_refresh_arguments` set (the ones given)."""
+    given = {"refresh_every": args.refresh_every, "refresh": args.refresh,
+             "refresh_settled_every": args.refresh_settled_every}
+    return {k: v for k, v in given.items() if v is not None}
+
 log = logging.getLogger(__name__)
 
 
@@ -39,9 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="sequence mode: frames detection may run ahead of the tracker (0: frame t+1 is detected "
                         "after frame t is solved, the exact serial order; 1: while frame t is solved, predicting "
                         "its tape boxes from frame t-1; default: the pipeline's)")
-    p.add_argument("--refresh-every", type=int, default=10,
-                   help="sequence mode: frames between full tape searches (between them the detector searches "
-                        "only the tape box predicted from the previous frames)")
+    add_refresh_arguments(p)
     p.add_argument("--opencv-threads", type=int, default=1,
                    help="OpenCV's own threads per camera thread while the cameras are detected in parallel "
                         "(default 1; 0: OpenCV's setting, one per core)")
@@ -85,8 +103,9 @@ def run_track(args: argparse.Namespace) -> int:
     chosen: dict = {} if args.lookahead is None else {"lookahead": args.lookahead}  # else the pipeline's defaults
     if args.precision is not None:
         chosen["precision"] = args.precision
+    chosen.update(refresh_options(args))
     speed = LEGACY if args.legacy else SpeedOptions(workers=args.workers, parallel=args.parallel,
-                                                    refresh_every=args.refresh_every, device=args.device,
+                                                    device=args.device,
                                                     opencv_threads=args.opencv_threads or None, **chosen)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
