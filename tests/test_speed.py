@@ -639,6 +639,64 @@ def test_streamed_cameras_give_the_frame_by_frame_output(monkeypatch, mode):
     assert not any(t.name == "detect-stream" for t in threading.enumerate())
 
 
+def test_refresh_frames_start_while_the_tracker_solves_the_frame_before(monkeypatch):
+    # lookahead 0, cameras in threads: a frame due for a full search (refresh_every) is detected in
+    # a background thread while the tracker solves the frame before; every other frame after it,
+    # each camera whole (box, search, fallback) in its camera thread. The output, routes and
+    # searches are those of one camera after the other, frame by frame, bit for bit
+    import threading
+    import time
+
+    from spinemocap.bench.speed import MemorySource
+    from spinemocap.track.sequence import SequenceTracker
+
+    scene, images = _rendered("tiny", 9)
+    source = MemorySource(images, scene.rig.names)
+    started: list = []  # (frame, thread, steps done, frame being solved) as each frame's detection starts
+    steps: list = []
+    solving: dict = {"frame": None}
+    call, step = CaptureDetector.__call__, SequenceTracker.step
+
+    def spied_call(self, frame, frame_images, masks):
+        started.append((frame, threading.current_thread().name, len(steps), solving["frame"]))
+        return call(self, frame, frame_images, masks)
+
+    def spied_step(self, views, stage_ms):
+        solving["frame"] = len(steps)
+        out = step(self, views, stage_ms)
+        if len(steps) + 1 in (4, 8):
+            time.sleep(0.3)  # a step long enough for the refresh's thread to start within it
+        solving["frame"] = None
+        steps.append(len(steps))
+        return out
+
+    monkeypatch.setattr(CaptureDetector, "__call__", spied_call)
+    monkeypatch.setattr(SequenceTracker, "step", spied_step)
+
+    def track(workers: int):
+        started.clear()
+        steps.clear()
+        return track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], progress=False,
+                            speed=SpeedOptions(refresh_every=4, workers=workers))
+
+    serial = track(1)
+    assert all(done == frame and now is None for frame, _, done, now in started)  # each after the step before it
+    threads = track(3)
+    a, b = serial.table.to_arrays(), threads.table.to_arrays()
+    np.testing.assert_array_equal(a["positions"], b["positions"])
+    assert (a["status"] == b["status"]).all()
+    assert [f.route for f in serial.frames] == [f.route for f in threads.frames]
+    assert serial.detector_searches == threads.detector_searches and threads.detector_searches["predicted"] > 0
+    refreshed = {frame for frame, name, *_ in started if name.startswith("detect-refresh")}
+    assert refreshed == {4, 8}  # the full searches after the first frame's
+    for frame, _, done, now in started:  # a refresh started before the tracker is done with the frame before it
+        if frame in refreshed:
+            assert done == frame - 1 and now in (None, frame - 1)
+        else:
+            assert (done, now) == (frame, None)
+    assert not any(t.name.startswith("detect-refresh") for t in threading.enumerate())
+
+
 def _streaming_detector(monkeypatch, log: list, fail: int | None = None, cost_s: float = 0.0):
     """A CaptureDetector with two camera threads whose detection is a recorder: ``log`` gets
     (frame, camera, frames the tracker has solved so far) per detection; frame ``fail`` raises."""

@@ -281,6 +281,9 @@ def source_views(source: FrameSource, frames: Sequence[int], detect: CaptureDete
     if speed.lookahead > 0:
         yield from detected_ahead(frames_in, detect, speed.lookahead)
         return
+    if detect.predicts and detect.streams:  # refresh frames start while the tracker solves the frame before
+        yield from detect.frames_in_order(frames_in)
+        return
     t0 = time.perf_counter()
     for frame, images, masks in frames_in:
         views = detect(frame, images, masks if detect.needs_masks else None)

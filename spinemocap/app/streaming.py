@@ -449,6 +449,11 @@ class CaptureDetector:
             self.searches["full"] += len(images)
             return self._run(images, range(len(images)), [None] * len(images))
         plan = self._plan(frame)
+        if self._cameras_whole_in_pool():
+            # each camera's box, search, fallback and remembered box in its camera thread: no
+            # camera's fallback waits for the frame's slowest camera, and the calling thread's
+            # per-camera work runs beside the other cameras' (the same views: _camera_view)
+            return self._map(lambda c: self._camera_view(c, images[c], plan), range(len(images)))
         if plan.full:
             views = self._full(images, range(len(images)))
             for c in range(len(images)):
@@ -470,6 +475,51 @@ class CaptureDetector:
             self._searched(c, full=refresh[c] or c in redo, whole_frame=False)
         self._remember(views)
         return views
+
+    def _cameras_whole_in_pool(self) -> bool:
+        """Does a frame's every camera run whole (box, search, fallback) in the camera threads?
+        With threads and stage 1 in the pool (a full search per camera in its thread either way):
+        the views, searches and remembered boxes of :meth:`__call__`'s frame-wide steps, camera by
+        camera (each camera's fallback test reads its own last count only)."""
+        return self._pool is not None and self._processes is None and self._stage1_in_pool
+
+    def full_search_next(self) -> bool:
+        """Will the next frame :meth:`__call__` detects be searched in full by the refresh schedule
+        (:meth:`_plan`'s first test, ``refresh_every``)? Its detection then needs no solved
+        frame: :meth:`frames_in_order` starts it before the tracker solves the frame before."""
+        return self.predicts and self._first is not None and self._since_full + 1 >= self.options.refresh_every
+
+    def frames_in_order(self, frames_in: Iterator[tuple[int, list[np.ndarray], list[np.ndarray] | None]]
+                        ) -> Iterator[tuple[int, list[ViewDots], float]]:
+        """Yield ``(frame, views, wait_ms)`` frame by frame in the exact serial order (lookahead 0:
+        each frame detected after the tracker solved the one before and told :meth:`observe`),
+        except that a frame due for a refresh (:meth:`full_search_next`: every camera searched
+        in full, no prediction) is started in a background thread before the frame before it is
+        handed to the tracker, so its detection runs while the tracker solves that frame. The
+        same views as detecting every frame after the tracker: a full search reads no solved
+        frame, and the tracker's steps read nothing the detection writes. ``wait_ms``: the time
+        the tracker waited for the frame. Errors are raised here; closing the generator waits for
+        a detection under way."""
+        ahead = ThreadPoolExecutor(1, thread_name_prefix="detect-refresh")
+        frames_in = iter(frames_in)
+        pending = None  # the started detection of the next frame
+        try:
+            t0 = time.perf_counter()
+            item = next(frames_in, None)
+            while item is not None:
+                frame, images, masks = item
+                views = pending.result() if pending is not None else self(frame, images, masks if self.needs_masks else None)
+                pending = None
+                item = next(frames_in, None)
+                if item is not None and self.full_search_next():
+                    pending = ahead.submit(self, item[0], item[1], item[2] if self.needs_masks else None)
+                yield frame, views, 1000 * (time.perf_counter() - t0)
+                t0 = time.perf_counter()
+        finally:
+            if pending is not None:
+                pending.cancel()
+            ahead.shutdown(wait=True)
+            _close(frames_in)
 
     def _too_few(self, view: ViewDots) -> bool:
         """Did a predicted box find fewer than ``min_dot_share`` of the camera's last frame's dots?"""
