@@ -697,6 +697,36 @@ def test_refresh_frames_start_while_the_tracker_solves_the_frame_before(monkeypa
     assert not any(t.name.startswith("detect-refresh") for t in threading.enumerate())
 
 
+def test_camera_refresh_schedule_detects_no_frame_ahead_of_the_tracker(monkeypatch):
+    # refresh="camera": no frame is searched in full as a whole by the schedule, so none may be
+    # started before the tracker solved the frame before (its boxes need that frame's dots): the
+    # threads' output is the serial one bit for bit and no detection runs in the refresh thread
+    import threading
+
+    from spinemocap.bench.speed import MemorySource
+
+    scene, images = _rendered("tiny", 9)
+    source = MemorySource(images, scene.rig.names)
+    threads_seen: list = []
+    call = CaptureDetector.__call__
+
+    def spied_call(self, frame, frame_images, masks):
+        threads_seen.append(threading.current_thread().name)
+        return call(self, frame, frame_images, masks)
+
+    monkeypatch.setattr(CaptureDetector, "__call__", spied_call)
+
+    def track(workers: int):
+        return track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], progress=False,
+                            speed=SpeedOptions(refresh="camera", refresh_every=4, workers=workers))
+
+    serial, threads = track(1), track(3)
+    a, b = serial.table.to_arrays(), threads.table.to_arrays()
+    np.testing.assert_array_equal(a["positions"], b["positions"])
+    assert serial.detector_searches == threads.detector_searches and threads.detector_searches["predicted"] > 0
+    assert not any(name.startswith("detect-refresh") for name in threads_seen)
+
+
 def _streaming_detector(monkeypatch, log: list, fail: int | None = None, cost_s: float = 0.0):
     """A CaptureDetector with two camera threads whose detection is a recorder: ``log`` gets
     (frame, camera, frames the tracker has solved so far) per detection; frame ``fail`` raises."""

@@ -487,7 +487,12 @@ class CaptureDetector:
         """Will the next frame :meth:`__call__` detects be searched in full by the refresh schedule
         (:meth:`_plan`'s first test, ``refresh_every``)? Its detection then needs no solved
         frame: :meth:`frames_in_order` starts it before the tracker solves the frame before."""
-        return self.predicts and self._first is not None and self._since_full + 1 >= self.options.refresh_every
+        return self.predicts and self._first is not None and self._frame_refresh_due()
+
+    def _frame_refresh_due(self) -> bool:
+        """Is the ``refresh="frame"`` schedule's full search of every camera due in the next
+        planned frame (every ``refresh_every`` planned frames)?"""
+        return self.options.refresh == "frame" and self._since_full + 1 >= self.options.refresh_every
 
     def frames_in_order(self, frames_in: Iterator[tuple[int, list[np.ndarray], list[np.ndarray] | None]]
                         ) -> Iterator[tuple[int, list[ViewDots], float]]:
@@ -750,7 +755,7 @@ class CaptureDetector:
         steps = 1 + self.options.lookahead
         if self._first is None:
             self._first = frame
-        if self.options.refresh == "frame" and self._since_full + 1 >= self.options.refresh_every:
+        if self._frame_refresh_due():
             return self._planned(_FULL)
         last = self._observed.get(frame - steps)
         if last is None:
