@@ -17,8 +17,8 @@ pytest.importorskip("pyvista")
 
 
 def _recording_detector(monkeypatch, options: SpeedOptions, shape=(400, 600), box=(slice(100, 200), slice(200, 300))):
-    """A CaptureDetector on the tiny rig (two camera threads: a full search reaches ``_run`` with no
-    box) whose camera detection is a recorder: every search finds
+    """A CaptureDetector on the tiny rig (two camera threads: each camera's search reaches ``_detect``, a full
+    search with no box) whose camera detection is a recorder: every search finds
     the same five dots in the tape box ``box`` of an image of ``shape``; returns the detector and
     the log of (frame, cameras searched in full)."""
     from spinemocap.synth import SynthConfig, build_scene
@@ -29,11 +29,12 @@ def _recording_detector(monkeypatch, options: SpeedOptions, shape=(400, 600), bo
     mask[box] = True
     full: list = []
 
-    def run(images, cameras, boxes, copy=True):
-        full.append([c for c, b in zip(cameras, boxes) if b is None])
-        return [ViewDots(c, np.zeros((5, 2)), np.ones(5), mask=mask) for c in cameras]
+    def one_camera(camera, image, boxes):
+        if boxes is None:
+            full.append([camera])
+        return ViewDots(camera, np.zeros((5, 2)), np.ones(5), mask=mask)
 
-    monkeypatch.setattr(detect, "_run", run)
+    monkeypatch.setattr(detect, "_detect", one_camera)
     return detect, scene, full
 
 
