@@ -837,3 +837,17 @@ def test_the_automatic_precision_is_int8_only_on_a_cpu_with_vnni_and_falls_back_
         segmenter = NetSegmenter(device="cpu", precision="auto")
     assert segmenter.precision == "float32" and segmenter.runtime == "onnxruntime"
     assert any("int8" in str(w.message) for w in caught)
+
+
+def test_the_benchmarks_machine_record_names_the_arithmetic_auto_resolves_to(monkeypatch):
+    # two machines' CPU numbers compare only with the same arithmetic: the record says whether the
+    # CPU has VNNI and what precision="auto" became there
+    from spinemocap.bench import speed as speed_bench
+    from spinemocap.detect import detector as detector_module
+
+    monkeypatch.setattr(detector_module, "resolve_device", lambda device="auto": "cpu")  # as on a machine without a GPU
+    for vnni, expected in ((True, "int8"), (False, "float32")):
+        monkeypatch.setattr(detector_module, "cpu_has_vnni", lambda v=vnni: v)
+        monkeypatch.setattr("spinemocap.detect.segnet.cpu_has_vnni", lambda v=vnni: v)
+        info = speed_bench.machine_info()
+        assert info["cpu_vnni"] is vnni and info["auto_precision"] == expected

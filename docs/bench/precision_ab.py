@@ -5,7 +5,7 @@
     python docs/bench/precision_ab.py CAPTURE_DIR float32,int8 --frames 40:80 --memory --reps 3   # speed, frames in memory
 
 Each variant runs ``track_source`` with the default :class:`SpeedOptions` (``--serial``: cameras one
-after the other in the calling thread) and its detectors built with that precision. Per run: CPU
+after the other in the calling thread) with ``precision=P`` (the detectors it builds). Per run: CPU
 seconds per frame (the process's; with frames read from disk this includes decoding), the
 network's passes (count and thread CPU ms per pass, measured around each pass in the thread that
 runs it), accuracy against the ground truth (mean / p95 mm, swaps), the detector's routes, and the
@@ -50,17 +50,16 @@ class _PassClock:
 
 def run(capture, source, frames: range, precision: str, serial: bool) -> dict:
     import spinemocap.app.streaming as streaming
-    import spinemocap.detect as detect_package
     from spinemocap.app.run import track_source
     from spinemocap.detect import detector as det
     from spinemocap.track.evaluate import evaluate_tracking
 
     clock = _PassClock()
-    original_det, original_logits = detect_package.Detector, det.NetSegmenter._logits_batch
-    # CaptureDetector imports Detector from the package when it is built
-    detect_package.Detector = functools.partial(det.Detector, precision=precision)  # type: ignore[misc]
+    original_logits = det.NetSegmenter._logits_batch
     det.NetSegmenter._logits_batch = clock.wrap(original_logits)  # type: ignore[method-assign]
-    options = streaming.SpeedOptions(workers=1, prefetch=0) if serial else streaming.SpeedOptions()
+    # the tracker builds its detectors with SpeedOptions.precision (session 26's integration)
+    options = (streaming.SpeedOptions(workers=1, prefetch=0, precision=precision) if serial
+               else streaming.SpeedOptions(precision=precision))
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -72,7 +71,7 @@ def run(capture, source, frames: range, precision: str, serial: bool) -> dict:
                                   progress=False, speed=options)
             cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     finally:
-        detect_package.Detector, det.NetSegmenter._logits_batch = original_det, original_logits  # type: ignore[misc,method-assign]
+        det.NetSegmenter._logits_batch = original_logits  # type: ignore[method-assign]
     accuracy = evaluate_tracking(result.table, capture.groundtruth(), float(capture.tape.graph.rest_length_mm.min()))
     n = len(frames)
     return {"cpu": cpu / n, "fps": n / wall, "passes": clock.n / n, "pass_ms": 1000 * clock.cpu / max(clock.n, 1),

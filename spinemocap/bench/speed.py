@@ -306,10 +306,15 @@ def _replayed_video_runs(capture: Capture, replayed: MemorySource, gt: dict, n_f
 
 
 def machine_info() -> dict:
-    """CPU cores and model, load, torch's version and threads, and the GPU torch sees (or None)."""
+    """CPU cores and model, whether the CPU has VNNI and the network arithmetic ``precision="auto"``
+    resolves to on it (int8 on VNNI CPUs: the CPU numbers of two machines compare only with the same
+    arithmetic), load, torch's version and threads, and the GPU torch sees (or None)."""
     import platform
 
     import torch
+
+    from ..detect.detector import auto_precision
+    from ..detect.segnet import cpu_has_vnni
 
     cuda = torch.cuda.is_available()
     model = platform.processor()
@@ -318,7 +323,8 @@ def machine_info() -> dict:
             model = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), model)
     except OSError:
         pass
-    return {"cpu_cores": os.cpu_count(), "cpu_model": model, "load_average_1min": os.getloadavg()[0],
+    return {"cpu_cores": os.cpu_count(), "cpu_model": model, "cpu_vnni": cpu_has_vnni(),
+            "auto_precision": auto_precision(), "load_average_1min": os.getloadavg()[0],
             "torch": torch.__version__, "torch_threads": torch.get_num_threads(),
             "gpu": torch.cuda.get_device_name(0) if cuda else None,
             "cuda": torch.version.cuda if cuda else None,
