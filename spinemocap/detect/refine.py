@@ -134,13 +134,20 @@ def _levels(grey: np.ndarray, mask: np.ndarray, band: int, min_contrast: float,
         inner_median = histogram_median(inner_hist)
         tape = inner & (g <= inner_median)
         inner_hist[int(inner_median) + 1:] = 0  # the tape's pixels: the inner ones up to the median
-        tape_median, ring_median = histogram_median(inner_hist), histogram_median(_histogram(g, ring))
+        tape_median = histogram_median(inner_hist)
     else:
         tape = inner & (g <= median(g[inner]))
-        tape_median, ring_median = median(g[tape]), median(g[ring])
+        tape_median = median(g[tape])
+    ring_median = _median_at(g, ring)
     if ring_median - tape_median < min_contrast:
         return None
     return _Levels(near, tape, ring, tape_median, ring_median, grown)
+
+
+def _median_at(g: np.ndarray, where: np.ndarray) -> np.floating:
+    """The median of ``g`` at ``where`` (from a grey-level histogram when ``g`` is uint8:
+    ``np.median``'s value)."""
+    return histogram_median(_histogram(g, where)) if g.dtype == np.uint8 else median(g[where])
 
 
 def _kept_levels(grey: np.ndarray, samples: _Levels | None, kept: np.ndarray, kept_box: tuple[slice, slice] | None,
@@ -160,10 +167,7 @@ def _kept_levels(grey: np.ndarray, samples: _Levels | None, kept: np.ndarray, ke
     if np.count_nonzero(tape) < 10 or np.count_nonzero(ring) < 20:
         return None
     g = grey[samples.box]
-    if g.dtype == np.uint8:
-        tape_median, ring_median = histogram_median(_histogram(g, tape)), histogram_median(_histogram(g, ring))
-    else:
-        tape_median, ring_median = median(g[tape]), median(g[ring])
+    tape_median, ring_median = _median_at(g, tape), _median_at(g, ring)
     if ring_median - tape_median < p.min_contrast:
         return None
     return samples._replace(tape=tape, ring=ring, tape_median=tape_median, ring_median=ring_median)
