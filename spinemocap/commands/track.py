@@ -10,6 +10,8 @@ from pathlib import Path
 
 from spinemocap.capture import Capture
 
+log = logging.getLogger(__name__)
+
 
 def add_refresh_arguments(p: argparse.ArgumentParser) -> None:
     """Sequence mode's schedule of full tape searches (``SpeedOptions.refresh*``); unset: the pipeline's."""
@@ -29,8 +31,6 @@ def refresh_options(args: argparse.Namespace) -> dict:
     given = {"refresh_every": args.refresh_every, "refresh": args.refresh,
              "refresh_settled_every": args.refresh_settled_every}
     return {k: v for k, v in given.items() if v is not None}
-
-log = logging.getLogger(__name__)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
