@@ -1,7 +1,8 @@
 """The virtual Vicon of ``synth --vicon``: gaps where its camera ring loses sight of a marker (the
 body hides it), and the wand wave that ``calibrate wand`` turns into the rig -> Vicon transform and
 clock offset, which ``crossval --rig-vicon`` then uses. One small studio trial (artificial layout
-at 512x384, 1.5 s at 30 fps, no body frames rendered) serves every test."""
+at 512x384, 1.5 s at 30 fps, no body frames rendered) serves every test but the last, which runs
+``bench vicon-wand`` end to end on its own trial."""
 
 from __future__ import annotations
 
@@ -119,3 +120,27 @@ def test_calibrate_wand_recovers_the_transform_and_offset_and_crossval_uses_it(s
     alignment = json.loads((tmp_path / "cv" / "summary.json").read_text())["alignment"]
     np.testing.assert_allclose(alignment["rotation"], R, atol=1e-9)  # the wand's transform, not re-estimated
     assert abs(alignment["clock_offset_s"] - vicon.setup.clock_offset_s) < 1e-3
+
+
+def test_bench_vicon_wand_scores_the_wand_and_both_crossval_alignments_against_the_truth(tmp_path, capsys):
+    """``spinemocap bench vicon-wand`` closes the loop on one small ideal trial: the wand's transform
+    and clock offset match the virtual Vicon's truth; crossval with the transform read back from
+    the written rig file carries the wand's rotation (only the offset estimated), the tape-marker
+    peer estimates both; the JSON, the plot and the table are written."""
+    pytest.importorskip("torch").set_num_threads(1)
+    from spinemocap.cli import main
+
+    out = tmp_path / "vicon_wand.json"
+    assert main(["bench", "vicon-wand", "--levels", "ideal", "--frames", "10", "--size", "512x384",
+                 "--wand-seconds", "2", "--no-progress", "--json", str(out)]) == 0
+    (row,) = json.loads(out.read_text())["levels"]
+    wand, from_rig, from_markers = row["wand"], row["crossval_rig_vicon"], row["crossval_markers"]
+    assert abs(wand["offset_error_ms"]) < 0.5
+    assert wand["rotation_error_deg"] < 0.05 and wand["point_error_max_mm"] < 1.0, wand
+    assert from_rig["estimated"] == "offset" and from_markers["estimated"] == "offset+transform"
+    assert from_rig["rotation_error_deg"] == pytest.approx(wand["rotation_error_deg"], abs=1e-6)
+    assert from_rig["scale"] == pytest.approx(wand["scale"], rel=1e-9)
+    assert set(from_markers["angles"]) == set(from_rig["angles"]) and "lumbar_flexion" in from_rig["angles"]
+    assert out.with_suffix(".png").stat().st_size > 0
+    table = capsys.readouterr().out
+    assert all(method in table for method in ("wand", "crossval_rig_vicon", "crossval_markers"))
