@@ -114,6 +114,7 @@ def test_camera_processes_give_the_serial_views_on_a_small_studio(small_studio):
     processes = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, parallel="processes"))
     try:
         assert processes.parallel == "processes"
+        assert processes._processes is not None and len(processes._processes.pids) == 2  # both workers' CPU counted
         for f, frame_images in enumerate(images):
             _assert_same_views(serial(f, frame_images, None), processes(f, frame_images, None))
             serial.observe(f, gt[f])
