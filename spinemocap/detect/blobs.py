@@ -73,6 +73,21 @@ def mask_box(mask: np.ndarray, margin: int = 0) -> tuple[slice, slice] | None:
     return (slice(max(0, y - margin), min(h, y + bh + margin)), slice(max(0, x - margin), min(w, x + bw + margin)))
 
 
+def mask_box_within(mask: np.ndarray, within: tuple[slice, slice] | None, margin: int = 0) -> tuple[slice, slice] | None:
+    """:func:`mask_box` (``margin`` px, clipped), measured in ``within``: a box known to hold
+    every pixel of ``mask`` (the same box; one pass over that box, not the whole mask). None:
+    measured on the whole mask."""
+    if within is None:
+        return mask_box(mask, margin)
+    box = mask_box(mask[within])
+    if box is None:
+        return None
+    h, w = mask.shape
+    y0, x0 = within[0].start + box[0].start, within[1].start + box[1].start
+    y1, x1 = within[0].start + box[0].stop, within[1].start + box[1].stop
+    return (slice(max(0, y0 - margin), min(h, y1 + margin)), slice(max(0, x0 - margin), min(w, x1 + margin)))
+
+
 def labelled_components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     """8-connected components of a bool or uint8 mask: ``(n, labels, areas)``, ``n`` labels with
     the background's 0, ``areas`` (n,) int32 pixels per label. Labels are uint16 where they fit,
@@ -248,19 +263,21 @@ def _disc(diameter: float) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
 
 
-def _regions(mask: np.ndarray, pad: int, stride: int = 8) -> list[tuple[slice, slice]]:
+def _regions(mask: np.ndarray, pad: int, stride: int = 8, within: tuple[slice, slice] | None = None
+             ) -> list[tuple[slice, slice]]:
     """Padded bounding boxes of the mask's components. The components are found on a
     ``stride``-times smaller copy (a full-frame labelling would cost more than all the dot work
     together); each box is then the exact extent of the mask's pixels in it, so the boxes do not
     depend on where the mask lies on that coarse grid (a crop around the tape finds the dots the
-    whole frame finds)."""
+    whole frame finds). ``within``: a box known to hold every pixel of the mask (its box is
+    measured there: :func:`mask_box_within`)."""
     h, w = mask.shape
     hs, ws = -(-h // stride), -(-w // stride)
     sy, sx = h / hs, w / ws  # the coarse pixel's size (stride, or a little less at odd sizes)
     # x 255: a block with a single mask pixel stays non-zero (its area average is >= 255 / stride^2).
     # OpenCV's uint8 INTER_AREA of the mask: its float sums (area_shrink, on the mask's box only)
     # rounded to the nearest even integer, as OpenCV rounds them to uint8.
-    box = mask_box(mask)
+    box = mask_box_within(mask, within)
     if box is None:
         return []
     columns = cv2.transpose(mask[box].view(np.uint8)) * np.float32(255)  # (box w, box h)
@@ -663,6 +680,7 @@ def find_dots(
     params: BlobParams | None = None,
     memo: dict | None = None,
     hole_free: bool = False,
+    within: tuple[slice, slice] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Bright round dots inside ``mask``.
 
@@ -674,7 +692,8 @@ def find_dots(
     whose box and mask pixels an earlier call saw is not searched again (its dots are those of
     that call: the search reads nothing else). ``hole_free``: ``mask`` has no holes (e.g.
     :func:`fill_holes`' answer): the regions' hole filling is skipped (any box of a hole-free
-    mask is hole-free: a hole there would be one of the mask).
+    mask is hole-free: a hole there would be one of the mask). ``within``: a box known to hold
+    every pixel of ``mask`` (the mask's box is measured there), when the caller has one.
     """
     p = params or BlobParams()
     grey = to_grey(image)
@@ -687,7 +706,7 @@ def find_dots(
     # Coarse boxes first (cheap on the whole frame); all further work happens inside them.
     d_global = expected_dot_px
     pad = int(math.ceil(p.margin * (d_global or 8.0))) + 4
-    for ys, xs in _regions(mask, pad):
+    for ys, xs in _regions(mask, pad, within=within):
         key = None
         if memo is not None:
             key = (ys.start, ys.stop, xs.start, xs.stop, mask[ys, xs].tobytes())

@@ -42,6 +42,7 @@ from .blobs import (
     histogram_median,
     labelled_components,
     mask_box,
+    mask_box_within,
     median,
     percentile,
 )
@@ -263,9 +264,10 @@ def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels 
     return fill_holes(snapped, _near(snapped, p.band_px + 1, box))  # the snapped mask lies in ``near``
 
 
-def components_touching(mask: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """The components of ``mask`` (8-connected) that overlap ``reference`` (both bool, same shape)."""
-    box = _near(mask, 0)
+def components_touching(mask: np.ndarray, reference: np.ndarray, within: tuple[slice, slice] | None = None) -> np.ndarray:
+    """The components of ``mask`` (8-connected) that overlap ``reference`` (both bool, same shape).
+    ``within``: a box known to hold every pixel of ``mask`` (its box is measured there)."""
+    box = mask_box_within(mask, within)
     out = np.zeros(mask.shape, bool)
     if box is not None:  # components of the mask's box: the whole mask's
         n, labels = cv2.connectedComponents(mask[box].astype(np.uint8), connectivity=8)
@@ -320,23 +322,25 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     measure the tape by)."""
     p = params or RefineParams()
     grey = to_grey(crop)  # uint8, once: the snapping, the dots and the extension all read it
-    base = fill_holes(mask)
+    # the mask's box, measured once: filling holes keeps it (a hole lies inside its outline)
+    base_box = _near(mask, 0)
+    base = fill_holes(mask, None if base_box is None else _near(mask, 1, base_box))
     memo: dict = {}  # find_dots' regions already searched on ``grey`` (a region whose mask is unchanged)
 
-    def snapped_with_levels(m: np.ndarray, box: tuple[slice, slice] | None) -> tuple[np.ndarray, _Levels | None]:
+    def snapped_with_levels(m: np.ndarray, box: tuple[slice, slice] | None
+                            ) -> tuple[np.ndarray, _Levels | None, tuple[slice, slice] | None]:
         # the tape and skin levels of ``m`` (its box ``box``): for the snap, and (of the kept mask)
-        # the extension's threshold
+        # the extension's threshold; and a box holding the snapped mask (the snap's reach)
         if box is None:
-            return m, None
+            return m, None, None
         samples = _levels(grey, m, p.band_px, p.min_contrast, box)
-        return _snap(grey, m, p, samples, box), samples
+        return _snap(grey, m, p, samples, box), samples, _near(m, p.band_px + 1, box)
 
     # The dots are found on the mask snapped onto the tape's edge, as the final mask will be:
     # their contrast and centres are measured on the tape's own pixels. The snapped mask has no
     # holes (fill_holes' answer, or the filled mask itself, or some of its components).
-    base_box = _near(base, 0)
-    snapped, samples = snapped_with_levels(base, base_box)
-    dots, conf = find_dots(grey, snapped, None, blob_params, memo, hole_free=True)
+    snapped, samples, snapped_within = snapped_with_levels(base, base_box)
+    dots, conf = find_dots(grey, snapped, None, blob_params, memo, hole_free=True, within=snapped_within)
     base_area = int(np.count_nonzero(base))
     if base_area < 50 or len(dots) < 2:
         return Extended(base, dots, conf, snapped)
@@ -348,8 +352,8 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
         # cleanup6: not snapped, levelled and searched again; the local levels are 12 px means)
         base = dotted
         base_area = int(np.count_nonzero(base))
-        base_box = _near(base, 0)
-        snapped = components_touching(snapped, base)
+        base_box = mask_box_within(base, base_box)  # some of the components: in their box
+        snapped = components_touching(snapped, base, snapped_within)
         samples = _kept_levels(grey, samples, base, base_box, p)
     threshold = _midway(samples)
     if threshold is None:
@@ -362,28 +366,24 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     width = 2.0 * percentile(dist[inside], 98)  # as estimate_dot_diameter measures it (dist > 0 is base)
     d = max(width * DEFAULT_DOT_TO_WIDTH, 2.0)
     area_per_dot = base_area / len(dots)
-    dark = _darker(grey, threshold)
-    # Candidate regions: dark pixels outside the mask that touch it, with what they enclose.
-    n, labels = cv2.connectedComponents((dark & ~base).view(np.uint8), connectivity=8)
-    rim = _near(base, 1, base_box)
-    pieces = _labelled(labels, n, labels[rim][_grow(base[rim], 1) & ~base[rim]])
-    joined = base | pieces
-    # ... all of them within the box of the mask and the pieces (their holes too)
-    box = _near(joined, 1)
+    # Candidate regions: dark pixels outside the mask that touch it, with what they enclose
+    # (all of them within the box of the mask and the pieces, grown by 1 px: their holes too).
+    box, joined = _joined_dark_pieces(grey, base, base_box, threshold)
     oy, ox = box[0].start, box[1].start
-    candidates = fill_holes(joined[box]) & ~base[box]
+    candidates = fill_holes(joined) & ~base[box]
     out, grew = base.copy(), False
     for x, y, w, h, region in _large_components(candidates, 0.5 * area_per_dot):
         x, y = x + ox, y + oy
         at = (slice(y, y + h), slice(x, x + w))
-        if _looks_like_tape(grey[at], region, dark[at], dots - [x, y], d, width, area_per_dot, p, blob_params):
+        if _looks_like_tape(grey[at], region, _darker(grey[at], threshold), dots - [x, y], d, width, area_per_dot, p,
+                            blob_params):
             out[at] |= region
             grew = True
     if not grew:
         return Extended(base, *answer, snapped)
     # The tape grew (rare): its dots on the joined mask, where a dot straddling a join counts.
-    snapped, _ = snapped_with_levels(out, _near(out, 0))
-    return Extended(out, *find_dots(grey, snapped, None, blob_params, memo), snapped)
+    snapped, _, snapped_within = snapped_with_levels(out, mask_box_within(out, box))  # ``out`` lies in ``box``
+    return Extended(out, *find_dots(grey, snapped, None, blob_params, memo, within=snapped_within), snapped)
 
 
 def _large_components(mask: np.ndarray, min_area: float):
@@ -402,6 +402,52 @@ def _large_components(mask: np.ndarray, min_area: float):
     for i in np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1:
         x, y, w, h, _ = (int(v) for v in stats[i])
         yield x, y, w, h, labels[y:y + h, x:x + w] == i
+
+
+def _joined_dark_pieces(grey: np.ndarray, base: np.ndarray, base_box: tuple[slice, slice], threshold: float
+                        ) -> tuple[tuple[slice, slice], np.ndarray]:
+    """``base`` (bool, crop-sized, non-empty; ``base_box`` its box) joined with the pieces of the
+    dark pixels outside it (:func:`_darker` than ``threshold``, 8-connected components) that touch
+    it (a pixel of ``base``'s 4-neighbourhood): the box of the joined mask grown by 1 px (clipped)
+    and the joined mask in it. On uint8 grey levels by flood fills from the touching dark pixels
+    (OpenCV's fixed range: the dark levels; ``base`` in the fill's mask), one per piece, at the
+    cost of the pieces (session 29); else (:func:`_joined_dark_pieces_labelled`, the reference)
+    from the labelled dark pixels of the whole crop."""
+    if grey.dtype != np.uint8:
+        return _joined_dark_pieces_labelled(grey, base, threshold)
+    ceiling = min(math.ceil(float(np.float32(threshold))), 256)  # dark: levels 0 .. ceiling - 1 (see _darker)
+    rim = _near(base, 1, base_box)
+    ys, xs = _nonzero(_grow(base[rim], 1) & ~base[rim] & _darker(grey[rim], threshold))
+    y0, x0, y1, x1 = base_box[0].start, base_box[1].start, base_box[0].stop, base_box[1].stop
+    fills = None
+    if len(ys):
+        h, w = base.shape
+        fills = np.zeros((h + 2, w + 2), np.uint8)  # the fill's mask: 1 px larger all round
+        fills[1:-1, 1:-1] = base.view(np.uint8)  # base is never filled
+        g = grey if grey.flags.writeable else grey.copy()  # OpenCV takes the image as an output (not written)
+        flags = 8 | cv2.FLOODFILL_FIXED_RANGE | cv2.FLOODFILL_MASK_ONLY | (2 << 8)  # a filled pixel: 2
+        for y, x in zip((ys + rim[0].start).tolist(), (xs + rim[1].start).tolist()):
+            if fills[y + 1, x + 1]:
+                continue  # base (never) or a piece filled from another seed
+            level = int(g[y, x])
+            _, _, _, (fx, fy, fw, fh) = cv2.floodFill(g, fills, (x, y), 0, level, ceiling - 1 - level, flags)
+            y0, x0, y1, x1 = min(y0, fy), min(x0, fx), max(y1, fy + fh), max(x1, fx + fw)
+    h, w = base.shape
+    box = (slice(max(0, y0 - 1), min(h, y1 + 1)), slice(max(0, x0 - 1), min(w, x1 + 1)))
+    if fills is None:
+        return box, base[box].copy()
+    return box, fills[box[0].start + 1:box[0].stop + 1, box[1].start + 1:box[1].stop + 1] != 0
+
+
+def _joined_dark_pieces_labelled(grey: np.ndarray, base: np.ndarray, threshold: float
+                                 ) -> tuple[tuple[slice, slice], np.ndarray]:
+    """:func:`_joined_dark_pieces` from the labelled dark pixels of the whole crop (the reference)."""
+    n, labels = cv2.connectedComponents((_darker(grey, threshold) & ~base).view(np.uint8), connectivity=8)
+    rim = _near(base, 1)
+    pieces = _labelled(labels, n, labels[rim][_grow(base[rim], 1) & ~base[rim]])
+    joined = base | pieces
+    box = _near(joined, 1)
+    return box, joined[box]
 
 
 def _darker(grey: np.ndarray, threshold: float) -> np.ndarray:

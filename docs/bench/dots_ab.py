@@ -1,0 +1,127 @@
+"""Issue 15: the clean-up's dot finding (``extend_along_tape``: snap, levels, ``find_dots``) before
+and after a change, on the calls a tracking run makes: bit-identical answers, CPU per frame, the
+two versions alternating call by call in one process (the same load for both).
+
+1. ``--record FILE.pkl``: a tracking run (cameras serial, frames in memory) records the
+   arguments of every ``extend_along_tape`` call (the box's grey crop and the network's mask;
+   the network and the tracker are not timed here) and pickles them.
+2. Both versions then run every recorded call: their answers (mask, snapped mask, dots,
+   confidences) are compared bit for bit (any difference stops the run), then timed
+   (``time.thread_time``, ``--rounds`` rounds, the order swapped every round).
+   ``--profile``: a cProfile of the 'after' version on the recorded calls instead.
+
+The previous package is imported under another name, e.g.
+
+    mkdir -p /tmp/before && git archive fdbd8d3 spinemocap | tar -x -C /tmp/before
+    mv /tmp/before/spinemocap /tmp/before/spinemocap_before
+    OMP_NUM_THREADS=1 python docs/bench/dots_ab.py CAPTURE_DIR --frames 40:80 --record /tmp/calls.pkl
+    OMP_NUM_THREADS=1 python docs/bench/dots_ab.py CAPTURE_DIR --frames 40:80 --calls /tmp/calls.pkl --before /tmp/before --rounds 6
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import os
+import pickle
+import pstats
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+
+def record(capture_dir: Path, frames: range, out: Path) -> None:
+    import spinemocap.detect.detector as detector
+    from spinemocap.app.run import track_source
+    from spinemocap.app.streaming import SpeedOptions
+    from spinemocap.bench.speed import MemorySource
+    from spinemocap.capture import Capture
+
+    cap = Capture.open(capture_dir)
+    source = cap.frame_source()
+    images = [source.read(f) if f in frames else [] for f in range(frames.stop)]
+    calls = []
+    extend = detector.extend_along_tape
+
+    def recording(crop, mask, *args, **kwargs):
+        calls.append((np.array(crop), np.array(mask)))
+        return extend(crop, mask, *args, **kwargs)
+
+    detector.extend_along_tape = recording  # type: ignore[assignment]
+    warnings.simplefilter("ignore")
+    track_source(MemorySource(images, list(source.camera_names)), cap.rig, cap.tape, cap.fps, frames,
+                 up=cap.up, progress=False, speed=SpeedOptions(workers=1, prefetch=0))
+    detector.extend_along_tape = extend
+    with open(out, "wb") as f:
+        pickle.dump({"frames": len(frames), "calls": calls}, f)
+    print(f"recorded {len(calls)} extend_along_tape calls over {len(frames)} frames into {out}")
+
+
+def same(a, b) -> bool:
+    return (a.mask.shape == b.mask.shape and bool((a.mask == b.mask).all()) and bool((a.snapped == b.snapped).all())
+            and a.uv.shape == b.uv.shape and bool((a.uv == b.uv).all()) and bool((a.confidence == b.confidence).all()))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("capture", type=Path)
+    parser.add_argument("--frames", default="40:80")
+    parser.add_argument("--record", type=Path, help="record the calls into this pickle and stop")
+    parser.add_argument("--calls", type=Path, help="a --record pickle")
+    parser.add_argument("--before", type=Path, help="a folder holding the previous package as spinemocap_before/")
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--profile", action="store_true", help="cProfile the 'after' version over the calls")
+    args = parser.parse_args()
+    cv2.setNumThreads(1)  # as the tracker's camera threads set it
+    a, b = (int(v) for v in args.frames.split(":"))
+    if args.record:
+        record(args.capture, range(a, b), args.record)
+        return
+    with open(args.calls, "rb") as f:
+        data = pickle.load(f)
+    calls, n_frames = data["calls"], data["frames"]
+    from spinemocap.detect.refine import extend_along_tape as after
+
+    if args.profile:
+        profile = cProfile.Profile()
+        for _ in range(max(1, args.rounds)):
+            profile.enable()
+            for crop, mask in calls:
+                after(crop, mask)
+            profile.disable()
+        pstats.Stats(profile).sort_stats("tottime").print_stats(40)
+        return
+    sys.path.insert(0, str(args.before))
+    from spinemocap_before.detect.refine import extend_along_tape as before
+
+    versions = {"before": before, "after": after}
+    dots = 0
+    for k, (crop, mask) in enumerate(calls):
+        x, y = before(crop, mask), after(crop, mask)
+        if not same(x, y):
+            raise SystemExit(f"call {k}: the answers differ ({len(x.uv)} vs {len(y.uv)} dots)")
+        dots += len(x.uv)
+    print(f"{len(calls)} calls, {n_frames} frames: identical masks, snapped masks, dots and confidences ({dots} dots)")
+    cpu: dict[str, list[float]] = {"before": [], "after": []}
+    for r in range(args.rounds):
+        total = {"before": 0.0, "after": 0.0}
+        for crop, mask in calls:
+            for name in (("before", "after") if r % 2 == 0 else ("after", "before")):
+                t = time.thread_time()
+                versions[name](crop, mask)
+                total[name] += time.thread_time() - t
+        for name in total:
+            cpu[name].append(total[name])
+        print(f"round {r}: before {total['before'] * 1e3 / n_frames:.2f}, after {total['after'] * 1e3 / n_frames:.2f} "
+              f"CPU ms/frame, ratio {total['after'] / total['before']:.3f} (1-min load {os.getloadavg()[0]:.1f})")
+    for name, values in cpu.items():
+        print(f"{name}: median {np.median(values) * 1e3 / n_frames:.2f} CPU ms/frame")
+    print(f"after / before (medians): {np.median(cpu['after']) / np.median(cpu['before']):.3f}")
+
+
+if __name__ == "__main__":
+    main()
