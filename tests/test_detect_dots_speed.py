@@ -44,7 +44,7 @@ def _random_mask(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray
 def test_dark_pieces_by_flood_fills_are_the_labelled_crops():
     rng = np.random.default_rng(29)
     checked = filled = 0
-    for trial in range(60):
+    for _ in range(60):
         shape = (int(rng.integers(20, 160)), int(rng.integers(20, 160)))
         grey = _smooth_grey(rng, shape)
         base = _random_mask(rng, shape)

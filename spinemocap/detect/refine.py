@@ -444,9 +444,12 @@ def _joined_dark_pieces_labelled(grey: np.ndarray, base: np.ndarray, threshold: 
     """:func:`_joined_dark_pieces` from the labelled dark pixels of the whole crop (the reference)."""
     n, labels = cv2.connectedComponents((_darker(grey, threshold) & ~base).view(np.uint8), connectivity=8)
     rim = _near(base, 1)
+    if rim is None:
+        raise ValueError("an empty mask has no pieces to join")
     pieces = _labelled(labels, n, labels[rim][_grow(base[rim], 1) & ~base[rim]])
     joined = base | pieces
     box = _near(joined, 1)
+    assert box is not None  # base is not empty
     return box, joined[box]
 
 
