@@ -144,3 +144,15 @@ def test_clean_up_with_the_cheaper_paths_is_the_reference_paths(drawn_tapes, mon
         assert np.array_equal(a.uv, b.uv) and np.array_equal(a.confidence, b.confidence)
         dots += len(a.uv)
     assert dots > 100
+
+
+def test_distinct_labels_from_bit_sets_are_the_sorted_rows():
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 3, 63, 64, 65, 100, 128, 129, 200, 254, 256):
+        for shape in ((0, 5), (1, 1), (7, 21), (300, 45), (50, 97)):
+            near = rng.integers(0, n, shape).astype(np.uint8)
+            near[rng.random(shape) < rng.uniform(0, 1)] = 0  # many without a label, some rows empty
+            which, owner = blobs._distinct_labels(near, n)
+            ref_which, ref_owner = blobs._distinct_labels_sorted(near)
+            assert np.array_equal(which, ref_which) and np.array_equal(owner, ref_owner)
+            assert which.dtype == ref_which.dtype and owner.dtype == ref_owner.dtype

@@ -599,15 +599,34 @@ def _ring_pixels(labels: np.ndarray, candidate: np.ndarray, grow: np.ndarray,
     width = padded.shape[1]
     near = padded.ravel()[((ys2 + r) * width + xs2 + r)[:, None] + (dy - r) * width + (dx - r)]
     # each pixel's distinct candidate labels in ascending order (as a sort of (pixel, label) keys gives them)
-    near = np.sort(near, axis=1)
-    first = near > 0
-    first[:, 1:] &= near[:, 1:] != near[:, :-1]
-    which, owner2 = _nonzero(first)[0], near[first].astype(np.int64)
+    which, owner2 = _distinct_labels(near, n) if dtype == np.uint8 else _distinct_labels_sorted(near)
     if box is not None:
         ys2 += y0
         xs2 += x0
     return (np.concatenate([ys1, ys2[which]]), np.concatenate([xs1, xs2[which]]),
             np.concatenate([owner1, owner2]))
+
+
+def _distinct_labels_sorted(near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct non-zero labels of each row of ``near`` (N, K), ascending: (row, label int64)
+    pairs, rows ascending (a sort of each row: the reference of :func:`_distinct_labels`)."""
+    near = np.sort(near, axis=1)
+    first = near > 0
+    first[:, 1:] &= near[:, 1:] != near[:, :-1]
+    return _nonzero(first)[0], near[first].astype(np.int64)
+
+
+def _distinct_labels(near: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_distinct_labels_sorted` of uint8 labels below ``n`` (<= 256), the same pairs in the
+    same order: each row's labels as the bits of one little-endian bit set ((n + 63) // 64 uint64
+    words, OR-ed across the row; no sort), read back in ascending bit order."""
+    words = (n + 63) // 64
+    bits = np.zeros((n, words), "<u8")
+    labels = np.arange(1, n)  # label 0 (no candidate): no bit
+    bits[labels, labels // 64] = np.left_shift(np.uint64(1), (labels % 64).astype(np.uint64))
+    rows = np.bitwise_or.reduce(bits[near], axis=1)  # (N, words)
+    which, owner = _nonzero(np.unpackbits(rows.view(np.uint8), axis=1, bitorder="little").view(bool))
+    return which, owner.astype(np.int64)
 
 
 def _typical_diameter(blobs: "_Blobs", d_guess: float) -> float:
