@@ -253,15 +253,22 @@ def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels 
     oy, ox = near[0].start - samples.box[0].start, near[1].start - samples.box[1].start
     grown = samples.grown[oy:oy + m.shape[0], ox:ox + m.shape[1]]
     band = grown & ~_shrink(m, p.band_px)
-    snapped = mask.copy()
     inside = m & ~band
     # the band's pixels re-decided (a thin outline: the levels are measured there only)
     ys, xs = _nonzero(band)
     if len(ys):
         tape_level, skin_level = _band_levels(grey, samples, p.level_sigma_px, ys + near[0].start, xs + near[1].start)
         inside[ys, xs] = grey[near][ys, xs] < 0.5 * (tape_level + skin_level)
-    snapped[near] = inside
-    return fill_holes(snapped, _near(snapped, p.band_px + 1, box))  # the snapped mask lies in ``near``
+    # the snapped mask lies in ``near`` (the mask does: it is empty outside): its holes filled in
+    # ``near`` grown by 1 px (a zero frame, or the crop's border), and the answer crop-sized
+    reach = _near(mask, p.band_px + 1, box)
+    assert reach is not None  # near is
+    snapped = np.zeros((reach[0].stop - reach[0].start, reach[1].stop - reach[1].start), bool)
+    snapped[near[0].start - reach[0].start:near[0].stop - reach[0].start,
+            near[1].start - reach[1].start:near[1].stop - reach[1].start] = inside
+    out = np.zeros(mask.shape, bool)
+    out[reach] = fill_holes(snapped, (slice(0, snapped.shape[0]), slice(0, snapped.shape[1])))
+    return out
 
 
 def components_touching(mask: np.ndarray, reference: np.ndarray, within: tuple[slice, slice] | None = None) -> np.ndarray:
@@ -341,18 +348,19 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     # holes (fill_holes' answer, or the filled mask itself, or some of its components).
     snapped, samples, snapped_within = snapped_with_levels(base, base_box)
     dots, conf = find_dots(grey, snapped, None, blob_params, memo, hole_free=True, within=snapped_within)
-    base_area = int(np.count_nonzero(base))
+    base_area = int(np.count_nonzero(base[base_box])) if base_box is not None else 0  # base lies in its box
     if base_area < 50 or len(dots) < 2:
         return Extended(base, dots, conf, snapped)
     dotted = keep_dotted(base, dots, base_box)
     answer = dots, conf
-    if np.count_nonzero(dotted) < base_area:
+    assert base_box is not None  # base has pixels
+    if np.count_nonzero(dotted[base_box]) < base_area:  # some of base's components
         # components without dots dropped: their snapped outlines go, the dots stay (they had none)
         # and the tape and skin levels are those of the kept components' samples (session 27,
         # cleanup6: not snapped, levelled and searched again; the local levels are 12 px means)
         base = dotted
-        base_area = int(np.count_nonzero(base))
         base_box = mask_box_within(base, base_box)  # some of the components: in their box
+        base_area = int(np.count_nonzero(base[base_box])) if base_box is not None else 0
         snapped = components_touching(snapped, base, snapped_within)
         samples = _kept_levels(grey, samples, base, base_box, p)
     threshold = _midway(samples)
