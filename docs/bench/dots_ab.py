@@ -8,7 +8,8 @@ two versions alternating call by call in one process (the same load for both).
 2. Both versions then run every recorded call: their answers (mask, snapped mask, dots,
    confidences) are compared bit for bit (any difference stops the run), then timed
    (``time.thread_time``, ``--rounds`` rounds, the order swapped every round).
-   ``--profile``: a cProfile of the 'after' version on the recorded calls instead.
+   ``--profile``: cProfiles of the versions (``--before`` optional) on the recorded calls instead:
+   the clean-up's functions by cumulative CPU ms per frame, the top calls by own time.
 
 The previous package is imported under another name, e.g.
 
@@ -16,6 +17,7 @@ The previous package is imported under another name, e.g.
     mv /tmp/before/spinemocap /tmp/before/spinemocap_before
     OMP_NUM_THREADS=1 python docs/bench/dots_ab.py CAPTURE_DIR --frames 40:80 --record /tmp/calls.pkl
     OMP_NUM_THREADS=1 python docs/bench/dots_ab.py CAPTURE_DIR --frames 40:80 --calls /tmp/calls.pkl --before /tmp/before --rounds 6
+    OMP_NUM_THREADS=1 python docs/bench/dots_ab.py CAPTURE_DIR --calls /tmp/calls.pkl --before /tmp/before --rounds 4 --profile
 """
 
 from __future__ import annotations
@@ -86,19 +88,15 @@ def main() -> None:
     calls, n_frames = data["calls"], data["frames"]
     from spinemocap.detect.refine import extend_along_tape as after
 
-    if args.profile:
-        profile = cProfile.Profile()
-        for _ in range(max(1, args.rounds)):
-            profile.enable()
-            for crop, mask in calls:
-                after(crop, mask)
-            profile.disable()
-        pstats.Stats(profile).sort_stats("tottime").print_stats(40)
-        return
-    sys.path.insert(0, str(args.before))
-    from spinemocap_before.detect.refine import extend_along_tape as before
+    versions = {"after": after}
+    if args.before is not None:
+        sys.path.insert(0, str(args.before))
+        from spinemocap_before.detect.refine import extend_along_tape as before
 
-    versions = {"before": before, "after": after}
+        versions = {"before": before, "after": after}
+    if args.profile:
+        _profile(versions, calls, n_frames, max(1, args.rounds))
+        return
     dots = 0
     for k, (crop, mask) in enumerate(calls):
         x, y = before(crop, mask), after(crop, mask)
@@ -106,6 +104,7 @@ def main() -> None:
             raise SystemExit(f"call {k}: the answers differ ({len(x.uv)} vs {len(y.uv)} dots)")
         dots += len(x.uv)
     print(f"{len(calls)} calls, {n_frames} frames: identical masks, snapped masks, dots and confidences ({dots} dots)")
+    parts = _time_parts(versions)
     cpu: dict[str, list[float]] = {"before": [], "after": []}
     for r in range(args.rounds):
         total = {"before": 0.0, "after": 0.0}
@@ -121,6 +120,63 @@ def main() -> None:
     for name, values in cpu.items():
         print(f"{name}: median {np.median(values) * 1e3 / n_frames:.2f} CPU ms/frame")
     print(f"after / before (medians): {np.median(cpu['after']) / np.median(cpu['before']):.3f}")
+    print("CPU ms per frame by part (all rounds; find_dots also inside the extension's region tests):")
+    for part in ("find_dots", "_levels", "_snap"):
+        b, a = (parts[name][part] * 1e3 / args.rounds / n_frames for name in ("before", "after"))
+        print(f"  {part}: before {b:.2f}, after {a:.2f}, ratio {a / b:.3f}")
+
+
+def _time_parts(versions: dict) -> dict[str, dict[str, float]]:
+    """Wrap ``find_dots``, ``_levels`` and ``_snap`` as each version's clean-up calls them
+    (``refine``'s names) in thread-CPU timers: the seconds spent in each, per version (the
+    outermost call only)."""
+    import importlib
+
+    parts: dict[str, dict[str, float]] = {}
+    for name, extend in versions.items():
+        module = importlib.import_module(extend.__module__)
+        totals = parts.setdefault(name, {})
+        depth = [0]
+        for part in ("find_dots", "_levels", "_snap"):
+            totals[part] = 0.0
+            setattr(module, part, _timed(getattr(module, part), part, totals, depth))
+    return parts
+
+
+def _timed(f, part: str, totals: dict[str, float], depth: list[int]):
+    """``f`` adding its thread CPU seconds to ``totals[part]`` (outermost timed call only)."""
+    def timed(*args, **kwargs):
+        depth[0] += 1
+        t = time.thread_time()
+        try:
+            return f(*args, **kwargs)
+        finally:
+            depth[0] -= 1
+            if depth[0] == 0:
+                totals[part] += time.thread_time() - t
+    return timed
+
+
+def _profile(versions: dict, calls: list, n_frames: int, rounds: int) -> None:
+    """cProfile of each version over the calls (rounds alternating): the clean-up's functions by
+    cumulative CPU ms per frame, then the top calls by own time."""
+    profiles = {name: cProfile.Profile() for name in versions}
+    for r in range(rounds):
+        for name in (list(versions) if r % 2 == 0 else list(versions)[::-1]):
+            profiles[name].enable()
+            for crop, mask in calls:
+                versions[name](crop, mask)
+            profiles[name].disable()
+    for name, profile in profiles.items():
+        stats = pstats.Stats(profile)
+        print(f"== {name}: cumulative CPU ms per frame (profiled)")
+        rows = [(ct, nc, f"{Path(fn).name}:{fl}({fname})") for (fn, fl, fname), (_, nc, _, ct, _) in stats.stats.items()  # type: ignore[attr-defined]
+                if "spinemocap" in fn and ("refine" in fn or "blobs" in fn)]
+        for ct, nc, where in sorted(rows, reverse=True)[:16]:
+            print(f"{ct * 1e3 / rounds / n_frames:8.2f}  {nc // rounds:6d} calls  {where}")
+    for name, profile in profiles.items():
+        print(f"== {name}: top own time")
+        pstats.Stats(profile).sort_stats("tottime").print_stats(20)
 
 
 if __name__ == "__main__":
