@@ -8,6 +8,10 @@ two versions alternating call by call in one process (the same load for both).
 2. Both versions then run every recorded call: their answers (mask, snapped mask, dots,
    confidences) are compared bit for bit (any difference stops the run), then timed
    (``time.thread_time``, ``--rounds`` rounds, the order swapped every round).
+   ``--pipeline N``: instead, the whole tracker (threads, stage 1 in the pool: ``threads_ab.py``'s
+   ``T:p``) on the frames (``--cache``: threads_ab's .npy of them), N runs per version alternating
+   in this process (the detector's clean-up swapped between the versions): CPU s per frame of the
+   process and the largest position difference between the versions' runs (mm; 0.0: identical).
    ``--profile``: cProfiles of the versions (``--before`` optional) on the recorded calls instead:
    the clean-up's functions by cumulative CPU ms per frame, the top calls by own time.
 
@@ -18,6 +22,7 @@ The previous package is imported under another name, e.g.
     OMP_NUM_THREADS=1 python docs/bench/dots_ab.py CAPTURE_DIR --frames 40:80 --record /tmp/calls.pkl
     OMP_NUM_THREADS=1 python docs/bench/dots_ab.py CAPTURE_DIR --frames 40:80 --calls /tmp/calls.pkl --before /tmp/before --rounds 6
     OMP_NUM_THREADS=1 python docs/bench/dots_ab.py CAPTURE_DIR --calls /tmp/calls.pkl --before /tmp/before --rounds 4 --profile
+    OMP_NUM_THREADS=1 python docs/bench/dots_ab.py CAPTURE_DIR --frames 40:80 --before /tmp/before --pipeline 6 --cache frames.npy
 """
 
 from __future__ import annotations
@@ -63,6 +68,52 @@ def record(capture_dir: Path, frames: range, out: Path) -> None:
     print(f"recorded {len(calls)} extend_along_tape calls over {len(frames)} frames into {out}")
 
 
+def pipeline(capture_dir: Path, frames: range, before_dir: Path, runs: int, cache: Path | None) -> None:
+    import spinemocap.detect.detector as detector
+    from spinemocap.app.run import track_source
+    from spinemocap.app.streaming import SpeedOptions
+    from spinemocap.bench.speed import MemorySource
+    from spinemocap.capture import Capture
+    from spinemocap.track.evaluate import evaluate_tracking
+
+    sys.path.insert(0, str(before_dir))
+    from spinemocap_before.detect.refine import extend_along_tape as before
+
+    cap = Capture.open(capture_dir)
+    reader = cap.frame_source()
+    if cache is not None and cache.is_file():
+        images = np.load(cache)
+    else:
+        images = np.stack([np.stack(reader.read(f)) for f in frames])
+    source = MemorySource([list(frame) for frame in images], list(reader.camera_names))
+    truth = {k: (v[frames.start:frames.stop] if k in ("dots", "visible", "keypoints") else v)
+             for k, v in cap.groundtruth().items()}
+    versions = {"before": before, "after": detector.extend_along_tape}
+    options = SpeedOptions(stage1_in_pool=True)
+    warnings.simplefilter("ignore")
+    track_source(source, cap.rig, cap.tape, cap.fps, range(2), up=cap.up, progress=False, speed=options)  # warm-up
+    cpu: dict[str, list[float]] = {"before": [], "after": []}
+    positions: dict[str, np.ndarray] = {}
+    n = len(images)
+    for r in range(runs):
+        for name in (("before", "after") if r % 2 == 0 else ("after", "before")):
+            detector.extend_along_tape = versions[name]  # type: ignore[assignment]
+            t = time.process_time()
+            result = track_source(source, cap.rig, cap.tape, cap.fps, range(n), up=cap.up, progress=False, speed=options)
+            cpu[name].append((time.process_time() - t + (result.detector_info.get("workers_cpu_s", 0.0) or 0.0)) / n)
+            pos = result.table.positions()
+            positions.setdefault(name, pos)
+            accuracy = evaluate_tracking(result.table, truth, float(cap.tape.graph.rest_length_mm.min()))
+            print(f"run {r} {name}: {cpu[name][-1]:.4f} CPU s/frame, mean {accuracy.mean_error_mm:.4f} mm, "
+                  f"p95 {accuracy.p95_error_mm:.4f} mm, swaps {accuracy.label_swaps}, largest difference to the first "
+                  f"runs: {max(float(np.nanmax(np.abs(pos - p))) for p in positions.values()):.3g} mm "
+                  f"(1-min load {os.getloadavg()[0]:.1f})", flush=True)
+    detector.extend_along_tape = versions["after"]  # type: ignore[assignment]
+    b, a = (float(np.median(cpu[name])) for name in ("before", "after"))
+    print(f"median CPU s/frame: before {b:.4f}, after {a:.4f}, after / before {a / b:.3f}; "
+          f"runs paired in order: {[round(x / y, 3) for x, y in zip(cpu['after'], cpu['before'])]}")
+
+
 def same(a, b) -> bool:
     return (a.mask.shape == b.mask.shape and bool((a.mask == b.mask).all()) and bool((a.snapped == b.snapped).all())
             and a.uv.shape == b.uv.shape and bool((a.uv == b.uv).all()) and bool((a.confidence == b.confidence).all()))
@@ -76,10 +127,15 @@ def main() -> None:
     parser.add_argument("--calls", type=Path, help="a --record pickle")
     parser.add_argument("--before", type=Path, help="a folder holding the previous package as spinemocap_before/")
     parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--profile", action="store_true", help="cProfile the 'after' version over the calls")
+    parser.add_argument("--profile", action="store_true", help="cProfile the versions over the calls")
+    parser.add_argument("--pipeline", type=int, default=0, help="runs of the whole tracker per version")
+    parser.add_argument("--cache", type=Path, help="with --pipeline: a .npy of the frames' images (threads_ab's)")
     args = parser.parse_args()
-    cv2.setNumThreads(1)  # as the tracker's camera threads set it
     a, b = (int(v) for v in args.frames.split(":"))
+    if args.pipeline:
+        pipeline(args.capture, range(a, b), args.before, args.pipeline, args.cache)
+        return
+    cv2.setNumThreads(1)  # as the tracker's camera threads set it
     if args.record:
         record(args.capture, range(a, b), args.record)
         return
