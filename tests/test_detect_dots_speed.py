@@ -55,7 +55,9 @@ def test_dark_pieces_by_flood_fills_are_the_labelled_crops():
         for threshold in (float(rng.uniform(0, 255)), float(rng.integers(1, 255)), -3.0, 0.0, 0.4, 255.2, 300.0):
             for g in (grey, _read_only(grey), _strided(grey, rng)):
                 expected_box, expected = _joined_dark_pieces_labelled(g, base, threshold)
+                before = g.copy()
                 ours_box, ours = _joined_dark_pieces(g, base, box, threshold)
+                assert np.array_equal(g, before)  # the fills write their mask only, never the image
                 assert ours_box == expected_box
                 assert ours.dtype == bool and np.array_equal(ours, expected)
                 checked += 1
