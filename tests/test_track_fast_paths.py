@@ -366,6 +366,62 @@ def test_open_chain_beliefs_and_shared_repeats_are_the_full_tables(mrf2_model):
     np.testing.assert_array_equal(engine._directed_costs(aug), np.concatenate([reference, reference.transpose(0, 2, 1)]))
 
 
+def test_slice_samplers_costs_fill_the_augmented_table_bit_for_bit(mrf2_model):
+    """The pairwise costs the slice sampler's beliefs evaluated (kept particles against each
+    chain's accepted sample, both directions) are those of the model, and the augmented set's
+    table built with them is the table evaluated pair by pair; a changed remembered cost shows in
+    the table (it is read, not evaluated again)."""
+    model, positions = mrf2_model
+    config = MRF2Config().pbp()
+    engine = ParticleBP(model, config, np.random.default_rng(21))
+    from spinemocap.track.pbp import _Graph
+
+    graph = _Graph(engine.edges, len(positions))
+    rng = np.random.default_rng(22)
+    kept = positions[:, None, :] + rng.normal(0, 1.5, (len(positions), 4, 3))
+    kept[:, 0] = positions
+    pre = rng.normal(0, 0.2, (2 * len(engine.edges), 4))
+    samples, known = engine._slice_sample(kept.copy(), kept, pre, graph, np.full(3, 3.0))
+    assert known is not None and known.has_forward.sum() > 10 and known.has_backward.sum() > 10
+    assert not known.has_forward.all()  # some chains accepted nothing (their start: a kept particle)
+    e0, e1 = engine.edges[:, 0], engine.edges[:, 1]
+    for m, q in zip(*np.nonzero(known.has_forward)):
+        np.testing.assert_array_equal(known.forward[m, :, q], model.pairwise(kept[e0[m]][None], samples[e1[m], q][None, None], [m])[0, :, 0])
+    for m, q in zip(*np.nonzero(known.has_backward)):
+        np.testing.assert_array_equal(known.backward[m, q, :], model.pairwise(samples[e0[m], q][None, None], kept[e1[m]][None], [m])[0, 0, :])
+    aug = np.concatenate([kept, positions[:, None, :], samples, kept[:, :2] + 0.5], axis=1)
+    reference = model.pairwise(aug[e0], aug[e1], np.arange(len(e0)))
+    np.testing.assert_array_equal(engine._pairwise_distinct(aug, known), reference)
+    np.testing.assert_array_equal(engine._directed_costs(aug, known), engine._directed_costs(aug))
+    m, q = np.argwhere(known.has_forward)[0]
+    known.forward[m, 1, q] += 1.0
+    assert engine._pairwise_distinct(aug, known)[m, 1, kept.shape[1] + 1 + q] == reference[m, 1, kept.shape[1] + 1 + q] + 1.0
+
+
+def test_tape_frames_per_row_are_the_per_dot_frames_bit_for_bit():
+    """tape_frames made per row and handed to the dots: the per-dot computation with np.cross and
+    np.gradient, bit for bit (scaled, noisy, far-off and NaN positions)."""
+    from spinemocap.track.normals import _unit
+
+    def per_dot(pos, tape):
+        rows = tape.row_index
+        centre = rows.sums(pos) / rows.count[:, None]
+        across = _unit(pos[rows.right] - pos[rows.left])[tape.row]
+        along = _unit(np.gradient(centre, axis=0))[tape.row]
+        normal = _unit(np.cross(across, along))
+        return normal, across, _unit(np.cross(normal, across))
+
+    rng = np.random.default_rng(31)
+    flat = np.column_stack([GRAPH.uv_mm, np.zeros(GRAPH.n_dots)])
+    for trial in range(300):
+        pos = flat * rng.uniform(0.5, 2.0) + rng.normal(0, [0.01, 1.0, 10.0, 100.0][trial % 4], flat.shape)
+        pos = pos @ np.linalg.qr(rng.normal(size=(3, 3)))[0] + rng.normal(0, 1000, 3)
+        if trial % 7 == 0:
+            pos[rng.integers(GRAPH.n_dots)] = np.nan
+        for got, want in zip(template.tape_frames(pos, GRAPH), per_dot(pos, GRAPH)):
+            np.testing.assert_array_equal(got, want)
+
+
 def test_distinct_particles_are_numpys_isclose():
     rng = np.random.default_rng(6)
     for trial in range(100):
