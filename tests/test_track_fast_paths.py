@@ -368,7 +368,8 @@ def test_open_chain_beliefs_and_shared_repeats_are_the_full_tables(mrf2_model):
 
 def test_slice_samplers_costs_fill_the_augmented_table_bit_for_bit(mrf2_model):
     """The pairwise costs the slice sampler's beliefs evaluated (kept particles against each
-    chain's accepted sample, both directions) are those of the model, and the augmented set's
+    chain's accepted sample, both directions, and against the kept particles the chains start
+    from) are those of the model, and the augmented set's
     table built with them is the table evaluated pair by pair; a changed remembered cost shows in
     the table (it is read, not evaluated again)."""
     model, positions = mrf2_model
@@ -381,10 +382,14 @@ def test_slice_samplers_costs_fill_the_augmented_table_bit_for_bit(mrf2_model):
     kept = positions[:, None, :] + rng.normal(0, 1.5, (len(positions), 4, 3))
     kept[:, 0] = positions
     pre = rng.normal(0, 0.2, (2 * len(engine.edges), 4))
-    samples, known = engine._slice_sample(kept.copy(), kept, pre, graph, np.full(3, 3.0))
+    order = np.argsort(rng.normal(size=kept.shape[:2]), axis=1)  # the chains start from the kept particles
+    start = np.take_along_axis(kept, order[:, :, None], axis=1)
+    samples, known = engine._slice_sample(start, kept, pre, graph, np.full(3, 3.0), order)
     assert known is not None and known.has_forward.sum() > 10 and known.has_backward.sum() > 10
     assert not known.has_forward.all()  # some chains accepted nothing (their start: a kept particle)
+    assert known.has_kept.all()
     e0, e1 = engine.edges[:, 0], engine.edges[:, 1]
+    np.testing.assert_array_equal(known.kept, model.pairwise(kept[e0], kept[e1], np.arange(len(e0))))
     for m, q in zip(*np.nonzero(known.has_forward)):
         np.testing.assert_array_equal(known.forward[m, :, q], model.pairwise(kept[e0[m]][None], samples[e1[m], q][None, None], [m])[0, :, 0])
     for m, q in zip(*np.nonzero(known.has_backward)):
@@ -395,7 +400,10 @@ def test_slice_samplers_costs_fill_the_augmented_table_bit_for_bit(mrf2_model):
     np.testing.assert_array_equal(engine._directed_costs(aug, known), engine._directed_costs(aug))
     m, q = np.argwhere(known.has_forward)[0]
     known.forward[m, 1, q] += 1.0
-    assert engine._pairwise_distinct(aug, known)[m, 1, kept.shape[1] + 1 + q] == reference[m, 1, kept.shape[1] + 1 + q] + 1.0
+    known.kept[m, 2, 3] += 1.0
+    changed = engine._pairwise_distinct(aug, known)
+    assert changed[m, 1, kept.shape[1] + 1 + q] == reference[m, 1, kept.shape[1] + 1 + q] + 1.0
+    assert changed[m, 2, 3] == reference[m, 2, 3] + 1.0
 
 
 def test_tape_frames_per_row_are_the_per_dot_frames_bit_for_bit():

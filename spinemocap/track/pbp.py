@@ -203,9 +203,18 @@ class _KnownCosts:
         self.backward = np.zeros((n_edges, n_chains, n_kept))  # [m, sample of e0, kept of e1]
         self.has_forward = np.zeros((n_edges, n_chains), bool)
         self.has_backward = np.zeros((n_edges, n_chains), bool)
+        self.kept = np.zeros((n_edges, n_kept, n_kept))  # [m, kept of e0, kept of e1]
+        self.has_kept = np.zeros((n_edges, n_kept), bool)  # [m, kept of e1]
 
     def any(self) -> bool:
-        return bool(self.has_forward.any() or self.has_backward.any())
+        return bool(self.has_forward.any() or self.has_backward.any() or self.has_kept.any())
+
+    def add_kept(self, e1: np.ndarray, order: np.ndarray, m1, q1, to_second) -> None:
+        """Keep the costs of the beliefs at the chains' starts, the kept particles ``order`` (D, Q)
+        (rows (m1, q1): every kept particle of e0 vs the start of chain q1 of e1, a kept particle)."""
+        j = order[e1[m1], q1]
+        self.kept[m1, :, j] = to_second
+        self.has_kept[m1, j] = True
 
     def add(self, e0: np.ndarray, e1: np.ndarray, accepted: np.ndarray, m1, q1, to_second, m2, q2, to_first) -> None:
         """Keep the costs of one shrink step's beliefs (``_belief_at_wanted``'s message costs, rows
@@ -231,6 +240,10 @@ class _KnownCosts:
         b = b[self.has_backward[m[b], i[b] - lo]]
         values[b] = self.backward[m[b], i[b] - lo, j[b]]
         taken[b] = True
+        k = np.flatnonzero((i < self.n_kept) & (j < self.n_kept))
+        k = k[self.has_kept[m[k], j[k]]]
+        values[k] = self.kept[m[k], i[k], j[k]]
+        taken[k] = True
         return taken, values
 
 
@@ -335,27 +348,32 @@ class ParticleBP:
         return belief + graph.incidence @ msgs
 
     def _slice_sample(self, start: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph,
-                      width: np.ndarray) -> tuple[np.ndarray, _KnownCosts | None]:
+                      width: np.ndarray, order: np.ndarray | None = None) -> tuple[np.ndarray, _KnownCosts | None]:
         """One hyper-rectangle slice-sampling step (Neal 2003, Sec. 5.1: a randomly placed box of
         side ``width`` around the start, shrunk toward it after each rejection) for all nodes and
         chains at once; one belief evaluation per shrink step. start (D, Q, S) -> samples, and
         (with a model that has ``unary_rows``) the pairwise costs between the kept particles and
-        the accepted samples that the beliefs evaluated (None without)."""
+        the accepted samples that the beliefs evaluated (None without); with ``order`` (D, Q), the
+        kept particles the chains start from (``start`` = those of ``kept``), between the kept
+        particles as well."""
         cfg, rng = self.config, self.rng
         x = start
-        b = self._belief_at(x, kept, pre, graph)
+        rows = hasattr(self.model, "unary_rows") and graph.n_edges > 0
+        known = _KnownCosts(len(self.edges), kept.shape[1], x.shape[1], kept.shape[1] + 1) if rows else None
+        e0, e1 = self.edges[:, 0], self.edges[:, 1]
+        record: list = []
+        b = self._belief_at(x, kept, pre, graph, None, record if known is not None and order is not None else None)
+        if known is not None and order is not None and record:
+            known.add_kept(e1, order, *record[0][:3])
         level = b + cfg.temperature * rng.exponential(size=b.shape)
         lo = x - width * rng.random(x.shape)
         hi = lo + width
         done = np.zeros(b.shape, dtype=bool)
         new_x = x.copy()
-        rows = hasattr(self.model, "unary_rows") and graph.n_edges > 0
-        known = _KnownCosts(len(self.edges), kept.shape[1], x.shape[1], kept.shape[1] + 1) if rows else None
-        e0, e1 = self.edges[:, 0], self.edges[:, 1]
         for _ in range(cfg.slice_steps):
             cand = lo + (hi - lo) * rng.random(x.shape)
             # chains already done need no belief (their candidates are not taken)
-            record: list = []
+            record = []
             ok = (self._belief_at(cand, kept, pre, graph, ~done, record if rows else None) < level) & ~done
             if known is not None and record:
                 known.add(e0, e1, ok, *record[0])
@@ -416,7 +434,7 @@ class ParticleBP:
             groups = [kept, state[:, None, :]]
             known = None
             if cfg.n_slice > 0:
-                samples, known = self._slice_sample(start, kept, pre, graph, width)
+                samples, known = self._slice_sample(start, kept, pre, graph, width, order)
                 groups.append(samples)  # at kept.shape[1] + 1, as the known costs expect
             if cfg.mobility and graph.n_edges:
                 groups.append(self._mobility(state, graph))
