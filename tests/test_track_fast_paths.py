@@ -406,6 +406,35 @@ def test_slice_samplers_costs_fill_the_augmented_table_bit_for_bit(mrf2_model):
     assert changed[m, 2, 3] == reference[m, 2, 3] + 1.0
 
 
+def test_start_beliefs_from_the_kept_particles_table_bit_for_bit(mrf2_model):
+    """The slice sampler's beliefs at the chains' starts (kept particles) read from the kept
+    particles' unary costs and pair-cost table are the beliefs evaluated at those points, and the
+    sampler then draws the same samples."""
+    model, positions = mrf2_model
+    engine = ParticleBP(model, MRF2Config().pbp(), np.random.default_rng(23))
+    from spinemocap.track.pbp import _Graph
+
+    graph = _Graph(engine.edges, len(positions))
+    rng = np.random.default_rng(24)
+    kept = positions[:, None, :] + rng.normal(0, 1.5, (len(positions), 4, 3))
+    pre = rng.normal(0, 0.2, (2 * len(engine.edges), 4))
+    order = np.argsort(rng.normal(size=kept.shape[:2]), axis=1)[:, :3]
+    start = np.take_along_axis(kept, order[:, :, None], axis=1)
+    table = engine._directed_costs(kept)[: len(engine.edges)]
+    unary = model.unary(kept)
+    np.testing.assert_array_equal(engine._belief_at_kept(order, unary, table, pre, graph),
+                                  engine._belief_at(start, kept, pre, graph))
+    runs = []
+    for at_kept in (None, (unary, table)):
+        engine.rng = np.random.default_rng(25)
+        samples, known = engine._slice_sample(start, kept, pre, graph, np.full(3, 3.0), order, at_kept)
+        runs.append((samples, known))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[1][1].kept, table)
+    np.testing.assert_array_equal(runs[0][1].kept[runs[0][1].has_kept[:, None, :].repeat(4, axis=1)],
+                                  table[runs[0][1].has_kept[:, None, :].repeat(4, axis=1)])
+
+
 def test_tape_frames_per_row_are_the_per_dot_frames_bit_for_bit():
     """tape_frames made per row and handed to the dots: the per-dot computation with np.cross and
     np.gradient, bit for bit (scaled, noisy, far-off and NaN positions)."""

@@ -347,24 +347,54 @@ class ParticleBP:
             record.append((m1, q1, to_second, m2, q2, to_first))
         return belief + graph.incidence @ msgs
 
+    def _belief_at_kept(self, order: np.ndarray, unary_kept: np.ndarray, table: np.ndarray, pre: np.ndarray,
+                        graph: _Graph) -> np.ndarray:
+        """:meth:`_belief_at_wanted` at the kept particles ``order`` (D, Q) (every entry wanted), from
+        the kept particles' unary costs (D, P) and pair costs ``table`` (E, P, P) evaluated under the
+        same parameters: the same entries in the same sums (the reverse messages' costs read
+        transposed, as the model's pairwise is symmetric bit for bit)."""
+        e = graph.n_edges
+        e0, e1 = self.edges[:, 0], self.edges[:, 1]
+        wanted = np.ones(order.shape, bool)
+        nodes, chains = np.nonzero(wanted)
+        belief = np.zeros(wanted.shape)
+        belief[nodes, chains] = unary_kept[nodes, order[nodes, chains]]
+        msgs = np.zeros((2 * e, wanted.shape[1]))
+        m1, q1 = np.nonzero(wanted[e1])
+        m2, q2 = np.nonzero(wanted[e0])
+        to_second = table[m1, :, order[e1[m1], q1]]  # (K, P): kept of e0 vs the start of e1
+        to_first = table[m2, order[e0[m2], q2], :]  # (K, P): the start of e0 vs kept of e1
+        msgs[m1, q1] = (pre[m1] + to_second).min(axis=1)
+        msgs[e + m2, q2] = (pre[e + m2] + to_first).min(axis=1)
+        return belief + graph.incidence @ msgs
+
     def _slice_sample(self, start: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph,
-                      width: np.ndarray, order: np.ndarray | None = None) -> tuple[np.ndarray, _KnownCosts | None]:
+                      width: np.ndarray, order: np.ndarray | None = None,
+                      at_kept: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, _KnownCosts | None]:
         """One hyper-rectangle slice-sampling step (Neal 2003, Sec. 5.1: a randomly placed box of
         side ``width`` around the start, shrunk toward it after each rejection) for all nodes and
         chains at once; one belief evaluation per shrink step. start (D, Q, S) -> samples, and
         (with a model that has ``unary_rows``) the pairwise costs between the kept particles and
         the accepted samples that the beliefs evaluated (None without); with ``order`` (D, Q), the
         kept particles the chains start from (``start`` = those of ``kept``), between the kept
-        particles as well."""
+        particles as well. ``at_kept``: the kept particles' unary costs (D, P) and pair costs
+        (E, P, P) under the current parameters, when known (the start beliefs are read from them;
+        needs ``order`` and a symmetric pairwise)."""
         cfg, rng = self.config, self.rng
         x = start
         rows = hasattr(self.model, "unary_rows") and graph.n_edges > 0
         known = _KnownCosts(len(self.edges), kept.shape[1], x.shape[1], kept.shape[1] + 1) if rows else None
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
         record: list = []
-        b = self._belief_at(x, kept, pre, graph, None, record if known is not None and order is not None else None)
-        if known is not None and order is not None and record:
-            known.add_kept(e1, order, *record[0][:3])
+        if known is not None and order is not None and at_kept is not None \
+                and getattr(self.model, "symmetric_pairwise", False):
+            b = self._belief_at_kept(order, at_kept[0], at_kept[1], pre, graph)
+            known.kept[:] = at_kept[1]
+            known.has_kept[:] = True
+        else:
+            b = self._belief_at(x, kept, pre, graph, None, record if known is not None and order is not None else None)
+            if known is not None and order is not None and record:
+                known.add_kept(e1, order, *record[0][:3])
         level = b + cfg.temperature * rng.exponential(size=b.shape)
         lo = x - width * rng.random(x.shape)
         hi = lo + width
@@ -425,17 +455,26 @@ class ParticleBP:
         kept = state[:, None, :] + rng.normal(size=(n_nodes, cfg.n_particles, dim)) * spread
         kept[:, 0] = state
         cost = self._directed_costs(kept)
-        beliefs, pre = _min_sum_sweeps(graph, model.unary(kept), cost, cfg.sweeps, cfg.damping)
+        unary_kept = model.unary(kept)
+        beliefs, pre = _min_sum_sweeps(graph, unary_kept, cost, cfg.sweeps, cfg.damping)
+        # the first iteration's kept particles and parameters are these (prepare is then skipped)
+        # (with a model that tells its prepared parameters, to see that they were not set again)
+        tells = hasattr(model, "_prepared_parameters")
+        prepared = model._prepared_parameters() if tells else ()  # type: ignore[attr-defined]
+        at_kept: tuple[np.ndarray, np.ndarray] | None = (unary_kept, cost[: len(self.edges)]) if tells else None
 
         for _ in range(cfg.iterations if iterations is None else iterations):
             model.prepare(state)
+            if at_kept is not None and any(a is not b for a, b in zip(prepared, model._prepared_parameters())):  # type: ignore[attr-defined]
+                at_kept = None  # the parameters were set again: the costs no longer hold
             order = np.argsort(beliefs, axis=1)[:, : min(cfg.n_slice, kept.shape[1])]
             start = np.take_along_axis(kept, order[:, :, None], axis=1)
             groups = [kept, state[:, None, :]]
             known = None
             if cfg.n_slice > 0:
-                samples, known = self._slice_sample(start, kept, pre, graph, width, order)
+                samples, known = self._slice_sample(start, kept, pre, graph, width, order, at_kept)
                 groups.append(samples)  # at kept.shape[1] + 1, as the known costs expect
+            at_kept = None  # the next iteration's kept particles are others
             if cfg.mobility and graph.n_edges:
                 groups.append(self._mobility(state, graph))
             extra = model.extra_proposals(state)
