@@ -435,6 +435,29 @@ def test_start_beliefs_from_the_kept_particles_table_bit_for_bit(mrf2_model):
                                   table[runs[0][1].has_kept[:, None, :].repeat(4, axis=1)])
 
 
+def test_mrf2_visibility_of_all_cameras_is_the_per_camera_one_bit_for_bit(mrf2_model):
+    """MRF2's visibility with all cameras' products stacked: the cosines and the pixels are each
+    camera's own (``Camera.project``, the per-camera cosine) bit for bit, and the visibility the
+    per-camera one (distorted cameras, dots behind a camera, NaN dots, many poses)."""
+    model, positions = mrf2_model
+    rng = np.random.default_rng(41)
+    cams = [Camera(c.name, c.K, rng.normal(0, 0.05, 5), c.R, c.t, c.size) for c in model.rig]
+    model = RefinementMRF(GRAPH, Rig(cams), model.evidence, MRF2Config())
+    every = list(range(len(cams)))
+    k = model._visibility_constants(every)
+    for trial in range(200):
+        pos = positions * rng.uniform(0.7, 1.4) + rng.normal(0, [0.5, 20.0, 300.0][trial % 3], positions.shape)
+        if trial % 6 == 0:
+            pos[rng.integers(len(pos))] = np.nan
+        normals = template.tape_frames(pos, GRAPH)[0] if np.isfinite(pos).all() else rng.normal(size=pos.shape)
+        cos, uv = model._facing_and_pixels(pos, normals, k)
+        for c, cam in enumerate(cams):
+            to_cam = cam.center[None, :] - pos
+            np.testing.assert_array_equal(cos[c], (to_cam * normals).sum(axis=1) / np.maximum(np.linalg.norm(to_cam, axis=1), 1e-9))
+            np.testing.assert_array_equal(uv[c], cam.project(pos))
+        np.testing.assert_array_equal(model.visibility(pos, normals), model.visibility_per_camera(pos, normals))
+
+
 def test_tape_frames_per_row_are_the_per_dot_frames_bit_for_bit():
     """tape_frames made per row and handed to the dots: the per-dot computation with np.cross and
     np.gradient, bit for bit (scaled, noisy, far-off and NaN positions)."""
