@@ -100,3 +100,29 @@ def test_unique_row_index_and_compact_dlt_agree_with_the_library():
     used[:, :2] = True  # at least two views each
     np.testing.assert_allclose(candidates._triangulate_compact(P, uv, used), triangulate_dlt(P, uv, used),
                                rtol=1e-9, atol=1e-9)
+
+
+def test_rig_constants_follow_the_cameras(studio_frame):
+    """The per-rig constants (projection matrices, centres, fundamental matrices) are those of the
+    cameras as they are now: a camera moved in place gets its own (and the same candidates as a
+    search that computes them afresh)."""
+    import copy
+
+    rig, views = studio_frame
+    rig = copy.deepcopy(rig)
+    P, centers, _ = candidates._rig_constants(rig)
+    np.testing.assert_array_equal(P, np.stack([cam.projection_matrix for cam in rig]))
+    np.testing.assert_array_equal(centers, np.stack([cam.center for cam in rig]))
+    before = candidates.build_candidates(rig, views)
+    rig.cameras[1].t = rig.cameras[1].t + np.array([3.0, 0.0, 0.0])  # moved in place
+    P2, _, _ = candidates._rig_constants(rig)
+    np.testing.assert_array_equal(P2[1], rig.cameras[1].projection_matrix)
+    v = candidates._Views(rig, views)
+    F = candidates.fundamental_matrix(rig.cameras[0].projection_matrix, rig.cameras[1].projection_matrix)
+    np.testing.assert_array_equal(v.fundamental(0, 1), F)
+    after = candidates.build_candidates(rig, views)
+    candidates._RIGS.clear()
+    fresh = candidates.build_candidates(rig, views)
+    np.testing.assert_array_equal(after.points, fresh.points)
+    np.testing.assert_array_equal(after.blob_ids, fresh.blob_ids)
+    assert not np.array_equal(after.points[:5], before.points[:5]) or len(after) != len(before)

@@ -366,6 +366,122 @@ def test_open_chain_beliefs_and_shared_repeats_are_the_full_tables(mrf2_model):
     np.testing.assert_array_equal(engine._directed_costs(aug), np.concatenate([reference, reference.transpose(0, 2, 1)]))
 
 
+def test_slice_samplers_costs_fill_the_augmented_table_bit_for_bit(mrf2_model):
+    """The pairwise costs the slice sampler's beliefs evaluated (kept particles against each
+    chain's accepted sample, both directions, and against the kept particles the chains start
+    from) are those of the model, and the augmented set's
+    table built with them is the table evaluated pair by pair; a changed remembered cost shows in
+    the table (it is read, not evaluated again)."""
+    model, positions = mrf2_model
+    config = MRF2Config().pbp()
+    engine = ParticleBP(model, config, np.random.default_rng(21))
+    from spinemocap.track.pbp import _Graph
+
+    graph = _Graph(engine.edges, len(positions))
+    rng = np.random.default_rng(22)
+    kept = positions[:, None, :] + rng.normal(0, 1.5, (len(positions), 4, 3))
+    kept[:, 0] = positions
+    pre = rng.normal(0, 0.2, (2 * len(engine.edges), 4))
+    order = np.argsort(rng.normal(size=kept.shape[:2]), axis=1)  # the chains start from the kept particles
+    start = np.take_along_axis(kept, order[:, :, None], axis=1)
+    samples, known = engine._slice_sample(start, kept, pre, graph, np.full(3, 3.0), order)
+    assert known is not None and known.has_forward.sum() > 10 and known.has_backward.sum() > 10
+    assert not known.has_forward.all()  # some chains accepted nothing (their start: a kept particle)
+    assert known.has_kept.all()
+    e0, e1 = engine.edges[:, 0], engine.edges[:, 1]
+    np.testing.assert_array_equal(known.kept, model.pairwise(kept[e0], kept[e1], np.arange(len(e0))))
+    for m, q in zip(*np.nonzero(known.has_forward)):
+        np.testing.assert_array_equal(known.forward[m, :, q], model.pairwise(kept[e0[m]][None], samples[e1[m], q][None, None], [m])[0, :, 0])
+    for m, q in zip(*np.nonzero(known.has_backward)):
+        np.testing.assert_array_equal(known.backward[m, q, :], model.pairwise(samples[e0[m], q][None, None], kept[e1[m]][None], [m])[0, 0, :])
+    aug = np.concatenate([kept, positions[:, None, :], samples, kept[:, :2] + 0.5], axis=1)
+    reference = model.pairwise(aug[e0], aug[e1], np.arange(len(e0)))
+    np.testing.assert_array_equal(engine._pairwise_distinct(aug, known), reference)
+    np.testing.assert_array_equal(engine._directed_costs(aug, known), engine._directed_costs(aug))
+    m, q = np.argwhere(known.has_forward)[0]
+    known.forward[m, 1, q] += 1.0
+    known.kept[m, 2, 3] += 1.0
+    changed = engine._pairwise_distinct(aug, known)
+    assert changed[m, 1, kept.shape[1] + 1 + q] == reference[m, 1, kept.shape[1] + 1 + q] + 1.0
+    assert changed[m, 2, 3] == reference[m, 2, 3] + 1.0
+
+
+def test_start_beliefs_from_the_kept_particles_table_bit_for_bit(mrf2_model):
+    """The slice sampler's beliefs at the chains' starts (kept particles) read from the kept
+    particles' unary costs and pair-cost table are the beliefs evaluated at those points, and the
+    sampler then draws the same samples."""
+    model, positions = mrf2_model
+    engine = ParticleBP(model, MRF2Config().pbp(), np.random.default_rng(23))
+    from spinemocap.track.pbp import _Graph
+
+    graph = _Graph(engine.edges, len(positions))
+    rng = np.random.default_rng(24)
+    kept = positions[:, None, :] + rng.normal(0, 1.5, (len(positions), 4, 3))
+    pre = rng.normal(0, 0.2, (2 * len(engine.edges), 4))
+    order = np.argsort(rng.normal(size=kept.shape[:2]), axis=1)[:, :3]
+    start = np.take_along_axis(kept, order[:, :, None], axis=1)
+    table = engine._directed_costs(kept)[: len(engine.edges)]
+    unary = model.unary(kept)
+    np.testing.assert_array_equal(engine._belief_at_kept(order, unary, table, pre, graph),
+                                  engine._belief_at(start, kept, pre, graph))
+    runs = []
+    for at_kept in (None, (unary, table)):
+        engine.rng = np.random.default_rng(25)
+        samples, known = engine._slice_sample(start, kept, pre, graph, np.full(3, 3.0), order, at_kept)
+        runs.append((samples, known))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[1][1].kept, table)
+    np.testing.assert_array_equal(runs[0][1].kept[runs[0][1].has_kept[:, None, :].repeat(4, axis=1)],
+                                  table[runs[0][1].has_kept[:, None, :].repeat(4, axis=1)])
+
+
+def test_mrf2_visibility_of_all_cameras_is_the_per_camera_one_bit_for_bit(mrf2_model):
+    """MRF2's visibility with all cameras' products stacked: the cosines and the pixels are each
+    camera's own (``Camera.project``, the per-camera cosine) bit for bit, and the visibility the
+    per-camera one (distorted cameras, dots behind a camera, NaN dots, many poses)."""
+    model, positions = mrf2_model
+    rng = np.random.default_rng(41)
+    cams = [Camera(c.name, c.K, rng.normal(0, 0.05, 5), c.R, c.t, c.size) for c in model.rig]
+    model = RefinementMRF(GRAPH, Rig(cams), model.evidence, MRF2Config())
+    every = list(range(len(cams)))
+    k = model._visibility_constants(every)
+    for trial in range(200):
+        pos = positions * rng.uniform(0.7, 1.4) + rng.normal(0, [0.5, 20.0, 300.0][trial % 3], positions.shape)
+        if trial % 6 == 0:
+            pos[rng.integers(len(pos))] = np.nan
+        normals = template.tape_frames(pos, GRAPH)[0] if np.isfinite(pos).all() else rng.normal(size=pos.shape)
+        cos, uv = model._facing_and_pixels(pos, normals, k)
+        for c, cam in enumerate(cams):
+            to_cam = cam.center[None, :] - pos
+            np.testing.assert_array_equal(cos[c], (to_cam * normals).sum(axis=1) / np.maximum(np.linalg.norm(to_cam, axis=1), 1e-9))
+            np.testing.assert_array_equal(uv[c], cam.project(pos))
+        np.testing.assert_array_equal(model.visibility(pos, normals), model.visibility_per_camera(pos, normals))
+
+
+def test_tape_frames_per_row_are_the_per_dot_frames_bit_for_bit():
+    """tape_frames made per row and handed to the dots: the per-dot computation with np.cross and
+    np.gradient, bit for bit (scaled, noisy, far-off and NaN positions)."""
+    from spinemocap.track.normals import _unit
+
+    def per_dot(pos, tape):
+        rows = tape.row_index
+        centre = rows.sums(pos) / rows.count[:, None]
+        across = _unit(pos[rows.right] - pos[rows.left])[tape.row]
+        along = _unit(np.gradient(centre, axis=0))[tape.row]
+        normal = _unit(np.cross(across, along))
+        return normal, across, _unit(np.cross(normal, across))
+
+    rng = np.random.default_rng(31)
+    flat = np.column_stack([GRAPH.uv_mm, np.zeros(GRAPH.n_dots)])
+    for trial in range(300):
+        pos = flat * rng.uniform(0.5, 2.0) + rng.normal(0, [0.01, 1.0, 10.0, 100.0][trial % 4], flat.shape)
+        pos = pos @ np.linalg.qr(rng.normal(size=(3, 3)))[0] + rng.normal(0, 1000, 3)
+        if trial % 7 == 0:
+            pos[rng.integers(GRAPH.n_dots)] = np.nan
+        for got, want in zip(template.tape_frames(pos, GRAPH), per_dot(pos, GRAPH)):
+            np.testing.assert_array_equal(got, want)
+
+
 def test_distinct_particles_are_numpys_isclose():
     rng = np.random.default_rng(6)
     for trial in range(100):

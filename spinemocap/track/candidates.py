@@ -62,6 +62,25 @@ def _fundamental_cached(P1: bytes, P2: bytes) -> np.ndarray:
     return F
 
 
+_RIGS: dict[bytes, tuple[np.ndarray, np.ndarray, dict]] = {}
+
+
+def _rig_constants(rig: Rig) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The rig's stacked projection matrices (C, 3, 4), camera centres (C, 3) and its fundamental
+    matrices found so far, remembered by the cameras' K, R and t (a rig is the same from frame to
+    frame; one changed in place has other values, so other constants)."""
+    key = b"".join(a.dtype.str.encode() + np.ascontiguousarray(a).tobytes() for cam in rig for a in (cam.K, cam.R, cam.t))
+    got = _RIGS.get(key)
+    if got is None:
+        P = np.stack([cam.projection_matrix for cam in rig])
+        centers = np.stack([cam.center for cam in rig])
+        P.flags.writeable = centers.flags.writeable = False
+        if len(_RIGS) >= 16:
+            _RIGS.clear()
+        got = _RIGS[key] = (P, centers, {})
+    return got
+
+
 def epipolar_distance(F: np.ndarray, x1: np.ndarray, x2: np.ndarray,
                       h1: np.ndarray | None = None, h2: np.ndarray | None = None) -> np.ndarray:
     """(N1, N2) symmetric epipolar distance (px, the larger of both directions) between undistorted
@@ -96,8 +115,7 @@ class _Views:
     (triangulation is per row, so a remembered result is bit for bit the one a new call gives)."""
 
     def __init__(self, rig: Rig, views: Sequence[ViewDots]):
-        self.P = np.stack([cam.projection_matrix for cam in rig])
-        self.centers = np.stack([cam.center for cam in rig])
+        self.P, self.centers, self._fundamental = _rig_constants(rig)
         self.uv = [cam.undistort_points(v.uv) if len(v) else np.zeros((0, 2)) for cam, v in zip(rig, views)]
         self.homogeneous = [np.column_stack([uv, np.ones(len(uv))]) for uv in self.uv]  # for the epipolar search
         self.n_cameras = len(rig)
@@ -112,6 +130,13 @@ class _Views:
         self._rms = np.zeros(0)
         self._ok = np.zeros(0, bool)
         self._th1: float | None = None
+
+    def fundamental(self, a: int, b: int) -> np.ndarray:
+        """The fundamental matrix of cameras a and b (:func:`fundamental_matrix`), remembered per rig."""
+        F = self._fundamental.get((a, b))
+        if F is None:
+            F = self._fundamental[(a, b)] = _fundamental_cached(self.P[a].tobytes(), self.P[b].tobytes())
+        return F
 
     def gather(self, blob_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(N, C) blob ids -> undistorted pixels (N, C, 2) and the used mask (N, C)."""
@@ -254,7 +279,7 @@ def _pairwise_rows(views: _Views, config: CandidateConfig) -> tuple[np.ndarray, 
         for b in range(a + 1, C):
             if not len(views.uv[a]) or not len(views.uv[b]):
                 continue
-            F = _fundamental_cached(views.P[a].tobytes(), views.P[b].tobytes())
+            F = views.fundamental(a, b)
             distance = epipolar_distance(F, views.uv[a], views.uv[b], views.homogeneous[a], views.homogeneous[b])
             ia, ib = np.nonzero(distance < epi_tol)
             ids = np.full((len(ia), C), -1, dtype=np.int64)

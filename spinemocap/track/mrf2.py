@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from ..camera import Rig
+from ..geometry import distort
 from ..tape import TapeGraph
 from .evidence import EvidenceImage, EvidenceStack
 from .pbp import ParticleBP, PBPConfig, mrf_energy, pbp_config
@@ -312,6 +313,7 @@ class RefinementMRF:
         self.edge_normal = torch.zeros((len(self.edges), 3), dtype=torch.float64)
         self.edge_alpha = torch.zeros((len(self.edges), 3), dtype=torch.float64)
         self._costs = _ImageCosts(self.cams, self.stack, config.cost_cap)
+        self._vis_constants: dict[tuple, dict] = {}
         self._prepared: tuple[tuple, dict] | None = None
         self._prepared_from: tuple[np.ndarray, tuple] | None = None
 
@@ -361,7 +363,57 @@ class RefinementMRF:
 
     def visibility(self, positions: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """(D, C) bool: the dot projects inside camera c's image, camera c has evidence, and the
-        dot's outward normal faces the camera (cosine above ``facing_cos``)."""
+        dot's outward normal faces the camera (cosine above ``facing_cos``). All cameras at once:
+        :meth:`visibility_per_camera`'s operations, each camera's products the same matrix
+        products (a stack of the per-camera ones), the rest element by element."""
+        out = np.zeros((len(positions), len(self.rig)), dtype=bool)
+        cams = [c for c, ev in enumerate(self.evidence) if ev is not None]
+        if not cams:
+            return out
+        k = self._visibility_constants(cams)
+        cos, uv = self._facing_and_pixels(positions, normals, k)
+        margin = self.config.image_margin_px
+        u, v = uv[:, :, 0], uv[:, :, 1]
+        with np.errstate(invalid="ignore"):
+            inside = (u >= -0.5 + margin) & (u <= k["w"] - 0.5 - margin) & (v >= -0.5 + margin) & (v <= k["h"] - 0.5 - margin)
+        out[:, cams] = ((cos > self.config.facing_cos) & inside).T
+        return out
+
+    @staticmethod
+    def _facing_and_pixels(positions: np.ndarray, normals: np.ndarray, k: dict) -> tuple[np.ndarray, np.ndarray]:
+        """(C', D) cosines between the dots' normals and their directions to the cameras, and
+        (C', D, 2) ``Camera.project`` pixels, for the cameras of the constants ``k``."""
+        pos = np.asarray(positions, float).reshape(-1, 3)
+        to_cam = k["center"][:, None, :] - pos[None, :, :]  # (C', D, 3)
+        cos = (to_cam * normals).sum(axis=2) / np.maximum(np.linalg.norm(to_cam, axis=2), 1e-9)
+        pc = np.matmul(pos, k["RT"]) + k["t"][:, None, :]  # Camera.to_camera per camera
+        with np.errstate(divide="ignore", invalid="ignore"):
+            normalized = pc[:, :, :2] / pc[:, :, 2:3]
+        normalized[pc[:, :, 2] <= 1e-9] = np.nan
+        n_cam, n = pc.shape[:2]
+        distorted = distort(normalized.reshape(-1, 2), k["dist"].repeat(n, axis=0)).reshape(n_cam, n, 2)
+        return cos, np.matmul(distorted, k["KT"]) + k["c"][:, None, :]
+
+    def _visibility_constants(self, cams: list[int]) -> dict:
+        key = tuple(cams)
+        got = self._vis_constants.get(key)
+        if got is None:
+            rig = [self.rig[c] for c in cams]
+            got = {
+                "center": np.stack([cam.center for cam in rig]),
+                "RT": np.stack([cam.R for cam in rig]).transpose(0, 2, 1),  # each R.T, laid out as R.T is
+                "t": np.stack([cam.t for cam in rig]),
+                "dist": np.stack([np.asarray(cam.dist, float) for cam in rig]),
+                "KT": np.stack([cam.K[:2, :2] for cam in rig]).transpose(0, 2, 1),
+                "c": np.stack([cam.K[:2, 2] for cam in rig]),
+                "w": np.array([[float(cam.size[0])] for cam in rig]),
+                "h": np.array([[float(cam.size[1])] for cam in rig]),
+            }
+            self._vis_constants[key] = got
+        return got
+
+    def visibility_per_camera(self, positions: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """:meth:`visibility` camera by camera (the reference it is tested against)."""
         out = np.zeros((len(positions), len(self.rig)), dtype=bool)
         for c, (cam, ev) in enumerate(zip(self.rig, self.evidence)):
             if ev is None:

@@ -192,6 +192,61 @@ def _min_sum_sweeps(graph: _Graph, unary: np.ndarray, cost_dir: np.ndarray, swee
     return belief, pre
 
 
+class _KnownCosts:
+    """Pairwise costs the slice sampler evaluated, for the augmented set's cost table: between the
+    ``n_kept`` kept particles (augmented indices 0 ..) and each chain's accepted sample (augmented
+    index ``offset`` + chain), per edge, in both directions (E edges, Q chains)."""
+
+    def __init__(self, n_edges: int, n_kept: int, n_chains: int, offset: int):
+        self.offset, self.n_kept, self.n_chains = offset, n_kept, n_chains
+        self.forward = np.zeros((n_edges, n_kept, n_chains))  # [m, kept of e0, sample of e1]
+        self.backward = np.zeros((n_edges, n_chains, n_kept))  # [m, sample of e0, kept of e1]
+        self.has_forward = np.zeros((n_edges, n_chains), bool)
+        self.has_backward = np.zeros((n_edges, n_chains), bool)
+        self.kept = np.zeros((n_edges, n_kept, n_kept))  # [m, kept of e0, kept of e1]
+        self.has_kept = np.zeros((n_edges, n_kept), bool)  # [m, kept of e1]
+
+    def any(self) -> bool:
+        return bool(self.has_forward.any() or self.has_backward.any() or self.has_kept.any())
+
+    def add_kept(self, e1: np.ndarray, order: np.ndarray, m1, q1, to_second) -> None:
+        """Keep the costs of the beliefs at the chains' starts, the kept particles ``order`` (D, Q)
+        (rows (m1, q1): every kept particle of e0 vs the start of chain q1 of e1, a kept particle)."""
+        j = order[e1[m1], q1]
+        self.kept[m1, :, j] = to_second
+        self.has_kept[m1, j] = True
+
+    def add(self, e0: np.ndarray, e1: np.ndarray, accepted: np.ndarray, m1, q1, to_second, m2, q2, to_first) -> None:
+        """Keep the costs of one shrink step's beliefs (``_belief_at_wanted``'s message costs, rows
+        (m1, q1): kept of e0 vs the point of chain q1 of e1; (m2, q2): the point of e0 vs kept of
+        e1) at the chains ``accepted`` (D, Q) in that step."""
+        a = np.flatnonzero(accepted[e1[m1], q1])
+        self.forward[m1[a], :, q1[a]] = to_second[a]
+        self.has_forward[m1[a], q1[a]] = True
+        b = np.flatnonzero(accepted[e0[m2], q2])
+        self.backward[m2[b], q2[b], :] = to_first[b]
+        self.has_backward[m2[b], q2[b]] = True
+
+    def take(self, m: np.ndarray, i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For table entries (m, i, j) (augmented indices): (known mask, values there, else 0)."""
+        values = np.zeros(len(m))
+        taken = np.zeros(len(m), bool)
+        lo, hi = self.offset, self.offset + self.n_chains
+        f = np.flatnonzero((i < self.n_kept) & (j >= lo) & (j < hi))
+        f = f[self.has_forward[m[f], j[f] - lo]]
+        values[f] = self.forward[m[f], i[f], j[f] - lo]
+        taken[f] = True
+        b = np.flatnonzero((i >= lo) & (i < hi) & (j < self.n_kept))
+        b = b[self.has_backward[m[b], i[b] - lo]]
+        values[b] = self.backward[m[b], i[b] - lo, j[b]]
+        taken[b] = True
+        k = np.flatnonzero((i < self.n_kept) & (j < self.n_kept))
+        k = k[self.has_kept[m[k], j[k]]]
+        values[k] = self.kept[m[k], i[k], j[k]]
+        taken[k] = True
+        return taken, values
+
+
 class ParticleBP:
     """Min-sum particle BP on ``model`` starting from ``init`` (D, S). See the module docstring."""
 
@@ -202,43 +257,53 @@ class ParticleBP:
         self.edges = np.asarray(model.edges, dtype=np.int64).reshape(-1, 2)
 
     # ------------------------------------------------------------------ batch costs
-    def _directed_costs(self, particles: np.ndarray) -> np.ndarray:
+    def _directed_costs(self, particles: np.ndarray, known: _KnownCosts | None = None) -> np.ndarray:
         """(2E, Pa, Pa) pairwise costs for messages in both directions. With a model that has
         ``unary_rows`` (its costs element by element), a node's repeated particles (the state
-        among the kept ones, proposals that did not move) are evaluated once: the same table."""
+        among the kept ones, proposals that did not move) are evaluated once, and the pairs the
+        slice sampler evaluated (``known``) are taken from it: the same table."""
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
         if hasattr(self.model, "unary_rows") and len(self.edges):
-            cost = self._pairwise_distinct(particles)
+            cost = self._pairwise_distinct(particles, known)
         else:
             cost = self.model.pairwise(particles[e0], particles[e1], np.arange(len(self.edges)))
         return np.concatenate([cost, cost.transpose(0, 2, 1)], axis=0)
 
-    def _pairwise_distinct(self, particles: np.ndarray) -> np.ndarray:
+    def _pairwise_distinct(self, particles: np.ndarray, known: _KnownCosts | None = None) -> np.ndarray:
         """``model.pairwise(particles[e0], particles[e1], all edges)`` (E, Pa, Pa), each pair of
-        distinct particle values evaluated once (pairs of a row of M = 1) and copied to its repeats."""
+        distinct particle values evaluated once (pairs of a row of M = 1) and copied to its repeats;
+        pairs in ``known`` (the slice sampler's, evaluated element by element as well) not again."""
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
         n = particles.shape[1]
         bits = np.ascontiguousarray(particles, dtype=np.float64).view(np.int64)  # the same bits: NaN, -0.0 too
         same = (bits[:, :, None, :] == bits[:, None, :, :]).all(axis=3)
         first = same.argmax(axis=2)  # (D, Pa): the first particle with the same value
-        if (first == np.arange(n)).mean() > 0.95:
+        if (known is None or not known.any()) and (first == np.arange(n)).mean() > 0.95:
             return self.model.pairwise(particles[e0], particles[e1], np.arange(len(self.edges)))
         single = first == np.arange(n)
         m, i, j = np.nonzero(single[e0][:, :, None] & single[e1][:, None, :])
-        values = self.model.pairwise(particles[e0[m], i][:, None, :], particles[e1[m], j][:, None, :], m)[:, 0, 0]
+        have = known.take(m, i, j) if known is not None else None
+        if have is None:
+            values = self.model.pairwise(particles[e0[m], i][:, None, :], particles[e1[m], j][:, None, :], m)[:, 0, 0]
+        else:
+            taken, values = have
+            todo = np.flatnonzero(~taken)
+            mt, it, jt = m[todo], i[todo], j[todo]
+            values[todo] = self.model.pairwise(particles[e0[mt], it][:, None, :], particles[e1[mt], jt][:, None, :],
+                                               mt)[:, 0, 0]
         slot = np.zeros((len(e0), n, n), dtype=np.int64)
         slot[m, i, j] = np.arange(len(m))
         return values[slot[np.arange(len(e0))[:, None, None], first[e0][:, :, None], first[e1][:, None, :]]]
 
     def _belief_at(self, points: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph,
-                   wanted: np.ndarray | None = None) -> np.ndarray:
+                   wanted: np.ndarray | None = None, record: list | None = None) -> np.ndarray:
         """Belief of every node at new points (D, Q, S): unary plus, for each neighbour, the min
         over its kept particles (D, P, S) of pre + pairwise. ``pre`` (2E, P) as from the sweeps.
         ``wanted`` (D, Q) bool: only those entries are needed (the others are returned as
         anything); with a model that has ``unary_rows`` only they are evaluated."""
         if hasattr(self.model, "unary_rows"):
             return self._belief_at_wanted(points, kept, pre, graph,
-                                          np.ones(points.shape[:2], bool) if wanted is None else wanted)
+                                          np.ones(points.shape[:2], bool) if wanted is None else wanted, record)
         belief = self.model.unary(points)
         if graph.n_edges == 0:
             return belief
@@ -252,7 +317,7 @@ class ParticleBP:
         return belief + graph.incidence @ np.concatenate([to_second, to_first], axis=0)
 
     def _belief_at_wanted(self, points: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph,
-                          wanted: np.ndarray) -> np.ndarray:
+                          wanted: np.ndarray, record: list | None = None) -> np.ndarray:
         """:meth:`_belief_at` at the ``wanted`` (D, Q) entries only (0 elsewhere), the same values:
         a node's belief at a point depends on that point alone (its neighbours' particles are the
         kept ones), the costs are computed element by element, and the messages into each node
@@ -278,15 +343,58 @@ class ParticleBP:
             to_first = model.pairwise(points[e0[m2], q2][:, None, :], kept[e1[m2]], m2)[:, 0, :]
         msgs[m1, q1] = (pre[m1] + to_second).min(axis=1)
         msgs[e + m2, q2] = (pre[e + m2] + to_first).min(axis=1)
+        if record is not None:  # the costs (kept of e0, point of e1) and (point of e0, kept of e1)
+            record.append((m1, q1, to_second, m2, q2, to_first))
         return belief + graph.incidence @ msgs
 
-    def _slice_sample(self, start: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph, width: np.ndarray):
+    def _belief_at_kept(self, order: np.ndarray, unary_kept: np.ndarray, table: np.ndarray, pre: np.ndarray,
+                        graph: _Graph) -> np.ndarray:
+        """:meth:`_belief_at_wanted` at the kept particles ``order`` (D, Q) (every entry wanted), from
+        the kept particles' unary costs (D, P) and pair costs ``table`` (E, P, P) evaluated under the
+        same parameters: the same entries in the same sums (the reverse messages' costs read
+        transposed, as the model's pairwise is symmetric bit for bit)."""
+        e = graph.n_edges
+        e0, e1 = self.edges[:, 0], self.edges[:, 1]
+        wanted = np.ones(order.shape, bool)
+        nodes, chains = np.nonzero(wanted)
+        belief = np.zeros(wanted.shape)
+        belief[nodes, chains] = unary_kept[nodes, order[nodes, chains]]
+        msgs = np.zeros((2 * e, wanted.shape[1]))
+        m1, q1 = np.nonzero(wanted[e1])
+        m2, q2 = np.nonzero(wanted[e0])
+        to_second = table[m1, :, order[e1[m1], q1]]  # (K, P): kept of e0 vs the start of e1
+        to_first = table[m2, order[e0[m2], q2], :]  # (K, P): the start of e0 vs kept of e1
+        msgs[m1, q1] = (pre[m1] + to_second).min(axis=1)
+        msgs[e + m2, q2] = (pre[e + m2] + to_first).min(axis=1)
+        return belief + graph.incidence @ msgs
+
+    def _slice_sample(self, start: np.ndarray, kept: np.ndarray, pre: np.ndarray, graph: _Graph,
+                      width: np.ndarray, order: np.ndarray | None = None,
+                      at_kept: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, _KnownCosts | None]:
         """One hyper-rectangle slice-sampling step (Neal 2003, Sec. 5.1: a randomly placed box of
         side ``width`` around the start, shrunk toward it after each rejection) for all nodes and
-        chains at once; one belief evaluation per shrink step. start (D, Q, S) -> samples."""
+        chains at once; one belief evaluation per shrink step. start (D, Q, S) -> samples, and
+        (with a model that has ``unary_rows``) the pairwise costs between the kept particles and
+        the accepted samples that the beliefs evaluated (None without); with ``order`` (D, Q), the
+        kept particles the chains start from (``start`` = those of ``kept``), between the kept
+        particles as well. ``at_kept``: the kept particles' unary costs (D, P) and pair costs
+        (E, P, P) under the current parameters, when known (the start beliefs are read from them;
+        needs ``order`` and a symmetric pairwise)."""
         cfg, rng = self.config, self.rng
         x = start
-        b = self._belief_at(x, kept, pre, graph)
+        rows = hasattr(self.model, "unary_rows") and graph.n_edges > 0
+        known = _KnownCosts(len(self.edges), kept.shape[1], x.shape[1], kept.shape[1] + 1) if rows else None
+        e0, e1 = self.edges[:, 0], self.edges[:, 1]
+        record: list = []
+        if known is not None and order is not None and at_kept is not None \
+                and getattr(self.model, "symmetric_pairwise", False):
+            b = self._belief_at_kept(order, at_kept[0], at_kept[1], pre, graph)
+            known.kept[:] = at_kept[1]
+            known.has_kept[:] = True
+        else:
+            b = self._belief_at(x, kept, pre, graph, None, record if known is not None and order is not None else None)
+            if known is not None and order is not None and record:
+                known.add_kept(e1, order, *record[0][:3])
         level = b + cfg.temperature * rng.exponential(size=b.shape)
         lo = x - width * rng.random(x.shape)
         hi = lo + width
@@ -295,7 +403,10 @@ class ParticleBP:
         for _ in range(cfg.slice_steps):
             cand = lo + (hi - lo) * rng.random(x.shape)
             # chains already done need no belief (their candidates are not taken)
-            ok = (self._belief_at(cand, kept, pre, graph, ~done) < level) & ~done
+            record = []
+            ok = (self._belief_at(cand, kept, pre, graph, ~done, record if rows else None) < level) & ~done
+            if known is not None and record:
+                known.add(e0, e1, ok, *record[0])
             new_x[ok] = cand[ok]
             done |= ok
             if done.all():
@@ -304,7 +415,7 @@ class ParticleBP:
             open_ = ~done[..., None]
             lo = np.where(open_ & left, cand, lo)
             hi = np.where(open_ & ~left, cand, hi)
-        return new_x
+        return new_x, known
 
     # ------------------------------------------------------------------ proposals
     def _mobility(self, state: np.ndarray, graph: _Graph) -> np.ndarray:
@@ -344,15 +455,26 @@ class ParticleBP:
         kept = state[:, None, :] + rng.normal(size=(n_nodes, cfg.n_particles, dim)) * spread
         kept[:, 0] = state
         cost = self._directed_costs(kept)
-        beliefs, pre = _min_sum_sweeps(graph, model.unary(kept), cost, cfg.sweeps, cfg.damping)
+        unary_kept = model.unary(kept)
+        beliefs, pre = _min_sum_sweeps(graph, unary_kept, cost, cfg.sweeps, cfg.damping)
+        # the first iteration's kept particles and parameters are these (prepare is then skipped)
+        # (with a model that tells its prepared parameters, to see that they were not set again)
+        tells = hasattr(model, "_prepared_parameters")
+        prepared = model._prepared_parameters() if tells else ()  # type: ignore[attr-defined]
+        at_kept: tuple[np.ndarray, np.ndarray] | None = (unary_kept, cost[: len(self.edges)]) if tells else None
 
         for _ in range(cfg.iterations if iterations is None else iterations):
             model.prepare(state)
+            if at_kept is not None and any(a is not b for a, b in zip(prepared, model._prepared_parameters())):  # type: ignore[attr-defined]
+                at_kept = None  # the parameters were set again: the costs no longer hold
             order = np.argsort(beliefs, axis=1)[:, : min(cfg.n_slice, kept.shape[1])]
             start = np.take_along_axis(kept, order[:, :, None], axis=1)
             groups = [kept, state[:, None, :]]
+            known = None
             if cfg.n_slice > 0:
-                groups.append(self._slice_sample(start, kept, pre, graph, width))
+                samples, known = self._slice_sample(start, kept, pre, graph, width, order, at_kept)
+                groups.append(samples)  # at kept.shape[1] + 1, as the known costs expect
+            at_kept = None  # the next iteration's kept particles are others
             if cfg.mobility and graph.n_edges:
                 groups.append(self._mobility(state, graph))
             extra = model.extra_proposals(state)
@@ -360,7 +482,7 @@ class ParticleBP:
                 groups.append(extra)
             aug = np.concatenate(groups, axis=1)
 
-            cost = self._directed_costs(aug)
+            cost = self._directed_costs(aug, known)
             unary = model.unary(aug)
             beliefs_aug, pre_aug = _min_sum_sweeps(graph, unary, cost, cfg.sweeps, cfg.damping)
             candidates = [

@@ -211,15 +211,16 @@ class FrameTracker:
                              cfg.observe_radius_mm)
         source = np.full(self.n_dots, -1, np.int64)
         source[match >= 0] = usable[match[match >= 0]]
-        positions = self._placed(model, cloud, source)
+        normals: list[np.ndarray] = []  # the model's tape normals, made once (the same model each time)
+        positions = self._placed(model, cloud, source, normals=normals)
         relocated = np.zeros(self.n_dots, bool)
         if cfg.lattice_check:
             source, relocated = self.relocate_off_lattice(positions, model, cloud, source)
-            positions = self._placed(model, cloud, source, np.where(relocated[:, None], positions, model))
+            positions = self._placed(model, cloud, source, np.where(relocated[:, None], positions, model), normals)
         if cfg.anchor_ends:
             source, anchored = self.anchor_tape_ends(positions, cloud, source)
             if anchored.any():
-                positions = self._placed(model, cloud, source, positions)
+                positions = self._placed(model, cloud, source, positions, normals)
                 relocated |= anchored
         seen = source >= 0
         status = np.where(seen, "observed", "inferred").astype(object)
@@ -286,10 +287,10 @@ class FrameTracker:
         return (status == "inferred") & (rows_beyond(status == "observed", self.graph) >= rows)
 
     def _placed(self, model: np.ndarray, cloud: CandidateCloud, source: np.ndarray,
-                fallback: np.ndarray | None = None) -> np.ndarray:
+                fallback: np.ndarray | None = None, normals: list[np.ndarray] | None = None) -> np.ndarray:
         """(D, 3) mm: dots with a candidate (``source`` >= 0) at its triangulated point (moved in
         by the tape thickness, ``use_triangulated``), the others at ``fallback`` (default the
-        model)."""
+        model). ``normals``: a list holding the model's tape normals once made (empty: not yet)."""
         positions = (model if fallback is None else fallback).copy()
         seen = source >= 0
         if self.config.status.use_triangulated and seen.any():
@@ -298,7 +299,11 @@ class FrameTracker:
             if thickness and np.isfinite(model).all():
                 # triangulated points lie on the tape's top surface (the holes' rims), MRF2 reports
                 # the skin underneath: move them in by the same tape thickness
-                positions[seen] -= thickness * tape_frames(model, self.graph)[0][seen]
+                if normals is None:
+                    normals = []
+                if not normals:
+                    normals.append(tape_frames(model, self.graph)[0])
+                positions[seen] -= thickness * normals[0][seen]
         return positions
 
     def relocate_off_lattice(self, positions: np.ndarray, model: np.ndarray, cloud: CandidateCloud,
