@@ -117,22 +117,31 @@ def main() -> None:
             worst = max(worst, float(np.abs(a.uv - b.uv).max()) if len(a.uv) else 0.0)
         print(f"same masks and dot counts on every image ({int(dots)} dots), largest position difference {worst:.2g} px")
 
-    cpu: dict[str, list[float]] = {"before": [], "after": []}
-    for r in range(args.rounds):
-        total = {"before": 0.0, "after": 0.0}
-        for key, boxes in calls:
-            for name in (("before", "after") if r % 2 == 0 else ("after", "before")):
-                t = time.thread_time()
-                clean_up(name, key, boxes)
-                total[name] += time.thread_time() - t
-        for name in total:
-            cpu[name].append(total[name])
-        print(f"round {r}: before {total['before'] * 1e3 / args.frames:.1f}, after {total['after'] * 1e3 / args.frames:.1f} "
-              f"CPU ms/frame, ratio {total['after'] / total['before']:.3f} (1-min load {os.getloadavg()[0]:.1f})")
+    cpu = alternating_rounds(calls, lambda name, call: clean_up(name, *call), args.rounds, args.frames)
     for name, values in cpu.items():
         m = float(np.median(values))
         print(f"{name}: median {m * 1e3 / args.frames:.1f} CPU ms/frame, {m * 1e3 / len(calls):.2f} ms/camera image")
     print(f"after / before (medians): {np.median(cpu['after']) / np.median(cpu['before']):.3f}")
+
+
+def alternating_rounds(calls: list, run, rounds: int, n_frames: int) -> dict[str, list[float]]:
+    """Time ``run(name, call)`` of the versions ``before`` and ``after`` over every recorded call,
+    ``rounds`` times, the versions' order swapped every round (thread CPU, so other threads' work
+    is not counted); print each round's CPU ms per frame and the ratio; return each version's CPU
+    seconds per round."""
+    cpu: dict[str, list[float]] = {"before": [], "after": []}
+    for r in range(rounds):
+        total = {"before": 0.0, "after": 0.0}
+        for call in calls:
+            for name in (("before", "after") if r % 2 == 0 else ("after", "before")):
+                t = time.thread_time()
+                run(name, call)
+                total[name] += time.thread_time() - t
+        for name in total:
+            cpu[name].append(total[name])
+        print(f"round {r}: before {total['before'] * 1e3 / n_frames:.2f}, after {total['after'] * 1e3 / n_frames:.2f} "
+              f"CPU ms/frame, ratio {total['after'] / total['before']:.3f} (1-min load {os.getloadavg()[0]:.1f})")
+    return cpu
 
 
 def _count_differences(calls, clean_up) -> None:

@@ -40,6 +40,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).parent))
+from cleanup_ab import alternating_rounds  # noqa: E402
+
 
 def record(capture_dir: Path, frames: range, out: Path) -> None:
     import spinemocap.detect.detector as detector
@@ -161,18 +164,7 @@ def main() -> None:
         dots += len(x.uv)
     print(f"{len(calls)} calls, {n_frames} frames: identical masks, snapped masks, dots and confidences ({dots} dots)")
     parts = _time_parts(versions)
-    cpu: dict[str, list[float]] = {"before": [], "after": []}
-    for r in range(args.rounds):
-        total = {"before": 0.0, "after": 0.0}
-        for crop, mask in calls:
-            for name in (("before", "after") if r % 2 == 0 else ("after", "before")):
-                t = time.thread_time()
-                versions[name](crop, mask)
-                total[name] += time.thread_time() - t
-        for name in total:
-            cpu[name].append(total[name])
-        print(f"round {r}: before {total['before'] * 1e3 / n_frames:.2f}, after {total['after'] * 1e3 / n_frames:.2f} "
-              f"CPU ms/frame, ratio {total['after'] / total['before']:.3f} (1-min load {os.getloadavg()[0]:.1f})")
+    cpu = alternating_rounds(calls, lambda name, call: versions[name](*call), args.rounds, n_frames)
     for name, values in cpu.items():
         print(f"{name}: median {np.median(values) * 1e3 / n_frames:.2f} CPU ms/frame")
     print(f"after / before (medians): {np.median(cpu['after']) / np.median(cpu['before']):.3f}")
