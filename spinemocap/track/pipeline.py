@@ -24,6 +24,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from ..camera import Rig
+from ..geometry import triangulate_rays
 from ..tape import TapeSpec
 from ..timing import StageTimer
 from ..views import ViewDots
@@ -288,13 +289,14 @@ class FrameTracker:
 
     def _placed(self, model: np.ndarray, cloud: CandidateCloud, source: np.ndarray,
                 fallback: np.ndarray | None = None, normals: list[np.ndarray] | None = None) -> np.ndarray:
-        """(D, 3) mm: dots with a candidate (``source`` >= 0) at its triangulated point (moved in
-        by the tape thickness, ``use_triangulated``), the others at ``fallback`` (default the
-        model). ``normals``: a list holding the model's tape normals once made (empty: not yet)."""
+        """(D, 3) mm: dots with a candidate (``source`` >= 0) at its triangulated point (its blobs'
+        rays' point, ``status.ray_points``; moved in by the tape thickness, ``use_triangulated``),
+        the others at ``fallback`` (default the model). ``normals``: a list holding the model's
+        tape normals once made (empty: not yet)."""
         positions = (model if fallback is None else fallback).copy()
         seen = source >= 0
         if self.config.status.use_triangulated and seen.any():
-            positions[seen] = cloud.points[source[seen]]
+            positions[seen] = self._ray_points(cloud, source[seen]) if self.config.status.ray_points else cloud.points[source[seen]]
             thickness = self.graph.spec.thickness_mm
             if thickness and np.isfinite(model).all():
                 # triangulated points lie on the tape's top surface (the holes' rims), MRF2 reports
@@ -305,6 +307,25 @@ class FrameTracker:
                     normals.append(tape_frames(model, self.graph)[0])
                 positions[seen] -= thickness * normals[0][seen]
         return positions
+
+    def _ray_points(self, cloud: CandidateCloud, rows: np.ndarray) -> np.ndarray:
+        """(N, 3) mm: the least-squares points of the rays of the candidates ``rows``' (N,) blobs
+        (:func:`~spinemocap.geometry.triangulate_rays`, equal weights). A candidate without its
+        blobs' pixels, or without a finite point, keeps its DLT point."""
+        points = cloud.points[rows]
+        if cloud.pixels is None:
+            return points
+        pixels = cloud.pixels[rows]  # (N, C, 2) distorted px, NaN where a camera is not used
+        used = np.isfinite(pixels).all(axis=2)
+        directions = np.zeros(pixels.shape[:2] + (3,))
+        for c, camera in enumerate(self.rig):
+            if used[:, c].any():
+                directions[used[:, c], c] = camera.rays(pixels[used[:, c], c])[1]
+        centers = np.array([camera.center for camera in self.rig])
+        out = triangulate_rays(centers, directions, used.astype(float))
+        keep = ~np.isfinite(out).all(axis=1)
+        out[keep] = points[keep]
+        return out
 
     def relocate_off_lattice(self, positions: np.ndarray, model: np.ndarray, cloud: CandidateCloud,
                              source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
