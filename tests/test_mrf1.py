@@ -49,6 +49,20 @@ def test_tape_frames_give_outward_normal_and_handedness():
     np.testing.assert_allclose(along[mid], [0, 0, 1], atol=0.05)  # from the sacral end upward
 
 
+def test_tape_frames_of_a_single_row_tape_are_one_orthonormal_frame_per_dot():
+    """A one-row tape has no direction along it: each dot still gets one (3,) frame, unit and
+    orthogonal, with ``across`` from L to R (shapes went wrong before: (D, 1, 3) along)."""
+    graph = TapeSpec(n_rows=1).graph
+    positions = np.array([[-20.0, 0.0, 0.0], [20.0, 0.0, 0.0]])[: len(graph.row)]
+    normal, across, along = tape_frames(positions, graph)
+    for frame in (normal, across, along):
+        assert frame.shape == (len(graph.row), 3)
+        np.testing.assert_allclose(np.linalg.norm(frame, axis=1), 1.0)
+    np.testing.assert_allclose((normal * across).sum(axis=1), 0.0, atol=1e-12)
+    np.testing.assert_allclose((normal * along).sum(axis=1), 0.0, atol=1e-12)
+    np.testing.assert_allclose(across, [[1.0, 0.0, 0.0]] * len(graph.row))
+
+
 def test_normal_field_smooths_noisy_normals():
     rng = np.random.default_rng(0)
     pts = rng.uniform(-100, 100, size=(200, 3))

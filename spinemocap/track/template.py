@@ -240,17 +240,12 @@ def tape_frames(positions: np.ndarray, tape: TapeGraph) -> tuple[np.ndarray, np.
         raise IndexError("every row of the tape needs an L and an R dot")
     row_centre = rows.sums(pos) / rows.count[:, None]  # each row's mean, its members added in order
     row_across = pos[rows.right] - pos[rows.left]
-    if n_rows == 1:  # a single row has no longitudinal direction; take any perpendicular
-        row_along = np.cross(row_across, [0.0, 0.0, 1.0])[None]
-        across = _unit(row_across)[tape.row]
-        along = _unit(row_along)[tape.row]
-        normal = _unit(np.cross(across, along))
-        along = _unit(np.cross(normal, across))  # re-orthogonalised
-        return normal, across, along
+    # a single row has no longitudinal direction: any perpendicular
+    row_along = _row_gradient(row_centre) if n_rows > 1 else _cross3(row_across, np.array([[0.0, 0.0, 1.0]]))
     # every dot takes its row's frame, so the frames are made per row and then handed to the dots
     # (the same element-by-element operations as per dot: the same values)
     across = _unit(row_across)
-    along = _unit(_row_gradient(row_centre))
+    along = _unit(row_along)
     normal = _unit(_cross3(across, along))
     along = _unit(_cross3(normal, across))  # re-orthogonalised
     return normal[tape.row], across[tape.row], along[tape.row]
