@@ -318,7 +318,9 @@ class RefinementMRF:
         self._prepared_from: tuple[np.ndarray, tuple] | None = None
 
     # ------------------------------------------------------------------ state-dependent parts
-    def _prepared_parameters(self) -> tuple:
+    def prepared_parameters(self) -> tuple:
+        """The state-dependent parameters :meth:`prepare` sets, as objects: particle BP compares
+        them by identity to know that costs it evaluated still hold (none was set again)."""
         return (self.visible, self.edge_visible, self.unary_weight, self.unseen, self.edge_normal, self.edge_alpha)
 
     def prepare(self, state: np.ndarray) -> None:
@@ -327,11 +329,11 @@ class RefinementMRF:
         prepares again after an iteration that kept the state) and not replaced since."""
         state = np.asarray(state, dtype=np.float64)
         last = self._prepared_from
-        if last is not None and all(a is b for a, b in zip(last[1], self._prepared_parameters())) \
+        if last is not None and all(a is b for a, b in zip(last[1], self.prepared_parameters())) \
                 and np.array_equal(last[0], state):
             return
         self._prepare(state)
-        self._prepared_from = (state.copy(), self._prepared_parameters())
+        self._prepared_from = (state.copy(), self.prepared_parameters())
 
     def _prepare(self, state: np.ndarray) -> None:
         normal, across, along = tape_frames(state, self.tape)

@@ -42,7 +42,10 @@ class PairwiseModel(Protocol):
     ``nodes[k]`` at ``x[k]`` (the same values as ``unary``); with it the slice sampler evaluates
     beliefs only for its chains still open, and repeated particles share their pairwise costs.
     Optional ``symmetric_pairwise = True``: ``pairwise(xs, xt, i)`` is ``pairwise(xt, xs, i)``
-    transposed, bit for bit (beliefs then evaluate both message directions in one call)."""
+    transposed, bit for bit (beliefs then evaluate both message directions in one call).
+    Optional ``prepared_parameters()``: the objects ``prepare`` sets; when ``prepare`` sets none
+    again, the first iteration's slice sampler reads its start beliefs from the costs already
+    evaluated for the kept particles."""
 
     edges: np.ndarray
 
@@ -459,13 +462,13 @@ class ParticleBP:
         beliefs, pre = _min_sum_sweeps(graph, unary_kept, cost, cfg.sweeps, cfg.damping)
         # the first iteration's kept particles and parameters are these (prepare is then skipped)
         # (with a model that tells its prepared parameters, to see that they were not set again)
-        tells = hasattr(model, "_prepared_parameters")
-        prepared = model._prepared_parameters() if tells else ()  # type: ignore[attr-defined]
+        tells = hasattr(model, "prepared_parameters")
+        prepared = model.prepared_parameters() if tells else ()  # type: ignore[attr-defined]
         at_kept: tuple[np.ndarray, np.ndarray] | None = (unary_kept, cost[: len(self.edges)]) if tells else None
 
         for _ in range(cfg.iterations if iterations is None else iterations):
             model.prepare(state)
-            if at_kept is not None and any(a is not b for a, b in zip(prepared, model._prepared_parameters())):  # type: ignore[attr-defined]
+            if at_kept is not None and any(a is not b for a, b in zip(prepared, model.prepared_parameters())):  # type: ignore[attr-defined]
                 at_kept = None  # the parameters were set again: the costs no longer hold
             order = np.argsort(beliefs, axis=1)[:, : min(cfg.n_slice, kept.shape[1])]
             start = np.take_along_axis(kept, order[:, :, None], axis=1)
