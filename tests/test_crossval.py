@@ -26,7 +26,7 @@ def test_agreement_statistics_on_known_series():
     assert np.isnan(cmc(truth, -truth))  # within-instant variance above the total: no real CMC
 
 
-# measured 2026-11-22 on this trial (0.1 mm dot noise): RMSE 1.08 / 1.07 / 0.52 deg, ICC >= 0.976;
+# on this trial (0.1 mm dot noise): RMSE 1.08 / 1.07 / 0.52 deg, ICC >= 0.976;
 # the Vicon's three triads resolve the midline's tangent only coarsely
 LUMBAR_RMSE_DEG = {"lumbar_flexion": 1.5, "lumbar_lateral": 2.0, "lumbar_rotation": 1.2}
 

@@ -1,4 +1,4 @@
-"""A reference object of known geometry fixes ``--refine-rig``'s world frame (issue 11).
+"""A reference object of known geometry fixes ``--refine-rig``'s world frame.
 
 The refinement on the tape's dots alone keeps the given rig's world frame (no residual sees
 it, see test_rig_gauge); a reference object's markers at known world positions, held as control

@@ -1,4 +1,4 @@
-"""Speed machinery (issue 15): detection by prediction finds the dots the full search finds, the
+"""Speed machinery: detection by prediction finds the dots the full search finds, the
 parallel path gives the serial path's output, masks are read only for the mask detector, and
 the prefetching reader hands its errors to the consumer."""
 

@@ -1,4 +1,4 @@
-"""Detecting a frame's camera images in worker processes (issue 15): a real pool, one detector per
+"""Detecting a frame's camera images in worker processes: a real pool, one detector per
 worker, images passed through shared memory.
 
 Threads share one interpreter lock, and detection's full-resolution clean-up (numpy on small

@@ -54,7 +54,7 @@ def visibility_table(frames: int = 548, seed: int = 0, progress: bool = True) ->
 def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds: int = 2,
                       workdir: Path | None = None, occlusion: str = "none") -> dict:
     """Seconds per frame to render ``frames`` frames of a preset and write them as a capture does
-    (images and tape masks as PNG), for the renderer as first written (the reference path:
+    (images and tape masks as PNG), for the reference renderer (the reference path:
     one thread, files written one after the other) and the current one, in the same process on
     the same scene. The two alternate ``rounds`` times (reference first) so both see the same
     machine load; the fastest round of each counts, in wall-clock and in CPU seconds of the

@@ -161,7 +161,7 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--realism", choices=("ideal", "skin", "lab"), default="lab",
                    help="realism level of the timed scenes (default lab)")
     p.add_argument("--occlusion", choices=("none", "light", "heavy"), default="none",
-                   help="falling balls in the timed scenes (default none; issue 11's sweep renders light)")
+                   help="falling balls in the timed scenes (default none; the realism benchmark renders light)")
     p.add_argument("--rounds", type=int, default=2,
                    help="times the first renderer and this one alternate; the fastest round of each counts (default 2)")
     p.add_argument("--visibility-frames", type=int, default=548,

@@ -70,7 +70,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="the tape network's arithmetic: float32, int8 (ONNX Runtime on the CPU), bfloat16 (torch); "
                         "default: the pipeline's")
     p.add_argument("--legacy", action="store_true",
-                   help="the pipeline before issue 15 (one camera after the other, no prefetching, full tape "
+                   help="the previous pipeline (one camera after the other, no prefetching, full tape "
                         "search in every frame): for comparisons")
     p.add_argument("--refine-rig", action="store_true",
                    help="bundle-adjust the camera poses (and a focal scale per camera) on the tracked dots, "

@@ -628,7 +628,7 @@ class Scene:
         return self._pool
 
     def _render_reference(self, frame: int, with_masks: bool) -> RenderedFrame:
-        """:meth:`render` as first written: one thread, reference lens, mask and sensor."""
+        """:meth:`render` in its reference form: one thread, reference lens, mask and sensor."""
         images, masks = [], []
         shared: dict[float, list[SceneMeshes]] = {}
         for c, renderer in enumerate(self.renderers):
@@ -671,7 +671,7 @@ class Scene:
         return cv2.cvtColor(image.astype(np.uint8), cv2.COLOR_RGB2BGR)
 
     def _sensor_reference(self, rgb: np.ndarray, frame: int, camera: int) -> np.ndarray:
-        """:meth:`_sensor` as first written: the peer of ``spinemocap bench render``."""
+        """:meth:`_sensor` in its reference form: the peer of ``spinemocap bench render``."""
         image = rgb.astype(np.float32)
         noise = float(self.config.noise or 0.0)
         if noise > 0:

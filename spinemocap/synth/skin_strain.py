@@ -7,7 +7,7 @@ of a real back on top of it: :class:`SkinStrain` gives the *total* strain of the
 to standing, and :class:`spinemocap.synth.tape_on_skin.TapeOnSkin` slides the tape's material
 points along anny's surface until their arc lengths follow it.
 
-Source figures (DESIGN.md section 8 and the clinical tests they come from):
+Source figures (the clinical tests they come from):
 
 - Modified Schober test: 15 cm of skin marked over the lumbar spine from the lumbosacral junction
   up lengthen by 5 cm or more (>= 33 %) at full forward flexion in a healthy adult, less with age

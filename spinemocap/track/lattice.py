@@ -69,7 +69,7 @@ def affine_from_neighbours(uv: np.ndarray, positions: np.ndarray, known: np.ndar
 
 
 def _affine_lstsq(uv: np.ndarray, positions: np.ndarray, use: np.ndarray, w: np.ndarray, i: int) -> np.ndarray:
-    """One target's weighted affine fit by ``np.linalg.lstsq`` (uncentred, as first written)."""
+    """One target's weighted affine fit by ``np.linalg.lstsq`` (uncentred: the reference form)."""
     design = np.column_stack([uv[use], np.ones(use.sum())])
     sw = np.sqrt(w)[:, None]
     A, *_ = np.linalg.lstsq(design * sw, positions[use] * sw, rcond=None)

@@ -41,8 +41,7 @@ from ..tape import TapeGraph, TapeSpec
 
 @dataclass
 class StretchConfig:
-    """``adaptive``: estimate the spacing from the data (False = the roll's nominal spec, the
-    tracker before issue 11); ``along_range`` / ``across_range``: searched stretch relative to
+    """``adaptive``: estimate the spacing from the data (False = the roll's nominal spec); ``along_range`` / ``across_range``: searched stretch relative to
     the spec (kinesiology tape gives out at ~1.6; 0.8 covers a spec longer than the tape);
     ``min_points``: fewer candidate points than this keep the previous/nominal estimate;
     ``min_coherence``: periodogram peak below this is not trusted (occluded or ghost-ridden
