@@ -304,19 +304,22 @@ def padded_box(x0: float, y0: float, x1: float, y1: float, shape: tuple[int, int
 class Detector:
     """Tape and dot detector for single camera images (BGR uint8, any size).
 
-    ``name``: ``"net"`` (options: ``weights`` path, ``refine`` two-stage on/off, ``threads`` the
-    network's threads per pass, default 1: a working-resolution image gains little from more, and
-    the tracker runs cameras or frames in parallel threads or processes; ``None`` leaves torch's
-    setting alone, and gives ONNX Runtime its default, all cores; ``precision`` ``float32``
-    (default), ``bfloat16`` (torch), ``int8`` (ONNX Runtime on the CPU, calibrated on drawn
-    tapes; InputError where it cannot run) or ``auto`` (int8 on a CPU with VNNI, float32
-    elsewhere or when int8 cannot load: :func:`auto_precision`; the tracker's default), the network's arithmetic; ``runtime`` what runs the passes:
-    ``auto`` (default: ONNX Runtime for float32 on the CPU where onnxruntime and onnx import and
-    the export loads, else torch with a RuntimeWarning when the export failed), ``onnxruntime``
-    (InputError where it cannot run) or ``torch``; ``device``) or
-    ``"classical"`` (options: ``work_width``); ``blob_params``: :class:`BlobParams` for the dots;
-    ``dot_to_width``: dot diameter / tape width, used to guess the dot size from the mask when
-    :meth:`detect` gets no ``expected_dot_px``."""
+    Args:
+        name: ``"net"`` (the shipped network) or ``"classical"``.
+        blob_params: :class:`BlobParams` for the dots.
+        **options: for ``"net"``: ``weights`` (path), ``refine`` (two-stage clean-up on/off),
+            ``threads`` (the network's threads per pass; default 1, the tracker runs cameras in
+            parallel; ``None``: the runtime's default), ``precision`` (``float32`` default,
+            ``bfloat16`` on torch, ``int8`` on ONNX Runtime on the CPU, or ``auto``:
+            :func:`auto_precision`), ``runtime`` (``auto``: ONNX Runtime for float32 on the CPU
+            where it imports and the export loads, else torch with a RuntimeWarning;
+            ``onnxruntime``; ``torch``), ``device``. For ``"classical"``: ``work_width``.
+
+    Raises:
+        ValueError: an unknown ``name``.
+        TypeError: an unknown option.
+        InputError: an unknown precision or runtime, or one that cannot run here.
+    """
 
     def __init__(self, name: str = "net", blob_params: BlobParams | None = None, **options):
         if name not in NAMES:

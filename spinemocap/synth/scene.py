@@ -92,7 +92,7 @@ class SynthConfig:
     the random lens distortion (0 = ideal pinhole); ``skin_tone`` runs from 0 (light) to 1
     (dark), None picks one from the seed; ``phenotype`` holds anny's parameters in [0, 1]
     (anny's convention: gender 0 = male .. 1 = female; age 0 = newborn .. 0.5 = young adult ..
-    1 = old; muscle, weight, height, proportions; ``sex`` is an alias of gender). ``tape_start`` is the vertebral level of the tape's first row.
+    1 = old; muscle, weight, height, proportions; ``sex`` is an alias of gender).
     ``tape_start``: the vertebral level (S2..T1) of the tape's first row, S1 by default; ``rows``
     None picks the smallest odd count that passes the T12/L1 junction by
     :data:`ROWS_PAST_THORACOLUMBAR` rows on this body (at rest, with the tension), fewer (at
