@@ -68,7 +68,7 @@ _PRESETS: dict[str, dict] = {
 }
 
 # Realism levels: the values of the realism fields a level sets when they are not given.
-# ideal: the first studio (no skin strain, tape laid at its spec, exact calibration and sync);
+# ideal: no skin strain, tape laid at its spec, exact calibration and sync);
 # skin (SynthConfig's default): a real back under an exact set-up (Schober skin strain);
 # lab: a real back in a real lab (15 % taping tension, 0.5 px calibration error, 1 ms sync
 # error, sensor noise of 3 grey levels) -- the benchmarks' default.
@@ -577,7 +577,7 @@ class Scene:
         VTK renders the cameras one after the other in this thread, each only over the canvas
         rectangle the scene covers in it; each camera's lens resampling, sensor noise and mask
         resampling run on a worker thread meanwhile (numpy and OpenCV release the GIL), so they
-        overlap the next camera's rendering. ``reference`` renders as the first studio did (whole
+        overlap the next camera's rendering. ``reference`` renders the reference way (whole
         canvas, one thread, the reference implementations): the peer of ``spinemocap bench
         render`` and the tests' reference (same ground truth; images equal up to rounding on a
         few anti-aliased edges, see :meth:`CameraRenderer.render_window`)."""
