@@ -11,7 +11,7 @@ rows are the ones nearest the middle of the lowest and highest anny bone segment
 and the expected change from the neutral first frame is ``bench angles``' skin model
 (:func:`spinemocap.bench.analysis.expected_between_rows`: the skin at a row turns with the
 fractional number of anny's spine joints at its rest height; Cardan angles of the two rows'
-turned rest frames). It replaced "(joints between the rows)/5 x applied", so that both
+turned rest frames), so that both
 benchmarks score against one model.
 For ``mixed`` all three angles are scored.
 The peer measures the same two rows with :func:`spinemocap.analysis.angles.compute_angles`.

@@ -17,16 +17,12 @@ those points, with the intrinsics' principal point and distortion held fixed.
   camera would carry that camera's whole error into every point). The widths (20 mm, 0.5 deg:
   a rotation and a shift that move the dots' images about as much at ~2 m) are wide against a
   calibration's real errors (~2-3 mm, ~0.05 deg at 2 px), so the data settle everything they
-  can see and the priors only pick the gauge. Measured over 3 rendered scenes x 4 seeded studio
-  calibrations per level (``spinemocap bench gauge``) against other gauges
-  for the same refined geometry, none better on average at 1-2 px: widths sized from each
-  camera's own residual (:func:`residual_priors`, ``centre_prior_mm=None``: a real prior of
-  the calibration's size; better at 3 px, worse at 0.5-2 px), the similarity closest to the
-  given cameras (:func:`closest_gauge`), and the similarity that fits the refined dots onto
-  the given rig's own triangulation of them (a gauge from the data: best at 0.5 px, much worse
-  at 2-3 px, where most of the given rig's error on the dots is itself a similarity and is
-  kept). The refined dots' shape is as good as the true rig's at every level; the rest is the
-  given rig's world frame.
+  can see and the priors only pick the gauge. Other gauges for the same refined geometry are
+  options, none better on average at 1-2 px (``spinemocap bench gauge``): widths sized from
+  each camera's own residual (:func:`residual_priors`, ``centre_prior_mm=None``), the
+  similarity closest to the given cameras (:func:`closest_gauge`), and the similarity that fits
+  the refined dots onto the given rig's own triangulation of them. The refined dots' shape is as
+  good as the true rig's; the rest is the given rig's world frame.
   What the given rig's frame errs by cannot be removed by any choice of gauge: ``rig_refine.json``
   reports ``frame_uncertainty_mm``, the larger of two rough estimates: how far the given cameras
   disagree with the refined geometry (:func:`given_rig_disagreement_mm`,
