@@ -160,7 +160,7 @@ def _pyav(path: str | os.PathLike):
 class VideoDecoder:
     """One camera's video decoded through PyAV (FFmpeg), one frame after the other; a jump seeks
     to the key frame before and decodes forward. Planar RGB (``gbrp``, the captures' UT Video)
-    is interleaved into BGR directly, without FFmpeg's colour conversion (measured per 2448x1600
+    is interleaved into BGR directly, without FFmpeg's colour conversion (per 2448x1600
     image, one thread: 29 CPU ms against 42 through ``bgr24``, and OpenCV's reader 30-44 ms);
     other formats go through FFmpeg's ``bgr24`` conversion. FFmpeg's own threads are off: the
     cameras are decoded in parallel."""

@@ -144,7 +144,7 @@ class NetSegmenter:
 
     def _use_threads(self) -> None:
         """torch's threads for this calling thread, set only when they differ: a
-        ``torch.set_num_threads`` call slows the network passes after it (measured ~3 ms, ~20 %,
+        ``torch.set_num_threads`` call slows the network passes after it (~3 ms, ~20 %,
         per pass when set before every pass)."""
         if self.threads and torch.get_num_threads() != self.threads:
             torch.set_num_threads(self.threads)
