@@ -33,8 +33,8 @@ The residual we store is the mean reprojection error in px (the tracker's), not 
 Reading follows the same rules for any file: Vicon's gap-filled/filtered trials store residual
 0 everywhere and therefore read as ``inferred``.
 
-Note: ezc3d (<= 1.7) decodes that fourth word of float files with the two bytes swapped
-(pyomeca/ezc3d issue #386); coordinates and invalid samples agree with the ``c3d`` package,
+Note: ezc3d (<= 1.7) decodes that fourth word of float files with the two bytes swapped;
+coordinates and invalid samples agree with the ``c3d`` package,
 residuals and camera masks of float files do not.
 """
 

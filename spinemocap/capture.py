@@ -60,7 +60,7 @@ VIDEO_CODEC = "utvideo"
 # The lossless codecs VideoWriter writes, and the pixel format each stores BGR images in: UT Video
 # (planar RGB, Huffman-coded: 0.57x the raw size on the lab-realism studio capture, ~28 CPU ms to
 # decode a 2448x1600 image) or uncompressed BGR (``rawvideo``: 1.77x UT Video's size; a frame is
-# the bytes read, nothing to decode; docs/BENCHMARKS.md, issue 15, branch vdec)
+# the bytes read, nothing to decode)
 VIDEO_CODECS = {"utvideo": "gbrp", "rawvideo": "bgr24"}
 MAX_FPS = 1e5
 # A VideoDecoder's BGR arrays kept for reuse once the caller drops them (a new 11.75 MB array makes
@@ -160,7 +160,7 @@ def _pyav(path: str | os.PathLike):
 class VideoDecoder:
     """One camera's video decoded through PyAV (FFmpeg), one frame after the other; a jump seeks
     to the key frame before and decodes forward. Planar RGB (``gbrp``, the captures' UT Video)
-    is interleaved into BGR directly, without FFmpeg's colour conversion (measured per 2448x1600
+    is interleaved into BGR directly, without FFmpeg's colour conversion (per 2448x1600
     image, one thread: 29 CPU ms against 42 through ``bgr24``, and OpenCV's reader 30-44 ms);
     other formats go through FFmpeg's ``bgr24`` conversion. FFmpeg's own threads are off: the
     cameras are decoded in parallel."""

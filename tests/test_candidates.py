@@ -1,4 +1,4 @@
-"""Candidate search (issue 15): the faster search finds the same candidates as the straightforward
+"""Candidate search: the faster search finds the same candidates as the straightforward
 one on a studio frame (six cameras, the lab's 2448x1600 views), and its parts agree with the
 library functions they replace."""
 
@@ -34,7 +34,7 @@ def studio_frame():
 
 
 def _straightforward(monkeypatch):
-    """The search with the primitives it used before issue 15's speed-up: every row triangulated
+    """The search with straightforward primitives: every row triangulated
     again at every call (no memory), the full DLT with zero rows, numpy's unique rows."""
 
     def solve(self, blob_ids, th1):

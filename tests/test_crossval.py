@@ -26,7 +26,7 @@ def test_agreement_statistics_on_known_series():
     assert np.isnan(cmc(truth, -truth))  # within-instant variance above the total: no real CMC
 
 
-# measured 2026-11-22 on this trial (0.1 mm dot noise): RMSE 1.08 / 1.07 / 0.52 deg, ICC >= 0.976;
+# on this trial (0.1 mm dot noise): RMSE 1.08 / 1.07 / 0.52 deg, ICC >= 0.976;
 # the Vicon's three triads resolve the midline's tangent only coarsely
 LUMBAR_RMSE_DEG = {"lumbar_flexion": 1.5, "lumbar_lateral": 2.0, "lumbar_rotation": 1.2}
 
@@ -83,7 +83,7 @@ def test_crossval_recovers_clock_offset_and_transform(trial):
                                [vicon.labels[k] for k in keep])
     crossval_angles(no_sacral, scene.times, dots, scene.labels, scene.tape, levels)
     assert "Plug-in Gait pelvis" in no_sacral.summary["angle_convention"]["vicon_frames"]["S1"]
-    for name in ("lumbar_flexion", "lumbar_lateral", "lumbar_rotation"):  # measured ICC 0.80 / 0.93 / 0.90
+    for name in ("lumbar_flexion", "lumbar_lateral", "lumbar_rotation"):  # ICC 0.80 / 0.93 / 0.90
         assert no_sacral.summary["angles"][name]["icc"] > 0.75, name
     # a wrong clock is found: shifting the Vicon clock by 100 ms shifts the estimate by 100 ms
     shifted = cross_validate(scene.times, dots, scene.labels, scene.tape, vicon.time_s + 0.1, vicon.positions,
@@ -198,7 +198,7 @@ def test_crossval_recovers_the_clock_and_frame_on_a_13_row_tape():
                                          scene.tape.thickness_mm + s.marker_diameter_mm / 2)
     assert names == ["VT_R01", "VT_R07", "VT_R13"]
     studio_time = vicon.time_s - s.clock_offset_s
-    for k, name in enumerate(names):  # measured 0.23 / 0.06 / 0.24 mm (end rows: the tape's curvature)
+    for k, name in enumerate(names):  # 0.23 / 0.06 / 0.24 mm (end rows: the tape's curvature)
         j = vicon.labels.index(name)
         placed = np.stack([np.interp(scene.times, studio_time, vicon.truth_studio[:, j, c]) for c in range(3)], axis=1)
         assert np.sqrt(np.mean(np.sum((placed - expected[:, k]) ** 2, axis=1))) < 0.4, name

@@ -1,4 +1,4 @@
-"""The detector's clean-up made cheaper (issue 15) computes what it computed before: the blob pass
+"""The detector's clean-up's fast paths compute what the straightforward paths compute: the blob pass
 measures all blobs together (moments, percentiles, rings) and must give the dots of the one blob
 at a time pass it replaced (kept below as the reference); the tape/skin levels and the snap work
 in the mask's box only and must equal the whole crop's; the kept instances' union is the union
@@ -33,7 +33,7 @@ def _ellipse_shape(blob: np.ndarray) -> tuple[float, float] | None:
 
 
 def _reference_region_dots(grey, filled, region, d, p, touches_border, size_from_blobs=False):
-    """The blob pass before issue 15's clean-up round: one blob at a time, numpy's percentile."""
+    """The reference blob pass: one blob at a time, numpy's percentile."""
     k = int(round(1.4 * d + 2)) | 1
     tophat = cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
     smooth = cv2.GaussianBlur(tophat, (0, 0), max(0.5, d / 10.0))
@@ -428,7 +428,7 @@ def test_network_on_the_gpu_finds_the_cpus_dots(drawn_images):
         assert np.abs(a.uv - b.uv).max() < 0.01
 
 
-# ---------------------------------------------------------------- issue 15, clean-up round 4: the same work on less
+# ---------------------------------------------------------------- the same work on less
 def _reference_ring_pixels(labels, candidate, grow):
     """The ring pixels as computed before (uint16 labels over the whole label image, the reached
     pixels split by two 2-D nonzero passes): the triples and their order."""

@@ -1,4 +1,4 @@
-"""Where the network runs (issue 15's GPU path) on a machine without CUDA: ``auto`` falls back to
+"""Where the network runs (the GPU path) on a machine without CUDA: ``auto`` falls back to
 the CPU, ``cuda`` asked for where there is none is an InputError (not a torch traceback), the
 pixels reach the network the same way whether converted as numpy or as a tensor (the GPU path
 uploads uint8 and converts there), stage 1 batched over several images finds each image's own

@@ -1,4 +1,4 @@
-"""Issue 15, session 29: the clean-up's cheaper paths give what their reference paths give, bit
+"""The clean-up's cheaper paths give what their reference paths give, bit
 for bit, on varied inputs: the dark pieces joined to the mask by flood fills (the whole crop's
 labelling is the reference), boxes measured inside a box known to hold the mask, and the whole
 clean-up (``extend_along_tape``) with the reference paths swapped in."""

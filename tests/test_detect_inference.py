@@ -1,4 +1,4 @@
-"""The network's inference form (issue 15): batch norm folded into the convolutions and the decoder's
+"""The network's inference form: batch norm folded into the convolutions and the decoder's
 concatenations replaced by summed convolutions must give the plain module's logits up to float
 rounding (stated tolerance below), for the shipped weights and for a model whose batch norms are far
 from identity; the detector with it must find exactly the dots, and the same mask, as with the plain

@@ -1,4 +1,4 @@
-"""The network in int8 on ONNX Runtime (issue 15): ``Detector("net", precision="int8")``, an
+"""The network in int8 on ONNX Runtime: ``Detector("net", precision="int8")``, an
 option (float32 stays the default). Its logits are quantized, so they are not float32's: they
 must keep float32's sign almost everywhere and stay within a small part of the logit range, and
 the detector must find the same dots as in float32 on drawn tapes (the clean-up works on the

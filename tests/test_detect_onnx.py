@@ -1,4 +1,4 @@
-"""The network on ONNX Runtime (issue 15): the detector's default runtime on the CPU in float32.
+"""The network on ONNX Runtime: the detector's default runtime on the CPU in float32.
 Its logits must be the torch inference form's up to float rounding (any input size the detector
 makes, batches included, also from several threads at once), the detector must find exactly the
 same dots and mask with it as with torch, and where onnxruntime (or onnx, which torch's exporter

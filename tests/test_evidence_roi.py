@@ -1,4 +1,4 @@
-"""MRF2's evidence is built only around the tape (issue 15): the cropped cost reads as the
+"""MRF2's evidence is built only around the tape: the cropped cost reads as the
 whole-frame one where it matters, and a camera without tape costs one pixel, not a frame."""
 
 import numpy as np

@@ -161,7 +161,7 @@ def test_a_subject_standing_a_little_turned_gets_its_own_sagittal_plane(studio, 
     # With the depth fitted (the command's default) on the studio's default back (skin strain on).
     # The two runs pose the same problem in ground frames 30 deg apart, so any difference is IK's
     # stopping point, and that is not robust: per-level lateral bending and axial rotation are
-    # ill-conditioned (issue 13). Measured on this capture: fitted depth 1.23 x published (at the
+    # ill-conditioned. On this capture: fitted depth 1.23 x published (at the
     # search bound, flagged) -> equal to 0.01 deg; fixed 0.5 x published (RMS 4-6 mm, the skin's
     # stretch unexplained) -> up to 4 deg apart; the unbounded fit's 1.64 -> up to 7 deg apart;
     # realism="ideal" -> up to 2.2 deg. The placed markers below are the solver-free check.

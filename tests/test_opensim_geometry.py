@@ -25,7 +25,7 @@ def _anterior_per_dot(dots: np.ndarray) -> np.ndarray:
 
 @pytest.mark.xfail(strict=True, reason="known gap: row_frames keeps the L-R midpoints. With the "
                    "midline centres (tape.row_midline_points) the OpenSim benchmark did not improve and IK "
-                   "on a model turned 30 deg differed by up to 2.1 deg (test_opensim.py), docs/BENCHMARKS.md")
+                   "on a model turned 30 deg differed by up to 2.1 deg (test_opensim.py)")
 def test_static_rows_do_not_zig_zag_when_dots_read_deeper_toward_the_midline():
     # Tracked dots read deeper toward the tape's midline (studio, lab: C ~0.7 mm, +-7.5 mm ~0.5 mm,
     # +-15 mm ~0.2 mm). Rows alternate dots at +-7.5 mm and at -15/0/+15 mm, so the L-R midpoints

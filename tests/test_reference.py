@@ -1,4 +1,4 @@
-"""A reference object of known geometry fixes ``--refine-rig``'s world frame (issue 11).
+"""A reference object of known geometry fixes ``--refine-rig``'s world frame.
 
 The refinement on the tape's dots alone keeps the given rig's world frame (no residual sees
 it, see test_rig_gauge); a reference object's markers at known world positions, held as control
@@ -43,7 +43,7 @@ def mean_error(rig: Rig, pixels: np.ndarray, truth: np.ndarray) -> float:
 def test_the_reference_pins_the_world_frame_of_a_perturbed_rig():
     """Over seeded 2 px studio calibrations: without the reference the refined dots keep the given
     rig's world frame (2.2-2.7 mm here); with it they are near where the true rig puts them (its own
-    error on the same noisy pixels, 0.16 mm; measured 0.25-0.32: the frame is exact at the reference,
+    error on the same noisy pixels, 0.16 mm; 0.25-0.32 here: the frame is exact at the reference,
     the sweep reaches 0.5 m from it), the report says the frame came from the reference and fits
     to a blob's noise."""
     true_rig = rig_behind()
@@ -132,7 +132,7 @@ def test_reference_file_round_trip_and_bad_designs(tmp_path):
 
 def test_the_studio_renders_the_lframe_where_its_pose_projects(tmp_path):
     """The studio's L-frame is in the images for real: its markers are found, with the lab's 2 px
-    rig saying where to look, near where the true rig projects its known pose (measured: 0.01-0.08
+    rig saying where to look, near where the true rig projects its known pose (0.01-0.08
     px; a marker seen against the bright arm, whose edge is not in the image, is left out); the
     same scene without it shows no marker there. The capture folder carries
     its design and pose (reference.toml, named by capture.toml)."""

@@ -1,4 +1,4 @@
-"""Sequence mode's full searches (issue 15, session 27): the schedule of the periodic refreshes
+"""Sequence mode's full searches: the schedule of the periodic refreshes
 (all cameras in one frame, or each camera on its own, spread over the period; settled cameras
 less often) and a tape coming into a camera's view found within the refresh period."""
 

@@ -25,7 +25,7 @@ def lab_scene():
 
 def assert_same_frames(fast, reference) -> None:
     """Masks identical; images identical but for rare edge pixels where the window's shifted
-    projection rounds an anti-aliasing sample the other way (measured: <= 3.4e-5 of the values)."""
+    projection rounds an anti-aliasing sample the other way (<= 3.4e-5 of the values)."""
     for c, (image, expected) in enumerate(zip(fast.images, reference.images)):
         assert image.dtype == np.uint8 and image.shape == expected.shape
         diff = np.abs(image.astype(int) - expected.astype(int))

@@ -1,4 +1,4 @@
-"""``--refine-rig``'s world frame (issue 11): the refined geometry is the true rig's up to one
+"""``--refine-rig``'s world frame: the refined geometry is the true rig's up to one
 similarity, priors sized by the given rig's own residuals (an option), and the cloud gauge of
 ``bench gauge``.
 
@@ -83,8 +83,7 @@ def test_the_priors_follow_the_given_rigs_calibration_error():
 def test_refinement_leaves_only_the_world_frame():
     """Over seeded 2 px studio calibrations, after --refine-rig the dots are the true rig's up to
     one similarity (their shape error is the true rig's own), where the given rig's are not. The
-    similarity left (the world frame) is not asserted: no residual sees it (docs/BENCHMARKS.md,
-    bench gauge)."""
+    similarity left (the world frame) is not asserted: no residual sees it."""
     true_rig = rig_behind()
     poses = sequence()
     pixels = pixels_of(true_rig, poses)

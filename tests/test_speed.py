@@ -1,4 +1,4 @@
-"""Speed machinery (issue 15): detection by prediction finds the dots the full search finds, the
+"""Speed machinery: detection by prediction finds the dots the full search finds, the
 parallel path gives the serial path's output, masks are read only for the mask detector, and
 the prefetching reader hands its errors to the consumer."""
 
@@ -343,7 +343,7 @@ def test_too_little_shared_memory_falls_back_to_threads(small_studio, monkeypatc
 def test_parallel_mode_defaults_to_threads_and_unknown_modes_are_refused():
     from spinemocap.app.streaming import SpeedOptions, resolve_parallel
 
-    assert SpeedOptions().parallel == "threads"  # measured as fast or faster on 2 and 16 cores
+    assert SpeedOptions().parallel == "threads"  # as fast or faster on 2 and 16 cores
     assert resolve_parallel("threads") == "threads" and resolve_parallel("processes") == "processes"
     with pytest.raises(InputError, match="unknown parallel mode"):
         resolve_parallel("fibres")

@@ -1,4 +1,4 @@
-"""The tracker's per-frame 3D stages, made cheaper for issue 15, compute what the straightforward
+"""The tracker's per-frame 3D stages' fast paths compute what the straightforward
 code computed: each fast path against the loop or library call it replaced (kept here as the
 reference), bit for bit where only the bookkeeping changed, to rounding where the arithmetic did."""
 

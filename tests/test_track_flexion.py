@@ -1,4 +1,4 @@
-"""A back at full flexion (issue 11, the `flexion (lab)` benchmark case): the lumbar rows of the
+"""A back at full flexion (the `flexion (lab)` benchmark case): the lumbar rows of the
 tape stretch 20-30 % more than its thoracic rows, so the dots' arc positions hold two periods.
 The stretch estimate must give the tape's mean pitch (not the lumbar one: a template a row too
 long then slid the labels by two rows with perfect residuals), and dots the tracker can only

@@ -1,4 +1,4 @@
-"""The tracker on a real back (issue 11): a tape longer than its spec, an inexact rig, label
+"""The tracker on a real back: a tape longer than its spec, an inexact rig, label
 continuity through an ambiguous re-solve, and the rig refined on the tracked dots.
 
 Blobs are projections of dots laid on a curved back (see test_track_stages), so the truth is
@@ -97,7 +97,7 @@ def test_tracker_keeps_every_label_with_30_percent_tension():
     assert np.nanmax(np.linalg.norm(positions - truth, axis=2)) < 1.5
     stretch = result.table.to_arrays()["stretch"]  # markers.csv tells the tension
     assert np.nanmedian(stretch) == pytest.approx(np.median(row_stretch(truth[0], SPEC.graph)[0]), abs=0.02)
-    # the tracker before issue 11 (nominal spacing) loses the tape on the same frame
+    # the tracker without stretch estimation (nominal spacing) loses the tape on the same frame
     with pytest.warns(TrackingWarning):
         before = run_tracking(iter(views[:1]), rig, SPEC, fps=100.0, mode="paper", progress=False,
                               config=TrackerConfig.before_issue_11())
@@ -226,8 +226,8 @@ def test_refine_rig_lowers_the_residual_of_a_perturbed_rig():
 
 
 def test_refine_rig_recovers_from_a_3px_rig():
-    """At 3 px every residual lies far in the Huber loss's linear part; the solver used to stall
-    there and hand the given rig back unchanged (bench realism's 3 px case: 2.71 -> 2.71 px)."""
+    """At 3 px every residual lies far in the Huber loss's linear part; the solver must
+    not stall there and hand the given rig back unchanged."""
     true_rig = rig_behind()
     poses = [p + [3.0 * f, 0.0, 0.0] for f, p in enumerate(drifting(tape_on_back(SPEC), 6, 5.0))]
     given = perturbed(true_rig, 0.14, seed=1)
@@ -303,7 +303,7 @@ def test_an_unobserved_tape_end_placed_by_the_model_alone_flags_its_dots_and_the
     assert confidence[beyond_two].max() == pytest.approx(0.3)
     assert confidence[~end & (result.status == "observed")].min() == 1.0
     assert flagged_from_confidence(np.array(result.status)[None], confidence[None])[0]  # markers.csv tells it
-    # the peer (before issue 11) keeps the check off
+    # the peer (no stretch estimation) keeps the check off
     assert TrackerConfig.before_issue_11().status.unanchored_rows == 0
 
 

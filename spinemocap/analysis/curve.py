@@ -6,9 +6,8 @@ Row centres: the tape's midline point (u = 0) of every row, estimated the same w
 kinds. The rows alternate between ``L``/``R`` dots 7.5 mm off the midline (2-dot rows) and
 ``L``/``C``/``R`` dots at -15/0/+15 mm (3-dot rows), so the plain ``L``-``R`` midpoint lies on a
 chord of the cross-section that is 4x deeper in 3-dot rows than in 2-dot rows: any curvature across
-the tape -- the back's, or a reconstruction's depth error that grows toward the midline (the
-studio's tracked dots of its flexion motion: ``C`` 0.0-1.1 mm deeper than the ``L``-``R`` chord while the
-truth is flat) -- becomes a zig-zag between neighbouring rows, and an interpolating spline turns a
+the tape -- the back's, or a reconstruction's depth error that grows toward the midline --
+becomes a zig-zag between neighbouring rows, and an interpolating spline turns a
 0.2-0.5 mm zig-zag into degrees at its end tangent (S1 sits on row 1). So the cross-section of
 each row is taken as a parabola: 3-dot rows measure its depth ``C - (L + R) / 2`` (the
 cross-sagitta), which is interpolated along the tape to every row, and each row's centre is its

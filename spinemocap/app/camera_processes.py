@@ -1,4 +1,4 @@
-"""Detecting a frame's camera images in worker processes (issue 15): a real pool, one detector per
+"""Detecting a frame's camera images in worker processes: a real pool, one detector per
 worker, images passed through shared memory.
 
 Threads share one interpreter lock, and detection's full-resolution clean-up (numpy on small
@@ -146,7 +146,7 @@ class CameraProcesses:
     def _every_worker_up(self, started: float) -> list[int]:
         """The pids of the ``n`` workers once each has answered, its detector loaded (an import or
         CUDA failure shows here, not mid-run). A round of ``n`` start-up calls can all go to a
-        worker that came up first while another still loads (measured: 1 start in 3 on 2 cores),
+        worker that came up first while another still loads (1 start in 3 on 2 cores),
         which then went on loading inside the timed run and whose CPU went uncounted: rounds
         repeat until every worker has answered."""
         pids: set[int] = set()

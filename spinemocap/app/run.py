@@ -345,7 +345,7 @@ def track_capture(
 
     ``frames``: ``"A:B"`` or a range (default: all); ``stop``: see :func:`run_tracking`;
     ``speed``: reading and detection options (:class:`~spinemocap.app.streaming.SpeedOptions`;
-    ``streaming.LEGACY`` is the pre-issue-15 path). Returns the marker table (mm, world Z up)."""
+    ``streaming.LEGACY`` is the previous pipeline). Returns the marker table (mm, world Z up)."""
     return track_capture_result(capture_dir, out_dir, mode, config, detector, frames, progress,
                                 stop=stop, speed=speed).table
 

@@ -1,4 +1,4 @@
-"""Reading and detecting a capture's frames fast (issue 15): a prefetching reader, cameras in
+"""Reading and detecting a capture's frames fast: a prefetching reader, cameras in
 parallel, and detection by prediction in sequence mode.
 
 - :func:`prefetched_frames` decodes each camera's image once, the cameras in parallel threads,
@@ -25,9 +25,9 @@ parallel, and detection by prediction in sequence mode.
   the cameras in threads :meth:`CaptureDetector.stream` runs each camera through the frames on
   its own (no camera waits for the slowest camera of a frame); otherwise :func:`detected_ahead`
   detects whole frames in a background thread. Both give the same output. ``lookahead=0`` (the
-  default) keeps the exact serial order (docs/BENCHMARKS.md, issue 15).
+  default) keeps the exact serial order.
 
-:data:`LEGACY` reproduces the pipeline before issue 15 (one camera after the other, no
+:data:`LEGACY` reproduces the previous pipeline (one camera after the other, no
 prefetching, masks read whenever the capture has them, the full search in every frame): the
 speed benchmark's peer.
 """
@@ -62,9 +62,8 @@ Box = tuple[slice, slice]
 PARALLEL = ("threads", "processes")
 REFRESH = ("frame", "camera")
 SETTLED_EDGE_PX = 64  # a settled camera's tape box lies at least this far inside its image (px)
-# Threads are the default: with the cheaper clean-up (issue 15, docs/BENCHMARKS.md) they were as fast
-# as worker processes or faster on both machines measured (the 2-core VM: processes 0.80-0.89x;
-# the 16-core H100 machine: 0.95-0.97x), and they need no shared memory or start-up.
+# Threads are the default: as fast as worker processes or faster on 2 and 16 cores, with no shared
+# memory or start-up (docs/decisions/0004-camera-threads-not-processes.md).
 
 
 def resolve_parallel(mode: str) -> str:
@@ -80,56 +79,47 @@ class ParallelFallbackWarning(UserWarning):
 
 @dataclass(frozen=True)
 class SpeedOptions:
-    """How a capture is read and detected. ``workers``: processes or threads for the cameras (0:
-    one per CPU core, at most one per camera; 1: one camera after the other in this process);
-    ``parallel``: ``processes`` (worker processes, :mod:`~spinemocap.app.camera_processes`; the
-    reading of images stays in threads) or ``threads`` (the default); ``prefetch``: frames decoded
-    ahead of the tracker (0: read when needed); ``predict``: sequence mode searches the predicted tape box; ``refresh_every``:
-    frames between full searches; ``min_dot_share``: a predicted box must find this share of the
-    previous frame's dots in its camera, else that camera is searched in full; ``box_margin_px``:
-    predicted dots' box grown by this before the training crops' padding (which adds half the box
-    per side; 20 px: on the studio capture 40 px cost 12 % more detection CPU per frame for no
-    better dots, and 10 px began to miss dots, more fallbacks; docs/BENCHMARKS.md, issue 15);
-    ``batch``: stage 1 of all cameras in one network pass (else one pass per camera; in worker
-    processes, and in threads with ``stage1_in_pool``, each camera's full search runs its own pass
-    in its worker or thread);
-    ``device``: where the network runs (``auto``: CUDA when torch sees it, else CPU);
-    ``precision``: the network's arithmetic (``spinemocap.detect.Detector``'s ``precision``; ``auto``:
-    int8 through ONNX Runtime on a CPU with VNNI, where it took ~37 % less CPU per pass at the same
-    accuracy on the issue's studio capture, float32 elsewhere: ``detect.detector.auto_precision``);
-    ``opencv_threads``: OpenCV's own threads while the cameras are detected in parallel threads
-    (``n_workers`` > 1; restored afterwards). 1: each camera thread runs OpenCV serially (on a
-    16-core machine OpenCV's pool of one thread per core otherwise spins on the small images: 40 %
-    more CPU per frame at the same frames/s; no difference measured on 2 cores); None: leave
-    OpenCV's setting;
-    ``masks_always``: read ``masks/`` even when the detector does not use them (legacy only);
-    ``lookahead``: frames whose detection may run ahead of the tracker (0: frame t+1 is detected
-    after frame t is solved, the exact serial order; 1: frame t+1 is detected while the tracker
-    solves frame t, so detection and tracking use two cores at once (with cameras in threads each
-    camera runs through the frames on its own, :meth:`CaptureDetector.stream`; else whole frames
-    in a background thread);
-    its predicted boxes then come from the frame before, extrapolated over ``lookahead + 1``
-    frames with the margin grown by ``lookahead_margin_px`` per extra frame (default 0: on the
-    studio capture the boxes' margin already holds the tape two frames on: the same routes; a box
-    that misses the tape falls back to the full search as with lookahead 0). The boxes, and so the
-    dots, are not lookahead 0's: on frames 40-79 of the studio capture 18 of 40 frames moved by
-    more than 1e-6 mm, at most 3.1 mm, with the same accuracy (mean 1.137 against 1.133 mm, 0
-    swaps); without prediction the output is the serial one exactly);
-    ``stage1_in_pool``: with cameras in threads and the network on the CPU, each camera's full
-    search runs its own stage 1 in its camera thread, beside the other cameras' work, instead of
-    all cameras' stage 1 batched in the calling thread while the camera threads wait (the same
-    boxes, the same output bit for bit; on the idle 2-core VM, 100 studio frames in memory,
-    1.06-1.10x the frames/s at the same CPU, docs/BENCHMARKS.md issue 15). On a GPU stage 1 stays
-    batched (one pass for all cameras; not measured in the pool);
-    ``refresh``: how the periodic full searches are scheduled: ``frame`` (every camera in the
-    same frame, every ``refresh_every`` planned frames) or ``camera`` (each camera every
-    ``refresh_every`` frames after its last full search, whatever its route; after a frame
-    searched in full the cameras' next refreshes are spread over the period, so no frame pays
-    every camera's full search at once); a camera with no tape in its last frame finds a tape
-    coming into view within ``refresh_every`` frames either way;
-    ``refresh_settled_every``: with ``refresh="camera"``, the period of a *settled* camera, one
-    whose last search found at least the dots of the search before it and whose tape box lies
-    at least ``SETTLED_EDGE_PX`` inside its image (0: as ``refresh_every``)."""
+    """How a capture is read and detected.
+
+    Attributes:
+        workers: processes or threads for the cameras (0: one per CPU core, at most one per
+            camera; 1: one camera after the other in this process).
+        parallel: ``"threads"`` (default) or ``"processes"`` (:mod:`~spinemocap.app.camera_processes`;
+            images are still read in threads).
+        prefetch: frames decoded ahead of the tracker (0: read when needed).
+        predict: sequence mode searches only each camera's predicted tape box.
+        refresh_every: frames between full searches.
+        min_dot_share: a predicted box must find this share of the camera's dots of the previous
+            frame, else that camera is searched in full.
+        box_margin_px: px added around the predicted dots' box before the training crops' padding
+            (half the box per side). 20 px: wider cost detection CPU for no better dots, narrower
+            missed dots.
+        batch: stage 1 of all cameras in one network pass (else one pass per camera).
+        device: where the network runs (``auto``: CUDA when torch sees it, else CPU).
+        opencv_threads: OpenCV's threads while cameras run in parallel threads (restored
+            afterwards). 1: serial OpenCV per camera thread (a pool per core spins on the small
+            images on many-core machines); None: leave OpenCV's setting.
+        masks_always: read ``masks/`` even when the detector does not use them (the previous
+            pipeline's behaviour, for the speed benchmark's peer).
+        lookahead: frames whose detection may run ahead of the tracker. 0: the exact serial
+            order. 1: frame t+1 is detected while frame t is solved, its boxes predicted from
+            frame t-1 over two frames; the dots may then differ slightly from lookahead 0's.
+        lookahead_margin_px: box margin added per extra predicted frame.
+        stage1_in_pool: with cameras in threads and the network on the CPU, each camera's full
+            search runs its own stage 1 in its camera thread (same boxes, same output) instead of
+            one batched pass in the calling thread. On a GPU stage 1 stays batched.
+        precision: the network's arithmetic (``spinemocap.detect.Detector``'s ``precision``;
+            ``auto``: :func:`spinemocap.detect.detector.auto_precision`).
+        refresh: ``"frame"`` (every camera in the same frame, every ``refresh_every`` frames) or
+            ``"camera"`` (each camera ``refresh_every`` frames after its own last full search,
+            the cameras' refreshes spread over the period).
+        refresh_settled_every: with ``refresh="camera"``, the period of a *settled* camera (its
+            last search found at least the dots of the one before, its box at least
+            ``SETTLED_EDGE_PX`` inside the image); 0: ``refresh_every``.
+
+    Raises:
+        InputError: a negative ``lookahead``, an unknown ``refresh`` or a period below 1.
+    """
 
     workers: int = 0
     parallel: str = "threads"

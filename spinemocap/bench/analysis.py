@@ -197,7 +197,7 @@ LAB_ANGLES = ("lumbar_flexion", "lumbar_lateral", "lumbar_rotation",
               "thoracic_flexion", "thoracic_lateral", "thoracic_rotation")
 #: The motion's own axis (the other two angles are crosstalk); the mixed motion scores all three.
 MOTION_AXIS = {"flexion": 0, "lateral": 1, "rotation": 2}
-#: Goals of issue 17 for tracked markers: lumbar RMSE (deg) per single-axis motion.
+#: Goals for tracked markers: lumbar RMSE (deg) per single-axis motion.
 TRACKED_GOALS_DEG = {"flexion": 2.0, "lateral": 3.0, "rotation": 3.0}
 
 
@@ -422,7 +422,7 @@ def bench_lab_angles(motions=LAB_MOTIONS, frames: int = 30, fps: float = 10.0, r
 
 
 def headline(results: dict) -> dict[str, float]:
-    """The issue's JSON keys: ``tracked_<motion>_rmse_deg`` and ``groundtruth_<motion>_rmse_deg``
+    """The headline JSON keys: ``tracked_<motion>_rmse_deg`` and ``groundtruth_<motion>_rmse_deg``
     (lumbar angle on the motion's own axis) for the single-axis motions present, and the peer's
     ``tracked_lr_midpoints_<motion>_rmse_deg``."""
     out = {}

@@ -177,7 +177,7 @@ def run_benchmark(size: int, n_intrinsic: int, n_frames: int, seeds: list[int], 
 
 
 def headline(results: dict) -> dict:
-    """Worst case over seeds of every row, the keys the issue asks for, and the goals."""
+    """Worst case over seeds of every row, the headline keys, and the goals."""
     def worst(rows: list[dict], *path: str) -> float:
         values = []
         for row in rows:

@@ -21,7 +21,7 @@ to one within 2 px. A detection near a dot the studio marks occluded counts neit
 partly hidden dot may or may not be found).
 
 Two recalls: over every dot the studio marks visible (its centre seen; up to 78 deg from face-on;
-one of four rim points may be behind a ball), and over *unoccluded* dots, the issue's goal: the
+one of four rim points may be behind a ball), and over *unoccluded* dots, the goal's measure: the
 whole hole in view, i.e. no ball over any rim point and the tape's own wall hiding less than
 ``MAX_WALL_HIDDEN`` of the hole (seen at angle a from face-on, the opening of a hole of
 diameter d in tape of thickness t shows the skin disc shifted by t tan a: a lens; for 0.8 mm tape

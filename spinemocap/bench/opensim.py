@@ -11,8 +11,8 @@ rows are the ones nearest the middle of the lowest and highest anny bone segment
 and the expected change from the neutral first frame is ``bench angles``' skin model
 (:func:`spinemocap.bench.analysis.expected_between_rows`: the skin at a row turns with the
 fractional number of anny's spine joints at its rest height; Cardan angles of the two rows'
-turned rest frames). It replaced "(joints between the rows)/5 x applied", so that both
-benchmarks score against one model (the change, measured: docs/BENCHMARKS.md, OpenSim section).
+turned rest frames), so that both
+benchmarks score against one model.
 For ``mixed`` all three angles are scored.
 The peer measures the same two rows with :func:`spinemocap.analysis.angles.compute_angles`.
 """
@@ -62,7 +62,7 @@ def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[st
 
 
 def headline(results: dict) -> dict:
-    """The issue's keys from the first source present: each RMSE from its own single-axis motion,
+    """The headline keys from the first source present: each RMSE from its own single-axis motion,
     marker RMS the mean over motions; the peer's beside them."""
     source = "groundtruth" if "groundtruth" in results else next(iter(results))
     out: dict = {"headline_source": source}

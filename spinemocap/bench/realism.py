@@ -1,4 +1,4 @@
-"""The realism benchmark (``spinemocap bench realism``, issue 11): the tracker on a studio as hard
+"""The realism benchmark (``spinemocap bench realism``): the tracker on a studio as hard
 as a real back, one factor at a time and all together at the ``lab`` level, beside the tracker
 as it was before (the roll's nominal dot spacing, the fixed 2 px candidate gate, no label
 continuity check: :meth:`TrackerConfig.before_issue_11`) on the very same rendered frames.
@@ -50,7 +50,7 @@ class Case:
 
 
 def sweep() -> list[Case]:
-    """The issue's sweep: tension 0/10/20/30 % with skin strain, 30 % with skin strain off, calibration
+    """The sweep: tension 0/10/20/30 % with skin strain, 30 % with skin strain off, calibration
     error 0.5/1/2/3 px (with and without --refine-rig), sync error 1/3 ms, full flexion and the
     forehand at the ``lab`` level, and ``lab`` itself (the ``ideal`` case = 0 of every factor)."""
     cases = [Case("ideal", "baseline", {"realism": "ideal"}), Case("lab", "all", {"realism": "lab"})]
@@ -187,7 +187,7 @@ def run_realism_benchmark(cases: list[Case], frames: int = 200, fps: float | Non
 
 
 def verdict(rows: list[dict]) -> dict:
-    """The issue's goals against the rows present: met / not met with the gap."""
+    """The goals against the rows present: met / not met with the gap."""
     out = {}
     swap_rows = [r for r in rows if (r["factor"] == "tension" and r["studio"].get("tape_tension", 0) <= 0.3)
                  or (r["factor"] == "calibration" and r["studio"].get("calibration_error_px", 0) <= 2.0)
@@ -251,7 +251,7 @@ def plot(numbers: dict, path: Path) -> None:
     x = np.arange(len(rows))
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(max(8, 0.8 * len(rows) + 3), 7), sharex=True)
     series = (("new", "new tracker", "tab:blue"), ("new_refined", "new + --refine-rig", "tab:green"),
-              ("peer", "before issue 11 (peer)", "tab:red"))
+              ("peer", "previous tracker (peer)", "tab:red"))
     for k, (key, label, colour) in enumerate(series):
         mean = [r.get(key, {}).get("mean_mm", np.nan) for r in rows]
         swaps = [r.get(key, {}).get("swaps", np.nan) for r in rows]

@@ -1,5 +1,4 @@
-"""The world frame after ``--refine-rig``, over many calibrations (``spinemocap bench gauge``,
-issue 11).
+"""The world frame after ``--refine-rig``, over many calibrations (``spinemocap bench gauge``).
 
 ``--refine-rig`` fixes the cameras' relative geometry from the tracked dots, but no residual
 says where the world is: a similarity common to all cameras moves every dot and changes no

@@ -1,4 +1,4 @@
-"""The speed benchmark (``spinemocap bench speed``, issue 15): end-to-end frames per second of
+"""The speed benchmark (``spinemocap bench speed``): end-to-end frames per second of
 tracking the synthetic studio, from frames held in memory, from PNG images and from lossless
 video, with the previous pipeline (:data:`spinemocap.app.streaming.LEGACY`) as the peer in the
 same run.

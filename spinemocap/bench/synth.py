@@ -54,7 +54,7 @@ def visibility_table(frames: int = 548, seed: int = 0, progress: bool = True) ->
 def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds: int = 2,
                       workdir: Path | None = None, occlusion: str = "none") -> dict:
     """Seconds per frame to render ``frames`` frames of a preset and write them as a capture does
-    (images and tape masks as PNG), for the renderer as first written (the reference path:
+    (images and tape masks as PNG), for the reference renderer (the reference path:
     one thread, files written one after the other) and the current one, in the same process on
     the same scene. The two alternate ``rounds`` times (reference first) so both see the same
     machine load; the fastest round of each counts, in wall-clock and in CPU seconds of the
@@ -200,17 +200,17 @@ def plot_table(table: dict[str, np.ndarray], path: Path) -> None:
 
 def run_render_benchmark(frames: int, visibility_frames: int, out: Path, presets=("artificial", "studio"),
                          realism: str = "lab", rounds: int = 2, occlusion: str = "none") -> dict:
-    """``spinemocap bench render``: render speed per preset against the first renderer, and the
+    """``spinemocap bench render``: render speed per preset against the reference renderer, and the
     visibility table (skipped with ``visibility_frames`` 0)."""
     out.mkdir(parents=True, exist_ok=True)
     timings = []
     for preset in presets:
         print(f"timing {preset} renders at the {realism} level, occlusion {occlusion} ({frames} frames, images + "
               f"masks written as PNG; "
-              f"the first renderer and this one alternating, {rounds} rounds) ...")
+              f"the reference renderer and this one alternating, {rounds} rounds) ...")
         timing = time_render_paths(preset, frames, realism, rounds, workdir=out, occlusion=occlusion)
         timings.append(timing)
-        print(f"  {timing['cameras']} cameras {timing['size'][0]}x{timing['size'][1]}: first renderer "
+        print(f"  {timing['cameras']} cameras {timing['size'][0]}x{timing['size'][1]}: reference renderer "
               f"{timing['reference_s_per_frame']:.2f} s/frame ({timing['reference_cpu_s_per_frame']:.2f} CPU s), "
               f"this one {timing['fast_s_per_frame']:.2f} s/frame ({timing['fast_cpu_s_per_frame']:.2f} CPU s): "
               f"{timing['speedup']:.2f}x; images differ by max {timing['image_max_abs_diff']} / mean "
@@ -264,7 +264,7 @@ def realism_envelope(levels=("ideal", "skin", "lab"), motions=ENVELOPE_MOTIONS, 
     """What the tape on the ``artificial`` preset goes through at each realism level and motion:
     the stretch against the roll's spec between consecutive rows (``row_stretch``), over the
     whole tape and across it, the modified-Schober growth of the lowest 150 mm, and the lab's
-    calibration and sync errors. Ground truth only (no rendering). ``ideal`` is the first studio,
+    calibration and sync errors. Ground truth only (no rendering). ``ideal`` (no skin strain, exact set-up) is
     the peer the others are compared with."""
     from tqdm import tqdm
 

@@ -72,7 +72,7 @@ def run_track_benchmark(preset: str = "artificial", occlusion: str = "none", fra
     """Render the synthetic sequence in-process, track it and score it against the ground truth.
 
     ``realism``: the studio's realism level (``lab`` by default: taping tension, Schober skin
-    strain, calibration and sync error, sensor noise; ``ideal`` = the first studio's conditions).
+    strain, calibration and sync error, sensor noise; ``ideal`` = no skin strain, exact set-up).
     The tracker gets what a lab has: the roll's nominal tape spec and the written rig."""
     config = config or TrackerConfig()
     synth = SynthConfig.preset(preset, occlusion=occlusion, seed=seed, realism=realism,

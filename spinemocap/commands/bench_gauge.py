@@ -1,5 +1,5 @@
 """``spinemocap bench gauge``: the world frame left after ``--refine-rig`` over several scenes
-and seeded calibrations per error level (issue 11); the benchmark is
+and seeded calibrations per error level; the benchmark is
 :mod:`spinemocap.bench.rig_gauge`."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 
 def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "gauge", help="--refine-rig's world frame over many seeded calibrations (issue 11)",
+        "gauge", help="--refine-rig's world frame over many seeded calibrations",
         description="Render and track the artificial preset once per scene seed (with its 2 px rig), then for "
                     "every calibration error level and several seeded rigs written by the studio's perturbation "
                     "refine the rig on the tracked dots and score the dots: given rig, --refine-rig (priors "

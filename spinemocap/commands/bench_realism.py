@@ -1,5 +1,5 @@
-"""``spinemocap bench realism``: the tracker on a studio as hard as a real back (issue 11), beside
-the tracker as it was before; the benchmark is :mod:`spinemocap.bench.realism`."""
+"""``spinemocap bench realism``: the tracker on a studio as hard as a real back, beside
+the tracker without stretch estimation; the benchmark is :mod:`spinemocap.bench.realism`."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ from pathlib import Path
 
 def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "realism", help="tracker vs taping tension, skin strain, calibration and sync error (issue 11)",
+        "realism", help="tracker vs taping tension, skin strain, calibration and sync error",
         description="Render the artificial preset once per case (tension 0/10/20/30 %% with skin strain, "
                     "calibration error 0.5/1/2/3 px with and without --refine-rig, sync error 1/3 ms, full "
                     "flexion and the forehand at the lab level, lab and ideal), track it in sequence mode "
-                    "with the shipped detector, and score the new tracker and the tracker before issue 11 "
+                    "with the shipped detector, and score the tracker and its peer without stretch estimation "
                     "(nominal spacing, fixed 2 px gate) on the same frames.")
     p.add_argument("--json", type=Path, required=True, help="results file")
     p.add_argument("--plot", type=Path, help="PNG: mean error and swapped dot-frames per case")

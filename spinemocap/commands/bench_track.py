@@ -23,7 +23,7 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="synthetic scene seed")
     p.add_argument("--realism", choices=("ideal", "skin", "lab"), default="lab",
                    help="studio realism level (default lab: taping tension, skin strain, calibration and sync "
-                        "error; ideal = the first studio's conditions, as the paper's Artificial set-up)")
+                        "error; ideal = no skin strain, exact set-up, as the paper's Artificial set-up)")
     p.add_argument("--json", type=Path, help="write all numbers to this JSON file (+ a .png plot beside it)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)

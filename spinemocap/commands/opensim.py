@@ -37,7 +37,7 @@ def register(subparsers) -> None:
                         "the published lumbar models")
     p.add_argument("--prior-weight", type=float, default=0.0,
                    help="IK weight of a prior pulling every level's lateral bending and axial rotation toward the "
-                        "static posture (per rad^2; default 0 = off; see docs/BENCHMARKS.md for its effect)")
+                        "static posture (per rad^2; default 0 = off; larger weights trade range for stability)")
     p.add_argument("--accuracy", type=float, default=1e-5, help="IK solver accuracy (default 1e-5)")
     p.add_argument("--model", type=Path, help="attach the markers to this lab model (.osim) instead of building one")
     p.add_argument("--bodies", type=Path, help="with --model: TOML mapping vertebrae to the model's bodies, "

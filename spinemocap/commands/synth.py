@@ -1,5 +1,5 @@
 """``spinemocap synth OUT``: render a synthetic capture with exact ground truth;
-``spinemocap bench render``: render speed (against the first renderer) and the occlusion table."""
+``spinemocap bench render``: render speed (against the reference renderer) and the occlusion table."""
 
 from __future__ import annotations
 
@@ -47,7 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--realism", choices=("ideal", "skin", "lab"), default="lab",
                    help="how hard the studio is (default lab): lab = 15 %% taping tension, Schober skin strain, 0.5 px "
                         "calibration error, 1 ms sync error, sensor noise 3; skin = skin strain only, exact set-up "
-                        "(the Python API's default); ideal = the first studio (no strain, exact set-up). The flags "
+                        "(the Python API's default); ideal = no strain, exact set-up. The flags "
                         "below override single values")
     p.add_argument("--skin-strain", type=float, metavar="SCALE",
                    help="scale of the Schober skin strain (0 = off, 1 = a healthy adult: the lumbar skin "
@@ -153,7 +153,7 @@ def run_synth(args: argparse.Namespace) -> int:
 def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "render", help="synthetic studio: seconds per rendered and written frame (artificial and studio presets, "
-                       "lab level) against the first renderer in the same run, and the occlusion visibility "
+                       "lab level) against the reference renderer in the same run, and the occlusion visibility "
                        "table against the paper's Table 2")
     p.add_argument("--frames", type=int, default=3, help="frames to time per preset and renderer (default 3)")
     p.add_argument("--presets", default="artificial,studio",
@@ -161,9 +161,9 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--realism", choices=("ideal", "skin", "lab"), default="lab",
                    help="realism level of the timed scenes (default lab)")
     p.add_argument("--occlusion", choices=("none", "light", "heavy"), default="none",
-                   help="falling balls in the timed scenes (default none; issue 11's sweep renders light)")
+                   help="falling balls in the timed scenes (default none; the realism benchmark renders light)")
     p.add_argument("--rounds", type=int, default=2,
-                   help="times the first renderer and this one alternate; the fastest round of each counts (default 2)")
+                   help="times the reference renderer and this one alternate; the fastest round of each counts (default 2)")
     p.add_argument("--visibility-frames", type=int, default=548,
                    help="frames of the artificial sequence for the visibility table (paper: 548; 0 skips it)")
     p.add_argument("--out", type=Path, default=Path("bench_out/render"), help="folder for the plot and numbers")

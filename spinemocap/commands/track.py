@@ -53,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "1: one camera after the other)")
     p.add_argument("--parallel", choices=("threads", "processes"), default="threads",
                    help="cameras in worker processes (one detector each, images through shared memory; falls back "
-                        "to threads with a warning where processes cannot start) or in threads (default: measured as fast or "
+                        "to threads with a warning where processes cannot start) or in threads (default: as fast or "
                         "faster on 2 and 16 cores)")
     p.add_argument("--lookahead", type=int, default=None,
                    help="sequence mode: frames detection may run ahead of the tracker (0: frame t+1 is detected "
@@ -70,7 +70,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="the tape network's arithmetic: float32, int8 (ONNX Runtime on the CPU), bfloat16 (torch); "
                         "default: the pipeline's")
     p.add_argument("--legacy", action="store_true",
-                   help="the pipeline before issue 15 (one camera after the other, no prefetching, full tape "
+                   help="the previous pipeline (one camera after the other, no prefetching, full tape "
                         "search in every frame): for comparisons")
     p.add_argument("--refine-rig", action="store_true",
                    help="bundle-adjust the camera poses (and a focal scale per camera) on the tracked dots, "

@@ -47,7 +47,7 @@ def area_reduced(image: np.ndarray, size: tuple[int, int], prestep: int | None =
     general area resize to ``size``. On a 2448x1600 studio image to 256 px wide, prestep 2 took
     ~6 ms instead of ~16 ms; its levels differ from the one-step area average by at most a few
     (the pre-step's rounding to uint8 and the destination cells' edges falling on half a source
-    pixel; docs/BENCHMARKS.md, session 27). 1: the one-step area average."""
+    pixel). 1: the one-step area average."""
     k = AREA_PRESTEP if prestep is None else prestep
     h, w = image.shape[:2]
     if k > 1 and h % k == 0 and w % k == 0 and w >= 2 * k * size[0] and h >= 2 * k * size[1]:

@@ -74,7 +74,7 @@ class NetSegmenter:
         net, self.metadata = load_weights(self.weights_path)
         # The inference form: batch norm folded into the convolutions, no concatenation copies,
         # channels-last weights (the layout of to_tensor's input); the same logits up to float
-        # rounding, ~19 % less CPU per pass in the detector (docs/BENCHMARKS.md, issue 15).
+        # rounding, ~19 % less CPU per pass in the detector.
         self.model = InferenceUNet(net)
         auto = precision == "auto"
         if auto:
@@ -82,9 +82,9 @@ class NetSegmenter:
         if precision not in PRECISIONS:
             raise InputError(None, f"unknown network precision {precision!r} (choose auto, {', '.join(PRECISIONS)})")
         # bfloat16 (an option, not the default): ~45 % less CPU per pass on a CPU with AVX-512 BF16,
-        # but a few dots change (docs/BENCHMARKS.md, issue 15). int8 (an option, not the default):
+        # but a few dots change. int8 (an option, not the default):
         # ONNX Runtime's int8 kernels on the CPU, calibrated on drawn tapes; a few dots change, and
-        # int8 kernels differ between CPUs (VNNI or not): docs/BENCHMARKS.md, issue 15.
+        # int8 kernels differ between CPUs (VNNI or not).
         self.precision = precision
         self.dtype = torch.bfloat16 if precision == "bfloat16" else torch.float32
         self.refine = refine  # False: stage 1 only, upsampled (a quick look; no boxes)
@@ -97,7 +97,7 @@ class NetSegmenter:
         self.device = torch.device(resolve_device(device))
         self.model = self.model.to(device=self.device, dtype=self.dtype)
         # The runtime of the passes: ONNX Runtime for float32 on the CPU (14-22 % less CPU per pass,
-        # the same dots; docs/BENCHMARKS.md, issue 15), else torch (the GPU, bfloat16, and the
+        # the same dots), else torch (the GPU, bfloat16, and the
         # fallback where onnxruntime/onnx cannot be imported or the export fails). ``self.runtime``
         # says which runs.
         if runtime not in RUNTIMES:
@@ -144,8 +144,8 @@ class NetSegmenter:
 
     def _use_threads(self) -> None:
         """torch's threads for this calling thread, set only when they differ: a
-        ``torch.set_num_threads`` call slows the network passes after it (measured ~3 ms, ~20 %,
-        per pass when set before every pass; docs/BENCHMARKS.md, issue 15)."""
+        ``torch.set_num_threads`` call slows the network passes after it (~3 ms, ~20 %,
+        per pass when set before every pass)."""
         if self.threads and torch.get_num_threads() != self.threads:
             torch.set_num_threads(self.threads)
 
@@ -245,7 +245,7 @@ class NetSegmenter:
 def auto_precision(device: str = "auto", runtime: str = "auto") -> str:
     """The network's arithmetic for ``precision="auto"``: ``int8`` (ONNX Runtime) where the
     network runs on a CPU with VNNI through ONNX Runtime (~37 % less CPU per pass, the same
-    accuracy on the issue's studio capture; docs/BENCHMARKS.md, issue 15), else ``float32``
+    accuracy on the 100-frame studio capture), else ``float32``
     (a GPU, torch asked for, a CPU without VNNI: its int8 speed is unmeasured, or onnxruntime
     missing)."""
     import importlib.util
@@ -304,19 +304,22 @@ def padded_box(x0: float, y0: float, x1: float, y1: float, shape: tuple[int, int
 class Detector:
     """Tape and dot detector for single camera images (BGR uint8, any size).
 
-    ``name``: ``"net"`` (options: ``weights`` path, ``refine`` two-stage on/off, ``threads`` the
-    network's threads per pass, default 1: a working-resolution image gains little from more, and
-    the tracker runs cameras or frames in parallel threads or processes; ``None`` leaves torch's
-    setting alone, and gives ONNX Runtime its default, all cores; ``precision`` ``float32``
-    (default), ``bfloat16`` (torch), ``int8`` (ONNX Runtime on the CPU, calibrated on drawn
-    tapes; InputError where it cannot run) or ``auto`` (int8 on a CPU with VNNI, float32
-    elsewhere or when int8 cannot load: :func:`auto_precision`; the tracker's default), the network's arithmetic; ``runtime`` what runs the passes:
-    ``auto`` (default: ONNX Runtime for float32 on the CPU where onnxruntime and onnx import and
-    the export loads, else torch with a RuntimeWarning when the export failed), ``onnxruntime``
-    (InputError where it cannot run) or ``torch``; ``device``) or
-    ``"classical"`` (options: ``work_width``); ``blob_params``: :class:`BlobParams` for the dots;
-    ``dot_to_width``: dot diameter / tape width, used to guess the dot size from the mask when
-    :meth:`detect` gets no ``expected_dot_px``."""
+    Args:
+        name: ``"net"`` (the shipped network) or ``"classical"``.
+        blob_params: :class:`BlobParams` for the dots.
+        **options: for ``"net"``: ``weights`` (path), ``refine`` (two-stage clean-up on/off),
+            ``threads`` (the network's threads per pass; default 1, the tracker runs cameras in
+            parallel; ``None``: the runtime's default), ``precision`` (``float32`` default,
+            ``bfloat16`` on torch, ``int8`` on ONNX Runtime on the CPU, or ``auto``:
+            :func:`auto_precision`), ``runtime`` (``auto``: ONNX Runtime for float32 on the CPU
+            where it imports and the export loads, else torch with a RuntimeWarning;
+            ``onnxruntime``; ``torch``), ``device``. For ``"classical"``: ``work_width``.
+
+    Raises:
+        ValueError: an unknown ``name``.
+        TypeError: an unknown option.
+        InputError: an unknown precision or runtime, or one that cannot run here.
+    """
 
     def __init__(self, name: str = "net", blob_params: BlobParams | None = None, **options):
         if name not in NAMES:

@@ -11,14 +11,14 @@ prediction; a marker hidden (a ball, the image border) or doubled is NaN in this
 
 The dot finder's centre comes from a top-hat, which measures brightness against the darkest
 surround within a kernel: a marker seen with the dark bar on one side and bright skin on the
-other came out 0.2-0.8 px off (measured against the studio's true projections). The centre is
+other comes out 0.2-0.8 px off. The centre is
 therefore refined on the image itself (:func:`disc_centre`): each rim pixel weighs its coverage
 by the disc, ``(grey - surround) / (interior - surround)`` with the surround read just outside the
-disc along the same radius, so a bright background on one side no longer pulls the centre.
+disc along the same radius, so a bright background on one side does not pull the centre.
 Where the surround is nearly as bright as the marker (light skin of the arm behind it: its edge
 is not in the image) no estimate can find the edge: a marker whose rim lacks contrast
 (:data:`MIN_RIM_CONTRAST`) over more than :data:`MAX_FAINT_RIM` of its circumference is not taken
-from that image (measured: 0.6-0.9 px off in most frames of one camera of a rendered capture).
+from that image.
 """
 
 from __future__ import annotations

@@ -199,7 +199,7 @@ def _band_levels(grey: np.ndarray, samples: _Levels, sigma: float, ys: np.ndarra
     pixels (each pixel in the cell that holds its top left corner: OpenCV's ``INTER_AREA`` shrink
     to within the cells' fractional edges), the grid blurred, and read bilinearly at the band's
     pixels only (``cv2.resize``'s ``INTER_LINEAR`` coordinates) instead of enlarged to the crop.
-    Session 27 (cleanup6): about a fifth of the whole-crop shrink, blur and enlargement's CPU; the
+    About a fifth of the CPU of a whole-crop shrink, blur and enlargement; the
     levels within ~1 grey level of theirs (tests/test_detect_cleanup.py)."""
     h, w = grey.shape
     sw, sh = max(1, w // 4), max(1, h // 4)
@@ -356,8 +356,8 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     assert base_box is not None  # base has pixels
     if np.count_nonzero(dotted[base_box]) < base_area:  # some of base's components
         # components without dots dropped: their snapped outlines go, the dots stay (they had none)
-        # and the tape and skin levels are those of the kept components' samples (session 27,
-        # cleanup6: not snapped, levelled and searched again; the local levels are 12 px means)
+        # and the tape and skin levels are those of the kept components' samples
+        # (not snapped, levelled and searched again; the local levels are 12 px means)
         base = dotted
         base_box = mask_box_within(base, base_box)  # some of the components: in their box
         base_area = int(np.count_nonzero(base[base_box])) if base_box is not None else 0
@@ -419,7 +419,7 @@ def _joined_dark_pieces(grey: np.ndarray, base: np.ndarray, base_box: tuple[slic
     it (a pixel of ``base``'s 4-neighbourhood): the box of the joined mask grown by 1 px (clipped)
     and the joined mask in it. On uint8 grey levels by flood fills from the touching dark pixels
     (OpenCV's fixed range: the dark levels; ``base`` in the fill's mask), one per piece, at the
-    cost of the pieces (session 29); else (:func:`_joined_dark_pieces_labelled`, the reference)
+    cost of the pieces; else (:func:`_joined_dark_pieces_labelled`, the reference)
     from the labelled dark pixels of the whole crop."""
     if grey.dtype != np.uint8:
         return _joined_dark_pieces_labelled(grey, base, threshold)

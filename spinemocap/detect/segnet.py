@@ -203,10 +203,8 @@ def _channels_padded(net: InferenceUNet, multiple: int) -> InferenceUNet:
 
 class OnnxUNet:
     """An :class:`InferenceUNet` run by ONNX Runtime on the CPU: the same logits up to float
-    rounding (tests/test_detect_onnx.py) for 14-22 % less CPU per pass than torch in the detector
-    on this project's 2-core CPU, 24-43 % for the network alone (docs/BENCHMARKS.md, issue 15):
-    ONNX Runtime runs the convolutions (ReLUs fused), the pooling and the 2x upsampling in its
-    blocked-channel (NCHWc) layout.
+    rounding for less CPU per pass than torch (ONNX Runtime runs the convolutions, ReLUs fused,
+    the pooling and the 2x upsampling in its blocked-channel NCHWc layout).
 
     The model is exported at construction from the given module's weights (in memory, nothing
     written to disk; ~0.4 s, once per process for given weights, see :func:`_onnx_model`) with

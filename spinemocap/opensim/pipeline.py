@@ -93,15 +93,15 @@ class OpenSimSettings:
     depth_scale: float | None = None  # None: fitted (fit_depth_scale); 1.0: published depths
     # At the studio's lab level (Schober skin strain) the marker RMS keeps falling past 1.25 x for
     # flexion (minimum ~1.47 x, mixed ~1.56 x) and is flat for lateral bending; searching up to 2.5 x
-    # made IK flexion better but mixed-motion rotation and lateral bending worse (docs/BENCHMARKS.md,
-    # OpenSim section), so the bound stays and the at-bound warning flags such trials
+    # made IK flexion better but mixed-motion rotation and lateral bending worse,
+    # so the bound stays and the at-bound warning flags such trials
     depth_bounds: tuple[float, float] = (0.25, 1.25)
     depth_tolerance: float = 0.05
     fit_frames: int = 24
     coupling: str = "rows"  # see spinemocap.opensim.model.plan_model
     # IK weight (per rad^2, beside marker errors in m^2) of a prior toward the static posture on every
     # level's lateral bending and axial rotation; 0 = off (default: on the studio it cost range and did
-    # not make the summed ranges independent of the solver accuracy, see docs/BENCHMARKS.md)
+    # not make the summed ranges independent of the solver accuracy)
     prior_weight: float = 0.0
 
 

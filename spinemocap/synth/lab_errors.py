@@ -9,7 +9,7 @@ true dots by roughly 1-2 px each). The length of that step is then solved per ca
 true dots reproject through the written camera with the requested RMS against where the images
 show them (a 1-D root find: the RMS grows monotonically with the step).
 
-For reference (DESIGN.md section 8): good optical studios calibrate to ~0.2-0.5 px RMS, video
+For reference: good optical studios calibrate to ~0.2-0.5 px RMS, video
 set-ups accept 1-3 px; 0.05 deg of camera rotation is about 1.7 px on the artificial preset.
 
 Sync error: each camera's clock runs ahead of or behind the nominal frame times by a constant

@@ -5,7 +5,7 @@ studio places :meth:`spinemocap.reference.ReferenceObject.lframe` on a stand at 
 (+X), a little behind the back plane toward the cameras (:data:`PLACEMENT_MM` from the tape's rest
 centre), upright, its markers facing the cameras. There every camera of the ``artificial`` layout
 sees all five markers 60-200 px inside the image and at least ~60 px from the tape over the
-``mixed`` motion (measured on the projections), and the frame cannot cover the tape: the rays
+``mixed`` motion, and the frame cannot cover the tape: the rays
 from the cameras to the tape pass it on the body's side. The arms stand in front of the
 subject's left arm (as seen from the cameras), so the body never hides a marker; a falling ball
 can, now and then (the ground truth's ``reference_visible``).

@@ -12,11 +12,11 @@ holes) white, body, band and occluders black, so they hide the tape in the mask 
 image. That window covers only the tape's bounding box on the canvas (exact shifted projection),
 which makes the mask pass cheap at high resolution.
 
-Speed (``spinemocap bench render``, ``docs/BENCHMARKS.md`` "Studio rendering speed"): the
+Speed (``spinemocap bench render``): the
 software rasteriser's cost grows with the window's pixels (4x multisampling), so the colour image
 too is rasterised only over the canvas rectangle the scene covers (:meth:`CameraRenderer.render_window`;
 the rest of the canvas is the empty background's colour). The lens resampling then touches only the
-output pixels that can see the window. The renderer as first written stays reachable (:meth:`CameraRenderer.render_reference`,
+output pixels that can see the window. The straightforward reference renderer stays reachable (:meth:`CameraRenderer.render_reference`,
 ``Scene.render(..., reference=True)``) as the benchmark's peer and the tests' reference.
 """
 
@@ -293,7 +293,7 @@ class CameraRenderer:
 
     def render_canvas(self, meshes: SceneMeshes | None = None) -> np.ndarray:
         """Load ``meshes`` (None: keep what is loaded) and render the whole canvas: undistorted RGB
-        (canvas pixels) uint8, the renderer as first written. The geometry stays loaded, so
+        (canvas pixels) uint8, the reference renderer. The geometry stays loaded, so
         :meth:`render_mask_window` right after shows the same instant."""
         if meshes is not None:
             self._update(meshes)
@@ -308,7 +308,7 @@ class CameraRenderer:
 
         Rasterising a smaller window is most of the gain on the studio's wide views; the window
         is an exact shifted pinhole projection, but its pixels can differ from the whole canvas'
-        by rounding on a few anti-aliased edges (measured in ``docs/BENCHMARKS.md``)."""
+        by rounding on a few anti-aliased edges."""
         self._update(meshes)
         if self._scene_window_size == self.canvas_size:  # grown to the whole canvas: nothing to place
             self._show_window(0, 0, *self.canvas_size)
@@ -401,7 +401,7 @@ class CameraRenderer:
         return rgb, self._render_mask(meshes)
 
     def render_reference(self, meshes: SceneMeshes, with_mask: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-        """:meth:`render` as first written (the mask resampled over the whole canvas): the peer of
+        """:meth:`render` in its straightforward reference form (the mask resampled over the whole canvas): the peer of
         ``spinemocap bench render`` and the tests' reference."""
         rgb = self.through_lens(self.render_canvas(meshes))
         if not with_mask:
@@ -445,7 +445,7 @@ class CameraRenderer:
         return self._through_lens_window(np.ascontiguousarray(window[..., 1]), wx, wy) > 127
 
     def _render_mask_reference(self, meshes: SceneMeshes) -> np.ndarray:
-        """:meth:`_render_mask` as first written (the window pasted into a whole black canvas, all
+        """:meth:`_render_mask` in its straightforward reference form (the window pasted into a whole black canvas, all
         of it resampled): the peer of ``spinemocap bench render`` and the tests' reference."""
         canvas = np.zeros((self.canvas_size[1], self.canvas_size[0], 3), np.uint8)
         placed = self.render_mask_window(meshes)

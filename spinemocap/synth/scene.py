@@ -68,7 +68,7 @@ _PRESETS: dict[str, dict] = {
 }
 
 # Realism levels: the values of the realism fields a level sets when they are not given.
-# ideal: the first studio (no skin strain, tape laid at its spec, exact calibration and sync);
+# ideal: no skin strain, tape laid at its spec, exact calibration and sync);
 # skin (SynthConfig's default): a real back under an exact set-up (Schober skin strain);
 # lab: a real back in a real lab (15 % taping tension, 0.5 px calibration error, 1 ms sync
 # error, sensor noise of 3 grey levels) -- the benchmarks' default.
@@ -92,7 +92,7 @@ class SynthConfig:
     the random lens distortion (0 = ideal pinhole); ``skin_tone`` runs from 0 (light) to 1
     (dark), None picks one from the seed; ``phenotype`` holds anny's parameters in [0, 1]
     (anny's convention: gender 0 = male .. 1 = female; age 0 = newborn .. 0.5 = young adult ..
-    1 = old; muscle, weight, height, proportions; ``sex`` is an alias of gender). ``tape_start`` is the vertebral level of the tape's first row.
+    1 = old; muscle, weight, height, proportions; ``sex`` is an alias of gender).
     ``tape_start``: the vertebral level (S2..T1) of the tape's first row, S1 by default; ``rows``
     None picks the smallest odd count that passes the T12/L1 junction by
     :data:`ROWS_PAST_THORACOLUMBAR` rows on this body (at rest, with the tension), fewer (at
@@ -577,7 +577,7 @@ class Scene:
         VTK renders the cameras one after the other in this thread, each only over the canvas
         rectangle the scene covers in it; each camera's lens resampling, sensor noise and mask
         resampling run on a worker thread meanwhile (numpy and OpenCV release the GIL), so they
-        overlap the next camera's rendering. ``reference`` renders as the first studio did (whole
+        overlap the next camera's rendering. ``reference`` renders the reference way (whole
         canvas, one thread, the reference implementations): the peer of ``spinemocap bench
         render`` and the tests' reference (same ground truth; images equal up to rounding on a
         few anti-aliased edges, see :meth:`CameraRenderer.render_window`)."""
@@ -628,7 +628,7 @@ class Scene:
         return self._pool
 
     def _render_reference(self, frame: int, with_masks: bool) -> RenderedFrame:
-        """:meth:`render` as first written: one thread, reference lens, mask and sensor."""
+        """:meth:`render` in its reference form: one thread, reference lens, mask and sensor."""
         images, masks = [], []
         shared: dict[float, list[SceneMeshes]] = {}
         for c, renderer in enumerate(self.renderers):
@@ -671,7 +671,7 @@ class Scene:
         return cv2.cvtColor(image.astype(np.uint8), cv2.COLOR_RGB2BGR)
 
     def _sensor_reference(self, rgb: np.ndarray, frame: int, camera: int) -> np.ndarray:
-        """:meth:`_sensor` as first written: the peer of ``spinemocap bench render``."""
+        """:meth:`_sensor` in its reference form: the peer of ``spinemocap bench render``."""
         image = rgb.astype(np.float32)
         noise = float(self.config.noise or 0.0)
         if noise > 0:

@@ -1,13 +1,13 @@
 """Skin strain under the tape: the back's skin lengthens in flexion, shortens in extension and
 stretches on the convex side in lateral bending, more over the lumbar spine than the thorax.
 
-anny's linear-blend skinning barely stretches the skin of the back (the first studio's 27 deg
+anny's linear-blend skinning barely stretches the skin of the back (a 27 deg
 ``mixed`` motion stretched the tape by 3.2 % over its length), so the studio imposes the strain
 of a real back on top of it: :class:`SkinStrain` gives the *total* strain of the skin relative
 to standing, and :class:`spinemocap.synth.tape_on_skin.TapeOnSkin` slides the tape's material
 points along anny's surface until their arc lengths follow it.
 
-Source figures (DESIGN.md section 8 and the clinical tests they come from):
+Source figures (the clinical tests they come from):
 
 - Modified Schober test: 15 cm of skin marked over the lumbar spine from the lumbosacral junction
   up lengthen by 5 cm or more (>= 33 %) at full forward flexion in a healthy adult, less with age

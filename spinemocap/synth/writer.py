@@ -57,7 +57,7 @@ def render_frames(scene: Scene, root: Path, capture: Capture, frames: Iterable[i
     camera images go to the ``videos`` writers by camera name instead, when given).
 
     Each frame's PNG files are encoded and written on worker threads while the next frame
-    renders. ``reference``: as the first studio did (the reference renderer, files written one
+    renders. ``reference``: the reference renderer (files written one
     after the other in this thread), the peer of ``spinemocap bench render``."""
     if reference:
         for frame in frames:

@@ -48,9 +48,9 @@ class EvidenceConfig:
     """MRF2's image evidence: ``downscale`` of the cost images (1 = full resolution); ``threads``:
     the cameras' cost images are built by this many threads of the tracker's own (1, the default:
     one after another in the calling thread). Each image is built alone (OpenCV and numpy release
-    the GIL for most of the work), so the same images either way. Two threads did not pay on the
-    shared 2-core VM (docs/BENCHMARKS.md, branch ``track3d3``): the same CPU, and the evidence
-    alone built in half the wall time when a core was free, but a whole run's wall time was not
+    the GIL for most of the work), so the same images either way. Two threads did not pay on a
+    loaded 2-core machine: the same CPU, and the evidence alone built in half the wall time when a
+    core was free, but a whole run's wall time was not
     lower under load."""
 
     downscale: float = 1.0
@@ -81,7 +81,7 @@ class StatusConfig:
     origin lies rather than by their errors (on the studio's ``lab`` capture the DLT points of
     the same blobs were 0.86 mm off on average, the ray points 0.35 mm, as the points of least
     reprojection error; a camera seeing the tape at a grazing angle pulled the DLT points most).
-    False: the candidate's point (the tracker before session 29)."""
+    False: the candidate's point."""
 
     observe_radius_mm: float = 7.0
     min_views: int = 2

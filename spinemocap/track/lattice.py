@@ -11,13 +11,9 @@ mm). :func:`off_lattice` finds such dots one at a time (the worst first, so that
 does not make its correct neighbours look wrong).
 
 Beyond the last row that holds an observed dot the lattice can only be extrapolated, and that
-fails fast: on the studio's exact dots (``lab``, ``tension 30 % + skin``, ``flexion (lab)``,
-``forehand (lab)``, 30-60 frames each) the end rows hidden and predicted from the rest land
-3.8-5.3 mm off (median) one row out, 8-11 mm two rows out and 13-17 mm three rows out (the
-weighted affine map with 30 mm weights; 20 mm weights give 15-41 mm two rows out; a weighted
-quadratic map does no better: 7-9 mm two rows out), i.e. from two
-rows out beyond half the smallest dot spacing, where a dot is nearer its neighbour's place than
-its own. :func:`rows_beyond` counts how far a dot lies out there.
+fails fast: one row out a hidden end row lands ~4-5 mm off, two rows out ~8-11 mm, i.e. beyond
+half the smallest dot spacing, where a dot is nearer its neighbour's place than its own.
+:func:`rows_beyond` counts how far a dot lies out there.
 """
 
 from __future__ import annotations
@@ -69,7 +65,7 @@ def affine_from_neighbours(uv: np.ndarray, positions: np.ndarray, known: np.ndar
 
 
 def _affine_lstsq(uv: np.ndarray, positions: np.ndarray, use: np.ndarray, w: np.ndarray, i: int) -> np.ndarray:
-    """One target's weighted affine fit by ``np.linalg.lstsq`` (uncentred, as first written)."""
+    """One target's weighted affine fit by ``np.linalg.lstsq`` (uncentred: the reference form)."""
     design = np.column_stack([uv[use], np.ones(use.sum())])
     sw = np.sqrt(w)[:, None]
     A, *_ = np.linalg.lstsq(design * sw, positions[use] * sw, rcond=None)

@@ -1,4 +1,4 @@
-"""Stage 3: the binary edge-selection program (paper section 3.1, read as DESIGN.md section 4).
+"""Stage 3: the binary edge-selection program (paper section 3.1).
 
 Variables ``x_e`` in {0, 1} per edge of the edge cloud, ``y_p`` in {0, 1} per candidate point
 ("point used"). Model::
@@ -12,7 +12,7 @@ Variables ``x_e`` in {0, 1} per edge of the edge cloud, ``y_p`` in {0, 1} per ca
           sum_{p uses blob b of camera c} y_p <= 1    for every blob used by >= 2 points
           sum_{e touches p} x_e >= k y_p     (k = min_point_degree, default 3)
 
-Deviations from the paper's literal text (which is degenerate, see DESIGN.md): ``sum x = n``
+Deviations from the paper's literal text (degenerate: with ``sum x <= n`` no edge is cheapest): ``sum x = n``
 instead of ``<= n``; neighbour bounds only on selected edges. The ghost rule is written per blob
 (a clique over all points triangulated from that blob) instead of per edge pair: it implies the
 paper's "two edges whose endpoints come from the same blobs of one camera cannot both be

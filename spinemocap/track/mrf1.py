@@ -36,7 +36,7 @@ class MRF1Config:
 
     theta1_longitudinal: float = 0.05  # |p| vs the local stretch d
     theta1_transverse: float = 0.1
-    theta2: float = 0.005  # orthogonality to the normal field (camera-biased normals: 0.02 measured worse)
+    theta2: float = 0.005  # orthogonality to the normal field (camera-biased normals: 0.02 is worse)
     theta3: float = 1.0  # minimum-distance barrier
     theta4_longitudinal: float = 0.02  # |p| vs the rest length
     theta4_transverse: float = 0.05

@@ -69,8 +69,8 @@ class MRF2Config:
     polish_steps: int = 3
     polish_max_step_mm: float = 3.0  # per-dot move limit of the polish from the PBP result
     # beyond the paper: a dot no camera sees (no facing view below the cost cap) has no image
-    # term, and the weak Eq. 11 shape terms let the sampler wander (measured: unseen dots
-    # 2.6 -> 3.5 mm). Such dots are held to their start (MRF1, which keeps the dashed
+    # term, and the weak Eq. 11 shape terms let the sampler wander (unseen dots' error
+    # grows). Such dots are held to their start (MRF1, which keeps the dashed
     # anti-folding edges) by anchor_unseen * |x - x_start|^2.
     anchor_unseen: float = 0.1
 
@@ -654,7 +654,7 @@ class TemplateEvidenceScore:
 @contextmanager
 def _torch_single_thread() -> Iterator[None]:
     """MRF2's tensors are small (thousands of elements): torch's intra-op thread pool costs far
-    more than it gains there (20x slower measured on a busy 2-core VM), so run single-threaded.
+    more than it gains there (20x slower on a busy 2-core machine), so run single-threaded.
     Set only when it differs: a ``torch.set_num_threads`` call, even to the same count, slows the
     network passes after it (see ``detect.detector``), and the detector already runs one thread."""
     before = torch.get_num_threads()

@@ -249,8 +249,7 @@ class FrameTracker:
         Returns the new ``source`` and the (D,) mask of dots so anchored.
 
         The model (MRF1/MRF2) can leave a tape end it saw no points for 8-20 mm off, beyond the
-        observe radius of the points that are there (measured: ``tension 30 % + skin``, the last
-        two rows; under a 3 px rig the first two); one row out the lattice of the observed dots
+        observe radius of the points that are there (under strong taping tension or a 3 px rig); one row out the lattice of the observed dots
         lands 3-5 mm from the truth (see :mod:`.lattice`), and >= 3-camera points are rarely ghosts."""
         cfg = self.config.status
         source, positions = source.copy(), positions.copy()

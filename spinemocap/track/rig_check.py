@@ -38,7 +38,7 @@ class CalibrationWarning(UserWarning):
 @dataclass
 class RigCheckConfig:
     """``adaptive_gate``: derive th1 from the measured residuals (False: the fixed
-    ``candidates.th1_px``, the tracker before issue 11); ``probe_gate_px``: the loose gate used
+    ``candidates.th1_px``); ``probe_gate_px``: the loose gate used
     to find the dots the residuals are measured on; ``min_views``: cameras a dot needs to count;
     ``gate_factor`` x the worst camera's robust RMS + ``gate_margin_px`` = the gate, clamped to
     [th1_px, ``max_gate_px``]; ``warn_px``:

@@ -17,16 +17,12 @@ those points, with the intrinsics' principal point and distortion held fixed.
   camera would carry that camera's whole error into every point). The widths (20 mm, 0.5 deg:
   a rotation and a shift that move the dots' images about as much at ~2 m) are wide against a
   calibration's real errors (~2-3 mm, ~0.05 deg at 2 px), so the data settle everything they
-  can see and the priors only pick the gauge. Measured over 3 rendered scenes x 4 seeded studio
-  calibrations per level (``spinemocap bench gauge``, docs/BENCHMARKS.md) against other gauges
-  for the same refined geometry, none better on average at 1-2 px: widths sized from each
-  camera's own residual (:func:`residual_priors`, ``centre_prior_mm=None``: a real prior of
-  the calibration's size; better at 3 px, worse at 0.5-2 px), the similarity closest to the
-  given cameras (:func:`closest_gauge`), and the similarity that fits the refined dots onto
-  the given rig's own triangulation of them (a gauge from the data: best at 0.5 px, much worse
-  at 2-3 px, where most of the given rig's error on the dots is itself a similarity and is
-  kept). The refined dots' shape is as good as the true rig's at every level; the rest is the
-  given rig's world frame.
+  can see and the priors only pick the gauge. Other gauges for the same refined geometry are
+  options, none better on average at 1-2 px (``spinemocap bench gauge``): widths sized from
+  each camera's own residual (:func:`residual_priors`, ``centre_prior_mm=None``), the
+  similarity closest to the given cameras (:func:`closest_gauge`), and the similarity that fits
+  the refined dots onto the given rig's own triangulation of them. The refined dots' shape is as
+  good as the true rig's; the rest is the given rig's world frame.
   What the given rig's frame errs by cannot be removed by any choice of gauge: ``rig_refine.json``
   reports ``frame_uncertainty_mm``, the larger of two rough estimates: how far the given cameras
   disagree with the refined geometry (:func:`given_rig_disagreement_mm`,
@@ -242,8 +238,8 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
     # offset of the given rig's triangulation of the markers from their known places. From the
     # given frame itself the solver's sparse steps crept along the dots' flat gauge directions
     # and stopped short of a frame 5-15 mm away; a start rotated by the similarity fitted on the
-    # markers (or on a dots-only refinement) converged worse than a shift (measured on a
-    # rendered 2 px capture, before TIGHT_LSMR: 0.31-0.36 mm against 0.44-0.87 mm)
+    # markers (or on a dots-only refinement) converged worse than a shift (on a
+    # rendered 2 px capture: 0.31-0.36 mm against 0.44-0.87 mm)
     seen = _triangulate_markers(rig, control)
     ok = np.isfinite(seen).all(axis=1)
     shift = (control.world_mm[ok] - seen[ok]).mean(axis=0)
@@ -591,9 +587,8 @@ def retriangulate(rig: Rig, pixels: np.ndarray, positions: np.ndarray, status: n
 
     A re-triangulated point that misses one of its own blobs by more than ``max_reprojection_px``
     (undistorted px), or that lies behind a camera that saw it, is not taken: the linear triangulation can land 15-25 mm off although the
-    blobs agree with the refined rig to ~1 px (measured: ``bench realism`` "calibration 1.0 px",
-    200 frames, two observed 3-camera dot-frames, 24-27 px from their blobs, counted as swaps in
-    unflagged frames); such a dot moves with the frame's similarity like an inferred one."""
+    blobs agree with the refined rig to ~1 px (seen on 3-camera dots, 24-27 px from their
+    blobs); such a dot moves with the frame's similarity like an inferred one."""
     from ..geometry import umeyama
 
     out = positions.copy()

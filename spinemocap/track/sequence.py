@@ -84,11 +84,9 @@ class SequenceTracker:
 
     def _pin_identity(self, result: FrameResult) -> None:
         """Until the observed rows of a frame admit no other whole-row labelling, flag every frame
-        ``identity_unsure``: the labels were chosen on a first frame that could not tell them
-        (measured: ``flexion (lab)`` tracked from frame 130, full flexion, the top two rows
-        undetected: the first frame's two offsets two rows apart scored 10.13 / 10.21 mm chamfer
-        and 0.466 / 0.454 image cost, and the wrong one, taken, was carried for 70 frames with
-        the observed dots at confidence 1.0)."""
+        ``identity_unsure``: the labels were chosen on a first frame that could not tell them (a
+        capture starting at full flexion with the top rows unseen: two labellings two rows apart
+        can score almost alike, and the wrong one would be carried unflagged)."""
         if not self._identity_unsure() or not result.solved:
             return
         if other_shifts(result.status == "observed", self.tracker.graph):
@@ -219,9 +217,7 @@ def fill_and_smooth(positions: np.ndarray, status: np.ndarray, config: SequenceC
     ``doubted`` (F, D) bool (with ``smooth_trusted_only``): samples the tracker does not vouch
     for (flagged frames, frames without a solution) enter no trusted sample's average (those
     beside them keep their own places), so that a flagged frame's wrong end rows are not carried
-    into the frames beside it (measured on the 3 px benchmark capture: a good frame's inferred
-    row, 2-3 mm off, moved 9-10 mm, onto its neighbours' places, by a flagged frame whose rows
-    were 26-37 mm off)."""
+    into the frames beside it."""
     positions, status = positions.copy(), status.copy()
     F = len(positions)
     frames = np.arange(F)

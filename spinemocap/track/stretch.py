@@ -13,9 +13,8 @@ module measures the spacing from the frame's own points before any labelling:
   peaks at the true pitch and at its integer fractions (p/2, p/3 are periodic too); the largest
   pitch among the near-best local maxima is taken. Where the rows can be told apart in the arc
   positions (:func:`row_gaps`), the pitch is instead the rows' arc span over the rows it spans,
-  the mean pitch, and their gaps are the local pitches: at full flexion the lumbar rows are
-  20-30 % longer than the thoracic ones, the periodogram then peaks at both and the rule above
-  took the lumbar pitch (a template a row too long). Otherwise the rows' arc positions, assigned
+  the mean pitch, and their gaps are the local pitches (at full flexion the lumbar rows are
+  20-30 % longer than the thoracic ones and the periodogram peaks at both). Otherwise the rows' arc positions, assigned
   by the period, give the pitch between neighbouring rows (how the stretch varies along the tape).
 - **across** (column spacing): the median nearest-neighbour distance in the range of a row's
   dot spacing (the nearest other dot of every tape dot is its row neighbour: 15 mm across vs
@@ -41,8 +40,7 @@ from ..tape import TapeGraph, TapeSpec
 
 @dataclass
 class StretchConfig:
-    """``adaptive``: estimate the spacing from the data (False = the roll's nominal spec, the
-    tracker before issue 11); ``along_range`` / ``across_range``: searched stretch relative to
+    """``adaptive``: estimate the spacing from the data (False = the roll's nominal spec); ``along_range`` / ``across_range``: searched stretch relative to
     the spec (kinesiology tape gives out at ~1.6; 0.8 covers a spec longer than the tape);
     ``min_points``: fewer candidate points than this keep the previous/nominal estimate;
     ``min_coherence``: periodogram peak below this is not trusted (occluded or ghost-ridden
