@@ -357,6 +357,12 @@ class C3dLayout:
         """True when ``count`` frames fill the data section up to its 512-byte padding."""
         return count <= self.available and (self.available - count) * self.frame_bytes < 512
 
+    @property
+    def ends_cleanly(self) -> bool:
+        """True when the data section ends after whole frames and at most its 512-byte padding
+        (a file cut inside a frame leaves a partial frame behind)."""
+        return 0 <= max(self.data_end - self.data_start, 0) - self.available * self.frame_bytes < 512
+
 
 @dataclass(frozen=True)
 class DeclaredFrames:
@@ -415,8 +421,13 @@ def frame_count(declared: Sequence[DeclaredFrames], layout: C3dLayout,
     When the header and POINT:FRAMES agree, that is the count (the C3D specification; a file
     holding fewer frames is truncated). Otherwise the first field (in the order of
     :func:`declared_frames`) whose count the data fills exactly, else the first the data holds;
-    when every field declares more than the file holds, it is truncated. Without usable fields
-    (saturated 16-bit fields, nothing else) the data decides, as in ezc3d."""
+    when every field declares more than the file holds, it is truncated, unless no POINT field
+    declares a count and the data ends after whole frames: then the header's or TRIAL's range
+    is taken as stale and the data decides, as it does without usable fields (saturated 16-bit
+    fields, nothing else), as in ezc3d.
+
+    Raises:
+        InputError: the file is truncated (names ``path``, the fields and the frames it holds)."""
     given = [d for d in declared if d.count is not None]
     at_least = max((d.at_least for d in declared), default=0)
     primary = [d for d in given if d.fields in PRIMARY_FIELDS]
@@ -429,11 +440,21 @@ def frame_count(declared: Sequence[DeclaredFrames], layout: C3dLayout,
         for d in given:
             if d.count is not None and d.count >= at_least and fits(d.count):
                 return d.count, [e for e in given if e.count == d.count]
+    if _only_frame_range_fields(given) and layout.ends_cleanly and layout.available >= max(at_least, 1):
+        # POINT:FRAMES absent and only the header's or TRIAL's frame range claims more: exporters
+        # that never update those fields are common, and ezc3d reads the frames the data holds
+        return layout.available, []
     if given:
         raise _truncated(path, given[:1], int(given[0].count or 0), layout)
     if at_least > layout.available:
         raise _truncated(path, [d for d in declared if d.at_least][:1], at_least, layout)
     return layout.available, []
+
+
+def _only_frame_range_fields(given: Sequence[DeclaredFrames]) -> bool:
+    """True when no POINT:FRAMES / POINT:LONG_FRAMES count is among ``given``: only the header's
+    first/last frame or the TRIAL fields declare how many frames there are."""
+    return bool(given) and all(not d.fields.startswith("POINT:") for d in given)
 
 
 def first_frame(declared: Sequence[DeclaredFrames], chosen: Sequence[DeclaredFrames]) -> int:

@@ -14,6 +14,7 @@ sequence into one folder does not slow down as the folder fills.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import secrets
@@ -59,6 +60,45 @@ def reading(path: str | os.PathLike | None, what: str = "file") -> Iterator[None
         if isinstance(exc, (KeyError, LookupError)) and not isinstance(exc, UnicodeError):
             detail = f"{type(exc).__name__} {detail}"
         raise InputError(path, f"cannot read {what}: {detail}") from exc
+
+
+class OutputError(InputError):
+    """Results could not be written (the disk is full, the folder is read-only): the message
+    names the folder, the problem and what to do; nothing half-written is left as complete.
+    ``reason`` is the problem alone (e.g. "no space left on the device")."""
+
+    def __init__(self, folder: str | os.PathLike, what: str, reason: str):
+        self.reason = reason
+        super().__init__(folder, f"cannot write the {what}: {reason}. Nothing partial was kept as a complete "
+                                 "result: free space (or choose another output folder) and run the same "
+                                 "command again")
+
+
+# errno -> what the user is told when an output cannot be written
+_OUTPUT_PROBLEMS = {
+    errno.ENOSPC: "no space left on the device",
+    errno.EDQUOT: "the disk quota is exceeded",
+    errno.EFBIG: "the file is larger than this file system allows",
+    errno.EROFS: "the file system is read-only",
+}
+
+
+@contextlib.contextmanager
+def writing(folder: str | os.PathLike, what: str = "results") -> Iterator[None]:
+    """The boundary of a writer: a full disk, an exceeded quota or a read-only file system inside
+    becomes :class:`OutputError` naming ``folder``. Other errors pass unchanged.
+
+    Raises:
+        OutputError: the write failed for one of the reasons above."""
+    try:
+        yield
+    except OutputError as exc:      # from a nested writer: said again for the outermost folder
+        raise OutputError(folder, what, exc.reason) from exc
+    except OSError as exc:
+        problem = _OUTPUT_PROBLEMS.get(exc.errno or 0)
+        if problem is None:
+            raise
+        raise OutputError(folder, what, problem) from exc
 
 
 # ---------------------------------------------------------------------------------- writing
@@ -195,16 +235,16 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", **open_kwargs) -> Ite
     """Open a temporary file beside ``path``; on success fsync it and rename it over ``path``.
 
     On any exception (KeyboardInterrupt included) the temporary file is removed and ``path`` is
-    left untouched."""
+    left untouched; a full disk or read-only file system raises :class:`OutputError`."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     _clean_stale_temps_of(path)
     tmp = temp_name(path, ".tmp")
     try:
-        with open(tmp, "x" + mode.replace("w", ""), **open_kwargs) as handle:
+        with writing(path.parent, path.name), open(tmp, "x" + mode.replace("w", ""), **open_kwargs) as handle:
             yield handle
             handle.flush()
-        _commit(tmp, path)
+            _commit(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
@@ -220,8 +260,9 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     _clean_stale_temps_of(path)
     tmp = temp_name(path)
     try:
-        yield tmp
-        _commit(tmp, path)
+        with writing(path.parent, path.name):
+            yield tmp
+            _commit(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)

@@ -54,6 +54,14 @@ CORPUS = {
     # an NDI Optotrak export: 54 points, 29 frames at 30 Hz, TRIAL fields counted otherwise
     "ndi-trial-fields": (lambda: _raw(n_frames=29, n_points=54, rate=30.0, trial=(1, 1149)),
                          r"TRIAL:ACTUAL_START_FIELD/ACTUAL_END_FIELD 1\.\.1149.*do not match.*Read 29 frames"),
+    # an NDI Optotrak export: the header claims frames 1..1149, POINT:FRAMES 29, 29 frames stored
+    "header-claims-more": (lambda: _raw(n_frames=29, n_points=54, rate=30.0, header_first=1, header_last=1149),
+                           r"header first/last frame 1\.\.1149.*do not match.*Read 29 frames from frame 1, as POINT:FRAMES"),
+    # the same without POINT:FRAMES: the data's 29 whole frames are read, the header's range is stale
+    "header-claims-more-no-point-frames": (lambda: _raw(n_frames=29, n_points=54, rate=30.0, header_first=1,
+                                                        header_last=1149, point_frames=None),
+                                           r"header first/last frame 1\.\.1149.*do not match.*Read 29 frames "
+                                           r"from frame 1, as the file's size says"),
     # a 25 Hz file: 23 points, 670 frames, header 1..670, POINT:FRAMES 670, TRIAL from 0
     "trial-from-0": (lambda: _raw(n_frames=670, n_points=23, rate=25.0, integer=True, scale=0.05,
                                   analog=_analog(670, 40, 2) * 0, analog_rate=1000.0, trial=(0, 670)),
@@ -263,10 +271,19 @@ def _fields(point_frames=None, header=None, trial=None, saturated=False):
     (dict(point_frames=None, header=30), 30, 30),
     (dict(saturated=True, trial=70_000), 70_000, 70_000),
     (dict(saturated=True), 70_001, 70_001),                      # nothing but saturated fields: the data
+    (dict(point_frames=None, header=1149), 29, 29),              # a stale header range alone: the data
+    (dict(point_frames=None, header=1149, trial=1149), 29, 29),
 ])
 def test_frame_count_rule(fields, frames_in_file, expected):
     layout = C3dLayout(points=4, analog_words=0, word_bytes=4, data_start=0, data_end=64 * frames_in_file)
     assert frame_count(_fields(**fields), layout, Path("x.c3d"))[0] == expected
+
+
+def test_frame_count_rule_refuses_a_stale_header_over_a_partial_frame():
+    # the header alone claims more, but the data ends inside a frame: that is a cut file
+    layout = C3dLayout(points=40, analog_words=0, word_bytes=4, data_start=0, data_end=640 * 29 + 600)
+    with pytest.raises(InputError, match=r"x\.c3d: truncated C3D: header first/last frame 1\.\.1149"):
+        frame_count(_fields(header=1149), layout, Path("x.c3d"))
 
 
 @pytest.mark.parametrize("fields,frames_in_file", [

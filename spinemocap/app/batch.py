@@ -564,6 +564,16 @@ def _stop_pool(pool: ProcessPoolExecutor, futures: list) -> None:
 
 # ---------------------------------------------------------------------------------- Dask
 def _execute_dask(jobs: list[TrialJob], scheduler: str) -> Iterator[dict]:
+    """Run ``jobs`` on the Dask cluster at ``scheduler``, yielding each trial's summary.
+
+    A worker that dies mid-trial (killed, out of memory) is survived by Dask itself: the trial
+    runs again on another worker (a trial whose workers die ``distributed.scheduler.allowed-failures``
+    times is recorded as failed); its outputs are only taken as done once written whole.
+
+    Raises:
+        InputError: the scheduler cannot be reached, or went away during the batch (after
+            yielding the finished trials; their summaries are kept, a rerun does the rest).
+    """
     from distributed import Client, Event
     from distributed import as_completed as dask_completed
 
@@ -573,19 +583,43 @@ def _execute_dask(jobs: list[TrialJob], scheduler: str) -> Iterator[dict]:
         raise InputError(scheduler, f"cannot reach the Dask scheduler ({exc})") from exc
     stop = Event(f"spinemocap-stop-{uuid.uuid4().hex}", client=client)
     futures: list = []
+    finished = 0
     try:
         jobs = [replace(job, stop_event=stop.name) for job in jobs]
         futures = client.map(process_trial, jobs, pure=False, key=[f"trial-{j.trial.key}-{id(j)}" for j in jobs])
         by_key = {f.key: j for f, j in zip(futures, jobs)}
         for future in dask_completed(futures):
+            if _scheduler_lost(future, client):
+                raise SchedulerLost(scheduler, f"the Dask scheduler went away after {finished} of {len(jobs)} "
+                                               "trials: their results are kept; start the scheduler again (or "
+                                               "use another) and run the same command to do the rest")
+            finished += 1
             yield _result_or_failure(future, by_key[future.key])
+    except SchedulerLost:
+        raise
     except BaseException:  # interrupted: drop queued trials, ask running ones to stop at their next frame
         with contextlib.suppress(Exception):
             stop.set()
             client.cancel(futures)
         raise
     finally:
-        client.close()
+        with contextlib.suppress(Exception):
+            client.close(timeout=5)
+
+
+class SchedulerLost(InputError):
+    """The Dask scheduler went away in the middle of a batch."""
+
+
+def _scheduler_lost(future, client) -> bool:
+    """True when ``future`` was cancelled because the client lost its scheduler (not by us)."""
+    if future.status != "cancelled":
+        return False
+    try:
+        future.result(timeout=0)
+    except Exception as exc:
+        return "connection-lost" in str(exc) or client.status not in ("running", "newly-created")
+    return False
 
 
 def _result_or_failure(future, job: TrialJob) -> dict:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import exporters
 
-from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, fsync_dir, temp_name
+from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, fsync_dir, temp_name, writing
 from ..markers import MarkerTable
 
 log = logging.getLogger(__name__)
@@ -40,11 +40,21 @@ def write_markers(table: MarkerTable, out_dir: str | Path) -> list[Path]:
     untouched); then the manifest ``markers.manifest.json`` is removed, the files are renamed
     into place and a new manifest (run id, size and SHA-256 of each file) is written last. A kill
     in between leaves no manifest or one that does not match: :func:`results_run_id` tells.
-    Staging folders and temporary files of a killed run are removed here."""
+    Staging folders and temporary files of a killed run are removed here.
+
+    Raises:
+        OutputError: the disk filled up or the folder turned read-only; the folder then holds no
+            manifest that matches, so :func:`results_complete` says it is incomplete."""
     out = check_writable(out_dir)
     clean_stale_temps(out)
     staging = temp_name(out / "markers", suffix="")
-    staging.mkdir()
+    with writing(out, "marker files"):
+        staging.mkdir()
+        return _write_set(table, out, staging)
+
+
+def _write_set(table: MarkerTable, out: Path, staging: Path) -> list[Path]:
+    """Stage the set in ``staging``, swap it into ``out``, write the manifest last."""
     try:
         staged = []
         for name in RESULT_FILES:

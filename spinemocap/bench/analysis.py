@@ -156,7 +156,8 @@ def bench_batch(trials: int = 16, frames: int = 300, workers: int = 2, progress:
     """Wall time of one batch (analytic-rod captures, ground-truth source) run three ways on the
     same study: in this process, on a local process pool of ``workers``, and on a Dask
     ``LocalCluster`` of ``workers`` single-threaded worker processes. Every run starts from an
-    empty output folder (``force``), so all three do the same work."""
+    empty output folder (``force``), so all three do the same work; ``identical_results`` says
+    whether every trial's ``angles.csv`` is the same byte for byte in all three."""
     import tempfile
     from pathlib import Path
 
@@ -171,18 +172,23 @@ def bench_batch(trials: int = 16, frames: int = 300, workers: int = 2, progress:
             write_bent_capture(folder, tape, 20.0 + k, n_frames=frames, fps=100.0)
             (folder / "levels.toml").write_text('S1 = 1\n"T12/L1" = 7\nT9 = 13\n')
         timings = {}
+        angles: dict[str, dict[str, str]] = {}
 
         def timed(name: str, **kwargs) -> None:
             start = time.perf_counter()
-            result = run_batch(root, Path(tmp) / name, source="groundtruth", force=True, progress=progress, **kwargs)
+            out = Path(tmp) / name
+            result = run_batch(root, out, source="groundtruth", force=True, progress=progress, **kwargs)
             assert not result.failed, result.failed
             timings[name] = time.perf_counter() - start
+            angles[name] = {str(p.relative_to(out)): p.read_text() for p in sorted(out.rglob("angles.csv"))}
 
         timed("serial", workers=1)
         timed("process_pool", workers=workers)
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
             timed("dask_localcluster", scheduler=cluster.scheduler_address)
+    first = next(iter(angles.values()))
     return {"trials": trials, "frames": frames, "workers": workers,
+            "identical_results": len(first) == trials and all(a == first for a in angles.values()),
             "seconds": {k: round(v, 2) for k, v in timings.items()},
             "trials_per_s": {k: round(trials / v, 2) for k, v in timings.items()},
             "speedup_vs_serial": {k: round(timings["serial"] / v, 2) for k, v in timings.items()}}
