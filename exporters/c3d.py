@@ -50,9 +50,9 @@ from pathlib import Path
 import c3d as c3dlib
 import numpy as np
 
-from spinemocap._version import __version__
 from spinemocap.fileio import InputError, atomic_path
 from spinemocap.markers import MAX_ABS_MM, MarkerTable
+from spinemocap.version import __version__
 
 from .common import (
     ExportWarning,

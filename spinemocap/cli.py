@@ -16,8 +16,8 @@ import sys
 from typing import Sequence
 
 from . import commands
-from ._version import __version__
 from .fileio import InputError
+from .version import __version__
 
 log = logging.getLogger("spinemocap")
 
