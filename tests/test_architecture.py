@@ -20,7 +20,8 @@ PACKAGES = ("spinemocap", "calibration", "exporters")
 
 # core: small modules of shared types and helpers; they import only each other
 CORE = {f"spinemocap.{name}" for name in
-        ("version", "camera", "tape", "markers", "capture", "views", "geometry", "fileio", "timing", "skin", "reference")}
+        ("version", "camera", "tape", "markers", "capture", "views", "geometry", "fileio", "timing", "skin", "reference",
+         "frames")}
 # unit (module prefix) -> layer
 UNITS = {
     "spinemocap.detect": "domain",

@@ -22,6 +22,7 @@ from tqdm import tqdm
 from ..camera import Rig
 from ..capture import Capture, FrameSource
 from ..fileio import InputError, check_writable
+from ..frames import parse_frames
 from ..markers import MarkerTable
 from ..reference import ReferenceObject
 from ..tape import TapeSpec
@@ -248,20 +249,19 @@ def run_tracking(
     return TrackResult(table, results, residuals, calibration)
 
 
-def parse_frames(spec: str | None, n_frames: int, source: str = "--frames") -> range:
-    """``A:B`` (Python slice, B exclusive, either side optional) -> frame range within the capture."""
-    if not spec:
+def select_frames(frames: str | Sequence[int] | None, n_frames: int) -> range:
+    """The capture's frames to track: all (``None`` or ``""``), a selection string
+    (:func:`spinemocap.frames.parse_frames`) or the given indices. The tracker follows the tape
+    from frame to frame and numbers its output rows from the first frame, so the selection must be
+    consecutive frames. Raises :class:`InputError` naming ``frames`` otherwise."""
+    if frames is None or len(frames) == 0:
         return range(n_frames)
-    try:
-        a, _, b = spec.partition(":")
-        start = int(a) if a else 0
-        stop = int(b) if b else n_frames
-    except ValueError:
-        raise InputError(source, f"frame range {spec!r} is not of the form A:B") from None
-    start, stop = max(start, 0), min(stop, n_frames)
-    if start >= stop:
-        raise InputError(source, f"frame range {spec!r} selects no frame of the {n_frames} in the capture")
-    return range(start, stop)
+    selected = parse_frames(frames, n_frames, "frames") if isinstance(frames, str) else list(frames)
+    if any(b - a != 1 for a, b in zip(selected, selected[1:])):
+        raise InputError("frames", f"the tracker needs consecutive frames (A:B), got {frames!r}")
+    if selected[0] < 0 or selected[-1] >= n_frames:
+        raise InputError("frames", f"frames {selected[0]}..{selected[-1]} are not all in the capture (0..{n_frames - 1})")
+    return range(selected[0], selected[-1] + 1)
 
 
 def source_views(source: FrameSource, frames: Sequence[int], detect: CaptureDetector,
@@ -335,7 +335,7 @@ def track_capture(
     mode: str = "sequence",
     config: TrackerConfig | None = None,
     detector: str = "net",
-    frames: str | range | None = None,
+    frames: str | Sequence[int] | None = None,
     progress: bool = True,
     stop: Callable[[], bool] | None = None,
     speed: SpeedOptions | None = None,
@@ -343,7 +343,8 @@ def track_capture(
     """Track a capture folder and write ``out_dir/markers.csv`` plus ``.trc`` and ``.c3d`` as one
     set (:func:`write_markers`). ``out_dir`` is checked for writing before any work.
 
-    ``frames``: ``"A:B"`` or a range (default: all); ``stop``: see :func:`run_tracking`;
+    ``frames``: a frame selection (:mod:`spinemocap.frames`, e.g. ``"0:100"``) or frame indices
+    (default: all); ``stop``: see :func:`run_tracking`;
     ``speed``: reading and detection options (:class:`~spinemocap.app.streaming.SpeedOptions`;
     ``streaming.LEGACY`` is the pre-issue-15 path). Returns the marker table (mm, world Z up)."""
     return track_capture_result(capture_dir, out_dir, mode, config, detector, frames, progress,
@@ -356,7 +357,7 @@ def track_capture_result(
     mode: str = "sequence",
     config: TrackerConfig | None = None,
     detector: str = "net",
-    frames: str | range | None = None,
+    frames: str | Sequence[int] | None = None,
     progress: bool = True,
     refine: RigRefineConfig | None = None,
     stop: Callable[[], bool] | None = None,
@@ -379,7 +380,7 @@ def track_capture_result(
     check_writable(out_dir)
     if mode not in MODES:
         raise InputError(capture_dir, f"unknown tracking mode {mode!r}; choose from {MODES}")
-    frame_range = frames if isinstance(frames, range) else parse_frames(frames, capture.n_frames)
+    frame_range = select_frames(frames, capture.n_frames)
     control, reference_path = None, None
     if refine is not None:
         control, reference_path = capture_control_points(capture, frame_range, reference)

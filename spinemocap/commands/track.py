@@ -47,7 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--detector", choices=("net", "classical", "mask"), default="net",
                    help="tape/dot detector; 'mask' finds dots inside the capture's masks/ (synthetic captures)")
     p.add_argument("--config", type=Path, help="tracker settings (TOML, see spinemocap.track.config)")
-    p.add_argument("--frames", help="frame range A:B (B exclusive), default all")
+    p.add_argument("--frames", help="consecutive frames A:B (B exclusive; A or B may be left out), default all")
     p.add_argument("--workers", type=int, default=0,
                    help="processes or threads for the cameras (default 0: one per CPU core, at most one per camera; "
                         "1: one camera after the other)")
