@@ -268,7 +268,7 @@ def source_views(source: FrameSource, frames: Sequence[int], detect: CaptureDete
                  speed: SpeedOptions | None = None, mask_dir: Path | None = None):
     """Yield ``(frame, views, detect_ms)`` for :func:`run_tracking`: images decoded once (cameras
     in parallel, prefetched), ground-truth masks (``mask_dir``) read only for the ``mask``
-    detector (or always with ``speed.masks_always``, the legacy path). ``detect_ms`` is the time
+    detector (or always with ``speed.masks_always``, the serial pipeline). ``detect_ms`` is the time
     the tracker waited for the frame: reading not hidden by the prefetching, plus detection."""
     speed = speed or SpeedOptions()
     read_masks = (detect.needs_masks or speed.masks_always) and mask_dir is not None and mask_dir.is_dir()
@@ -346,7 +346,7 @@ def track_capture(
     ``frames``: a frame selection (:mod:`spinemocap.frames`, e.g. ``"0:100"``) or frame indices
     (default: all); ``stop``: see :func:`run_tracking`;
     ``speed``: reading and detection options (:class:`~spinemocap.app.streaming.SpeedOptions`;
-    ``streaming.LEGACY`` is the pre-issue-15 path). Returns the marker table (mm, world Z up)."""
+    ``streaming.SERIAL`` is the serial pipeline). Returns the marker table (mm, world Z up)."""
     return track_capture_result(capture_dir, out_dir, mode, config, detector, frames, progress,
                                 stop=stop, speed=speed).table
 

@@ -27,9 +27,8 @@ parallel, and detection by prediction in sequence mode.
   detects whole frames in a background thread. Both give the same output. ``lookahead=0`` (the
   default) keeps the exact serial order (docs/BENCHMARKS.md, issue 15).
 
-:data:`LEGACY` reproduces the pipeline before issue 15 (one camera after the other, no
-prefetching, masks read whenever the capture has them, the full search in every frame): the
-speed benchmark's peer.
+:data:`SERIAL` is the serial pipeline (one camera after the other, no prefetching, masks read
+whenever the capture has them, the full search in every frame): the speed benchmark's peer.
 """
 
 from __future__ import annotations
@@ -102,7 +101,7 @@ class SpeedOptions:
     16-core machine OpenCV's pool of one thread per core otherwise spins on the small images: 40 %
     more CPU per frame at the same frames/s; no difference measured on 2 cores); None: leave
     OpenCV's setting;
-    ``masks_always``: read ``masks/`` even when the detector does not use them (legacy only);
+    ``masks_always``: read ``masks/`` even when the detector does not use them (the serial pipeline);
     ``lookahead``: frames whose detection may run ahead of the tracker (0: frame t+1 is detected
     after frame t is solved, the exact serial order; 1: frame t+1 is detected while the tracker
     solves frame t, so detection and tracking use two cores at once (with cameras in threads each
@@ -166,7 +165,7 @@ class SpeedOptions:
         return max(1, min(n_cameras, self.workers or os.cpu_count() or 1))
 
 
-LEGACY = SpeedOptions(workers=1, parallel="threads", prefetch=0, predict=False, batch=False, device="cpu", opencv_threads=None,
+SERIAL = SpeedOptions(workers=1, parallel="threads", prefetch=0, predict=False, batch=False, device="cpu", opencv_threads=None,
                       masks_always=True, lookahead=0, precision="float32")
 
 

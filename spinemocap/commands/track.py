@@ -69,8 +69,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--precision", default=None,
                    help="the tape network's arithmetic: float32, int8 (ONNX Runtime on the CPU), bfloat16 (torch); "
                         "default: the pipeline's")
-    p.add_argument("--legacy", action="store_true",
-                   help="the pipeline before issue 15 (one camera after the other, no prefetching, full tape "
+    p.add_argument("--serial", action="store_true",
+                   help="the serial pipeline (one camera after the other, no prefetching, full tape "
                         "search in every frame): for comparisons")
     p.add_argument("--refine-rig", action="store_true",
                    help="bundle-adjust the camera poses (and a focal scale per camera) on the tracked dots, "
@@ -88,7 +88,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_track(args: argparse.Namespace) -> int:
     from spinemocap.app.run import TrackingWarning, track_capture_result
-    from spinemocap.app.streaming import LEGACY, SpeedOptions
+    from spinemocap.app.streaming import SERIAL, SpeedOptions
     from spinemocap.fileio import InputError
     from spinemocap.track.config import TrackerConfig
     from spinemocap.track.rig_check import CalibrationWarning
@@ -104,7 +104,7 @@ def run_track(args: argparse.Namespace) -> int:
     if args.precision is not None:
         chosen["precision"] = args.precision
     chosen.update(refresh_options(args))
-    speed = LEGACY if args.legacy else SpeedOptions(workers=args.workers, parallel=args.parallel,
+    speed = SERIAL if args.serial else SpeedOptions(workers=args.workers, parallel=args.parallel,
                                                     device=args.device,
                                                     opencv_threads=args.opencv_threads or None, **chosen)
     start = time.perf_counter()

@@ -25,8 +25,9 @@ Example ``tracker.toml`` (every key optional; unknown keys are an error)::
     [rig]
     adaptive_gate = true
 
-``TrackerConfig.before_issue_11()`` is the tracker as it was before stretch adaptation, the
-rig-derived gate, label continuity, the lattice check and the unanchored-end check (nominal spacing, fixed th1): the peer in ``bench realism``.
+``TrackerConfig.nominal_unchecked()`` is the tracker without stretch adaptation, the rig-derived
+gate, label continuity, the lattice check and the unanchored-end check (nominal spacing, fixed
+th1): the peer in ``bench realism``.
 """
 
 from __future__ import annotations
@@ -322,9 +323,9 @@ class TrackerConfig:
     seed: int = 0
 
     @classmethod
-    def before_issue_11(cls) -> "TrackerConfig":
-        """The tracker before issue 11: the roll's nominal dot spacing, the fixed th1 gate, no
-        label-continuity, lattice or unanchored-end check (kept as the benchmark's peer)."""
+    def nominal_unchecked(cls) -> "TrackerConfig":
+        """The tracker on the roll's nominal dot spacing and the fixed th1 gate, without the
+        label-continuity, lattice and unanchored-end checks (the realism benchmark's peer)."""
         config = cls()
         return dataclasses.replace(
             config, stretch=dataclasses.replace(config.stretch, adaptive=False),
