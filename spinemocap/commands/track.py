@@ -9,6 +9,7 @@ import warnings
 from pathlib import Path
 
 from spinemocap.capture import Capture
+from spinemocap.markers import STATUSES
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +129,7 @@ def run_track(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - start
     counts = table.data["status"].value_counts()
     print(f"tracked {table.n_frames} frames in {elapsed:.1f} s ({table.n_frames / elapsed:.2f} frames/s): "
-          + ", ".join(f"{counts.get(s, 0)} {s}" for s in ("observed", "inferred", "missing")))
+          + ", ".join(f"{counts.get(s, 0)} {s}" for s in STATUSES))
     print(f"markers written to {Path(args.out) / 'markers.csv'} (+ .trc, .c3d)")
     print(result.summary())
     if Capture.open(args.capture).has_groundtruth:
