@@ -14,7 +14,7 @@ import time
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable, Literal, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -48,7 +48,9 @@ from .streaming import CaptureDetector, SpeedOptions, detected_ahead, prefetched
 
 log = logging.getLogger(__name__)
 
-MODES = ("sequence", "paper")
+#: ``sequence``: frame to frame (identities carried, gaps filled); ``paper``: every frame on its own.
+TrackingMode = Literal["sequence", "paper"]
+MODES: tuple[TrackingMode, ...] = ("sequence", "paper")
 
 
 class TrackingWarning(UserWarning):
@@ -186,7 +188,7 @@ def run_tracking(
     tape: TapeSpec,
     fps: float,
     up: Sequence[float] = (0.0, 0.0, 1.0),
-    mode: str = "sequence",
+    mode: TrackingMode = "sequence",
     config: TrackerConfig | None = None,
     progress: bool = True,
     n_frames: int | None = None,
@@ -298,7 +300,7 @@ def track_source(
     fps: float,
     frames: Sequence[int] | None = None,
     up: Sequence[float] = (0.0, 0.0, 1.0),
-    mode: str = "sequence",
+    mode: TrackingMode = "sequence",
     config: TrackerConfig | None = None,
     detector: str = "net",
     progress: bool = True,
@@ -332,7 +334,7 @@ def track_source(
 def track_capture(
     capture_dir: str | Path,
     out_dir: str | Path,
-    mode: str = "sequence",
+    mode: TrackingMode = "sequence",
     config: TrackerConfig | None = None,
     detector: str = "net",
     frames: str | Sequence[int] | None = None,
@@ -354,7 +356,7 @@ def track_capture(
 def track_capture_result(
     capture_dir: str | Path,
     out_dir: str | Path,
-    mode: str = "sequence",
+    mode: TrackingMode = "sequence",
     config: TrackerConfig | None = None,
     detector: str = "net",
     frames: str | Sequence[int] | None = None,

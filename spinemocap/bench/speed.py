@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from ..app.run import TrackingWarning, TrackResult, track_source
+from ..app.run import TrackingMode, TrackingWarning, TrackResult, track_source
 from ..app.streaming import SERIAL, SpeedOptions, resolve_parallel
 from ..capture import VIDEO_CODEC, VIDEO_CODECS, VIDEO_PATTERN, Capture, FrameSource, VideoWriter
 from ..fileio import InputError, atomic_write, read_toml, write_toml
@@ -170,7 +170,7 @@ def with_sensor_noise(images: list[np.ndarray], sigma: float, seed: int) -> list
     return out
 
 
-def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence", detector: str = "net",
+def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "sequence", detector: str = "net",
                          serial_peer: bool = True, speed: SpeedOptions | None = None, sensor_noise: float = 0.0,
                          progress: bool = True, say: Callable[[str], None] = print, cpu_peer: bool = True,
                          parallel_peer: bool = True, video_frames: int = 0, workdir: Path | None = None,
@@ -284,7 +284,7 @@ def lookahead_numbers(runs: list[dict], speed: SpeedOptions, positions: dict[str
 
 
 def _replayed_video_runs(capture: Capture, replayed: MemorySource, gt: dict, n_frames: int, workdir: Path | None,
-                         speed: SpeedOptions, mode: str, detector: str, progress: bool, say: Callable[[str], None],
+                         speed: SpeedOptions, mode: TrackingMode, detector: str, progress: bool, say: Callable[[str], None],
                          runs: list[dict], parallel_peer: bool) -> float:
     """Track the first ``n_frames`` replayed frames from a lossless UT Video copy (``video`` with
     ``speed``, and ``video_<other mode>`` with the cameras in the other parallel mode); returns the fps."""
@@ -368,7 +368,7 @@ def _not_worse(new: dict, peer: dict) -> bool:
             and new["frames_without_solution"] <= peer["frames_without_solution"])
 
 
-def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode: str, detector: str,
+def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode: TrackingMode, detector: str,
                progress: bool, frames: range | None = None, masks: bool = True) -> tuple[TrackResult, float, float]:
     """Track ``frames`` of ``source`` (all when None): result, wall seconds, peak MiB.
     ``masks``: the capture's ground-truth ``masks/`` may be read (False for a replayed source)."""
@@ -442,7 +442,7 @@ def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, captu
 
 
 def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: str = "none",
-                        mode: str = "sequence", detector: str = "net", seed: int = 0,
+                        mode: TrackingMode = "sequence", detector: str = "net", seed: int = 0,
                         workdir: Path | None = None, serial_peer: bool = True, video: bool = True,
                         in_memory: bool = True, speed: SpeedOptions | None = None, progress: bool = True,
                         say: Callable[[str], None] = print, realism: str = "lab", memory_frames: int = 30,
