@@ -48,7 +48,7 @@ class CandidateConfig:
     before triangulation (a cheap pre-filter; ``None`` = 2 * th1); ``max_merge_rounds`` caps the
     merge loop (it normally stops far earlier, when nothing merges); ``suppress_dominated``: drop a
     point when one of its blobs also belongs to a point seen by more cameras (see
-    :func:`suppress_dominated`)."""
+    :func:`~spinemocap.track.candidates.suppress_dominated`)."""
 
     th1_px: float = 2.0
     th2_mm: float = 6.0
@@ -73,7 +73,7 @@ class LPConfig:
     """``solver``: Pyomo solver name (``appsi_highs`` or ``highs``); ``time_limit_s`` per solve;
     ``min_neighbours``/``max_neighbours``: Eq. 4-5 bounds (``None``: from the tape graph);
     ``mip_rel_gap``: HiGHS optimality gap; ``min_point_degree``: selected edges a used point
-    needs (0 = the paper's model, see module docstring); ``max_step_relaxations``: unit decrements of n before one cardinality solve finds the largest
+    needs (0 = the paper's model, see :mod:`spinemocap.track.lp`); ``max_step_relaxations``: unit decrements of n before one cardinality solve finds the largest
     feasible n; ``min_target``: give up below this many edges (no tape in the frame)."""
 
     solver: str = "appsi_highs"
