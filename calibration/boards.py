@@ -60,7 +60,7 @@ class BoardSpec:
                 raise ValueError
         except (ValueError, IndexError):
             raise InputError(
-                "--board", f"cannot parse board {text!r}; expected checkerboard:COLSxROWS:SQUARE_MM "
+                "board", f"cannot parse board {text!r}; expected checkerboard:COLSxROWS:SQUARE_MM "
                 "(inner corners) or charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]] (squares)"
             ) from None
         spec.validate()
@@ -68,12 +68,12 @@ class BoardSpec:
 
     def validate(self) -> None:
         if self.cols < 2 or self.rows < 2 or self.square_mm <= 0:
-            raise InputError("--board", f"board {self} needs at least 2x2 corners/squares and a positive square size")
+            raise InputError("board", f"board {self} needs at least 2x2 corners/squares and a positive square size")
         if self.kind == "charuco":
             if not 0 < self.marker_mm < self.square_mm:
-                raise InputError("--board", "ChArUco marker size must be positive and smaller than the square")
+                raise InputError("board", "ChArUco marker size must be positive and smaller than the square")
             if not hasattr(cv2.aruco, self.dictionary):
-                raise InputError("--board", f"unknown ArUco dictionary {self.dictionary!r}")
+                raise InputError("board", f"unknown ArUco dictionary {self.dictionary!r}")
 
     def __str__(self) -> str:
         base = f"{self.kind}:{self.cols}x{self.rows}:{self.square_mm:g}"

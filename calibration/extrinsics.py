@@ -206,7 +206,7 @@ def bundle_adjust(intrinsics: Rig, board: BoardSpec | np.ndarray, detections: De
     indexed by the detections' ids. ``backend``: ``"ceres"`` (pycolmap; falls back to scipy,
     with a log line, for cameras with a k3 term) or ``"scipy"``."""
     if backend not in BACKENDS:
-        raise InputError("--ba", f"unknown bundle adjustment backend {backend!r}; choose one of {BACKENDS}")
+        raise InputError("backend", f"unknown bundle adjustment backend {backend!r}; choose one of {BACKENDS}")
     names = intrinsics.names
     frames = list(boards)
     obs = _observations(names, detections, frames)
@@ -327,7 +327,7 @@ def calibrate_extrinsics(intrinsics: Rig, board: BoardSpec, detections: Detectio
     face up on the floor (world Z up); None keeps the reference camera's frame as the world.
     ``backend``: bundle adjustment by ``"ceres"`` (pycolmap) or ``"scipy"``."""
     if is_half_turn_symmetric(board):
-        raise InputError("--board", f"checkerboard {board.cols}x{board.rows} looks the same after a half turn "
+        raise InputError("board", f"checkerboard {board.cols}x{board.rows} looks the same after a half turn "
                          "(inner corners both odd or both even), so cameras cannot agree on its corner order. "
                          "Use a board with one odd and one even count of inner corners (e.g. 4x7) or ChArUco")
     _check_sizes(intrinsics)

@@ -75,10 +75,10 @@ class WandSpec:
             return cls()
         along = _positions_along(parts[1:]) if parts[0] == "linear" and len(parts) in (2, 3) else None
         if along is None:
-            raise InputError("--wand", f"cannot parse wand {text!r}; expected t, linear:LENGTH_MM or "
+            raise InputError("wand", f"cannot parse wand {text!r}; expected t, linear:LENGTH_MM or "
                              "linear:A_MM:LENGTH_MM (increasing positive distances)")
         if len(along) == 3 and abs(along[1] / along[2] - 0.5) < 0.07:
-            raise InputError("--wand", f"linear wand {text!r}: the middle marker is too near the middle (the ends "
+            raise InputError("wand", f"linear wand {text!r}: the middle marker is too near the middle (the ends "
                              "cannot be told apart); it must sit at <= 0.43 or >= 0.57 of the length")
         points = np.array([[a, 0.0, 0.0] for a in along])
         return cls(tuple(f"WAND{k + 1}" for k in range(len(along))), points, kind="linear",
@@ -288,7 +288,7 @@ def synchronized_frames(sources: Sequence[str | os.PathLike], n_cameras: int
     iterator of per-frame image lists (rig order) and the first video's frame rate (0 if unknown).
     Stops at the shortest source."""
     if len(sources) != n_cameras:
-        raise InputError("--videos", f"{len(sources)} videos for a rig of {n_cameras} cameras; give one per camera")
+        raise InputError("sources", f"{len(sources)} videos for a rig of {n_cameras} cameras; give one per camera")
     from .intrinsics import iter_images
 
     fps = 0.0
@@ -451,7 +451,7 @@ def coregister(rig: Rig, frames: Iterable[Sequence[np.ndarray]], fps: float, vic
     with the wand's markers (:func:`refine_rig_with_wand`)."""
     wand = wand or WandSpec()
     if not fps or fps <= 0:
-        raise InputError("--fps", "unknown RGB frame rate; pass --fps")
+        raise InputError("fps", "unknown RGB frame rate; give the cameras' frame rate")
     views = detect_wand_views(frames, wand, progress)
     points = triangulate_wand_views(rig, views, wand)
     if refine_extrinsics:

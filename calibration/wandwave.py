@@ -305,13 +305,13 @@ def floor_transform(rig: Rig, targets: dict[int, Pose], wand: WandSpec, floor_fr
     the floor in ``floor_frames`` (see module doc)."""
     usable = [f for f in floor_frames if f in targets]
     if not usable:
-        raise InputError("--floor-frames", f"no floor frame {floor_frames[:10]} has the wand triangulated; record the "
+        raise InputError("floor_frames", f"no floor frame {floor_frames[:10]} has the wand triangulated; record the "
                          "wand lying on the floor, all markers seen by at least two cameras")
     markers = np.concatenate([wand.points_mm @ targets[f][0].T + targets[f][1] for f in usable])
     centred = markers - markers.mean(axis=0)
     sv = np.linalg.svd(centred, compute_uv=False)
     if sv[1] < 0.1 * sv[0]:
-        raise InputError("--floor-frames", "the wand's markers on the floor lie on one line: lay a linear wand on "
+        raise InputError("floor_frames", "the wand's markers on the floor lie on one line: lay a linear wand on "
                          "the floor in two directions (an L) within the floor frames, or use the T-wand")
     up = np.linalg.svd(centred)[2][2]
     cameras_above = np.mean([c.center for c in rig], axis=0) - markers.mean(axis=0)

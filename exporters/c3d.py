@@ -50,9 +50,9 @@ from pathlib import Path
 import c3d as c3dlib
 import numpy as np
 
-from spinemocap._version import __version__
 from spinemocap.fileio import InputError, atomic_path
-from spinemocap.markers import MAX_ABS_MM, MarkerTable
+from spinemocap.markers import INFERRED, MAX_ABS_MM, MISSING, OBSERVED, MarkerTable
+from spinemocap.version import __version__
 
 from .common import (
     ExportWarning,
@@ -104,7 +104,7 @@ def encode_fourth_word(status: np.ndarray, n_views: np.ndarray, residual: np.nda
     """The C3D fourth word per sample (F, D) as float32: -1 invalid, else residual byte |
     camera mask << 8 (see the module docstring for the mapping)."""
     status = np.asarray(status).astype(str)
-    valid = finite & (status != "missing")
+    valid = finite & (status != MISSING)
     n_views = np.asarray(n_views, np.int64)
     if (n_views[valid] > MASK_BITS).any():
         warnings.warn(f"{source}: view counts above {MASK_BITS} saturate at {MASK_BITS} in the C3D camera mask",
@@ -112,7 +112,7 @@ def encode_fourth_word(status: np.ndarray, n_views: np.ndarray, residual: np.nda
     mask = (1 << np.clip(n_views, 0, MASK_BITS)) - 1
     res = np.asarray(residual, float) / residual_scale
     res_byte = np.clip(np.rint(np.nan_to_num(res, nan=1.0)), 1, 255).astype(np.int64)
-    res_byte[status == "inferred"] = 0
+    res_byte[status == INFERRED] = 0
     word = (res_byte | (mask << 8)).astype(np.float32)
     word[~valid] = -1.0
     return word
@@ -202,7 +202,7 @@ def _with_reference(arrays: dict, reference: MarkerTable, prefix: str, path: Pat
     rows = np.searchsorted(ref["frames"], frames)
     hit = (rows < len(ref["frames"])) & (ref["frames"][np.minimum(rows, len(ref["frames"]) - 1)] == frames)
     out = dict(arrays)
-    for key, fill in (("positions", np.nan), ("status", "missing"), ("n_views", 0), ("residual", np.nan)):
+    for key, fill in (("positions", np.nan), ("status", MISSING), ("n_views", 0), ("residual", np.nan)):
         extra = np.full((F, R) + ref[key].shape[2:], fill, dtype=ref[key].dtype)
         extra[hit] = ref[key][rows[hit]]
         out[key] = np.concatenate([arrays[key], extra], axis=1)
@@ -656,7 +656,7 @@ def _table_from_reader(reader: c3dlib.Reader, xyz: np.ndarray, word: np.ndarray,
     residual = np.where(invalid, np.nan, (word & 0xFF) * scale)
     cameras = (word >> 8) & 0x7F
     n_views = np.where(invalid, 0, np.array([c.bit_count() for c in range(128)])[cameras])
-    status = np.where(invalid, "missing", np.where((word & 0xFF) == 0, "inferred", "observed"))
+    status = np.where(invalid, MISSING, np.where((word & 0xFF) == 0, INFERRED, OBSERVED))
     warn_empty_markers([l for l, m in zip(labels, is_marker) if m], positions[:, is_marker], path)
 
     frames = np.arange(first - 1, first - 1 + n_frames)

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from spinemocap.fileio import InputError
-from spinemocap.markers import MAX_ABS_MM, MarkerTable
+from spinemocap.markers import MAX_ABS_MM, MISSING, OBSERVED, MarkerTable
 
 UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 
@@ -35,7 +35,7 @@ def dense_mm(table: MarkerTable, source: str | os.PathLike | None = None) -> dic
     if len(arrays["frames"]) == 0:
         raise InputError(source, "marker table has no frames to write")
     arrays["positions"] = arrays["positions"] * mm_per_unit(table.meta.get("units", "mm"), source)
-    arrays["positions"][arrays["status"] == "missing"] = np.nan
+    arrays["positions"][arrays["status"] == MISSING] = np.nan
     return arrays
 
 
@@ -108,7 +108,7 @@ def checked_table(table: MarkerTable, source: str | os.PathLike, max_abs_mm: flo
     if not np.isfinite(df["time"].to_numpy()).all():
         raise InputError(source, f"{int((~np.isfinite(df['time'].to_numpy())).sum())} rows have a non-finite time")
     xyz = df[["x", "y", "z"]].to_numpy()
-    missing = (df["status"] == "missing").to_numpy()
+    missing = (df["status"] == MISSING).to_numpy()
     with np.errstate(invalid="ignore"):
         absurd = ~missing & ~(np.abs(xyz) <= max_abs_mm).all(axis=1)
         residual = df["residual"].to_numpy()
@@ -116,10 +116,10 @@ def checked_table(table: MarkerTable, source: str | os.PathLike, max_abs_mm: flo
     negative_views = df["n_views"].to_numpy() < 0
     fixes = []
     if absurd.any():
-        df.loc[absurd, "status"] = "missing"
+        df.loc[absurd, "status"] = MISSING
         fixes.append(f"{int(absurd.sum())} of {len(df)} samples have non-finite or absurd coordinates "
                      f"(beyond {max_abs_mm:g} mm) and are read as missing")
-    missing = (df["status"] == "missing").to_numpy()
+    missing = (df["status"] == MISSING).to_numpy()
     df.loc[missing, ["x", "y", "z"]] = np.nan
     if negative_views.any():
         df.loc[negative_views, "n_views"] = 0
@@ -147,8 +147,8 @@ def table_from_dense(
     F, D = positions_mm.shape[:2]
     finite = np.isfinite(positions_mm).all(axis=2)
     if status is None:
-        status = np.where(finite, "observed", "missing")
-    status = np.where(finite, np.asarray(status, dtype=object), "missing")
+        status = np.where(finite, OBSERVED, MISSING)
+    status = np.where(finite, np.asarray(status, dtype=object), MISSING)
     df = pd.DataFrame({
         "frame": np.repeat(np.asarray(frames, np.int64), D),
         "time": np.repeat(np.asarray(times, float), D),

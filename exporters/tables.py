@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from spinemocap.fileio import InputError, atomic_path, reading
-from spinemocap.markers import ALL_COLUMNS, COLUMNS, MarkerTable
+from spinemocap.markers import ALL_COLUMNS, COLUMNS, MISSING, MarkerTable
 
 from .common import ExportWarning, checked_table, dense_mm, mm_per_unit, table_from_dense, warn_empty_markers
 from .registry import Exporter
@@ -43,7 +43,7 @@ def _table(df: pd.DataFrame, path: Path, meta: dict) -> MarkerTable:
     if df.empty:
         raise InputError(path, "marker table has no rows")
     df = df.copy()
-    df["status"] = df["status"].fillna("missing")
+    df["status"] = df["status"].fillna(MISSING)
     meta = {**meta, "source": str(path), "units": "mm"}
     with reading(path, "marker table"), np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         table = MarkerTable(df, meta)

@@ -16,10 +16,14 @@ import sys
 from typing import Sequence
 
 from . import commands
-from ._version import __version__
 from .fileio import InputError
+from .version import __version__
 
 log = logging.getLogger("spinemocap")
+
+# Errors of the library name the parameter (InputError's source); on the command line they name its
+# flag: the flag whose destination is the parameter, else the one this table gives.
+PARAMETER_FLAGS = {"backend": "--ba", "sources": "--videos", "model_type": "--model"}
 
 
 def _command_modules():
@@ -47,6 +51,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def invoked_parsers(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[argparse.ArgumentParser]:
+    """The parser and the sub-command parsers ``args`` went through, outermost first."""
+    chain = [parser]
+    while True:
+        subs = [a for a in chain[-1]._actions if isinstance(a, argparse._SubParsersAction)]
+        chosen = getattr(args, subs[0].dest, None) if subs else None
+        if not subs or chosen not in subs[0].choices:
+            return chain
+        chain.append(subs[0].choices[chosen])
+
+
+def flag_of(parameter: str, parsers: Sequence[argparse.ArgumentParser]) -> str | None:
+    """The long flag of ``parameter`` among the options of ``parsers`` (None: not an option there)."""
+    flags = {action.dest: long[0] for p in parsers for action in p._actions
+             if (long := [o for o in action.option_strings if o.startswith("--")])}
+    if parameter in flags:
+        return flags[parameter]
+    alias = PARAMETER_FLAGS.get(parameter)
+    return alias if alias in flags.values() else None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -55,7 +80,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except InputError as exc:
-        print(f"spinemocap: error: {exc}", file=sys.stderr)
+        flag = flag_of(exc.source, invoked_parsers(parser, args)) if exc.source else None
+        print(f"spinemocap: error: {flag}: {exc.problem}" if flag else f"spinemocap: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("spinemocap: interrupted", file=sys.stderr)

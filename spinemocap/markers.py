@@ -15,14 +15,20 @@ Metadata travels in :attr:`MarkerTable.meta` (``fps``, ``units``, ``subject``, `
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Final, Literal, Sequence
 
 import numpy as np
 import pandas as pd
 
 from .fileio import InputError
 
-STATUSES = ("observed", "inferred", "missing")
+#: A marker's status in a frame (the strings stored in every marker file): ``observed`` (seen by the
+#: cameras), ``inferred`` (placed by the tape model or filled in time), ``missing`` (no position).
+MarkerStatus = Literal["observed", "inferred", "missing"]
+OBSERVED: Final = "observed"
+INFERRED: Final = "inferred"
+MISSING: Final = "missing"
+STATUSES: tuple[MarkerStatus, ...] = (OBSERVED, INFERRED, MISSING)
 MAX_ABS_MM = 1.0e6      # a marker more than 1 km from the lab origin is a damaged sample, not data
 MAX_FRAME = 2**31 - 1   # frame numbers beyond this are damaged values (C3D and TRC count in 32 bits at most)
 COLUMNS = ("frame", "time", "label", "x", "y", "z", "status", "n_views", "residual")
@@ -93,8 +99,8 @@ class MarkerTable:
             raise ValueError(f"{len(labels)} labels for {D} markers")
         finite = np.isfinite(positions_mm).all(axis=2)
         if status is None:
-            status = np.where(finite, "observed", "missing")
-        status = np.where(finite, np.asarray(status, dtype=object), "missing")
+            status = np.where(finite, OBSERVED, MISSING)
+        status = np.where(finite, np.asarray(status, dtype=object), MISSING)
         frames = np.repeat(np.arange(F) + first_frame, D)
         df = pd.DataFrame(
             {
@@ -154,7 +160,7 @@ class MarkerTable:
         F, D = len(frames), len(labels)
         pos = np.full((F, D, 3), np.nan)
         pos[fi, li] = self.data[["x", "y", "z"]].to_numpy()
-        status = np.full((F, D), "missing", dtype=object)
+        status = np.full((F, D), MISSING, dtype=object)
         status[fi, li] = self.data["status"].astype(str).to_numpy()
         n_views = np.zeros((F, D), np.int64)
         n_views[fi, li] = self.data["n_views"].to_numpy()
@@ -227,7 +233,7 @@ def marker_table_problems(table: MarkerTable, max_abs_mm: float = MAX_ABS_MM) ->
         out.append("non-finite times")
     scale = {"mm": 1.0, "cm": 10.0, "m": 1000.0}.get(str(table.meta.get("units", "mm")), 1.0)
     xyz = data[["x", "y", "z"]].to_numpy() * scale
-    missing = (data["status"] == "missing").to_numpy()
+    missing = (data["status"] == MISSING).to_numpy()
     others = set(table.meta.get("point_types") or {})
     bounded = ~data["label"].isin(others).to_numpy() if others else np.ones(len(data), bool)
     with np.errstate(invalid="ignore"):

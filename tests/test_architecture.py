@@ -1,8 +1,8 @@
 """The layers of docs/ARCHITECTURE.md, checked on the source: every import statement (module level
 and inside functions) of the three top-level packages is read with ``ast`` and must go in an
-allowed direction; the module graph must have no cycle.
+allowed direction; neither the module graph nor the package graph may have a cycle.
 
-    core   <-   domain packages (never sideways)   <-   application (app, bench, commands, cli)
+    core  <-  domain packages (never sideways)  <-  app  <-  bench  <-  commands (+ cli)
 
 A new domain package (e.g. ``spinemocap.bodymodel``, ``spinemocap.opensim``) only needs an entry in
 ``UNITS`` (it then may import core only); a new core module goes into ``CORE``.
@@ -20,7 +20,8 @@ PACKAGES = ("spinemocap", "calibration", "exporters")
 
 # core: small modules of shared types and helpers; they import only each other
 CORE = {f"spinemocap.{name}" for name in
-        ("_version", "camera", "tape", "markers", "capture", "views", "geometry", "fileio", "timing", "skin", "reference")}
+        ("version", "camera", "tape", "markers", "capture", "views", "geometry", "fileio", "timing", "skin", "reference",
+         "frames")}
 # unit (module prefix) -> layer
 UNITS = {
     "spinemocap.detect": "domain",
@@ -33,11 +34,13 @@ UNITS = {
     "calibration": "domain",
     "exporters": "domain",
     "spinemocap.app": "app",
-    "spinemocap.bench": "app",
-    "spinemocap.commands": "app",
-    "spinemocap.cli": "app",
-    "spinemocap.__main__": "app",
+    "spinemocap.bench": "bench",
+    "spinemocap.commands": "commands",
+    "spinemocap.cli": "commands",
+    "spinemocap.__main__": "commands",
 }
+# the layers, bottom up: a unit imports its own unit or a lower layer (domain: core only)
+ORDER = ("core", "domain", "app", "bench", "commands")
 # the package root re-exports the public API lazily: it may name anything, nobody imports it
 API = "spinemocap"
 
@@ -66,11 +69,11 @@ def allowed(src_unit: str, dst_unit: str) -> bool:
         return False  # import the defining module instead
     if src == "api":
         return True
-    if src == "core":
-        return dst == "core"
     if src == "domain":
         return dst == "core"  # domain packages never import each other
-    return dst in ("core", "domain", "app")  # the application layer uses everything below
+    if src == dst:
+        return src != "domain"  # the application layers are one unit each, core modules import each other
+    return ORDER.index(dst) < ORDER.index(src)
 
 
 def module_files() -> dict[str, Path]:
@@ -132,8 +135,8 @@ def test_imports_follow_the_layers():
     assert not wrong, "imports against the layers (docs/ARCHITECTURE.md):\n" + "\n".join(wrong)
 
 
-def test_no_import_cycles():
-    """Tarjan's strongly connected components over the module graph (function-level imports too)."""
+def cycles_of(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Tarjan's strongly connected components of more than one node."""
     index: dict[str, int] = {}
     low: dict[str, int] = {}
     stack: list[str] = []
@@ -144,7 +147,7 @@ def test_no_import_cycles():
         index[v] = low[v] = len(index)
         stack.append(v)
         on_stack.add(v)
-        for w, _ in GRAPH[v]:
+        for w in graph[v]:
             if w == v:
                 continue
             if w not in index:
@@ -163,10 +166,38 @@ def test_no_import_cycles():
             if len(component) > 1:
                 cycles.append(sorted(component))
 
-    for module in GRAPH:
-        if module not in index:
-            visit(module)
+    for node in graph:
+        if node not in index:
+            visit(node)
+    return cycles
+
+
+def package_of(module: str) -> str:
+    """The package a module belongs to (a package's ``__init__`` is the package itself; the core
+    modules, which sit beside the API root, are one package)."""
+    if module in CORE:
+        return "core"
+    return module if MODULES[module].name == "__init__.py" else module.rpartition(".")[0] or module
+
+
+def test_no_import_cycles():
+    """Over the module graph (function-level imports too)."""
+    cycles = cycles_of({module: {target for target, _ in imports} for module, imports in GRAPH.items()})
     assert not cycles, f"import cycles: {cycles}"
+
+
+def test_no_package_cycles():
+    """Over the package graph: a module of package A importing one of B and a module of B importing
+    one of A is a cycle even when the two modules' own graph has none."""
+    packages: dict[str, set[str]] = {}
+    for module, imports in GRAPH.items():
+        edges = packages.setdefault(package_of(module), set())
+        edges |= {package_of(target) for target, _ in imports}
+    for package in list(packages.values()):
+        for target in package:
+            packages.setdefault(target, set())
+    cycles = cycles_of(packages)
+    assert not cycles, f"package import cycles: {cycles}"
 
 
 @pytest.mark.parametrize("src,dst,ok", [
@@ -176,7 +207,17 @@ def test_no_import_cycles():
     ("spinemocap.bodymodel", "spinemocap.synth", False),
     ("core", "spinemocap.track", False),
     ("spinemocap.app", "spinemocap.track", True),
+    ("spinemocap.app", "spinemocap.bench", False),
+    ("spinemocap.app", "spinemocap.commands", False),
+    ("spinemocap.bench", "spinemocap.app", True),
+    ("spinemocap.bench", "spinemocap.commands", False),
+    ("spinemocap.bench", "spinemocap.cli", False),
     ("spinemocap.commands", "spinemocap.bench", True),
+    ("spinemocap.commands", "spinemocap.app", True),
+    ("spinemocap.cli", "spinemocap.commands", True),
+    ("exporters", "core", True),
+    ("exporters", "spinemocap.app", False),
+    ("calibration", "spinemocap.bench", False),
     ("spinemocap.track", API, False),
 ])
 def test_the_rules_themselves(src, dst, ok):

@@ -84,7 +84,7 @@ def test_synth_calibration_and_wand_wave_cli(tmp_path, capsys):
     assert len(list((out / "board" / "cam2").glob("*.png"))) == 5
     rig_out = tmp_path / "rig.toml"
     code = main(["calibrate", "wand-wave", "--intrinsics", str(out / "rig_true.toml"), "--videos",
-                 *[str(out / "wand" / n) for n in truth.names], "--wand", "t", "--floor-frames", "0-2",
+                 *[str(out / "wand" / n) for n in truth.names], "--wand", "t", "--floor-frames", "0:3",
                  "--out", str(rig_out)])
     assert code == 0
     assert "wand length" in capsys.readouterr().out

@@ -9,6 +9,7 @@ import pytest
 
 import spinemocap.track.candidates as candidates
 from spinemocap.geometry import triangulate_dlt
+from spinemocap.track.config import CandidateConfig
 from spinemocap.views import ViewDots
 
 
@@ -72,7 +73,7 @@ def test_fast_search_finds_the_same_candidates_on_a_studio_frame(studio_frame, m
 def test_remembered_rows_are_the_rows_solved_again(studio_frame):
     rig, views = studio_frame
     v = candidates._Views(rig, views)
-    rows = candidates._pairwise_rows(v, candidates.CandidateConfig())[0]
+    rows = candidates._pairwise_rows(v, CandidateConfig())[0]
     first = v.solve(rows, 2.0)
     shuffled = np.random.default_rng(0).permutation(len(rows))
     again = v.solve(np.concatenate([rows[shuffled], rows[:3]]), 2.0)      # remembered, other order

@@ -75,14 +75,14 @@ def test_opencv_threads_apply_while_cameras_run_in_parallel_and_are_restored():
 
     import cv2
 
-    from spinemocap.app.streaming import LEGACY, CaptureDetector, SpeedOptions
+    from spinemocap.app.streaming import SERIAL, CaptureDetector, SpeedOptions
 
     before = cv2.getNumThreads()
     wanted = 1 if before != 1 else 2
     CaptureDetector("mask", None, SpeedOptions(opencv_threads=wanted, workers=1)).close()
     assert cv2.getNumThreads() == before  # cameras one after the other: OpenCV keeps its threads
-    detect = CaptureDetector("mask", None, LEGACY)
-    assert cv2.getNumThreads() == before  # the legacy path leaves OpenCV alone
+    detect = CaptureDetector("mask", None, SERIAL)
+    assert cv2.getNumThreads() == before  # the serial pipeline leaves OpenCV alone
     detect.close()
     if (os.cpu_count() or 1) < 2:
         pytest.skip("one core: the cameras never run in parallel threads")

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from spinemocap.tape import TapeSpec
-from spinemocap.track.mrf1 import MRF1Config, fit_mrf1
+from spinemocap.track.config import MRF1Config
+from spinemocap.track.mrf1 import fit_mrf1
 from spinemocap.track.normals import NormalField
 from spinemocap.track.template import build_template, tape_frames
 from spinemocap.track.types import FeasibleSet

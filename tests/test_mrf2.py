@@ -6,9 +6,10 @@ import pytest
 
 from spinemocap.camera import Camera, Rig
 from spinemocap.tape import TapeSpec
+from spinemocap.track.config import MRF1Config, MRF2Config
 from spinemocap.track.evidence import build_evidence
-from spinemocap.track.mrf1 import MRF1Config, fit_mrf1
-from spinemocap.track.mrf2 import MRF2Config, RefinementMRF, TemplateEvidenceScore, refine_mrf2
+from spinemocap.track.mrf1 import fit_mrf1
+from spinemocap.track.mrf2 import RefinementMRF, TemplateEvidenceScore, refine_mrf2
 from spinemocap.track.types import FeasibleSet
 
 TAPE = TapeSpec(n_rows=13).graph

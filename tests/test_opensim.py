@@ -19,14 +19,20 @@ FPS = 12.0  # the mixed motion's first second: ~16 deg flexion, ~27 deg lateral 
 
 
 def test_missing_opensim_says_how_to_install(monkeypatch, tmp_path):
-    import argparse
-
-    from spinemocap.commands.opensim import run_opensim_command
+    from spinemocap.app.opensim import opensim_capture
 
     monkeypatch.setitem(sys.modules, "opensim", None)
-    args = argparse.Namespace(results=tmp_path, capture=tmp_path, out=tmp_path / "out")
     with pytest.raises(InputError, match=r"pip install 'spinemocap\[opensim\]'"):
-        run_opensim_command(args)
+        opensim_capture(tmp_path, tmp_path, tmp_path / "out")
+
+
+def test_a_lab_model_needs_its_body_map(tmp_path, capsys):
+    pytest.importorskip("opensim")
+    from spinemocap.cli import main
+
+    assert main(["opensim", str(tmp_path), "--capture", str(tmp_path), "--out", str(tmp_path / "out"),
+                 "--model", str(tmp_path / "lab.osim")]) == 2
+    assert "--model: a lab model needs both" in capsys.readouterr().err
 
 
 try:

@@ -355,7 +355,7 @@ def test_replay_benchmark_runs_both_parallel_modes_from_memory_and_video(tmp_pat
     from spinemocap.synth import SynthConfig, write_capture
 
     root = write_capture(SynthConfig.preset("tiny", frames=3), tmp_path / "capture", progress=False)
-    numbers = run_replay_benchmark(root, 5, legacy=False, speed=SpeedOptions(workers=2, parallel="threads"),
+    numbers = run_replay_benchmark(root, 5, serial_peer=False, speed=SpeedOptions(workers=2, parallel="threads"),
                                    sensor_noise=3.0, progress=False, say=lambda _: None, video_frames=3,
                                    workdir=tmp_path / "work")
     runs = {r["run"]: r for r in numbers["runs"]}

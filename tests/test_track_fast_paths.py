@@ -11,9 +11,10 @@ import torch
 from spinemocap.camera import Camera, Rig
 from spinemocap.tape import TapeSpec
 from spinemocap.track import continuity, lattice, stretch, template
+from spinemocap.track.config import MRF1Config, MRF2Config
 from spinemocap.track.evidence import EvidenceImage
-from spinemocap.track.mrf1 import AlignmentMRF, MRF1Config
-from spinemocap.track.mrf2 import MRF2Config, RefinementMRF
+from spinemocap.track.mrf1 import AlignmentMRF
+from spinemocap.track.mrf2 import RefinementMRF
 from spinemocap.track.normals import NormalField
 from spinemocap.track.pbp import ParticleBP
 

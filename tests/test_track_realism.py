@@ -100,7 +100,7 @@ def test_tracker_keeps_every_label_with_30_percent_tension():
     # the tracker without stretch estimation (nominal spacing) loses the tape on the same frame
     with pytest.warns(TrackingWarning):
         before = run_tracking(iter(views[:1]), rig, SPEC, fps=100.0, mode="paper", progress=False,
-                              config=TrackerConfig.before_issue_11())
+                              config=TrackerConfig.nominal_unchecked())
     assert not before.frames[0].solved or label_swaps(before.table.positions(), truth[:1], 15.0).mean() > 0.2
 
 
@@ -304,7 +304,7 @@ def test_an_unobserved_tape_end_placed_by_the_model_alone_flags_its_dots_and_the
     assert confidence[~end & (result.status == "observed")].min() == 1.0
     assert flagged_from_confidence(np.array(result.status)[None], confidence[None])[0]  # markers.csv tells it
     # the peer (no stretch estimation) keeps the check off
-    assert TrackerConfig.before_issue_11().status.unanchored_rows == 0
+    assert TrackerConfig.nominal_unchecked().status.unanchored_rows == 0
 
 
 def test_a_resolve_after_an_unsolved_frame_with_an_unseen_tape_end_is_flagged():

@@ -23,10 +23,10 @@ from spinemocap.track.candidates import (
     fundamental_matrix,
     suppress_dominated,
 )
-from spinemocap.track.config import SequenceConfig, TrackerConfig
+from spinemocap.track.config import LPConfig, SequenceConfig, TrackerConfig
 from spinemocap.track.edges import build_edges
 from spinemocap.track.evaluate import label_swaps, plane_baseline, plane_baselines
-from spinemocap.track.lp import LPConfig, neighbour_bounds, select_edges
+from spinemocap.track.lp import neighbour_bounds, select_edges
 from spinemocap.track.pipeline import FrameTracker
 from spinemocap.track.sequence import fill_and_smooth
 from spinemocap.track.types import CandidateCloud

@@ -25,6 +25,9 @@ from ..markers import MarkerTable
 
 log = logging.getLogger(__name__)
 
+#: Marker files looked for in a results folder given as input, in this order.
+READABLE_MARKER_FILES = ("markers.csv", "markers.parquet", "markers.c3d", "markers.trc")
+
 RESULTS_MANIFEST = "markers.manifest.json"
 RESULT_FILES = ("markers.csv", "markers.trc", "markers.c3d")
 
@@ -113,3 +116,22 @@ def results_run_id(out_dir: str | Path) -> str:
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputError(out, f"incomplete set of marker files (no valid {RESULTS_MANIFEST}: {exc}); "
                               "the run that wrote them was interrupted") from exc
+
+
+def find_markers(results: Path) -> Path:
+    """The marker file inside a results folder (the first of :data:`READABLE_MARKER_FILES`), or
+    ``results`` itself when it is a file. Raises :class:`InputError` naming ``results`` when
+    neither is there."""
+    if results.is_dir():
+        for name in READABLE_MARKER_FILES:
+            if (results / name).is_file():
+                return results / name
+        raise InputError(results, f"results folder holds none of {', '.join(READABLE_MARKER_FILES)}")
+    if not results.is_file():
+        raise InputError(results, "no such marker file or results folder")
+    return results
+
+
+def read_results(results: str | os.PathLike) -> MarkerTable:
+    """The marker table of a results folder or marker file (:func:`find_markers`)."""
+    return exporters.read(find_markers(Path(results)))

@@ -14,7 +14,7 @@ import time
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable, Literal, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -22,6 +22,7 @@ from tqdm import tqdm
 from ..camera import Rig
 from ..capture import Capture, FrameSource
 from ..fileio import InputError, check_writable
+from ..frames import parse_frames
 from ..markers import MarkerTable
 from ..reference import ReferenceObject
 from ..tape import TapeSpec
@@ -47,7 +48,9 @@ from .streaming import CaptureDetector, SpeedOptions, detected_ahead, prefetched
 
 log = logging.getLogger(__name__)
 
-MODES = ("sequence", "paper")
+#: ``sequence``: frame to frame (identities carried, gaps filled); ``paper``: every frame on its own.
+TrackingMode = Literal["sequence", "paper"]
+MODES: tuple[TrackingMode, ...] = ("sequence", "paper")
 
 
 class TrackingWarning(UserWarning):
@@ -185,7 +188,7 @@ def run_tracking(
     tape: TapeSpec,
     fps: float,
     up: Sequence[float] = (0.0, 0.0, 1.0),
-    mode: str = "sequence",
+    mode: TrackingMode = "sequence",
     config: TrackerConfig | None = None,
     progress: bool = True,
     n_frames: int | None = None,
@@ -248,27 +251,26 @@ def run_tracking(
     return TrackResult(table, results, residuals, calibration)
 
 
-def parse_frames(spec: str | None, n_frames: int, source: str = "--frames") -> range:
-    """``A:B`` (Python slice, B exclusive, either side optional) -> frame range within the capture."""
-    if not spec:
+def select_frames(frames: str | Sequence[int] | None, n_frames: int) -> range:
+    """The capture's frames to track: all (``None`` or ``""``), a selection string
+    (:func:`spinemocap.frames.parse_frames`) or the given indices. The tracker follows the tape
+    from frame to frame and numbers its output rows from the first frame, so the selection must be
+    consecutive frames. Raises :class:`InputError` naming ``frames`` otherwise."""
+    if frames is None or len(frames) == 0:
         return range(n_frames)
-    try:
-        a, _, b = spec.partition(":")
-        start = int(a) if a else 0
-        stop = int(b) if b else n_frames
-    except ValueError:
-        raise InputError(source, f"frame range {spec!r} is not of the form A:B") from None
-    start, stop = max(start, 0), min(stop, n_frames)
-    if start >= stop:
-        raise InputError(source, f"frame range {spec!r} selects no frame of the {n_frames} in the capture")
-    return range(start, stop)
+    selected = parse_frames(frames, n_frames, "frames") if isinstance(frames, str) else list(frames)
+    if any(b - a != 1 for a, b in zip(selected, selected[1:])):
+        raise InputError("frames", f"the tracker needs consecutive frames (A:B), got {frames!r}")
+    if selected[0] < 0 or selected[-1] >= n_frames:
+        raise InputError("frames", f"frames {selected[0]}..{selected[-1]} are not all in the capture (0..{n_frames - 1})")
+    return range(selected[0], selected[-1] + 1)
 
 
 def source_views(source: FrameSource, frames: Sequence[int], detect: CaptureDetector,
                  speed: SpeedOptions | None = None, mask_dir: Path | None = None):
     """Yield ``(frame, views, detect_ms)`` for :func:`run_tracking`: images decoded once (cameras
     in parallel, prefetched), ground-truth masks (``mask_dir``) read only for the ``mask``
-    detector (or always with ``speed.masks_always``, the legacy path). ``detect_ms`` is the time
+    detector (or always with ``speed.masks_always``, the serial pipeline). ``detect_ms`` is the time
     the tracker waited for the frame: reading not hidden by the prefetching, plus detection."""
     speed = speed or SpeedOptions()
     read_masks = (detect.needs_masks or speed.masks_always) and mask_dir is not None and mask_dir.is_dir()
@@ -298,7 +300,7 @@ def track_source(
     fps: float,
     frames: Sequence[int] | None = None,
     up: Sequence[float] = (0.0, 0.0, 1.0),
-    mode: str = "sequence",
+    mode: TrackingMode = "sequence",
     config: TrackerConfig | None = None,
     detector: str = "net",
     progress: bool = True,
@@ -332,10 +334,10 @@ def track_source(
 def track_capture(
     capture_dir: str | Path,
     out_dir: str | Path,
-    mode: str = "sequence",
+    mode: TrackingMode = "sequence",
     config: TrackerConfig | None = None,
     detector: str = "net",
-    frames: str | range | None = None,
+    frames: str | Sequence[int] | None = None,
     progress: bool = True,
     stop: Callable[[], bool] | None = None,
     speed: SpeedOptions | None = None,
@@ -343,9 +345,10 @@ def track_capture(
     """Track a capture folder and write ``out_dir/markers.csv`` plus ``.trc`` and ``.c3d`` as one
     set (:func:`write_markers`). ``out_dir`` is checked for writing before any work.
 
-    ``frames``: ``"A:B"`` or a range (default: all); ``stop``: see :func:`run_tracking`;
+    ``frames``: a frame selection (:mod:`spinemocap.frames`, e.g. ``"0:100"``) or frame indices
+    (default: all); ``stop``: see :func:`run_tracking`;
     ``speed``: reading and detection options (:class:`~spinemocap.app.streaming.SpeedOptions`;
-    ``streaming.LEGACY`` is the previous pipeline). Returns the marker table (mm, world Z up)."""
+    ``streaming.SERIAL`` is the serial pipeline). Returns the marker table (mm, world Z up)."""
     return track_capture_result(capture_dir, out_dir, mode, config, detector, frames, progress,
                                 stop=stop, speed=speed).table
 
@@ -353,10 +356,10 @@ def track_capture(
 def track_capture_result(
     capture_dir: str | Path,
     out_dir: str | Path,
-    mode: str = "sequence",
+    mode: TrackingMode = "sequence",
     config: TrackerConfig | None = None,
     detector: str = "net",
-    frames: str | range | None = None,
+    frames: str | Sequence[int] | None = None,
     progress: bool = True,
     refine: RigRefineConfig | None = None,
     stop: Callable[[], bool] | None = None,
@@ -379,7 +382,7 @@ def track_capture_result(
     check_writable(out_dir)
     if mode not in MODES:
         raise InputError(capture_dir, f"unknown tracking mode {mode!r}; choose from {MODES}")
-    frame_range = frames if isinstance(frames, range) else parse_frames(frames, capture.n_frames)
+    frame_range = select_frames(frames, capture.n_frames)
     control, reference_path = None, None
     if refine is not None:
         control, reference_path = capture_control_points(capture, frame_range, reference)

@@ -27,9 +27,8 @@ parallel, and detection by prediction in sequence mode.
   detects whole frames in a background thread. Both give the same output. ``lookahead=0`` (the
   default) keeps the exact serial order.
 
-:data:`LEGACY` reproduces the previous pipeline (one camera after the other, no
-prefetching, masks read whenever the capture has them, the full search in every frame): the
-speed benchmark's peer.
+:data:`SERIAL` is the serial pipeline (one camera after the other, no prefetching, masks read
+whenever the capture has them, the full search in every frame): the speed benchmark's peer.
 """
 
 from __future__ import annotations
@@ -99,7 +98,7 @@ class SpeedOptions:
         opencv_threads: OpenCV's threads while cameras run in parallel threads (restored
             afterwards). 1: serial OpenCV per camera thread (a pool per core spins on the small
             images on many-core machines); None: leave OpenCV's setting.
-        masks_always: read ``masks/`` even when the detector does not use them (the previous
+        masks_always: read ``masks/`` even when the detector does not use them (the serial
             pipeline's behaviour, for the speed benchmark's peer).
         lookahead: frames whose detection may run ahead of the tracker. 0: the exact serial
             order. 1: frame t+1 is detected while frame t is solved, its boxes predicted from
@@ -156,7 +155,7 @@ class SpeedOptions:
         return max(1, min(n_cameras, self.workers or os.cpu_count() or 1))
 
 
-LEGACY = SpeedOptions(workers=1, parallel="threads", prefetch=0, predict=False, batch=False, device="cpu", opencv_threads=None,
+SERIAL = SpeedOptions(workers=1, parallel="threads", prefetch=0, predict=False, batch=False, device="cpu", opencv_threads=None,
                       masks_always=True, lookahead=0, precision="float32")
 
 

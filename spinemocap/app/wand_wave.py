@@ -9,13 +9,13 @@ The subject has not stepped in yet: nothing hides the wand. Frames and clocks:
   level's calibration error), the capture's frame rate; camera ``c``'s frame ``i`` shows the wand
   at studio time ``i / fps + sync_offset_s[c]`` (the capture's per-camera clock errors). Markers
   are rendered as spheres (bright discs of the exact projected radius, antialiased, on a dark
-  background, blurred, with the capture's sensor noise) by the calibration bench's wand renderer
-  (:func:`spinemocap.bench.calibration_scenes.render_wand_frame`).
+  background, blurred, with the capture's sensor noise) by the synthetic wand renderer
+  (:func:`spinemocap.synth.wand.render_wand_frame`).
 - Vicon: the same marker centres mapped into the Vicon frame (``X_v = R X + t``), sampled at the
   Vicon rate on the Vicon clock (frame ``j`` at ``t_vicon = j / rate`` = studio time ``t_vicon -
   clock_offset_s``), with the Vicon's noise: exactly the truth of the virtual Vicon's trial.
-- The wave: the calibration bench's smooth random wave
-  (:func:`spinemocap.bench.calibration_scenes.wand_trajectory`), its centre moved and its sweep
+- The wave: the synthetic wand's smooth random wave
+  (:func:`spinemocap.synth.wand.wand_trajectory`), its centre moved and its sweep
   scaled (:func:`plan_wave`) so that the whole wand stays in view of at least two cameras in
   most frames; at low frame rates it is slowed down (highest wave frequency at most fps / 8) and
   lengthened to at least :data:`MIN_FRAMES` frames.
@@ -41,10 +41,10 @@ from tqdm import tqdm
 
 from calibration.wand import WandSpec
 
-from ..bench.calibration_scenes import render_wand_frame, wand_trajectory
 from ..bodymodel.virtual_vicon import ViconSetup
 from ..camera import Rig
 from ..fileio import InputError
+from ..synth.wand import render_wand_frame, wand_trajectory
 from .c3d_inputs import write_vicon_wand_c3d
 
 log = logging.getLogger(__name__)
@@ -75,7 +75,7 @@ class WavePlan:
 
 def wave_markers(wand: WandSpec, plan: WavePlan, studio_time_s: np.ndarray, seed: int) -> np.ndarray:
     """(T, M, 3) true marker centres (studio frame, mm) at studio times (s)."""
-    raw = wand_trajectory(np.asarray(studio_time_s, float) * plan.time_scale, wand, seed, np.zeros(3))
+    raw = wand_trajectory(np.asarray(studio_time_s, float) * plan.time_scale, wand.points_mm, seed, np.zeros(3))
     centroid = raw.mean(axis=1, keepdims=True)  # the bench's wave centre + its sweep
     return raw - centroid + plan.centre_mm + plan.sweep_scale * centroid
 

@@ -30,6 +30,7 @@ from calibration.boards import BoardSpec
 from calibration.wand import WandSpec
 from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import InputError, write_toml
+from spinemocap.synth.wand import render_wand_frame, wand_trajectory
 
 #: The floor board lies face up with its pattern origin at the world origin: board x = world x,
 #: board y = world -y, board z (into the board) = world -z.
@@ -265,51 +266,6 @@ class WandWave:
     offset_s: float
 
 
-def wand_trajectory(times_s: np.ndarray, wand: WandSpec, seed: int, centre_mm) -> np.ndarray:
-    """(T, 5, 3) world marker positions of a smoothly waved wand: a sum of a few random
-    sinusoids (0.2-1.2 Hz) for the centre (+-400 mm) and for the orientation (rotation vector)."""
-    rng = np.random.default_rng(seed)
-    freqs = rng.uniform(0.2, 1.2, (4, 6))
-    phases = rng.uniform(0, 2 * np.pi, (4, 6))
-    amps = np.concatenate([rng.uniform(60, 160, (4, 3)), rng.uniform(0.15, 0.45, (4, 3))], axis=1)
-    signal = np.sum(amps[:, None, :] * np.sin(2 * np.pi * freqs[:, None, :] * times_s[None, :, None]
-                                               + phases[:, None, :]), axis=0)
-    base = Rotation.from_euler("x", 90, degrees=True)  # wand plane roughly vertical, facing the ring
-    rotations = Rotation.from_rotvec(signal[:, 3:]) * base
-    local = wand.points_mm - wand.points_mm.mean(axis=0)
-    return np.stack([rot.apply(local) for rot in rotations]) + (np.asarray(centre_mm) + signal[:, None, :3])
-
-
-def render_wand_frame(cam: Camera, markers_mm: np.ndarray, radius_mm: float, noise: np.ndarray,
-                      background: float = 25.0) -> np.ndarray:
-    """Dark grey image with each marker sphere as a bright anti-aliased disc of the exact
-    projected radius, nearer spheres drawn last, plus the sensor ``noise`` field (H, W)."""
-    w, h = cam.size
-    image = np.full((h, w), background, np.float32)
-    depth = cam.depth(markers_mm)
-    centres = cam.project(markers_mm)
-    fx = cam.K[0, 0]
-    w, h = cam.size
-    sub = (np.arange(8) + 0.5) / 8 - 0.5  # 8x8 supersamples per pixel: exact area coverage
-    for k in np.argsort(-depth):
-        if depth[k] <= radius_mm or not np.all(np.isfinite(centres[k])):
-            continue
-        r_px = fx * radius_mm / np.sqrt(depth[k] ** 2 - radius_mm ** 2)
-        (u, v), reach = centres[k], int(np.ceil(r_px)) + 1
-        u0, u1 = max(int(np.floor(u)) - reach, 0), min(int(np.ceil(u)) + reach + 1, w)
-        v0, v1 = max(int(np.floor(v)) - reach, 0), min(int(np.ceil(v)) + reach + 1, h)
-        if u0 >= u1 or v0 >= v1:
-            continue
-        su = (np.arange(u0, u1)[:, None] + sub[None]).ravel()
-        sv = (np.arange(v0, v1)[:, None] + sub[None]).ravel()
-        inside = ((sv[:, None] - v) ** 2 + (su[None] - u) ** 2) <= r_px ** 2
-        cover = inside.reshape(v1 - v0, 8, u1 - u0, 8).mean(axis=(1, 3))
-        patch = image[v0:v1, u0:u1]
-        patch[:] = patch * (1 - cover) + 235.0 * cover
-    image = cv2.GaussianBlur(image, (0, 0), 0.5) + noise
-    return np.clip(np.round(image), 0, 255).astype(np.uint8)
-
-
 def render_wand_wave(rig: Rig, wand: WandSpec | None = None, duration_s: float = 6.0, fps: float = 50.0,
                      vicon_rate: float = 100.0, offset_s: float = 0.0237, seed: int = 3,
                      vicon_rotation_deg=(0.0, 0.0, 37.0), vicon_translation_mm=(412.0, -1250.0, 15.0),
@@ -321,10 +277,10 @@ def render_wand_wave(rig: Rig, wand: WandSpec | None = None, duration_s: float =
     centre = np.mean([c.center for c in rig], axis=0)
     centre[2] = 1100.0
     t_rgb = np.arange(int(duration_s * fps)) / fps
-    world = wand_trajectory(t_rgb, wand, seed, centre)
+    world = wand_trajectory(t_rgb, wand.points_mm, seed, centre)
     # Vicon samples the same motion on its own clock: Vicon time tv shows the wand at RGB time tv - offset.
     t_vicon = np.arange(int((duration_s + 1.0) * vicon_rate)) / vicon_rate - 0.5
-    vicon_world = wand_trajectory(t_vicon - offset_s, wand, seed, centre)
+    vicon_world = wand_trajectory(t_vicon - offset_s, wand.points_mm, seed, centre)
     R = Rotation.from_euler("xyz", vicon_rotation_deg, degrees=True).as_matrix()
     t = np.asarray(vicon_translation_mm, float)
     vicon = vicon_world @ R.T + t + rng.normal(0, 0.05, vicon_world.shape)
@@ -384,7 +340,7 @@ def render_wand_calibration(rig: Rig, wand: WandSpec, duration_s: float = 4.0, f
              for _ in range(floor_frames_per_placement)]
     centre = np.mean([c.center for c in rig], axis=0)
     centre[2] = 1100.0
-    wave = wand_trajectory(np.arange(int(duration_s * fps)) / fps, wand, seed, centre)
+    wave = wand_trajectory(np.arange(int(duration_s * fps)) / fps, wand.points_mm, seed, centre)
     world = np.concatenate([np.asarray(floor).reshape(-1, wand.n_markers, 3), wave])
     images = render_marker_frames(rig, world, wand, rng, noise_sigma)
     return WandCalibrationWave(rig, wand, fps, images, world, list(range(len(floor))))

@@ -1,7 +1,7 @@
 """The realism benchmark (``spinemocap bench realism``): the tracker on a studio as hard
 as a real back, one factor at a time and all together at the ``lab`` level, beside the tracker
 as it was before (the roll's nominal dot spacing, the fixed 2 px candidate gate, no label
-continuity check: :meth:`TrackerConfig.before_issue_11`) on the very same rendered frames.
+continuity check: :meth:`TrackerConfig.nominal_unchecked`) on the very same rendered frames.
 
 Each case renders the ``artificial`` preset (4 cameras, light occlusion unless told) with the
 shipped detector, tracks it in sequence mode with both trackers and scores them against the
@@ -106,7 +106,7 @@ def run_case(case: Case, frames: int, fps: float | None, preset: str, occlusion:
     gt = scene.groundtruth
     spacing = float(scene.tape.graph.rest_length_mm.min())
     row: dict = {"case": case.name, "factor": case.factor, "studio": {k: v for k, v in case.studio.items()}}
-    for name, config in (("new", TrackerConfig()), ("peer", TrackerConfig.before_issue_11())):
+    for name, config in (("new", TrackerConfig()), ("peer", TrackerConfig.nominal_unchecked())):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", TrackingWarning)
             warnings.simplefilter("ignore", CalibrationWarning)

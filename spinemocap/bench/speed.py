@@ -1,6 +1,6 @@
 """The speed benchmark (``spinemocap bench speed``): end-to-end frames per second of
 tracking the synthetic studio, from frames held in memory, from PNG images and from lossless
-video, with the previous pipeline (:data:`spinemocap.app.streaming.LEGACY`) as the peer in the
+video, with the previous pipeline (:data:`spinemocap.app.streaming.SERIAL`) as the peer in the
 same run.
 
 The scene is rendered once into a capture folder of PNG images (``write_capture``) and copied
@@ -11,7 +11,7 @@ shipped network detector and reports frames/s (wall time of detection + tracking
 included, writing the outputs excluded), the mean time per stage per frame, the peak resident
 memory during the run above the memory before it (sampled every 20 ms), the detector's routes
 (predicted box / full search) and the accuracy against the ground truth, so a faster run that got
-worse shows it. ``speedup_vs_previous`` is the new pipeline's fps over the legacy one's on the
+worse shows it. ``speedup_vs_previous`` is the new pipeline's fps over the serial one's on the
 same frames and source (PNG, the capture's own format); ``speedup_vs_previous_in_memory`` the
 same from memory, where at most ``memory_frames`` decoded frames are held and replayed.
 """
@@ -33,8 +33,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from ..app.run import TrackingWarning, TrackResult, track_source
-from ..app.streaming import LEGACY, SpeedOptions, resolve_parallel
+from ..app.run import TrackingMode, TrackingWarning, TrackResult, track_source
+from ..app.streaming import SERIAL, SpeedOptions, resolve_parallel
 from ..capture import VIDEO_CODEC, VIDEO_CODECS, VIDEO_PATTERN, Capture, FrameSource, VideoWriter
 from ..fileio import InputError, atomic_write, read_toml, write_toml
 from ..track.evaluate import evaluate_tracking
@@ -170,14 +170,14 @@ def with_sensor_noise(images: list[np.ndarray], sigma: float, seed: int) -> list
     return out
 
 
-def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence", detector: str = "net",
-                         legacy: bool = True, speed: SpeedOptions | None = None, sensor_noise: float = 0.0,
+def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "sequence", detector: str = "net",
+                         serial_peer: bool = True, speed: SpeedOptions | None = None, sensor_noise: float = 0.0,
                          progress: bool = True, say: Callable[[str], None] = print, cpu_peer: bool = True,
                          parallel_peer: bool = True, video_frames: int = 0, workdir: Path | None = None,
                          lookahead_peer: bool = False) -> dict:
     """In-memory speed of an existing synthetic capture (e.g. a few frames carried to a machine
     that cannot render): its frames played forward and backward (:func:`replay_order`) for
-    ``frames`` frames, the ground truth replayed alike; the new pipeline and the legacy peer.
+    ``frames`` frames, the ground truth replayed alike; the new pipeline and the serial peer.
     When the network runs on a GPU, ``cpu_peer`` also runs the same pipeline on the CPU in the
     same run (``speedup_vs_cpu``) and every source frame is detected on both to compare the dots
     (``device_check``). ``parallel_peer``: the cameras also in the other parallel mode (processes
@@ -186,7 +186,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
     lossless UT Video into ``workdir`` (reused when there) and tracked from it, in both modes.
     ``lookahead_peer``: also the same pipeline with the other ``lookahead`` (0 when ``speed``
     looks ahead, else 1; :func:`lookahead_numbers`).
-    Ground-truth masks are not replayed (the legacy peer reads none here)."""
+    Ground-truth masks are not replayed (the serial peer reads none here)."""
     from ..detect.detector import resolve_device
 
     speed = speed or SpeedOptions()
@@ -207,8 +207,8 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: str = "sequence",
         configs.append((f"in_memory_lookahead{_peer_lookahead(speed)}", replace(speed, lookahead=_peer_lookahead(speed))))
     if device != "cpu" and cpu_peer:
         configs.append(("in_memory_cpu", replace(speed, device="cpu")))
-    if legacy:
-        configs.append(("in_memory_legacy", LEGACY))
+    if serial_peer:
+        configs.append(("in_memory_legacy", SERIAL))
     say(f"warming up (2 frames per run, not timed; network on {device}) ...")
     for _, options in configs:
         _timed_run(replayed, capture, options, mode, detector, False, range(2), masks=False)
@@ -284,7 +284,7 @@ def lookahead_numbers(runs: list[dict], speed: SpeedOptions, positions: dict[str
 
 
 def _replayed_video_runs(capture: Capture, replayed: MemorySource, gt: dict, n_frames: int, workdir: Path | None,
-                         speed: SpeedOptions, mode: str, detector: str, progress: bool, say: Callable[[str], None],
+                         speed: SpeedOptions, mode: TrackingMode, detector: str, progress: bool, say: Callable[[str], None],
                          runs: list[dict], parallel_peer: bool) -> float:
     """Track the first ``n_frames`` replayed frames from a lossless UT Video copy (``video`` with
     ``speed``, and ``video_<other mode>`` with the cameras in the other parallel mode); returns the fps."""
@@ -368,7 +368,7 @@ def _not_worse(new: dict, peer: dict) -> bool:
             and new["frames_without_solution"] <= peer["frames_without_solution"])
 
 
-def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode: str, detector: str,
+def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode: TrackingMode, detector: str,
                progress: bool, frames: range | None = None, masks: bool = True) -> tuple[TrackResult, float, float]:
     """Track ``frames`` of ``source`` (all when None): result, wall seconds, peak MiB.
     ``masks``: the capture's ground-truth ``masks/`` may be read (False for a replayed source)."""
@@ -442,14 +442,14 @@ def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, captu
 
 
 def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: str = "none",
-                        mode: str = "sequence", detector: str = "net", seed: int = 0,
-                        workdir: Path | None = None, legacy: bool = True, video: bool = True,
+                        mode: TrackingMode = "sequence", detector: str = "net", seed: int = 0,
+                        workdir: Path | None = None, serial_peer: bool = True, video: bool = True,
                         in_memory: bool = True, speed: SpeedOptions | None = None, progress: bool = True,
                         say: Callable[[str], None] = print, realism: str = "lab", memory_frames: int = 30,
                         parallel_peer: bool = False, lookahead_peer: bool = False,
                         video_codec: str = VIDEO_CODEC) -> dict:
     """Render ``frames`` frames of the synthetic ``preset`` and time tracking them (see the module
-    docstring). ``legacy``: also run the previous pipeline (the peer); ``workdir``: where the
+    docstring). ``serial_peer``: also run the serial pipeline (the peer); ``workdir``: where the
     capture folders go (a temporary folder, removed afterwards, when None); ``realism``: the
     studio's level (``lab``: tension, skin strain, the lab's inexact rig, sync error, noise);
     ``memory_frames``: decoded frames held for the in-memory runs (replayed forward and backward);
@@ -488,7 +488,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
             return summary
 
         say("warming up (2 frames, not timed: model loading, first-call set-up) ...")
-        for options in (speed, LEGACY):
+        for options in (speed, SERIAL):
             _timed_run(capture.frame_source(), capture, options, mode, detector, False, range(min(2, frames)))
         mem = mem_peer = None
         if in_memory:
@@ -509,8 +509,8 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                 if parallel_peer:
                     run(f"in_memory_{other}_lookahead{peer_speed.lookahead}", frames_in_memory,
                         replace(peer_speed, parallel=other), gt)
-            if legacy:
-                mem_peer = run("in_memory_legacy", frames_in_memory, LEGACY, gt)
+            if serial_peer:
+                mem_peer = run("in_memory_legacy", frames_in_memory, SERIAL, gt)
             del held, frames_in_memory
         workers = speed.n_workers(len(capture.camera_names))
         decoding = {"png": decode_speed(capture.frame_source(), capture.n_frames, workers)}
@@ -533,7 +533,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                 run(f"video_lookahead{peer_speed.lookahead}", Capture.open(video_dir).frame_source(), peer_speed)
         say(f"  decoding alone: {decoding}")
         png = run("png", capture.frame_source(), speed)
-        peer = run("png_legacy", capture.frame_source(), LEGACY) if legacy else None
+        peer = run("png_legacy", capture.frame_source(), SERIAL) if serial_peer else None
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)

@@ -19,7 +19,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..app.run import TrackingWarning, make_detector, run_tracking
+from ..app.run import TrackingMode, TrackingWarning, make_detector, run_tracking
 from ..fileio import atomic_path, atomic_write
 from ..markers import MarkerTable
 from ..synth import SynthConfig, build_scene
@@ -66,7 +66,7 @@ class TrackBenchResult:
 
 
 def run_track_benchmark(preset: str = "artificial", occlusion: str = "none", frames: int | None = None,
-                        mode: str = "sequence", detector: str = "net", config: TrackerConfig | None = None,
+                        mode: TrackingMode = "sequence", detector: str = "net", config: TrackerConfig | None = None,
                         seed: int = 0, progress: bool = True,
                         say: Callable[[str], None] = print, realism: str = "lab") -> TrackBenchResult:
     """Render the synthetic sequence in-process, track it and score it against the ground truth.

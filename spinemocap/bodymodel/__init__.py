@@ -24,7 +24,7 @@ def load_model(name: str = "anny", model_path: str | os.PathLike | None = None, 
         from .smpl_body import SmplModel
 
         return SmplModel(name, model_path, gender)
-    raise InputError("--model", f"unknown body model {name!r}; expected one of {MODELS}")
+    raise InputError("model", f"unknown body model {name!r}; expected one of {MODELS}")
 
 
 __all__ = ["MODELS", "BodyModel", "RestBody", "SurfaceAnchors", "load_model"]

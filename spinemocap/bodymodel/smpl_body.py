@@ -52,7 +52,7 @@ LICENCE = {
 
 def _missing_files_error(model_type: str, model_path: str | os.PathLike | None) -> InputError:
     return InputError(
-        model_path or "--model-path",
+        model_path or "model_path",
         f"no {model_type.upper()} model file: these files are licence-gated ({LICENCE[model_type]}) and not "
         "shipped with spinemocap; register, download the model and pass --model-path to the .npz/.pkl file "
         "(or to a folder holding smpl/, smplh/, smplx/ subfolders). Use chumpy-free files.")
@@ -61,11 +61,11 @@ def _missing_files_error(model_type: str, model_path: str | os.PathLike | None) 
 def load_smplx_module(model_type: str, model_path: str | os.PathLike | None, gender: str = "neutral"):
     """The ``smplx`` torch module for the user's model file, with errors a user can act on."""
     if model_type not in LICENCE:
-        raise InputError("--model", f"unknown SMPL family model {model_type!r}; expected one of {list(LICENCE)}")
+        raise InputError("model_type", f"unknown SMPL family model {model_type!r}; expected one of {list(LICENCE)}")
     try:
         import smplx
     except ImportError as exc:
-        raise InputError("--model", f"{model_type} needs the optional 'smplx' package: "
+        raise InputError("model_type", f"{model_type} needs the optional 'smplx' package: "
                                     "pip install 'spinemocap[smpl]'") from exc
     if model_path is None or not Path(model_path).exists():
         raise _missing_files_error(model_type, model_path)

@@ -35,7 +35,7 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
                         "--workdir) and track them from it")
     add_refresh_arguments(p)
     p.add_argument("--no-predict", action="store_true", help="full detector search in every frame")
-    p.add_argument("--no-legacy", action="store_true", help="skip the previous pipeline (the peer)")
+    p.add_argument("--no-serial", action="store_true", help="skip the serial pipeline (the peer)")
     p.add_argument("--no-video", action="store_true", help="skip the video run")
     p.add_argument("--video-codec", default="utvideo", choices=("utvideo", "rawvideo"),
                    help="the video run's lossless codec: UT Video (what captures are written in by default) or "
@@ -79,14 +79,14 @@ def run(args: argparse.Namespace) -> int:
                          predict=not args.no_predict, device=args.device, opencv_threads=args.opencv_threads or None,
                          **chosen)
     if args.capture:
-        numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_legacy,
+        numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_serial,
                                        speed, args.sensor_noise, progress=not args.no_progress,
                                        cpu_peer=not args.no_cpu_peer, parallel_peer=not args.no_parallel_peer,
                                        video_frames=args.video_frames, workdir=args.workdir,
                                        lookahead_peer=not args.no_lookahead_peer)
     else:
         numbers = run_speed_benchmark(args.preset, args.frames, args.occlusion, args.mode, args.detector, args.seed,
-                                      args.workdir, legacy=not args.no_legacy, video=not args.no_video,
+                                      args.workdir, serial_peer=not args.no_serial, video=not args.no_video,
                                       in_memory=not args.no_memory, speed=speed, progress=not args.no_progress,
                                       realism=args.realism, memory_frames=args.memory_frames,
                                       parallel_peer=not args.no_parallel_peer, lookahead_peer=not args.no_lookahead_peer,

@@ -7,6 +7,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..frames import parse_frames
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser("calibrate", help="calibrate cameras: boards, bundle adjustment, Vicon wand, formats")
@@ -30,8 +32,8 @@ def register(subparsers) -> None:
                    "checkerboard:COLSxROWS:SQUARE_MM (inner corners; one odd and one even count, e.g. 4x7)")
     p.add_argument("--ba", choices=["ceres", "scipy"], default="ceres",
                    help="bundle adjustment: Ceres via pycolmap (default) or scipy least_squares")
-    p.add_argument("--floor-frames", type=int, nargs="*", default=[0],
-                   help="frame indices where the board lies face up on the floor (world Z up; default 0)")
+    p.add_argument("--floor-frames", nargs="*", default=["0"],
+                   help="frames where the board lies face up on the floor, e.g. 0 or 0:3 or 0,5 (world Z up; default 0)")
     p.add_argument("--fixed-intrinsics", action="store_true", help="do not refine intrinsics in the adjustment")
     p.add_argument("--out", required=True, help="output rig (.toml ours, --format pose2sim, or .xcp)")
     p.add_argument("--format", choices=["spinemocap", "pose2sim"], help="TOML flavour of --out")
@@ -44,7 +46,7 @@ def register(subparsers) -> None:
     p.add_argument("--wand", default="t", help="t (5-marker T-wand, layout in calibration/wand.py), "
                    "linear:LENGTH_MM or linear:A_MM:LENGTH_MM (default t)")
     p.add_argument("--floor-frames", default="",
-                   help="frames where the wand lies on the floor, e.g. 0-9 or 0,1,2 (world Z up; a linear wand "
+                   help="frames where the wand lies on the floor, e.g. 0:10 or 0,1,2 (world Z up; a linear wand "
                    "must lie in two directions); empty: the first camera's frame is the world")
     p.add_argument("--ba", choices=["ceres", "scipy"], default="ceres", help="bundle adjustment backend")
     p.add_argument("--fixed-intrinsics", action="store_true", help="do not refine intrinsics in the adjustment")
@@ -160,10 +162,10 @@ def _extrinsics(args: argparse.Namespace) -> int:
     from calibration.extrinsics import calibrate_extrinsics
     from calibration.formats import write_rig
 
+    floor = parse_frames(",".join(args.floor_frames), parameter="--floor-frames") if args.floor_frames else None
     board = BoardSpec.parse(args.board)
     intrinsics = _read_cameras(args.intrinsics)
     detections = load_view_detections(args.views, intrinsics.names, [c.size for c in intrinsics], board)
-    floor = args.floor_frames if args.floor_frames else None
     result = calibrate_extrinsics(intrinsics, board, detections, floor_frame=floor,
                                   refine_intrinsics=not args.fixed_intrinsics, backend=args.ba)
     print(result.summary())
@@ -175,31 +177,18 @@ def _extrinsics(args: argparse.Namespace) -> int:
     return 0
 
 
-def parse_frames(text: str) -> list[int]:
-    """``0-9``, ``0,1,2`` or ``0-4,20-24`` -> frame indices."""
-    from spinemocap.fileio import InputError
-
-    frames: list[int] = []
-    try:
-        for part in filter(None, text.replace(" ", "").split(",")):
-            lo, _, hi = part.partition("-")
-            frames += list(range(int(lo), int(hi or lo) + 1))
-    except ValueError:
-        raise InputError("--floor-frames", f"cannot read frames {text!r}; write e.g. 0-9 or 0,1,2") from None
-    return frames
-
-
 def _wand_wave(args: argparse.Namespace) -> int:
     from calibration.check import plot_residuals, save_residuals
     from calibration.formats import write_rig
     from calibration.wand import WandSpec, detect_wand_views, synchronized_frames
     from calibration.wandwave import calibrate_wand_wave, plot_length_error
 
+    floor = parse_frames(args.floor_frames, parameter="--floor-frames") if args.floor_frames else None
     wand = WandSpec.parse(args.wand)
     intrinsics = _read_cameras(args.intrinsics)
     frames, _ = synchronized_frames(args.videos, len(intrinsics))
     views = detect_wand_views(frames, wand)
-    result = calibrate_wand_wave(intrinsics, views, wand, parse_frames(args.floor_frames) or None, backend=args.ba,
+    result = calibrate_wand_wave(intrinsics, views, wand, floor, backend=args.ba,
                                  refine_intrinsics=not args.fixed_intrinsics)
     print(result.summary())
     write_rig(result.rig, args.out, args.format)

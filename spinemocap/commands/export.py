@@ -8,9 +8,8 @@ import inspect
 from pathlib import Path
 
 import exporters
+from spinemocap.app.results import find_markers
 from spinemocap.fileio import InputError
-
-RESULT_FILES = ("markers.csv", "markers.parquet", "markers.c3d", "markers.trc")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -35,18 +34,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--reference-prefix", default="REF_", help="label prefix of --reference markers")
     p.add_argument("--list-formats", action="store_true", help="list the available formats and exit")
     p.set_defaults(func=run_export)
-
-
-def find_markers(results: Path) -> Path:
-    """The marker file inside a results folder (``markers.csv`` first), or ``results`` itself."""
-    if results.is_dir():
-        for name in RESULT_FILES:
-            if (results / name).is_file():
-                return results / name
-        raise InputError(results, f"results folder holds none of {', '.join(RESULT_FILES)}")
-    if not results.is_file():
-        raise InputError(results, "no such marker file or results folder")
-    return results
 
 
 def _extension(fmt: str) -> str:

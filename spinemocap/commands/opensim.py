@@ -45,47 +45,14 @@ def register(subparsers) -> None:
     p.set_defaults(func=run_opensim_command)
 
 
-def read_results(path: Path):
-    """A marker table from a results folder (``markers.csv``) or a marker file."""
-    import exporters
-
-    from .export import find_markers
-
-    return exporters.read(find_markers(path))
-
-
 def run_opensim_command(args: argparse.Namespace) -> int:
-    from ..opensim import OpenSimSettings, require_opensim, run_opensim
+    from ..app.opensim import opensim_capture
+    from ..opensim import OpenSimSettings
 
-    require_opensim()
-    from ..analysis.levels import LevelMap
-    from ..app.batch import find_level_map
-    from ..capture import Capture
-    from ..fileio import InputError
-
-    if (args.model is None) != (args.bodies is None):
-        raise InputError("--model/--bodies", "a lab model needs both --model FILE.osim and --bodies MAP.toml")
-    capture = Capture.open(args.capture)
-    markers = read_results(args.results)
-    if args.levels:
-        levels, levels_from = LevelMap.from_toml(args.levels, capture.tape.n_rows), str(args.levels)
-    else:
-        levels, levels_from = find_level_map(capture)
-    facing = capture.subject.get("facing")
-    if facing is None:
-        raise InputError(Path(args.capture) / "capture.toml", "[subject] facing is not set: OpenSim's forward axis "
-                         "comes from it (e.g. facing = [0.0, -1.0, 0.0])")
-    static = read_results(args.static) if args.static else None
     settings = OpenSimSettings(static_frames=args.static_frames, accuracy=args.accuracy,
                                depth_scale=args.depth_scale, coupling=args.coupling, prior_weight=args.prior_weight)
-    if args.model is not None:
-        from ..opensim.labmodel import run_lab_model
-
-        result = run_lab_model(markers, capture.tape, levels, capture.up, facing, args.out, args.model,
-                               args.bodies, static=static, settings=settings, source=str(args.results))
-    else:
-        result = run_opensim(markers, capture.tape, levels, capture.up, facing, args.out, static=static,
-                             settings=settings, source=str(args.results))
+    result, levels_from = opensim_capture(args.results, args.capture, args.out, args.levels, args.static,
+                                          args.model, args.bodies, settings)
     s = result.summary
     print(f"level map: {levels_from}")
     print(f"{s['frames']} frames: marker RMS {s['marker_rms_mm']:.2f} mm mean, {s['marker_rms_mm_max']:.2f} mm worst "

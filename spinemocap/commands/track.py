@@ -9,6 +9,7 @@ import warnings
 from pathlib import Path
 
 from spinemocap.capture import Capture
+from spinemocap.markers import STATUSES
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--detector", choices=("net", "classical", "mask"), default="net",
                    help="tape/dot detector; 'mask' finds dots inside the capture's masks/ (synthetic captures)")
     p.add_argument("--config", type=Path, help="tracker settings (TOML, see spinemocap.track.config)")
-    p.add_argument("--frames", help="frame range A:B (B exclusive), default all")
+    p.add_argument("--frames", help="consecutive frames A:B (B exclusive; A or B may be left out), default all")
     p.add_argument("--workers", type=int, default=0,
                    help="processes or threads for the cameras (default 0: one per CPU core, at most one per camera; "
                         "1: one camera after the other)")
@@ -69,8 +70,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--precision", default=None,
                    help="the tape network's arithmetic: float32, int8 (ONNX Runtime on the CPU), bfloat16 (torch); "
                         "default: the pipeline's")
-    p.add_argument("--legacy", action="store_true",
-                   help="the previous pipeline (one camera after the other, no prefetching, full tape "
+    p.add_argument("--serial", action="store_true",
+                   help="the serial pipeline (one camera after the other, no prefetching, full tape "
                         "search in every frame): for comparisons")
     p.add_argument("--refine-rig", action="store_true",
                    help="bundle-adjust the camera poses (and a focal scale per camera) on the tracked dots, "
@@ -88,7 +89,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_track(args: argparse.Namespace) -> int:
     from spinemocap.app.run import TrackingWarning, track_capture_result
-    from spinemocap.app.streaming import LEGACY, SpeedOptions
+    from spinemocap.app.streaming import SERIAL, SpeedOptions
     from spinemocap.fileio import InputError
     from spinemocap.track.config import TrackerConfig
     from spinemocap.track.rig_check import CalibrationWarning
@@ -104,7 +105,7 @@ def run_track(args: argparse.Namespace) -> int:
     if args.precision is not None:
         chosen["precision"] = args.precision
     chosen.update(refresh_options(args))
-    speed = LEGACY if args.legacy else SpeedOptions(workers=args.workers, parallel=args.parallel,
+    speed = SERIAL if args.serial else SpeedOptions(workers=args.workers, parallel=args.parallel,
                                                     device=args.device,
                                                     opencv_threads=args.opencv_threads or None, **chosen)
     start = time.perf_counter()
@@ -128,7 +129,7 @@ def run_track(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - start
     counts = table.data["status"].value_counts()
     print(f"tracked {table.n_frames} frames in {elapsed:.1f} s ({table.n_frames / elapsed:.2f} frames/s): "
-          + ", ".join(f"{counts.get(s, 0)} {s}" for s in ("observed", "inferred", "missing")))
+          + ", ".join(f"{counts.get(s, 0)} {s}" for s in STATUSES))
     print(f"markers written to {Path(args.out) / 'markers.csv'} (+ .trc, .c3d)")
     print(result.summary())
     if Capture.open(args.capture).has_groundtruth:

@@ -12,7 +12,7 @@ motions, tape_on_skin (the taut strip from the start level, taping tension, skin
 skin_strain (the Schober skin strain of a real back), rigs (camera layouts), lab_errors
 (calibration and sync errors of the written rig), occluders (balls, band), visibility (ray
 casting), render (pyvista offscreen, exact OpenCV projection), scene (assembly, realism levels,
-ground truth), writer (capture folder). Heavy libraries load only when a scene is built.
+ground truth), writer (capture folder); wand (a waved marker wand for calibration scenes). Heavy libraries load only when a scene is built.
 
 Realism: ``SynthConfig(realism="ideal" | "skin" | "lab")``; ``skin`` (the default) has the
 skin strain on, ``lab`` adds taping tension, calibration and sync errors and more sensor noise

@@ -14,7 +14,6 @@ Two points whose blobs differ in a camera they share are never merged (one blob 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from functools import lru_cache
 from typing import Sequence
 
@@ -24,24 +23,9 @@ from scipy.spatial import cKDTree
 from ..camera import Rig
 from ..geometry import triangulate_dlt
 from ..views import ViewDots
+from .config import CandidateConfig
 from .lattice import inverse_sym3
 from .types import CandidateCloud
-
-
-@dataclass
-class CandidateConfig:
-    """``th1_px``: max reprojection error (undistorted px) of a candidate in each of its views;
-    ``th2_mm``: merge distance; ``epipolar_px``: max symmetric epipolar distance of a blob pair
-    before triangulation (a cheap pre-filter; ``None`` = 2 * th1); ``max_merge_rounds`` caps the
-    merge loop (it normally stops far earlier, when nothing merges); ``suppress_dominated``: drop a
-    point when one of its blobs also belongs to a point seen by more cameras (see
-    :func:`suppress_dominated`)."""
-
-    th1_px: float = 2.0
-    th2_mm: float = 6.0
-    epipolar_px: float | None = None
-    max_merge_rounds: int = 20
-    suppress_dominated: bool = True
 
 
 def fundamental_matrix(P1: np.ndarray, P2: np.ndarray) -> np.ndarray:

@@ -1,5 +1,8 @@
 """One tracker configuration, composed of one section per pipeline stage, loadable from TOML.
 
+Every stage's settings dataclass is defined here and imported by its stage, so reading, checking
+and writing a configuration loads no solver (no torch, Pyomo or SciPy).
+
 Example ``tracker.toml`` (every key optional; unknown keys are an error)::
 
     [candidates]
@@ -22,8 +25,9 @@ Example ``tracker.toml`` (every key optional; unknown keys are an error)::
     [rig]
     adaptive_gate = true
 
-``TrackerConfig.before_issue_11()`` is the tracker as it was before stretch adaptation, the
-rig-derived gate, label continuity, the lattice check and the unanchored-end check (nominal spacing, fixed th1): the peer in ``bench realism``.
+``TrackerConfig.nominal_unchecked()`` is the tracker without stretch adaptation, the rig-derived
+gate, label continuity, the lattice check and the unanchored-end check (nominal spacing, fixed
+th1): the peer in ``bench realism``.
 """
 
 from __future__ import annotations
@@ -34,13 +38,168 @@ from dataclasses import dataclass, field
 
 from ..fileio import InputError, read_toml
 from ..tape import MAX_ROWS
-from .candidates import CandidateConfig
-from .edges import EdgeConfig
-from .lp import LPConfig
-from .mrf1 import MRF1Config
-from .mrf2 import MRF2Config
-from .rig_check import RigCheckConfig
-from .stretch import StretchConfig
+from .pbp import PBPConfig, pbp_config
+
+
+@dataclass
+class CandidateConfig:
+    """``th1_px``: max reprojection error (undistorted px) of a candidate in each of its views;
+    ``th2_mm``: merge distance; ``epipolar_px``: max symmetric epipolar distance of a blob pair
+    before triangulation (a cheap pre-filter; ``None`` = 2 * th1); ``max_merge_rounds`` caps the
+    merge loop (it normally stops far earlier, when nothing merges); ``suppress_dominated``: drop a
+    point when one of its blobs also belongs to a point seen by more cameras (see
+    :func:`~spinemocap.track.candidates.suppress_dominated`)."""
+
+    th1_px: float = 2.0
+    th2_mm: float = 6.0
+    epipolar_px: float | None = None
+    max_merge_rounds: int = 20
+    suppress_dominated: bool = True
+
+
+@dataclass
+class EdgeConfig:
+    """``th3_mm``/``th4_mm``: override the bounds from the tape (``None``: use the tape's);
+    ``drop_shared_blob``: drop pairs of points triangulated from the same blob of one camera —
+    one blob images one dot, so such a pair is a point and its own ghost, never a tape edge."""
+
+    th3_mm: float | None = None
+    th4_mm: float | None = None
+    drop_shared_blob: bool = True
+
+
+@dataclass
+class LPConfig:
+    """``solver``: Pyomo solver name (``appsi_highs`` or ``highs``); ``time_limit_s`` per solve;
+    ``min_neighbours``/``max_neighbours``: Eq. 4-5 bounds (``None``: from the tape graph);
+    ``mip_rel_gap``: HiGHS optimality gap; ``min_point_degree``: selected edges a used point
+    needs (0 = the paper's model, see :mod:`spinemocap.track.lp`); ``max_step_relaxations``: unit decrements of n before one cardinality solve finds the largest
+    feasible n; ``min_target``: give up below this many edges (no tape in the frame)."""
+
+    solver: str = "appsi_highs"
+    time_limit_s: float = 10.0
+    min_neighbours: int | None = None
+    max_neighbours: int | None = None
+    max_step_relaxations: int = 3
+    min_target: int = 6
+    mip_rel_gap: float = 1e-4
+    min_point_degree: int = 3
+    limit_points: bool = True
+
+
+@dataclass
+class MRF1Config:
+    """MRF1 weights and particle-BP settings. Lengths in mm; ``d`` is dimensionless."""
+
+    theta1_longitudinal: float = 0.05  # |p| vs the local stretch d
+    theta1_transverse: float = 0.1
+    theta2: float = 0.005  # orthogonality to the normal field (camera-biased normals: 0.02 is worse)
+    theta3: float = 1.0  # minimum-distance barrier
+    theta4_longitudinal: float = 0.02  # |p| vs the rest length
+    theta4_transverse: float = 0.05
+    dashed_weight: float = 0.5  # dashed (anti-folding) edges relative to solid ones
+    d_min_mm: float = 8.0
+    unary_cap_mm: float = 12.0
+    d_bounds: tuple[float, float] = (0.7, 1.4)  # plausible local stretch
+    particles: int = 8
+    slice_particles: int = 6
+    iterations: int = 8
+    slice_steps: int = 5  # shrink steps of the slice sampler per iteration
+    sweeps: int = 6
+    damping: float = 0.3
+    knn: int = 3
+    mobility: bool = True  # P_mobility: neighbours' positions as proposals (Eq. 9)
+    slice_width_mm: float = 4.0
+    slice_width_d: float = 0.05
+    width_decay: float = 0.9
+    temperature: float = 1.0
+    normal_radius_mm: float = 30.0
+    warm_start: bool = False  # start from `previous` (its finite rows) instead of the cubic template
+
+    def pbp(self) -> PBPConfig:
+        return pbp_config(self, slice_width=(self.slice_width_mm,) * 3 + (self.slice_width_d,), init_spread=(self.slice_width_mm / 2,) * 3 + (self.slice_width_d / 2,))
+
+
+@dataclass
+class MRF2Config:
+    """MRF2 weights and solver settings. Image costs are in [0, ~1] per camera; lengths in mm."""
+
+    theta5: float = 0.25  # bright dots vs dark midpoint
+    theta6: float = 0.002  # edge orthogonal to the tape normal
+    theta7: float = 0.002  # edge along its expected in-plane direction
+    theta8: float = 0.002  # edge length vs rest length
+    facing_cos: float = 0.05  # a camera sees a dot when cos(normal, dot->camera) exceeds this
+    # beyond the paper: per-view image cost capped here (None: uncapped, the paper's growing
+    # distance transform). An occluder in front of a dot makes its view look "off the tape"; a cap
+    # keeps that view from dragging the dot to the nearest visible tape.
+    cost_cap: float | None = 1.0
+    image_margin_px: float = 2.0
+    particles: int = 4
+    slice_particles: int = 4
+    iterations: int = 4
+    slice_steps: int = 5  # shrink steps of the slice sampler per iteration
+    sweeps: int = 5
+    damping: float = 0.3
+    slice_width_mm: float = 3.0
+    width_decay: float = 0.8
+    temperature: float = 0.05
+    # Eq. 9 P_mobility. Off: in MRF2 a neighbour's spot is itself a bright dot, so dots jumped onto
+    # neighbours (heavy-occlusion frames: p95 error 3.4 -> 74 mm with it on)
+    mobility: bool = False
+    knn: int = 2  # nearest feasible points as proposals, when feasible points are given
+    # beyond the paper: L-BFGS on the same energy after particle BP. Off by default: on the
+    # synthetic studio it moved dots from the (sub-pixel blob) feasible points toward slightly
+    # biased evidence minima (0.27 -> 0.32 mm mean on clean frames); useful without knn proposals.
+    polish: bool = False
+    polish_steps: int = 3
+    polish_max_step_mm: float = 3.0  # per-dot move limit of the polish from the PBP result
+    # beyond the paper: a dot no camera sees (no facing view below the cost cap) has no image
+    # term, and the weak Eq. 11 shape terms let the sampler wander (unseen dots' error
+    # grows). Such dots are held to their start (MRF1, which keeps the dashed
+    # anti-folding edges) by anchor_unseen * |x - x_start|^2.
+    anchor_unseen: float = 0.1
+
+    def pbp(self) -> PBPConfig:
+        return pbp_config(self, slice_width=(self.slice_width_mm,) * 3, init_spread=(self.slice_width_mm / 3,) * 3)
+
+
+@dataclass
+class StretchConfig:
+    """``adaptive``: estimate the spacing from the data (False = the roll's nominal spec);
+    ``along_range`` / ``across_range``: searched stretch relative to
+    the spec (kinesiology tape gives out at ~1.6; 0.8 covers a spec longer than the tape);
+    ``min_points``: fewer candidate points than this keep the previous/nominal estimate;
+    ``min_coherence``: periodogram peak below this is not trusted (occluded or ghost-ridden
+    frame); ``window_margin``: th3/th4 are widened by this beyond the smallest/largest local row
+    pitch (on top of the spec's ``stretch_tolerance`` for the solid-edge set)."""
+
+    adaptive: bool = True
+    along_range: tuple[float, float] = (0.8, 1.75)
+    across_range: tuple[float, float] = (0.85, 1.3)
+    min_points: int = 8
+    min_coherence: float = 0.45
+    window_margin: float = 0.05
+
+
+@dataclass
+class RigCheckConfig:
+    """``adaptive_gate``: derive th1 from the measured residuals (False: the fixed
+    ``candidates.th1_px``); ``probe_gate_px``: the loose gate used
+    to find the dots the residuals are measured on; ``min_views``: cameras a dot needs to count;
+    ``gate_factor`` x the worst camera's robust RMS + ``gate_margin_px`` = the gate, clamped to
+    [th1_px, ``max_gate_px``]; ``warn_px``:
+    per-camera RMS above which the camera is named in a warning; ``window``: frames the running
+    per-camera RMS is the median over."""
+
+    adaptive_gate: bool = True
+    probe_gate_px: float = 8.0
+    min_views: int = 3
+    gate_factor: float = 1.5
+    gate_margin_px: float = 1.0
+    max_gate_px: float = 6.0
+    warn_px: float = 1.0
+    window: int = 25
+
 
 
 @dataclass
@@ -164,9 +323,9 @@ class TrackerConfig:
     seed: int = 0
 
     @classmethod
-    def before_issue_11(cls) -> "TrackerConfig":
-        """The tracker before issue 11: the roll's nominal dot spacing, the fixed th1 gate, no
-        label-continuity, lattice or unanchored-end check (kept as the benchmark's peer)."""
+    def nominal_unchecked(cls) -> "TrackerConfig":
+        """The tracker on the roll's nominal dot spacing and the fixed th1 gate, without the
+        label-continuity, lattice and unanchored-end checks (the realism benchmark's peer)."""
         config = cls()
         return dataclasses.replace(
             config, stretch=dataclasses.replace(config.stretch, adaptive=False),

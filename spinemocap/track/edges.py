@@ -4,24 +4,12 @@ rest lengths widened by the tape's stretch tolerance."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.spatial import cKDTree
 
 from ..tape import TapeSpec
+from .config import EdgeConfig
 from .types import CandidateCloud, EdgeCloud
-
-
-@dataclass
-class EdgeConfig:
-    """``th3_mm``/``th4_mm``: override the bounds from the tape (``None``: use the tape's);
-    ``drop_shared_blob``: drop pairs of points triangulated from the same blob of one camera —
-    one blob images one dot, so such a pair is a point and its own ghost, never a tape edge."""
-
-    th3_mm: float | None = None
-    th4_mm: float | None = None
-    drop_shared_blob: bool = True
 
 
 def edge_bounds(tape: TapeSpec, config: EdgeConfig) -> tuple[float, float]:

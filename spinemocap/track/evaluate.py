@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..markers import MarkerTable
+from ..markers import INFERRED, MISSING, OBSERVED, STATUSES, MarkerTable
 
 PLANE_GROUPS = {
     1: [[0, 1, 6, 7]],
@@ -146,7 +146,7 @@ def evaluate_tracking(table: MarkerTable, groundtruth: dict, tape_min_spacing_mm
     truth = np.asarray(groundtruth["dots"], float)[frames][:, order]
     pos, status = arrays["positions"], arrays["status"]
     err = np.linalg.norm(pos - truth, axis=2)
-    tracked = status != "missing"
+    tracked = status != MISSING
     swaps = label_swaps(pos, truth, tape_min_spacing_mm) & tracked
     overall = _stats(err[tracked])
     result = TrackingAccuracy(
@@ -156,9 +156,9 @@ def evaluate_tracking(table: MarkerTable, groundtruth: dict, tape_min_spacing_mm
         median_error_mm=overall["median"],
         p95_error_mm=overall["p95"],
         max_error_mm=overall["max"],
-        observed=_stats(err[status == "observed"]),
-        inferred=_stats(err[status == "inferred"]),
-        status_counts={s: int((status == s).sum()) for s in ("observed", "inferred", "missing")},
+        observed=_stats(err[status == OBSERVED]),
+        inferred=_stats(err[status == INFERRED]),
+        status_counts={s: int((status == s).sum()) for s in STATUSES},
         label_swaps=int(swaps.sum()),
         frames_with_swaps=int(swaps.any(axis=1).sum()),
         frames_without_solution=int((~tracked).all(axis=1).sum()),

@@ -32,37 +32,18 @@ solves. Every relaxation is logged.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 
 import numpy as np
 import pyomo.environ as pyo
 from pyomo.opt import TerminationCondition
 
 from ..tape import TapeSpec, edge_neighbour_sets
+from .config import LPConfig
 from .types import CandidateCloud, EdgeCloud, FeasibleSet
 
 log = logging.getLogger(__name__)
 # HiGHS' own progress log is forwarded at INFO level; keep it out of the tracker's log.
 logging.getLogger("pyomo.contrib.appsi.solvers.highs").setLevel(logging.WARNING)
-
-
-@dataclass
-class LPConfig:
-    """``solver``: Pyomo solver name (``appsi_highs`` or ``highs``); ``time_limit_s`` per solve;
-    ``min_neighbours``/``max_neighbours``: Eq. 4-5 bounds (``None``: from the tape graph);
-    ``mip_rel_gap``: HiGHS optimality gap; ``min_point_degree``: selected edges a used point
-    needs (0 = the paper's model, see module docstring); ``max_step_relaxations``: unit decrements of n before one cardinality solve finds the largest
-    feasible n; ``min_target``: give up below this many edges (no tape in the frame)."""
-
-    solver: str = "appsi_highs"
-    time_limit_s: float = 10.0
-    min_neighbours: int | None = None
-    max_neighbours: int | None = None
-    max_step_relaxations: int = 3
-    min_target: int = 6
-    mip_rel_gap: float = 1e-4
-    min_point_degree: int = 3
-    limit_points: bool = True
 
 
 def neighbour_bounds(tape: TapeSpec) -> tuple[int, int]:

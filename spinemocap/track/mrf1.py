@@ -17,50 +17,17 @@ The paper writes ``d_target`` for the fourth term: "measured tape distances", i.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from ..tape import TapeGraph
+from .config import MRF1Config
 from .normals import NormalField
-from .pbp import ParticleBP, PBPConfig, pbp_config
+from .pbp import ParticleBP
 from .template import build_template
 from .types import FeasibleSet, MRFResult
-
-
-@dataclass
-class MRF1Config:
-    """MRF1 weights and particle-BP settings. Lengths in mm; ``d`` is dimensionless."""
-
-    theta1_longitudinal: float = 0.05  # |p| vs the local stretch d
-    theta1_transverse: float = 0.1
-    theta2: float = 0.005  # orthogonality to the normal field (camera-biased normals: 0.02 is worse)
-    theta3: float = 1.0  # minimum-distance barrier
-    theta4_longitudinal: float = 0.02  # |p| vs the rest length
-    theta4_transverse: float = 0.05
-    dashed_weight: float = 0.5  # dashed (anti-folding) edges relative to solid ones
-    d_min_mm: float = 8.0
-    unary_cap_mm: float = 12.0
-    d_bounds: tuple[float, float] = (0.7, 1.4)  # plausible local stretch
-    particles: int = 8
-    slice_particles: int = 6
-    iterations: int = 8
-    slice_steps: int = 5  # shrink steps of the slice sampler per iteration
-    sweeps: int = 6
-    damping: float = 0.3
-    knn: int = 3
-    mobility: bool = True  # P_mobility: neighbours' positions as proposals (Eq. 9)
-    slice_width_mm: float = 4.0
-    slice_width_d: float = 0.05
-    width_decay: float = 0.9
-    temperature: float = 1.0
-    normal_radius_mm: float = 30.0
-    warm_start: bool = False  # start from `previous` (its finite rows) instead of the cubic template
-
-    def pbp(self) -> PBPConfig:
-        return pbp_config(self, slice_width=(self.slice_width_mm,) * 3 + (self.slice_width_d,), init_spread=(self.slice_width_mm / 2,) * 3 + (self.slice_width_d / 2,))
 
 
 class AlignmentMRF:

@@ -20,7 +20,6 @@ The energy terms are written once in torch and serve both.
 from __future__ import annotations
 
 from contextlib import contextmanager
-from dataclasses import dataclass
 from typing import Callable, Iterator, Sequence
 
 import numpy as np
@@ -29,53 +28,11 @@ import torch
 from ..camera import Rig
 from ..geometry import distort
 from ..tape import TapeGraph
+from .config import MRF2Config
 from .evidence import EvidenceImage, EvidenceStack
-from .pbp import ParticleBP, PBPConfig, mrf_energy, pbp_config
+from .pbp import ParticleBP, mrf_energy
 from .template import tape_frames
 from .types import MRFResult
-
-
-@dataclass
-class MRF2Config:
-    """MRF2 weights and solver settings. Image costs are in [0, ~1] per camera; lengths in mm."""
-
-    theta5: float = 0.25  # bright dots vs dark midpoint
-    theta6: float = 0.002  # edge orthogonal to the tape normal
-    theta7: float = 0.002  # edge along its expected in-plane direction
-    theta8: float = 0.002  # edge length vs rest length
-    facing_cos: float = 0.05  # a camera sees a dot when cos(normal, dot->camera) exceeds this
-    # beyond the paper: per-view image cost capped here (None: uncapped, the paper's growing
-    # distance transform). An occluder in front of a dot makes its view look "off the tape"; a cap
-    # keeps that view from dragging the dot to the nearest visible tape.
-    cost_cap: float | None = 1.0
-    image_margin_px: float = 2.0
-    particles: int = 4
-    slice_particles: int = 4
-    iterations: int = 4
-    slice_steps: int = 5  # shrink steps of the slice sampler per iteration
-    sweeps: int = 5
-    damping: float = 0.3
-    slice_width_mm: float = 3.0
-    width_decay: float = 0.8
-    temperature: float = 0.05
-    # Eq. 9 P_mobility. Off: in MRF2 a neighbour's spot is itself a bright dot, so dots jumped onto
-    # neighbours (heavy-occlusion frames: p95 error 3.4 -> 74 mm with it on)
-    mobility: bool = False
-    knn: int = 2  # nearest feasible points as proposals, when feasible points are given
-    # beyond the paper: L-BFGS on the same energy after particle BP. Off by default: on the
-    # synthetic studio it moved dots from the (sub-pixel blob) feasible points toward slightly
-    # biased evidence minima (0.27 -> 0.32 mm mean on clean frames); useful without knn proposals.
-    polish: bool = False
-    polish_steps: int = 3
-    polish_max_step_mm: float = 3.0  # per-dot move limit of the polish from the PBP result
-    # beyond the paper: a dot no camera sees (no facing view below the cost cap) has no image
-    # term, and the weak Eq. 11 shape terms let the sampler wander (unseen dots' error
-    # grows). Such dots are held to their start (MRF1, which keeps the dashed
-    # anti-folding edges) by anchor_unseen * |x - x_start|^2.
-    anchor_unseen: float = 0.1
-
-    def pbp(self) -> PBPConfig:
-        return pbp_config(self, slice_width=(self.slice_width_mm,) * 3, init_spread=(self.slice_width_mm / 3,) * 3)
 
 
 class _TorchRig:

@@ -25,6 +25,7 @@ from scipy.optimize import linear_sum_assignment
 
 from ..camera import Rig
 from ..geometry import triangulate_rays
+from ..markers import INFERRED, MISSING, OBSERVED
 from ..tape import TapeSpec
 from ..timing import StageTimer
 from ..views import ViewDots
@@ -90,7 +91,7 @@ class FrameResult:
 
     @classmethod
     def missing(cls, n_dots: int, stage_ms: dict, note: str) -> "FrameResult":
-        return cls(np.full((n_dots, 3), np.nan), np.full(n_dots, "missing", dtype=object),
+        return cls(np.full((n_dots, 3), np.nan), np.full(n_dots, MISSING, dtype=object),
                    np.zeros(n_dots, np.int64), np.full(n_dots, np.nan), stage_ms, "failed", "", note)
 
 
@@ -224,8 +225,8 @@ class FrameTracker:
                 positions = self._placed(model, cloud, source, positions, normals)
                 relocated |= anchored
         seen = source >= 0
-        status = np.where(seen, "observed", "inferred").astype(object)
-        status[~np.isfinite(positions).all(axis=1)] = "missing"
+        status = np.where(seen, OBSERVED, INFERRED).astype(object)
+        status[~np.isfinite(positions).all(axis=1)] = MISSING
         n_views = np.zeros(self.n_dots, np.int64)
         n_views[seen] = cloud.n_views[source[seen]]
         residual = np.full(self.n_dots, np.nan)
@@ -284,7 +285,7 @@ class FrameTracker:
         rows = self.config.status.unanchored_rows
         if rows <= 0:
             return np.zeros(len(status), bool)
-        return (status == "inferred") & (rows_beyond(status == "observed", self.graph) >= rows)
+        return (status == INFERRED) & (rows_beyond(status == OBSERVED, self.graph) >= rows)
 
     def _placed(self, model: np.ndarray, cloud: CandidateCloud, source: np.ndarray,
                 fallback: np.ndarray | None = None, normals: list[np.ndarray] | None = None) -> np.ndarray:

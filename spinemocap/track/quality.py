@@ -40,6 +40,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..markers import INFERRED, MISSING, OBSERVED
 from ..tape import TapeGraph
 from .continuity import row_centres
 
@@ -59,7 +60,7 @@ DOT_FLAG_FACTORS = {
     "dot_unanchored": 0.5,
 }
 MILD_FLAGS = frozenset({"stretch_carried", "lp_relaxed", "dot_relocated"})
-STATUS_FACTORS = {"observed": 1.0, "inferred": 0.6, "missing": 0.0}
+STATUS_FACTORS: dict[str, float] = {OBSERVED: 1.0, INFERRED: 0.6, MISSING: 0.0}
 
 
 def label_confidence(status: np.ndarray, flags: list[str], dot_flags: dict[str, np.ndarray] | None = None) -> np.ndarray:

@@ -24,7 +24,8 @@ import numpy as np
 
 from ..camera import Rig
 from ..views import ViewDots
-from .candidates import CandidateConfig, build_candidates
+from .candidates import build_candidates
+from .config import CandidateConfig, RigCheckConfig
 from .types import CandidateCloud
 
 #: The calibration warning's advice (replaced once ``--refine-rig`` has run, see ``TrackResult.quality``).
@@ -33,26 +34,6 @@ REFINE_ADVICE = "consider `spinemocap track --refine-rig` or recalibrating."
 
 class CalibrationWarning(UserWarning):
     """The rig reprojects the capture's own dots poorly (cameras named in the message)."""
-
-
-@dataclass
-class RigCheckConfig:
-    """``adaptive_gate``: derive th1 from the measured residuals (False: the fixed
-    ``candidates.th1_px``); ``probe_gate_px``: the loose gate used
-    to find the dots the residuals are measured on; ``min_views``: cameras a dot needs to count;
-    ``gate_factor`` x the worst camera's robust RMS + ``gate_margin_px`` = the gate, clamped to
-    [th1_px, ``max_gate_px``]; ``warn_px``:
-    per-camera RMS above which the camera is named in a warning; ``window``: frames the running
-    per-camera RMS is the median over."""
-
-    adaptive_gate: bool = True
-    probe_gate_px: float = 8.0
-    min_views: int = 3
-    gate_factor: float = 1.5
-    gate_margin_px: float = 1.0
-    max_gate_px: float = 6.0
-    warn_px: float = 1.0
-    window: int = 25
 
 
 @dataclass

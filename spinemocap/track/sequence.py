@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..markers import INFERRED, OBSERVED
 from ..tape import TapeSpec
 from ..timing import StageTimer
 from ..views import ViewDots
@@ -89,7 +90,7 @@ class SequenceTracker:
         can score almost alike, and the wrong one would be carried unflagged)."""
         if not self._identity_unsure() or not result.solved:
             return
-        if other_shifts(result.status == "observed", self.tracker.graph):
+        if other_shifts(result.status == OBSERVED, self.tracker.graph):
             result.flags.append("identity_unsure")
             result.note = result.note or "no frame so far has seen enough rows to tell the labels from a shift by whole rows"
         else:
@@ -116,7 +117,7 @@ class SequenceTracker:
         flexion (lumbar rows 20-30 % longer than thoracic ones) overshoots by a row within
         three rows; the last frames saw them with their own stretch."""
         predicted = self.predict()
-        observed = result.status == "observed"
+        observed = result.status == OBSERVED
         hidden = ~observed & (rows_beyond(observed, self.tracker.graph) >= 1) & np.isfinite(predicted).all(axis=1)
         moved = observed & np.isfinite(predicted).all(axis=1)
         if not hidden.any() or moved.sum() < 3:
@@ -135,7 +136,7 @@ class SequenceTracker:
         shift, _ = row_shift(result.positions, predicted, graph, self.config.max_row_shift)
         if shift == 0:
             return result
-        if shift_is_unambiguous(result.status == "observed", graph, shift):
+        if shift_is_unambiguous(result.status == OBSERVED, graph, shift):
             result.flags.append("relabelled")
             result.note = f"labels moved by {shift} row(s) against the previous frame (the cameras demand it)"
             return result
@@ -229,7 +230,7 @@ def fill_and_smooth(positions: np.ndarray, status: np.ndarray, config: SequenceC
         if gaps.any():
             for k in range(3):
                 positions[gaps, d, k] = np.interp(frames[gaps], frames[finite], positions[finite, d, k])
-            status[gaps, d] = "inferred"
+            status[gaps, d] = INFERRED
     w = int(config.smooth_inferred)
     if w >= 3 and F >= w:
         trusted = None
@@ -273,7 +274,7 @@ def _smooth_inferred(positions: np.ndarray, status: np.ndarray, w: int, trusted:
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = total / count
     out = positions.copy()
-    pick = (status == "inferred") & np.isfinite(mean).all(axis=2)
+    pick = (status == INFERRED) & np.isfinite(mean).all(axis=2)
     if trusted is not None:
         trusted = np.asarray(trusted, bool)
         pick &= ~(trusted & (window_sum((~trusted).astype(np.int64)) > 0))

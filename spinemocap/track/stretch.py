@@ -36,23 +36,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..tape import TapeGraph, TapeSpec
-
-
-@dataclass
-class StretchConfig:
-    """``adaptive``: estimate the spacing from the data (False = the roll's nominal spec); ``along_range`` / ``across_range``: searched stretch relative to
-    the spec (kinesiology tape gives out at ~1.6; 0.8 covers a spec longer than the tape);
-    ``min_points``: fewer candidate points than this keep the previous/nominal estimate;
-    ``min_coherence``: periodogram peak below this is not trusted (occluded or ghost-ridden
-    frame); ``window_margin``: th3/th4 are widened by this beyond the smallest/largest local row
-    pitch (on top of the spec's ``stretch_tolerance`` for the solid-edge set)."""
-
-    adaptive: bool = True
-    along_range: tuple[float, float] = (0.8, 1.75)
-    across_range: tuple[float, float] = (0.85, 1.3)
-    min_points: int = 8
-    min_coherence: float = 0.45
-    window_margin: float = 0.05
+from .config import StretchConfig
 
 
 @dataclass
