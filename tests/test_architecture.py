@@ -20,7 +20,7 @@ PACKAGES = ("spinemocap", "calibration", "exporters")
 
 # core: small modules of shared types and helpers; they import only each other
 CORE = {f"spinemocap.{name}" for name in
-        ("_version", "camera", "tape", "markers", "capture", "views", "geometry", "fileio", "timing", "skin", "reference")}
+        ("_version", "camera", "tape", "markers", "capture", "media", "timebase", "views", "geometry", "fileio", "timing", "skin", "reference")}
 # unit (module prefix) -> layer
 UNITS = {
     "spinemocap.detect": "domain",
