@@ -11,24 +11,29 @@ Folder layout::
                                            older captures: FFV1 .mkv, named in capture.toml)
       groundtruth.npz       # synthetic captures only
 
-``capture.toml``::
+``capture.toml`` (every key, its unit, default and meaning: ``docs/CAPTURE.md``)::
 
     [capture]
     name = "trial01"
-    fps = 100.0
-    n_frames = 548
+    fps = 100.0                 # the capture's clock: frame i at start_s + i / fps s
+    n_frames = 548              # optional: the span every camera recorded
     cameras = ["cam1", "cam2", "cam3", "cam4"]
     rig = "rig.toml"
     reference = "reference.toml"                  # optional: a reference object of known geometry
     media = "images"                              # or "video"
     image_pattern = "images/{camera}/{frame:06d}.png"
     video_pattern = "videos/{camera}.avi"
+    [camera.cam2]               # optional, per camera: its own media, clock offset and rate
+    media = "videos/cam2.mp4"
+    offset_s = 0.0123
     [tape]                                        # spinemocap.tape.TapeSpec fields
     n_rows = 13
     [subject]
     id = "S01"
     up = [0.0, 0.0, 1.0]        # world direction toward the head in the first frame
     facing = [0.0, -1.0, 0.0]   # world direction the subject's front faces in the first frame
+
+Unknown tables and keys are refused, naming the valid ones.
 
 A :class:`~spinemocap.media.FrameSource` yields, for a frame index, one BGR ``uint8`` image per
 camera in rig order. The synthetic studio provides an in-process source with the same interface, so
@@ -38,8 +43,9 @@ a benchmark can render and track without writing images to disk.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Sequence
 
 import cv2
 import numpy as np
@@ -57,11 +63,13 @@ from .media import (  # noqa: F401  (moved to media; re-exported for existing im
     VideoWriter,
     _bgr,
     _pyav,
+    all_default,
     check_image_size,
     read_image,
 )
 from .reference import ReferenceObject
 from .tape import TapeSpec
+from .timebase import CameraClock, MediaTimes, common_frames, image_times, video_times
 
 MANIFEST = "capture.toml"
 MEDIA = ("images", "video")
@@ -82,9 +90,28 @@ def to_grey(image: np.ndarray) -> np.ndarray:
     raise ValueError(f"expected a BGR or grey image, got shape {image.shape}")
 
 
+# The tables a capture.toml may hold, and the keys of each (anything else is refused, naming these)
+CAPTURE_KEYS = ("name", "fps", "n_frames", "cameras", "rig", "reference", "media", "image_pattern",
+                "video_pattern", "start_s", "external_media", "force_fps")
+CAMERA_KEYS = ("media", "offset_s", "fps")
+SUBJECT_KEYS = ("id", "up", "facing", "phenotype", "skin_tone", "tape_start", "notes")
+TABLES = ("capture", "tape", "subject", "camera", "levels")
+# Two rates are the same rate within this fraction (a camera's 29.97 frames/s against 30)
+RATE_TOLERANCE = 0.01
+# Calibration files other systems write, which a capture names only once converted to a rig TOML
+FOREIGN_CALIBRATIONS = {".qca.txt": "Qualisys", ".xcp": "Vicon"}
+
+
 @dataclass
 class Capture:
-    """A capture folder opened for reading: manifest, rig, tape and a frame source."""
+    """A capture folder opened for reading: manifest, rig, tape, the cameras' clocks and a frame
+    source. ``docs/CAPTURE.md`` describes every key of ``capture.toml``.
+
+    ``n_frames``: capture frames (frame ``i`` at ``start_s + i / fps`` s on the capture's clock);
+    ``camera_clocks``: the ``[camera.<name>]`` tables as given (cameras without one are on the
+    capture's timing); ``start_s``: where capture frame 0 lies on the cameras' clocks, s;
+    ``external_media``: paths may lead outside the folder; ``force_fps``: ``fps`` is used even
+    where the videos say another rate."""
 
     root: Path
     name: str
@@ -95,13 +122,26 @@ class Capture:
     subject: dict = field(default_factory=dict)
     media: str = "images"
     image_pattern: str = "images/{camera}/{frame:06d}.png"
-    video_pattern: str = "videos/{camera}.mkv"
+    video_pattern: str = VIDEO_PATTERN
     rig_file: str = "rig.toml"
     reference_file: str | None = None
+    camera_clocks: dict[str, CameraClock] = field(default_factory=dict)
+    start_s: float = 0.0
+    external_media: bool = False
+    force_fps: bool = False
 
     @property
     def camera_names(self) -> list[str]:
         return self.rig.names
+
+    @property
+    def clocks(self) -> list[CameraClock]:
+        """Each camera's clock in rig order (:class:`~spinemocap.timebase.CameraClock`) against
+        the clock on which capture frame ``i`` is at ``i / fps`` s: the ``[camera.<name>]``
+        ``offset_s`` plus ``start_s``, the camera's own ``fps`` (None: the capture's) and ``media``."""
+        return [replace(self.camera_clocks.get(name, CameraClock()),
+                        offset_s=self.camera_clocks.get(name, CameraClock()).offset_s + self.start_s)
+                for name in self.camera_names]
 
     @property
     def up(self) -> np.ndarray:
@@ -155,19 +195,117 @@ class Capture:
             raise InputError(self.root / MANIFEST, f"reference = {self.reference_file!r}: no such file in {self.root}")
         return ReferenceObject.from_toml(path)
 
-    def frame_source(self) -> FrameSource:
-        """The capture's frames; every image is checked against its camera's size in the rig."""
-        sizes = [cam.size for cam in self.rig]
-        if self.media == "images":
-            return ImageFolderSource(self.root, self.camera_names, self.n_frames, self.image_pattern, sizes)
+    def media_path(self, camera: str) -> Path:
+        """Camera ``camera``'s video file or image folder: its ``[camera.<name>] media``, else the
+        capture's pattern (an image folder: the folder of its first image)."""
+        clock = self.camera_clocks.get(camera)
+        if clock is not None and clock.media is not None:
+            return self.root / clock.media
         if self.media == "video":
-            return VideoSource(self.root, self.camera_names, self.n_frames, self.video_pattern, sizes)
-        raise InputError(self.root / MANIFEST, f"unknown media {self.media!r} (expected 'images' or 'video')")
+            return self.root / self.video_pattern.format(camera=camera)
+        return (self.root / self.image_pattern.format(camera=camera, frame=0)).parent
+
+    def frame_source(self) -> FrameSource:
+        """The capture's frames; every image is checked against its camera's size in the rig.
+        Cameras are paired by time (:attr:`clocks`) where a camera's timing or media differs from
+        the capture's, or the capture covers a part of the recordings; else frame ``i`` is every
+        camera's frame ``i``."""
+        sizes = [cam.size for cam in self.rig]
+        clocks = self._source_clocks()
+        kinds = {"images": (ImageFolderSource, self.image_pattern), "video": (VideoSource, self.video_pattern)}
+        if self.media not in kinds:
+            raise InputError(self.root / MANIFEST, f"unknown media {self.media!r} (expected 'images' or 'video')")
+        source, pattern = kinds[self.media]
+        return source(self.root, self.camera_names, self.n_frames, pattern, sizes, clocks, self.fps)
+
+    def _source_clocks(self) -> list[CameraClock] | None:
+        """:attr:`clocks` for the frame source: None where every camera's frame ``i`` is capture
+        frame ``i`` (default timing and exactly ``n_frames`` frames each); else clocks that name
+        every camera's media, so that the source pairs the frames by time."""
+        clocks = self.clocks
+        if all_default(clocks, self.fps):
+            counts = self.media_counts()
+            if all(n == self.n_frames for n in counts.values()):
+                return None
+            short = {name: n for name, n in counts.items() if 0 < n < self.n_frames}
+            for name, n in short.items():  # on one timing, frames past a camera's last are a mistake
+                what = "images" if self.media == "images" else "frames"
+                raise InputError(self.media_path(name), f"camera {name!r} has {n} {what}, capture.toml says "
+                                                        f"n_frames = {self.n_frames} (leave n_frames out for the span "
+                                                        "every camera recorded)")
+        return [replace(clock, media=clock.media or str(self.media_path(name).relative_to(self.root)))
+                for name, clock in zip(self.camera_names, clocks)]
+
+    def media_counts(self) -> dict[str, int]:
+        """Frames each camera's media holds (images in its folder; a video's count from its header,
+        0 where the header does not say), by camera name; missing media count 0."""
+        out = {}
+        for name in self.camera_names:
+            path = self.media_path(name)
+            if self.media == "images":
+                out[name] = (sum(1 for p in path.iterdir() if p.is_file() and not p.name.startswith("."))
+                             if path.is_dir() else 0)
+            elif path.is_file():
+                decoder = VideoDecoder(path, self.camera_clocks.get(name, CameraClock()).fps)
+                try:
+                    out[name] = decoder.n_frames
+                finally:
+                    decoder.close()
+            else:
+                out[name] = 0
+        return out
+
+    def media_times(self) -> list[MediaTimes]:
+        """Each camera's recorded frames on its own clock (rig order): a video's container
+        timestamps, an image folder's ``index / fps``. :class:`InputError` naming a missing file."""
+        out = []
+        counts = self.media_counts() if self.media == "images" else {}
+        for name, clock in zip(self.camera_names, self.clocks):
+            path = self.media_path(name)
+            rate = clock.fps or self.fps
+            if self.media == "video":
+                if not path.is_file():
+                    raise InputError(path, f"video for camera {name!r} is missing")
+                out.append(video_times(path, clock.fps, name))
+            else:
+                if not counts[name]:
+                    raise InputError(path, f"image folder for camera {name!r} is missing or empty")
+                out.append(image_times(counts[name], rate, name))
+        return out
+
+    def check_rates(self) -> None:
+        """Every video's own rate (its header's) against the rate the capture gives its camera
+        (``[camera.<name>] fps``, else ``[capture] fps``): :class:`InputError` naming
+        ``capture.toml`` on a mismatch unless ``force_fps``. Missing videos are left to the frame
+        source."""
+        if self.media != "video" or self.force_fps:
+            return
+        for name in self.camera_names:
+            path = self.media_path(name)
+            if not path.is_file():
+                continue
+            decoder = VideoDecoder(path)
+            try:
+                own = decoder.fps
+            finally:
+                decoder.close()
+            given = self.camera_clocks.get(name, CameraClock()).fps
+            said = given or self.fps
+            if abs(own - said) > RATE_TOLERANCE * own:
+                where = f"[camera.{name}] fps = {said:g}" if given else f"fps = {said:g}"
+                raise InputError(self.root / MANIFEST,
+                                 f"{where} but camera {name!r}'s video {path.name} runs at {own:g} frames/s: "
+                                 f"the markers would be timed wrong. Set {where.split(' =')[0]} = {own:g}, or give "
+                                 f"[camera.{name}] fps = {own:g} to pair its frames by time with a capture at "
+                                 f"{self.fps:g} frames/s, or force_fps = true in [capture] to use {said:g} anyway")
 
     @classmethod
     def open(cls, root: str | os.PathLike) -> "Capture":
         """Open a capture folder; :class:`InputError` naming the file for anything missing,
-        mistyped or impossible in ``capture.toml`` or the rig (see :func:`capture_settings`)."""
+        mistyped, unknown or impossible in ``capture.toml`` or the rig (see
+        :func:`capture_settings`), a path leading outside the folder (unless ``external_media``),
+        or a video whose rate is not the capture's (:meth:`check_rates`). Without ``n_frames`` the
+        capture spans the frames every camera recorded (on the capture's clock)."""
         root = Path(root)
         manifest = root / MANIFEST
         if not root.is_dir():
@@ -177,46 +315,130 @@ class Capture:
         data = read_toml(manifest)
         with reading(manifest, MANIFEST):
             settings = capture_settings(data, manifest)
-        if not (root / settings["rig_file"]).is_file():
-            raise InputError(manifest, f"rig = {settings['rig_file']!r}: no such file in {root}")
-        rig = Rig.from_toml(root / settings["rig_file"])
+        rig = _open_rig(root, manifest, settings["rig_file"], settings["external_media"])
         absent = [c for c in settings["cameras"] if c not in rig.names]
         if absent:
             raise InputError(manifest, f"cameras {absent} are not in the rig file {settings['rig_file']} "
                                        f"(rig has {rig.names})")
+        unknown = sorted(set(settings["camera_clocks"]) - set(settings["cameras"]))
+        if unknown:
+            raise InputError(manifest, f"[camera.{unknown[0]}]: no such camera in cameras = {settings['cameras']}")
         tape = data.get("tape", {})
         if not isinstance(tape, dict):
             raise InputError(manifest, "[tape] must be a table")
-        return cls(root=root, rig=rig.subset(settings.pop("cameras")),
-                   tape=TapeSpec.from_dict(tape, source=str(manifest)), **settings)
+        n_frames = settings.pop("n_frames")
+        capture = cls(root=root, rig=rig.subset(settings.pop("cameras")), n_frames=n_frames or 1,
+                      tape=TapeSpec.from_dict(tape, source=str(manifest)), **settings)
+        capture._check_paths()
+        capture.check_rates()
+        if n_frames is None:
+            capture.n_frames = common_frames(capture.media_times(), capture.clocks, capture.fps)
+        return capture
+
+    def _check_paths(self) -> None:
+        """Every path the manifest names stays inside the folder unless ``external_media``."""
+        if self.external_media:
+            return
+        named = {f"rig = {self.rig_file!r}": self.root / self.rig_file}
+        if self.reference_file:
+            named[f"reference = {self.reference_file!r}"] = self.root / self.reference_file
+        for name in self.camera_names:
+            clock = self.camera_clocks.get(name)
+            key = f"[camera.{name}] media" if clock is not None and clock.media else f"{self.media} pattern"
+            named[f"{key} ({self.media_path(name)})"] = self.media_path(name)
+        for what, path in named.items():
+            if not _inside(path, self.root):
+                raise InputError(self.root / MANIFEST,
+                                 f"{what} leads outside the capture folder; set external_media = true in [capture] "
+                                 "if this capture is meant to use files kept elsewhere")
 
     def save(self) -> None:
         """Write ``capture.toml`` and the rig file into :attr:`root` (atomically)."""
         self.root.mkdir(parents=True, exist_ok=True)
         self.rig.to_toml(self.root / self.rig_file)
-        write_toml(
-            self.root / MANIFEST,
-            {
-                "capture": {
-                    "name": self.name, "fps": self.fps, "n_frames": self.n_frames,
-                    "cameras": self.camera_names, "rig": self.rig_file, "media": self.media,
-                    "image_pattern": self.image_pattern, "video_pattern": self.video_pattern,
-                    **({"reference": self.reference_file} if self.reference_file else {}),
-                },
-                "tape": self.tape.to_dict(),
-                "subject": self.subject,
+        write_toml(self.root / MANIFEST, self.manifest())
+
+    def manifest(self) -> dict:
+        """The contents of ``capture.toml`` (keys left out where they hold their default)."""
+        options = {"start_s": self.start_s, "external_media": self.external_media, "force_fps": self.force_fps}
+        cameras = {name: _clock_table(self.camera_clocks[name]) for name in self.camera_names
+                   if name in self.camera_clocks and _clock_table(self.camera_clocks[name])}
+        return {
+            "capture": {
+                "name": self.name, "fps": self.fps, "n_frames": self.n_frames,
+                "cameras": self.camera_names, "rig": self.rig_file, "media": self.media,
+                "image_pattern": self.image_pattern, "video_pattern": self.video_pattern,
+                **({"reference": self.reference_file} if self.reference_file else {}),
+                **{k: v for k, v in options.items() if v},
             },
-        )
+            **({"camera": cameras} if cameras else {}),
+            "tape": self.tape.to_dict(),
+            "subject": self.subject,
+        }
+
+
+def set_camera_offsets(root: str | os.PathLike, offsets: dict[str, float]) -> Path:
+    """Write ``offset_s`` (s, the camera's clock minus the capture's, not counting ``start_s``)
+    into the ``[camera.<name>]`` tables of the capture folder ``root``'s ``capture.toml``, keeping
+    everything else; returns the manifest's path. :class:`InputError` naming the manifest for a
+    camera the capture lacks or an offset that is not a finite number."""
+    manifest = Path(root) / MANIFEST
+    data = read_toml(manifest)
+    with reading(manifest, MANIFEST):
+        cameras = capture_settings(data, manifest)["cameras"]
+    tables = data.setdefault("camera", {})
+    for name, offset in offsets.items():
+        if name not in cameras:
+            raise InputError(manifest, f"no camera {name!r} in this capture (it has {cameras})")
+        if isinstance(offset, bool) or not isinstance(offset, (int, float)) or not np.isfinite(offset):
+            raise InputError(manifest, f"offset of camera {name!r} must be a finite number of seconds, got {offset!r}")
+        tables.setdefault(name, {})["offset_s"] = float(offset)
+    write_toml(manifest, data)
+    return manifest
+
+
+def _clock_table(clock: CameraClock) -> dict:
+    """A ``[camera.<name>]`` table: the values that differ from the defaults."""
+    table = {"media": clock.media, "offset_s": clock.offset_s or None, "fps": clock.fps}
+    return {k: v for k, v in table.items() if v is not None}
+
+
+def _inside(path: Path, root: Path) -> bool:
+    try:
+        path.resolve().relative_to(root.resolve())
+    except ValueError:
+        return False
+    return True
+
+
+def _open_rig(root: Path, manifest: Path, rig_file: str, external: bool) -> Rig:
+    """The rig named by ``rig``: a rig TOML (see :mod:`spinemocap.camera`); another system's
+    calibration is refused with the command that converts it."""
+    path = root / rig_file
+    kind = next((name for suffix, name in FOREIGN_CALIBRATIONS.items() if rig_file.lower().endswith(suffix)), None)
+    if kind is not None:
+        raise InputError(manifest, f"rig = {rig_file!r} is a {kind} calibration, and a capture's rig is a rig TOML: "
+                                   f"convert it with `spinemocap calibrate convert {path} {root / 'rig.toml'}` and set "
+                                   "rig = \"rig.toml\" (or build the capture with `spinemocap capture init`, which "
+                                   "converts it)")
+    if not path.is_file():
+        raise InputError(manifest, f"rig = {rig_file!r}: no such file in {root}")
+    return Rig.from_toml(path)
 
 
 # ---------------------------------------------------------------------------------- validation
 def _typed(section: dict, key: str, kinds: tuple[type, ...], default=None, table: str = "capture"):
     value = section.get(key, default)
-    if not isinstance(value, kinds) or isinstance(value, bool):
-        names = {int: "number", float: "number", str: "string", list: "list"}
+    if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
+        names = {int: "number", float: "number", str: "string", list: "list", bool: "true or false"}
         wanted = " or ".join(dict.fromkeys(names.get(k, k.__name__) for k in kinds))
         raise InputError(None, f"[{table}] {key} must be a {wanted}, got {value!r}")
     return value
+
+
+def unknown_keys(table: dict, valid: Sequence[str], name: str) -> list[str]:
+    """One problem per key of ``table`` not in ``valid``, naming the valid ones."""
+    return [f"unknown key {key!r} in [{name}] (valid keys: {', '.join(valid)})" for key in table if key not in valid]
 
 
 def unit_direction(value, what: str) -> np.ndarray:
@@ -232,11 +454,12 @@ def unit_direction(value, what: str) -> np.ndarray:
 
 
 def subject_problems(subject: dict) -> list[str]:
-    """``[subject]``: ``up`` and ``facing`` finite, non-zero and not parallel (the angles'
-    neutral frame needs both); ``id`` a string."""
+    """``[subject]``: only its known keys; ``up`` and ``facing`` finite, non-zero and not
+    parallel (the angles' neutral frame needs both); ``id`` a string."""
     out = []
     if not isinstance(subject, dict):
         return ["[subject] must be a table"]
+    out += unknown_keys(subject, SUBJECT_KEYS, "subject")
     directions = {}
     for key, default in (("up", (0.0, 0.0, 1.0)), ("facing", (0.0, -1.0, 0.0))):
         try:
@@ -250,34 +473,69 @@ def subject_problems(subject: dict) -> list[str]:
     return out
 
 
+def camera_clocks(tables, problems: list[str]) -> dict[str, CameraClock]:
+    """The ``[camera.<name>]`` tables as clocks by camera name; their problems appended to
+    ``problems`` (unknown keys, a media that is not a path, an offset or rate that is not a finite
+    number, a rate that is not positive)."""
+    if not isinstance(tables, dict) or not all(isinstance(t, dict) for t in tables.values()):
+        problems.append("[camera] must hold one table per camera: [camera.<name>] with media, offset_s, fps")
+        return {}
+    out = {}
+    for name, table in tables.items():
+        here = f"camera.{name}"
+        problems += unknown_keys(table, CAMERA_KEYS, here)
+        try:
+            media = _typed(table, "media", (str,), "", here) or None
+            offset = float(_typed(table, "offset_s", (int, float), 0.0, here))
+            rate = table.get("fps")
+            rate = None if rate is None else float(_typed(table, "fps", (int, float), None, here))
+        except InputError as exc:
+            problems.append(exc.problem)
+            continue
+        if not np.isfinite(offset):
+            problems.append(f"[{here}] offset_s = {offset} must be a finite number of seconds")
+        if rate is not None and not (np.isfinite(rate) and 0 < rate <= MAX_FPS):
+            problems.append(f"[{here}] fps = {rate} must be finite, positive and at most {MAX_FPS:g}")
+        out[str(name)] = CameraClock(offset_s=offset, fps=rate, media=media)
+    return out
+
+
 def capture_settings(data: dict, manifest: Path) -> dict:
-    """The checked ``[capture]`` and ``[subject]`` values of a ``capture.toml`` as
-    :class:`Capture` fields (plus ``cameras``): types, a whole positive frame count, a finite
-    positive frame rate, unique camera names, known media, usable file patterns, sane subject
-    directions. :class:`InputError` naming ``manifest`` otherwise."""
+    """The checked values of a ``capture.toml`` as :class:`Capture` fields (plus ``cameras``;
+    ``n_frames`` None where the manifest leaves it to the media): known tables and keys only,
+    types, a whole positive frame count, a finite positive frame rate, unique camera names, known
+    media, usable file patterns, camera clocks, sane subject directions. :class:`InputError`
+    naming ``manifest`` otherwise, listing every problem found and the valid keys."""
     section = data.get("capture")
     if not isinstance(section, dict):
         raise InputError(manifest, "missing [capture] table")
-    for key in ("fps", "n_frames", "cameras"):
+    problems = [f"unknown table [{key}] (valid tables: {', '.join(TABLES)})" for key in data if key not in TABLES]
+    problems += unknown_keys(section, CAPTURE_KEYS, "capture")
+    for key in ("fps", "cameras"):
         if key not in section:
-            raise InputError(manifest, f"[capture] lacks {key!r}")
+            problems.append(f"[capture] lacks {key!r}")
+    if problems:
+        raise InputError(manifest, "; ".join(problems))
     try:
         fps = float(_typed(section, "fps", (int, float)))
-        n_frames = _typed(section, "n_frames", (int, float))
+        n_frames = _typed(section, "n_frames", (int, float), 1)
         cameras = _typed(section, "cameras", (list,))
         rig_file = _typed(section, "rig", (str,), "rig.toml")
         media = _typed(section, "media", (str,), "images")
         name = _typed(section, "name", (str, int), manifest.parent.name)
         reference = _typed(section, "reference", (str,), "") or None
+        start_s = float(_typed(section, "start_s", (int, float), 0.0))
+        flags = {key: _typed(section, key, (bool,), False) for key in ("external_media", "force_fps")}
         patterns = {key: _typed(section, key, (str,), getattr(Capture, key))
                     for key in ("image_pattern", "video_pattern")}
     except InputError as exc:
         raise InputError(manifest, exc.problem) from None
-    problems = []
     if not (np.isfinite(fps) and 0 < fps <= MAX_FPS):
         problems.append(f"fps = {fps} must be finite, positive and at most {MAX_FPS:g}")
     if not (float(n_frames).is_integer() and n_frames >= 1):
-        problems.append(f"n_frames = {n_frames!r} must be a whole number >= 1")
+        problems.append(f"n_frames = {n_frames!r} must be a whole number >= 1 (or left out: the span every camera recorded)")
+    if not np.isfinite(start_s):
+        problems.append(f"start_s = {start_s} must be a finite number of seconds")
     if not cameras or not all(isinstance(c, str) and c for c in cameras):
         problems.append(f"cameras must be a non-empty list of camera names, got {cameras!r}")
     elif len(set(cameras)) != len(cameras):
@@ -290,9 +548,11 @@ def capture_settings(data: dict, manifest: Path) -> dict:
         except (KeyError, IndexError, ValueError, AttributeError) as exc:
             problems.append(f"{key} {pattern!r} is not a usable file pattern ({type(exc).__name__}: {exc}); "
                             "use the fields {camera} and {frame}")
+    clocks = camera_clocks(data.get("camera", {}), problems)
     problems += subject_problems(data.get("subject", {}))
     if problems:
         raise InputError(manifest, "; ".join(problems))
-    return {"name": str(name), "fps": fps, "n_frames": int(n_frames), "cameras": list(cameras),
-            "subject": dict(data.get("subject", {})), "media": media, "rig_file": rig_file,
-            "reference_file": reference, **patterns}
+    return {"name": str(name), "fps": fps, "n_frames": int(n_frames) if "n_frames" in section else None,
+            "cameras": list(cameras), "subject": dict(data.get("subject", {})), "media": media,
+            "rig_file": rig_file, "reference_file": reference, "camera_clocks": clocks, "start_s": start_s,
+            **flags, **patterns}
