@@ -34,8 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="3D spine motion capture from perforated kinesiology tape.",
     )
     parser.add_argument("--version", action="version", version=f"spinemocap {__version__}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    parser.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
+    add_global_flags(parser, False)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     bench = sub.add_parser("bench", help="benchmarks that print and save speed/accuracy numbers")
     bench_sub = bench.add_subparsers(dest="benchmark", metavar="BENCHMARK", required=True)
@@ -44,7 +43,29 @@ def build_parser() -> argparse.ArgumentParser:
             module.register(sub)
         if hasattr(module, "register_bench"):
             module.register_bench(bench_sub)
+    for command in _subparsers(parser):  # the global flags also after a command's name
+        add_global_flags(command, argparse.SUPPRESS)
     return parser
+
+
+def add_global_flags(parser: argparse.ArgumentParser, default) -> None:
+    """``-v``/``--verbose`` and ``-q``/``--quiet`` on ``parser``; a command's copies default to
+    ``argparse.SUPPRESS`` so that they do not undo the same flag given before the command."""
+    flags = {"-v": ("--verbose", "debug logging"), "-q": ("--quiet", "warnings and errors only")}
+    taken = {option for action in parser._actions for option in action.option_strings}
+    for short, (long, text) in flags.items():
+        names = [n for n in (short, long) if n not in taken]
+        if len(names) == 2:  # a command that uses one of the names itself keeps its own meaning
+            parser.add_argument(*names, action="store_true", default=default, help=text)
+
+
+def _subparsers(parser: argparse.ArgumentParser):
+    """Every command parser below ``parser`` (commands, their subcommands, benchmarks)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in dict.fromkeys(action.choices.values()):
+                yield child
+                yield from _subparsers(child)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -56,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except InputError as exc:
         print(f"spinemocap: error: {exc}", file=sys.stderr)
-        return 2
+        return int(getattr(exc, "exit_code", 2))  # 2: bad input; a subclass may name its own status
     except KeyboardInterrupt:
         print("spinemocap: interrupted", file=sys.stderr)
         return 130

@@ -43,6 +43,7 @@ import os
 import signal
 import time
 import uuid
+import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -193,16 +194,66 @@ def process_trial(job: TrialJob) -> dict:
             cached = json.loads(summary_path.read_text())
             if not job.opensim or "opensim" in cached:
                 return {**cached, "skipped": True}
-        summary = {**base, **_analyse(job, inputs)}
+        with warnings.catch_warnings(record=True) as caught:  # into the summary and batch.log, not stderr
+            warnings.simplefilter("always")
+            summary = {**base, **_analyse(job, inputs)}
+        messages = list(dict.fromkeys(str(w.message) for w in caught))
+        if messages:
+            summary["warnings"] = messages
     except TrackingStopped:  # the batch is being interrupted: no summary, a rerun redoes the trial
         return {**base, "status": INTERRUPTED, "reason": "interrupted (stopped while running)", "skipped": False}
     except Exception as exc:  # one bad trial never stops the batch: record why it failed
         reason = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
         summary = {**base, "status": "failed", "reason": reason}
     summary["elapsed_s"] = round(time.perf_counter() - started, 3)
-    with atomic_write(out / SUMMARY) as handle:
-        json.dump(summary, handle, indent=1, default=_json_default)
+    write_summary(out, summary)
     return {**summary, "skipped": False}
+
+
+def write_summary(out: Path, summary: dict) -> None:
+    """``out/summary.json``, strict JSON (NaN and infinities as null), atomically."""
+    with atomic_write(Path(out) / SUMMARY) as handle:
+        handle.write(strict_json(summary))
+
+
+def strict_json(data, indent: int | None = 1) -> str:
+    """``data`` as JSON that strict parsers read: NaN and infinities become null, numpy scalars
+    and paths plain values."""
+    return json.dumps(_finite(data), indent=indent, default=_json_default, allow_nan=False)
+
+
+def _finite(value):
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.ndarray):
+        return _finite(value.tolist())
+    return value
+
+
+def check_trial(job: TrialJob) -> str | None:
+    """Why ``job`` cannot run, found before any trial is tracked: its capture (manifest, rig,
+    tape, media), its row-to-level map and its pelvis C3D; None when all are in order."""
+    try:
+        if job.trial.problem:
+            raise InputError(job.trial.capture_dir, job.trial.problem)
+        capture = Capture.open(job.trial.capture_dir)
+        if job.source == "tracked":
+            source = capture.frame_source()  # every camera's media found, readable and paired
+            close = getattr(source, "close", None)
+            if close is not None:
+                close()
+        elif not capture.has_groundtruth:
+            raise InputError(capture.groundtruth_path, "no ground truth to take the markers from (--source groundtruth)")
+        _levels(job, capture)
+        if job.trial.c3d_file and not Path(job.trial.c3d_file).is_file():
+            raise InputError(job.trial.c3d_file, "pelvis C3D file not found")
+    except InputError as exc:
+        return str(exc)
+    return None
 
 
 def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
@@ -265,7 +316,18 @@ def write_shape(out: Path, markers: MarkerTable, capture: Capture, levels: Level
 
 
 def _input_files(job: TrialJob) -> list[Path]:
-    """Files whose modification makes a trial's results stale."""
+    """Files whose modification makes a trial's results stale: the markers' inputs
+    (:func:`_tracking_inputs`) and the analysis' (level maps, pelvis C3D)."""
+    folder = Path(job.trial.capture_dir)
+    files = _tracking_inputs(job)
+    files += [Path(p) for p in (job.trial.levels_file, job.levels_file, job.trial.c3d_file) if p]
+    files += [folder / "levels.toml", folder.parent.parent / "levels.toml"]
+    return [p for p in files if p.is_file()]
+
+
+def _tracking_inputs(job: TrialJob) -> list[Path]:
+    """Files whose modification makes a trial's markers stale: its manifest and rig, and its
+    media (each camera's video or images, inside the folder or not) or ground truth."""
     folder = Path(job.trial.capture_dir)
     files = [folder / MANIFEST]
     manifest = read_toml(folder / MANIFEST)
@@ -276,8 +338,12 @@ def _input_files(job: TrialJob) -> list[Path]:
         for media in ("images", "videos"):
             if (folder / media).is_dir():
                 files += [p for p in (folder / media).rglob("*") if p.is_file()]
-    files += [Path(p) for p in (job.trial.levels_file, job.levels_file, job.trial.c3d_file) if p]
-    files += [folder / "levels.toml", folder.parent.parent / "levels.toml"]
+        for table in (manifest.get("camera") or {}).values():
+            media_path = folder / table["media"] if isinstance(table, dict) and table.get("media") else None
+            if media_path is not None and media_path.is_dir():
+                files += [p for p in media_path.iterdir() if p.is_file()]
+            elif media_path is not None:
+                files.append(media_path)
     return [p for p in files if p.is_file()]
 
 
@@ -299,7 +365,9 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
     if job.source != "tracked":
         raise InputError(None, f"unknown marker source {job.source!r}; expected one of {SOURCES}")
     path = Path(job.out_dir) / MARKERS
-    if job.force or not _newer_than(path, inputs) or not results_complete(path.parent):
+    # a complete marker set newer than the capture's own files stays: level maps and the pelvis
+    # C3D change only the analysis
+    if job.force or not _newer_than(path, _tracking_inputs(job)) or not results_complete(path.parent):
         try:
             from ..app.run import track_capture
         except ImportError as exc:
@@ -440,9 +508,12 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = 
     log.addHandler(handler)
     log.info("batch of %d trials from %s (source %s, %s)", len(jobs), root, source,
              f"scheduler {scheduler}" if scheduler else f"{workers} local workers")
-    results: list[dict] = []
-    bar = tqdm(total=len(jobs), desc="trials", unit="trial", disable=not progress)
-    running = _execute(jobs, workers, scheduler)
+    results = _checked(jobs)  # every trial's inputs, before any trial is tracked
+    runnable = [job for job in jobs if job.trial.key not in {r["key"] for r in results}]
+    for result in results:
+        _log_result(result)
+    bar = tqdm(total=len(jobs), initial=len(results), desc="trials", unit="trial", disable=not progress)
+    running = _execute(runnable, workers, scheduler)
     try:
         for result in running:
             results.append(result)
@@ -460,6 +531,20 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = 
         handler.close()
     _write_batch_json(out, root, source, jobs, results)
     return BatchResult(results)
+
+
+def _checked(jobs: list[TrialJob]) -> list[dict]:
+    """The failed summaries (written to each trial's ``summary.json``) of the trials whose inputs
+    :func:`check_trial` refuses; the others are left to run."""
+    failed = []
+    for job in jobs:
+        reason = check_trial(job)
+        if reason is not None:
+            summary = {**job.summary_head(), "status": "failed", "reason": reason, "elapsed_s": 0.0}
+            check_writable(job.out_dir, "trial output folder")
+            write_summary(Path(job.out_dir), summary)
+            failed.append({**summary, "skipped": False})
+    return failed
 
 
 def _record_interrupted(jobs: list[TrialJob], results: list[dict], out: Path, root, source: str) -> None:
@@ -482,8 +567,7 @@ def _write_batch_json(out: Path, root, source: str, jobs: list[TrialJob], result
     order = {j.trial.key: k for k, j in enumerate(jobs)}
     results.sort(key=lambda r: order.get(r["key"], 0))
     with atomic_write(out / "batch.json") as handle:
-        json.dump({"root": str(root), "source": source, "trials": results}, handle, indent=1,
-                  default=_json_default)
+        handle.write(strict_json({"root": str(root), "source": source, "trials": results}))
 
 
 def _log_result(result: dict) -> None:
@@ -493,6 +577,8 @@ def _log_result(result: dict) -> None:
     for group, reasons in result.get("notes", {}).items():
         for reason, count in reasons.items():
             log.warning("%s: %s angles NaN in %d frames: %s", result["key"], group, count, reason)
+    for message in result.get("warnings", []):
+        log.info("%s: %s", result["key"], message)
     log.info("%s %s", result["key"], "up to date, skipped" if result.get("skipped") else "done")
 
 
