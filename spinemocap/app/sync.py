@@ -50,6 +50,10 @@ MIN_OVERLAP_FRAMES = 15
 # a pairwise coarse minimum must stand out: its cost at most this share of the median trial's
 MAX_COST_SHARE = 0.6
 AUDIO_ENVELOPE_S = 0.001  # smoothing of the audio envelope, s
+# a clap's correlation peak must stand this many times above the highest value farther than
+# AUDIO_ISOLATION_S from it (a clap rings for tens of ms: nearer values belong to the same clap)
+AUDIO_PROMINENCE = 1.5
+AUDIO_ISOLATION_S = 0.05
 
 
 @dataclass
@@ -479,8 +483,8 @@ def onset_envelope(samples: np.ndarray, rate: int) -> np.ndarray:
 def audio_lag(reference: np.ndarray, other: np.ndarray, rate: int, max_lag_s: float) -> tuple[float, float]:
     """The delay (s) of ``other`` relative to ``reference`` (onset envelopes at ``rate``) that
     maximises their cross-correlation within +-``max_lag_s``, to a fraction of a sample (parabola
-    through the peak); and the peak's prominence (its height over the highest value more than a
-    millisecond away; > 1 means a single clear peak)."""
+    through the peak); and the peak's prominence (its height over the highest value more than
+    :data:`AUDIO_ISOLATION_S` away; > 1 means a single clear peak)."""
     from scipy.signal import correlate, correlation_lags
 
     corr = correlate(other, reference, mode="full", method="fft")
@@ -493,7 +497,7 @@ def audio_lag(reference: np.ndarray, other: np.ndarray, rate: int, max_lag_s: fl
         y0, y1, y2 = corr[i - 1], corr[i], corr[i + 1]
         denominator = y0 - 2 * y1 + y2
         shift = 0.5 * (y0 - y2) / denominator if denominator < 0 else 0.0
-    away = np.abs(lags - lags[i]) > 0.001 * rate
+    away = np.abs(lags - lags[i]) > AUDIO_ISOLATION_S * rate
     second = float(corr[away].max()) if away.any() else 0.0
     prominence = float(corr[i] / second) if second > 0 else float("inf")
     return (lags[i] + shift) / rate, prominence
@@ -502,7 +506,7 @@ def audio_lag(reference: np.ndarray, other: np.ndarray, rate: int, max_lag_s: fl
 def estimate_audio(capture: Capture, max_offset_s: float = 2.0) -> SyncEstimate | None:
     """Per-camera offsets from a clap or beep on the videos' audio tracks (module docstring); None
     when the capture has no videos or a camera's video has no audio. A camera whose correlation
-    peak does not stand out (prominence below 1.5) gets NaN."""
+    peak does not stand out (prominence below :data:`AUDIO_PROMINENCE`) gets NaN."""
     if capture.media != "video":
         return None
     clocks = capture_clocks(capture)
@@ -526,8 +530,8 @@ def estimate_audio(capture: Capture, max_offset_s: float = 2.0) -> SyncEstimate 
         lag, prominence = audio_lag(reference, envelope, rate, 2 * max_offset_s)
         offsets[c] = lag + start - start0
         # the peak's position is good to a fraction of a sample; a weak peak is not trusted
-        stderr[c] = 0.25 / rate if prominence >= 1.5 else np.inf
-        if prominence < 1.5:
+        stderr[c] = 0.25 / rate if prominence >= AUDIO_PROMINENCE else np.inf
+        if prominence < AUDIO_PROMINENCE:
             offsets[c] = np.nan
     return SyncEstimate(tuple(capture.camera_names), offsets, stderr, "audio")
 
@@ -568,3 +572,20 @@ def write_offsets(capture: Capture, estimate: SyncEstimate) -> Path:
         tables.setdefault(name, {})["offset_s"] = value
     write_toml(manifest, data)
     return manifest
+
+
+def format_estimate(estimate: SyncEstimate) -> str:
+    """The offsets as a table: camera, offset (ms), standard error (ms), in frames of the camera's
+    clock where known, and a warning line for cameras not found."""
+    lines = [f"clock offsets by {estimate.method} (camera clock minus {estimate.camera_names[0]}'s):",
+             f"  {'camera':<12} {'offset ms':>11} {'+- ms':>8}"]
+    for name, offset, error, ok in zip(estimate.camera_names, estimate.offsets_s, estimate.stderr_s, estimate.found):
+        if ok:
+            lines.append(f"  {name:<12} {1000 * offset:11.3f} {1000 * error:8.3f}")
+        else:
+            lines.append(f"  {name:<12} {'not found':>11}")
+    missing = [n for n, ok in zip(estimate.camera_names, estimate.found) if not ok]
+    if missing:
+        lines.append(f"WARNING: no trustworthy offset for {', '.join(missing)} (too little shared motion or sound); "
+                     "their offsets are left as they were")
+    return "\n".join(lines)

@@ -382,6 +382,7 @@ class Scene:
         self.skin_tone = float(tone)
         self._renderers: list[CameraRenderer] | None = None
         self._pool: ThreadPoolExecutor | None = None
+        self._still_windows: dict[tuple, list] = {}  # camera_image_at's last still scene's windows
 
     # ------------------------------------------------------------------ geometry per instant
     def _posed(self, frame: int | None = None, time_s: float | None = None,
@@ -736,7 +737,15 @@ class Scene:
             half = 0.5 * self.config.blur / camera_fps
             instants += [float(x) for x in np.linspace(time_s - half, time_s + half, 7) if abs(x - time_s) > 1e-12]
         renderer = self.renderers[camera]
-        windows = [renderer.render_window(self.meshes(time_s=t)) for t in instants]
+        # a still scene (the same pose, no ball in the air: a recording's lead-in before the motion
+        # starts) renders the same windows; only the sensor noise differs from frame to frame
+        key = (camera, tuple(np.round(spine_motion(self.config.motion, [time_s])[0], 12)))
+        still = len(instants) == 1 and not len(self.balls.at(time_s)[1])
+        windows = self._still_windows.get(key) if still else None
+        if windows is None:
+            windows = [renderer.render_window(self.meshes(time_s=t)) for t in instants]
+            if still:
+                self._still_windows = {key: windows}
         image, _ = self._develop(slot, camera, windows, None, False)
         return image
 
