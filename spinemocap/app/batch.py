@@ -58,7 +58,7 @@ from ..analysis.frames import pelvis_frame_from_markers
 from ..analysis.levels import LevelMap
 from ..analysis.shape import key_frames, midline_profiles, segmental_angles
 from ..capture import MANIFEST, Capture
-from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, read_toml
+from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, read_toml, strict_json
 from ..markers import MarkerTable
 from .c3d_inputs import read_pelvis_c3d
 from .results import TrackingStopped, results_complete
@@ -216,24 +216,6 @@ def write_summary(out: Path, summary: dict) -> None:
         handle.write(strict_json(summary))
 
 
-def strict_json(data, indent: int | None = 1) -> str:
-    """``data`` as JSON that strict parsers read: NaN and infinities become null, numpy scalars
-    and paths plain values."""
-    return json.dumps(_finite(data), indent=indent, default=_json_default, allow_nan=False)
-
-
-def _finite(value):
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
-    if isinstance(value, (float, np.floating)):
-        return float(value) if np.isfinite(value) else None
-    if isinstance(value, np.ndarray):
-        return _finite(value.tolist())
-    return value
-
-
 def check_trial(job: TrialJob) -> str | None:
     """Why ``job`` cannot run, found before any trial is tracked: its capture (manifest, rig,
     tape, media), its row-to-level map and its pelvis C3D; None when all are in order."""
@@ -312,7 +294,7 @@ def write_shape(out: Path, markers: MarkerTable, capture: Capture, levels: Level
     shape = {"frames": frames, "times_s": {k: float(angles["time"].iloc[f]) for k, f in frames.items()},
              "midline_mm": profiles}
     with atomic_write(out / SHAPE) as handle:
-        json.dump(shape, handle)
+        handle.write(strict_json(shape, indent=None))
 
 
 def _input_files(job: TrialJob) -> list[Path]:
@@ -453,14 +435,6 @@ def _pelvis_frames(c3d_file: str, markers: MarkerTable) -> np.ndarray:
     resampled = {name: np.column_stack([np.interp(t, times, xyz[:, k]) for k in range(3)])
                  for name, xyz in traj.items()}
     return pelvis_frame_from_markers(resampled, source=c3d_file)[1]
-
-
-def _json_default(value):
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
 # ---------------------------------------------------------------------------------- the batch

@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from ..camera import Rig
 from ..capture import Capture, FrameSource
-from ..fileio import InputError, atomic_write, check_writable
+from ..fileio import InputError, atomic_write, check_writable, strict_json
 from ..markers import MarkerTable
 from ..reference import ReferenceObject
 from ..tape import TapeSpec
@@ -528,9 +528,7 @@ def apply_refined_rig(result: TrackResult, refinement: RigRefinement, tape: Tape
 
 def write_refinement(refinement: RigRefinement, out_dir: str | Path) -> tuple[Path, Path]:
     """``rig_refined.toml`` and ``rig_refine.json`` (residuals before/after) in ``out_dir``."""
-    import json
-
-    from ..fileio import atomic_path, atomic_write
+    from ..fileio import atomic_path
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -538,5 +536,5 @@ def write_refinement(refinement: RigRefinement, out_dir: str | Path) -> tuple[Pa
     with atomic_path(rig_path) as tmp:
         refinement.rig.to_toml(tmp)
     with atomic_write(json_path) as fh:
-        json.dump(refinement.to_dict(), fh, indent=2)
+        fh.write(strict_json(refinement.to_dict(), indent=2))
     return rig_path, json_path
