@@ -9,7 +9,6 @@ from spinemocap.app.sync import (
     CameraDots,
     PairOffset,
     audio_lag,
-    capture_clocks,
     combine_pairs,
     estimate_motion,
     onset_envelope,
@@ -118,5 +117,5 @@ def test_written_offsets_read_back_as_the_cameras_clocks(tmp_path):
     estimate = SyncEstimate(tuple(capture.camera_names), np.array([0.0, 0.0123, np.nan]),
                             np.array([0.0, 1e-4, np.inf]), "motion")
     write_offsets(capture, estimate)
-    clocks = capture_clocks(Capture.open(tmp_path))
+    clocks = Capture.open(tmp_path).clocks
     assert [c.offset_s for c in clocks] == pytest.approx([0.0, 0.0123, 0.0])

@@ -29,10 +29,10 @@ from typing import Literal
 import numpy as np
 
 from ..camera import Rig
-from ..capture import MANIFEST, Capture
-from ..fileio import InputError, read_toml, write_toml
+from ..capture import Capture, set_camera_offsets
+from ..fileio import InputError
 from ..media import VideoDecoder, read_image
-from ..timebase import CameraClock, MediaTimes, image_times, video_times
+from ..timebase import MediaTimes
 from ..track.candidates import epipolar_distance, fundamental_matrix
 
 Method = Literal["motion", "audio", "auto"]
@@ -347,52 +347,16 @@ def combine_pairs(pairs: Sequence[PairOffset], n_cameras: int) -> tuple[np.ndarr
 
 
 # ---------------------------------------------------------------------- reading a capture
-def capture_clocks(capture: Capture) -> list[CameraClock]:
-    """The capture's camera clocks (rig order): :attr:`Capture.clocks` where the capture has them,
-    else the ``[camera.<name>]`` tables of its ``capture.toml`` (``offset_s``, ``fps``, ``media``)."""
-    clocks = getattr(capture, "clocks", None)
-    if clocks is not None:
-        return list(clocks)
-    tables = read_toml(capture.root / MANIFEST).get("camera", {})
-    out = []
-    for name in capture.camera_names:
-        table = tables.get(name, {}) if isinstance(tables, dict) else {}
-        out.append(CameraClock(offset_s=float(table.get("offset_s", 0.0)),
-                               fps=float(table["fps"]) if "fps" in table else None, media=table.get("media")))
-    return out
-
-
-def camera_media(capture: Capture, camera: int, clock: CameraClock) -> Path:
-    """Camera ``camera``'s video file or image folder."""
+def _frame_reader(capture: Capture, camera: int, times: MediaTimes) -> tuple[Callable[[int], np.ndarray], Callable[[], None]]:
+    """(read(slot) -> BGR image, close) for camera ``camera``'s own frames."""
     name = capture.camera_names[camera]
-    if clock.media is not None:
-        return capture.root / clock.media
-    if capture.media == "video":
-        return capture.root / capture.video_pattern.format(camera=name)
-    return (capture.root / capture.image_pattern.format(camera=name, frame=0)).parent
-
-
-def camera_times(capture: Capture, camera: int, clock: CameraClock) -> MediaTimes:
-    """A camera's recorded frames (container timestamps of a video; index / fps of images)."""
-    path = camera_media(capture, camera, clock)
-    name = capture.camera_names[camera]
-    if capture.media == "video":
-        return video_times(path, clock.fps, name)
-    if not path.is_dir():
-        raise InputError(path, f"image folder for camera {name!r} is missing")
-    count = sum(1 for p in path.iterdir() if p.is_file() and not p.name.startswith("."))
-    return image_times(count, clock.fps or capture.fps, name)
-
-
-def _frame_reader(capture: Capture, camera: int, clock: CameraClock, times: MediaTimes):
-    path = camera_media(capture, camera, clock)
+    path = capture.media_path(name)
     if capture.media == "video":
         decoder = VideoDecoder(path, times.fps)
         return decoder.read, decoder.close
-    if clock.media is not None:
+    if capture.clocks[camera].media is not None:
         files = sorted(p for p in path.iterdir() if p.is_file() and not p.name.startswith("."))
         return (lambda slot: read_image(files[slot])), (lambda: None)
-    name = capture.camera_names[camera]
     return (lambda slot: read_image(capture.root / capture.image_pattern.format(camera=name, frame=slot))), (lambda: None)
 
 
@@ -406,8 +370,7 @@ def detect_camera_dots(capture: Capture, detector: str = "net", seconds: float =
     from .run import make_detector
     from .streaming import SpeedOptions
 
-    clocks = capture_clocks(capture)
-    times = [camera_times(capture, c, clock) for c, clock in enumerate(clocks)]
+    times = capture.media_times()
     chosen = [np.flatnonzero(t.timestamps_s < seconds) for t in times]
     detect = make_detector(detector, None, SpeedOptions(predict=False, workers=1, prefetch=0))
     bar = tqdm(total=sum(len(k) for k in chosen), desc="detecting dots for the sync estimate", unit="image",
@@ -415,8 +378,8 @@ def detect_camera_dots(capture: Capture, detector: str = "net", seconds: float =
     out = []
     try:
         with bar:
-            for c, (clock, t, keep) in enumerate(zip(clocks, times, chosen)):
-                read, close = _frame_reader(capture, c, clock, t)
+            for c, (t, keep) in enumerate(zip(times, chosen)):
+                read, close = _frame_reader(capture, c, t)
                 try:
                     uv = []
                     for slot in t.slots[keep]:
@@ -509,10 +472,9 @@ def estimate_audio(capture: Capture, max_offset_s: float = 2.0) -> SyncEstimate 
     peak does not stand out (prominence below :data:`AUDIO_PROMINENCE`) gets NaN."""
     if capture.media != "video":
         return None
-    clocks = capture_clocks(capture)
     tracks = []
-    for c, clock in enumerate(clocks):
-        audio = read_audio(camera_media(capture, c, clock))
+    for name in capture.camera_names:
+        audio = read_audio(capture.media_path(name))
         if audio is None:
             return None
         tracks.append(audio)
@@ -523,9 +485,9 @@ def estimate_audio(capture: Capture, max_offset_s: float = 2.0) -> SyncEstimate 
             t = np.arange(int(len(samples) * rate / own_rate)) / rate
             samples = np.interp(t, np.arange(len(samples)) / own_rate, samples)
         envelopes.append((onset_envelope(samples, rate), start))
-    offsets, stderr = np.zeros(len(clocks)), np.zeros(len(clocks))
+    offsets, stderr = np.zeros(len(tracks)), np.zeros(len(tracks))
     reference, start0 = envelopes[0]
-    for c in range(1, len(clocks)):
+    for c in range(1, len(tracks)):
         envelope, start = envelopes[c]
         lag, prominence = audio_lag(reference, envelope, rate, 2 * max_offset_s)
         offsets[c] = lag + start - start0
@@ -556,22 +518,10 @@ def estimate_offsets(capture: Capture, method: Method = "auto", detector: str = 
 
 def write_offsets(capture: Capture, estimate: SyncEstimate) -> Path:
     """Store the found offsets as ``[camera.<name>] offset_s`` in the capture's ``capture.toml``
-    (through :func:`spinemocap.capture.set_camera_offsets` where the capture module has it; other
-    keys kept). Cameras without an offset keep theirs. Returns the manifest's path."""
+    (:func:`spinemocap.capture.set_camera_offsets`; other keys kept); cameras without an offset keep
+    theirs. Returns the manifest's path."""
     values = {name: float(x) for name, x, ok in zip(estimate.camera_names, estimate.offsets_s, estimate.found) if ok}
-    from .. import capture as capture_module
-
-    setter = getattr(capture_module, "set_camera_offsets", None)
-    if setter is not None:
-        setter(capture.root, values)
-        return capture.root / MANIFEST
-    manifest = capture.root / MANIFEST
-    data = read_toml(manifest)
-    tables = data.setdefault("camera", {})
-    for name, value in values.items():
-        tables.setdefault(name, {})["offset_s"] = value
-    write_toml(manifest, data)
-    return manifest
+    return set_camera_offsets(capture.root, values)
 
 
 def format_estimate(estimate: SyncEstimate) -> str:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..app.sync import camera_times, capture_clocks, detect_camera_dots, estimate_audio, estimate_motion
+from ..app.sync import detect_camera_dots, estimate_audio, estimate_motion
 from ..capture import Capture
 from ..synth import SynthConfig, write_capture
 from ..timebase import CameraClock, pair_cameras
@@ -68,8 +68,8 @@ def measure_capture(root: Path, detector: str = "classical", progress: bool = Tr
     t0 = time.perf_counter()
     motion = estimate_motion(capture.rig, dots, 2.0)
     out["motion_s"] = time.perf_counter() - t0
-    clocks = capture_clocks(capture)
-    times = [camera_times(capture, c, clock) for c, clock in enumerate(clocks)]
+    clocks = capture.clocks
+    times = capture.media_times()
     for estimate in (motion, audio):
         if estimate is None:
             continue

@@ -24,9 +24,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..capture import MANIFEST, VIDEO_PATTERN, Capture
-from ..fileio import atomic_write, read_toml, write_toml
+from ..capture import VIDEO_PATTERN, Capture
+from ..fileio import atomic_write, write_toml
 from ..media import VideoWriter
+from ..timebase import CameraClock
 from .clocks import AUDIO_RATE, CameraRecording, camera_audio, clap_time_s, plan_recordings
 from .scene import DEVELOP_WORKERS, RenderedFrame, Scene, SynthConfig, build_scene
 
@@ -114,8 +115,10 @@ def write_capture(config: SynthConfig, out_dir: str | os.PathLike, progress: boo
         finally:
             scene.close()
         scene.groundtruth.update(truth)
+        if config.camera_fps is not None:  # a lab knows its cameras' rates; their offsets stay unknown (0)
+            capture.camera_clocks = {name: CameraClock(fps=float(rate))
+                                     for name, rate in zip(capture.camera_names, config.camera_fps)}
         _finish(config, scene, capture, root)
-        _write_camera_rates(root, capture, config)
         return root
     writers = {}
     try:
@@ -202,19 +205,6 @@ def _write_recording(scene: Scene, root: Path, capture: Capture, camera: int, re
     except BaseException:
         writer.abort()
         raise
-
-
-def _write_camera_rates(root: Path, capture: Capture, config: SynthConfig) -> None:
-    """Name each camera's own rate in ``capture.toml`` (``[camera.<name>] fps``), as a lab would
-    from the cameras' settings; the clock offsets stay unknown (0) until estimated."""
-    if config.camera_fps is None:
-        return
-    manifest = root / MANIFEST
-    data = read_toml(manifest)
-    cameras = data.setdefault("camera", {})
-    for name, rate in zip(capture.camera_names, config.camera_fps):
-        cameras.setdefault(name, {})["fps"] = float(rate)
-    write_toml(manifest, data)
 
 
 def _open_videos(root: Path, capture: Capture, scene: Scene) -> dict[str, VideoWriter]:
