@@ -212,11 +212,12 @@ class Capture:
         camera's frame ``i``."""
         sizes = [cam.size for cam in self.rig]
         clocks = self._source_clocks()
-        kinds = {"images": (ImageFolderSource, self.image_pattern), "video": (VideoSource, self.video_pattern)}
-        if self.media not in kinds:
-            raise InputError(self.root / MANIFEST, f"unknown media {self.media!r} (expected 'images' or 'video')")
-        source, pattern = kinds[self.media]
-        return source(self.root, self.camera_names, self.n_frames, pattern, sizes, clocks, self.fps)
+        if self.media == "images":
+            return ImageFolderSource(self.root, self.camera_names, self.n_frames, self.image_pattern, sizes, clocks,
+                                     self.fps)
+        if self.media == "video":
+            return VideoSource(self.root, self.camera_names, self.n_frames, self.video_pattern, sizes, clocks, self.fps)
+        raise InputError(self.root / MANIFEST, f"unknown media {self.media!r} (expected 'images' or 'video')")
 
     def _source_clocks(self) -> list[CameraClock] | None:
         """:attr:`clocks` for the frame source: None where every camera's frame ``i`` is capture

@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from ..fileio import InputError
+from .capture_sync import add_sync_parser
 
 
 def _pair(text: str) -> tuple[str, str]:
@@ -59,11 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     init.add_argument("--subject", help="subject id (default: the folder's name)")
     init.add_argument("--force", action="store_true", help="replace OUT's capture.toml")
     init.set_defaults(func=run_init)
-    try:  # the offset estimate's own parser and handler
-        from .capture_sync import add_sync_parser
-    except ModuleNotFoundError:
-        return
-    add_sync_parser(sub)
+    add_sync_parser(sub)  # the offset estimate's own parser and handler
 
 
 def _offsets(pairs: list[tuple[str, str]]) -> dict[str, float]:
