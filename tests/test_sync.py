@@ -119,3 +119,31 @@ def test_written_offsets_read_back_as_the_cameras_clocks(tmp_path):
     write_offsets(capture, estimate)
     clocks = Capture.open(tmp_path).clocks
     assert [c.offset_s for c in clocks] == pytest.approx([0.0, 0.0123, 0.0])
+
+
+@pytest.mark.slow
+def test_studio_capture_with_offsets_and_a_drop_is_synced_within_the_goal(tmp_path):
+    from spinemocap.app.sync import estimate_offsets
+    from spinemocap.capture import Capture
+    from spinemocap.synth import SynthConfig, write_capture
+
+    config = SynthConfig.preset("tiny", frames=100, fps=100.0, cameras=3, realism="skin", video=True, clap=True,
+                                camera_offsets_s=(0.0, 0.1831, -0.0967), drop_frames=1)
+    capture = Capture.open(write_capture(config, tmp_path / "unsynced", progress=False))
+    truth = capture.groundtruth()
+    offsets = truth["clock_offsets_s"] - truth["clock_offsets_s"][0]
+    (camera, slot), = truth["dropped_slots"]
+    dropped = capture.media_times()[camera].dropped
+    assert [(d.after_slot, d.missing) for d in dropped] == [(slot - 1, 1)]
+    motion = estimate_offsets(capture, "motion", detector="classical", progress=False)
+    assert motion.found.all() and np.abs(motion.offsets_s - offsets).max() <= GOAL_S
+    audio = estimate_offsets(capture, "audio")
+    assert np.abs(audio.offsets_s - offsets).max() <= 0.05e-3
+    write_offsets(capture, motion)
+    source = Capture.open(capture.root).frame_source()
+    try:
+        missing = source.pairing.missing()
+        late = int(np.ceil(0.0967 * 100 - 0.5))  # camera 3 starts 96.7 ms into the capture
+        assert missing[capture.camera_names[2]][:late] == list(range(late))
+    finally:
+        source.close()

@@ -373,6 +373,7 @@ class CaptureDetector:
         self.searches = {"full": 0, "predicted": 0, "fallback": 0, "refresh": 0}  # camera images per route
         self._searches_lock = threading.Lock()
         # camera index -> capture frames it had no image for (its clock, a drop); also info["missing_frames"]
+        # by camera name (the rig's; without a rig the index as text)
         self.missing: dict[int, list[int]] = {}
 
     @property
@@ -517,7 +518,8 @@ class CaptureDetector:
     def _note_missing(self, camera: int, frame: int) -> None:
         with self._searches_lock:
             self.missing.setdefault(camera, []).append(int(frame))
-            self.info["missing_frames"] = {c: list(frames) for c, frames in sorted(self.missing.items())}
+            names = self.rig.names if self.rig is not None else [str(c) for c in range(max(self.missing) + 1)]
+            self.info["missing_frames"] = {names[c]: list(frames) for c, frames in sorted(self.missing.items())}
 
     def _cameras_whole_in_pool(self) -> bool:
         """Does a frame's every camera run whole (box, search, fallback) in the camera threads?
