@@ -67,7 +67,7 @@ def check_image_size(image: np.ndarray, size: tuple[int, int] | None, camera: st
     return image
 
 
-class ImageFolderSource:
+class ImageFolderSource(FrameSource):
     """Frames stored as one image file per camera and frame. ``sizes``: the rig's (width,
     height) per camera; every image read is checked against it.
 
@@ -271,7 +271,7 @@ def _bgr(decoded, out: np.ndarray | None = None) -> np.ndarray:
     return cv2.merge([b, g, r], out) if out is not None else cv2.merge([b, g, r])
 
 
-class VideoSource:
+class VideoSource(FrameSource):
     """Frames stored as one video per camera (:class:`VideoDecoder` each); sequential reads are
     cheap, jumps seek.
 
