@@ -216,3 +216,15 @@ def test_a_tape_spec_and_images_need_their_own_values(tmp_path):
                            tape=TapeSpec(n_rows=7)).capture
     assert capture.media == "images" and capture.n_frames == 3 and capture.tape.n_rows == 7
     assert float(capture.frame_source().read(2)[0].mean()) == pytest.approx(60.0, abs=3)
+
+
+@pytest.mark.parametrize("name, fmt", [("calib.xcp", None), ("Calib.toml", "pose2sim")])
+def test_init_converts_vicon_and_pose2sim_calibrations(lab, tmp_path, name, fmt):
+    from calibration.formats import write_rig
+
+    folder, videos = lab
+    write_rig(small_rig(), folder / name, fmt)
+    capture = init_capture(tmp_path / "cap", folder / name, media=videos).capture
+    assert capture.camera_names == ["cam1", "cam2", "cam3"]
+    np.testing.assert_allclose(capture.rig["cam2"].K, small_rig()["cam2"].K, rtol=1e-6)
+    assert Rig.from_toml(tmp_path / "cap" / "rig.toml").names == capture.camera_names

@@ -223,7 +223,7 @@ def check_trial(job: TrialJob) -> str | None:
         if job.trial.problem:
             raise InputError(job.trial.capture_dir, job.trial.problem)
         capture = Capture.open(job.trial.capture_dir)
-        if job.source == "tracked":
+        if job.source == "tracked" and not _markers_reusable(job):
             source = capture.frame_source()  # every camera's media found, readable and paired
             close = getattr(source, "close", None)
             if close is not None:
@@ -347,9 +347,7 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
     if job.source != "tracked":
         raise InputError(None, f"unknown marker source {job.source!r}; expected one of {SOURCES}")
     path = Path(job.out_dir) / MARKERS
-    # a complete marker set newer than the capture's own files stays: level maps and the pelvis
-    # C3D change only the analysis
-    if job.force or not _newer_than(path, _tracking_inputs(job)) or not results_complete(path.parent):
+    if not _markers_reusable(job):
         try:
             from ..app.run import track_capture
         except ImportError as exc:
@@ -358,6 +356,13 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
         track_capture(capture.root, Path(job.out_dir), mode="sequence", detector=job.detector, progress=False,
                       stop=_stop_check(job.stop_event))
     return read_markers_csv(path)
+
+
+def _markers_reusable(job: TrialJob) -> bool:
+    """Does the trial's output hold a complete marker set newer than the capture's own files (not
+    re-tracked: level maps and the pelvis C3D change only the analysis)?"""
+    path = Path(job.out_dir) / MARKERS
+    return not job.force and _newer_than(path, _tracking_inputs(job)) and results_complete(path.parent)
 
 
 def _stop_check(event_name: str | None) -> Callable[[], bool] | None:
