@@ -222,20 +222,36 @@ def match_tracks(F: np.ndarray, dots_a: CameraDots, dots_b: CameraDots, d: float
     return matches
 
 
-def _matched_cost(F: np.ndarray, matches, d: float) -> tuple[float, int]:
-    """Mean capped squared residual (px^2) of the matched tracks at offset ``d`` and the samples used."""
+def _signed_residuals(F: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
+    """(N,) signed distance (px) of each ``xb`` from the epipolar line of its ``xa`` in image b."""
+    lines = np.column_stack([xa, np.ones(len(xa))]) @ F.T
+    return (np.sum(lines[:, :2] * xb, axis=1) + lines[:, 2]) / np.linalg.norm(lines[:, :2], axis=1)
+
+
+def _matched_cost(F: np.ndarray, matches, d: float, per_track_bias: bool = True) -> tuple[float, int]:
+    """Mean capped squared residual (px^2) of the matched tracks at offset ``d`` and the samples
+    used. Each matched pair's signed epipolar residuals are taken about their own (variance-
+    weighted) mean: an inexact calibration shifts a dot's epipolar line by a nearly constant amount
+    while the dot stays in its part of the image, whereas a wrong offset moves it with the dot's
+    speed; without this the offset would absorb the calibration error (milliseconds where the dots
+    move slowly across the epipolar lines). ``per_track_bias`` False: about zero (the peer in
+    ``spinemocap bench sync``)."""
     total, count = 0.0, 0
     for times, uv, track in matches:
         xb, variance = _track_at(track, times + d)
         ok = np.isfinite(xb[:, 0])
-        if ok.any():
-            total += float(_weighted_squares(F, uv[ok], xb[ok], variance[ok]).sum())
-            count += int(ok.sum())
+        if ok.sum() < 3:
+            continue
+        r, weight = _signed_residuals(F, uv[ok], xb[ok]), 2.0 / (1.0 + variance[ok])
+        if per_track_bias:
+            r = r - float(weight @ r) / float(weight.sum())
+        total += float(np.minimum(r**2 * weight, EPIPOLAR_CAP_PX**2).sum())
+        count += int(ok.sum())
     return (total / count if count else np.inf), count
 
 
 def pair_offset(F: np.ndarray, dots_a: CameraDots, dots_b: CameraDots, a: int, b: int,
-                search_s: float) -> PairOffset:
+                search_s: float, per_track_bias: bool = True) -> PairOffset:
     """The offset of camera ``b`` relative to ``a`` (see :class:`PairOffset`) within
     +-``search_s`` s; ``F`` the fundamental matrix with ``x_b^T F x_a = 0`` on undistorted pixels.
     Coarse: :func:`coarse_costs` over trial offsets one frame of the faster camera apart; fine: the
@@ -256,10 +272,10 @@ def pair_offset(F: np.ndarray, dots_a: CameraDots, dots_b: CameraDots, a: int, b
         return PairOffset(a, b, d0, float("inf"), 0, float(np.sqrt(costs[best])))
 
     def fine(d: float) -> float:
-        return _matched_cost(F, matches, d)[0]
+        return _matched_cost(F, matches, d, per_track_bias)[0]
 
     d_best = _golden_min(fine, d0 - 1.5 * step, d0 + 1.5 * step, tol=1e-6)
-    cost, count = _matched_cost(F, matches, d_best)
+    cost, count = _matched_cost(F, matches, d_best, per_track_bias)
     h = 0.25 * step  # the cost's curvature from a parabola through d_best +- h
     curvature = (fine(d_best - h) - 2 * cost + fine(d_best + h)) / h**2
     stderr = float(np.sqrt(2 * cost / (count * curvature))) if curvature > 0 and count else float("inf")
@@ -394,15 +410,17 @@ def detect_camera_dots(capture: Capture, detector: str = "net", seconds: float =
     return out
 
 
-def estimate_motion(rig: Rig, dots: Sequence[CameraDots], max_offset_s: float = 2.0) -> SyncEstimate:
+def estimate_motion(rig: Rig, dots: Sequence[CameraDots], max_offset_s: float = 2.0,
+                    per_track_bias: bool = True) -> SyncEstimate:
     """Per-camera offsets from the dots' motion (module docstring): every camera pair searched
-    within +-2 ``max_offset_s`` (two cameras may each be ``max_offset_s`` off camera 0)."""
+    within +-2 ``max_offset_s`` (two cameras may each be ``max_offset_s`` off camera 0);
+    ``per_track_bias``: see :func:`_matched_cost`."""
     P = [cam.projection_matrix for cam in rig]
     pairs = []
     for a in range(len(rig)):
         for b in range(a + 1, len(rig)):
             search = max_offset_s if a == 0 else 2 * max_offset_s
-            pairs.append(pair_offset(fundamental_matrix(P[a], P[b]), dots[a], dots[b], a, b, search))
+            pairs.append(pair_offset(fundamental_matrix(P[a], P[b]), dots[a], dots[b], a, b, search, per_track_bias))
     offsets, stderr = combine_pairs(pairs, len(rig))
     return SyncEstimate(tuple(rig.names), offsets, stderr, "motion", tuple(pairs))
 

@@ -4,10 +4,11 @@ truth on studio captures whose cameras are not synchronised.
 Each scenario renders a small studio capture (tiny layout, 480x360, lossless video with a clap on
 the audio tracks) whose cameras record on their own clocks: whole and fractional frame offsets up
 to 2 s, mixed rates (50/60/100 frames/s) and dropped frames. Both estimators run on it (``motion``
-from the detected dots, ``audio`` from the clap); the numbers are each camera's error against the
+from the detected dots, ``audio`` from the clap), and as the peer the motion estimate without each
+matched pair's own epipolar bias; the numbers are each camera's error against the
 true offset (relative to camera 1), the dropped frames found against those rendered, and the share
 of capture frames paired to the same media frames by the estimated offsets as by the true ones.
-Goal: |error| <= 1 ms for 100 fps cameras.
+Goal: |error| <= 1 ms for 100 fps cameras (other than the reference).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..app.sync import detect_camera_dots, estimate_audio, estimate_motion
+from ..app.sync import SyncEstimate, detect_camera_dots, estimate_audio, estimate_motion
 from ..capture import Capture
 from ..fileio import read_toml
 from ..synth import SynthConfig, write_capture
@@ -29,9 +30,9 @@ GOAL_MS = 1.0  # |offset error| on 100 frames/s cameras
 SCENARIOS: dict[str, dict] = {
     # whole (+1.93 s = 193 frames) and fractional (-0.4567 s = 45.67 frames) offsets, 100 frames/s
     "offsets_100fps": {"cameras": 3, "fps": 100.0, "frames": 100, "camera_offsets_s": (0.0, 1.93, -0.4567)},
-    # mixed rates, fractional offsets, two dropped frames
+    # mixed rates (the reference camera at 60, the others at 100 and 50), fractional offsets, two dropped frames
     "mixed_50_60_100fps": {"cameras": 3, "fps": 100.0, "frames": 150, "camera_offsets_s": (0.0, -0.7123, 0.3456),
-                           "camera_fps": (100.0, 60.0, 50.0), "drop_frames": 2},
+                           "camera_fps": (60.0, 100.0, 50.0), "drop_frames": 2},
 }
 
 
@@ -79,13 +80,17 @@ def measure_capture(root: Path, detector: str = "classical", progress: bool = Tr
     t0 = time.perf_counter()
     motion = estimate_motion(capture.rig, dots, 2.0)
     out["motion_s"] = time.perf_counter() - t0
+    # the peer: the same search without each matched pair's own epipolar bias (an inexact calibration)
+    peer = estimate_motion(capture.rig, dots, 2.0, per_track_bias=False)
+    peer = SyncEstimate(peer.camera_names, peer.offsets_s, peer.stderr_s, "motion_no_bias_term", peer.pairs)
     clocks = capture.clocks
     times = capture.media_times()
-    for estimate in (motion, audio):
+    for estimate in (motion, peer, audio):
         if estimate is None:
             continue
         error = 1000 * (estimate.offsets_s - offsets)
         fast = np.asarray(truth["camera_fps"]) >= 100
+        fast[0] = False  # the reference camera: 0 by definition
         out[estimate.method] = {
             "offset_ms": (1000 * estimate.offsets_s).tolist(), "error_ms": error.tolist(),
             "stderr_ms": (1000 * estimate.stderr_s).tolist(),
@@ -117,18 +122,20 @@ def format_table(numbers: dict) -> str:
              f"detector {numbers['detector']}, realism {numbers['realism']})"]
     for name, r in numbers["scenarios"].items():
         lines.append(f"{name}:")
-        lines.append(f"  {'camera':<8} {'fps':>5} {'true ms':>10} {'motion err':>11} {'+-':>7} {'audio err':>10}")
+        lines.append(f"  {'camera':<8} {'fps':>5} {'true ms':>10} {'motion err':>11} {'+-':>7} {'peer err':>9} "
+                     f"{'audio err':>10}")
+        nan = {"error_ms": [float("nan")] * len(r["cameras"]), "stderr_ms": [float("nan")] * len(r["cameras"])}
+        m, q, a = (r.get(k, nan) for k in ("motion", "motion_no_bias_term", "audio"))
         for c, cam in enumerate(r["cameras"]):
-            m, a = r.get("motion"), r.get("audio")
-            lines.append(f"  {cam:<8} {r['camera_fps'][c]:5g} {r['true_offset_ms'][c]:10.3f} "
-                         f"{m['error_ms'][c] if m else float('nan'):11.3f} {m['stderr_ms'][c] if m else float('nan'):7.3f} "
-                         f"{a['error_ms'][c] if a else float('nan'):10.4f}")
-        for method in ("motion", "audio"):
+            lines.append(f"  {cam:<8} {r['camera_fps'][c]:5g} {r['true_offset_ms'][c]:10.3f} {m['error_ms'][c]:11.3f} "
+                         f"{m['stderr_ms'][c]:7.3f} {q['error_ms'][c]:9.3f} {a['error_ms'][c]:10.4f}")
+        for method in ("motion", "motion_no_bias_term", "audio"):
             if method in r:
                 worst = r[method]["max_abs_error_100fps_ms"]
                 verdict = "met" if worst is not None and worst <= numbers["goal_ms"] else "NOT met"
-                lines.append(f"  {method}: worst |error| on 100 fps cameras {worst:.3f} ms (goal {verdict}); frames "
-                             f"paired as the truth pairs them {100 * r[method]['pairs_as_truth']:.1f} %")
+                lines.append(f"  {method}: worst |error| on 100 fps cameras {worst:.3f} ms (goal {verdict}), on all "
+                             f"{r[method]['max_abs_error_ms']:.3f} ms; frames paired as the truth pairs them "
+                             f"{100 * r[method]['pairs_as_truth']:.1f} %")
         lines.append(f"  dropped frames rendered {r['dropped_rendered']}, found {r['dropped_found']}")
     return "\n".join(lines)
 
@@ -148,10 +155,11 @@ def save(numbers: dict, path: Path, plot_path: Path | None = None) -> None:
     fig, axes = plt.subplots(1, len(scenarios), figsize=(5 * len(scenarios), 3.6), squeeze=False)
     for ax, (name, r) in zip(axes[0], scenarios.items()):
         x = np.arange(len(r["cameras"]))
-        for shift, method in ((-0.2, "motion"), (0.2, "audio")):
+        for shift, method in ((-0.27, "motion"), (0.0, "motion_no_bias_term"), (0.27, "audio")):
             if method in r:
-                ax.bar(x + shift, r[method]["error_ms"], width=0.4, label=method,
+                ax.bar(x + shift, r[method]["error_ms"], width=0.27, label=method,
                        yerr=r[method]["stderr_ms"] if method == "motion" else None)
+        ax.set_yscale("symlog", linthresh=0.1)
         ax.axhspan(-numbers["goal_ms"], numbers["goal_ms"], color="0.9", zorder=0, label="goal (100 fps)")
         ax.set_xticks(x, [f"{c}\n{f:g} fps" for c, f in zip(r["cameras"], r["camera_fps"])])
         ax.set_ylabel("offset error (ms)")
