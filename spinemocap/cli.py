@@ -13,6 +13,7 @@ import importlib
 import logging
 import pkgutil
 import sys
+import warnings
 from typing import Sequence
 
 from . import commands
@@ -68,11 +69,17 @@ def _subparsers(parser: argparse.ArgumentParser):
                 yield from _subparsers(child)
 
 
+def plain_warning(message, category, filename, lineno, line=None) -> str:
+    """A Python warning as a person reads it: the message, without the source file and line."""
+    return f"spinemocap: warning: {message}\n"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    warnings.formatwarning = plain_warning  # also in the batch's worker processes (forked from here)
     try:
         return int(args.func(args) or 0)
     except InputError as exc:

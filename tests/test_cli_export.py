@@ -64,3 +64,14 @@ def test_global_flags_after_any_command(command):
     assert parser.parse_args([*command, "-v"]).verbose is True
     assert parser.parse_args(["-q", *command]).quiet is True
     assert parser.parse_args([*command, "--quiet"]).quiet is True
+
+
+def test_python_warnings_print_without_their_source_line(tmp_path):
+    import subprocess
+    import sys
+
+    script = ("import warnings, sys\nfrom spinemocap.cli import main\nmain(['export', '--list-formats'])\n"
+              "warnings.warn('a frame without a camera', UserWarning)\n")
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert "spinemocap: warning: a frame without a camera" in run.stderr
+    assert ".py:" not in run.stderr and "warnings.warn" not in run.stderr
