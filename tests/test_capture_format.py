@@ -61,6 +61,10 @@ def test_init_start_and_end_choose_a_part_in_seconds_or_frames(lab, tmp_path):
     assert capture.start_s == pytest.approx(0.04) and capture.n_frames == 3
     means = [float(image.mean()) for image in capture.frame_source().read(0)]
     np.testing.assert_allclose(means, 40.0, atol=3)  # capture frame 0 = the recordings' frame 1
+    with pytest.raises(InputError, match="--start.*after the end of camera 'cam2'"):
+        init_capture(tmp_path / "late", folder / "rig.toml", media=videos, start="0.2s")
+    with pytest.raises(InputError, match="--end.*leaves 7 frames"):
+        init_capture(tmp_path / "long", folder / "rig.toml", media=videos, end="7")
 
 
 def test_init_offset_pairs_a_late_camera_by_time(lab, tmp_path):

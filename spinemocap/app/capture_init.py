@@ -287,6 +287,10 @@ def init_capture(out: str | Path, calibration: str | Path, *, media: Sequence[st
                                 fps=None if abs(p.fps - rate) <= 1e-6 * rate else p.fps,
                                 media=str(p.path.resolve()))
               for name, p in probes.items()}
+    for name, probe in probes.items():  # capture time of each recording's end, from --start
+        if probe.duration_s - clocks[name].offset_s - start_s <= 0:
+            raise InputError("--start", f"{start} lies after the end of camera {name!r}'s recording "
+                                        f"({probe.duration_s:.3f} s on its clock)")
     span = common_frames([_times(p) for p in probes.values()],
                          [replace(c, offset_s=c.offset_s + start_s) for c in clocks.values()], rate)
     n_frames = span
