@@ -99,3 +99,33 @@ def test_global_flags_are_accepted_after_the_command(tmp_path, capsys, flag_firs
     import logging
 
     assert logging.getLogger().level == logging.WARNING
+
+
+def test_frame_conditions_print_one_line_per_kind_with_frame_ranges():
+    from spinemocap.app.run import TrackResult, frame_ranges
+    from spinemocap.markers import MarkerTable
+    from spinemocap.track.pipeline import FrameResult
+
+    assert frame_ranges([7, 0, 1, 2, 5, 8]) == "frames 0-2, 5, 7-8" and frame_ranges([4]) == "frame 4"
+    n_dots = 4
+
+    def solved(flags):
+        return FrameResult(np.zeros((n_dots, 3)), np.full(n_dots, "observed", dtype=object), np.full(n_dots, 2),
+                           np.zeros(n_dots), flags=flags)
+
+    frames = [solved([]), FrameResult.missing(n_dots, {}, "no tape-like edge set"),
+              FrameResult.missing(n_dots, {}, "no tape-like edge set"), solved(["identity_unsure"]),
+              solved(["lp_relaxed"]), solved(["identity_unsure"])]
+    positions = np.stack([f.positions for f in frames])
+    table = MarkerTable.from_arrays(["R01L", "R01R", "R02L", "R02C"], positions, 100.0, first_frame=10)
+    result = TrackResult(table, frames)
+    assert result.no_tape() is None  # 2 of 6 frames: a result, flagged
+    assert result.condition_lines() == ["tape not found: 2 of 6 frames (frames 11-12)",
+                                        "identity_unsure: 2 of 6 frames (frames 13, 15)",
+                                        "lp_relaxed: 1 of 6 frames (frame 14)"]
+    summary = result.summary()
+    assert "WARNING 4 of 6 frames flagged" in summary and "  tape not found: 2 of 6 frames (frames 11-12)" in summary
+    assert "tape spacing" not in summary  # no frame measured it
+    assert result.frame_log().splitlines()[0] == "frame 11: tape not found (no tape-like edge set)"
+    many = TrackResult(table, [FrameResult.missing(n_dots, {}, "x")] * 4 + frames[:2])
+    assert many.no_tape() == "no tape found in 5 of 6 frames"
