@@ -232,3 +232,18 @@ def test_init_converts_vicon_and_pose2sim_calibrations(lab, tmp_path, name, fmt)
     assert capture.camera_names == ["cam1", "cam2", "cam3"]
     np.testing.assert_allclose(capture.rig["cam2"].K, small_rig()["cam2"].K, rtol=1e-6)
     assert Rig.from_toml(tmp_path / "cap" / "rig.toml").names == capture.camera_names
+
+
+def test_init_with_named_videos_and_an_offset_from_the_command_line(lab, tmp_path, capsys):
+    folder, videos = lab
+    renamed = [v.rename(folder / f"clip{k}.mp4") for k, v in enumerate(videos)]
+    out = tmp_path / "cap"
+    assert main(["capture", "init", str(out), *[f"--video=cam{k + 1}={p}" for k, p in enumerate(renamed)],
+                 "--calibration", str(folder / "rig.toml"), "--offset", "cam2=-0.04", "--copy", "-q"]) == 0
+    assert "capture written" in capsys.readouterr().out
+    capture = Capture.open(out)
+    assert capture.camera_clocks["cam2"].offset_s == -0.04 and capture.camera_clocks["cam2"].media == "videos/cam2.mp4"
+    assert not capture.external_media and (out / "videos" / "cam3.mp4").is_file()
+    assert main(["capture", "init", str(tmp_path / "x"), "--video", "cam1=" + str(renamed[0]), "--calibration",
+                 str(folder / "rig.toml"), "--offset", "cam9=0.1"]) == 2
+    assert "cam9: no camera of that name has a recording" in capsys.readouterr().err
