@@ -111,7 +111,8 @@ class Capture:
     ``camera_clocks``: the ``[camera.<name>]`` tables as given (cameras without one are on the
     capture's timing); ``start_s``: where capture frame 0 lies on the cameras' clocks, s;
     ``external_media``: paths may lead outside the folder; ``force_fps``: ``fps`` is used even
-    where the videos say another rate."""
+    where the videos say another rate; ``spans_recordings``: ``n_frames`` is not written but found
+    on opening (the span every camera recorded, which follows the offsets)."""
 
     root: Path
     name: str
@@ -129,6 +130,7 @@ class Capture:
     start_s: float = 0.0
     external_media: bool = False
     force_fps: bool = False
+    spans_recordings: bool = False
 
     @property
     def camera_names(self) -> list[str]:
@@ -334,6 +336,7 @@ class Capture:
         capture.check_rates()
         if n_frames is None:
             capture.n_frames = common_frames(capture.media_times(), capture.clocks, capture.fps)
+            capture.spans_recordings = True
         return capture
 
     def _check_paths(self) -> None:
@@ -366,7 +369,7 @@ class Capture:
                    if name in self.camera_clocks and _clock_table(self.camera_clocks[name])}
         return {
             "capture": {
-                "name": self.name, "fps": self.fps, "n_frames": self.n_frames,
+                "name": self.name, "fps": self.fps, **({} if self.spans_recordings else {"n_frames": self.n_frames}),
                 "cameras": self.camera_names, "rig": self.rig_file, "media": self.media,
                 "image_pattern": self.image_pattern, "video_pattern": self.video_pattern,
                 **({"reference": self.reference_file} if self.reference_file else {}),

@@ -167,8 +167,12 @@ def test_a_rate_that_is_not_the_videos_is_refused_unless_forced(lab, tmp_path):
 def test_n_frames_is_optional_and_a_part_of_the_videos_may_be_used(lab, tmp_path):
     folder, videos = lab
     cap = init_capture(tmp_path / "cap", folder / "rig.toml", media=videos).root
-    _manifest_with(cap, lambda d: d["capture"].pop("n_frames"))
+    assert "n_frames" not in read_toml(cap / "capture.toml")["capture"]  # found on opening
     assert Capture.open(cap).n_frames == 5  # the common span
+    set_camera_offsets(cap, {"cam1": 0.04})  # cam1 started a frame earlier: its last frame is sooner
+    assert Capture.open(cap).n_frames == 5 and Capture.open(cap).clocks[0].offset_s == 0.04
+    set_camera_offsets(cap, {"cam2": 0.04})  # the shortest one too: the span shrinks with it
+    assert Capture.open(cap).n_frames == 4
     _manifest_with(cap, lambda d: d["capture"].__setitem__("n_frames", 2))
     capture = Capture.open(cap)
     assert capture.n_frames == 2 and len(capture.frame_source().read(1)) == 3

@@ -259,7 +259,8 @@ def init_capture(out: str | Path, calibration: str | Path, *, media: Sequence[st
     camera -> one of ``media`` by file name. ``fps``: the capture's rate (default: the slowest
     camera's; required for image folders). ``start``/``end``: the part of the recordings to use,
     seconds (``"2.5s"``) or capture frames (``"250"``) on the capture's clock (default: from 0 to
-    the end of the shortest recording). ``offsets``: camera -> clock offset, s (see
+    the end of the shortest recording, left out of ``capture.toml`` so that it follows offsets
+    estimated later). ``offsets``: camera -> clock offset, s (see
     ``docs/CAPTURE.md``). ``fix_size``: the fix for recordings whose size differs from the
     calibration. ``copy``: copy the media into the folder. ``force``: replace an existing
     ``capture.toml``. :class:`InputError` naming the problem and its fix otherwise; nothing is
@@ -304,7 +305,7 @@ def init_capture(out: str | Path, calibration: str | Path, *, media: Sequence[st
         clocks = {name: replace(clock, media=_copy_media(probes[name], root, name)) for name, clock in clocks.items()}
     capture = Capture(root=root, name=root.name, fps=rate, n_frames=n_frames, rig=Rig(cameras), tape=tape or TapeSpec(),
                       subject={"id": subject or root.name}, media=kinds.pop(), camera_clocks=clocks, start_s=start_s,
-                      external_media=not copy)
+                      external_media=not copy, spans_recordings=end is None)
     capture.save()
     return InitResult(root, Capture.open(root), probes, [n for n in rig.names if n not in probes], fixes)
 
