@@ -408,11 +408,9 @@ def _clock_table(clock: CameraClock) -> dict:
 
 
 def _inside(path: Path, root: Path) -> bool:
-    try:
-        path.resolve().relative_to(root.resolve())
-    except ValueError:
-        return False
-    return True
+    """Does ``path``, as written (``..`` and absolute paths taken at their word; a symbolic link
+    placed inside the folder is the folder's own), lie inside ``root``?"""
+    return os.path.commonpath([os.path.abspath(path), os.path.abspath(root)]) == os.path.abspath(root)
 
 
 def _open_rig(root: Path, manifest: Path, rig_file: str, external: bool) -> Rig:

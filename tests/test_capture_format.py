@@ -187,6 +187,9 @@ def test_paths_outside_the_folder_need_external_media(lab, tmp_path):
         Capture.open(cap)
     copied = init_capture(tmp_path / "copied", folder / "rig.toml", media=videos, copy=True).capture
     assert not copied.external_media and copied.camera_clocks["cam1"].media == "videos/cam1.mp4"
+    (copied.root / "videos").rename(tmp_path / "disk2")  # media on another disk, linked into the folder
+    (copied.root / "videos").symlink_to(tmp_path / "disk2")
+    assert Capture.open(copied.root).n_frames == 5
 
 
 def test_a_foreign_calibration_as_the_rig_names_the_command_that_converts_it(lab, tmp_path):
