@@ -254,3 +254,23 @@ def test_init_with_named_videos_and_an_offset_from_the_command_line(lab, tmp_pat
     assert main(["capture", "init", str(tmp_path / "x"), "--video", "cam1=" + str(renamed[0]), "--calibration",
                  str(folder / "rig.toml"), "--offset", "cam9=0.1"]) == 2
     assert "cam9: no camera of that name has a recording" in capsys.readouterr().err
+
+
+def test_a_real_qualisys_calibration_of_1088_px_cameras_with_1080_px_videos(tmp_path):
+    """The Pose2Sim demo studio's QTM export (four 1088x1920 portrait cameras) and videos of
+    1080x1920, as its encoder wrote them: refused with the reason, fixed by --fix-size crop."""
+    from pathlib import Path
+
+    qca = Path(__file__).resolve().parents[1] / "../shared/data/calibration/pose2sim_demo/Calib.qca.txt"
+    if not qca.is_file():
+        pytest.skip("shared reference data not present")
+    grey = [np.full((1920, 1080, 3), 90 + 10 * k, np.uint8) for k in range(2)]
+    videos = [write_mp4(tmp_path / "takes" / f"walk_cam0{k}.mp4", grey, 30.0) for k in range(1, 5)]
+    with pytest.raises(InputError) as error:
+        init_capture(tmp_path / "cap", qca, media=videos)
+    assert "camera 'cam01': its recording is 1080x1920 px but the calibration says 1088x1920 px: 8 columns" \
+        in str(error.value)
+    capture = init_capture(tmp_path / "cap", qca, media=videos, fix_size="crop").capture
+    assert capture.camera_names == ["cam01", "cam02", "cam03", "cam04"] and capture.fps == 30.0
+    assert all(camera.size == (1080, 1920) for camera in capture.rig)
+    assert capture.frame_source().read(1)[3].shape == (1920, 1080, 3)
