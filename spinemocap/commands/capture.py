@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..app.capture_init import SIZE_FIXES
 from ..fileio import InputError
 from .capture_sync import add_sync_parser
 
@@ -49,7 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     init.add_argument("--offset", type=_pair, action="append", default=[], metavar="CAMERA=SECONDS",
                       help="a camera's clock minus the capture's, s (a camera that started 0.2 s late: -0.2); "
                            "`spinemocap capture sync` estimates them")
-    init.add_argument("--fix-size", choices=("crop", "crop-centre", "scale"),
+    init.add_argument("--fix-size", choices=SIZE_FIXES,
                       help="calibrate recordings of another size than the calibration's: crop (an encoder's rows or "
                            "columns cut at the bottom/right: principal point kept), crop-centre (centred crop: "
                            "principal point moved by half the difference), scale (whole-number scale: focal lengths "
