@@ -50,6 +50,8 @@ MIN_OVERLAP_FRAMES = 15
 # a pairwise coarse minimum must stand out: its cost at most this share of the median trial's
 MAX_COST_SHARE = 0.6
 AUDIO_ENVELOPE_S = 0.001  # smoothing of the audio envelope, s
+# an offset whose standard error exceeds this is reported as uncertain (s)
+UNCERTAIN_S = 0.001
 # a clap's correlation peak must stand this many times above the highest value farther than
 # AUDIO_ISOLATION_S from it (a clap rings for tens of ms: nearer values belong to the same clap)
 AUDIO_PROMINENCE = 1.5
@@ -543,8 +545,8 @@ def write_offsets(capture: Capture, estimate: SyncEstimate) -> Path:
 
 
 def format_estimate(estimate: SyncEstimate) -> str:
-    """The offsets as a table: camera, offset (ms), standard error (ms), in frames of the camera's
-    clock where known, and a warning line for cameras not found."""
+    """The offsets as a table: camera, offset (ms), standard error (ms), and warning lines for
+    cameras not found and for offsets less certain than :data:`UNCERTAIN_S`."""
     lines = [f"clock offsets by {estimate.method} (camera clock minus {estimate.camera_names[0]}'s):",
              f"  {'camera':<12} {'offset ms':>11} {'+- ms':>8}"]
     for name, offset, error, ok in zip(estimate.camera_names, estimate.offsets_s, estimate.stderr_s, estimate.found):
@@ -552,6 +554,11 @@ def format_estimate(estimate: SyncEstimate) -> str:
             lines.append(f"  {name:<12} {1000 * offset:11.3f} {1000 * error:8.3f}")
         else:
             lines.append(f"  {name:<12} {'not found':>11}")
+    uncertain = [n for n, e, ok in zip(estimate.camera_names, estimate.stderr_s, estimate.found) if ok and e > UNCERTAIN_S]
+    if uncertain:
+        lines.append(f"WARNING: the offsets of {', '.join(uncertain)} are uncertain by more than "
+                     f"{1000 * UNCERTAIN_S:g} ms (little motion across the views in the frames read: try more "
+                     "--seconds, or --method audio with a clap)")
     missing = [n for n, ok in zip(estimate.camera_names, estimate.found) if not ok]
     if missing:
         lines.append(f"WARNING: no trustworthy offset for {', '.join(missing)} (too little shared motion or sound); "
