@@ -1,4 +1,5 @@
-"""A capture on disk, and frame sources that deliver its synchronized images.
+"""A capture on disk: its manifest, rig and tape, and the frame source that delivers its images
+(the sources themselves are in :mod:`spinemocap.media`).
 
 Folder layout::
 
@@ -10,18 +11,21 @@ Folder layout::
                                            older captures: FFV1 .mkv, named in capture.toml)
       groundtruth.npz       # synthetic captures only
 
-``capture.toml``::
+``capture.toml`` (every key, its unit, default and meaning: ``docs/CAPTURE.md``)::
 
     [capture]
     name = "trial01"
-    fps = 100.0
-    n_frames = 548
+    fps = 100.0                 # the capture's clock: frame i at start_s + i / fps s
+    n_frames = 548              # optional: the span every camera recorded
     cameras = ["cam1", "cam2", "cam3", "cam4"]
     rig = "rig.toml"
     reference = "reference.toml"                  # optional: a reference object of known geometry
     media = "images"                              # or "video"
     image_pattern = "images/{camera}/{frame:06d}.png"
     video_pattern = "videos/{camera}.avi"
+    [camera.cam2]               # optional, per camera: its own media, clock offset and rate
+    media = "videos/cam2.mp4"
+    offset_s = 0.0123
     [tape]                                        # spinemocap.tape.TapeSpec fields
     n_rows = 13
     [subject]
@@ -29,66 +33,50 @@ Folder layout::
     up = [0.0, 0.0, 1.0]        # world direction toward the head in the first frame
     facing = [0.0, -1.0, 0.0]   # world direction the subject's front faces in the first frame
 
-A :class:`FrameSource` yields, for a frame index, one BGR ``uint8`` image per camera in rig
-order. The synthetic studio provides an in-process source with the same interface, so a
-benchmark can render and track without writing images to disk.
+Unknown tables and keys are refused, naming the valid ones.
+
+A :class:`~spinemocap.media.FrameSource` yields, for a frame index, one BGR ``uint8`` image per
+camera in rig order. The synthetic studio provides an in-process source with the same interface, so
+a benchmark can render and track without writing images to disk.
 """
 
 from __future__ import annotations
 
 import os
-import sys
-from dataclasses import dataclass, field
-from fractions import Fraction
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Protocol, Sequence, runtime_checkable
+from typing import Sequence
 
 import cv2
 import numpy as np
 
 from .camera import Rig
-from .fileio import InputError, atomic_path, read_toml, reading, write_toml
+from .fileio import InputError, read_toml, reading, write_toml
+from .media import (  # noqa: F401  (moved to media; re-exported for existing importers)
+    REUSED_BUFFERS,
+    VIDEO_CODEC,
+    VIDEO_CODECS,
+    FrameSource,
+    ImageFolderSource,
+    VideoDecoder,
+    VideoSource,
+    VideoWriter,
+    _bgr,
+    _pyav,
+    all_default,
+    check_image_size,
+    read_image,
+)
 from .reference import ReferenceObject
 from .tape import TapeSpec
+from .timebase import CameraClock, MediaTimes, common_frames, image_times, video_times
 
 MANIFEST = "capture.toml"
 MEDIA = ("images", "video")
 # New captures' videos: lossless UT Video in planar RGB (decodes ~7x cheaper than FFV1, whose
 # .mkv files of older captures stay readable: the manifest names each capture's own pattern).
 VIDEO_PATTERN = "videos/{camera}.avi"
-VIDEO_CODEC = "utvideo"
-# The lossless codecs VideoWriter writes, and the pixel format each stores BGR images in: UT Video
-# (planar RGB, Huffman-coded: 0.57x the raw size on the lab-realism studio capture, ~28 CPU ms to
-# decode a 2448x1600 image) or uncompressed BGR (``rawvideo``: 1.77x UT Video's size; a frame is
-# the bytes read, nothing to decode)
-VIDEO_CODECS = {"utvideo": "gbrp", "rawvideo": "bgr24"}
 MAX_FPS = 1e5
-# A VideoDecoder's BGR arrays kept for reuse once the caller drops them (a new 11.75 MB array makes
-# the kernel zero its pages again on every frame): the most frames of one camera held at once
-# that still reuse (the tracker's reader holds about 4: prefetched, being detected, being solved)
-REUSED_BUFFERS = 6
-
-
-@runtime_checkable
-class FrameSource(Protocol):
-    """Synchronized multi-camera frames. ``read(i)`` returns one BGR uint8 image per camera."""
-
-    camera_names: list[str]
-    n_frames: int
-
-    def read(self, frame: int) -> list[np.ndarray]: ...
-
-
-def read_image(path: str | os.PathLike) -> np.ndarray:
-    """Read an image as BGR uint8, raising :class:`InputError` naming the file if it is missing
-    or cannot be decoded."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "image file not found")
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise InputError(path, "image file is corrupt or in an unsupported format")
-    return image
 
 
 def to_grey(image: np.ndarray) -> np.ndarray:
@@ -102,258 +90,30 @@ def to_grey(image: np.ndarray) -> np.ndarray:
     raise ValueError(f"expected a BGR or grey image, got shape {image.shape}")
 
 
-def check_image_size(image: np.ndarray, size: tuple[int, int] | None, camera: str,
-                     source: str | os.PathLike) -> np.ndarray:
-    """``image`` unchanged when it is ``size`` = (width, height) px (the rig's), else
-    :class:`InputError` naming ``source``: a calibration of another sensor or crop is wrong data."""
-    if size is not None and (image.shape[1], image.shape[0]) != tuple(size):
-        raise InputError(source, f"image is {image.shape[1]}x{image.shape[0]} px but the rig says camera "
-                                 f"{camera!r} is {size[0]}x{size[1]} px")
-    return image
-
-
-class ImageFolderSource:
-    """Frames stored as one image file per camera and frame. ``sizes``: the rig's (width,
-    height) per camera; every image read is checked against it."""
-
-    def __init__(self, root: Path, camera_names: Sequence[str], n_frames: int, pattern: str,
-                 sizes: Sequence[tuple[int, int]] | None = None):
-        self.root = Path(root)
-        self.camera_names = list(camera_names)
-        self.n_frames = int(n_frames)
-        self.pattern = pattern
-        self.sizes = list(sizes) if sizes is not None else [None] * len(self.camera_names)
-        for cam in self.camera_names:
-            folder = (self.root / pattern.format(camera=cam, frame=0)).parent
-            if not folder.is_dir():
-                raise InputError(folder, f"image folder for camera {cam!r} is missing")
-            count = sum(1 for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
-            if count != self.n_frames:
-                raise InputError(folder, f"camera {cam!r} has {count} images, capture.toml says n_frames = {self.n_frames}")
-
-    def path(self, camera: str, frame: int) -> Path:
-        return self.root / self.pattern.format(camera=camera, frame=frame)
-
-    def read(self, frame: int) -> list[np.ndarray]:
-        return [self.read_camera(k, frame) for k in range(len(self.camera_names))]
-
-    def read_camera(self, camera: int, frame: int) -> np.ndarray:
-        """One camera's image (``camera``: index in rig order); cameras may be read from
-        different threads at once."""
-        if not 0 <= frame < self.n_frames:
-            raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
-        name = self.camera_names[camera]
-        path = self.path(name, frame)
-        return check_image_size(read_image(path), self.sizes[camera], name, path)
-
-
-def _pyav(path: str | os.PathLike):
-    """The PyAV module (a declared dependency; imported when a video is read or written), or an
-    :class:`InputError` naming ``path`` when this installation lacks it."""
-    try:
-        import av
-    except ImportError as exc:
-        raise InputError(path, f"videos need PyAV (the package 'av'), which this installation lacks ({exc})") from None
-    return av
-
-
-class VideoDecoder:
-    """One camera's video decoded through PyAV (FFmpeg), one frame after the other; a jump seeks
-    to the key frame before and decodes forward. Planar RGB (``gbrp``, the captures' UT Video)
-    is interleaved into BGR directly, without FFmpeg's colour conversion (per 2448x1600
-    image, one thread: 29 CPU ms against 42 through ``bgr24``, and OpenCV's reader 30-44 ms);
-    other formats go through FFmpeg's ``bgr24`` conversion. FFmpeg's own threads are off: the
-    cameras are decoded in parallel."""
-
-    def __init__(self, path: str | os.PathLike):
-        self.path = Path(path)
-        av = _pyav(self.path)
-        self._errors: tuple[type[BaseException], ...] = (av.error.FFmpegError, ValueError, StopIteration)
-        try:
-            self._container = av.open(str(self.path))
-            self._stream = self._container.streams.video[0]
-        except (*self._errors, IndexError) as exc:
-            raise InputError(self.path, f"video cannot be opened (corrupt or unsupported codec: {exc})") from None
-        self._stream.thread_type = "NONE"
-        rate, time_base = self._stream.average_rate or self._stream.guessed_rate, self._stream.time_base
-        if not rate or not time_base:
-            self.close()
-            raise InputError(self.path, "video has no frame rate or time base")
-        self._rate, self._time_base = Fraction(rate), Fraction(time_base)  # frames per s, s per tick
-        self._start = self._stream.start_time or 0
-        self._frames = self._container.decode(self._stream)
-        self._next = 0
-        self._buffers: list[np.ndarray] = []  # BGR arrays handed out, reused once free (_bgr)
-
-    @property
-    def n_frames(self) -> int:
-        """Frames in the video (0 when the container does not say and gives no duration)."""
-        if self._stream.frames:
-            return int(self._stream.frames)
-        if self._stream.duration is not None:
-            return int(round(float(self._stream.duration * self._time_base * self._rate)))
-        if self._container.duration is not None:  # microseconds (Matroska gives only this)
-            return int(round(float(Fraction(self._container.duration, 1_000_000) * self._rate)))
-        return 0
-
-    def read(self, frame: int) -> np.ndarray:
-        """Frame ``frame`` (0-based) as BGR uint8 (H, W, 3)."""
-        try:
-            if frame != self._next:
-                self._seek(frame)
-            while True:
-                decoded = next(self._frames)
-                index = self._index(decoded)
-                if index >= frame:
-                    break
-        except self._errors as exc:
-            why = "the video ends before it" if isinstance(exc, StopIteration) else str(exc)
-            raise InputError(self.path, f"cannot decode frame {frame} ({why})") from None
-        if index != frame:
-            raise InputError(self.path, f"cannot decode frame {frame} (the video skips from it to frame {index})")
-        self._next = frame + 1
-        return self._bgr(decoded)
-
-    def _bgr(self, decoded) -> np.ndarray:
-        """``decoded`` as BGR uint8. Planar RGB is interleaved into one of the arrays this decoder
-        handed out before once nothing else holds it (no reference left but the decoder's own: a
-        held image, or a view of it, is never overwritten), else into a new one: a new 11.75 MB
-        array costs the kernel's zeroing of its pages on every frame. (BGR frames, ``rawvideo``,
-        come as a view of the frame FFmpeg read: no copy.)"""
-        if decoded.format.name != "gbrp":
-            return _bgr(decoded)
-        shape = (decoded.height, decoded.width, 3)
-        out = None
-        for k in range(len(self._buffers)):
-            # references: the list's and getrefcount's argument, none outside this decoder
-            if sys.getrefcount(self._buffers[k]) == 2 and self._buffers[k].shape == shape:
-                out = self._buffers[k]
-                break
-        if out is None:
-            out = np.empty(shape, np.uint8)
-            if len(self._buffers) < REUSED_BUFFERS:
-                self._buffers.append(out)
-        return _bgr(decoded, out)
-
-    def _index(self, decoded) -> int:
-        if decoded.pts is None:
-            return self._next
-        return int(round(float((decoded.pts - self._start) * self._time_base * self._rate)))
-
-    def _seek(self, frame: int) -> None:
-        target = self._start + int(round(frame / (self._rate * self._time_base)))
-        self._container.seek(target, stream=self._stream, backward=True, any_frame=False)
-        self._frames = self._container.decode(self._stream)
-        self._next = frame
-
-    def close(self) -> None:
-        self._container.close()
-
-
-def _bgr(decoded, out: np.ndarray | None = None) -> np.ndarray:
-    """A decoded PyAV video frame as a BGR uint8 array. Planar RGB is interleaved by OpenCV,
-    without FFmpeg's colour conversion, into ``out`` (H, W, 3) when given, else a new array;
-    other formats go through PyAV (BGR itself: a view of the frame's memory)."""
-    if decoded.format.name != "gbrp":
-        return decoded.to_ndarray(format="bgr24")
-    height, width = decoded.height, decoded.width
-    g, b, r = (np.frombuffer(plane, np.uint8).reshape(height, plane.line_size)[:, :width] for plane in decoded.planes)
-    return cv2.merge([b, g, r], out) if out is not None else cv2.merge([b, g, r])
-
-
-class VideoSource:
-    """Frames stored as one video per camera (:class:`VideoDecoder` each); sequential reads are
-    cheap, jumps seek."""
-
-    def __init__(self, root: Path, camera_names: Sequence[str], n_frames: int, pattern: str,
-                 sizes: Sequence[tuple[int, int]] | None = None):
-        self.root = Path(root)
-        self.camera_names = list(camera_names)
-        self.n_frames = int(n_frames)
-        self.sizes = list(sizes) if sizes is not None else [None] * len(camera_names)
-        self.paths = [self.root / pattern.format(camera=cam) for cam in self.camera_names]
-        self._decoders: list[VideoDecoder | None] = [None] * len(self.paths)
-        try:
-            for k, (path, cam) in enumerate(zip(self.paths, self.camera_names)):
-                if not path.is_file():
-                    raise InputError(path, f"video for camera {cam!r} is missing")
-                decoder = self._decoders[k] = VideoDecoder(path)  # kept open for the reads
-                count = decoder.n_frames
-                if count and count != self.n_frames:
-                    raise InputError(path, f"video has {count} frames, capture.toml says n_frames = {self.n_frames}")
-        except BaseException:
-            self.close()  # the cameras' videos opened so far
-            raise
-
-    def read_camera(self, camera: int, frame: int) -> np.ndarray:
-        """One camera's image (``camera``: index in rig order). Each camera has its own decoder,
-        so different cameras may be read from different threads at once (one thread per camera)."""
-        if not 0 <= frame < self.n_frames:
-            raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
-        return self._read_one(camera, frame)
-
-    def _read_one(self, k: int, frame: int) -> np.ndarray:
-        decoder = self._decoders[k]
-        if decoder is None:
-            decoder = self._decoders[k] = VideoDecoder(self.paths[k])
-        image = decoder.read(frame)
-        return check_image_size(image, self.sizes[k], self.camera_names[k], self.paths[k])
-
-    def read(self, frame: int) -> list[np.ndarray]:
-        if not 0 <= frame < self.n_frames:
-            raise IndexError(f"frame {frame} outside 0..{self.n_frames - 1}")
-        return [self._read_one(k, frame) for k in range(len(self.paths))]
-
-    def close(self) -> None:
-        for decoder in self._decoders:
-            if decoder is not None:
-                decoder.close()
-        self._decoders = [None] * len(self.paths)
-
-
-class VideoWriter:
-    """One camera's lossless video (``codec``: one of :data:`VIDEO_CODECS`, :data:`VIDEO_CODEC`
-    by default; planar RGB or BGR, so every BGR pixel comes back exactly), written through PyAV to
-    a temporary file that :meth:`close` renames into place (:meth:`abort` drops it). ``fps``
-    frames/s, ``size`` (width, height) px; read back by :class:`VideoDecoder`."""
-
-    def __init__(self, path: str | os.PathLike, fps: float, size: tuple[int, int], codec: str = VIDEO_CODEC):
-        if codec not in VIDEO_CODECS:
-            raise InputError(path, f"unknown video codec {codec!r} (choose {', '.join(VIDEO_CODECS)})")
-        av = _pyav(path)
-        self._place = atomic_path(path)
-        tmp = self._place.__enter__()
-        try:
-            self._container = av.open(str(tmp), "w")
-            self._stream = self._container.add_stream(codec, rate=Fraction(fps).limit_denominator(1001))
-            self._stream.width, self._stream.height = int(size[0]), int(size[1])
-            self._stream.pix_fmt = VIDEO_CODECS[codec]
-        except BaseException as exc:
-            self._place.__exit__(type(exc), exc, exc.__traceback__)
-            raise
-        self._frame_type = av.VideoFrame
-
-    def write(self, image_bgr: np.ndarray) -> None:
-        """Append one BGR uint8 image of the video's size."""
-        frame = self._frame_type.from_ndarray(np.ascontiguousarray(image_bgr), format="bgr24")
-        self._container.mux(self._stream.encode(frame))
-
-    def close(self) -> None:
-        """Finish the file and rename it into place."""
-        self._container.mux(self._stream.encode(None))
-        self._container.close()
-        self._place.__exit__(None, None, None)
-
-    def abort(self) -> None:
-        """Drop the unfinished file."""
-        self._container.close()
-        error = RuntimeError("aborted")
-        self._place.__exit__(RuntimeError, error, None)
+# The tables a capture.toml may hold, and the keys of each (anything else is refused, naming these)
+CAPTURE_KEYS = ("name", "fps", "n_frames", "cameras", "rig", "reference", "media", "image_pattern",
+                "video_pattern", "start_s", "external_media", "force_fps")
+CAMERA_KEYS = ("media", "offset_s", "fps")
+SUBJECT_KEYS = ("id", "up", "facing", "age", "sex", "height_m", "mass_kg", "phenotype", "skin_tone",
+                "tape_start", "notes")
+TABLES = ("capture", "tape", "subject", "camera", "levels")
+# Two rates are the same rate within this fraction (a camera's 29.97 frames/s against 30)
+RATE_TOLERANCE = 0.01
+# Calibration files other systems write, which a capture names only once converted to a rig TOML
+FOREIGN_CALIBRATIONS = {".qca.txt": "Qualisys", ".xcp": "Vicon"}
 
 
 @dataclass
 class Capture:
-    """A capture folder opened for reading: manifest, rig, tape and a frame source."""
+    """A capture folder opened for reading: manifest, rig, tape, the cameras' clocks and a frame
+    source. ``docs/CAPTURE.md`` describes every key of ``capture.toml``.
+
+    ``n_frames``: capture frames (frame ``i`` at ``start_s + i / fps`` s on the capture's clock);
+    ``camera_clocks``: the ``[camera.<name>]`` tables as given (cameras without one are on the
+    capture's timing); ``start_s``: where capture frame 0 lies on the cameras' clocks, s;
+    ``external_media``: paths may lead outside the folder; ``force_fps``: ``fps`` is used even
+    where the videos say another rate; ``spans_recordings``: ``n_frames`` is not written but found
+    on opening (the span every camera recorded, which follows the offsets)."""
 
     root: Path
     name: str
@@ -364,13 +124,27 @@ class Capture:
     subject: dict = field(default_factory=dict)
     media: str = "images"
     image_pattern: str = "images/{camera}/{frame:06d}.png"
-    video_pattern: str = "videos/{camera}.mkv"
+    video_pattern: str = VIDEO_PATTERN
     rig_file: str = "rig.toml"
     reference_file: str | None = None
+    camera_clocks: dict[str, CameraClock] = field(default_factory=dict)
+    start_s: float = 0.0
+    external_media: bool = False
+    force_fps: bool = False
+    spans_recordings: bool = False
 
     @property
     def camera_names(self) -> list[str]:
         return self.rig.names
+
+    @property
+    def clocks(self) -> list[CameraClock]:
+        """Each camera's clock in rig order (:class:`~spinemocap.timebase.CameraClock`) against
+        the clock on which capture frame ``i`` is at ``i / fps`` s: the ``[camera.<name>]``
+        ``offset_s`` plus ``start_s``, the camera's own ``fps`` (None: the capture's) and ``media``."""
+        return [replace(self.camera_clocks.get(name, CameraClock()),
+                        offset_s=self.camera_clocks.get(name, CameraClock()).offset_s + self.start_s)
+                for name in self.camera_names]
 
     @property
     def up(self) -> np.ndarray:
@@ -424,19 +198,118 @@ class Capture:
             raise InputError(self.root / MANIFEST, f"reference = {self.reference_file!r}: no such file in {self.root}")
         return ReferenceObject.from_toml(path)
 
-    def frame_source(self) -> FrameSource:
-        """The capture's frames; every image is checked against its camera's size in the rig."""
-        sizes = [cam.size for cam in self.rig]
-        if self.media == "images":
-            return ImageFolderSource(self.root, self.camera_names, self.n_frames, self.image_pattern, sizes)
+    def media_path(self, camera: str) -> Path:
+        """Camera ``camera``'s video file or image folder: its ``[camera.<name>] media``, else the
+        capture's pattern (an image folder: the folder of its first image)."""
+        clock = self.camera_clocks.get(camera)
+        if clock is not None and clock.media is not None:
+            return self.root / clock.media
         if self.media == "video":
-            return VideoSource(self.root, self.camera_names, self.n_frames, self.video_pattern, sizes)
+            return self.root / self.video_pattern.format(camera=camera)
+        return (self.root / self.image_pattern.format(camera=camera, frame=0)).parent
+
+    def frame_source(self) -> FrameSource:
+        """The capture's frames; every image is checked against its camera's size in the rig.
+        Cameras are paired by time (:attr:`clocks`) where a camera's timing or media differs from
+        the capture's, or the capture covers a part of the recordings; else frame ``i`` is every
+        camera's frame ``i``."""
+        sizes = [cam.size for cam in self.rig]
+        clocks = self._source_clocks()
+        if self.media == "images":
+            return ImageFolderSource(self.root, self.camera_names, self.n_frames, self.image_pattern, sizes, clocks,
+                                     self.fps)
+        if self.media == "video":
+            return VideoSource(self.root, self.camera_names, self.n_frames, self.video_pattern, sizes, clocks, self.fps)
         raise InputError(self.root / MANIFEST, f"unknown media {self.media!r} (expected 'images' or 'video')")
+
+    def _source_clocks(self) -> list[CameraClock] | None:
+        """:attr:`clocks` for the frame source: None where every camera's frame ``i`` is capture
+        frame ``i`` (default timing and exactly ``n_frames`` frames each); else clocks that name
+        every camera's media, so that the source pairs the frames by time."""
+        clocks = self.clocks
+        if all_default(clocks, self.fps):
+            counts = self.media_counts()
+            if all(n == self.n_frames for n in counts.values()):
+                return None
+            short = {name: n for name, n in counts.items() if 0 < n < self.n_frames}
+            for name, n in short.items():  # on one timing, frames past a camera's last are a mistake
+                what = "images" if self.media == "images" else "frames"
+                raise InputError(self.media_path(name), f"camera {name!r} has {n} {what}, capture.toml says "
+                                                        f"n_frames = {self.n_frames} (leave n_frames out for the span "
+                                                        "every camera recorded)")
+        return [replace(clock, media=clock.media or str(self.media_path(name).relative_to(self.root)))
+                for name, clock in zip(self.camera_names, clocks)]
+
+    def media_counts(self) -> dict[str, int]:
+        """Frames each camera's media holds (images in its folder; a video's count from its header,
+        0 where the header does not say), by camera name; missing media count 0."""
+        out = {}
+        for name in self.camera_names:
+            path = self.media_path(name)
+            if self.media == "images":
+                out[name] = (sum(1 for p in path.iterdir() if p.is_file() and not p.name.startswith("."))
+                             if path.is_dir() else 0)
+            elif path.is_file():
+                decoder = VideoDecoder(path, self.camera_clocks.get(name, CameraClock()).fps)
+                try:
+                    out[name] = decoder.n_frames
+                finally:
+                    decoder.close()
+            else:
+                out[name] = 0
+        return out
+
+    def media_times(self) -> list[MediaTimes]:
+        """Each camera's recorded frames on its own clock (rig order): a video's container
+        timestamps, an image folder's ``index / fps``. :class:`InputError` naming a missing file."""
+        out = []
+        counts = self.media_counts() if self.media == "images" else {}
+        for name, clock in zip(self.camera_names, self.clocks):
+            path = self.media_path(name)
+            rate = clock.fps or self.fps
+            if self.media == "video":
+                if not path.is_file():
+                    raise InputError(path, f"video for camera {name!r} is missing")
+                out.append(video_times(path, clock.fps, name))
+            else:
+                if not counts[name]:
+                    raise InputError(path, f"image folder for camera {name!r} is missing or empty")
+                out.append(image_times(counts[name], rate, name))
+        return out
+
+    def check_rates(self) -> None:
+        """Every video's own rate (its header's) against the rate the capture gives its camera
+        (``[camera.<name>] fps``, else ``[capture] fps``): :class:`InputError` naming
+        ``capture.toml`` on a mismatch unless ``force_fps``. Missing videos are left to the frame
+        source."""
+        if self.media != "video" or self.force_fps:
+            return
+        for name in self.camera_names:
+            path = self.media_path(name)
+            if not path.is_file():
+                continue
+            decoder = VideoDecoder(path)
+            try:
+                own = decoder.fps
+            finally:
+                decoder.close()
+            given = self.camera_clocks.get(name, CameraClock()).fps
+            said = given or self.fps
+            if abs(own - said) > RATE_TOLERANCE * own:
+                where = f"[camera.{name}] fps = {said:g}" if given else f"fps = {said:g}"
+                raise InputError(self.root / MANIFEST,
+                                 f"{where} but camera {name!r}'s video {path.name} runs at {own:g} frames/s: "
+                                 f"the markers would be timed wrong. Set {where.split(' =')[0]} = {own:g}, or give "
+                                 f"[camera.{name}] fps = {own:g} to pair its frames by time with a capture at "
+                                 f"{self.fps:g} frames/s, or force_fps = true in [capture] to use {said:g} anyway")
 
     @classmethod
     def open(cls, root: str | os.PathLike) -> "Capture":
         """Open a capture folder; :class:`InputError` naming the file for anything missing,
-        mistyped or impossible in ``capture.toml`` or the rig (see :func:`capture_settings`)."""
+        mistyped, unknown or impossible in ``capture.toml`` or the rig (see
+        :func:`capture_settings`), a path leading outside the folder (unless ``external_media``),
+        or a video whose rate is not the capture's (:meth:`check_rates`). Without ``n_frames`` the
+        capture spans the frames every camera recorded (on the capture's clock)."""
         root = Path(root)
         manifest = root / MANIFEST
         if not root.is_dir():
@@ -446,46 +319,129 @@ class Capture:
         data = read_toml(manifest)
         with reading(manifest, MANIFEST):
             settings = capture_settings(data, manifest)
-        if not (root / settings["rig_file"]).is_file():
-            raise InputError(manifest, f"rig = {settings['rig_file']!r}: no such file in {root}")
-        rig = Rig.from_toml(root / settings["rig_file"])
+        rig = _open_rig(root, manifest, settings["rig_file"], settings["external_media"])
         absent = [c for c in settings["cameras"] if c not in rig.names]
         if absent:
             raise InputError(manifest, f"cameras {absent} are not in the rig file {settings['rig_file']} "
                                        f"(rig has {rig.names})")
+        unknown = sorted(set(settings["camera_clocks"]) - set(settings["cameras"]))
+        if unknown:
+            raise InputError(manifest, f"[camera.{unknown[0]}]: no such camera in cameras = {settings['cameras']}")
         tape = data.get("tape", {})
         if not isinstance(tape, dict):
             raise InputError(manifest, "[tape] must be a table")
-        return cls(root=root, rig=rig.subset(settings.pop("cameras")),
-                   tape=TapeSpec.from_dict(tape, source=str(manifest)), **settings)
+        n_frames = settings.pop("n_frames")
+        capture = cls(root=root, rig=rig.subset(settings.pop("cameras")), n_frames=n_frames or 1,
+                      tape=TapeSpec.from_dict(tape, source=str(manifest)), **settings)
+        capture._check_paths()
+        capture.check_rates()
+        if n_frames is None:
+            capture.n_frames = common_frames(capture.media_times(), capture.clocks, capture.fps)
+            capture.spans_recordings = True
+        return capture
+
+    def _check_paths(self) -> None:
+        """Every path the manifest names stays inside the folder unless ``external_media``."""
+        if self.external_media:
+            return
+        named = {f"rig = {self.rig_file!r}": self.root / self.rig_file}
+        if self.reference_file:
+            named[f"reference = {self.reference_file!r}"] = self.root / self.reference_file
+        for name in self.camera_names:
+            clock = self.camera_clocks.get(name)
+            key = f"[camera.{name}] media" if clock is not None and clock.media else f"{self.media} pattern"
+            named[f"{key} ({self.media_path(name)})"] = self.media_path(name)
+        for what, path in named.items():
+            if not _inside(path, self.root):
+                raise InputError(self.root / MANIFEST,
+                                 f"{what} leads outside the capture folder; set external_media = true in [capture] "
+                                 "if this capture is meant to use files kept elsewhere")
 
     def save(self) -> None:
         """Write ``capture.toml`` and the rig file into :attr:`root` (atomically)."""
         self.root.mkdir(parents=True, exist_ok=True)
         self.rig.to_toml(self.root / self.rig_file)
-        write_toml(
-            self.root / MANIFEST,
-            {
-                "capture": {
-                    "name": self.name, "fps": self.fps, "n_frames": self.n_frames,
-                    "cameras": self.camera_names, "rig": self.rig_file, "media": self.media,
-                    "image_pattern": self.image_pattern, "video_pattern": self.video_pattern,
-                    **({"reference": self.reference_file} if self.reference_file else {}),
-                },
-                "tape": self.tape.to_dict(),
-                "subject": self.subject,
+        write_toml(self.root / MANIFEST, self.manifest())
+
+    def manifest(self) -> dict:
+        """The contents of ``capture.toml`` (keys left out where they hold their default)."""
+        options = {"start_s": self.start_s, "external_media": self.external_media, "force_fps": self.force_fps}
+        cameras = {name: _clock_table(self.camera_clocks[name]) for name in self.camera_names
+                   if name in self.camera_clocks and _clock_table(self.camera_clocks[name])}
+        return {
+            "capture": {
+                "name": self.name, "fps": self.fps, **({} if self.spans_recordings else {"n_frames": self.n_frames}),
+                "cameras": self.camera_names, "rig": self.rig_file, "media": self.media,
+                "image_pattern": self.image_pattern, "video_pattern": self.video_pattern,
+                **({"reference": self.reference_file} if self.reference_file else {}),
+                **{k: v for k, v in options.items() if v},
             },
-        )
+            **({"camera": cameras} if cameras else {}),
+            "tape": self.tape.to_dict(),
+            "subject": self.subject,
+        }
+
+
+def set_camera_offsets(root: str | os.PathLike, offsets: dict[str, float]) -> Path:
+    """Write ``offset_s`` (s, the camera's clock minus the capture's, not counting ``start_s``)
+    into the ``[camera.<name>]`` tables of the capture folder ``root``'s ``capture.toml``, keeping
+    everything else; returns the manifest's path. :class:`InputError` naming the manifest for a
+    camera the capture lacks or an offset that is not a finite number."""
+    manifest = Path(root) / MANIFEST
+    data = read_toml(manifest)
+    with reading(manifest, MANIFEST):
+        cameras = capture_settings(data, manifest)["cameras"]
+    tables = data.setdefault("camera", {})
+    for name, offset in offsets.items():
+        if name not in cameras:
+            raise InputError(manifest, f"no camera {name!r} in this capture (it has {cameras})")
+        if isinstance(offset, bool) or not isinstance(offset, (int, float)) or not np.isfinite(offset):
+            raise InputError(manifest, f"offset of camera {name!r} must be a finite number of seconds, got {offset!r}")
+        tables.setdefault(name, {})["offset_s"] = float(offset)
+    write_toml(manifest, data)
+    return manifest
+
+
+def _clock_table(clock: CameraClock) -> dict:
+    """A ``[camera.<name>]`` table: the values that differ from the defaults."""
+    table = {"media": clock.media, "offset_s": clock.offset_s or None, "fps": clock.fps}
+    return {k: v for k, v in table.items() if v is not None}
+
+
+def _inside(path: Path, root: Path) -> bool:
+    """Does ``path``, as written (``..`` and absolute paths taken at their word; a symbolic link
+    placed inside the folder is the folder's own), lie inside ``root``?"""
+    return os.path.commonpath([os.path.abspath(path), os.path.abspath(root)]) == os.path.abspath(root)
+
+
+def _open_rig(root: Path, manifest: Path, rig_file: str, external: bool) -> Rig:
+    """The rig named by ``rig``: a rig TOML (see :mod:`spinemocap.camera`); another system's
+    calibration is refused with the command that converts it."""
+    path = root / rig_file
+    kind = next((name for suffix, name in FOREIGN_CALIBRATIONS.items() if rig_file.lower().endswith(suffix)), None)
+    if kind is not None:
+        raise InputError(manifest, f"rig = {rig_file!r} is a {kind} calibration, and a capture's rig is a rig TOML: "
+                                   f"convert it with `spinemocap calibrate convert {path} {root / 'rig.toml'}` and set "
+                                   "rig = \"rig.toml\" (or build the capture with `spinemocap capture init`, which "
+                                   "converts it)")
+    if not path.is_file():
+        raise InputError(manifest, f"rig = {rig_file!r}: no such file in {root}")
+    return Rig.from_toml(path)
 
 
 # ---------------------------------------------------------------------------------- validation
 def _typed(section: dict, key: str, kinds: tuple[type, ...], default=None, table: str = "capture"):
     value = section.get(key, default)
-    if not isinstance(value, kinds) or isinstance(value, bool):
-        names = {int: "number", float: "number", str: "string", list: "list"}
+    if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
+        names = {int: "number", float: "number", str: "string", list: "list", bool: "true or false"}
         wanted = " or ".join(dict.fromkeys(names.get(k, k.__name__) for k in kinds))
         raise InputError(None, f"[{table}] {key} must be a {wanted}, got {value!r}")
     return value
+
+
+def unknown_keys(table: dict, valid: Sequence[str], name: str) -> list[str]:
+    """One problem per key of ``table`` not in ``valid``, naming the valid ones."""
+    return [f"unknown key {key!r} in [{name}] (valid keys: {', '.join(valid)})" for key in table if key not in valid]
 
 
 def unit_direction(value, what: str) -> np.ndarray:
@@ -501,11 +457,12 @@ def unit_direction(value, what: str) -> np.ndarray:
 
 
 def subject_problems(subject: dict) -> list[str]:
-    """``[subject]``: ``up`` and ``facing`` finite, non-zero and not parallel (the angles'
-    neutral frame needs both); ``id`` a string."""
+    """``[subject]``: only its known keys; ``up`` and ``facing`` finite, non-zero and not
+    parallel (the angles' neutral frame needs both); ``id`` a string."""
     out = []
     if not isinstance(subject, dict):
         return ["[subject] must be a table"]
+    out += unknown_keys(subject, SUBJECT_KEYS, "subject")
     directions = {}
     for key, default in (("up", (0.0, 0.0, 1.0)), ("facing", (0.0, -1.0, 0.0))):
         try:
@@ -519,34 +476,69 @@ def subject_problems(subject: dict) -> list[str]:
     return out
 
 
+def camera_clocks(tables, problems: list[str]) -> dict[str, CameraClock]:
+    """The ``[camera.<name>]`` tables as clocks by camera name; their problems appended to
+    ``problems`` (unknown keys, a media that is not a path, an offset or rate that is not a finite
+    number, a rate that is not positive)."""
+    if not isinstance(tables, dict) or not all(isinstance(t, dict) for t in tables.values()):
+        problems.append("[camera] must hold one table per camera: [camera.<name>] with media, offset_s, fps")
+        return {}
+    out = {}
+    for name, table in tables.items():
+        here = f"camera.{name}"
+        problems += unknown_keys(table, CAMERA_KEYS, here)
+        try:
+            media = _typed(table, "media", (str,), "", here) or None
+            offset = float(_typed(table, "offset_s", (int, float), 0.0, here))
+            rate = table.get("fps")
+            rate = None if rate is None else float(_typed(table, "fps", (int, float), None, here))
+        except InputError as exc:
+            problems.append(exc.problem)
+            continue
+        if not np.isfinite(offset):
+            problems.append(f"[{here}] offset_s = {offset} must be a finite number of seconds")
+        if rate is not None and not (np.isfinite(rate) and 0 < rate <= MAX_FPS):
+            problems.append(f"[{here}] fps = {rate} must be finite, positive and at most {MAX_FPS:g}")
+        out[str(name)] = CameraClock(offset_s=offset, fps=rate, media=media)
+    return out
+
+
 def capture_settings(data: dict, manifest: Path) -> dict:
-    """The checked ``[capture]`` and ``[subject]`` values of a ``capture.toml`` as
-    :class:`Capture` fields (plus ``cameras``): types, a whole positive frame count, a finite
-    positive frame rate, unique camera names, known media, usable file patterns, sane subject
-    directions. :class:`InputError` naming ``manifest`` otherwise."""
+    """The checked values of a ``capture.toml`` as :class:`Capture` fields (plus ``cameras``;
+    ``n_frames`` None where the manifest leaves it to the media): known tables and keys only,
+    types, a whole positive frame count, a finite positive frame rate, unique camera names, known
+    media, usable file patterns, camera clocks, sane subject directions. :class:`InputError`
+    naming ``manifest`` otherwise, listing every problem found and the valid keys."""
     section = data.get("capture")
     if not isinstance(section, dict):
         raise InputError(manifest, "missing [capture] table")
-    for key in ("fps", "n_frames", "cameras"):
+    problems = [f"unknown table [{key}] (valid tables: {', '.join(TABLES)})" for key in data if key not in TABLES]
+    problems += unknown_keys(section, CAPTURE_KEYS, "capture")
+    for key in ("fps", "cameras"):
         if key not in section:
-            raise InputError(manifest, f"[capture] lacks {key!r}")
+            problems.append(f"[capture] lacks {key!r}")
+    if problems:
+        raise InputError(manifest, "; ".join(problems))
     try:
         fps = float(_typed(section, "fps", (int, float)))
-        n_frames = _typed(section, "n_frames", (int, float))
+        n_frames = _typed(section, "n_frames", (int, float), 1)
         cameras = _typed(section, "cameras", (list,))
         rig_file = _typed(section, "rig", (str,), "rig.toml")
         media = _typed(section, "media", (str,), "images")
         name = _typed(section, "name", (str, int), manifest.parent.name)
         reference = _typed(section, "reference", (str,), "") or None
+        start_s = float(_typed(section, "start_s", (int, float), 0.0))
+        flags = {key: _typed(section, key, (bool,), False) for key in ("external_media", "force_fps")}
         patterns = {key: _typed(section, key, (str,), getattr(Capture, key))
                     for key in ("image_pattern", "video_pattern")}
     except InputError as exc:
         raise InputError(manifest, exc.problem) from None
-    problems = []
     if not (np.isfinite(fps) and 0 < fps <= MAX_FPS):
         problems.append(f"fps = {fps} must be finite, positive and at most {MAX_FPS:g}")
     if not (float(n_frames).is_integer() and n_frames >= 1):
-        problems.append(f"n_frames = {n_frames!r} must be a whole number >= 1")
+        problems.append(f"n_frames = {n_frames!r} must be a whole number >= 1 (or left out: the span every camera recorded)")
+    if not np.isfinite(start_s):
+        problems.append(f"start_s = {start_s} must be a finite number of seconds")
     if not cameras or not all(isinstance(c, str) and c for c in cameras):
         problems.append(f"cameras must be a non-empty list of camera names, got {cameras!r}")
     elif len(set(cameras)) != len(cameras):
@@ -559,9 +551,11 @@ def capture_settings(data: dict, manifest: Path) -> dict:
         except (KeyError, IndexError, ValueError, AttributeError) as exc:
             problems.append(f"{key} {pattern!r} is not a usable file pattern ({type(exc).__name__}: {exc}); "
                             "use the fields {camera} and {frame}")
+    clocks = camera_clocks(data.get("camera", {}), problems)
     problems += subject_problems(data.get("subject", {}))
     if problems:
         raise InputError(manifest, "; ".join(problems))
-    return {"name": str(name), "fps": fps, "n_frames": int(n_frames), "cameras": list(cameras),
-            "subject": dict(data.get("subject", {})), "media": media, "rig_file": rig_file,
-            "reference_file": reference, **patterns}
+    return {"name": str(name), "fps": fps, "n_frames": int(n_frames) if "n_frames" in section else None,
+            "cameras": list(cameras), "subject": dict(data.get("subject", {})), "media": media,
+            "rig_file": rig_file, "reference_file": reference, "camera_clocks": clocks, "start_s": start_s,
+            **flags, **patterns}

@@ -13,6 +13,7 @@ import importlib
 import logging
 import pkgutil
 import sys
+import warnings
 from typing import Sequence
 
 from . import commands
@@ -38,8 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="3D spine motion capture from perforated kinesiology tape.",
     )
     parser.add_argument("--version", action="version", version=f"spinemocap {__version__}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    parser.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
+    add_global_flags(parser, False)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     bench = sub.add_parser("bench", help="benchmarks that print and save speed/accuracy numbers")
     bench_sub = bench.add_subparsers(dest="benchmark", metavar="BENCHMARK", required=True)
@@ -48,6 +48,8 @@ def build_parser() -> argparse.ArgumentParser:
             module.register(sub)
         if hasattr(module, "register_bench"):
             module.register_bench(bench_sub)
+    for command in _subparsers(parser):  # the global flags also after a command's name
+        add_global_flags(command, argparse.SUPPRESS)
     return parser
 
 
@@ -72,17 +74,43 @@ def flag_of(parameter: str, parsers: Sequence[argparse.ArgumentParser]) -> str |
     return alias if alias in flags.values() else None
 
 
+def add_global_flags(parser: argparse.ArgumentParser, default) -> None:
+    """``-v``/``--verbose`` and ``-q``/``--quiet`` on ``parser``; a command's copies default to
+    ``argparse.SUPPRESS`` so that they do not undo the same flag given before the command."""
+    flags = {"-v": ("--verbose", "debug logging"), "-q": ("--quiet", "warnings and errors only")}
+    taken = {option for action in parser._actions for option in action.option_strings}
+    for short, (long, text) in flags.items():
+        names = [n for n in (short, long) if n not in taken]
+        if len(names) == 2:  # a command that uses one of the names itself keeps its own meaning
+            parser.add_argument(*names, action="store_true", default=default, help=text)
+
+
+def _subparsers(parser: argparse.ArgumentParser):
+    """Every command parser below ``parser`` (commands, their subcommands, benchmarks)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in dict.fromkeys(action.choices.values()):
+                yield child
+                yield from _subparsers(child)
+
+
+def plain_warning(message, category, filename, lineno, line=None) -> str:
+    """A Python warning as a person reads it: the message, without the source file and line."""
+    return f"spinemocap: warning: {message}\n"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    warnings.formatwarning = plain_warning  # also in the batch's worker processes (forked from here)
     try:
         return int(args.func(args) or 0)
     except InputError as exc:
         flag = flag_of(exc.source, invoked_parsers(parser, args)) if exc.source else None
         print(f"spinemocap: error: {flag}: {exc.problem}" if flag else f"spinemocap: error: {exc}", file=sys.stderr)
-        return 2
+        return int(getattr(exc, "exit_code", 2))  # 2: bad input; a subclass may name its own status
     except KeyboardInterrupt:
         print("spinemocap: interrupted", file=sys.stderr)
         return 130

@@ -306,3 +306,31 @@ def write_toml(path: str | os.PathLike, data: dict) -> None:
 
     with atomic_write(path, "wb") as handle:
         tomli_w.dump(data, handle)
+
+
+def strict_json(data, indent: int | None = 1) -> str:
+    """``data`` as JSON that strict parsers read (``allow_nan=False``): NaN and infinities become
+    null, numpy scalars and arrays plain numbers and lists, paths strings."""
+    import json
+
+    return json.dumps(_json_ready(data), indent=indent, allow_nan=False)
+
+
+def _json_ready(value):
+    import numpy as np
+
+    if isinstance(value, dict):
+        return {str(k): _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _json_ready(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    return value

@@ -43,6 +43,7 @@ import os
 import signal
 import time
 import uuid
+import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -57,7 +58,7 @@ from ..analysis.frames import pelvis_frame_from_markers
 from ..analysis.levels import LevelMap
 from ..analysis.shape import key_frames, midline_profiles, segmental_angles
 from ..capture import MANIFEST, Capture
-from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, read_toml
+from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, read_toml, strict_json
 from ..markers import MarkerTable
 from .c3d_inputs import read_pelvis_c3d
 from .results import TrackingStopped, results_complete
@@ -193,16 +194,48 @@ def process_trial(job: TrialJob) -> dict:
             cached = json.loads(summary_path.read_text())
             if not job.opensim or "opensim" in cached:
                 return {**cached, "skipped": True}
-        summary = {**base, **_analyse(job, inputs)}
+        with warnings.catch_warnings(record=True) as caught:  # into the summary and batch.log, not stderr
+            warnings.simplefilter("always")
+            summary = {**base, **_analyse(job, inputs)}
+        messages = list(dict.fromkeys(str(w.message) for w in caught))
+        if messages:
+            summary["warnings"] = messages
     except TrackingStopped:  # the batch is being interrupted: no summary, a rerun redoes the trial
         return {**base, "status": INTERRUPTED, "reason": "interrupted (stopped while running)", "skipped": False}
     except Exception as exc:  # one bad trial never stops the batch: record why it failed
         reason = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
         summary = {**base, "status": "failed", "reason": reason}
     summary["elapsed_s"] = round(time.perf_counter() - started, 3)
-    with atomic_write(out / SUMMARY) as handle:
-        json.dump(summary, handle, indent=1, default=_json_default)
+    write_summary(out, summary)
     return {**summary, "skipped": False}
+
+
+def write_summary(out: Path, summary: dict) -> None:
+    """``out/summary.json``, strict JSON (NaN and infinities as null), atomically."""
+    with atomic_write(Path(out) / SUMMARY) as handle:
+        handle.write(strict_json(summary))
+
+
+def check_trial(job: TrialJob) -> str | None:
+    """Why ``job`` cannot run, found before any trial is tracked: its capture (manifest, rig,
+    tape, media), its row-to-level map and its pelvis C3D; None when all are in order."""
+    try:
+        if job.trial.problem:
+            raise InputError(job.trial.capture_dir, job.trial.problem)
+        capture = Capture.open(job.trial.capture_dir)
+        if job.source == "tracked" and not _markers_reusable(job):
+            source = capture.frame_source()  # every camera's media found, readable and paired
+            close = getattr(source, "close", None)
+            if close is not None:
+                close()
+        elif not capture.has_groundtruth:
+            raise InputError(capture.groundtruth_path, "no ground truth to take the markers from (--source groundtruth)")
+        _levels(job, capture)
+        if job.trial.c3d_file and not Path(job.trial.c3d_file).is_file():
+            raise InputError(job.trial.c3d_file, "pelvis C3D file not found")
+    except InputError as exc:
+        return str(exc)
+    return None
 
 
 def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
@@ -261,11 +294,22 @@ def write_shape(out: Path, markers: MarkerTable, capture: Capture, levels: Level
     shape = {"frames": frames, "times_s": {k: float(angles["time"].iloc[f]) for k, f in frames.items()},
              "midline_mm": profiles}
     with atomic_write(out / SHAPE) as handle:
-        json.dump(shape, handle)
+        handle.write(strict_json(shape, indent=None))
 
 
 def _input_files(job: TrialJob) -> list[Path]:
-    """Files whose modification makes a trial's results stale."""
+    """Files whose modification makes a trial's results stale: the markers' inputs
+    (:func:`_tracking_inputs`) and the analysis' (level maps, pelvis C3D)."""
+    folder = Path(job.trial.capture_dir)
+    files = _tracking_inputs(job)
+    files += [Path(p) for p in (job.trial.levels_file, job.levels_file, job.trial.c3d_file) if p]
+    files += [folder / "levels.toml", folder.parent.parent / "levels.toml"]
+    return [p for p in files if p.is_file()]
+
+
+def _tracking_inputs(job: TrialJob) -> list[Path]:
+    """Files whose modification makes a trial's markers stale: its manifest and rig, and its
+    media (each camera's video or images, inside the folder or not) or ground truth."""
     folder = Path(job.trial.capture_dir)
     files = [folder / MANIFEST]
     manifest = read_toml(folder / MANIFEST)
@@ -276,8 +320,12 @@ def _input_files(job: TrialJob) -> list[Path]:
         for media in ("images", "videos"):
             if (folder / media).is_dir():
                 files += [p for p in (folder / media).rglob("*") if p.is_file()]
-    files += [Path(p) for p in (job.trial.levels_file, job.levels_file, job.trial.c3d_file) if p]
-    files += [folder / "levels.toml", folder.parent.parent / "levels.toml"]
+        for table in (manifest.get("camera") or {}).values():
+            media_path = folder / table["media"] if isinstance(table, dict) and table.get("media") else None
+            if media_path is not None and media_path.is_dir():
+                files += [p for p in media_path.iterdir() if p.is_file()]
+            elif media_path is not None:
+                files.append(media_path)
     return [p for p in files if p.is_file()]
 
 
@@ -299,7 +347,7 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
     if job.source != "tracked":
         raise InputError(None, f"unknown marker source {job.source!r}; expected one of {SOURCES}")
     path = Path(job.out_dir) / MARKERS
-    if job.force or not _newer_than(path, inputs) or not results_complete(path.parent):
+    if not _markers_reusable(job):
         try:
             from ..app.run import track_capture
         except ImportError as exc:
@@ -308,6 +356,13 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
         track_capture(capture.root, Path(job.out_dir), mode="sequence", detector=job.detector, progress=False,
                       stop=_stop_check(job.stop_event))
     return read_markers_csv(path)
+
+
+def _markers_reusable(job: TrialJob) -> bool:
+    """Does the trial's output hold a complete marker set newer than the capture's own files (not
+    re-tracked: level maps and the pelvis C3D change only the analysis)?"""
+    path = Path(job.out_dir) / MARKERS
+    return not job.force and _newer_than(path, _tracking_inputs(job)) and results_complete(path.parent)
 
 
 def _stop_check(event_name: str | None) -> Callable[[], bool] | None:
@@ -387,14 +442,6 @@ def _pelvis_frames(c3d_file: str, markers: MarkerTable) -> np.ndarray:
     return pelvis_frame_from_markers(resampled, source=c3d_file)[1]
 
 
-def _json_default(value):
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
-
-
 # ---------------------------------------------------------------------------------- the batch
 @dataclass
 class BatchResult:
@@ -440,9 +487,12 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = 
     log.addHandler(handler)
     log.info("batch of %d trials from %s (source %s, %s)", len(jobs), root, source,
              f"scheduler {scheduler}" if scheduler else f"{workers} local workers")
-    results: list[dict] = []
-    bar = tqdm(total=len(jobs), desc="trials", unit="trial", disable=not progress)
-    running = _execute(jobs, workers, scheduler)
+    results = _checked(jobs)  # every trial's inputs, before any trial is tracked
+    runnable = [job for job in jobs if job.trial.key not in {r["key"] for r in results}]
+    for result in results:
+        _log_result(result)
+    bar = tqdm(total=len(jobs), initial=len(results), desc="trials", unit="trial", disable=not progress)
+    running = _execute(runnable, workers, scheduler)
     try:
         for result in running:
             results.append(result)
@@ -460,6 +510,20 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = 
         handler.close()
     _write_batch_json(out, root, source, jobs, results)
     return BatchResult(results)
+
+
+def _checked(jobs: list[TrialJob]) -> list[dict]:
+    """The failed summaries (written to each trial's ``summary.json``) of the trials whose inputs
+    :func:`check_trial` refuses; the others are left to run."""
+    failed = []
+    for job in jobs:
+        reason = check_trial(job)
+        if reason is not None:
+            summary = {**job.summary_head(), "status": "failed", "reason": reason, "elapsed_s": 0.0}
+            check_writable(job.out_dir, "trial output folder")
+            write_summary(Path(job.out_dir), summary)
+            failed.append({**summary, "skipped": False})
+    return failed
 
 
 def _record_interrupted(jobs: list[TrialJob], results: list[dict], out: Path, root, source: str) -> None:
@@ -482,8 +546,7 @@ def _write_batch_json(out: Path, root, source: str, jobs: list[TrialJob], result
     order = {j.trial.key: k for k, j in enumerate(jobs)}
     results.sort(key=lambda r: order.get(r["key"], 0))
     with atomic_write(out / "batch.json") as handle:
-        json.dump({"root": str(root), "source": source, "trials": results}, handle, indent=1,
-                  default=_json_default)
+        handle.write(strict_json({"root": str(root), "source": source, "trials": results}))
 
 
 def _log_result(result: dict) -> None:
@@ -493,6 +556,8 @@ def _log_result(result: dict) -> None:
     for group, reasons in result.get("notes", {}).items():
         for reason, count in reasons.items():
             log.warning("%s: %s angles NaN in %d frames: %s", result["key"], group, count, reason)
+    for message in result.get("warnings", []):
+        log.info("%s: %s", result["key"], message)
     log.info("%s %s", result["key"], "up to date, skipped" if result.get("skipped") else "done")
 
 

@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 from pathlib import Path
@@ -19,7 +18,7 @@ from ..bodymodel.markersets import place_markers, read_mapping
 from ..bodymodel.results import write_fit
 from ..bodymodel.tape import lay_tape
 from ..capture import Capture
-from ..fileio import InputError, atomic_write
+from ..fileio import InputError, atomic_write, strict_json
 from ..markers import MarkerTable
 from ..tape import TapeSpec
 
@@ -111,5 +110,5 @@ def fit_marker_file(markers: str | os.PathLike, out: str | os.PathLike, model_na
         summary["tape_dots"] = str(Path(out) / "tape_dots.c3d")
         summary["tape_row_levels"] = reference.meta["row_levels"]
         with atomic_write(Path(out) / "summary.json") as handle:
-            json.dump(summary, handle, indent=2)
+            handle.write(strict_json(summary, indent=2))
     return summary

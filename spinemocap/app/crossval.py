@@ -48,7 +48,7 @@ from ..capture import Capture
 from ..crossval.agreement import agreement
 from ..crossval.compare import CrossValidation, cross_validate, set_angles, triad_rows
 from ..crossval.register import RigToVicon, transform_between_rigs
-from ..fileio import InputError, atomic_write
+from ..fileio import InputError, atomic_write, strict_json
 from ..markers import MarkerTable
 from ..tape import TapeSpec
 
@@ -239,7 +239,7 @@ def crossval_files(tracked_path: str | os.PathLike, vicon_path: str | os.PathLik
     summary = dict(result.summary, tracked=str(tracked_path), vicon=str(vicon_path), capture=str(capture_path))
     summary["angles_flagged"] = [n for n, a in summary["angles"].items() if not a["icc"] > ICC_FLAG]
     with atomic_write(out / "summary.json") as handle:
-        json.dump(summary, handle, indent=2)
+        handle.write(strict_json(summary, indent=2))
     beside_labels = [f"VICON_{label}" for label in result.vicon_labels]
     beside = result.vicon_rig
     if result.reference_rig is not None:

@@ -61,7 +61,10 @@ def _write_set(table: MarkerTable, out: Path, staging: Path) -> list[Path]:
     try:
         staged = []
         for name in RESULT_FILES:
-            exporters.write(table, staging / name)
+            try:
+                exporters.write(table, staging / name)
+            except InputError as exc:  # name the file the user asked for, not the staging folder's
+                raise InputError(out / name, exc.problem.replace(str(staging), str(out))) from None
             staged.append(staging / name)
         manifest = {"run_id": uuid.uuid4().hex, "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                     "files": {p.name: {"bytes": p.stat().st_size, "sha256": _sha256(p)} for p in staged}}
@@ -135,3 +138,21 @@ def find_markers(results: Path) -> Path:
 def read_results(results: str | os.PathLike) -> MarkerTable:
     """The marker table of a results folder or marker file (:func:`find_markers`)."""
     return exporters.read(find_markers(Path(results)))
+
+
+def tracked_set_file(path: str | Path) -> bool:
+    """Is ``path`` one of the marker files of a tracked set (a results folder with a manifest)?"""
+    path = Path(path)
+    return path.name in RESULT_FILES and (path.parent / RESULTS_MANIFEST).is_file()
+
+
+def record_replaced(path: str | Path, note: str) -> None:
+    """After ``path``, a file of a tracked set, was replaced on purpose (``export --force``): its
+    size and SHA-256 in the manifest, with ``note`` saying what it now holds, so that the manifest
+    stays true (:func:`results_run_id` checks the new file)."""
+    path = Path(path)
+    manifest_path = path.parent / RESULTS_MANIFEST
+    manifest = json.loads(manifest_path.read_text())
+    manifest["files"][path.name] = {"bytes": path.stat().st_size, "sha256": _sha256(path), "replaced": note}
+    with atomic_write(manifest_path) as handle:
+        json.dump(manifest, handle, indent=1)

@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from ..camera import Rig
 from ..capture import Capture, FrameSource
-from ..fileio import InputError, check_writable
+from ..fileio import InputError, atomic_write, check_writable, strict_json
 from ..frames import parse_frames
 from ..markers import MarkerTable
 from ..reference import ReferenceObject
@@ -53,8 +53,35 @@ TrackingMode = Literal["sequence", "paper"]
 MODES: tuple[TrackingMode, ...] = ("sequence", "paper")
 
 
+# A capture whose tape is not found in more than this share of its frames has no markers to give
+NO_TAPE_SHARE = 0.5
+# The file in a results folder that lists every frame's conditions (unsolved, flagged), one a line
+TRACKING_LOG = "tracking.log"
+
+
 class TrackingWarning(UserWarning):
-    """A frame could not be solved (its dots are reported missing)."""
+    """Frames that could not be solved (their dots are reported missing): one warning per kind
+    of condition at the end of a run, naming the frames."""
+
+
+class NoTapeFound(InputError):
+    """The tape was not found in most frames of a capture (:data:`NO_TAPE_SHARE`): nothing to
+    report. ``spinemocap track`` exits with :attr:`exit_code`."""
+
+    exit_code = 3
+
+
+def frame_ranges(frames: Sequence[int]) -> str:
+    """``[0, 1, 2, 5, 7, 8]`` -> ``"frames 0-2, 5, 7-8"`` (``"frame 5"`` for one frame)."""
+    frames = sorted(int(f) for f in frames)
+    spans: list[list[int]] = []
+    for f in frames:
+        if spans and f == spans[-1][1] + 1:
+            spans[-1][1] = f
+        else:
+            spans.append([f, f])
+    text = ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in spans)
+    return f"frame{'s' if len(frames) != 1 else ''} {text}"
 
 
 # ---------------------------------------------------------------------- dot detection
@@ -101,23 +128,59 @@ class TrackResult:
             return np.full((len(self.frames), len(self.table.labels), 0, 2), np.nan)
         return np.stack([f.pixels if f.pixels is not None else np.full(shape, np.nan) for f in self.frames])
 
+    def frame_numbers(self) -> list[int]:
+        """The capture's frame number of each of :attr:`frames`."""
+        first = int(self.table.frames[0]) if self.table.n_frames else 0
+        return [first + k for k in range(len(self.frames))]
+
     def flagged_frames(self) -> list[int]:
         """Frame numbers whose labels the tracker cannot vouch for (see track.quality)."""
-        first = int(self.table.frames[0]) if self.table.n_frames else 0
-        return [first + k for k, f in enumerate(self.frames) if is_flagged(f.flags) or not f.solved]
+        return [n for n, f in zip(self.frame_numbers(), self.frames) if is_flagged(f.flags) or not f.solved]
 
     def flag_counts(self) -> dict[str, int]:
-        out: dict[str, int] = {}
-        for f in self.frames:
-            for flag in set(f.flags):
-                out[flag] = out.get(flag, 0) + 1
+        """Frames per quality flag; an unsolved frame counts as ``tape not found``."""
+        return {kind: len(frames) for kind, frames in self.conditions().items()}
+
+    def conditions(self) -> dict[str, list[int]]:
+        """Frame numbers per condition: ``tape not found`` (the frame's dots missing) and each
+        quality flag (:mod:`spinemocap.track.quality`)."""
+        out: dict[str, list[int]] = {}
+        for number, f in zip(self.frame_numbers(), self.frames):
+            for kind in ([] if f.solved else ["tape not found"]) + sorted(set(f.flags)):
+                out.setdefault(kind, []).append(number)
         return out
+
+    def condition_lines(self) -> list[str]:
+        """One line per condition with its frames as ranges (for the screen, after the progress bar)."""
+        total = len(self.frames)
+        return [f"{kind}: {len(frames)} of {total} frames ({frame_ranges(frames)})"
+                for kind, frames in self.conditions().items()]
+
+    def frame_log(self) -> str:
+        """Every frame's conditions, one line per frame that has any (``tracking.log``)."""
+        lines = []
+        for number, f in zip(self.frame_numbers(), self.frames):
+            kinds = ([f"tape not found ({f.note})" if f.note else "tape not found"] if not f.solved else [])
+            kinds += sorted(set(f.flags)) + ([f.note] if f.solved and f.note else [])
+            if kinds:
+                lines.append(f"frame {number}: " + "; ".join(kinds))
+        return "\n".join(lines) + ("\n" if lines else "")
+
+    def no_tape(self) -> str | None:
+        """Why this result holds no markers worth reporting (the tape not found in more than
+        :data:`NO_TAPE_SHARE` of the frames), else None."""
+        missing = sum(not f.solved for f in self.frames)
+        if not self.frames or missing <= NO_TAPE_SHARE * len(self.frames):
+            return None
+        return f"no tape found in {missing} of {len(self.frames)} frames"
 
     def quality(self) -> dict:
         """Numbers for summaries and JSON: flagged frames, flag counts, the spacing measured
         (ratio to the roll's spec) and the rig's residuals."""
-        along = [f.stretch.along for f in self.frames if f.stretch is not None and f.stretch.source == "data"]
-        across = [f.stretch.across for f in self.frames if f.stretch is not None and f.stretch.source == "data"]
+        measured = [f.stretch for f in self.frames if f.solved and not is_flagged(f.flags)
+                    and f.stretch is not None and f.stretch.source == "data"]  # never from frames not vouched for
+        along = [m.along for m in measured]
+        across = [m.across for m in measured]
         gates = [f.gate_px for f in self.frames if np.isfinite(f.gate_px)]
         res = self.rig_residuals
         return {
@@ -171,13 +234,12 @@ class TrackResult:
                              "(no residual sees it; distances and angles do not)")
         flagged = q["flagged_frames"]
         if flagged:
-            shown = ", ".join(str(f) for f in flagged[:12]) + (" ..." if len(flagged) > 12 else "")
-            lines.append(f"WARNING {len(flagged)} of {len(self.frames)} frames flagged (labels not vouched for: "
-                         + ", ".join(f"{k} {v}" for k, v in sorted(q["flags"].items())) + f"): frames {shown}; "
-                         "see the confidence column of markers.csv")
+            lines.append(f"WARNING {len(flagged)} of {len(self.frames)} frames flagged (labels not vouched for; the "
+                         f"confidence column of markers.csv, every frame in {TRACKING_LOG}):")
+            lines += [f"  {line}" for line in self.condition_lines()]
         else:
-            lines.append(f"no frame flagged ({len(self.frames)} frames"
-                         + (f"; mild: {', '.join(f'{k} {v}' for k, v in sorted(q['flags'].items()))}" if q["flags"] else "")
+            mild = [line for line in self.condition_lines()]
+            lines.append(f"no frame flagged ({len(self.frames)} frames" + (f"; mild: {'; '.join(mild)}" if mild else "")
                          + ")")
         return "\n".join(lines)
 
@@ -221,9 +283,6 @@ def run_tracking(
         except Exception as exc:  # one unsolvable frame must not end the sequence: report it missing
             log.debug("frame %d failed", frame, exc_info=True)
             result = FrameResult.missing(tracker.n_dots, stage_ms, f"{type(exc).__name__}: {exc}")
-        if not result.solved:
-            warnings.warn(f"frame {frame}: tape not found ({result.note}); dots reported missing",
-                          TrackingWarning, stacklevel=2)
         results.append(result)
         frame_ids.append(frame)
         if on_frame is not None:
@@ -248,7 +307,12 @@ def run_tracking(
     calibration = tracker.monitor.warning() if tracker.monitor.measured else None
     if calibration:
         warnings.warn(calibration, CalibrationWarning, stacklevel=2)
-    return TrackResult(table, results, residuals, calibration)
+    out = TrackResult(table, results, residuals, calibration)
+    unsolved = out.conditions().get("tape not found", [])
+    if unsolved:  # one warning for all such frames, after the progress bar
+        warnings.warn(f"tape not found in {len(unsolved)} of {len(results)} frames ({frame_ranges(unsolved)}); "
+                      "their dots reported missing", TrackingWarning, stacklevel=2)
+    return out
 
 
 def select_frames(frames: str | Sequence[int] | None, n_frames: int) -> range:
@@ -403,8 +467,30 @@ def track_capture_result(
             warnings.warn(doubt, CalibrationWarning, stacklevel=2)
         write_refinement(result.refinement, out_dir)
         result.table = apply_refined_rig(result, result.refinement, capture.tape)
+    with atomic_write(Path(out_dir) / TRACKING_LOG) as handle:
+        handle.write(result.frame_log())
+    reason = result.no_tape()
+    if reason:  # nothing written over a previous result: a lost tape is not a result
+        raise NoTapeFound(capture.root, f"{reason}: check the detector with "
+                                        f"`spinemocap detector run {detector_example(capture, frame_range[0])} "
+                                        f"--out {Path(out_dir) / 'detector'}` (per-frame list: "
+                                        f"{Path(out_dir) / TRACKING_LOG})")
     write_markers(result.table, out_dir)
     return result
+
+
+def detector_example(capture: Capture, frame: int) -> Path:
+    """A recording to check the detector on: the first camera's image of ``frame`` (image
+    captures) or its video."""
+    name = capture.camera_names[0]
+    path = capture.media_path(name)
+    if capture.media == "video":
+        return path
+    clock = capture.camera_clocks.get(name)
+    if clock is not None and clock.media:
+        files = sorted(p for p in path.iterdir() if p.is_file() and not p.name.startswith("."))
+        return files[min(frame, len(files) - 1)] if files else path
+    return capture.root / capture.image_pattern.format(camera=name, frame=frame)
 
 
 def capture_control_points(capture: Capture, frames: Sequence[int], reference: str | Path | None = None
@@ -445,9 +531,7 @@ def apply_refined_rig(result: TrackResult, refinement: RigRefinement, tape: Tape
 
 def write_refinement(refinement: RigRefinement, out_dir: str | Path) -> tuple[Path, Path]:
     """``rig_refined.toml`` and ``rig_refine.json`` (residuals before/after) in ``out_dir``."""
-    import json
-
-    from ..fileio import atomic_path, atomic_write
+    from ..fileio import atomic_path
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -455,5 +539,5 @@ def write_refinement(refinement: RigRefinement, out_dir: str | Path) -> tuple[Pa
     with atomic_path(rig_path) as tmp:
         refinement.rig.to_toml(tmp)
     with atomic_write(json_path) as fh:
-        json.dump(refinement.to_dict(), fh, indent=2)
+        fh.write(strict_json(refinement.to_dict(), indent=2))
     return rig_path, json_path

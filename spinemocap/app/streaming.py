@@ -161,21 +161,25 @@ SERIAL = SpeedOptions(workers=1, parallel="threads", prefetch=0, predict=False, 
 
 # ---------------------------------------------------------------------- reading
 def read_masks(mask_dir: Path, camera_names: Sequence[str], frame: int,
-               images: Sequence[np.ndarray] | None = None) -> list[np.ndarray]:
+               images: Sequence[np.ndarray | None] | None = None) -> list[np.ndarray | None]:
     """The synthetic studio's ground-truth tape masks of one frame (``masks/<cam>/NNNNNN.png``),
-    each checked against the size of its camera's image when ``images`` are given."""
-    masks = []
+    each checked against the size of its camera's image when ``images`` are given (None for a
+    camera without an image in this frame)."""
+    masks: list[np.ndarray | None] = []
     for k, cam in enumerate(camera_names):
+        if images is not None and images[k] is None:
+            masks.append(None)
+            continue
         path = mask_dir / cam / f"{frame:06d}.png"
         mask = read_image(path)
         if images is not None:
-            height, width = images[k].shape[:2]
+            height, width = images[k].shape[:2]  # type: ignore[union-attr]
             check_image_size(mask, (width, height), cam, path)
         masks.append(mask[:, :, 0] > 127)
     return masks
 
 
-def _read_frame(source: FrameSource, frame: int, pool: ThreadPoolExecutor | None) -> list[np.ndarray]:
+def _read_frame(source: FrameSource, frame: int, pool: ThreadPoolExecutor | None) -> list[np.ndarray | None]:
     read_camera = getattr(source, "read_camera", None)
     if pool is None or read_camera is None:
         return source.read(frame)
@@ -183,10 +187,11 @@ def _read_frame(source: FrameSource, frame: int, pool: ThreadPoolExecutor | None
 
 
 def prefetched_frames(source: FrameSource, frames: Sequence[int], mask_dir: Path | None = None,
-                      workers: int = 1, prefetch: int = 2, stage: Callable[[list[np.ndarray]], list[np.ndarray]] | None = None
-                      ) -> Iterator[tuple[int, list[np.ndarray], list[np.ndarray] | None]]:
-    """Yield ``(frame, images, masks)`` (BGR uint8 per camera; masks only from ``mask_dir``,
-    else None). Cameras are decoded by ``workers`` threads; with ``prefetch`` > 0 a background
+                      workers: int = 1, prefetch: int = 2,
+                      stage: Callable[[list[np.ndarray | None]], list[np.ndarray | None]] | None = None
+                      ) -> Iterator[tuple[int, list[np.ndarray | None], list[np.ndarray | None] | None]]:
+    """Yield ``(frame, images, masks)`` (BGR uint8 per camera, None for a camera without a frame
+    there; masks only from ``mask_dir``, else None). Cameras are decoded by ``workers`` threads; with ``prefetch`` > 0 a background
     thread keeps up to that many frames decoded ahead. ``stage``: applied to each frame's images
     by the reader (:meth:`CaptureDetector.stage`: copied into the camera processes' shared
     memory ahead of detection). Errors of the reader are raised here."""
@@ -255,7 +260,7 @@ def _close(frames: Iterator) -> None:
         close()
 
 
-def detected_ahead(frames_in: Iterator[tuple[int, list[np.ndarray], list[np.ndarray] | None]],
+def detected_ahead(frames_in: Iterator[tuple[int, list[np.ndarray | None], list[np.ndarray | None] | None]],
                    detect: "CaptureDetector", lookahead: int) -> Iterator[tuple[int, list, float]]:
     """Yield ``(frame, views, wait_ms)`` for the tracker with detection in a background thread that
     runs up to ``lookahead`` frames ahead of it: the ``i``-th frame is detected once the tracker
@@ -356,6 +361,9 @@ class CaptureDetector:
         self._first: int | None = None               # the first frame detected (by prediction's rules)
         self.searches = {"full": 0, "predicted": 0, "fallback": 0, "refresh": 0}  # camera images per route
         self._searches_lock = threading.Lock()
+        # camera index -> capture frames it had no image for (its clock, a drop); also info["missing_frames"]
+        # by camera name (the rig's; without a rig the index as text)
+        self.missing: dict[int, list[int]] = {}
 
     @property
     def needs_masks(self) -> bool:
@@ -400,11 +408,14 @@ class CaptureDetector:
             self._opencv_threads_before = cv2.getNumThreads()
             cv2.setNumThreads(self.options.opencv_threads)
 
-    def stage(self, images: list[np.ndarray]) -> list[np.ndarray]:
+    def stage(self, images: list[np.ndarray | None]) -> list[np.ndarray | None]:
         """For the reading thread: with camera processes, copy a frame's images into their shared
-        memory ahead of its detection (the frame must then be detected in reading order)."""
+        memory ahead of its detection (the frame must then be detected in reading order). A frame
+        that lacks a camera's image stays here (:meth:`__call__` detects it in this process)."""
         processes = self._processes
-        return processes.stage(images) if processes is not None else images
+        if processes is None or any(image is None for image in images):
+            return images
+        return processes.stage(images)  # type: ignore[arg-type, return-value]
 
     def close(self) -> None:
         """Stop the worker processes or threads (also after Ctrl-C) and restore OpenCV's threads."""
@@ -427,7 +438,12 @@ class CaptureDetector:
         return list(self._pool.map(fn, items)) if self._pool is not None else [fn(x) for x in items]
 
     # ------------------------------------------------------------------ per frame
-    def __call__(self, frame: int, images: list[np.ndarray], masks: list[np.ndarray] | None) -> list[ViewDots]:
+    def __call__(self, frame: int, images: list[np.ndarray | None], masks: list[np.ndarray | None] | None
+                 ) -> list[ViewDots]:
+        """The views of capture frame ``frame``: one per camera, an empty one for a camera whose
+        image is None (it has no frame there; recorded in :attr:`missing`)."""
+        if any(image is None for image in images):
+            return self._with_missing(frame, images, masks)
         if self.name == "mask":
             if masks is None:
                 raise InputError(None, "detector 'mask' needs tape masks (synthetic captures have masks/)")
@@ -465,6 +481,35 @@ class CaptureDetector:
         self._remember(views)
         return views
 
+    def _with_missing(self, frame: int, images: list[np.ndarray | None], masks: list[np.ndarray | None] | None
+                      ) -> list[ViewDots]:
+        """A frame some cameras have no image of: those get empty views, the others a full
+        search each in this process's threads (no prediction: a rare frame), remembered for the
+        next frame's prediction only where every camera was seen."""
+        for c, image in enumerate(images):
+            if image is None:
+                self._note_missing(c, frame)
+
+        def view(c: int) -> ViewDots:
+            image = images[c]
+            if image is None:
+                return empty_view(c)
+            if self.name == "mask":
+                if masks is None or masks[c] is None:
+                    raise InputError(None, "detector 'mask' needs tape masks (synthetic captures have masks/)")
+                return _dots_in_mask(c, image, masks[c])  # type: ignore[arg-type]
+            with self._searches_lock:
+                self.searches["full"] += 1
+            return self._detect(c, image, None)
+
+        return self._map(view, range(len(images)))
+
+    def _note_missing(self, camera: int, frame: int) -> None:
+        with self._searches_lock:
+            self.missing.setdefault(camera, []).append(int(frame))
+            names = self.rig.names if self.rig is not None else [str(c) for c in range(max(self.missing) + 1)]
+            self.info["missing_frames"] = {names[c]: list(frames) for c, frames in sorted(self.missing.items())}
+
     def _cameras_whole_in_pool(self) -> bool:
         """Does a frame's every camera run whole (box, search, fallback) in the camera threads?
         With threads and stage 1 in the pool (a full search per camera in its thread either way):
@@ -483,7 +528,7 @@ class CaptureDetector:
         planned frame (every ``refresh_every`` planned frames)?"""
         return self.options.refresh == "frame" and self._since_full + 1 >= self.options.refresh_every
 
-    def frames_in_order(self, frames_in: Iterator[tuple[int, list[np.ndarray], list[np.ndarray] | None]]
+    def frames_in_order(self, frames_in: Iterator[tuple[int, list[np.ndarray | None], list[np.ndarray | None] | None]]
                         ) -> Iterator[tuple[int, list[ViewDots], float]]:
         """Yield ``(frame, views, wait_ms)`` frame by frame in the exact serial order (lookahead 0:
         each frame detected after the tracker solved the one before and told :meth:`observe`),
@@ -598,7 +643,7 @@ class CaptureDetector:
         detector that reads images (not ``mask``)?"""
         return self._pool is not None and self.detector is not None
 
-    def stream(self, frames_in: Iterator[tuple[int, list[np.ndarray], list[np.ndarray] | None]],
+    def stream(self, frames_in: Iterator[tuple[int, list[np.ndarray | None], list[np.ndarray | None] | None]],
                lookahead: int) -> Iterator[tuple[int, list[ViewDots], float]]:
         """Yield ``(frame, views, wait_ms)`` in order, the cameras in the thread pool, each
         running through the frames on its own: camera c starts frame i once it is done with
@@ -616,7 +661,7 @@ class CaptureDetector:
         steps = 1 + lookahead
         cond = threading.Condition()
         # by frame index, dropped when handed to the tracker: (frame, images), plan, views, cameras left
-        read: dict[int, tuple[int, list[np.ndarray]]] = {}
+        read: dict[int, tuple[int, list[np.ndarray | None]]] = {}
         plans: dict[int, _Plan] = {}
         views: dict[int, list[ViewDots | None]] = {}
         left: dict[int, int] = {}
@@ -651,7 +696,13 @@ class CaptureDetector:
 
         def detect_one(camera: int, i: int) -> None:
             try:
-                view = self._camera_view(camera, read[i][1][camera], plans[i])
+                frame, images = read[i]
+                image = images[camera]
+                if image is None:  # the camera has no frame here: an empty view, nothing remembered
+                    self._note_missing(camera, frame)
+                    view = empty_view(camera)
+                else:
+                    view = self._camera_view(camera, image, plans[i])
                 with cond:
                     views[i][camera] = view
                     left[i] -= 1
@@ -836,6 +887,11 @@ def _well_inside(box: Box, shape: tuple[int, int], edge_px: float) -> bool:
 
 def _listed(box: Box | None) -> list[Box]:
     return [] if box is None else [box]
+
+
+def empty_view(camera: int) -> ViewDots:
+    """The view of a camera that has no image in a frame: no dots, no mask, no image."""
+    return ViewDots(camera, np.zeros((0, 2)), np.zeros(0))
 
 
 def _dots_in_mask(camera: int, image: np.ndarray, mask: np.ndarray) -> ViewDots:

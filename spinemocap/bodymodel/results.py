@@ -3,13 +3,12 @@ residuals (``residuals.csv``) and a plot (``residuals.png``). All writes are ato
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 import numpy as np
 
-from ..fileio import atomic_path, atomic_write
+from ..fileio import atomic_path, atomic_write, strict_json
 from .fit import BodyFit
 from .markersets import is_trunk
 
@@ -67,7 +66,7 @@ def write_fit(out: str | os.PathLike, fit: BodyFit, frames: np.ndarray, fps: flo
         np.savez_compressed(tmp, **arrays)
     summary = fit_summary(fit, np.asarray(frames), fps, source)
     with atomic_write(out / "summary.json") as handle:
-        json.dump(summary, handle, indent=2)
+        handle.write(strict_json(summary, indent=2))
     with atomic_write(out / "residuals.csv") as handle:
         handle.write("frame,label,residual_mm\n")
         for i, frame in enumerate(frames):

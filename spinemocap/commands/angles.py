@@ -4,13 +4,12 @@ do the tape's spine angles follow the synthetic studio's applied motion?"""
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import time
 from pathlib import Path
 from typing import Any
 
-from ..fileio import atomic_write
+from ..fileio import atomic_write, strict_json
 
 
 def register(subparsers) -> None:
@@ -19,7 +18,8 @@ def register(subparsers) -> None:
         description="Compute lumbar/thoracic flexion, lateral bending, axial rotation, lordosis/kyphosis "
                     "and pelvis angles for every frame of a tape marker file (labels R01L...). For whole "
                     "studies use `spinemocap batch`.")
-    p.add_argument("markers", type=Path, help="marker file readable by the exporters (csv, trc, c3d, parquet)")
+    p.add_argument("markers", type=Path, help="a results folder (markers.csv) or a marker file readable by the exporters "
+                                              "(csv, trc, c3d, parquet)")
     p.add_argument("--levels", type=Path, required=True, help="row-to-level map (TOML)")
     p.add_argument("--out", type=Path, help="angles CSV (default: beside the markers, *_angles.csv); "
                                             "a PNG plot goes beside it")
@@ -41,8 +41,9 @@ def run_angles(args: argparse.Namespace) -> int:
     from ..app.report import angles_plot_png
     from ..fileio import InputError
     from ..tape import TapeSpec
+    from .export import find_markers
 
-    markers = exporters.read(args.markers)
+    markers = exporters.read(find_markers(args.markers))
     rows = [int(label[1:3]) for label in markers.labels if len(label) == 4 and label[0] == "R" and label[1:3].isdigit()]
     if not rows:
         raise InputError(args.markers, "no tape labels (R01L, R02C, ...) in this marker file")
@@ -155,7 +156,7 @@ def run_bench(args: argparse.Namespace) -> int:
             print(f"goal {motion}: RMSE {results[key]:.2f} deg <= {goal} deg: {verdict}")
     if args.json:
         with atomic_write(args.json) as handle:
-            json.dump(results, handle, indent=1)
+            handle.write(strict_json(results))
         with atomic_write(args.json.with_suffix(".png"), "wb") as handle:
             handle.write(lab_angles_plot_png(lab))
         print(f"numbers: {args.json}\nplot:    {args.json.with_suffix('.png')}")

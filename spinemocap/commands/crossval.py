@@ -16,7 +16,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "compare markers and segment angles: RMSE, bias, Bland-Altman limits, ICC(2,1), CMC. Writes "
                     "summary.json, merged.c3d (tracked dots + VICON_* markers in the rig frame), angles.csv and "
                     "report.html into --out.")
-    p.add_argument("tracked", type=Path, help="tracked dots (C3D, TRC or CSV marker table)")
+    p.add_argument("tracked", type=Path, help="tracked dots: a results folder (markers.csv) or a marker file (C3D, "
+                                              "TRC, CSV)")
     p.add_argument("vicon", type=Path, help="Vicon C3D")
     p.add_argument("--capture", type=Path, required=True, help="the capture folder (tape spec, rig)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
@@ -34,8 +35,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_crossval(args: argparse.Namespace) -> int:
     from ..app.crossval import crossval_files
+    from .export import find_markers
 
-    result, summary = crossval_files(args.tracked, args.vicon, args.capture, args.out, args.rig_vicon,
+    result, summary = crossval_files(find_markers(args.tracked), args.vicon, args.capture, args.out, args.rig_vicon,
                                      args.marker_diameter, args.max_offset, args.reference,
                                      args.levels)
     a = result.alignment

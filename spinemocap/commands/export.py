@@ -8,7 +8,7 @@ import inspect
 from pathlib import Path
 
 import exporters
-from spinemocap.app.results import find_markers
+from spinemocap.app.results import find_markers, record_replaced, tracked_set_file
 from spinemocap.fileio import InputError
 
 
@@ -22,7 +22,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--format", "-f", default=None,
                    help="trc, c3d, csv, parquet or a plugin name (default: from --out's extension, else trc)")
     p.add_argument("--out", "-o", type=Path, default=None,
-                   help="output file (default: beside RESULTS, named markers.<format>)")
+                   help="output file (default: beside RESULTS, named markers.<format>, or markers_<options>.<format> "
+                        "where markers.<format> is a file of the tracked set)")
+    p.add_argument("--force", action="store_true",
+                   help="replace a file of a tracked set (markers.trc/.c3d/.csv beside markers.manifest.json); the "
+                        "manifest then records the replacement")
     p.add_argument("--units", choices=("mm", "m"), default=None, help="length units of TRC/C3D output (default mm)")
     p.add_argument("--opensim-axes", action="store_true",
                    help="TRC: rotate from our Z-up lab frame to OpenSim's Y-up frame (stated in the header)")
@@ -34,6 +38,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--reference-prefix", default="REF_", help="label prefix of --reference markers")
     p.add_argument("--list-formats", action="store_true", help="list the available formats and exit")
     p.set_defaults(func=run_export)
+
+
+def _default_out(source: Path, fmt: str, options: dict) -> Path:
+    """``markers.<ext>`` beside the source, or ``markers_<options>.<ext>`` (``markers_export``
+    without options) where that is a file of the tracked set."""
+    plain = source.with_name("markers" + _extension(fmt))
+    if not tracked_set_file(plain):
+        return plain
+    parts = [name for name in ("opensim" if options.get("opensim_axes") else "", options.get("units", "")) if name]
+    return source.with_name(f"markers_{'_'.join(parts) or 'export'}{_extension(fmt)}")
+
+
+def _described(fmt: str, options: dict) -> str:
+    return ", ".join([fmt, *(f"{k}={v}" for k, v in options.items() if k not in ("reference",))])
 
 
 def _extension(fmt: str) -> str:
@@ -85,11 +103,17 @@ def run_export(args: argparse.Namespace) -> int:
     source = find_markers(args.results)
     fmt = (args.format or (exporters.format_for_path(args.out) if args.out else "trc")).lower()
     options = _options(args, fmt, source)
-    out = args.out or source.with_name("markers" + _extension(fmt))
+    out = args.out or _default_out(source, fmt, options)
     if out.resolve() == source.resolve():
         raise InputError(out, "output would overwrite the input; pass --out")
+    replacing = tracked_set_file(out) and out.exists()
+    if replacing and not args.force:
+        raise InputError(out, "is a file of the tracker's result set (markers.manifest.json); choose another --out, "
+                              "or pass --force to replace it (the manifest then records the replacement)")
     table = exporters.read(source)
     written = exporters.write(table, out, format=fmt, **options)
+    if replacing:
+        record_replaced(out, f"exported from {source.name} by spinemocap export ({_described(fmt, options)})")
     share = table.completeness()
     print(f"{written}: {table.n_frames} frames x {len(table.labels)} markers at {table.fps:g} Hz "
           f"({share['observed']:.0%} observed, {share['inferred']:.0%} inferred, {share['missing']:.0%} missing)")

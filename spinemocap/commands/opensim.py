@@ -6,7 +6,6 @@ printing, the benchmark is :mod:`spinemocap.bench.opensim`."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 
@@ -97,7 +96,7 @@ def register_bench(subparsers) -> None:
 
 def run_bench(args: argparse.Namespace) -> int:
     from ..bench.opensim import format_table, run_opensim_benchmark
-    from ..fileio import atomic_write
+    from ..fileio import atomic_write, strict_json
 
     report = run_opensim_benchmark(args.motions, args.sources, args.frames, args.fps, args.rows,
                                    args.tracked_frames, args.cache, not args.no_progress, realism=args.realism)
@@ -112,6 +111,6 @@ def run_bench(args: argparse.Namespace) -> int:
                                          "marker_rms_mm", "ik_ms_per_frame") if k in report))
     if args.json:
         with atomic_write(args.json) as handle:
-            json.dump(report, handle, indent=1, default=float)
+            handle.write(strict_json(report))
         print(f"numbers: {args.json}")
     return 0

@@ -18,6 +18,13 @@ def _size(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(f"size must look like 1024x768, got {text!r}") from None
 
 
+def _numbers(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, one per camera, got {text!r}") from None
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "synth", help="render a synthetic tape capture (anny body, cameras, occluders) with ground truth",
@@ -60,7 +67,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="write a rig.toml perturbed (rotations, centres, focal lengths) so that the true dots "
                         "reproject with this RMS per camera; the images stay exact, groundtruth.npz keeps the true rig")
     p.add_argument("--sync-error", type=float, metavar="MS",
-                   help="per-camera clock offsets with this RMS (ms): each camera renders at its own offset times")
+                   help="per-camera clock offsets with this RMS (ms): each camera renders at its own offset times "
+                        "(a residual error of synchronised cameras; for cameras that are not synchronised at all see "
+                        "--camera-offsets)")
+    p.add_argument("--camera-offsets", type=_numbers, metavar="S,S,...",
+                   help="cameras that are not synchronised: each camera's clock minus the capture's, seconds, one per "
+                        "camera (whole or fractional frames, up to +-5 s): each records on its own clock from capture "
+                        "time -offset to the capture's end (truth in groundtruth.npz clock_offsets_s)")
+    p.add_argument("--camera-fps", type=_numbers, metavar="FPS,FPS,...",
+                   help="each camera's own frame rate (e.g. 50,60,100,100); capture.toml names them ([camera.NAME] fps)")
+    p.add_argument("--drop-frames", type=int, metavar="N",
+                   help="N frames missing from the videos (seeded cameras and places; gaps in their timestamps; "
+                        "needs --video)")
+    p.add_argument("--clap", action="store_true",
+                   help="the videos carry an audio track with a hand clap every camera hears (needs --video)")
     p.add_argument("--reference", action="store_true",
                    help="an L-frame of five markers on a stand beside the subject, in view of the cameras (artificial "
                         "and studio layouts): rendered in the images, its design and pose in reference.toml (named by "
@@ -103,7 +123,8 @@ def config_from_args(args: argparse.Namespace):
         "tape_start": args.tape_start, "realism": args.realism, "skin_strain": args.skin_strain, "tape_tension": args.tape_tension,
         "calibration_error_px": args.calibration_error, "sync_error_ms": args.sync_error, "blur": args.blur, "noise": args.noise, "distortion": args.distortion,
         "supersample": args.supersample, "seed": args.seed, "video": args.video or None,
-        "reference": args.reference or None,
+        "reference": args.reference or None, "camera_offsets_s": args.camera_offsets, "camera_fps": args.camera_fps,
+        "drop_frames": args.drop_frames, "clap": args.clap or None,
         "phenotype": phenotype or None, "name": args.out.name,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}
@@ -142,7 +163,7 @@ def run_synth(args: argparse.Namespace) -> int:
     rows = Capture.open(out).tape.n_rows
     print(f"synthetic capture written to {out}/ ({config.frames} frames, {config.cameras} cameras, "
           f"{rows}-row tape from {config.tape_start}, {config.n_balls} balls): capture.toml, rig.toml, {media}, "
-          f"masks/, groundtruth.npz" + (", reference.toml (the L-frame beside the subject)" if config.reference else ""))
+          + ("" if config.unsynchronised else "masks/, ") + "groundtruth.npz" + (", reference.toml (the L-frame beside the subject)" if config.reference else ""))
     print(f"realism {config.realism}: skin strain x{config.skin_strain:g}, tape tension {100 * config.tape_tension:g} %, "
           f"calibration error {config.calibration_error_px:g} px (rig.toml), sync error {config.sync_error_ms:g} ms, "
           f"sensor noise {config.noise:g}")

@@ -39,8 +39,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "track", help="track the tape dots of a capture folder into labelled 3D markers",
         description="Detect the tape dots in every view, triangulate, select the tape's edges (LP), "
                     "align and refine the tape model (MRF1, MRF2) and write DIR/markers.csv, "
-                    "markers.trc and markers.c3d (mm, world Z up). Synthetic captures "
-                    "(groundtruth.npz) also get their accuracy printed.")
+                    "markers.trc and markers.c3d (mm, world Z up), and DIR/tracking.log (every frame's "
+                    "conditions). Synthetic captures (groundtruth.npz) also get their accuracy printed. Exit "
+                    "status 3 where the tape is not found in most frames (no markers written), 2 for bad input.")
     p.add_argument("capture", type=Path, help="capture folder (capture.toml, rig.toml, images/ or videos/)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--mode", choices=("sequence", "paper"), default="sequence",
@@ -125,7 +126,8 @@ def run_track(args: argparse.Namespace) -> int:
             raise InputError(args.capture, f"--refine-rig: {exc}") from exc
     table = result.table
     for w in caught:
-        log.warning("%s", w.message)
+        if not issubclass(w.category, TrackingWarning):  # frames' conditions: in the summary below
+            log.warning("%s", w.message)
     elapsed = time.perf_counter() - start
     counts = table.data["status"].value_counts()
     print(f"tracked {table.n_frames} frames in {elapsed:.1f} s ({table.n_frames / elapsed:.2f} frames/s): "

@@ -19,7 +19,6 @@ signs; rotational ones in degrees), since their meaning is the lab's.
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 from pathlib import Path
@@ -28,7 +27,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from ..fileio import InputError, atomic_write, read_toml
+from ..fileio import InputError, atomic_write, read_toml, strict_json
 from ..markers import MarkerTable
 from ..tape import TapeSpec
 from .geometry import CHAIN, HEAD_NECK, LevelRows, spine_geometry
@@ -108,7 +107,7 @@ def run_lab_model(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: S
                          "marker_max mm. Signs: as the model defines them.\n")
             angles.to_csv(handle, index=False, float_format="%.4f")
         with atomic_write(work / "summary.json") as handle:
-            json.dump(summary, handle, indent=1)
+            handle.write(strict_json(summary))
         files = publish(work, out_dir)
     finally:
         shutil.rmtree(work, ignore_errors=True)

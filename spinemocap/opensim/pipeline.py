@@ -24,7 +24,6 @@ summary and the plot.
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import tempfile
@@ -36,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..fileio import InputError, atomic_write
+from ..fileio import InputError, atomic_write, strict_json
 from ..markers import MarkerTable
 from ..tape import TapeSpec
 from .geometry import (
@@ -339,7 +338,7 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Seq
         with atomic_write(work / "spine_angles.png", "wb") as handle:
             handle.write(angles_plot_png(angles, summary))
         with atomic_write(work / "summary.json") as handle:
-            json.dump(summary, handle, indent=1)
+            handle.write(strict_json(summary))
         files = publish(work, out_dir)
     finally:
         shutil.rmtree(work, ignore_errors=True)

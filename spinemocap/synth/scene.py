@@ -53,6 +53,8 @@ from .visibility import MeshRayCaster, dot_visibility
 
 log = logging.getLogger(__name__)
 
+# the largest clock offset a studio camera may have, s
+MAX_CAMERA_OFFSET_S = 5.0
 POSE_CHUNK = 64  # frames posed together (anny is batched) and kept in memory
 # worker threads that develop rendered canvases (lens, noise, masks) while VTK renders the next
 # camera; one per core beyond the one VTK's render loop runs on, at least one
@@ -108,6 +110,16 @@ class SynthConfig:
     lengths) so that the true dots reproject through it with this RMS per camera, while the images
     come from the true rig (kept in the ground truth); ``sync_error_ms``: RMS of per-camera clock
     offsets (each camera renders at its own offset times). See :mod:`spinemocap.synth.lab_errors`.
+    Cameras that are not synchronised (see :mod:`spinemocap.timebase` for the clock convention):
+    ``camera_offsets_s`` (C,) each camera's clock minus the capture's, s (whole or fractional
+    frames, at most :data:`MAX_CAMERA_OFFSET_S`): camera ``c`` starts recording at capture time
+    ``-camera_offsets_s[c]`` and its frame ``k`` shows capture time ``k / camera_fps[c] -
+    camera_offsets_s[c]``; ``camera_fps`` (C,) each camera's own rate (default ``fps``, the
+    capture's); ``drop_frames``: that many frames (seeded cameras and places) are missing from the
+    videos, leaving gaps in their timestamps; ``clap``: the videos carry a mono audio track with a
+    hand clap heard by every camera. Any of them makes every camera record on its own clock until
+    the capture's last frame; the truth is in the ground truth (``clock_offsets_s``,
+    ``camera_fps``, ``dropped_slots``, ``clap_time_s``).
     ``reference``: an L-frame of five markers stands beside the subject in view of the cameras
     (:mod:`spinemocap.synth.reference`): rendered in the images, its design and pose written to
     ``reference.toml`` (what a lab enters), its markers' true projections in the ground truth.
@@ -140,6 +152,10 @@ class SynthConfig:
     reference: bool = False
     video: bool = False
     name: str = "synthetic"
+    camera_offsets_s: tuple[float, ...] | None = None
+    camera_fps: tuple[float, ...] | None = None
+    drop_frames: int = 0
+    clap: bool = False
 
     def __post_init__(self) -> None:
         self.size = (int(self.size[0]), int(self.size[1]))
@@ -198,8 +214,36 @@ class SynthConfig:
             problems.append(f"sync_error_ms must lie in [0, 50] (got {self.sync_error_ms})")
         if self.supersample < 1:
             problems.append("supersample must be >= 1")
+        problems += self._clock_problems()
         if problems:
             raise ValueError("invalid synthetic studio settings: " + "; ".join(problems))
+
+    def _clock_problems(self) -> list[str]:
+        problems = []
+        for name in ("camera_offsets_s", "camera_fps"):
+            values = getattr(self, name)
+            if values is None:
+                continue
+            values = tuple(float(v) for v in values)
+            setattr(self, name, values)
+            if len(values) != self.cameras:
+                problems.append(f"{name} needs one value per camera ({self.cameras}), got {len(values)}")
+        if self.camera_offsets_s is not None and any(not abs(v) <= MAX_CAMERA_OFFSET_S for v in self.camera_offsets_s):
+            problems.append(f"camera offsets must lie within +-{MAX_CAMERA_OFFSET_S:g} s (got {list(self.camera_offsets_s)})")
+        if self.camera_fps is not None and any(not 0 < v <= 1000 for v in self.camera_fps):
+            problems.append(f"camera frame rates must lie in (0, 1000] (got {list(self.camera_fps)})")
+        if self.drop_frames < 0:
+            problems.append(f"drop_frames must be >= 0 (got {self.drop_frames})")
+        if (self.drop_frames or self.clap) and not self.video:
+            problems.append("dropped frames and the clap's audio need videos (video = true): an image folder has "
+                            "no timestamps or sound")
+        return problems
+
+    @property
+    def unsynchronised(self) -> bool:
+        """Does every camera record on its own clock (offsets, own rates, drops or a clap)?"""
+        return (self.camera_offsets_s is not None or self.camera_fps is not None or self.drop_frames > 0
+                or self.clap)
 
     @classmethod
     def preset(cls, name: str, /, **overrides) -> SynthConfig:
@@ -225,6 +269,9 @@ class SynthConfig:
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["size"] = list(self.size)
+        for name in ("camera_offsets_s", "camera_fps"):
+            if d[name] is not None:
+                d[name] = list(d[name])
         return {k: v for k, v in d.items() if v is not None}
 
 
@@ -335,6 +382,7 @@ class Scene:
         self.skin_tone = float(tone)
         self._renderers: list[CameraRenderer] | None = None
         self._pool: ThreadPoolExecutor | None = None
+        self._still_windows: dict[tuple, list] = {}  # camera_image_at's last still scene's windows
 
     # ------------------------------------------------------------------ geometry per instant
     def _posed(self, frame: int | None = None, time_s: float | None = None,
@@ -678,6 +726,28 @@ class Scene:
             rng = np.random.default_rng([self.rng_seed, 2, frame, camera])
             image += rng.normal(0.0, noise, image.shape).astype(np.float32)
         return cv2.cvtColor(np.clip(image + 0.5, 0, 255).astype(np.uint8), cv2.COLOR_RGB2BGR)
+
+    # ------------------------------------------------------------------ cameras on their own clocks
+    def camera_image_at(self, camera: int, time_s: float, slot: int, camera_fps: float) -> np.ndarray:
+        """The BGR uint8 image camera ``camera`` (rig order) takes at capture time ``time_s`` s as
+        its own frame ``slot`` (which seeds the sensor noise), at ``camera_fps`` frames/s (the
+        motion blur's exposure)."""
+        instants = [time_s]
+        if self.config.blur > 0:
+            half = 0.5 * self.config.blur / camera_fps
+            instants += [float(x) for x in np.linspace(time_s - half, time_s + half, 7) if abs(x - time_s) > 1e-12]
+        renderer = self.renderers[camera]
+        # a still scene (the same pose, no ball in the air: a recording's lead-in before the motion
+        # starts) renders the same windows; only the sensor noise differs from frame to frame
+        key = (camera, tuple(np.round(spine_motion(self.config.motion, [time_s])[0], 12)))
+        still = len(instants) == 1 and not len(self.balls.at(time_s)[1])
+        windows = self._still_windows.get(key) if still else None
+        if windows is None:
+            windows = [renderer.render_window(self.meshes(time_s=t)) for t in instants]
+            if still:
+                self._still_windows = {key: windows}
+        image, _ = self._develop(slot, camera, windows, None, False)
+        return image
 
     def frame_source(self) -> SceneFrameSource:
         """A :class:`spinemocap.capture.FrameSource` that renders frames on demand."""

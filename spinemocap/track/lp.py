@@ -159,23 +159,23 @@ class EdgeSelectionProgram:
         E = len(self.edge_cloud)
         n = min(self.n_initial, E)
         if n < self.n_initial:
-            log.info("LP: only %d candidate edges; target lowered from %d to %d", E, self.n_initial, n)
+            log.debug("LP: only %d candidate edges; target lowered from %d to %d", E, self.n_initial, n)
         steps = 0
         while n >= self.config.min_target:
             if self._solve_at(n):
                 return self._feasible_set(n)
             steps += 1
             if steps <= self.config.max_step_relaxations:
-                log.info("LP infeasible with %d edges; relaxing to %d", n, n - 1)
+                log.debug("LP infeasible with %d edges; relaxing to %d", n, n - 1)
                 n -= 1
                 continue
             best = self._largest_feasible_n(n - 1)
-            log.info("LP infeasible with %d edges; largest feasible selection has %d edges", n, best)
+            log.debug("LP infeasible with %d edges; largest feasible selection has %d edges", n, best)
             if best < self.config.min_target or best >= n:
                 break
             n = best
             steps = -10**9  # the cardinality bound is exact: no more unit steps needed
-        log.warning("LP found no tape-like edge set (%d candidate edges)", E)
+        log.debug("LP found no tape-like edge set (%d candidate edges)", E)
         return None
 
     def _feasible_set(self, n: int) -> FeasibleSet:
@@ -198,6 +198,6 @@ def select_edges(cloud: CandidateCloud, edge_cloud: EdgeCloud, tape: TapeSpec,
     """Solve the edge-selection program of one frame (None: no tape found)."""
     config = config or LPConfig()
     if len(edge_cloud) < config.min_target:
-        log.warning("LP skipped: %d candidate edges, fewer than %d", len(edge_cloud), config.min_target)
+        log.debug("LP skipped: %d candidate edges, fewer than %d", len(edge_cloud), config.min_target)
         return None
     return EdgeSelectionProgram(cloud, edge_cloud, tape, config).solve()
