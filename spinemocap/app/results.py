@@ -20,7 +20,16 @@ from pathlib import Path
 
 import exporters
 
-from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, fsync_dir, temp_name, writing
+from ..fileio import (
+    InputError,
+    OutputError,
+    atomic_write,
+    check_writable,
+    clean_stale_temps,
+    fsync_dir,
+    temp_name,
+    writing,
+)
 from ..markers import MarkerTable
 
 log = logging.getLogger(__name__)
@@ -63,6 +72,8 @@ def _write_set(table: MarkerTable, out: Path, staging: Path) -> list[Path]:
         for name in RESULT_FILES:
             try:
                 exporters.write(table, staging / name)
+            except OutputError:     # a full disk: said for the results folder by write_markers
+                raise
             except InputError as exc:  # name the file the user asked for, not the staging folder's
                 raise InputError(out / name, exc.problem.replace(str(staging), str(out))) from None
             staged.append(staging / name)
