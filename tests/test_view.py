@@ -1,0 +1,206 @@
+"""Labelled camera videos and the 3D viewer (``spinemocap view``) on a small synthetic capture whose
+results are its ground-truth dots, some set inferred and some flagged, written and read back as a
+real results folder."""
+
+from __future__ import annotations
+
+import html.parser
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spinemocap.app.batch import groundtruth_markers
+from spinemocap.app.results import write_markers
+from spinemocap.app.viewer.layout import GRID_NAME, VIEWER_NAME, view_outputs
+from spinemocap.app.viewer.scene3d import json_for_script, write_viewer
+from spinemocap.app.viewer.tracked import CLASS_COLOURS_BGR, DotClass, read_tracked
+from spinemocap.app.viewer.video import OverlayStyle, scale_pixels, write_videos
+from spinemocap.capture import Capture
+from spinemocap.fileio import InputError
+from spinemocap.markers import MarkerTable
+
+av = pytest.importorskip("av")
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+HOSTILE_CAMERA = "<script>alert(1)</script>"
+HOSTILE_SUBJECT = "</script><script>alert(2)</script>"
+
+
+@pytest.fixture(scope="module")
+def tracked_capture(tmp_path_factory):
+    """(capture folder, results folder): 3 frames of the tiny studio; dots of row 2 inferred, of
+    row 4 flagged (low confidence), one dot missing in the last frame."""
+    from spinemocap.synth import SynthConfig, write_capture
+
+    root = tmp_path_factory.mktemp("view")
+    capture_dir = write_capture(SynthConfig.preset("tiny", frames=3, rows=7), root / "capture", progress=False)
+    capture = Capture.open(capture_dir)
+    arrays = groundtruth_markers(capture).to_arrays()
+    labels = list(arrays["labels"])
+    rows = np.array([int(label[1:3]) for label in labels])
+    status = np.where(rows == 2, "inferred", "observed").astype(object)[None].repeat(3, axis=0)
+    confidence = np.where(status == "observed", 1.0, 0.6)
+    confidence[:, rows == 4] = 0.3  # below 0.6 x its status factor: a label the tracker cannot vouch for
+    positions = arrays["positions"].copy()
+    positions[2, 0] = np.nan  # R01L missing in the last frame
+    table = MarkerTable.from_arrays(labels, positions, capture.fps, status=status, confidence=confidence,
+                                    n_views=np.full(status.shape, 3))
+    results = root / "results"
+    write_markers(table, results)
+    return capture_dir, results
+
+
+def test_read_tracked_classes(tracked_capture):
+    capture_dir, results = tracked_capture
+    capture = Capture.open(capture_dir)
+    tracked = read_tracked(results, capture.tape)
+    rows = tracked.row + 1
+    assert (tracked.classes[:, rows == 2] == DotClass.INFERRED).all()
+    assert (tracked.classes[:, rows == 4] == DotClass.FLAGGED).all()
+    assert (tracked.classes[:, (rows != 2) & (rows != 4)][:2] == DotClass.OBSERVED).all()
+    assert tracked.classes[2, 0] == DotClass.MISSING
+    assert tracked.frame_flagged.all()  # row 4's doubt flags every frame
+    # every row's neighbours are joined, no segment crosses rows
+    segments = tracked.row_segments()
+    assert (tracked.row[segments[:, 0]] == tracked.row[segments[:, 1]]).all()
+    assert len(segments) == sum(len(np.flatnonzero(tracked.row == r)) - 1 for r in np.unique(tracked.row))
+
+
+def test_results_of_another_capture_are_refused(tracked_capture, tmp_path):
+    capture_dir, results = tracked_capture
+    table = MarkerTable.from_arrays(["R01L", "X99"], np.zeros((1, 2, 3)), 10.0)
+    write_markers(table, tmp_path)
+    with pytest.raises(InputError, match="another capture"):
+        read_tracked(tmp_path, Capture.open(capture_dir).tape)
+    (tmp_path / "markers.csv").write_text("frame,time\n")  # a damaged set: the manifest no longer matches
+    with pytest.raises(InputError, match="markers.csv"):
+        write_videos(capture_dir, tmp_path, tmp_path / "view", progress=False)
+    assert not (tmp_path / "view" / GRID_NAME).exists()
+
+
+def _colour_mask(image_bgr: np.ndarray, bgr: tuple[int, int, int]) -> np.ndarray:
+    """Pixels of a decoded (lossy) frame close to a drawn class colour."""
+    diff = np.abs(image_bgr.astype(int) - np.array(bgr)).max(axis=2)
+    return diff < 60
+
+
+def _decoded_frames(path: Path) -> list[np.ndarray]:
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        assert stream.codec_context.name == "h264"
+        assert stream.codec_context.pix_fmt == "yuv420p"
+        return [frame.to_ndarray(format="bgr24") for frame in container.decode(stream)]
+
+
+def test_video_frames_carry_dots_at_reprojected_pixels(tracked_capture, tmp_path):
+    capture_dir, results = tracked_capture
+    capture = Capture.open(capture_dir)
+    scale = 2.0
+    result = write_videos(capture_dir, results, tmp_path, scale=scale, progress=False)
+    assert set(result.cameras) == set(capture.camera_names) and result.frames == [0, 1, 2]
+    tracked = read_tracked(results, capture.tape)
+    checked = {DotClass.OBSERVED: 0, DotClass.INFERRED: 0, DotClass.FLAGGED: 0}
+    errors = []
+    for camera in capture.rig:
+        frames = _decoded_frames(result.cameras[camera.name])
+        assert len(frames) == 3
+        size = result.sizes[camera.name]
+        assert frames[0].shape[1::-1] == size
+        radius = OverlayStyle.for_size(size).dot_radius_px
+        for k, image in enumerate(frames):
+            projected = scale_pixels(camera.project(np.nan_to_num(tracked.positions[k], nan=0.0)),
+                                     (size[0] / camera.size[0], size[1] / camera.size[1]))
+            present = tracked.classes[k] != DotClass.MISSING
+            for d in np.flatnonzero(present):
+                u, v = projected[d]
+                others = np.delete(projected[present], np.flatnonzero(np.flatnonzero(present) == d), axis=0)
+                if np.linalg.norm(others - projected[d], axis=1).min() < 2 * radius + 6:
+                    continue  # discs touching a neighbour's cannot be told apart
+                if not (3 * radius < u < size[0] - 3 * radius and 6 * radius < v < size[1] - 6 * radius):
+                    continue  # near the border (header band, legend)
+                cls = DotClass(int(tracked.classes[k, d]))
+                window = 2 * radius
+                x0, y0 = int(round(u)) - window, int(round(v)) - window
+                patch = image[y0:y0 + 2 * window + 1, x0:x0 + 2 * window + 1]
+                mask = _colour_mask(patch, CLASS_COLOURS_BGR[cls])
+                assert mask.sum() >= 0.5 * np.pi * radius**2, f"no {cls.name} disc at {camera.name} frame {k} {tracked.labels[d]}"
+                ys, xs = np.nonzero(mask)
+                errors.append(float(np.hypot(xs.mean() + x0 - u, ys.mean() + y0 - v)))
+                checked[cls] += 1
+    assert min(checked.values()) >= 3, checked  # every class seen in several places
+    assert max(errors) < 1.0, f"disc centres off their reprojection by up to {max(errors):.2f} px"
+    # the missing dot is drawn nowhere: its class colour does not appear where it projected
+    grid = _decoded_frames(result.grid)
+    assert len(grid) == 3 and grid[0].shape[0] >= frames[0].shape[0] // 2
+
+
+def test_viewer_html_is_self_contained_and_escapes_names(tracked_capture, tmp_path):
+    capture_dir, results = tracked_capture
+    hostile = tmp_path / "capture"
+    shutil.copytree(capture_dir, hostile)
+    capture = Capture.open(hostile)
+    capture.rig.cameras[0].name = HOSTILE_CAMERA
+    capture.subject["id"] = HOSTILE_SUBJECT
+    capture.name = "<b>trial & co</b>"
+    capture.save()
+    page_path = write_viewer(hostile, results, tmp_path / "view" / VIEWER_NAME)
+    page = page_path.read_text()
+    assert page.count("<script") == 2 and page.count("</script>") == 2  # the template's own, no injected one
+    assert "alert(" not in re.sub(r"\\u003c", "", page.split('id="tape-data">')[0])
+    assert "&lt;b&gt;trial &amp; co&lt;/b&gt;" in page
+    assert not re.search(r"(src|href)=['\"]?(https?:)?//", page)  # nothing fetched from anywhere
+    data = json.loads(page.split('id="tape-data">')[1].split("</script>")[0])
+    assert data["cameras"][0]["name"] == HOSTILE_CAMERA and HOSTILE_SUBJECT in data["subtitle"]
+    assert len(data["positions"]) == 3 * len(data["labels"]) * 3
+    parser = html.parser.HTMLParser()
+    parser.feed(page)  # well-formed enough to parse
+    assert json.loads(json_for_script({"s": "</script><!--\u2028"})) == {"s": "</script><!--\u2028"}
+    assert "<" not in json_for_script({"s": "</script>"})
+
+
+def _chromium(args: list[str], profile: Path) -> subprocess.CompletedProcess:
+    command = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+               "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={profile}",
+               "--window-size=900,700", "--force-device-scale-factor=1", *args]
+    return subprocess.run(command, capture_output=True, text=True, timeout=60)
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed (apt-get install chromium)")
+def test_viewer_draws_the_tape_in_headless_chromium(tracked_capture, tmp_path):
+    from PIL import Image
+
+    capture_dir, results = tracked_capture
+    page = write_viewer(capture_dir, results, tmp_path / VIEWER_NAME)
+    dom = _chromium(["--dump-dom", page.as_uri()], tmp_path / "profile1").stdout
+    drawn = json.loads(html.unescape(re.search(r'data-drawn="([^"]*)"', dom).group(1)))
+    tracked = read_tracked(results, Capture.open(capture_dir).tape)
+    assert len(drawn) == int((tracked.classes[0] != DotClass.MISSING).sum())  # every dot of frame 0 drawn
+    shot = tmp_path / "shot.png"
+    _chromium([f"--screenshot={shot}", page.as_uri()], tmp_path / "profile2")
+    image = np.asarray(Image.open(shot).convert("RGB")).astype(int)
+    hits = 0
+    for label, x, y, cls in drawn:
+        b, g, r = CLASS_COLOURS_BGR[DotClass(cls)]
+        patch = image[int(round(y)) - 1:int(round(y)) + 2, int(round(x)) - 1:int(round(x)) + 2]
+        hits += bool((np.abs(patch - np.array([r, g, b])).max(axis=2) < 40).any())
+    assert hits >= 0.8 * len(drawn), f"{hits} of {len(drawn)} dots show their colour in the screenshot"
+
+
+def test_view_command_writes_videos_and_viewer(tracked_capture, tmp_path, capsys):
+    from spinemocap.cli import main
+
+    capture_dir, results = tracked_capture
+    copy = tmp_path / "results"
+    shutil.copytree(results, copy)
+    assert main(["view", str(capture_dir), str(copy), "--frames", "1:3", "--step", "1", "--scale", "0.5"]) == 0
+    found = view_outputs(copy)
+    assert {"grid", "viewer"} <= set(found) and sum(k.startswith("camera:") for k in found) == 3
+    assert len(_decoded_frames(found["grid"])) == 2
+    out = capsys.readouterr().out
+    assert "frames/s" in out and VIEWER_NAME in out
+    assert main(["view", str(capture_dir), str(copy), "--frames", "5:9"]) == 2  # no tracked frame there
