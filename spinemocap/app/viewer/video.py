@@ -39,6 +39,8 @@ ROW_LINE_BGR = (235, 235, 235)
 TEXT_BGR = (255, 255, 255)
 FLAG_TEXT_BGR = (255, 0, 255)
 SUBPIXEL_BITS = 4  # OpenCV drawing shift: centres to 1/16 px
+RING_PX = 1.5  # width of a dot's black ring
+LABEL_GAP_PX = 5  # a label's corner this far beyond the dot's disc, right and up
 
 
 @dataclass(frozen=True)
@@ -105,8 +107,8 @@ def auto_scale(sizes: Sequence[tuple[int, int]]) -> float:
 def draw_dots(image: np.ndarray, pixels: np.ndarray, classes: np.ndarray, labels: Sequence[str],
               segments: np.ndarray, style: OverlayStyle) -> None:
     """Draw in place on the BGR ``image``: the rows' segments (``segments`` (S, 2) dot pairs) as
-    lines, then every dot with finite ``pixels`` (D, 2) as a filled disc in its class colour and
-    its label beside it."""
+    lines, then every dot with finite ``pixels`` (D, 2) as a filled disc in its class colour
+    (radius ``style.dot_radius_px``) in a black ring (:data:`RING_PX` wide), its label beside it."""
     shift = 1 << SUBPIXEL_BITS
     fixed = np.round(np.nan_to_num(pixels, nan=-1e6) * shift).astype(np.int64)
     visible = np.isfinite(pixels).all(axis=1) & (classes != DotClass.MISSING)
@@ -116,9 +118,13 @@ def draw_dots(image: np.ndarray, pixels: np.ndarray, classes: np.ndarray, labels
             cv2.line(image, tuple(int(v) for v in fixed[a]), tuple(int(v) for v in fixed[b]), ROW_LINE_BGR,
                      style.line_px, cv2.LINE_AA, SUBPIXEL_BITS)
     for d in np.flatnonzero(visible):
-        cv2.circle(image, (int(fixed[d, 0]), int(fixed[d, 1])), style.dot_radius_px * shift,
-                   CLASS_COLOURS_BGR[DotClass(int(classes[d]))], -1, cv2.LINE_AA, SUBPIXEL_BITS)
-    gap = style.dot_radius_px + 2
+        centre = (int(fixed[d, 0]), int(fixed[d, 1]))
+        # a black ring (luminance contrast on skin, kept sharp by yuv420p) around the class colour
+        cv2.circle(image, centre, round((style.dot_radius_px + RING_PX) * shift), (0, 0, 0), -1, cv2.LINE_AA,
+                   SUBPIXEL_BITS)
+        cv2.circle(image, centre, style.dot_radius_px * shift, CLASS_COLOURS_BGR[DotClass(int(classes[d]))], -1,
+                   cv2.LINE_AA, SUBPIXEL_BITS)
+    gap = style.dot_radius_px + LABEL_GAP_PX
     for d in np.flatnonzero(visible):
         u, v = pixels[d]
         put_text(image, labels[d], (int(round(u)) + gap, int(round(v)) - gap), style.font_scale * 0.8, TEXT_BGR)
@@ -128,7 +134,11 @@ def put_text(image: np.ndarray, text: str, origin: tuple[int, int], font_scale: 
              colour: tuple[int, int, int]) -> None:
     """``text`` at ``origin`` (its baseline's left end), outlined in black to read on any image."""
     thickness = max(1, round(font_scale * 2))
-    cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, font_scale, (0, 0, 0), thickness + 2, cv2.LINE_AA)
+    x, y = origin
+    for dx, dy in ((-1, -1), (1, -1), (-1, 1), (1, 1)):  # the outline: the same strokes shifted (a thicker
+        # stroke also widens the glyphs' advance in some OpenCV builds, and would not line up)
+        cv2.putText(image, text, (x + dx, y + dy), cv2.FONT_HERSHEY_SIMPLEX, font_scale, (0, 0, 0), thickness,
+                    cv2.LINE_AA)
     cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, font_scale, colour, thickness, cv2.LINE_AA)
 
 
