@@ -3,18 +3,17 @@ sex come from capture.toml, the report places (never diagnoses) each subject's v
 
 from __future__ import annotations
 
-import tomllib
-
 import numpy as np
 import pandas as pd
 import pytest
+import tomllib
 
 from spinemocap.analysis.norms import MOVEMENTS, load_norms, norms_path, subject_profile
 from spinemocap.app.report import REFERENCE_COLUMNS, _reference_html, _view_links, reference_table
 from spinemocap.camera import Camera, Rig
 from spinemocap.capture import Capture
-from spinemocap.tape import TapeSpec
 from spinemocap.fileio import InputError
+from spinemocap.tape import TapeSpec
 
 
 def test_every_shipped_value_carries_its_citation_and_method():

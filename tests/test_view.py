@@ -224,7 +224,7 @@ def test_viewer_draws_the_tape_in_headless_chromium(tracked_capture, tmp_path):
     _chromium([f"--screenshot={shot}", url], tmp_path / "profile2")
     image = np.asarray(Image.open(shot).convert("RGB")).astype(int)
     hits = 0
-    for label, x, y, cls in drawn:
+    for _label, x, y, cls in drawn:
         b, g, r = CLASS_COLOURS_BGR[DotClass(cls)]
         patch = image[int(round(y)) - 1:int(round(y)) + 2, int(round(x)) - 1:int(round(x)) + 2]
         hits += bool((np.abs(patch - np.array([r, g, b])).max(axis=2) < 40).any())

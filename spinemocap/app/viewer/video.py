@@ -26,7 +26,6 @@ from tqdm import tqdm
 from ...camera import Camera
 from ...capture import Capture
 from ...fileio import InputError, atomic_path, check_writable
-from ..run import parse_frames
 from .layout import GRID_NAME
 from .tracked import CLASS_COLOURS_BGR, CLASS_WORDS, DotClass, TrackedDots, read_tracked
 
@@ -127,7 +126,7 @@ def draw_dots(image: np.ndarray, pixels: np.ndarray, classes: np.ndarray, labels
     gap = style.dot_radius_px + LABEL_GAP_PX
     for d in np.flatnonzero(visible):
         u, v = pixels[d]
-        put_text(image, labels[d], (int(round(u)) + gap, int(round(v)) - gap), style.font_scale * 0.8, TEXT_BGR)
+        put_text(image, labels[int(d)], (int(round(u)) + gap, int(round(v)) - gap), style.font_scale * 0.8, TEXT_BGR)
 
 
 def put_text(image: np.ndarray, text: str, origin: tuple[int, int], font_scale: float,
@@ -260,7 +259,11 @@ def selected_frames(tracked: TrackedDots, frames: str | None, n_frames: int, ste
     :func:`spinemocap.app.run.parse_frames`), every ``step``-th. :class:`InputError` when none."""
     if step < 1:
         raise InputError("--step", f"step {step} must be a whole number >= 1")
-    wanted = parse_frames(frames, n_frames, source)
+    wanted: range = range(n_frames)
+    if frames:
+        from ..run import parse_frames  # the tracker's module: heavy to import, so only when a range is asked for
+
+        wanted = parse_frames(frames, n_frames, source)
     chosen = [int(f) for f in tracked.frames if f in wanted][::step]
     if not chosen:
         raise InputError(tracked.source, f"no tracked frame in {frames or 'the capture'} (the results hold "
