@@ -51,7 +51,7 @@ def viewer_data(capture: Capture, tracked: TrackedDots, frames: list[int]) -> di
     subject = str(capture.subject.get("id", "") or "")
     return {
         "subtitle": (f"subject {subject}, " if subject else "") + f"{len(frames)} frames, {len(tracked.labels)} dots; "
-                    f"levels from {levels_from}; drag to turn, wheel to zoom",
+                    f"levels from {os.path.basename(levels_from)}; drag to turn, wheel to zoom",
         "fps": capture.fps * (len(frames) - 1) / max(float(tracked.times[index[-1]] - tracked.times[index[0]]), 1e-9)
         if len(frames) > 1 else capture.fps,
         "frames": [int(f) for f in frames],
