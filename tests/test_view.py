@@ -244,3 +244,27 @@ def test_view_command_writes_videos_and_viewer(tracked_capture, tmp_path, capsys
     out = capsys.readouterr().out
     assert "frames/s" in out and VIEWER_NAME in out
     assert main(["view", str(capture_dir), str(copy), "--frames", "5:9"]) == 2  # no tracked frame there
+
+
+def test_demo_view_step_writes_where_the_report_links(tracked_capture, tmp_path, capsys):
+    from spinemocap.app.batch import discover, trial_out_dir
+    from spinemocap.commands.demo import DemoContext, step_view
+
+    capture_dir, results = tracked_capture
+    ctx = DemoContext(out=tmp_path, capture_dir=capture_dir)
+    shutil.copytree(results, tmp_path / "tracked")
+    step_view(ctx)
+    (trial,) = discover(capture_dir)
+    found = view_outputs(trial_out_dir(tmp_path / "report", trial))
+    assert {"grid", "viewer"} <= set(found)
+    reported = {path for _, path in ctx.outputs}
+    assert set(found.values()) <= reported and all(path.is_file() for path in reported)
+    assert str(found["viewer"]) in capsys.readouterr().out
+
+
+def test_viewer_plays_at_recorded_speed():
+    from spinemocap.app.viewer.scene3d import playback_rate
+
+    assert playback_rate(np.arange(0, 50) * 0.02, 50.0) == pytest.approx(50.0)
+    assert playback_rate(np.arange(0, 50, 2) * 0.02, 50.0) == pytest.approx(25.0)  # every 2nd frame
+    assert playback_rate(np.array([0.3]), 50.0) == 50.0

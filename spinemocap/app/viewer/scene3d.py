@@ -52,8 +52,7 @@ def viewer_data(capture: Capture, tracked: TrackedDots, frames: list[int]) -> di
     return {
         "subtitle": (f"subject {subject}, " if subject else "") + f"{len(frames)} frames, {len(tracked.labels)} dots; "
                     f"levels from {os.path.basename(levels_from)}; drag to turn, wheel to zoom",
-        "fps": capture.fps * (len(frames) - 1) / max(float(tracked.times[index[-1]] - tracked.times[index[0]]), 1e-9)
-        if len(frames) > 1 else capture.fps,
+        "fps": playback_rate(tracked.times[index], capture.fps),
         "frames": [int(f) for f in frames],
         "times": [round(float(tracked.times[k]), 4) for k in index],
         "labels": list(tracked.labels),
@@ -69,6 +68,13 @@ def viewer_data(capture: Capture, tracked: TrackedDots, frames: list[int]) -> di
         "up": [float(v) for v in capture.up],
         "facing": [float(v) for v in capture.facing],
     }
+
+
+def playback_rate(times_s: np.ndarray, fps: float) -> float:
+    """Frames per second that play ``times_s`` (the shown frames' times) at recorded speed;
+    ``fps`` for a single frame."""
+    span = float(times_s[-1] - times_s[0]) if len(times_s) > 1 else 0.0
+    return (len(times_s) - 1) / span if span > 0 else fps
 
 
 def render_page(title: str, data: dict) -> str:
