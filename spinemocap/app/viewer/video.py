@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import re
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -26,6 +27,7 @@ from tqdm import tqdm
 from ...camera import Camera
 from ...capture import Capture
 from ...fileio import InputError, atomic_path, check_writable
+from ..streaming import prefetched_frames
 from .layout import GRID_NAME
 from .tracked import CLASS_COLOURS_BGR, CLASS_WORDS, DotClass, TrackedDots, read_tracked
 
@@ -220,7 +222,7 @@ def tile_grid(images: Sequence[np.ndarray], columns: int, rows: int, tile: tuple
     grid = np.zeros((rows * tile[1], columns * tile[0], 3), np.uint8)
     for k, image in enumerate(images):
         r, c = divmod(k, columns)
-        resized = image if image.shape[1::-1] == tuple(tile) else cv2.resize(image, tile, interpolation=cv2.INTER_AREA)
+        resized = image if image.shape[1::-1] == tuple(tile) else cv2.resize(image, tile, interpolation=cv2.INTER_LINEAR)
         grid[r * tile[1]:(r + 1) * tile[1], c * tile[0]:(c + 1) * tile[0]] = resized
     return grid
 
@@ -322,13 +324,20 @@ def write_videos(capture_dir: str | os.PathLike, results: str | os.PathLike, out
     writers = {c.name: H264Writer(out / names[c.name], fps, sizes[c.name]) for c in cameras}
     grid_writer = H264Writer(out / GRID_NAME, fps, (columns * tile[0], rows * tile[1])) if grid else None
     source = capture.frame_source()
+    workers = max(1, min(len(cameras), os.cpu_count() or 1))
+    pool = ThreadPoolExecutor(workers, thread_name_prefix="draw")  # OpenCV and x264 work outside the GIL
+
+    def draw_and_write(k: int, image: np.ndarray, camera: Camera) -> np.ndarray:
+        drawn = annotate(image, camera, tracked, k, sizes[camera.name])
+        writers[camera.name].write(drawn)
+        return drawn
+
     try:
-        for frame in tqdm(chosen, desc="labelled videos", unit="frame", disable=not progress):
+        frames_in = prefetched_frames(source, chosen, workers=workers, prefetch=2)  # cameras decoded in threads, ahead
+        for frame, images, _ in tqdm(frames_in, total=len(chosen), desc="labelled videos", unit="frame",
+                                     disable=not progress):
             k = tracked.index_of(frame)
-            images = source.read(frame)
-            drawn = [annotate(image, camera, tracked, k, sizes[camera.name]) for image, camera in zip(images, cameras)]
-            for camera, image in zip(cameras, drawn):
-                writers[camera.name].write(image)
+            drawn = list(pool.map(draw_and_write, [k] * len(cameras), images, cameras))
             if grid_writer is not None:
                 grid_writer.write(tile_grid(drawn, columns, rows, tile))
     except BaseException:
@@ -336,6 +345,7 @@ def write_videos(capture_dir: str | os.PathLike, results: str | os.PathLike, out
             writer.abort()
         raise
     finally:
+        pool.shutdown(wait=True)
         close = getattr(source, "close", None)
         if close is not None:
             close()
