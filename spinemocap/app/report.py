@@ -704,15 +704,15 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
     parts.append("<h2>Trials</h2>" + _trials_html(trials))
     parts.append("<h2>By subject</h2>" + _group_html(by_subject, "subject"))
     parts.append("<h2>By condition</h2>" + _group_html(by_condition, "condition"))
-    references = reference_table(trials, results)
-    paths["reference_ranges"] = _write_reference_table(out, references)
-    parts.append(_reference_html(references))
     parts.append("<h2>Per trial</h2><p class='note'>Top: lumbar angles from neutral over time. Bottom: the tape "
                  "midline (S1 end at the origin) at neutral, peak flexion and peak extension, and the flexion of "
                  "each vertebral segment.</p>")
     for r in results:
         neutral = _neutral_of(r, relative)
         parts.extend(_trial_section(r, neutral, angle_tables.get(r["key"]), out))
+    references = reference_table(trials, results)
+    paths["reference_ranges"] = _write_reference_table(out, references)
+    parts.append(_reference_html(references))
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title or out.name)}</title>"
             f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
     with atomic_write(out / "report.html") as handle:
