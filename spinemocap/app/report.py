@@ -29,6 +29,7 @@ import html
 import io
 import json
 import os
+import urllib.parse
 from pathlib import Path
 
 import matplotlib
@@ -45,10 +46,12 @@ from ..analysis.neutral import (  # noqa: E402
     neutral_from_angles,
     neutral_summary,
 )
+from ..analysis.norms import Norms, load_norms, subject_profile  # noqa: E402
 from ..analysis.shape import segments_of  # noqa: E402
 from ..capture import Capture  # noqa: E402
-from ..fileio import atomic_path, atomic_write, check_writable, reading  # noqa: E402
+from ..fileio import InputError, atomic_path, atomic_write, check_writable, reading  # noqa: E402
 from .batch import ANGLES, SEGMENTS, SHAPE, load_results  # noqa: E402
+from .viewer.layout import view_outputs  # noqa: E402
 
 #: Per-trial numbers: (column name in the tables, angle statistic key in summary.json).
 #: Absolute angles (the lumbar angle of a standing lordotic back is negative).
@@ -484,9 +487,11 @@ def _mean_sd(mean: float, sd: float) -> str:
     return f"{mean:.1f} ± {sd:.1f}" if np.isfinite(sd) else f"{mean:.1f}"
 
 
-def _trial_section(result: dict, neutral: Neutral | None, angles: pd.DataFrame | None) -> list[str]:
-    """One trial's heading, its problems in words, and its three pictures (``angles``: its
-    angles table, None for a failed trial)."""
+def _trial_section(result: dict, neutral: Neutral | None, angles: pd.DataFrame | None,
+                   report_dir: Path | None = None) -> list[str]:
+    """One trial's heading, its problems in words, links to its labelled videos and 3D viewer
+    (relative to ``report_dir``), and its three pictures (``angles``: its angles table, None for
+    a failed trial)."""
     key = html.escape(result["key"])
     if result["status"] != "ok":
         return [f"<p class='bad'><b>{key}</b>: failed: {html.escape(result.get('reason', ''))}</p>"]
@@ -494,6 +499,8 @@ def _trial_section(result: dict, neutral: Neutral | None, angles: pd.DataFrame |
     folder = Path(result["out_dir"])
     parts = [f"<h3>{key} <span class='note'>({result.get('completeness_pct', float('nan')):.0f}% of dots observed"
              f"{'; neutral: ' + html.escape(neutral.source) if neutral else ''})</span></h3>"]
+    if report_dir is not None:
+        parts.append(_view_links(folder, report_dir))
     if result.get("stats", {}).get("lumbar_flexion_valid", 1.0) == 0.0:
         parts.append(f"<p class='bad'>No lumbar angle in any frame: {html.escape(_lumbar_reason(result))}.</p>")
     ik = None
@@ -517,6 +524,142 @@ def _trial_section(result: dict, neutral: Neutral | None, angles: pd.DataFrame |
     parts.append(f"<img alt='spine shape and segmental angles: {key}' "
                  f"src='data:image/png;base64,{_spine_plot(shape, segments)}'>")
     return parts
+
+
+# ---------------------------------------------------------------------------------- reference ranges
+#: The trial table's excursions from neutral compared with each published movement (per direction).
+REFERENCE_COLUMNS = (("flexion", "flexion_from_neutral_deg", "forward"),
+                     ("extension", "extension_from_neutral_deg", "backward"),
+                     ("lateral_bending", "lateral_right_from_neutral_deg", "right"),
+                     ("lateral_bending", "lateral_left_from_neutral_deg", "left"),
+                     ("axial_rotation", "rotation_left_from_neutral_deg", "left"),
+                     ("axial_rotation", "rotation_right_from_neutral_deg", "right"))
+REFERENCE_TABLE = "reference_ranges.csv"
+PLACEMENT_WORDS = {"below": "below the published span", "above": "above the published span",
+                   "within": "within", "median only": "(one published median)",
+                   "no reference": "no published value for this subject", "no value": "not measured"}
+
+
+def subject_profiles(results: list[dict]) -> dict[str, tuple[float | None, str | None, str]]:
+    """Per subject: (age in years, sex, notes) from ``[subject]`` of its trials' capture.toml
+    (``age``, ``sex``); the first trial that gives a value wins, a disagreeing one is noted."""
+    out: dict[str, tuple[float | None, str | None, str]] = {}
+    for r in results:
+        subject = str(r.get("subject", ""))
+        age, sex, notes = out.get(subject, (None, None, ""))
+        try:
+            profile = subject_profile(Capture.open(r.get("capture", "")).subject)
+        except (InputError, OSError) as exc:
+            out[subject] = (age, sex, notes or f"metadata unreadable ({exc})")
+            continue
+        problems = list(profile.problems)
+        if age is not None and profile.age is not None and profile.age != age:
+            problems.append(f"{r['key']} gives age {profile.age:g}")
+        if sex is not None and profile.sex is not None and profile.sex != sex:
+            problems.append(f"{r['key']} gives sex {profile.sex}")
+        notes = "; ".join(n for n in [notes, *problems] if n)
+        out[subject] = (age if age is not None else profile.age, sex or profile.sex, notes)
+    return out
+
+
+def reference_table(trials: pd.DataFrame, results: list[dict], norms: Norms | None = None) -> pd.DataFrame:
+    """One row per subject and direction of movement: the subject's largest excursion from neutral
+    over its analysed trials (and which trial), its age and sex, the published span that applies
+    (:func:`spinemocap.analysis.norms.load_norms`; sex-specific values before pooled ones), the
+    placement (below / within / above the span) and the source's key."""
+    norms = norms or load_norms()
+    profiles = subject_profiles(results)
+    ok = trials[trials["status"] == "ok"]
+    rows = []
+    for subject, own in ok.groupby(ok["subject"].astype(str), sort=True):
+        age, sex, notes = profiles.get(subject, (None, None, ""))
+        for movement, column, direction in REFERENCE_COLUMNS:
+            values = own[column].to_numpy(float)
+            best = int(np.nanargmax(values)) if np.isfinite(values).any() else None
+            value = float(values[best]) if best is not None else float("nan")
+            applicable = norms.for_subject(movement, age, sex)
+            reference = applicable[0] if applicable else None
+            placement = reference.place(value) if reference is not None else "no reference"
+            rows.append({
+                "subject": subject, "age": age if age is not None else np.nan, "sex": sex or "not given",
+                "movement": movement.replace("_", " "), "direction": direction, "value_deg": value,
+                "trial": own["key"].iloc[best] if best is not None else "",
+                "reference_low_deg": reference.low_deg if reference else np.nan,
+                "reference_high_deg": reference.high_deg if reference else np.nan,
+                "reference_sex": reference.sex if reference else "",
+                "statistic": reference.statistic if reference else "",
+                "placement": placement, "source": reference.source.key if reference else "",
+                "metadata_notes": notes})
+    return pd.DataFrame(rows, columns=["subject", "age", "sex", "movement", "direction", "value_deg", "trial",
+                                       "reference_low_deg", "reference_high_deg", "reference_sex", "statistic",
+                                       "placement", "source", "metadata_notes"])
+
+
+def _write_reference_table(out: Path, table: pd.DataFrame) -> Path:
+    path = out / REFERENCE_TABLE
+    with atomic_write(path) as handle:
+        table.to_csv(handle, index=False, float_format="%.2f")
+    return path
+
+
+def _reference_html(table: pd.DataFrame, norms: Norms | None = None) -> str:
+    """The reference-range section: the note, the table (values outside the published span
+    marked), the sources with their methods and the published findings on age and sex."""
+    norms = norms or load_norms()
+    parts = ["<h2>Reference ranges</h2><p class='note'>Each subject's largest lumbar excursion from neutral "
+             "(over its trials) beside published values for asymptomatic adults. A value outside the published "
+             "span is <span class='warn'>marked</span>: it differs from other people measured with another "
+             "instrument, which is no diagnosis. The comparison means something only when the trials include "
+             "maximal movements in each direction. Age and sex come from <code>[subject] age</code> and "
+             "<code>sex</code> in capture.toml; without them only values for all ages and both sexes apply. "
+             f"Table: {REFERENCE_TABLE}.</p>"]
+    if table.empty:
+        parts.append("<p class='note'>No analysed trial.</p>")
+    else:
+        shown = pd.DataFrame({
+            "subject": table["subject"], "age": [f"{a:g}" if a == a else "not given" for a in table["age"]],
+            "sex": table["sex"], "movement": table["movement"], "direction": table["direction"],
+            "value (deg)": table["value_deg"], "trial": table["trial"],
+            "published (deg)": [_span_words(lo, hi) for lo, hi in zip(table["reference_low_deg"],
+                                                                       table["reference_high_deg"])],
+            "what the span is": table["statistic"], "source": table["source"],
+            "placement": [PLACEMENT_WORDS[p] for p in table["placement"]]})
+        parts.append(_html_table(shown, lambda r: "warn" if r["placement"].startswith(("below", "above")) else ""))
+        notes = sorted({f"{s}: {n}" for s, n in zip(table["subject"], table["metadata_notes"]) if n})
+        if notes:
+            parts.append("<p class='warn'>Subject metadata: " + html.escape("; ".join(notes)) + "</p>")
+    parts.append("<h3>Sources</h3><ul class='note'>")
+    for source in norms.sources.values():
+        parts.append(f"<li><b>{html.escape(source.key)}</b>: {html.escape(source.citation)}<br>Method: "
+                     f"{html.escape(source.method)}<br>Against ours: {html.escape(source.differs)}</li>")
+    parts.append("</ul><h3>Published effects of age and sex</h3><ul class='note'>")
+    for finding in norms.findings:
+        parts.append(f"<li>{html.escape(finding.about)}: {html.escape(finding.text)} "
+                     f"({html.escape(finding.source.key)})</li>")
+    parts.append("</ul>")
+    return "".join(parts)
+
+
+def _span_words(low: float, high: float) -> str:
+    if not np.isfinite(low):
+        return "n/a"
+    return f"{low:g}" if low == high else f"{low:g}-{high:g}"
+
+
+def _view_links(folder: Path, report_dir: Path) -> str:
+    """Links (relative to the report) to a trial's labelled videos and 3D viewer (written by
+    ``spinemocap view CAPTURE <trial folder>``), or how to make them."""
+    found = view_outputs(folder)
+    if not found:
+        return ("<p class='note'>No labelled video or 3D viewer yet: <code>spinemocap view CAPTURE "
+                f"{html.escape(str(folder))}</code> writes them into its view/ folder.</p>")
+    words = {"grid": "labelled video, all cameras", "viewer": "tape in 3D"}
+    links = []
+    for key, path in found.items():
+        href = urllib.parse.quote(Path(os.path.relpath(path, report_dir)).as_posix())
+        label = words.get(key) or f"camera {key.split(':', 1)[1]}"
+        links.append(f"<a href=\"{html.escape(href, quote=True)}\">{html.escape(label)}</a>")
+    return "<p class='note'>See it: " + " · ".join(links) + "</p>"
 
 
 def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, Path]:
@@ -566,7 +709,10 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
                  "each vertebral segment.</p>")
     for r in results:
         neutral = _neutral_of(r, relative)
-        parts.extend(_trial_section(r, neutral, angle_tables.get(r["key"])))
+        parts.extend(_trial_section(r, neutral, angle_tables.get(r["key"]), out))
+    references = reference_table(trials, results)
+    paths["reference_ranges"] = _write_reference_table(out, references)
+    parts.append(_reference_html(references))
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title or out.name)}</title>"
             f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
     with atomic_write(out / "report.html") as handle:

@@ -62,6 +62,26 @@ def step_track(ctx: DemoContext) -> None:
     ctx.report("tracked markers (C3D)", out / "markers.c3d")
 
 
+def step_view(ctx: DemoContext) -> None:
+    """Labelled camera videos (MP4) and the tracked tape in 3D (HTML), linked from the report."""
+    from spinemocap.app.batch import discover, trial_out_dir
+    from spinemocap.app.viewer.layout import VIEWER_NAME, view_folder
+    from spinemocap.app.viewer.scene3d import write_viewer
+    from spinemocap.app.viewer.video import write_videos
+
+    assert ctx.capture_dir is not None, "the capture is made first"
+    tracked = ctx.out / "tracked"
+    (trial,) = discover(ctx.capture_dir)
+    out = view_folder(trial_out_dir(ctx.out / "report", trial))  # the report's trial folder: it links them
+    videos = write_videos(ctx.capture_dir, tracked, out)
+    print(f"    labelled videos: {len(videos.frames)} frames, {videos.frames_per_s:.1f} frames/s (all cameras)")
+    for camera, path in videos.cameras.items():
+        ctx.report(f"labelled video {camera}", path)
+    if videos.grid is not None:
+        ctx.report("labelled video, all cameras", videos.grid)
+    ctx.report("tape in 3D (open in a browser)", write_viewer(ctx.capture_dir, tracked, out / VIEWER_NAME))
+
+
 def step_report(ctx: DemoContext) -> None:
     """Spine angles and their report (HTML with plots, CSV, XLSX) for the capture."""
     from spinemocap.app.report import report_capture
@@ -75,6 +95,7 @@ def step_report(ctx: DemoContext) -> None:
 STEPS: list[Callable[[DemoContext], None]] = [
     step_synthesize,
     step_track,
+    step_view,
     step_report,  # last: reports on the markers of the steps before
 ]
 

@@ -1,0 +1,115 @@
+"""Published lumbar range-of-motion references: every value carries its source, subjects' age and
+sex come from capture.toml, the report places (never diagnoses) each subject's values."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+import tomllib
+
+from spinemocap.analysis.norms import MOVEMENTS, load_norms, norms_path, subject_profile
+from spinemocap.app.report import REFERENCE_COLUMNS, _reference_html, _view_links, reference_table
+from spinemocap.camera import Camera, Rig
+from spinemocap.capture import Capture
+from spinemocap.fileio import InputError
+from spinemocap.tape import TapeSpec
+
+
+def test_every_shipped_value_carries_its_citation_and_method():
+    raw = tomllib.loads(norms_path().read_text())
+    keys = {s["key"] for s in raw["source"]}
+    assert raw["reference"] and all(entry["source"] in keys for entry in raw["reference"])
+    norms = load_norms()
+    assert len(norms.values) == len(raw["reference"])
+    for value in norms.values:
+        assert value.source.citation.strip() and value.source.method.strip() and value.source.differs.strip()
+        assert value.quote.strip() and value.statistic.strip()
+        # the figures appear in the source's words that the file quotes
+        for figure in {value.low_deg, value.high_deg}:
+            assert f"{figure:g}" in value.quote, (value.source.key, value.movement, figure)
+    assert {v.movement for v in norms.values} == set(MOVEMENTS)
+    assert all(f.source.key in keys and f.text.strip() for f in norms.findings)
+
+
+def test_a_value_without_a_known_source_is_refused(tmp_path):
+    raw = norms_path().read_text().replace('source = "troke2001"', 'source = "nobody2020"', 1)
+    path = tmp_path / "norms.toml"
+    path.write_text(raw)
+    with pytest.raises(InputError, match="norms.toml.*nobody2020"):
+        load_norms(path)
+    path.write_text(norms_path().read_text().replace("low_deg = 40.0", "low_deg = 90.0", 1))
+    with pytest.raises(InputError, match="low_deg <= high_deg"):
+        load_norms(path)
+
+
+def test_placement_and_subject_profile():
+    flexion = load_norms().for_subject("flexion", 30.0, "female")[0]
+    assert (flexion.place(flexion.low_deg - 0.1), flexion.place(flexion.high_deg), flexion.place(flexion.high_deg + 1)) \
+        == ("below", "within", "above")
+    assert flexion.place(float("nan")) == "no value"
+    assert load_norms().for_subject("flexion", 130.0, None) == []  # no source covers that age
+    rotation = load_norms().for_subject("axial_rotation", None, None)[0]
+    assert rotation.place(1.0) == "median only"  # one median is no range to fall outside of
+    assert subject_profile({"age": 41, "sex": "M"}).sex == "male"
+    bad = subject_profile({"age": -3, "sex": "other"})
+    assert bad.age is None and bad.sex is None and len(bad.problems) == 2
+
+
+def _trial_row(key: str, subject: str, **values) -> dict:
+    row = {"key": key, "subject": subject, "status": "ok"}
+    row.update({column: np.nan for _, column, _ in REFERENCE_COLUMNS})
+    row.update(values)
+    return row
+
+
+def _capture_with_subject(folder, subject: dict) -> str:
+    """A capture folder (manifest and a one-camera rig) whose [subject] table is ``subject``."""
+    camera = Camera.look_at("cam1", (0.0, -2000.0, 1000.0), (0.0, 0.0, 1000.0), (640, 480), 800.0)
+    Capture(root=folder, name=folder.name, fps=50.0, n_frames=1, rig=Rig([camera]), tape=TapeSpec(),
+            subject=subject).save()
+    return str(folder)
+
+
+def test_reference_table_from_trials(tmp_path):
+    captures = {name: _capture_with_subject(tmp_path / name, subject) for name, subject in
+                (("a", {"id": "S01", "age": 34, "sex": "female"}), ("b", {"id": "S02"}),
+                 ("c", {"id": "S01", "age": 35}))}
+    trials = pd.DataFrame([
+        _trial_row("S01/flex/1", "S01", flexion_from_neutral_deg=35.0, extension_from_neutral_deg=12.0,
+                   lateral_right_from_neutral_deg=31.0),
+        _trial_row("S01/flex/2", "S01", flexion_from_neutral_deg=52.0),
+        _trial_row("S02/flex/1", "S02", flexion_from_neutral_deg=80.0),
+    ])
+    results = [{"key": "S01/flex/1", "subject": "S01", "capture": captures["a"]},
+               {"key": "S02/flex/1", "subject": "S02", "capture": captures["b"]},
+               {"key": "S01/flex/2", "subject": "S01", "capture": captures["c"]}]
+    table = reference_table(trials, results)
+    norms = load_norms()
+    assert set(table["source"]) <= set(norms.sources) and (table["source"] != "").all()
+    s01 = table[table["subject"] == "S01"].set_index(["movement", "direction"])
+    assert s01.loc[("flexion", "forward"), "value_deg"] == 52.0  # the larger of its two trials
+    assert s01.loc[("flexion", "forward"), "trial"] == "S01/flex/2"
+    assert s01.loc[("flexion", "forward"), "placement"] == "within"
+    assert s01.loc[("lateral bending", "right"), "placement"] == "above"
+    assert s01.loc[("lateral bending", "left"), "placement"] == "no value"
+    assert (s01["age"] == 34).all() and (s01["sex"] == "female").all()
+    assert "gives age 35" in s01["metadata_notes"].iloc[0]
+    s02 = table[table["subject"] == "S02"].set_index(["movement", "direction"])
+    assert s02.loc[("flexion", "forward"), "placement"] == "above" and (s02["sex"] == "not given").all()
+    page = _reference_html(table)
+    for source in norms.sources.values():
+        assert source.key in page
+    assert page.count("class=\"warn\"") + page.count("class='warn'") >= 3  # two rows marked and the note's word
+    assert "diagnos" in page and "abnormal" not in page
+
+
+def test_view_links_point_to_the_trials_outputs(tmp_path):
+    trial = tmp_path / "S01" / "flex" / "t1"
+    (trial / "view").mkdir(parents=True)
+    for name in ("all_cameras.mp4", "tape3d.html", "cam 1.mp4"):
+        (trial / "view" / name).write_bytes(b"x")
+    links = _view_links(trial, tmp_path)
+    assert 'href="S01/flex/t1/view/all_cameras.mp4"' in links and 'href="S01/flex/t1/view/tape3d.html"' in links
+    assert 'href="S01/flex/t1/view/cam%201.mp4"' in links
+    assert "spinemocap view" in _view_links(tmp_path / "other", tmp_path)
