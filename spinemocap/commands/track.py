@@ -84,6 +84,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "refined rig's world frame; default: the one capture.toml names, if any")
     p.add_argument("--refine-sync", action="store_true",
                    help="with --refine-rig: also estimate a clock offset per camera (ms, against the first)")
+    p.add_argument("--chunk-frames", type=int, metavar="N",
+                   help="long captures: track N frames at a time (memory bounded by the chunk); a run that is "
+                        "stopped or killed resumes from its last completed chunk with the same output "
+                        "(saved chunks in DIR/.chunks)")
+    p.add_argument("--warmup-frames", type=int, default=25,
+                   help="with --chunk-frames: frames tracked before each chunk and dropped, so that the tracker has "
+                        "settled when the chunk begins (default 25)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_track)
 
@@ -109,6 +116,8 @@ def run_track(args: argparse.Namespace) -> int:
     speed = SERIAL if args.serial else SpeedOptions(workers=args.workers, parallel=args.parallel,
                                                     device=args.device,
                                                     opencv_threads=args.opencv_threads or None, **chosen)
+    if args.chunk_frames is not None:
+        return run_chunked(args, config, speed)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TrackingWarning)
@@ -132,6 +141,29 @@ def run_track(args: argparse.Namespace) -> int:
     counts = table.data["status"].value_counts()
     print(f"tracked {table.n_frames} frames in {elapsed:.1f} s ({table.n_frames / elapsed:.2f} frames/s): "
           + ", ".join(f"{counts.get(s, 0)} {s}" for s in STATUSES))
+    print(f"markers written to {Path(args.out) / 'markers.csv'} (+ .trc, .c3d)")
+    print(result.summary())
+    if Capture.open(args.capture).has_groundtruth:
+        print(accuracy_summary(table, args.capture))
+    return 0
+
+
+def run_chunked(args: argparse.Namespace, config, speed) -> int:
+    """``track --chunk-frames``: a long capture chunk by chunk, resumable (app.long_capture)."""
+    from spinemocap.app.long_capture import Chunking, track_in_chunks
+    from spinemocap.fileio import InputError
+
+    if args.refine_rig:
+        raise InputError("--chunk-frames", "cannot be combined with --refine-rig (the refinement needs every frame "
+                                           "at once): refine the rig on a shorter part first, then track with it")
+    start = time.perf_counter()
+    result = track_in_chunks(args.capture, args.out, Chunking(args.chunk_frames, args.warmup_frames), mode=args.mode,
+                             config=config, detector=args.detector, frames=args.frames,
+                             progress=not args.no_progress, speed=speed)
+    table = result.table
+    elapsed = time.perf_counter() - start
+    counts = table.data["status"].value_counts()
+    print(f"tracked {table.n_frames} frames in {elapsed:.1f} s: " + ", ".join(f"{counts.get(s, 0)} {s}" for s in STATUSES))
     print(f"markers written to {Path(args.out) / 'markers.csv'} (+ .trc, .c3d)")
     print(result.summary())
     if Capture.open(args.capture).has_groundtruth:
