@@ -37,7 +37,7 @@ from ..markers import MarkerTable
 from ..track.config import TrackerConfig
 from ..track.quality import is_flagged
 from .results import write_markers
-from .run import TrackingMode, select_frames, track_source
+from .run import NO_TAPE_SHARE, NoTapeFound, TrackingMode, detector_example, select_frames, track_source
 from .streaming import SpeedOptions
 
 log = logging.getLogger(__name__)
@@ -125,6 +125,7 @@ def track_in_chunks(
 
     Raises:
         InputError: a bad capture or frame selection, an output folder that cannot be written.
+        NoTapeFound: the tape was not found in most frames (no markers are written).
     """
     capture = Capture.open(capture_dir)
     out = check_writable(out_dir)
@@ -153,6 +154,11 @@ def track_in_chunks(
     finally:
         bar.close()
     result.table = _table(saved, capture)
+    unsolved = sum("unsolved" in str(f).split(";") for chunk in saved for f in chunk["flags"])
+    if unsolved > NO_TAPE_SHARE * len(frame_range):  # a lost tape is not a result: nothing written over one
+        raise NoTapeFound(capture.root, f"no tape found in {unsolved} of {len(frame_range)} frames: check the "
+                                        f"detector with `spinemocap detector run "
+                                        f"{detector_example(capture, frame_range[0])}`")
     for chunk in saved:
         for frame, flags in zip(chunk["frames"], chunk["flags"]):
             names = [f for f in str(flags).split(";") if f]

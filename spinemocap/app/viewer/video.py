@@ -27,6 +27,7 @@ from tqdm import tqdm
 from ...camera import Camera
 from ...capture import Capture
 from ...fileio import InputError, atomic_path, check_writable
+from ...frames import parse_frames
 from ..streaming import prefetched_frames
 from .layout import GRID_NAME
 from .tracked import CLASS_COLOURS_BGR, CLASS_WORDS, DotClass, TrackedDots, read_tracked
@@ -279,15 +280,13 @@ def video_name(camera: str, taken: set[str]) -> str:
 
 def selected_frames(tracked: TrackedDots, frames: str | None, n_frames: int, step: int,
                     source: str = "--frames") -> list[int]:
-    """Capture frames to draw: the tracked frames inside ``frames`` ("A:B", see
-    :func:`spinemocap.app.run.parse_frames`), every ``step``-th. :class:`InputError` when none."""
+    """Capture frames to draw: the tracked frames inside ``frames`` (see
+    :func:`spinemocap.frames.parse_frames`), every ``step``-th. :class:`InputError` when none."""
     if step < 1:
         raise InputError("--step", f"step {step} must be a whole number >= 1")
-    wanted: range = range(n_frames)
+    wanted: set[int] | range = range(n_frames)
     if frames:
-        from ..run import parse_frames  # the tracker's module: heavy to import, so only when a range is asked for
-
-        wanted = parse_frames(frames, n_frames, source)
+        wanted = set(parse_frames(frames, n_frames, source))
     chosen = [int(f) for f in tracked.frames if f in wanted][::step]
     if not chosen:
         raise InputError(tracked.source, f"no tracked frame in {frames or 'the capture'} (the results hold "
