@@ -273,9 +273,11 @@ def board_pose_candidates(rig: Rig, board: BoardSpec, detections: Detections) ->
 
 
 def choose_board_poses(rig: Rig, board: BoardSpec, detections: Detections,
-                       candidates: dict[Hashable, list[Pose]]) -> dict[Hashable, Pose]:
+                       candidates: dict[Hashable, list[Pose]], keep_first_within: float = 0.0) -> dict[Hashable, Pose]:
     """Per frame, the candidate board pose (board -> ``rig``'s world) with the least robust
-    reprojection error (Huber, 1 px) summed over every camera that reads the board in it."""
+    reprojection error (Huber, 1 px) summed over every camera that reads the board in it. With
+    ``keep_first_within`` > 0 a frame's first candidate stays unless another costs less than
+    ``(1 - keep_first_within)`` times its cost (no flip-flopping between near-equal solutions)."""
     model = board.object_points()
     chosen = {}
     for f, cands in candidates.items():
@@ -292,7 +294,10 @@ def choose_board_poses(rig: Rig, board: BoardSpec, detections: Detections,
                 total += float(np.sum(np.where(e <= 1.0, 0.5 * e ** 2, e - 0.5)))
             return total
 
-        chosen[f] = min(cands, key=cost)
+        best = min(cands, key=cost)
+        if keep_first_within > 0 and cost(best) >= (1 - keep_first_within) * cost(cands[0]):
+            best = cands[0]
+        chosen[f] = best
     return chosen
 
 
@@ -468,7 +473,7 @@ def calibrate_extrinsics(intrinsics: Rig, board: BoardSpec, detections: Detectio
         candidates = board_pose_candidates(rig, board, detections)
         for f, pose in board_poses.items():
             candidates.setdefault(f, []).insert(0, pose)
-        chosen = choose_board_poses(rig, board, detections, candidates)
+        chosen = choose_board_poses(rig, board, detections, candidates, keep_first_within=0.2)
         switched = [f for f in chosen if chosen[f] is not candidates[f][0]]
         if not switched:
             break
