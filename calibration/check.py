@@ -17,6 +17,7 @@ from typing import Hashable
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 
 from spinemocap.camera import Rig
 from spinemocap.fileio import InputError, atomic_path, atomic_write
@@ -207,9 +208,8 @@ def compare_rigs(rig: Rig, other: Rig, max_baseline_error: float = 0.02, max_rot
     for i in range(len(pairs_of)):
         for j in range(i + 1, len(pairs_of)):
             (a, a2), (b, b2) = pairs_of[i], pairs_of[j]
-            rel, rel2 = b.R @ a.R.T, b2.R @ a2.R.T
-            cos = (np.trace(rel @ rel2.T) - 1) / 2
+            difference = (b.R @ a.R.T) @ (b2.R @ a2.R.T).T  # the two relative rotations' difference
             pairs.append(PairAgreement(a.name, b.name, float(np.linalg.norm(a.center - b.center)),
                                        float(np.linalg.norm(a2.center - b2.center)),
-                                       float(np.degrees(np.arccos(np.clip(cos, -1, 1))))))
+                                       float(np.degrees(Rotation.from_matrix(difference).magnitude()))))
     return RigComparison(pairs, matched_by, max_baseline_error, max_rotation_deg)

@@ -33,6 +33,9 @@ from spinemocap.fileio import InputError, atomic_path
 FramePairing = Literal["index", "time"]
 PAIRINGS: tuple[FramePairing, ...] = ("index", "time")
 NOT_FOUND = "board not found"
+#: A view whose edges are this much blurrier than the median of its camera's views is left out
+#: (motion blur: the hand moved during that exposure; the cameras' exposures differ in time too).
+RELATIVE_BLUR = 1.35
 
 
 # ---------------------------------------------------------------------- recordings
@@ -111,9 +114,9 @@ def _scan_video(path: Path, name: str) -> Recording:
         raise InputError(path, f"video cannot be opened (corrupt or unsupported: {exc})") from None
     if not pts or time_base is None or not size[0]:
         raise InputError(path, "video has no frames with timestamps")
-    ticks = np.sort(np.asarray(pts, dtype=np.int64))
-    times = (ticks - ticks[0]).astype(float) * float(time_base)
-    return Recording(name, path, len(ticks), size, times)
+    # presentation times on the container's clock: a camera that started later has later times
+    times = np.sort(np.asarray(pts, dtype=np.int64)).astype(float) * float(time_base)
+    return Recording(name, path, len(times), size, times)
 
 
 def pair_frames(recordings: Sequence[Recording], pairing: FramePairing, max_frames: int) -> list[dict[int, int]]:
@@ -225,12 +228,27 @@ def detect_session(recordings: Sequence[Recording], board: BoardSpec, pairing: F
                                  f"{rec.size[0]}x{rec.size[1]} like the others")
             det = detect_board(image, board)
             problem = view_problem(det, board, rec.size, max_blur_px=max_blur_px)
-            if problem:
-                rejected[keys[index]] = problem
+            if problem or det is None:
+                rejected[keys[index]] = problem or NOT_FOUND
             else:
-                usable[keys[index]] = det  # type: ignore[assignment]  (no problem: found)
+                usable[keys[index]] = det
+        _leave_out_blurrier(usable, rejected)
         cameras.append(CameraViews(rec.name, rec.path, rec.size, len(keys), usable, rejected))
     return _keep_consistent_variant(board, cameras)
+
+
+def _leave_out_blurrier(usable: dict[Hashable, BoardDetection], rejected: dict[Hashable, str],
+                        min_views: int = 5) -> None:
+    """Move views blurrier than :data:`RELATIVE_BLUR` times the median of the camera's views
+    from ``usable`` to ``rejected`` (with at least ``min_views`` views to judge by)."""
+    if len(usable) < min_views:
+        return
+    typical = float(np.median([det.blur_px for det in usable.values()]))
+    for key, det in list(usable.items()):
+        if det.blur_px > RELATIVE_BLUR * typical:
+            rejected[key] = (f"blurred beside this camera's other views (edge sigma {det.blur_px:.1f} px, "
+                             f"median {typical:.1f}): motion blur")
+            del usable[key]
 
 
 def _keep_consistent_variant(board: BoardSpec, cameras: list[CameraViews]) -> BoardSession:

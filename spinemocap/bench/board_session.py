@@ -20,9 +20,11 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from calibration.boards import BoardSpec
+from calibration.check import RigComparison, compare_rigs
 from spinemocap.camera import Camera, Rig
 from spinemocap.capture import VideoWriter
 from spinemocap.fileio import InputError
+from spinemocap.geometry import umeyama
 
 from .calibration_scenes import BoardRenderer, board_visible
 
@@ -105,7 +107,7 @@ class StudioSession:
 
 
 def render_studio_session(rig: Rig | None = None, board: BoardSpec | None = None, n_frames: int = 36,
-                          fps: float = 6.0, blur_every: int = 6, blur_speedup: float = 3.0, seed: int = 0,
+                          fps: float = 6.0, blur_every: int = 6, blur_speedup: float = 1.5, seed: int = 0,
                           progress: bool = True) -> StudioSession:
     """Render the studio session (see the module doc). Every ``blur_every``-th frame is exposed
     for 1/30 s while the hand moves ``blur_speedup`` times faster than on average (the motion
@@ -150,3 +152,37 @@ def write_studio_session(session: StudioSession, out: str | os.PathLike, suffix:
         paths.append(path)
     session.rig.to_toml(out / "rig_true.toml")
     return paths
+
+
+# ---------------------------------------------------------------------- scoring
+@dataclass
+class RigScore:
+    """A calibrated rig against the true one, after the rigid fit of the camera centres (a board
+    calibration without floor frames has its own world frame): per camera centre error (mm) and
+    orientation error (deg), and every pair's baseline ratio and relative rotation difference."""
+
+    centre_error_mm: dict[str, float]
+    rotation_error_deg: dict[str, float]
+    comparison: RigComparison
+
+    @property
+    def worst_centre_mm(self) -> float:
+        return max(self.centre_error_mm.values())
+
+    def as_dict(self) -> dict:
+        return {"centre_error_mm": self.centre_error_mm, "rotation_error_deg": self.rotation_error_deg,
+                "worst_baseline_error": self.comparison.worst_baseline_error,
+                "worst_rotation_diff_deg": self.comparison.worst_rotation_deg}
+
+
+def score_rig(estimated: Rig, truth: Rig) -> RigScore:
+    """Score ``estimated`` against ``truth`` (cameras matched by name; see :class:`RigScore`)."""
+    est = [estimated[name] for name in truth.names]
+    A = np.array([cam.center for cam in est])
+    B = np.array([cam.center for cam in truth])
+    R, t, _ = umeyama(A, B, with_scale=False)
+    centre = {cam.name: float(np.linalg.norm(R @ a + t - b)) for cam, a, b in zip(truth, A, B)}
+    # a camera's orientation in the truth's frame: world -> camera rotation of the fitted rig is R_cam R^T
+    rotation = {true.name: float(np.degrees(Rotation.from_matrix(e.R @ R.T @ true.R.T).magnitude()))
+                for e, true in zip(est, truth)}
+    return RigScore(centre, rotation, compare_rigs(Rig(est), truth))

@@ -239,8 +239,14 @@ def _convert(args: argparse.Namespace) -> int:
 
 def _check(args: argparse.Namespace) -> int:
     from calibration.boards import BoardSpec
-    from calibration.check import (camera_table, compare_rigs, load_residuals, plot_residuals, residuals_from_views,
-                                   residuals_path)
+    from calibration.check import (
+        camera_table,
+        compare_rigs,
+        load_residuals,
+        plot_residuals,
+        residuals_from_views,
+        residuals_path,
+    )
     from calibration.formats import read_rig
     from spinemocap.fileio import InputError
 
