@@ -141,10 +141,6 @@ def _mean_rotation(rotations: list[np.ndarray]) -> np.ndarray:
     return R
 
 
-def _angle_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
-
-
 def spanning_tree(weights: np.ndarray, reference: int) -> tuple[np.ndarray, np.ndarray]:
     """Maximum spanning tree over cameras (``weights[i, j]``: how much cameras i and j share,
     0 = nothing), walked breadth first from ``reference``: (order of the reached cameras,
@@ -182,24 +178,26 @@ def _relative_pose(views_p: dict[Hashable, list[Pose]], views_c: dict[Hashable, 
     pose per pair of its candidate board poses; the proposal most others agree with (within
     :data:`AGREE_DEG` and :data:`AGREE_FRACTION` of the baseline) wins, and its agreeing
     proposals (one per frame, the closest) are averaged. Returns (pose, frames that agree)."""
-    proposals = []  # (frame, R, t)
-    for f in shared:
+    frames, rotations, translations = [], [], []
+    for k, f in enumerate(shared):
         for Rp, tp in views_p[f]:
             for Rc, tc in views_c[f]:
                 R = Rc @ Rp.T
-                proposals.append((f, R, tc - R @ tp))
-    best: list[tuple[Hashable, np.ndarray, np.ndarray]] = []
-    for _, R0, t0 in proposals:
-        scale = max(float(np.linalg.norm(t0)), 1e-9)
-        closest: dict[Hashable, tuple[float, np.ndarray, np.ndarray]] = {}
-        for f, R, t in proposals:
-            angle = _angle_deg(R @ R0.T)
-            if angle <= AGREE_DEG and np.linalg.norm(t - t0) <= AGREE_FRACTION * scale:
-                if f not in closest or angle < closest[f][0]:
-                    closest[f] = (angle, R, t)
-        if len(closest) > len(best):
-            best = [(f, R, t) for f, (_, R, t) in closest.items()]
-    return (_mean_rotation([R for _, R, _ in best]), np.median([t for _, _, t in best], axis=0)), len(best)
+                frames.append(k)
+                rotations.append(R)
+                translations.append(tc - R @ tp)
+    frame, Rs, ts = np.asarray(frames), np.asarray(rotations), np.asarray(translations)
+    cos = np.clip((np.einsum("aij,bij->ab", Rs, Rs) - 1) / 2, -1.0, 1.0)  # cos of the angle between proposals
+    angle = np.degrees(np.arccos(cos))
+    distance = np.linalg.norm(ts[:, None] - ts[None], axis=2)
+    agree = (angle <= AGREE_DEG) & (distance <= AGREE_FRACTION * np.maximum(np.linalg.norm(ts, axis=1), 1e-9)[:, None])
+    support = [len(np.unique(frame[row])) for row in agree]
+    best = int(np.argmax(support))
+    chosen = []  # per agreeing frame, its proposal closest to the winner
+    for k in np.unique(frame[agree[best]]):
+        members = np.flatnonzero(agree[best] & (frame == k))
+        chosen.append(members[np.argmin(angle[best, members])])
+    return (_mean_rotation(list(Rs[chosen])), np.median(ts[chosen], axis=0)), len(chosen)
 
 
 def initial_poses(intrinsics: Rig, board: BoardSpec, detections: Detections, reference: int = 0

@@ -186,3 +186,64 @@ def score_rig(estimated: Rig, truth: Rig) -> RigScore:
     rotation = {true.name: float(np.degrees(Rotation.from_matrix(e.R @ R.T @ true.R.T).magnitude()))
                 for e, true in zip(est, truth)}
     return RigScore(centre, rotation, compare_rigs(Rig(est), truth))
+
+
+# ---------------------------------------------------------------------- benchmark
+def session_row(size: tuple[int, int], n_frames: int, seed: int, folder: Path) -> dict:
+    """Render, write and calibrate one studio session from its videos alone (board options and
+    intrinsics found), scored against the truth; the peer in the same run: the initial pose
+    graph alone (consensus spanning tree, no adjustment) with the same intrinsics."""
+    import time
+
+    from calibration.extrinsics import initial_pose_graph
+
+    from ..app.calibrate import calibrate_recordings
+
+    t0 = time.perf_counter()
+    session = render_studio_session(make_studio_rig(size=size, seed=seed), n_frames=n_frames, seed=seed, progress=False)
+    videos = write_studio_session(session, folder)
+    t_render = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    calibrated = calibrate_recordings(videos, BoardSpec.parse(STUDIO_BOARD.replace(":inverted", "")), progress=False)
+    t_calibrate = time.perf_counter() - t0
+    result = calibrated.result
+    used = calibrated.session.read_as or session.board
+    intrinsics = Rig([Camera(c.name, c.K, c.dist, np.eye(3), np.zeros(3), c.size) for c in result.rig])
+    poses, _, _, _ = initial_pose_graph(intrinsics, used, calibrated.session.detections())
+    start = Rig([Camera(c.name, c.K, c.dist, R, t, c.size) for c, (R, t) in zip(intrinsics, poses)])
+    ours, peer = score_rig(result.rig, session.rig), score_rig(start, session.rig)
+    return {"size": list(size), "frames": n_frames, "fps": session.fps, "seed": seed,
+            "read_as": str(used), "usable_views": {c.name: len(c.usable) for c in calibrated.session.cameras},
+            "left_out": {c.name: dict(c.reasons()) for c in calibrated.session.cameras},
+            "rms_px": result.rms_px, "ours": ours.as_dict(), "peer_initial_pose_graph": peer.as_dict(),
+            "seconds": {"render_and_write": t_render, "calibrate": t_calibrate}}
+
+
+def run_session_benchmark(size: tuple[int, int] = (960, 540), n_frames: int = 48, seeds: tuple[int, ...] = (0, 1),
+                          out: str | os.PathLike = "bench_calibration_session.json") -> dict:
+    """:func:`session_row` per seed; prints a table and writes the rows (and the machine) as JSON."""
+    import json
+    import platform
+    import tempfile
+
+    from spinemocap.fileio import atomic_write
+
+    rows = []
+    for seed in seeds:
+        with tempfile.TemporaryDirectory() as tmp:
+            rows.append(session_row(size, n_frames, seed, Path(tmp) / "videos"))
+    print(f"studio board session, {size[0]}x{size[1]}, {n_frames} frames at 6 fps, 4 cameras (2 turned 90 deg); "
+          "goal: centres <= 1 mm, baselines 2 %, relative rotations 1 deg, RMS < 1 px")
+    print(f"{'seed':>5}{'centre mm':>11}{'rot deg':>9}{'baseline %':>12}{'rel rot deg':>13}{'RMS px':>8}"
+          f"{'peer centre':>13}{'peer rel rot':>14}{'s':>6}")
+    for row in rows:
+        o, p = row["ours"], row["peer_initial_pose_graph"]
+        print(f"{row['seed']:>5}{max(o['centre_error_mm'].values()):>11.3f}{max(o['rotation_error_deg'].values()):>9.3f}"
+              f"{100 * o['worst_baseline_error']:>12.3f}{o['worst_rotation_diff_deg']:>13.3f}"
+              f"{max(row['rms_px'].values()):>8.3f}{max(p['centre_error_mm'].values()):>13.3f}"
+              f"{p['worst_rotation_diff_deg']:>14.3f}{row['seconds']['calibrate']:>6.1f}")
+    report = {"machine": f"{platform.machine()}, {os.cpu_count()} CPUs", "rows": rows}
+    with atomic_write(out) as handle:
+        json.dump(report, handle, indent=1)
+    print(f"wrote {out}")
+    return report

@@ -119,6 +119,14 @@ def register_bench(subparsers) -> None:
     p.add_argument("--out", default="bench_calibration.json", help="JSON with the numbers")
     p.set_defaults(func=_bench)
 
+    p = subparsers.add_parser("calibration-session", help="the studio's board session (inverted ChArUco, turned "
+                              "cameras, 6 fps, strong distortion, motion blur) calibrated from its videos alone")
+    p.add_argument("--size", type=int, nargs=2, default=[960, 540], help="landscape image size in px (default 960 540)")
+    p.add_argument("--frames", type=int, default=48, help="frames per camera at 6 fps (default 48)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--out", default="bench_calibration_session.json", help="JSON with the numbers")
+    p.set_defaults(func=_bench_session)
+
 
 # ---------------------------------------------------------------------- handlers
 def _intrinsics(args: argparse.Namespace) -> int:
@@ -283,4 +291,11 @@ def _bench(args: argparse.Namespace) -> int:
 
     run_benchmark(args.size, args.intrinsic_views, args.frames, args.seeds, args.out,
                   checkerboard=args.checkerboard, wand=args.wand, wand_seconds=args.wand_seconds)
+    return 0
+
+
+def _bench_session(args: argparse.Namespace) -> int:
+    from ..bench.board_session import run_session_benchmark
+
+    run_session_benchmark(tuple(args.size), args.frames, tuple(args.seeds), args.out)
     return 0
