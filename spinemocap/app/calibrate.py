@@ -196,8 +196,12 @@ class BoardSession:
             asked = {"polarity": self.board.polarity, "layout": self.board.layout}
             found = f"{self.read_as.polarity} colours" + (f", {self.read_as.layout} layout"
                                                           if self.read_as.layout_matters else "")
-            auto = [k for k, v in asked.items() if v == "auto"]
-            lines.append(f"board {self.board}: read as {found}" + (f" (found: {', '.join(auto)})" if auto else ""))
+            auto = [k for k, v in asked.items() if v == "auto" and (k == "polarity" or self.board.layout_matters)]
+            if self.board.kind == "checkerboard" and auto:
+                note = " (assumed: a checkerboard reads the same in both; add :inverted if it is)"
+            else:
+                note = f" (found: {', '.join(auto)})" if auto else ""
+            lines.append(f"board {self.board}: read as {found}{note}")
             mirrored = [n for n, f in self.facing.items() if f == "mirrored"]
             if mirrored:
                 lines.append(f"  seen mirrored (from behind) by {', '.join(mirrored)}")

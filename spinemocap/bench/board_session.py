@@ -192,12 +192,12 @@ def score_rig(estimated: Rig, truth: Rig) -> RigScore:
 def session_row(size: tuple[int, int], n_frames: int, seed: int, folder: Path) -> dict:
     """Render, write and calibrate one studio session from its videos alone (board options and
     intrinsics found), scored against the truth; the peer in the same run: the initial pose
-    graph alone (consensus spanning tree, no adjustment) with the same intrinsics."""
+    graph alone (consensus spanning tree, no adjustment) with each camera's own OpenCV intrinsics."""
     import time
 
     from calibration.extrinsics import initial_pose_graph
 
-    from ..app.calibrate import calibrate_recordings
+    from ..app.calibrate import calibrate_recordings, intrinsics_from_session
 
     t0 = time.perf_counter()
     session = render_studio_session(make_studio_rig(size=size, seed=seed), n_frames=n_frames, seed=seed, progress=False)
@@ -208,7 +208,7 @@ def session_row(size: tuple[int, int], n_frames: int, seed: int, folder: Path) -
     t_calibrate = time.perf_counter() - t0
     result = calibrated.result
     used = calibrated.session.read_as or session.board
-    intrinsics = Rig([Camera(c.name, c.K, c.dist, np.eye(3), np.zeros(3), c.size) for c in result.rig])
+    intrinsics, _ = intrinsics_from_session(calibrated.session, used)
     poses, _, _, _ = initial_pose_graph(intrinsics, used, calibrated.session.detections())
     start = Rig([Camera(c.name, c.K, c.dist, R, t, c.size) for c, (R, t) in zip(intrinsics, poses)])
     ours, peer = score_rig(result.rig, session.rig), score_rig(start, session.rig)
@@ -219,7 +219,7 @@ def session_row(size: tuple[int, int], n_frames: int, seed: int, folder: Path) -
             "seconds": {"render_and_write": t_render, "calibrate": t_calibrate}}
 
 
-def run_session_benchmark(size: tuple[int, int] = (960, 540), n_frames: int = 48, seeds: tuple[int, ...] = (0, 1),
+def run_session_benchmark(size: tuple[int, int] = (960, 540), n_frames: int = 96, seeds: tuple[int, ...] = (0, 1),
                           out: str | os.PathLike = "bench_calibration_session.json") -> dict:
     """:func:`session_row` per seed; prints a table and writes the rows (and the machine) as JSON."""
     import json

@@ -122,7 +122,7 @@ def register_bench(subparsers) -> None:
     p = subparsers.add_parser("calibration-session", help="the studio's board session (inverted ChArUco, turned "
                               "cameras, 6 fps, strong distortion, motion blur) calibrated from its videos alone")
     p.add_argument("--size", type=int, nargs=2, default=[960, 540], help="landscape image size in px (default 960 540)")
-    p.add_argument("--frames", type=int, default=48, help="frames per camera at 6 fps (default 48)")
+    p.add_argument("--frames", type=int, default=96, help="frames per camera at 6 fps (default 96: 16 s)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     p.add_argument("--out", default="bench_calibration_session.json", help="JSON with the numbers")
     p.set_defaults(func=_bench_session)
