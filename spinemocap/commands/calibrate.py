@@ -15,7 +15,8 @@ def register(subparsers) -> None:
     p = sub.add_parser("intrinsics", help="one camera's intrinsics from board images or a video")
     p.add_argument("images", nargs="+", help="image files, a folder of images, or a video")
     p.add_argument("--board", required=True, help="checkerboard:COLSxROWS:SQUARE_MM (inner corners) or "
-                   "charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]] (squares)")
+                   "charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]] (squares), then optionally :inverted, :legacy, :mirrored "
+                   "(see extrinsics --help)")
     p.add_argument("--out", required=True, help="rig TOML (one camera, identity pose) or .xcp / Pose2Sim .toml")
     p.add_argument("--name", help="camera name (default: the folder or file name)")
     p.add_argument("--k3", action="store_true", help="also estimate the k3 radial term (wide-angle lenses)")
