@@ -169,6 +169,10 @@ class PoseGraph:
                                                        for j in range(len(self.names))))
         lines.append("chained along: " + ", ".join(f"{a} -> {b} ({agree}/{n} frames agree)"
                                                    for a, b, agree, n in self.edges))
+        weak = [f"{a} -> {b}" for a, b, agree, n in self.edges if agree < 3 or agree < 0.5 * n]
+        if weak:
+            lines.append(f"! weak links ({', '.join(weak)}): few shared frames agree on these cameras' relative pose; "
+                         "capture more frames where both see the board")
         return "\n".join(lines)
 
 

@@ -36,6 +36,8 @@ NOT_FOUND = "board not found"
 #: A view whose edges are this much blurrier than the median of its camera's views is left out
 #: (motion blur: the hand moved during that exposure; the cameras' exposures differ in time too).
 RELATIVE_BLUR = 1.35
+#: A camera whose reprojection RMS after the adjustment reaches this is flagged.
+MAX_RMS_PX = 1.0
 
 
 # ---------------------------------------------------------------------- recordings
@@ -308,6 +310,10 @@ class SessionCalibration:
         if self.intrinsics_report:
             parts.append(self.intrinsics_report)
         parts.append(self.result.summary())
+        high = [name for name, rms in self.result.rms_px.items() if not rms < MAX_RMS_PX]
+        if high:
+            parts.append(f"! reprojection RMS of {', '.join(high)} is {MAX_RMS_PX:g} px or more: check the board "
+                         "spec (square and marker sizes), the frame pairing and the left-out reasons above")
         return "\n".join(parts)
 
 
