@@ -108,13 +108,15 @@ class StudioSession:
 
 def render_studio_session(rig: Rig | None = None, board: BoardSpec | None = None, n_frames: int = 36,
                           fps: float = 6.0, blur_every: int = 6, blur_speedup: float = 1.5, seed: int = 0,
-                          progress: bool = True) -> StudioSession:
+                          progress: bool = True, glass: bool = False, facing: Rig | None = None) -> StudioSession:
     """Render the studio session (see the module doc). Every ``blur_every``-th frame is exposed
     for 1/30 s while the hand moves ``blur_speedup`` times faster than on average (the motion
-    smeared over the exposure); the others are sharp (exposure 1/250 s)."""
+    smeared over the exposure); the others are sharp (exposure 1/250 s). ``facing``: the cameras
+    the board is turned toward (default: all); ``glass``: the board is printed on glass, so a
+    camera behind it sees the pattern mirrored instead of a blank back."""
     rig = rig or make_studio_rig(seed=seed)
     board = board or BoardSpec.parse(STUDIO_BOARD)
-    poses, velocity = handheld_poses(rig, board, n_frames, fps, seed)
+    poses, velocity = handheld_poses(facing or rig, board, n_frames, fps, seed)
     renderer = BoardRenderer(board, supersample=1)
     rng = np.random.default_rng(seed + 1)
     blurred = list(range(blur_every // 2, n_frames, blur_every)) if blur_every else []
@@ -125,10 +127,23 @@ def render_studio_session(rig: Rig | None = None, board: BoardSpec | None = None
         exposure = [(Rotation.from_rotvec(s * velocity[k][0]).as_matrix() @ poses[k][0],
                      poses[k][1] + s * velocity[k][1]) for s in offsets]
         for cam in rig:
-            frames = [renderer.render(cam, R, t, rng, noise_sigma=0.0).astype(np.float32) for R, t in exposure]
+            frames = [renderer.render(cam, _seen_through(cam, R, t) if glass else R, t, rng, noise_sigma=0.0
+                                      ).astype(np.float32) for R, t in exposure]
             image = np.mean(frames, axis=0) + rng.normal(0, 2.0, frames[0].shape)
             images[cam.name].append(np.clip(np.round(image), 0, 255).astype(np.uint8))
     return StudioSession(rig, board, fps, images, poses, blurred)
+
+
+#: Board z negated: the renderer reads only the board's x and y axes and its normal, so this
+#: (improper) pose makes a camera behind the board see the printed face, as through glass.
+_THROUGH_GLASS = np.diag([1.0, 1.0, -1.0])
+
+
+def _seen_through(cam: Camera, R_wb: np.ndarray, t_wb: np.ndarray) -> np.ndarray:
+    """The board rotation to render for ``cam``: as is in front of the board, through the glass
+    (:data:`_THROUGH_GLASS`) from behind it (on the side board z points to)."""
+    behind = (cam.center - t_wb) @ R_wb[:, 2] > 0
+    return R_wb @ _THROUGH_GLASS if behind else R_wb
 
 
 def write_studio_session(session: StudioSession, out: str | os.PathLike, suffix: str = ".avi") -> list[Path]:
