@@ -26,6 +26,7 @@ from tqdm import tqdm
 from calibration.boards import MAX_BLUR_SIGMA_PX, BoardDetection, BoardSpec, detect_board, view_problem
 from calibration.extrinsics import ExtrinsicsResult, calibrate_extrinsics
 from calibration.formats import read_rig
+from calibration.geometry import transform_rig
 from calibration.intrinsics import IMAGE_SUFFIXES, VIDEO_SUFFIXES, calibrate_from_detections
 from spinemocap.camera import Rig
 from spinemocap.fileio import InputError, atomic_path
@@ -363,10 +364,20 @@ def load_view_detections(folders: Sequence[str | os.PathLike], rig: Rig, board: 
 
 
 # ---------------------------------------------------------------------- picture
-def plot_rig_3d(rig: Rig, board: BoardSpec, board_poses: dict, path: str | os.PathLike, title: str = "") -> None:
+def plot_rig_3d(rig: Rig, board: BoardSpec, board_poses: dict, path: str | os.PathLike, title: str = "",
+                up: np.ndarray | None = None) -> None:
     """PNG of the cameras (viewing pyramids, 1/4 of the mean camera distance deep, with names)
-    and every board pose (outline of the printed pattern) in the rig's world frame (mm)."""
+    and every board pose (outline of the printed pattern) in the rig's world frame (mm), drawn
+    with ``up`` (a world direction; default the world's Z) pointing up."""
     import matplotlib
+
+    if up is not None:  # turn the world so that ``up`` becomes Z
+        z = np.asarray(up, float) / np.linalg.norm(up)
+        x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
+        x /= np.linalg.norm(x)
+        turn = np.stack([x, np.cross(z, x), z])
+        rig = transform_rig(rig, turn, np.zeros(3))
+        board_poses = {f: (turn @ R, turn @ t) for f, (R, t) in board_poses.items()}
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -165,7 +165,8 @@ def _extrinsics(args: argparse.Namespace) -> int:
     save_residuals(args.out, result.residuals)
     plot = args.plot or f"{args.out}.residuals.png"
     plot_residuals(result.rig, result.residuals, plot)
-    plot_rig_3d(result.rig, calibrated.session.read_as or board, result.board_poses, f"{args.out}.rig3d.png")
+    up = None if args.floor_frames else -result.rig[0].R[1]  # no floor: the first camera's image up
+    plot_rig_3d(result.rig, calibrated.session.read_as or board, result.board_poses, f"{args.out}.rig3d.png", up=up)
     print(f"wrote {args.out}, {plot} and {args.out}.rig3d.png")
     return 0
 
