@@ -6,7 +6,8 @@ co-registration and calibration file formats. Depends only on spinemocap's core 
 
 Pipeline (one module per step):
 
-* :mod:`calibration.boards` — board spec (checkerboard / ChArUco), detection, view checks;
+* :mod:`calibration.boards` — board spec (checkerboard / ChArUco; polarity, ChArUco layout and
+  mirrored views, found when not given), detection, view checks;
 * :mod:`calibration.intrinsics` — one camera's K and distortion from board views;
 * :mod:`calibration.extrinsics` — PnP spanning tree + bundle adjustment, world frame from the floor
   (ChArUco or checkerboard; the checkerboard's corner order in :mod:`calibration.boards`);
@@ -16,12 +17,15 @@ Pipeline (one module per step):
 * :mod:`calibration.wand` — wands (T, linear): identify, triangulate; Vicon co-registration:
   clock offset, similarity transform;
 * :mod:`calibration.formats` — ours, Pose2Sim/Anipose TOML, Qualisys .qca.txt, Vicon .xcp;
-* :mod:`calibration.check` — per-camera table and reprojection-error plot;
+* :mod:`calibration.check` — per-camera table and reprojection-error plot, comparison with
+  another calibration of the same cameras;
 * :mod:`calibration.geometry` — triangulation, Umeyama, rig transforms (shared helpers);
 
 The benchmark (``spinemocap bench calibration``) and the synthetic renders of boards and a wand
 wave it and the tests use live in the application layer: :mod:`spinemocap.bench.calibration`,
-:mod:`spinemocap.bench.calibration_scenes`.
+:mod:`spinemocap.bench.calibration_scenes`, :mod:`spinemocap.bench.board_session` (a studio board
+session with a real lab's traits); board calibration from recordings (videos or image folders per
+camera) is :mod:`spinemocap.app.calibrate`.
 """
 
 from __future__ import annotations

@@ -14,11 +14,28 @@ on z = 0. Two kinds:
 * ``charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]]`` — COLS x ROWS *squares*, ArUco markers of
   MARKER_MM (default 0.75 * square) from dictionary DICT (default ``DICT_4X4_50``); corners carry
   ids, so every view is unambiguous and partial views still count.
+
+Options follow the spec, in any order (``charuco:4x5:54:40.5:DICT_4X4_1000:inverted:legacy``):
+
+* ``normal`` / ``inverted`` — printed polarity (inverted: white and black swapped, markers light on
+  dark). Detection runs on the inverted image, so the board frame and corner ids are the same.
+* ``current`` / ``legacy`` — ChArUco layout: OpenCV >= 4.6 moved the markers of boards with an even
+  number of rows (``CharucoBoard.setLegacyPattern``); boards printed before use the legacy one.
+* ``front`` / ``mirrored`` — the pattern reads mirrored (a board in a glass frame seen from behind):
+  detection runs on the horizontally flipped image and the corners are mapped back.
+
+An option left out is ``auto``: :func:`detect_board` tries the variants (:meth:`BoardSpec.variants`)
+and records the one that read the board in :attr:`BoardDetection.variant`. A checkerboard reads the
+same in both polarities and mirrored (its order would change), so for it ``auto`` means ``normal``
+and ``front``: say ``inverted`` / ``mirrored`` when the board is.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import lru_cache
+from itertools import product
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -28,6 +45,16 @@ from spinemocap.fileio import InputError
 
 #: Largest accepted blur (Gaussian sigma of the board edges, px) before a view is rejected.
 MAX_BLUR_SIGMA_PX = 3.0
+
+Polarity = Literal["auto", "normal", "inverted"]
+Layout = Literal["auto", "current", "legacy"]
+Facing = Literal["auto", "front", "mirrored"]
+#: option word -> (BoardSpec field, value)
+BOARD_OPTIONS: dict[str, tuple[str, str]] = {
+    "normal": ("polarity", "normal"), "inverted": ("polarity", "inverted"),
+    "current": ("layout", "current"), "legacy": ("layout", "legacy"),
+    "front": ("facing", "front"), "mirrored": ("facing", "mirrored"),
+}
 
 
 @dataclass(frozen=True)
@@ -41,12 +68,15 @@ class BoardSpec:
     square_mm: float
     marker_mm: float = 0.0
     dictionary: str = "DICT_4X4_50"
+    polarity: Polarity = "auto"
+    layout: Layout = "auto"
+    facing: Facing = "auto"
 
     # ------------------------------------------------------------------ parsing
     @classmethod
     def parse(cls, text: str) -> "BoardSpec":
         """Parse ``checkerboard:7x4:60`` or ``charuco:8x6:40[:30[:DICT_5X5_100]]``."""
-        parts = text.strip().split(":")
+        parts, options = split_board_options(text)
         try:
             kind = parts[0].lower()
             cols, rows = (int(v) for v in parts[1].lower().split("x"))
@@ -63,6 +93,7 @@ class BoardSpec:
                 "board", f"cannot parse board {text!r}; expected checkerboard:COLSxROWS:SQUARE_MM "
                 "(inner corners) or charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]] (squares)"
             ) from None
+        spec = replace(spec, **options)
         spec.validate()
         return spec
 
@@ -77,7 +108,33 @@ class BoardSpec:
 
     def __str__(self) -> str:
         base = f"{self.kind}:{self.cols}x{self.rows}:{self.square_mm:g}"
-        return base + (f":{self.marker_mm:g}:{self.dictionary}" if self.kind == "charuco" else "")
+        base += f":{self.marker_mm:g}:{self.dictionary}" if self.kind == "charuco" else ""
+        return base + "".join(f":{value}" for value in (self.polarity, self.layout, self.facing) if value != "auto")
+
+    # ------------------------------------------------------------------ variants
+    @property
+    def layout_matters(self) -> bool:
+        """Only ChArUco boards with an even number of rows differ between the two layouts."""
+        return self.kind == "charuco" and self.rows % 2 == 0
+
+    def variants(self) -> list["BoardSpec"]:
+        """The fully specified boards this spec may be, most likely first: its ``auto`` options
+        expanded (ChArUco: both polarities, both layouts where they differ, front and mirrored;
+        checkerboard: ``normal`` and ``front``, which a view cannot tell apart)."""
+        charuco = self.kind == "charuco"
+        polarities = ["normal", "inverted"] if self.polarity == "auto" and charuco else [
+            "normal" if self.polarity == "auto" else self.polarity]
+        layouts = (["current", "legacy"] if self.layout == "auto" else [self.layout]) if self.layout_matters else [
+            "current" if self.layout == "auto" else self.layout]
+        facings = ["front", "mirrored"] if self.facing == "auto" and charuco else [
+            "front" if self.facing == "auto" else self.facing]
+        return [replace(self, polarity=p, layout=lay, facing=f)  # type: ignore[arg-type]
+                for f, p, lay in product(facings, polarities, layouts)]
+
+    @property
+    def board_variant(self) -> tuple[str, str]:
+        """(polarity, layout): what the printed board is, whoever looks at it."""
+        return self.polarity, self.layout
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -98,74 +155,177 @@ class BoardSpec:
             j, i = np.mgrid[0 : self.rows, 0 : self.cols]
             xy = np.column_stack([(i.ravel() + 1), (j.ravel() + 1)]) * self.square_mm
         else:
-            return np.asarray(self.charuco_board().getChessboardCorners(), float).reshape(-1, 3)
+            return _charuco(self.cols, self.rows, self.square_mm, self.marker_mm, self.dictionary,
+                            self.layout == "legacy")[1].copy()
         return np.column_stack([xy, np.zeros(len(xy))]).astype(float)
 
     def charuco_board(self) -> "cv2.aruco.CharucoBoard":
-        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
-        return cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_mm, self.marker_mm, dictionary)
+        return _charuco(self.cols, self.rows, self.square_mm, self.marker_mm, self.dictionary, self.layout == "legacy")[0]
 
     def texture(self, px_per_mm: float) -> np.ndarray:
         """Grey uint8 image of the printed pattern, texture pixel = mm * px_per_mm - 0.5 (no margin)."""
         w_mm, h_mm = self.size_mm
         size = (int(round(w_mm * px_per_mm)), int(round(h_mm * px_per_mm)))
         if self.kind == "charuco":
-            return self.charuco_board().generateImage(size, marginSize=0, borderBits=1)
-        sq = self.square_mm * px_per_mm
-        v, u = np.mgrid[0 : size[1], 0 : size[0]]
-        parity = (np.floor((u + 0.5) / sq).astype(int) + np.floor((v + 0.5) / sq).astype(int)) % 2
-        return np.where(parity == 0, 0, 255).astype(np.uint8)
+            pattern = self.charuco_board().generateImage(size, marginSize=0, borderBits=1)
+        else:
+            sq = self.square_mm * px_per_mm
+            v, u = np.mgrid[0 : size[1], 0 : size[0]]
+            parity = (np.floor((u + 0.5) / sq).astype(int) + np.floor((v + 0.5) / sq).astype(int)) % 2
+            pattern = np.where(parity == 0, 0, 255).astype(np.uint8)
+        return 255 - pattern if self.polarity == "inverted" else pattern
+
+
+@lru_cache(maxsize=32)
+def _charuco(cols: int, rows: int, square_mm: float, marker_mm: float, dictionary: str, legacy: bool
+             ) -> tuple["cv2.aruco.CharucoBoard", np.ndarray]:
+    """The OpenCV board and its (N, 3) chessboard corners, built once. The board's markers are ids
+    0 .. n-1 of ``dictionary``; the detector gets a dictionary of those alone (same codes and
+    error correction), since matching every candidate against all of e.g. DICT_4X4_1000's codes
+    costs ten times the whole detection."""
+    full = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
+    n_markers = (cols * rows) // 2
+    if n_markers > len(full.bytesList):
+        raise InputError("board", f"a {cols}x{rows} ChArUco board needs {n_markers} markers but {dictionary} has "
+                         f"{len(full.bytesList)}; use a larger dictionary")
+    own = cv2.aruco.Dictionary(full.bytesList[:n_markers], full.markerSize, full.maxCorrectionBits)
+    board = cv2.aruco.CharucoBoard((cols, rows), square_mm, marker_mm, own)
+    board.setLegacyPattern(legacy)
+    return board, np.asarray(board.getChessboardCorners(), float).reshape(-1, 3)
+
+
+def split_board_options(text: str) -> tuple[list[str], dict[str, str]]:
+    """``charuco:4x5:54:inverted`` -> (the spec's fields, {"polarity": "inverted"}); the option
+    words (:data:`BOARD_OPTIONS`) may follow the spec in any order, each field at most once."""
+    parts = text.strip().split(":")
+    fields = [p for p in parts if p.lower() not in BOARD_OPTIONS]
+    options: dict[str, str] = {}
+    for word in (p.lower() for p in parts if p.lower() in BOARD_OPTIONS):
+        field_name, value = BOARD_OPTIONS[word]
+        if field_name in options and options[field_name] != value:
+            raise InputError("board", f"board {text!r} says both {options[field_name]!r} and {value!r}; "
+                             f"give at most one of {', '.join(w for w, (f, _) in BOARD_OPTIONS.items() if f == field_name)}")
+        options[field_name] = value
+    return fields, options
 
 
 @dataclass
 class BoardDetection:
     """Corners of one board in one image: ``ids`` (N,) index :meth:`BoardSpec.object_points`;
-    ``pixels`` (N, 2) distorted pixel positions; ``blur_px`` estimated edge blur sigma."""
+    ``pixels`` (N, 2) distorted pixel positions; ``blur_px`` estimated edge blur sigma (the
+    blurrier of the board's two edge directions: motion blur counts)."""
 
     ids: np.ndarray
     pixels: np.ndarray
     blur_px: float = 0.0
     #: Why the corner order cannot be trusted across cameras (checkerboards only), else None.
     order_problem: str | None = None
+    #: The fully specified board that read this view (:meth:`BoardSpec.variants`), when known.
+    variant: BoardSpec | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
 
 
 def detect_board(image: np.ndarray, board: BoardSpec) -> BoardDetection | None:
-    """Find the board's corners (sub-pixel) in a BGR or grey image; None when not found."""
+    """Find the board's corners (sub-pixel) in a BGR or grey image; None when not found. A spec
+    with ``auto`` options tries :meth:`BoardSpec.variants` in order and keeps the first that reads
+    the board with corners that fit its layout; :attr:`BoardDetection.variant` says which."""
     grey = to_grey(image)
-    if board.kind == "checkerboard":
-        # The sector-based detector; its ACCURACY mode costs ~5x, so corners are refined with
-        # cornerSubPix instead (no markers to avoid: the window may span a third of a square).
-        found, corners = cv2.findChessboardCornersSB(grey, (board.cols, board.rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
-        if not found:
-            found, corners = cv2.findChessboardCornersSB(
-                grey, (board.cols, board.rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
-        if not found:
-            return None
-        corners = corners.reshape(-1, 2).astype(np.float32)
-        win = int(np.clip(0.3 * _median_spacing(corners), 2, 15))
-        crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
-        pixels = cv2.cornerSubPix(grey, corners.reshape(-1, 1, 2), (win, win), (-1, -1), crit).reshape(-1, 2).astype(float)
-        pixels, problem = order_checkerboard(grey, pixels, board)
-        return BoardDetection(np.arange(len(pixels)), pixels, edge_blur_sigma(grey, pixels), problem)
-    else:
-        detector = cv2.aruco.CharucoDetector(board.charuco_board())
-        corners, ids, _, _ = detector.detectBoard(grey)
-        if ids is None or len(ids) < 4:
-            return None
-        pixels = corners.reshape(-1, 2).astype(np.float32)
-        # Refine to sub-pixel. The window's half-size must stay inside the white margin between
-        # a corner and the nearest ArUco marker ((square - marker) / 2), else the marker's edges
-        # pull the corner by tenths of a pixel.
-        margin = 0.5 * (1.0 - board.marker_mm / board.square_mm)
-        win = int(np.clip(0.8 * margin * _median_spacing(pixels), 2, 11))
-        crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
-        pixels = cv2.cornerSubPix(grey, pixels.reshape(-1, 1, 2), (win, win), (-1, -1), crit).reshape(-1, 2)
-        pixels = pixels.astype(float)
-        ids = ids.ravel().astype(int)
-    return BoardDetection(ids, pixels, edge_blur_sigma(grey, pixels))
+    for variant in board.variants():
+        detection = _detect_variant(grey, variant)
+        if detection is not None and (len(board.variants()) == 1 or _fits_layout(detection, variant)):
+            return detection
+    return None
+
+
+def _detect_variant(grey: np.ndarray, board: BoardSpec) -> BoardDetection | None:
+    """:func:`detect_board` for one fully specified board: the image is inverted and/or flipped
+    as the board's options say, and the corners are mapped back to the original image."""
+    seen = 255 - grey if board.polarity == "inverted" else grey
+    if board.facing == "mirrored":
+        seen = np.ascontiguousarray(seen[:, ::-1])
+    found = _detect_checkerboard(seen, board) if board.kind == "checkerboard" else _detect_charuco(seen, board)
+    if found is None:
+        return None
+    ids, pixels, problem = found
+    axes = board_axes(board, ids, pixels)
+    blur = edge_blur_sigma(seen, pixels, axes)
+    if board.facing == "mirrored":
+        pixels = pixels.copy()
+        pixels[:, 0] = grey.shape[1] - 1 - pixels[:, 0]
+    return BoardDetection(ids, pixels, blur, problem, board)
+
+
+def _detect_checkerboard(grey: np.ndarray, board: BoardSpec) -> tuple[np.ndarray, np.ndarray, str | None] | None:
+    # The sector-based detector; its ACCURACY mode costs ~5x, so corners are refined with
+    # cornerSubPix instead (no markers to avoid: the window may span a third of a square).
+    found, corners = cv2.findChessboardCornersSB(grey, (board.cols, board.rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
+    if not found:
+        found, corners = cv2.findChessboardCornersSB(
+            grey, (board.cols, board.rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
+    if not found:
+        return None
+    corners = corners.reshape(-1, 2).astype(np.float32)
+    win = int(np.clip(0.3 * _median_spacing(corners), 2, 15))
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
+    pixels = cv2.cornerSubPix(grey, corners.reshape(-1, 1, 2), (win, win), (-1, -1), crit).reshape(-1, 2).astype(float)
+    pixels, problem = order_checkerboard(grey, pixels, board)
+    return np.arange(len(pixels)), pixels, problem
+
+
+def _detect_charuco(grey: np.ndarray, board: BoardSpec) -> tuple[np.ndarray, np.ndarray, None] | None:
+    detector = cv2.aruco.CharucoDetector(board.charuco_board())
+    corners, ids, _, _ = detector.detectBoard(grey)
+    if ids is None or len(ids) < 4:
+        return None
+    pixels = corners.reshape(-1, 2).astype(np.float32)
+    # Refine to sub-pixel. The window's half-size must stay inside the white margin between
+    # a corner and the nearest ArUco marker ((square - marker) / 2), else the marker's edges
+    # pull the corner by tenths of a pixel.
+    margin = 0.5 * (1.0 - board.marker_mm / board.square_mm)
+    win = int(np.clip(0.8 * margin * _median_spacing(pixels), 2, 11))
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
+    pixels = cv2.cornerSubPix(grey, pixels.reshape(-1, 1, 2), (win, win), (-1, -1), crit).reshape(-1, 2)
+    return ids.ravel().astype(int), pixels.astype(float), None
+
+
+def _fits_layout(detection: BoardDetection, board: BoardSpec) -> bool:
+    """The corners map to the board by a homography (a view read with the wrong variant does not)."""
+    return len(detection) >= 4 and _homography_misfit(detection, board)[1] <= 0.03 * float(
+        np.ptp(detection.pixels, axis=0).max()) + 1.0
+
+
+def _homography_misfit(detection: BoardDetection, board: BoardSpec) -> tuple[np.ndarray | None, float]:
+    """(board -> image homography, RMS misfit px) of the detected corners (np.inf when none fits)."""
+    obj = board.object_points()[detection.ids, :2]
+    H, _ = cv2.findHomography(obj, detection.pixels, 0)
+    if H is None:
+        return None, float("inf")
+    fit = cv2.perspectiveTransform(obj[None], H)[0]
+    return H, float(np.sqrt(np.mean(np.sum((fit - detection.pixels) ** 2, axis=1))))
+
+
+def board_axes(board: BoardSpec, ids: np.ndarray, pixels: np.ndarray) -> np.ndarray | None:
+    """(N, 2, 2) image directions (unit rows) of the board's x and y axes at each corner, from
+    the board -> image homography of the corners; None when fewer than 4 corners."""
+    if len(ids) < 4:
+        return None
+    obj = board.object_points()[ids, :2]
+    H, _ = cv2.findHomography(obj, pixels, 0)
+    if H is None:
+        return None
+    axes = np.stack([_jacobian(H, xy).T for xy in obj])
+    return axes / np.linalg.norm(axes, axis=2, keepdims=True)
+
+
+def _jacobian(H: np.ndarray, at_xy: np.ndarray) -> np.ndarray:
+    """2x2 Jacobian d(u, v) / d(x, y) of the homography at board point ``at_xy``."""
+    x, y = at_xy
+    w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+    u = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w
+    v = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
+    return np.array([[H[0, 0] - u * H[2, 0], H[0, 1] - u * H[2, 1]], [H[1, 0] - v * H[2, 0], H[1, 1] - v * H[2, 1]]]) / w
 
 
 def is_half_turn_symmetric(board: BoardSpec) -> bool:
@@ -238,24 +398,31 @@ def _median_spacing(pixels: np.ndarray) -> float:
     return float(np.median(d.min(axis=1)))
 
 
-def edge_blur_sigma(grey: np.ndarray, corners: np.ndarray) -> float:
+def edge_blur_sigma(grey: np.ndarray, corners: np.ndarray, axes: np.ndarray | None = None) -> float:
     """Blur of the board edges as a Gaussian sigma (px): a step of contrast C blurred by sigma
     has peak gradient C / (sigma sqrt(2 pi)), so sigma = C / (peak gradient sqrt(2 pi)).
-    Measured in patches around the corners (median over patches)."""
+    Measured in patches around the corners (median over patches). ``axes`` (N, 2, 2): the board's
+    x and y directions in the image at each corner (:func:`board_axes`); with them each patch's
+    sigma is that of its blurrier edge family (the gradient across the edges along x, and across
+    those along y), so motion blur, which smears one direction only, counts in full."""
     half = int(np.clip(0.4 * _median_spacing(corners), 4, 30))
     img = grey.astype(np.float32)
     gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3) / 8.0
     gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-    mag = np.hypot(gx, gy)
     h, w = grey.shape
     sigmas = []
-    for u, v in np.round(corners).astype(int):
+    for k, (u, v) in enumerate(np.round(corners).astype(int)):
         y0, y1, x0, x1 = max(v - half, 0), min(v + half + 1, h), max(u - half, 0), min(u + half + 1, w)
         if y1 - y0 < 5 or x1 - x0 < 5:
             continue
         patch = img[y0:y1, x0:x1]
         contrast = np.percentile(patch, 95) - np.percentile(patch, 5)
-        peak = np.percentile(mag[y0:y1, x0:x1], 99)
+        px, py = gx[y0:y1, x0:x1], gy[y0:y1, x0:x1]
+        if axes is None:
+            peaks = [np.percentile(np.hypot(px, py), 99)]
+        else:  # normals of the edges along each board axis
+            peaks = [np.percentile(np.abs(-px * a[1] + py * a[0]), 99) for a in axes[k]]
+        peak = min(peaks)
         if contrast > 20 and peak > 0:
             sigmas.append(contrast / (peak * np.sqrt(2 * np.pi)))
     return float(np.median(sigmas)) if sigmas else float("inf")
@@ -264,12 +431,7 @@ def edge_blur_sigma(grey: np.ndarray, corners: np.ndarray) -> float:
 def _foreshortening(H: np.ndarray, at_xy: np.ndarray) -> float:
     """Ratio of the smaller to the larger singular value of the homography's local Jacobian at
     board point ``at_xy`` (about cos of the viewing angle from the board normal)."""
-    x, y = at_xy
-    w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
-    u = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w
-    v = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
-    J = np.array([[H[0, 0] - u * H[2, 0], H[0, 1] - u * H[2, 1]], [H[1, 0] - v * H[2, 0], H[1, 1] - v * H[2, 1]]]) / w
-    sv = np.linalg.svd(J, compute_uv=False)
+    sv = np.linalg.svd(_jacobian(H, at_xy), compute_uv=False)
     return float(sv[1] / sv[0])
 
 
@@ -286,7 +448,7 @@ def view_problem(detection: BoardDetection | None, board: BoardSpec, image_size:
     if len(detection) < min_corners:
         return f"only {len(detection)} corners (< {min_corners})"
     if detection.blur_px > max_blur_px:
-        return f"blurred (edge sigma {detection.blur_px:.1f} px > {max_blur_px:g})"
+        return f"blurred (edge sigma {detection.blur_px:.1f} px > {max_blur_px:g}; motion or focus blur)"
     # Degenerate geometry: corners must span two dimensions (not all on one board row/line).
     centred = detection.pixels - detection.pixels.mean(axis=0)
     sv = np.linalg.svd(centred, compute_uv=False)
@@ -295,11 +457,9 @@ def view_problem(detection: BoardDetection | None, board: BoardSpec, image_size:
     # Corners must map to the board by a homography (up to lens distortion): a mis-ordered or
     # partly wrong detection does not.
     obj = board.object_points()[detection.ids, :2]
-    H, _ = cv2.findHomography(obj, detection.pixels, 0)
+    H, misfit = _homography_misfit(detection, board)
     if H is None:
         return "corners do not fit the board's layout"
-    fit = cv2.perspectiveTransform(obj[None], H)[0]
-    misfit = float(np.sqrt(np.mean(np.sum((fit - detection.pixels) ** 2, axis=1))))
     extent = float(np.ptp(detection.pixels, axis=0).max())
     if misfit > 0.01 * extent + 0.5:
         return f"corners do not fit the board's layout (homography misfit {misfit:.1f} px; mis-ordered detection)"

@@ -1,4 +1,5 @@
-"""Quality check of a rig: per-camera table and reprojection-error plot.
+"""Quality check of a rig: per-camera table and reprojection-error plot, and its agreement with
+another calibration of the same cameras (:func:`compare_rigs`).
 
 Residuals come either from the bundle adjustment (saved beside the rig as
 ``<rig>.residuals.npz`` by ``spinemocap calibrate extrinsics``) or from fresh synchronized board
@@ -9,15 +10,17 @@ reprojection error), so every camera is judged against the others.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Hashable
 
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 
 from spinemocap.camera import Rig
-from spinemocap.fileio import atomic_path, atomic_write
+from spinemocap.fileio import InputError, atomic_path, atomic_write
 
 from .boards import BoardDetection, BoardSpec
 
@@ -135,3 +138,78 @@ def plot_residuals(rig: Rig, residuals: Residuals, path: str | os.PathLike, arro
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110)
     plt.close(fig)
+
+
+# ---------------------------------------------------------------------- against another calibration
+@dataclass
+class PairAgreement:
+    """Two cameras as two calibrations see them: baselines (mm) and the angle (deg) between the
+    two calibrations' relative rotations of the pair."""
+
+    a: str
+    b: str
+    baseline_mm: float
+    other_baseline_mm: float
+    rotation_diff_deg: float
+
+    @property
+    def baseline_ratio(self) -> float:
+        return self.baseline_mm / self.other_baseline_mm
+
+
+@dataclass
+class RigComparison:
+    """Every camera pair of a rig compared with another calibration of the same cameras; frame-
+    and origin-free (baselines and relative rotations only). ``matched_by``: "name" or "order"."""
+
+    pairs: list[PairAgreement]
+    matched_by: str
+    max_baseline_error: float = 0.02
+    max_rotation_deg: float = 1.0
+
+    @property
+    def worst_baseline_error(self) -> float:
+        return max(abs(p.baseline_ratio - 1) for p in self.pairs)
+
+    @property
+    def worst_rotation_deg(self) -> float:
+        return max(p.rotation_diff_deg for p in self.pairs)
+
+    @property
+    def agrees(self) -> bool:
+        return self.worst_baseline_error <= self.max_baseline_error and self.worst_rotation_deg <= self.max_rotation_deg
+
+    def summary(self) -> str:
+        lines = [f"{'pair':<24}{'baseline':>10}{'other':>10}{'ratio':>9}{'rot diff':>10}",
+                 *(f"{p.a + ' - ' + p.b:<24}{p.baseline_mm:>10.1f}{p.other_baseline_mm:>10.1f}{p.baseline_ratio:>9.4f}"
+                   f"{p.rotation_diff_deg:>9.3f}d" + ("  !" if abs(p.baseline_ratio - 1) > self.max_baseline_error
+                                                       or p.rotation_diff_deg > self.max_rotation_deg else "")
+                   for p in self.pairs)]
+        verdict = "agree" if self.agrees else "DISAGREE"
+        lines.append(f"cameras matched by {self.matched_by}; worst baseline {100 * self.worst_baseline_error:.2f} % "
+                     f"(limit {100 * self.max_baseline_error:g} %), worst relative rotation {self.worst_rotation_deg:.3f} "
+                     f"deg (limit {self.max_rotation_deg:g}): the calibrations {verdict}")
+        return "\n".join(lines)
+
+
+def compare_rigs(rig: Rig, other: Rig, max_baseline_error: float = 0.02, max_rotation_deg: float = 1.0) -> RigComparison:
+    """Compare ``rig`` with ``other`` (mm both): cameras matched by name, or by order when the
+    names differ but the counts agree. Raises :class:`InputError` when they cannot be matched."""
+    if sorted(rig.names) == sorted(other.names):
+        matched_by, pairs_of = "name", [(cam, other[cam.name]) for cam in rig]
+    elif len(rig) == len(other):
+        matched_by, pairs_of = "order", list(zip(rig, other))
+    else:
+        raise InputError("against", f"the rigs have different cameras ({rig.names} vs {other.names}); "
+                         "compare calibrations of the same cameras")
+    if len(pairs_of) < 2:
+        raise InputError("against", "a comparison needs at least two cameras")
+    pairs = []
+    for i in range(len(pairs_of)):
+        for j in range(i + 1, len(pairs_of)):
+            (a, a2), (b, b2) = pairs_of[i], pairs_of[j]
+            difference = (b.R @ a.R.T) @ (b2.R @ a2.R.T).T  # the two relative rotations' difference
+            pairs.append(PairAgreement(a.name, b.name, float(np.linalg.norm(a.center - b.center)),
+                                       float(np.linalg.norm(a2.center - b2.center)),
+                                       float(np.degrees(Rotation.from_matrix(difference).magnitude()))))
+    return RigComparison(pairs, matched_by, max_baseline_error, max_rotation_deg)

@@ -2,15 +2,19 @@
 
 Pipeline:
 1. per (camera, frame) board pose by PnP (IPPE, planar) with each camera's intrinsics;
-2. relative pose of every camera pair from their shared frames (rotation chordal mean,
-   translation median), a maximum spanning tree over pairs weighted by shared frames, and the
-   chained poses of every camera in the reference camera's frame;
+2. relative pose of every camera pair from their shared frames: both IPPE solutions of an
+   ambiguous (small or grazing) view are candidates, the relative pose most frames agree with
+   wins (rotation chordal mean, translation median over the agreeing frames); a maximum
+   spanning tree over pairs weighted by shared frames (the :class:`PoseGraph`), and the chained
+   poses of every camera in the reference camera's frame; each frame's board pose is the
+   candidate that reprojects best into all cameras reading it;
 3. bundle adjustment over all camera poses, all board poses and (optionally) each camera's
    fx fy cx cy k1 k2 p1 p2, Huber loss of 1 px: by default Ceres through pycolmap
    (:mod:`calibration.ceres_ba`), or ``scipy.optimize.least_squares`` (trust region
    reflective, sparse Jacobian pattern; ``backend="scipy"``, the peer in ``bench
    calibration``); the reference camera's pose fixes the gauge and the board's square size
-   fixes the scale;
+   fixes the scale; then each frame's other planar solutions compete again with the adjusted
+   pose through the adjusted rig (:func:`choose_board_poses`), and a switch adjusts again;
 4. world frame from the board lying face up on the floor in frame ``floor_frame``: origin at
    the pattern's top-left corner, X along the board's columns, Z up (board z is into the board,
    so world = diag(1, -1, -1) board). Several floor frames (the board laid at a few places)
@@ -51,6 +55,7 @@ log = logging.getLogger(__name__)
 
 Detections = dict[str, dict[Hashable, BoardDetection]]  # camera name -> frame -> detection
 N_INTRINSICS = 8  # fx fy cx cy k1 k2 p1 p2 (k3 stays as given)
+MAX_POSE_SWITCH_ROUNDS = 3
 
 
 @dataclass
@@ -79,6 +84,8 @@ class ExtrinsicsResult:
     board_poses: dict[Hashable, tuple[np.ndarray, np.ndarray]] = field(repr=False, default_factory=dict)
     #: (camera, frame) -> why that view was left out (e.g. a checkerboard's ambiguous corner order)
     rejected: dict[tuple[str, Hashable], str] = field(default_factory=dict)
+    #: which cameras read the board together and how the initial poses were chained
+    pose_graph: "PoseGraph | None" = None
 
     @property
     def board_rms_mm(self) -> float:
@@ -90,19 +97,40 @@ class ExtrinsicsResult:
         lines.append(f"board geometry from triangulated corners: RMS {self.board_rms_mm:.3f} mm over "
                      f"{len(self.board_error_mm)} multi-camera frames")
         lines += [f"left out {name} frame {frame}: {why}" for (name, frame), why in self.rejected.items()]
+        if self.pose_graph is not None:
+            lines.append(self.pose_graph.summary())
         return "\n".join(lines)
 
 
 # ---------------------------------------------------------------------- step 1-2: initial poses
-def _pnp(cam: Camera, board: BoardSpec, det: BoardDetection) -> tuple[np.ndarray, np.ndarray] | None:
+Pose = tuple[np.ndarray, np.ndarray]
+#: A planar view's second PnP solution is kept as a candidate while its RMS is at most
+#: ``AMBIGUOUS_FACTOR`` times the best one's plus ``AMBIGUOUS_MARGIN_PX``.
+AMBIGUOUS_FACTOR, AMBIGUOUS_MARGIN_PX = 2.0, 0.5
+#: Per-frame relative poses agreeing with a pair hypothesis within these bounds support it.
+AGREE_DEG, AGREE_FRACTION = 2.0, 0.05
+
+
+def _pnp_candidates(cam: Camera, board: BoardSpec, det: BoardDetection) -> list[Pose]:
+    """Board -> camera poses that fit one view (PnP by IPPE, both of its solutions refined):
+    the best, and the other where the view is ambiguous (a small or grazing board fits two
+    poses almost equally, mirror images about the line of sight). Empty when PnP fails."""
     if len(det) < 6:
-        return None
+        return []
     obj = board.object_points()[det.ids]
-    ok, rvec, tvec = cv2.solvePnP(obj, det.pixels, cam.K, cam.dist, flags=cv2.SOLVEPNP_IPPE)
-    if not ok:
-        return None
-    rvec, tvec = cv2.solvePnPRefineLM(obj, det.pixels, cam.K, cam.dist, rvec, tvec)
-    return cv2.Rodrigues(rvec)[0], tvec.ravel()
+    try:
+        n, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, det.pixels, cam.K, cam.dist, flags=cv2.SOLVEPNP_IPPE)
+    except cv2.error:
+        return []
+    fits = []
+    for rvec, tvec in zip(rvecs[:n], tvecs[:n]):
+        rvec, tvec = cv2.solvePnPRefineLM(obj, det.pixels, cam.K, cam.dist, rvec.copy(), tvec.copy())
+        pred = cv2.projectPoints(obj, rvec, tvec, cam.K, cam.dist)[0].reshape(-1, 2)
+        rms = float(np.sqrt(np.mean(np.sum((pred - det.pixels) ** 2, axis=1))))
+        if tvec.ravel()[2] > 0:
+            fits.append((rms, cv2.Rodrigues(rvec)[0], tvec.ravel()))
+    fits.sort(key=lambda fit: fit[0])
+    return [(R, t) for rms, R, t in fits if rms <= AMBIGUOUS_FACTOR * fits[0][0] + AMBIGUOUS_MARGIN_PX]
 
 
 def _mean_rotation(rotations: list[np.ndarray]) -> np.ndarray:
@@ -122,12 +150,77 @@ def spanning_tree(weights: np.ndarray, reference: int) -> tuple[np.ndarray, np.n
     return breadth_first_order(tree, reference, directed=False)
 
 
+@dataclass
+class PoseGraph:
+    """Which cameras see the board together: ``shared[i][j]`` frames both cameras i and j read
+    the board in, the spanning tree's ``edges`` (parent, child, frames that agree with the chosen
+    relative pose / shared frames) the initial poses were chained along."""
+
+    names: list[str]
+    shared: np.ndarray
+    edges: list[tuple[str, str, int, int]]
+
+    def summary(self) -> str:
+        lines = ["pose graph (frames both cameras read the board in):"]
+        width = max(len(n) for n in self.names) + 2
+        lines.append(" " * width + "".join(f"{n:>{width}}" for n in self.names))
+        for i, name in enumerate(self.names):
+            lines.append(f"{name:<{width}}" + "".join(f"{'-' if i == j else int(self.shared[i, j]):>{width}}"
+                                                       for j in range(len(self.names))))
+        lines.append("chained along: " + ", ".join(f"{a} -> {b} ({agree}/{n} frames agree)"
+                                                   for a, b, agree, n in self.edges))
+        weak = [f"{a} -> {b}" for a, b, agree, n in self.edges if agree < 3 or agree < 0.5 * n]
+        if weak:
+            lines.append(f"! weak links ({', '.join(weak)}): few shared frames agree on these cameras' relative pose; "
+                         "capture more frames where both see the board")
+        return "\n".join(lines)
+
+
+def _relative_pose(views_p: dict[Hashable, list[Pose]], views_c: dict[Hashable, list[Pose]],
+                   shared: list[Hashable]) -> tuple[Pose, int]:
+    """Parent camera -> camera c from their shared frames: every frame proposes one relative
+    pose per pair of its candidate board poses; the proposal most others agree with (within
+    :data:`AGREE_DEG` and :data:`AGREE_FRACTION` of the baseline) wins, and its agreeing
+    proposals (one per frame, the closest) are averaged. Returns (pose, frames that agree)."""
+    frames, rotations, translations = [], [], []
+    for k, f in enumerate(shared):
+        for Rp, tp in views_p[f]:
+            for Rc, tc in views_c[f]:
+                R = Rc @ Rp.T
+                frames.append(k)
+                rotations.append(R)
+                translations.append(tc - R @ tp)
+    frame, Rs, ts = np.asarray(frames), np.asarray(rotations), np.asarray(translations)
+    cos = np.clip((np.einsum("aij,bij->ab", Rs, Rs) - 1) / 2, -1.0, 1.0)  # cos of the angle between proposals
+    angle = np.degrees(np.arccos(cos))
+    distance = np.linalg.norm(ts[:, None] - ts[None], axis=2)
+    agree = (angle <= AGREE_DEG) & (distance <= AGREE_FRACTION * np.maximum(np.linalg.norm(ts, axis=1), 1e-9)[:, None])
+    support = [len(np.unique(frame[row])) for row in agree]
+    best = int(np.argmax(support))
+    chosen = []  # per agreeing frame, its proposal closest to the winner
+    for k in np.unique(frame[agree[best]]):
+        members = np.flatnonzero(agree[best] & (frame == k))
+        chosen.append(members[np.argmin(angle[best, members])])
+    return (_mean_rotation(list(Rs[chosen])), np.median(ts[chosen], axis=0)), len(chosen)
+
+
 def initial_poses(intrinsics: Rig, board: BoardSpec, detections: Detections, reference: int = 0
-                  ) -> tuple[list[tuple[np.ndarray, np.ndarray]], dict[Hashable, tuple[np.ndarray, np.ndarray]]]:
+                  ) -> tuple[list[Pose], dict[Hashable, Pose]]:
     """Camera poses (R, t: reference frame -> camera) by a spanning tree over camera pairs, and
-    board poses (R, t: board -> reference frame) for every frame."""
+    board poses (R, t: board -> reference frame) for every frame; see :func:`initial_pose_graph`."""
+    poses, boards, _, _ = initial_pose_graph(intrinsics, board, detections, reference)
+    return poses, boards
+
+
+def initial_pose_graph(intrinsics: Rig, board: BoardSpec, detections: Detections, reference: int = 0
+                       ) -> tuple[list[Pose], dict[Hashable, Pose], dict[Hashable, list[Pose]], PoseGraph]:
+    """Camera poses by a spanning tree over camera pairs (each pair's relative pose by consensus
+    over its shared frames' candidate board poses, :func:`_relative_pose`), every frame's board
+    pose (the candidate from any camera that reprojects best into all cameras seeing the frame),
+    every frame's candidate board poses in the reference frame (for :func:`choose_board_poses`
+    after the adjustment) and the :class:`PoseGraph`."""
     names = intrinsics.names
-    pnp = {c: {f: p for f, d in detections.get(name, {}).items() if (p := _pnp(intrinsics[c], board, d))}
+    pnp = {c: {f: cands for f, d in detections.get(name, {}).items() if (cands := _pnp_candidates(intrinsics[c], board, d))}
            for c, name in enumerate(names)}
     n = len(names)
     pair_frames = defaultdict(list)
@@ -147,28 +240,67 @@ def initial_poses(intrinsics: Rig, board: BoardSpec, detections: Detections, ref
                          f"cameras connected to {names[reference]!r} (usable views per camera: {seen}). "
                          "Capture again with the board held where each of these cameras and a neighbour "
                          "both see it whole")
-    poses: list[tuple[np.ndarray, np.ndarray] | None] = [None] * n
+    poses: list[Pose | None] = [None] * n
     poses[reference] = (np.eye(3), np.zeros(3))
+    edges = []
     for c in order[1:]:
         p = parents[c]
         shared = pair_frames[min(p, c), max(p, c)]
-        rel_R, rel_t = [], []  # parent camera -> camera c
-        for f in shared:
-            (Rp, tp), (Rc, tc) = pnp[p][f], pnp[c][f]
-            R = Rc @ Rp.T
-            rel_R.append(R)
-            rel_t.append(tc - R @ tp)
-        R_pc, t_pc = _mean_rotation(rel_R), np.median(rel_t, axis=0)
-        Rp_ref, tp_ref = poses[p]
+        (R_pc, t_pc), agree = _relative_pose(pnp[p], pnp[c], shared)
+        edges.append((names[p], names[c], agree, len(shared)))
+        Rp_ref, tp_ref = poses[p]  # type: ignore[misc]
         poses[c] = (R_pc @ Rp_ref, R_pc @ tp_ref + t_pc)
-    boards: dict[Hashable, tuple[np.ndarray, np.ndarray, int]] = {}  # pose and corners seen
-    for c in range(n):
-        Rc, tc = poses[c]
-        for f, (Rb, tb) in pnp[c].items():
-            if f not in boards or len(detections[names[c]][f]) > boards[f][2]:
-                boards[f] = (Rc.T @ Rb, Rc.T @ (tb - tc), len(detections[names[c]][f]))
-    # the spanning tree reached every camera: no pose is None any more
-    return cast(list[tuple[np.ndarray, np.ndarray]], poses), {f: (R, t) for f, (R, t, _) in boards.items()}
+    rig_poses = cast(list[Pose], poses)  # the spanning tree reached every camera
+    placed = Rig([Camera(cam.name, cam.K, cam.dist, R, t, cam.size) for cam, (R, t) in zip(intrinsics, rig_poses)])
+    candidates = _candidates_in_world(placed, pnp)
+    boards = choose_board_poses(placed, board, detections, candidates)
+    return rig_poses, boards, candidates, PoseGraph(names, weights, edges)
+
+
+def _candidates_in_world(rig: Rig, pnp: dict[int, dict[Hashable, list[Pose]]]) -> dict[Hashable, list[Pose]]:
+    """Per frame, every camera's candidate board poses (board -> camera) taken to ``rig``'s world."""
+    candidates: dict[Hashable, list[Pose]] = defaultdict(list)
+    for c, cam in enumerate(rig):
+        for f, cands in pnp.get(c, {}).items():
+            candidates[f] += [(cam.R.T @ Rb, cam.R.T @ (tb - cam.t)) for Rb, tb in cands]
+    return dict(candidates)
+
+
+def board_pose_candidates(rig: Rig, board: BoardSpec, detections: Detections) -> dict[Hashable, list[Pose]]:
+    """Per frame, the candidate board poses (board -> world) of every camera that reads it
+    (:func:`_pnp_candidates` with the rig's intrinsics, through its camera poses)."""
+    pnp = {c: {f: cands for f, d in detections.get(cam.name, {}).items() if (cands := _pnp_candidates(cam, board, d))}
+           for c, cam in enumerate(rig)}
+    return _candidates_in_world(rig, pnp)
+
+
+def choose_board_poses(rig: Rig, board: BoardSpec, detections: Detections,
+                       candidates: dict[Hashable, list[Pose]], keep_first_within: float = 0.0) -> dict[Hashable, Pose]:
+    """Per frame, the candidate board pose (board -> ``rig``'s world) with the least robust
+    reprojection error (Huber, 1 px) summed over every camera that reads the board in it. With
+    ``keep_first_within`` > 0 a frame's first candidate stays unless another costs less than
+    ``(1 - keep_first_within)`` times its cost (no flip-flopping between near-equal solutions)."""
+    model = board.object_points()
+    chosen = {}
+    for f, cands in candidates.items():
+        views = [(cam, detections[cam.name][f]) for cam in rig if f in detections.get(cam.name, {})]
+
+        def cost(pose: Pose, views=views) -> float:
+            R, t = pose
+            total = 0.0
+            for cam, det in views:
+                points = model[det.ids] @ R.T + t
+                if np.any(cam.depth(points) <= 0):
+                    return np.inf
+                e = np.linalg.norm(cam.project(points) - det.pixels, axis=1)
+                total += float(np.sum(np.where(e <= 1.0, 0.5 * e ** 2, e - 0.5)))
+            return total
+
+        best = min(cands, key=cost)
+        if keep_first_within > 0 and cost(best) >= (1 - keep_first_within) * cost(cands[0]):
+            best = cands[0]
+        chosen[f] = best
+    return chosen
 
 
 # ---------------------------------------------------------------------- step 3: bundle adjustment
@@ -334,9 +466,23 @@ def calibrate_extrinsics(intrinsics: Rig, board: BoardSpec, detections: Detectio
     detections, rejected = drop_ambiguous_views(detections)
     for (name, frame), why in rejected.items():
         log.warning("left out %s frame %s: %s", name, frame, why)
-    poses, boards = initial_poses(intrinsics, board, detections, reference)
+    poses, boards, _, graph = initial_pose_graph(intrinsics, board, detections, reference)
     rig, board_poses, obs = bundle_adjust(intrinsics, board, detections, poses, boards, reference,
                                           refine_intrinsics, progress=progress, backend=backend)
+    # Planar ambiguity: each frame's other PnP solutions, seen through the adjusted rig, compete
+    # with the adjusted pose; where one fits all cameras better the adjustment runs again from it.
+    for _ in range(MAX_POSE_SWITCH_ROUNDS):
+        candidates = board_pose_candidates(rig, board, detections)
+        for f, pose in board_poses.items():
+            candidates.setdefault(f, []).insert(0, pose)
+        chosen = choose_board_poses(rig, board, detections, candidates, keep_first_within=0.2)
+        switched = [f for f in chosen if chosen[f] is not candidates[f][0]]
+        if not switched:
+            break
+        log.info("bundle adjustment: %d board poses switched to their other planar solution, adjusting again",
+                 len(switched))
+        rig, board_poses, obs = bundle_adjust(rig, board, detections, [(c.R, c.t) for c in rig], chosen,
+                                              reference, refine_intrinsics, progress=progress, backend=backend)
     # Drop corners whose residual is far beyond the typical one (mis-refined corners), then
     # adjust again from the refined state.
     detections, n_dropped = drop_outlier_corners(rig, board, detections, board_poses)
@@ -352,6 +498,7 @@ def calibrate_extrinsics(intrinsics: Rig, board: BoardSpec, detections: Detectio
         log.warning("no floor frame given: the world frame is camera %s's frame, not Z up", rig[reference].name)
     result = _report(rig, board, detections, board_poses, obs)
     result.rejected = rejected
+    result.pose_graph = graph
     return result
 
 

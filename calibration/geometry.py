@@ -7,7 +7,7 @@ from typing import Sequence
 import numpy as np
 
 from spinemocap.camera import Camera, Rig
-from spinemocap.geometry import triangulate_dlt, umeyama  # noqa: F401  (umeyama: re-exported)
+from spinemocap.geometry import triangulate_rays, umeyama  # noqa: F401  (umeyama: re-exported)
 
 
 def rodrigues(rvecs: np.ndarray) -> np.ndarray:
@@ -33,11 +33,14 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 
 def triangulate(cameras: Sequence[Camera], pixels: np.ndarray) -> np.ndarray:
-    """One 3D point (mm) from its distorted pixels (C, 2) in ``cameras``: linear least squares
-    (DLT) on undistorted normalized coordinates."""
-    P = np.stack([np.hstack([cam.R, cam.t[:, None]]) for cam in cameras])
-    uv = np.stack([cam.undistort_points(px[None], normalized=True)[0] for cam, px in zip(cameras, pixels)])
-    return triangulate_dlt(P, uv[None], np.ones((1, len(cameras)), bool))[0]
+    """One 3D point (mm) from its distorted pixels (C, 2) in ``cameras``: the least-squares point
+    of the cameras' rays (the same in any world frame; the DLT's row-scaled homogeneous solution
+    moves with the frame, by millimetres where the world is a camera's own frame)."""
+    directions = np.stack([cam.R.T @ np.append(cam.undistort_points(px[None], normalized=True)[0], 1.0)
+                           for cam, px in zip(cameras, pixels)])
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    origins = np.stack([cam.center for cam in cameras])
+    return triangulate_rays(origins, directions[None], np.ones((1, len(cameras))))[0]
 
 
 def rigid_fit(model: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

@@ -17,27 +17,39 @@ def register(subparsers) -> None:
     p = sub.add_parser("intrinsics", help="one camera's intrinsics from board images or a video")
     p.add_argument("images", nargs="+", help="image files, a folder of images, or a video")
     p.add_argument("--board", required=True, help="checkerboard:COLSxROWS:SQUARE_MM (inner corners) or "
-                   "charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]] (squares)")
+                   "charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]] (squares), then optionally :inverted, :legacy, :mirrored "
+                   "(see extrinsics --help)")
     p.add_argument("--out", required=True, help="rig TOML (one camera, identity pose) or .xcp / Pose2Sim .toml")
     p.add_argument("--name", help="camera name (default: the folder or file name)")
     p.add_argument("--k3", action="store_true", help="also estimate the k3 radial term (wide-angle lenses)")
     p.add_argument("--max-frames", type=int, default=60, help="frames sampled from a video (default 60)")
     p.set_defaults(func=_intrinsics)
 
-    p = sub.add_parser("extrinsics", help="all cameras' poses from synchronized board views + bundle adjustment")
-    p.add_argument("--intrinsics", nargs="+", required=True, help="rig/intrinsics files giving the cameras in order")
+    p = sub.add_parser("extrinsics", help="all cameras' poses (and intrinsics) from board videos or image folders "
+                       "+ bundle adjustment")
+    p.add_argument("--intrinsics", nargs="+", help="rig/intrinsics files giving the cameras in order (default: "
+                   "intrinsics from the same recordings, cameras named after the files)")
     p.add_argument("--views", nargs="+", required=True,
-                   help="one folder of synchronized images (or a video) per camera, in the cameras' order")
+                   help="one board video (any codec or rate) or image folder per camera, in the cameras' order")
     p.add_argument("--board", required=True, help="charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]] or "
-                   "checkerboard:COLSxROWS:SQUARE_MM (inner corners; one odd and one even count, e.g. 4x7)")
+                   "checkerboard:COLSxROWS:SQUARE_MM (inner corners; one odd and one even count, e.g. 4x7), then "
+                   "optionally :inverted / :normal, :legacy / :current (ChArUco layout), :mirrored / :front; "
+                   "what is left out is found from the views")
+    p.add_argument("--pair-by", choices=["index", "time"], default="index",
+                   help="pair the cameras' frames by index (default) or by the videos' timestamps")
+    p.add_argument("--max-frames", type=int, default=200, help="frames read per camera, spread evenly (default 200)")
+    p.add_argument("--max-blur", type=float, help="views whose board edges are blurrier than this Gaussian sigma "
+                   "(px; motion blur counts) are left out (default 3)")
     p.add_argument("--ba", choices=["ceres", "scipy"], default="ceres",
                    help="bundle adjustment: Ceres via pycolmap (default) or scipy least_squares")
-    p.add_argument("--floor-frames", nargs="*", default=["0"],
-                   help="frames where the board lies face up on the floor, e.g. 0 or 0:3 or 0,5 (world Z up; default 0)")
+    p.add_argument("--floor-frames", nargs="*", default=[],
+                   help="frames where the board lies face up on the floor, e.g. 0 or 0:3 or 0,5 (world Z up); "
+                        "none: the first camera's frame is the world")
     p.add_argument("--fixed-intrinsics", action="store_true", help="do not refine intrinsics in the adjustment")
     p.add_argument("--out", required=True, help="output rig (.toml ours, --format pose2sim, or .xcp)")
     p.add_argument("--format", choices=["spinemocap", "pose2sim"], help="TOML flavour of --out")
-    p.add_argument("--plot", help="reprojection-error PNG (default: OUT.residuals.png)")
+    p.add_argument("--plot", help="reprojection-error PNG (default: OUT.residuals.png; cameras and board poses "
+                   "in 3D: OUT.rig3d.png)")
     p.set_defaults(func=_extrinsics)
 
     p = sub.add_parser("wand-wave", help="all cameras' poses from a wand wave alone (no board)")
@@ -72,9 +84,13 @@ def register(subparsers) -> None:
     p.add_argument("--format", choices=["spinemocap", "pose2sim"], help="TOML flavour of the output (default ours)")
     p.set_defaults(func=_convert)
 
-    p = sub.add_parser("check", help="per-camera table and reprojection-error plot of a rig")
+    p = sub.add_parser("check", help="per-camera table and reprojection-error plot of a rig, or its agreement "
+                       "with another calibration")
     p.add_argument("rig", help="rig file (any supported format)")
-    p.add_argument("--views", nargs="+", help="synchronized board image folders, one per camera (in order)")
+    p.add_argument("--against", help="another calibration of the same cameras (any supported format): per-pair "
+                   "baseline ratio and relative rotation difference; exit code 1 when a baseline differs by more than "
+                   "2 %% or a relative rotation by more than 1 deg")
+    p.add_argument("--views", nargs="+", help="synchronized board videos or image folders, one per camera (in order)")
     p.add_argument("--board", help="board of --views")
     p.add_argument("--plot", help="PNG path (default: RIG.check.png)")
     p.set_defaults(func=_check)
@@ -106,6 +122,14 @@ def register_bench(subparsers) -> None:
     p.add_argument("--out", default="bench_calibration.json", help="JSON with the numbers")
     p.set_defaults(func=_bench)
 
+    p = subparsers.add_parser("calibration-session", help="the studio's board session (inverted ChArUco, turned "
+                              "cameras, 6 fps, strong distortion, motion blur) calibrated from its videos alone")
+    p.add_argument("--size", type=int, nargs=2, default=[960, 540], help="landscape image size in px (default 960 540)")
+    p.add_argument("--frames", type=int, default=96, help="frames per camera at 6 fps (default 96: 16 s)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--out", default="bench_calibration_session.json", help="JSON with the numbers")
+    p.set_defaults(func=_bench_session)
+
 
 # ---------------------------------------------------------------------- handlers
 def _intrinsics(args: argparse.Namespace) -> int:
@@ -125,55 +149,28 @@ def _intrinsics(args: argparse.Namespace) -> int:
     return 0
 
 
-def load_view_detections(folders: list[str], names: list[str], sizes: list[tuple[int, int]], board) -> dict:
-    """Detect the board in every camera's synchronized frames; frame key = frame index."""
-    from calibration.boards import detect_board, view_problem
-    from calibration.intrinsics import iter_images
-    from spinemocap.fileio import InputError
-
-    if len(folders) != len(names):
-        raise InputError("--views", f"{len(folders)} view folders for {len(names)} cameras; give one per camera")
-    detections = {}
-    for folder, name, size in zip(folders, names, sizes):
-        per_frame = {}
-        for index, (label, image) in enumerate(iter_images(folder, max_video_frames=100000)):
-            if (image.shape[1], image.shape[0]) != tuple(size):
-                raise InputError(f"{folder}/{label}", f"image is {image.shape[1]}x{image.shape[0]} px but camera "
-                                 f"{name!r} was calibrated at {size[0]}x{size[1]}; use the same resolution "
-                                 "for intrinsics and extrinsics")
-            det = detect_board(image, board)
-            if det is not None and view_problem(det, board, size) is None:
-                per_frame[index] = det
-        detections[name] = per_frame
-    return detections
-
-
-def _read_cameras(paths: list[str]):
-    from calibration.formats import read_rig
-    from spinemocap.camera import Rig
-
-    cameras = [cam for path in paths for cam in read_rig(path)]
-    return Rig(cameras)
-
-
 def _extrinsics(args: argparse.Namespace) -> int:
-    from calibration.boards import BoardSpec
+    from calibration.boards import MAX_BLUR_SIGMA_PX, BoardSpec
     from calibration.check import plot_residuals, save_residuals
-    from calibration.extrinsics import calibrate_extrinsics
     from calibration.formats import write_rig
+
+    from ..app.calibrate import calibrate_recordings, plot_rig_3d, read_cameras
 
     floor = parse_frames(",".join(args.floor_frames), parameter="--floor-frames") if args.floor_frames else None
     board = BoardSpec.parse(args.board)
-    intrinsics = _read_cameras(args.intrinsics)
-    detections = load_view_detections(args.views, intrinsics.names, [c.size for c in intrinsics], board)
-    result = calibrate_extrinsics(intrinsics, board, detections, floor_frame=floor,
-                                  refine_intrinsics=not args.fixed_intrinsics, backend=args.ba)
-    print(result.summary())
+    intrinsics = read_cameras(args.intrinsics) if args.intrinsics else None
+    max_blur = MAX_BLUR_SIGMA_PX if args.max_blur is None else args.max_blur
+    calibrated = calibrate_recordings(args.views, board, intrinsics, args.pair_by, args.max_frames,
+                                      floor, not args.fixed_intrinsics, args.ba, max_blur)
+    print(calibrated.summary())
+    result = calibrated.result
     write_rig(result.rig, args.out, args.format)
     save_residuals(args.out, result.residuals)
     plot = args.plot or f"{args.out}.residuals.png"
     plot_residuals(result.rig, result.residuals, plot)
-    print(f"wrote {args.out} and {plot}")
+    up = None if args.floor_frames else -result.rig[0].R[1]  # no floor: the first camera's image up
+    plot_rig_3d(result.rig, calibrated.session.read_as or board, result.board_poses, f"{args.out}.rig3d.png", up=up)
+    print(f"wrote {args.out}, {plot} and {args.out}.rig3d.png")
     return 0
 
 
@@ -185,7 +182,9 @@ def _wand_wave(args: argparse.Namespace) -> int:
 
     floor = parse_frames(args.floor_frames, parameter="--floor-frames") if args.floor_frames else None
     wand = WandSpec.parse(args.wand)
-    intrinsics = _read_cameras(args.intrinsics)
+    from ..app.calibrate import read_cameras
+
+    intrinsics = read_cameras(args.intrinsics)
     frames, _ = synchronized_frames(args.videos, len(intrinsics))
     views = detect_wand_views(frames, wand)
     result = calibrate_wand_wave(intrinsics, views, wand, floor, backend=args.ba,
@@ -240,17 +239,31 @@ def _convert(args: argparse.Namespace) -> int:
 
 def _check(args: argparse.Namespace) -> int:
     from calibration.boards import BoardSpec
-    from calibration.check import camera_table, load_residuals, plot_residuals, residuals_from_views, residuals_path
+    from calibration.check import (
+        camera_table,
+        compare_rigs,
+        load_residuals,
+        plot_residuals,
+        residuals_from_views,
+        residuals_path,
+    )
     from calibration.formats import read_rig
     from spinemocap.fileio import InputError
 
+    from ..app.calibrate import load_view_detections
+
     rig = read_rig(args.rig)
+    if args.against:
+        comparison = compare_rigs(rig, read_rig(args.against))
+        print(f"{args.rig} against {args.against}:")
+        print(comparison.summary())
+        if not args.views:
+            return 0 if comparison.agrees else 1
     if args.views:
         if not args.board:
             raise InputError("--views", "--board is needed to detect the board in --views")
         board = BoardSpec.parse(args.board)
-        detections = load_view_detections(args.views, rig.names, [c.size for c in rig], board)
-        residuals = residuals_from_views(rig, board, detections)
+        residuals = residuals_from_views(rig, board, load_view_detections(args.views, rig, board))
     else:
         residuals = load_residuals(args.rig)
     if residuals is None:
@@ -270,4 +283,11 @@ def _bench(args: argparse.Namespace) -> int:
 
     run_benchmark(args.size, args.intrinsic_views, args.frames, args.seeds, args.out,
                   checkerboard=args.checkerboard, wand=args.wand, wand_seconds=args.wand_seconds)
+    return 0
+
+
+def _bench_session(args: argparse.Namespace) -> int:
+    from ..bench.board_session import run_session_benchmark
+
+    run_session_benchmark(tuple(args.size), args.frames, tuple(args.seeds), args.out)
     return 0
