@@ -1,20 +1,13 @@
-"""Time ``spinemocap view``'s outputs: the labelled videos (per camera and the grid) and the 3D
-viewer, on a given capture and results, or on captures made here (grey images, a flat 7-row tape:
-the drawing and encoding cost does not depend on what the images show).
-
-    python docs/results/view/bench_view.py --capture demo_out/capture --results demo_out/tracked
-    python docs/results/view/bench_view.py --made 1024x768x4 --frames 100
-    python docs/results/view/bench_view.py --made 2448x1600x6 --frames 30
-
-Prints one JSON line per run: wall seconds of each output, capture frames written per second (all
-cameras and the grid together) of wall time and of this process's CPU time (x264's threads
-included), the video size, the machine's load average.
+"""``spinemocap bench view``: the time of ``spinemocap view``'s outputs, the labelled videos (per
+camera and the grid) and the 3D viewer, on a given capture and results, or on a capture made here
+(grey images, a flat 13-row tape: the drawing and encoding cost does not depend on what the images
+show). Per run: wall seconds of each output, capture frames written per second (all cameras and
+the grid together) of wall time and of this process's CPU time (x264's threads included), the
+video size and the machine's load average.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import resource
 import tempfile
@@ -77,25 +70,16 @@ def run(capture: Path, results: Path, out: Path, scale: float | None) -> dict:
             "load_1min": round(os.getloadavg()[0], 2)}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--capture", type=Path)
-    parser.add_argument("--results", type=Path)
-    parser.add_argument("--made", help="WIDTHxHEIGHTxCAMERAS of a capture made here")
-    parser.add_argument("--frames", type=int, default=60)
-    parser.add_argument("--scale", type=float, default=None)
-    parser.add_argument("--repeat", type=int, default=2)
-    args = parser.parse_args()
+def run_benchmark(capture: Path | None, results: Path | None, made: str | None, frames: int,
+                  scale: float | None, repeat: int) -> list[dict]:
+    """``repeat`` runs on ``capture``/``results``, or on a capture ``made`` = "WIDTHxHEIGHTxCAMERAS"
+    of ``frames`` frames; one dict per run (see the module docstring)."""
+    runs = []
     with tempfile.TemporaryDirectory() as tmp:
-        if args.made:
-            width, height, cameras = (int(v) for v in args.made.split("x"))
-            capture, results = made_capture(Path(tmp), width, height, cameras, args.frames)
-        else:
-            capture, results = args.capture, args.results
-        for k in range(args.repeat):
-            print(json.dumps({"capture": args.made or str(capture), "run": k, **run(capture, results, Path(tmp) / f"v{k}",
-                                                                                   args.scale)}), flush=True)
-
-
-if __name__ == "__main__":
-    main()
+        if made:
+            width, height, cameras = (int(v) for v in made.split("x"))
+            capture, results = made_capture(Path(tmp), width, height, cameras, frames)
+        assert capture is not None and results is not None
+        for k in range(repeat):
+            runs.append({"capture": made or str(capture), "run": k, **run(capture, results, Path(tmp) / f"v{k}", scale)})
+    return runs
