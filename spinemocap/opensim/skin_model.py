@@ -86,15 +86,25 @@ def row_sides(positions: np.ndarray, tape: TapeSpec) -> tuple[np.ndarray, np.nda
     return left, right
 
 
+def _shifted(centre: np.ndarray, k: int) -> np.ndarray:
+    """``centre`` of the row ``k`` rows up (k > 0) or down, NaN beyond the tape."""
+    out = np.full_like(centre, np.nan)
+    if k > 0:
+        out[..., :-k, :] = centre[..., k:, :]
+    else:
+        out[..., -k:, :] = centre[..., :k, :]
+    return out
+
+
 def _midline_tangents(centre: np.ndarray) -> np.ndarray:
-    """(..., R, 3) unit midline tangent at every row from the neighbouring rows' centres (central
-    difference, one-sided at an end or beside an unseen row; NaN without a seen neighbour)."""
-    up = np.roll(centre, -1, axis=-2)
-    down = np.roll(centre, 1, axis=-2)
-    up[..., -1, :] = np.nan
-    down[..., 0, :] = np.nan
-    step = np.where(np.isfinite(up) & np.isfinite(down), up - down,
-                    np.where(np.isfinite(up), up - centre, centre - down))
+    """(..., R, 3) unit midline tangent at every row from the neighbouring rows' centres: central
+    difference, or the second-order one-sided difference at an end or beside an unseen row (a
+    plain one-sided chord would be off by half a row's turn); NaN without two seen rows on a side."""
+    up, up2, down, down2 = (_shifted(centre, k) for k in (1, 2, -1, -2))
+    forward = -3.0 * centre + 4.0 * up - up2
+    backward = 3.0 * centre - 4.0 * down + down2
+    step = np.where(np.isfinite(up) & np.isfinite(down), 2.0 * (up - down),
+                    np.where(np.isfinite(forward), forward, backward))
     return _unit(step)
 
 
