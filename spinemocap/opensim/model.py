@@ -48,8 +48,9 @@ DOF = ("extension", "lateral_bending", "axial_rotation")
 AXES = ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))  # Z, X, Y body-fixed
 ROOT_COORDS = ("pelvis_tilt", "pelvis_list", "pelvis_rotation", "pelvis_tx", "pelvis_ty", "pelvis_tz")
 BODY_MASS_KG = 70.0  # generic adult: masses do not enter inverse kinematics
-# Driven coordinates are clamped at this multiple of the published (representative) range: the
-# tables' upper limits run ~1.5-2 x their representative values (White & Panjabi 1990).
+# Driven coordinates are clamped at this multiple of the published (representative) range: above the
+# tables' upper limits (~1.5-2 x the representative values, White & Panjabi 1990) so that individual
+# spread stays inside, while a single thoracic level can no longer take tens of degrees.
 RANGE_FACTOR = 3.0
 SKIN_BODY_MASS_KG = 0.001
 
@@ -209,7 +210,7 @@ def _custom_joint(osim, name: str, parent, parent_loc, parent_R, child, child_lo
 
 
 def build_model(geometry: SpineGeometry, plan: ModelPlan, markers: list[tuple[str, int, np.ndarray, int]],
-                slips: dict[int, int] | None = None, prior: SlipPrior = SlipPrior(),
+                slips: dict[int, int] | None = None, prior: SlipPrior | None = None,
                 name: str = "spinemocap_spine"):
     """The OpenSim model (``opensim.Model``, finalized). ``markers``: (label, chain index,
     location in that body's frame (mm), tape row); ``slips``: {tape row: chain index of its
@@ -260,7 +261,7 @@ def build_model(geometry: SpineGeometry, plan: ModelPlan, markers: list[tuple[st
         coupler.setDependentCoordinateName(dependent)
         coupler.setFunction(osim.LinearFunction(float(ratio), 0.0))
         model.addConstraint(coupler)
-    skins = {row: _skin_body(osim, model, row, bodies[k] if k > 0 else sacrum, prior)
+    skins = {row: _skin_body(osim, model, row, bodies[k] if k > 0 else sacrum, prior or SlipPrior())
              for row, k in (slips or {}).items()}
     for label, k, location, row in markers:
         frame = skins.get(row, bodies[k] if k > 0 else sacrum)
