@@ -87,8 +87,8 @@ def headline(results: dict) -> dict:
                     row[f"{axis}_rmse_deg_worst"] = float(np.max(values))
             if method != "geometric":
                 row["marker_rms_mm_worst"] = float(np.max([r[method]["marker_rms_mm"] for r in runs.values()]))
-            row["goals_met"] = {axis: row.get(f"{axis}_rmse_deg_worst", np.inf) <= GOALS[f"{axis}_rmse_deg"]
-                                for axis in AXES}
+            row["goals_met"] = {axis: row[f"{axis}_rmse_deg_worst"] <= GOALS[f"{axis}_rmse_deg"]
+                                for axis in AXES if f"{axis}_rmse_deg_worst" in row}
             if "marker_rms_mm_worst" in row:
                 row["goals_met"]["marker_rms"] = row["marker_rms_mm_worst"] <= GOALS["marker_rms_mm"]
             table[method] = row
