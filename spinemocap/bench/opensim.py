@@ -15,6 +15,13 @@ turned rest frames), so that both
 benchmarks score against one model.
 For ``mixed`` all three angles are scored.
 The peer measures the same two rows with :func:`spinemocap.analysis.angles.compute_angles`.
+
+Methods per run (same markers, same rows): ``ik`` (the skin model: row tilt normalised, rows
+slipping with their prior), ``ik_rigid`` (every marker fixed to its vertebra, tilt as measured:
+the pipeline without the skin model) and ``geometric``. Both IK runs place the joint centres at
+the studio body's own depth under the tape (:func:`body_model_depth_scale`: anny's spine joints,
+the depth a lab would take from imaging), named in their ``summary.json``. Subjects: one studio
+seed each (``seeds``).
 """
 
 from __future__ import annotations
@@ -29,16 +36,19 @@ import numpy as np
 
 MOTIONS = ("flexion", "lateral", "rotation", "mixed")
 AXES = ("flexion", "lateral", "rotation")
-GOALS = {"marker_rms_mm": 2.0, "flexion_rmse_deg": 2.0, "lateral_rmse_deg": 3.0, "rotation_rmse_deg": 3.0,
-         "ik_frames_per_s": 20.0}
+METHODS = ("ik", "ik_rigid", "geometric")
+GOALS = {"marker_rms_mm": 2.0, "flexion_rmse_deg": 2.0, "lateral_rmse_deg": 2.0, "rotation_rmse_deg": 3.0}
+BODY_MODEL_DEPTH = "the studio body's spine joints (anny) under the tape rows, static trial"
 
 
 def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[str] = ("groundtruth", "tracked"),
                           frames: int = 100, fps: float = 100 / 3, rows: int = 13, tracked_frames: int | None = None,
-                          cache: Path | None = None, progress: bool = True, realism: str = "lab") -> dict:
-    """Every (motion, source) pair scored (see the module docstring), the headline numbers and
-    the goals; ``cache``: folder to keep and reuse the tracked markers; ``realism``: the studio's
-    level (``lab``: tension, skin strain, tracking through the lab's inexact rig)."""
+                          cache: Path | None = None, progress: bool = True, realism: str = "lab",
+                          seeds: Sequence[int] = (0,)) -> dict:
+    """Every (seed, motion, source) scored (see the module docstring; runs keyed
+    ``<motion>/seed<seed>``), the headline numbers and the goals; ``cache``: folder to keep and
+    reuse the tracked markers; ``realism``: the studio's level (``lab``: tension, skin strain,
+    tracking through the lab's inexact rig)."""
     from tqdm import tqdm
 
     from ..opensim import require_opensim
@@ -46,10 +56,11 @@ def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[st
     require_opensim()
     started = time.time()
     results: dict = {source: {} for source in sources}
-    jobs = [(m, s) for m in motions for s in sources]
-    for motion, source in tqdm(jobs, desc="motions x sources", disable=not progress):
+    jobs = [(seed, m, s) for seed in seeds for m in motions for s in sources]
+    for seed, motion, source in tqdm(jobs, desc="subjects x motions x sources", disable=not progress):
         n = (tracked_frames or frames) if source == "tracked" else frames
-        results[source][motion] = bench_motion(motion, source, n, fps, rows, progress, cache, realism)
+        results[source][f"{motion}/seed{seed}"] = bench_motion(motion, source, n, fps, rows, progress, cache,
+                                                               realism, seed)
     return {
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
         "date": time.strftime("%Y-%m-%d"),
@@ -62,35 +73,44 @@ def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[st
 
 
 def headline(results: dict) -> dict:
-    """The headline keys from the first source present: each RMSE from its own single-axis motion,
-    marker RMS the mean over motions; the peer's beside them."""
-    source = "groundtruth" if "groundtruth" in results else next(iter(results))
-    out: dict = {"headline_source": source}
-    runs = results[source]
-    for method in ("ik", "geometric"):
-        prefix = "" if method == "ik" else "geometric_"
-        for axis in AXES:
-            run = runs.get({"flexion": "flexion", "lateral": "lateral", "rotation": "rotation"}[axis])
-            if run:
-                out[f"{prefix}{axis}_rmse_deg"] = run[method][f"{axis}_rmse_deg"]
-    out["marker_rms_mm"] = float(np.mean([r["ik"]["marker_rms_mm"] for r in runs.values()]))
-    out["ik_ms_per_frame"] = float(np.mean([r["ik"]["ms_per_frame"] for r in runs.values()]))
-    return out
+    """Per source: the worst RMSE over subjects of each angle on its own single-axis motion and on
+    ``mixed``, the worst marker RMS, per method; and whether each goal is met."""
+    out: dict = {}
+    for source, runs in results.items():
+        table: dict = {}
+        for method in METHODS:
+            row: dict = {}
+            for axis in AXES:
+                values = [r[method][f"{axis}_rmse_deg"] for key, r in runs.items()
+                          if key.split("/")[0] in (axis, "mixed") and f"{axis}_rmse_deg" in r[method]]
+                if values:
+                    row[f"{axis}_rmse_deg_worst"] = float(np.max(values))
+            if method != "geometric":
+                row["marker_rms_mm_worst"] = float(np.max([r[method]["marker_rms_mm"] for r in runs.values()]))
+            row["goals_met"] = {axis: row[f"{axis}_rmse_deg_worst"] <= GOALS[f"{axis}_rmse_deg"]
+                                for axis in AXES if f"{axis}_rmse_deg_worst" in row}
+            if "marker_rms_mm_worst" in row:
+                row["goals_met"]["marker_rms"] = row["marker_rms_mm_worst"] <= GOALS["marker_rms_mm"]
+            table[method] = row
+        out[source] = table
+    return {"headline": out}
 
 
 def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, progress: bool,
-                 cache: Path | None = None, realism: str = "lab") -> dict:
-    """One studio motion from one marker source: IK and geometric angles scored."""
+                 cache: Path | None = None, realism: str = "lab", seed: int = 0) -> dict:
+    """One studio motion of one subject (``seed``) from one marker source: IK with and without the
+    skin model and the geometric angles scored."""
     from ..analysis.angles import AngleSettings, compute_angles
     from ..analysis.levels import LevelMap
     from ..markers import MarkerTable
     from ..opensim import OpenSimSettings, run_opensim
     from .analysis import HIGH, LOW, expected_between_rows, studio_motion
 
-    data = studio_motion(motion, frames, fps, rows, realism=realism)
+    data = studio_motion(motion, frames, fps, rows, seed=seed, realism=realism)
     tape = data["tape"]
     if source == "tracked":
-        markers = tracked_markers(data["scene"], progress, cache and cache / f"markers_{motion}_{frames}_{fps:.4g}_{realism}.csv")
+        markers = tracked_markers(data["scene"], progress,
+                                  cache and cache / f"markers_{motion}_{frames}_{fps:.4g}_{realism}_seed{seed}.csv")
     else:
         markers = MarkerTable.from_arrays(data["labels"], data["dots"], fps=fps)
     applied = data["applied"] - data["applied"][0]
@@ -99,29 +119,57 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     truth = MarkerTable.from_arrays(data["labels"], data["dots"], fps=fps)
     expected = expected_between_rows(data["scene"], truth, lo, hi)
     levels = LevelMap.from_row_levels(data["row_levels"], tape.n_rows)
-    with tempfile.TemporaryDirectory() as tmp:
-        # the static trial is the neutral first frame: the studio's motions start moving at once
-        result = run_opensim(markers, tape, levels, data["up"], data["facing"], Path(tmp) / "opensim",
-                             settings=OpenSimSettings(static_frames=1))
-        ik = ik_angles(result, lo, hi)
+    depth_scale = body_model_depth_scale(data, levels)
+    ik: dict = {}
+    for method, skin in (("ik", {}), ("ik_rigid", {"slip": None, "normalise_tilt": False})):
+        with tempfile.TemporaryDirectory() as tmp:
+            # the static trial is the neutral first frame: the studio's motions start moving at once
+            settings = OpenSimSettings(static_frames=1, depth_scale=depth_scale, depth_source=BODY_MODEL_DEPTH, **skin)
+            result = run_opensim(markers, tape, levels, data["up"], data["facing"], Path(tmp) / "opensim",
+                                 settings=settings)
+            s = result.summary
+            slip = s["skin_model"]["slip"]
+            ik[method] = {**score(ik_angles(result, lo, hi), expected, axes), "marker_rms_mm": s["marker_rms_mm"],
+                          "marker_rms_mm_max": s["marker_rms_mm_max"], "ms_per_frame": s["ms_per_frame"],
+                          "flagged_frames": len(s["flagged_frames"]), "driven_joints": len(s["driven_joints"]),
+                          "slip_at_peak_mm": slip["at_peak_mm"] if isinstance(slip, dict) else None}
     completeness = markers.completeness()
     t0 = time.perf_counter()
     geometric = compute_angles(markers, tape, LevelMap({LOW: lo, HIGH: hi}, tape.n_rows), up=data["up"],
                                facing=data["facing"], settings=AngleSettings(lower=LOW, thoracolumbar=HIGH)).table
     geometric_ms = 1000 * (time.perf_counter() - t0) / len(geometric)
     peer = geometric[["lumbar_flexion", "lumbar_lateral", "lumbar_rotation"]].to_numpy(float)
-    s = result.summary
     bodies = [result.geometry.names[result.geometry.row_body[r - 1]] for r in (lo, hi)]
     return {
-        "frames": len(applied), "rows": [lo, hi], "vertebrae": bodies, "joint_share": data["share"],
+        "seed": seed, "frames": len(applied), "rows": [lo, hi], "vertebrae": bodies, "joint_share": data["share"],
         "applied_peak_deg": {a: float(np.abs(applied[:, i]).max()) for i, a in enumerate(AXES)},
-        "observed_share": completeness["observed"],
-        "ik": {**score(ik, expected, axes), "marker_rms_mm": s["marker_rms_mm"],
-               "marker_rms_mm_max": s["marker_rms_mm_max"], "ms_per_frame": s["ms_per_frame"],
-               "flagged_frames": len(s["flagged_frames"]), "driven_joints": len(s["driven_joints"]),
-               "depth_scale": s["depth_scale"]["value"]},
+        "observed_share": completeness["observed"], "depth_scale": depth_scale,
+        **ik,
         "geometric": {**score(peer, expected, axes), "ms_per_frame": geometric_ms},
     }
+
+
+def body_model_depth_scale(data: dict, levels) -> float:
+    """Depth of the studio body's spine joints under the tape as a factor on the published
+    depths the model would use: the median over the static (first-frame) rows of the distance
+    from the row's L-R midpoint to anny's spine-joint polyline, over the published depth of the
+    vertebra under the row scaled to the tape (:func:`spinemocap.opensim.geometry.spine_geometry`)."""
+    from ..opensim.geometry import opensim_axes, row_frames, spine_geometry, to_opensim
+
+    axes = opensim_axes(data["up"], data["facing"])
+    rows = row_frames(to_opensim(data["dots"][0], axes), data["tape"])
+    geometry = spine_geometry(rows, levels, 1.0)
+    chain = to_opensim(data["scene"].body.spine_chain(), axes)
+    ratios = []
+    for r in np.flatnonzero(rows.seen):
+        ratios.append(_distance_to_polyline(rows.centre[r], chain) / geometry.depth[geometry.row_body[r]])
+    return float(np.median(ratios))
+
+
+def _distance_to_polyline(point: np.ndarray, vertices: np.ndarray) -> float:
+    a, b = vertices[:-1], vertices[1:]
+    t = np.clip(np.einsum("ij,ij->i", point - a, b - a) / np.einsum("ij,ij->i", b - a, b - a), 0.0, 1.0)
+    return float(np.min(np.linalg.norm(a + t[:, None] * (b - a) - point, axis=1)))
 
 
 def ik_angles(result, lo: int, hi: int) -> np.ndarray:
@@ -172,15 +220,15 @@ def tracked_markers(scene, progress: bool, cache: Path | None = None):
 
 
 def format_table(results: dict) -> str:
-    lines = [(f"{'source':<13}{'motion':<10}{'method':<11}{'flex RMSE':>10}{'lat RMSE':>9}{'rot RMSE':>9}"
+    lines = [(f"{'source':<13}{'motion/subject':<16}{'method':<10}{'flex RMSE':>10}{'lat RMSE':>9}{'rot RMSE':>9}"
               f"{'R2 (scored)':>12}{'xtalk':>7}{'mkr RMS mm':>11}{'ms/frame':>9}")]
     for source, runs in results.items():
-        for motion, run in runs.items():
-            for method in ("ik", "geometric"):
+        for key, run in runs.items():
+            for method in METHODS:
                 r = run[method]
                 r2 = [r[f"{a}_r2"] for a in AXES if f"{a}_r2" in r]
                 cells = [f"{r.get(f'{a}_rmse_deg', float('nan')):>9.2f}" for a in AXES]
-                lines.append(f"{source:<13}{motion:<10}{method:<11}{cells[0]:>10}{cells[1]:>9}{cells[2]:>9}"
+                lines.append(f"{source:<13}{key:<16}{method:<10}{cells[0]:>10}{cells[1]:>9}{cells[2]:>9}"
                              f"{min(r2):>12.4f}{r.get('crosstalk_rms_deg', float('nan')):>7.2f}"
                              f"{r.get('marker_rms_mm', float('nan')):>11.2f}{r['ms_per_frame']:>9.1f}")
     return "\n".join(lines)

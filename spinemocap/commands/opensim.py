@@ -27,9 +27,13 @@ def register(subparsers) -> None:
                                               "capture.toml, a synthetic capture's ground truth)")
     p.add_argument("--static", type=Path, help="static trial marker file (default: the first --static-frames frames)")
     p.add_argument("--static-frames", type=int, default=10, help="frames averaged as the static trial (default 10)")
-    p.add_argument("--depth-scale", type=float,
-                   help="factor on the published skin-to-vertebral-body depths (1 = anatomical); default: "
-                        "fitted to the trial by minimising the IK marker RMS")
+    p.add_argument("--depth-scale", type=float, default=1.0,
+                   help="factor on the published skin-to-vertebral-body depths, which are scaled to the subject by "
+                        "the tape (default 1); give the subject's measured depth (imaging) over the published one")
+    p.add_argument("--depth-source", help="where --depth-scale comes from (written to summary.json)")
+    p.add_argument("--rigid-skin", action="store_true",
+                   help="no skin model: every marker fixed to its vertebra, row tilt as measured (default: tilt kept "
+                        "at the static angle, rows above the lowest two slip along their vertebrae)")
     p.add_argument("--coupling", choices=("rows", "region"), default="rows",
                    help="rows: couple a vertebra's rotations to its neighbour's only when no tape row lies over "
                         "it (default); region: couple lateral bending and axial rotation over each region, as "
@@ -48,25 +52,31 @@ def run_opensim_command(args: argparse.Namespace) -> int:
     from ..app.opensim import opensim_capture
     from ..opensim import OpenSimSettings
 
-    settings = OpenSimSettings(static_frames=args.static_frames, accuracy=args.accuracy,
-                               depth_scale=args.depth_scale, coupling=args.coupling, prior_weight=args.prior_weight)
+    skin = {"slip": None, "normalise_tilt": False} if args.rigid_skin else {}
+    source = args.depth_source or (
+        OpenSimSettings.depth_source if args.depth_scale == 1.0 else f"given: {args.depth_scale:g} x the published depths")
+    settings = OpenSimSettings(static_frames=args.static_frames, accuracy=args.accuracy, depth_scale=args.depth_scale,
+                               depth_source=source, coupling=args.coupling, prior_weight=args.prior_weight, **skin)
     result, levels_from = opensim_capture(args.results, args.capture, args.out, args.levels, args.static,
                                           args.model, args.bodies, settings)
     s = result.summary
     print(f"level map: {levels_from}")
     print(f"{s['frames']} frames: marker RMS {s['marker_rms_mm']:.2f} mm mean, {s['marker_rms_mm_max']:.2f} mm worst "
           f"frame; IK {s['ms_per_frame']:.1f} ms/frame; driven joints {', '.join(s['driven_joints'])}")
-    if "depth_scale" in s:
-        d = s["depth_scale"]
-        print(f"joint centres {d['value']:.2f} x the published depth under the skin ({'fitted' if d['fitted'] else 'given'})")
+    if "depth" in s:
+        print(f"joint centres {s['depth']['scale_on_published']:.2f} x the published depth under the skin "
+              f"({s['depth']['source']})")
+        slip = s["skin_model"].get("slip")
+        if isinstance(slip, dict):
+            print("skin slip at peak (mm): " + ", ".join(f"{k[:3]} {v:+.1f}" for k, v in slip["at_peak_mm"].items()))
     for reason, count in s["flag_reasons"].items():
         print(f"  flagged {count} frames: {reason}")
     for warning in s.get("warnings", []):
         print(f"  warning: {warning}")
     for name in ("model.osim", "markers_opensim.trc", "setup_scale.xml", "setup_ik.xml", "ik.mot",
                  "ik_marker_errors.sto", "spine_angles.csv", "spine_angles.png", "summary.json"):
-        if (args.out / name).is_file():
-            print(f"  {args.out / name}")
+        if (result.out_dir / name).is_file():
+            print(f"  {result.out_dir / name}")
     return 0
 
 
@@ -89,6 +99,7 @@ def register_bench(subparsers) -> None:
                                               "and reuse them instead of rendering and tracking again")
     p.add_argument("--realism", default="lab", choices=("ideal", "skin", "lab"),
                    help="studio realism level (default lab: tape tension, skin strain, the lab's inexact rig)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0], help="studio subjects (seeds), default 0")
     p.add_argument("--json", type=Path, help="write the numbers here")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_bench)
@@ -99,16 +110,20 @@ def run_bench(args: argparse.Namespace) -> int:
     from ..fileio import atomic_write, strict_json
 
     report = run_opensim_benchmark(args.motions, args.sources, args.frames, args.fps, args.rows,
-                                   args.tracked_frames, args.cache, not args.no_progress, realism=args.realism)
+                                   args.tracked_frames, args.cache, not args.no_progress, realism=args.realism,
+                                   seeds=args.seeds)
     report["command"] = " ".join(
         ["spinemocap bench opensim", f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
          f"--realism {args.realism}",
-         "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources)]
+         "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources),
+         "--seeds " + " ".join(str(s) for s in args.seeds)]
         + ([f"--tracked-frames {args.tracked_frames}"] if args.tracked_frames else []))
     print(format_table(report["sources"]))
-    print("headline (" + report["headline_source"] + "): " + ", ".join(
-        f"{k} {report[k]:.2f}" for k in ("flexion_rmse_deg", "lateral_rmse_deg", "rotation_rmse_deg",
-                                         "marker_rms_mm", "ik_ms_per_frame") if k in report))
+    for source, methods in report["headline"].items():
+        for method, row in methods.items():
+            print(f"worst over subjects ({source}, {method}): " + ", ".join(
+                f"{k} {v:.2f}" for k, v in row.items() if k != "goals_met")
+                + "; goals " + ", ".join(f"{k} {'met' if ok else 'NOT met'}" for k, ok in row["goals_met"].items()))
     if args.json:
         with atomic_write(args.json) as handle:
             handle.write(strict_json(report))

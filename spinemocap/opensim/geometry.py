@@ -253,9 +253,8 @@ def spine_geometry(rows: RowFrames, levels: LevelRows, depth_scale: float = 1.0,
                    source: str | None = None) -> SpineGeometry:
     """Vertebral centres and frames of the subject in the static posture; see the module docstring.
 
-    ``depth_scale`` multiplies the published skin-to-body-centre depths: 1 = anatomical; the
-    pipeline can fit it to the trial (the effective centre of the skin's rotation, see
-    :func:`spinemocap.opensim.pipeline.fit_depth_scale`)."""
+    ``depth_scale`` multiplies the published skin-to-body-centre depths: 1 = anatomical (the
+    pipeline takes it from its settings, with the source written in its summary)."""
     arcs, scale = level_arcs(levels, rows, source)
     names = list(CHAIN) + [HEAD_NECK]
     arc = np.array([arcs[n] for n in names])

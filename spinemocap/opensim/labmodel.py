@@ -32,7 +32,7 @@ from ..markers import MarkerTable
 from ..tape import TapeSpec
 from .geometry import CHAIN, HEAD_NECK, LevelRows, spine_geometry
 from .pipeline import OpenSimResult, OpenSimSettings, inverse_kinematics, place_markers, prepare, publish, work_folder
-from .tools import marker_weights, read_storage, require_opensim
+from .tools import mean_weights, read_storage, require_opensim
 
 
 def read_body_map(path: str | os.PathLike) -> dict[str, str]:
@@ -51,12 +51,12 @@ def run_lab_model(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: S
                   bodies_file: str | os.PathLike, static: MarkerTable | None = None,
                   settings: OpenSimSettings | None = None, source: str | None = None) -> OpenSimResult:
     """Attach, place and solve on the lab's model; same outputs as :func:`pipeline.run_opensim`
-    (``settings.depth_scale`` places the vertebral centres, default 1; no depth fit)."""
+    (``settings.depth_scale`` places the vertebral centres; the lab's model has no skin slip)."""
     osim = require_opensim()
     settings = settings or OpenSimSettings()
     body_map = read_body_map(bodies_file)
     data, st, rows, facing_error = prepare(markers, tape, up, facing, static, settings, source)
-    geometry = spine_geometry(rows, levels, settings.depth_scale or 1.0, source)
+    geometry = spine_geometry(rows, levels, settings.depth_scale, source)
     model = osim.Model(str(model_file))
     missing = [b for b in body_map.values() if not model.getBodySet().contains(b)]
     if missing:
@@ -96,7 +96,7 @@ def run_lab_model(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: S
             "flagged_frames": [int(f) for f in np.flatnonzero(rms > 4.0)], "flag_reasons": {}, "warnings": [],
             "driven_joints": [c for c in angles.columns if c not in ("frame", "time", "marker_rms", "marker_max")],
             "markers_by_body": on_body, "facing_error_deg": facing_error,
-            "marker_weights": dict(zip(labels, np.round(marker_weights(data.status[:, placed]), 3).tolist())),
+            "marker_weights": dict(zip(labels, np.round(mean_weights(data.weights()[:, placed]), 3).tolist())),
             "units": {"angles": "deg (the lab model's rotational coordinates, OpenSim signs)", "marker errors": "mm"},
         }
         if summary["flagged_frames"]:

@@ -23,6 +23,14 @@ region (lumbar: L5/S1 ... T12/L1; thoracic: T11/T12 ... C7/T1) as the published 
 thoracolumbar models do. On request the free per-level lateral bending and axial rotation also
 get a weak prior toward the static posture in the IK set-up
 (:func:`spinemocap.opensim.pipeline._priors`).
+
+Ranges: every driven coordinate is clamped to :data:`RANGE_FACTOR` x the published range of its
+motion segment (:mod:`spinemocap.opensim.anatomy`): inverse kinematics cannot leave it.
+
+Skin: a tape row that slips (:mod:`spinemocap.opensim.skin_model`) carries its markers on a body
+``R06_skin`` joined to its vertebra by ``R06_skin_slip_joint``, a translation along the vertebra's
+superior axis (Y) with the coordinate ``R06_skin_slip`` (m, 0 = the static trial, clamped to the
+prior's limit); the model file notes each slip coordinate's prior beside it.
 """
 
 from __future__ import annotations
@@ -34,11 +42,17 @@ from scipy.spatial.transform import Rotation
 
 from .anatomy import ANATOMY
 from .geometry import HEAD_NECK, SpineGeometry
+from .skin_model import SlipPrior, skin_body, slip_coordinate
 
 DOF = ("extension", "lateral_bending", "axial_rotation")
 AXES = ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))  # Z, X, Y body-fixed
 ROOT_COORDS = ("pelvis_tilt", "pelvis_list", "pelvis_rotation", "pelvis_tx", "pelvis_ty", "pelvis_tz")
 BODY_MASS_KG = 70.0  # generic adult: masses do not enter inverse kinematics
+# Driven coordinates are clamped at this multiple of the published (representative) range: above the
+# tables' upper limits (~1.5-2 x the representative values, White & Panjabi 1990) so that individual
+# spread stays inside, while a single thoracic level can no longer take tens of degrees.
+RANGE_FACTOR = 3.0
+SKIN_BODY_MASS_KG = 0.001
 
 
 def body_name(name: str) -> str:
@@ -195,10 +209,12 @@ def _custom_joint(osim, name: str, parent, parent_loc, parent_R, child, child_lo
                             child, _vec3(osim, child_loc), osim.Vec3(0), st)
 
 
-def build_model(geometry: SpineGeometry, plan: ModelPlan, markers: list[tuple[str, int, np.ndarray]],
+def build_model(geometry: SpineGeometry, plan: ModelPlan, markers: list[tuple[str, int, np.ndarray, int]],
+                slips: dict[int, int] | None = None, prior: SlipPrior | None = None,
                 name: str = "spinemocap_spine"):
     """The OpenSim model (``opensim.Model``, finalized). ``markers``: (label, chain index,
-    location in that body's frame, mm)."""
+    location in that body's frame (mm), tape row); ``slips``: {tape row: chain index of its
+    vertebra} of the rows that slip (their markers go on the row's skin body, same location)."""
     import opensim as osim
 
     model = osim.Model()
@@ -245,15 +261,52 @@ def build_model(geometry: SpineGeometry, plan: ModelPlan, markers: list[tuple[st
         coupler.setDependentCoordinateName(dependent)
         coupler.setFunction(osim.LinearFunction(float(ratio), 0.0))
         model.addConstraint(coupler)
-    for label, k, location in markers:
-        model.addMarker(osim.Marker(label, bodies[k] if k > 0 else sacrum, _vec3(osim, np.asarray(location) * mm)))
+    skins = {row: _skin_body(osim, model, row, bodies[k] if k > 0 else sacrum, prior or SlipPrior())
+             for row, k in (slips or {}).items()}
+    for label, k, location, row in markers:
+        frame = skins.get(row, bodies[k] if k > 0 else sacrum)
+        model.addMarker(osim.Marker(label, frame, _vec3(osim, np.asarray(location) * mm)))
     model.finalizeConnections()
     return model
 
 
+def _skin_body(osim, model, row: int, vertebra, prior: SlipPrior):
+    """A row's skin body on its vertebra: frames coincide at zero slip; slip along the vertebra's Y."""
+    body = osim.Body(skin_body(row), SKIN_BODY_MASS_KG, osim.Vec3(0), osim.Inertia(1e-7, 1e-7, 1e-7))
+    model.addBody(body)
+    coords = [None, None, None, None, slip_coordinate(row), None]
+    joint = _custom_joint(osim, f"{slip_coordinate(row)}_joint", vertebra, np.zeros(3), np.eye(3), body,
+                          np.zeros(3), coords)
+    model.addJoint(joint)
+    c = model.updCoordinateSet().get(slip_coordinate(row))
+    c.setRangeMin(-prior.limit_mm / 1000.0)
+    c.setRangeMax(prior.limit_mm / 1000.0)
+    c.setDefaultValue(0.0)
+    c.setDefaultClamped(True)
+    return body
+
+
+def annotate_slips(model_file, prior: SlipPrior, rows: list[int]) -> None:
+    """Write each slip coordinate's prior as an XML comment inside its ``Coordinate`` element of
+    ``model_file`` (OpenSim ignores comments; a model re-saved by OpenSim drops them)."""
+    import xml.etree.ElementTree as ET
+
+    names = {slip_coordinate(r) for r in rows}
+    tree = ET.parse(model_file, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))
+    for element in tree.getroot().iter("Coordinate"):
+        if element.get("name") in names:
+            element.insert(0, ET.Comment(
+                f" skin slip of tape row {element.get('name')[:3]} along its vertebra's superior axis (m, 0 = "
+                f"static trial); prior: Gaussian, mean 0, SD {prior.sd_mm:g} mm (IK coordinate goal of weight "
+                f"{prior.weight:.6g} per m^2, see setup_ik.xml); clamped to +/-{prior.limit_mm:g} mm; the rows "
+                f"below the first slipping one are pinned to their vertebrae "))
+    tree.write(model_file, encoding="UTF-8", xml_declaration=True)
+
+
 def _set_ranges(model, plan: ModelPlan) -> None:
-    """Root: rotations +/-180 deg, translations +/-5 m; joints: the published ranges (deg),
-    unclamped (inverse kinematics must not bend the data to fit them; frames beyond are flagged)."""
+    """Root: rotations +/-180 deg, translations +/-5 m, unclamped; joints: :data:`RANGE_FACTOR` x
+    the published ranges (deg), clamped (inverse kinematics stays inside them; frames that reach a
+    limit are flagged)."""
     coords = model.updCoordinateSet()
     for name in ROOT_COORDS:
         limit = 5.0 if name.endswith(("_tx", "_ty", "_tz")) else np.pi
@@ -262,6 +315,6 @@ def _set_ranges(model, plan: ModelPlan) -> None:
     for j in plan.driven:
         for dof, rom in zip(DOF, j.rom_deg):
             c = coords.get(j.coordinate(dof))
-            c.setRangeMin(-np.radians(rom))
-            c.setRangeMax(np.radians(rom))
-            c.setDefaultClamped(False)
+            c.setRangeMin(-RANGE_FACTOR * np.radians(rom))
+            c.setRangeMax(RANGE_FACTOR * np.radians(rom))
+            c.setDefaultClamped(True)

@@ -6,20 +6,28 @@ renamed into place at the end):
 - ``model_generic.osim``: the model as built from the static trial (anatomical marker places),
 - ``model.osim``: after MarkerPlacer (markers moved onto the static trial),
 - ``markers_opensim.trc`` / ``markers_static.trc``: metres, OpenSim axes (X facing, Y up),
-- ``setup_scale.xml``, ``setup_ik.xml``, ``static_pose.mot`` (radians), ``ik.mot`` (degrees),
-  ``ik_marker_errors.sto`` (metres),
+- ``setup_scale.xml``, ``setup_ik.xml``, ``static_pose.mot`` (radians), ``ik.mot`` (degrees; skin
+  slips in metres), ``ik_marker_errors.sto`` (metres),
 - ``spine_angles.csv``: per driven joint and summed per region, degrees, this project's signs
   (flexion = forward bending positive = -OpenSim extension; lateral bending toward the right
   positive; axial rotation toward the left positive), zero = the static posture,
 - ``summary.json`` and ``spine_angles.png``.
 
 Steps: the static trial (first frames, or a separate trial) fixes the tape's rows; the declared
-facing is checked against the tape (:func:`geometry.check_facing`); the depth of the joint
-centres under the skin is fitted unless given (:func:`fit_depth_scale`); the model is built
-(:mod:`model`), MarkerPlacer moves its markers onto the static trial and the placement is checked
-against the anatomy (:func:`check_placement`); IK solves every frame. Missing samples stay NaN
-(OpenSim skips them per frame); frames the result cannot vouch for are flagged in the CSV, the
-summary and the plot.
+facing is checked against the tape (:func:`geometry.check_facing`); the joint centres sit at the
+published skin-to-vertebral-body depths (:mod:`anatomy`) scaled to the subject by the tape, times
+``settings.depth_scale`` (a measured depth, e.g. from imaging or a body model, enters there and is
+named by ``settings.depth_source``); every row's in-plane tilt is kept at its static angle and the
+rows above the pinned ones slip along their vertebrae (:mod:`skin_model`); the model is built
+(:mod:`model`), MarkerPlacer moves its markers onto the static trial (slips held at 0) and the
+placement is checked against the anatomy (:func:`check_placement`); OpenSim's IK solver runs frame
+by frame (:func:`tools.solve_ik`: per-sample marker weights from the label confidence, each frame
+started from the previous one's solution, joints clamped to their published ranges). Missing
+samples stay NaN (skipped per frame); frames the result cannot vouch for are flagged in the CSV,
+the summary and the plot.
+
+Paths: ``out_dir`` may be relative (to the working directory) or hold spaces, and the inputs may
+be read-only: every file is built in an absolute temporary folder beside ``out_dir``.
 """
 
 from __future__ import annotations
@@ -27,7 +35,6 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,15 +57,18 @@ from .geometry import (
     static_positions,
     to_opensim,
 )
-from .model import DOF, ModelPlan, body_name, build_model, plan_model
+from .model import DOF, RANGE_FACTOR, ModelPlan, annotate_slips, body_name, build_model, plan_model
+from .skin_model import SlipPrior, normalise_row_tilt, slip_coordinate, slip_rows
 from .tools import (
     marker_locations,
     marker_weights,
+    mean_weights,
     quiet_opensim,
     read_storage,
     require_opensim,
-    run_ik,
     run_scale,
+    solve_ik,
+    write_ik_outputs,
     write_ik_setup,
     write_scale_setup,
     write_trc,
@@ -69,11 +79,12 @@ from .tools import (
 PLACEMENT_LATERAL_MM = 15.0
 PLACEMENT_DEPTH_MM = 30.0
 # Frames flagged in the outputs: marker RMS or worst marker beyond these (mm), too few markers,
-# or a joint beyond FLAG_RANGE_FACTOR x its published range.
+# or a joint at its clamped range (within LIMIT_MARGIN_DEG of RANGE_FACTOR x its published range).
 FLAG_RMS_MM = 4.0
 FLAG_MAX_MM = 10.0
 FLAG_MIN_MARKERS = 6
-FLAG_RANGE_FACTOR = 2.0
+LIMIT_MARGIN_DEG = 0.05
+PUBLISHED_DEPTHS = "published skin-to-vertebral-body depths (spinemocap/opensim/anatomy.py) scaled to the tape"
 SIGN = {"extension": -1.0, "lateral_bending": 1.0, "axial_rotation": 1.0}  # OpenSim -> project
 PROJECT_NAME = {"extension": "flexion", "lateral_bending": "lateral", "axial_rotation": "rotation"}
 
@@ -82,26 +93,24 @@ PROJECT_NAME = {"extension": "flexion", "lateral_bending": "lateral", "axial_rot
 class OpenSimSettings:
     """``static_frames``: frames from the start averaged as the static trial (when no static file);
     ``accuracy``: IK solver accuracy (OpenSim's default 1e-5); ``depth_scale``: factor on the
-    published skin-to-vertebral-body depths, None = fit it to the trial (:func:`fit_depth_scale`,
-    golden section on ``depth_bounds`` to ``depth_tolerance`` over ``fit_frames`` frames);
-    ``coupling``: see :func:`spinemocap.opensim.model.plan_model`; ``prior_weight``: the
-    regularising prior on per-level lateral bending and axial rotation (:func:`_priors`)."""
+    published skin-to-vertebral-body depths (1 = the published adult values, scaled to the
+    subject's column length by the tape), ``depth_source``: where that depth comes from (written
+    to ``summary.json``); ``coupling``: see :func:`spinemocap.opensim.model.plan_model`;
+    ``prior_weight``: the prior on per-level lateral bending and axial rotation (:func:`_priors`);
+    ``normalise_tilt``: keep each row's in-plane tilt at its static angle
+    (:func:`skin_model.normalise_row_tilt`); ``slip``: the rows' slip and its prior
+    (:class:`skin_model.SlipPrior`), None = every marker fixed to its vertebra."""
 
     static_frames: int = 10
     accuracy: float = 1e-5
-    depth_scale: float | None = None  # None: fitted (fit_depth_scale); 1.0: published depths
-    # At the studio's lab level (Schober skin strain) the marker RMS keeps falling past 1.25 x for
-    # flexion (minimum ~1.47 x, mixed ~1.56 x) and is flat for lateral bending; searching up to 2.5 x
-    # made IK flexion better but mixed-motion rotation and lateral bending worse,
-    # so the bound stays and the at-bound warning flags such trials
-    depth_bounds: tuple[float, float] = (0.25, 1.25)
-    depth_tolerance: float = 0.05
-    fit_frames: int = 24
+    depth_scale: float = 1.0
+    depth_source: str = PUBLISHED_DEPTHS
     coupling: str = "rows"  # see spinemocap.opensim.model.plan_model
     # IK weight (per rad^2, beside marker errors in m^2) of a prior toward the static posture on every
-    # level's lateral bending and axial rotation; 0 = off (default: on the studio it cost range and did
-    # not make the summed ranges independent of the solver accuracy)
+    # level's lateral bending and axial rotation; 0 = off
     prior_weight: float = 0.0
+    normalise_tilt: bool = True
+    slip: SlipPrior | None = SlipPrior()
 
 
 @dataclass
@@ -118,13 +127,19 @@ class OpenSimResult:
 
 @dataclass
 class TapeMarkers:
-    """The tape's dots in tape order, OpenSim axes (mm): positions (F, D, 3), status (F, D)."""
+    """The tape's dots in tape order, OpenSim axes (mm): positions (F, D, 3), status (F, D),
+    label confidence (F, D; NaN = unknown)."""
 
     labels: list[str]
     times: np.ndarray
     positions: np.ndarray
     status: np.ndarray
     fps: float
+    confidence: np.ndarray
+
+    def weights(self) -> np.ndarray:
+        """(F, D) IK weight of every sample (:func:`tools.marker_weights`)."""
+        return marker_weights(self.status, self.confidence)
 
 
 def tape_markers(markers: MarkerTable, tape: TapeSpec, axes: np.ndarray, source: str | None = None) -> TapeMarkers:
@@ -138,17 +153,19 @@ def tape_markers(markers: MarkerTable, tape: TapeSpec, axes: np.ndarray, source:
     F = len(arrays["frames"])
     positions = np.full((F, len(labels), 3), np.nan)
     status = np.full((F, len(labels)), "missing", dtype=object)
+    confidence = np.full((F, len(labels)), np.nan)
     for d, label in enumerate(labels):
         if label in present:
             positions[:, d] = arrays["positions"][:, present[label]]
             status[:, d] = arrays["status"][:, present[label]]
+            confidence[:, d] = arrays["confidence"][:, present[label]]
     positions[status == "missing"] = np.nan
     status[~np.isfinite(positions).all(axis=2)] = "missing"
     times = arrays["time"]
     fps = float(markers.fps)
     if not np.isfinite(times).all():
         times = arrays["frames"] / fps
-    return TapeMarkers(labels, np.asarray(times, float), to_opensim(positions, axes), status, fps)
+    return TapeMarkers(labels, np.asarray(times, float), to_opensim(positions, axes), status, fps, confidence)
 
 
 @dataclass
@@ -166,7 +183,8 @@ def _static(data: TapeMarkers, static: MarkerTable | None, tape: TapeSpec, axes:
         st = tape_markers(static, tape, axes, source)
     else:
         n = max(1, min(settings.static_frames, len(data.times)))
-        st = TapeMarkers(data.labels, data.times[:n], data.positions[:n], data.status[:n], data.fps)
+        st = TapeMarkers(data.labels, data.times[:n], data.positions[:n], data.status[:n], data.fps,
+                         data.confidence[:n])
     return StaticTrial(static_positions(st.positions), st, (float(st.times[0]), float(st.times[-1])))
 
 
@@ -178,27 +196,49 @@ class _Placed:
     placed: np.ndarray  # tape dot indices in the model
     expected: np.ndarray  # (len(placed), 3) anatomical places, mm
     placement: dict
+    slipping: list[int]  # tape rows (0-based) with a slip coordinate
+    marker_rows: np.ndarray  # tape row (0-based) of each placed marker
 
 
-def _build_and_place(work: Path, rows, levels: LevelRows, tape: TapeSpec, static: StaticTrial, depth_scale: float,
-                     coupling: str, source: str | None) -> _Placed:
+def _build_and_place(work: Path, rows: RowFrames, levels: LevelRows, tape: TapeSpec, static: StaticTrial,
+                     settings: OpenSimSettings, source: str | None) -> _Placed:
     """Build ``model_generic.osim`` in ``work`` and run MarkerPlacer (``setup_scale.xml``) to
-    ``model.osim``; the placement is checked against the anatomy."""
-    geometry = spine_geometry(rows, levels, depth_scale, source)
+    ``model.osim`` (slips locked at 0 while the markers are placed, free after); the placement is
+    checked against the anatomy."""
+    geometry = spine_geometry(rows, levels, settings.depth_scale, source)
     graph = tape.graph
     placed = np.flatnonzero(np.isfinite(static.positions).all(axis=1))
     bodies = geometry.row_body[graph.row]
     expected = expected_marker_locations(geometry, rows, tape)
     row_bodies = geometry.row_body[np.flatnonzero(rows.seen)]
-    plan = plan_model(geometry, bodies[placed], row_bodies, coupling)
+    plan = plan_model(geometry, bodies[placed], row_bodies, settings.coupling)
     if not plan.driven:
         raise InputError(source, "all tape rows lie over one vertebra: no joint for the tape to drive")
     labels = [static.markers.labels[d] for d in placed]
-    model = build_model(geometry, plan, [(labels[i], int(bodies[d]), expected[d]) for i, d in enumerate(placed)])
+    prior = settings.slip or SlipPrior()
+    slipping = [int(r) for r in slip_rows(rows.seen, prior)] if settings.slip is not None else []
+    markers = [(labels[i], int(bodies[d]), expected[d], int(graph.row[d])) for i, d in enumerate(placed)]
+    model = build_model(geometry, plan, markers, {r: int(geometry.row_body[r]) for r in slipping}, prior)
+    _lock(model, [slip_coordinate(r) for r in slipping], True)
     model.printToXML(str(work / "model_generic.osim"))
     place_markers(work, labels, placed, static)
+    if slipping:
+        _unlock(work / "model.osim", [slip_coordinate(r) for r in slipping])
+        annotate_slips(work / "model.osim", prior, slipping)
     placement = check_placement(work / "model.osim", labels, expected[placed], source)
-    return _Placed(geometry, plan, labels, placed, expected[placed], placement)
+    return _Placed(geometry, plan, labels, placed, expected[placed], placement, slipping, graph.row[placed])
+
+
+def _lock(model, coordinates: list[str], locked: bool) -> None:
+    for name in coordinates:
+        model.updCoordinateSet().get(name).setDefaultLocked(locked)
+
+
+def _unlock(model_file: Path, coordinates: list[str]) -> None:
+    osim = require_opensim()
+    model = osim.Model(str(model_file))
+    _lock(model, coordinates, False)
+    model.printToXML(str(model_file))
 
 
 def place_markers(work: Path, labels: list[str], placed: np.ndarray, static: StaticTrial) -> None:
@@ -218,68 +258,36 @@ def place_markers(work: Path, labels: list[str], placed: np.ndarray, static: Sta
 
 
 def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: TapeMarkers, frames: np.ndarray,
-                       accuracy: float, priors: dict[str, float] | None = None) -> float:
-    """``markers_opensim.trc`` (the given frames, the ``placed`` dots named ``labels``),
-    ``setup_ik.xml`` on ``model.osim``, ``ik.mot`` and ``ik_marker_errors.sto`` in ``work``;
+                       accuracy: float, priors: dict[str, float] | None = None,
+                       positions: np.ndarray | None = None) -> float:
+    """``markers_opensim.trc`` (the given frames, the ``placed`` dots named ``labels``; the
+    markers as given, or ``positions`` (F, D, 3) mm in their place: the skin-corrected ones),
+    ``setup_ik.xml`` on ``model.osim`` (one mean weight per marker: a re-run in the GUI), and IK
+    solved frame by frame (:func:`tools.solve_ik`) into ``ik.mot`` and ``ik_marker_errors.sto``;
     returns IK seconds."""
-    positions = data.positions[frames][:, placed]
-    write_trc(work / "markers_opensim.trc", labels, data.times[frames], positions, data.fps)
-    weights = marker_weights(data.status[frames][:, placed])
-    setup = write_ik_setup(work, "model.osim", "markers_opensim.trc",
-                           (float(data.times[frames[0]]), float(data.times[frames[-1]])), labels,
-                           weights, "ik.mot", accuracy, priors)
-    started = time.perf_counter()
-    run_ik(setup)
-    seconds = time.perf_counter() - started
-    os.replace(work / "spinemocap_ik_marker_errors.sto", work / "ik_marker_errors.sto")
-    return seconds
+    source = data.positions if positions is None else positions
+    chosen = source[frames][:, placed]
+    times = data.times[frames]
+    write_trc(work / "markers_opensim.trc", labels, times, chosen, data.fps)
+    weights = data.weights()[frames][:, placed]
+    write_ik_setup(work, "model.osim", "markers_opensim.trc", (float(times[0]), float(times[-1])), labels,
+                   mean_weights(weights), "ik.mot", accuracy, priors)
+    solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy)
+    write_ik_outputs(work, solution)
+    return solution.seconds
 
 
-def _priors(plan: ModelPlan, settings: OpenSimSettings) -> dict[str, float]:
-    """Weak coordinate tasks toward the static posture on every independent per-level lateral
-    bending and axial rotation: they choose among the distributions the markers cannot tell apart."""
-    if settings.prior_weight <= 0:
-        return {}
-    dependent = {d for d, _, _ in plan.couplers}
-    return {j.coordinate(dof): settings.prior_weight for j in plan.driven
-            for dof in ("lateral_bending", "axial_rotation") if j.coordinate(dof) not in dependent}
-
-
-def fit_depth_scale(rows, levels: LevelRows, tape: TapeSpec, static: StaticTrial, data: TapeMarkers,
-                    settings: OpenSimSettings, folder: Path, source: str | None = None) -> tuple[float, dict]:
-    """Functional calibration of the depth of the joint centres under the skin: the factor on
-    the published depths that minimises the mean IK marker RMS over up to
-    ``settings.fit_frames`` frames spread over the trial (golden-section search on
-    ``settings.depth_bounds``). Skin does not move rigidly with the vertebral bodies (it slides
-    and stretches: DESIGN section 8), so the centres that explain its motion best lie at an
-    effective depth; a fit at a bound is flagged. Returns (factor, {factor: RMS mm})."""
-    frames = np.unique(np.linspace(0, len(data.times) - 1, min(settings.fit_frames, len(data.times))).astype(int))
-    tried: dict[float, float] = {}
-
-    def rms(factor: float) -> float:
-        key = round(factor, 4)
-        if key not in tried:
-            work = Path(tempfile.mkdtemp(prefix="depth.", dir=folder))
-            placed = _build_and_place(work, rows, levels, tape, static, factor, settings.coupling, source)
-            inverse_kinematics(work, placed.labels, placed.placed, data, frames, settings.accuracy,
-                               _priors(placed.plan, settings))
-            _, labels, err, _ = read_storage(work / "ik_marker_errors.sto")
-            tried[key] = float(1000.0 * np.mean(err[:, labels.index("marker_error_RMS")]))
-        return tried[key]
-
-    lo, hi = settings.depth_bounds
-    golden = (np.sqrt(5.0) - 1.0) / 2.0
-    a, b = lo, hi
-    c, d = b - golden * (b - a), a + golden * (b - a)
-    while b - a > settings.depth_tolerance:
-        if rms(c) < rms(d):
-            b, d = d, c
-            c = b - golden * (b - a)
-        else:
-            a, c = c, d
-            d = a + golden * (b - a)
-    best = min(tried, key=tried.get)
-    return float(best), dict(sorted(tried.items()))
+def _priors(plan: ModelPlan, settings: OpenSimSettings, slipping: list[int]) -> dict[str, float]:
+    """IK coordinate goals toward the static posture: the slip prior on every slipping row
+    (:class:`skin_model.SlipPrior`) and, when ``settings.prior_weight`` > 0, a weak one on every
+    independent per-level lateral bending and axial rotation (they choose among the distributions
+    the markers cannot tell apart)."""
+    out = {slip_coordinate(r): settings.slip.weight for r in slipping} if settings.slip is not None else {}
+    if settings.prior_weight > 0:
+        dependent = {d for d, _, _ in plan.couplers}
+        out.update({j.coordinate(dof): settings.prior_weight for j in plan.driven
+                    for dof in ("lateral_bending", "axial_rotation") if j.coordinate(dof) not in dependent})
+    return out
 
 
 def prepare(markers: MarkerTable, tape: TapeSpec, up: Sequence[float], facing: Sequence[float],
@@ -295,7 +303,9 @@ def prepare(markers: MarkerTable, tape: TapeSpec, up: Sequence[float], facing: S
 
 
 def work_folder(out_dir: Path) -> Path:
-    """A temporary folder beside ``out_dir`` where a run builds its files (see :func:`publish`)."""
+    """An absolute temporary folder beside ``out_dir`` where a run builds its files (see
+    :func:`publish`)."""
+    out_dir = Path(out_dir).absolute()
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
 
@@ -306,30 +316,23 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Seq
     """Build, place and solve; see the module docstring. ``source`` names the input in errors."""
     osim = require_opensim()
     data, st, rows, facing_error = prepare(markers, tape, up, facing, static, settings, source)
-    out_dir = Path(out_dir)
+    out_dir = Path(out_dir).absolute()
     work = work_folder(out_dir)
     try:
-        depth_fit: dict[float, float] = {}
-        depth_scale = settings.depth_scale
-        if depth_scale is None:
-            depth_scale, depth_fit = fit_depth_scale(rows, levels, tape, st, data, settings, work, source)
-            for sub in work.iterdir():
-                shutil.rmtree(sub, ignore_errors=True)
-        placed = _build_and_place(work, rows, levels, tape, st, depth_scale, settings.coupling, source)
+        placed = _build_and_place(work, rows, levels, tape, st, settings, source)
+        positions, tilt_turn = data.positions, None
+        if settings.normalise_tilt:
+            positions, tilt_turn = normalise_row_tilt(data.positions, st.positions, tape)
         ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
-                                        settings.accuracy, _priors(placed.plan, settings))
+                                        settings.accuracy, _priors(placed.plan, settings, placed.slipping),
+                                        positions)
         angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
-        weights = marker_weights(data.status[:, placed.placed])
+        weights = mean_weights(data.weights()[:, placed.placed])
         summary = _summary(data, placed, angles, flags, ik_seconds, facing_error, weights, settings, osim)
-        summary["depth_scale"] = {"value": depth_scale, "fitted": settings.depth_scale is None,
-                                  "bounds": list(settings.depth_bounds), "marker_rms_mm_tried": {
-                                      f"{k:g}": v for k, v in depth_fit.items()},
-                                  "at_bound": bool(depth_fit) and min(abs(depth_scale - b) for b in
-                                                                      settings.depth_bounds) < settings.depth_tolerance,
-                                  "depth_mm": {n: round(float(x), 1) for n, x in
-                                               zip(placed.geometry.names, placed.geometry.depth)}}
-        if summary["depth_scale"]["at_bound"]:
-            summary["warnings"].append(f"fitted joint-centre depth at the search bound ({depth_scale:.2f} x published)")
+        summary["depth"] = {"scale_on_published": settings.depth_scale, "source": settings.depth_source,
+                            "depth_mm": {n: round(float(x), 1) for n, x in
+                                         zip(placed.geometry.names, placed.geometry.depth)}}
+        summary["skin_model"] = _skin_summary(work / "ik.mot", placed, settings, tilt_turn)
         with atomic_write(work / "spine_angles.csv") as handle:
             handle.write(_angles_header(placed.plan))
             angles.to_csv(handle, index=False, float_format="%.4f")
@@ -343,6 +346,35 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Seq
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return OpenSimResult(out_dir, angles, summary, placed.plan, placed.geometry, files)
+
+
+def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt_turn: np.ndarray | None) -> dict:
+    """The skin model's assumptions and what IK made of them: the tilt correction applied per row
+    (largest, deg) and per slipping row the slip (mm) at the frame where it peaks."""
+    out: dict = {"row_tilt": ("each row kept at its static in-plane angle to the tape midline (turned about its L-R "
+                              "midpoint, about the tape normal)") if settings.normalise_tilt else "as measured"}
+    if tilt_turn is not None:
+        with np.errstate(all="ignore"):
+            worst = np.nanmax(np.abs(tilt_turn), axis=0)
+        out["tilt_correction_max_deg"] = {f"R{r + 1:02d}": round(float(v), 2) for r, v in enumerate(worst)
+                                          if np.isfinite(v)}
+    if settings.slip is None:
+        out["slip"] = "none: every marker fixed to its vertebra"
+        return out
+    _, labels, values, _ = read_storage(motion)
+    column = {label.split("/")[-2] if label.startswith("/") else label: i for i, label in enumerate(labels)}
+    peak = {}
+    for r in placed.slipping:
+        slip_mm = 1000.0 * values[:, column[slip_coordinate(r)]]
+        peak[slip_coordinate(r)] = round(float(slip_mm[np.nanargmax(np.abs(slip_mm))]), 2)
+    prior = settings.slip
+    pinned = sorted({int(r) for r in placed.marker_rows} - set(placed.slipping))
+    out["slip"] = {"model": "each row above the pinned ones on a body translating along its vertebra's superior "
+                            "axis; coordinate <row>_skin_slip (m, 0 = static trial) solved by IK",
+                   "pinned_rows": [f"R{r + 1:02d}" for r in pinned],
+                   "prior": f"Gaussian, mean 0, SD {prior.sd_mm:g} mm; clamped to +/-{prior.limit_mm:g} mm",
+                   "prior_weight_per_m2": prior.weight, "at_peak_mm": peak}
+    return out
 
 
 def publish(work: Path, out_dir: Path) -> dict[str, Path]:
@@ -385,13 +417,13 @@ def spine_angles(motion: Path, errors: Path, plan: ModelPlan, data: TapeMarkers)
         values = np.degrees(values)  # every spine coordinate is rotational
     column = {label.split("/")[-2] if label.startswith("/") else label: i for i, label in enumerate(labels)}
     table = pd.DataFrame({"frame": np.arange(len(times)), "time": times})
-    out_of_range = np.zeros(len(times), bool)
+    at_limit = np.zeros(len(times), bool)
     region_sum: dict[str, np.ndarray] = {}
     for j in plan.driven:
         for dof, rom in zip(DOF, j.rom_deg):
             value = SIGN[dof] * values[:, column[j.coordinate(dof)]]
             table[f"{j.name}_{PROJECT_NAME[dof]}"] = value
-            out_of_range |= np.abs(value) > FLAG_RANGE_FACTOR * rom
+            at_limit |= np.abs(value) >= RANGE_FACTOR * rom - LIMIT_MARGIN_DEG
             key = f"{j.region}_{PROJECT_NAME[dof]}"
             region_sum[key] = region_sum.get(key, 0.0) + value
     for key, value in region_sum.items():
@@ -406,7 +438,7 @@ def spine_angles(motion: Path, errors: Path, plan: ModelPlan, data: TapeMarkers)
     for mask, why in ((rms > FLAG_RMS_MM, f"marker RMS > {FLAG_RMS_MM:g} mm"),
                       (worst > FLAG_MAX_MM, f"a marker > {FLAG_MAX_MM:g} mm off"),
                       (n_markers[: len(times)] < FLAG_MIN_MARKERS, f"fewer than {FLAG_MIN_MARKERS} markers"),
-                      (out_of_range, f"a joint beyond {FLAG_RANGE_FACTOR:g}x its published range")):
+                      (at_limit, f"a joint at its range limit ({RANGE_FACTOR:g} x published)")):
         reasons[mask] = [f"{r}; {why}" if r else why for r in reasons[mask]]
     table["flag"] = reasons
     return table, reasons
@@ -461,6 +493,9 @@ def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np
         "placement": placed.placement,
         "region_ranges_deg": ranges,
         "ik_accuracy": settings.accuracy,
+        "ik": "OpenSim InverseKinematicsSolver frame by frame: each frame from the previous solution, marker "
+              "weights = label confidence squared per sample, joints clamped to "
+              f"{RANGE_FACTOR:g} x their published ranges",
         "opensim_version": str(osim.GetVersion()),
         "units": {"angles": "deg", "marker errors": "mm", "trc": "m"},
         "signs": "flexion forward +, lateral toward right +, rotation toward left +, zero = static posture",

@@ -1,5 +1,7 @@
 """OpenSim's own tools on the tape markers: TRC writing, MarkerPlacer (ScaleTool) and
-InverseKinematicsTool setups, runs and their outputs read back.
+InverseKinematicsTool setups, runs and their outputs read back; inverse kinematics frame by frame
+with OpenSim's ``InverseKinematicsSolver`` (:func:`solve_ik`), so that every marker carries its own
+weight in every frame.
 
 Every setup file names its inputs and outputs relative to its own folder (ScaleTool resolves
 relative paths against the setup file), so the folder can be opened and re-run unchanged in the
@@ -13,14 +15,16 @@ import contextlib
 import os
 import sys
 import tempfile
+import time
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..fileio import InputError
 
-INFERRED_WEIGHT = 0.2  # IK weight of a marker-frame the tracker inferred (observed = 1)
+INFERRED_CONFIDENCE = 0.6  # label confidence of an inferred dot when the table has none (observed: 1)
 
 
 def require_opensim():
@@ -40,17 +44,27 @@ def quiet_opensim() -> None:
     osim.Logger.setLevelString("warn")
 
 
-def marker_weights(status: np.ndarray) -> np.ndarray:
-    """(D,) IK task weight per marker from its (F, D) status: observed frames count 1, inferred
-    :data:`INFERRED_WEIGHT`, averaged over the frames the marker is not missing in; 0 for a
-    marker missing throughout (its task is switched off). Missing samples are NaN in the TRC,
-    which OpenSim's IK skips frame by frame."""
-    observed = (status == "observed").sum(axis=0)
-    inferred = (status == "inferred").sum(axis=0)
-    present = observed + inferred
+def marker_weights(status: np.ndarray, confidence: np.ndarray | None = None) -> np.ndarray:
+    """(F, D) IK task weight of every marker sample: the square of its label confidence (0..1,
+    ``markers.csv``'s ``confidence`` column: observed 1, inferred 0.6, times 0.5 for each flag that
+    puts the frame's labels in doubt), or, where the confidence is unknown (NaN, or no column),
+    1 for an observed sample and :data:`INFERRED_CONFIDENCE` squared for an inferred one; 0 where
+    missing. Squared: a weight multiplies a squared marker error, like an inverse variance."""
+    status = np.asarray(status)
+    fallback = np.where(status == "observed", 1.0, np.where(status == "inferred", INFERRED_CONFIDENCE, 0.0))
+    if confidence is None:
+        confidence = np.full(status.shape, np.nan)
+    known = np.clip(np.where(np.isfinite(confidence), confidence, fallback), 0.0, 1.0)
+    return np.where(status == "missing", 0.0, known**2)
+
+
+def mean_weights(weights: np.ndarray) -> np.ndarray:
+    """(D,) mean of (F, D) per-sample weights over the samples present (weight > 0); 0 for a
+    marker missing throughout. The setup files hold these (one weight per marker task)."""
+    present = weights > 0
     with np.errstate(invalid="ignore", divide="ignore"):
-        w = (observed + INFERRED_WEIGHT * inferred) / present
-    return np.where(present > 0, w, 0.0)
+        mean = np.where(present, weights, 0.0).sum(axis=0) / present.sum(axis=0)
+    return np.where(present.any(axis=0), mean, 0.0)
 
 
 def write_trc(path: str | os.PathLike, labels: Sequence[str], times: np.ndarray, positions_mm: np.ndarray,
@@ -240,3 +254,119 @@ def body_rotations(model_file: Path, motion: Path, bodies: Sequence[str]) -> tup
             R = body.getTransformInGround(state).R()
             out[f, b] = [[R.get(r, k) for k in range(3)] for r in range(3)]
     return times, out
+
+
+@dataclass
+class IKSolution:
+    """Inverse kinematics of a trial: ``coordinates`` (C names), ``values`` (F, C) in the model's
+    units (rad, m), ``rotational`` (C,) bool, per-frame marker RMS and worst marker error (mm, over
+    the markers present) and ``markers`` (F,) how many were present."""
+
+    times: np.ndarray
+    coordinates: list[str]
+    values: np.ndarray
+    rotational: np.ndarray
+    marker_rms_mm: np.ndarray
+    marker_max_mm: np.ndarray
+    markers: np.ndarray
+    seconds: float
+
+
+def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positions_mm: np.ndarray,
+             weights: np.ndarray, priors: dict[str, float] | None = None, accuracy: float = 1e-5) -> IKSolution:
+    """OpenSim's ``InverseKinematicsSolver`` on every frame of ``positions_mm`` (F, D, 3; OpenSim
+    ground, mm; NaN = missing), each marker weighted per frame by ``weights`` (F, D) and each frame
+    started from the previous frame's solution (the first from the model's default pose, where it
+    was built: the static trial). ``priors``: {coordinate: weight} of coordinate goals toward the
+    coordinate's default value (weight per unit^2, beside marker errors in m^2). Coordinates the
+    model clamps stay inside their ranges."""
+    osim = require_opensim()
+    model = osim.Model(str(model_file))
+    state = model.initSystem()
+    F, D = positions_mm.shape[:2]
+    table = osim.TimeSeriesTableVec3()
+    names = osim.StdVectorString()
+    for label in labels:
+        names.append(str(label))
+    table.setColumnLabels(names)
+    metres = np.asarray(positions_mm, float) / 1000.0
+    present = np.isfinite(metres).all(axis=2) & (weights > 0)
+    metres = np.where(present[..., None], metres, np.nan)  # a sample of weight 0 is a missing one
+    for f in range(F):
+        row = osim.RowVectorVec3(D)
+        for d in range(D):
+            row[d] = osim.Vec3(*[float(x) for x in metres[f, d]])
+        table.appendRow(float(times[f]), row)
+    weight_set = osim.SetMarkerWeights()
+    for d, label in enumerate(labels):  # the first frame's weights, updated frame by frame (NaN: ignored)
+        weight_set.cloneAndAppend(osim.MarkerWeight(str(label), float(weights[0, d]) if present[0, d] else 1.0))
+    reference = osim.MarkersReference(table, weight_set)
+    goals = osim.SimTKArrayCoordinateReference()
+    coords = model.getCoordinateSet()
+    for name, weight in (priors or {}).items():
+        goal = osim.CoordinateReference(name, osim.Constant(coords.get(name).getDefaultValue()))
+        goal.setWeight(float(weight))
+        goals.push_back(goal)
+    solver = osim.InverseKinematicsSolver(model, reference, goals)
+    solver.setAccuracy(float(accuracy))
+    column = {label: d for d, label in enumerate(labels)}
+    coordinate_list = [coords.get(i) for i in range(coords.getSize())]
+    values = np.zeros((F, len(coordinate_list)))
+    rms, worst, count = np.full(F, np.nan), np.full(F, np.nan), np.zeros(F, int)
+    errors = osim.SimTKArrayDouble()
+    order: list[str] = []
+    started = time.perf_counter()
+    for f in range(F):
+        state.setTime(float(times[f]))
+        if f > 0:
+            for name in order:
+                d = column[name]
+                solver.updateMarkerWeight(name, float(weights[f, d]) if present[f, d] else 1.0)
+        # a full solve from the coordinates held in the state: the previous frame's solution (the
+        # first frame's from the default pose, the static trial's); Assembler::track's few steps
+        # stopped short of the solution at 12 frames/s
+        solver.assemble(state)
+        if f == 0:
+            order = [solver.getMarkerNameForIndex(i) for i in range(solver.getNumMarkersInUse())]
+        values[f] = [c.getValue(state) for c in coordinate_list]
+        solver.computeCurrentMarkerErrors(errors)
+        err = np.array([errors.getElt(i) for i in range(errors.size())])
+        used = present[f, [column[name] for name in order]] & np.isfinite(err)
+        count[f] = int(used.sum())
+        if used.any():
+            rms[f] = 1000.0 * float(np.sqrt(np.mean(err[used] ** 2)))
+            worst[f] = 1000.0 * float(err[used].max())
+    rotational = np.array([c.getMotionType() == osim.Coordinate.Rotational for c in coordinate_list])
+    return IKSolution(np.asarray(times, float), [c.getName() for c in coordinate_list], values, rotational,
+                      rms, worst, count, time.perf_counter() - started)
+
+
+def write_ik_outputs(folder: Path, solution: IKSolution, motion: str = "ik.mot",
+                     errors: str = "ik_marker_errors.sto") -> None:
+    """``ik.mot`` (coordinates, rotational ones in degrees, ``inDegrees=yes``) and
+    ``ik_marker_errors.sto`` (``marker_error_RMS`` / ``marker_error_max`` in metres), as OpenSim's
+    InverseKinematicsTool writes them, through OpenSim's own STO writer."""
+    osim = require_opensim()
+    values = np.where(solution.rotational, np.degrees(solution.values), solution.values)
+    _write_sto(osim, folder / motion, solution.times, solution.coordinates, values,
+               {"inDegrees": "yes", "DataType": "double"})
+    metres = np.column_stack([solution.marker_rms_mm, solution.marker_max_mm]) / 1000.0
+    _write_sto(osim, folder / errors, solution.times, ["marker_error_RMS", "marker_error_max"], metres,
+               {"inDegrees": "no", "DataType": "double"})
+
+
+def _write_sto(osim, path: Path, times: np.ndarray, labels: Sequence[str], values: np.ndarray,
+               meta: dict[str, str]) -> None:
+    table = osim.TimeSeriesTable()
+    names = osim.StdVectorString()
+    for label in labels:
+        names.append(str(label))
+    table.setColumnLabels(names)
+    for f, t in enumerate(times):
+        row = osim.RowVector(len(labels))
+        for c in range(len(labels)):
+            row[c] = float(values[f, c])
+        table.appendRow(float(t), row)
+    for key, value in meta.items():
+        table.addTableMetaDataString(key, value)
+    osim.STOFileAdapter.write(table, str(path))

@@ -1,0 +1,142 @@
+"""How the tape's skin moves against the spine model: row tilt normalised, rows slipping along it.
+
+Skin over the back stretches and slides over the spinous processes (about 10 mm between flexed and
+extended postures on real backs: Zemp R et al. (2014) PLoS ONE 9:e95426; level- and
+direction-specific: Xi X et al. (2022) Front Bioeng Biotechnol 10:960063), so markers fixed to the
+vertebrae cannot follow the tape. Two assumptions, both stated in ``summary.json`` and the model:
+
+- **Row tilt** (:func:`normalise_row_tilt`): a row keeps, within the tape's plane, its static-trial
+  angle to the tape's midline. Bending the back strains the skin unevenly across the tape and tilts
+  each row in the tape plane; a rigid row would read that tilt as lateral bending of its vertebra,
+  while the midline (which carries the real lateral bending) is not moved by the correction. Each
+  row's dots are turned about the row centre, about the tape's normal, back to the static angle;
+  the out-of-plane twist (axial rotation) is untouched.
+- **Slip** (:func:`slip_rows`): every row but the lowest ``pinned`` ones rides on a small body that
+  translates along its vertebra's superior axis (the skin's tangent there); the translation is a
+  model coordinate (``<row>_skin_slip``, m) that inverse kinematics solves in every frame, with a
+  Gaussian prior toward 0 (standard deviation :attr:`SlipPrior.sd_mm`) and clamped at
+  :attr:`SlipPrior.limit_mm`. The pinned rows (over the sacrum and the lowest lumbar levels, where
+  the tape starts) carry the reference: slips are relative to them. This is the multibody
+  kinematic optimisation with a soft-tissue model that Begon M et al. (2018) J Biomech Eng
+  140:030801 review; OpenSim's moving path points exist only for muscle paths, so a sliding
+  marker is a marker on a body on a joint.
+
+Frames: every array here is in OpenSim ground (Y up), mm; rows are 0-based.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..tape import TapeSpec
+
+
+@dataclass(frozen=True)
+class SlipPrior:
+    """The prior on a row's slip: ``sd_mm`` its standard deviation (the IK goal's weight is
+    (``marker_sd_mm`` / ``sd_mm``)^2 against a marker of weight 1), ``limit_mm`` the clamped range
+    (+/-), ``pinned`` the lowest seen rows without slip (the reference)."""
+
+    sd_mm: float = 25.0
+    limit_mm: float = 80.0
+    pinned: int = 2
+    marker_sd_mm: float = 1.0
+
+    @property
+    def weight(self) -> float:
+        """IK coordinate-goal weight (per m^2, beside marker errors in m^2)."""
+        return (self.marker_sd_mm / self.sd_mm) ** 2
+
+
+def slip_coordinate(row: int) -> str:
+    """``R06_skin_slip`` for row index 5: the coordinate (m) of a row's slip along its vertebra."""
+    return f"R{row + 1:02d}_skin_slip"
+
+
+def skin_body(row: int) -> str:
+    """``R06_skin``: the small body that carries a slipping row's markers."""
+    return f"R{row + 1:02d}_skin"
+
+
+def slip_rows(seen: np.ndarray, prior: SlipPrior) -> np.ndarray:
+    """Row indices that get a slip coordinate: the seen rows (R,) bool above the lowest
+    ``prior.pinned`` seen ones."""
+    return np.flatnonzero(seen)[prior.pinned:]
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def row_sides(positions: np.ndarray, tape: TapeSpec) -> tuple[np.ndarray, np.ndarray]:
+    """(..., R, 3) ``L`` and ``R`` dot of every row from (..., D, 3) positions (NaN where unseen)."""
+    graph = tape.graph
+    column = np.array(graph.column)
+    shape = positions.shape[:-2] + (tape.n_rows, 3)
+    left, right = np.full(shape, np.nan), np.full(shape, np.nan)
+    for r in range(tape.n_rows):
+        for side, out in (("L", left), ("R", right)):
+            index = np.flatnonzero((graph.row == r) & (column == side))
+            if len(index):
+                out[..., r, :] = positions[..., index[0], :]
+    return left, right
+
+
+def _shifted(centre: np.ndarray, k: int) -> np.ndarray:
+    """``centre`` of the row ``k`` rows up (k > 0) or down, NaN beyond the tape."""
+    out = np.full_like(centre, np.nan)
+    if k > 0:
+        out[..., :-k, :] = centre[..., k:, :]
+    else:
+        out[..., -k:, :] = centre[..., :k, :]
+    return out
+
+
+def _midline_tangents(centre: np.ndarray) -> np.ndarray:
+    """(..., R, 3) unit midline tangent at every row from the neighbouring rows' centres: central
+    difference, or the second-order one-sided difference at an end or beside an unseen row (a
+    plain one-sided chord would be off by half a row's turn); NaN without two seen rows on a side."""
+    up, up2, down, down2 = (_shifted(centre, k) for k in (1, 2, -1, -2))
+    forward = -3.0 * centre + 4.0 * up - up2
+    backward = 3.0 * centre - 4.0 * down + down2
+    step = np.where(np.isfinite(up) & np.isfinite(down), 2.0 * (up - down),
+                    np.where(np.isfinite(forward), forward, backward))
+    return _unit(step)
+
+
+def row_tilt(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """In-plane tilt (rad) of every row's L->R axis from the perpendicular to the midline, toward
+    the midline's cranial tangent; with the unit tangent and the tape normal (tangent's
+    perpendicular part x tangent). Inputs (..., R, 3); NaN where a row or its neighbours are unseen."""
+    centre = 0.5 * (left + right)
+    tangent = _midline_tangents(centre)
+    axis = _unit(right - left)
+    along = np.sum(axis * tangent, axis=-1)
+    across = _unit(axis - along[..., None] * tangent)
+    normal = _unit(np.cross(across, tangent))
+    return np.arcsin(np.clip(along, -1.0, 1.0)), tangent, normal
+
+
+def normalise_row_tilt(positions: np.ndarray, static: np.ndarray, tape: TapeSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Every row of (F, D, 3) positions turned about its centre (the L-R midpoint), about the tape
+    normal, so that its in-plane tilt to the midline equals the static trial's (``static`` (D, 3));
+    rows without both side dots, a seen neighbour or a static tilt stay as they are.
+    Returns (positions, correction (F, R) deg: the turn applied, NaN where none)."""
+    left, right = row_sides(positions, tape)
+    tilt, _, normal = row_tilt(left, right)
+    s_left, s_right = row_sides(static[None], tape)
+    static_tilt = row_tilt(s_left, s_right)[0][0]
+    turn = static_tilt[None, :] - tilt  # (F, R)
+    centre = 0.5 * (left + right)
+    out = positions.copy()
+    graph = tape.graph
+    ok = np.isfinite(turn) & np.isfinite(normal).all(axis=-1)
+    for f, r in zip(*np.nonzero(ok)):
+        rotation = Rotation.from_rotvec(normal[f, r] * turn[f, r]).as_matrix()
+        dots = np.flatnonzero(graph.row == r)
+        out[f, dots] = centre[f, r] + (positions[f, dots] - centre[f, r]) @ rotation.T
+    return out, np.where(ok, np.degrees(turn), np.nan)

@@ -1,0 +1,201 @@
+"""The OpenSim pipeline's skin model, world-axis independence and path forms, on analytic bent tapes
+(:mod:`spinemocap.analysis.bent_tape`: exact dots, no rendering, no body model)."""
+
+from __future__ import annotations
+
+import os
+import stat
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spinemocap.analysis.bent_tape import bent_tape_dots, smooth_bend, write_bent_capture
+from spinemocap.analysis.levels import LevelMap
+from spinemocap.markers import MarkerTable
+from spinemocap.opensim.skin_model import normalise_row_tilt, row_sides, row_tilt
+from spinemocap.tape import TapeSpec
+
+TAPE = TapeSpec(n_rows=13)
+LEVELS = LevelMap({"S1": 1, "T12/L1": 7, "T9": 13}, 13)
+UP, FACING = (0.0, 0.0, 1.0), (0.0, -1.0, 0.0)
+FPS = 12.0
+
+try:
+    import opensim as osim
+except ImportError:  # the extra is optional
+    osim = None
+needs_opensim = pytest.mark.skipif(osim is None, reason="opensim not installed: pip install 'spinemocap[opensim]'")
+
+
+def _bend(flexion: float = 0.0, lateral: float = 0.0, twist: float = 0.0) -> np.ndarray:
+    """(D, 3) dots of the rod bent smoothly by the given totals (deg) over most of the tape, on a
+    slight lordosis."""
+    return bent_tape_dots(TAPE, smooth_bend(0.0, 250.0, np.array([flexion, lateral, twist]),
+                                             np.array([-0.05, 0.0, 0.0])))
+
+
+def _turn_row(dots: np.ndarray, row: int, degrees: float) -> np.ndarray:
+    """``dots`` with one row (0-based) turned about its L-R midpoint and the tape normal."""
+    left, right = row_sides(dots, TAPE)
+    _, _, normal = row_tilt(left, right)
+    from scipy.spatial.transform import Rotation
+
+    centre = 0.5 * (left[row] + right[row])
+    turn = Rotation.from_rotvec(np.radians(degrees) * normal[row]).as_matrix()
+    out = dots.copy()
+    index = TAPE.graph.row == row
+    out[index] = centre + (dots[index] - centre) @ turn.T
+    return out
+
+
+def test_a_row_tilted_in_the_tape_plane_is_turned_back_to_its_static_angle():
+    static = _bend()
+    bent = _bend(flexion=25.0, lateral=10.0)
+    sheared = _turn_row(_turn_row(bent, 5, 6.0), 9, -4.0)
+    out, turn = normalise_row_tilt(sheared[None], static, TAPE)
+    # the sheared rows come back onto the bent tape; every other row keeps its place
+    np.testing.assert_allclose(out[0], bent, atol=0.05)
+    assert turn[0, 5] == pytest.approx(-6.0, abs=0.1) and turn[0, 9] == pytest.approx(4.0, abs=0.1)
+    assert np.nanmax(np.abs(np.delete(turn[0], [5, 9]))) < 0.2  # discrete tangents on a curving tape
+    # the midline (which carries the lateral bending) is untouched: row centres stay where they were
+    left, right = row_sides(out[0], TAPE)
+    s_left, s_right = row_sides(sheared, TAPE)
+    np.testing.assert_allclose(0.5 * (left + right), 0.5 * (s_left + s_right), atol=1e-9)
+
+
+def test_a_laterally_bent_tape_keeps_its_rows_square_to_the_midline():
+    out, turn = normalise_row_tilt(np.array([_bend(lateral=20.0), _bend(twist=15.0)]), _bend(), TAPE)
+    assert np.nanmax(np.abs(turn)) < 0.3  # a bent rod keeps its rows square to its midline (discrete tangents)
+    np.testing.assert_allclose(out, [_bend(lateral=20.0), _bend(twist=15.0)], atol=0.1)
+
+
+def _run(markers: MarkerTable, out, up=UP, facing=FACING, **settings):
+    from spinemocap.opensim import OpenSimSettings, run_opensim
+
+    settings.setdefault("static_frames", 1)
+    return run_opensim(markers, TAPE, LEVELS, up, facing, out, settings=OpenSimSettings(**settings))
+
+
+def _slipped(frames: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """The static rod with its rows slid along the tape by a known slip (mm, rows (F, R)) rising over
+    the frames: 0 over the two lowest rows, up to 12 mm at the top."""
+    static = _bend()
+    left, right = row_sides(static, TAPE)
+    centre = 0.5 * (left + right)
+    tangent = np.gradient(centre, axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    slip = np.outer(np.linspace(0, 1, frames), np.r_[0.0, 0.0, np.linspace(1.0, 12.0, TAPE.n_rows - 2)])
+    dots = np.repeat(static[None], frames, axis=0)
+    dots += slip[:, TAPE.graph.row, None] * tangent[TAPE.graph.row][None]
+    return dots, slip
+
+
+@needs_opensim
+def test_a_known_slip_is_solved_by_the_slip_coordinates_and_the_model_names_them(tmp_path):
+    from spinemocap.opensim.skin_model import SlipPrior, slip_coordinate
+    from spinemocap.opensim.tools import read_storage
+
+    dots, slip = _slipped()
+    result = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "out")
+    times, labels, values, _ = read_storage(result.out_dir / "ik.mot")
+    solved = np.column_stack([1000 * values[:, labels.index(slip_coordinate(r))] for r in range(2, TAPE.n_rows)])
+    # mm; IK may share a little of a uniform lengthening with extension of the lordotic spine (both
+    # move the rows along the tape; only the midline's shape tells them apart)
+    np.testing.assert_allclose(solved, slip[:, 2:], atol=0.3 + 0.2 * slip[:, 2:].max())
+    assert np.corrcoef(solved.ravel(), slip[:, 2:].ravel())[0, 1] > 0.99
+    regions = [c for c in result.angles.columns if c.startswith(("lumbar_", "thoracic_"))]
+    assert np.abs(result.angles[regions].to_numpy()).max() < 0.5  # the skin slid; the spine barely moves
+    s = result.summary
+    assert s["marker_rms_mm"] < 0.5
+    assert s["skin_model"]["slip"]["at_peak_mm"][slip_coordinate(12)] == pytest.approx(solved[:, -1].max(), abs=0.01)
+    assert s["skin_model"]["slip"]["pinned_rows"] == ["R01", "R02"]
+    assert s["depth"]["scale_on_published"] == 1.0 and "published" in s["depth"]["source"]
+    # the model opens in OpenSim's API with its slip coordinates, clamped to the prior's limit ...
+    model = osim.Model(str(result.out_dir / "model.osim"))
+    model.initSystem()
+    prior = SlipPrior()
+    for r in range(2, TAPE.n_rows):
+        c = model.getCoordinateSet().get(slip_coordinate(r))
+        assert c.getMotionType() == osim.Coordinate.Translational and c.getDefaultClamped()
+        assert c.getRangeMax() == pytest.approx(prior.limit_mm / 1000) and not c.getDefaultLocked()
+        assert model.getMarkerSet().get(f"R{r + 1:02d}L").getParentFrameName().endswith(f"R{r + 1:02d}_skin")
+    assert not model.getCoordinateSet().contains(slip_coordinate(1))  # pinned
+    # ... its prior named beside each coordinate and as an IK coordinate task in OpenSim's own setup
+    text = (result.out_dir / "model.osim").read_text()
+    assert text.count(f"SD {prior.sd_mm:g} mm") == TAPE.n_rows - 2
+    tool = osim.InverseKinematicsTool(str(result.out_dir / "setup_ik.xml"))
+    tasks = tool.getIKTaskSet()
+    for r in range(2, TAPE.n_rows):
+        task = tasks.get(slip_coordinate(r))
+        assert task.getConcreteClassName() == "IKCoordinateTask"
+        assert task.getWeight() == pytest.approx(prior.weight)
+
+
+def _turn(points: np.ndarray, degrees: float) -> np.ndarray:
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    return np.asarray(points, float) @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
+
+
+@needs_opensim
+def test_a_world_turned_about_the_vertical_gives_the_same_angles_in_every_frame(tmp_path):
+    frames = 12
+    amplitude = np.sin(np.linspace(0, np.pi, frames))
+    dots = np.array([_bend(flexion=40 * a, lateral=12 * a, twist=8 * a) for a in amplitude])
+    rng = np.random.default_rng(3)
+    dots += rng.normal(0.0, 0.3, dots.shape)  # tracking noise: the solution is not exact
+    confidence = np.ones(dots.shape[:2])
+    confidence[6:9, :20] = 0.5  # frames the tracker flagged: their dots are down-weighted
+    status = np.full(dots.shape[:2], "observed", dtype=object)
+    status[5:, 3] = "inferred"
+    base = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS, status=status, confidence=confidence),
+                tmp_path / "base")
+    turned = _run(MarkerTable.from_arrays(TAPE.labels, _turn(dots, 90.0), fps=FPS, status=status,
+                                          confidence=confidence),
+                  tmp_path / "turned", up=UP, facing=_turn(FACING, 90.0))
+    columns = [c for c in base.angles.columns if c.endswith(("_flexion", "_lateral", "_rotation"))]
+    np.testing.assert_allclose(turned.angles[columns].to_numpy(), base.angles[columns].to_numpy(), atol=0.5)
+    assert base.angles["lumbar_flexion"].max() > 20.0  # it bends
+    # inside the clamped published ranges, flagged frames included
+    from spinemocap.opensim.model import RANGE_FACTOR
+
+    for j in base.plan.driven:
+        for dof, rom in zip(("flexion", "lateral", "rotation"), j.rom_deg):
+            assert np.abs(base.angles[f"{j.name}_{dof}"]).max() <= RANGE_FACTOR * rom + 1e-3
+    # the flagged frames' dots weigh 0.5^2 in IK; the inferred dot 0.6^2 where the table had no confidence
+    weights = base.summary["marker_weights"]
+    assert weights["R01L"] == pytest.approx((9 * 1.0 + 3 * 0.25) / 12, abs=1e-3)
+
+
+@needs_opensim
+def test_every_path_form_works_relative_with_spaces_and_read_only_inputs(tmp_path):
+    import exporters
+
+    capture = tmp_path / "my study" / "capture one"
+    write_bent_capture(capture, TAPE, 25.0, n_frames=6, fps=FPS)
+    (capture / "levels.toml").write_text('[levels]\nS1 = 1\n"T12/L1" = 7\nT9 = 13\n')
+    dots = np.load(capture / "groundtruth.npz")["dots"]
+    results = tmp_path / "my study" / "results one"
+    results.mkdir()
+    exporters.write(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), results / "markers.csv")
+    read_only = [results / "markers.csv", capture / "capture.toml", capture / "levels.toml", results, capture]
+    for path in read_only:
+        path.chmod(path.stat().st_mode & ~(stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH))
+    try:
+        env = {**os.environ, "PYTHONPATH": str(Path.cwd())}
+        (tmp_path / "work").mkdir()
+        for out in ("out dir/ik run",):  # relative, with a space (absolute forms: every other test)
+            run = subprocess.run([sys.executable, "-m", "spinemocap.cli", "opensim", "../my study/results one",
+                                  "--capture", "../my study/capture one", "--out", out, "--static-frames", "1"],
+                                 cwd=tmp_path / "work", env=env, capture_output=True, text=True)
+            assert run.returncode == 0, run.stderr[-2000:]
+            folder = Path(out) if Path(out).is_absolute() else tmp_path / "work" / out
+            assert (folder / "model.osim").is_file() and (folder / "summary.json").is_file()
+            ik = ET.parse(folder / "setup_ik.xml").getroot()
+            assert ik.find(".//model_file").text == "model.osim"  # the folder re-runs as it is, wherever it lies
+    finally:
+        for path in read_only:
+            path.chmod(path.stat().st_mode | stat.S_IWUSR)
