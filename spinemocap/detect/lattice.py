@@ -1,0 +1,127 @@
+"""The tape's lattice: which found dots, and which tape regions, are perforated tape.
+
+The holes of the tape lie on a two-dimensional lattice: rows of 2 and 3 dots across the tape
+(in-row spacing ``a``) stacked along it (the next row shifted by ``b``: half a spacing across
+and a row pitch along); every dot is ``i a + j b`` for whole ``i``, ``j``. A camera sees the
+lattice through a smooth map (perspective, the back's curvature, uneven stretch) that is nearly
+affine over a few neighbouring dots, and an affine map keeps parallelograms and equally spaced
+collinear dots. So on the tape, seen from any side:
+
+- every dot is a corner of a *parallelogram* of dots (``p``, ``p + a``, ``p + b``,
+  ``p + a + b``) whose sides lead to nearby dots in two directions;
+- some dot is the middle of three equally spaced dots on a line (a 3-dot row, or every other
+  row along the tape).
+
+Bright spots that are not tape lack one or the other: an isolated spot has no neighbours; screw
+heads on a rail, the gaps of blinds or a line of lights lie on one line (no parallelogram); the
+LED ring round a motion-capture camera's lens lies on an ellipse, where no three points are
+collinear (its inscribed parallelograms span the ring, and count only while that is within
+reach).
+
+:func:`lattice_dots` marks both; :func:`tape_regions` keeps the tape mask's components that hold
+at least :data:`MIN_LATTICE_DOTS` parallelogram corners and a collinear triple, with all their
+dots, and drops every other component and dot. What passes and is not tape: any regular grid of
+bright holes in a dark region (a pegboard, wall bars with two or more gaps per rung, a
+checkerboard), and two staggered LED rings seen obliquely: lattices too, over a few dots.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+NEIGHBOURS = 8            # displacements tested per dot (to its nearest dots)
+MAX_REACH = 6.0           # ... up to this x the median nearest-neighbour distance (the next row of a
+                          # tape seen 70 deg from face-on across it: ~5x the in-row spacing)
+TOLERANCE = 0.2           # a parallelogram's fourth corner matches a dot within this x its shorter side
+LINE_TOLERANCE = 0.1      # a triple's end matches a dot within this x the spacing (a row is straight)
+MIN_ANGLE_DEG = 25.0      # a parallelogram's sides differ in direction by this at least
+MIN_LATTICE_DOTS = 4      # a tape region holds at least this many parallelogram corners (one parallelogram)
+_MIN_LATTICE = 4
+
+
+class Lattice(NamedTuple):
+    """Per dot (N,) bool: ``corner`` of a parallelogram of dots, ``middle`` of three equally
+    spaced collinear dots."""
+
+    corner: np.ndarray
+    middle: np.ndarray
+
+
+def lattice_dots(uv: np.ndarray) -> Lattice:
+    """The lattice structure of the dots ``uv`` ((N, 2) px, x y): see the module docstring.
+    Fewer than four dots: none."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    n = len(uv)
+    corner, middle = np.zeros(n, bool), np.zeros(n, bool)
+    if n < _MIN_LATTICE:
+        return Lattice(corner, middle)
+    tree = cKDTree(uv)
+    k = min(NEIGHBOURS, n - 1)
+    dist, idx = tree.query(uv, k=k + 1)
+    dist, idx = dist[:, 1:], idx[:, 1:]  # the first is the dot itself
+    nearest = float(np.median(dist[:, 0]))
+    if not nearest > 0:
+        return Lattice(corner, middle)
+    valid = dist <= MAX_REACH * nearest
+    vectors = uv[idx] - uv[:, None]  # (n, k, 2) each dot's displacements to its neighbours
+    # the middle of a triple: the opposite displacement leads to a dot too
+    found, at = tree.query((uv[:, None] - vectors).reshape(-1, 2))
+    opposite = (found.reshape(n, k) <= LINE_TOLERANCE * dist) & valid
+    middle = opposite.any(axis=1)
+    # parallelograms: two non-parallel displacements of a dot, and a dot at their sum
+    i, j = np.triu_indices(k, 1)
+    v1, v2 = vectors[:, i], vectors[:, j]  # (n, pairs, 2)
+    l1, l2 = dist[:, i], dist[:, j]
+    sin = np.abs(v1[..., 0] * v2[..., 1] - v1[..., 1] * v2[..., 0]) / np.maximum(l1 * l2, 1e-12)
+    pairs = valid[:, i] & valid[:, j] & (sin >= math.sin(math.radians(MIN_ANGLE_DEG)))
+    dot, pair = np.nonzero(pairs)
+    if len(dot):
+        found, fourth = tree.query(uv[dot] + v1[dot, pair] + v2[dot, pair])
+        ok = found <= TOLERANCE * np.minimum(l1[dot, pair], l2[dot, pair])
+        for members in (dot[ok], idx[dot[ok], i[pair[ok]]], idx[dot[ok], j[pair[ok]]], fourth[ok]):
+            corner[members] = True
+    return Lattice(corner, middle)
+
+
+def tape_regions(mask: np.ndarray, uv: np.ndarray, box: tuple[slice, slice] | None = None,
+                 reach_px: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """The tape: ``mask`` ((H, W) bool) less its 8-connected components that hold fewer than
+    :data:`MIN_LATTICE_DOTS` parallelogram corners or no middle of a collinear triple
+    (:func:`lattice_dots` of ``uv``, (N, 2) px x y), and
+    which dots to keep ((N,) bool: those on a kept component, a dot within ``reach_px`` of it
+    counting as on it). ``box``: a box holding every pixel of ``mask`` (else the whole mask is
+    labelled). Returns a new mask; ``mask`` is not changed."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    h, w = mask.shape
+    kept = np.zeros((h, w), bool)
+    keep_dots = np.zeros(len(uv), bool)
+    if box is None:
+        box = (slice(0, h), slice(0, w))
+    y0, x0 = box[0].start or 0, box[1].start or 0
+    region = np.ascontiguousarray(mask[box], np.uint8)
+    if not len(uv) or not region.any():
+        return kept, keep_dots
+    n_labels, labels = cv2.connectedComponents(region, connectivity=8)
+    # each dot's component: the label at its pixel, else the highest within reach (dots on the edge)
+    r = max(1, int(math.ceil(reach_px)))
+    reached = cv2.dilate(labels.astype(np.float32), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    ij = np.round(uv).astype(int) - [x0, y0]
+    inside = (ij[:, 0] >= 0) & (ij[:, 0] < labels.shape[1]) & (ij[:, 1] >= 0) & (ij[:, 1] < labels.shape[0])
+    dot_label = np.zeros(len(uv), np.int64)
+    at = ij[inside]
+    own = labels[at[:, 1], at[:, 0]]
+    dot_label[inside] = np.where(own > 0, own, reached[at[:, 1], at[:, 0]].astype(np.int64))
+    lattice = lattice_dots(uv)
+    corners = np.bincount(dot_label[lattice.corner], minlength=n_labels)
+    triples = np.bincount(dot_label[lattice.middle], minlength=n_labels)
+    accepted = (corners >= MIN_LATTICE_DOTS) & (triples >= 1)
+    accepted[0] = False
+    if accepted.any():
+        kept[box] = accepted[labels]
+        keep_dots = accepted[dot_label]
+    return kept, keep_dots
