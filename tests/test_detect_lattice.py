@@ -87,3 +87,12 @@ def test_the_network_finds_no_tape_in_a_lab_room_and_keeps_a_drawn_tape(net):
     plain = every.detect(sample.image)
     assert len(tape.uv) == len(plain.uv) >= len(sample.uv) - 1
     np.testing.assert_array_equal(tape.mask, plain.mask)
+
+
+def test_two_lines_side_by_side_are_not_a_tape():
+    # screw heads on a treadmill's rail found twice each (above and below their slot), or wall
+    # bars with two gaps per rung: a grid two dots wide and many long
+    for n in (4, 5, 8):  # (three long is a tape-like patch: rows of three)
+        grid = np.array([(x * 34.0, y * 8.0) for x in range(n) for y in range(2)]) + 100
+        found = lattice_dots(grid)
+        assert found.corner.all() and not found.middle.any(), n

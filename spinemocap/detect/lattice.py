@@ -9,11 +9,12 @@ collinear dots. So on the tape, seen from any side:
 
 - every dot is a corner of a *parallelogram* of dots (``p``, ``p + a``, ``p + b``,
   ``p + a + b``) whose sides lead to nearby dots in two directions;
-- some dot is the middle of three equally spaced dots on a line (a 3-dot row, or every other
-  row along the tape).
+- some dot is the middle of a row of exactly three equally spaced dots on a line (a 3-dot row:
+  no fourth dot continues it).
 
 Bright spots that are not tape lack one or the other: an isolated spot has no neighbours; screw
-heads on a rail, the gaps of blinds or a line of lights lie on one line (no parallelogram); the
+heads on a rail, the gaps of blinds or a line of lights lie on one line (no parallelogram), and
+two such lines side by side have rows of two across and longer lines along (no row of three); the
 LED ring round a motion-capture camera's lens lies on an ellipse, where no three points are
 collinear (its inscribed parallelograms span the ring, and count only while that is within
 reach).
@@ -21,8 +22,9 @@ reach).
 :func:`lattice_dots` marks both; :func:`tape_regions` keeps the tape mask's components that hold
 at least :data:`MIN_LATTICE_DOTS` parallelogram corners and a collinear triple, with all their
 dots, and drops every other component and dot. What passes and is not tape: any regular grid of
-bright holes in a dark region (a pegboard, wall bars with two or more gaps per rung, a
-checkerboard), and two staggered LED rings seen obliquely: lattices too, over a few dots.
+bright holes in a dark region with rows of exactly three (wall bars with three gaps per rung, a
+small pegboard or checkerboard), and two staggered LED rings seen obliquely: lattices too, over
+a few dots.
 """
 
 from __future__ import annotations
@@ -30,9 +32,10 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import cv2
 import numpy as np
 from scipy.spatial import cKDTree
+
+from .blobs import labelled_components
 
 NEIGHBOURS = 8            # displacements tested per dot (to its nearest dots)
 MAX_REACH = 6.0           # ... up to this x the median nearest-neighbour distance (the next row of a
@@ -45,8 +48,8 @@ _MIN_LATTICE = 4
 
 
 class Lattice(NamedTuple):
-    """Per dot (N,) bool: ``corner`` of a parallelogram of dots, ``middle`` of three equally
-    spaced collinear dots."""
+    """Per dot (N,) bool: ``corner`` of a parallelogram of dots, ``middle`` of a row of exactly
+    three equally spaced collinear dots."""
 
     corner: np.ndarray
     middle: np.ndarray
@@ -69,10 +72,13 @@ def lattice_dots(uv: np.ndarray) -> Lattice:
         return Lattice(corner, middle)
     valid = dist <= MAX_REACH * nearest
     vectors = uv[idx] - uv[:, None]  # (n, k, 2) each dot's displacements to its neighbours
-    # the middle of a triple: the opposite displacement leads to a dot too
-    found, at = tree.query((uv[:, None] - vectors).reshape(-1, 2))
-    opposite = (found.reshape(n, k) <= LINE_TOLERANCE * dist) & valid
-    middle = opposite.any(axis=1)
+    # the middle of a row of three: the opposite displacement leads to a dot too, and neither
+    # doubled displacement does (a tape's rows hold 2 or 3 dots; a longer line is not a row)
+    def dot_at(offset: float) -> np.ndarray:
+        found, _ = tree.query((uv[:, None] + offset * vectors).reshape(-1, 2))
+        return found.reshape(n, k) <= LINE_TOLERANCE * dist
+
+    middle = (valid & dot_at(-1.0) & ~dot_at(2.0) & ~dot_at(-2.0)).any(axis=1)
     # parallelograms: two non-parallel displacements of a dot, and a dot at their sum
     i, j = np.triu_indices(k, 1)
     v1, v2 = vectors[:, i], vectors[:, j]  # (n, pairs, 2)
@@ -89,39 +95,46 @@ def lattice_dots(uv: np.ndarray) -> Lattice:
 
 
 def tape_regions(mask: np.ndarray, uv: np.ndarray, box: tuple[slice, slice] | None = None,
-                 reach_px: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+                 reach_px: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """The tape: ``mask`` ((H, W) bool) less its 8-connected components that hold fewer than
     :data:`MIN_LATTICE_DOTS` parallelogram corners or no middle of a collinear triple
-    (:func:`lattice_dots` of ``uv``, (N, 2) px x y), and
-    which dots to keep ((N,) bool: those on a kept component, a dot within ``reach_px`` of it
-    counting as on it). ``box``: a box holding every pixel of ``mask`` (else the whole mask is
-    labelled). Returns a new mask; ``mask`` is not changed."""
+    (:func:`lattice_dots` of ``uv``, (N, 2) px x y), and which dots to keep ((N,) bool: those on
+    a kept component, a dot within ``reach_px`` of it counting as on it). ``box``: a box holding
+    every pixel of ``mask`` (else the whole mask is labelled). Returns ``mask`` itself when every
+    component is kept, else a new mask (``mask`` is never changed)."""
     uv = np.asarray(uv, float).reshape(-1, 2)
     h, w = mask.shape
-    kept = np.zeros((h, w), bool)
-    keep_dots = np.zeros(len(uv), bool)
     if box is None:
         box = (slice(0, h), slice(0, w))
     y0, x0 = box[0].start or 0, box[1].start or 0
-    region = np.ascontiguousarray(mask[box], np.uint8)
+    region = np.ascontiguousarray(mask[box])
     if not len(uv) or not region.any():
-        return kept, keep_dots
-    n_labels, labels = cv2.connectedComponents(region, connectivity=8)
-    # each dot's component: the label at its pixel, else the highest within reach (dots on the edge)
-    r = max(1, int(math.ceil(reach_px)))
-    reached = cv2.dilate(labels.astype(np.float32), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
-    ij = np.round(uv).astype(int) - [x0, y0]
-    inside = (ij[:, 0] >= 0) & (ij[:, 0] < labels.shape[1]) & (ij[:, 1] >= 0) & (ij[:, 1] < labels.shape[0])
-    dot_label = np.zeros(len(uv), np.int64)
-    at = ij[inside]
-    own = labels[at[:, 1], at[:, 0]]
-    dot_label[inside] = np.where(own > 0, own, reached[at[:, 1], at[:, 0]].astype(np.int64))
+        return np.zeros((h, w), bool), np.zeros(len(uv), bool)
+    n_labels, labels, _ = labelled_components(region)
+    dot_label = _dot_labels(labels, np.round(uv).astype(np.int64) - [x0, y0], reach_px)
     lattice = lattice_dots(uv)
     corners = np.bincount(dot_label[lattice.corner], minlength=n_labels)
     triples = np.bincount(dot_label[lattice.middle], minlength=n_labels)
     accepted = (corners >= MIN_LATTICE_DOTS) & (triples >= 1)
     accepted[0] = False
+    keep_dots = accepted[dot_label]
+    if accepted[1:].all():
+        return mask, keep_dots
+    kept = np.zeros((h, w), bool)
     if accepted.any():
         kept[box] = accepted[labels]
-        keep_dots = accepted[dot_label]
     return kept, keep_dots
+
+
+def _dot_labels(labels: np.ndarray, ij: np.ndarray, reach: int) -> np.ndarray:
+    """Each dot's component (``ij`` (N, 2) x y px in ``labels``' frame): the label at its pixel,
+    else the highest within ``reach`` px (a dot on the tape's edge), 0 for none."""
+    hh, ww = labels.shape
+    out = np.zeros(len(ij), np.int64)
+    for k, (x, y) in enumerate(ij.tolist()):
+        if 0 <= x < ww and 0 <= y < hh and labels[y, x]:
+            out[k] = labels[y, x]
+        else:
+            near = labels[max(0, y - reach):max(0, y + reach + 1), max(0, x - reach):max(0, x + reach + 1)]
+            out[k] = int(near.max()) if near.size else 0
+    return out
