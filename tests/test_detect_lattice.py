@@ -96,3 +96,21 @@ def test_two_lines_side_by_side_are_not_a_tape():
         grid = np.array([(x * 34.0, y * 8.0) for x in range(n) for y in range(2)]) + 100
         found = lattice_dots(grid)
         assert found.corner.all() and not found.middle.any(), n
+
+
+def test_a_small_piece_beside_the_tape_stays_and_one_far_away_goes():
+    mask = np.zeros((600, 900), bool)
+    uv_tape = seen(tape_lattice(5), 1.3, 90, 1.0, 0.0) + [-50.0, 0.0]
+    lo, hi = uv_tape.min(axis=0).astype(int) - 12, uv_tape.max(axis=0).astype(int) + 12
+    mask[lo[1]:hi[1], lo[0]:hi[0]] = True
+    beside = np.array([[hi[0] + 20.0, 290.0], [hi[0] + 20.0, 310.0]])  # a 2-dot piece past a ball
+    far = np.array([[850.0, 550.0], [850.0, 570.0]])
+    for piece in (beside, far):
+        y, x = piece[:, 1].astype(int), piece[:, 0].astype(int)
+        mask[y.min() - 8:y.max() + 8, x.min() - 8:x.max() + 8] = True
+    kept, keep = tape_regions(mask, np.concatenate([uv_tape, beside, far]))
+    assert keep[:len(uv_tape) + 2].all() and not keep[-2:].any()
+    assert kept[int(beside[0, 1]), int(beside[0, 0])] and not kept[int(far[0, 1]), int(far[0, 0])]
+    # alone, the same small piece is not tape
+    alone, keep_alone = tape_regions(mask, beside)
+    assert not keep_alone.any() and not alone.any()

@@ -20,11 +20,12 @@ collinear (its inscribed parallelograms span the ring, and count only while that
 reach).
 
 :func:`lattice_dots` marks both; :func:`tape_regions` keeps the tape mask's components that hold
-at least :data:`MIN_LATTICE_DOTS` parallelogram corners and a collinear triple, with all their
-dots, and drops every other component and dot. What passes and is not tape: any regular grid of
-bright holes in a dark region with rows of exactly three (wall bars with three gaps per rung, a
-small pegboard or checkerboard), and two staggered LED rings seen obliquely: lattices too, over
-a few dots.
+at least :data:`MIN_LATTICE_DOTS` parallelogram corners and a row of three, with all their dots,
+and the pieces too small to test (1-3 dots, e.g. cut off by an occluder) that lie beside them;
+every other component and dot goes. What passes and is not tape: any regular grid of bright
+holes in a dark region with rows of exactly three (wall bars with three gaps per rung, a small
+pegboard or checkerboard), and two staggered LED rings seen obliquely: lattices too, over a few
+dots.
 """
 
 from __future__ import annotations
@@ -117,6 +118,9 @@ def tape_regions(mask: np.ndarray, uv: np.ndarray, box: tuple[slice, slice] | No
     triples = np.bincount(dot_label[lattice.middle], minlength=n_labels)
     accepted = (corners >= MIN_LATTICE_DOTS) & (triples >= 1)
     accepted[0] = False
+    if accepted.any():  # pieces too small to test, beside the tape (cut off by an occluder), stay
+        accepted |= _pieces_beside(uv, dot_label, accepted, n_labels)
+        accepted[0] = False
     keep_dots = accepted[dot_label]
     if accepted[1:].all():
         return mask, keep_dots
@@ -124,6 +128,18 @@ def tape_regions(mask: np.ndarray, uv: np.ndarray, box: tuple[slice, slice] | No
     if accepted.any():
         kept[box] = accepted[labels]
     return kept, keep_dots
+
+
+def _pieces_beside(uv: np.ndarray, dot_label: np.ndarray, accepted: np.ndarray, n_labels: int) -> np.ndarray:
+    """Per label: a component with 1-3 dots (too few for a parallelogram) whose dots all lie
+    within the accepted dots' bounding box grown by half its larger side."""
+    on_tape = accepted[dot_label]
+    lo, hi = uv[on_tape].min(axis=0), uv[on_tape].max(axis=0)
+    pad = 0.5 * float((hi - lo).max())
+    beside = np.all((uv >= lo - pad) & (uv <= hi + pad), axis=1)
+    dots = np.bincount(dot_label, minlength=n_labels)
+    away = np.bincount(dot_label[~beside], minlength=n_labels)
+    return (dots >= 1) & (dots < _MIN_LATTICE) & (away == 0)
 
 
 def _dot_labels(labels: np.ndarray, ij: np.ndarray, reach: int) -> np.ndarray:
