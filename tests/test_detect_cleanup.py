@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from spinemocap.detect import blobs
-from spinemocap.detect.blobs import _Blobs, _ring_pixels, fill_holes, median, merge_close
+from spinemocap.detect.blobs import _Blobs, _ring_pixels, fill_holes, find_dots, median, merge_close
 from spinemocap.detect.drawn import draw_sample
 from spinemocap.detect.instances import kept_instances, split_instances, union
 from spinemocap.detect.refine import RefineParams, _band_levels, _levels, _snap
@@ -623,3 +623,33 @@ def test_merge_close_fast_path_and_greedy_path_keep_the_reference_blobs_in_its_o
         want_uv, want_score = _reference_merge_close(uv, score, radius)
         assert np.array_equal(got_uv, want_uv) and np.array_equal(got_score, want_score)
     assert 4 <= fast < len(cases)  # both paths were taken
+
+
+def test_band_levels_of_more_pixels_than_opencvs_remap_takes_in_a_row(monkeypatch):
+    # a large tape region's band holds more than 32767 px (OpenCV's remap refuses such a map):
+    # read in rows, each pixel's level is the one it gets in a short call of its own
+    import spinemocap.detect.refine as refine
+
+    sample = draw_sample(np.random.default_rng(3), size=(480, 640), px_per_mm=1.4, n_rows=9)
+    grey = cv2.cvtColor(sample.image, cv2.COLOR_BGR2GRAY)
+    mask = fill_holes(cv2.dilate(sample.mask.view(np.uint8), np.ones((5, 5), np.uint8)).view(bool))
+    p = RefineParams()
+    samples = _levels(grey, mask, p.band_px, p.min_contrast)
+    ys, xs = np.nonzero(np.ones_like(mask))  # every pixel of the crop: 307200 > 32767
+    tape_at, skin_at = _band_levels(grey, samples, p.level_sigma_px, ys, xs)
+    monkeypatch.setattr(refine, "_REMAP_MAX_SIDE", 1000)
+    pick = np.random.default_rng(0).choice(len(ys), 3000, replace=False)
+    tape_few, skin_few = _band_levels(grey, samples, p.level_sigma_px, ys[pick], xs[pick])
+    np.testing.assert_array_equal(tape_at[pick], tape_few)
+    np.testing.assert_array_equal(skin_at[pick], skin_few)
+
+
+def test_ring_pixels_in_chunks_are_the_same(monkeypatch):
+    # a large dot size over a large region would gather gigabytes of labels at once: in chunks, the same dots
+    sample = draw_sample(np.random.default_rng(8), size=(480, 360), px_per_mm=1.2)
+    whole = find_dots(sample.image, sample.mask)
+    monkeypatch.setattr(blobs, "_RING_CHUNK_ELEMENTS", 64)
+    chunked = find_dots(sample.image, sample.mask)
+    assert len(whole[0]) >= len(sample.uv) - 1
+    for a, b in zip(whole, chunked):
+        np.testing.assert_array_equal(a, b)

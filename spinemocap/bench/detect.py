@@ -4,13 +4,16 @@ Test sets (bodies, seeds and so lighting never used in training: seeds from
 ``HELD_OUT_SEED_BASE``, phenotypes from a separate random stream):
 
 - ``studio``: the paper's studio, 6 cameras at 2448x1600, sharp, no occluders;
-- ``blur+balls``: the artificial layout (4 cameras, 1024x768) with motion blur and falling balls.
+- ``blur+balls``: the artificial layout (4 cameras, 1024x768) with motion blur and falling balls;
+- ``tape-free``: images without any tape (:mod:`spinemocap.bench.tape_free`: scikit-image's
+  photographs and painted lab rooms): false dots per 100 images and the largest tape region.
 
 Renders are 2x supersampled (anti-aliased, as a real sensor integrates over each pixel); without
 it dot edges are hard pixel steps and centroids carry ~0.1 px of aliasing error.
 
 Methods: ``net`` and ``classical`` (:class:`spinemocap.detect.Detector`, dot size estimated from
-the mask, as the tracker calls it), ``blobs in exact mask`` (our dot detector given the true
+the mask, as the tracker calls it), ``net (every region)`` (the network without the lattice test:
+every tape region and dot it finds), ``blobs in exact mask`` (our dot detector given the true
 mask: dot detection alone), and the peer ``SimpleBlobDetector`` (OpenCV, whole frame, told the
 true dot size), also with its blobs kept only inside the net's mask.
 
@@ -50,6 +53,7 @@ from ..synth import SynthConfig, build_scene
 from ..synth.occluders import segments_blocked_by_spheres
 from ..synth.visibility import rim_points
 from ..timing import StageTimer
+from .tape_free import MAX_FALSE_DOTS_PER_100, MAX_REGION_SHARE, score_tape_free
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +79,9 @@ TEST_SETS = {
     "blur+balls": TestSet("blur+balls", "artificial", scenes=1, frames=2, blur=0.5, occlusion="heavy"),
     "tiny": TestSet("tiny", "tiny", scenes=1, frames=1, blur=0.0, occlusion="none", supersample=3),  # quick check only
 }
-DEFAULT_SETS = ["studio", "blur+balls"]
+TAPE_FREE = "tape-free"
+TAPE_FREE_ROOMS = 60
+DEFAULT_SETS = ["studio", "blur+balls", TAPE_FREE]
 
 
 # ---------------------------------------------------------------------------------- scoring
@@ -217,20 +223,25 @@ def dot_view_conditions(scene, frame: int, gt: dict) -> tuple[np.ndarray, np.nda
 
 # ---------------------------------------------------------------------------------- run
 def run_detect_benchmark(sets: list[str] | None = None, scenes: int | None = None, weights: Path | None = None,
-                         threads: int = 1, say: Callable[[str], None] = print) -> dict:
+                         threads: int = 1, say: Callable[[str], None] = print, rooms: int | None = None) -> dict:
     """Score the detectors and the peer on the held-out test sets; returns every number (JSON-ready).
-    ``scenes`` overrides each set's scene count; ``say`` gets each set's table as it is done."""
+    ``scenes`` overrides each set's scene count, ``rooms`` the tape-free set's painted rooms; ``say`` gets each set's table as it is done."""
     from ..detect import Detector  # loads torch
 
     options: dict = {"threads": threads}
     if weights:
         options["weights"] = weights
-    detectors = {"net": Detector("net", **options), "classical": Detector("classical")}
+    detectors = {"net": Detector("net", **options), "net (every region)": Detector("net", lattice=False, **options),
+                 "classical": Detector("classical")}
     results = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "sets": {}}
     for set_name in sets or DEFAULT_SETS:
+        if set_name == TAPE_FREE:
+            results["sets"][TAPE_FREE] = tape_free = run_tape_free(detectors, rooms)
+            say(format_tape_free(tape_free))
+            continue
         test = TEST_SETS[set_name]
         n_scenes = scenes or test.scenes
-        scores = {k: DotScore() for k in ("net", "classical", "blobs in exact mask", "SimpleBlobDetector",
+        scores = {k: DotScore() for k in (*detectors, "blobs in exact mask", "SimpleBlobDetector",
                                            "SimpleBlobDetector in net mask")}
         iou = {k: [0, 0] for k in detectors}
         timer = StageTimer()
@@ -294,6 +305,32 @@ def run_detect_benchmark(sets: list[str] | None = None, scenes: int | None = Non
     return results
 
 
+def run_tape_free(detectors: dict, rooms: int | None = None) -> dict:
+    """The ``tape-free`` set: each detector's false detections (:func:`score_tape_free`) over
+    scikit-image's photographs and ``rooms`` painted rooms (default :data:`TAPE_FREE_ROOMS`)."""
+    n_rooms = rooms or TAPE_FREE_ROOMS
+    bar = tqdm(desc=f"bench detect [{TAPE_FREE}]", unit="image")
+    scores = score_tape_free(detectors, n_rooms, progress=lambda _: bar.update(1))
+    bar.close()
+    return {"tape_free": True, "rooms": n_rooms, "goal": {"max_false_dots_per_100_images": MAX_FALSE_DOTS_PER_100,
+                                                          "max_region_share": MAX_REGION_SHARE},
+            "detectors": scores}
+
+
+def format_tape_free(s: dict) -> str:
+    """The tape-free set's table, as printed."""
+    first = next(iter(s["detectors"].values()))
+    lines = [f"\n== {TAPE_FREE}: {first['images']} images without tape ({s['rooms']} painted lab rooms), goal "
+             f"<= {MAX_FALSE_DOTS_PER_100:g} false dot per 100 images, no tape region above "
+             f"{100 * MAX_REGION_SHARE:g} % of its image",
+             f"{'detector':24s} {'false dots':>10s} {'per 100':>8s} {'images w/ dots':>14s} {'largest region %':>16s} "
+             f"{'goal':>5s} {'ms/image':>9s}"]
+    for name, d in s["detectors"].items():
+        lines.append(f"{name:24s} {d['false_dots']:10d} {d['false_dots_per_100_images']:8.1f} {d['images_with_dots']:14d} "
+                     f"{100 * d['largest_region_share']:16.3f} {'met' if d['goal_met'] else 'not':>5s} {d['ms_per_image']:9.0f}")
+    return "\n".join(lines)
+
+
 def save(results: dict, path: Path) -> None:
     """The numbers as JSON (atomic)."""
     with atomic_write(path) as handle:
@@ -307,7 +344,7 @@ def plot(results: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    sets = results["sets"]
+    sets = {name: s for name, s in results["sets"].items() if "dots" in s}  # the sets with tape
     fig, axes = plt.subplots(len(sets), 3, figsize=(16, 4.4 * len(sets)), squeeze=False)
     for row, (name, s) in zip(axes, sets.items()):
         methods = list(s["dots"])

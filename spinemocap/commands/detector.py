@@ -3,7 +3,8 @@
     spinemocap detector train --out runs/tape                   # render studio data, train
     spinemocap detector finetune --images lab/images --masks lab/masks --out runs/lab
     spinemocap detector finetune --images lab/images --coco lab/tape.json --out runs/lab
-    spinemocap detector run img1.png img2.png --out dots/       # dots CSV + overlay per image
+    spinemocap detector run img1.png cam1.mp4 capture/ --out dots/   # dots CSV + overlay per image
+    spinemocap detector run capture/ --frames 0:50 --out dots/  # every camera of a capture, frames 0-49
 
 Training is resumable: run the same command again with the same ``--out``. Use the result with
 ``Detector("net", weights="runs/tape/weights.pt")``.
@@ -17,6 +18,8 @@ import shlex
 from pathlib import Path
 
 log = logging.getLogger(__name__)
+
+VIDEO_SUFFIXES = (".mkv", ".mp4", ".avi", ".mov", ".webm", ".m4v", ".mts", ".ts")  # decoded by PyAV
 
 
 def _train_options(p: argparse.ArgumentParser, epochs: int, lr: float) -> None:
@@ -58,12 +61,15 @@ def register(subparsers) -> None:
     f.add_argument("--val-fraction", type=float, default=0.24, help="share of images for validation (paper: 631/2619)")
     f.set_defaults(func=_finetune)
 
-    r = sub.add_parser("run", help="detect tape and dots in image files")
-    r.add_argument("images", type=Path, nargs="+")
+    r = sub.add_parser("run", help="detect tape and dots in images, videos or capture folders; draw what was found")
+    r.add_argument("inputs", type=Path, nargs="+", metavar="INPUT",
+                   help="image files, video files (" + " ".join(VIDEO_SUFFIXES) + ") or capture folders (every camera)")
+    r.add_argument("--frames", default="0:1", help="frames A:B of each video or capture (B exclusive; default the first)")
     r.add_argument("--name", choices=["net", "classical"], default="net")
     r.add_argument("--weights", type=Path, help="network weights (default: shipped)")
     r.add_argument("--dot-px", type=float, help="expected dot diameter in px (default: from the mask width)")
-    r.add_argument("--out", type=Path, help="folder for <stem>_dots.csv and <stem>_overlay.png")
+    r.add_argument("--out", type=Path, help="folder for <name>_dots.csv and <name>_overlay.png (the mask's outline, "
+                                            "the dots, the counts) per image")
     r.set_defaults(func=_run)
 
 
@@ -131,27 +137,57 @@ def _run(args) -> int:
     import cv2
     import numpy as np
 
-    from ..capture import read_image
+    from ..app.run import parse_frames
+    from ..capture import MANIFEST, Capture
     from ..detect import Detector
-    from ..fileio import atomic_path, atomic_write
+    from ..detect.overlay import draw_detections
+    from ..fileio import InputError, atomic_path, atomic_write
+    from ..media import VideoDecoder, read_image
 
     options = {"weights": args.weights} if args.name == "net" and args.weights else {}
     detector = Detector(args.name, **options)
-    for path in args.images:
-        image = read_image(path)
-        dots = detector.detect(image, expected_dot_px=args.dot_px)
-        print(f"{path}: {len(dots)} dots, tape mask {int(dots.mask.sum())} px")
-        if args.out is None:
-            continue
-        with atomic_write(args.out / f"{path.stem}_dots.csv") as handle:
-            handle.write("u_px,v_px,confidence\n")
-            for (u, v), c in zip(dots.uv, dots.confidence):
-                handle.write(f"{u:.3f},{v:.3f},{c:.3f}\n")
-        overlay = image.copy()
-        contours, _ = cv2.findContours(dots.mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        cv2.drawContours(overlay, contours, -1, (0, 255, 0), 1)
-        for u, v in dots.uv:
-            cv2.drawMarker(overlay, (int(round(u)), int(round(v))), (0, 0, 255), cv2.MARKER_CROSS, 7, 1)
-        with atomic_path(args.out / f"{path.stem}_overlay.png") as tmp:
-            cv2.imwrite(str(tmp), overlay)
+
+    def views(path: Path):
+        """(name, BGR image) of each image an input gives: a file, a video's or a capture's frames."""
+        if path.is_dir():
+            if not (path / MANIFEST).is_file():
+                raise InputError(path, f"a folder given to 'detector run' must be a capture (with {MANIFEST})")
+            capture = Capture.open(path)
+            source = capture.frame_source()
+            try:
+                for frame in parse_frames(args.frames, capture.n_frames):
+                    for camera, image in zip(capture.camera_names, source.read(frame)):
+                        yield f"{capture.name}_{camera}_f{frame:06d}", image
+            finally:
+                close = getattr(source, "close", None)
+                if close:
+                    close()
+        elif path.suffix.lower() in VIDEO_SUFFIXES:
+            decoder = VideoDecoder(path)
+            try:
+                n = decoder.n_frames or 1
+                for frame in parse_frames(args.frames, n):
+                    yield f"{path.stem}_f{frame:06d}", decoder.read(frame)
+            finally:
+                decoder.close()
+        else:
+            yield path.stem, read_image(path)
+
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+    for path in args.inputs:
+        for name, image in views(path):
+            dots = detector.detect(image, expected_dot_px=args.dot_px)
+            share = 100.0 * float(np.count_nonzero(dots.mask)) / dots.mask.size
+            print(f"{name}: {len(dots)} dots, tape mask {int(np.count_nonzero(dots.mask))} px ({share:.2f} % of the image)")
+            if args.out is None:
+                continue
+            with atomic_write(args.out / f"{name}_dots.csv") as handle:
+                handle.write("u_px,v_px,confidence\n")
+                for (u, v), c in zip(dots.uv, dots.confidence):
+                    handle.write(f"{u:.3f},{v:.3f},{c:.3f}\n")
+            overlay = draw_detections(image, dots.mask, dots.uv, dots.confidence, name)
+            with atomic_path(args.out / f"{name}_overlay.png") as tmp:
+                if not cv2.imwrite(str(tmp), overlay):
+                    raise InputError(args.out, "the overlay could not be written (is the folder writable?)")
     return 0

@@ -9,6 +9,10 @@ from pathlib import Path
 
 log = logging.getLogger(__name__)
 
+# spinemocap.synth.appearance's vocabularies (spelt out here: the CLI starts without numpy and OpenCV)
+TAPE_COLOUR_NAMES = ("black", "beige", "blue", "pink", "red")
+BACKDROP_NAMES = ("plain", "room")
+
 
 def _size(text: str) -> tuple[int, int]:
     try:
@@ -89,6 +93,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--noise", type=float, help="sensor noise, standard deviation in grey levels")
     p.add_argument("--distortion", type=float, help="lens distortion scale (0 = ideal pinhole, 1 = mild)")
     p.add_argument("--skin-tone", type=float, help="0 (light) .. 1 (dark); default from the seed")
+    p.add_argument("--tape-colour", choices=TAPE_COLOUR_NAMES, help="the tape's colour (default black)")
+    p.add_argument("--backdrop", choices=BACKDROP_NAMES,
+                   help="behind the subject: plain (default) or a painted motion-capture room (windows, blinds, "
+                        "wall bars, treadmill, posters, lights, camera strobes), one view per camera")
     p.add_argument("--phenotype", action="append", default=[], metavar="KEY=VALUE",
                    help="anny phenotype value in [0, 1] (repeatable): gender (or sex; 0 male, 1 female), age "
                         "(0 newborn, 0.5 young adult, 1 old), muscle, weight, height, proportions")
@@ -125,6 +133,7 @@ def config_from_args(args: argparse.Namespace):
         "supersample": args.supersample, "seed": args.seed, "video": args.video or None,
         "reference": args.reference or None, "camera_offsets_s": args.camera_offsets, "camera_fps": args.camera_fps,
         "drop_frames": args.drop_frames, "clap": args.clap or None,
+        "tape_colour": args.tape_colour, "backdrop": args.backdrop,
         "phenotype": phenotype or None, "name": args.out.name,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}

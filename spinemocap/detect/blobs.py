@@ -597,15 +597,28 @@ def _ring_pixels(labels: np.ndarray, candidate: np.ndarray, grow: np.ndarray,
     dy, dx = np.nonzero(grow)
     padded = cv2.copyMakeBorder(cand, r, r, r, r, cv2.BORDER_CONSTANT, value=0)  # outside: no candidate
     width = padded.shape[1]
-    near = padded.ravel()[((ys2 + r) * width + xs2 + r)[:, None] + (dy - r) * width + (dx - r)]
+    offsets = (dy - r) * width + (dx - r)
+    flat = padded.ravel()
+    starts = (ys2 + r) * width + xs2 + r
     # each pixel's distinct candidate labels in ascending order (as a sort of (pixel, label) keys gives them);
-    # bit sets of one word (n <= 64): ~3x cheaper than the sort; of 2-4 words: ~3x dearer
-    which, owner2 = _distinct_labels(near, n) if n <= 64 else _distinct_labels_sorted(near)
+    # bit sets of one word (n <= 64): ~3x cheaper than the sort; of 2-4 words: ~3x dearer. In chunks of
+    # pixels (the same pairs in the same order): a large element over many pixels would not fit in memory.
+    step = max(1, _RING_CHUNK_ELEMENTS // len(offsets))
+    which_parts, owner_parts = [], []
+    for lo in range(0, len(starts), step):
+        near = flat[starts[lo:lo + step, None] + offsets]
+        which, owner = _distinct_labels(near, n) if n <= 64 else _distinct_labels_sorted(near)
+        which_parts.append(which + lo)
+        owner_parts.append(owner)
+    which, owner2 = np.concatenate(which_parts), np.concatenate(owner_parts)
     if box is not None:
         ys2 += y0
         xs2 += x0
     return (np.concatenate([ys1, ys2[which]]), np.concatenate([xs1, xs2[which]]),
             np.concatenate([owner1, owner2]))
+
+
+_RING_CHUNK_ELEMENTS = 1 << 22  # labels gathered at once by _ring_pixels (32 MiB of int64 indices)
 
 
 def _distinct_labels_sorted(near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -33,10 +33,11 @@ import torch
 from ..capture import read_image, to_grey
 from ..fileio import InputError
 from ..views import ViewDots
-from .blobs import BlobParams, fill_holes, find_dots, merge_close
+from .blobs import BlobParams, fill_holes, find_dots, mask_box, merge_close
 from .classical import segment_classical
 from .dataset import CROP_PAD, WORK_WIDTH, crop_scale, frame_view
 from .instances import kept_instances, split_instances, union
+from .lattice import tape_regions
 from .refine import RefineParams, components_touching, extend_along_tape
 from .segnet import RUNTIMES, InferenceUNet, OnnxUNet, cpu_has_vnni, load_weights, pad_to_multiple, to_tensor
 
@@ -307,6 +308,9 @@ class Detector:
     Args:
         name: ``"net"`` (the shipped network) or ``"classical"``.
         blob_params: :class:`BlobParams` for the dots.
+        lattice: :meth:`detect` keeps only the tape regions whose dots lie on the tape's lattice,
+            and their dots (:func:`spinemocap.detect.lattice.tape_regions`); False keeps every
+            region and dot found.
         **options: for ``"net"``: ``weights`` (path), ``refine`` (two-stage clean-up on/off),
             ``threads`` (the network's threads per pass; default 1, the tracker runs cameras in
             parallel; ``None``: the runtime's default), ``precision`` (``float32`` default,
@@ -321,10 +325,11 @@ class Detector:
         InputError: an unknown precision or runtime, or one that cannot run here.
     """
 
-    def __init__(self, name: str = "net", blob_params: BlobParams | None = None, **options):
+    def __init__(self, name: str = "net", blob_params: BlobParams | None = None, lattice: bool = True, **options):
         if name not in NAMES:
             raise ValueError(f"unknown detector {name!r}; choose from {list(NAMES)}")
         self.name = name
+        self.lattice = lattice
         self.blob_params = blob_params or BlobParams()
         if name == "net":
             self._segment = NetSegmenter(blob_params=self.blob_params, **options)
@@ -364,9 +369,13 @@ class Detector:
         else:  # the same instances, labelled within the searched boxes (the mask is empty outside them)
             mask = found.mask
             mask[found.box] = kept_instances(mask[found.box])
-        self.last_timings["segment_s"] = time.perf_counter() - t
         on_mask = _on_mask(found.uv, mask, self.blob_params)
-        return MaskDots(mask, found.uv[on_mask], found.confidence[on_mask])
+        uv, confidence = found.uv[on_mask], found.confidence[on_mask]
+        if self.lattice:
+            mask, on_tape = tape_regions(mask, uv, found.box)
+            uv, confidence = uv[on_tape], confidence[on_tape]
+        self.last_timings["segment_s"] = time.perf_counter() - t
+        return MaskDots(mask, uv, confidence)
 
     @property
     def searches_boxes(self) -> bool:
@@ -409,6 +418,9 @@ class Detector:
         grey = to_grey(image_bgr)  # once: the dots and MRF2 both use it
         mask = self.segment(image_bgr, boxes)
         uv, conf = self.find_dots(grey, mask, expected_dot_px)
+        if self.lattice:
+            mask, on_tape = tape_regions(mask, uv, mask_box(mask))
+            uv, conf = uv[on_tape], conf[on_tape]
         return ViewDots(camera=camera, uv=uv, confidence=conf, mask=mask, image=grey)
 
     def detect_file(self, path: str | os.PathLike, camera: int = 0, expected_dot_px: float | None = None) -> ViewDots:

@@ -190,6 +190,9 @@ def _midway(samples: _Levels | None) -> float | None:
     return 0.5 * (float(samples.tape_median) + float(samples.ring_median))
 
 
+_REMAP_MAX_SIDE = 32766  # cv2.remap's maps are below SHRT_MAX px a side
+
+
 def _band_levels(grey: np.ndarray, samples: _Levels, sigma: float, ys: np.ndarray, xs: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
     """The local tape and skin levels (float32, (N,)) at the crop pixels (``ys``, ``xs``) (the
@@ -226,10 +229,19 @@ def _band_levels(grey: np.ndarray, samples: _Levels, sigma: float, ys: np.ndarra
     fallback = np.array([samples.tape_median, samples.ring_median], np.float32)
     mean = np.where(den > 1e-3, num / np.maximum(den, 1e-6), fallback).astype(np.float32)
     # cv2.resize's INTER_LINEAR source coordinates (clamped at the whole grid's edges)
-    map_x = (np.clip((xs + 0.5) * (sw / w) - 0.5, 0, sw - 1) - cx0).astype(np.float32).reshape(1, -1)
-    map_y = (np.clip((ys + 0.5) * (sh / h) - 0.5, 0, sh - 1) - cy0).astype(np.float32).reshape(1, -1)
+    map_x = (np.clip((xs + 0.5) * (sw / w) - 0.5, 0, sw - 1) - cx0).astype(np.float32)
+    map_y = (np.clip((ys + 0.5) * (sh / h) - 0.5, 0, sh - 1) - cy0).astype(np.float32)
+    # OpenCV's remap takes maps below 32767 px a side: the band's pixels as rows of at most that
+    # (each output pixel is read on its own, so the rows give the same values as one long row)
+    n = len(map_x)
+    if n == 0:
+        return np.zeros(0, np.float32), np.zeros(0, np.float32)
+    width = min(n, _REMAP_MAX_SIDE)
+    rows = -(-n // width)
+    map_x, map_y = (np.pad(m, (0, rows * width - n)).reshape(rows, width) for m in (map_x, map_y))
     at = cv2.remap(np.ascontiguousarray(mean), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return at[0, :, 0], at[0, :, 1]
+    at = at.reshape(-1, 2)[:n]
+    return at[:, 0], at[:, 1]
 
 
 def snap_to_edges(crop: np.ndarray, mask: np.ndarray, params: RefineParams | None = None) -> np.ndarray:

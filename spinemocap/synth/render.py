@@ -337,6 +337,12 @@ class CameraRenderer:
         self._show_canvas_region(self.plotter, x0, y0, width, height)
         self._window = (x0, y0, width, height)
 
+    def background_pixel(self) -> np.ndarray:
+        """(3,) uint8 RGB of the empty background (measured once)."""
+        if self._background is None:
+            self._background = self._empty_pixel()
+        return self._background
+
     def _empty_pixel(self) -> np.ndarray:
         """(3,) uint8 RGB the main window renders where nothing is drawn (the background)."""
         actors = [a for a in (self.body_actor, self.tape_actor, self.band_actor, self.occluder_actor,

@@ -26,6 +26,7 @@ import numpy as np
 from ..camera import Rig
 from ..skin import vertex_normals
 from ..tape import TapeSpec
+from .appearance import BACKDROPS, TAPE_COLOURS, behind_subject, room_view
 from .body import ANGLE_NAMES, LEVELS, PHENOTYPE_KEYS, Body
 from .lab_errors import clock_offsets_s, perturb_rig
 from .motions import MOTIONS, spine_motion
@@ -156,6 +157,8 @@ class SynthConfig:
     camera_fps: tuple[float, ...] | None = None
     drop_frames: int = 0
     clap: bool = False
+    tape_colour: str = "black"  # appearance.TAPE_COLOURS
+    backdrop: str = "plain"  # appearance.BACKDROPS: the renderer's uniform background or a painted lab room
 
     def __post_init__(self) -> None:
         self.size = (int(self.size[0]), int(self.size[1]))
@@ -215,6 +218,10 @@ class SynthConfig:
         if self.supersample < 1:
             problems.append("supersample must be >= 1")
         problems += self._clock_problems()
+        if self.tape_colour not in TAPE_COLOURS:
+            problems.append(f"unknown tape_colour {self.tape_colour!r} (choose from {list(TAPE_COLOURS)})")
+        if self.backdrop not in BACKDROPS:
+            problems.append(f"unknown backdrop {self.backdrop!r} (choose from {list(BACKDROPS)})")
         if problems:
             raise ValueError("invalid synthetic studio settings: " + "; ".join(problems))
 
@@ -375,6 +382,7 @@ class Scene:
         skin = (1 - tone) * SKIN_LIGHT + tone * SKIN_DARK
         self.appearance = Appearance(
             skin_rgb=tuple(float(c) for c in skin),
+            tape_rgb=TAPE_COLOURS[config.tape_colour],
             light_position=(float(rng.uniform(-1500, 1500)), float(rng.uniform(2000, 3500)), float(rng.uniform(2200, 3200))),
             light_intensity=float(rng.uniform(0.75, 1.0)),
             fill_intensity=float(rng.uniform(0.25, 0.45)),
@@ -668,7 +676,14 @@ class Scene:
                 acc += renderer.image_through_lens(window)
             rgb = acc / len(windows)
         mask = renderer.mask_through_lens(mask_window) if with_mask else None
-        return self._sensor(rgb, frame, camera), mask
+        return self._sensor(self._backdrop(rgb, camera), frame, camera), mask
+
+    def _backdrop(self, rgb: np.ndarray, camera: int) -> np.ndarray:
+        """``rgb`` with the configured backdrop where it shows the empty background (``plain``: as it is)."""
+        if self.config.backdrop == "plain":
+            return rgb
+        renderer = self.renderers[camera]
+        return behind_subject(rgb, renderer.background_pixel(), room_view(renderer.camera.size, self.rng_seed, camera))
 
     def _develop_pool(self) -> ThreadPoolExecutor:
         if self._pool is None:
@@ -687,7 +702,7 @@ class Scene:
                 for m in meshes[1:]:
                     acc += renderer.render_reference(m, with_mask=False)[0]
                 rgb = acc / len(meshes)
-            images.append(self._sensor_reference(rgb, frame, c))
+            images.append(self._sensor_reference(self._backdrop(rgb, c), frame, c))
             masks.append(mask)
         return RenderedFrame(images, masks)
 

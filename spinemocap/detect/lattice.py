@@ -1,0 +1,156 @@
+"""The tape's lattice: which found dots, and which tape regions, are perforated tape.
+
+The holes of the tape lie on a two-dimensional lattice: rows of 2 and 3 dots across the tape
+(in-row spacing ``a``) stacked along it (the next row shifted by ``b``: half a spacing across
+and a row pitch along); every dot is ``i a + j b`` for whole ``i``, ``j``. A camera sees the
+lattice through a smooth map (perspective, the back's curvature, uneven stretch) that is nearly
+affine over a few neighbouring dots, and an affine map keeps parallelograms and equally spaced
+collinear dots. So on the tape, seen from any side:
+
+- every dot is a corner of a *parallelogram* of dots (``p``, ``p + a``, ``p + b``,
+  ``p + a + b``) whose sides lead to nearby dots in two directions;
+- some dot is the middle of a row of exactly three equally spaced dots on a line (a 3-dot row:
+  no fourth dot continues it).
+
+Bright spots that are not tape lack one or the other: an isolated spot has no neighbours; screw
+heads on a rail, the gaps of blinds or a line of lights lie on one line (no parallelogram), and
+two such lines side by side have rows of two across and longer lines along (no row of three); the
+LED ring round a motion-capture camera's lens lies on an ellipse, where no three points are
+collinear (its inscribed parallelograms span the ring, and count only while that is within
+reach).
+
+:func:`lattice_dots` marks both; :func:`tape_regions` keeps the tape mask's components that hold
+at least :data:`MIN_LATTICE_DOTS` parallelogram corners and a row of three, with all their dots,
+and the pieces too small to test (1-3 dots, e.g. cut off by an occluder) that lie beside them;
+every other component and dot goes. What passes and is not tape: any regular grid of bright
+holes in a dark region with rows of exactly three (wall bars with three gaps per rung, a small
+pegboard or checkerboard), and two staggered LED rings seen obliquely: lattices too, over a few
+dots.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .blobs import labelled_components
+
+NEIGHBOURS = 8            # displacements tested per dot (to its nearest dots)
+MAX_REACH = 6.0           # ... up to this x the median nearest-neighbour distance (the next row of a
+                          # tape seen 70 deg from face-on across it: ~5x the in-row spacing)
+TOLERANCE = 0.2           # a parallelogram's fourth corner matches a dot within this x its shorter side
+LINE_TOLERANCE = 0.1      # a triple's end matches a dot within this x the spacing (a row is straight)
+MIN_ANGLE_DEG = 25.0      # a parallelogram's sides differ in direction by this at least
+MIN_LATTICE_DOTS = 4      # a tape region holds at least this many parallelogram corners (one parallelogram)
+_MIN_LATTICE = 4
+
+
+class Lattice(NamedTuple):
+    """Per dot (N,) bool: ``corner`` of a parallelogram of dots, ``middle`` of a row of exactly
+    three equally spaced collinear dots."""
+
+    corner: np.ndarray
+    middle: np.ndarray
+
+
+def lattice_dots(uv: np.ndarray) -> Lattice:
+    """The lattice structure of the dots ``uv`` ((N, 2) px, x y): see the module docstring.
+    Fewer than four dots: none."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    n = len(uv)
+    corner, middle = np.zeros(n, bool), np.zeros(n, bool)
+    if n < _MIN_LATTICE:
+        return Lattice(corner, middle)
+    tree = cKDTree(uv)
+    k = min(NEIGHBOURS, n - 1)
+    dist, idx = tree.query(uv, k=k + 1)
+    dist, idx = dist[:, 1:], idx[:, 1:]  # the first is the dot itself
+    nearest = float(np.median(dist[:, 0]))
+    if not nearest > 0:
+        return Lattice(corner, middle)
+    valid = dist <= MAX_REACH * nearest
+    vectors = uv[idx] - uv[:, None]  # (n, k, 2) each dot's displacements to its neighbours
+    # the middle of a row of three: the opposite displacement leads to a dot too, and neither
+    # doubled displacement does (a tape's rows hold 2 or 3 dots; a longer line is not a row)
+    def dot_at(offset: float) -> np.ndarray:
+        found, _ = tree.query((uv[:, None] + offset * vectors).reshape(-1, 2))
+        return found.reshape(n, k) <= LINE_TOLERANCE * dist
+
+    middle = (valid & dot_at(-1.0) & ~dot_at(2.0) & ~dot_at(-2.0)).any(axis=1)
+    # parallelograms: two non-parallel displacements of a dot, and a dot at their sum
+    i, j = np.triu_indices(k, 1)
+    v1, v2 = vectors[:, i], vectors[:, j]  # (n, pairs, 2)
+    l1, l2 = dist[:, i], dist[:, j]
+    sin = np.abs(v1[..., 0] * v2[..., 1] - v1[..., 1] * v2[..., 0]) / np.maximum(l1 * l2, 1e-12)
+    pairs = valid[:, i] & valid[:, j] & (sin >= math.sin(math.radians(MIN_ANGLE_DEG)))
+    dot, pair = np.nonzero(pairs)
+    if len(dot):
+        found, fourth = tree.query(uv[dot] + v1[dot, pair] + v2[dot, pair])
+        ok = found <= TOLERANCE * np.minimum(l1[dot, pair], l2[dot, pair])
+        for members in (dot[ok], idx[dot[ok], i[pair[ok]]], idx[dot[ok], j[pair[ok]]], fourth[ok]):
+            corner[members] = True
+    return Lattice(corner, middle)
+
+
+def tape_regions(mask: np.ndarray, uv: np.ndarray, box: tuple[slice, slice] | None = None,
+                 reach_px: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """The tape: ``mask`` ((H, W) bool) less its 8-connected components that hold fewer than
+    :data:`MIN_LATTICE_DOTS` parallelogram corners or no middle of a collinear triple
+    (:func:`lattice_dots` of ``uv``, (N, 2) px x y), and which dots to keep ((N,) bool: those on
+    a kept component, a dot within ``reach_px`` of it counting as on it). ``box``: a box holding
+    every pixel of ``mask`` (else the whole mask is labelled). Returns ``mask`` itself when every
+    component is kept, else a new mask (``mask`` is never changed)."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    h, w = mask.shape
+    if box is None:
+        box = (slice(0, h), slice(0, w))
+    y0, x0 = box[0].start or 0, box[1].start or 0
+    region = np.ascontiguousarray(mask[box])
+    if not len(uv) or not region.any():
+        return np.zeros((h, w), bool), np.zeros(len(uv), bool)
+    n_labels, labels, _ = labelled_components(region)
+    dot_label = _dot_labels(labels, np.round(uv).astype(np.int64) - [x0, y0], reach_px)
+    lattice = lattice_dots(uv)
+    corners = np.bincount(dot_label[lattice.corner], minlength=n_labels)
+    triples = np.bincount(dot_label[lattice.middle], minlength=n_labels)
+    accepted = (corners >= MIN_LATTICE_DOTS) & (triples >= 1)
+    accepted[0] = False
+    if accepted.any():  # pieces too small to test, beside the tape (cut off by an occluder), stay
+        accepted |= _pieces_beside(uv, dot_label, accepted, n_labels)
+        accepted[0] = False
+    keep_dots = accepted[dot_label]
+    if accepted[1:].all():
+        return mask, keep_dots
+    kept = np.zeros((h, w), bool)
+    if accepted.any():
+        kept[box] = accepted[labels]
+    return kept, keep_dots
+
+
+def _pieces_beside(uv: np.ndarray, dot_label: np.ndarray, accepted: np.ndarray, n_labels: int) -> np.ndarray:
+    """Per label: a component with 1-3 dots (too few for a parallelogram) whose dots all lie
+    within the accepted dots' bounding box grown by half its larger side."""
+    on_tape = accepted[dot_label]
+    lo, hi = uv[on_tape].min(axis=0), uv[on_tape].max(axis=0)
+    pad = 0.5 * float((hi - lo).max())
+    beside = np.all((uv >= lo - pad) & (uv <= hi + pad), axis=1)
+    dots = np.bincount(dot_label, minlength=n_labels)
+    away = np.bincount(dot_label[~beside], minlength=n_labels)
+    return (dots >= 1) & (dots < _MIN_LATTICE) & (away == 0)
+
+
+def _dot_labels(labels: np.ndarray, ij: np.ndarray, reach: int) -> np.ndarray:
+    """Each dot's component (``ij`` (N, 2) x y px in ``labels``' frame): the label at its pixel,
+    else the highest within ``reach`` px (a dot on the tape's edge), 0 for none."""
+    hh, ww = labels.shape
+    out = np.zeros(len(ij), np.int64)
+    for k, (x, y) in enumerate(ij.tolist()):
+        if 0 <= x < ww and 0 <= y < hh and labels[y, x]:
+            out[k] = labels[y, x]
+        else:
+            near = labels[max(0, y - reach):max(0, y + reach + 1), max(0, x - reach):max(0, x + reach + 1)]
+            out[k] = int(near.max()) if near.size else 0
+    return out
