@@ -24,12 +24,104 @@ def test_every_shipped_value_carries_its_citation_and_method():
     assert len(norms.values) == len(raw["reference"])
     for value in norms.values:
         assert value.source.citation.strip() and value.source.method.strip() and value.source.differs.strip()
-        assert value.quote.strip() and value.statistic.strip()
+        assert value.quote.strip() and value.statistic.strip() and value.scope in ("band", "pooled")
         # the figures appear in the source's words that the file quotes
         for figure in {value.low_deg, value.high_deg}:
             assert f"{figure:g}" in value.quote, (value.source.key, value.movement, figure)
     assert {v.movement for v in norms.values} == set(MOVEMENTS)
     assert all(f.source.key in keys and f.text.strip() for f in norms.findings)
+    # every movement has a pooled span, the fallback for a subject no band covers
+    assert {v.movement for v in norms.values if v.scope == "pooled" and v.sex == "any"} == set(MOVEMENTS)
+
+
+# A norms file with age bands per sex beside a pooled span: test data (made-up figures, each
+# quoted in its entry's words), not published values.
+BANDED = """
+[[source]]
+key = "example"
+citation = "Example source (test data)."
+method = "Test method."
+differs = "Test difference."
+
+[[reference]]
+movement = "flexion"
+source = "example"
+sex = "any"
+age_min = 16
+age_max = 90
+scope = "pooled"
+low_deg = 40.0
+high_deg = 70.0
+statistic = "pooled span"
+quote = "flexion 40-70 deg over all ages"
+
+[[reference]]
+movement = "flexion"
+source = "example"
+sex = "female"
+age_min = 20
+age_max = 39
+scope = "band"
+low_deg = 52.0
+high_deg = 68.0
+statistic = "mean +- 2 SD"
+quote = "women 20-39 years: 60 (4) deg, i.e. 52-68"
+
+[[reference]]
+movement = "flexion"
+source = "example"
+sex = "male"
+age_min = 20
+age_max = 39
+scope = "band"
+low_deg = 55.0
+high_deg = 71.0
+statistic = "mean +- 2 SD"
+quote = "men 20-39 years: 63 (4) deg, i.e. 55-71"
+
+[[reference]]
+movement = "flexion"
+source = "example"
+sex = "any"
+age_min = 60
+age_max = 90
+scope = "band"
+low_deg = 30.0
+high_deg = 50.0
+statistic = "range"
+quote = "60-90 years, both sexes: 30-50 deg"
+"""
+
+
+def test_age_and_sex_select_the_band_and_the_pooled_span_is_the_fallback(tmp_path):
+    path = tmp_path / "banded.toml"
+    path.write_text(BANDED)
+    norms = load_norms(path)
+
+    def first(age, sex):
+        return norms.for_subject("flexion", age, sex)[0]
+
+    woman, man = first(25.0, "female"), first(25.0, "male")
+    assert (woman.scope, woman.sex, woman.low_deg, woman.high_deg) == ("band", "female", 52.0, 68.0)
+    assert (man.scope, man.sex, man.low_deg, man.high_deg) == ("band", "male", 55.0, 71.0)
+    assert woman.applies_to() == "female, 20-39 years (age band)"
+    assert [v.scope for v in norms.for_subject("flexion", 25.0, "female")] == ["band", "pooled"]
+    # a band's ends are inclusive: 20 and 39 are in, 39.5 and 40 are not
+    assert first(20.0, "female").scope == first(39.0, "female").scope == "band"
+    assert first(39.5, "female").scope == first(40.0, "female").scope == "pooled"
+    # no band for 45-year-olds, nor for a 25-year-old of unknown sex: the pooled span applies
+    for age, sex in ((45.0, "female"), (45.0, "male"), (25.0, None)):
+        fallback = first(age, sex)
+        assert (fallback.scope, fallback.sex, fallback.low_deg, fallback.high_deg) == ("pooled", "any", 40.0, 70.0)
+        assert fallback.applies_to() == "both sexes, 16-90 years (pooled)"
+    # a band for both sexes applies whatever the sex, and before the pooled span
+    assert (first(70.0, "male").low_deg, first(70.0, None).low_deg) == (30.0, 30.0)
+    # an unknown age gets no band, only the pooled span
+    assert [v.scope for v in norms.for_subject("flexion", None, "female")] == ["pooled"]
+    assert norms.for_subject("flexion", 95.0, "female") == []  # outside every value
+    # the band's figures are in its quoted words, as for the shipped file
+    for value in norms.values:
+        assert all(f"{figure:g}" in value.quote for figure in (value.low_deg, value.high_deg))
 
 
 def test_a_value_without_a_known_source_is_refused(tmp_path):
@@ -40,6 +132,12 @@ def test_a_value_without_a_known_source_is_refused(tmp_path):
         load_norms(path)
     path.write_text(norms_path().read_text().replace("low_deg = 40.0", "low_deg = 90.0", 1))
     with pytest.raises(InputError, match="low_deg <= high_deg"):
+        load_norms(path)
+    path.write_text(norms_path().read_text().replace('scope = "pooled"', 'scope = "decade"', 1))
+    with pytest.raises(InputError, match="scope 'decade'"):
+        load_norms(path)
+    path.write_text(norms_path().read_text().replace('scope = "pooled"\n', "", 1))
+    with pytest.raises(InputError, match="missing or unknown key 'scope'"):
         load_norms(path)
 
 

@@ -6,6 +6,13 @@ citation, the source's measurement method and how it differs from spinemocap's, 
 source's own words for the figures. A subject's value is *placed* (below, within or above the
 published span), never diagnosed: the sources measured other people with other instruments.
 
+Each value has a ``scope``: ``band`` (the figures of one age group, and of one sex or both, as
+the source tabulates them) or ``pooled`` (a span over the source's whole age range). A band
+applies only to a subject whose age is known and inside it (and whose sex matches, unless the
+band is for both sexes); a pooled value applies to any age in its range or an unknown age. The
+most specific value that applies comes first (:meth:`Norms.for_subject`): a band before the
+pooled fallback, one sex before both, a narrower age range before a wider one.
+
 Subject metadata: ``[subject]`` in ``capture.toml`` may give ``age`` (years) and ``sex``
 (``female`` / ``male``); :func:`subject_profile` reads them.
 """
@@ -23,7 +30,9 @@ from ..fileio import InputError, read_toml
 Movement = Literal["flexion", "extension", "lateral_bending", "axial_rotation"]
 Sex = Literal["female", "male"]
 Placement = Literal["below", "within", "above", "median only", "no reference", "no value"]
+Scope = Literal["band", "pooled"]
 MOVEMENTS: tuple[str, ...] = get_args(Movement)
+SCOPES: tuple[str, ...] = get_args(Scope)
 NORMS_FILE = "lumbar_rom_norms.toml"
 SEX_WORDS = {"female": "female", "f": "female", "woman": "female", "male": "male", "m": "male", "man": "male"}
 MAX_AGE = 120
@@ -43,7 +52,8 @@ class Source:
 @dataclass(frozen=True)
 class ReferenceValue:
     """One published span for ``movement`` (degrees, per direction): ``low_deg``..``high_deg``
-    over ages ``age_min``..``age_max`` (years) for ``sex`` (``any``: pooled); ``statistic`` what
+    over ages ``age_min``..``age_max`` (years) for ``sex`` (``any``: both sexes); ``scope``
+    ``band`` (one age group) or ``pooled`` (the source's whole age range); ``statistic`` what
     the span is; ``quote`` the source's words; ``source`` where it comes from."""
 
     movement: str
@@ -55,13 +65,25 @@ class ReferenceValue:
     statistic: str
     quote: str
     source: Source
+    scope: str = "pooled"
 
     def covers(self, age: float | None, sex: str | None) -> bool:
-        """True when this value applies to a subject of ``age`` and ``sex`` (None: unknown,
-        which only pooled, all-age values match... or any value when both are unknown)."""
-        age_ok = age is None or self.age_min <= age <= self.age_max
+        """True when this value applies to a subject of ``age`` and ``sex`` (None: unknown). A
+        band needs a known age inside it; a pooled value takes an unknown age too. A value for
+        one sex needs the subject's sex to be that one."""
+        if age is None:
+            age_ok = self.scope == "pooled"
+        else:
+            age_ok = self.age_min <= age <= self.age_max
         sex_ok = self.sex == "any" or (sex is not None and self.sex == sex)
         return age_ok and sex_ok
+
+    def applies_to(self) -> str:
+        """Whom the value describes, in words ("female, 20-39 years (age band)" or "both sexes,
+        16-90 years (pooled)")."""
+        who = "both sexes" if self.sex == "any" else self.sex
+        kind = "age band" if self.scope == "band" else "pooled"
+        return f"{who}, {self.age_min:g}-{self.age_max:g} years ({kind})"
 
     def place(self, value_deg: float) -> Placement:
         """Where ``value_deg`` lies against the span ("median only" when the source gives a
@@ -96,9 +118,11 @@ class Norms:
     path: str
 
     def for_subject(self, movement: str, age: float | None, sex: str | None) -> list[ReferenceValue]:
-        """The values for ``movement`` that apply to the subject (sex-specific ones first)."""
+        """The values for ``movement`` that apply to the subject, the most specific first: age
+        bands before pooled spans (the fallback), one sex before both, then the narrower age
+        range; values equally specific keep the file's order."""
         matching = [v for v in self.values if v.movement == movement and v.covers(age, sex)]
-        return sorted(matching, key=lambda v: v.sex == "any")
+        return sorted(matching, key=lambda v: (v.scope != "band", v.sex == "any", v.age_max - v.age_min))
 
 
 def load_norms(path: str | os.PathLike | None = None) -> Norms:
@@ -117,7 +141,7 @@ def _parse(data: dict, path: str) -> Norms:
         findings = tuple(Finding(f["about"], f["text"], sources[f["source"]]) for f in data.get("finding", []))
     except KeyError as exc:
         raise InputError(path, f"missing or unknown key {exc} (every value needs movement, sex, ages, low_deg, "
-                               "high_deg, statistic, quote and a source key listed under [[source]])") from None
+                               "high_deg, statistic, quote, scope and a source key listed under [[source]])") from None
     except (TypeError, ValueError) as exc:
         raise InputError(path, f"malformed entry ({exc})") from None
     empty = [s.key for s in sources.values() if not (s.citation.strip() and s.method.strip() and s.differs.strip())]
@@ -130,7 +154,10 @@ def _reference(entry: dict, sources: dict[str, Source]) -> ReferenceValue:
     value = ReferenceValue(
         movement=str(entry["movement"]), sex=str(entry["sex"]), age_min=float(entry["age_min"]),
         age_max=float(entry["age_max"]), low_deg=float(entry["low_deg"]), high_deg=float(entry["high_deg"]),
-        statistic=str(entry["statistic"]), quote=str(entry["quote"]), source=sources[entry["source"]])
+        statistic=str(entry["statistic"]), quote=str(entry["quote"]), source=sources[entry["source"]],
+        scope=str(entry["scope"]))
+    if value.scope not in SCOPES:
+        raise ValueError(f"scope {value.scope!r} must be 'band' (one age group) or 'pooled' (all ages)")
     if value.movement not in MOVEMENTS:
         raise ValueError(f"movement {value.movement!r} is not one of {MOVEMENTS}")
     if value.sex not in ("any", *get_args(Sex)):
