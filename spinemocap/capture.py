@@ -231,7 +231,9 @@ class Capture:
             counts = self.media_counts()
             if all(n == self.n_frames for n in counts.values()):
                 return None
-            short = {name: n for name, n in counts.items() if 0 < n < self.n_frames}
+            short = {name: n for name, n in counts.items() if 0 < n < self.n_frames and not self._gap_inside(name)}
+            if not short:   # images missing inside a numbered sequence: those frames read None
+                return None
             for name, n in short.items():  # on one timing, frames past a camera's last are a mistake
                 what = "images" if self.media == "images" else "frames"
                 raise InputError(self.media_path(name), f"camera {name!r} has {n} {what}, capture.toml says "
@@ -239,6 +241,13 @@ class Capture:
                                                         "every camera recorded)")
         return [replace(clock, media=clock.media or str(self.media_path(name).relative_to(self.root)))
                 for name, clock in zip(self.camera_names, clocks)]
+
+    def _gap_inside(self, name: str) -> bool:
+        """Do camera ``name``'s numbered images reach the last frame, so that the ones it lacks
+        are gaps inside the sequence (missing files) rather than a shorter recording?"""
+        if self.media != "images" or "{frame" not in self.image_pattern:
+            return False
+        return (self.root / self.image_pattern.format(camera=name, frame=self.n_frames - 1)).is_file()
 
     def media_counts(self) -> dict[str, int]:
         """Frames each camera's media holds (images in its folder; a video's count from its header,

@@ -9,6 +9,7 @@ decoder reads back. The synthetic studio provides an in-process source with the 
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 from fractions import Fraction
@@ -20,6 +21,8 @@ import numpy as np
 
 from .fileio import InputError, atomic_path
 from .timebase import CameraClock, DroppedFrames, FramePairing, image_times, pair_cameras, video_times
+
+log = logging.getLogger(__name__)
 
 VIDEO_CODEC = "utvideo"
 # The lossless codecs VideoWriter writes, and the pixel format each stores BGR images in: UT Video
@@ -76,7 +79,8 @@ class ImageFolderSource(FrameSource):
     from ``clock.media``, a folder of images in name order, when given) and capture frame ``i`` reads
     the image nearest in time (:attr:`pairing`); a camera with none there gives None. Without clocks,
     or with clocks that all leave the timing at its defaults, frame ``i`` is every camera's image
-    ``i`` and each camera must hold exactly ``n_frames`` images."""
+    ``i``; a camera may hold fewer than ``n_frames`` images (a missing or unreadable image gives
+    None for that camera and frame, recorded in :attr:`unreadable`), not more."""
 
     def __init__(self, root: Path, camera_names: Sequence[str], n_frames: int, pattern: str,
                  sizes: Sequence[tuple[int, int]] | None = None, clocks: Sequence[CameraClock] | None = None,
@@ -88,6 +92,8 @@ class ImageFolderSource(FrameSource):
         self.sizes = list(sizes) if sizes is not None else [None] * len(self.camera_names)
         self._files: list[list[Path] | None] = [None] * len(self.camera_names)
         self.pairing: FramePairing | None = None
+        #: camera name -> {capture frame: why its image could not be read} (missing file, damaged image)
+        self.unreadable: dict[str, dict[int, str]] = {cam: {} for cam in self.camera_names}
         timed = clocks is not None and not all_default(clocks, fps)
         times = []
         for k, cam in enumerate(self.camera_names):
@@ -103,8 +109,11 @@ class ImageFolderSource(FrameSource):
                 if not folder.is_dir():
                     raise InputError(folder, f"image folder for camera {cam!r} is missing")
                 count = sum(1 for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
-            if not timed and count != self.n_frames:
+            if not timed and count > self.n_frames:
                 raise InputError(folder, f"camera {cam!r} has {count} images, capture.toml says n_frames = {self.n_frames}")
+            if not timed and count < self.n_frames:
+                log.warning("%s: camera %r has %d of %d images; the tracker goes on without it where one is missing",
+                            folder, cam, count, self.n_frames)
             if timed:
                 if count == 0:
                     raise InputError(folder, f"camera {cam!r} has no images")
@@ -132,8 +141,15 @@ class ImageFolderSource(FrameSource):
         if slot < 0:
             return None
         name = self.camera_names[camera]
-        path = self.path(name, slot)
-        return check_image_size(read_image(path), self.sizes[camera], name, path)
+        path = self.path(name, slot) if self._files[camera] is None or slot < len(self._files[camera] or []) else None
+        try:
+            if path is None:
+                raise InputError(self.root, f"camera {name!r} has no image {slot}")
+            image = read_image(path)
+        except InputError as exc:   # this camera has no usable image here: the others go on
+            self.unreadable[name][frame] = exc.problem
+            return None
+        return check_image_size(image, self.sizes[camera], name, path)
 
 
 def all_default(clocks: Sequence[CameraClock], fps: float | None) -> bool:
@@ -279,8 +295,10 @@ class VideoSource(FrameSource):
     their container timestamps (:func:`~spinemocap.timebase.video_times`; ``clock.media`` names the
     file when given) and capture frame ``i`` reads each camera's frame nearest in time
     (:attr:`pairing`), None where a camera has none. Without clocks, or with default ones, frame
-    ``i`` is every video's frame ``i`` (each must hold ``n_frames`` frames). :attr:`dropped` lists
-    the frames the videos lack (gaps in their timestamps), read only with clocks."""
+    ``i`` is every video's frame ``i`` (a video may hold fewer than ``n_frames``, not more).
+    :attr:`dropped` lists the frames the videos lack (gaps in their timestamps), read only with
+    clocks. A frame that cannot be decoded (a damaged packet, a file cut short) gives None for that
+    camera and frame, recorded in :attr:`unreadable`; a video that ends early gives None after."""
 
     def __init__(self, root: Path, camera_names: Sequence[str], n_frames: int, pattern: str,
                  sizes: Sequence[tuple[int, int]] | None = None, clocks: Sequence[CameraClock] | None = None,
@@ -296,6 +314,9 @@ class VideoSource(FrameSource):
         self._rates = [clock.fps for clock in clocks]
         self._decoders: list[VideoDecoder | None] = [None] * len(self.paths)
         self.pairing: FramePairing | None = None
+        #: camera name -> {capture frame: why its frame could not be decoded}
+        self.unreadable: dict[str, dict[int, str]] = {cam: {} for cam in self.camera_names}
+        self._ends_at: list[int | None] = [None] * len(self.paths)  # the first slot a camera's video lacks
         try:
             times = []
             for k, (path, cam) in enumerate(zip(self.paths, self.camera_names)):
@@ -306,8 +327,12 @@ class VideoSource(FrameSource):
                     times.append(video_times(path, self._rates[k] or decoder.fps, cam))
                     continue
                 count = decoder.n_frames
-                if count and count != self.n_frames:
+                if count and count > self.n_frames:
                     raise InputError(path, f"video has {count} frames, capture.toml says n_frames = {self.n_frames}")
+                if count and count < self.n_frames:
+                    log.warning("%s: the video of camera %r has %d of %d frames; the tracker goes on without it after",
+                                path, cam, count, self.n_frames)
+                    self._ends_at[k] = count
             if timed:
                 assert fps is not None
                 self.pairing = pair_cameras(self.camera_names, times, clocks, fps, self.n_frames)
@@ -331,11 +356,22 @@ class VideoSource(FrameSource):
         slot = frame if self.pairing is None else int(self.pairing.slots[k, frame])
         if slot < 0:
             return None
+        name = self.camera_names[k]
+        ends_at = self._ends_at[k]
+        if ends_at is not None and slot >= ends_at:
+            self.unreadable[name][frame] = f"the video ends at frame {ends_at}"
+            return None
         decoder = self._decoders[k]
         if decoder is None:
             decoder = self._decoders[k] = VideoDecoder(self.paths[k], self._rates[k])
-        image = decoder.read(slot)
-        return check_image_size(image, self.sizes[k], self.camera_names[k], self.paths[k])
+        try:
+            image = decoder.read(slot)
+        except InputError as exc:   # a damaged or missing frame: this camera sits this frame out
+            self.unreadable[name][frame] = exc.problem
+            if "ends before it" in exc.problem:
+                self._ends_at[k] = slot if ends_at is None else min(ends_at, slot)
+            return None
+        return check_image_size(image, self.sizes[k], name, self.paths[k])
 
     def read(self, frame: int) -> list[np.ndarray | None]:
         if not 0 <= frame < self.n_frames:

@@ -128,18 +128,25 @@ def seeds_video(folder: Path) -> dict[str, bytes]:
             "ffv1": (folder / "b.mkv").read_bytes()}
 
 
-def read_video(path: Path) -> list[np.ndarray]:
-    """Every frame of one camera's video, as tracking reads them (the rig's size checked)."""
+def read_video(path: Path) -> list[np.ndarray | None]:
+    """Every frame of one camera's video, as tracking reads them (the rig's size checked); a frame
+    the damage made unreadable is None, with its reason recorded by the source."""
     source = VideoSource(path.parent, ["cam"], VIDEO_FRAMES, path.name, sizes=[VIDEO_SIZE])
+    order = (0, 1, 3, 2)  # a jump back seeks
     try:
-        return [source.read_camera(0, f) for f in (0, 1, 3, 2)]  # a jump back seeks
+        frames = [source.read_camera(0, f) for f in order]
+        unexplained = [f for f, image in zip(order, frames) if image is None and f not in source.unreadable["cam"]]
+        if unexplained:
+            raise AssertionError(f"frames {unexplained} read as None without a recorded reason")
+        return frames
     finally:
         source.close()
 
 
-def video_problems(frames: list[np.ndarray]) -> list[str]:
+def video_problems(frames: list[np.ndarray | None]) -> list[str]:
     shape = (VIDEO_SIZE[1], VIDEO_SIZE[0], 3)
-    return [f"frame {k}: {f.dtype} {f.shape}" for k, f in enumerate(frames) if f.dtype != np.uint8 or f.shape != shape]
+    return [f"frame {k}: {f.dtype} {f.shape}" for k, f in enumerate(frames)
+            if f is not None and (f.dtype != np.uint8 or f.shape != shape)]
 
 
 LEVEL_SEEDS = {

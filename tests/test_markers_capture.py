@@ -153,7 +153,7 @@ def test_video_images_held_by_the_caller_are_never_overwritten(tmp_path):
     source.close()
 
 
-def test_damaged_videos_give_an_error_naming_the_file(tmp_path):
+def test_damaged_videos_name_the_file_and_leave_the_camera_out_of_the_frames_it_lacks(tmp_path):
     from spinemocap.capture import VideoSource, VideoWriter
 
     rng = np.random.default_rng(1)
@@ -163,17 +163,20 @@ def test_damaged_videos_give_an_error_naming_the_file(tmp_path):
         writer.write(image)
     writer.close()
     whole = (tmp_path / "videos" / "a.avi").read_bytes()
-    with pytest.raises(InputError, match=r"a\.avi.*6 frames, capture.toml says n_frames = 9"):
-        VideoSource(tmp_path, ["cam"], 9, "videos/a.avi")
+    with pytest.raises(InputError, match=r"a\.avi.*6 frames, capture.toml says n_frames = 4"):
+        VideoSource(tmp_path, ["cam"], 4, "videos/a.avi")           # more frames than the capture: a mistake
+    short = VideoSource(tmp_path, ["cam"], 9, "videos/a.avi")       # a recording that ends early
+    np.testing.assert_array_equal(short.read(5)[0], frames[5])
+    assert short.read(6) == [None] and short.unreadable["cam"] == {6: "the video ends at frame 6"}
     (tmp_path / "videos" / "a.avi").write_bytes(b"RIFF" + bytes(200))
     with pytest.raises(InputError, match=r"a\.avi.*cannot be opened"):
         VideoSource(tmp_path, ["cam"], 6, "videos/a.avi")
-    # cut after the first frames: the frames before the cut decode, a later one is an error
+    # cut after the first frames: the frames before the cut decode, a later one is None with the reason
     (tmp_path / "videos" / "a.avi").write_bytes(whole[: len(whole) // 2])
     source = VideoSource(tmp_path, ["cam"], 6, "videos/a.avi")
     np.testing.assert_array_equal(source.read(0)[0], frames[0])
-    with pytest.raises(InputError, match=r"a\.avi.*cannot decode frame 5"):
-        source.read(5)
+    assert source.read(5) == [None]
+    assert "cannot decode frame 5" in source.unreadable["cam"][5]
 
 
 def test_videos_without_pyav_give_an_error_naming_the_file(tmp_path, monkeypatch):

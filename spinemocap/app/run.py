@@ -156,12 +156,34 @@ class TrackResult:
         return [f"{kind}: {len(frames)} of {total} frames ({frame_ranges(frames)})"
                 for kind, frames in self.conditions().items()]
 
+    def missing_cameras(self) -> dict[str, list[int]]:
+        """Camera name -> the capture frames it had no image for (its clock, a dropped, missing or
+        damaged frame, a recording that ends early); the tracker used the other cameras there."""
+        missing = {str(k): sorted(int(f) for f in v) for k, v in self.detector_info.get("missing_frames", {}).items()}
+        return {camera: frames for camera, frames in sorted(missing.items()) if frames}
+
+    def missing_camera_lines(self) -> list[str]:
+        """One line per camera with frames it had no image for, its frames as ranges and why."""
+        reasons = self.detector_info.get("unreadable", {})
+        lines = []
+        for camera, frames in self.missing_cameras().items():
+            why = sorted({str(r) for r in reasons.get(camera, {}).values()})
+            lines.append(f"camera {camera} had no image in {len(frames)} of {len(self.frames)} frames "
+                         f"({frame_ranges(frames)}); the other cameras were used there"
+                         + (f": {why[0]}" + (f" (and {len(why) - 1} other reasons)" if len(why) > 1 else "") if why else ""))
+        return lines
+
     def frame_log(self) -> str:
         """Every frame's conditions, one line per frame that has any (``tracking.log``)."""
         lines = []
+        absent: dict[int, list[str]] = {}
+        for camera, frames in self.missing_cameras().items():
+            for frame in frames:
+                absent.setdefault(frame, []).append(camera)
         for number, f in zip(self.frame_numbers(), self.frames):
             kinds = ([f"tape not found ({f.note})" if f.note else "tape not found"] if not f.solved else [])
             kinds += sorted(set(f.flags)) + ([f.note] if f.solved and f.note else [])
+            kinds += [f"no image from camera {camera}" for camera in absent.get(int(number), [])]
             if kinds:
                 lines.append(f"frame {number}: " + "; ".join(kinds))
         return "\n".join(lines) + ("\n" if lines else "")
@@ -191,6 +213,7 @@ class TrackResult:
             "gate_px": float(np.median(gates)) if gates else None,
             "rig_rms_px": ({n: float(r) for n, r in zip(res.cameras, res.rms_px)} if res is not None else None),
             "calibration_warning": self._calibration_warning(),
+            "missing_cameras": self.missing_cameras(),
         }
 
     def _calibration_warning(self) -> str | None:
@@ -232,6 +255,7 @@ class TrackResult:
             elif np.isfinite(uncertainty):
                 lines.append(f"absolute positions keep about {uncertainty:.1f} mm of the given rig's world-frame error "
                              "(no residual sees it; distances and angles do not)")
+        lines += self.missing_camera_lines()
         flagged = q["flagged_frames"]
         if flagged:
             lines.append(f"WARNING {len(flagged)} of {len(self.frames)} frames flagged (labels not vouched for; the "
@@ -392,6 +416,9 @@ def track_source(
         detect.close()
     result.detector_searches = dict(detect.searches)
     result.detector_info = dict(detect.info)
+    unreadable = {camera: reasons for camera, reasons in getattr(source, "unreadable", {}).items() if reasons}
+    if unreadable:
+        result.detector_info["unreadable"] = unreadable
     return result
 
 
