@@ -268,3 +268,22 @@ def test_viewer_plays_at_recorded_speed():
     assert playback_rate(np.arange(0, 50) * 0.02, 50.0) == pytest.approx(50.0)
     assert playback_rate(np.arange(0, 50, 2) * 0.02, 50.0) == pytest.approx(25.0)  # every 2nd frame
     assert playback_rate(np.array([0.3]), 50.0) == 50.0
+
+
+def test_batch_writes_each_tracked_trials_views_and_the_report_links_them(tracked_capture, tmp_path):
+    from spinemocap.app.batch import discover, run_batch, trial_out_dir
+    from spinemocap.app.report import write_report
+
+    capture_dir, results = tracked_capture
+    study = tmp_path / "study"
+    shutil.copytree(capture_dir, study / "S01" / "pre" / "trial01")
+    (trial,) = discover(study)
+    out = tmp_path / "out"
+    shutil.copytree(results, trial_out_dir(out, trial))      # a complete tracked set: not tracked again
+    result = run_batch(study, out, workers=1, progress=False, view=True)
+    (summary,) = result.trials
+    assert summary["status"] == "ok" and summary["view"]["status"] == "ok", summary
+    found = view_outputs(trial_out_dir(out, trial))
+    assert {"grid", "viewer"} <= set(found) and len(found) == 2 + 3   # the grid, the viewer, three cameras
+    page = write_report(out)["html"].read_text()
+    assert "tape3d.html" in page and "all_cameras.mp4" in page

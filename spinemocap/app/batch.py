@@ -61,6 +61,7 @@ from ..capture import MANIFEST, Capture
 from ..fileio import InputError, atomic_write, check_writable, clean_stale_temps, read_toml, strict_json
 from ..markers import MarkerTable
 from .c3d_inputs import read_pelvis_c3d
+from .levels import find_level_map
 from .results import TrackingStopped, results_complete
 from .worker_processes import exit_with_parent, join_or_kill
 
@@ -109,6 +110,7 @@ class TrialJob:
     stop_event: str | None = None  # name of a Dask distributed Event that asks the trial to stop
 
     opensim: bool = False  # also run spinemocap opensim into <trial out>/opensim
+    view: bool = False  # also write the labelled videos and the 3D viewer into <trial out>/view
 
     def summary_head(self) -> dict:
         """The keys every trial summary starts with (ok, failed or lost with its worker)."""
@@ -223,11 +225,12 @@ def check_trial(job: TrialJob) -> str | None:
         if job.trial.problem:
             raise InputError(job.trial.capture_dir, job.trial.problem)
         capture = Capture.open(job.trial.capture_dir)
-        if job.source == "tracked" and not _markers_reusable(job):
-            source = capture.frame_source()  # every camera's media found, readable and paired
-            close = getattr(source, "close", None)
-            if close is not None:
-                close()
+        if job.source == "tracked":
+            if not _markers_reusable(job):  # to be tracked: every camera's media found, readable and paired
+                source = capture.frame_source()
+                close = getattr(source, "close", None)
+                if close is not None:
+                    close()
         elif not capture.has_groundtruth:
             raise InputError(capture.groundtruth_path, "no ground truth to take the markers from (--source groundtruth)")
         _levels(job, capture)
@@ -252,6 +255,8 @@ def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
     write_shape(out, markers, capture, levels, job.settings, result.table)
     fps = markers.fps
     extra = {"opensim": _opensim(markers, capture, levels, out / OPENSIM_DIR)} if job.opensim else {}
+    if job.view:
+        extra["view"] = _view(capture, out)
     return {
         **extra,
         "status": "ok", "reason": "",
@@ -264,6 +269,24 @@ def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
         "notes": result.notes,
         "stats": result.summary(),
     }
+
+
+def _view(capture: Capture, out: Path) -> dict:
+    """``spinemocap view`` on the trial's tracked marker set (its output folder): labelled videos
+    and the 3D viewer into ``out/view``, where the report links them. A trial without a tracked set
+    or images keeps its results and records why."""
+    from .viewer.layout import VIEWER_NAME, view_folder
+    from .viewer.scene3d import write_viewer
+    from .viewer.video import write_videos
+
+    if not results_complete(out):
+        return {"status": "failed", "reason": "no tracked marker set in the trial's folder (ground-truth source?)"}
+    try:
+        videos = write_videos(capture.root, out, view_folder(out), progress=False)
+        write_viewer(capture.root, out, view_folder(out) / VIEWER_NAME)
+    except InputError as exc:
+        return {"status": "failed", "reason": str(exc)}
+    return {"status": "ok", "frames": len(videos.frames), "seconds": round(videos.seconds, 2)}
 
 
 def _opensim(markers: MarkerTable, capture: Capture, levels: LevelMap, out: Path) -> dict:
@@ -406,31 +429,6 @@ def _levels(job: TrialJob, capture: Capture) -> tuple[LevelMap, str]:
     return find_level_map(capture, job.trial.levels_file, job.levels_file)
 
 
-def find_level_map(capture: Capture, trial_file: str | os.PathLike | None = None,
-                   batch_file: str | os.PathLike | None = None) -> tuple[LevelMap, str]:
-    """The capture's row-to-level map and where it came from, first found wins: ``trial_file``,
-    ``levels.toml`` in the capture folder, ``[levels]`` in capture.toml, ``levels.toml`` two
-    folders up (the subject's), ``batch_file``, the synthetic ground truth's ``row_levels``."""
-    n_rows = capture.tape.n_rows
-    folder = capture.root
-    candidates = [trial_file, folder / "levels.toml"]
-    for path in candidates[:2]:
-        if path and Path(path).is_file():
-            return LevelMap.from_toml(path, n_rows), str(path)
-    section = read_toml(folder / MANIFEST).get("levels")
-    if section:
-        return LevelMap(dict(section), n_rows, source=str(folder / MANIFEST)), str(folder / MANIFEST)
-    for path in (folder.parent.parent / "levels.toml", batch_file):
-        if path and Path(path).is_file():
-            return LevelMap.from_toml(path, n_rows), str(path)
-    row_levels = capture.row_levels()
-    if row_levels is not None:
-        return (LevelMap.from_row_levels(row_levels, n_rows, source=str(capture.groundtruth_path)),
-                f"{capture.groundtruth_path} (row_levels)")
-    raise InputError(folder, "no row-to-level map: put levels.toml in the trial or subject "
-                     "folder, a [levels] table in capture.toml, or pass --levels")
-
-
 def _pelvis_frames(c3d_file: str, markers: MarkerTable) -> np.ndarray:
     """Pelvis frames from a C3D's LASI/RASI/LPSI/RPSI, resampled onto the marker table's times."""
     times, traj = read_pelvis_c3d(c3d_file)
@@ -465,13 +463,15 @@ def trial_out_dir(out: Path, trial: Trial) -> Path:
 def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = "tracked",
               workers: int = 2, scheduler: str | None = None, levels_file: str | None = None,
               settings: AngleSettings | None = None, force: bool = False,
-              detector: str = "net", progress: bool = True, opensim: bool = False) -> BatchResult:
+              detector: str = "net", progress: bool = True, opensim: bool = False, view: bool = False) -> BatchResult:
     """Process every trial under ``root`` into ``out`` (see the module docstring).
 
     ``workers``: local processes (1 = in this process); ``scheduler``: a Dask distributed
     scheduler address (``tcp://HOST:PORT``) -- then the cluster's workers run the trials.
     ``detector``: the tracker's dot detector for ``source="tracked"`` (net, classical, mask).
     ``opensim``: also solve each trial with ``spinemocap opensim`` (into ``<trial>/opensim``).
+    ``view``: also write each tracked trial's labelled videos and 3D viewer (into ``<trial>/view``,
+    linked from the report).
     """
     if source not in SOURCES:
         raise InputError(None, f"unknown marker source {source!r}; expected one of {SOURCES}")
@@ -480,7 +480,7 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = 
     trials = discover(root)
     settings = settings or AngleSettings()
     jobs = [TrialJob(t, str(trial_out_dir(out, t)), source, levels_file, settings, force, detector,
-                     opensim=opensim)
+                     opensim=opensim, view=view)
             for t in trials]
     handler = logging.FileHandler(out / "batch.log")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))

@@ -212,7 +212,7 @@ def crossval_files(tracked_path: str | os.PathLike, vicon_path: str | os.PathLik
     and clock (``spinemocap bodyfit --tape`` on the Vicon file: tape_dots.c3d), written as
     ``REF_*`` beside the tracked dots in merged.c3d and compared with them. ``levels_path``: the
     row-to-level map (default: the capture's, as the batch finds it)."""
-    from .batch import find_level_map
+    from .levels import find_level_map
 
     capture = Capture.open(capture_path)
     tracked = exporters.read(tracked_path)

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 from ..analysis.levels import LevelMap
 from ..capture import Capture
 from ..fileio import InputError
-from .batch import find_level_map
+from .levels import find_level_map
 from .results import read_results
 
 if TYPE_CHECKING:  # OpenSim loads only when the workflow runs
@@ -24,7 +24,7 @@ def opensim_capture(results: str | os.PathLike, capture_dir: str | os.PathLike, 
                     settings: OpenSimSettings | None = None) -> tuple[OpenSimResult, str]:
     """Place and solve the spine model on ``results`` (a results folder or marker file) of the
     capture at ``capture_dir``; files into ``out_dir``. ``levels``: a level-map TOML (default: the
-    capture's, :func:`~spinemocap.app.batch.find_level_map`); ``static``: a static trial's results
+    capture's, :func:`~spinemocap.app.levels.find_level_map`); ``static``: a static trial's results
     for the placement; ``model`` + ``bodies``: a lab's ``.osim`` model and its body map (both or
     neither); ``settings``: :class:`spinemocap.opensim.OpenSimSettings`.
 

@@ -36,6 +36,9 @@ def register(subparsers) -> None:
                    help="levels bounding the lumbar angles (default S1 T12/L1)")
     p.add_argument("--upper-level", help="top of the thoracic angles (default: the level map's top level)")
     p.add_argument("--report", action="store_true", help="write the HTML/CSV/XLSX report afterwards")
+    p.add_argument("--view", action="store_true",
+                   help="also write each tracked trial's labelled camera videos and 3D viewer (`spinemocap view`, "
+                        "into <trial>/view); the report links them")
     p.add_argument("--opensim", action="store_true",
                    help="also run `spinemocap opensim` per trial (model, MarkerPlacer, IK into <trial>/opensim; "
                         "needs spinemocap[opensim]); the report shows the IK angles beside the tape's")
@@ -86,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         result = run_batch(args.root, args.out, source=args.source, workers=args.workers,
                            scheduler=args.scheduler, levels_file=args.levels, settings=settings,
                            force=args.force, detector=args.detector, progress=not args.quiet,
-                           opensim=args.opensim)
+                           opensim=args.opensim, view=args.view)
     except KeyboardInterrupt:
         print(f"spinemocap: batch interrupted; unfinished trials are listed in {args.out}/batch.log; "
               "run the same command again to resume", file=sys.stderr)

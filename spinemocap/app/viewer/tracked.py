@@ -24,7 +24,7 @@ from ...fileio import InputError
 from ...markers import MarkerTable
 from ...tape import TapeSpec
 from ...track.quality import flagged_from_confidence
-from ..batch import find_level_map
+from ..levels import find_level_map
 from ..results import results_run_id
 
 #: The marker file of a results folder that carries the quality columns (status, confidence).
@@ -146,7 +146,7 @@ def dot_classes(status: np.ndarray, confidence: np.ndarray) -> np.ndarray:
 
 def level_labels(capture: Capture) -> tuple[dict[str, float], str]:
     """The capture's vertebral levels as ``{level: 1-based row}`` and where the map came from
-    (:func:`spinemocap.app.batch.find_level_map`); ``({}, reason)`` when the capture has none."""
+    (:func:`spinemocap.app.levels.find_level_map`); ``({}, reason)`` when the capture has none."""
     try:
         levels, source = find_level_map(capture)
     except InputError as exc:
