@@ -67,23 +67,30 @@ def mean_weights(weights: np.ndarray) -> np.ndarray:
     return np.where(present.any(axis=0), mean, 0.0)
 
 
-def write_trc(path: str | os.PathLike, labels: Sequence[str], times: np.ndarray, positions_mm: np.ndarray,
-              fps: float) -> Path:
-    """TRC in metres through OpenSim's own ``TRCFileAdapter`` (NaN = missing sample)."""
+def marker_table(labels: Sequence[str], times: np.ndarray, metres: np.ndarray):
+    """OpenSim's ``TimeSeriesTableVec3`` of markers ``labels`` at ``times`` (F,) s, positions
+    ``metres`` (F, D, 3) in m (NaN = missing sample)."""
     osim = require_opensim()
-    F, D = positions_mm.shape[:2]
+    F, D = metres.shape[:2]
     table = osim.TimeSeriesTableVec3()
     names = osim.StdVectorString()
     for label in labels:
         names.append(str(label))
     table.setColumnLabels(names)
-    metres = np.asarray(positions_mm, float) / 1000.0
     for f in range(F):
         row = osim.RowVectorVec3(D)
         for d in range(D):
             x, y, z = metres[f, d]
             row[d] = osim.Vec3(float(x), float(y), float(z))
         table.appendRow(float(times[f]), row)
+    return table
+
+
+def write_trc(path: str | os.PathLike, labels: Sequence[str], times: np.ndarray, positions_mm: np.ndarray,
+              fps: float) -> Path:
+    """TRC in metres through OpenSim's own ``TRCFileAdapter`` (NaN = missing sample)."""
+    osim = require_opensim()
+    table = marker_table(labels, times, np.asarray(positions_mm, float) / 1000.0)
     table.addTableMetaDataString("DataRate", f"{fps:.10g}")
     table.addTableMetaDataString("CameraRate", f"{fps:.10g}")
     table.addTableMetaDataString("Units", "m")
@@ -284,19 +291,10 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
     model = osim.Model(str(model_file))
     state = model.initSystem()
     F, D = positions_mm.shape[:2]
-    table = osim.TimeSeriesTableVec3()
-    names = osim.StdVectorString()
-    for label in labels:
-        names.append(str(label))
-    table.setColumnLabels(names)
     metres = np.asarray(positions_mm, float) / 1000.0
     present = np.isfinite(metres).all(axis=2) & (weights > 0)
     metres = np.where(present[..., None], metres, np.nan)  # a sample of weight 0 is a missing one
-    for f in range(F):
-        row = osim.RowVectorVec3(D)
-        for d in range(D):
-            row[d] = osim.Vec3(*[float(x) for x in metres[f, d]])
-        table.appendRow(float(times[f]), row)
+    table = marker_table(labels, times, metres)
     weight_set = osim.SetMarkerWeights()
     for d, label in enumerate(labels):  # the first frame's weights, updated frame by frame (NaN: ignored)
         weight_set.cloneAndAppend(osim.MarkerWeight(str(label), float(weights[0, d]) if present[0, d] else 1.0))
