@@ -169,10 +169,10 @@ def test_real_plug_in_gait_trial_fits_with_trunk_rms(tmp_path, anny):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name,frames", [("running_cluster01.c3d", "0:400"),
-                                         ("walking01_plugin_gait_lower.c3d", ":")])  # the latter starts at 198
+@pytest.mark.parametrize("name,frames", [("running_cluster01.c3d", "0:400:40"),
+                                         ("walking01_plugin_gait_lower.c3d", "::40")])  # the latter starts at 198
 def test_other_real_nexus_files_fit(tmp_path, anny, name, frames):
-    _run_bodyfit(tmp_path, name, frames, "--step", "40")
+    _run_bodyfit(tmp_path, name, frames)
 
 
 def test_bodyfit_refuses_a_file_without_known_markers(tmp_path):
@@ -183,3 +183,24 @@ def test_bodyfit_refuses_a_file_without_known_markers(tmp_path):
     table = MarkerTable.from_arrays(["A", "B", "C"], np.zeros((2, 3, 3)), fps=100.0)
     exporters.write(table, tmp_path / "m.trc")
     assert main(["bodyfit", str(tmp_path / "m.trc"), "--out", str(tmp_path / "out")]) == 2
+
+
+def test_marker_frames_use_the_common_selection_syntax_on_the_files_frame_numbers(tmp_path):
+    import exporters
+    from spinemocap.app.bodyfit import frame_step, marker_arrays
+    from spinemocap.fileio import InputError
+    from spinemocap.markers import MarkerTable
+
+    positions = np.arange(20 * 2 * 3, dtype=float).reshape(20, 2, 3)
+    table = MarkerTable.from_arrays(["A", "B"], positions, fps=100.0)
+    exporters.write(table, tmp_path / "m.trc")
+    _, frames, kept, fps = marker_arrays(tmp_path / "m.trc", "2:12:5")
+    assert fps == 100.0 and frames.tolist() == [2, 7] and frame_step(frames) == 5
+    np.testing.assert_allclose(kept, positions[[2, 7]], atol=1e-3)
+    _, frames, _, _ = marker_arrays(tmp_path / "m.trc", "15:")
+    assert frames.tolist() == list(range(15, 20))
+    with pytest.raises(InputError, match="frames"):
+        marker_arrays(tmp_path / "m.trc", "3-9")
+    _, frames, _, _ = marker_arrays(tmp_path / "m.trc", "0,1,5")
+    with pytest.raises(ValueError, match="not evenly spaced"):
+        frame_step(frames)

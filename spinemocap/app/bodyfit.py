@@ -19,65 +19,86 @@ from ..bodymodel.results import write_fit
 from ..bodymodel.tape import lay_tape
 from ..capture import Capture
 from ..fileio import InputError, atomic_write, strict_json
+from ..frames import parse_frames
 from ..markers import MarkerTable
 from ..tape import TapeSpec
 
 log = logging.getLogger(__name__)
 
 
-def marker_arrays(path: str | os.PathLike, frames: tuple[int | None, int | None] | None = None, step: int = 1
+def marker_arrays(path: str | os.PathLike, frames: str | None = None
                   ) -> tuple[list[str], np.ndarray, np.ndarray, float]:
     """(labels, frame numbers (F,), positions (F, D, 3) mm, fps) of the markers (not the modelled
-    outputs such as angles or joint centres a C3D may carry) of a marker file; ``frames`` (A, B)
-    keeps A <= frame < B, ``step`` the frames whose number is a multiple of N (a regular clock
-    at fps / N)."""
+    outputs such as angles or joint centres a C3D may carry) of a marker file.
+
+    ``frames``: a selection of the file's own frame numbers in the syntax of
+    :mod:`spinemocap.frames` (``A:B``, ``A:B:S``, ``N`` or lists); ``None`` keeps every frame.
+    Raises :class:`InputError` naming ``frames`` when the selection is not of the syntax, and naming
+    ``path`` when it keeps no frame the file holds."""
     table = exporters.read(path)
     point_types = table.meta.get("point_types") or {}
     labels = [label for label in table.labels if label not in point_types]
     arrays = table.select(labels=labels).to_arrays()
     frame_numbers, positions = arrays["frames"], arrays["positions"]
     if frames is not None:
-        lo = frames[0] if frames[0] is not None else frame_numbers[0]
-        hi = frames[1] if frames[1] is not None else frame_numbers[-1] + 1
-        keep = (frame_numbers >= lo) & (frame_numbers < hi)
+        wanted = parse_frames(frames, int(frame_numbers[-1]) + 1, "frames")
+        keep = np.isin(frame_numbers, wanted)
         if not keep.any():
-            raise InputError(path, f"no frames in {lo}:{hi} (the file holds {frame_numbers[0]}..{frame_numbers[-1]})")
+            raise InputError(path, f"frame selection {frames!r} keeps none of its frames "
+                                   f"({frame_numbers[0]}..{frame_numbers[-1]})")
         frame_numbers, positions = frame_numbers[keep], positions[keep]
-    on_grid = frame_numbers % step == 0  # frames on the file's clock grid at fps / step
-    return list(arrays["labels"]), frame_numbers[on_grid], positions[on_grid], table.fps
+    return list(arrays["labels"]), frame_numbers, positions, table.fps
 
 
-def tape_reference(model, fit, frame_numbers: np.ndarray, fps: float, spec: TapeSpec, start_level: str,
-                   step: int = 1) -> MarkerTable:
+def frame_step(frame_numbers: np.ndarray) -> int:
+    """The frame numbers' common step (1 for a single frame).
+
+    Raises ValueError when they are not evenly spaced (a body fit's frames share one clock)."""
+    steps = np.unique(np.diff(frame_numbers))
+    if len(steps) > 1:
+        raise ValueError(f"frames {frame_numbers[0]}..{frame_numbers[-1]} are not evenly spaced (steps {steps.tolist()})")
+    return int(steps[0]) if len(steps) else 1
+
+
+def tape_reference(model, fit, frame_numbers: np.ndarray, fps: float, spec: TapeSpec, start_level: str
+                   ) -> MarkerTable:
     """The tape laid on the fitted body (first row at ``start_level``) and read off the posed
     body in every fitted frame: a marker table with the tracker's labels (the paper's body-model
     ground truth; write it beside tracked dots with ``reference=`` to get ``REF_*`` markers).
-    Frames fitted every ``step`` (multiples of it) become a table at ``fps / step``, so times
-    stay on the file's clock."""
+    Frames fitted every ``step`` file frames become a table at ``fps / step`` whose times are the
+    file's (``frame_numbers / fps`` s)."""
+    step = frame_step(np.asarray(frame_numbers))
     laid = lay_tape(model.rest(fit.shape), spec, start_level)
     dots = laid.dots.sequence(model.vertices(fit.poses, fit.shape), model.faces)
     meta = {"source": "body-model tape (spinemocap bodyfit)", "row_levels": laid.row_levels}
     table = MarkerTable.from_arrays(laid.labels, dots, fps / step, meta=meta)
     table.data["frame"] = np.repeat(np.asarray(frame_numbers) // step, len(laid.labels))
-    table.data["time"] = table.data["frame"] / (fps / step)
+    table.data["time"] = np.repeat(np.asarray(frame_numbers) / fps, len(laid.labels))
     return MarkerTable(table.data, table.meta)
 
 
 def fit_marker_file(markers: str | os.PathLike, out: str | os.PathLike, model_name: str = "anny",
                     model_path: str | os.PathLike | None = None, gender: str = "neutral",
-                    static: str | os.PathLike | None = None, frames: tuple[int | None, int | None] | None = None,
-                    step: int = 1, mapping: str | os.PathLike | None = None, key_frames: int = 5,
+                    static: str | os.PathLike | None = None, frames: str | None = None,
+                    mapping: str | os.PathLike | None = None, key_frames: int = 5,
                     save_vertices: bool = False, progress: bool = True,
                     tape_capture: str | os.PathLike | None = None, tape_start: str = "L4") -> dict:
     """Fit and write ``out``/body.npz, summary.json, residuals.csv, residuals.png (and, with
     ``tape_capture`` (a capture folder or a tape TOML), that tape laid on the fitted body:
     tape_dots.c3d/.csv); returns
-    the summary (see :func:`spinemocap.bodymodel.results.fit_summary`)."""
+    the summary (see :func:`spinemocap.bodymodel.results.fit_summary`).
+
+    ``frames``: the file's frames to fit (:func:`marker_arrays`); they must be evenly spaced.
+    Raises :class:`InputError` for an unreadable file, a selection of no or unevenly spaced frames,
+    or fewer than four known marker labels."""
     import torch
 
     torch.set_num_threads(1)
-    step = max(step, 1)
-    labels, frame_numbers, positions, fps = marker_arrays(markers, frames, step)
+    labels, frame_numbers, positions, fps = marker_arrays(markers, frames)
+    try:
+        frame_step(frame_numbers)
+    except ValueError as exc:
+        raise InputError("frames", f"{exc}: a body fit needs one regular clock; select A:B or A:B:S") from None
     rules = read_mapping(mapping) if mapping else None
     model = load_model(model_name, model_path, gender)
     kept, vertices = place_markers(model.rest(), labels, rules)
@@ -102,7 +123,7 @@ def fit_marker_file(markers: str | os.PathLike, out: str | os.PathLike, model_na
     if tape_capture:
         spec = Capture.open(tape_capture).tape if Path(tape_capture).is_dir() else TapeSpec.from_toml(tape_capture)
         try:
-            reference = tape_reference(model, fit, frame_numbers, fps, spec, tape_start, step)
+            reference = tape_reference(model, fit, frame_numbers, fps, spec, tape_start)
         except ValueError as exc:
             raise InputError(tape_capture, f"cannot lay its tape on the fitted body: {exc}") from exc
         exporters.write(reference, Path(out) / "tape_dots.c3d")

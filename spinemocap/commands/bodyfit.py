@@ -7,17 +7,6 @@ import argparse
 from pathlib import Path
 
 
-def frame_range(text: str) -> tuple[int | None, int | None]:
-    """``'A:B'`` -> (A, B) (either may be empty; B exclusive, file frame numbers 0-based)."""
-    a, sep, b = text.partition(":")
-    if not sep:
-        raise argparse.ArgumentTypeError(f"--frames expects A:B, got {text!r}")
-    try:
-        return (int(a) if a.strip() else None, int(b) if b.strip() else None)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--frames expects integers A:B, got {text!r}") from None
-
-
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "bodyfit", help="fit a body model (anny, SMPL, SMPL-X) to sparse skin markers (MoSh-like)",
@@ -32,8 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--model-path", type=Path, help="your SMPL/SMPL+H/SMPL-X model file or folder (licence-gated)")
     p.add_argument("--gender", default="neutral", help="SMPL-family model gender (neutral, female, male)")
     p.add_argument("--static", type=Path, help="static trial (C3D/TRC) for the shape stage")
-    p.add_argument("--frames", type=frame_range, help="frame range A:B to fit (B exclusive)")
-    p.add_argument("--step", type=int, default=1, help="fit every N-th frame (default 1)")
+    p.add_argument("--frames", help="the file's frames to fit: A:B (B exclusive) or A:B:S (every S-th); default all")
     p.add_argument("--key-frames", type=int, default=5, help="frames of the shape stage (default 5)")
     p.add_argument("--mapping", type=Path, help="TOML mapping unknown labels to markers or placement rules")
     p.add_argument("--tape", dest="tape_capture", type=Path, help="capture folder (or tape TOML) whose tape to lay "
@@ -48,7 +36,7 @@ def run_bodyfit(args: argparse.Namespace) -> int:
     from ..app.bodyfit import fit_marker_file
 
     summary = fit_marker_file(args.markers, args.out, args.model, args.model_path, args.gender, args.static,
-                              args.frames, args.step, args.mapping, args.key_frames, args.save_vertices,
+                              args.frames, args.mapping, args.key_frames, args.save_vertices,
                               progress=not args.no_progress, tape_capture=args.tape_capture,
                               tape_start=args.tape_start)
     print(f"{args.model} fit of {len(summary['markers'])} markers over {summary['n_frames']} frames: marker RMS "
