@@ -31,11 +31,11 @@ test-slow: $(STAMP)
 
 # Every reader fuzzed at scale: >= 10,000 damaged files per format (SPINEMOCAP_FUZZ_CASES for more)
 fuzz: $(STAMP)
-	$(PY) -m pytest -m slow -s tests/test_fuzz_readers.py tests/test_c3d_fuzz.py
+	$(PY) -m pytest -m slow -s tests/test_fuzz_readers.py tests/exporters/test_c3d_fuzz.py
 
 # C3D reader fuzzing at scale: 10,000 damaged small files + 500 damaged Nexus files
 fuzz-c3d: $(STAMP)
-	$(PY) -m pytest -m slow -s tests/test_c3d_fuzz.py
+	$(PY) -m pytest -m slow -s tests/exporters/test_c3d_fuzz.py
 
 clean:
 	rm -rf $(VENV) demo_out

@@ -62,7 +62,7 @@ _SURFACE_SEGMENT_MM = (S2_S1_SEGMENT_MM, *SEGMENT_MM)
 #   of ~10 deg over ~12 cm from ASIS to PSIS);
 # - the vertebra prominens (C7) sits at the cervico-thoracic junction (anny's ``neck01`` head,
 #   SMPL's ``neck`` joint);
-# - checks of the result on anny (tests/test_synth_realism.py): the iliac-crest (supracristal,
+# - checks of the result on anny (tests/synth/test_synth_realism.py): the iliac-crest (supracristal,
 #   Tuffier's) line falls at L4/L5 about 6-8 cm above the PSIS line, the inferior angle of the
 #   scapula near T7.
 HJC_BELOW_ASIS_IAD = 0.30

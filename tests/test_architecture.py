@@ -14,8 +14,8 @@ import ast
 from pathlib import Path
 
 import pytest
+from repo_paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("spinemocap", "calibration", "exporters")
 
 # core: small modules of shared types and helpers; they import only each other
@@ -221,3 +221,18 @@ def test_the_checker_sees_function_level_imports(tmp_path):
     path = tmp_path / "probe.py"
     path.write_text("def f():\n    from ..track.pipeline import FrameTracker\n")
     assert imports_of("spinemocap.detect.probe", path) == [("spinemocap.track.pipeline", 2)]
+
+
+def package_folders() -> set[str]:
+    """Folders of the packages relative to the ``spinemocap`` package root (``calibration`` and
+    ``exporters`` sit beside it and count as top-level folders)."""
+    folders = {str(p.parent.relative_to(ROOT / "spinemocap")) for p in (ROOT / "spinemocap").rglob("__init__.py")}
+    return (folders - {"."}) | {"calibration", "exporters"}
+
+
+def test_tests_mirror_the_package_tree():
+    """Every test file sits in the folder of the package it exercises (core modules' tests at the top)."""
+    helper_folders = {"export_plugin"}
+    test_folders = {str(p.parent.relative_to(ROOT / "tests")) for p in (ROOT / "tests").rglob("test_*.py")}
+    strays = sorted(test_folders - {"."} - package_folders() - helper_folders)
+    assert not strays, f"test folders that mirror no package: {strays}"

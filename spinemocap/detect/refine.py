@@ -203,7 +203,7 @@ def _band_levels(grey: np.ndarray, samples: _Levels, sigma: float, ys: np.ndarra
     to within the cells' fractional edges), the grid blurred, and read bilinearly at the band's
     pixels only (``cv2.resize``'s ``INTER_LINEAR`` coordinates) instead of enlarged to the crop.
     About a fifth of the CPU of a whole-crop shrink, blur and enlargement; the
-    levels within ~1 grey level of theirs (tests/test_detect_cleanup.py)."""
+    levels within ~1 grey level of theirs (tests/detect/test_detect_cleanup.py)."""
     h, w = grey.shape
     sw, sh = max(1, w // 4), max(1, h // 4)
     s = max(sigma / 4, 0.5)

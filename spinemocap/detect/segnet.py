@@ -65,7 +65,7 @@ class TapeUNet(nn.Module):
 
 class InferenceUNet(nn.Module):
     """A :class:`TapeUNet` in eval mode rewritten for fast inference; same logits up to float
-    rounding (see tests/test_detect_inference.py).
+    rounding (see tests/detect/test_detect_inference.py).
 
     - Batch norm (eval mode: a per-channel scale and shift) is folded into the weights and a bias
       of the convolution before it, so no separate normalisation pass runs.

@@ -78,7 +78,7 @@ class _ImageCosts:
     ``EvidenceStack.sample_uv``, then the cap) in numpy, for particle BP's evaluations (no
     gradients): the same IEEE operations in the same order on the points' coordinates as flat
     rows and the cameras' constants as (C, 1) columns, so the same values bit for bit (pinned
-    against the torch path in ``tests/test_track_fast_paths.py``), without torch's per-operation
+    against the torch path in ``tests/track/test_track_fast_paths.py``), without torch's per-operation
     cost, the strided component reads and the per-call camera indexing (a camera subset's
     constants are sliced once and kept). The 3x3 rotation as ``(x r0 + y r1) + z r2``: the
     order in which MKL's batched matmul sums the three products (checked by the same test)."""
@@ -440,7 +440,7 @@ class RefinementMRF:
 
     # ------------------------------------------------------------------ PairwiseModel (numpy)
     # The same energy as unary_t / pairwise_t, computed in numpy by the same IEEE operations in the
-    # same order (bit for bit; tests/test_track_fast_paths.py pins them): particle BP evaluates it
+    # same order (bit for bit; tests/track/test_track_fast_paths.py pins them): particle BP evaluates it
     # ~30 times per iteration on a few thousand points, where torch's per-operation cost, the
     # strided reads of (..., 3) tensors and the per-call camera indexing dominated.
     def _numpy_parameters(self) -> dict:

@@ -1,5 +1,5 @@
 """A lab's own marker format, plugged into spinemocap through the ``spinemocap.exporters``
-entry-point group only (tests/test_export_plugin.py installs it as a distribution on sys.path).
+entry-point group only (tests/exporters/test_export_plugin.py installs it as a distribution on sys.path).
 
 It deliberately does not subclass :class:`exporters.Exporter` and writes straight to the path it
 is given: the registry still makes the write atomic. Format: JSON with labels, fps and per-frame

@@ -1,18 +1,18 @@
 """Real C3D files written by Vicon Nexus (../shared/data/vicon): our reader agrees with ezc3d,
 and what we write carries the parameters Nexus writes, with the same types."""
 
-import os
 import warnings
 from pathlib import Path
 
 import c3d as c3dlib
 import numpy as np
 import pytest
+from repo_paths import SHARED
 
 import exporters
 
 # ../shared beside the checkout; SPINEMOCAP_SHARED points elsewhere (e.g. from a git worktree)
-VICON = Path(os.environ.get("SPINEMOCAP_SHARED", Path(__file__).resolve().parents[2] / "shared")) / "data" / "vicon"
+VICON = SHARED / "data" / "vicon"
 FILES = ["walking01_plugin_gait_lower.c3d", "running_cluster01.c3d", "golf_static.c3d"]
 
 

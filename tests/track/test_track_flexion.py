@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_track_stages import SPEC, blobs, rig_behind, tape_on_back
+from tape_scenes import SPEC, blobs, rig_behind, tape_on_back
 
 from spinemocap.track.config import TrackerConfig
 from spinemocap.track.continuity import other_shifts

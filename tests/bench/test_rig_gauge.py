@@ -10,42 +10,11 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from test_track_stages import SPEC, rig_behind, tape_on_back
+from tape_scenes import SPEC, pixels_of, rig_behind, sequence, triangulated
 
 from spinemocap.bench.frame_error import cloud_gauge
-from spinemocap.camera import Rig
-from spinemocap.geometry import triangulate_dlt
 from spinemocap.synth.lab_errors import perturb_rig
 from spinemocap.track.rig_refine import RigRefineConfig, refine_rig
-
-
-def sequence(n: int = 6) -> np.ndarray:
-    """(F, D, 3) mm: the tape swept through the volume (0.5 m across, 0.4 m up, turning 50 deg)
-    over ``n`` frames: a rig's inconsistency shows in the dots' shape only over such a sweep."""
-    dots = tape_on_back(SPEC)
-    centre = dots.mean(axis=0)
-    poses = []
-    for f in range(n):
-        turn = cv2.Rodrigues(np.array([0.0, 0.0, np.radians(-25 + 10 * f)]))[0]
-        poses.append((dots - centre) @ turn.T + centre + [-250 + 100 * f, 0.0, -200 + 80 * f])
-    return np.stack(poses)
-
-
-def pixels_of(rig: Rig, poses: np.ndarray, noise_px: float = 0.1) -> np.ndarray:
-    """(F, D, C, 2) distorted pixels of every dot in every camera, with noise."""
-    rng = np.random.default_rng(0)
-    return np.stack([np.stack([cam.project(p) + rng.normal(0, noise_px, (len(p), 2)) for cam in rig], axis=1)
-                     for p in poses])
-
-
-def triangulated(rig: Rig, pixels: np.ndarray) -> np.ndarray:
-    """(F, D, 3) mm: the dots triangulated from their pixels through ``rig``."""
-    P = np.stack([c.projection_matrix for c in rig])
-    out = []
-    for frame in pixels:
-        undistorted = np.stack([cam.undistort_points(frame[:, c]) for c, cam in enumerate(rig)], axis=1)
-        out.append(triangulate_dlt(P, undistorted, np.ones(undistorted.shape[:2], bool)))
-    return np.stack(out)
 
 
 def test_cloud_gauge_recovers_a_known_similarity_despite_outliers():

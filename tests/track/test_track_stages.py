@@ -11,9 +11,9 @@ import logging
 
 import numpy as np
 import pytest
+from tape_scenes import SPEC, blobs, rig_behind, tape_on_back
 
 from spinemocap.app.run import TrackingWarning, run_tracking
-from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import InputError
 from spinemocap.tape import TapeSpec
 from spinemocap.track.candidates import (
@@ -31,39 +31,6 @@ from spinemocap.track.pipeline import FrameTracker
 from spinemocap.track.sequence import fill_and_smooth
 from spinemocap.track.types import CandidateCloud
 from spinemocap.views import ViewDots
-
-SPEC = TapeSpec(n_rows=13)  # the paper's artificial tape: 32 dots, 91 target edges
-
-
-def tape_on_back(spec: TapeSpec, centre=(0.0, 800.0, 1000.0)) -> np.ndarray:
-    """(D, 3) dots on a back curved across (u) and along (v) the spine; back faces +Y."""
-    u, v = spec.graph.uv_mm[:, 0], spec.graph.uv_mm[:, 1]
-    y = centre[1] + 0.0015 * (v - v.mean()) ** 2 + 0.004 * u**2
-    return np.column_stack([centre[0] - u, y, centre[2] + v])
-
-
-def rig_behind(n: int = 4) -> Rig:
-    """n cameras on a 120 degree arc behind the subject, 2 m away, alternating heights."""
-    cams = []
-    for k, a in enumerate(np.deg2rad(np.linspace(-60, 60, n))):
-        pos = (2000 * np.sin(a), 800 + 2000 * np.cos(a), 1300 + 150 * (k % 2))
-        cams.append(Camera.look_at(f"cam{k + 1}", pos, (0, 800, 1150), (1280, 800), 1500.0))
-    return Rig(cams)
-
-
-def blobs(rig: Rig, dots: np.ndarray, noise_px=0.0, clutter=0, hidden=None, seed=0) -> list[ViewDots]:
-    """Per-camera blobs: projections (+ noise) of the dots not ``hidden`` (C, D) + clutter."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for c, cam in enumerate(rig):
-        uv = cam.project(dots)
-        if hidden is not None:
-            uv = uv[~hidden[c]]
-        uv = uv + rng.normal(0, noise_px, uv.shape)
-        if clutter:
-            uv = np.vstack([uv, rng.uniform(uv.min(0) - 30, uv.max(0) + 30, (clutter, 2))])
-        out.append(ViewDots(c, uv, np.ones(len(uv))))
-    return out
 
 
 def nearest_dot(points: np.ndarray, dots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from repo_paths import SHARED
 
 from spinemocap.analysis.bent_tape import write_bent_capture
 from spinemocap.app.batch import discover, run_batch
@@ -135,7 +136,7 @@ def test_manifest_discovery_and_cli(study, tmp_path, capsys):
 
 
 def test_pelvis_from_a_vicon_c3d_named_in_the_manifest(tmp_path):
-    c3d = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "vicon" / "walking01_plugin_gait_lower.c3d"
+    c3d = SHARED / "data" / "vicon" / "walking01_plugin_gait_lower.c3d"
     if not c3d.is_file():
         pytest.skip("shared Vicon data not available")
     _write_trial(tmp_path / "study" / "S01" / "walk" / "trial01", 20.0)

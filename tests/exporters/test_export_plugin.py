@@ -4,17 +4,17 @@ and use it through the registry and the CLI. Also the ``spinemocap export`` comm
 
 import importlib.metadata
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from repo_paths import TESTS
 
 import exporters
 from spinemocap.cli import main
 from spinemocap.fileio import InputError
 from spinemocap.markers import MarkerTable
 
-PLUGIN_DIR = Path(__file__).parent / "export_plugin"
+PLUGIN_DIR = TESTS / "export_plugin"
 
 
 @pytest.fixture

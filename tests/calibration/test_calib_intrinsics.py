@@ -1,11 +1,11 @@
 """Intrinsics from rendered board views (exact planar renders with a known camera) and from the
 real Pose2Sim demo photos; view rejection and bad-input errors."""
 
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from repo_paths import SHARED
 
 from calibration.boards import BoardSpec, detect_board, view_problem
 from calibration.formats.qualisys import read_qca
@@ -14,7 +14,7 @@ from spinemocap.bench.calibration_scenes import make_ring_rig, render_intrinsic_
 from spinemocap.cli import main
 from spinemocap.fileio import InputError
 
-DEMO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "calibration" / "pose2sim_demo"
+DEMO = SHARED / "data" / "calibration" / "pose2sim_demo"
 
 
 @pytest.fixture(scope="module")

@@ -1,10 +1,10 @@
 """Calibration file formats: round trips keep projections within 0.01 px; the real Qualisys
 export converts to cameras that look at the studio; bad files give InputErrors."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
+from repo_paths import SHARED
 
 from calibration.formats import read_rig, write_rig
 from calibration.formats.qualisys import read_qca
@@ -12,7 +12,7 @@ from spinemocap.bench.calibration_scenes import make_ring_rig
 from spinemocap.cli import main
 from spinemocap.fileio import InputError
 
-QCA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "calibration" / "pose2sim_demo" / "Calib.qca.txt"
+QCA = SHARED / "data" / "calibration" / "pose2sim_demo" / "Calib.qca.txt"
 
 
 def _rig_with_full_distortion():

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from test_track_stages import SPEC, blobs, tape_on_back
+from tape_scenes import SPEC, blobs, tape_on_back
 
 from spinemocap.camera import Camera, Rig
 from spinemocap.geometry import triangulate_rays

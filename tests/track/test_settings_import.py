@@ -7,9 +7,9 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from repo_paths import ROOT
+
 HEAVY = ("torch", "pyomo", "scipy", "cv2")
 PROBE = """
 import json, sys, time

@@ -5,7 +5,6 @@ naming the file and how many. Seeded fuzzing with tests/fuzzing.py."""
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 
@@ -13,12 +12,12 @@ import numpy as np
 import pytest
 from c3d_corpus import RawC3d, sample_points
 from fuzzing import FuzzReport, case_count, cases, marker_table_problems, run_fuzz
+from repo_paths import SHARED
 
 import exporters
 from exporters import ExportWarning
 from exporters.c3d import MAX_ABS_MM, MAX_ABS_OTHER, read_c3d
 
-SHARED = Path(os.environ.get("SPINEMOCAP_SHARED", Path(__file__).resolve().parents[2] / "shared"))
 NEXUS = SHARED / "data" / "vicon" / "walking01_plugin_gait_lower.c3d"
 
 

@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_rig_gauge import pixels_of, sequence, triangulated
-from test_track_stages import rig_behind
+from tape_scenes import pixels_of, rig_behind, sequence, triangulated
 
 from spinemocap.app.reference import pose_doubt
 from spinemocap.camera import Rig

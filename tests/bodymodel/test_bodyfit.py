@@ -8,10 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from repo_paths import SHARED
 
 from spinemocap.tape import TapeSpec
 
-VICON = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "vicon"
+VICON = SHARED / "data" / "vicon"
 if not VICON.is_dir():
     VICON = Path("/work/shared/data/vicon")
 

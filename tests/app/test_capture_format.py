@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from lab_recordings import write_mp4
+from repo_paths import SHARED
 
 from spinemocap.app.capture_init import fixed_camera, init_capture, match_cameras, size_mismatch
 from spinemocap.camera import Camera, Rig
@@ -259,9 +260,8 @@ def test_init_with_named_videos_and_an_offset_from_the_command_line(lab, tmp_pat
 def test_a_real_qualisys_calibration_of_1088_px_cameras_with_1080_px_videos(tmp_path):
     """The Pose2Sim demo studio's QTM export (four 1088x1920 portrait cameras) and videos of
     1080x1920, as its encoder wrote them: refused with the reason, fixed by --fix-size crop."""
-    from pathlib import Path
 
-    qca = Path(__file__).resolve().parents[1] / "../shared/data/calibration/pose2sim_demo/Calib.qca.txt"
+    qca = SHARED / "data/calibration/pose2sim_demo/Calib.qca.txt"
     if not qca.is_file():
         pytest.skip("shared reference data not present")
     grey = [np.full((1920, 1080, 3), 90 + 10 * k, np.uint8) for k in range(2)]

@@ -1,6 +1,6 @@
 """Angles relative to standing (a neutral trial or the first frames), segmental angles and the
 midline profiles, on the analytic bent tape. (A default studio capture's S1 -> T12/L1 angle over a
-full flexion is tested with the studio: tests/test_synth_realism.py.)"""
+full flexion is tested with the studio: tests/synth/test_synth_realism.py.)"""
 
 import re
 

@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from repo_paths import SHARED
 from scipy.spatial.transform import Rotation
 
 from calibration.boards import BoardSpec, detect_board, order_checkerboard, view_problem
@@ -106,11 +107,10 @@ def test_real_pose2sim_photos_get_an_unambiguous_corner_order():
     """The Pose2Sim demo's 4x7 checkerboard photos (real lighting and print): every view found
     gets the board's own order, and that order puts the origin's black square where the image
     shows a dark square."""
-    from pathlib import Path
 
     import cv2
 
-    demo = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "calibration" / "pose2sim_demo" / "cam01"
+    demo = SHARED / "data" / "calibration" / "pose2sim_demo" / "cam01"
     if not demo.is_dir():
         pytest.skip("shared calibration data not present")
     board = BoardSpec.parse("checkerboard:4x7:60")

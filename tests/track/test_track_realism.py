@@ -12,7 +12,7 @@ import warnings
 import cv2
 import numpy as np
 import pytest
-from test_track_stages import SPEC, blobs, rig_behind, tape_on_back
+from tape_scenes import SPEC, blobs, rig_behind, tape_on_back
 
 from spinemocap.app.run import TrackingWarning, run_tracking
 from spinemocap.camera import Rig

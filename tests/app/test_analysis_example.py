@@ -2,15 +2,15 @@
 
 import subprocess
 import sys
-from pathlib import Path
 
 import pandas as pd
 import pytest
+from repo_paths import ROOT
 
 
 @pytest.mark.slow
 def test_synthetic_study_example(tmp_path):
-    script = Path(__file__).resolve().parents[1] / "examples" / "synthetic_study.py"
+    script = ROOT / "examples" / "synthetic_study.py"
     subprocess.run([sys.executable, str(script), "--out", str(tmp_path), "--frames", "4", "--fps", "2"],
                    check=True, timeout=1800)
     summary = pd.read_csv(tmp_path / "results" / "summary.csv")

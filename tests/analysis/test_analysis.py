@@ -1,9 +1,9 @@
 """Spine geometry and angles against closed-form motions of an analytic bent tape."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
+from repo_paths import SHARED
 
 from spinemocap.analysis.angles import AngleSettings, compute_angles
 from spinemocap.analysis.bent_tape import bent_tape_dots, uniform_bend
@@ -18,7 +18,7 @@ from spinemocap.tape import TapeSpec
 TAPE = TapeSpec(n_rows=13)
 LEVELS = LevelMap({"S1": 1, "L3": 5, "T12/L1": 9, "T7": 13}, 13)
 LUMBAR_V = (0.0, 200.0)  # S1 .. T12/L1 rest positions on the tape, mm
-VICON = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "vicon"
+VICON = SHARED / "data" / "vicon"
 
 
 def _sequence(angles_per_frame: np.ndarray, v_span=LUMBAR_V, background=(0.0, 0.0, 0.0)) -> MarkerTable:

@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from repo_paths import ROOT
 
 from spinemocap.app.run import track_source
 from spinemocap.app.streaming import CaptureDetector, SpeedOptions, prefetched_frames
@@ -222,7 +223,6 @@ def test_ctrl_c_stops_tracking_with_camera_processes(tmp_path, lookahead):
     import subprocess
     import sys
     import time
-    from pathlib import Path
 
     import psutil
 
@@ -230,7 +230,7 @@ def test_ctrl_c_stops_tracking_with_camera_processes(tmp_path, lookahead):
 
     root = write_capture(SynthConfig.preset("tiny", frames=60), tmp_path / "capture", progress=False)
     env = {**os.environ, "OMP_NUM_THREADS": "1",
-           "PYTHONPATH": f"{Path(__file__).resolve().parents[1]}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+           "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
     proc = subprocess.Popen([sys.executable, "-m", "spinemocap", "track", str(root), "--out", str(tmp_path / "out"),
                              "--workers", "2", "--parallel", "processes", "--lookahead", lookahead, "--no-progress"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,

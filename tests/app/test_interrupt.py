@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import psutil
 import pytest
+from repo_paths import ROOT
 
 from spinemocap.analysis.bent_tape import write_bent_capture
 from spinemocap.tape import TapeSpec
 
-ROOT = Path(__file__).resolve().parents[1]
 N_TRIALS = 4
 FRAMES = 600  # ~1-2 s of angle computation per trial on the 2-core CI machine
 

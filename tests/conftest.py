@@ -1,0 +1,2 @@
+"""Test-suite root: pytest puts this folder on ``sys.path``, so every test folder imports the
+shared helpers beside this file (``repo_paths``, ``c3d_corpus``, ``fuzzing``, ``lab_recordings``)."""
