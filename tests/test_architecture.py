@@ -226,7 +226,7 @@ def test_the_checker_sees_function_level_imports(tmp_path):
 def package_folders() -> set[str]:
     """Folders of the packages relative to the ``spinemocap`` package root (``calibration`` and
     ``exporters`` sit beside it and count as top-level folders)."""
-    folders = {str(p.parent.relative_to(ROOT / "spinemocap")) for p in (ROOT / "spinemocap").rglob("__init__.py")}
+    folders = {str(p.parent.relative_to(ROOT / "spinemocap")) for p in (ROOT / "spinemocap").rglob("*.py")}
     return (folders - {"."}) | {"calibration", "exporters"}
 
 
