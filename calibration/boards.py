@@ -49,11 +49,13 @@ MAX_BLUR_SIGMA_PX = 3.0
 Polarity = Literal["auto", "normal", "inverted"]
 Layout = Literal["auto", "current", "legacy"]
 Facing = Literal["auto", "front", "mirrored"]
+POLARITY_WORDS: dict[str, Polarity] = {"normal": "normal", "inverted": "inverted"}
+LAYOUT_WORDS: dict[str, Layout] = {"current": "current", "legacy": "legacy"}
+FACING_WORDS: dict[str, Facing] = {"front": "front", "mirrored": "mirrored"}
 #: option word -> (BoardSpec field, value)
 BOARD_OPTIONS: dict[str, tuple[str, str]] = {
-    "normal": ("polarity", "normal"), "inverted": ("polarity", "inverted"),
-    "current": ("layout", "current"), "legacy": ("layout", "legacy"),
-    "front": ("facing", "front"), "mirrored": ("facing", "mirrored"),
+    **{word: ("polarity", word) for word in POLARITY_WORDS}, **{word: ("layout", word) for word in LAYOUT_WORDS},
+    **{word: ("facing", word) for word in FACING_WORDS},
 }
 
 
@@ -93,7 +95,9 @@ class BoardSpec:
                 "board", f"cannot parse board {text!r}; expected checkerboard:COLSxROWS:SQUARE_MM "
                 "(inner corners) or charuco:COLSxROWS:SQUARE_MM[:MARKER_MM[:DICT]] (squares)"
             ) from None
-        spec = replace(spec, **options)
+        spec = replace(spec, polarity=POLARITY_WORDS.get(options.get("polarity", ""), "auto"),
+                       layout=LAYOUT_WORDS.get(options.get("layout", ""), "auto"),
+                       facing=FACING_WORDS.get(options.get("facing", ""), "auto"))
         spec.validate()
         return spec
 
@@ -122,17 +126,17 @@ class BoardSpec:
         expanded (ChArUco: both polarities, both layouts where they differ, front and mirrored;
         checkerboard: ``normal`` and ``front``, which a view cannot tell apart)."""
         charuco = self.kind == "charuco"
-        polarities = ["normal", "inverted"] if self.polarity == "auto" and charuco else [
+        polarities: list[Polarity] = ["normal", "inverted"] if self.polarity == "auto" and charuco else [
             "normal" if self.polarity == "auto" else self.polarity]
-        layouts = (["current", "legacy"] if self.layout == "auto" else [self.layout]) if self.layout_matters else [
+        layouts: list[Layout] = (["current", "legacy"] if self.layout == "auto" else [self.layout]) if self.layout_matters else [
             "current" if self.layout == "auto" else self.layout]
-        facings = ["front", "mirrored"] if self.facing == "auto" and charuco else [
+        facings: list[Facing] = ["front", "mirrored"] if self.facing == "auto" and charuco else [
             "front" if self.facing == "auto" else self.facing]
-        return [replace(self, polarity=p, layout=lay, facing=f)  # type: ignore[arg-type]
+        return [replace(self, polarity=p, layout=lay, facing=f)
                 for f, p, lay in product(facings, polarities, layouts)]
 
     @property
-    def board_variant(self) -> tuple[str, str]:
+    def board_variant(self) -> tuple[Polarity, Layout]:
         """(polarity, layout): what the printed board is, whoever looks at it."""
         return self.polarity, self.layout
 
@@ -383,7 +387,7 @@ def _square_brightness(grey: np.ndarray, grid: np.ndarray) -> np.ndarray:
     a, b = np.meshgrid(s, s)
     p00, p01, p10, p11 = grid[:-1, :-1], grid[:-1, 1:], grid[1:, :-1], grid[1:, 1:]
     w = [((1 - a) * (1 - b)).ravel(), (a * (1 - b)).ravel(), ((1 - a) * b).ravel(), (a * b).ravel()]
-    points = sum(p[..., None, :] * wk[:, None] for p, wk in zip((p00, p01, p10, p11), w))
+    points = np.sum([p[..., None, :] * wk[:, None] for p, wk in zip((p00, p01, p10, p11), w)], axis=0)
     h, wd = grey.shape
     u = np.clip(np.round(points[..., 0]).astype(int), 0, wd - 1)
     v = np.clip(np.round(points[..., 1]).astype(int), 0, h - 1)

@@ -115,6 +115,8 @@ def bundle_adjust_ceres(intrinsics: Rig, model: np.ndarray, cam_index: np.ndarra
             R_c, t_c = R_ref, t_ref
         else:
             rel = solved.sensor_from_rig(_sensor(pycolmap, c))
+            if rel is None:
+                raise RuntimeError(f"the adjustment dropped camera {cam.name!r} from the rig")
             R_rel, t_rel = rel.rotation.matrix(), np.asarray(rel.translation)
             R_c, t_c = R_rel @ R_ref, R_rel @ t_ref + t_rel
         fx, fy, cx, cy, *dist4 = rec.camera(c + 1).params
@@ -122,10 +124,10 @@ def bundle_adjust_ceres(intrinsics: Rig, model: np.ndarray, cam_index: np.ndarra
         cameras.append(Camera(cam.name, K, np.array([*dist4, cam.dist[4]]), R_c, t_c, cam.size))
     refined = []
     for f, pose in enumerate(targets):
-        if not rec.exists_frame(f + 1):
+        world = rec.frame(f + 1).rig_from_world if rec.exists_frame(f + 1) else None
+        if world is None:  # a target the adjustment did not pose keeps its start
             refined.append(pose)
             continue
-        world = rec.frame(f + 1).rig_from_world
         R_f, t_f = world.rotation.matrix(), np.asarray(world.translation)
         refined.append((R_ref.T @ R_f, R_ref.T @ (t_f - t_ref)))
     return Rig(cameras), refined

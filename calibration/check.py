@@ -34,7 +34,7 @@ def residuals_path(rig_path: str | os.PathLike) -> Path:
 def save_residuals(rig_path: str | os.PathLike, residuals: Residuals) -> Path:
     path = residuals_path(rig_path)
     with atomic_write(path, "wb") as handle:
-        np.savez_compressed(handle, **{name: r for name, r in residuals.items()})
+        np.savez_compressed(handle, allow_pickle=False, **residuals)
     return path
 
 

@@ -33,7 +33,7 @@ from __future__ import annotations
 import logging
 from collections import defaultdict
 from dataclasses import dataclass, field
-from typing import Hashable, cast
+from typing import Hashable, Sequence, cast
 
 import cv2
 import numpy as np
@@ -248,7 +248,7 @@ def initial_pose_graph(intrinsics: Rig, board: BoardSpec, detections: Detections
         shared = pair_frames[min(p, c), max(p, c)]
         (R_pc, t_pc), agree = _relative_pose(pnp[p], pnp[c], shared)
         edges.append((names[p], names[c], agree, len(shared)))
-        Rp_ref, tp_ref = poses[p]  # type: ignore[misc]
+        Rp_ref, tp_ref = poses[p]
         poses[c] = (R_pc @ Rp_ref, R_pc @ tp_ref + t_pc)
     rig_poses = cast(list[Pose], poses)  # the spanning tree reached every camera
     placed = Rig([Camera(cam.name, cam.K, cam.dist, R, t, cam.size) for cam, (R, t) in zip(intrinsics, rig_poses)])
@@ -451,7 +451,7 @@ def floor_world_transform(board: BoardSpec, board_poses: dict, floor_frame) -> t
 
 
 def calibrate_extrinsics(intrinsics: Rig, board: BoardSpec, detections: Detections,
-                         floor_frame: Hashable | None = None, reference: int = 0,
+                         floor_frame: Hashable | Sequence[Hashable] | None = None, reference: int = 0,
                          refine_intrinsics: bool = True, progress: bool = True,
                          backend: str = "ceres") -> ExtrinsicsResult:
     """Whole pipeline (see module doc). ``intrinsics``: cameras with calibrated K/dist (poses
@@ -574,7 +574,7 @@ def board_geometry_error(rig: Rig, board: BoardSpec, detections: Detections) -> 
     """Per frame seen by >= 2 cameras: RMS distance (mm) between the corners triangulated with
     ``rig`` and the known board geometry after a rigid fit."""
     model = board.object_points()
-    frames = defaultdict(dict)
+    frames: defaultdict[Hashable, dict[str, BoardDetection]] = defaultdict(dict)
     for cam in rig:
         for f, det in detections.get(cam.name, {}).items():
             frames[f][cam.name] = det

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Hashable, Iterable, Sequence
 
 import cv2
 import numpy as np
@@ -24,11 +24,12 @@ from .boards import BoardDetection, BoardSpec, detect_board, view_problem
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 VIDEO_SUFFIXES = {".mp4", ".mkv", ".avi", ".mov", ".m4v", ".webm"}
 MIN_VIEWS = 4
+ViewKey = Hashable  # a view: an image name, or a frame key of a recording
 
 
 @dataclass
 class ViewResult:
-    name: str
+    name: ViewKey
     n_corners: int
     rms_px: float
 
@@ -41,9 +42,9 @@ class IntrinsicsResult:
     camera: Camera
     rms_px: float
     views: list[ViewResult]
-    rejected: list[tuple[str, str]]
+    rejected: list[tuple[ViewKey, str]]
     coverage: float
-    detections: dict[str, BoardDetection] = field(default_factory=dict, repr=False)
+    detections: dict[ViewKey, BoardDetection] = field(default_factory=dict, repr=False)
 
     def summary(self) -> str:
         c = self.camera
@@ -104,11 +105,11 @@ def _video_frames(path: Path, max_frames: int) -> Iterable[tuple[str, np.ndarray
 
 # ---------------------------------------------------------------------- detection
 def detect_views(images: Iterable[tuple[str, np.ndarray]], board: BoardSpec, source: str = "images",
-                 progress: bool = True) -> tuple[dict[str, BoardDetection], list[tuple[str, str]], tuple[int, int]]:
+                 progress: bool = True) -> tuple[dict[ViewKey, BoardDetection], list[tuple[ViewKey, str]], tuple[int, int]]:
     """Detect the board in every image; return usable detections, rejected (name, reason) and
     the common image size (width, height). Mixed image sizes are an :class:`InputError`."""
-    usable: dict[str, BoardDetection] = {}
-    rejected: list[tuple[str, str]] = []
+    usable: dict[ViewKey, BoardDetection] = {}
+    rejected: list[tuple[ViewKey, str]] = []
     size: tuple[int, int] | None = None
     for name, image in tqdm(list(images), desc=f"detect {board.kind}", disable=not progress, leave=False):
         this = (image.shape[1], image.shape[0])
@@ -119,8 +120,8 @@ def detect_views(images: Iterable[tuple[str, np.ndarray]], board: BoardSpec, sou
                              f"{size[0]}x{size[1]}; calibrate each camera/resolution separately")
         detection = detect_board(image, board)
         problem = view_problem(detection, board, this)
-        if problem:
-            rejected.append((name, problem))
+        if problem or detection is None:
+            rejected.append((name, problem or "board not found"))
         else:
             usable[name] = detection
     if size is None:
@@ -136,7 +137,7 @@ def calibrate_intrinsics(images: Iterable[tuple[str, np.ndarray]], board: BoardS
     return calibrate_from_detections(detections, rejected, size, board, name, source, fix_k3)
 
 
-def calibrate_from_detections(detections: dict[str, BoardDetection], rejected: list[tuple[str, str]],
+def calibrate_from_detections(detections: dict[ViewKey, BoardDetection], rejected: list[tuple[ViewKey, str]],
                               size: tuple[int, int], board: BoardSpec, name: str = "cam",
                               source: str = "images", fix_k3: bool = True,
                               outlier_factor: float = 3.0) -> IntrinsicsResult:
@@ -146,7 +147,7 @@ def calibrate_from_detections(detections: dict[str, BoardDetection], rejected: l
     flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
     while True:
         rms, K, dist, per_view = _calibrate(detections, board, size, flags)
-        worst = max(per_view, key=per_view.get)
+        worst = max(per_view, key=lambda view: per_view[view])
         limit = max(outlier_factor * float(np.median(list(per_view.values()))), 1.0)
         if per_view[worst] <= limit or len(detections) <= MIN_VIEWS:
             break
@@ -157,7 +158,7 @@ def calibrate_from_detections(detections: dict[str, BoardDetection], rejected: l
     return IntrinsicsResult(camera, rms, views, rejected, image_coverage(detections.values(), size), detections)
 
 
-def _require_views(detections: dict, rejected: list[tuple[str, str]], source: str) -> None:
+def _require_views(detections: dict, rejected: list[tuple[ViewKey, str]], source: str) -> None:
     if len(detections) >= MIN_VIEWS:
         return
     reasons = "; ".join(f"{n}: {why}" for n, why in rejected[:8])
@@ -166,14 +167,14 @@ def _require_views(detections: dict, rejected: list[tuple[str, str]], source: st
                      f"covering the image corners. Rejected: {reasons or 'none'}")
 
 
-def _calibrate(detections: dict[str, BoardDetection], board: BoardSpec, size: tuple[int, int], flags: int):
+def _calibrate(detections: dict[ViewKey, BoardDetection], board: BoardSpec, size: tuple[int, int], flags: int):
     obj_all = board.object_points()
     names = list(detections)
     obj = [obj_all[detections[n].ids].astype(np.float32) for n in names]
     img = [detections[n].pixels.astype(np.float32).reshape(-1, 1, 2) for n in names]
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
     rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, size, None, None, flags=flags, criteria=crit)
-    per_view = {}
+    per_view: dict[ViewKey, float] = {}
     for n, o, i, r, t in zip(names, obj, img, rvecs, tvecs):
         proj = cv2.projectPoints(o, r, t, K, dist)[0].reshape(-1, 2)
         per_view[n] = float(np.sqrt(np.mean(np.sum((proj - i.reshape(-1, 2)) ** 2, axis=1))))

@@ -31,7 +31,7 @@ import itertools
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Iterator, Sequence
+from typing import Hashable, Iterable, Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -243,10 +243,10 @@ def triangulate_wand_views(rig: Rig, views: WandViews, wand: WandSpec, max_fit_m
 def triangulate_markers(rig: Rig, per_cam: Sequence[np.ndarray | None]) -> np.ndarray | None:
     """(M, 3) markers of one frame (rig frame, mm) triangulated from every camera that identified
     them (``per_cam[c]``: (M, 2) pixels in label order, or None); None when fewer than two did."""
-    cams = [c for c, v in enumerate(per_cam) if v is not None]
-    if len(cams) < 2:
+    seen = [(c, v) for c, v in enumerate(per_cam) if v is not None]
+    if len(seen) < 2:
         return None
-    views = [per_cam[c] for c in cams]
+    cams, views = [c for c, _ in seen], [v for _, v in seen]
     return np.stack([triangulate([rig[c] for c in cams], np.stack([v[k] for v in views]))
                      for k in range(len(views[0]))])
 
@@ -266,7 +266,7 @@ def refine_rig_with_wand(rig: Rig, views: WandViews, points: np.ndarray, wand: W
     from .extrinsics import bundle_adjust
 
     detections: dict = {cam.name: {} for cam in rig}
-    poses = {}
+    poses: dict[Hashable, tuple[np.ndarray, np.ndarray]] = {}
     for f, per_cam in enumerate(views):
         if not np.all(np.isfinite(points[f])):
             continue

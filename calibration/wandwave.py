@@ -33,6 +33,7 @@ import logging
 import os
 from collections import defaultdict
 from dataclasses import dataclass, field
+from typing import Hashable
 
 import cv2
 import numpy as np
@@ -204,7 +205,10 @@ def initial_rig(intrinsics: Rig, views: WandViews, wand: WandSpec, reference: in
             scale = _pair_scale(norm, int(c), p, *pairs[c, p], wand)
         else:
             scale = _pair_scale(norm, p, int(c), R, t, wand)
-        R_p, t_p = poses[p]
+        parent = poses[p]
+        if parent is None:  # the spanning tree lists every parent before its children
+            raise RuntimeError(f"camera {p} is not posed before camera {int(c)}")
+        R_p, t_p = parent
         poses[c] = (R @ R_p, R @ t_p + scale * t)
     return [pose for pose in poses if pose is not None]
 
@@ -221,19 +225,19 @@ def label_views(rig: Rig, views: WandViews, wand: WandSpec) -> WandViews:
         return views
     out: WandViews = []
     for per in views:
-        cams = [c for c, v in enumerate(per) if v is not None]
+        seen = [(c, v) for c, v in enumerate(per) if v is not None]
         labelled: list[np.ndarray | None] = [None] * len(per)
-        if cams:
-            anchor = cams[0]
-            labelled[anchor] = per[anchor]
-            xa = rig[anchor].undistort_points(per[anchor], normalized=True)
-            for c in cams[1:]:
+        if seen:
+            anchor, anchor_px = seen[0]
+            labelled[anchor] = anchor_px
+            xa = rig[anchor].undistort_points(anchor_px, normalized=True)
+            for c, px in seen[1:]:
                 R = rig[c].R @ rig[anchor].R.T
                 t = rig[c].t - R @ rig[anchor].t
-                xc = rig[c].undistort_points(per[c], normalized=True)
+                xc = rig[c].undistort_points(px, normalized=True)
                 matched = _match(xa, xc, _essential(R, t / max(np.linalg.norm(t), 1e-9)), wand)
                 if matched is not None:
-                    labelled[c] = per[c] if matched is xc else per[c][::-1]
+                    labelled[c] = px if matched is xc else px[::-1]
         out.append(labelled)
     return out
 
@@ -282,8 +286,9 @@ def adjust(intrinsics: Rig, poses: list[Pose], views: WandViews, wand: WandSpec,
                          "and slower through the volume, all markers visible to at least two cameras")
     dropped = {"views whose markers disagree with the others": 0}
     for _ in range(2):
+        boards: dict[Hashable, Pose] = dict(targets.items())
         rig, refined, _ = bundle_adjust(rig, wand.points_mm, _detections(rig, views, targets), [(c.R, c.t) for c in rig],
-                                        targets, reference, refine_intrinsics=refine_intrinsics, progress=progress,
+                                        boards, reference, refine_intrinsics=refine_intrinsics, progress=progress,
                                         backend=backend)
         targets = dict(zip(list(targets), refined.values()))  # same frames, same order
         errors = _view_errors(rig, views, targets, wand)

@@ -463,7 +463,9 @@ def first_frame(declared: Sequence[DeclaredFrames], chosen: Sequence[DeclaredFra
     header = next(d for d in declared if d.fields == PRIMARY_FIELDS[1])
     trial = next((d for d in declared if d.fields.startswith("TRIAL") and d.first is not None), None)
     use_trial = trial is not None and (header.first == SATURATED or (trial in chosen and header not in chosen))
-    return int(trial.first if use_trial and trial is not None else header.first or 1)
+    if use_trial and trial is not None and trial.first is not None:
+        return int(trial.first)
+    return int(header.first or 1)
 
 
 def _warn_disagreement(path: Path, declared: Sequence[DeclaredFrames], count: int, first: int,

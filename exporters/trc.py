@@ -206,7 +206,7 @@ def _read_trc(path: Path) -> MarkerTable:
     positions = np.asarray(rows, float).reshape(len(rows), n_markers, 3)
     match = AXES_PATTERN.search(lines[0])
     if match:
-        positions = opensim_to_lab(positions, match.groups())
+        positions = opensim_to_lab(positions, (match[1], match[2], match[3]))
     with np.errstate(over="ignore", invalid="ignore"):
         positions = drop_implausible(positions * scale, path)
     warn_empty_markers(labels, positions, path)

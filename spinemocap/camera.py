@@ -30,6 +30,7 @@ from typing import Iterator, Sequence
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from .fileio import InputError, read_toml, reading, write_toml
 from .geometry import distort
@@ -151,12 +152,12 @@ class Camera:
     def look_at(
         cls,
         name: str,
-        position_mm: Sequence[float],
-        target_mm: Sequence[float],
+        position_mm: npt.ArrayLike,
+        target_mm: npt.ArrayLike,
         size: tuple[int, int],
         focal_px: float,
-        up: Sequence[float] = (0.0, 0.0, 1.0),
-        dist: Sequence[float] = (0, 0, 0, 0, 0),
+        up: npt.ArrayLike = (0.0, 0.0, 1.0),
+        dist: npt.ArrayLike = (0, 0, 0, 0, 0),
         principal_point: tuple[float, float] | None = None,
     ) -> "Camera":
         """A camera at ``position_mm`` looking at ``target_mm`` with world ``up`` pointing up in

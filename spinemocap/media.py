@@ -122,7 +122,10 @@ class ImageFolderSource(FrameSource):
             if timed:
                 if count == 0:
                     raise InputError(folder, f"camera {cam!r} has no images")
-                times.append(image_times(count, clock.fps or fps, cam))
+                rate = clock.fps or fps
+                if rate is None:
+                    raise InputError(self.root / "capture.toml", f"camera {cam!r} has no frame rate: set fps")
+                times.append(image_times(count, rate, cam))
         if timed:
             assert clocks is not None and fps is not None
             self.pairing = pair_cameras(self.camera_names, times, clocks, fps, self.n_frames)

@@ -153,7 +153,10 @@ class TapeGraph:
 
     @classmethod
     def build(cls, spec: TapeSpec) -> "TapeGraph":
-        labels, rows, cols, uv = [], [], [], []
+        labels: list[str] = []
+        rows: list[int] = []
+        cols: list[str] = []
+        uv: list[tuple[float, float]] = []
         row_members: list[list[int]] = []
         for r, size in enumerate(spec.row_sizes):
             members = []

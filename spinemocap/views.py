@@ -36,6 +36,13 @@ class ViewDots:
         self._image, self._colour = image, colour
 
     @property
+    def tape_mask(self) -> np.ndarray:
+        """The tape mask (H, W) bool; ValueError for a view made without one."""
+        if self.mask is None:
+            raise ValueError(f"camera {self.camera}'s view has no tape mask")
+        return self.mask
+
+    @property
     def image(self) -> np.ndarray | None:
         """The grey image (H, W) uint8 or None (made from the colour image on the first read)."""
         colour = self._colour  # read once: another thread may convert it meanwhile (the same pixels)

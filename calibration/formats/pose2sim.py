@@ -43,8 +43,9 @@ def _rig(data: dict, source: str | os.PathLike | None) -> Rig:
             if len(size) != 2 or not all(np.isfinite(v) and abs(v - round(v)) < 1e-6 for v in size):
                 raise ValueError(f"size {entry['size']!r} must be two whole numbers of pixels")
             cameras.append(Camera(
-                str(entry.get("name", key)), np.asarray(entry["matrix"], float), entry.get("distortions", []),
-                R, np.asarray(entry["translation"], float) * 1000.0, tuple(int(round(v)) for v in size),
+                str(entry.get("name", key)), np.asarray(entry["matrix"], float),
+                np.asarray(entry.get("distortions", []), float), R, np.asarray(entry["translation"], float) * 1000.0,
+                (int(round(size[0])), int(round(size[1]))),
             ))
         except (KeyError, ValueError, TypeError, IndexError, ArithmeticError, cv2.error) as exc:
             if isinstance(exc, InputError):

@@ -47,9 +47,25 @@ def read_qca(path: str | os.PathLike) -> Rig:
         return Rig(cameras)
 
 
+def _child(node: ET.Element, tag: str) -> ET.Element:
+    """The child element ``tag``; KeyError naming it when the camera lacks it."""
+    child = node.find(tag)
+    if child is None:
+        raise KeyError(f"<{tag}>")
+    return child
+
+
+def _attribute(node: ET.Element, name: str) -> str:
+    """The attribute ``name`` of ``node``; KeyError naming both when it is missing."""
+    value = node.get(name)
+    if value is None:
+        raise KeyError(f"<{node.tag} {name}=...>")
+    return value
+
+
 def _span(node: ET.Element, low: str, high: str) -> int:
     """Pixels from ``low`` to ``high`` inclusive (a fov element's left/right or top/bottom)."""
-    return int(node.get(high)) - int(node.get(low)) + 1
+    return int(_attribute(node, high)) - int(_attribute(node, low)) + 1
 
 
 def _scale(pixels: int, intr: dict, axis: str) -> float:
@@ -61,19 +77,21 @@ def _scale(pixels: int, intr: dict, axis: str) -> float:
 
 
 def _camera(node: ET.Element, index: int) -> Camera:
-    fov = node.find("fov_video")
-    fov_max = node.find("fov_video_max") if node.find("fov_video_max") is not None else fov
-    intr, pose = node.find("intrinsic").attrib, node.find("transform").attrib
+    fov = _child(node, "fov_video")
+    fov_max = node.find("fov_video_max")
+    if fov_max is None:
+        fov_max = fov
+    intr, pose = _child(node, "intrinsic").attrib, _child(node, "transform").attrib
     width, height = _span(fov, "left", "right"), _span(fov, "top", "bottom")
     su = _scale(_span(fov_max, "left", "right"), intr, "U")
     sv = _scale(_span(fov_max, "top", "bottom"), intr, "V")
     K = np.array([
-        [float(intr["focalLengthU"]) * su, float(intr.get("skew", 0)) * su, float(intr["centerPointU"]) * su - int(fov.get("left"))],
-        [0.0, float(intr["focalLengthV"]) * sv, float(intr["centerPointV"]) * sv - int(fov.get("top"))],
+        [float(intr["focalLengthU"]) * su, float(intr.get("skew", 0)) * su, float(intr["centerPointU"]) * su - int(_attribute(fov, "left"))],
+        [0.0, float(intr["focalLengthV"]) * sv, float(intr["centerPointV"]) * sv - int(_attribute(fov, "top"))],
         [0.0, 0.0, 1.0],
     ])
-    dist = [float(intr.get(k, 0)) for k in ("radialDistortion1", "radialDistortion2", "tangentalDistortion1",
-                                             "tangentalDistortion2", "radialDistortion3")]
+    dist = np.array([float(intr.get(k, 0)) for k in ("radialDistortion1", "radialDistortion2", "tangentalDistortion1",
+                                             "tangentalDistortion2", "radialDistortion3")])
     M = np.array([[float(pose[f"r{i}{j}"]) for j in (1, 2, 3)] for i in (1, 2, 3)])
     centre = np.array([float(pose[k]) for k in ("x", "y", "z")])
     R = QTM_TO_OPENCV @ M

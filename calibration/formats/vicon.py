@@ -52,7 +52,7 @@ def read_xcp(path: str | os.PathLike) -> Rig:
         root = ET.parse(path).getroot()
     except (ET.ParseError, OSError, LookupError, ValueError) as exc:
         raise InputError(path, f"not a readable Vicon .xcp XML file ({exc})") from exc
-    cameras = []
+    cameras: list[Camera] = []
     with reading(path, "Vicon calibration"):
         for node in root.iter("Camera"):
             name = node.get("NAME") or node.get("DEVICEID") or f"cam{len(cameras) + 1}"
@@ -90,7 +90,7 @@ def _camera(node: ET.Element, name: str) -> Camera:
     if not np.isfinite(centre).all() or np.abs(centre).max() > MAX_ABS_POSE_MM:
         raise ValueError(f"POSITION {centre.tolist()} must be finite and within {MAX_ABS_POSE_MM:g} mm")
     K = np.array([[fx, skew, cx], [0, fy, cy], [0, 0, 1]])
-    return Camera(name, K, dist, R, -R @ centre, (int(round(w)), int(round(h))))
+    return Camera(name, K, np.asarray(dist, float), R, -R @ centre, (int(round(w)), int(round(h))))
 
 
 def write_xcp(rig: Rig, path: str | os.PathLike, image_error_px: dict[str, float] | None = None) -> None:

@@ -34,6 +34,7 @@ from collections import Counter
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 
 from ..markers import MarkerTable
@@ -102,7 +103,7 @@ class _LevelFrames:
 
 
 def compute_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
-                   up: np.ndarray = (0.0, 0.0, 1.0), facing: np.ndarray = (0.0, -1.0, 0.0),
+                   up: npt.ArrayLike = (0.0, 0.0, 1.0), facing: npt.ArrayLike = (0.0, -1.0, 0.0),
                    settings: AngleSettings = AngleSettings(),
                    pelvis_frames: np.ndarray | None = None) -> SpineAngles:
     """Angles for every frame of ``markers`` (labels per :mod:`spinemocap.tape`).
@@ -119,7 +120,7 @@ def compute_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
     rows, curves = midlines(markers, tape, settings)
 
     level_v, missing_level = _level_positions(levels, tape, settings)
-    names = _roles(settings)
+    names = level_roles(settings, levels)
     at = {role: _frames_at_level(rows, curves, v, settings, names[role]) for role, v in level_v.items()}
 
     table = pd.DataFrame({"frame": arrays["frames"], "time": arrays["time"]})
@@ -174,21 +175,24 @@ def level_frames(markers: MarkerTable, tape: TapeSpec, levels: LevelMap, names: 
     return out
 
 
-def _roles(settings: AngleSettings) -> dict[str, str]:
-    return {"lower": settings.lower, "thoracolumbar": settings.thoracolumbar, "upper": settings.upper}
+def level_roles(settings: AngleSettings, levels: LevelMap) -> dict[str, str]:
+    """The level named for each role (``lower``, ``thoracolumbar``, ``upper``); an unset
+    ``upper`` is the most cranial level in ``levels``."""
+    upper = settings.upper if settings.upper is not None else list(levels.rows)[-1]
+    return {"lower": settings.lower, "thoracolumbar": settings.thoracolumbar, "upper": upper}
 
 
 def _level_positions(levels: LevelMap, tape: TapeSpec, settings: AngleSettings) -> tuple[dict[str, float], dict[str, str]]:
     """Rest positions (mm) of the levels by role (lower, thoracolumbar, upper), and a reason
     for each role whose level the map does not place."""
     found, missing = {}, {}
-    for role, name in _roles(settings).items():
+    for role, name in level_roles(settings, levels).items():
         try:
             found[role] = levels.v_of(name, tape.row_pitch_mm)
         except KeyError as exc:
             missing[role] = exc.args[0]
     for low, high in (("lower", "thoracolumbar"), ("thoracolumbar", "upper")):
-        a, b = _roles(settings)[low], _roles(settings)[high]
+        a, b = level_roles(settings, levels)[low], level_roles(settings, levels)[high]
         if high not in missing and vertebra_index(b) >= vertebra_index(a):
             missing[high] = f"the level map names no level above {a}" if high == "upper" else \
                 f"{b} is not above {a}"
@@ -243,8 +247,12 @@ def _curvature(at: dict[str, _LevelFrames], curves: list[MidlineCurve | None],
     grid = np.linspace(v_lo, v_hi, 101)
     margin = 0.1 * (v_hi - v_lo)
     for f in np.flatnonzero(note == ""):
+        curve = curves[f]
+        if curve is None:
+            note[f] = f"fewer than {MIN_ROWS} tape rows seen"
+            continue
         base = at[lo].frames[f]
-        t = curves[f].tangent(grid) @ base  # components on (a, s, r)
+        t = curve.tangent(grid) @ base  # components on (a, s, r)
         theta = np.degrees(np.arctan2(t[:, 0], t[:, 1]))
         k = int(np.argmin(theta))
         if not grid[0] + margin < grid[k] < grid[-1] - margin:

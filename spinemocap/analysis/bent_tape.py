@@ -11,9 +11,10 @@ Dots sit at ``u`` along the rod's ``r`` axis (a flat strip, no skin curvature).
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from ..fileio import atomic_write
@@ -60,7 +61,7 @@ def relative_turn(rates_deg_per_mm: Rates, v_from: float, v_to: float, step_mm: 
 
 
 def uniform_bend(v_from: float, v_to: float, angles_deg: np.ndarray,
-                 background: Sequence[float] = (0.0, 0.0, 0.0)) -> Rates:
+                 background: npt.ArrayLike = (0.0, 0.0, 0.0)) -> Rates:
     """Rates that turn the rod by ``angles_deg`` (flexion, lateral, twist) spread evenly over
     ``v_from..v_to`` mm, on top of a constant ``background`` rate (deg/mm) everywhere."""
     angles = np.asarray(angles_deg, float)
@@ -73,7 +74,7 @@ def uniform_bend(v_from: float, v_to: float, angles_deg: np.ndarray,
 
 
 def smooth_bend(v_from: float, v_to: float, angles_deg: np.ndarray,
-                background: Sequence[float] = (0.0, 0.0, 0.0)) -> Rates:
+                background: npt.ArrayLike = (0.0, 0.0, 0.0)) -> Rates:
     """Rates that turn the rod by ``angles_deg`` in total over ``v_from..v_to`` mm with a
     raised-cosine profile (zero at both ends, most in the middle), plus a constant
     ``background`` rate: a bend without curvature steps, like a spine's."""
@@ -110,8 +111,7 @@ def write_bent_capture(folder, tape: TapeSpec, peak_flexion_deg: float, n_frames
     Capture(root=folder, name=folder.name, fps=fps, n_frames=n_frames, rig=rig, tape=tape,
             subject={"id": subject, "up": [0, 0, 1], "facing": [0, -1, 0]}).save()
     amplitude = peak_flexion_deg * np.sin(np.linspace(0, np.pi, n_frames))
-    dots = np.array([bent_tape_dots(tape, uniform_bend(*lumbar_span_mm, np.array([a, 0.0, 0.0]),
-                                                       np.asarray(background, float)))
+    dots = np.array([bent_tape_dots(tape, uniform_bend(*lumbar_span_mm, np.array([a, 0.0, 0.0]), background))
                      for a in amplitude])
     columns = [k for k, label in enumerate(tape.labels) if int(label[1:3]) in hidden_rows]
     if columns:

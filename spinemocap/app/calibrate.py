@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from calibration.boards import MAX_BLUR_SIGMA_PX, BoardDetection, BoardSpec, detect_board, view_problem
+from calibration.boards import MAX_BLUR_SIGMA_PX, BoardDetection, BoardSpec, Facing, detect_board, view_problem
 from calibration.extrinsics import ExtrinsicsResult, calibrate_extrinsics
 from calibration.formats import read_rig
 from calibration.geometry import transform_rig
@@ -181,7 +181,7 @@ class BoardSession:
 
     board: BoardSpec
     read_as: BoardSpec | None
-    facing: dict[str, str]
+    facing: dict[str, Facing]
     cameras: list[CameraViews]
 
     @property
@@ -263,7 +263,7 @@ def _keep_consistent_variant(board: BoardSpec, cameras: list[CameraViews]) -> Bo
     if not printed:
         return BoardSession(board, None, {}, cameras)
     polarity, layout = printed.most_common(1)[0][0]
-    facing = {}
+    facing: dict[str, Facing] = {}
     for cam in cameras:
         sides = Counter(d.variant.facing for d in cam.usable.values()
                         if d.variant and d.variant.board_variant == (polarity, layout))
@@ -274,7 +274,7 @@ def _keep_consistent_variant(board: BoardSpec, cameras: list[CameraViews]) -> Bo
                 cam.rejected[key] = (f"read as {v.polarity}/{v.layout}/{v.facing}, unlike the other views "
                                      f"({polarity}/{layout}/{facing[cam.name]}): a stray read")
                 del cam.usable[key]
-    read_as = replace(board, polarity=polarity, layout=layout, facing="auto")  # type: ignore[arg-type]
+    read_as = replace(board, polarity=polarity, layout=layout, facing="auto")
     return BoardSession(board, read_as, facing, cameras)
 
 

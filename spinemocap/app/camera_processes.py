@@ -129,6 +129,7 @@ class CameraProcesses:
         self._closed = False
         self.startup_s = self.cpu_s = float("nan")  # start-up wall s; workers' CPU s after it (at close)
         self.calls, self.slowest_s = 0, 0.0  # detect() calls; sum over them of the slowest worker's seconds
+        self._pool: ProcessPoolExecutor | None = None
         try:
             self._pool = ProcessPoolExecutor(n, mp_context=mp.get_context("spawn"), initializer=_worker_start,
                                              initargs=(os.getpid(), name, device, precision))
@@ -143,6 +144,11 @@ class CameraProcesses:
             self.close()
             raise
 
+    def _workers(self) -> ProcessPoolExecutor:
+        if self._pool is None:
+            raise RuntimeError("the camera processes are closed")
+        return self._pool
+
     def _every_worker_up(self, started: float) -> list[int]:
         """The pids of the ``n`` workers once each has answered, its detector loaded (an import or
         CUDA failure shows here, not mid-run). A round of ``n`` start-up calls can all go to a
@@ -154,7 +160,7 @@ class CameraProcesses:
             left_s = START_TIMEOUT_S - (time.perf_counter() - started)
             if left_s <= 0:
                 raise TimeoutError(f"{len(pids)} of {self.n} workers started within {START_TIMEOUT_S:.0f} s")
-            calls = [self._pool.submit(_worker_ready, 0.2) for _ in range(self.n)]
+            calls = [self._workers().submit(_worker_ready, 0.2) for _ in range(self.n)]
             pids |= {call.result(timeout=left_s) for call in calls}
         return sorted(pids)
 
@@ -189,7 +195,7 @@ class CameraProcesses:
         self._last = block
         memory = block.memory
         assert memory is not None
-        futures = [self._pool.submit(_worker_detect, memory.name, block.layout[c], c, None if b is None else list(b))
+        futures = [self._workers().submit(_worker_detect, memory.name, block.layout[c], c, None if b is None else list(b))
                    for c, b in zip(cameras, boxes)]
         results = [future.result() for future in futures]
         self.calls += 1

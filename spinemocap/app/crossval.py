@@ -38,7 +38,7 @@ from scipy.interpolate import CubicSpline
 
 import exporters
 
-from ..analysis.angles import ANGLE_GROUPS, AngleSettings, compute_angles
+from ..analysis.angles import ANGLE_GROUPS, AngleSettings, compute_angles, level_roles
 from ..analysis.curve import row_tracks
 from ..analysis.frames import PELVIS_MARKERS, cardan_angles, frame_from_axes, pelvis_frame_from_markers
 from ..analysis.levels import LevelMap
@@ -123,7 +123,7 @@ def vicon_angle_table(time_s: np.ndarray, positions: np.ndarray, labels: list[st
     if settings.upper is None:
         settings = replace(settings, upper=list(levels.rows)[-1])
     fps = 1.0 / float(np.median(np.diff(time_s))) if len(time_s) > 1 else 1.0
-    roles = {"lower": settings.lower, "thoracolumbar": settings.thoracolumbar, "upper": settings.upper}
+    roles = level_roles(settings, levels)
     frames = vicon_level_frames(positions, labels, spec, levels, list(roles.values()), fps, settings)
     table = pd.DataFrame({"time": time_s})
     for group, (lo, hi) in {"lumbar": ("lower", "thoracolumbar"), "thoracic": ("thoracolumbar", "upper")}.items():

@@ -302,7 +302,7 @@ def _continue_labels(k: int, chunk: dict[str, np.ndarray], previous: dict[str, n
 
 def _save_chunk(path: Path, arrays: dict[str, np.ndarray]) -> None:
     with atomic_path(path) as tmp, open(tmp, "wb") as handle:
-        np.savez(handle, **arrays)
+        np.savez(handle, allow_pickle=False, **arrays)
 
 
 def _load_chunk(path: Path) -> dict[str, np.ndarray] | None:

@@ -344,8 +344,8 @@ def _draw_midlines(sagittal, frontal, shape: dict | None) -> None:
 
 def _draw_segments(over_time, at_peaks, segments: pd.DataFrame | None, frames: dict) -> None:
     names = segments_of(segments) if segments is not None else []
-    values = segments[[f"{n}_flexion" for n in names]].to_numpy(float) if names else np.zeros((0, 0))
-    if not names or not np.isfinite(values).any():
+    values = segments[[f"{n}_flexion" for n in names]].to_numpy(float) if segments is not None and names else np.zeros((0, 0))
+    if segments is None or not names or not np.isfinite(values).any():
         for ax in (over_time, at_peaks):
             ax.text(0.5, 0.5, "no segmental angles:\nlevels not seen or not mapped", ha="center", va="center",
                     transform=ax.transAxes, fontsize=8, color="tab:red")

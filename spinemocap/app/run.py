@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Callable, Iterable, Literal, Sequence
 
 import numpy as np
+import numpy.typing as npt
 from tqdm import tqdm
 
 from ..camera import Rig
@@ -44,7 +45,7 @@ from ..track.template import tape_frames
 from ..views import ViewDots
 from .reference import observe_reference, pose_doubt, source_images
 from .results import TrackingStopped, write_markers
-from .streaming import CaptureDetector, SpeedOptions, detected_ahead, prefetched_frames
+from .streaming import CaptureDetector, DetectionRoute, SpeedOptions, detected_ahead, prefetched_frames
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +108,7 @@ class TrackResult:
     rig_residuals: RigResiduals | None = None
     calibration_warning: str | None = None
     refinement: RigRefinement | None = None
-    detector_searches: dict[str, int] = field(default_factory=dict)  # camera images per detection route
+    detector_searches: dict[DetectionRoute, int] = field(default_factory=dict)  # camera images per detection route
     detector_info: dict = field(default_factory=dict)  # CaptureDetector.info: parallel mode, workers' start-up and CPU
 
     def stage_ms(self) -> dict[str, float]:
@@ -273,7 +274,7 @@ def run_tracking(
     rig: Rig,
     tape: TapeSpec,
     fps: float,
-    up: Sequence[float] = (0.0, 0.0, 1.0),
+    up: npt.ArrayLike = (0.0, 0.0, 1.0),
     mode: TrackingMode = "sequence",
     config: TrackerConfig | None = None,
     progress: bool = True,
@@ -387,7 +388,7 @@ def track_source(
     tape: TapeSpec,
     fps: float,
     frames: Sequence[int] | None = None,
-    up: Sequence[float] = (0.0, 0.0, 1.0),
+    up: npt.ArrayLike = (0.0, 0.0, 1.0),
     mode: TrackingMode = "sequence",
     config: TrackerConfig | None = None,
     detector: str = "net",

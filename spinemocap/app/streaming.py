@@ -43,7 +43,7 @@ from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Callable, Iterator, Literal, Sequence
 
 import cv2
 import numpy as np
@@ -54,6 +54,13 @@ from ..detect import find_dots
 from ..fileio import InputError
 from ..views import ViewDots
 from .camera_processes import CameraProcesses, ProcessesUnavailable, mask_box
+
+if TYPE_CHECKING:
+    from ..detect import Detector
+
+#: How a camera image was searched: in the box predicted from the last frames' dots, in full
+#: as a periodic refresh, in full after the predicted box found too few dots, or in full.
+DetectionRoute = Literal["predicted", "refresh", "fallback", "full"]
 
 log = logging.getLogger(__name__)
 
@@ -328,7 +335,7 @@ class CaptureDetector:
         self.name = name
         self.rig = rig
         self.options = options or SpeedOptions()
-        self.detector = None
+        self.detector: Detector | None = None
         if name in ("net", "classical"):
             try:  # the network detector loads torch: imported only when chosen
                 from ..detect import Detector
@@ -359,7 +366,7 @@ class CaptureDetector:
         self._since_search: dict[int, int] = {}      # camera -> predicted frames since its full search
         self._settled: dict[int, bool] = {}          # camera -> settled (SpeedOptions.refresh_settled_every)
         self._first: int | None = None               # the first frame detected (by prediction's rules)
-        self.searches = {"full": 0, "predicted": 0, "fallback": 0, "refresh": 0}  # camera images per route
+        self.searches: dict[DetectionRoute, int] = {"full": 0, "predicted": 0, "fallback": 0, "refresh": 0}  # images per route
         self._searches_lock = threading.Lock()
         # camera index -> capture frames it had no image for (its clock, a drop); also info["missing_frames"]
         # by camera name (the rig's; without a rig the index as text)
@@ -442,8 +449,14 @@ class CaptureDetector:
                  ) -> list[ViewDots]:
         """The views of capture frame ``frame``: one per camera, an empty one for a camera whose
         image is None (it has no frame there; recorded in :attr:`missing`)."""
-        if any(image is None for image in images):
+        present = [image for image in images if image is not None]
+        if len(present) < len(images):
             return self._with_missing(frame, images, masks)
+        return self._every_camera(frame, present, masks)
+
+    def _every_camera(self, frame: int, images: list[np.ndarray], masks: list[np.ndarray | None] | None
+                      ) -> list[ViewDots]:
+        """:meth:`__call__` for a frame every camera has an image of."""
         if self.name == "mask":
             if masks is None:
                 raise InputError(None, "detector 'mask' needs tape masks (synthetic captures have masks/)")
@@ -497,7 +510,7 @@ class CaptureDetector:
             if self.name == "mask":
                 if masks is None or masks[c] is None:
                     raise InputError(None, "detector 'mask' needs tape masks (synthetic captures have masks/)")
-                return _dots_in_mask(c, image, masks[c])  # type: ignore[arg-type]
+                return _dots_in_mask(c, image, masks[c])
             with self._searches_lock:
                 self.searches["full"] += 1
             return self._detect(c, image, None)
@@ -572,7 +585,7 @@ class CaptureDetector:
         if self._processes is not None or (self._pool is not None and self._stage1_in_pool):
             views = self._run(images, cameras, [None] * len(cameras), copy)
         else:
-            views = self._run(images, cameras, self.detector.tape_boxes([images[c] for c in cameras]))
+            views = self._run(images, cameras, self._loaded_detector().tape_boxes([images[c] for c in cameras]))
         self.searches["full"] += len(cameras)
         if self.predicts and len(cameras) == len(images):  # what prediction starts from (unused without it)
             self._remember(views)
@@ -601,13 +614,19 @@ class CaptureDetector:
         # prediction (the benchmarks keep every frame's views) they are made now, holding a third
         # of the colour image's memory. (The images here are the reader's own arrays, also after
         # camera processes fell back to threads: only the workers' copies lie in shared memory.)
-        return self.detector.detect(image, camera=camera, boxes=boxes, grey_now=not self.predicts)
+        return self._loaded_detector().detect(image, camera=camera, boxes=boxes, grey_now=not self.predicts)
+
+    def _loaded_detector(self) -> Detector:
+        if self.detector is None:
+            raise ValueError(f"detector {self.name!r} finds dots in given masks, not in images")
+        return self.detector
 
     def _camera_view(self, camera: int, image: np.ndarray, plan: "_Plan") -> ViewDots:
         """One camera's view of a frame searched by ``plan`` (:meth:`_plan`), with its fallback
         to the full search, remembered for its next frame: what :meth:`__call__` does for each
         camera, for one camera alone (:meth:`stream`; a camera's frames in order, different
         cameras at once)."""
+        routes: tuple[DetectionRoute, ...]
         if plan.full:
             view, routes = self._detect(camera, image, None), ("full",)
         elif self.predicts and self._refresh_due(camera):
@@ -628,7 +647,7 @@ class CaptureDetector:
     def _remember(self, views: list[ViewDots]) -> None:
         for v in views:
             box = mask_box(v.mask)
-            self._settled[v.camera] = (box is not None and len(v) >= self._counts.get(v.camera, 0)
+            self._settled[v.camera] = (box is not None and v.mask is not None and len(v) >= self._counts.get(v.camera, 0)
                                        and _well_inside(box, v.mask.shape[:2], SETTLED_EDGE_PX))
             self._counts[v.camera] = len(v)
             if box is None:
@@ -655,9 +674,9 @@ class CaptureDetector:
         ``lookahead``. ``wait_ms``: the time the tracker waited for the frame. Errors of the
         reader or of a camera are raised here; closing the generator (the tracker stopped,
         Ctrl-C) stops the reading and waits for the detections running."""
-        if not self.streams:
-            raise ValueError("stream() needs the cameras in threads and a detector that reads images")
         pool = self._pool
+        if not self.streams or pool is None:
+            raise ValueError("stream() needs the cameras in threads and a detector that reads images")
         steps = 1 + lookahead
         cond = threading.Condition()
         # by frame index, dropped when handed to the tracker: (frame, images), plan, views, cameras left
@@ -843,6 +862,8 @@ class CaptureDetector:
         m = self.options.box_margin_px
         if plan.predicted is None:  # the last frame's box alone
             return _training_padded_box(xs.start - m, ys.start - m, xs.stop + m, ys.stop + m, shape)
+        if self.rig is None or plan.last is None:
+            raise ValueError("predicted boxes need the rig and the dots the boxes were last seen with")
         cam = self.rig[camera]
         now, before = cam.project(plan.predicted), cam.project(plan.last)
         inside = cam.in_image(now) & np.isfinite(before).all(axis=1)
@@ -894,6 +915,8 @@ def empty_view(camera: int) -> ViewDots:
     return ViewDots(camera, np.zeros((0, 2)), np.zeros(0))
 
 
-def _dots_in_mask(camera: int, image: np.ndarray, mask: np.ndarray) -> ViewDots:
+def _dots_in_mask(camera: int, image: np.ndarray, mask: np.ndarray | None) -> ViewDots:
+    if mask is None:
+        raise InputError(None, f"detector 'mask' needs a tape mask for every camera; camera {camera} has none")
     uv, conf = find_dots(image, mask)
     return ViewDots(camera, uv, conf, mask=mask, image=to_grey(image))

@@ -99,6 +99,8 @@ def generate_synthetic(out: Path, settings: SynthDataSettings, progress: bool = 
         for f in rng.choice(cfg.frames, size=min(settings.frames_per_scene, cfg.frames), replace=False):
             rendered = scene.render(int(f))
             for img, m in zip(rendered.images, rendered.masks):
+                if m is None:
+                    raise RuntimeError("the scene rendered a view without its tape mask")
                 views += views_of(img, m, rng)
         scene.close()
         split = "val" if k >= settings.scenes - n_val else "train"

@@ -119,5 +119,5 @@ def write_scene_vicon(scene, out: str | os.PathLike, setup: ViconSetup | None = 
     if wave is not None:
         arrays.update(wave.groundtruth())
     with atomic_path(gt_path) as tmp:
-        np.savez_compressed(tmp, **arrays)
+        np.savez_compressed(tmp, allow_pickle=False, **arrays)
     return vicon

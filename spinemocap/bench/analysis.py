@@ -28,6 +28,7 @@ from ..analysis.bent_tape import bent_tape_dots, relative_turn, smooth_bend, wri
 from ..analysis.frames import cardan_angles
 from ..analysis.levels import LevelMap
 from ..app.batch import run_batch
+from ..app.run import TrackingMode
 from ..markers import MarkerTable
 from ..synth import SynthConfig, build_scene
 from ..synth.body import SPINE_BONES
@@ -299,7 +300,7 @@ def without_middle_dots(table: MarkerTable) -> MarkerTable:
     return table.select(labels=[label for label in table.labels if not label.endswith("C")])
 
 
-def tracked_markers(scene, detector: str = "net", mode: str = "sequence", progress: bool = True) -> MarkerTable:
+def tracked_markers(scene, detector: str = "net", mode: TrackingMode = "sequence", progress: bool = True) -> MarkerTable:
     """Render every frame of ``scene``, detect with ``detector`` and track through the rig the
     lab calibrated (``scene.calibrated_rig``, the one written to ``rig.toml``)."""
     import warnings
@@ -323,7 +324,7 @@ def score_lab_angles(table: pd.DataFrame, expected: dict[str, np.ndarray]) -> di
     from ..analysis.neutral import neutral_from_angles, relative_to_neutral
 
     change = relative_to_neutral(table, neutral_from_angles(table, first_s=0.0))
-    out = {}
+    out: dict[str, dict] = {}
     for column in LAB_ANGLES:
         group, axis = column.split("_")[0], ("flexion", "lateral", "rotation").index(column.split("_")[1])
         values = change[column].to_numpy(float)

@@ -124,7 +124,7 @@ def run_bodyfit_benchmark(preset: str = "artificial", frames: int = 10, misplace
     vicon = record_scene(scene, ViconSetup(misplacement_mm=misplacement_mm, seed=seed))
     dots, fit_numbers = bodyfit_dots(scene, vicon, key_frames, progress)
     body_err = np.linalg.norm(dots - gt["dots"], axis=2)
-    peer_numbers = {}
+    peer_numbers: dict = {}
     if peer:
         say("the same fit with the earlier per-frame path (autograd through all bones) ...")
         peer_dots, peer_numbers = bodyfit_dots(scene, vicon, key_frames, progress, "autodiff")

@@ -18,12 +18,12 @@ import json
 import platform
 import time
 from datetime import date
-from typing import Any
+from typing import Any, Hashable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calibration.boards import BoardSpec, detect_board
+from calibration.boards import BoardDetection, BoardSpec, detect_board
 from calibration.extrinsics import calibrate_extrinsics, floor_world_transform, initial_poses
 from calibration.geometry import transform_rig
 from calibration.intrinsics import calibrate_from_detections
@@ -62,9 +62,10 @@ def board_session(size: int, n_intrinsic: int, n_frames: int, seed: int, board_t
                                          half_turns=board.kind == "checkerboard")
     t_render = time.perf_counter() - t0
     t0 = time.perf_counter()
-    detections, intrinsics = {}, []
+    detections: dict[str, dict[Hashable, BoardDetection]] = {}
+    intrinsics: list[Camera] = []
     for cam in truth:
-        views = {(cam.name, i): d for i, im in enumerate(session.intrinsic[cam.name]) if (d := detect_board(im, board))}
+        views: dict[Hashable, BoardDetection] = {(cam.name, i): d for i, im in enumerate(session.intrinsic[cam.name]) if (d := detect_board(im, board))}
         intrinsics.append(calibrate_from_detections(views, [], cam.size, board, cam.name).camera)
         views.update({f: d for f, im in enumerate(session.capture.images[cam.name]) if (d := detect_board(im, board))})
         detections[cam.name] = views
@@ -181,13 +182,14 @@ def headline(results: dict) -> dict:
     def worst(rows: list[dict], *path: str) -> float:
         values = []
         for row in rows:
+            value: Any = row
             for key in path:
-                row = row[key]
-            values.append(float(row))
+                value = value[key]
+            values.append(float(value))
         return max(values)
 
     boards, checks, waves = results["boards"], results["checkerboards"], results["wandwaves"]
-    h = {
+    h: dict[str, float] = {
         "charuco_centre_error_mm": worst(boards, "ba_ceres", "centre_mm"),
         "charuco_rotation_error_deg": worst(boards, "ba_ceres", "rotation_deg"),
         "checkerboard_centre_error_mm": worst(checks, "ours_ba", "centre_mm"),
@@ -203,7 +205,8 @@ def headline(results: dict) -> dict:
         "ba_rotation_error_deg_scipy": worst(boards, "ba_scipy", "rotation_deg"),
     }
     h["ba_speedup_ceres_vs_scipy"] = h["ba_seconds_scipy"] / h["ba_seconds_ceres"]
-    h["goals"] = {
+    out: dict[str, Any] = dict(h)
+    out["goals"] = {
         "checkerboard_within_1.5x_charuco": bool(h["checkerboard_centre_error_mm"] <= 1.5 * h["charuco_centre_error_mm"]
                                                  and h["checkerboard_rotation_error_deg"] <= 1.5 * h["charuco_rotation_error_deg"]),
         "wandwave_within_1.5x_charuco": bool(h["wandwave_centre_error_mm"] <= 1.5 * h["charuco_centre_error_mm"]
@@ -211,4 +214,4 @@ def headline(results: dict) -> dict:
         "wand_length_rms_le_0.5mm": bool(h["wandwave_length_error_mm"] <= 0.5),
         "ba_le_3s": bool(h["ba_seconds_ceres"] <= 3.0),
     }
-    return h
+    return out

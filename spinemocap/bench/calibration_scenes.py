@@ -208,7 +208,8 @@ def render_intrinsic_views(cam: Camera, board: BoardSpec, n_views: int, seed: in
     positions (each fully visible), for single-camera intrinsics."""
     rng = np.random.default_rng(seed)
     renderer = renderer or BoardRenderer(board)
-    images, attempts = [], 0
+    images: list[np.ndarray] = []
+    attempts = 0
     forward = cam.R[2]
     while len(images) < n_views:
         attempts += 1

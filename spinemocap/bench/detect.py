@@ -233,10 +233,11 @@ def run_detect_benchmark(sets: list[str] | None = None, scenes: int | None = Non
         options["weights"] = weights
     detectors = {"net": Detector("net", **options), "net (every region)": Detector("net", lattice=False, **options),
                  "classical": Detector("classical")}
-    results = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "sets": {}}
+    by_set: dict[str, dict] = {}
+    results = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "sets": by_set}
     for set_name in sets or DEFAULT_SETS:
         if set_name == TAPE_FREE:
-            results["sets"][TAPE_FREE] = tape_free = run_tape_free(detectors, rooms)
+            by_set[TAPE_FREE] = tape_free = run_tape_free(detectors, rooms)
             say(format_tape_free(tape_free))
             continue
         test = TEST_SETS[set_name]
@@ -272,10 +273,10 @@ def run_detect_benchmark(sets: list[str] | None = None, scenes: int | None = Non
                         timer.add(f"{name}_segment", 1000 * det.last_timings["segment_s"])
                         timer.add(f"{name}_dots", 1000 * det.last_timings["dots_s"])
                         scores[name].add(dots.uv, gt_vis, gt_hidden, **conditions)
-                        iou[name][0] += int((dots.mask & true_mask).sum())
-                        iou[name][1] += int((dots.mask | true_mask).sum())
+                        iou[name][0] += int((dots.tape_mask & true_mask).sum())
+                        iou[name][1] += int((dots.tape_mask | true_mask).sum())
                         if name == "net":
-                            net_mask = dots.mask
+                            net_mask = dots.tape_mask
                     t = time.perf_counter()
                     uv, _ = find_dots(image, true_mask)
                     timer.add("blobs in exact mask", 1000 * (time.perf_counter() - t))
@@ -300,7 +301,7 @@ def run_detect_benchmark(sets: list[str] | None = None, scenes: int | None = Non
             "dots": {name: s.summary() for name, s in scores.items()},
             "time": {f"{k}_ms_per_camera_frame": v for k, v in timer.mean_ms().items()},
         }
-        results["sets"][set_name] = summary
+        by_set[set_name] = summary
         say(format_set(set_name, summary))
     return results
 

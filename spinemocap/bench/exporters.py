@@ -15,6 +15,7 @@ import tempfile
 import time
 import warnings
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from pathlib import Path
 from typing import Callable
 
@@ -87,8 +88,8 @@ def run_export_benchmark(n_frames: int = 548, n_markers: int = 32, repeat: int =
         folder = Path(tmp)
         for fmt in ("trc", "c3d", "csv", "parquet"):
             path = folder / f"ours.{fmt}"
-            results[f"ours_{fmt}"] = {"write_ms": _median_ms(lambda path=path: write(table, path), repeat),
-                                     "read_ms": _median_ms(lambda path=path: read(path), repeat),
+            results[f"ours_{fmt}"] = {"write_ms": _median_ms(partial(write, table, path), repeat),
+                                     "read_ms": _median_ms(partial(read, path), repeat),
                                      "bytes": path.stat().st_size}
         results["ezc3d_c3d"] = _ezc3d_peer(table, folder, repeat)
         if importlib.util.find_spec("opensim") is None:  # not imported here: see _opensim_peer

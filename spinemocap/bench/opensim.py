@@ -30,6 +30,7 @@ import platform
 import tempfile
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -121,10 +122,12 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     levels = LevelMap.from_row_levels(data["row_levels"], tape.n_rows)
     depth_scale = body_model_depth_scale(data, levels)
     ik: dict = {}
-    for method, skin in (("ik", {}), ("ik_rigid", {"slip": None, "normalise_tilt": False})):
+    for method, rigid_skin in (("ik", False), ("ik_rigid", True)):
         with tempfile.TemporaryDirectory() as tmp:
             # the static trial is the neutral first frame: the studio's motions start moving at once
-            settings = OpenSimSettings(static_frames=1, depth_scale=depth_scale, depth_source=BODY_MODEL_DEPTH, **skin)
+            settings = OpenSimSettings(static_frames=1, depth_scale=depth_scale, depth_source=BODY_MODEL_DEPTH)
+            if rigid_skin:
+                settings = replace(settings, slip=None, normalise_tilt=False)
             result = run_opensim(markers, tape, levels, data["up"], data["facing"], Path(tmp) / "opensim",
                                  settings=settings)
             s = result.summary

@@ -208,7 +208,7 @@ def summarize(rows: list[dict]) -> dict:
     out = {}
     for level in sorted({r["level_px"] for r in rows}):
         sel = [r for r in rows if r["level_px"] == level]
-        stats = {}
+        stats: dict[str, dict[str, float] | int] = {}
         for key in (*GAUGES, "refined_shape", "frame_uncertainty", *REFERENCE_KEYS):
             v = np.array([r[key] for r in sel if key in r], float)
             if len(v):
@@ -259,7 +259,7 @@ def plot(numbers: dict, path: Path) -> None:
 
     rows = numbers["rows"]
     fig, ax = plt.subplots(figsize=(8, 5))
-    series = (("given", "given rig", "tab:red"), ("refined", "--refine-rig", "tab:blue"),
+    series: tuple[tuple[str, str, str], ...] = (("given", "given rig", "tab:red"), ("refined", "--refine-rig", "tab:blue"),
               ("residual_priors", "peer: residual-sized priors", "tab:cyan"),
               ("cloud_gauge", "peer: cloud gauge", "tab:orange"), ("closest_cameras", "peer: closest cameras", "tab:purple"),
               ("refined_shape", "refined, frame removed", "tab:green"),

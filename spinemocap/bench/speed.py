@@ -56,7 +56,7 @@ class MemorySource:
         self.camera_names = list(camera_names)
         self.n_frames = len(frames)
 
-    def read(self, frame: int) -> list[np.ndarray]:
+    def read(self, frame: int) -> list[np.ndarray | None]:
         return list(self.frames[frame])
 
     def read_camera(self, camera: int, frame: int) -> np.ndarray:
@@ -127,7 +127,7 @@ def video_copy(png_capture: Path, out: Path, codec: str = VIDEO_CODEC, frames: i
     if groundtruth is None:
         shutil.copy2(png_capture / "groundtruth.npz", out / "groundtruth.npz")
     else:
-        np.savez(out / "groundtruth.npz", **{k: np.asarray(v)[:n_frames] if k in REPLAYED else v
+        np.savez(out / "groundtruth.npz", allow_pickle=False, **{k: np.asarray(v)[:n_frames] if k in REPLAYED else v
                                              for k, v in groundtruth.items()})
     manifest = read_toml(png_capture / "capture.toml")
     manifest["capture"].update(media="video", video_pattern=pattern, n_frames=n_frames)
@@ -152,6 +152,17 @@ def replay_order(n_source: int, n_frames: int) -> list[int]:
         return [0] * n_frames
     period = 2 * (n_source - 1)
     return [k if k < n_source else period - k for k in (f % period for f in range(n_frames))]
+
+
+def every_camera(source: FrameSource, frame: int) -> list[np.ndarray]:
+    """Frame ``frame`` of ``source``, one image per camera; InputError when a camera has none
+    (a replayed benchmark needs every camera in every frame)."""
+    images = source.read(frame)
+    present = [image for image in images if image is not None]
+    if len(present) < len(images):
+        raise InputError(None, f"frame {frame} lacks the images of {len(images) - len(present)} cameras; "
+                         "the speed benchmark replays complete frames only")
+    return present
 
 
 def with_sensor_noise(images: list[np.ndarray], sigma: float, seed: int) -> list[np.ndarray]:
@@ -193,7 +204,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
     device = resolve_device(speed.device) if detector == "net" else "cpu"
     capture = Capture.open(capture_dir)
     source = capture.frame_source()
-    decoded = [with_sensor_noise(source.read(f), sensor_noise, f) for f in range(capture.n_frames)]
+    decoded = [with_sensor_noise(every_camera(source, f), sensor_noise, f) for f in range(capture.n_frames)]
     order = replay_order(capture.n_frames, frames)
     replayed = MemorySource([decoded[i] for i in order], capture.camera_names)
     gt = replayed_groundtruth(capture, order)
@@ -227,6 +238,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
     by_name = {r["run"]: r for r in runs}
     new, peer, cpu = by_name["in_memory"], by_name.get("in_memory_legacy"), by_name.get("in_memory_cpu")
     by_mode = {parallel: by_name["in_memory"], other: by_name.get(f"in_memory_{other}")}
+    in_processes, in_threads = by_mode["processes"], by_mode["threads"]
     check = None
     if cpu is not None:
         say("detecting every source frame on the CPU and on the GPU (same dots?) ...")
@@ -242,8 +254,8 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         "speedup_vs_cpu": new["fps"] / cpu["fps"] if cpu else None,
         "accuracy_not_worse_vs_cpu": _not_worse(new, cpu) if cpu else None,
         "parallel": parallel,
-        "speedup_processes_vs_threads": (by_mode["processes"]["fps"] / by_mode["threads"]["fps"]
-                                         if by_mode[other] else None),
+        "speedup_processes_vs_threads": (in_processes["fps"] / in_threads["fps"]
+                                         if in_processes and in_threads else None),
         # bit for bit the same tracked positions with the cameras in processes as in threads
         "same_output_processes_threads": (bool(np.array_equal(positions["in_memory"], positions[f"in_memory_{other}"],
                                                               equal_nan=True)) if by_mode[other] else None),
@@ -268,19 +280,20 @@ def lookahead_numbers(runs: list[dict], speed: SpeedOptions, positions: dict[str
         return {}
     ahead, exact = (by_name["in_memory"], by_name[peer_name]) if speed.lookahead > 0 else (by_name[peer_name], by_name["in_memory"])
     a, b = positions.get("in_memory"), positions.get(peer_name)
-    differ = share = None
+    differ = share = same_missing = None
     if a is not None and b is not None and a.shape == b.shape:
         both = np.isfinite(a).all(axis=-1) & np.isfinite(b).all(axis=-1)
         distance = np.linalg.norm(a - b, axis=-1)[both]
         differ = float(distance.max()) if both.any() else 0.0
         share = float(np.mean(distance > 0.1)) if both.any() else 0.0
+        same_missing = bool(np.array_equal(np.isnan(a), np.isnan(b)))
     return {"speedup_lookahead_in_memory": ahead["fps"] / exact["fps"],
             "cpu_s_per_frame_lookahead": ahead["cpu_s_per_frame"], "cpu_s_per_frame_exact": exact["cpu_s_per_frame"],
             "lookahead_accuracy_not_worse": _not_worse(ahead, exact),
             "lookahead_max_difference_mm": differ,
             # share of the (frame, dot) positions tracked in both that moved by more than 0.1 mm
             "lookahead_share_over_0p1mm": share,
-            "lookahead_same_missing": bool(np.array_equal(np.isnan(a), np.isnan(b))) if differ is not None else None}
+            "lookahead_same_missing": same_missing}
 
 
 def _replayed_video_runs(capture: Capture, replayed: MemorySource, gt: dict, n_frames: int, workdir: Path | None,
@@ -495,7 +508,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
             # at most memory_frames decoded frames held (six 2448x1600 images are 70 MB a frame),
             # played forward and backward for all frames, the ground truth alike
             source = capture.frame_source()
-            held = [source.read(f) for f in range(min(capture.n_frames, memory_frames))]
+            held = [every_camera(source, f) for f in range(min(capture.n_frames, memory_frames))]
             order = replay_order(len(held), capture.n_frames)
             gt = replayed_groundtruth(capture, order)
             frames_in_memory = MemorySource([held[i] for i in order], capture.camera_names)

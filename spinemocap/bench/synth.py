@@ -23,7 +23,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..fileio import atomic_write
+from ..fileio import InputError, atomic_write
 from ..synth.scene import SynthConfig, build_scene
 
 # Paper Table 2: dot-frames of the 548-frame, 32-dot Artificial sequence seen by 4/3/2/1/0 cameras.
@@ -51,6 +51,15 @@ def visibility_table(frames: int = 548, seed: int = 0, progress: bool = True) ->
     return table
 
 
+def _read_png(path: Path) -> np.ndarray:
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise InputError(path, "not a readable PNG image")
+    return image
+
+
 def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds: int = 2,
                       workdir: Path | None = None, occlusion: str = "none") -> dict:
     """Seconds per frame to render ``frames`` frames of a preset and write them as a capture does
@@ -63,8 +72,6 @@ def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds
     captures' files (max and mean absolute grey-level difference, masks identical or not) and
     the ground-truth time per frame (ray-cast visibility, no rendering)."""
     import tempfile
-
-    import cv2
 
     from ..capture import Capture
     from ..synth.writer import render_frames
@@ -91,8 +98,8 @@ def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds
                 loads.append(_load_average())
         diffs, masks_equal = [], True
         for path in sorted(roots["fast"].rglob("*.png")):  # every file both paths wrote
-            written = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).astype(np.int16)
-            other = cv2.imread(str(roots["reference"] / path.relative_to(roots["fast"])), cv2.IMREAD_UNCHANGED)
+            written = _read_png(path).astype(np.int16)
+            other = _read_png(roots["reference"] / path.relative_to(roots["fast"]))
             diff = np.abs(written - other.astype(np.int16))
             if "masks" in path.parts:
                 masks_equal &= not diff.any()

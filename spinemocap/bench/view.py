@@ -66,7 +66,8 @@ def run(capture: Path, results: Path, out: Path, scale: float | None) -> dict:
             "video_s": round(video.seconds, 2), "frames_per_s": round(video.frames_per_s, 2),
             "video_cpu_s": round(video_cpu, 2), "frames_per_cpu_s": round(len(video.frames) / video_cpu, 2),
             "viewer_s": round(html_s, 2),
-            "video_MiB": round(sum(p.stat().st_size for p in [*video.cameras.values(), video.grid]) / 2**20, 2),
+            "video_MiB": round(sum(p.stat().st_size for p in [*video.cameras.values(), video.grid] if p is not None)
+                               / 2**20, 2),
             "load_1min": round(os.getloadavg()[0], 2)}
 
 

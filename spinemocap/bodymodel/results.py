@@ -63,7 +63,7 @@ def write_fit(out: str | os.PathLike, fit: BodyFit, frames: np.ndarray, fps: flo
     if vertices is not None:
         arrays["vertices_mm"] = vertices
     with atomic_path(out / "body.npz") as tmp:
-        np.savez_compressed(tmp, **arrays)
+        np.savez_compressed(tmp, allow_pickle=False, **arrays)
     summary = fit_summary(fit, np.asarray(frames), fps, source)
     with atomic_write(out / "summary.json") as handle:
         handle.write(strict_json(summary, indent=2))

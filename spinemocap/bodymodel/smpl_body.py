@@ -71,7 +71,7 @@ def load_smplx_module(model_type: str, model_path: str | os.PathLike | None, gen
         raise _missing_files_error(model_type, model_path)
     path = Path(model_path)
     ext = path.suffix.lstrip(".") if path.is_file() else "npz" if any(path.rglob("*.npz")) else "pkl"
-    kwargs = {"gender": gender, "ext": ext}
+    kwargs: dict[str, object] = {"gender": gender, "ext": ext}
     if model_type == "smpl":
         kwargs["vertex_ids"] = defaultdict(int)  # extra keypoints are not used here
     if model_type in ("smplh", "smplx"):

@@ -223,6 +223,8 @@ def _wand(args: argparse.Namespace) -> int:
     result = coregister(rig, frames, args.fps or fps, read_vicon_wand(args.vicon, WandSpec()), max_offset_s=args.max_offset,
                         refine_extrinsics=args.refine_extrinsics)
     print(result.summary())
+    if result.rig_in_vicon is None:
+        raise RuntimeError("the wand registration gave no rig in the Vicon frame")
     write_rig(result.rig_in_vicon, args.out)
     print(f"wrote {args.out}")
     return 0
@@ -240,6 +242,7 @@ def _convert(args: argparse.Namespace) -> int:
 def _check(args: argparse.Namespace) -> int:
     from calibration.boards import BoardSpec
     from calibration.check import (
+        Residuals,
         camera_table,
         compare_rigs,
         load_residuals,
@@ -259,6 +262,7 @@ def _check(args: argparse.Namespace) -> int:
         print(comparison.summary())
         if not args.views:
             return 0 if comparison.agrees else 1
+    residuals: Residuals | None
     if args.views:
         if not args.board:
             raise InputError("--views", "--board is needed to detect the board in --views")

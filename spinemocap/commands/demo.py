@@ -26,6 +26,12 @@ class DemoContext:
     results: dict = field(default_factory=dict)
     outputs: list[tuple[str, Path]] = field(default_factory=list)
 
+    def synthesized(self) -> Path:
+        """The capture the synthesize step wrote; RuntimeError before it ran."""
+        if self.capture_dir is None:
+            raise RuntimeError("the demo's synthesize step has not run")
+        return self.capture_dir
+
     def report(self, label: str, path: Path) -> None:
         self.outputs.append((label, Path(path)))
         print(f"    {label:<28} {path}")
@@ -55,8 +61,8 @@ def step_track(ctx: DemoContext) -> None:
 
     detector = "net"  # the shipped tape segmentation network
     out = ctx.out / "tracked"
-    table = track_capture(ctx.capture_dir, out, mode="sequence", detector=detector)
-    print(f"    detector {detector}; " + accuracy_summary(table, ctx.capture_dir))
+    table = track_capture(ctx.synthesized(), out, mode="sequence", detector=detector)
+    print(f"    detector {detector}; " + accuracy_summary(table, ctx.synthesized()))
     ctx.report("tracked markers (table)", out / "markers.csv")
     ctx.report("tracked markers (OpenSim)", out / "markers.trc")
     ctx.report("tracked markers (C3D)", out / "markers.c3d")
@@ -87,7 +93,7 @@ def step_report(ctx: DemoContext) -> None:
     from spinemocap.app.report import report_capture
 
     tracked = next((p for _, p in reversed(ctx.outputs) if p.name == "markers.csv"), None)
-    paths = report_capture(ctx.capture_dir, ctx.out / "report", markers_csv=tracked)
+    paths = report_capture(ctx.synthesized(), ctx.out / "report", markers_csv=tracked)
     ctx.report("angle report", paths["html"])
     ctx.report("angle tables", paths["xlsx"])
 

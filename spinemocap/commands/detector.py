@@ -178,15 +178,15 @@ def _run(args) -> int:
     for path in args.inputs:
         for name, image in views(path):
             dots = detector.detect(image, expected_dot_px=args.dot_px)
-            share = 100.0 * float(np.count_nonzero(dots.mask)) / dots.mask.size
-            print(f"{name}: {len(dots)} dots, tape mask {int(np.count_nonzero(dots.mask))} px ({share:.2f} % of the image)")
+            share = 100.0 * float(np.count_nonzero(dots.tape_mask)) / dots.tape_mask.size
+            print(f"{name}: {len(dots)} dots, tape mask {int(np.count_nonzero(dots.tape_mask))} px ({share:.2f} % of the image)")
             if args.out is None:
                 continue
             with atomic_write(args.out / f"{name}_dots.csv") as handle:
                 handle.write("u_px,v_px,confidence\n")
                 for (u, v), c in zip(dots.uv, dots.confidence):
                     handle.write(f"{u:.3f},{v:.3f},{c:.3f}\n")
-            overlay = draw_detections(image, dots.mask, dots.uv, dots.confidence, name)
+            overlay = draw_detections(image, dots.tape_mask, dots.uv, dots.confidence, name)
             with atomic_path(args.out / f"{name}_overlay.png") as tmp:
                 if not cv2.imwrite(str(tmp), overlay):
                     raise InputError(args.out, "the overlay could not be written (is the folder writable?)")

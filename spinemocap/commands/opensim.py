@@ -6,6 +6,7 @@ printing, the benchmark is :mod:`spinemocap.bench.opensim`."""
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 
@@ -52,11 +53,12 @@ def run_opensim_command(args: argparse.Namespace) -> int:
     from ..app.opensim import opensim_capture
     from ..opensim import OpenSimSettings
 
-    skin = {"slip": None, "normalise_tilt": False} if args.rigid_skin else {}
     source = args.depth_source or (
         OpenSimSettings.depth_source if args.depth_scale == 1.0 else f"given: {args.depth_scale:g} x the published depths")
     settings = OpenSimSettings(static_frames=args.static_frames, accuracy=args.accuracy, depth_scale=args.depth_scale,
-                               depth_source=source, coupling=args.coupling, prior_weight=args.prior_weight, **skin)
+                               depth_source=source, coupling=args.coupling, prior_weight=args.prior_weight)
+    if args.rigid_skin:
+        settings = replace(settings, slip=None, normalise_tilt=False)
     result, levels_from = opensim_capture(args.results, args.capture, args.out, args.levels, args.static,
                                           args.model, args.bodies, settings)
     s = result.summary

@@ -151,7 +151,7 @@ def _compare_reference(result: CrossValidation, reference: tuple[np.ndarray, np.
     tracked = tape_positions[:, [tape_labels.index(label) for label in spec.graph.labels]]
     d = np.linalg.norm(ref_rig - tracked, axis=2)
     d = d[np.isfinite(d)]
-    stats = {"dot_distance_mean_mm": float(d.mean()) if len(d) else float("nan"),
+    stats: dict[str, object] = {"dot_distance_mean_mm": float(d.mean()) if len(d) else float("nan"),
              "dot_distance_median_mm": float(np.median(d)) if len(d) else float("nan"),
              "dot_distance_p95_mm": float(np.percentile(d, 95)) if len(d) else float("nan"), "n": int(len(d))}
     stats["angles"] = {}

@@ -10,7 +10,12 @@ API above). dataset + train make and train on data (``spinemocap detector train|
 drawn makes 2D test images with exact answers.
 """
 
+from typing import TYPE_CHECKING
+
 from .blobs import BlobParams, find_dots
+
+if TYPE_CHECKING:  # the lazily loaded names, visible to type checkers
+    from .detector import Detector, shipped_weights_path
 
 # The detector loads torch: imported on first use so that ``spinemocap.detect.find_dots`` (and the
 # CLI) start fast.

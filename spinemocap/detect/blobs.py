@@ -754,7 +754,7 @@ def find_dots(
             uv = uv + [xs.start, ys.start]
             uvs.append(uv)
             confs.append(conf)
-        if key is not None:
+        if key is not None and memo is not None:
             memo[key] = uv, conf
     if not uvs:
         return empty

@@ -114,7 +114,7 @@ def save_shard(path: Path, views: list[tuple[np.ndarray, np.ndarray]], split: st
     arrays["split"] = np.array(split)
     arrays["info"] = np.array(json.dumps(info))
     with atomic_path(path) as tmp:
-        np.savez_compressed(tmp, **arrays)
+        np.savez_compressed(tmp, allow_pickle=False, **arrays)
 
 
 @dataclass
@@ -224,6 +224,7 @@ def labelled_images(images: Path, masks: Path | None = None, coco: Path | None =
                 continue
             mask = rasterize_polygons(polygons[path.name], image.shape[:2])
         else:
+            assert masks is not None  # exactly one of masks and coco, checked above
             mask = read_mask_png(Path(masks) / f"{path.stem}.png", image.shape[:2])
         yield path.stem, image, mask
 

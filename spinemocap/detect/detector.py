@@ -24,7 +24,7 @@ import os
 import time
 from importlib import resources
 from pathlib import Path
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import cv2
 import numpy as np
@@ -332,7 +332,7 @@ class Detector:
         self.lattice = lattice
         self.blob_params = blob_params or BlobParams()
         if name == "net":
-            self._segment = NetSegmenter(blob_params=self.blob_params, **options)
+            self._segment: NetSegmenter | Callable[[np.ndarray], np.ndarray] = NetSegmenter(blob_params=self.blob_params, **options)
         else:
             work_width = int(options.pop("work_width", 1600))
             if options:
@@ -385,7 +385,7 @@ class Detector:
     def tape_boxes(self, images_bgr: list[np.ndarray]) -> list[list[tuple[slice, slice]]]:
         """Stage 1 of the ``net`` detector for several images in one batched network pass:
         per image the full-resolution boxes that :meth:`detect` then searches (``boxes=``)."""
-        if not self.searches_boxes:
+        if not self.searches_boxes or not isinstance(self._segment, NetSegmenter):
             raise ValueError("only the 'net' detector with refine=True finds tape boxes")
         return self._segment.tape_boxes([_check_image(image) for image in images_bgr])
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 SHIFT = 4  # cv2 drawing fixed-point bits
 
@@ -29,7 +30,7 @@ class DrawnSample:
     stripe_masks: list[np.ndarray]
 
 
-def _pts(xy: np.ndarray, s: int) -> np.ndarray:
+def _pts(xy: npt.ArrayLike, s: int) -> np.ndarray:
     """Low-res px -> fixed-point high-res coordinates (pixel i covers [i s, (i+1) s))."""
     return np.round((np.asarray(xy, float) * s + (s - 1) / 2.0) * (1 << SHIFT)).astype(np.int32)
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, overload
 
 import cv2
 import numpy as np
@@ -86,6 +86,10 @@ def _disc_sum(radius: int, first: int) -> bool:
     return sums == outer and all(any(between(u, v) and (v[0] - u[0], v[1] - u[1]) in b for u in a) for v in outer)
 
 
+@overload
+def _near(mask: np.ndarray, margin: int, box: tuple[slice, slice]) -> tuple[slice, slice]: ...
+@overload
+def _near(mask: np.ndarray, margin: int, box: None = None) -> tuple[slice, slice] | None: ...
 def _near(mask: np.ndarray, margin: int, box: tuple[slice, slice] | None = None) -> tuple[slice, slice] | None:
     """The bounding box of ``mask``'s pixels grown by ``margin`` px (clipped), None when empty.
     A dilation or erosion by a radius <= ``margin`` inside this box is the whole mask's (outside
@@ -260,6 +264,8 @@ def _snap(grey: np.ndarray, mask: np.ndarray, p: RefineParams, samples: _Levels 
     if samples is None:
         return mask
     near = _near(mask, p.band_px, box)
+    if near is None:  # an empty mask: nothing to snap
+        return mask
     m = mask[near]
     # the mask grown by the band: the levels' (their box holds this one: a wider margin)
     oy, ox = near[0].start - samples.box[0].start, near[1].start - samples.box[1].start
@@ -388,6 +394,7 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
     area_per_dot = base_area / len(dots)
     # Candidate regions: dark pixels outside the mask that touch it, with what they enclose
     # (all of them within the box of the mask and the pieces, grown by 1 px: their holes too).
+    assert base_box is not None  # base keeps the dotted components
     box, joined = _joined_dark_pieces(grey, base, base_box, threshold)
     oy, ox = box[0].start, box[1].start
     candidates = fill_holes(joined) & ~base[box]

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from ..fileio import InputError
 from ..tape import TapeSpec
@@ -39,7 +40,8 @@ FACING_LIMIT_DEG = 45.0  # the tape's front may differ this much from the declar
 class LevelRows(Protocol):
     """The row-to-level map of :mod:`spinemocap.analysis.levels` (passed in, not imported)."""
 
-    rows: Mapping[str, float]
+    @property
+    def rows(self) -> Mapping[str, float]: ...
 
     def row_of(self, level: str) -> float: ...
 
@@ -48,17 +50,17 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def opensim_axes(up: Sequence[float], facing: Sequence[float], source: str | None = None) -> np.ndarray:
+def opensim_axes(up: npt.ArrayLike, facing: Sequence[float], source: str | None = None) -> np.ndarray:
     """(3, 3) rotation whose rows are OpenSim's X (facing, horizontal), Y (up), Z (right) in lab
     coordinates: ``p_opensim = R @ p_lab``."""
-    y = np.asarray(up, float)
+    given_up = np.asarray(up, float)
     f = np.asarray(facing, float)
-    if y.shape != (3,) or f.shape != (3,) or not np.linalg.norm(y) > 0:
-        raise InputError(source, f"[subject] up/facing must be 3-vectors, got up={list(up)} facing={list(facing)}")
-    y = _unit(y)
+    if given_up.shape != (3,) or f.shape != (3,) or not np.linalg.norm(given_up) > 0:
+        raise InputError(source, f"[subject] up/facing must be 3-vectors, got up={given_up.tolist()} facing={list(facing)}")
+    y = _unit(given_up)
     x = f - np.dot(f, y) * y
     if np.linalg.norm(x) < 0.3 * np.linalg.norm(f):
-        raise InputError(source, f"[subject] facing {list(facing)} is (nearly) parallel to up {list(up)}")
+        raise InputError(source, f"[subject] facing {list(facing)} is (nearly) parallel to up {given_up.tolist()}")
     x = _unit(x)
     return np.stack([x, y, np.cross(x, y)])
 

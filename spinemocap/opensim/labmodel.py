@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 
 from ..fileio import InputError, atomic_write, read_toml, strict_json
@@ -46,7 +47,7 @@ def read_body_map(path: str | os.PathLike) -> dict[str, str]:
     return {str(k): str(v) for k, v in table.items()}
 
 
-def run_lab_model(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Sequence[float],
+def run_lab_model(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt.ArrayLike,
                   facing: Sequence[float], out_dir: str | os.PathLike, model_file: str | os.PathLike,
                   bodies_file: str | os.PathLike, static: MarkerTable | None = None,
                   settings: OpenSimSettings | None = None, source: str | None = None) -> OpenSimResult:
@@ -71,7 +72,8 @@ def run_lab_model(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: S
         origins[vertebra] = 1000.0 * np.array([X.p()[i] for i in range(3)])
         rotations[vertebra] = np.array([[X.R().get(r, c) for c in range(3)] for r in range(3)])
     shift = np.mean([origins[v] for v in body_map], axis=0) - geometry.centre[mapped].mean(axis=0)
-    labels, on_body = [], {}
+    labels: list[str] = []
+    on_body: dict[str, list[str]] = {}
     for d in placed:
         k = int(geometry.row_body[graph.row[d]])
         vertebra = geometry.names[min(mapped, key=lambda m: abs(m - k))]
@@ -89,18 +91,19 @@ def run_lab_model(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: S
         ik_seconds = inverse_kinematics(work, labels, placed, data, np.arange(len(data.times)), settings.accuracy)
         angles = _coordinates_table(work / "ik.mot", work / "ik_marker_errors.sto")
         rms = angles["marker_rms"].to_numpy()
+        flagged_frames = [int(f) for f in np.flatnonzero(rms > 4.0)]
         summary = {
             "frames": len(angles), "fps": data.fps, "model": str(model_file), "bodies_map": body_map,
             "marker_rms_mm": float(np.nanmean(rms)), "marker_rms_mm_max": float(np.nanmax(rms)),
             "ms_per_frame": 1000.0 * ik_seconds / max(len(angles), 1),
-            "flagged_frames": [int(f) for f in np.flatnonzero(rms > 4.0)], "flag_reasons": {}, "warnings": [],
+            "flagged_frames": flagged_frames, "flag_reasons": {}, "warnings": [],
             "driven_joints": [c for c in angles.columns if c not in ("frame", "time", "marker_rms", "marker_max")],
             "markers_by_body": on_body, "facing_error_deg": facing_error,
             "marker_weights": dict(zip(labels, np.round(mean_weights(data.weights()[:, placed]), 3).tolist())),
             "units": {"angles": "deg (the lab model's rotational coordinates, OpenSim signs)", "marker errors": "mm"},
         }
-        if summary["flagged_frames"]:
-            summary["flag_reasons"] = {"marker RMS > 4 mm": len(summary["flagged_frames"])}
+        if flagged_frames:
+            summary["flag_reasons"] = {"marker RMS > 4 mm": len(flagged_frames)}
         with atomic_write(work / "spine_angles.csv") as handle:
             handle.write(f"# spinemocap opensim on the lab model {Path(model_file).name}: its own coordinates as "
                          "solved by IK. Units: time s; rotational coordinates deg, translational m; marker_rms, "

@@ -294,9 +294,10 @@ def annotate_slips(model_file, prior: SlipPrior, rows: list[int]) -> None:
     names = {slip_coordinate(r) for r in rows}
     tree = ET.parse(model_file, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))
     for element in tree.getroot().iter("Coordinate"):
-        if element.get("name") in names:
+        name = element.get("name")
+        if name is not None and name in names:
             element.insert(0, ET.Comment(
-                f" skin slip of tape row {element.get('name')[:3]} along its vertebra's superior axis (m, 0 = "
+                f" skin slip of tape row {name[:3]} along its vertebra's superior axis (m, 0 = "
                 f"static trial); prior: Gaussian, mean 0, SD {prior.sd_mm:g} mm (IK coordinate goal of weight "
                 f"{prior.weight:.6g} per m^2, see setup_ik.xml); clamped to +/-{prior.limit_mm:g} mm; the rows "
                 f"below the first slipping one are pinned to their vertebrae "))

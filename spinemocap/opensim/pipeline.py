@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 
 from ..fileio import InputError, atomic_write, strict_json
@@ -290,7 +291,7 @@ def _priors(plan: ModelPlan, settings: OpenSimSettings, slipping: list[int]) -> 
     return out
 
 
-def prepare(markers: MarkerTable, tape: TapeSpec, up: Sequence[float], facing: Sequence[float],
+def prepare(markers: MarkerTable, tape: TapeSpec, up: npt.ArrayLike, facing: Sequence[float],
             static: MarkerTable | None, settings: OpenSimSettings,
             source: str | None) -> tuple[TapeMarkers, StaticTrial, RowFrames, float]:
     """The tape markers in OpenSim axes, the static trial, its rows and the facing check."""
@@ -310,7 +311,7 @@ def work_folder(out_dir: Path) -> Path:
     return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
 
 
-def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Sequence[float],
+def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt.ArrayLike,
                 facing: Sequence[float], out_dir: str | os.PathLike, static: MarkerTable | None = None,
                 settings: OpenSimSettings = OpenSimSettings(), source: str | None = None) -> OpenSimResult:
     """Build, place and solve; see the module docstring. ``source`` names the input in errors."""

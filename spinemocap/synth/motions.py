@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import numpy.typing as npt
 
 from .skin_strain import FULL_FLEXION_DEG
 
@@ -80,7 +81,7 @@ MOTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
 }
 
 
-def spine_motion(name: str, times_s: np.ndarray) -> np.ndarray:
+def spine_motion(name: str, times_s: npt.ArrayLike) -> np.ndarray:
     """(T, 3) commanded [flexion, lateral bending, axial rotation] (degrees) at ``times_s``."""
     if name not in MOTIONS:
         raise ValueError(f"unknown motion {name!r}; choose from {sorted(MOTIONS)}")

@@ -98,7 +98,8 @@ def reference_meshes(reference: ReferenceObject, floor_z_mm: float = 0.0) -> Ref
     width, depth = BAR_SECTION_MM
     back = -normal
     shift = back * (radius + depth / 2)
-    parts_v, parts_f = [], []
+    parts_v: list[np.ndarray] = []
+    parts_f: list[np.ndarray] = []
     for i, j in _spanning_edges(reference.markers_mm):
         a, b = world[i] + shift, world[j] + shift
         along = (b - a) / np.linalg.norm(b - a)

@@ -19,6 +19,7 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -75,7 +76,8 @@ _PRESETS: dict[str, dict] = {
 # skin (SynthConfig's default): a real back under an exact set-up (Schober skin strain);
 # lab: a real back in a real lab (15 % taping tension, 0.5 px calibration error, 1 ms sync
 # error, sensor noise of 3 grey levels) -- the benchmarks' default.
-REALISM_LEVELS: dict[str, dict[str, float]] = {
+RealismSetting = Literal["skin_strain", "tape_tension", "calibration_error_px", "sync_error_ms", "noise"]
+REALISM_LEVELS: dict[str, dict[RealismSetting, float]] = {
     "ideal": {"skin_strain": 0.0, "tape_tension": 0.0, "calibration_error_px": 0.0, "sync_error_ms": 0.0, "noise": 2.0},
     "skin": {"skin_strain": 1.0, "tape_tension": 0.0, "calibration_error_px": 0.0, "sync_error_ms": 0.0, "noise": 2.0},
     "lab": {"skin_strain": 1.0, "tape_tension": 0.15, "calibration_error_px": 0.5, "sync_error_ms": 1.0, "noise": 3.0},
@@ -202,9 +204,9 @@ class SynthConfig:
             problems.append(f"unknown phenotype keys {sorted(unknown)} (known: {list(PHENOTYPE_KEYS)} and 'sex')")
         if any(not 0 <= float(v) <= 1 for v in self.phenotype.values()):
             problems.append("phenotype values must lie in [0, 1]")
-        for name in ("tape_start", "band_level"):
-            if getattr(self, name) not in LEVELS:
-                problems.append(f"{name} {getattr(self, name)!r} is not a vertebral level (choose from {list(LEVELS)})")
+        for level_field in ("tape_start", "band_level"):
+            if getattr(self, level_field) not in LEVELS:
+                problems.append(f"{level_field} {getattr(self, level_field)!r} is not a vertebral level (choose from {list(LEVELS)})")
         if not 0 <= level["skin_strain"] <= 3:
             problems.append(f"skin_strain (a scale of the Schober skin strain, 1 = a healthy adult) must lie in [0, 3] "
                             f"(got {self.skin_strain})")
@@ -224,6 +226,11 @@ class SynthConfig:
             problems.append(f"unknown backdrop {self.backdrop!r} (choose from {list(BACKDROPS)})")
         if problems:
             raise ValueError("invalid synthetic studio settings: " + "; ".join(problems))
+
+    def realism_setting(self, name: RealismSetting) -> float:
+        """The lab-error setting ``name``: the field where set, else the realism level's value."""
+        value = getattr(self, name)
+        return float(value) if value is not None else REALISM_LEVELS[self.realism][name]
 
     def _clock_problems(self) -> list[str]:
         problems = []
@@ -288,7 +295,7 @@ class RenderedFrame:
     silhouettes (None when rendered without masks), one per camera in rig order."""
 
     images: list[np.ndarray]
-    masks: list[np.ndarray]
+    masks: list[np.ndarray | None]
 
 
 class SceneFrameSource:
@@ -344,7 +351,7 @@ class Scene:
         self.tape_on_skin = cached_tape_on_skin(tuple(sorted(config.phenotype.items())), config.rows, config.tape_start,
                                                 tension)
         self.tape = self.tape_on_skin.spec
-        self.skin = SkinStrain.for_subject(self.rng_seed, config.skin_strain)
+        self.skin = SkinStrain.for_subject(self.rng_seed, config.realism_setting("skin_strain"))
         self.labels: list[str] = list(self.tape.labels)
         self.fps = float(config.fps)
         self.n_frames = int(config.frames)
@@ -364,11 +371,11 @@ class Scene:
         self.rig: Rig = arc_rig(LAYOUTS[config.layout], config.cameras, config.size, self.target,
                                 config.distortion, rng)
         # the lab's errors draw from their own streams, so turning them on changes nothing else
-        self.sync_offsets_s = clock_offsets_s(len(self.rig), config.sync_error_ms,
+        self.sync_offsets_s = clock_offsets_s(len(self.rig), config.realism_setting("sync_error_ms"),
                                               np.random.default_rng([self.rng_seed, 4]))
         if (config.calibration_error_px or 0.0) > 0:  # posing the calibration frames costs a pass over the motion
             self.calibrated_rig, self.calibration_rms_px = perturb_rig(
-                self.rig, self._calibration_points(), config.calibration_error_px,
+                self.rig, self._calibration_points(), config.realism_setting("calibration_error_px"),
                 np.random.default_rng([self.rng_seed, 3]))
         else:
             self.calibrated_rig, self.calibration_rms_px = self.rig, np.zeros(len(self.rig))
@@ -381,7 +388,7 @@ class Scene:
         tone = config.skin_tone if config.skin_tone is not None else rng.uniform(0.0, 0.8)
         skin = (1 - tone) * SKIN_LIGHT + tone * SKIN_DARK
         self.appearance = Appearance(
-            skin_rgb=tuple(float(c) for c in skin),
+            skin_rgb=(float(skin[0]), float(skin[1]), float(skin[2])),
             tape_rgb=TAPE_COLOURS[config.tape_colour],
             light_position=(float(rng.uniform(-1500, 1500)), float(rng.uniform(2000, 3500)), float(rng.uniform(2200, 3200))),
             light_intensity=float(rng.uniform(0.75, 1.0)),
@@ -398,10 +405,20 @@ class Scene:
         """Posed vertices and vertex normals at a frame (seen by a clock ``offset_s`` ahead) or
         at any instant ``time_s``."""
         if time_s is None:
-            v = self.frame_vertices(frame, offset_s)
+            v = self.frame_vertices(self._frame_given(frame), offset_s)
         else:
             v = self.body.pose(spine_motion(self.config.motion, [time_s]))[0][0].astype(float)
         return v, vertex_normals(v, self.body.faces)
+
+    @staticmethod
+    def _frame_given(frame: int | None) -> int:
+        if frame is None:
+            raise ValueError("give a frame or an instant (time_s)")
+        return frame
+
+    def _instant(self, frame: int | None, time_s: float | None, offset_s: float) -> float:
+        """The instant (s) of ``frame`` on a clock ``offset_s`` ahead, or ``time_s`` when given."""
+        return float(self.times[self._frame_given(frame)] + offset_s) if time_s is None else time_s
 
     def frame_vertices(self, frame: int, offset_s: float = 0.0) -> np.ndarray:
         """(V, 3) posed body vertices (mm) at a frame, as seen by a camera whose clock runs
@@ -427,7 +444,7 @@ class Scene:
         """The tape on the body at a frame (on a clock ``offset_s`` ahead) or at any instant
         ``time_s``, with the subject's skin strain; ``posed`` reuses already posed (vertices,
         normals) of that instant."""
-        t = self.times[frame] + offset_s if time_s is None else time_s
+        t = self._instant(frame, time_s, offset_s)
         v, n = posed if posed is not None else self._posed(frame, time_s, offset_s)
         return self.tape_on_skin.pose(v, n, self.skin, spine_motion(self.config.motion, [t])[0])
 
@@ -440,7 +457,7 @@ class Scene:
 
     def meshes(self, frame: int | None = None, time_s: float | None = None, offset_s: float = 0.0) -> SceneMeshes:
         """Posed geometry at a frame (seen by a clock ``offset_s`` ahead) or any instant ``time_s``."""
-        t = self.times[frame] + offset_s if time_s is None else time_s
+        t = self._instant(frame, time_s, offset_s)
         v, n = self._posed(frame, time_s, offset_s)
         centres, radii = self.balls.at(t)
         return SceneMeshes(
@@ -454,7 +471,7 @@ class Scene:
         """The posed body (with the band) and, unless told otherwise, the reference object."""
         parts = [(v, self.body.faces)]
         if self.band is not None:
-            parts.append((self._band_vertices(v, n), self.band.faces))
+            parts.append((self.band.vertices(v, n), self.band.faces))
         if with_reference and self._reference_solid is not None:
             parts.append(self._reference_solid)
         vertices, faces, offset = [], [], 0
@@ -754,7 +771,7 @@ class Scene:
         renderer = self.renderers[camera]
         # a still scene (the same pose, no ball in the air: a recording's lead-in before the motion
         # starts) renders the same windows; only the sensor noise differs from frame to frame
-        key = (camera, tuple(np.round(spine_motion(self.config.motion, [time_s])[0], 12)))
+        key = (camera, tuple(float(a) for a in np.round(spine_motion(self.config.motion, [time_s])[0], 12)))
         still = len(instants) == 1 and not len(self.balls.at(time_s)[1])
         windows = self._still_windows.get(key) if still else None
         if windows is None:

@@ -249,13 +249,13 @@ class PosedTape:
         self.normal_grid = n / np.linalg.norm(n, axis=2, keepdims=True)
         self.strain = strain if strain is not None and strain.enabled else None
         self.angles = np.zeros(3) if angles_deg is None else np.asarray(angles_deg, float)
-        self._column_map = self._slide() if self.strain is not None else None
+        self._column_map = self._slide(self.strain) if self.strain is not None else None
 
-    def _slide(self) -> np.ndarray:
+    def _slide(self, strain: SkinStrain) -> np.ndarray:
         """(Ns, Nu) chart coordinate ``s`` where the material that rested at node ``s_i`` of column
         ``j`` lies now: the skin slides along anny's surface so that, from an anchor below the
         sacrum (which does not move), the posed arc length of the material follows the strain."""
-        chart, strain = self.chart, self.strain
+        chart = self.chart
         posed_seg = np.linalg.norm(np.diff(self.grid, axis=0), axis=2)
         s_mid = 0.5 * (chart.s[1:] + chart.s[:-1])
         eps = strain.longitudinal(s_mid[:, None], chart.u[None, :], self.angles, self.tape.regions)
@@ -275,7 +275,7 @@ class PosedTape:
 
     def chart_coordinates(self, material: np.ndarray) -> np.ndarray:
         """Material coordinates (N, 2) ``(u, s)`` -> where that skin lies now on the chart."""
-        if self._column_map is None:
+        if self._column_map is None or self.strain is None:
             return material
         s = self.chart.interpolate(self._column_map, material)
         u = material[:, 0] * (1.0 + self.strain.transverse(material[:, 1], self.angles, self.tape.regions))

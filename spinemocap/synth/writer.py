@@ -50,7 +50,8 @@ def frame_files(root: Path, capture: Capture, frame: int, rendered: RenderedFram
     for cam, image, mask in zip(capture.rig.names, rendered.images, rendered.masks):
         if images:
             files.append((root / capture.image_pattern.format(camera=cam, frame=frame), image))
-        files.append((root / "masks" / cam / f"{frame:06d}.png", mask.astype(np.uint8) * 255))
+        if mask is not None:  # rendered with its tape masks
+            files.append((root / "masks" / cam / f"{frame:06d}.png", mask.astype(np.uint8) * 255))
     return files
 
 
@@ -94,7 +95,7 @@ def write_groundtruth(scene: Scene, path: str | os.PathLike) -> Path:
     """Save ``scene.groundtruth`` as a compressed npz (atomically)."""
     path = Path(path)
     with atomic_write(path, "wb") as handle:
-        np.savez_compressed(handle, **scene.groundtruth)
+        np.savez_compressed(handle, allow_pickle=False, **scene.groundtruth)
     return path
 
 

@@ -54,7 +54,7 @@ def row_shift(new: np.ndarray, reference: np.ndarray, graph: TapeGraph, max_shif
             costs[k] = float(np.median(d))
     if not costs:
         return 0, costs
-    return min(costs, key=costs.get), costs
+    return min(costs, key=lambda k: costs[k]), costs
 
 
 def shift_is_unambiguous(observed: np.ndarray, graph: TapeGraph, shift: int) -> bool:

@@ -44,6 +44,8 @@ class NormalField:
         return _unit(self.normals.sum(axis=0))
 
     def _kernel_average(self, queries: np.ndarray, values: np.ndarray) -> np.ndarray:
+        if self._tree is None:
+            raise ValueError("normal field has no points")
         k = min(self.k, len(self.points))
         dist, idx = self._tree.query(queries, k=k)
         dist, idx = dist.reshape(len(queries), k), idx.reshape(len(queries), k)
@@ -55,8 +57,6 @@ class NormalField:
 
     def at(self, queries: np.ndarray) -> np.ndarray:
         """(M, 3) unit normals at (M, 3) query points (mm)."""
-        if self._tree is None:
-            raise ValueError("normal field has no points")
         q = np.asarray(queries, dtype=float).reshape(-1, 3)
         return self._kernel_average(q, self.normals)
 

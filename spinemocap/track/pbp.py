@@ -141,7 +141,7 @@ class _Graph:
 
 def _greedy_colouring(edges: np.ndarray, n_nodes: int) -> list[np.ndarray]:
     """Node groups with no edge inside a group (greedy, highest degree first)."""
-    adjacency = [set() for _ in range(n_nodes)]
+    adjacency: list[set[int]] = [set() for _ in range(n_nodes)]
     for a, b in edges:
         adjacency[a].add(int(b))
         adjacency[b].add(int(a))
@@ -362,7 +362,7 @@ class ParticleBP:
         nodes, chains = np.nonzero(wanted)
         belief = np.zeros(wanted.shape)
         belief[nodes, chains] = unary_kept[nodes, order[nodes, chains]]
-        msgs = np.zeros((2 * e, wanted.shape[1]))
+        msgs = np.zeros((2 * e, order.shape[1]))
         m1, q1 = np.nonzero(wanted[e1])
         m2, q2 = np.nonzero(wanted[e0])
         to_second = table[m1, :, order[e1[m1], q1]]  # (K, P): kept of e0 vs the start of e1

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
 from ..camera import Rig
@@ -115,7 +116,7 @@ class FrameTracker:
     """The per-frame pipeline for one rig and tape. Lengths mm, images px."""
 
     def __init__(self, rig: Rig, tape: TapeSpec, config: TrackerConfig | None = None,
-                 up: Sequence[float] = (0.0, 0.0, 1.0)):
+                 up: npt.ArrayLike = (0.0, 0.0, 1.0)):
         self.rig, self.tape = rig, tape
         self.graph = tape.graph
         self.config = config or TrackerConfig()

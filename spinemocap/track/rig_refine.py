@@ -177,7 +177,11 @@ def _observations(pixels: np.ndarray, positions: np.ndarray, fps: float, rig: Ri
         velocity[1:-1] = (positions[2:] - positions[:-2]) * fps / 2
     velocity = np.nan_to_num(velocity)
     seen = np.isfinite(pixels).all(axis=3)  # (F, D, C)
-    cams, pts, uvs, vel, start = [], [], [], [], []
+    cams: list[int] = []
+    pts: list[int] = []
+    uvs: list[np.ndarray] = []
+    vel: list[np.ndarray] = []
+    start: list[np.ndarray] = []
     P = np.stack([c.projection_matrix for c in rig])
     for f in frames:
         undist = _undistorted(rig, pixels[f], seen[f])
@@ -190,7 +194,7 @@ def _observations(pixels: np.ndarray, positions: np.ndarray, fps: float, rig: Ri
             start.append(X)
             vel.append(velocity[f, d])
             for c in np.flatnonzero(used):
-                cams.append(c)
+                cams.append(int(c))
                 pts.append(p)
                 uvs.append(pixels[f, d, c])
     return _Problem(np.asarray(cams, np.int64), np.asarray(pts, np.int64), np.asarray(uvs, float).reshape(-1, 2),

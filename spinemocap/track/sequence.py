@@ -53,7 +53,10 @@ class SequenceTracker:
         self.pinned = False  # the identity told by the observed rows (no other labelling fits them)
 
     def predict(self) -> np.ndarray:
-        """Constant-velocity prediction (mm) from the last two solved frames."""
+        """Constant-velocity prediction (mm) from the last two solved frames (the last one alone
+        after the first). Raises RuntimeError before any frame is solved."""
+        if self.last is None:
+            raise RuntimeError("no frame solved yet: nothing to predict from")
         if self.before_last is None:
             return self.last.copy()
         velocity = np.nan_to_num(self.last - self.before_last)

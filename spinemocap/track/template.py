@@ -186,11 +186,13 @@ def build_template(
         s0 = _best_offset(curve, field, tape, o, points, cap_mm, step_mm, score_fn=template_score)
         options[o] = (*lay_along(curve, field, tape, o, s0), s0)
 
-    prev_ok = previous is not None and np.isfinite(previous).all(axis=1).sum() >= 3
-    if prev_ok:
+    # the last frame's dots orient (and warm-start) this one when at least 3 of them are finite
+    if previous is not None and np.isfinite(previous).all(axis=1).sum() < 3:
+        previous = None
+    if previous is not None:
         finite = np.isfinite(previous).all(axis=1)
         dist = {o: np.linalg.norm(options[o][0][finite] - previous[finite], axis=1).mean() for o in options}
-        orientation = min(dist, key=dist.get)
+        orientation = min(dist, key=lambda o: dist[o])
     else:
         up_dir = np.asarray(up if up is not None else (0.0, 0.0, 1.0), dtype=float)
         first, last = tape.row == 0, tape.row == tape.row.max()
@@ -198,7 +200,7 @@ def build_template(
         rise = {o: float((options[o][0][last].mean(0) - options[o][0][first].mean(0)) @ up_dir) for o in options}
         orientation = +1 if rise[+1] >= rise[-1] else -1
     positions, node_normals, s0 = options[orientation]
-    if prev_ok and warm_start:
+    if previous is not None and warm_start:
         finite = np.isfinite(previous).all(axis=1)
         positions = positions.copy()
         positions[finite] = align_rigidly(previous[finite], points)
