@@ -565,8 +565,9 @@ def subject_profiles(results: list[dict]) -> dict[str, tuple[float | None, str |
 def reference_table(trials: pd.DataFrame, results: list[dict], norms: Norms | None = None) -> pd.DataFrame:
     """One row per subject and direction of movement: the subject's largest excursion from neutral
     over its analysed trials (and which trial), its age and sex, the published span that applies
-    (:func:`spinemocap.analysis.norms.load_norms`; sex-specific values before pooled ones), the
-    placement (below / within / above the span) and the source's key."""
+    (:func:`spinemocap.analysis.norms.load_norms`; an age band before the pooled span, one sex
+    before both), whom that span describes (``reference_applies_to``: sex, ages, band or
+    pooled), the placement (below / within / above the span) and the source's key."""
     norms = norms or load_norms()
     profiles = subject_profiles(results)
     ok = trials[trials["status"] == "ok"]
@@ -587,12 +588,13 @@ def reference_table(trials: pd.DataFrame, results: list[dict], norms: Norms | No
                 "reference_low_deg": reference.low_deg if reference else np.nan,
                 "reference_high_deg": reference.high_deg if reference else np.nan,
                 "reference_sex": reference.sex if reference else "",
+                "reference_applies_to": reference.applies_to() if reference else "",
                 "statistic": reference.statistic if reference else "",
                 "placement": placement, "source": reference.source.key if reference else "",
                 "metadata_notes": notes})
     return pd.DataFrame(rows, columns=["subject", "age", "sex", "movement", "direction", "value_deg", "trial",
-                                       "reference_low_deg", "reference_high_deg", "reference_sex", "statistic",
-                                       "placement", "source", "metadata_notes"])
+                                       "reference_low_deg", "reference_high_deg", "reference_sex",
+                                       "reference_applies_to", "statistic", "placement", "source", "metadata_notes"])
 
 
 def _write_reference_table(out: Path, table: pd.DataFrame) -> Path:
@@ -612,6 +614,8 @@ def _reference_html(table: pd.DataFrame, norms: Norms | None = None) -> str:
              "instrument, which is no diagnosis. The comparison means something only when the trials include "
              "maximal movements in each direction. Age and sex come from <code>[subject] age</code> and "
              "<code>sex</code> in capture.toml; without them only values for all ages and both sexes apply. "
+             "<i>Applies to</i> names the span used: the age band of the subject's age and sex where a source "
+             "tabulates one, else the source's span over all its ages (pooled). "
              f"Table: {REFERENCE_TABLE}.</p>"]
     if table.empty:
         parts.append("<p class='note'>No analysed trial.</p>")
@@ -622,7 +626,8 @@ def _reference_html(table: pd.DataFrame, norms: Norms | None = None) -> str:
             "value (deg)": table["value_deg"], "trial": table["trial"],
             "published (deg)": [_span_words(lo, hi) for lo, hi in zip(table["reference_low_deg"],
                                                                        table["reference_high_deg"])],
-            "what the span is": table["statistic"], "source": table["source"],
+            "what the span is": table["statistic"], "applies to": table["reference_applies_to"],
+            "source": table["source"],
             "placement": [PLACEMENT_WORDS[p] for p in table["placement"]]})
         parts.append(_html_table(shown, lambda r: "warn" if r["placement"].startswith(("below", "above")) else ""))
         notes = sorted({f"{s}: {n}" for s, n in zip(table["subject"], table["metadata_notes"]) if n})

@@ -22,7 +22,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="output folder (default: RESULTS/view, or beside a marker file)")
     p.add_argument("--frames", default=None, metavar="A:B", help="capture frames A..B-1 (default: all tracked)")
     p.add_argument("--scale", type=float, default=None,
-                   help="resize factor of the camera images (default: longest side 1280 px)")
+                   help="resize factor of the camera images (default: 1/2, 1/3, ... as needed for a "
+                        "longest side of at most 1280 px, e.g. 1224x800 from 2448x1600)")
     p.add_argument("--step", type=int, default=1, help="draw every N-th frame (default 1)")
     p.add_argument("--no-video", action="store_true", help="write only the 3D viewer")
     p.add_argument("--no-grid", action="store_true", help="no grid video of all cameras")

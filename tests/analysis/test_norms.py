@@ -3,6 +3,8 @@ sex come from capture.toml, the report places (never diagnoses) each subject's v
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -211,3 +213,33 @@ def test_view_links_point_to_the_trials_outputs(tmp_path):
     assert 'href="S01/flex/t1/view/all_cameras.mp4"' in links and 'href="S01/flex/t1/view/tape3d.html"' in links
     assert 'href="S01/flex/t1/view/cam%201.mp4"' in links
     assert "spinemocap view" in _view_links(tmp_path / "other", tmp_path)
+
+
+def test_report_shows_the_band_it_used_and_marks_a_value_outside_it(tmp_path):
+    path = tmp_path / "banded.toml"
+    path.write_text(BANDED)
+    banded = load_norms(path)
+    captures = {name: _capture_with_subject(tmp_path / name, subject) for name, subject in
+                (("a", {"id": "W25", "age": 25, "sex": "female"}), ("b", {"id": "M25", "age": 25, "sex": "male"}),
+                 ("c", {"id": "U45", "age": 45}))}
+    # 70 deg: above the women's band (52-68) but inside the men's (55-71) and the pooled span (40-70)
+    trials = pd.DataFrame([_trial_row(f"{s}/flex/1", s, flexion_from_neutral_deg=70.0) for s in ("W25", "M25", "U45")])
+    results = [{"key": f"{s}/flex/1", "subject": s, "capture": captures[c]}
+               for s, c in (("W25", "a"), ("M25", "b"), ("U45", "c"))]
+    table = reference_table(trials, results, banded)
+    flexion = table[table["movement"] == "flexion"].set_index("subject")
+    assert flexion.loc["W25", "reference_applies_to"] == "female, 20-39 years (age band)"
+    assert (flexion.loc["W25", "reference_low_deg"], flexion.loc["W25", "placement"]) == (52.0, "above")
+    assert flexion.loc["M25", "reference_applies_to"] == "male, 20-39 years (age band)"
+    assert flexion.loc["M25", "placement"] == "within"
+    assert flexion.loc["U45", "reference_applies_to"] == "both sexes, 16-90 years (pooled)"
+    assert flexion.loc["U45", "placement"] == "within"
+    assert (flexion["source"] == "example").all()
+    assert set(table.loc[table["movement"] != "flexion", "placement"]) == {"no reference"}  # the file has none
+    page = _reference_html(table, banded)
+    rows = re.findall(r"<tr[^>]*>.*?</tr>", page, flags=re.S)
+    woman = [r for r in rows if "W25" in r and ">flexion<" in r]
+    man = [r for r in rows if "M25" in r and ">flexion<" in r]
+    assert len(woman) == len(man) == 1
+    assert "warn" in woman[0] and "female, 20-39 years (age band)" in woman[0] and "example" in woman[0]
+    assert "warn" not in man[0] and "male, 20-39 years (age band)" in man[0]

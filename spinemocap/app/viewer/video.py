@@ -11,6 +11,7 @@ on its reprojection.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import time
@@ -32,7 +33,8 @@ from ..streaming import prefetched_frames
 from .layout import GRID_NAME
 from .tracked import CLASS_COLOURS_BGR, CLASS_WORDS, DotClass, TrackedDots, read_tracked
 
-#: Longest image side of the per-camera videos when no scale is given (px).
+#: Longest image side of the per-camera videos when no scale is given: at most this (px), the
+#: camera's size divided by a whole number (see :func:`auto_scale`).
 AUTO_LONG_SIDE = 1280
 #: Widest grid of all cameras (px): tiles shrink to fit.
 GRID_MAX_WIDTH = 1920
@@ -100,8 +102,17 @@ def even_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
 
 
 def auto_scale(sizes: Sequence[tuple[int, int]]) -> float:
-    """The scale that brings the largest camera's longest side to :data:`AUTO_LONG_SIDE` (at most 1)."""
-    return min(1.0, AUTO_LONG_SIDE / max(max(s) for s in sizes))
+    """The scale 1/n (n a whole number) that brings the largest camera's longest side to at most
+    :data:`AUTO_LONG_SIDE` px: shrinking by a whole factor averages whole blocks of pixels
+    (OpenCV's fast path, 1/15 of the time of a fractional shrink at 2448x1600)."""
+    return 1.0 / math.ceil(max(max(s) for s in sizes) / AUTO_LONG_SIDE)
+
+
+def resize_image(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``image`` resized to ``size`` (width, height) px: by averaging pixel areas when shrinking
+    by 2 or more (every pixel counts: no dot can fall between samples), bilinear otherwise."""
+    shrink = min(image.shape[1] / size[0], image.shape[0] / size[1])
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA if shrink >= 2 else cv2.INTER_LINEAR)
 
 
 # ---------------------------------------------------------------------- drawing
@@ -197,7 +208,7 @@ def annotate(image: np.ndarray, camera: Camera, tracked: TrackedDots, k: int, si
     """Camera ``camera``'s BGR ``image`` resized to ``size`` with frame index ``k`` of
     ``tracked`` drawn on it (a new array)."""
     w, h = camera.size
-    out = image if (w, h) == tuple(size) else cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    out = image if (w, h) == tuple(size) else resize_image(image, size)
     out = np.ascontiguousarray(out).copy() if out is image else out
     style = OverlayStyle.for_size(size)
     pixels = scale_pixels(reproject(camera, tracked.positions[k]), (size[0] / w, size[1] / h))
@@ -209,12 +220,11 @@ def annotate(image: np.ndarray, camera: Camera, tracked: TrackedDots, k: int, si
 
 
 def grid_layout(n_cameras: int, tile: tuple[int, int]) -> tuple[int, int, tuple[int, int]]:
-    """(columns, rows, tile size) of the grid of ``n_cameras`` tiles of ``tile`` px, shrunk to
-    :data:`GRID_MAX_WIDTH` and made even."""
+    """(columns, rows, tile size) of the grid of ``n_cameras`` tiles of ``tile`` px, shrunk by a
+    whole factor (as :func:`auto_scale`) to at most :data:`GRID_MAX_WIDTH` and made even."""
     columns = int(np.ceil(np.sqrt(n_cameras)))
     rows = int(np.ceil(n_cameras / columns))
-    shrink = min(1.0, GRID_MAX_WIDTH / (columns * tile[0]))
-    return columns, rows, even_size(tile, shrink)
+    return columns, rows, even_size(tile, 1.0 / math.ceil(columns * tile[0] / GRID_MAX_WIDTH))
 
 
 def tile_grid(images: Sequence[np.ndarray], columns: int, rows: int, tile: tuple[int, int]) -> np.ndarray:
@@ -222,7 +232,7 @@ def tile_grid(images: Sequence[np.ndarray], columns: int, rows: int, tile: tuple
     grid = np.zeros((rows * tile[1], columns * tile[0], 3), np.uint8)
     for k, image in enumerate(images):
         r, c = divmod(k, columns)
-        resized = image if image.shape[1::-1] == tuple(tile) else cv2.resize(image, tile, interpolation=cv2.INTER_LINEAR)
+        resized = image if image.shape[1::-1] == tuple(tile) else resize_image(image, tile)
         grid[r * tile[1]:(r + 1) * tile[1], c * tile[0]:(c + 1) * tile[0]] = resized
     return grid
 
@@ -262,8 +272,8 @@ def write_videos(capture_dir: str | os.PathLike, results: str | os.PathLike, out
 
     ``frames``: "A:B" (capture frame numbers, B exclusive); ``step``: every N-th frame (the
     video plays at the capture's rate / N, so time runs as recorded); ``scale``: the images'
-    resize factor (default: the longest side to :data:`AUTO_LONG_SIDE` px). Frames are read only
-    through :meth:`Capture.frame_source`. Videos are written atomically: an error leaves the
+    resize factor (default :func:`auto_scale`: the longest side at most :data:`AUTO_LONG_SIDE`
+    px). Frames are read only through :meth:`Capture.frame_source`. Videos are written atomically: an error leaves the
     folder's earlier videos as they were."""
     capture = Capture.open(capture_dir)
     tracked = read_tracked(results, capture.tape)

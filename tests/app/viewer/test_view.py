@@ -19,7 +19,17 @@ from spinemocap.app.results import write_markers
 from spinemocap.app.viewer.layout import GRID_NAME, VIEWER_NAME, view_outputs
 from spinemocap.app.viewer.scene3d import json_for_script, write_viewer
 from spinemocap.app.viewer.tracked import CLASS_COLOURS_BGR, DotClass, read_tracked
-from spinemocap.app.viewer.video import RING_PX, OverlayStyle, scale_pixels, write_videos
+from spinemocap.app.viewer.video import (
+    AUTO_LONG_SIDE,
+    GRID_MAX_WIDTH,
+    RING_PX,
+    OverlayStyle,
+    auto_scale,
+    grid_layout,
+    resize_image,
+    scale_pixels,
+    write_videos,
+)
 from spinemocap.camera import Camera, Rig
 from spinemocap.capture import Capture
 from spinemocap.fileio import InputError
@@ -287,3 +297,17 @@ def test_batch_writes_each_tracked_trials_views_and_the_report_links_them(tracke
     assert {"grid", "viewer"} <= set(found) and len(found) == 2 + 3   # the grid, the viewer, three cameras
     page = write_report(out)["html"].read_text()
     assert "tape3d.html" in page and "all_cameras.mp4" in page
+
+
+def test_studio_images_shrink_by_a_whole_factor_and_keep_every_pixel():
+    # the default size divides the largest camera by a whole number, to at most AUTO_LONG_SIDE px
+    assert auto_scale([(2448, 1600)]) == 0.5 and auto_scale([(1024, 768), (480, 360)]) == 1.0
+    assert auto_scale([(640, 480), (3000, 2000)]) == 1 / 3 and 3000 / 3 <= AUTO_LONG_SIDE
+    columns, rows, tile = grid_layout(6, (1224, 800))
+    assert (columns, rows, tile) == (3, 2, (612, 400)) and columns * tile[0] <= GRID_MAX_WIDTH
+    # a shrink by 2 or more averages areas: a one-pixel spot between samples still shows
+    image = np.zeros((90, 120, 3), np.uint8)
+    image[30, 60] = 255  # a bilinear shrink by 3 samples pixels 1, 4, 7, ... and would miss it
+    small = resize_image(image, (40, 30))
+    assert small.shape == (30, 40, 3) and small[10, 20, 0] == round(255 / 9) and small.sum() == 3 * small[10, 20, 0]
+    assert resize_image(image, (120, 90)).shape == (90, 120, 3)
