@@ -3,6 +3,7 @@ sex come from capture.toml, the report places (never diagnoses) each subject's v
 
 from __future__ import annotations
 
+import html
 import re
 
 import numpy as np
@@ -34,6 +35,9 @@ def test_every_shipped_value_carries_its_citation_and_method():
     assert all(f.source.key in keys and f.text.strip() for f in norms.findings)
     # every movement has a pooled span, the fallback for a subject no band covers
     assert {v.movement for v in norms.values if v.scope == "pooled" and v.sex == "any"} == set(MOVEMENTS)
+    # a band quotes its source's table row and names the table
+    for band in (v for v in norms.values if v.scope == "band"):
+        assert re.search(r"\bTable \d+", band.statistic + " " + band.quote), (band.source.key, band.movement)
 
 
 # A norms file with age bands per sex beside a pooled span: test data (made-up figures, each
@@ -243,3 +247,33 @@ def test_report_shows_the_band_it_used_and_marks_a_value_outside_it(tmp_path):
     assert len(woman) == len(man) == 1
     assert "warn" in woman[0] and "female, 20-39 years (age band)" in woman[0] and "example" in woman[0]
     assert "warn" not in man[0] and "male, 20-39 years (age band)" in man[0]
+
+
+def test_shipped_file_gives_a_young_woman_the_most_specific_span_and_marks_a_value_outside_it(tmp_path):
+    norms = load_norms()
+    # what the shipped file holds for a 25-year-old woman, most specific first
+    expected = {m: norms.for_subject(m, 25.0, "female")[0] for m in ("flexion", "extension")}
+    for value in expected.values():
+        bands = [v for v in norms.values if v.movement == value.movement and v.scope == "band"
+                 and v.sex in ("female", "any") and v.age_min <= 25.0 <= v.age_max]
+        assert (value.scope == "band") == bool(bands)  # the 20-29 female band wins wherever one is entered
+    capture = _capture_with_subject(tmp_path / "w25", {"id": "W25", "age": 25, "sex": "female"})
+    flexion_outside = expected["flexion"].high_deg + 10.0
+    extension_inside = (expected["extension"].low_deg + expected["extension"].high_deg) / 2
+    trials = pd.DataFrame([_trial_row("W25/flex/1", "W25", flexion_from_neutral_deg=flexion_outside,
+                                      extension_from_neutral_deg=extension_inside)])
+    table = reference_table(trials, [{"key": "W25/flex/1", "subject": "W25", "capture": capture}])
+    rows = table.set_index("movement")
+    for movement, value in expected.items():
+        row = rows.loc[movement]
+        assert (row["age"], row["sex"]) == (25.0, "female")
+        assert row["reference_applies_to"] == value.applies_to() and row["source"] == value.source.key
+        assert (row["reference_low_deg"], row["reference_high_deg"]) == (value.low_deg, value.high_deg)
+    assert (rows.loc["flexion", "placement"], rows.loc["extension", "placement"]) == ("above", "within")
+    page = _reference_html(table)
+    flexion_row = [r for r in re.findall(r"<tr[^>]*>.*?</tr>", page, flags=re.S) if ">flexion<" in r]
+    assert len(flexion_row) == 1 and "warn" in flexion_row[0] and "above the published span" in flexion_row[0]
+    assert expected["flexion"].applies_to() in flexion_row[0]
+    for value in expected.values():
+        assert html.escape(value.source.citation) in page
+    assert "no diagnosis" in page and "abnormal" not in page
