@@ -25,7 +25,7 @@ import tempfile
 import threading
 import time
 import warnings
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -226,9 +226,9 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
     runs, positions = [], {}
     for name, options in configs:
         say(f"tracking: {name} ...")
-        result, wall, peak = _timed_run(replayed, capture, options, mode, detector, progress, masks=False)
-        runs.append(_summary(name, result, wall, peak, capture, gt, options))
-        positions[name] = result.table.to_arrays()["positions"]
+        timed = _timed_run(replayed, capture, options, mode, detector, progress, masks=False)
+        runs.append(_summary(name, timed, capture, gt, options))
+        positions[name] = timed.result.table.to_arrays()["positions"]
         say(f"  {runs[-1]['fps']:.2f} frames/s, {runs[-1]['cpu_s_per_frame']:.3f} CPU s/frame, "
             f"mean error {runs[-1]['mean_error_mm']:.3f} mm")
     fps_video = None
@@ -312,8 +312,8 @@ def _replayed_video_runs(capture: Capture, replayed: MemorySource, gt: dict, n_f
         configs.append((f"video_{other}", replace(speed, parallel=other)))
     for name, options in configs:
         say(f"tracking: {name} ...")
-        result, wall, peak = _timed_run(video.frame_source(), video, options, mode, detector, progress, masks=False)
-        runs.append(_summary(name, result, wall, peak, video))
+        runs.append(_summary(name, _timed_run(video.frame_source(), video, options, mode, detector, progress,
+                                              masks=False), video))
         say(f"  {runs[-1]['fps']:.2f} frames/s, {runs[-1]['cpu_s_per_frame']:.3f} CPU s/frame")
     return runs[-len(configs)]["fps"]
 
@@ -381,9 +381,22 @@ def _not_worse(new: dict, peer: dict) -> bool:
             and new["frames_without_solution"] <= peer["frames_without_solution"])
 
 
+@dataclass
+class TimedRun:
+    """A tracked run and what it cost: ``wall_s`` (the camera workers' start-up excluded),
+    ``peak_mib`` (peak memory), ``cpu_s`` (CPU seconds of this process and of its camera workers
+    after their start-up) and ``main_thread_cpu_s`` (of the thread that ran the tracker)."""
+
+    result: TrackResult
+    wall_s: float
+    peak_mib: float
+    cpu_s: float
+    main_thread_cpu_s: float
+
+
 def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode: TrackingMode, detector: str,
-               progress: bool, frames: range | None = None, masks: bool = True) -> tuple[TrackResult, float, float]:
-    """Track ``frames`` of ``source`` (all when None): result, wall seconds, peak MiB.
+               progress: bool, frames: range | None = None, masks: bool = True) -> TimedRun:
+    """Track ``frames`` of ``source`` (all when None) and measure it (:class:`TimedRun`).
     ``masks``: the capture's ground-truth ``masks/`` may be read (False for a replayed source)."""
     with warnings.catch_warnings(), PeakMemory() as memory:
         warnings.simplefilter("ignore", TrackingWarning)
@@ -393,16 +406,16 @@ def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode:
                               detector=detector, progress=progress, speed=speed,
                               mask_dir=capture.root / "masks" if masks else None)
         wall = time.perf_counter() - start
-        result.cpu_s = time.process_time() - cpu_start  # type: ignore[attr-defined]
-        result.main_thread_cpu_s = time.thread_time() - thread_start  # type: ignore[attr-defined]
+        cpu_s = time.process_time() - cpu_start
+        main_thread_cpu_s = time.thread_time() - thread_start
     # camera worker processes: their start-up (importing torch, loading the network: seconds, once
     # per run, not per frame) is not timed; the CPU they used after it is added to this process's
     info = result.detector_info
     if np.isfinite(info.get("startup_s", np.nan)):
         wall -= info["startup_s"]
     if np.isfinite(info.get("workers_cpu_s", np.nan)):
-        result.cpu_s += info["workers_cpu_s"]  # type: ignore[attr-defined]
-    return result, wall, memory.peak_mib
+        cpu_s += info["workers_cpu_s"]
+    return TimedRun(result, wall, memory.peak_mib, cpu_s, main_thread_cpu_s)
 
 
 def decode_speed(source: FrameSource, n_frames: int, workers: int) -> dict:
@@ -427,8 +440,9 @@ def replayed_groundtruth(capture: Capture, order: list[int]) -> dict:
     return gt
 
 
-def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, capture: Capture,
-             gt: dict | None = None, options: SpeedOptions | None = None) -> dict:
+def _summary(name: str, timed: TimedRun, capture: Capture, gt: dict | None = None,
+             options: SpeedOptions | None = None) -> dict:
+    result, wall, peak_mib = timed.result, timed.wall_s, timed.peak_mib
     gt = gt if gt is not None else capture.groundtruth()
     acc = evaluate_tracking(result.table, gt, float(capture.tape.graph.rest_length_mm.min()), result.stage_ms())
     n = len(result.frames)
@@ -436,12 +450,12 @@ def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, captu
         "run": name, "frames": n, "wall_s": wall, "fps": n / wall if wall > 0 else float("nan"),
         # CPU seconds of this process (all threads) per frame: less sensitive than wall time to
         # other programs on a shared machine; cores / this = fps on an idle machine at best
-        "cpu_s_per_frame": getattr(result, "cpu_s", float("nan")) / max(n, 1),
+        "cpu_s_per_frame": timed.cpu_s / max(n, 1),
         # cores busy on average = CPU s per frame x frames/s
-        "cores_used": getattr(result, "cpu_s", float("nan")) / wall if wall > 0 else float("nan"),
+        "cores_used": timed.cpu_s / wall if wall > 0 else float("nan"),
         # CPU s per frame of the thread that runs the tracker (with lookahead 0 it also drives
         # detection), and of the camera worker processes: where the CPU goes
-        "main_thread_cpu_s_per_frame": getattr(result, "main_thread_cpu_s", float("nan")) / max(n, 1),
+        "main_thread_cpu_s_per_frame": timed.main_thread_cpu_s / max(n, 1),
         "workers_cpu_s_per_frame": result.detector_info.get("workers_cpu_s", 0.0) / max(n, 1),
         "parallel": result.detector_info.get("parallel"), "workers": result.detector_info.get("workers"),
         "lookahead": options.lookahead if options is not None else None,
@@ -477,8 +491,12 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
 
     speed = speed or SpeedOptions()
     config = SynthConfig.preset(preset, frames=frames, occlusion=occlusion, seed=seed, realism=realism)
-    tmp = None if workdir is not None else tempfile.mkdtemp(prefix="spinemocap-speed-")
-    root = Path(workdir) if workdir is not None else Path(tmp)  # type: ignore[arg-type]
+    tmp: str | None = None
+    if workdir is not None:
+        root = Path(workdir)
+    else:
+        tmp = tempfile.mkdtemp(prefix="spinemocap-speed-")
+        root = Path(tmp)
     try:
         png_dir = root / "png"
         if not (png_dir / "capture.toml").is_file():
@@ -492,9 +510,9 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
 
         def run(name: str, source: FrameSource, options: SpeedOptions, gt: dict | None = None) -> dict:
             say(f"tracking: {name} ...")
-            result, wall, peak = _timed_run(source, capture, options, mode, detector, progress)
-            summary = _summary(name, result, wall, peak, capture, gt, options)
-            positions[name] = result.table.to_arrays()["positions"]
+            timed = _timed_run(source, capture, options, mode, detector, progress)
+            summary = _summary(name, timed, capture, gt, options)
+            positions[name] = timed.result.table.to_arrays()["positions"]
             runs.append(summary)
             say(f"  {summary['fps']:.2f} frames/s, {summary['cpu_s_per_frame']:.2f} CPU s/frame, "
                 f"mean error {summary['mean_error_mm']:.3f} mm")
