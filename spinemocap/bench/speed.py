@@ -1,6 +1,6 @@
 """The speed benchmark (``spinemocap bench speed``): end-to-end frames per second of
 tracking the synthetic studio, from frames held in memory, from PNG images and from lossless
-video, with the previous pipeline (:data:`spinemocap.app.streaming.SERIAL`) as the peer in the
+video, with the serial pipeline (:data:`spinemocap.app.streaming.SERIAL`) as the peer in the
 same run.
 
 The scene is rendered once into a capture folder of PNG images (``write_capture``) and copied
@@ -11,8 +11,8 @@ shipped network detector and reports frames/s (wall time of detection + tracking
 included, writing the outputs excluded), the mean time per stage per frame, the peak resident
 memory during the run above the memory before it (sampled every 20 ms), the detector's routes
 (predicted box / full search) and the accuracy against the ground truth, so a faster run that got
-worse shows it. ``speedup_vs_previous`` is the new pipeline's fps over the serial one's on the
-same frames and source (PNG, the capture's own format); ``speedup_vs_previous_in_memory`` the
+worse shows it. ``speedup_vs_serial`` is the pipeline's fps over the serial one's on the
+same frames and source (PNG, the capture's own format); ``speedup_vs_serial_in_memory`` the
 same from memory, where at most ``memory_frames`` decoded frames are held and replayed.
 """
 
@@ -219,7 +219,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
     if device != "cpu" and cpu_peer:
         configs.append(("in_memory_cpu", replace(speed, device="cpu")))
     if serial_peer:
-        configs.append(("in_memory_legacy", SERIAL))
+        configs.append(("in_memory_serial", SERIAL))
     say(f"warming up (2 frames per run, not timed; network on {device}) ...")
     for _, options in configs:
         _timed_run(replayed, capture, options, mode, detector, False, range(2), masks=False)
@@ -236,7 +236,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         fps_video = _replayed_video_runs(capture, replayed, gt, video_frames, workdir, speed, mode, detector,
                                          progress, say, runs, parallel_peer)
     by_name = {r["run"]: r for r in runs}
-    new, peer, cpu = by_name["in_memory"], by_name.get("in_memory_legacy"), by_name.get("in_memory_cpu")
+    new, peer, cpu = by_name["in_memory"], by_name.get("in_memory_serial"), by_name.get("in_memory_cpu")
     by_mode = {parallel: by_name["in_memory"], other: by_name.get(f"in_memory_{other}")}
     in_processes, in_threads = by_mode["processes"], by_mode["threads"]
     check = None
@@ -249,7 +249,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         "sensor_noise": sensor_noise, "cameras": len(capture.rig), "image_size": list(capture.rig[0].size),
         "mode": mode, "detector": detector, "device": device, "machine": machine_info(),
         "speed_options": asdict(speed), "fps_in_memory": new["fps"], "fps_png": None, "fps_video": fps_video,
-        "speedup_vs_previous": new["fps"] / peer["fps"] if peer else None,
+        "speedup_vs_serial": new["fps"] / peer["fps"] if peer else None,
         "accuracy_not_worse": _not_worse(new, peer) if peer else None,
         "speedup_vs_cpu": new["fps"] / cpu["fps"] if cpu else None,
         "accuracy_not_worse_vs_cpu": _not_worse(new, cpu) if cpu else None,
@@ -541,7 +541,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                     run(f"in_memory_{other}_lookahead{peer_speed.lookahead}", frames_in_memory,
                         replace(peer_speed, parallel=other), gt)
             if serial_peer:
-                mem_peer = run("in_memory_legacy", frames_in_memory, SERIAL, gt)
+                mem_peer = run("in_memory_serial", frames_in_memory, SERIAL, gt)
             del held, frames_in_memory
         workers = speed.n_workers(len(capture.camera_names))
         decoding = {"png": decode_speed(capture.frame_source(), capture.n_frames, workers)}
@@ -564,7 +564,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                 run(f"video_lookahead{peer_speed.lookahead}", Capture.open(video_dir).frame_source(), peer_speed)
         say(f"  decoding alone: {decoding}")
         png = run("png", capture.frame_source(), speed)
-        peer = run("png_legacy", capture.frame_source(), SERIAL) if serial_peer else None
+        peer = run("png_serial", capture.frame_source(), SERIAL) if serial_peer else None
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -576,9 +576,9 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
         "fps_video": vid["fps"] if vid else None,
         "video_codec": video_codec if vid else None,
         "fps_in_memory": mem["fps"] if mem else None,
-        "speedup_vs_previous": png["fps"] / peer["fps"] if peer else None,
-        "speedup_vs_previous_in_memory": mem["fps"] / mem_peer["fps"] if mem and mem_peer else None,
-        "cpu_ratio_vs_previous_in_memory": (mem_peer["cpu_s_per_frame"] / mem["cpu_s_per_frame"]
+        "speedup_vs_serial": png["fps"] / peer["fps"] if peer else None,
+        "speedup_vs_serial_in_memory": mem["fps"] / mem_peer["fps"] if mem and mem_peer else None,
+        "cpu_ratio_vs_serial_in_memory": (mem_peer["cpu_s_per_frame"] / mem["cpu_s_per_frame"]
                                             if mem and mem_peer else None),
         "accuracy_not_worse": _not_worse(png, peer) if peer else None,
         "accuracy_not_worse_in_memory": _not_worse(mem, mem_peer) if mem and mem_peer else None,
@@ -645,9 +645,9 @@ def format_report(numbers: dict) -> str:
         lines.append("  decoding alone (no detection): "
                      + ", ".join(f"{k} {v['fps']:.2f} fps / {v['cpu_s_per_frame']:.2f} CPU s per frame"
                                  for k, v in numbers["decode_only"].items()))
-    if numbers["speedup_vs_previous"] is not None:
+    if numbers["speedup_vs_serial"] is not None:
         source = "PNG" if numbers.get("fps_png") is not None else "in memory"
-        lines.append(f"  speedup vs the previous pipeline ({source}): {numbers['speedup_vs_previous']:.2f}x; "
+        lines.append(f"  speedup vs the serial pipeline ({source}): {numbers['speedup_vs_serial']:.2f}x; "
                      f"accuracy not worse: {numbers['accuracy_not_worse']}")
     if numbers.get("speedup_processes_vs_threads") is not None:
         lines.append(f"  cameras in processes: {numbers['speedup_processes_vs_threads']:.2f}x the frames/s of cameras in "
@@ -664,8 +664,8 @@ def format_report(numbers: dict) -> str:
                      f"on the CPU; accuracy not worse: {numbers['accuracy_not_worse_vs_cpu']}")
     if numbers.get("device_check"):
         lines.append(f"  dots, GPU vs CPU (full search of every source image): {numbers['device_check']}")
-    if numbers.get("speedup_vs_previous_in_memory") is not None:
-        lines.append(f"  in memory: {numbers['speedup_vs_previous_in_memory']:.2f}x the previous pipeline's frames/s, "
-                     f"{numbers['cpu_ratio_vs_previous_in_memory']:.2f}x less CPU per frame; "
+    if numbers.get("speedup_vs_serial_in_memory") is not None:
+        lines.append(f"  in memory: {numbers['speedup_vs_serial_in_memory']:.2f}x the serial pipeline's frames/s, "
+                     f"{numbers['cpu_ratio_vs_serial_in_memory']:.2f}x less CPU per frame; "
                      f"accuracy not worse: {numbers['accuracy_not_worse_in_memory']}")
     return "\n".join(lines)
