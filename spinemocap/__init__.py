@@ -21,9 +21,24 @@ world->camera pose ``x_c = R x_w + t``.
 from __future__ import annotations
 
 from importlib import import_module
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .version import __version__
+
+if TYPE_CHECKING:  # the lazily loaded public names, visible to type checkers and IDEs
+    from .app.batch import run_batch as run_batch
+    from .app.report import write_report as write_report
+    from .app.run import run_tracking as run_tracking
+    from .app.run import track_capture as track_capture
+    from .camera import Camera as Camera
+    from .camera import Rig as Rig
+    from .capture import Capture as Capture
+    from .fileio import InputError as InputError
+    from .markers import MarkerTable as MarkerTable
+    from .tape import TapeSpec as TapeSpec
+    from .track.config import TrackerConfig as TrackerConfig
+    from .track.pipeline import FrameTracker as FrameTracker
+    from .views import ViewDots as ViewDots
 
 # public name -> module that defines it (imported on first access)
 _PUBLIC = {

@@ -37,7 +37,7 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-from ..markers import MarkerTable
+from ..markers import OBSERVED, MarkerTable
 from ..tape import TapeSpec
 from .curve import MIN_ROWS, MidlineCurve, RowTracks, fit_midline, row_tracks
 from .frames import cardan_angles, check_facing, frame_from_axes, neutral_frame, pelvis_frame_from_tape
@@ -142,7 +142,7 @@ def compute_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
     table["rows_seen"] = rows.observed.sum(axis=1)
     table["curve_length_mm"] = [c.length_mm if c is not None else np.nan for c in curves]
     status = arrays["status"]
-    return SpineAngles(table=table, notes=notes, completeness=float(np.mean(status == "observed")))
+    return SpineAngles(table=table, notes=notes, completeness=float(np.mean(status == OBSERVED)))
 
 
 def midlines(markers: MarkerTable, tape: TapeSpec,

@@ -47,7 +47,7 @@ import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Generator, Iterable, Iterator
+from typing import Callable, Generator, Iterable, Iterator, Literal
 
 import numpy as np
 import pandas as pd
@@ -67,7 +67,9 @@ from .worker_processes import exit_with_parent, join_or_kill
 
 log = logging.getLogger("spinemocap.batch")
 
-SOURCES = ("tracked", "groundtruth")
+#: Where a trial's markers come from: tracked from its images, or the synthetic studio's ground truth.
+MarkerSource = Literal["tracked", "groundtruth"]
+SOURCES: tuple[MarkerSource, ...] = ("tracked", "groundtruth")
 SUMMARY = "summary.json"
 ANGLES = "angles.csv"
 MARKERS = "markers.csv"
@@ -102,7 +104,7 @@ class TrialJob:
 
     trial: Trial
     out_dir: str
-    source: str = "tracked"
+    source: MarkerSource = "tracked"
     levels_file: str | None = None
     settings: AngleSettings = field(default_factory=AngleSettings)
     force: bool = False
@@ -460,7 +462,7 @@ def trial_out_dir(out: Path, trial: Trial) -> Path:
     return out.joinpath(*[p for p in (trial.subject, trial.condition, trial.trial) if p])
 
 
-def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: str = "tracked",
+def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: MarkerSource = "tracked",
               workers: int = 2, scheduler: str | None = None, levels_file: str | None = None,
               settings: AngleSettings | None = None, force: bool = False,
               detector: str = "net", progress: bool = True, opensim: bool = False, view: bool = False) -> BatchResult:
@@ -526,7 +528,7 @@ def _checked(jobs: list[TrialJob]) -> list[dict]:
     return failed
 
 
-def _record_interrupted(jobs: list[TrialJob], results: list[dict], out: Path, root, source: str) -> None:
+def _record_interrupted(jobs: list[TrialJob], results: list[dict], out: Path, root, source: MarkerSource) -> None:
     """Every trial without a final result becomes ``interrupted`` in batch.log and batch.json."""
     finished = {r["key"] for r in results if r["status"] != INTERRUPTED}
     stopped = {r["key"]: r for r in results if r["status"] == INTERRUPTED}
@@ -542,7 +544,7 @@ def _record_interrupted(jobs: list[TrialJob], results: list[dict], out: Path, ro
     _write_batch_json(out, root, source, jobs, results)
 
 
-def _write_batch_json(out: Path, root, source: str, jobs: list[TrialJob], results: list[dict]) -> None:
+def _write_batch_json(out: Path, root, source: MarkerSource, jobs: list[TrialJob], results: list[dict]) -> None:
     order = {j.trial.key: k for k, j in enumerate(jobs)}
     results.sort(key=lambda r: order.get(r["key"], 0))
     with atomic_write(out / "batch.json") as handle:

@@ -768,12 +768,12 @@ def report_capture(capture_dir: str | os.PathLike, out: str | os.PathLike,
 
     from ..analysis.angles import AngleSettings
     from ..analysis.levels import LevelMap
-    from .batch import MARKERS, discover, run_batch, trial_out_dir
+    from .batch import MARKERS, MarkerSource, discover, run_batch, trial_out_dir
     from .results import RESULT_FILES, RESULTS_MANIFEST, results_complete, write_markers
 
     out = Path(out)
     (trial,) = discover(capture_dir)
-    source = "groundtruth"
+    source: MarkerSource = "groundtruth"
     if markers_csv is not None and Path(markers_csv).is_file():
         target = trial_out_dir(out, trial)
         target.mkdir(parents=True, exist_ok=True)

@@ -54,7 +54,7 @@ from ..app.reference import REFERENCE_FRAMES, observe_reference
 from ..app.run import TrackingWarning, TrackResult, apply_refined_rig, make_detector, run_tracking
 from ..camera import Rig
 from ..fileio import atomic_path
-from ..markers import MarkerTable
+from ..markers import OBSERVED, MarkerTable
 from ..reference import ReferenceObject
 from ..synth import SynthConfig, build_scene
 from ..synth.lab_errors import perturb_rig
@@ -131,7 +131,7 @@ def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig |
         return apply_refined_rig(result, dataclasses.replace(refinement, rig=rig), scene.tape)
 
     given_table, refined_table = table_with(given), table_with(refinement.rig)
-    observed = result.table.to_arrays()["status"] == "observed"
+    observed = result.table.to_arrays()["status"] == OBSERVED
     fit = cloud_gauge(refined_table.positions()[observed], given_table.positions()[observed])
     closest = closest_gauge(refinement.rig, given, np.array(list(refinement.extra["centre_prior_mm"].values())),
                             np.array(list(refinement.extra["rotation_prior_deg"].values())))

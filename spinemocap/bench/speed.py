@@ -1,6 +1,6 @@
 """The speed benchmark (``spinemocap bench speed``): end-to-end frames per second of
 tracking the synthetic studio, from frames held in memory, from PNG images and from lossless
-video, with the previous pipeline (:data:`spinemocap.app.streaming.SERIAL`) as the peer in the
+video, with the serial pipeline (:data:`spinemocap.app.streaming.SERIAL`) as the peer in the
 same run.
 
 The scene is rendered once into a capture folder of PNG images (``write_capture``) and copied
@@ -11,8 +11,8 @@ shipped network detector and reports frames/s (wall time of detection + tracking
 included, writing the outputs excluded), the mean time per stage per frame, the peak resident
 memory during the run above the memory before it (sampled every 20 ms), the detector's routes
 (predicted box / full search) and the accuracy against the ground truth, so a faster run that got
-worse shows it. ``speedup_vs_previous`` is the new pipeline's fps over the serial one's on the
-same frames and source (PNG, the capture's own format); ``speedup_vs_previous_in_memory`` the
+worse shows it. ``speedup_vs_serial`` is the pipeline's fps over the serial one's on the
+same frames and source (PNG, the capture's own format); ``speedup_vs_serial_in_memory`` the
 same from memory, where at most ``memory_frames`` decoded frames are held and replayed.
 """
 
@@ -25,7 +25,7 @@ import tempfile
 import threading
 import time
 import warnings
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -219,16 +219,16 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
     if device != "cpu" and cpu_peer:
         configs.append(("in_memory_cpu", replace(speed, device="cpu")))
     if serial_peer:
-        configs.append(("in_memory_legacy", SERIAL))
+        configs.append(("in_memory_serial", SERIAL))
     say(f"warming up (2 frames per run, not timed; network on {device}) ...")
     for _, options in configs:
         _timed_run(replayed, capture, options, mode, detector, False, range(2), masks=False)
     runs, positions = [], {}
     for name, options in configs:
         say(f"tracking: {name} ...")
-        result, wall, peak = _timed_run(replayed, capture, options, mode, detector, progress, masks=False)
-        runs.append(_summary(name, result, wall, peak, capture, gt, options))
-        positions[name] = result.table.to_arrays()["positions"]
+        timed = _timed_run(replayed, capture, options, mode, detector, progress, masks=False)
+        runs.append(_summary(name, timed, capture, gt, options))
+        positions[name] = timed.result.table.to_arrays()["positions"]
         say(f"  {runs[-1]['fps']:.2f} frames/s, {runs[-1]['cpu_s_per_frame']:.3f} CPU s/frame, "
             f"mean error {runs[-1]['mean_error_mm']:.3f} mm")
     fps_video = None
@@ -236,7 +236,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         fps_video = _replayed_video_runs(capture, replayed, gt, video_frames, workdir, speed, mode, detector,
                                          progress, say, runs, parallel_peer)
     by_name = {r["run"]: r for r in runs}
-    new, peer, cpu = by_name["in_memory"], by_name.get("in_memory_legacy"), by_name.get("in_memory_cpu")
+    new, peer, cpu = by_name["in_memory"], by_name.get("in_memory_serial"), by_name.get("in_memory_cpu")
     by_mode = {parallel: by_name["in_memory"], other: by_name.get(f"in_memory_{other}")}
     in_processes, in_threads = by_mode["processes"], by_mode["threads"]
     check = None
@@ -249,7 +249,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         "sensor_noise": sensor_noise, "cameras": len(capture.rig), "image_size": list(capture.rig[0].size),
         "mode": mode, "detector": detector, "device": device, "machine": machine_info(),
         "speed_options": asdict(speed), "fps_in_memory": new["fps"], "fps_png": None, "fps_video": fps_video,
-        "speedup_vs_previous": new["fps"] / peer["fps"] if peer else None,
+        "speedup_vs_serial": new["fps"] / peer["fps"] if peer else None,
         "accuracy_not_worse": _not_worse(new, peer) if peer else None,
         "speedup_vs_cpu": new["fps"] / cpu["fps"] if cpu else None,
         "accuracy_not_worse_vs_cpu": _not_worse(new, cpu) if cpu else None,
@@ -312,8 +312,8 @@ def _replayed_video_runs(capture: Capture, replayed: MemorySource, gt: dict, n_f
         configs.append((f"video_{other}", replace(speed, parallel=other)))
     for name, options in configs:
         say(f"tracking: {name} ...")
-        result, wall, peak = _timed_run(video.frame_source(), video, options, mode, detector, progress, masks=False)
-        runs.append(_summary(name, result, wall, peak, video))
+        runs.append(_summary(name, _timed_run(video.frame_source(), video, options, mode, detector, progress,
+                                              masks=False), video))
         say(f"  {runs[-1]['fps']:.2f} frames/s, {runs[-1]['cpu_s_per_frame']:.3f} CPU s/frame")
     return runs[-len(configs)]["fps"]
 
@@ -381,9 +381,22 @@ def _not_worse(new: dict, peer: dict) -> bool:
             and new["frames_without_solution"] <= peer["frames_without_solution"])
 
 
+@dataclass
+class TimedRun:
+    """A tracked run and what it cost: ``wall_s`` (the camera workers' start-up excluded),
+    ``peak_mib`` (peak memory), ``cpu_s`` (CPU seconds of this process and of its camera workers
+    after their start-up) and ``main_thread_cpu_s`` (of the thread that ran the tracker)."""
+
+    result: TrackResult
+    wall_s: float
+    peak_mib: float
+    cpu_s: float
+    main_thread_cpu_s: float
+
+
 def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode: TrackingMode, detector: str,
-               progress: bool, frames: range | None = None, masks: bool = True) -> tuple[TrackResult, float, float]:
-    """Track ``frames`` of ``source`` (all when None): result, wall seconds, peak MiB.
+               progress: bool, frames: range | None = None, masks: bool = True) -> TimedRun:
+    """Track ``frames`` of ``source`` (all when None) and measure it (:class:`TimedRun`).
     ``masks``: the capture's ground-truth ``masks/`` may be read (False for a replayed source)."""
     with warnings.catch_warnings(), PeakMemory() as memory:
         warnings.simplefilter("ignore", TrackingWarning)
@@ -393,16 +406,16 @@ def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode:
                               detector=detector, progress=progress, speed=speed,
                               mask_dir=capture.root / "masks" if masks else None)
         wall = time.perf_counter() - start
-        result.cpu_s = time.process_time() - cpu_start  # type: ignore[attr-defined]
-        result.main_thread_cpu_s = time.thread_time() - thread_start  # type: ignore[attr-defined]
+        cpu_s = time.process_time() - cpu_start
+        main_thread_cpu_s = time.thread_time() - thread_start
     # camera worker processes: their start-up (importing torch, loading the network: seconds, once
     # per run, not per frame) is not timed; the CPU they used after it is added to this process's
     info = result.detector_info
     if np.isfinite(info.get("startup_s", np.nan)):
         wall -= info["startup_s"]
     if np.isfinite(info.get("workers_cpu_s", np.nan)):
-        result.cpu_s += info["workers_cpu_s"]  # type: ignore[attr-defined]
-    return result, wall, memory.peak_mib
+        cpu_s += info["workers_cpu_s"]
+    return TimedRun(result, wall, memory.peak_mib, cpu_s, main_thread_cpu_s)
 
 
 def decode_speed(source: FrameSource, n_frames: int, workers: int) -> dict:
@@ -427,8 +440,9 @@ def replayed_groundtruth(capture: Capture, order: list[int]) -> dict:
     return gt
 
 
-def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, capture: Capture,
-             gt: dict | None = None, options: SpeedOptions | None = None) -> dict:
+def _summary(name: str, timed: TimedRun, capture: Capture, gt: dict | None = None,
+             options: SpeedOptions | None = None) -> dict:
+    result, wall, peak_mib = timed.result, timed.wall_s, timed.peak_mib
     gt = gt if gt is not None else capture.groundtruth()
     acc = evaluate_tracking(result.table, gt, float(capture.tape.graph.rest_length_mm.min()), result.stage_ms())
     n = len(result.frames)
@@ -436,12 +450,12 @@ def _summary(name: str, result: TrackResult, wall: float, peak_mib: float, captu
         "run": name, "frames": n, "wall_s": wall, "fps": n / wall if wall > 0 else float("nan"),
         # CPU seconds of this process (all threads) per frame: less sensitive than wall time to
         # other programs on a shared machine; cores / this = fps on an idle machine at best
-        "cpu_s_per_frame": getattr(result, "cpu_s", float("nan")) / max(n, 1),
+        "cpu_s_per_frame": timed.cpu_s / max(n, 1),
         # cores busy on average = CPU s per frame x frames/s
-        "cores_used": getattr(result, "cpu_s", float("nan")) / wall if wall > 0 else float("nan"),
+        "cores_used": timed.cpu_s / wall if wall > 0 else float("nan"),
         # CPU s per frame of the thread that runs the tracker (with lookahead 0 it also drives
         # detection), and of the camera worker processes: where the CPU goes
-        "main_thread_cpu_s_per_frame": getattr(result, "main_thread_cpu_s", float("nan")) / max(n, 1),
+        "main_thread_cpu_s_per_frame": timed.main_thread_cpu_s / max(n, 1),
         "workers_cpu_s_per_frame": result.detector_info.get("workers_cpu_s", 0.0) / max(n, 1),
         "parallel": result.detector_info.get("parallel"), "workers": result.detector_info.get("workers"),
         "lookahead": options.lookahead if options is not None else None,
@@ -477,8 +491,12 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
 
     speed = speed or SpeedOptions()
     config = SynthConfig.preset(preset, frames=frames, occlusion=occlusion, seed=seed, realism=realism)
-    tmp = None if workdir is not None else tempfile.mkdtemp(prefix="spinemocap-speed-")
-    root = Path(workdir) if workdir is not None else Path(tmp)  # type: ignore[arg-type]
+    tmp: str | None = None
+    if workdir is not None:
+        root = Path(workdir)
+    else:
+        tmp = tempfile.mkdtemp(prefix="spinemocap-speed-")
+        root = Path(tmp)
     try:
         png_dir = root / "png"
         if not (png_dir / "capture.toml").is_file():
@@ -492,9 +510,9 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
 
         def run(name: str, source: FrameSource, options: SpeedOptions, gt: dict | None = None) -> dict:
             say(f"tracking: {name} ...")
-            result, wall, peak = _timed_run(source, capture, options, mode, detector, progress)
-            summary = _summary(name, result, wall, peak, capture, gt, options)
-            positions[name] = result.table.to_arrays()["positions"]
+            timed = _timed_run(source, capture, options, mode, detector, progress)
+            summary = _summary(name, timed, capture, gt, options)
+            positions[name] = timed.result.table.to_arrays()["positions"]
             runs.append(summary)
             say(f"  {summary['fps']:.2f} frames/s, {summary['cpu_s_per_frame']:.2f} CPU s/frame, "
                 f"mean error {summary['mean_error_mm']:.3f} mm")
@@ -523,7 +541,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                     run(f"in_memory_{other}_lookahead{peer_speed.lookahead}", frames_in_memory,
                         replace(peer_speed, parallel=other), gt)
             if serial_peer:
-                mem_peer = run("in_memory_legacy", frames_in_memory, SERIAL, gt)
+                mem_peer = run("in_memory_serial", frames_in_memory, SERIAL, gt)
             del held, frames_in_memory
         workers = speed.n_workers(len(capture.camera_names))
         decoding = {"png": decode_speed(capture.frame_source(), capture.n_frames, workers)}
@@ -546,7 +564,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                 run(f"video_lookahead{peer_speed.lookahead}", Capture.open(video_dir).frame_source(), peer_speed)
         say(f"  decoding alone: {decoding}")
         png = run("png", capture.frame_source(), speed)
-        peer = run("png_legacy", capture.frame_source(), SERIAL) if serial_peer else None
+        peer = run("png_serial", capture.frame_source(), SERIAL) if serial_peer else None
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -558,9 +576,9 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
         "fps_video": vid["fps"] if vid else None,
         "video_codec": video_codec if vid else None,
         "fps_in_memory": mem["fps"] if mem else None,
-        "speedup_vs_previous": png["fps"] / peer["fps"] if peer else None,
-        "speedup_vs_previous_in_memory": mem["fps"] / mem_peer["fps"] if mem and mem_peer else None,
-        "cpu_ratio_vs_previous_in_memory": (mem_peer["cpu_s_per_frame"] / mem["cpu_s_per_frame"]
+        "speedup_vs_serial": png["fps"] / peer["fps"] if peer else None,
+        "speedup_vs_serial_in_memory": mem["fps"] / mem_peer["fps"] if mem and mem_peer else None,
+        "cpu_ratio_vs_serial_in_memory": (mem_peer["cpu_s_per_frame"] / mem["cpu_s_per_frame"]
                                             if mem and mem_peer else None),
         "accuracy_not_worse": _not_worse(png, peer) if peer else None,
         "accuracy_not_worse_in_memory": _not_worse(mem, mem_peer) if mem and mem_peer else None,
@@ -627,9 +645,9 @@ def format_report(numbers: dict) -> str:
         lines.append("  decoding alone (no detection): "
                      + ", ".join(f"{k} {v['fps']:.2f} fps / {v['cpu_s_per_frame']:.2f} CPU s per frame"
                                  for k, v in numbers["decode_only"].items()))
-    if numbers["speedup_vs_previous"] is not None:
+    if numbers["speedup_vs_serial"] is not None:
         source = "PNG" if numbers.get("fps_png") is not None else "in memory"
-        lines.append(f"  speedup vs the previous pipeline ({source}): {numbers['speedup_vs_previous']:.2f}x; "
+        lines.append(f"  speedup vs the serial pipeline ({source}): {numbers['speedup_vs_serial']:.2f}x; "
                      f"accuracy not worse: {numbers['accuracy_not_worse']}")
     if numbers.get("speedup_processes_vs_threads") is not None:
         lines.append(f"  cameras in processes: {numbers['speedup_processes_vs_threads']:.2f}x the frames/s of cameras in "
@@ -646,8 +664,8 @@ def format_report(numbers: dict) -> str:
                      f"on the CPU; accuracy not worse: {numbers['accuracy_not_worse_vs_cpu']}")
     if numbers.get("device_check"):
         lines.append(f"  dots, GPU vs CPU (full search of every source image): {numbers['device_check']}")
-    if numbers.get("speedup_vs_previous_in_memory") is not None:
-        lines.append(f"  in memory: {numbers['speedup_vs_previous_in_memory']:.2f}x the previous pipeline's frames/s, "
-                     f"{numbers['cpu_ratio_vs_previous_in_memory']:.2f}x less CPU per frame; "
+    if numbers.get("speedup_vs_serial_in_memory") is not None:
+        lines.append(f"  in memory: {numbers['speedup_vs_serial_in_memory']:.2f}x the serial pipeline's frames/s, "
+                     f"{numbers['cpu_ratio_vs_serial_in_memory']:.2f}x less CPU per frame; "
                      f"accuracy not worse: {numbers['accuracy_not_worse_in_memory']}")
     return "\n".join(lines)

@@ -10,6 +10,7 @@ number; a plot of the per-frame errors (as the paper's Fig. 6) goes beside it as
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 import warnings
@@ -24,7 +25,7 @@ from ..fileio import atomic_path, atomic_write
 from ..markers import MarkerTable
 from ..synth import SynthConfig, build_scene
 from ..track.config import TrackerConfig
-from ..track.evaluate import evaluate_tracking, plane_baseline
+from ..track.evaluate import TrackingAccuracy, evaluate_tracking, plane_baseline
 
 # Paper (Hachmann et al.): Table 1 (Artificial, mean mm) and Table 2 (per occlusion level).
 PAPER_ERROR_MM = {"none": 5.55, "light": 6.17, "heavy": 7.89}
@@ -47,13 +48,45 @@ def _rendered_views(scene, detect, n_frames: int):
 
 
 @dataclass
-class TrackBenchResult:
-    """One ``bench track`` run: every number (``numbers``, JSON-ready), the tracked table and the
-    scene's ground truth (for the plot)."""
+class TrackBenchRun:
+    """How a ``bench track`` run was made and what the tracker reported beside its accuracy:
+    the studio (preset, occlusion and its balls, realism, cameras, tape rows and thickness in
+    mm), the tracker (mode, detector, wall-clock seconds, its quality summary, frames per route,
+    frames unsolved before gap filling, frames whose LP was relaxed) and the paper's numbers and
+    our goal (mm) for the occlusion level."""
 
-    numbers: dict
+    preset: str
+    occlusion: str
+    balls: int
+    mode: TrackingMode
+    realism: str
+    quality: dict
+    detector: str
+    cameras: int
+    rows: int | None
+    wall_s: float
+    tape_thickness_mm: float
+    routes: dict[str, int]
+    frames_failed_before_gap_fill: int
+    lp_relaxed_frames: int
+    paper: dict
+    goal_mm: float
+
+
+@dataclass
+class TrackBenchResult:
+    """One ``bench track`` run: the accuracy, the run's set-up and tracker report, the tracked
+    table and the scene's ground truth (for the plot)."""
+
+    accuracy: TrackingAccuracy
+    run: TrackBenchRun
     table: MarkerTable
     groundtruth: dict
+
+    @property
+    def numbers(self) -> dict:
+        """Every number, JSON-ready: the accuracy's (:meth:`TrackingAccuracy.to_dict`), then the run's."""
+        return {**self.accuracy.to_dict(), **dataclasses.asdict(self.run)}
 
     def save(self, path: Path) -> Path:
         """Write the numbers to ``path`` (JSON) and the per-frame error plot beside it; returns the plot's path."""
@@ -61,7 +94,7 @@ class TrackBenchResult:
         with atomic_write(path) as fh:
             json.dump(self.numbers, fh, indent=2, default=float)
         plot = path.with_suffix(".png")
-        plot_errors(self.table, self.groundtruth, plot, self.numbers["occlusion"])
+        plot_errors(self.table, self.groundtruth, plot, self.run.occlusion)
         return plot
 
 
@@ -94,8 +127,8 @@ def run_track_benchmark(preset: str = "artificial", occlusion: str = "none", fra
     wall = time.perf_counter() - start
     gt = scene.groundtruth
     min_spacing = float(scene.tape.graph.rest_length_mm.min())
-    ev = evaluate_tracking(result.table, gt, min_spacing, result.stage_ms()).to_dict()
-    ev.update(
+    accuracy = evaluate_tracking(result.table, gt, min_spacing, result.stage_ms())
+    run = TrackBenchRun(
         preset=preset, occlusion=occlusion, balls=synth.n_balls, mode=mode, realism=realism,
         quality=result.quality(),
         detector=detector, cameras=len(scene.rig), rows=synth.rows, wall_s=wall,
@@ -106,7 +139,7 @@ def run_track_benchmark(preset: str = "artificial", occlusion: str = "none", fra
                "visibility_histogram": PAPER_VISIBILITY[occlusion]},
         goal_mm=GOAL_MM[occlusion],
     )
-    return TrackBenchResult(ev, result.table, gt)
+    return TrackBenchResult(accuracy, run, result.table, gt)
 
 
 def _row(name: str, paper, ours, fmt: str = "{:.2f}") -> str:
@@ -118,42 +151,43 @@ def _row(name: str, paper, ours, fmt: str = "{:.2f}") -> str:
     return f"  {name:<34}{cell(paper):>12}{cell(ours):>12}"
 
 
-def format_report(ev: dict) -> str:
+def format_report(result: TrackBenchResult) -> str:
     """The paper's Tables 1 and 2 beside ours, then diagnostics and stage timing."""
-    occ = ev["occlusion"]
-    planes = ev.get("plane_baselines_mm", {})
-    lines = [f"\nTable 1 (Artificial, mean error mm)   [{ev['frames']} frames x {ev['dots']} dots, "
-             f"mode {ev['mode']}, detector {ev['detector']}, tape thickness {ev['tape_thickness_mm']} mm, "
-             f"studio realism '{ev.get('realism', 'ideal')}']",
+    acc, run = result.accuracy, result.run
+    occ = run.occlusion
+    planes = acc.plane_baselines_mm or {}
+    lines = [f"\nTable 1 (Artificial, mean error mm)   [{acc.frames} frames x {acc.dots} dots, "
+             f"mode {run.mode}, detector {run.detector}, tape thickness {run.tape_thickness_mm} mm, "
+             f"studio realism '{run.realism}']",
              f"  {'':<34}{'paper':>12}{'ours':>12}"]
     for name in ("1-plane", "2-plane", "3-plane"):
         lines.append(_row(f"{name} keypoint baseline", PAPER_PLANES_MM[name], planes.get(name)))
-    lines.append(_row("tracker, all dots", PAPER_ERROR_MM[occ] if occ == "none" else None, ev["mean_error_mm"]))
-    lines += [f"\nTable 2 (occlusion '{occ}': paper {PAPER_BALLS[occ]} balls, ours {ev['balls']} balls)",
+    lines.append(_row("tracker, all dots", PAPER_ERROR_MM[occ] if occ == "none" else None, acc.mean_error_mm))
+    lines += [f"\nTable 2 (occlusion '{occ}': paper {PAPER_BALLS[occ]} balls, ours {run.balls} balls)",
               f"  {'':<34}{'paper':>12}{'ours':>12}"]
-    hist = ev.get("visibility_histogram", {})
+    hist = acc.visibility_histogram or {}
     paper_hist = PAPER_VISIBILITY[occ]
     ours_hist = list(hist.values())
     total_paper, total_ours = sum(paper_hist), max(sum(ours_hist), 1)
     for k, (key, value) in enumerate(hist.items()):
         paper_share = 100 * paper_hist[k] / total_paper if k < len(paper_hist) else None
         lines.append(_row(f"seen by {key} (% dot-frames)", paper_share, 100 * value / total_ours, "{:.1f}"))
-    lines.append(_row("error mean (mm)", PAPER_ERROR_MM[occ], ev["mean_error_mm"]))
-    lines.append(_row("error median (mm)", None, ev["median_error_mm"]))
-    lines.append(_row("error p95 (mm)", None, ev["p95_error_mm"]))
-    lines.append(_row(f"observed dots mean (n={ev['observed']['n']})", None, ev["observed"]["mean"]))
-    lines.append(_row("observed dots p95", None, ev["observed"]["p95"]))
-    lines.append(_row(f"inferred dots mean (n={ev['inferred']['n']})", None, ev["inferred"]["mean"]))
-    lines.append(_row("inferred dots p95", None, ev["inferred"]["p95"]))
-    lines.append(_row("label swaps (dot-frames)", None, ev["label_swaps"]))
-    lines.append(_row("frames without a solution", None, ev["frames_without_solution"]))
-    lines.append(_row("  unsolved before gap filling", None, ev["frames_failed_before_gap_fill"]))
-    if "quality" in ev:
-        lines.append(_row("flagged frames (labels not vouched for)", None, len(ev["quality"]["flagged_frames"])))
-    lines.append(f"  goal: <= {ev['goal_mm']} mm, zero swaps, every frame solved; routes {ev['routes']}, "
-                 f"LP relaxed in {ev['lp_relaxed_frames']} frames")
-    lines.append("\nTime per stage per frame (ms): " + ", ".join(f"{k} {v:.0f}" for k, v in ev["stage_ms"].items())
-                 + f"; total {ev['total_ms_per_frame']:.0f} ms (rendering excluded)")
+    lines.append(_row("error mean (mm)", PAPER_ERROR_MM[occ], acc.mean_error_mm))
+    lines.append(_row("error median (mm)", None, acc.median_error_mm))
+    lines.append(_row("error p95 (mm)", None, acc.p95_error_mm))
+    lines.append(_row(f"observed dots mean (n={acc.observed.n})", None, acc.observed.mean))
+    lines.append(_row("observed dots p95", None, acc.observed.p95))
+    lines.append(_row(f"inferred dots mean (n={acc.inferred.n})", None, acc.inferred.mean))
+    lines.append(_row("inferred dots p95", None, acc.inferred.p95))
+    lines.append(_row("label swaps (dot-frames)", None, acc.label_swaps))
+    lines.append(_row("frames without a solution", None, acc.frames_without_solution))
+    lines.append(_row("  unsolved before gap filling", None, run.frames_failed_before_gap_fill))
+    lines.append(_row("flagged frames (labels not vouched for)", None, len(run.quality["flagged_frames"])))
+    lines.append(f"  goal: <= {run.goal_mm} mm, zero swaps, every frame solved; routes {run.routes}, "
+                 f"LP relaxed in {run.lp_relaxed_frames} frames")
+    if acc.stage_ms is not None:
+        lines.append("\nTime per stage per frame (ms): " + ", ".join(f"{k} {v:.0f}" for k, v in acc.stage_ms.items())
+                     + f"; total {acc.total_ms_per_frame:.0f} ms (rendering excluded)")
     return "\n".join(lines)
 
 

@@ -105,6 +105,12 @@ def rule_for(label: str) -> MarkerRule | None:
     return None
 
 
+def _vector3(values) -> tuple[float, float, float]:
+    """Three numbers of a mapping file's entry; ValueError for another count."""
+    x, y, z = (float(v) for v in values)
+    return x, y, z
+
+
 def read_mapping(path: str | os.PathLike) -> dict[str, MarkerRule]:
     """A mapping file (TOML) for labels the fit does not know. Under ``[markers]`` each entry is
     either the name of a known marker (``MyC7 = "C7"``) or a rule table
@@ -121,9 +127,8 @@ def read_mapping(path: str | os.PathLike) -> dict[str, MarkerRule]:
                 raise InputError(path, f"{label} = {entry!r}: {entry!r} is not a known marker")
         elif isinstance(entry, dict) and "at" in entry and "direction" in entry:
             try:
-                rule = MarkerRule(str(entry["at"]), tuple(float(v) for v in entry["direction"]),  # type: ignore[arg-type]
-                                  entry.get("toward"), float(entry.get("fraction", 0.0)),
-                                  tuple(float(v) for v in entry.get("offset_mm", (0, 0, 0))))  # type: ignore[arg-type]
+                rule = MarkerRule(str(entry["at"]), _vector3(entry["direction"]), entry.get("toward"),
+                                  float(entry.get("fraction", 0.0)), _vector3(entry.get("offset_mm", (0, 0, 0))))
             except (TypeError, ValueError) as exc:
                 raise InputError(path, f"marker {label}: {exc}") from exc
         else:

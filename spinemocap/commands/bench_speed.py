@@ -10,10 +10,11 @@ from .track import add_refresh_arguments, refresh_options
 
 def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "speed", help="end-to-end tracking frames/s (in memory, PNG, video) vs the previous pipeline",
+        "speed", help="end-to-end tracking frames/s (in memory, PNG, video) vs the serial pipeline",
         description="Render the synthetic studio once (not timed), then track it from frames in memory, from "
-                    "PNG images and from lossless video with the current pipeline, and from PNG and memory with "
-                    "the previous one (the peer): frames/s, time per stage, peak memory and accuracy per run.")
+                    "PNG images and from lossless video with the pipeline, and from PNG and memory with "
+                    "the serial one (one camera at a time, no prediction: the peer): frames/s, time per stage, "
+                    "peak memory and accuracy per run.")
     p.add_argument("--preset", default="studio", choices=("tiny", "artificial", "studio"))
     p.add_argument("--frames", type=int, default=100, help="frames to render and track (default 100)")
     p.add_argument("--occlusion", default="none", choices=("none", "light", "heavy"))

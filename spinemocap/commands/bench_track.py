@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     config = TrackerConfig.from_toml(args.config) if args.config else TrackerConfig()
     result = run_track_benchmark(args.preset, args.occlusion, args.frames, args.mode, args.detector, config,
                                  args.seed, progress=not args.no_progress, realism=args.realism)
-    print(format_report(result.numbers))
+    print(format_report(result))
     if args.json:
         plot = result.save(args.json)
         print(f"numbers written to {args.json}, plot to {plot}")

@@ -181,7 +181,7 @@ def accuracy_summary(table, capture_dir: Path) -> str:
     obs, inf = ev.observed, ev.inferred
     return (f"accuracy vs ground truth ({groundtruth_path.name}): mean {ev.mean_error_mm:.2f} mm, "
             f"median {ev.median_error_mm:.2f} mm, p95 {ev.p95_error_mm:.2f} mm; "
-            f"observed {obs['mean']:.2f} mm (n={obs['n']}), inferred {inf['mean']:.2f} mm (n={inf['n']}); "
+            f"observed {obs.mean:.2f} mm (n={obs.n}), inferred {inf.mean:.2f} mm (n={inf.n}); "
             f"label swaps {ev.label_swaps}; frames without solution {ev.frames_without_solution}")
 
 

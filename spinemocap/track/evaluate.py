@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..markers import INFERRED, MISSING, OBSERVED, STATUSES, MarkerTable
+from ..markers import INFERRED, MISSING, OBSERVED, STATUSES, MarkerStatus, MarkerTable
 
 PLANE_GROUPS = {
     1: [[0, 1, 6, 7]],
@@ -39,12 +39,25 @@ PLANE_GROUPS = {
 }
 
 
-def _stats(values: np.ndarray) -> dict[str, float]:
-    values = values[np.isfinite(values)]
-    if not len(values):
-        return {"n": 0, "mean": float("nan"), "median": float("nan"), "p95": float("nan"), "max": float("nan")}
-    return {"n": int(len(values)), "mean": float(values.mean()), "median": float(np.median(values)),
-            "p95": float(np.percentile(values, 95)), "max": float(values.max())}
+@dataclass
+class ErrorStats:
+    """Summary of a set of errors (mm): their number and mean, median, 95th percentile and
+    largest value (NaN when there are none)."""
+
+    n: int
+    mean: float
+    median: float
+    p95: float
+    max: float
+
+    @classmethod
+    def of(cls, values: np.ndarray) -> ErrorStats:
+        """The finite ``values``' statistics."""
+        values = values[np.isfinite(values)]
+        if not len(values):
+            return cls(0, float("nan"), float("nan"), float("nan"), float("nan"))
+        return cls(int(len(values)), float(values.mean()), float(np.median(values)),
+                   float(np.percentile(values, 95)), float(values.max()))
 
 
 def label_swaps(positions: np.ndarray, truth: np.ndarray, min_spacing_mm: float) -> np.ndarray:
@@ -108,7 +121,7 @@ def views_histogram(visible: np.ndarray) -> dict[str, int]:
 @dataclass
 class TrackingAccuracy:
     """Accuracy of a tracked sequence against the ground truth (errors in mm). ``observed`` /
-    ``inferred``: ``{n, mean, median, p95, max}`` over dots of that status; optional parts are
+    ``inferred``: :class:`ErrorStats` over dots of that status; optional parts are
     None when the ground truth (or the caller) lacks them. :meth:`to_dict` gives the JSON of
     ``spinemocap bench track``."""
 
@@ -118,9 +131,9 @@ class TrackingAccuracy:
     median_error_mm: float
     p95_error_mm: float
     max_error_mm: float
-    observed: dict[str, float]
-    inferred: dict[str, float]
-    status_counts: dict[str, int]
+    observed: ErrorStats
+    inferred: ErrorStats
+    status_counts: dict[MarkerStatus, int]
     label_swaps: int
     frames_with_swaps: int
     frames_without_solution: int
@@ -148,16 +161,16 @@ def evaluate_tracking(table: MarkerTable, groundtruth: dict, tape_min_spacing_mm
     err = np.linalg.norm(pos - truth, axis=2)
     tracked = status != MISSING
     swaps = label_swaps(pos, truth, tape_min_spacing_mm) & tracked
-    overall = _stats(err[tracked])
+    overall = ErrorStats.of(err[tracked])
     result = TrackingAccuracy(
         frames=int(len(frames)),
         dots=int(len(labels)),
-        mean_error_mm=overall["mean"],
-        median_error_mm=overall["median"],
-        p95_error_mm=overall["p95"],
-        max_error_mm=overall["max"],
-        observed=_stats(err[status == OBSERVED]),
-        inferred=_stats(err[status == INFERRED]),
+        mean_error_mm=overall.mean,
+        median_error_mm=overall.median,
+        p95_error_mm=overall.p95,
+        max_error_mm=overall.max,
+        observed=ErrorStats.of(err[status == OBSERVED]),
+        inferred=ErrorStats.of(err[status == INFERRED]),
         status_counts={s: int((status == s).sum()) for s in STATUSES},
         label_swaps=int(swaps.sum()),
         frames_with_swaps=int(swaps.any(axis=1).sum()),

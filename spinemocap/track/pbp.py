@@ -25,7 +25,7 @@ slice sampler targets ``exp(-belief / temperature)``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -56,6 +56,20 @@ class PairwiseModel(Protocol):
     def prepare(self, state: np.ndarray) -> None: ...
 
     def extra_proposals(self, state: np.ndarray) -> np.ndarray | None: ...
+
+
+@runtime_checkable
+class RowUnaryModel(Protocol):
+    """A :class:`PairwiseModel` with the optional ``unary_rows``."""
+
+    def unary_rows(self, nodes: np.ndarray, x: np.ndarray) -> np.ndarray: ...
+
+
+@runtime_checkable
+class PreparedParametersModel(Protocol):
+    """A :class:`PairwiseModel` with the optional ``prepared_parameters``."""
+
+    def prepared_parameters(self) -> tuple: ...
 
 
 @dataclass
@@ -326,9 +340,11 @@ class ParticleBP:
         kept ones), the costs are computed element by element, and the messages into each node
         are summed by the same matrix product of the same shape (unwanted entries 0)."""
         model, e = self.model, graph.n_edges
+        if not isinstance(model, RowUnaryModel):
+            raise TypeError("beliefs at the wanted entries need the model's unary_rows")
         nodes, chains = np.nonzero(wanted)
         belief = np.zeros(wanted.shape)
-        belief[nodes, chains] = model.unary_rows(nodes, points[nodes, chains])  # type: ignore[attr-defined]  # optional, checked by _belief_at
+        belief[nodes, chains] = model.unary_rows(nodes, points[nodes, chains])
         if e == 0:
             return belief
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
@@ -462,13 +478,14 @@ class ParticleBP:
         beliefs, pre = _min_sum_sweeps(graph, unary_kept, cost, cfg.sweeps, cfg.damping)
         # the first iteration's kept particles and parameters are these (prepare is then skipped)
         # (with a model that tells its prepared parameters, to see that they were not set again)
-        tells = hasattr(model, "prepared_parameters")
-        prepared = model.prepared_parameters() if tells else ()  # type: ignore[attr-defined]
-        at_kept: tuple[np.ndarray, np.ndarray] | None = (unary_kept, cost[: len(self.edges)]) if tells else None
+        reports = model if isinstance(model, PreparedParametersModel) else None
+        prepared = reports.prepared_parameters() if reports is not None else ()
+        at_kept: tuple[np.ndarray, np.ndarray] | None = (unary_kept, cost[: len(self.edges)]) if reports is not None else None
 
         for _ in range(cfg.iterations if iterations is None else iterations):
             model.prepare(state)
-            if at_kept is not None and any(a is not b for a, b in zip(prepared, model.prepared_parameters())):  # type: ignore[attr-defined]
+            if at_kept is not None and reports is not None and any(
+                    a is not b for a, b in zip(prepared, reports.prepared_parameters())):
                 at_kept = None  # the parameters were set again: the costs no longer hold
             order = np.argsort(beliefs, axis=1)[:, : min(cfg.n_slice, kept.shape[1])]
             start = np.take_along_axis(kept, order[:, :, None], axis=1)

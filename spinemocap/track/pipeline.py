@@ -43,7 +43,7 @@ from .quality import stretch_plausible, unlabelled_dots
 from .rig_check import RigMonitor
 from .stretch import StretchEstimate, estimate_stretch, row_stretch, stretched_spec
 from .template import tape_frames
-from .types import CandidateCloud, FeasibleSet
+from .types import CandidateCloud, FeasibleSet, FrameRoute, LpStatus
 
 STAGES = ("detect", "candidates", "edges", "lp", "mrf1", "mrf2", "status")
 
@@ -64,8 +64,8 @@ class FrameResult:
     n_views: np.ndarray
     residual: np.ndarray
     stage_ms: dict[str, float] = field(default_factory=dict)
-    route: str = "full"
-    lp_status: str = ""
+    route: FrameRoute = "full"
+    lp_status: LpStatus = ""
     note: str = ""
     flags: list[str] = field(default_factory=list)
     stretch: StretchEstimate | None = None

@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
+
+#: How the LP chose a frame's edges: at Eq. 1's edge count, at a relaxed (lower) count, not run
+#: (``skipped``: the frame was carried from the last one) or not yet (empty).
+LpStatus = Literal["optimal", "relaxed", "skipped", ""]
+#: How a frame was solved: ``full`` (LP + MRFs), ``carried`` (the previous frame's solution
+#: explained it), ``failed`` (no solution).
+FrameRoute = Literal["full", "carried", "failed"]
 
 
 @dataclass
@@ -49,7 +57,8 @@ class FeasibleSet:
 
     ``points``/``normals``: (K, 3); ``edges``: (L, 2) indices into ``points``; ``source_index``:
     (K,) index of each point in the candidate cloud; ``n_target``: edge count finally required
-    (after relaxation); ``n_target_initial``: Eq. 1's value."""
+    (after relaxation); ``n_target_initial``: Eq. 1's value; ``status``: ``optimal`` at Eq. 1's
+    count, else ``relaxed``."""
 
     points: np.ndarray
     normals: np.ndarray
@@ -57,7 +66,7 @@ class FeasibleSet:
     source_index: np.ndarray
     n_target: int
     n_target_initial: int
-    status: str = "optimal"
+    status: LpStatus = "optimal"
 
     def __len__(self) -> int:
         return len(self.points)

@@ -21,7 +21,7 @@ import exporters
 
 from ...capture import Capture
 from ...fileio import InputError
-from ...markers import MarkerTable
+from ...markers import INFERRED, OBSERVED, MarkerTable
 from ...tape import TapeSpec
 from ...track.quality import flagged_from_confidence
 from ..levels import find_level_map
@@ -138,8 +138,8 @@ def dot_classes(status: np.ndarray, confidence: np.ndarray) -> np.ndarray:
     status = np.asarray(status, dtype=object)
     flagged = flagged_from_confidence(status.reshape(-1, 1), np.asarray(confidence, float).reshape(-1, 1))
     classes = np.full(status.shape, DotClass.MISSING, dtype=np.int8)
-    classes[status == "observed"] = DotClass.OBSERVED
-    classes[status == "inferred"] = DotClass.INFERRED
+    classes[status == OBSERVED] = DotClass.OBSERVED
+    classes[status == INFERRED] = DotClass.INFERRED
     classes[flagged.reshape(status.shape) & (classes != DotClass.MISSING)] = DotClass.FLAGGED
     return classes
 

@@ -98,7 +98,8 @@ def scale_pixels(pixels: np.ndarray, scale_xy: tuple[float, float]) -> np.ndarra
 
 def even_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
     """``size`` (width, height) scaled and rounded to even numbers (yuv420p needs them), >= 2."""
-    return tuple(max(2, 2 * round(v * scale / 2)) for v in size)  # type: ignore[return-value]
+    width, height = (max(2, 2 * round(v * scale / 2)) for v in size)
+    return width, height
 
 
 def auto_scale(sizes: Sequence[tuple[int, int]]) -> float:
