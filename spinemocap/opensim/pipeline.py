@@ -99,7 +99,9 @@ class OpenSimSettings:
     ``prior_weight``: the prior on per-level lateral bending and axial rotation (:func:`_priors`);
     ``normalise_tilt``: keep each row's in-plane tilt at its static angle
     (:func:`skin_model.normalise_row_tilt`); ``slip``: the rows' slip and its prior
-    (:class:`skin_model.SlipPrior`), None = every marker fixed to its vertebra."""
+    (:class:`skin_model.SlipPrior`), None = every marker fixed to its vertebra;
+    ``restart_from_static``: every frame solved from the previous solution and from the static
+    pose, the lower objective kept (:func:`tools.solve_ik`)."""
 
     static_frames: int = 10
     accuracy: float = 1e-5
@@ -111,6 +113,8 @@ class OpenSimSettings:
     prior_weight: float = 0.0
     normalise_tilt: bool = True
     slip: SlipPrior | None = SlipPrior()
+    # every frame also solved from the static pose, keeping the lower objective (see tools.solve_ik)
+    restart_from_static: bool = True
 
 
 @dataclass
@@ -259,7 +263,7 @@ def place_markers(work: Path, labels: list[str], placed: np.ndarray, static: Sta
 
 def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: TapeMarkers, frames: np.ndarray,
                        accuracy: float, priors: dict[str, float] | None = None,
-                       positions: np.ndarray | None = None) -> float:
+                       positions: np.ndarray | None = None, restart: bool = True) -> float:
     """``markers_opensim.trc`` (the given frames, the ``placed`` dots named ``labels``; the
     markers as given, or ``positions`` (F, D, 3) mm in their place: the skin-corrected ones),
     ``setup_ik.xml`` on ``model.osim`` (one mean weight per marker: a re-run in the GUI), and IK
@@ -272,7 +276,7 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
     weights = data.weights()[frames][:, placed]
     write_ik_setup(work, "model.osim", "markers_opensim.trc", (float(times[0]), float(times[-1])), labels,
                    mean_weights(weights), "ik.mot", accuracy, priors)
-    solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy)
+    solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy, restart)
     write_ik_outputs(work, solution)
     return solution.seconds
 
@@ -325,7 +329,7 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: Seq
             positions, tilt_turn = normalise_row_tilt(data.positions, st.positions, tape)
         ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
                                         settings.accuracy, _priors(placed.plan, settings, placed.slipping),
-                                        positions)
+                                        positions, settings.restart_from_static)
         angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
         weights = mean_weights(data.weights()[:, placed.placed])
         summary = _summary(data, placed, angles, flags, ik_seconds, facing_error, weights, settings, osim)

@@ -280,11 +280,13 @@ class IKSolution:
 
 
 def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positions_mm: np.ndarray,
-             weights: np.ndarray, priors: dict[str, float] | None = None, accuracy: float = 1e-5) -> IKSolution:
+             weights: np.ndarray, priors: dict[str, float] | None = None, accuracy: float = 1e-5,
+             restart: bool = True) -> IKSolution:
     """OpenSim's ``InverseKinematicsSolver`` on every frame of ``positions_mm`` (F, D, 3; OpenSim
     ground, mm; NaN = missing), each marker weighted per frame by ``weights`` (F, D) and each frame
     started from the previous frame's solution (the first from the model's default pose, where it
-    was built: the static trial). ``priors``: {coordinate: weight} of coordinate goals toward the
+    was built: the static trial) and, with ``restart``, from the default pose too, keeping the
+    solution with the lower objective. ``priors``: {coordinate: weight} of coordinate goals toward the
     coordinate's default value (weight per unit^2, beside marker errors in m^2). Coordinates the
     model clamps stay inside their ranges."""
     osim = require_opensim()
@@ -306,6 +308,8 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
         goal.setWeight(float(weight))
         goals.push_back(goal)
     solver = osim.InverseKinematicsSolver(model, reference, goals)
+    goal_weights = [(coords.get(name), float(weight), coords.get(name).getDefaultValue())
+                    for name, weight in (priors or {}).items()]
     solver.setAccuracy(float(accuracy))
     column = {label: d for d, label in enumerate(labels)}
     coordinate_list = [coords.get(i) for i in range(coords.getSize())]
@@ -327,9 +331,13 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
         if f == 0:
             order = [solver.getMarkerNameForIndex(i) for i in range(solver.getNumMarkersInUse())]
         values[f] = [c.getValue(state) for c in coordinate_list]
+        in_order = [column[name] for name in order]
+        if f > 0 and restart:
+            values[f] = _better_of_two_starts(solver, state, coordinate_list, values[f], goal_weights,
+                                              np.where(present[f, in_order], weights[f, in_order], 0.0))
         solver.computeCurrentMarkerErrors(errors)
         err = np.array([errors.getElt(i) for i in range(errors.size())])
-        used = present[f, [column[name] for name in order]] & np.isfinite(err)
+        used = present[f, in_order] & np.isfinite(err)
         count[f] = int(used.sum())
         if used.any():
             rms[f] = 1000.0 * float(np.sqrt(np.mean(err[used] ** 2)))
@@ -337,6 +345,34 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
     rotational = np.array([c.getMotionType() == osim.Coordinate.Rotational for c in coordinate_list])
     return IKSolution(np.asarray(times, float), [c.getName() for c in coordinate_list], values, rotational,
                       rms, worst, count, time.perf_counter() - started)
+
+
+def _ik_cost(solver, state, goal_weights: list, marker_weights: np.ndarray) -> float:
+    """The IK objective at ``state``: weighted squared marker errors (m^2) plus the coordinate goals'."""
+    squared = require_opensim().SimTKArrayDouble()
+    solver.computeCurrentSquaredMarkerErrors(squared)
+    err = np.array([squared.getElt(i) for i in range(squared.size())])
+    cost = float(np.nansum(marker_weights * err))
+    return cost + sum(w * (c.getValue(state) - default) ** 2 for c, w, default in goal_weights)
+
+
+def _better_of_two_starts(solver, state, coordinate_list: list, from_previous: np.ndarray, goal_weights: list,
+                          marker_weights: np.ndarray) -> np.ndarray:
+    """Solve the frame again from the default pose (the static trial) and keep whichever of the two
+    solutions has the lower objective; ``state`` is left at the kept one. Along the directions the
+    markers hardly see (a pelvis turn against the levels' axial rotations) a solve from the previous
+    frame stops wherever the solver's tolerance is met, so the solution would depend on the path."""
+    cost_previous = _ik_cost(solver, state, goal_weights, marker_weights)
+    for c in coordinate_list:
+        c.setValue(state, c.getDefaultValue(), False)
+    solver.assemble(state)
+    fresh = np.array([c.getValue(state) for c in coordinate_list])
+    if _ik_cost(solver, state, goal_weights, marker_weights) <= cost_previous:
+        return fresh
+    for c, value in zip(coordinate_list, from_previous):
+        c.setValue(state, float(value), False)
+    solver.assemble(state)  # back onto the previous-start solution (already converged: one step)
+    return np.array([c.getValue(state) for c in coordinate_list])
 
 
 def write_ik_outputs(folder: Path, solution: IKSolution, motion: str = "ik.mot",
