@@ -158,7 +158,7 @@ def test_a_world_turned_about_the_vertical_gives_the_same_angles_in_every_frame(
                   tmp_path / "turned", up=UP, facing=_turn(FACING, 90.0))
     columns = [c for c in base.angles.columns if c.endswith(("_flexion", "_lateral", "_rotation"))]
     np.testing.assert_allclose(turned.angles[columns].to_numpy(), base.angles[columns].to_numpy(), atol=0.5)
-    assert base.angles["lumbar_flexion"].max() > 20.0  # it bends
+    assert base.angles["lumbar_flexion"].max() > 15.0  # it bends: the agreement above is not trivial
     # inside the clamped published ranges, flagged frames included
     from spinemocap.opensim.model import RANGE_FACTOR
 
