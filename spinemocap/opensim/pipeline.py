@@ -21,8 +21,10 @@ named by ``settings.depth_source``); every row's in-plane tilt is kept at its st
 rows above the pinned ones slip along their vertebrae (:mod:`skin_model`); the model is built
 (:mod:`model`), MarkerPlacer moves its markers onto the static trial (slips held at 0) and the
 placement is checked against the anatomy (:func:`check_placement`); OpenSim's IK solver runs frame
-by frame (:func:`tools.solve_ik`: per-sample marker weights from the label confidence, each frame
-started from the previous one's solution, joints clamped to their published ranges). Missing
+by frame (:func:`tools.solve_ik`: per-sample marker weights from the label confidence, inferred
+dots down-weighted as far less certain (:func:`tools.marker_weights`), each frame solved from the
+previous one's solution and from the static pose with the lower objective kept, joints clamped to
+their published ranges). Missing
 samples stay NaN (skipped per frame); frames the result cannot vouch for are flagged in the CSV,
 the summary and the plot.
 
@@ -61,6 +63,8 @@ from .geometry import (
 from .model import DOF, RANGE_FACTOR, ModelPlan, annotate_slips, body_name, build_model, plan_model
 from .skin_model import SlipPrior, normalise_row_tilt, slip_coordinate, slip_rows
 from .tools import (
+    INFERRED_SD_MM,
+    OBSERVED_SD_MM,
     marker_locations,
     marker_weights,
     mean_weights,
@@ -100,7 +104,9 @@ class OpenSimSettings:
     ``prior_weight``: the prior on per-level lateral bending and axial rotation (:func:`_priors`);
     ``normalise_tilt``: keep each row's in-plane tilt at its static angle
     (:func:`skin_model.normalise_row_tilt`); ``slip``: the rows' slip and its prior
-    (:class:`skin_model.SlipPrior`), None = every marker fixed to its vertebra."""
+    (:class:`skin_model.SlipPrior`), None = every marker fixed to its vertebra;
+    ``restart_from_static``: every frame solved from the previous solution and from the static
+    pose, the lower objective kept (:func:`tools.solve_ik`)."""
 
     static_frames: int = 10
     accuracy: float = 1e-5
@@ -112,6 +118,10 @@ class OpenSimSettings:
     prior_weight: float = 0.0
     normalise_tilt: bool = True
     slip: SlipPrior | None = SlipPrior()
+    # every frame also solved from the static pose, keeping the lower objective (see tools.solve_ik)
+    restart_from_static: bool = True
+    # position SD (mm) of an inferred dot against an observed one's 1 mm (tools.marker_weights)
+    inferred_sd_mm: float = INFERRED_SD_MM
 
 
 @dataclass
@@ -138,9 +148,9 @@ class TapeMarkers:
     fps: float
     confidence: np.ndarray
 
-    def weights(self) -> np.ndarray:
+    def weights(self, inferred_sd_mm: float = INFERRED_SD_MM) -> np.ndarray:
         """(F, D) IK weight of every sample (:func:`tools.marker_weights`)."""
-        return marker_weights(self.status, self.confidence)
+        return marker_weights(self.status, self.confidence, inferred_sd_mm)
 
 
 def tape_markers(markers: MarkerTable, tape: TapeSpec, axes: np.ndarray, source: str | None = None) -> TapeMarkers:
@@ -260,7 +270,8 @@ def place_markers(work: Path, labels: list[str], placed: np.ndarray, static: Sta
 
 def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: TapeMarkers, frames: np.ndarray,
                        accuracy: float, priors: dict[str, float] | None = None,
-                       positions: np.ndarray | None = None) -> float:
+                       positions: np.ndarray | None = None, restart: bool = True,
+                       inferred_sd_mm: float = INFERRED_SD_MM) -> float:
     """``markers_opensim.trc`` (the given frames, the ``placed`` dots named ``labels``; the
     markers as given, or ``positions`` (F, D, 3) mm in their place: the skin-corrected ones),
     ``setup_ik.xml`` on ``model.osim`` (one mean weight per marker: a re-run in the GUI), and IK
@@ -270,10 +281,11 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
     chosen = source[frames][:, placed]
     times = data.times[frames]
     write_trc(work / "markers_opensim.trc", labels, times, chosen, data.fps)
-    weights = data.weights()[frames][:, placed]
+    weights = data.weights(inferred_sd_mm)[frames][:, placed]
     write_ik_setup(work, "model.osim", "markers_opensim.trc", (float(times[0]), float(times[-1])), labels,
                    mean_weights(weights), "ik.mot", accuracy, priors)
-    solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy)
+    solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy, restart,
+                        data.status[frames][:, placed] == "observed")
     write_ik_outputs(work, solution)
     return solution.seconds
 
@@ -326,9 +338,9 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
             positions, tilt_turn = normalise_row_tilt(data.positions, st.positions, tape)
         ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
                                         settings.accuracy, _priors(placed.plan, settings, placed.slipping),
-                                        positions)
+                                        positions, settings.restart_from_static, settings.inferred_sd_mm)
         angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
-        weights = mean_weights(data.weights()[:, placed.placed])
+        weights = mean_weights(data.weights(settings.inferred_sd_mm)[:, placed.placed])
         summary = _summary(data, placed, angles, flags, ik_seconds, facing_error, weights, settings, osim)
         summary["depth"] = {"scale_on_published": settings.depth_scale, "source": settings.depth_source,
                             "depth_mm": {n: round(float(x), 1) for n, x in
@@ -433,6 +445,7 @@ def spine_angles(motion: Path, errors: Path, plan: ModelPlan, data: TapeMarkers)
     rms = 1000.0 * err[:, err_labels.index("marker_error_RMS")]
     worst = 1000.0 * err[:, err_labels.index("marker_error_max")]
     table["marker_rms"] = rms
+    table["marker_rms_observed"] = 1000.0 * err[:, err_labels.index("marker_error_RMS_observed")]
     table["marker_max"] = worst
     n_markers = np.isfinite(data.positions).all(axis=2).sum(axis=1)
     reasons = np.full(len(times), "", dtype=object)
@@ -448,7 +461,7 @@ def spine_angles(motion: Path, errors: Path, plan: ModelPlan, data: TapeMarkers)
 def _angles_header(plan: ModelPlan) -> str:
     joints = ", ".join(j.name for j in plan.driven)
     return ("# spinemocap opensim: inverse-kinematics spine angles. Units: time s; angles deg; marker_rms, "
-            "marker_max mm.\n# Signs (this project's): flexion = forward bending positive (OpenSim extension "
+            "marker_max, marker_rms_observed (over the measured dots) mm.\n# Signs (this project's): flexion = forward bending positive (OpenSim extension "
             "negated); lateral = bending toward the subject's right positive; rotation = axial rotation toward "
             "the subject's left positive. Zero = the static trial's posture.\n"
             f"# Driven joints (child_parent): {joints}. lumbar_* / thoracic_* = sums over the region's driven "
@@ -476,6 +489,8 @@ def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np
         "fps": data.fps,
         "marker_rms_mm": float(np.nanmean(rms)),
         "marker_rms_mm_max": float(np.nanmax(rms)),
+        # over the measured dots only: inferred ones are placed, not measured, and weigh little in IK
+        "marker_rms_observed_mm": float(np.nanmean(angles["marker_rms_observed"])),
         "marker_max_mm": float(np.nanmax(angles["marker_max"])),
         "ms_per_frame": 1000.0 * ik_seconds / max(len(angles), 1),
         "flagged_frames": [int(f) for f in flagged],
@@ -494,9 +509,11 @@ def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np
         "placement": placed.placement,
         "region_ranges_deg": ranges,
         "ik_accuracy": settings.accuracy,
-        "ik": "OpenSim InverseKinematicsSolver frame by frame: each frame from the previous solution, marker "
-              "weights = label confidence squared per sample, joints clamped to "
-              f"{RANGE_FACTOR:g} x their published ranges",
+        "ik": "OpenSim InverseKinematicsSolver frame by frame: each frame from the previous solution"
+              + (" and from the static pose, the lower objective kept" if settings.restart_from_static else "")
+              + ", marker weights = label confidence squared per sample, an inferred dot's divided by "
+              f"({settings.inferred_sd_mm:g} mm / {OBSERVED_SD_MM:g} mm)^2 (its assumed position SD against an "
+              f"observed dot's), joints clamped to {RANGE_FACTOR:g} x their published ranges",
         "opensim_version": str(osim.GetVersion()),
         "units": {"angles": "deg", "marker errors": "mm", "trc": "m"},
         "signs": "flexion forward +, lateral toward right +, rotation toward left +, zero = static posture",

@@ -25,6 +25,10 @@ import numpy as np
 from ..fileio import InputError
 
 INFERRED_CONFIDENCE = 0.6  # label confidence of an inferred dot when the table has none (observed: 1)
+# Position uncertainty (SD, mm) of an observed (triangulated) dot and of an inferred one (placed by
+# the tape model or filled in time): on the studio's deep bends inferred dots were 2-40 mm off
+OBSERVED_SD_MM = 1.0
+INFERRED_SD_MM = 10.0
 
 
 def require_opensim():
@@ -44,18 +48,23 @@ def quiet_opensim() -> None:
     osim.Logger.setLevelString("warn")
 
 
-def marker_weights(status: np.ndarray, confidence: np.ndarray | None = None) -> np.ndarray:
+def marker_weights(status: np.ndarray, confidence: np.ndarray | None = None,
+                   inferred_sd_mm: float = INFERRED_SD_MM) -> np.ndarray:
     """(F, D) IK task weight of every marker sample: the square of its label confidence (0..1,
     ``markers.csv``'s ``confidence`` column: observed 1, inferred 0.6, times 0.5 for each flag that
     puts the frame's labels in doubt), or, where the confidence is unknown (NaN, or no column),
     1 for an observed sample and :data:`INFERRED_CONFIDENCE` squared for an inferred one; 0 where
-    missing. Squared: a weight multiplies a squared marker error, like an inverse variance."""
+    missing. Squared: a weight multiplies a squared marker error, like an inverse variance. An
+    inferred sample's weight is further divided by (``inferred_sd_mm`` / :data:`OBSERVED_SD_MM`)^2:
+    its position was placed by the tape model or filled in time, not measured, and is that much
+    less certain."""
     status = np.asarray(status)
     fallback = np.where(status == "observed", 1.0, np.where(status == "inferred", INFERRED_CONFIDENCE, 0.0))
     if confidence is None:
         confidence = np.full(status.shape, np.nan)
     known = np.clip(np.where(np.isfinite(confidence), confidence, fallback), 0.0, 1.0)
-    return np.where(status == "missing", 0.0, known**2)
+    precision = np.where(status == "inferred", (OBSERVED_SD_MM / inferred_sd_mm) ** 2, 1.0)
+    return np.where(status == "missing", 0.0, known**2 * precision)
 
 
 def mean_weights(weights: np.ndarray) -> np.ndarray:
@@ -277,14 +286,18 @@ class IKSolution:
     marker_max_mm: np.ndarray
     markers: np.ndarray
     seconds: float
+    observed_rms_mm: np.ndarray  # (F,) marker RMS over the observed (measured) samples only
 
 
 def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positions_mm: np.ndarray,
-             weights: np.ndarray, priors: dict[str, float] | None = None, accuracy: float = 1e-5) -> IKSolution:
+             weights: np.ndarray, priors: dict[str, float] | None = None, accuracy: float = 1e-5,
+             restart: bool = True, observed: np.ndarray | None = None) -> IKSolution:
     """OpenSim's ``InverseKinematicsSolver`` on every frame of ``positions_mm`` (F, D, 3; OpenSim
     ground, mm; NaN = missing), each marker weighted per frame by ``weights`` (F, D) and each frame
     started from the previous frame's solution (the first from the model's default pose, where it
-    was built: the static trial). ``priors``: {coordinate: weight} of coordinate goals toward the
+    was built: the static trial) and, with ``restart``, from the default pose too, keeping the
+    solution with the lower objective. ``observed`` (F, D) bool: the measured samples, over which
+    ``observed_rms_mm`` is taken (default: all present). ``priors``: {coordinate: weight} of coordinate goals toward the
     coordinate's default value (weight per unit^2, beside marker errors in m^2). Coordinates the
     model clamps stay inside their ranges."""
     osim = require_opensim()
@@ -306,11 +319,15 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
         goal.setWeight(float(weight))
         goals.push_back(goal)
     solver = osim.InverseKinematicsSolver(model, reference, goals)
+    goal_weights = [(coords.get(name), float(weight), coords.get(name).getDefaultValue())
+                    for name, weight in (priors or {}).items()]
     solver.setAccuracy(float(accuracy))
     column = {label: d for d, label in enumerate(labels)}
     coordinate_list = [coords.get(i) for i in range(coords.getSize())]
     values = np.zeros((F, len(coordinate_list)))
     rms, worst, count = np.full(F, np.nan), np.full(F, np.nan), np.zeros(F, int)
+    observed_rms = np.full(F, np.nan)
+    measured = present if observed is None else present & np.asarray(observed, bool)
     errors = osim.SimTKArrayDouble()
     order: list[str] = []
     started = time.perf_counter()
@@ -327,29 +344,66 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
         if f == 0:
             order = [solver.getMarkerNameForIndex(i) for i in range(solver.getNumMarkersInUse())]
         values[f] = [c.getValue(state) for c in coordinate_list]
+        in_order = [column[name] for name in order]
+        if f > 0 and restart:
+            values[f] = _better_of_two_starts(solver, state, coordinate_list, values[f], goal_weights,
+                                              np.where(present[f, in_order], weights[f, in_order], 0.0))
         solver.computeCurrentMarkerErrors(errors)
         err = np.array([errors.getElt(i) for i in range(errors.size())])
-        used = present[f, [column[name] for name in order]] & np.isfinite(err)
+        used = present[f, in_order] & np.isfinite(err)
         count[f] = int(used.sum())
         if used.any():
             rms[f] = 1000.0 * float(np.sqrt(np.mean(err[used] ** 2)))
             worst[f] = 1000.0 * float(err[used].max())
+        seen = used & measured[f, in_order]
+        if seen.any():
+            observed_rms[f] = 1000.0 * float(np.sqrt(np.mean(err[seen] ** 2)))
     rotational = np.array([c.getMotionType() == osim.Coordinate.Rotational for c in coordinate_list])
     return IKSolution(np.asarray(times, float), [c.getName() for c in coordinate_list], values, rotational,
-                      rms, worst, count, time.perf_counter() - started)
+                      rms, worst, count, time.perf_counter() - started, observed_rms)
+
+
+def _ik_cost(solver, state, goal_weights: list, marker_weights: np.ndarray) -> float:
+    """The IK objective at ``state``: weighted squared marker errors (m^2) plus the coordinate goals'."""
+    squared = require_opensim().SimTKArrayDouble()
+    solver.computeCurrentSquaredMarkerErrors(squared)
+    err = np.array([squared.getElt(i) for i in range(squared.size())])
+    cost = float(np.nansum(marker_weights * err))
+    return cost + sum(w * (c.getValue(state) - default) ** 2 for c, w, default in goal_weights)
+
+
+def _better_of_two_starts(solver, state, coordinate_list: list, from_previous: np.ndarray, goal_weights: list,
+                          marker_weights: np.ndarray) -> np.ndarray:
+    """Solve the frame again from the default pose (the static trial) and keep whichever of the two
+    solutions has the lower objective; ``state`` is left at the kept one. Along the directions the
+    markers hardly see (a pelvis turn against the levels' axial rotations) a solve from the previous
+    frame stops wherever the solver's tolerance is met, so the solution would depend on the path."""
+    cost_previous = _ik_cost(solver, state, goal_weights, marker_weights)
+    for c in coordinate_list:
+        c.setValue(state, c.getDefaultValue(), False)
+    solver.assemble(state)
+    fresh = np.array([c.getValue(state) for c in coordinate_list])
+    if _ik_cost(solver, state, goal_weights, marker_weights) <= cost_previous:
+        return fresh
+    for c, value in zip(coordinate_list, from_previous):
+        c.setValue(state, float(value), False)
+    solver.assemble(state)  # back onto the previous-start solution (already converged: one step)
+    return np.array([c.getValue(state) for c in coordinate_list])
 
 
 def write_ik_outputs(folder: Path, solution: IKSolution, motion: str = "ik.mot",
                      errors: str = "ik_marker_errors.sto") -> None:
     """``ik.mot`` (coordinates, rotational ones in degrees, ``inDegrees=yes``) and
-    ``ik_marker_errors.sto`` (``marker_error_RMS`` / ``marker_error_max`` in metres), as OpenSim's
-    InverseKinematicsTool writes them, through OpenSim's own STO writer."""
+    ``ik_marker_errors.sto`` (``marker_error_RMS`` / ``marker_error_max``, as OpenSim's
+    InverseKinematicsTool writes them, and ``marker_error_RMS_observed`` over the measured dots;
+    metres), through OpenSim's own STO writer."""
     osim = require_opensim()
     values = np.where(solution.rotational, np.degrees(solution.values), solution.values)
     _write_sto(osim, folder / motion, solution.times, solution.coordinates, values,
                {"inDegrees": "yes", "DataType": "double"})
-    metres = np.column_stack([solution.marker_rms_mm, solution.marker_max_mm]) / 1000.0
-    _write_sto(osim, folder / errors, solution.times, ["marker_error_RMS", "marker_error_max"], metres,
+    metres = np.column_stack([solution.marker_rms_mm, solution.marker_max_mm, solution.observed_rms_mm]) / 1000.0
+    _write_sto(osim, folder / errors, solution.times, ["marker_error_RMS", "marker_error_max",
+                                                       "marker_error_RMS_observed"], metres,
                {"inDegrees": "no", "DataType": "double"})
 
 

@@ -158,7 +158,7 @@ def test_a_world_turned_about_the_vertical_gives_the_same_angles_in_every_frame(
                   tmp_path / "turned", up=UP, facing=_turn(FACING, 90.0))
     columns = [c for c in base.angles.columns if c.endswith(("_flexion", "_lateral", "_rotation"))]
     np.testing.assert_allclose(turned.angles[columns].to_numpy(), base.angles[columns].to_numpy(), atol=0.5)
-    assert base.angles["lumbar_flexion"].max() > 20.0  # it bends
+    assert base.angles["lumbar_flexion"].max() > 15.0  # it bends: the agreement above is not trivial
     # inside the clamped published ranges, flagged frames included
     from spinemocap.opensim.model import RANGE_FACTOR
 
@@ -199,3 +199,53 @@ def test_every_path_form_works_relative_with_spaces_and_read_only_inputs(tmp_pat
     finally:
         for path in read_only:
             path.chmod(path.stat().st_mode | stat.S_IWUSR)
+
+
+@needs_opensim
+def test_the_same_dots_give_the_same_angles_on_the_way_out_and_back(tmp_path):
+    # a twist and lateral bend out and back: frames with equal dots must get equal angles (a solve
+    # only from the previous frame's solution stops short along the directions the markers hardly see)
+    amplitude = np.array([0.0, 0.5, 1.0, 0.5, 0.0])
+    dots = np.array([_bend(flexion=20 * a, lateral=15 * a, twist=25 * a) for a in amplitude])
+    result = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "out")
+    columns = [c for c in result.angles.columns if c.endswith(("_flexion", "_lateral", "_rotation"))]
+    angles = result.angles[columns].to_numpy()
+    np.testing.assert_allclose(angles[3], angles[1], atol=0.1)
+    np.testing.assert_allclose(angles[4], angles[0], atol=0.1)
+
+
+def test_an_inferred_dot_weighs_its_confidence_squared_over_its_position_uncertainty():
+    from spinemocap.opensim.tools import OBSERVED_SD_MM, marker_weights
+
+    status = np.array([["observed", "inferred", "inferred", "missing"]], dtype=object)
+    confidence = np.array([[0.5, 0.5, np.nan, 1.0]])
+    weights = marker_weights(status, confidence, inferred_sd_mm=10.0)
+    np.testing.assert_allclose(weights, [[0.25, 0.25 * (OBSERVED_SD_MM / 10.0) ** 2,
+                                          0.36 * (OBSERVED_SD_MM / 10.0) ** 2, 0.0]])
+
+
+@needs_opensim
+def test_inferred_dots_placed_far_off_barely_move_the_spine(tmp_path):
+    # the right and middle dots of the upper rows placed 25 mm too deep (a tape model's guess in a
+    # deep bend) and marked inferred; the left ones observed
+    amplitude = np.linspace(0.0, 1.0, 4)
+    dots = np.array([_bend(flexion=30 * a) for a in amplitude])
+    graph = TAPE.graph
+    guessed_dots = (graph.row >= 8) & (np.array(graph.column) != "L")
+    status = np.full(dots.shape[:2], "observed", dtype=object)
+    status[2:, guessed_dots] = "inferred"
+    guessed = dots.copy()
+    guessed[2:, guessed_dots, 1] += 25.0
+    table = MarkerTable.from_arrays(TAPE.labels, guessed, fps=FPS, status=status)
+    columns = ["lumbar_flexion", "thoracic_flexion", "lumbar_lateral", "thoracic_lateral", "lumbar_rotation",
+               "thoracic_rotation"]
+    truth = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "truth").angles[columns].to_numpy()
+    result = _run(table, tmp_path / "out")
+    as_observed = _run(table, tmp_path / "as_observed", inferred_sd_mm=1.0).angles[columns].to_numpy()
+    error = np.abs(result.angles[columns].to_numpy() - truth)
+    # the guesses would turn and bend the upper spine sideways by up to ~19 deg at full weight; the
+    # flexion's share between the regions stays loosely determined on this rod either way
+    assert error.max() < 0.5 * np.abs(as_observed - truth).max()
+    assert error[:, 2:].max() < 2.0
+    # the observed dots still fit; the RMS over all dots shows the inferred ones' misfit
+    assert result.summary["marker_rms_observed_mm"] < 1.0 < result.summary["marker_rms_mm"]
