@@ -283,7 +283,9 @@ def adapt_detector(capture_dir: str | Path, out: str | Path, results: str | Path
     ``studio_settings`` scenes are rendered into ``out/studio_data``; ``weights``: the weights to
     start from (default: those the capture names, else the shipped ones); ``frames``: the frames
     the first pass tracks (:mod:`spinemocap.frames`). Writes ``out/weights.pt`` (+ ``weights.json``,
-    ``training.png``, the labelled views as shards in ``out/adapt_data``).
+    ``training.png``, the labelled views as shards in ``out/adapt_data``). Like ``detector train``,
+    the fine-tuning resumes from ``out/checkpoint.pt`` when run again into the same ``out``; a new
+    ``out`` starts afresh.
 
     Raises:
         InputError: no frame vouched for, or no camera view confirmed (the detector finds too
