@@ -21,7 +21,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import cv2
 import numpy as np
@@ -38,6 +38,9 @@ from ..track.quality import flagged_from_confidence
 from .results import read_results, write_markers
 from .run import TrackResult, select_frames, track_source
 from .training_data import SynthDataSettings, generate_synthetic
+
+if TYPE_CHECKING:  # torch is imported only when the fine-tuning runs
+    from ..detect.train import TrainSettings
 
 log = logging.getLogger(__name__)
 
@@ -269,7 +272,7 @@ def first_pass(capture: Capture, out: Path, frames: str | None, progress: bool) 
 
 
 def adapt_detector(capture_dir: str | Path, out: str | Path, results: str | Path | None = None,
-                   label_settings: LabelSettings = LabelSettings(), train_settings=None,
+                   label_settings: LabelSettings = LabelSettings(), train_settings: TrainSettings | None = None,
                    studio: Path | None = None, studio_settings: SynthDataSettings | None = None,
                    weights: Path | None = None, frames: str | None = None, progress: bool = True,
                    provenance: dict | None = None) -> AdaptResult:
