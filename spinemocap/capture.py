@@ -92,7 +92,7 @@ def to_grey(image: np.ndarray) -> np.ndarray:
 
 # The tables a capture.toml may hold, and the keys of each (anything else is refused, naming these)
 CAPTURE_KEYS = ("name", "fps", "n_frames", "cameras", "rig", "reference", "media", "image_pattern",
-                "video_pattern", "start_s", "external_media", "force_fps")
+                "video_pattern", "start_s", "external_media", "force_fps", "detector_weights")
 CAMERA_KEYS = ("media", "offset_s", "fps")
 SUBJECT_KEYS = ("id", "up", "facing", "age", "sex", "height_m", "mass_kg", "phenotype", "skin_tone",
                 "tape_start", "notes")
@@ -112,7 +112,9 @@ class Capture:
     ``camera_clocks``: the ``[camera.<name>]`` tables as given (cameras without one are on the
     capture's timing); ``start_s``: where capture frame 0 lies on the cameras' clocks, s;
     ``external_media``: paths may lead outside the folder; ``force_fps``: ``fps`` is used even
-    where the videos say another rate; ``spans_recordings``: ``n_frames`` is not written but found
+    where the videos say another rate; ``detector_weights``: the tape network's weights to detect
+    this capture with (:attr:`detector_weights_path`; None: the shipped ones);
+    ``spans_recordings``: ``n_frames`` is not written but found
     on opening (the span every camera recorded, which follows the offsets)."""
 
     root: Path
@@ -127,6 +129,7 @@ class Capture:
     video_pattern: str = VIDEO_PATTERN
     rig_file: str = "rig.toml"
     reference_file: str | None = None
+    detector_weights: str | None = None
     camera_clocks: dict[str, CameraClock] = field(default_factory=dict)
     start_s: float = 0.0
     external_media: bool = False
@@ -197,6 +200,20 @@ class Capture:
         if not path.is_file():
             raise InputError(self.root / MANIFEST, f"reference = {self.reference_file!r}: no such file in {self.root}")
         return ReferenceObject.from_toml(path)
+
+    @property
+    def detector_weights_path(self) -> Path | None:
+        """The network weights ``[capture] detector_weights`` names (relative to the capture folder
+        or absolute), or None (the shipped weights); :class:`InputError` naming ``capture.toml``
+        when the file is missing."""
+        if not self.detector_weights:
+            return None
+        path = self.root / self.detector_weights
+        if not path.is_file():
+            raise InputError(self.root / MANIFEST, f"detector_weights = {self.detector_weights!r}: no such file; "
+                                                   "name the weights.pt that 'spinemocap detector adapt' wrote, "
+                                                   "or remove the key to use the shipped weights")
+        return path
 
     def media_path(self, camera: str) -> Path:
         """Camera ``camera``'s video file or image folder: its ``[camera.<name>] media``, else the
@@ -383,6 +400,7 @@ class Capture:
                 "cameras": self.camera_names, "rig": self.rig_file, "media": self.media,
                 "image_pattern": self.image_pattern, "video_pattern": self.video_pattern,
                 **({"reference": self.reference_file} if self.reference_file else {}),
+                **({"detector_weights": self.detector_weights} if self.detector_weights else {}),
                 **{k: v for k, v in options.items() if v},
             },
             **({"camera": cameras} if cameras else {}),
@@ -407,6 +425,22 @@ def set_camera_offsets(root: str | os.PathLike, offsets: dict[str, float]) -> Pa
         if isinstance(offset, bool) or not isinstance(offset, (int, float)) or not np.isfinite(offset):
             raise InputError(manifest, f"offset of camera {name!r} must be a finite number of seconds, got {offset!r}")
         tables.setdefault(name, {})["offset_s"] = float(offset)
+    write_toml(manifest, data)
+    return manifest
+
+
+def set_detector_weights(root: str | os.PathLike, weights: str | os.PathLike) -> Path:
+    """Name ``weights`` (a network weights file) as ``[capture] detector_weights`` in the capture
+    folder ``root``'s ``capture.toml``, keeping everything else: relative to the folder when it lies
+    inside it, else absolute. Returns the manifest's path; :class:`InputError` naming the manifest
+    when it is not a valid one."""
+    manifest = Path(root) / MANIFEST
+    data = read_toml(manifest)
+    with reading(manifest, MANIFEST):
+        capture_settings(data, manifest)
+    path = Path(weights).resolve()
+    folder = Path(root).resolve()
+    data["capture"]["detector_weights"] = str(path.relative_to(folder)) if _inside(path, folder) else str(path)
     write_toml(manifest, data)
     return manifest
 
@@ -536,6 +570,7 @@ def capture_settings(data: dict, manifest: Path) -> dict:
         media = _typed(section, "media", (str,), "images")
         name = _typed(section, "name", (str, int), manifest.parent.name)
         reference = _typed(section, "reference", (str,), "") or None
+        detector_weights = _typed(section, "detector_weights", (str,), "") or None
         start_s = float(_typed(section, "start_s", (int, float), 0.0))
         flags = {key: _typed(section, key, (bool,), False) for key in ("external_media", "force_fps")}
         patterns = {key: _typed(section, key, (str,), getattr(Capture, key))
@@ -566,5 +601,6 @@ def capture_settings(data: dict, manifest: Path) -> dict:
         raise InputError(manifest, "; ".join(problems))
     return {"name": str(name), "fps": fps, "n_frames": int(n_frames) if "n_frames" in section else None,
             "cameras": list(cameras), "subject": dict(data.get("subject", {})), "media": media,
-            "rig_file": rig_file, "reference_file": reference, "camera_clocks": clocks, "start_s": start_s,
+            "rig_file": rig_file, "reference_file": reference, "detector_weights": detector_weights,
+            "camera_clocks": clocks, "start_s": start_s,
             **flags, **patterns}

@@ -27,6 +27,7 @@ import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import shared_memory
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -109,7 +110,7 @@ class StagedImages(list):
 
 class CameraProcesses:
     """A pool of ``n`` processes detecting camera images with ``Detector(name, device=device,
-    precision=precision)``.
+    precision=precision, weights=weights)`` (``weights`` None: the shipped ones).
 
     :meth:`detect` takes a frame's images (BGR uint8, one per camera) and per camera either a list
     of boxes to search or None (the full two-stage search, stage 1 on that image alone), and
@@ -119,7 +120,8 @@ class CameraProcesses:
     Raises :class:`ProcessesUnavailable` when the processes cannot start; :meth:`close` stops them
     and frees the shared memory (also on Ctrl-C)."""
 
-    def __init__(self, name: str, n: int, device: str = "cpu", staged: int = 0, precision: str = "float32"):
+    def __init__(self, name: str, n: int, device: str = "cpu", staged: int = 0, precision: str = "float32",
+                 weights: Path | None = None):
         self.name, self.n, self.device = name, n, device
         self._ring = [_Block() for _ in range(staged)]
         self._next = 0
@@ -132,7 +134,7 @@ class CameraProcesses:
         self._pool: ProcessPoolExecutor | None = None
         try:
             self._pool = ProcessPoolExecutor(n, mp_context=mp.get_context("spawn"), initializer=_worker_start,
-                                             initargs=(os.getpid(), name, device, precision))
+                                             initargs=(os.getpid(), name, device, precision, weights))
             started = time.perf_counter()
             self.pids = self._every_worker_up(started)
             self.startup_s = time.perf_counter() - started
@@ -260,7 +262,8 @@ def _view(block: shared_memory.SharedMemory, slot: Slot, dtype) -> np.ndarray:
 _STATE: dict = {}
 
 
-def _worker_start(parent_pid: int, name: str, device: str, precision: str = "float32") -> None:
+def _worker_start(parent_pid: int, name: str, device: str, precision: str = "float32",
+                  weights: Path | None = None) -> None:
     """Each worker: Ctrl-C is the parent's to handle; exit when the parent is gone; one torch
     and one OpenCV thread (the parallelism is the processes); its own detector."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -272,7 +275,8 @@ def _worker_start(parent_pid: int, name: str, device: str, precision: str = "flo
 
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
-    _STATE["detector"] = Detector(name, device=device, precision=precision) if name == "net" else Detector(name)
+    _STATE["detector"] = (Detector(name, device=device, precision=precision, weights=weights) if name == "net"
+                          else Detector(name))
     _STATE["blocks"] = {}
 
 

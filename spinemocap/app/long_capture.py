@@ -210,7 +210,8 @@ def _track_chunk(capture: Capture, tracked: range, first: int, mode: TrackingMod
     tracked_result = track_source(capture.frame_source(), capture.rig, capture.tape, capture.fps, tracked,
                                   up=capture.up, mode=mode, config=config, detector=detector, progress=False,
                                   speed=speed, mask_dir=capture.root / "masks",
-                                  meta={"subject": capture.subject.get("id", ""), "source": str(capture.root)})
+                                  meta={"subject": capture.subject.get("id", ""), "source": str(capture.root)},
+                                  weights=capture.detector_weights_path if detector == "net" else None)
     arrays = tracked_result.table.to_arrays()
     keep = slice(first - tracked.start, None)
     flags = np.array([";".join(f.flags if f.solved else [*f.flags, "unsolved"]) for f in tracked_result.frames])

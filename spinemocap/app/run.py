@@ -88,14 +88,16 @@ def frame_ranges(frames: Sequence[int]) -> str:
 # ---------------------------------------------------------------------- dot detection
 
 
-def make_detector(name: str, rig: Rig | None = None, speed: SpeedOptions | None = None) -> CaptureDetector:
+def make_detector(name: str, rig: Rig | None = None, speed: SpeedOptions | None = None,
+                  weights: Path | None = None) -> CaptureDetector:
     """A function ``(frame, images, masks) -> [ViewDots per camera]`` (a :class:`CaptureDetector`).
 
     ``net`` / ``classical``: :class:`spinemocap.detect.Detector` (tape mask + dots from the image);
     ``mask``: dots found inside given tape masks (synthetic captures ship exact masks; this
     isolates the tracker from tape-segmentation errors). ``rig`` enables detection by
-    prediction in sequence mode; ``speed``: threads, prefetching, prediction (default: all on)."""
-    return CaptureDetector(name, rig, speed)
+    prediction in sequence mode; ``speed``: threads, prefetching, prediction (default: all on);
+    ``weights``: the ``net`` detector's weights file (None: the shipped ones)."""
+    return CaptureDetector(name, rig, speed, weights=weights)
 
 
 # ---------------------------------------------------------------------- sequences
@@ -397,19 +399,22 @@ def track_source(
     mask_dir: Path | None = None,
     meta: dict | None = None,
     stop: Callable[[], bool] | None = None,
+    weights: Path | None = None,
 ) -> TrackResult:
     """Detect and track the frames of any :class:`~spinemocap.capture.FrameSource` (a capture's
-    images or videos, the synthetic studio's, frames held in memory); see :func:`track_capture`."""
+    images or videos, the synthetic studio's, frames held in memory); see :func:`track_capture`.
+    ``weights``: the ``net`` detector's weights file (None: the shipped ones)."""
     frames = range(source.n_frames) if frames is None else frames
     speed = speed or SpeedOptions()
     if mode != "sequence":  # every frame on its own: no prediction from earlier frames
         speed = replace(speed, predict=False)
-    detect = make_detector(detector, rig, speed)
+    detect = make_detector(detector, rig, speed, weights if detector == "net" else None)
     views = source_views(source, frames, detect, speed, mask_dir)
     try:
         result = run_tracking(
             views, rig, tape, fps, up=up, mode=mode,
-            config=config, progress=progress, n_frames=len(frames), meta={**(meta or {}), "detector": detector},
+            config=config, progress=progress, n_frames=len(frames), meta={**(meta or {}), "detector": detector,
+                                                          **({"detector_weights": str(weights)} if weights else {})},
             on_frame=lambda frame, r: detect.observe(frame, r.positions if r.solved else None), stop=stop,
         )
     finally:
@@ -459,7 +464,8 @@ def track_capture_result(
     reference: str | Path | None = None,
 ) -> TrackResult:
     """:func:`track_capture` returning the whole :class:`TrackResult` (quality flags, rig
-    residuals). ``refine``: bundle-adjust the rig on the tracked dots afterwards
+    residuals). The ``net`` detector uses the weights ``capture.toml`` names
+    (``[capture] detector_weights``), else the shipped ones. ``refine``: bundle-adjust the rig on the tracked dots afterwards
     (``--refine-rig``): the refined rig goes to ``out_dir/rig_refined.toml`` with the residuals
     before/after in ``out_dir/rig_refine.json``, and the observed dots are re-triangulated with it
     (labels unchanged, :func:`apply_refined_rig`).
@@ -482,7 +488,7 @@ def track_capture_result(
                           up=capture.up, mode=mode, config=config, detector=detector, progress=progress,
                           speed=speed, mask_dir=capture.root / "masks",
                           meta={"subject": capture.subject.get("id", ""), "source": str(capture.root)},
-                          stop=stop)
+                          stop=stop, weights=capture.detector_weights_path if detector == "net" else None)
     if refine is not None:
         try:
             result.refinement = refine_rig(capture.rig, result.pixels(), result.table.positions(), capture.fps, refine,

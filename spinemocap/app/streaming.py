@@ -327,21 +327,25 @@ class CaptureDetector:
     """``(frame, images, masks) -> [ViewDots per camera]`` for one rig (see the module docstring).
 
     ``name``: ``net`` / ``classical`` (:class:`spinemocap.detect.Detector`) or ``mask`` (dots
-    inside given tape masks; always in threads: finding dots in given masks is cheap). Call
+    inside given tape masks; always in threads: finding dots in given masks is cheap); ``weights``:
+    the ``net`` detector's weights file (None: the shipped ones). Call
     :meth:`observe` with each frame's solved dots (mm, world) to enable prediction; :meth:`close`
     ends the worker processes or threads."""
 
-    def __init__(self, name: str, rig: Rig | None = None, options: SpeedOptions | None = None):
+    def __init__(self, name: str, rig: Rig | None = None, options: SpeedOptions | None = None,
+                 weights: Path | None = None):
         self.name = name
         self.rig = rig
         self.options = options or SpeedOptions()
+        self.weights = weights
         self.detector: Detector | None = None
         if name in ("net", "classical"):
             try:  # the network detector loads torch: imported only when chosen
                 from ..detect import Detector
             except ImportError as exc:
                 raise InputError(None, f"detector {name!r} is not available in this installation ({exc})") from exc
-            self.detector = (Detector(name=name, device=self.options.device, precision=self.options.precision)
+            self.detector = (Detector(name=name, device=self.options.device, precision=self.options.precision,
+                                      weights=weights)
                              if name == "net" else Detector(name=name))
         elif name != "mask":
             raise InputError(None, f"unknown detector {name!r} (choose net, classical or mask)")
@@ -399,7 +403,8 @@ class CaptureDetector:
         staged = self.options.prefetch + 2 if self.options.prefetch > 0 else 0  # see CameraProcesses.stage
         try:
             return CameraProcesses(self.name, self._n, device, staged=staged,
-                                   precision=self.options.precision if self.name == "net" else "float32")
+                                   precision=self.options.precision if self.name == "net" else "float32",
+                                   weights=self.weights if self.name == "net" else None)
         except ProcessesUnavailable as exc:
             self._fall_back(f"camera worker processes could not start ({exc})")
             return None

@@ -1,8 +1,9 @@
-"""``spinemocap detector train|finetune|run``: train the tape network, adapt it to a lab, apply it.
+"""``spinemocap detector train|finetune|adapt|run``: train the tape network, adapt it to a lab, apply it.
 
     spinemocap detector train --out runs/tape                   # render studio data, train
     spinemocap detector finetune --images lab/images --masks lab/masks --out runs/lab
     spinemocap detector finetune --images lab/images --coco lab/tape.json --out runs/lab
+    spinemocap detector adapt capture/ --out runs/adapted --use   # learn from the capture's own tracked frames
     spinemocap detector run img1.png cam1.mp4 capture/ --out dots/   # dots CSV + overlay per image
     spinemocap detector run capture/ --frames 0:50 --out dots/  # every camera of a capture, frames 0-49
 
@@ -61,6 +62,23 @@ def register(subparsers) -> None:
     f.add_argument("--val-fraction", type=float, default=0.24, help="share of images for validation (paper: 631/2619)")
     f.set_defaults(func=_finetune)
 
+    a = sub.add_parser("adapt", help="fine-tune on a capture's own frames, labelled by a first tracking pass")
+    _train_options(a, epochs=4, lr=1e-3)
+    a.set_defaults(steps=30)
+    a.add_argument("capture", type=Path, metavar="CAPTURE", help="capture folder (capture.toml)")
+    a.add_argument("--results", type=Path,
+                   help="results folder of tracking CAPTURE (default: track it first into OUT/first_pass)")
+    a.add_argument("--frames", help="frames the first pass tracks, e.g. 0:300 (default: all)")
+    a.add_argument("--weights", type=Path, help="starting weights (default: those capture.toml names, else the shipped ones)")
+    a.add_argument("--studio", type=Path, help="studio training shards to mix in (detector train's OUT/data; "
+                                               "default: render --studio-scenes scenes into OUT/studio_data)")
+    a.add_argument("--studio-scenes", type=int, default=8, help="studio scenes to render when --studio is not given")
+    a.add_argument("--max-frames", type=int, help="vouched-for frames used as labels at most, evenly spread "
+                                                  "(default 40)")
+    a.add_argument("--use", action="store_true", help="name the new weights in CAPTURE's capture.toml "
+                                                      "([capture] detector_weights)")
+    a.set_defaults(func=_adapt)
+
     r = sub.add_parser("run", help="detect tape and dots in images, videos or capture folders; draw what was found")
     r.add_argument("inputs", type=Path, nargs="+", metavar="INPUT",
                    help="image files, video files (" + " ".join(VIDEO_SUFFIXES) + ") or capture folders (every camera)")
@@ -71,6 +89,32 @@ def register(subparsers) -> None:
     r.add_argument("--out", type=Path, help="folder for <name>_dots.csv and <name>_overlay.png (the mask's outline, "
                                             "the dots, the counts) per image")
     r.set_defaults(func=_run)
+
+
+def _adapt(args) -> int:
+    from dataclasses import replace
+
+    from ..app.adapt import LabelSettings, adapt_detector
+    from ..app.training_data import SynthDataSettings
+    from ..capture import set_detector_weights
+
+    result = adapt_detector(args.capture, args.out, results=args.results,
+                            label_settings=(replace(LabelSettings(), max_frames=args.max_frames) if args.max_frames
+                                            else LabelSettings()),
+                            train_settings=_settings(args), studio=args.studio,
+                            studio_settings=SynthDataSettings(scenes=args.studio_scenes, layouts=("tiny", "artificial")),
+                            weights=args.weights, frames=args.frames, provenance={"command": _command(args)})
+    print(f"{len(result.frames)} vouched-for frames, {result.views} camera views labelled ({result.dots} dots; "
+          f"{result.views_skipped} views left out: the tape not confirmed there), {result.studio_views} studio views "
+          f"mixed in; best epoch {result.training['best_epoch']}: validation IoU {result.training['val_iou']:.4f}")
+    print(f"weights: {result.weights}")
+    if args.use:
+        manifest = set_detector_weights(args.capture, result.weights)
+        print(f"{manifest}: detector_weights names them; 'spinemocap track' now detects with them")
+    else:
+        print(f"to use them: add detector_weights = \"{result.weights.resolve()}\" to [capture] in "
+              f"{args.capture / 'capture.toml'} (or run again with --use)")
+    return 0
 
 
 def _settings(args):

@@ -1,0 +1,161 @@
+"""The adaptation benchmark (``spinemocap bench adapt``): ``detector adapt`` on an appearance the
+shipped weights handle poorly, before and after, on the same capture and on a second one.
+
+The studio renders a ``tiny`` capture whose tape and skin the shipped network has not learnt
+(default: red tape on darker skin at the ``lab`` level, :data:`SHIFTED`) and a second one of the same appearance (another seed: body,
+motion, lighting) that adaptation never sees. ``detector adapt`` then learns from the first
+capture's own tracked frames (no ground truth used), and both captures are scored with the shipped
+and the adapted weights: dot recall and precision of the detector on every ``step``-th frame
+against the dots' true centres on the tape surface (one-to-one within
+:data:`spinemocap.bench.detect.MATCH_PX`; dots the studio marks hidden or within half a dot of the
+border are left out, detections near them count neither way), and the tracked error (mean / p95
+mm), swapped dot-frames and flagged frames of ``track`` against the ground truth.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import time
+import warnings
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..app.adapt import LabelSettings, adapt_detector
+from ..app.run import NoTapeFound, TrackingWarning, track_capture_result
+from ..app.training_data import SynthDataSettings
+from ..camera import Camera
+from ..capture import MANIFEST, Capture, set_detector_weights
+from ..fileio import atomic_write
+from ..synth import SynthConfig
+from ..synth.writer import write_capture
+from ..track.evaluate import evaluate_tracking
+from .detect import match
+
+#: The shifted appearance: red tape on darker skin (the shipped weights find about half of its dots),
+#: at the ``lab`` level (skin strain, tape tension, 0.5 px calibration error, sensor noise).
+SHIFTED = {"tape_colour": "red", "skin_tone": 0.7, "realism": "lab"}
+SEEN_SEED, UNSEEN_SEED = 0, 1
+
+
+def detection_scores(capture: Capture, weights: Path | None, step: int = 2) -> dict:
+    """Dot recall and precision of the ``net`` detector with ``weights`` (None: shipped) on every
+    ``step``-th frame of a studio capture (see the module)."""
+    from ..detect import Detector
+
+    detector = Detector("net", weights=weights) if weights else Detector("net")
+    truth = capture.groundtruth()
+    surface = truth["dots"] + capture.tape.thickness_mm * truth["dot_normals"]
+    true_rig = [Camera(name, truth["rig_K"][c], truth["rig_dist"][c], truth["rig_R"][c], truth["rig_t"][c], camera.size)
+                for c, (name, camera) in enumerate(zip(capture.camera_names, capture.rig))]
+    found = missed = false = 0
+    source = capture.frame_source()
+    try:
+        for frame in range(0, capture.n_frames, step):
+            for c, image in enumerate(source.read(frame)):
+                if image is None:
+                    continue
+                camera = true_rig[c]
+                uv = camera.project(surface[frame])
+                h, w = image.shape[:2]
+                half = 0.5 * capture.tape.dot_diameter_mm * camera.K[0, 0] / camera.depth(surface[frame])
+                inside = (uv[:, 0] >= half) & (uv[:, 1] >= half) & (uv[:, 0] < w - half) & (uv[:, 1] < h - half)
+                visible = truth["visible"][frame, c] & inside
+                dots = detector.detect(image, camera=c).uv
+                i, j = match(dots, uv[visible])
+                hidden_near = match(np.delete(dots, i, axis=0), uv[~visible])[0]
+                found += len(i)
+                missed += int(visible.sum()) - len(i)
+                false += len(dots) - len(i) - len(hidden_near)
+    finally:
+        close = getattr(source, "close", None)
+        if close is not None:
+            close()
+    return {"recall": found / max(found + missed, 1), "precision": found / max(found + false, 1),
+            "dots_found": found, "dots_missed": missed, "false_dots": false}
+
+
+def tracking_scores(capture_dir: Path, out: Path) -> dict:
+    """``track`` of a studio capture (its ``detector_weights`` if named) scored against its ground truth."""
+    capture = Capture.open(capture_dir)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", TrackingWarning)
+            result = track_capture_result(capture_dir, out, progress=False)
+    except NoTapeFound as exc:
+        return {"error": exc.problem}
+    accuracy = evaluate_tracking(result.table, capture.groundtruth(), float(capture.tape.graph.rest_length_mm.min()))
+    arrays = result.table.to_arrays()
+    observed = arrays["status"] == "observed"
+    return {"mean_mm": accuracy.mean_error_mm, "p95_mm": accuracy.p95_error_mm,
+            "observed_mean_mm": accuracy.observed.mean, "swaps": accuracy.label_swaps,
+            "flagged_frames": len(result.flagged_frames()), "unsolved_frames": accuracy.frames_without_solution,
+            "observed_share": float(observed.mean())}
+
+
+def run_adapt_benchmark(work: Path, frames: int = 30, epochs: int = 4, steps: int = 30, studio_scenes: int = 6,
+                        appearance: dict | None = None, step: int = 2, progress: bool = True,
+                        say: Callable[[str], None] = print) -> dict:
+    """Render, adapt and score (see the module) in the folder ``work``; returns the JSON-ready numbers."""
+    from ..detect.train import TrainSettings
+
+    start = time.perf_counter()
+    appearance = appearance or SHIFTED
+    captures = {}
+    for name, seed in (("adapted on", SEEN_SEED), ("unseen", UNSEEN_SEED)):
+        root = work / f"capture_{seed}"
+        if not (root / "capture.toml").is_file():
+            write_capture(SynthConfig.preset("tiny", frames=frames, seed=seed, **appearance), root, progress=progress)
+        captures[name] = root
+    out = work / "adapted"
+    adapted = adapt_detector(captures["adapted on"], out, label_settings=LabelSettings(),
+                             train_settings=TrainSettings(epochs=epochs, steps=steps, lr=1e-3),
+                             studio_settings=SynthDataSettings(scenes=studio_scenes, layouts=("tiny", "artificial")),
+                             progress=progress)
+    rows = []
+    for name, root in captures.items():
+        for label, weights in (("shipped", None), ("adapted", adapted.weights)):
+            detection = detection_scores(Capture.open(root), weights, step)
+            manifest = (root / MANIFEST).read_text()  # the weights named for track, then the manifest restored
+            if weights is not None:
+                set_detector_weights(root, weights)
+            try:
+                tracking = tracking_scores(root, work / "tracked" / f"{root.name}_{label}")
+            finally:
+                (root / MANIFEST).write_text(manifest)
+            row = {"capture": name, "weights": label, **detection, "tracking": tracking}
+            rows.append(row)
+            say(describe(row))
+    return {"appearance": appearance, "preset": "tiny", "frames": frames, "step": step,
+            "train": {"epochs": epochs, "steps": steps, "studio_scenes": studio_scenes},
+            "labels": {"frames": len(adapted.frames), "views": adapted.views, "views_skipped": adapted.views_skipped,
+                       "dots": adapted.dots, "studio_views": adapted.studio_views},
+            "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+            "wall_s": time.perf_counter() - start, "rows": rows}
+
+
+def describe(row: dict) -> str:
+    t = row["tracking"]
+    tracked = (f"{t['mean_mm']:.2f} mm mean (p95 {t['p95_mm']:.2f}), {t['swaps']} swaps, {t['flagged_frames']} flagged, "
+               f"{t['unsolved_frames']} unsolved" if "mean_mm" in t else t["error"])
+    return (f"{row['capture']:>10} / {row['weights']:<7}: recall {row['recall']:.3f}, precision {row['precision']:.3f}; "
+            f"tracked {tracked}")
+
+
+def format_table(numbers: dict) -> str:
+    lines = ["| capture | weights | dot recall | dot precision | tracked mean / p95 mm | swaps | flagged frames | unsolved |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in numbers["rows"]:
+        t = r["tracking"]
+        tracked = (f"{t['mean_mm']:.2f} / {t['p95_mm']:.2f} | {t['swaps']} | {t['flagged_frames']} | {t['unsolved_frames']}"
+                   if "mean_mm" in t else f"{t['error']} | - | - | all")
+        lines.append(f"| {r['capture']} | {r['weights']} | {r['recall']:.3f} | {r['precision']:.3f} | {tracked} |")
+    return "\n".join(lines)
+
+
+def save(numbers: dict, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(path) as handle:
+        json.dump(numbers, handle, indent=2, default=float)
