@@ -124,12 +124,15 @@ def wall_bars(gaps: int, rungs: int, pitch: float, missing: tuple[tuple[int, int
 
 
 @pytest.mark.parametrize("pitch", [0.6, 0.9, 1.4, 2.2])
-def test_wall_bars_with_three_gaps_per_rung_are_not_a_tape(pitch):
-    # rows of exactly three on every rung (a lattice like the tape's), with gaps missing where the
+@pytest.mark.parametrize("gaps", [3, 5])
+def test_wall_bars_with_three_or_five_gaps_per_rung_are_not_a_tape(pitch, gaps):
+    # rows of exactly three on every rung (a lattice like the tape's; with five gaps, every other
+    # column is the tape's staggered lattice, but with dots between), with gaps missing where the
     # network did not mark them: a row of two beside a row of three, but no stagger
-    for missing in ((), ((1, 3),), ((0, 5),)):  # (two missing in the right places can make a stagger)
+    patterns = ((), ((1, 3),), ((0, 5),), ((1, 3), (2, 6)), ((0, 2), (2, 5))) if gaps == 3 else ((),)
+    for missing in patterns:  # (five gaps with some missing: kept at times, counted by the benchmark)
         for angle, squash, shear in ((0, 1.0, 0.0), (35, 0.6, 0.2), (100, 0.8, -0.3)):
-            uv = seen(wall_bars(3, 8, pitch, missing), 30.0, angle, squash, shear)
+            uv = seen(wall_bars(gaps, 8, pitch, missing), 30.0, angle, squash, shear)
             found = lattice_dots(uv)
             assert found.middle.any() and not found.staggered.any(), (missing, angle)
             kept, keep = tape_regions(np.ones((900, 900), bool), uv)
@@ -142,4 +145,4 @@ def test_the_lattice_test_keeps_tapes_and_drops_most_wall_bars():
 
     score = score_lattice(40)
     assert score["tapes_accepted"] >= 0.75 * score["cases"] and score["tape_dots_kept"] >= 0.75
-    assert score["wall_bars_accepted"] <= 0.5 * score["cases"]
+    assert score["wall_bars_accepted"] <= 0.25 * score["cases"]

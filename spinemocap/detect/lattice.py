@@ -149,16 +149,18 @@ def staggered_rows(uv: np.ndarray, tree: cKDTree, idx: np.ndarray, vectors: np.n
         return out
     middle, v, two = uv[p[rows]], step[rows], q[rows, cols]
     r = radius[rows, 0]
-    # neighbouring rows: no dot between them (a grid's oblique lines of three and two are farther
-    # apart, with dots between)
+    # neighbouring rows: no dot between them or between their dots (a grid's oblique lines of three
+    # and two, or its every other column, have dots between)
     apart = _nothing_between(uv, tree, middle - v, v, two - middle)
     rows, cols, middle, v, two, r = rows[apart], cols[apart], middle[apart], v[apart], two[apart], r[apart]
     # ... and a third row continuing the stagger: the other row of two, the first mirrored through
     # the middle of the row of three, or the next row of three, mirrored through the row of two
     other_two = 2 * middle - two
     next_three = 2 * two - v - middle
-    continued = (_row_at(tree, other_two, v, r, (0, 1), (-1, 2))
-                 | _row_at(tree, next_three, v, r, (-1, 0, 1), (-2, 2)))
+    continued = ((_row_at(tree, other_two, v, r, (0, 1), (-1, 2))
+                  & _nothing_between(uv, tree, other_two, v, middle - other_two, corner=ROW_TOLERANCE))
+                 | (_row_at(tree, next_three, v, r, (-1, 0, 1), (-2, 2))
+                    & _nothing_between(uv, tree, two - v, v, next_three - two + v, corner=ROW_TOLERANCE)))
     if continued.any():
         members = [middle[continued][:, None] + np.array([-1.0, 0.0, 1.0])[:, None] * v[continued][:, None]]
         members += [two[continued][:, None] - np.array([0.0, 1.0])[:, None] * v[continued][:, None]]
@@ -168,17 +170,21 @@ def staggered_rows(uv: np.ndarray, tree: cKDTree, idx: np.ndarray, vectors: np.n
 
 
 def _nothing_between(uv: np.ndarray, tree: cKDTree, origin: np.ndarray, side1: np.ndarray, side2: np.ndarray,
-                     margin: float = 0.15) -> np.ndarray:
-    """Per parallelogram (M,): no dot of ``uv`` inside ``origin + s side1 + t side2`` with
-    ``s``, ``t`` in ``(margin, 1 - margin)`` (all (M, 2) px)."""
+                     margin: float = 0.15, corner: float = 0.15) -> np.ndarray:
+    """Per parallelogram (M,): no dot of ``uv`` on ``origin + s side1 + t side2`` (all (M, 2) px)
+    with ``s``, ``t`` in ``[-margin, 1 + margin]`` (inside or on an edge) but within ``corner``
+    of its corners (in ``s`` and ``t``: predicted corners match dots that far off)."""
     out = np.ones(len(origin), bool)
     centres = origin + 0.5 * (side1 + side2)
-    reach = 0.5 * np.maximum(np.linalg.norm(side1 + side2, axis=1), np.linalg.norm(side1 - side2, axis=1))
+    reach = (0.5 + margin) * np.maximum(np.linalg.norm(side1 + side2, axis=1), np.linalg.norm(side1 - side2, axis=1))
     for m, near in enumerate(tree.query_ball_point(centres, reach)):
-        if near:
-            basis = np.array([side1[m], side2[m]]).T
-            st = np.linalg.solve(basis, (uv[near] - origin[m]).T) if abs(np.linalg.det(basis)) > 1e-9 else None
-            out[m] = st is None or not np.any(np.all((st > margin) & (st < 1 - margin), axis=0))
+        basis = np.array([side1[m], side2[m]]).T
+        if len(near) <= 4 or abs(np.linalg.det(basis)) < 1e-9:
+            continue
+        st = np.linalg.solve(basis, (uv[near] - origin[m]).T)
+        on = np.all((st > -margin) & (st < 1 + margin), axis=0)
+        at_corner = np.all(np.minimum(np.abs(st), np.abs(1 - st)) < corner, axis=0)
+        out[m] = not np.any(on & ~at_corner)
     return out
 
 
