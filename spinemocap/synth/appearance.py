@@ -20,7 +20,7 @@ from __future__ import annotations
 import functools
 import io
 from dataclasses import dataclass
-from typing import Literal, get_args
+from typing import Literal, cast, get_args
 
 import cv2
 import numpy as np
@@ -162,7 +162,7 @@ def lab_camera_look(rng: np.random.Generator, fps: float) -> CameraLook:
         exposure=float(rng.uniform(0.75, 1.25)),
         defocus_px=float(rng.uniform(0.4, 1.2)) if rng.random() < 1 / 3 else 0.0,
         chroma_420=bool(codec == "h264" or rng.random() < 0.6),
-        codec=codec,  # type: ignore[arg-type]
+        codec=cast(Codec, codec),
         quality=int(rng.integers(70, 96)),
         bitrate_mbps=float(rng.uniform(15, 60)),
         fps=fps,
