@@ -91,7 +91,7 @@ TEST_SETS = {
                     seed_offset=2),  # quick check only
     # the tape colour no training set holds (app.training_data.HELD_OUT_FAMILY), in rooms and
     # camera looks of held-out seeds
-    HELD_OUT: TestSet(HELD_OUT, "artificial", scenes=1, frames=2, blur=0.0, occlusion="light", realism="lab",
+    HELD_OUT: TestSet(HELD_OUT, "artificial", scenes=3, frames=2, blur=0.0, occlusion="light", realism="lab",
                       tape_colour=HELD_OUT_FAMILY["tape_colour"], backdrop="room", camera_look="lab", seed_offset=3),
 }
 TAPE_FREE = "tape-free"

@@ -49,6 +49,7 @@ NEIGHBOURS = 8            # displacements tested per dot (to its nearest dots)
 MAX_REACH = 6.0           # ... up to this x the median nearest-neighbour distance (the next row of a
                           # tape seen 70 deg from face-on across it: ~5x the in-row spacing)
 TOLERANCE = 0.2           # a parallelogram's fourth corner matches a dot within this x its shorter side
+BETWEEN_NEAREST = 8       # dots tested for lying between two neighbouring rows (nearest the parallelogram's centre)
 ROW_TOLERANCE = 0.35      # a dot of the rows beside a row of three matches within this x its step (the tape
                           # curves and stretches unevenly; a grid's dots lie half a step off)
 LINE_TOLERANCE = 0.1      # a triple's end matches a dot within this x the spacing (a row is straight)
@@ -149,18 +150,20 @@ def staggered_rows(uv: np.ndarray, tree: cKDTree, idx: np.ndarray, vectors: np.n
         return out
     middle, v, two = uv[p[rows]], step[rows], q[rows, cols]
     r = radius[rows, 0]
-    # neighbouring rows: no dot between them or between their dots (a grid's oblique lines of three
-    # and two, or its every other column, have dots between)
-    apart = _nothing_between(uv, tree, middle - v, v, two - middle)
-    rows, cols, middle, v, two, r = rows[apart], cols[apart], middle[apart], v[apart], two[apart], r[apart]
     # ... and a third row continuing the stagger: the other row of two, the first mirrored through
     # the middle of the row of three, or the next row of three, mirrored through the row of two
     other_two = 2 * middle - two
     next_three = 2 * two - v - middle
-    continued = ((_row_at(tree, other_two, v, r, (0, 1), (-1, 2))
-                  & _nothing_between(uv, tree, other_two, v, middle - other_two, corner=ROW_TOLERANCE))
-                 | (_row_at(tree, next_three, v, r, (-1, 0, 1), (-2, 2))
-                    & _nothing_between(uv, tree, two - v, v, next_three - two + v, corner=ROW_TOLERANCE)))
+    mirrored = _row_at(tree, other_two, v, r, (0, 1), (-1, 2))
+    onward = _row_at(tree, next_three, v, r, (-1, 0, 1), (-2, 2))
+    # neighbouring rows: no dot between them or between their dots (a grid's oblique lines of three
+    # and two, or its every other column, have dots between)
+    continued = mirrored | onward
+    continued[continued] = _nothing_between(uv, tree, (middle - v)[continued], v[continued], (two - middle)[continued])
+    for third, origin, side2 in ((mirrored, other_two, middle - other_two), (onward, two - v, next_three - two + v)):
+        third &= continued
+        third[third] = _nothing_between(uv, tree, origin[third], v[third], side2[third], corner=ROW_TOLERANCE)
+    continued = mirrored | onward
     if continued.any():
         members = [middle[continued][:, None] + np.array([-1.0, 0.0, 1.0])[:, None] * v[continued][:, None]]
         members += [two[continued][:, None] - np.array([0.0, 1.0])[:, None] * v[continued][:, None]]
@@ -171,21 +174,24 @@ def staggered_rows(uv: np.ndarray, tree: cKDTree, idx: np.ndarray, vectors: np.n
 
 def _nothing_between(uv: np.ndarray, tree: cKDTree, origin: np.ndarray, side1: np.ndarray, side2: np.ndarray,
                      margin: float = 0.15, corner: float = 0.15) -> np.ndarray:
-    """Per parallelogram (M,): no dot of ``uv`` on ``origin + s side1 + t side2`` (all (M, 2) px)
-    with ``s``, ``t`` in ``[-margin, 1 + margin]`` (inside or on an edge) but within ``corner``
-    of its corners (in ``s`` and ``t``: predicted corners match dots that far off)."""
-    out = np.ones(len(origin), bool)
-    centres = origin + 0.5 * (side1 + side2)
-    reach = (0.5 + margin) * np.maximum(np.linalg.norm(side1 + side2, axis=1), np.linalg.norm(side1 - side2, axis=1))
-    for m, near in enumerate(tree.query_ball_point(centres, reach)):
-        basis = np.array([side1[m], side2[m]]).T
-        if len(near) <= 4 or abs(np.linalg.det(basis)) < 1e-9:
-            continue
-        st = np.linalg.solve(basis, (uv[near] - origin[m]).T)
-        on = np.all((st > -margin) & (st < 1 + margin), axis=0)
-        at_corner = np.all(np.minimum(np.abs(st), np.abs(1 - st)) < corner, axis=0)
-        out[m] = not np.any(on & ~at_corner)
-    return out
+    """Per parallelogram (M,): none of the :data:`BETWEEN_NEAREST` dots of ``uv`` nearest its
+    centre on ``origin + s side1 + t side2`` (all (M, 2) px) with ``s``, ``t`` in ``[-margin,
+    1 + margin]`` (inside or on an edge) but within ``corner`` of its corners (in ``s`` and ``t``:
+    predicted corners match dots that far off)."""
+    if not len(origin):
+        return np.zeros(0, bool)
+    k = min(BETWEEN_NEAREST, len(uv))
+    _, near = tree.query(origin + 0.5 * (side1 + side2), k=k)
+    near = near.reshape(len(origin), k)
+    det = side1[:, 0] * side2[:, 1] - side1[:, 1] * side2[:, 0]
+    det = np.where(np.abs(det) > 1e-9, det, np.nan)
+    d = uv[near] - origin[:, None]                               # (M, k, 2)
+    s_ = (d[..., 0] * side2[:, None, 1] - d[..., 1] * side2[:, None, 0]) / det[:, None]
+    t_ = (side1[:, None, 0] * d[..., 1] - side1[:, None, 1] * d[..., 0]) / det[:, None]
+    st = np.stack([s_, t_])                                      # (2, M, k)
+    on = np.all((st > -margin) & (st < 1 + margin), axis=0)
+    at_corner = np.all(np.minimum(np.abs(st), np.abs(1 - st)) < corner, axis=0)
+    return ~np.any(on & ~at_corner, axis=1) & np.isfinite(det)
 
 
 def _row_at(tree: cKDTree, start: np.ndarray, step: np.ndarray, radius: np.ndarray,
