@@ -10,6 +10,7 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from tqdm import tqdm
@@ -17,9 +18,12 @@ from tqdm import tqdm
 from ..detect.dataset import save_shard, views_of
 from ..fileio import atomic_path
 from ..synth import SynthConfig, build_scene
+from ..synth.appearance import TAPE_COLOURS
 from ..synth.motions import MOTIONS
 
 log = logging.getLogger(__name__)
+
+AppearanceMix = Literal["studio", "lab"]
 
 
 @dataclass
@@ -35,6 +39,7 @@ class SynthDataSettings:
     layouts: tuple[str, ...] = ("tiny", "artificial", "studio")
     scale: float = 0.5   # render size relative to the layout's reference size (focal scales along)
     sequence_frames: int = 200  # frames are drawn from 2 s of motion at 100 fps (bent, twisted poses)
+    appearance: AppearanceMix = "studio"  # 'lab': also tape colours, painted rooms and lab camera looks
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -43,6 +48,17 @@ class SynthDataSettings:
 
 
 HELD_OUT_SEED_BASE = 900_000
+# an appearance no training set may hold: the benchmark's held-out set (bench detect) shows it,
+# in painted rooms and camera looks drawn from held-out seeds (training rooms come from its own)
+HELD_OUT_FAMILY = {"tape_colour": "blue"}
+
+
+def refuse_held_out(config: SynthConfig) -> None:
+    """Raise ValueError when ``config`` renders any part of :data:`HELD_OUT_FAMILY`."""
+    held = [f"{k}={v!r}" for k, v in HELD_OUT_FAMILY.items() if getattr(config, k) == v]
+    if held:
+        raise ValueError(f"training scenes may not render the benchmark's held-out appearance ({', '.join(held)}); "
+                         "choose another tape colour, backdrop or camera look")
 _REFERENCE_SIZE = {"tiny": (480, 360), "artificial": (1024, 768), "studio": (2448, 1600)}
 _CAMERAS = {"tiny": 3, "artificial": 4, "studio": 6}
 
@@ -63,6 +79,17 @@ def random_scene_config(rng: np.random.Generator, seed: int, layouts=("tiny", "a
         noise=float(rng.uniform(0.5, 5.0)), occlusion=str(rng.choice(["none", "none", "light", "heavy"])),
         band=bool(rng.random() < 0.2), rows=int(rng.choice([9, 11, 13])),
     )
+
+
+def lab_appearance(config: SynthConfig, rng: np.random.Generator) -> SynthConfig:
+    """``config`` with a lab's appearance drawn from ``rng``: a tape colour of
+    :data:`TAPE_COLOURS` less :data:`HELD_OUT_FAMILY`'s (half black), a painted room behind the
+    subject in half the scenes, the ``lab`` camera look in two thirds."""
+    colours = [c for c in TAPE_COLOURS if c != HELD_OUT_FAMILY["tape_colour"]]
+    others = [c for c in colours if c != "black"]
+    colour = "black" if rng.random() < 0.5 else str(rng.choice(others))
+    return dataclasses.replace(config, tape_colour=colour, backdrop="room" if rng.random() < 0.5 else "plain",
+                               camera_look="lab" if rng.random() < 2 / 3 else "ideal")
 
 
 def vary_appearance(scene, rng: np.random.Generator) -> None:
@@ -88,13 +115,17 @@ def generate_synthetic(out: Path, settings: SynthDataSettings, progress: bool = 
         seed = settings.seed * 1000 + k
         rng = np.random.default_rng([seed, 77])
         cfg = random_scene_config(rng, seed, settings.layouts, settings.scale, settings.sequence_frames)
+        if settings.appearance == "lab":
+            cfg = lab_appearance(cfg, rng)
+        refuse_held_out(cfg)
         try:
             scene = build_scene(cfg)
         except ValueError as exc:  # no camera sees the tape: draw another time
             log.info("scene %d skipped: %s", k, exc)
             save_shard(path, [], "train", {"seed": seed, "skipped": str(exc)})
             continue
-        vary_appearance(scene, rng)
+        if settings.appearance == "studio" or cfg.tape_colour == "black":
+            vary_appearance(scene, rng)  # dark tapes of any hue (and plain backgrounds of any colour)
         views = []
         for f in rng.choice(cfg.frames, size=min(settings.frames_per_scene, cfg.frames), replace=False):
             rendered = scene.render(int(f))

@@ -5,6 +5,10 @@ Test sets (bodies, seeds and so lighting never used in training: seeds from
 
 - ``studio``: the paper's studio, 6 cameras at 2448x1600, sharp, no occluders;
 - ``blur+balls``: the artificial layout (4 cameras, 1024x768) with motion blur and falling balls;
+- ``held-out``: the appearance family no training set holds: blue tape (refused by the training
+  data), in front of painted lab rooms, through the ``lab`` camera look (lamp colour, flicker,
+  exposure, defocus, 4:2:0, JPEG and H.264), both drawn from held-out seeds; the artificial
+  layout at the ``lab`` realism level with light occlusion;
 - ``tape-free``: images without any tape (:mod:`spinemocap.bench.tape_free`: scikit-image's
   photographs and painted lab rooms): false dots per 100 images and the largest tape region.
 
@@ -45,7 +49,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from tqdm import tqdm
 
-from ..app.training_data import HELD_OUT_SEED_BASE
+from ..app.training_data import HELD_OUT_FAMILY, HELD_OUT_SEED_BASE
 from ..capture import to_grey
 from ..detect import find_dots
 from ..fileio import atomic_path, atomic_write
@@ -53,7 +57,7 @@ from ..synth import SynthConfig, build_scene
 from ..synth.occluders import segments_blocked_by_spheres
 from ..synth.visibility import rim_points
 from ..timing import StageTimer
-from .tape_free import MAX_FALSE_DOTS_PER_100, MAX_REGION_SHARE, score_tape_free
+from .tape_free import MAX_FALSE_DOTS_PER_100, MAX_REGION_SHARE, score_lattice, score_tape_free
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +65,7 @@ MATCH_PX = 2.0
 MAX_WALL_HIDDEN = 0.25  # unoccluded: the tape's wall hides less than this share of the hole
 VIEW_ANGLE_BINS_DEG = (0, 45, 60, 70, 78)
 SEQUENCE_FRAMES = 200  # 2 s of the 'mixed' motion; test frames are spread over it (varied poses)
+HELD_OUT = "held-out"
 
 
 @dataclass
@@ -72,16 +77,27 @@ class TestSet:
     blur: float
     occlusion: str
     supersample: int = 2  # anti-aliasing: a camera pixel integrates light over its area
+    realism: str = "skin"
+    tape_colour: str = "black"
+    backdrop: str = "plain"
+    camera_look: str = "ideal"
+    seed_offset: int = 0  # the set's scenes: seeds HELD_OUT_SEED_BASE + 100 k + 10 attempt + seed_offset
 
 
 TEST_SETS = {
-    "studio": TestSet("studio", "studio", scenes=3, frames=1, blur=0.0, occlusion="none"),
-    "blur+balls": TestSet("blur+balls", "artificial", scenes=1, frames=2, blur=0.5, occlusion="heavy"),
-    "tiny": TestSet("tiny", "tiny", scenes=1, frames=1, blur=0.0, occlusion="none", supersample=3),  # quick check only
+    "studio": TestSet("studio", "studio", scenes=3, frames=1, blur=0.0, occlusion="none", seed_offset=1),
+    "blur+balls": TestSet("blur+balls", "artificial", scenes=1, frames=2, blur=0.5, occlusion="heavy", seed_offset=0),
+    "tiny": TestSet("tiny", "tiny", scenes=1, frames=1, blur=0.0, occlusion="none", supersample=3,
+                    seed_offset=2),  # quick check only
+    # the tape colour no training set holds (app.training_data.HELD_OUT_FAMILY), in rooms and
+    # camera looks of held-out seeds
+    HELD_OUT: TestSet(HELD_OUT, "artificial", scenes=3, frames=2, blur=0.0, occlusion="light", realism="lab",
+                      tape_colour=HELD_OUT_FAMILY["tape_colour"], backdrop="room", camera_look="lab", seed_offset=3),
 }
 TAPE_FREE = "tape-free"
 TAPE_FREE_ROOMS = 60
-DEFAULT_SETS = ["studio", "blur+balls", TAPE_FREE]
+LATTICE_CASES = 300  # random wall-bar grids and tapes for the lattice test alone
+DEFAULT_SETS = ["studio", "blur+balls", HELD_OUT, TAPE_FREE]
 
 
 # ---------------------------------------------------------------------------------- scoring
@@ -167,12 +183,13 @@ def held_out_scene(test: TestSet, k: int, attempts: int = 5):
     ValueError, e.g. for some extreme phenotypes) is replaced by the next seed's body."""
 
     for attempt in range(attempts):
-        seed = HELD_OUT_SEED_BASE + 100 * k + 10 * attempt + sorted(TEST_SETS).index(test.name)
+        seed = HELD_OUT_SEED_BASE + 100 * k + 10 * attempt + test.seed_offset
         rng = np.random.default_rng([seed, 99])
         phenotype = {key: float(rng.uniform(0.1, 0.9)) for key in ("gender", "age", "muscle", "weight", "height")}
         cfg = SynthConfig.preset(test.preset, frames=SEQUENCE_FRAMES, seed=seed, phenotype=phenotype,
                                  blur=test.blur, occlusion=test.occlusion, skin_tone=float(rng.uniform(0, 1)),
-                                 supersample=test.supersample)
+                                 supersample=test.supersample, realism=test.realism, tape_colour=test.tape_colour,
+                                 backdrop=test.backdrop, camera_look=test.camera_look)
         try:
             return build_scene(cfg), cfg
         except ValueError as exc:
@@ -315,7 +332,7 @@ def run_tape_free(detectors: dict, rooms: int | None = None) -> dict:
     bar.close()
     return {"tape_free": True, "rooms": n_rooms, "goal": {"max_false_dots_per_100_images": MAX_FALSE_DOTS_PER_100,
                                                           "max_region_share": MAX_REGION_SHARE},
-            "detectors": scores}
+            "detectors": scores, "lattice_test": score_lattice(LATTICE_CASES)}
 
 
 def format_tape_free(s: dict) -> str:
@@ -329,6 +346,10 @@ def format_tape_free(s: dict) -> str:
     for name, d in s["detectors"].items():
         lines.append(f"{name:24s} {d['false_dots']:10d} {d['false_dots_per_100_images']:8.1f} {d['images_with_dots']:14d} "
                      f"{100 * d['largest_region_share']:16.3f} {'met' if d['goal_met'] else 'not':>5s} {d['ms_per_image']:9.0f}")
+    lat = s.get("lattice_test")
+    if lat:
+        lines.append(f"the lattice test alone on {lat['cases']} random views each: wall-bar grids kept as tape "
+                     f"{lat['wall_bars_accepted']}, tapes kept {lat['tapes_accepted']} ({100 * lat['tape_dots_kept']:.1f} % of their dots)")
     return "\n".join(lines)
 
 

@@ -140,3 +140,67 @@ def score_tape_free(detectors: dict, rooms: int, with_skimage: bool = True,
         if progress:
             progress(name)
     return {name: s.summary() for name, s in scores.items()}
+
+
+# ---------------------------------------------------------------------------------- the lattice test alone
+LATTICE_SEED = 71_000
+WALL_BAR_GAPS = (2, 3, 4, 5, 6)  # gaps per rung
+
+
+def _view(points: np.ndarray, rng: np.random.Generator, noise_px: float) -> np.ndarray:
+    """``points`` (N, 2) (units of the nearest spacing) seen through a random affine map (any
+    rotation, foreshortened to 0.4, sheared, 15-40 px per unit) with Gaussian noise."""
+    a = rng.uniform(0, 2 * np.pi)
+    rotation = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    affine = rotation @ np.array([[rng.uniform(0.4, 1.0), rng.uniform(-0.3, 0.3)], [0.0, 1.0]]) * rng.uniform(15, 40)
+    return points @ affine.T + 500.0 + rng.normal(0, noise_px, points.shape)
+
+
+def wall_bar_dots(rng: np.random.Generator) -> np.ndarray:
+    """The gaps of wall bars as a detector finds them ((N, 2) px): a rectangular grid of
+    :data:`WALL_BAR_GAPS` gaps per rung and 3-20 rungs, rung pitch 0.4-2.5 x the gap spacing,
+    each gap missing with probability 0-0.3 (hidden or not found), in a random view."""
+    gaps, rungs = int(rng.choice(WALL_BAR_GAPS)), int(rng.integers(3, 21))
+    pitch = rng.uniform(0.4, 2.5)
+    grid = np.array([(i, j * pitch) for i in range(gaps) for j in range(rungs)], float)
+    grid = grid[rng.random(len(grid)) >= rng.uniform(0, 0.3)]
+    return _view(grid, rng, 0.3)
+
+
+def tape_dots(rng: np.random.Generator) -> np.ndarray:
+    """A perforated tape's dots as a detector finds them ((N, 2) px): 3-13 rows alternating two
+    and three dots (row pitch 1.2-2.5 x the in-row spacing, stretched by up to 30 %, +-5 % per row),
+    bent along a circular arc (radius 20-80 spacings: a back), up to 2 dots missing, in a random view."""
+    rows = int(rng.choice([3, 5, 7, 9, 11, 13]))
+    pitch = rng.uniform(1.2, 2.5)
+    stretch = rng.uniform(1.0, 1.3) * rng.uniform(0.95, 1.05, rows - 1)  # a taping tension, uneven along
+    along = np.cumsum(np.r_[0.0, pitch * stretch])
+    dots = np.array([(x, along[j]) for j in range(rows) for x in ((-0.5, 0.5) if j % 2 == 0 else (-1.0, 0.0, 1.0))])
+    radius = rng.uniform(20, 80) * rng.choice([-1, 1])  # the back's curve, in spacings
+    angle = dots[:, 1] / radius
+    bent = np.c_[(radius - dots[:, 0]) * np.cos(angle) - radius, (radius - dots[:, 0]) * np.sin(angle)]
+    missing = rng.choice(len(bent), size=int(rng.integers(0, 3)), replace=False)
+    return _view(np.delete(bent, missing, axis=0), rng, 0.3)
+
+
+def score_lattice(n: int, seed: int = LATTICE_SEED) -> dict:
+    """The lattice test (:func:`spinemocap.detect.lattice.tape_regions` on a mask covering every
+    dot) on ``n`` wall-bar grids (:func:`wall_bar_dots`) and ``n`` tapes (:func:`tape_dots`):
+    how many of each it accepts (any dot kept) and the share of tape dots it keeps."""
+    from ..detect.lattice import tape_regions
+
+    rng = np.random.default_rng(seed)
+    accepted = {"wall_bars": 0, "tapes": 0}
+    kept_dots = total_dots = 0
+    for _ in range(n):
+        for kind, dots in (("wall_bars", wall_bar_dots(rng)), ("tapes", tape_dots(rng))):
+            lo = np.floor(dots.min(axis=0)).astype(int) - 2
+            hi = np.ceil(dots.max(axis=0)).astype(int) + 3
+            mask = np.ones((hi[1] - lo[1], hi[0] - lo[0]), bool)
+            _, keep = tape_regions(mask, dots - lo)
+            accepted[kind] += int(keep.any())
+            if kind == "tapes":
+                kept_dots += int(keep.sum())
+                total_dots += len(dots)
+    return {"cases": n, "wall_bars_accepted": accepted["wall_bars"], "tapes_accepted": accepted["tapes"],
+            "tape_dots_kept": kept_dots / max(total_dots, 1)}

@@ -50,6 +50,9 @@ def register(subparsers) -> None:
     t.add_argument("--scenes", type=int, default=48, help="synthetic scenes to render")
     t.add_argument("--frames-per-scene", type=int, default=2)
     t.add_argument("--data-seed", type=int, default=0, help="studio seeds data_seed*1000 + scene")
+    t.add_argument("--appearance", choices=("studio", "lab"), default="studio",
+                   help="studio: dark tapes on plain backgrounds; lab: also beige, pink and red tape, painted lab "
+                        "rooms and lab camera looks (never the benchmark's held-out blue tape)")
     t.set_defaults(func=_train)
 
     f = sub.add_parser("finetune", help="fine-tune on a lab's labelled images (PNG masks or COCO polygons)")
@@ -141,7 +144,8 @@ def _train(args) -> int:
     from ..detect.train import train
 
     folders = args.data or [args.out / "data"]
-    synth = SynthDataSettings(scenes=args.scenes, frames_per_scene=args.frames_per_scene, seed=args.data_seed)
+    synth = SynthDataSettings(scenes=args.scenes, frames_per_scene=args.frames_per_scene, seed=args.data_seed,
+                              appearance=args.appearance)
     generate_synthetic(folders[0], synth)
     train_views, val_views = load_shards(folders[0])
     for extra in folders[1:]:

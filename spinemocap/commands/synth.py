@@ -12,6 +12,7 @@ log = logging.getLogger(__name__)
 # spinemocap.synth.appearance's vocabularies (spelt out here: the CLI starts without numpy and OpenCV)
 TAPE_COLOUR_NAMES = ("black", "beige", "blue", "pink", "red")
 BACKDROP_NAMES = ("plain", "room")
+CAMERA_LOOK_NAMES = ("ideal", "lab")
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -97,6 +98,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--backdrop", choices=BACKDROP_NAMES,
                    help="behind the subject: plain (default) or a painted motion-capture room (windows, blinds, "
                         "wall bars, treadmill, posters, lights, camera strobes), one view per camera")
+    p.add_argument("--camera-look", choices=CAMERA_LOOK_NAMES,
+                   help="light and camera: ideal (default) or lab (per camera a seeded mix of lamp colour, mains "
+                        "flicker, auto-exposure, defocus, 4:2:0 chroma, JPEG or H.264 at sports-camera bitrates)")
     p.add_argument("--phenotype", action="append", default=[], metavar="KEY=VALUE",
                    help="anny phenotype value in [0, 1] (repeatable): gender (or sex; 0 male, 1 female), age "
                         "(0 newborn, 0.5 young adult, 1 old), muscle, weight, height, proportions")
@@ -133,7 +137,7 @@ def config_from_args(args: argparse.Namespace):
         "supersample": args.supersample, "seed": args.seed, "video": args.video or None,
         "reference": args.reference or None, "camera_offsets_s": args.camera_offsets, "camera_fps": args.camera_fps,
         "drop_frames": args.drop_frames, "clap": args.clap or None,
-        "tape_colour": args.tape_colour, "backdrop": args.backdrop,
+        "tape_colour": args.tape_colour, "backdrop": args.backdrop, "camera_look": args.camera_look,
         "phenotype": phenotype or None, "name": args.out.name,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}

@@ -27,7 +27,7 @@ import numpy as np
 from ..camera import Rig
 from ..skin import vertex_normals
 from ..tape import TapeSpec
-from .appearance import BACKDROPS, TAPE_COLOURS, behind_subject, room_view
+from .appearance import BACKDROPS, CAMERA_LOOKS, TAPE_COLOURS, behind_subject, camera_looks, room_view
 from .body import ANGLE_NAMES, LEVELS, PHENOTYPE_KEYS, Body
 from .lab_errors import clock_offsets_s, perturb_rig
 from .motions import MOTIONS, spine_motion
@@ -161,6 +161,7 @@ class SynthConfig:
     clap: bool = False
     tape_colour: str = "black"  # appearance.TAPE_COLOURS
     backdrop: str = "plain"  # appearance.BACKDROPS: the renderer's uniform background or a painted lab room
+    camera_look: str = "ideal"  # appearance.CAMERA_LOOKS: light and camera effects after the sensor (ideal: none)
 
     def __post_init__(self) -> None:
         self.size = (int(self.size[0]), int(self.size[1]))
@@ -224,6 +225,8 @@ class SynthConfig:
             problems.append(f"unknown tape_colour {self.tape_colour!r} (choose from {list(TAPE_COLOURS)})")
         if self.backdrop not in BACKDROPS:
             problems.append(f"unknown backdrop {self.backdrop!r} (choose from {list(BACKDROPS)})")
+        if self.camera_look not in CAMERA_LOOKS:
+            problems.append(f"unknown camera_look {self.camera_look!r} (choose from {list(CAMERA_LOOKS)})")
         if problems:
             raise ValueError("invalid synthetic studio settings: " + "; ".join(problems))
 
@@ -395,6 +398,7 @@ class Scene:
             fill_intensity=float(rng.uniform(0.25, 0.45)),
         )
         self.skin_tone = float(tone)
+        self.camera_looks = camera_looks(config.camera_look, config.cameras, self.rng_seed, config.fps)
         self._renderers: list[CameraRenderer] | None = None
         self._pool: ThreadPoolExecutor | None = None
         self._still_windows: dict[tuple, list] = {}  # camera_image_at's last still scene's windows
@@ -693,7 +697,14 @@ class Scene:
                 acc += renderer.image_through_lens(window)
             rgb = acc / len(windows)
         mask = renderer.mask_through_lens(mask_window) if with_mask else None
-        return self._sensor(self._backdrop(rgb, camera), frame, camera), mask
+        return self._look(self._sensor(self._backdrop(rgb, camera), frame, camera), frame, camera), mask
+
+    def _look(self, image_bgr: np.ndarray, frame: int, camera: int) -> np.ndarray:
+        """``image_bgr`` through the camera's :class:`CameraLook` (``ideal``: as it is)."""
+        if self.camera_looks is None:
+            return image_bgr
+        phase = float(np.random.default_rng([self.rng_seed, 12, camera]).uniform(0, 2 * np.pi))
+        return self.camera_looks[camera].apply(image_bgr, frame / self.fps, phase)
 
     def _backdrop(self, rgb: np.ndarray, camera: int) -> np.ndarray:
         """``rgb`` with the configured backdrop where it shows the empty background (``plain``: as it is)."""
@@ -719,7 +730,7 @@ class Scene:
                 for m in meshes[1:]:
                     acc += renderer.render_reference(m, with_mask=False)[0]
                 rgb = acc / len(meshes)
-            images.append(self._sensor_reference(self._backdrop(rgb, c), frame, c))
+            images.append(self._look(self._sensor_reference(self._backdrop(rgb, c), frame, c), frame, c))
             masks.append(mask)
         return RenderedFrame(images, masks)
 

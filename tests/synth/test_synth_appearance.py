@@ -71,3 +71,75 @@ def test_tape_colour_and_room_change_the_render_and_keep_the_truth(renders):
             else:  # the background changes, the tape keeps its pixels
                 assert differs.mean() > 0.3
                 assert not differs[mask].any()
+
+
+# ---------------------------------------------------------------------------------- camera looks
+def _scene_image() -> np.ndarray:
+    """A grey wall with a dark stripe holding bright dots (BGR uint8, 120 x 160)."""
+    image = np.full((120, 160, 3), 150, np.uint8)
+    image[30:90, 60:100] = 30
+    for y in (40, 60, 80):
+        cv2.circle(image, (80, y), 5, (200, 190, 180), -1)
+    return image
+
+
+def test_warm_light_turns_the_frame_orange_and_daylight_leaves_it():
+    from spinemocap.synth.appearance import CameraLook, white_balance_gains
+
+    np.testing.assert_allclose(white_balance_gains(6500.0), 1.0, atol=1e-6)
+    b, g, r = white_balance_gains(3000.0)
+    assert r > g == 1.0 > b
+    image = _scene_image()
+    warm = CameraLook(colour_temperature_k=3000.0).apply(image, 0.0).astype(float)
+    assert warm[..., 2].mean() > image[..., 2].mean() and warm[..., 0].mean() < image[..., 0].mean()
+    np.testing.assert_array_equal(CameraLook().apply(image, 0.0), image)
+
+
+def test_flicker_and_exposure_change_brightness_from_frame_to_frame():
+    from spinemocap.synth.appearance import CameraLook
+
+    image = _scene_image()
+    look = CameraLook(flicker=0.08, fps=30.0)
+    means = [look.apply(image, k / 30.0, phase=0.3).mean() for k in range(6)]
+    assert np.ptp(means) > 0.03 * np.mean(means)  # the ripple, sampled at 30 fps
+    assert CameraLook(exposure=0.8).apply(image, 0.0).mean() == pytest.approx(0.8 * image.mean(), rel=0.02)
+
+
+def test_defocus_chroma_and_codecs_keep_the_picture_and_lose_detail():
+    from spinemocap.synth.appearance import CameraLook
+
+    image = _scene_image()
+    image[5:7, 5:7] = (0, 0, 255)  # a 2x2 red speck: 4:2:0 keeps its brightness, spreads its colour
+    sharpness = lambda im: float((np.diff(im.astype(float), axis=1) ** 2).sum())  # noqa: E731  (gradient energy)
+    looks = {"defocus": CameraLook(defocus_px=1.0), "420": CameraLook(chroma_420=True),
+             "jpeg": CameraLook(codec="jpeg", quality=70), "h264": CameraLook(codec="h264", bitrate_mbps=2.0, fps=30.0)}
+    for name, look in looks.items():
+        out = look.apply(image, 0.0)
+        assert out.shape == image.shape and out.dtype == np.uint8, name
+        assert np.abs(out.astype(float) - image).mean() < 6.0, name  # the same picture
+        assert np.any(out != image), name
+    assert sharpness(looks["defocus"].apply(image, 0.0)) < 0.8 * sharpness(image)
+    sub = looks["420"].apply(image, 0.0)
+    grey = lambda im: cv2.cvtColor(im, cv2.COLOR_BGR2GRAY).astype(float)  # noqa: E731
+    assert np.abs(grey(sub) - grey(image))[30:90, 60:100].max() <= 3  # luma kept
+    assert sub[5, 5, 2] < 200 and sub[5, 8, 2] > image[5, 8, 2] + 5  # colour at half resolution
+
+
+def test_lab_camera_looks_are_seeded_varied_and_keep_the_truth(renders):
+    from spinemocap.synth.appearance import camera_looks
+
+    a, b = camera_looks("lab", 40, 3, 100.0), camera_looks("lab", 40, 3, 100.0)
+    assert a == b and camera_looks("ideal", 4, 3, 100.0) is None
+    assert a is not None and len({look.codec for look in a}) == 3 and len({look.chroma_420 for look in a}) == 2
+    assert 2700 <= min(look.colour_temperature_k for look in a) < max(look.colour_temperature_k for look in a) <= 6500
+    with pytest.raises(ValueError, match="camera_look"):
+        SynthConfig(camera_look="cinema")
+    plain, truth = renders["plain"]
+    scene = build_scene(SynthConfig.preset("tiny", frames=1, seed=21, noise=0.0, camera_look="lab"))
+    rendered, gt = scene.render(0), scene.frame_groundtruth(0)
+    scene.close()
+    for name in truth:
+        np.testing.assert_array_equal(np.asarray(gt[name]), np.asarray(truth[name]), err_msg=name)
+    for image, mask, plain_image, plain_mask in zip(rendered.images, rendered.masks, plain.images, plain.masks):
+        np.testing.assert_array_equal(mask, plain_mask)
+        assert np.any(image != plain_image)
