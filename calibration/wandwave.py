@@ -43,7 +43,7 @@ from spinemocap.fileio import InputError, atomic_path
 from .boards import BoardDetection
 from .check import camera_table
 from .extrinsics import bundle_adjust, spanning_tree
-from .geometry import rigid_fit, transform_rig
+from .geometry import rigid_fit
 from .wand import WandSpec, WandViews, triangulate_markers
 
 log = logging.getLogger(__name__)
@@ -365,7 +365,7 @@ def calibrate_wand_wave(intrinsics: Rig, views: WandViews, wand: WandSpec, floor
                                           refine_intrinsics)
     if floor_frames:
         R, t = floor_transform(rig, targets, wand, list(floor_frames))
-        rig = transform_rig(rig, R, t)
+        rig = rig.transformed(R, t)
         targets = {f: (R @ Rw, R @ tw + t) for f, (Rw, tw) in targets.items()}
         floor = f"wand on the floor in frames {_ranges(floor_frames)} (Z up, origin below {wand.labels[wand.x_axis[0]]})"
     else:

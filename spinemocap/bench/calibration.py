@@ -25,7 +25,6 @@ from scipy.spatial.transform import Rotation
 
 from calibration.boards import BoardSpec, detect_board
 from calibration.extrinsics import calibrate_extrinsics, floor_world_transform, initial_poses
-from calibration.geometry import transform_rig
 from calibration.intrinsics import calibrate_from_detections
 from calibration.wand import WandSpec, coarse_offset, detect_wand_views, register_wand, triangulate_wand
 from calibration.wandwave import calibrate_wand_wave
@@ -73,7 +72,7 @@ def board_session(size: int, n_intrinsic: int, n_frames: int, seed: int, board_t
     poses, boards = initial_poses(intr_rig, board, detections)
     peer = Rig([Camera(c.name, c.K, c.dist, R, t, c.size) for c, (R, t) in zip(intrinsics, poses)])
     R, t = floor_world_transform(board, boards, session.floor_frames)
-    peer = transform_rig(peer, R, t)
+    peer = peer.transformed(R, t)
     out = {"board": str(board), "seed": seed, "size": list(truth[0].size), "intrinsic_views": n_intrinsic,
            "frames": n_frames, "peer_no_ba": rig_errors(truth, peer),
            "seconds": {"render": t_render, "detect_intrinsics": t_intr}}
