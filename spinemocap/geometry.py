@@ -1,6 +1,6 @@
 """Geometry shared by the tracker and the calibration package: the lens distortion model, batched
 rotation vectors, linear triangulation and the least-squares similarity between point sets. Millimetres in, millimetres out.
-The one implementation of each (``Camera.distort`` and calibration's bundle adjustment use
+The one implementation of each (``Camera.distort`` and the rig adjustment use
 :func:`distort`; the tracker's candidates and calibration's ``triangulate`` use :func:`triangulate_dlt`;
 the tracker's output points, their views weighted, :func:`triangulate_rays`)."""
 
