@@ -304,15 +304,14 @@ class RigAdjustment:
                 add(row + 3 * C + 3 * c + np.arange(3), c * n + np.arange(3))
             row += 6 * C
         row = observed(row, self.control.cam, np.zeros((len(self.control.cam), 0), int), pose_intr)
-        r, c = np.concatenate(rows), np.concatenate(cols)
-        pattern = coo_matrix((np.ones(len(r), int), (r, c)), shape=(row, len(self._x0))).tocsr()
-        pattern.data[:] = 1
-        held = np.zeros(len(self._x0), bool)
+        held = np.zeros(len(self._x0), bool)  # the gauge's held parameters: structurally zero columns
         if self.settings.reference is not None:
             held[self.settings.reference * n: self.settings.reference * n + 6] = True
         if self.settings.clock_offsets:
             held[n - 1] = True
-        return csr_matrix(pattern.multiply(~held[None]))
+        r, c = np.concatenate(rows), np.concatenate(cols)
+        free = ~held[c]
+        return coo_matrix((np.ones(int(free.sum()), int), (r[free], c[free])), shape=(row, len(self._x0))).tocsr()
 
     # ------------------------------------------------------------------ solving
     def _state(self, x: np.ndarray, backend: str) -> AdjustedRig:
