@@ -71,7 +71,9 @@ from .rig_check import robust_rms
 @dataclass
 class RigRefineConfig:
     """``max_frames``: frames used (evenly spread); ``focal``: refine a focal scale per camera;
-    ``sync``: refine a clock offset per camera; ``outlier_factor``: see module.
+    ``sync``: refine a clock offset per camera; ``reference``: a camera whose pose is held (None:
+    the priors pick the gauge); ``max_nfev``: the solver's residual evaluations per solve;
+    ``outlier_factor``: see module.
     Priors toward the given cameras (see module): ``centre_prior_mm`` / ``rotation_prior_deg``
     fixed widths for every camera (default 20 mm, 0.5 deg), or None: each camera's widths from
     its own residual on the capture's dots, ``prior_scale`` x that residual (at least
