@@ -9,9 +9,9 @@ Pipeline (one module per step):
 * :mod:`calibration.boards` — board spec (checkerboard / ChArUco; polarity, ChArUco layout and
   mirrored views, found when not given), detection, view checks;
 * :mod:`calibration.intrinsics` — one camera's K and distortion from board views;
-* :mod:`calibration.extrinsics` — PnP spanning tree + bundle adjustment, world frame from the floor
+* :mod:`calibration.extrinsics` — PnP spanning tree + bundle adjustment (the rig adjustment of
+  :mod:`spinemocap.rig_adjust`, Ceres through pycolmap by default), world frame from the floor
   (ChArUco or checkerboard; the checkerboard's corner order in :mod:`calibration.boards`);
-* :mod:`calibration.ceres_ba` — the bundle adjustment through Ceres (pycolmap), the default;
 * :mod:`calibration.wandwave` — all extrinsics from a wand wave alone (essential matrices,
   spanning tree, wand scale, rigid-wand bundle adjustment, floor from the wand on the floor);
 * :mod:`calibration.wand` — wands (T, linear): identify, triangulate; Vicon co-registration:
@@ -19,7 +19,7 @@ Pipeline (one module per step):
 * :mod:`calibration.formats` — ours, Pose2Sim/Anipose TOML, Qualisys .qca.txt, Vicon .xcp;
 * :mod:`calibration.check` — per-camera table and reprojection-error plot, comparison with
   another calibration of the same cameras;
-* :mod:`calibration.geometry` — triangulation, Umeyama, rig transforms (shared helpers);
+* :mod:`calibration.geometry` — triangulation, rigid fits (shared helpers);
 
 The benchmark (``spinemocap bench calibration``) and the synthetic renders of boards and a wand
 wave it and the tests use live in the application layer: :mod:`spinemocap.bench.calibration`,

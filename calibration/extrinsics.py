@@ -9,10 +9,10 @@ Pipeline:
    poses of every camera in the reference camera's frame; each frame's board pose is the
    candidate that reprojects best into all cameras reading it;
 3. bundle adjustment over all camera poses, all board poses and (optionally) each camera's
-   fx fy cx cy k1 k2 p1 p2, Huber loss of 1 px: by default Ceres through pycolmap
-   (:mod:`calibration.ceres_ba`), or ``scipy.optimize.least_squares`` (trust region
-   reflective, sparse Jacobian pattern; ``backend="scipy"``, the peer in ``bench
-   calibration``); the reference camera's pose fixes the gauge and the board's square size
+   fx fy cx cy k1 k2 p1 p2, Huber loss of 1 px, by the rig adjustment
+   (:class:`spinemocap.rig_adjust.RigAdjustment`, the board a rigid target): by default Ceres
+   through pycolmap, or ``scipy.optimize.least_squares`` (``backend="scipy"``, the peer in
+   ``bench calibration``); the reference camera's pose fixes the gauge and the board's square size
    fixes the scale; then each frame's other planar solutions compete again with the adjusted
    pose through the adjusted rig (:func:`choose_board_poses`), and a switch adjusts again;
 4. world frame from the board lying face up on the floor in frame ``floor_frame``: origin at
@@ -37,24 +37,19 @@ from typing import Hashable, Sequence, cast
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
 from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
-from tqdm import tqdm
 
 from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import InputError
-from spinemocap.geometry import distort
+from spinemocap.rig_adjust import BACKENDS, AdjustmentSettings, Backend, RigAdjustment, RigidTarget
 
 from .boards import BoardDetection, BoardSpec, is_half_turn_symmetric
-from .ceres_ba import bundle_adjust_ceres, ceres_unsupported
 from .check import camera_table
-from .geometry import rigid_fit, rodrigues, transform_rig, triangulate
+from .geometry import rigid_fit, triangulate
 
 log = logging.getLogger(__name__)
 
 Detections = dict[str, dict[Hashable, BoardDetection]]  # camera name -> frame -> detection
-N_INTRINSICS = 8  # fx fy cx cy k1 k2 p1 p2 (k3 stays as given)
 MAX_POSE_SWITCH_ROUNDS = 3
 
 
@@ -319,111 +314,29 @@ def _observations(names: list[str], detections: Detections, frames: list[Hashabl
                         np.concatenate(pixels), frames)
 
 
-def project_batch(K: np.ndarray, dist: np.ndarray, points_cam: np.ndarray) -> np.ndarray:
-    """Distorted pixels of camera-frame points; K (N, 4) fx fy cx cy, dist (N, 5), points (N, 3)."""
-    xd, yd = distort(points_cam[:, :2] / points_cam[:, 2:3], dist).T
-    return np.column_stack([K[:, 0] * xd + K[:, 2], K[:, 1] * yd + K[:, 3]])
-
-
-BACKENDS = ("ceres", "scipy")
-
-
 def bundle_adjust(intrinsics: Rig, board: BoardSpec | np.ndarray, detections: Detections,
                   poses: list[tuple[np.ndarray, np.ndarray]], boards: dict[Hashable, tuple[np.ndarray, np.ndarray]],
                   reference: int = 0, refine_intrinsics: bool = True, loss_scale_px: float = 1.0,
-                  progress: bool = True, backend: str = "ceres"
+                  progress: bool = True, backend: Backend = "ceres"
                   ) -> tuple[Rig, dict[Hashable, tuple[np.ndarray, np.ndarray]], Observations]:
-    """Refine all camera poses, board poses and (optionally) intrinsics; see module doc.
+    """Refine all camera poses, board poses and (optionally) intrinsics with the rig adjustment
+    (:class:`spinemocap.rig_adjust.RigAdjustment`, the board a rigid target); see module doc.
     ``board`` may also be the (N, 3) model points of any rigid target (e.g. the Vicon wand),
-    indexed by the detections' ids. ``backend``: ``"ceres"`` (pycolmap; falls back to scipy,
-    with a log line, for cameras with a k3 term) or ``"scipy"``."""
+    indexed by the detections' ids. ``backend``: ``"ceres"`` (pycolmap; scipy, with a log line,
+    for cameras with a k3 term) or ``"scipy"``. Returns the rig, the board poses and the
+    observations used; :class:`InputError` for an unknown backend."""
     if backend not in BACKENDS:
         raise InputError("backend", f"unknown bundle adjustment backend {backend!r}; choose one of {BACKENDS}")
-    names = intrinsics.names
     frames = list(boards)
-    obs = _observations(names, detections, frames)
+    obs = _observations(intrinsics.names, detections, frames)
     model = board.object_points() if isinstance(board, BoardSpec) else np.asarray(board, float)
-    if backend == "ceres":
-        why_not = ceres_unsupported(intrinsics)
-        if why_not is None:
-            rig, targets = bundle_adjust_ceres(intrinsics, model, obs.cam, obs.frame, obs.corner, obs.pixels,
-                                               poses, [boards[f] for f in frames], reference, refine_intrinsics,
-                                               loss_scale_px)
-            return rig, dict(zip(frames, targets)), obs
-        log.info("bundle adjustment with scipy: %s", why_not)
-    return _bundle_adjust_scipy(intrinsics, model, obs, poses, boards, reference, refine_intrinsics,
-                                loss_scale_px, progress)
-
-
-def _bundle_adjust_scipy(intrinsics: Rig, model: np.ndarray, obs: Observations,
-                         poses: list[tuple[np.ndarray, np.ndarray]], boards: dict[Hashable, tuple[np.ndarray, np.ndarray]],
-                         reference: int, refine_intrinsics: bool, loss_scale_px: float, progress: bool
-                         ) -> tuple[Rig, dict[Hashable, tuple[np.ndarray, np.ndarray]], Observations]:
-    """``scipy.optimize.least_squares`` path of :func:`bundle_adjust`."""
-    n_cam = len(intrinsics)
-    frames = list(boards)
-    n_ci = 6 + (N_INTRINSICS if refine_intrinsics else 0)
-    k3 = np.array([cam.dist[4] for cam in intrinsics])
-
-    def pack() -> np.ndarray:
-        cams = []
-        for c, cam in enumerate(intrinsics):
-            R, t = poses[c]
-            block = [cv2.Rodrigues(R)[0].ravel(), t]
-            if refine_intrinsics:
-                block.append([cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2], *cam.dist[:4]])
-            cams.append(np.concatenate(block))
-        bds = [np.concatenate([cv2.Rodrigues(R)[0].ravel(), t]) for R, t in (boards[f] for f in frames)]
-        return np.concatenate(cams + bds)
-
-    fixed_K = np.array([[c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2]] for c in intrinsics])
-    fixed_d = np.array([c.dist for c in intrinsics])
-    ref_pose = np.concatenate([cv2.Rodrigues(poses[reference][0])[0].ravel(), poses[reference][1]])
-
-    def unpack(x: np.ndarray):
-        cams = x[: n_cam * n_ci].reshape(n_cam, n_ci).copy()
-        cams[reference, :6] = ref_pose  # gauge: the reference camera does not move
-        bds = x[n_cam * n_ci:].reshape(len(frames), 6)
-        if refine_intrinsics:
-            Kp, dist = cams[:, 6:10], np.column_stack([cams[:, 10:14], k3])
-        else:
-            Kp, dist = fixed_K, fixed_d
-        return cams, bds, Kp, dist
-
-    bar = tqdm(desc="bundle adjustment", unit=" evals", disable=not progress, leave=False)
-
-    def residuals(x: np.ndarray) -> np.ndarray:
-        bar.update()
-        cams, bds, Kp, dist = unpack(x)
-        Rb = rodrigues(bds[:, :3])[obs.frame]
-        Rc = rodrigues(cams[:, :3])[obs.cam]
-        world = np.einsum("nij,nj->ni", Rb, model[obs.corner]) + bds[obs.frame, 3:]
-        pc = np.einsum("nij,nj->ni", Rc, world) + cams[obs.cam, 3:6]
-        return (project_batch(Kp[obs.cam], dist[obs.cam], pc) - obs.pixels).ravel()
-
-    n_obs = len(obs.cam)
-    sparsity = lil_matrix((2 * n_obs, n_cam * n_ci + 6 * len(frames)), dtype=int)
-    rows = np.arange(n_obs)
-    for k in range(n_ci):
-        sparsity[2 * rows, obs.cam * n_ci + k] = 1
-        sparsity[2 * rows + 1, obs.cam * n_ci + k] = 1
-    for k in range(6):
-        sparsity[2 * rows, n_cam * n_ci + obs.frame * 6 + k] = 1
-        sparsity[2 * rows + 1, n_cam * n_ci + obs.frame * 6 + k] = 1
-    sparsity[:, reference * n_ci: reference * n_ci + 6] = 0
-    x0 = pack()
-    try:
-        fit = least_squares(residuals, x0, jac_sparsity=sparsity, loss="huber", f_scale=loss_scale_px,
-                            x_scale="jac", method="trf", max_nfev=200, xtol=1e-12, ftol=1e-12)
-    finally:
-        bar.close()
-    cams, bds, Kp, dist = unpack(fit.x)
-    cameras = []
-    for c, cam in enumerate(intrinsics):
-        K = np.array([[Kp[c, 0], cam.K[0, 1], Kp[c, 2]], [0, Kp[c, 1], Kp[c, 3]], [0, 0, 1]])
-        cameras.append(Camera(cam.name, K, dist[c], cv2.Rodrigues(cams[c, :3])[0], cams[c, 3:6], cam.size))
-    board_poses = {f: (cv2.Rodrigues(bds[k, :3])[0], bds[k, 3:]) for k, f in enumerate(frames)}
-    return Rig(cameras), board_poses, obs
+    start = Rig([Camera(cam.name, cam.K, cam.dist, R, t, cam.size) for cam, (R, t) in zip(intrinsics, poses)])
+    target = RigidTarget(model, [boards[f] for f in frames], obs.cam, obs.frame, obs.corner, obs.pixels)
+    settings = AdjustmentSettings(intrinsics="full" if refine_intrinsics else "fixed", reference=reference,
+                                  loss_scale_px=loss_scale_px, max_evaluations=200, tolerance=1e-12,
+                                  backend=backend, progress=progress)
+    adjusted = RigAdjustment(start, target=target, settings=settings).solve()
+    return adjusted.rig, dict(zip(frames, adjusted.target_poses)), obs
 
 
 # ---------------------------------------------------------------------- step 4 + report
@@ -453,7 +366,7 @@ def floor_world_transform(board: BoardSpec, board_poses: dict, floor_frame) -> t
 def calibrate_extrinsics(intrinsics: Rig, board: BoardSpec, detections: Detections,
                          floor_frame: Hashable | Sequence[Hashable] | None = None, reference: int = 0,
                          refine_intrinsics: bool = True, progress: bool = True,
-                         backend: str = "ceres") -> ExtrinsicsResult:
+                         backend: Backend = "ceres") -> ExtrinsicsResult:
     """Whole pipeline (see module doc). ``intrinsics``: cameras with calibrated K/dist (poses
     ignored); ``detections[camera][frame]``; ``floor_frame``: the frame where the board lies
     face up on the floor (world Z up); None keeps the reference camera's frame as the world.
@@ -492,7 +405,7 @@ def calibrate_extrinsics(intrinsics: Rig, board: BoardSpec, detections: Detectio
                                               reference, refine_intrinsics, progress=progress, backend=backend)
     if floor_frame is not None:
         R, t = floor_world_transform(board, board_poses, floor_frame)
-        rig = transform_rig(rig, R, t)
+        rig = rig.transformed(R, t)
         board_poses = {f: (R @ Rb, R @ tb + t) for f, (Rb, tb) in board_poses.items()}
     else:
         log.warning("no floor frame given: the world frame is camera %s's frame, not Z up", rig[reference].name)

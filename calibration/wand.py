@@ -44,7 +44,7 @@ from spinemocap.camera import Rig
 from spinemocap.fileio import InputError
 from spinemocap.markers import MarkerTable
 
-from .geometry import rigid_fit, transform_rig, triangulate, umeyama
+from .geometry import rigid_fit, triangulate, umeyama
 
 
 @dataclass(frozen=True)
@@ -458,7 +458,7 @@ def coregister(rig: Rig, frames: Iterable[Sequence[np.ndarray]], fps: float, vic
         rig = refine_rig_with_wand(rig, views, points, wand, progress=progress)
         points = triangulate_wand_views(rig, views, wand)
     result = register_wand(points, fps, vicon, wand, max_offset_s)
-    result.rig_in_vicon = transform_rig(rig, result.R, result.t, result.scale)
+    result.rig_in_vicon = rig.transformed(result.R, result.t, result.scale)
     return result
 
 

@@ -40,11 +40,12 @@ import numpy as np
 
 from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import InputError, atomic_path
+from spinemocap.rig_adjust import Backend
 
 from .boards import BoardDetection
 from .check import camera_table
 from .extrinsics import bundle_adjust, spanning_tree
-from .geometry import rigid_fit, transform_rig
+from .geometry import rigid_fit
 from .wand import WandSpec, WandViews, triangulate_markers
 
 log = logging.getLogger(__name__)
@@ -273,7 +274,7 @@ def _view_errors(rig: Rig, views: WandViews, poses: dict[int, Pose], wand: WandS
 
 
 def adjust(intrinsics: Rig, poses: list[Pose], views: WandViews, wand: WandSpec, reference: int,
-           backend: str, progress: bool, refine_intrinsics: bool = False
+           backend: Backend, progress: bool, refine_intrinsics: bool = False
            ) -> tuple[Rig, dict[int, Pose], WandViews, dict[str, int]]:
     """Bundle adjustment with the wand as a rigid target (``refine_intrinsics``: also fx fy cx cy
     k1 k2 p1 p2); views more than ``max(5 x median, 1 px)`` off after the first pass are left
@@ -358,7 +359,7 @@ def _residuals(rig: Rig, views: WandViews, targets: dict[int, Pose], wand: WandS
 
 
 def calibrate_wand_wave(intrinsics: Rig, views: WandViews, wand: WandSpec, floor_frames: list[int] | None = None,
-                        reference: int = 0, backend: str = "ceres", progress: bool = True,
+                        reference: int = 0, backend: Backend = "ceres", progress: bool = True,
                         refine_intrinsics: bool = True) -> WandWaveResult:
     """Whole pipeline (module doc): ``intrinsics`` (poses ignored), ``views[frame][camera]``
     identified markers (:func:`calibration.wand.detect_wand_views`), ``floor_frames`` where
@@ -370,7 +371,7 @@ def calibrate_wand_wave(intrinsics: Rig, views: WandViews, wand: WandSpec, floor
                                           refine_intrinsics)
     if floor_frames:
         R, t = floor_transform(rig, targets, wand, list(floor_frames))
-        rig = transform_rig(rig, R, t)
+        rig = rig.transformed(R, t)
         targets = {f: (R @ Rw, R @ tw + t) for f, (Rw, tw) in targets.items()}
         floor = f"wand on the floor in frames {_ranges(floor_frames)} (Z up, origin below {wand.labels[wand.x_axis[0]]})"
     else:

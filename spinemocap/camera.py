@@ -328,6 +328,16 @@ class Rig:
     def subset(self, names: Sequence[str]) -> "Rig":
         return Rig([self[n] for n in names])
 
+    def transformed(self, R: np.ndarray, t: np.ndarray, scale: float = 1.0) -> "Rig":
+        """The rig expressed in a new world frame ``X_new = scale R X_old + t`` (mm): every
+        camera's centre moves with the world, its orientation turns by ``R``, its camera
+        coordinates scale with the world; intrinsics unchanged, so every projection is the same."""
+        cameras = []
+        for cam in self.cameras:
+            R_new = cam.R @ np.asarray(R, float).T
+            cameras.append(Camera(cam.name, cam.K.copy(), cam.dist.copy(), R_new, scale * cam.t - R_new @ t, cam.size))
+        return Rig(cameras)
+
     def project(self, points_mm: np.ndarray) -> np.ndarray:
         """(N, 3) world points -> (C, N, 2) distorted pixels in every camera."""
         return np.stack([cam.project(points_mm) for cam in self.cameras])

@@ -1,6 +1,6 @@
-"""Geometry shared by the tracker and the calibration package: the lens distortion model, linear
-triangulation and the least-squares similarity between point sets. Millimetres in, millimetres out.
-The one implementation of each (``Camera.distort`` and calibration's bundle adjustment use
+"""Geometry shared by the tracker and the calibration package: the lens distortion model, batched
+rotation vectors, linear triangulation and the least-squares similarity between point sets. Millimetres in, millimetres out.
+The one implementation of each (``Camera.distort`` and the rig adjustment use
 :func:`distort`; the tracker's candidates and calibration's ``triangulate`` use :func:`triangulate_dlt`;
 the tracker's output points, their views weighted, :func:`triangulate_rays`)."""
 
@@ -19,6 +19,27 @@ def distort(normalized: np.ndarray, dist: np.ndarray) -> np.ndarray:
     xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
     yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
     return np.column_stack([xd, yd])
+
+
+def rotation_matrices(rvecs: np.ndarray) -> np.ndarray:
+    """(N, 3) rotation vectors (rad) -> (N, 3, 3) rotation matrices (Rodrigues' formula, batched)."""
+    rvecs = np.asarray(rvecs, float).reshape(-1, 3)
+    theta = np.linalg.norm(rvecs, axis=1)
+    small = theta < 1e-12
+    k = rvecs / np.where(small, 1.0, theta)[:, None]
+    K = _skew(k)
+    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
+    R = np.eye(3) + s * K + (1 - c) * (K @ K)
+    R[small] = np.eye(3) + _skew(rvecs[small])
+    return R
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(N, 3) -> (N, 3, 3) cross-product matrices."""
+    out = np.zeros((len(v), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return out
 
 
 def triangulate_dlt(P: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:

@@ -26,10 +26,10 @@ from tqdm import tqdm
 from calibration.boards import MAX_BLUR_SIGMA_PX, BoardDetection, BoardSpec, Facing, detect_board, view_problem
 from calibration.extrinsics import ExtrinsicsResult, calibrate_extrinsics
 from calibration.formats import read_rig
-from calibration.geometry import transform_rig
 from calibration.intrinsics import IMAGE_SUFFIXES, VIDEO_SUFFIXES, calibrate_from_detections
 from spinemocap.camera import Rig
 from spinemocap.fileio import InputError, atomic_path
+from spinemocap.rig_adjust import Backend
 
 FramePairing = Literal["index", "time"]
 PAIRINGS: tuple[FramePairing, ...] = ("index", "time")
@@ -320,7 +320,7 @@ class SessionCalibration:
 
 def calibrate_recordings(views: Sequence[str | os.PathLike], board: BoardSpec, intrinsics: Rig | None = None,
                          pairing: FramePairing = "index", max_frames: int = 200, floor_frames: list | None = None,
-                         refine_intrinsics: bool = True, backend: str = "ceres",
+                         refine_intrinsics: bool = True, backend: Backend = "ceres",
                          max_blur_px: float = MAX_BLUR_SIGMA_PX, progress: bool = True) -> SessionCalibration:
     """The whole board calibration from one recording per camera (in ``intrinsics``' camera
     order when given; camera names from the file names otherwise, intrinsics then from the same
@@ -376,7 +376,7 @@ def plot_rig_3d(rig: Rig, board: BoardSpec, board_poses: dict, path: str | os.Pa
         x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
         x /= np.linalg.norm(x)
         turn = np.stack([x, np.cross(z, x), z])
-        rig = transform_rig(rig, turn, np.zeros(3))
+        rig = rig.transformed(turn, np.zeros(3))
         board_poses = {f: (turn @ R, turn @ t) for f, (R, t) in board_poses.items()}
 
     matplotlib.use("Agg")

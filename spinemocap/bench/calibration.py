@@ -25,12 +25,12 @@ from scipy.spatial.transform import Rotation
 
 from calibration.boards import BoardDetection, BoardSpec, detect_board
 from calibration.extrinsics import calibrate_extrinsics, floor_world_transform, initial_poses
-from calibration.geometry import transform_rig
 from calibration.intrinsics import calibrate_from_detections
 from calibration.wand import WandSpec, coarse_offset, detect_wand_views, register_wand, triangulate_wand
 from calibration.wandwave import calibrate_wand_wave
 from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import atomic_write
+from spinemocap.rig_adjust import Backend
 
 from ..app.c3d_inputs import read_vicon_wand, write_vicon_wand_c3d
 from .calibration_scenes import make_ring_rig, render_calibration_session, render_wand_calibration, render_wand_wave
@@ -47,13 +47,13 @@ def rig_errors(truth: Rig, estimate: Rig) -> dict[str, float]:
 
 
 def board_stage(size: int, n_intrinsic: int, n_frames: int, seed: int, board_text: str = BOARD,
-                backends: tuple[str, ...] = ("ceres", "scipy")) -> dict:
+                backends: tuple[Backend, ...] = ("ceres", "scipy")) -> dict:
     """One board session: intrinsics per camera, then extrinsics with each BA backend."""
     return board_session(size, n_intrinsic, n_frames, seed, board_text, backends)[0]
 
 
 def board_session(size: int, n_intrinsic: int, n_frames: int, seed: int, board_text: str = BOARD,
-                  backends: tuple[str, ...] = ("ceres", "scipy")) -> tuple[dict, Rig]:
+                  backends: tuple[Backend, ...] = ("ceres", "scipy")) -> tuple[dict, Rig]:
     """:func:`board_stage`'s row and the intrinsics it calibrated (poses not set)."""
     board = BoardSpec.parse(board_text)
     truth = make_ring_rig(6, size=(size, size * 3 // 4), seed=seed)
@@ -74,7 +74,7 @@ def board_session(size: int, n_intrinsic: int, n_frames: int, seed: int, board_t
     poses, boards = initial_poses(intr_rig, board, detections)
     peer = Rig([Camera(c.name, c.K, c.dist, R, t, c.size) for c, (R, t) in zip(intrinsics, poses)])
     R, t = floor_world_transform(board, boards, session.floor_frames)
-    peer = transform_rig(peer, R, t)
+    peer = peer.transformed(R, t)
     out = {"board": str(board), "seed": seed, "size": list(truth[0].size), "intrinsic_views": n_intrinsic,
            "frames": n_frames, "peer_no_ba": rig_errors(truth, peer),
            "seconds": {"render": t_render, "detect_intrinsics": t_intr}}

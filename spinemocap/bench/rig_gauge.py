@@ -61,7 +61,7 @@ from ..synth.lab_errors import perturb_rig
 from ..tape import TapeSpec
 from ..track.config import TrackerConfig
 from ..track.rig_check import CalibrationWarning
-from ..track.rig_refine import ReferenceFitError, RigRefineConfig, apply_similarity, closest_gauge, refine_rig
+from ..track.rig_refine import ReferenceFitError, RigRefineConfig, closest_gauge, refine_rig
 from .frame_error import cloud_gauge, mean_error_mm, shape_error_mm, truth_of
 from .realism import _render
 
@@ -138,8 +138,8 @@ def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig |
     sized = refine_rig(given, result.pixels(), result.table.positions(), scene.fps, RESIDUAL_PRIORS)
     row = {"given": mean_error_mm(given_table, scene.truth), "refined": mean_error_mm(refined_table, scene.truth),
            "residual_priors": mean_error_mm(table_with(sized.rig), scene.truth),
-           "cloud_gauge": mean_error_mm(table_with(apply_similarity(refinement.rig, *fit)), scene.truth),
-           "closest_cameras": mean_error_mm(table_with(apply_similarity(refinement.rig, *closest)), scene.truth),
+           "cloud_gauge": mean_error_mm(table_with(refinement.rig.transformed(*fit)), scene.truth),
+           "closest_cameras": mean_error_mm(table_with(refinement.rig.transformed(*closest)), scene.truth),
            "refined_shape": shape_error_mm(refined_table, scene.truth),
            "frame_uncertainty": refinement.extra["frame_uncertainty_mm"],
            "residual_priors_frame_uncertainty": sized.extra["frame_uncertainty_mm"],

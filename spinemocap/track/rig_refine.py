@@ -4,11 +4,10 @@ Every observed dot-frame is a 3D point seen by >= 2 cameras at known blobs: a bu
 over the camera poses (and optionally a focal-length scale and a clock offset per camera) and
 those points, with the intrinsics' principal point and distortion held fixed.
 
-- Solver: scipy's ``least_squares`` (trust-region reflective, Huber loss of ``loss_scale_px``
-  after a first solve at the given rig's robust residual level,
-  sparse Jacobian: an observation depends on its camera's 6-8 parameters and its point's 3).
-  pycolmap's Ceres adjuster needs a reconstruction object per frame set and offers no per-camera
-  clock offset; scipy solves this size (a few thousand points) in seconds.
+- Solver: the rig adjustment (:class:`spinemocap.rig_adjust.RigAdjustment`, the dots as free
+  points) by scipy's ``least_squares`` (trust-region reflective on the sparse Jacobian pattern,
+  Huber loss of ``loss_scale_px`` after a first solve at the given rig's robust residual level);
+  COLMAP's Ceres adjuster takes neither the priors nor the clock offsets.
 - Gauge: the dots alone fix neither the world frame nor the scale (a similarity common to all
   cameras moves every triangulated dot and changes no residual). By default no camera is held;
   priors pull every camera's centre and rotation toward the given rig, so the correction is the
@@ -61,10 +60,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
 
 from ..camera import Rig
-from ..geometry import distort, triangulate_dlt
+from ..geometry import triangulate_dlt
+from ..rig_adjust import AdjustmentSettings, CameraPriors, FixedPoints, FreePoints, RigAdjustment
 from .candidates import reprojection_errors
 from .rig_check import robust_rms
 
@@ -72,7 +71,9 @@ from .rig_check import robust_rms
 @dataclass
 class RigRefineConfig:
     """``max_frames``: frames used (evenly spread); ``focal``: refine a focal scale per camera;
-    ``sync``: refine a clock offset per camera; ``outlier_factor``: see module.
+    ``sync``: refine a clock offset per camera; ``reference``: a camera whose pose is held (None:
+    the priors pick the gauge); ``max_nfev``: the solver's residual evaluations per solve;
+    ``outlier_factor``: see module.
     Priors toward the given cameras (see module): ``centre_prior_mm`` / ``rotation_prior_deg``
     fixed widths for every camera (default 20 mm, 0.5 deg), or None: each camera's widths from
     its own residual on the capture's dots, ``prior_scale`` x that residual (at least
@@ -96,13 +97,6 @@ class RigRefineConfig:
     outlier_factor: float = 4.0
     reference_limit_px: float = 1.0
     reference_weight: float = 3.0
-
-
-# lsmr's tolerances for the trust-region steps with a reference: at scipy's defaults the inexact
-# steps along the dots' flat gauge directions stopped the solve with the markers 0.2 px off (tape
-# 0.74 mm off on a rendered 1 px capture; 0.04 px and 0.39 mm with these). The solve without a
-# reference keeps the defaults (its gauge is the priors' choice anyway).
-TIGHT_LSMR = {"atol": 1e-12, "btol": 1e-12}
 
 
 @dataclass
@@ -201,23 +195,6 @@ def _observations(pixels: np.ndarray, positions: np.ndarray, fps: float, rig: Ri
                     np.asarray(vel, float).reshape(-1, 3), np.asarray(start, float).reshape(-1, 3))
 
 
-def _project(K: np.ndarray, dist: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """Distorted pixels of world points X (M, 3) with per-row K (M, 3, 3), dist (M, 5), R, t."""
-    pc = np.einsum("mij,mj->mi", R, X) + t
-    xd = distort(pc[:, :2] / pc[:, 2:3], dist)
-    return np.column_stack([K[:, 0, 0] * xd[:, 0] + K[:, 0, 1] * xd[:, 1] + K[:, 0, 2],
-                            K[:, 1, 1] * xd[:, 1] + K[:, 1, 2]])
-
-
-def _rodrigues(rvecs: np.ndarray) -> np.ndarray:
-    theta = np.linalg.norm(rvecs, axis=1)[:, None, None]
-    k = rvecs / np.maximum(theta[:, :, 0], 1e-12)
-    Kx = np.zeros((len(rvecs), 3, 3))
-    Kx[:, 0, 1], Kx[:, 0, 2], Kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    Kx[:, 1, 0], Kx[:, 2, 0], Kx[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
-    return np.eye(3) + np.sin(theta) * Kx + (1 - np.cos(theta)) * Kx @ Kx
-
-
 def _per_camera_rms(errors: np.ndarray, cam: np.ndarray, rig: Rig) -> dict[str, float]:
     out = {name: float(np.sqrt(np.mean(errors[cam == c] ** 2))) if (cam == c).any() else float("nan")
            for c, name in enumerate(rig.names)}
@@ -261,110 +238,40 @@ def _refine(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float, con
     prob = _observations(pixels, positions, fps, rig, frames)
     if len(prob.start) < 10:
         raise ValueError(f"only {len(prob.start)} dot-frames seen by >= 2 cameras; cannot refine the rig")
-    C, P, M = len(rig), len(prob.start), len(prob.cam)
+    P, M = len(prob.start), len(prob.cam)
     ctrl_cam, ctrl_marker, ctrl_uv = control.observations() if control is not None else (np.zeros(0, int),) * 2 + (
         np.zeros((0, 2)),)
     ctrl_world = control.world_mm[ctrl_marker] if control is not None else np.zeros((0, 3))
-    Q = len(ctrl_cam)
     given_error = GivenRigError.measure(rig, prob)  # before any move: the given rig's own residuals
     start_rig = rig
     if start is not None:
         start_rig, prob = _moved(rig, prob, start)
-    ref = config.reference
-    rvec0 = np.stack([c.rvec for c in start_rig])
-    n_cam = 6 + int(config.focal) + int(config.sync)
-    K0 = np.stack([c.K for c in start_rig])
-    dist0 = np.stack([c.dist for c in start_rig])
-    centres0 = np.stack([c.center for c in start_rig])
-    cam0 = np.concatenate([np.concatenate([c.rvec, c.t, [1.0] * int(config.focal), [0.0] * int(config.sync)])
-                           for c in start_rig])
-    x0 = np.concatenate([cam0, prob.start.ravel()])
-    ref_block = cam0[ref * n_cam:(ref + 1) * n_cam].copy() if ref is not None else None
-
-    def unpack(x: np.ndarray):
-        cams = x[: C * n_cam].reshape(C, n_cam).copy()
-        if ref is not None:
-            cams[ref] = ref_block  # gauge
-        if config.sync:
-            cams[0, -1] = 0.0  # clocks against the first camera (a common offset is a gauge)
-        return cams, x[C * n_cam:].reshape(P, 3)
-
-    def camera_arrays(cams: np.ndarray):
-        R = _rodrigues(cams[:, :3])
-        K = K0.copy()
-        if config.focal:
-            K[:, 0, 0] *= cams[:, 6]
-            K[:, 1, 1] *= cams[:, 6]
-        dt = cams[:, -1] if config.sync else np.zeros(C)
-        return R, cams[:, 3:6], K, dt
-
     sigma_centre, sigma_rotation = residual_priors(given_error, config)
-
-    def residuals(x: np.ndarray) -> np.ndarray:
-        cams, X = unpack(x)
-        R, t, K, dt = camera_arrays(cams)
-        world = X[prob.point] + dt[prob.cam, None] * prob.velocity[prob.point]
-        reproj = (_project(K[prob.cam], dist0[prob.cam], R[prob.cam], t[prob.cam], world) - prob.uv).ravel()
-        centres = -np.einsum("cji,cj->ci", R, t)
-        prior_c = ((centres - centres0) / sigma_centre[:, None]).ravel()
-        prior_r = ((cams[:, :3] - rvec0) / sigma_rotation[:, None]).ravel()
-        ctrl = config.reference_weight * (_project(K[ctrl_cam], dist0[ctrl_cam], R[ctrl_cam], t[ctrl_cam], ctrl_world)
-                                          - ctrl_uv).ravel()
-        return np.concatenate([reproj, prior_c, prior_r, ctrl])
-
-    sparsity = lil_matrix((2 * M + 6 * C + 2 * Q, len(x0)), dtype=int)
-    rows = np.arange(M)
-    for k in range(n_cam):
-        sparsity[2 * rows, prob.cam * n_cam + k] = 1
-        sparsity[2 * rows + 1, prob.cam * n_cam + k] = 1
-    for k in range(3):
-        sparsity[2 * rows, C * n_cam + 3 * prob.point + k] = 1
-        sparsity[2 * rows + 1, C * n_cam + 3 * prob.point + k] = 1
-    for c in range(C):
-        sparsity[2 * M + 3 * c: 2 * M + 3 * c + 3, c * n_cam: c * n_cam + 6] = 1
-        sparsity[2 * M + 3 * C + 3 * c: 2 * M + 3 * C + 3 * c + 3, c * n_cam: c * n_cam + 3] = 1
-    ctrl_rows = 2 * M + 6 * C + 2 * np.arange(Q)
-    for k in range(min(n_cam, 7)):  # a static marker: no clock offset
-        sparsity[ctrl_rows, ctrl_cam * n_cam + k] = 1
-        sparsity[ctrl_rows + 1, ctrl_cam * n_cam + k] = 1
-    if ref is not None:
-        sparsity[:, ref * n_cam:(ref + 1) * n_cam] = 0
-    if config.sync:
-        sparsity[:, n_cam - 1] = 0
-
-    def reprojection(x: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(residuals(x)[: 2 * M].reshape(M, 2), axis=1)
-
-    def solve(x: np.ndarray, weight: np.ndarray, scale_px: float):
-        def weighted(xx: np.ndarray) -> np.ndarray:
-            r = residuals(xx)
-            r[: 2 * M] *= np.repeat(weight, 2)
-            return r
-
-        return least_squares(weighted, x, jac_sparsity=sparsity, loss="huber", f_scale=scale_px,
-                             x_scale="jac", method="trf", max_nfev=config.max_nfev,
-                             **({"tr_options": TIGHT_LSMR} if control is not None else {}))
-
-    before = reprojection(x0)
-    inlier = np.ones(M)
+    adjustment = RigAdjustment(
+        start_rig,
+        points=FreePoints(prob.cam, prob.point, prob.uv, prob.start, prob.velocity),
+        control=FixedPoints(ctrl_world, ctrl_cam, ctrl_uv, config.reference_weight) if control is not None else None,
+        settings=AdjustmentSettings(intrinsics="focal" if config.focal else "fixed", clock_offsets=config.sync,
+                                    reference=config.reference, priors=CameraPriors(sigma_centre, sigma_rotation),
+                                    loss_scale_px=config.loss_scale_px, max_evaluations=config.max_nfev,
+                                    # with a reference, inexact lsmr steps along the dots' flat gauge
+                                    # directions stop short of the markers
+                                    exact_steps=control is not None, backend="scipy"))
+    before = adjustment.initial().point_errors_px
     # the Huber scale starts at the given rig's own residual level: with every residual far in
     # the loss's linear part (a 3 px rig against a 1 px scale) the solver stalled on its first
     # steps and returned the given rig unchanged
-    fit = solve(x0, inlier, max(config.loss_scale_px, robust_rms(before)))
+    fit = adjustment.solve(loss_scale_px=max(config.loss_scale_px, robust_rms(before)))
     # a blob paired with the wrong dot now and then (a few px off whatever the rig): drop the
     # observations far beyond the fitted residuals' spread and solve again
-    after = reprojection(fit.x)
+    after = fit.point_errors_px
     limit = max(outlier_factor * robust_rms(after), 1.0)
-    inlier = (after < limit).astype(float)
-    if inlier.sum() < M:
-        fit = solve(fit.x, inlier, config.loss_scale_px)
-        after = reprojection(fit.x)
-    keep = inlier > 0
+    keep = after < limit
+    if not keep.all():
+        fit = adjustment.solve(fit, weights=keep.astype(float))
+        after = fit.point_errors_px
     before, after, obs_cam = before[keep], after[keep], prob.cam[keep]
-    cams, _ = unpack(fit.x)
-    R, t, K, dt = camera_arrays(cams)
-    refined = Rig([dataclasses.replace(c, K=K[i], R=cv2.Rodrigues(cv2.Rodrigues(R[i])[0])[0], t=t[i].copy())
-                   for i, c in enumerate(rig)])
+    refined = Rig([dataclasses.replace(c, K=adjusted.K, R=adjusted.R, t=adjusted.t) for c, adjusted in zip(rig, fit.rig)])
     disagreement = given_rig_disagreement_mm(refined, rig, sigma_centre, np.degrees(sigma_rotation))
     frame_uncertainty = max(frame_uncertainty_mm(disagreement), given_error.frame_uncertainty_mm())
     world_frame: dict = {"source": "given rig"}
@@ -381,7 +288,8 @@ def _refine(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float, con
         frame_uncertainty = world_frame["fit_rms_mm"]
     return RigRefinement(
         rig=refined, before_px=_per_camera_rms(before, obs_cam, rig), after_px=_per_camera_rms(after, obs_cam, rig),
-        sync_offsets_ms={n: float(1000 * dt[i]) for i, n in enumerate(rig.names)}, n_points=P, n_observations=M,
+        sync_offsets_ms={n: float(1000 * fit.clock_offsets_s[i]) for i, n in enumerate(rig.names)}, n_points=P,
+        n_observations=M,
         extra={"frames_used": int(len(frames)), "solver": "scipy least_squares (trf, huber)",
                "outliers_dropped": int(M - keep.sum()),
                "given_rig_disagreement_mm": dict(zip(rig.names, disagreement.tolist())),
@@ -391,7 +299,7 @@ def _refine(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float, con
                "frame_uncertainty_from_residuals_mm": given_error.frame_uncertainty_mm(),
                "centre_prior_mm": dict(zip(rig.names, sigma_centre.tolist())),
                "rotation_prior_deg": dict(zip(rig.names, np.degrees(sigma_rotation).tolist())),
-               "focal_scale": {n: float(cams[i, 6]) if config.focal else 1.0 for i, n in enumerate(rig.names)},
+               "focal_scale": {n: float(fit.focal_scale[i]) for i, n in enumerate(rig.names)},
                "camera_moved_mm": {n: float(np.linalg.norm(refined[i].center - rig[i].center))
                                    for i, n in enumerate(rig.names)}},
     )
@@ -402,7 +310,7 @@ def _moved(rig: Rig, prob: _Problem, similarity: tuple[np.ndarray, np.ndarray, f
     reprojections are unchanged)."""
     R, t, s = similarity
     moved = dataclasses.replace(prob, start=s * prob.start @ R.T + t, velocity=s * prob.velocity @ R.T)
-    return apply_similarity(rig, R, t, s), moved
+    return rig.transformed(R, t, s), moved
 
 
 def _triangulate_markers(rig: Rig, control: ControlPoints) -> np.ndarray:
@@ -514,18 +422,6 @@ def residual_priors(error: GivenRigError, config: RigRefineConfig) -> tuple[np.n
     return centre, rotation
 
 
-def apply_similarity(rig: Rig, R: np.ndarray, t: np.ndarray, s: float) -> Rig:
-    """The rig seen from the world moved by ``x -> s R x + t`` (mm): every camera's centre moves
-    with the world, its orientation turns by ``R``; intrinsics unchanged (the images are the
-    same, only the world frame changed)."""
-    cameras = []
-    for cam in rig:
-        R_cam = cam.R @ R.T
-        centre = s * R @ cam.center + t
-        cameras.append(dataclasses.replace(cam, R=R_cam, t=-R_cam @ centre))
-    return Rig(cameras)
-
-
 def closest_gauge(refined: Rig, given: Rig, centre_sigma_mm: float | np.ndarray,
                   rotation_sigma_deg: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """The similarity ``(R, t, s)`` (``x -> s R x + t``, mm) that moves ``refined`` closest to
@@ -565,7 +461,7 @@ def given_rig_disagreement_mm(refined: Rig, given: Rig, centre_sigma_mm: float |
                               rotation_sigma_deg: float | np.ndarray) -> np.ndarray:
     """(C,) mm: how far each given camera's centre lies from the refined rig moved onto the given
     one by :func:`closest_gauge`, i.e. the given rig's per-camera errors the dots reveal."""
-    moved = apply_similarity(refined, *closest_gauge(refined, given, centre_sigma_mm, rotation_sigma_deg))
+    moved = refined.transformed(*closest_gauge(refined, given, centre_sigma_mm, rotation_sigma_deg))
     return np.array([float(np.linalg.norm(a.center - b.center)) for a, b in zip(moved, given)])
 
 

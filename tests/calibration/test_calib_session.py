@@ -11,7 +11,6 @@ from scipy.spatial.transform import Rotation
 
 from calibration.check import compare_rigs
 from calibration.extrinsics import _relative_pose
-from calibration.geometry import transform_rig
 from spinemocap.app.calibrate import open_recording, pair_frames
 from spinemocap.bench.calibration_scenes import make_ring_rig
 from spinemocap.camera import Camera, Rig
@@ -92,7 +91,7 @@ def test_pair_pose_from_consensus_of_both_planar_solutions():
 def test_compare_rigs_reports_baseline_ratio_and_rotation_difference():
     truth = make_ring_rig(4, size=(800, 600), seed=1)
     # the same rig in another world frame: agrees exactly
-    moved = transform_rig(truth, Rotation.from_euler("z", 33, degrees=True).as_matrix(), np.array([100.0, 5, -7]))
+    moved = truth.transformed(Rotation.from_euler("z", 33, degrees=True).as_matrix(), np.array([100.0, 5, -7]))
     same = compare_rigs(moved, truth)
     assert same.agrees and same.matched_by == "name"
     assert same.worst_baseline_error < 1e-9 and same.worst_rotation_deg < 1e-6

@@ -24,7 +24,6 @@ from spinemocap.track.quality import flagged_from_confidence, is_flagged, label_
 from spinemocap.track.rig_check import CalibrationWarning
 from spinemocap.track.rig_refine import (
     RigRefineConfig,
-    apply_similarity,
     frame_uncertainty_mm,
     given_rig_disagreement_mm,
     refine_rig,
@@ -245,7 +244,7 @@ def test_the_refined_rig_reports_how_far_the_given_cameras_disagree():
     camera moved on its own shows up as disagreement and as frame uncertainty."""
     rig = rig_behind()
     turn = cv2.Rodrigues(np.array([0.01, -0.02, 0.015]))[0]
-    moved = apply_similarity(rig, turn, np.array([30.0, -12.0, 5.0]), 1.002)
+    moved = rig.transformed(turn, np.array([30.0, -12.0, 5.0]), 1.002)
     assert given_rig_disagreement_mm(moved, rig, 20.0, 0.5).max() < 1e-6
     shifted = Rig([dataclasses.replace(c, t=c.t - c.R @ np.array([0.0, 0.0, 6.0])) if k == 2 else c
                    for k, c in enumerate(rig)])  # camera 3's centre 6 mm off, its orientation kept
