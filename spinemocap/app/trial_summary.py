@@ -132,7 +132,7 @@ class TrialSummary:
                        analysis=TrialAnalysis.from_dict(data) if data["status"] == "ok" else None,
                        opensim=data.get("opensim"), view=data.get("view"),
                        warnings=tuple(data.get("warnings", ())), elapsed_s=data.get("elapsed_s"))
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InputError(os.path.join(out_dir, "summary.json"),
                              f"not a trial summary ({type(exc).__name__}: {exc}); run `spinemocap batch` "
                              "again with --force to write it anew") from exc
