@@ -63,7 +63,7 @@ from ..markers import MarkerTable
 from .c3d_inputs import read_pelvis_c3d
 from .levels import find_level_map
 from .results import TrackingStopped, results_complete
-from .trial_summary import BatchResult, JsonObject, TrialAnalysis, TrialOutcome, TrialStatus, TrialSummary
+from .trial_summary import BatchResult, OpenSimStep, TrialAnalysis, TrialOutcome, TrialStatus, TrialSummary, ViewStep
 from .worker_processes import exit_with_parent, join_or_kill
 
 log = logging.getLogger("spinemocap.batch")
@@ -285,7 +285,7 @@ def _analyse(job: TrialJob, inputs: list[Path]) -> TrialSummary:
                        view=_view(capture, out) if job.view else None)
 
 
-def _view(capture: Capture, out: Path) -> JsonObject:
+def _view(capture: Capture, out: Path) -> ViewStep:
     """``spinemocap view`` on the trial's tracked marker set (its output folder): labelled videos
     and the 3D viewer into ``out/view``, where the report links them. A trial without a tracked set
     or images keeps its results and records why."""
@@ -294,16 +294,16 @@ def _view(capture: Capture, out: Path) -> JsonObject:
     from .viewer.video import write_videos
 
     if not results_complete(out):
-        return {"status": "failed", "reason": "no tracked marker set in the trial's folder (ground-truth source?)"}
+        return ViewStep("failed", "no tracked marker set in the trial's folder (ground-truth source?)")
     try:
         videos = write_videos(capture.root, out, view_folder(out), progress=False)
         write_viewer(capture.root, out, view_folder(out) / VIEWER_NAME)
     except InputError as exc:
-        return {"status": "failed", "reason": str(exc)}
-    return {"status": "ok", "frames": len(videos.frames), "seconds": round(videos.seconds, 2)}
+        return ViewStep("failed", str(exc))
+    return ViewStep("ok", frames=len(videos.frames), seconds=round(videos.seconds, 2))
 
 
-def _opensim(markers: MarkerTable, capture: Capture, levels: LevelMap, out: Path) -> JsonObject:
+def _opensim(markers: MarkerTable, capture: Capture, levels: LevelMap, out: Path) -> OpenSimStep:
     """spinemocap opensim on the trial's markers; a trial OpenSim cannot solve keeps its geometric
     angles and records why."""
     from ..opensim import run_opensim
@@ -312,11 +312,11 @@ def _opensim(markers: MarkerTable, capture: Capture, levels: LevelMap, out: Path
         result = run_opensim(markers, capture.tape, levels, capture.up,
                              capture.subject.get("facing", (0.0, -1.0, 0.0)), out, source=str(capture.root))
     except InputError as exc:
-        return {"status": "failed", "reason": str(exc)}
+        return OpenSimStep("failed", str(exc))
     s = result.summary
-    return {"status": "ok", "marker_rms_mm": s["marker_rms_mm"], "marker_rms_mm_max": s["marker_rms_mm_max"],
-            "ms_per_frame": s["ms_per_frame"], "flagged_frames": len(s["flagged_frames"]),
-            "driven_joints": s["driven_joints"], "out_dir": str(out)}
+    return OpenSimStep("ok", marker_rms_mm=s["marker_rms_mm"], marker_rms_mm_max=s["marker_rms_mm_max"],
+                       ms_per_frame=s["ms_per_frame"], flagged_frames=len(s["flagged_frames"]),
+                       driven_joints=tuple(s["driven_joints"]), out_dir=str(out))
 
 def write_shape(out: Path, markers: MarkerTable, capture: Capture, levels: LevelMap, settings: AngleSettings,
                 angles: pd.DataFrame) -> None:

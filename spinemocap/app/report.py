@@ -505,13 +505,13 @@ def _trial_section(result: TrialSummary, neutral: Neutral | None, angles: pd.Dat
         parts.append(f"<p class='bad'>No lumbar angle in any frame: {html.escape(_lumbar_reason(result))}.</p>")
     ik = None
     opensim = result.opensim
-    if opensim and opensim.get("status") == "ok":
-        ik = _read_table(Path(opensim["out_dir"]) / "spine_angles.csv", "OpenSim angles", comment="#")
-        parts.append(f"<p class='note'>OpenSim IK: marker RMS {opensim['marker_rms_mm']:.2f} mm, "
-                     f"{opensim['flagged_frames']} flagged frames (files in "
-                     f"{html.escape(opensim['out_dir'])})</p>")
-    elif opensim:
-        parts.append(f"<p class='warn'>OpenSim IK failed: {html.escape(opensim.get('reason', ''))}</p>")
+    if opensim is not None and opensim.status == "ok":
+        ik = _read_table(Path(opensim.out_dir) / "spine_angles.csv", "OpenSim angles", comment="#")
+        parts.append(f"<p class='note'>OpenSim IK: marker RMS {opensim.marker_rms_mm:.2f} mm, "
+                     f"{opensim.flagged_frames} flagged frames (files in "
+                     f"{html.escape(opensim.out_dir)})</p>")
+    elif opensim is not None:
+        parts.append(f"<p class='warn'>OpenSim IK failed: {html.escape(opensim.reason)}</p>")
     try:
         parts.append(f"<img alt='angles from neutral: {key}' "
                      f"src='data:image/png;base64,{_trial_plot(angles, neutral, ik)}'>")

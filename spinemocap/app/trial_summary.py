@@ -22,8 +22,68 @@ SummarySource = Literal["tracked", "groundtruth"]
 #: What decided the pelvis frame: a pelvis C3D or the tape itself.
 PelvisSource = Literal["c3d", "tape"]
 
-#: A JSON object (the sub-summaries of the optional OpenSim and viewer steps).
+#: A step's state: done, or failed with its reason (the trial keeps its angles either way).
+StepStatus = Literal["ok", "failed"]
+
 JsonObject = dict[str, Any]
+
+
+@dataclass(frozen=True)
+class OpenSimStep:
+    """``spinemocap opensim`` on a trial's markers (``opensim`` in ``summary.json``): marker RMS
+    mean and worst frame (mm), IK time per frame (ms), flagged frame count, the driven joints and
+    the output folder; ``reason`` when it failed."""
+
+    status: StepStatus
+    reason: str = ""
+    marker_rms_mm: float = math.nan
+    marker_rms_mm_max: float = math.nan
+    ms_per_frame: float = math.nan
+    flagged_frames: int = 0
+    driven_joints: tuple[str, ...] = ()
+    out_dir: str = ""
+
+    def to_dict(self) -> JsonObject:
+        if self.status != "ok":
+            return {"status": self.status, "reason": self.reason}
+        return {"status": self.status, "marker_rms_mm": self.marker_rms_mm, "marker_rms_mm_max": self.marker_rms_mm_max,
+                "ms_per_frame": self.ms_per_frame, "flagged_frames": self.flagged_frames,
+                "driven_joints": list(self.driven_joints), "out_dir": self.out_dir}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> OpenSimStep:
+        if data["status"] != "ok":
+            return cls("failed", str(data["reason"]))
+        return cls("ok", marker_rms_mm=_number(data["marker_rms_mm"]), marker_rms_mm_max=_number(data["marker_rms_mm_max"]),
+                   ms_per_frame=_number(data["ms_per_frame"]), flagged_frames=int(data["flagged_frames"]),
+                   driven_joints=tuple(data["driven_joints"]), out_dir=str(data["out_dir"]))
+
+
+@dataclass(frozen=True)
+class ViewStep:
+    """``spinemocap view`` on a trial (``view`` in ``summary.json``): frames drawn and seconds
+    taken; ``reason`` when it failed."""
+
+    status: StepStatus
+    reason: str = ""
+    frames: int = 0
+    seconds: float = 0.0
+
+    def to_dict(self) -> JsonObject:
+        if self.status != "ok":
+            return {"status": self.status, "reason": self.reason}
+        return {"status": self.status, "frames": self.frames, "seconds": self.seconds}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> ViewStep:
+        if data["status"] != "ok":
+            return cls("failed", str(data["reason"]))
+        return cls("ok", frames=int(data["frames"]), seconds=data["seconds"])
+
+
+def _number(value: float | None) -> float:
+    """A JSON number; null (written for NaN) back to NaN."""
+    return math.nan if value is None else value
 
 
 @dataclass(frozen=True)
@@ -61,7 +121,7 @@ class TrialAnalysis:
                    completeness_pct=data["completeness_pct"], levels=dict(data["levels"]),
                    levels_from=str(data["levels_from"]), lumbar_levels=(str(lower), str(upper)),
                    pelvis_from=cast(PelvisSource, data["pelvis_from"]), notes=dict(data["notes"]),
-                   stats={name: math.nan if value is None else value for name, value in data["stats"].items()})
+                   stats={name: _number(value) for name, value in data["stats"].items()})
 
 
 @dataclass(frozen=True)
@@ -82,8 +142,8 @@ class TrialSummary:
     reason: str
     out_dir: str
     analysis: TrialAnalysis | None = None
-    opensim: JsonObject | None = None
-    view: JsonObject | None = None
+    opensim: OpenSimStep | None = None
+    view: ViewStep | None = None
     warnings: tuple[str, ...] = ()
     elapsed_s: float | None = None
 
@@ -106,9 +166,9 @@ class TrialSummary:
         data: JsonObject = {"key": self.key, "subject": self.subject, "condition": self.condition,
                             "trial": self.trial, "capture": self.capture, "source": self.source}
         if self.opensim is not None:
-            data["opensim"] = self.opensim
+            data["opensim"] = self.opensim.to_dict()
         if self.view is not None:
-            data["view"] = self.view
+            data["view"] = self.view.to_dict()
         data.update(status=self.status, reason=self.reason)
         if self.analysis is not None:
             data.update(self.analysis.to_dict())
@@ -130,7 +190,8 @@ class TrialSummary:
                        source=cast(SummarySource, data["source"]), status=cast(TrialStatus, data["status"]),
                        reason=str(data["reason"]), out_dir=os.fspath(out_dir),
                        analysis=TrialAnalysis.from_dict(data) if data["status"] == "ok" else None,
-                       opensim=data.get("opensim"), view=data.get("view"),
+                       opensim=OpenSimStep.from_dict(data["opensim"]) if "opensim" in data else None,
+                   view=ViewStep.from_dict(data["view"]) if "view" in data else None,
                        warnings=tuple(data.get("warnings", ())), elapsed_s=data.get("elapsed_s"))
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InputError(os.path.join(out_dir, "summary.json"),

@@ -51,3 +51,21 @@ def test_a_damaged_summary_is_refused_by_name_and_its_trial_processed_again(batc
     again = run_batch(root, out, source="groundtruth", workers=1, progress=False)
     assert [(t.summary.key, t.skipped) for t in again.trials if t.summary.ok] == [("S01/pre/trial01", False)]
     assert "stats" in json.loads(path.read_text())
+
+
+@pytest.mark.parametrize("steps", [
+    {"opensim": {"status": "ok", "marker_rms_mm": 1.25, "marker_rms_mm_max": None, "ms_per_frame": 3.5,
+                 "flagged_frames": 2, "driven_joints": ["L1_L2", "L2_L3"], "out_dir": "/out/S01/opensim"},
+     "view": {"status": "ok", "frames": 12, "seconds": 4.2}},
+    {"opensim": {"status": "failed", "reason": "no OpenSim"}, "view": {"status": "failed", "reason": "no images"}},
+])
+def test_the_optional_steps_read_back_write_the_same_json(batch, steps):
+    _, out, result = batch
+    path = out / "S01/pre/trial01/summary.json"
+    data = json.loads(path.read_text())
+    with_steps = {**{k: data[k] for k in ("key", "subject", "condition", "trial", "capture", "source")}, **steps,
+                  **{k: v for k, v in data.items() if k not in steps and k not in ("key", "subject", "condition",
+                                                                                  "trial", "capture", "source")}}
+    summary = TrialSummary.from_dict(with_steps, path.parent)
+    assert summary.opensim is not None and summary.view is not None
+    assert strict_json(summary.to_dict()) == strict_json(with_steps)
