@@ -67,7 +67,7 @@ def main() -> None:
     result = run_batch(args.out / "study", args.out / "results", source=args.source, workers=args.workers,
                        settings=AngleSettings(lower=TAPE_START, thoracolumbar="T12/L1"))
     for trial in result.failed:
-        print(f"FAILED {trial['key']}: {trial['reason']}")
+        print(f"FAILED {trial.summary.key}: {trial.summary.reason}")
     paths = write_report(args.out / "results", title="Synthetic study: lumbar angles")
     print(f"report: {paths['html']}\ntables: {paths['csv']}, {paths['xlsx']}")
 

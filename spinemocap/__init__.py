@@ -6,7 +6,8 @@ Public API (loaded on first use, so ``import spinemocap`` stays light)::
     table = spinemocap.track_capture("capture/", "out/")   # markers.csv/.trc/.c3d, MarkerTable (mm)
     capture = spinemocap.Capture.open("capture/")          # rig, tape, frames, ground truth
     rig = spinemocap.Rig.from_toml("rig.toml")
-    result = spinemocap.run_batch("study/", "results/")    # every trial of a study
+    result = spinemocap.run_batch("study/", "results/")    # every trial of a study: BatchResult
+    failed = [t.summary.key for t in result.failed]        # (TrialOutcome: summary, skipped)
 
 Layers (docs/ARCHITECTURE.md): core types in this package's top-level modules (:mod:`camera`,
 :mod:`tape`, :mod:`markers`, :mod:`capture`, :mod:`views`, :mod:`geometry`, :mod:`fileio`,

@@ -47,7 +47,7 @@ import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Generator, Iterable, Iterator, Literal
+from typing import Any, Callable, Generator, Iterable, Iterator, Literal
 
 import numpy as np
 import pandas as pd
@@ -63,6 +63,7 @@ from ..markers import MarkerTable
 from .c3d_inputs import read_pelvis_c3d
 from .levels import find_level_map
 from .results import TrackingStopped, results_complete
+from .trial_summary import BatchResult, OpenSimStep, TrialAnalysis, TrialOutcome, TrialStatus, TrialSummary, ViewStep
 from .worker_processes import exit_with_parent, join_or_kill
 
 log = logging.getLogger("spinemocap.batch")
@@ -73,7 +74,7 @@ SOURCES: tuple[MarkerSource, ...] = ("tracked", "groundtruth")
 SUMMARY = "summary.json"
 ANGLES = "angles.csv"
 MARKERS = "markers.csv"
-INTERRUPTED = "interrupted"
+INTERRUPTED: TrialStatus = "interrupted"
 
 OPENSIM_DIR = "opensim"  # spinemocap opensim's outputs per trial (run_batch(opensim=True))
 
@@ -114,11 +115,17 @@ class TrialJob:
     opensim: bool = False  # also run spinemocap opensim into <trial out>/opensim
     view: bool = False  # also write the labelled videos and the 3D viewer into <trial out>/view
 
-    def summary_head(self) -> dict:
-        """The keys every trial summary starts with (ok, failed or lost with its worker)."""
+    def summary(self, status: TrialStatus, reason: str, **details: Any) -> TrialSummary:
+        """This trial's summary with ``status`` and ``reason`` (``details``: the other
+        :class:`TrialSummary` fields, e.g. ``analysis`` and ``elapsed_s``)."""
         t = self.trial
-        return {"key": t.key, "subject": t.subject, "condition": t.condition, "trial": t.trial,
-                "capture": t.capture_dir, "source": self.source}
+        return TrialSummary(key=t.key, subject=t.subject, condition=t.condition, trial=t.trial,
+                            capture=t.capture_dir, source=self.source, status=status, reason=reason,
+                            out_dir=self.out_dir, **details)
+
+    def outcome(self, status: TrialStatus, reason: str) -> TrialOutcome:
+        """A not-skipped outcome without analysis (failed before or while running, or interrupted)."""
+        return TrialOutcome(self.summary(status, reason))
 
 
 # ---------------------------------------------------------------------------------- discovery
@@ -184,40 +191,52 @@ def _from_manifest(path: Path) -> list[Trial]:
 
 
 # ---------------------------------------------------------------------------------- one trial
-def process_trial(job: TrialJob) -> dict:
-    """Run one trial; never raises for bad data: returns (and writes) its summary dict."""
+def process_trial(job: TrialJob) -> TrialOutcome:
+    """Run one trial; never raises for bad data: returns its outcome, having written its
+    ``summary.json`` (not when interrupted, nor when skipped as up to date)."""
     out = Path(job.out_dir)
     started = time.perf_counter()
-    base = job.summary_head()
     try:
         if job.trial.problem:
             raise InputError(job.trial.capture_dir, job.trial.problem)
         inputs = _input_files(job)
-        summary_path = out / SUMMARY
-        if not job.force and _up_to_date(summary_path, inputs):
-            cached = json.loads(summary_path.read_text())
-            if not job.opensim or "opensim" in cached:
-                return {**cached, "skipped": True}
+        cached = None if job.force else _up_to_date(out / SUMMARY, inputs)
+        if cached is not None and (not job.opensim or cached.opensim is not None):
+            return TrialOutcome(cached, skipped=True)
         with warnings.catch_warnings(record=True) as caught:  # into the summary and batch.log, not stderr
             warnings.simplefilter("always")
-            summary = {**base, **_analyse(job, inputs)}
-        messages = list(dict.fromkeys(str(w.message) for w in caught))
-        if messages:
-            summary["warnings"] = messages
+            analysed = _analyse(job, inputs)
+        messages = tuple(dict.fromkeys(str(w.message) for w in caught))
+        summary = replace(analysed, warnings=messages)
     except TrackingStopped:  # the batch is being interrupted: no summary, a rerun redoes the trial
-        return {**base, "status": INTERRUPTED, "reason": "interrupted (stopped while running)", "skipped": False}
+        return job.outcome(INTERRUPTED, "interrupted (stopped while running)")
     except Exception as exc:  # one bad trial never stops the batch: record why it failed
         reason = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
-        summary = {**base, "status": "failed", "reason": reason}
-    summary["elapsed_s"] = round(time.perf_counter() - started, 3)
-    write_summary(out, summary)
-    return {**summary, "skipped": False}
+        summary = job.summary("failed", reason)
+    summary = replace(summary, elapsed_s=round(time.perf_counter() - started, 3))
+    write_summary(summary)
+    return TrialOutcome(summary)
 
 
-def write_summary(out: Path, summary: dict) -> None:
-    """``out/summary.json``, strict JSON (NaN and infinities as null), atomically."""
-    with atomic_write(Path(out) / SUMMARY) as handle:
-        handle.write(strict_json(summary))
+def write_summary(summary: TrialSummary) -> None:
+    """``summary.json`` in the trial's output folder, strict JSON (NaN and infinities as null),
+    atomically."""
+    with atomic_write(Path(summary.out_dir) / SUMMARY) as handle:
+        handle.write(strict_json(summary.to_dict()))
+
+
+def read_summary(path: Path) -> TrialSummary:
+    """A trial's ``summary.json`` (its folder is the summary's ``out_dir``).
+
+    Raises:
+        InputError: unreadable, not JSON, or not a trial summary."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(path, f"unreadable trial summary ({exc})") from exc
+    if not isinstance(data, dict):
+        raise InputError(path, "not a trial summary (not a JSON object)")
+    return TrialSummary.from_dict(data, path.parent)
 
 
 def check_trial(job: TrialJob) -> str | None:
@@ -243,7 +262,7 @@ def check_trial(job: TrialJob) -> str | None:
     return None
 
 
-def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
+def _analyse(job: TrialJob, inputs: list[Path]) -> TrialSummary:
     out = Path(job.out_dir)
     capture = Capture.open(job.trial.capture_dir)
     markers = _markers(job, capture, inputs)
@@ -256,24 +275,17 @@ def _analyse(job: TrialJob, inputs: list[Path]) -> dict:
         result.table.to_csv(handle, index=False, float_format="%.4f")
     write_shape(out, markers, capture, levels, job.settings, result.table)
     fps = markers.fps
-    extra = {"opensim": _opensim(markers, capture, levels, out / OPENSIM_DIR)} if job.opensim else {}
-    if job.view:
-        extra["view"] = _view(capture, out)
-    return {
-        **extra,
-        "status": "ok", "reason": "",
-        "n_frames": int(len(result.table)), "fps": fps,
-        "duration_s": float(len(result.table) / fps),
-        "completeness_pct": 100.0 * result.completeness,
-        "levels": levels.rows, "levels_from": levels_from,
-        "lumbar_levels": [job.settings.lower, job.settings.thoracolumbar],
-        "pelvis_from": "c3d" if pelvis is not None else "tape",
-        "notes": result.notes,
-        "stats": result.summary(),
-    }
+    analysis = TrialAnalysis(
+        n_frames=int(len(result.table)), fps=fps, duration_s=float(len(result.table) / fps),
+        completeness_pct=100.0 * result.completeness, levels=levels.rows, levels_from=levels_from,
+        lumbar_levels=(job.settings.lower, job.settings.thoracolumbar),
+        pelvis_from="c3d" if pelvis is not None else "tape", notes=result.notes, stats=result.summary())
+    return job.summary("ok", "", analysis=analysis,
+                       opensim=_opensim(markers, capture, levels, out / OPENSIM_DIR) if job.opensim else None,
+                       view=_view(capture, out) if job.view else None)
 
 
-def _view(capture: Capture, out: Path) -> dict:
+def _view(capture: Capture, out: Path) -> ViewStep:
     """``spinemocap view`` on the trial's tracked marker set (its output folder): labelled videos
     and the 3D viewer into ``out/view``, where the report links them. A trial without a tracked set
     or images keeps its results and records why."""
@@ -282,16 +294,16 @@ def _view(capture: Capture, out: Path) -> dict:
     from .viewer.video import write_videos
 
     if not results_complete(out):
-        return {"status": "failed", "reason": "no tracked marker set in the trial's folder (ground-truth source?)"}
+        return ViewStep("failed", "no tracked marker set in the trial's folder (ground-truth source?)")
     try:
         videos = write_videos(capture.root, out, view_folder(out), progress=False)
         write_viewer(capture.root, out, view_folder(out) / VIEWER_NAME)
     except InputError as exc:
-        return {"status": "failed", "reason": str(exc)}
-    return {"status": "ok", "frames": len(videos.frames), "seconds": round(videos.seconds, 2)}
+        return ViewStep("failed", str(exc))
+    return ViewStep("ok", frames=len(videos.frames), seconds=round(videos.seconds, 2))
 
 
-def _opensim(markers: MarkerTable, capture: Capture, levels: LevelMap, out: Path) -> dict:
+def _opensim(markers: MarkerTable, capture: Capture, levels: LevelMap, out: Path) -> OpenSimStep:
     """spinemocap opensim on the trial's markers; a trial OpenSim cannot solve keeps its geometric
     angles and records why."""
     from ..opensim import run_opensim
@@ -300,11 +312,11 @@ def _opensim(markers: MarkerTable, capture: Capture, levels: LevelMap, out: Path
         result = run_opensim(markers, capture.tape, levels, capture.up,
                              capture.subject.get("facing", (0.0, -1.0, 0.0)), out, source=str(capture.root))
     except InputError as exc:
-        return {"status": "failed", "reason": str(exc)}
+        return OpenSimStep("failed", str(exc))
     s = result.summary
-    return {"status": "ok", "marker_rms_mm": s["marker_rms_mm"], "marker_rms_mm_max": s["marker_rms_mm_max"],
-            "ms_per_frame": s["ms_per_frame"], "flagged_frames": len(s["flagged_frames"]),
-            "driven_joints": s["driven_joints"], "out_dir": str(out)}
+    return OpenSimStep("ok", marker_rms_mm=s["marker_rms_mm"], marker_rms_mm_max=s["marker_rms_mm_max"],
+                       ms_per_frame=s["ms_per_frame"], flagged_frames=len(s["flagged_frames"]),
+                       driven_joints=tuple(s["driven_joints"]), out_dir=str(out))
 
 def write_shape(out: Path, markers: MarkerTable, capture: Capture, levels: LevelMap, settings: AngleSettings,
                 angles: pd.DataFrame) -> None:
@@ -354,16 +366,17 @@ def _tracking_inputs(job: TrialJob) -> list[Path]:
     return [p for p in files if p.is_file()]
 
 
-def _up_to_date(result: Path, inputs: Iterable[Path]) -> bool:
-    if not result.is_file():
-        return False
+def _up_to_date(path: Path, inputs: Iterable[Path]) -> TrialSummary | None:
+    """The trial's summary at ``path`` when it is ``ok`` and newer than every input; None when the
+    trial is to be processed (no summary, an unreadable one, a failed trial, a changed input)."""
+    if not path.is_file():
+        return None
     try:
-        if json.loads(result.read_text()).get("status") != "ok":
-            return False
-    except (OSError, ValueError):
-        return False
+        summary = read_summary(path)
+    except InputError:
+        return None
     newest = max((p.stat().st_mtime for p in inputs), default=0.0)
-    return result.stat().st_mtime > newest
+    return summary if summary.ok and path.stat().st_mtime > newest else None
 
 
 def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable:
@@ -443,21 +456,6 @@ def _pelvis_frames(c3d_file: str, markers: MarkerTable) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------- the batch
-@dataclass
-class BatchResult:
-    """Summaries of every trial (the dicts :func:`process_trial` returns)."""
-
-    trials: list[dict]
-
-    @property
-    def failed(self) -> list[dict]:
-        return [t for t in self.trials if t["status"] != "ok"]
-
-    @property
-    def processed(self) -> list[dict]:
-        return [t for t in self.trials if not t.get("skipped")]
-
-
 def trial_out_dir(out: Path, trial: Trial) -> Path:
     return out.joinpath(*[p for p in (trial.subject, trial.condition, trial.trial) if p])
 
@@ -490,7 +488,7 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: Marker
     log.info("batch of %d trials from %s (source %s, %s)", len(jobs), root, source,
              f"scheduler {scheduler}" if scheduler else f"{workers} local workers")
     results = _checked(jobs)  # every trial's inputs, before any trial is tracked
-    runnable = [job for job in jobs if job.trial.key not in {r["key"] for r in results}]
+    runnable = [job for job in jobs if job.trial.key not in {r.summary.key for r in results}]
     for result in results:
         _log_result(result)
     bar = tqdm(total=len(jobs), initial=len(results), desc="trials", unit="trial", disable=not progress)
@@ -499,7 +497,7 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: Marker
         for result in running:
             results.append(result)
             _log_result(result)
-            failed = sum(r["status"] != "ok" for r in results)
+            failed = sum(not r.summary.ok for r in results)
             bar.update()
             bar.set_postfix(done=len(results) - failed, failed=failed, remaining=len(jobs) - len(results))
     except KeyboardInterrupt:
@@ -514,56 +512,59 @@ def run_batch(root: str | os.PathLike, out: str | os.PathLike, *, source: Marker
     return BatchResult(results)
 
 
-def _checked(jobs: list[TrialJob]) -> list[dict]:
-    """The failed summaries (written to each trial's ``summary.json``) of the trials whose inputs
+def _checked(jobs: list[TrialJob]) -> list[TrialOutcome]:
+    """The failed outcomes (written to each trial's ``summary.json``) of the trials whose inputs
     :func:`check_trial` refuses; the others are left to run."""
     failed = []
     for job in jobs:
         reason = check_trial(job)
         if reason is not None:
-            summary = {**job.summary_head(), "status": "failed", "reason": reason, "elapsed_s": 0.0}
+            summary = job.summary("failed", reason, elapsed_s=0.0)
             check_writable(job.out_dir, "trial output folder")
-            write_summary(Path(job.out_dir), summary)
-            failed.append({**summary, "skipped": False})
+            write_summary(summary)
+            failed.append(TrialOutcome(summary))
     return failed
 
 
-def _record_interrupted(jobs: list[TrialJob], results: list[dict], out: Path, root, source: MarkerSource) -> None:
+def _record_interrupted(jobs: list[TrialJob], results: list[TrialOutcome], out: Path, root: str | os.PathLike[str],
+                        source: MarkerSource) -> None:
     """Every trial without a final result becomes ``interrupted`` in batch.log and batch.json."""
-    finished = {r["key"] for r in results if r["status"] != INTERRUPTED}
-    stopped = {r["key"]: r for r in results if r["status"] == INTERRUPTED}
-    results[:] = [r for r in results if r["status"] != INTERRUPTED]
+    finished = {r.summary.key for r in results if r.summary.status != INTERRUPTED}
+    stopped = {r.summary.key: r.summary for r in results if r.summary.status == INTERRUPTED}
+    results[:] = [r for r in results if r.summary.status != INTERRUPTED]
     for job in jobs:
         key = job.trial.key
         if key in finished:
             continue
-        reason = stopped[key]["reason"] if key in stopped else "interrupted (not finished)"
-        results.append({**job.summary_head(), "status": INTERRUPTED, "reason": reason, "skipped": False})
+        reason = stopped[key].reason if key in stopped else "interrupted (not finished)"
+        results.append(job.outcome(INTERRUPTED, reason))
         log.warning("%s %s; a rerun processes it", key, reason)
     log.warning("batch interrupted: %d of %d trials finished", len(finished), len(jobs))
     _write_batch_json(out, root, source, jobs, results)
 
 
-def _write_batch_json(out: Path, root, source: MarkerSource, jobs: list[TrialJob], results: list[dict]) -> None:
+def _write_batch_json(out: Path, root: str | os.PathLike[str], source: MarkerSource, jobs: list[TrialJob],
+                      results: list[TrialOutcome]) -> None:
     order = {j.trial.key: k for k, j in enumerate(jobs)}
-    results.sort(key=lambda r: order.get(r["key"], 0))
+    results.sort(key=lambda r: order.get(r.summary.key, 0))
     with atomic_write(out / "batch.json") as handle:
-        handle.write(strict_json({"root": str(root), "source": source, "trials": results}))
+        handle.write(strict_json({"root": str(root), "source": source, "trials": [r.to_dict() for r in results]}))
 
 
-def _log_result(result: dict) -> None:
-    if result["status"] != "ok":
-        log.error("%s failed: %s", result["key"], result["reason"])
+def _log_result(result: TrialOutcome) -> None:
+    summary = result.summary
+    if not summary.ok:
+        log.error("%s failed: %s", summary.key, summary.reason)
         return
-    for group, reasons in result.get("notes", {}).items():
+    for group, reasons in summary.notes.items():
         for reason, count in reasons.items():
-            log.warning("%s: %s angles NaN in %d frames: %s", result["key"], group, count, reason)
-    for message in result.get("warnings", []):
-        log.info("%s: %s", result["key"], message)
-    log.info("%s %s", result["key"], "up to date, skipped" if result.get("skipped") else "done")
+            log.warning("%s: %s angles NaN in %d frames: %s", summary.key, group, count, reason)
+    for message in summary.warnings:
+        log.info("%s: %s", summary.key, message)
+    log.info("%s %s", summary.key, "up to date, skipped" if result.skipped else "done")
 
 
-def _execute(jobs: list[TrialJob], workers: int, scheduler: str | None) -> Generator[dict, None, None]:
+def _execute(jobs: list[TrialJob], workers: int, scheduler: str | None) -> Generator[TrialOutcome, None, None]:
     if scheduler:
         yield from _execute_dask(jobs, scheduler)
     elif workers <= 1:
@@ -592,7 +593,7 @@ def _worker_sigint(signum, frame) -> None:
     os._exit(0)
 
 
-def _process_in_worker(job: TrialJob) -> dict:
+def _process_in_worker(job: TrialJob) -> TrialOutcome:
     global _TRIAL_RUNNING
     _TRIAL_RUNNING = True
     try:
@@ -603,7 +604,7 @@ def _process_in_worker(job: TrialJob) -> dict:
         _TRIAL_RUNNING = False
 
 
-def _execute_pool(jobs: list[TrialJob], workers: int) -> Iterator[dict]:
+def _execute_pool(jobs: list[TrialJob], workers: int) -> Iterator[TrialOutcome]:
     pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init, initargs=(os.getpid(),))
     futures: dict = {}
     try:
@@ -630,7 +631,7 @@ def _stop_pool(pool: ProcessPoolExecutor, futures: list) -> None:
 
 
 # ---------------------------------------------------------------------------------- Dask
-def _execute_dask(jobs: list[TrialJob], scheduler: str) -> Iterator[dict]:
+def _execute_dask(jobs: list[TrialJob], scheduler: str) -> Iterator[TrialOutcome]:
     """Run ``jobs`` on the Dask cluster at ``scheduler``, yielding each trial's summary.
 
     A worker that dies mid-trial (killed, out of memory) is survived by Dask itself: the trial
@@ -689,30 +690,26 @@ def _scheduler_lost(future, client) -> bool:
     return False
 
 
-def _result_or_failure(future, job: TrialJob) -> dict:
-    """A finished future's summary; a worker that died (not a bad trial) becomes a failure too."""
+def _result_or_failure(future: Any, job: TrialJob) -> TrialOutcome:
+    """A finished future's outcome; a worker that died (not a bad trial) becomes a failure too."""
     try:
-        return future.result()
+        outcome: TrialOutcome = future.result()
     except Exception as exc:
-        return {**job.summary_head(), "status": "failed",
-                "reason": f"worker failed: {type(exc).__name__}: {exc}", "skipped": False}
+        return job.outcome("failed", f"worker failed: {type(exc).__name__}: {exc}")
+    return outcome
 
 
-def load_results(out: str | os.PathLike) -> list[dict]:
-    """Every trial summary under a batch output folder, sorted by trial key."""
+def load_results(out: str | os.PathLike[str]) -> list[TrialSummary]:
+    """Every trial summary under a batch output folder, sorted by trial key (each with its
+    folder as ``out_dir``).
+
+    Raises:
+        InputError: no such folder, no summary in it, or a summary that cannot be read."""
     out = Path(out)
     if not out.is_dir():
         raise InputError(out, "batch output folder not found")
-    summaries = []
-    for path in sorted(out.rglob(SUMMARY)):
-        if path.parent.name == OPENSIM_DIR:  # spinemocap opensim's own summary inside a trial
-            continue
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            raise InputError(path, f"unreadable trial summary ({exc})") from exc
-        data["out_dir"] = str(path.parent)
-        summaries.append(data)
+    summaries = [read_summary(path) for path in sorted(out.rglob(SUMMARY))
+                 if path.parent.name != OPENSIM_DIR]  # not spinemocap opensim's own summary inside a trial
     if not summaries:
         raise InputError(out, f"no trial results ({SUMMARY}) found: run `spinemocap batch` first")
-    return sorted(summaries, key=lambda d: d["key"])
+    return sorted(summaries, key=lambda s: s.key)

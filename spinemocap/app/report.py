@@ -51,6 +51,7 @@ from ..analysis.shape import segments_of  # noqa: E402
 from ..capture import Capture  # noqa: E402
 from ..fileio import InputError, atomic_path, atomic_write, check_writable, reading  # noqa: E402
 from .batch import ANGLES, SEGMENTS, SHAPE, load_results  # noqa: E402
+from .trial_summary import TrialSummary  # noqa: E402
 from .viewer.layout import view_outputs  # noqa: E402
 
 #: Per-trial numbers: (column name in the tables, angle statistic key in summary.json).
@@ -104,23 +105,22 @@ GROUP_HEADERS = {"flexion_from_neutral_deg": "flexion from neutral", "extension_
                  "completeness_pct": "dots seen %"}
 
 
-def trial_table(results: list[dict], neutrals: dict[str, tuple[dict, str]] | None = None) -> pd.DataFrame:
+def trial_table(results: list[TrialSummary], neutrals: dict[str, tuple[dict, str]] | None = None) -> pd.DataFrame:
     """One row per trial: identity, status, reason, frames, completeness, the absolute angle
     numbers and (with ``neutrals``: trial key -> (:func:`neutral.neutral_summary`, where the
     neutral came from)) the numbers relative to neutral."""
     neutrals = neutrals or {}
     rows = []
     for r in results:
-        row = {"subject": r.get("subject", ""), "condition": r.get("condition", ""),
-               "trial": r.get("trial", ""), "key": r["key"], "status": r["status"],
-               "reason": r.get("reason", ""), "n_frames": r.get("n_frames", np.nan),
-               "duration_s": r.get("duration_s", np.nan),
-               "completeness_pct": r.get("completeness_pct", np.nan)}
-        stats = r.get("stats", {})
+        a = r.analysis
+        row: dict[str, object] = {
+            "subject": r.subject, "condition": r.condition, "trial": r.trial, "key": r.key, "status": r.status,
+            "reason": r.reason, "n_frames": a.n_frames if a else np.nan, "duration_s": a.duration_s if a else np.nan,
+            "completeness_pct": a.completeness_pct if a else np.nan}
         for column, key in TRIAL_COLUMNS.items():
-            value = stats.get(key, np.nan)
+            value = r.stats.get(key, np.nan)
             row[column] = 100.0 * value if column.endswith("_pct") and value == value else value
-        relative, source = neutrals.get(r["key"], ({}, ""))
+        relative, source = neutrals.get(r.key, ({}, ""))
         for column, key in NEUTRAL_COLUMNS.items():
             row[column] = relative.get(key, np.nan)
         row["neutral_from"] = source
@@ -142,20 +142,20 @@ def group_table(trials: pd.DataFrame, by: str) -> pd.DataFrame:
     return table.reset_index()
 
 
-def problem_table(results: list[dict]) -> pd.DataFrame:
+def problem_table(results: list[TrialSummary]) -> pd.DataFrame:
     """Failed trials and NaN-angle reasons, one row per (trial, what, reason); a trial whose
     lumbar angle is missing in every frame gets a row saying so first."""
-    rows = [{"key": r["key"], "what": "trial failed", "frames": np.nan, "reason": r.get("reason", "")}
-            for r in results if r["status"] != "ok"]
+    rows: list[dict[str, object]] = [{"key": r.key, "what": "trial failed", "frames": np.nan, "reason": r.reason}
+                                     for r in results if not r.ok]
     for r in results:
-        if r["status"] != "ok":
+        if r.analysis is None:
             continue
-        if r.get("stats", {}).get("lumbar_flexion_valid", 1.0) == 0.0:
-            rows.append({"key": r["key"], "what": "no lumbar angle in any frame", "frames": r.get("n_frames", np.nan),
+        if r.stats.get("lumbar_flexion_valid", 1.0) == 0.0:
+            rows.append({"key": r.key, "what": "no lumbar angle in any frame", "frames": r.analysis.n_frames,
                          "reason": _lumbar_reason(r)})
-        for group, reasons in r.get("notes", {}).items():
+        for group, reasons in r.notes.items():
             for reason, count in reasons.items():
-                rows.append({"key": r["key"], "what": f"{group} angles NaN", "frames": count, "reason": reason})
+                rows.append({"key": r.key, "what": f"{group} angles NaN", "frames": count, "reason": reason})
     return pd.DataFrame(rows, columns=["key", "what", "frames", "reason"])
 
 
@@ -170,36 +170,36 @@ def empty_column_problems(trials: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["key", "what", "frames", "reason"])
 
 
-def _lumbar_reason(result: dict) -> str:
+def _lumbar_reason(result: TrialSummary) -> str:
     """The most frequent reason for NaN lumbar angles of a trial (summary.json notes)."""
-    reasons = result.get("notes", {}).get("lumbar", {})
+    reasons = result.notes.get("lumbar", {})
     if not reasons:
         return "no reason recorded (summary.json has no lumbar notes)"
     return max(reasons.items(), key=lambda kv: kv[1])[0]
 
 
 # ---------------------------------------------------------------------------------- neutral
-def read_trial_angles(results: list[dict]) -> dict[str, pd.DataFrame]:
+def read_trial_angles(results: list[TrialSummary]) -> dict[str, pd.DataFrame]:
     """Each analysed trial's angles table (read once per report), by trial key."""
-    return {r["key"]: _read_angles(r) for r in results if r["status"] == "ok"}
+    return {r.key: _read_angles(r) for r in results if r.ok}
 
 
-def trial_neutrals(results: list[dict], tables: dict[str, pd.DataFrame]) -> dict[str, tuple[dict, str]]:
+def trial_neutrals(results: list[TrialSummary], tables: dict[str, pd.DataFrame]) -> dict[str, tuple[dict, str]]:
     """Per analysed trial key: (:func:`neutral.neutral_summary` of its angles ``tables``, where its
     neutral came from). A subject's static trial (:func:`neutral.is_static_name`) is the neutral of
     all the subject's trials; without one, each trial's first frames are."""
     static: dict[str, tuple[Neutral, str]] = {}
     for r in results:
-        key = r["key"]
-        if key in tables and is_static_name(r.get("trial", ""), r.get("condition", "")) and r.get("subject", "") not in static:
-            static[r.get("subject", "")] = (neutral_from_angles(tables[key], first_s=None), f"static trial {key}")
+        key = r.key
+        if key in tables and is_static_name(r.trial, r.condition) and r.subject not in static:
+            static[r.subject] = (neutral_from_angles(tables[key], first_s=None), f"static trial {key}")
     out = {}
     for r in results:
-        key = r["key"]
+        key = r.key
         if key not in tables:
             continue
-        if r.get("subject", "") in static:
-            neutral, source = static[r.get("subject", "")]
+        if r.subject in static:
+            neutral, source = static[r.subject]
         else:
             neutral = neutral_from_angles(tables[key], first_s=NEUTRAL_FIRST_S)
             source = _first_frames_words()
@@ -211,8 +211,8 @@ def _first_frames_words() -> str:
     return f"first {NEUTRAL_FIRST_S:g} s" if NEUTRAL_FIRST_S > 0 else "first frame"
 
 
-def _read_angles(result: dict) -> pd.DataFrame:
-    return _read_table(Path(result["out_dir"]) / ANGLES, "angles table")
+def _read_angles(result: TrialSummary) -> pd.DataFrame:
+    return _read_table(Path(result.out_dir) / ANGLES, "angles table")
 
 
 def _read_table(path: Path, what: str, **options) -> pd.DataFrame:
@@ -221,7 +221,7 @@ def _read_table(path: Path, what: str, **options) -> pd.DataFrame:
         return pd.read_csv(path, **options)
 
 
-def tracking_quality_table(results: list[dict]) -> pd.DataFrame:
+def tracking_quality_table(results: list[TrialSummary]) -> pd.DataFrame:
     """Trials whose tracked markers.csv holds flagged frames (see
     :func:`spinemocap.track.quality.flagged_from_confidence`): key, flagged frame count, the
     first frames, and the median tape stretch (ratio to the roll's spec)."""
@@ -231,8 +231,8 @@ def tracking_quality_table(results: list[dict]) -> pd.DataFrame:
 
     rows = []
     for r in results:
-        path = Path(r.get("out_dir", "")) / MARKERS
-        if r["status"] != "ok" or r.get("source", "tracked") != "tracked" or not path.is_file():
+        path = Path(r.out_dir) / MARKERS
+        if not r.ok or r.source != "tracked" or not path.is_file():
             continue
         df = pd.read_csv(path, dtype={"label": str})
         if "confidence" not in df.columns:
@@ -241,7 +241,7 @@ def tracking_quality_table(results: list[dict]) -> pd.DataFrame:
         flagged = arrays["frames"][flagged_from_confidence(arrays["status"], arrays["confidence"])]
         if len(flagged):
             shown = ", ".join(str(int(f)) for f in flagged[:15]) + (" ..." if len(flagged) > 15 else "")
-            rows.append({"key": r["key"], "flagged_frames": len(flagged), "of_frames": len(arrays["frames"]),
+            rows.append({"key": r.key, "flagged_frames": len(flagged), "of_frames": len(arrays["frames"]),
                          "frames": shown, "median_stretch": float(np.nanmedian(arrays["stretch"]))
                          if np.isfinite(arrays["stretch"]).any() else np.nan})
     return pd.DataFrame(rows, columns=["key", "flagged_frames", "of_frames", "frames", "median_stretch"])
@@ -487,30 +487,31 @@ def _mean_sd(mean: float, sd: float) -> str:
     return f"{mean:.1f} ± {sd:.1f}" if np.isfinite(sd) else f"{mean:.1f}"
 
 
-def _trial_section(result: dict, neutral: Neutral | None, angles: pd.DataFrame | None,
+def _trial_section(result: TrialSummary, neutral: Neutral | None, angles: pd.DataFrame | None,
                    report_dir: Path | None = None) -> list[str]:
     """One trial's heading, its problems in words, links to its labelled videos and 3D viewer
     (relative to ``report_dir``), and its three pictures (``angles``: its angles table, None for
     a failed trial)."""
-    key = html.escape(result["key"])
-    if result["status"] != "ok":
-        return [f"<p class='bad'><b>{key}</b>: failed: {html.escape(result.get('reason', ''))}</p>"]
+    key = html.escape(result.key)
+    if result.analysis is None:
+        return [f"<p class='bad'><b>{key}</b>: failed: {html.escape(result.reason)}</p>"]
     assert angles is not None, "an analysed trial has an angles table"
-    folder = Path(result["out_dir"])
-    parts = [f"<h3>{key} <span class='note'>({result.get('completeness_pct', float('nan')):.0f}% of dots observed"
+    folder = Path(result.out_dir)
+    parts = [f"<h3>{key} <span class='note'>({result.analysis.completeness_pct:.0f}% of dots observed"
              f"{'; neutral: ' + html.escape(neutral.source) if neutral else ''})</span></h3>"]
     if report_dir is not None:
         parts.append(_view_links(folder, report_dir))
-    if result.get("stats", {}).get("lumbar_flexion_valid", 1.0) == 0.0:
+    if result.stats.get("lumbar_flexion_valid", 1.0) == 0.0:
         parts.append(f"<p class='bad'>No lumbar angle in any frame: {html.escape(_lumbar_reason(result))}.</p>")
     ik = None
-    if result.get("opensim", {}).get("status") == "ok":
-        ik = _read_table(Path(result["opensim"]["out_dir"]) / "spine_angles.csv", "OpenSim angles", comment="#")
-        parts.append(f"<p class='note'>OpenSim IK: marker RMS {result['opensim']['marker_rms_mm']:.2f} mm, "
-                     f"{result['opensim']['flagged_frames']} flagged frames (files in "
-                     f"{html.escape(result['opensim']['out_dir'])})</p>")
-    elif result.get("opensim"):
-        parts.append(f"<p class='warn'>OpenSim IK failed: {html.escape(result['opensim'].get('reason', ''))}</p>")
+    opensim = result.opensim
+    if opensim is not None and opensim.status == "ok":
+        ik = _read_table(Path(opensim.out_dir) / "spine_angles.csv", "OpenSim angles", comment="#")
+        parts.append(f"<p class='note'>OpenSim IK: marker RMS {opensim.marker_rms_mm:.2f} mm, "
+                     f"{opensim.flagged_frames} flagged frames (files in "
+                     f"{html.escape(opensim.out_dir)})</p>")
+    elif opensim is not None:
+        parts.append(f"<p class='warn'>OpenSim IK failed: {html.escape(opensim.reason)}</p>")
     try:
         parts.append(f"<img alt='angles from neutral: {key}' "
                      f"src='data:image/png;base64,{_trial_plot(angles, neutral, ik)}'>")
@@ -540,29 +541,29 @@ PLACEMENT_WORDS = {"below": "below the published span", "above": "above the publ
                    "no reference": "no published value for this subject", "no value": "not measured"}
 
 
-def subject_profiles(results: list[dict]) -> dict[str, tuple[float | None, str | None, str]]:
+def subject_profiles(results: list[TrialSummary]) -> dict[str, tuple[float | None, str | None, str]]:
     """Per subject: (age in years, sex, notes) from ``[subject]`` of its trials' capture.toml
     (``age``, ``sex``); the first trial that gives a value wins, a disagreeing one is noted."""
     out: dict[str, tuple[float | None, str | None, str]] = {}
     for r in results:
-        subject = str(r.get("subject", ""))
+        subject = r.subject
         age, sex, notes = out.get(subject, (None, None, ""))
         try:
-            profile = subject_profile(Capture.open(r.get("capture", "")).subject)
+            profile = subject_profile(Capture.open(r.capture).subject)
         except (InputError, OSError) as exc:
             out[subject] = (age, sex, notes or f"metadata unreadable ({exc})")
             continue
         problems = list(profile.problems)
         if age is not None and profile.age is not None and profile.age != age:
-            problems.append(f"{r['key']} gives age {profile.age:g}")
+            problems.append(f"{r.key} gives age {profile.age:g}")
         if sex is not None and profile.sex is not None and profile.sex != sex:
-            problems.append(f"{r['key']} gives sex {profile.sex}")
+            problems.append(f"{r.key} gives sex {profile.sex}")
         notes = "; ".join(n for n in [notes, *problems] if n)
         out[subject] = (age if age is not None else profile.age, sex or profile.sex, notes)
     return out
 
 
-def reference_table(trials: pd.DataFrame, results: list[dict], norms: Norms | None = None) -> pd.DataFrame:
+def reference_table(trials: pd.DataFrame, results: list[TrialSummary], norms: Norms | None = None) -> pd.DataFrame:
     """One row per subject and direction of movement: the subject's largest excursion from neutral
     over its analysed trials (and which trial), its age and sex, the published span that applies
     (:func:`spinemocap.analysis.norms.load_norms`; an age band before the pooled span, one sex
@@ -714,7 +715,7 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
                  "each vertebral segment.</p>")
     for r in results:
         neutral = _neutral_of(r, relative)
-        parts.extend(_trial_section(r, neutral, angle_tables.get(r["key"]), out))
+        parts.extend(_trial_section(r, neutral, angle_tables.get(r.key), out))
     references = reference_table(trials, results)
     paths["reference_ranges"] = _write_reference_table(out, references)
     parts.append(_reference_html(references))
@@ -726,16 +727,16 @@ def write_report(out: str | os.PathLike, title: str | None = None) -> dict[str, 
     return paths
 
 
-def _neutral_of(result: dict, relative: dict[str, tuple[dict, str]]) -> Neutral | None:
+def _neutral_of(result: TrialSummary, relative: dict[str, tuple[dict, str]]) -> Neutral | None:
     """The neutral a trial's numbers were taken from (rebuilt from its summary's ``*_neutral``)."""
-    if result["key"] not in relative:
+    if result.key not in relative:
         return None
-    summary, source = relative[result["key"]]
+    summary, source = relative[result.key]
     return Neutral({k[: -len("_neutral")]: v for k, v in summary.items() if k.endswith("_neutral")}, source)
 
 
-def _lumbar_levels(results: list[dict]) -> str:
-    pairs = {tuple(r["lumbar_levels"]) for r in results if r.get("lumbar_levels")}
+def _lumbar_levels(results: list[TrialSummary]) -> str:
+    pairs = {r.analysis.lumbar_levels for r in results if r.analysis is not None}
     return "; ".join(f"{hi} relative to {lo}" for lo, hi in sorted(pairs)) or "T12/L1 relative to S1"
 
 

@@ -96,11 +96,11 @@ def run(args: argparse.Namespace) -> int:
         return 130
     finally:
         signal.signal(signal.SIGTERM, previous)
-    skipped = sum(bool(t.get("skipped")) for t in result.trials)
+    skipped = sum(t.skipped for t in result.trials)
     print(f"{len(result.trials)} trials: {len(result.trials) - len(result.failed)} ok "
           f"({skipped} up to date), {len(result.failed)} failed; results in {args.out}")
     for trial in result.failed:
-        print(f"  FAILED {trial['key']}: {trial['reason']}")
+        print(f"  FAILED {trial.summary.key}: {trial.summary.reason}")
     if args.report:
         from ..app.report import write_report
 

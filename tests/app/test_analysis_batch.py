@@ -51,22 +51,22 @@ def test_batch_on_dask_localcluster_then_report(study, tmp_path):
     out = tmp_path / "out"
     with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
         result = run_batch(study, out, source="groundtruth", scheduler=cluster.scheduler_address, progress=False)
-    by_key = {t["key"]: t for t in result.trials}
+    by_key = {t.summary.key: t.summary for t in result.trials}
     assert len(by_key) == 7
-    assert "no capture.toml" in by_key["S01/pre/trial02"]["reason"]
-    assert "T7 is mapped to row 12" in by_key["S02/pre/trial02"]["reason"]
-    assert {k for k, t in by_key.items() if t["status"] != "ok"} == {"S01/pre/trial02", "S02/pre/trial02"}
+    assert "no capture.toml" in by_key["S01/pre/trial02"].reason
+    assert "T7 is mapped to row 12" in by_key["S02/pre/trial02"].reason
+    assert {k for k, t in by_key.items() if t.status != "ok"} == {"S01/pre/trial02", "S02/pre/trial02"}
     # every good trial: lumbar flexion follows the applied peak (the background bend adds 15 deg);
     # 3 % of the angle is what the spline loses at the curvature step placed exactly at T12/L1
     for key, peak in {"S01/pre/trial01": 20, "S01/post/trial01": 30, "S02/pre/trial01": 25}.items():
-        stats = by_key[key]["stats"]
+        stats = by_key[key].stats
         assert stats["lumbar_flexion_rom"] == pytest.approx(peak, abs=0.03 * peak)
         assert stats["lumbar_flexion_max"] == pytest.approx(peak + 15, abs=0.03 * (peak + 15))
         assert np.isfinite(stats["thoracic_flexion_rom"])  # upper level: the map's top (T10)
-        assert by_key[key]["completeness_pct"] == 100.0
+        assert by_key[key].analysis.completeness_pct == 100.0
     gap = by_key["S02/post/trial02"]
-    assert gap["status"] == "ok" and gap["completeness_pct"] < 80
-    (reason, frames), = gap["notes"]["lumbar"].items()
+    assert gap.status == "ok" and gap.analysis.completeness_pct < 80
+    (reason, frames), = gap.notes["lumbar"].items()
     assert frames == 20 and "T12/L1" in reason
     angles = pd.read_csv(out / "S02/post/trial02/angles.csv")
     assert angles["lumbar_flexion"][5:25].isna().all() and angles["lumbar_flexion"][:5].notna().all()
@@ -100,7 +100,7 @@ def test_batch_resumes_and_reprocesses_only_stale_trials(study, tmp_path):
     os.utime(out / "S02/post/trial01/summary.json", (earlier, earlier))
     os.utime(study / "S02/post/trial01/groundtruth.npz", (earlier + 50, earlier + 50))
     second = run_batch(study, out, source="groundtruth", workers=1, progress=False)
-    assert sorted(t["key"] for t in second.processed) == ["S01/pre/trial01", "S02/post/trial01"]
+    assert sorted(t.summary.key for t in second.processed) == ["S01/pre/trial01", "S02/post/trial01"]
     assert len(second.trials) == 4 and not second.failed
     third = run_batch(study, out, source="groundtruth", workers=1, progress=False)
     assert third.processed == []
@@ -112,11 +112,11 @@ def test_failed_trial_is_retried_and_others_untouched(study, tmp_path):
     bad.write_bytes(b"not an npz")
     result = run_batch(study, out, source="groundtruth", workers=1, progress=False)
     (failed,) = result.failed
-    assert failed["key"] == "S01/post/trial01" and len(result.trials) == 4
+    assert failed.summary.key == "S01/post/trial01" and len(result.trials) == 4
     assert json.loads((out / "S01/post/trial01/summary.json").read_text())["status"] == "failed"
     _write_trial(study / "S01" / "post" / "trial01", 30.0)  # fixed: a failed trial is never "up to date"
     again = run_batch(study, out, source="groundtruth", workers=1, progress=False)
-    assert [t["key"] for t in again.processed] == ["S01/post/trial01"] and not again.failed
+    assert [t.summary.key for t in again.processed] == ["S01/post/trial01"] and not again.failed
 
 
 def test_manifest_discovery_and_cli(study, tmp_path, capsys):
@@ -144,14 +144,15 @@ def test_pelvis_from_a_vicon_c3d_named_in_the_manifest(tmp_path):
     manifest = tmp_path / "manifest.csv"
     manifest.write_text(f"path,subject,condition,c3d\nstudy/S01/walk/trial01,S01,walk,{c3d}\n")
     result = run_batch(manifest, tmp_path / "out", source="groundtruth", workers=1, progress=False)
-    (trial,) = result.trials
-    assert trial["status"] == "ok" and trial["pelvis_from"] == "c3d"
+    (outcome,) = result.trials
+    trial = outcome.summary
+    assert trial.status == "ok" and trial.analysis.pelvis_from == "c3d"
     angles = pd.read_csv(tmp_path / "out" / "S01/walk/trial01/angles.csv")
     # the subject walks into the volume: the trial's first samples lack pelvis markers -> NaN
     # with the reason; afterwards the pelvis angles exist and move with the gait
     missing = angles["pelvis_tilt"].isna()
     assert 0 < missing.sum() < len(angles) and (angles.loc[missing, "pelvis_note"] == "pelvis markers missing").all()
-    assert trial["notes"]["pelvis"] == {"pelvis markers missing": int(missing.sum())}
+    assert trial.notes["pelvis"] == {"pelvis markers missing": int(missing.sum())}
     assert np.ptp(angles.loc[~missing, "pelvis_rotation"]) > 0.5
 
 

@@ -61,7 +61,7 @@ def test_a_worker_killed_mid_trial_gives_the_same_results_as_the_local_pool(tmp_
 
     study = _study(tmp_path / "study", 4)
     local = run_batch(study, tmp_path / "local", source="groundtruth", workers=1, progress=False)
-    assert {t["status"] for t in local.trials} == {"ok"}
+    assert {t.summary.status for t in local.trials} == {"ok"}
     marker = tmp_path / "killed"
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
             Client(cluster.scheduler_address) as client:
@@ -69,7 +69,7 @@ def test_a_worker_killed_mid_trial_gives_the_same_results_as_the_local_pool(tmp_
         result = run_batch(study, tmp_path / "cluster", source="groundtruth", scheduler=cluster.scheduler_address,
                            progress=False)
     assert marker.exists(), "no worker was killed"
-    assert {t["status"] for t in result.trials} == {"ok"} and len(result.trials) == 4
+    assert {t.summary.status for t in result.trials} == {"ok"} and len(result.trials) == 4
     assert _outputs(tmp_path / "cluster") == _outputs(tmp_path / "local")
 
 
@@ -102,7 +102,7 @@ def test_a_scheduler_that_goes_away_is_a_clear_error_and_the_rerun_resumes(tmp_p
     assert 1 <= len(done_before) < 8
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as again:
         result = run_batch(study, out, source="groundtruth", scheduler=again.scheduler_address, progress=False)
-    assert {t["status"] for t in result.trials} == {"ok"} and len(result.trials) == 8
-    skipped = {t["key"] for t in result.trials if t["skipped"]}
+    assert {t.summary.status for t in result.trials} == {"ok"} and len(result.trials) == 8
+    skipped = {t.summary.key for t in result.trials if t.skipped}
     assert {str(Path(d).relative_to(out)) for d in done_before} <= skipped
     assert json.loads((out / "batch.json").read_text())["trials"][0]["status"] == "ok"

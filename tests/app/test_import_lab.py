@@ -92,12 +92,13 @@ def test_batch_reuses_complete_markers_when_only_the_level_map_changed(studio, t
     write_markers(groundtruth_markers(Capture.open(trial)), trial_out)  # a complete set, newer than the capture
     run_id = json.loads((trial_out / RESULTS_MANIFEST).read_text())["run_id"]
     first = run_batch(tmp_path / "study", out, workers=1, progress=False)
-    assert [t["status"] for t in first.trials] == ["ok"], first.trials
+    assert [t.summary.status for t in first.trials] == ["ok"], first.trials
     levels = dict(zip(Capture.open(trial).row_levels() or [], range(1, 99)))
     write_toml(trial / "levels.toml", {"levels": {k: v for k, v in list(levels.items())[::2]}})
     again = run_batch(tmp_path / "study", out, workers=1, progress=False)
-    assert again.trials[0]["status"] == "ok" and not again.trials[0]["skipped"]  # analysed again
-    assert again.trials[0]["levels_from"].endswith("levels.toml")
+    (trial,) = again.trials
+    assert trial.summary.status == "ok" and not trial.skipped  # analysed again
+    assert trial.summary.analysis is not None and trial.summary.analysis.levels_from.endswith("levels.toml")
     assert json.loads((trial_out / RESULTS_MANIFEST).read_text())["run_id"] == run_id  # not tracked again
     summary = (trial_out / "summary.json").read_text()
     assert "NaN" not in summary and "Infinity" not in summary

@@ -133,7 +133,7 @@ def test_interrupting_a_dask_batch_cancels_its_queued_trials(study, tmp_path):
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         running = _execute_dask(jobs, cluster.scheduler_address)
         first = next(running)
-        assert first["status"] == "ok"
+        assert first.summary.status == "ok"
         running.close()  # what run_batch does on Ctrl-C
         time.sleep(3.0)  # a running trial (no frame loop with ground truth) may still finish
     assert len(_summaries(out)) <= 2 < N_TRIALS

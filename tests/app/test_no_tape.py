@@ -80,13 +80,13 @@ def test_batch_checks_every_trial_before_tracking_any(tmp_path):
     from spinemocap.app.batch import run_batch
 
     result = run_batch(study, out, workers=1, detector="classical", progress=False)
-    by_key = {t["key"]: t for t in result.trials}
-    assert "no row-to-level map" in by_key["S02/pre/trial01"]["reason"]
-    assert "unknown key 'vidoe_pattern' in [capture] (valid keys: name, fps" in by_key["S01/pre/trial02"]["reason"]
+    by_key = {t.summary.key: t.summary for t in result.trials}
+    assert "no row-to-level map" in by_key["S02/pre/trial01"].reason
+    assert "unknown key 'vidoe_pattern' in [capture] (valid keys: name, fps" in by_key["S01/pre/trial02"].reason
     for key in ("S02/pre/trial01", "S01/pre/trial02"):  # refused before tracking: nothing tracked
-        assert not (out / key / "tracking.log").exists() and by_key[key]["elapsed_s"] == 0.0
+        assert not (out / key / "tracking.log").exists() and by_key[key].elapsed_s == 0.0
     assert (out / "S01/pre/trial01/tracking.log").is_file()  # the good trial was tracked
-    assert "no tape found" in by_key["S01/pre/trial01"]["reason"]
+    assert "no tape found" in by_key["S01/pre/trial01"].reason
     json.loads((out / "batch.json").read_text(), parse_constant=lambda name: pytest.fail(f"bare {name} in JSON"))
 
 

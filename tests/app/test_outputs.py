@@ -127,4 +127,4 @@ def test_report_of_one_capture_reuses_a_complete_tracked_set(tmp_path):
     tracked = write_markers(groundtruth_markers(Capture.open(capture)), tmp_path / "tracked")
     report_capture(capture, tmp_path / "report", markers_csv=tracked[0])
     (result,) = load_results(tmp_path / "report")
-    assert result["status"] == "ok" and result["source"] == "tracked", result
+    assert result.status == "ok" and result.source == "tracked", result

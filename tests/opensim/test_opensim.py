@@ -266,9 +266,9 @@ def test_batch_with_opensim_shows_ik_beside_the_tape_angles(tmp_path):
     write_bent_capture(root / "S01" / "pre" / "trial01", TapeSpec(n_rows=13), 30.0, n_frames=12, fps=12.0)
     (root / "S01" / "levels.toml").write_text('[levels]\nS1 = 1\n"T12/L1" = 7\nT9 = 13\n')
     result = run_batch(root, tmp_path / "out", source="groundtruth", workers=1, progress=False, opensim=True)
-    trial = result.trials[0]
-    assert trial["status"] == "ok" and trial["opensim"]["status"] == "ok", trial
-    assert trial["opensim"]["marker_rms_mm"] <= 2.0
+    trial = result.trials[0].summary
+    assert trial.status == "ok" and trial.opensim is not None and trial.opensim.status == "ok", trial
+    assert trial.opensim.marker_rms_mm <= 2.0
     ik = (tmp_path / "out" / "S01" / "pre" / "trial01" / "opensim" / "spine_angles.csv").read_text()
     assert "lumbar_flexion" in ik
     page = write_report(tmp_path / "out")["html"].read_text()

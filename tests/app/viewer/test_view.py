@@ -291,8 +291,9 @@ def test_batch_writes_each_tracked_trials_views_and_the_report_links_them(tracke
     out = tmp_path / "out"
     shutil.copytree(results, trial_out_dir(out, trial))      # a complete tracked set: not tracked again
     result = run_batch(study, out, workers=1, progress=False, view=True)
-    (summary,) = result.trials
-    assert summary["status"] == "ok" and summary["view"]["status"] == "ok", summary
+    (outcome,) = result.trials
+    summary = outcome.summary
+    assert summary.status == "ok" and summary.view is not None and summary.view.status == "ok", summary
     found = view_outputs(trial_out_dir(out, trial))
     assert {"grid", "viewer"} <= set(found) and len(found) == 2 + 3   # the grid, the viewer, three cameras
     page = write_report(out)["html"].read_text()
