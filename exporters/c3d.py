@@ -15,6 +15,11 @@ What we write (float data, Intel byte order), parameters filled the way Vicon Ne
   the file size).
 - ``SUBJECTS``: ``USED``, ``IS_STATIC``, ``USES_PREFIXES``, ``NAMES``, ``MARKER_SETS``.
 - ``MANUFACTURER``: ``COMPANY``, ``SOFTWARE``, ``VERSION_LABEL``.
+- ``MISSING_CAMERAS`` (only where a camera had no image in some frames, ``meta['missing_cameras']``):
+  ``USED`` (int16, the number of spans), ``CAMERAS`` (char, the camera names) and ``SPANS``
+  (float32, 3 x USED: camera number, 1-based into ``CAMERAS``; first and last C3D frame number of
+  a run of frames that camera lacks; more than 255 spans continue in ``SPANS2``, ``SPANS3`` ...).
+  ezc3d and the ``c3d`` package read it as any parameter group.
 
 Per sample, the C3D spec's fourth word holds a residual byte (low) and a camera-mask byte (high);
 a negative word marks an invalid sample (coordinates written as 0, as Nexus does). Our
@@ -51,7 +56,16 @@ import c3d as c3dlib
 import numpy as np
 
 from spinemocap.fileio import InputError, atomic_path
-from spinemocap.markers import INFERRED, MAX_ABS_MM, MISSING, OBSERVED, MarkerTable
+from spinemocap.markers import (
+    INFERRED,
+    MAX_ABS_MM,
+    MISSING,
+    MISSING_CAMERAS,
+    OBSERVED,
+    MarkerTable,
+    camera_gaps,
+    missing_from_gaps,
+)
 from spinemocap.version import __version__
 
 from .common import (
@@ -193,6 +207,51 @@ def _fill_groups(writer: _BlockWriter, labels: list[str], descriptions: list[str
         maker.set_str(key, "", value, len(value))
 
 
+def _fill_missing_cameras(writer: _BlockWriter, missing: dict, frames: np.ndarray) -> None:
+    """The ``MISSING_CAMERAS`` group (see the module docstring) for the gaps within ``frames``
+    (the table's, 0-based); nothing where no camera lacks a frame."""
+    gaps = camera_gaps(missing, frames)
+    if not gaps:
+        return
+    cameras = sorted({camera for camera, _, _ in gaps})
+    group = writer.get_create(MISSING_CAMERAS.upper())
+    group.set("USED", "spans of frames a camera had no image in", 2, "<h", min(len(gaps), 32767))
+    names = fit_labels(cameras, 255, "MISSING_CAMERAS:CAMERAS")
+    _set_strings(group, "CAMERAS", names, max(len(name) for name in names))
+    spans = np.array([(cameras.index(camera) + 1, first + 1, last + 1) for camera, first, last in gaps], "<f4")
+    for k in range(0, len(spans), PER_PARAM):
+        chunk = spans[k:k + PER_PARAM]
+        key = "SPANS" if k == 0 else f"SPANS{k // PER_PARAM + 1}"
+        group.add(key, "camera number, first and last C3D frame it had no image in", 4, "", chunk.tobytes(), 3,
+                  len(chunk))
+
+
+def _read_missing_cameras(reader: c3dlib.Reader, path: Path) -> dict[str, list[int]]:
+    """The ``MISSING_CAMERAS`` group as camera -> frames (0-based); {} where the file has none.
+    A damaged group is left out with a warning (the points are still read)."""
+    if reader.get(MISSING_CAMERAS.upper()) is None:
+        return {}
+    try:
+        cameras = _strings(reader, MISSING_CAMERAS.upper(), "CAMERAS")
+        gaps = []
+        k = 1
+        while (param := _param(reader, f"{MISSING_CAMERAS.upper()}:SPANS{'' if k == 1 else k}")) is not None:
+            raw = param.bytes[: len(param.bytes) // 12 * 12]
+            values = (c3dlib.c3d.DEC_to_IEEE_BYTES(raw) if reader._dtypes.is_dec
+                      else np.frombuffer(raw, reader._dtypes.float32)).reshape(-1, 3)
+            for number, first, last in values:
+                if not (np.isfinite([number, first, last]).all() and 1 <= number <= len(cameras) and 1 <= first <= last
+                        and last - first < 2**31):
+                    raise ValueError(f"span {number:g}, {first:g}, {last:g} is not a camera and frame range")
+                gaps.append((cameras[int(number) - 1], int(first) - 1, int(last) - 1))
+            k += 1
+        return missing_from_gaps(gaps)
+    except (ValueError, IndexError, TypeError, OverflowError) as exc:
+        warnings.warn(f"{path}: the MISSING_CAMERAS group is damaged ({exc}); which cameras were missing is "
+                      "not read", ExportWarning, stacklevel=4)
+        return {}
+
+
 def _with_reference(arrays: dict, reference: MarkerTable, prefix: str, path: Path) -> tuple[dict, list[str]]:
     """Append reference markers (aligned on frame numbers, NaN where the reference lacks a
     frame) with ``prefix`` on their labels; return the arrays and the new labels' descriptions."""
@@ -249,6 +308,7 @@ def write_c3d(table: MarkerTable, path: str | os.PathLike, units: str = "mm", re
     _fill_groups(writer, fit_labels(labels, LABEL_WIDTH, path), fit_descriptions(descriptions), units, fps,
                  int(arrays["frames"][0]) + 1, str(subject or table.meta.get("subject") or "subject"),
                  str(marker_set or table.meta.get("marker_set") or "spinemocap tape"))
+    _fill_missing_cameras(writer, table.meta.get(MISSING_CAMERAS) or {}, arrays["frames"])
     if not np.array_equal(arrays["frames"], np.arange(arrays["frames"][0], arrays["frames"][0] + F)):
         warnings.warn(f"{path}: frames are not contiguous; C3D numbers them consecutively from "
                       f"{int(arrays['frames'][0]) + 1}", ExportWarning, stacklevel=2)
@@ -667,6 +727,9 @@ def _table_from_reader(reader: c3dlib.Reader, xyz: np.ndarray, word: np.ndarray,
             "software": software[0] if software else None,
             "processor": PROCESSORS.get(int(reader._dtypes._proc_type)),
             "descriptions": {l: d for l, d in zip(labels, _strings(reader, "POINT", "DESCRIPTIONS")) if d}}
+    missing = _read_missing_cameras(reader, path)
+    if missing:
+        meta[MISSING_CAMERAS] = missing
     return table_from_dense(labels, frames, frames / fps, positions, meta, status=status, n_views=n_views,
                             residual=residual)
 

@@ -1,6 +1,8 @@
 """The full marker table as CSV or Parquet: one row per (frame, label) with
-``frame, time, label, x, y, z, status, n_views, residual`` (mm, s, px) and the tracker's quality
-columns ``confidence, stretch`` (optional on reading), nothing lost.
+``frame, time, label, x, y, z, status, n_views, residual`` (mm, s, px), the tracker's quality
+columns ``confidence, stretch`` and ``missing_cameras`` (the cameras that had no image in the
+row's frame, separated by ``;``, empty where none: ``meta['missing_cameras']``) (the last three
+optional on reading), nothing lost.
 
 CSV is plain (no comment lines, so any spreadsheet or ``pandas.read_csv`` opens it; strings
 quoted); floats are written with the shortest text that reads back exactly. The frame rate is recovered from the time column; other metadata
@@ -18,7 +20,15 @@ import numpy as np
 import pandas as pd
 
 from spinemocap.fileio import InputError, atomic_path, reading
-from spinemocap.markers import ALL_COLUMNS, COLUMNS, MISSING, MarkerTable
+from spinemocap.markers import (
+    ALL_COLUMNS,
+    COLUMNS,
+    MISSING,
+    MISSING_CAMERAS,
+    MarkerTable,
+    missing_from_frames,
+    missing_per_frame,
+)
 
 from .common import ExportWarning, checked_table, dense_mm, mm_per_unit, table_from_dense, warn_empty_markers
 from .registry import Exporter
@@ -33,6 +43,10 @@ def _mm_frame(table: MarkerTable, path: Path) -> pd.DataFrame:
     df = table.data.loc[:, list(ALL_COLUMNS)].copy()
     df[["x", "y", "z"]] *= mm_per_unit(table.meta.get("units", "mm"), path)
     df["status"] = df["status"].astype(str)
+    frames = df["frame"].to_numpy()
+    unique, where = np.unique(frames, return_inverse=True)
+    per_frame = np.array(missing_per_frame(table.meta.get(MISSING_CAMERAS) or {}, unique.tolist()), dtype=object)
+    df[MISSING_CAMERAS] = per_frame[where] if len(unique) else np.zeros(0, object)
     return df
 
 
@@ -45,6 +59,11 @@ def _table(df: pd.DataFrame, path: Path, meta: dict) -> MarkerTable:
     df = df.copy()
     df["status"] = df["status"].fillna(MISSING)
     meta = {**meta, "source": str(path), "units": "mm"}
+    if MISSING_CAMERAS in df.columns:
+        with reading(path, "missing_cameras column"):
+            fields = df.drop_duplicates("frame")
+            meta[MISSING_CAMERAS] = missing_from_frames(pd.to_numeric(fields["frame"]).astype(np.int64).tolist(),
+                                                        fields[MISSING_CAMERAS].tolist())
     with reading(path, "marker table"), np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         table = MarkerTable(df, meta)
         if "fps" not in table.meta and table.n_frames > 1:
@@ -82,7 +101,7 @@ def write_csv(table: MarkerTable, path: str | os.PathLike) -> Path:
 def read_csv(path: str | os.PathLike) -> MarkerTable:
     path = Path(path)
     try:
-        df = pd.read_csv(path, dtype={"label": str})
+        df = pd.read_csv(path, dtype={"label": str, MISSING_CAMERAS: str})
     except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeError, ValueError,
             OverflowError, MemoryError) as exc:
         raise InputError(path, f"cannot read CSV: {exc}") from exc

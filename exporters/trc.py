@@ -2,7 +2,7 @@
 
 Layout (tab separated), as OpenSim's ``TRCFileAdapter`` reads it::
 
-    PathFileType  4  (X/Y/Z)  markers.trc  axes: <statement>
+    PathFileType  4  (X/Y/Z)  markers.trc  axes: <statement>  missing cameras: cam2:41-60,75
     DataRate  CameraRate  NumFrames  NumMarkers  Units  OrigDataRate  OrigDataStartFrame  OrigNumFrames
     100       100         548        32          mm     100           1                   548
     Frame#  Time  R01L  <tab>  <tab>  R01R ...
@@ -14,6 +14,12 @@ Missing samples are written as ``NaN`` (OpenSim rejects rows with empty trailing
 axes statement on the first line says which frame the numbers are in; OpenSim keeps that line
 as the table's ``header`` metadata. Frame numbers in the file are 1-based (table frame + 1).
 
+The first line's last field, ``missing cameras: ...``, names the cameras that had no image in
+some frames and those frames as the file's ``Frame#`` numbers: ``cam2:41-60,75;cam3:7`` (camera
+names percent-encoded), ``none`` where every camera was there (``meta['missing_cameras']``).
+OpenSim's ``TRCFileAdapter`` keeps that line as the table's ``header`` metadata (it refuses a
+ninth key on the second line, so the list cannot go there).
+
 TRC carries positions only: status, view counts and residuals are not stored; on reading,
 finite samples are ``observed`` and NaN samples ``missing``.
 """
@@ -24,11 +30,12 @@ import inspect
 import os
 import re
 from pathlib import Path
+from urllib.parse import quote, unquote
 
 import numpy as np
 
 from spinemocap.fileio import InputError, atomic_write, reading
-from spinemocap.markers import MAX_FRAME, MarkerTable
+from spinemocap.markers import MAX_FRAME, MISSING_CAMERAS, MarkerTable, camera_gaps, missing_from_gaps
 
 from .common import (
     checked_table,
@@ -44,6 +51,8 @@ from .registry import Exporter
 
 HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units",
                "OrigDataRate", "OrigDataStartFrame", "OrigNumFrames")
+MISSING_CAMERAS_FIELD = "missing cameras: "
+NO_CAMERA_MISSING = "none"
 LAB_AXES = "axes: lab frame, Z up (as captured)"
 AXES_PATTERN = re.compile(r"axes: OpenSim Y up, rotated from lab Z up: X=([+-][xyz]), Y=([+-][xyz]), Z=([+-][xyz])")
 # OpenSim: X forward, Y up, Z = X x Y (to the subject's right). Lab: Z up; "forward" names the
@@ -84,6 +93,37 @@ def axes_statement(forward: str | None) -> str:
     return f"axes: OpenSim Y up, rotated from lab Z up: X={X}, Y={Y}, Z={Z}"
 
 
+def missing_cameras_field(missing: dict, frames: np.ndarray) -> str:
+    """The ``missing cameras:`` field's value for the gaps within ``frames`` (the table's, 0-based;
+    written as 1-based ``Frame#`` numbers)."""
+    spans: dict[str, list[str]] = {}
+    for camera, first, last in camera_gaps(missing, frames):
+        spans.setdefault(camera, []).append(str(first + 1) if first == last else f"{first + 1}-{last + 1}")
+    return ";".join(f"{quote(camera, safe='')}:{','.join(runs)}" for camera, runs in spans.items()) or NO_CAMERA_MISSING
+
+
+def read_missing_cameras(value: str, path: Path) -> dict[str, list[int]]:
+    """The ``missing cameras:`` field's value as camera -> frames (0-based); :class:`InputError`
+    naming ``path`` when it is not of that form."""
+    value = value.strip()
+    if value in ("", NO_CAMERA_MISSING):
+        return {}
+    gaps = []
+    try:
+        for part in value.split(";"):
+            camera, _, runs = part.rpartition(":")
+            for run in runs.split(","):
+                first, _, last = run.partition("-")
+                start, stop = int(first), int(last or first)
+                if not (camera and 1 <= start <= stop <= MAX_FRAME):
+                    raise ValueError(run)
+                gaps.append((unquote(camera), start - 1, stop - 1))
+    except ValueError:
+        raise InputError(path, f"TRC header '{MISSING_CAMERAS_FIELD}{value}' is not 'camera:first-last,...;camera:...' "
+                               "(Frame# numbers) or 'none'") from None
+    return missing_from_gaps(gaps)
+
+
 def write_trc(table: MarkerTable, path: str | os.PathLike, units: str = "mm", opensim_axes: bool = False,
               forward: str = "+x", decimals: int | None = None, name: str | None = None) -> Path:
     """Write ``table`` as an OpenSim TRC file (atomically).
@@ -117,7 +157,8 @@ def write_trc(table: MarkerTable, path: str | os.PathLike, units: str = "mm", op
     first = int(frames[0]) + 1
     lines = [
         "\t".join(["PathFileType", "4", "(X/Y/Z)", name or path.name,
-                   axes_statement(forward if opensim_axes else None)]),
+                   axes_statement(forward if opensim_axes else None),
+                   MISSING_CAMERAS_FIELD + missing_cameras_field(table.meta.get(MISSING_CAMERAS) or {}, frames)]),
         "\t".join(HEADER_KEYS),
         "\t".join([f"{fps:.10g}", f"{float(table.meta.get('camera_rate', fps)):.10g}", str(F), str(D), units,
                    f"{fps:.10g}", str(first), str(F)]),
@@ -213,6 +254,10 @@ def _read_trc(path: Path) -> MarkerTable:
     meta = {"fps": fps, "source": str(path), "file_units": header["Units"],
             "trc_axes": "opensim" if match else "as in file",
             "camera_rate": camera_rate}
+    given = [f[len(MISSING_CAMERAS_FIELD):] for f in _split(lines[0]) if f.startswith(MISSING_CAMERAS_FIELD)]
+    missing = read_missing_cameras(given[0], path) if given else {}
+    if missing:
+        meta[MISSING_CAMERAS] = missing
     return checked_table(table_from_dense(labels, np.asarray(frames), np.asarray(times), positions, meta), path)
 
 

@@ -33,11 +33,19 @@ from tqdm import tqdm
 
 from ..capture import MANIFEST, Capture
 from ..fileio import InputError, atomic_path, atomic_write, check_writable
-from ..markers import MarkerTable
+from ..markers import MISSING_CAMERAS, MarkerTable, missing_from_frames, missing_per_frame
 from ..track.config import TrackerConfig
 from ..track.quality import is_flagged
 from .results import write_markers
-from .run import NO_TAPE_SHARE, NoTapeFound, TrackingMode, detector_example, select_frames, track_source
+from .run import (
+    NO_TAPE_SHARE,
+    NoTapeFound,
+    TrackingMode,
+    detector_example,
+    frame_ranges,
+    select_frames,
+    track_source,
+)
 from .streaming import SpeedOptions
 
 log = logging.getLogger(__name__)
@@ -45,7 +53,8 @@ log = logging.getLogger(__name__)
 CHUNK_DIR = ".chunks"
 PLAN = "plan.json"
 #: arrays a saved chunk holds, (F, ...) over its own frames
-CHUNK_ARRAYS = ("frames", "positions", "status", "n_views", "residual", "confidence", "stretch", "flags")
+CHUNK_ARRAYS = ("frames", "positions", "status", "n_views", "residual", "confidence", "stretch", "flags",
+                "missing_cameras")
 #: median distance (mm) between two chunks' positions of a label on their shared frames above
 #: which the two labellings disagree (the tape's dots are >= ~15 mm apart)
 CONTINUITY_TOLERANCE_MM = 5.0
@@ -100,6 +109,9 @@ class ChunkedResult:
         if self.discontinuous_chunks:
             lines.append(f"WARNING chunks {self.discontinuous_chunks}: labels do not continue the chunk before; "
                          "their frames are flagged (confidence 0)")
+        for camera, frames in sorted(self.table.meta.get(MISSING_CAMERAS, {}).items()):
+            lines.append(f"camera {camera} had no image in {len(frames)} of {self.table.n_frames} frames "
+                         f"({frame_ranges(frames)}); the other cameras were used there")
         if self.flagged_frames:
             kinds = ", ".join(f"{k} {v}" for k, v in sorted(self.flags.items()))
             lines.append(f"WARNING {len(self.flagged_frames)} of {self.table.n_frames} frames flagged (labels not "
@@ -214,9 +226,11 @@ def _track_chunk(capture: Capture, tracked: range, first: int, mode: TrackingMod
     arrays = tracked_result.table.to_arrays()
     keep = slice(first - tracked.start, None)
     flags = np.array([";".join(f.flags if f.solved else [*f.flags, "unsolved"]) for f in tracked_result.frames])
-    chunk = {name: arrays[name][keep] for name in CHUNK_ARRAYS if name != "flags"}
+    chunk = {name: arrays[name][keep] for name in CHUNK_ARRAYS if name in arrays}
     chunk["status"] = chunk["status"].astype(str)
     chunk["flags"] = flags[keep]
+    chunk["missing_cameras"] = np.array(missing_per_frame(tracked_result.missing_cameras(),
+                                                          chunk["frames"].tolist()), dtype=str)
     chunk["warmup_frames"] = arrays["frames"][: first - tracked.start]
     chunk["warmup_positions"] = arrays["positions"][: first - tracked.start]
     return chunk
@@ -320,8 +334,10 @@ def _load_chunk(path: Path) -> dict[str, np.ndarray] | None:
 def _table(chunks: list[dict[str, np.ndarray]], capture: Capture) -> MarkerTable:
     """The chunks' frames as one marker table (mm, world Z up)."""
     joined = {name: np.concatenate([c[name] for c in chunks]) for name in CHUNK_ARRAYS}
+    missing = missing_from_frames(joined["frames"].tolist(), joined["missing_cameras"].tolist())
     return MarkerTable.from_arrays(capture.tape.labels, joined["positions"], capture.fps,
                                    status=joined["status"].astype(object), n_views=joined["n_views"],
                                    residual=joined["residual"], first_frame=int(joined["frames"][0]),
                                    confidence=joined["confidence"], stretch=joined["stretch"],
-                                   meta={"subject": capture.subject.get("id", ""), "source": str(capture.root)})
+                                   meta={"subject": capture.subject.get("id", ""), "source": str(capture.root),
+                                         MISSING_CAMERAS: missing})
