@@ -46,9 +46,10 @@ residuals and camera masks of float files do not.
 from __future__ import annotations
 
 import inspect
+import itertools
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -76,6 +77,7 @@ from .common import (
     mm_per_unit,
     table_from_dense,
     warn_empty_markers,
+    warn_unseen,
 )
 from .registry import Exporter
 
@@ -135,27 +137,28 @@ def encode_fourth_word(status: np.ndarray, n_views: np.ndarray, residual: np.nda
 class _FrameView:
     """Just enough of a frame list for ``c3d.Writer.write``: its length and frame 0's shape."""
 
-    def __init__(self, block: np.ndarray):
-        self._block = block
+    def __init__(self, n_frames: int, n_points: int):
+        self._n_frames, self._n_points = n_frames, n_points
 
     def __len__(self) -> int:
-        return len(self._block)
+        return self._n_frames
 
     def __getitem__(self, i: int):
-        return self._block[i], np.zeros(0, np.float32)
+        return np.zeros((self._n_points, 4), np.float32), np.zeros(0, np.float32)
 
     def __bool__(self) -> bool:
-        return len(self._block) > 0
+        return self._n_frames > 0
 
 
 class _BlockWriter(c3dlib.Writer):
-    """``c3d.Writer`` that writes the whole (F, D, 4) float32 point block at once (and writes
-    invalid samples as 0, 0, 0, -1 instead of reusing a stale buffer)."""
+    """``c3d.Writer`` that writes the (F, D, 4) float32 point blocks ``blocks`` yields (consecutive
+    frames, ``n_frames`` in all) as they come (and writes invalid samples as 0, 0, 0, -1 instead of
+    reusing a stale buffer)."""
 
-    def __init__(self, block: np.ndarray, **kwargs):
+    def __init__(self, blocks: Iterable[np.ndarray], n_frames: int, n_points: int, **kwargs):
         super().__init__(**kwargs)
-        self._block = np.ascontiguousarray(block, dtype="<f4")
-        self._frames = _FrameView(self._block)
+        self._blocks = blocks
+        self._frames = _FrameView(n_frames, n_points)
 
     @property
     def first_frame(self) -> int:
@@ -165,8 +168,13 @@ class _BlockWriter(c3dlib.Writer):
 
     def _write_frames(self, handle) -> None:
         assert handle.tell() == 512 * (int(self._header.data_block) - 1)
-        handle.write(self._block.tobytes())
-        if len(self._block) < 65535:
+        written = 0
+        for block in self._blocks:
+            handle.write(np.ascontiguousarray(block, dtype="<f4").tobytes())
+            written += len(block)
+        if written != len(self._frames):
+            raise ValueError(f"the parts hold {written} frames, not the {len(self._frames)} announced")
+        if written < 65535:
             self._pad_block(handle)
         # else: no padding. With the header's frame fields saturated, ezc3d counts frames from
         # the file size and would read the padding as extra frames at the origin.
@@ -279,22 +287,31 @@ def write_c3d(table: MarkerTable, path: str | os.PathLike, units: str = "mm", re
     ``reference_prefix``. ``subject``/``marker_set`` default to ``table.meta['subject']`` /
     ``meta['marker_set']``; marker descriptions come from ``meta['descriptions']`` (label -> text).
     """
-    path = Path(path)
-    units = units.lower()
-    factor = mm_per_unit(units, path)
-    if not 0 < residual_scale:
-        raise InputError(path, f"residual_scale must be positive, got {residual_scale}")
+    return write_c3d_parts([table], path, table.n_frames, units, residual_scale, reference, reference_prefix,
+                           subject, marker_set)
+
+
+@dataclass
+class _PointBlock:
+    """One part's points as C3D stores them: ``block`` (F, D, 4) float32, its ``frames`` (F,),
+    ``labels`` and ``descriptions`` (D,), ``seen`` (D,) markers with a finite sample."""
+
+    block: np.ndarray
+    frames: np.ndarray
+    labels: list[str]
+    descriptions: list[str]
+    seen: np.ndarray
+
+
+def _point_block(table: MarkerTable, factor: float, residual_scale: float, reference: MarkerTable | None,
+                 reference_prefix: str, path: Path) -> _PointBlock:
     arrays = dense_mm(table, path)
     given = table.meta.get("descriptions", {}) or {}
     descriptions = [str(given.get(str(l), "")) for l in arrays["labels"]]
     if reference is not None:
         arrays, ref_descriptions = _with_reference(arrays, reference, reference_prefix, path)
         descriptions += ref_descriptions
-    labels = [str(l) for l in arrays["labels"]]
     positions = arrays["positions"]
-    warn_empty_markers(labels, positions, path)
-    if len(labels) > 32767:
-        raise InputError(path, f"{len(labels)} markers: C3D holds at most 32767 points")
     finite = np.isfinite(positions).all(axis=2)
     word = encode_fourth_word(arrays["status"], arrays["n_views"], arrays["residual"], finite,
                               residual_scale, path)
@@ -303,18 +320,55 @@ def write_c3d(table: MarkerTable, path: str | os.PathLike, units: str = "mm", re
     valid = word >= 0
     block[..., :3][valid] = positions[valid] / factor
     block[..., 3] = word
-    fps = frame_rate(table, path)
-    writer = _BlockWriter(block, point_rate=fps, point_scale=-float(residual_scale), point_units=units)
-    _fill_groups(writer, fit_labels(labels, LABEL_WIDTH, path), fit_descriptions(descriptions), units, fps,
-                 int(arrays["frames"][0]) + 1, str(subject or table.meta.get("subject") or "subject"),
-                 str(marker_set or table.meta.get("marker_set") or "spinemocap tape"))
-    _fill_missing_cameras(writer, table.meta.get(MISSING_CAMERAS) or {}, arrays["frames"])
-    if not np.array_equal(arrays["frames"], np.arange(arrays["frames"][0], arrays["frames"][0] + F)):
-        warnings.warn(f"{path}: frames are not contiguous; C3D numbers them consecutively from "
-                      f"{int(arrays['frames'][0]) + 1}", ExportWarning, stacklevel=2)
+    return _PointBlock(block, arrays["frames"], [str(l) for l in arrays["labels"]], descriptions, finite.any(axis=0))
+
+
+def write_c3d_parts(parts: Iterable[MarkerTable], path: str | os.PathLike, n_frames: int, units: str = "mm",
+                    residual_scale: float = 0.01, reference: MarkerTable | None = None,
+                    reference_prefix: str = "REF_", subject: str | None = None,
+                    marker_set: str | None = None) -> Path:
+    """:func:`write_c3d` of a table given as consecutive ``parts`` (the same labels and meta;
+    ``n_frames`` frames in all), one part in memory at a time: the file :func:`write_c3d` writes
+    of their concatenation."""
+    path = Path(path)
+    units = units.lower()
+    factor = mm_per_unit(units, path)
+    if not 0 < residual_scale:
+        raise InputError(path, f"residual_scale must be positive, got {residual_scale}")
+    tables = iter(parts)
+    head = next(tables, None)
+    if head is None:
+        raise InputError(path, "marker table has no frames to write")
+    first = _point_block(head, factor, residual_scale, reference, reference_prefix, path)
+    if len(first.labels) > 32767:
+        raise InputError(path, f"{len(first.labels)} markers: C3D holds at most 32767 points")
+    seen = first.seen.copy()
+    contiguous = [True]
+
+    def blocks() -> Iterator[np.ndarray]:
+        expected = int(first.frames[0])
+        for k, table in enumerate(itertools.chain([head], tables)):
+            part = first if k == 0 else _point_block(table, factor, residual_scale, reference, reference_prefix, path)
+            contiguous[0] &= bool(np.array_equal(part.frames, np.arange(expected, expected + len(part.frames))))
+            expected += len(part.frames)
+            seen[:] |= part.seen
+            yield part.block
+
+    fps = frame_rate(head, path)
+    writer = _BlockWriter(blocks(), n_frames, len(first.labels), point_rate=fps, point_scale=-float(residual_scale),
+                          point_units=units)
+    _fill_groups(writer, fit_labels(first.labels, LABEL_WIDTH, path), fit_descriptions(first.descriptions), units,
+                 fps, int(first.frames[0]) + 1, str(subject or head.meta.get("subject") or "subject"),
+                 str(marker_set or head.meta.get("marker_set") or "spinemocap tape"))
+    _fill_missing_cameras(writer, head.meta.get(MISSING_CAMERAS) or {},
+                          np.arange(int(first.frames[0]), int(first.frames[0]) + n_frames))
     with atomic_path(path) as tmp, open(tmp, "wb") as handle, warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="No analog data found", module="c3d")
         writer.write(handle)
+    warn_unseen(first.labels, seen, path)
+    if not contiguous[0]:
+        warnings.warn(f"{path}: frames are not contiguous; C3D numbers them consecutively from "
+                      f"{int(first.frames[0]) + 1}", ExportWarning, stacklevel=2)
     return path
 
 
@@ -742,6 +796,9 @@ class C3dExporter(Exporter):
 
     def write(self, table: MarkerTable, path: str | os.PathLike, **options) -> Path:
         return write_c3d(table, path, **options)
+
+    def write_parts(self, parts: Iterable[MarkerTable], path: str | os.PathLike, n_frames: int, **options) -> Path:
+        return write_c3d_parts(parts, path, n_frames, **options)
 
     def read(self, path: str | os.PathLike) -> MarkerTable:
         return read_c3d(path)

@@ -30,6 +30,7 @@ import inspect
 import os
 import re
 from pathlib import Path
+from typing import Iterable
 from urllib.parse import quote, unquote
 
 import numpy as np
@@ -44,8 +45,10 @@ from .common import (
     drop_implausible,
     frame_rate,
     mm_per_unit,
+    sampled,
     table_from_dense,
     warn_empty_markers,
+    warn_unseen,
 )
 from .registry import Exporter
 
@@ -133,6 +136,15 @@ def write_trc(table: MarkerTable, path: str | os.PathLike, units: str = "mm", op
     the first header line states the rotation either way. ``decimals``: digits after the point
     (default 1 µm resolution: 3 in mm, 6 in m). ``name``: file name written in the header.
     """
+    return write_trc_parts([table], path, table.n_frames, units, opensim_axes, forward, decimals, name)
+
+
+def write_trc_parts(parts: Iterable[MarkerTable], path: str | os.PathLike, n_frames: int, units: str = "mm",
+                    opensim_axes: bool = False, forward: str = "+x", decimals: int | None = None,
+                    name: str | None = None) -> Path:
+    """:func:`write_trc` of a table given as consecutive ``parts`` (the same labels and meta;
+    ``n_frames`` frames in all), one part in memory at a time: the file :func:`write_trc` writes
+    of their concatenation."""
     path = Path(path)
     units = units.lower()
     scale = mm_per_unit(units, path)
@@ -140,39 +152,51 @@ def write_trc(table: MarkerTable, path: str | os.PathLike, units: str = "mm", op
         raise InputError(path, f"unknown forward axis {forward!r}; expected one of {sorted(OPENSIM_FROM_LAB)}")
     if decimals is None:
         decimals = max(0, int(round(np.log10(scale))) + 3)
-    arrays = dense_mm(table, path)
-    labels = [str(l) for l in arrays["labels"]]
+    seen, labels, written = None, [], 0
+    with atomic_write(path, "w", newline="\n", encoding="utf-8") as handle:
+        for table in parts:
+            arrays = dense_mm(table, path)
+            labels = [str(l) for l in arrays["labels"]]
+            positions = arrays["positions"] / scale
+            seen = sampled(positions) if seen is None else seen | sampled(positions)
+            if opensim_axes:
+                positions = lab_to_opensim(positions, forward)
+            fps = frame_rate(table, path)
+            frames, times = arrays["frames"], arrays["time"]
+            if not np.isfinite(times).all():
+                times = frames / fps
+            if not written:
+                handle.write("\n".join(_trc_header(table, labels, fps, int(frames[0]), n_frames, units, path,
+                                                     axes_statement(forward if opensim_axes else None), name)) + "\n")
+            F, D = positions.shape[:2]
+            row_format = "\t".join(["%d", "%.6f"] + [f"%.{decimals}f"] * (3 * D))
+            table_rows = np.column_stack([frames + 1, times, positions.reshape(F, 3 * D)]).tolist()
+            # one %-format per row is ~10x faster than per value; OpenSim wants NaN, Python writes nan
+            handle.write("\n".join((row_format % tuple(row)).replace("nan", "NaN") for row in table_rows) + "\n")
+            written += F
+        if written != n_frames:
+            raise ValueError(f"{path}: the parts hold {written} frames, not the {n_frames} announced")
+    warn_unseen(labels, seen, path)
+    return path
+
+
+def _trc_header(table: MarkerTable, labels: list[str], fps: float, first: int, n_frames: int, units: str,
+                path: Path, axes: str, name: str | None) -> list[str]:
+    """The five header lines and the blank line after them; ``first``: the first frame (0-based)."""
     bad = [l for l in labels if not l or "\t" in l or "\n" in l]
     if bad:
         raise InputError(path, f"marker labels unusable in a TRC file (empty or containing tabs/newlines): {bad}")
-    positions = arrays["positions"] / scale
-    warn_empty_markers(labels, positions, path)
-    if opensim_axes:
-        positions = lab_to_opensim(positions, forward)
-    fps = frame_rate(table, path)
-    frames, times = arrays["frames"], arrays["time"]
-    if not np.isfinite(times).all():
-        times = frames / fps
-    F, D = positions.shape[:2]
-    first = int(frames[0]) + 1
-    lines = [
-        "\t".join(["PathFileType", "4", "(X/Y/Z)", name or path.name,
-                   axes_statement(forward if opensim_axes else None),
-                   MISSING_CAMERAS_FIELD + missing_cameras_field(table.meta.get(MISSING_CAMERAS) or {}, frames)]),
+    D = len(labels)
+    missing = missing_cameras_field(table.meta.get(MISSING_CAMERAS) or {}, np.arange(first, first + n_frames))
+    return [
+        "\t".join(["PathFileType", "4", "(X/Y/Z)", name or path.name, axes, MISSING_CAMERAS_FIELD + missing]),
         "\t".join(HEADER_KEYS),
-        "\t".join([f"{fps:.10g}", f"{float(table.meta.get('camera_rate', fps)):.10g}", str(F), str(D), units,
-                   f"{fps:.10g}", str(first), str(F)]),
+        "\t".join([f"{fps:.10g}", f"{float(table.meta.get('camera_rate', fps)):.10g}", str(n_frames), str(D), units,
+                   f"{fps:.10g}", str(first + 1), str(n_frames)]),
         "\t".join(["Frame#", "Time"] + [f"{l}\t\t" for l in labels]),
         "\t".join(["", ""] + [f"X{i}\tY{i}\tZ{i}" for i in range(1, D + 1)]),
         "",
     ]
-    row_format = "\t".join(["%d", "%.6f"] + [f"%.{decimals}f"] * (3 * D))
-    table_rows = np.column_stack([frames + 1, times, positions.reshape(F, 3 * D)]).tolist()
-    # one %-format per row is ~10x faster than per value; OpenSim wants NaN, Python writes nan
-    rows = [(row_format % tuple(row)).replace("nan", "NaN") for row in table_rows]
-    with atomic_write(path, "w", newline="\n", encoding="utf-8") as handle:
-        handle.write("\n".join(lines + rows) + "\n")
-    return path
 
 
 def _split(line: str) -> list[str]:
@@ -269,6 +293,9 @@ class TrcExporter(Exporter):
 
     def write(self, table: MarkerTable, path: str | os.PathLike, **options) -> Path:
         return write_trc(table, path, **options)
+
+    def write_parts(self, parts: Iterable[MarkerTable], path: str | os.PathLike, n_frames: int, **options) -> Path:
+        return write_trc_parts(parts, path, n_frames, **options)
 
     def read(self, path: str | os.PathLike) -> MarkerTable:
         return read_trc(path)
