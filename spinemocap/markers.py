@@ -19,8 +19,8 @@ Metadata travels in :attr:`MarkerTable.meta` (``fps``, ``units``, ``subject``, `
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from urllib.parse import unquote
 from typing import Final, Iterable, Literal, Mapping, Sequence
+from urllib.parse import unquote
 
 import numpy as np
 import pandas as pd

@@ -129,7 +129,7 @@ def test_the_marker_files_record_which_camera_was_missing_in_which_frames(image_
                                                            ("markers.csv", "markers.trc", "markers.c3d", "ezc3d")}
     chunked = tmp_path / "chunked"   # a long capture tracked in chunks records them the same way
     assert main(["track", str(capture), "--out", str(chunked), "--detector", "mask", "--no-progress",
-                 "--chunk-frames", "2", "--warmup-frames", "1"]) == 0
+                 "--chunk-frames", "3", "--warmup-frames", "1"]) == 0
     assert f"camera {camera} had no image in 2 of {FRAMES} frames (frames 1-2)" in capsys.readouterr().out
     assert _missing_in_files(chunked, camera)["markers.c3d"] == [1, 2]
 
