@@ -114,3 +114,10 @@ def test_a_table_written_in_parts_gives_the_same_files_as_written_whole(tmp_path
         assert (tmp_path / "whole" / name).read_bytes() == (tmp_path / "parts" / name).read_bytes(), name
     with pytest.raises(Exception, match="41 announced"):
         write_marker_parts(lambda: [table], 41, tmp_path / "short")
+
+
+def test_the_memory_benchmark_plays_a_short_capture_forward_and_back():
+    from spinemocap.bench.long_capture import pingpong
+
+    assert [pingpong(k, 4) for k in range(10)] == [0, 1, 2, 3, 2, 1, 0, 1, 2, 3]   # no jump at the turns
+    assert [pingpong(k, 1) for k in range(3)] == [0, 0, 0]

@@ -119,8 +119,9 @@ def measure_run(capture: Path, out: Path, chunk_frames: int, detector: str = "ma
     return run
 
 
-def plot(runs: list[RunMemory], path: Path) -> None:
-    """Peak RSS against length, and RSS against frames done within each run."""
+def plot(runs: list[RunMemory], path: Path, peer: list[RunMemory] | None = None, peer_name: str = "peer") -> None:
+    """Peak RSS against length (and a ``peer``'s runs, e.g. the previous version's, dashed), and
+    RSS against frames done within each of ``runs``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -128,21 +129,30 @@ def plot(runs: list[RunMemory], path: Path) -> None:
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
     lengths = [r.n_frames for r in runs]
-    left.plot(lengths, [r.peak_rss_mb for r in runs], "o-")
+    top = 1.2 * max(r.peak_rss_mb for r in runs + (peer or []))
+    left.plot(lengths, [r.peak_rss_mb for r in runs], "o-", label="this version")
+    if peer:
+        left.plot([r.n_frames for r in peer], [r.peak_rss_mb for r in peer], "s--", label=peer_name)
+        left.legend()
     left.set_xlabel("capture length (frames)")
     left.set_ylabel("peak RSS (MiB)")
-    left.set_ylim(0, 1.2 * max(r.peak_rss_mb for r in runs))
+    left.set_ylim(0, top)
     left.set_title(f"track --chunk-frames {runs[0].chunk_frames}: peak RSS")
     for r in runs:
         right.plot(r.frames_done, r.rss_mb, label=f"{r.n_frames} frames", lw=1)
     right.set_xlabel("frames in completed chunks")
     right.set_ylabel("RSS (MiB)")
-    right.set_ylim(0, 1.2 * max(r.peak_rss_mb for r in runs))
+    right.set_ylim(0, top)
     right.set_title("RSS during each run")
     right.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def load_runs(path: Path) -> list[RunMemory]:
+    """Runs saved by :func:`main` (``long_capture_memory.json``)."""
+    return [RunMemory(**run) for run in json.loads(Path(path).read_text())]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -151,6 +161,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("out", type=Path, help="folder for the looped captures, outputs and results")
     parser.add_argument("--lengths", type=int, nargs="+", default=[600, 2400, 6000])
     parser.add_argument("--chunk-frames", type=int, default=300)
+    parser.add_argument("--peer", type=Path, help="a previous run's long_capture_memory.json, drawn beside")
     args = parser.parse_args(argv)
     runs = []
     for n in args.lengths:
@@ -161,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
         shutil.rmtree(capture)
         with atomic_write(args.out / "long_capture_memory.json") as handle:
             json.dump([asdict(r) for r in runs], handle)
-    plot(runs, args.out / "long_capture_memory.png")
+    plot(runs, args.out / "long_capture_memory.png", load_runs(args.peer) if args.peer else None)
     peaks = np.array([r.peak_rss_mb for r in runs])
     print(f"peak RSS {peaks.min():.0f}..{peaks.max():.0f} MiB over {args.lengths} frames")
     return 0
