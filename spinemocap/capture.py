@@ -389,7 +389,7 @@ class Capture:
         capture.check_rates()
         if n_frames is None:
             capture.spans_recordings = True
-            if all_default(capture.clocks, capture.fps):
+            if capture.media == "images" and all_default(capture.clocks, capture.fps):  # numbered: by their numbers
                 capture.n_frames = shared_span(capture.recorded_frames()[1])
             else:
                 capture.n_frames = common_frames(capture.media_times(), capture.clocks, capture.fps)
