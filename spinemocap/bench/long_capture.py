@@ -21,12 +21,16 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..app.long_capture import CHUNK_DIR
 from ..capture import MANIFEST, Capture
 from ..fileio import atomic_write, read_toml, write_toml
+
+if TYPE_CHECKING:
+    import psutil
 
 SAMPLE_S = 0.5
 
@@ -81,7 +85,7 @@ class RunMemory:
     frames_done: list[int] = field(default_factory=list)
 
 
-def _rss_mb(process) -> float:
+def _rss_mb(process: psutil.Process) -> float:
     import psutil
 
     try:
