@@ -143,7 +143,8 @@ def plot(runs: list[RunMemory], path: Path, peer: list[RunMemory] | None = None,
     left.set_ylim(0, top)
     left.set_title(f"track --chunk-frames {runs[0].chunk_frames}: peak RSS")
     for r in runs:
-        right.plot(r.frames_done, r.rss_mb, label=f"{r.n_frames} frames", lw=1)
+        alive = np.array(r.rss_mb) > 0   # samples before the process started or after it ended: none
+        right.plot(np.array(r.frames_done)[alive], np.array(r.rss_mb)[alive], label=f"{r.n_frames} frames", lw=1)
     right.set_xlabel("frames in completed chunks")
     right.set_ylabel("RSS (MiB)")
     right.set_ylim(0, top)
