@@ -6,6 +6,7 @@ registry (entry-point group ``spinemocap.exporters``). Depends only on spinemoca
     exporters.write(table, "out/markers.trc")                      # format from the extension
     exporters.write(table, "out/markers.trc", units="m", opensim_axes=True)
     exporters.write(table, "out/markers.c3d", reference=ground_truth)
+    exporters.write_parts(tables, "out/markers.c3d", n_frames)     # a long table part by part
     table = exporters.read("trial.c3d")
     exporters.available()   # ['c3d', 'csv', 'parquet', 'trc', ...plugins]
 
@@ -14,7 +15,7 @@ previous file untouched and no temporary behind.
 """
 
 from .common import ExportWarning
-from .registry import ENTRY_POINT_GROUP, Exporter, available, format_for_path, get, read, write
+from .registry import ENTRY_POINT_GROUP, Exporter, available, format_for_path, get, read, write, write_parts
 
 __all__ = ["ENTRY_POINT_GROUP", "ExportWarning", "Exporter", "available", "format_for_path", "get", "read",
-           "write"]
+           "write", "write_parts"]

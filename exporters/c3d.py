@@ -15,6 +15,11 @@ What we write (float data, Intel byte order), parameters filled the way Vicon Ne
   the file size).
 - ``SUBJECTS``: ``USED``, ``IS_STATIC``, ``USES_PREFIXES``, ``NAMES``, ``MARKER_SETS``.
 - ``MANUFACTURER``: ``COMPANY``, ``SOFTWARE``, ``VERSION_LABEL``.
+- ``MISSING_CAMERAS`` (only where a camera had no image in some frames, ``meta['missing_cameras']``):
+  ``USED`` (int16, the number of spans), ``CAMERAS`` (char, the camera names) and ``SPANS``
+  (float32, 3 x USED: camera number, 1-based into ``CAMERAS``; first and last C3D frame number of
+  a run of frames that camera lacks; more than 255 spans continue in ``SPANS2``, ``SPANS3`` ...).
+  ezc3d and the ``c3d`` package read it as any parameter group.
 
 Per sample, the C3D spec's fourth word holds a residual byte (low) and a camera-mask byte (high);
 a negative word marks an invalid sample (coordinates written as 0, as Nexus does). Our
@@ -41,9 +46,10 @@ residuals and camera masks of float files do not.
 from __future__ import annotations
 
 import inspect
+import itertools
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -51,7 +57,16 @@ import c3d as c3dlib
 import numpy as np
 
 from spinemocap.fileio import InputError, atomic_path
-from spinemocap.markers import INFERRED, MAX_ABS_MM, MISSING, OBSERVED, MarkerTable
+from spinemocap.markers import (
+    INFERRED,
+    MAX_ABS_MM,
+    MISSING,
+    MISSING_CAMERAS,
+    OBSERVED,
+    MarkerTable,
+    camera_gaps,
+    missing_from_gaps,
+)
 from spinemocap.version import __version__
 
 from .common import (
@@ -62,6 +77,7 @@ from .common import (
     mm_per_unit,
     table_from_dense,
     warn_empty_markers,
+    warn_unseen,
 )
 from .registry import Exporter
 
@@ -121,27 +137,28 @@ def encode_fourth_word(status: np.ndarray, n_views: np.ndarray, residual: np.nda
 class _FrameView:
     """Just enough of a frame list for ``c3d.Writer.write``: its length and frame 0's shape."""
 
-    def __init__(self, block: np.ndarray):
-        self._block = block
+    def __init__(self, n_frames: int, n_points: int):
+        self._n_frames, self._n_points = n_frames, n_points
 
     def __len__(self) -> int:
-        return len(self._block)
+        return self._n_frames
 
     def __getitem__(self, i: int):
-        return self._block[i], np.zeros(0, np.float32)
+        return np.zeros((self._n_points, 4), np.float32), np.zeros(0, np.float32)
 
     def __bool__(self) -> bool:
-        return len(self._block) > 0
+        return self._n_frames > 0
 
 
 class _BlockWriter(c3dlib.Writer):
-    """``c3d.Writer`` that writes the whole (F, D, 4) float32 point block at once (and writes
-    invalid samples as 0, 0, 0, -1 instead of reusing a stale buffer)."""
+    """``c3d.Writer`` that writes the (F, D, 4) float32 point blocks ``blocks`` yields (consecutive
+    frames, ``n_frames`` in all) as they come (and writes invalid samples as 0, 0, 0, -1 instead of
+    reusing a stale buffer)."""
 
-    def __init__(self, block: np.ndarray, **kwargs):
+    def __init__(self, blocks: Iterable[np.ndarray], n_frames: int, n_points: int, **kwargs):
         super().__init__(**kwargs)
-        self._block = np.ascontiguousarray(block, dtype="<f4")
-        self._frames = _FrameView(self._block)
+        self._blocks = blocks
+        self._frames = _FrameView(n_frames, n_points)
 
     @property
     def first_frame(self) -> int:
@@ -151,8 +168,13 @@ class _BlockWriter(c3dlib.Writer):
 
     def _write_frames(self, handle) -> None:
         assert handle.tell() == 512 * (int(self._header.data_block) - 1)
-        handle.write(self._block.tobytes())
-        if len(self._block) < 65535:
+        written = 0
+        for block in self._blocks:
+            handle.write(np.ascontiguousarray(block, dtype="<f4").tobytes())
+            written += len(block)
+        if written != len(self._frames):
+            raise ValueError(f"the parts hold {written} frames, not the {len(self._frames)} announced")
+        if written < 65535:
             self._pad_block(handle)
         # else: no padding. With the header's frame fields saturated, ezc3d counts frames from
         # the file size and would read the padding as extra frames at the origin.
@@ -193,6 +215,51 @@ def _fill_groups(writer: _BlockWriter, labels: list[str], descriptions: list[str
         maker.set_str(key, "", value, len(value))
 
 
+def _fill_missing_cameras(writer: _BlockWriter, missing: dict, frames: np.ndarray) -> None:
+    """The ``MISSING_CAMERAS`` group (see the module docstring) for the gaps within ``frames``
+    (the table's, 0-based); nothing where no camera lacks a frame."""
+    gaps = camera_gaps(missing, frames)
+    if not gaps:
+        return
+    cameras = sorted({camera for camera, _, _ in gaps})
+    group = writer.get_create(MISSING_CAMERAS.upper())
+    group.set("USED", "spans of frames a camera had no image in", 2, "<h", min(len(gaps), 32767))
+    names = fit_labels(cameras, 255, "MISSING_CAMERAS:CAMERAS")
+    _set_strings(group, "CAMERAS", names, max(len(name) for name in names))
+    spans = np.array([(cameras.index(camera) + 1, first + 1, last + 1) for camera, first, last in gaps], "<f4")
+    for k in range(0, len(spans), PER_PARAM):
+        chunk = spans[k:k + PER_PARAM]
+        key = "SPANS" if k == 0 else f"SPANS{k // PER_PARAM + 1}"
+        group.add(key, "camera number, first and last C3D frame it had no image in", 4, "", chunk.tobytes(), 3,
+                  len(chunk))
+
+
+def _read_missing_cameras(reader: c3dlib.Reader, path: Path) -> dict[str, list[int]]:
+    """The ``MISSING_CAMERAS`` group as camera -> frames (0-based); {} where the file has none.
+    A damaged group is left out with a warning (the points are still read)."""
+    if reader.get(MISSING_CAMERAS.upper()) is None:
+        return {}
+    try:
+        cameras = _strings(reader, MISSING_CAMERAS.upper(), "CAMERAS")
+        gaps = []
+        k = 1
+        while (param := _param(reader, f"{MISSING_CAMERAS.upper()}:SPANS{'' if k == 1 else k}")) is not None:
+            raw = param.bytes[: len(param.bytes) // 12 * 12]
+            values = (c3dlib.c3d.DEC_to_IEEE_BYTES(raw) if reader._dtypes.is_dec
+                      else np.frombuffer(raw, reader._dtypes.float32)).reshape(-1, 3)
+            for number, first, last in values:
+                if not (np.isfinite([number, first, last]).all() and 1 <= number <= len(cameras) and 1 <= first <= last
+                        and last - first < 2**31):
+                    raise ValueError(f"span {number:g}, {first:g}, {last:g} is not a camera and frame range")
+                gaps.append((cameras[int(number) - 1], int(first) - 1, int(last) - 1))
+            k += 1
+        return missing_from_gaps(gaps)
+    except (ValueError, IndexError, TypeError, OverflowError) as exc:
+        warnings.warn(f"{path}: the MISSING_CAMERAS group is damaged ({exc}); which cameras were missing is "
+                      "not read", ExportWarning, stacklevel=4)
+        return {}
+
+
 def _with_reference(arrays: dict, reference: MarkerTable, prefix: str, path: Path) -> tuple[dict, list[str]]:
     """Append reference markers (aligned on frame numbers, NaN where the reference lacks a
     frame) with ``prefix`` on their labels; return the arrays and the new labels' descriptions."""
@@ -220,22 +287,31 @@ def write_c3d(table: MarkerTable, path: str | os.PathLike, units: str = "mm", re
     ``reference_prefix``. ``subject``/``marker_set`` default to ``table.meta['subject']`` /
     ``meta['marker_set']``; marker descriptions come from ``meta['descriptions']`` (label -> text).
     """
-    path = Path(path)
-    units = units.lower()
-    factor = mm_per_unit(units, path)
-    if not 0 < residual_scale:
-        raise InputError(path, f"residual_scale must be positive, got {residual_scale}")
+    return write_c3d_parts([table], path, table.n_frames, units, residual_scale, reference, reference_prefix,
+                           subject, marker_set)
+
+
+@dataclass
+class _PointBlock:
+    """One part's points as C3D stores them: ``block`` (F, D, 4) float32, its ``frames`` (F,),
+    ``labels`` and ``descriptions`` (D,), ``seen`` (D,) markers with a finite sample."""
+
+    block: np.ndarray
+    frames: np.ndarray
+    labels: list[str]
+    descriptions: list[str]
+    seen: np.ndarray
+
+
+def _point_block(table: MarkerTable, factor: float, residual_scale: float, reference: MarkerTable | None,
+                 reference_prefix: str, path: Path) -> _PointBlock:
     arrays = dense_mm(table, path)
     given = table.meta.get("descriptions", {}) or {}
     descriptions = [str(given.get(str(l), "")) for l in arrays["labels"]]
     if reference is not None:
         arrays, ref_descriptions = _with_reference(arrays, reference, reference_prefix, path)
         descriptions += ref_descriptions
-    labels = [str(l) for l in arrays["labels"]]
     positions = arrays["positions"]
-    warn_empty_markers(labels, positions, path)
-    if len(labels) > 32767:
-        raise InputError(path, f"{len(labels)} markers: C3D holds at most 32767 points")
     finite = np.isfinite(positions).all(axis=2)
     word = encode_fourth_word(arrays["status"], arrays["n_views"], arrays["residual"], finite,
                               residual_scale, path)
@@ -244,17 +320,55 @@ def write_c3d(table: MarkerTable, path: str | os.PathLike, units: str = "mm", re
     valid = word >= 0
     block[..., :3][valid] = positions[valid] / factor
     block[..., 3] = word
-    fps = frame_rate(table, path)
-    writer = _BlockWriter(block, point_rate=fps, point_scale=-float(residual_scale), point_units=units)
-    _fill_groups(writer, fit_labels(labels, LABEL_WIDTH, path), fit_descriptions(descriptions), units, fps,
-                 int(arrays["frames"][0]) + 1, str(subject or table.meta.get("subject") or "subject"),
-                 str(marker_set or table.meta.get("marker_set") or "spinemocap tape"))
-    if not np.array_equal(arrays["frames"], np.arange(arrays["frames"][0], arrays["frames"][0] + F)):
-        warnings.warn(f"{path}: frames are not contiguous; C3D numbers them consecutively from "
-                      f"{int(arrays['frames'][0]) + 1}", ExportWarning, stacklevel=2)
+    return _PointBlock(block, arrays["frames"], [str(l) for l in arrays["labels"]], descriptions, finite.any(axis=0))
+
+
+def write_c3d_parts(parts: Iterable[MarkerTable], path: str | os.PathLike, n_frames: int, units: str = "mm",
+                    residual_scale: float = 0.01, reference: MarkerTable | None = None,
+                    reference_prefix: str = "REF_", subject: str | None = None,
+                    marker_set: str | None = None) -> Path:
+    """:func:`write_c3d` of a table given as consecutive ``parts`` (the same labels and meta;
+    ``n_frames`` frames in all), one part in memory at a time: the file :func:`write_c3d` writes
+    of their concatenation."""
+    path = Path(path)
+    units = units.lower()
+    factor = mm_per_unit(units, path)
+    if not 0 < residual_scale:
+        raise InputError(path, f"residual_scale must be positive, got {residual_scale}")
+    tables = iter(parts)
+    head = next(tables, None)
+    if head is None:
+        raise InputError(path, "marker table has no frames to write")
+    first = _point_block(head, factor, residual_scale, reference, reference_prefix, path)
+    if len(first.labels) > 32767:
+        raise InputError(path, f"{len(first.labels)} markers: C3D holds at most 32767 points")
+    seen = first.seen.copy()
+    contiguous = [True]
+
+    def blocks() -> Iterator[np.ndarray]:
+        expected = int(first.frames[0])
+        for k, table in enumerate(itertools.chain([head], tables)):
+            part = first if k == 0 else _point_block(table, factor, residual_scale, reference, reference_prefix, path)
+            contiguous[0] &= bool(np.array_equal(part.frames, np.arange(expected, expected + len(part.frames))))
+            expected += len(part.frames)
+            seen[:] |= part.seen
+            yield part.block
+
+    fps = frame_rate(head, path)
+    writer = _BlockWriter(blocks(), n_frames, len(first.labels), point_rate=fps, point_scale=-float(residual_scale),
+                          point_units=units)
+    _fill_groups(writer, fit_labels(first.labels, LABEL_WIDTH, path), fit_descriptions(first.descriptions), units,
+                 fps, int(first.frames[0]) + 1, str(subject or head.meta.get("subject") or "subject"),
+                 str(marker_set or head.meta.get("marker_set") or "spinemocap tape"))
+    _fill_missing_cameras(writer, head.meta.get(MISSING_CAMERAS) or {},
+                          np.arange(int(first.frames[0]), int(first.frames[0]) + n_frames))
     with atomic_path(path) as tmp, open(tmp, "wb") as handle, warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="No analog data found", module="c3d")
         writer.write(handle)
+    warn_unseen(first.labels, seen, path)
+    if not contiguous[0]:
+        warnings.warn(f"{path}: frames are not contiguous; C3D numbers them consecutively from "
+                      f"{int(first.frames[0]) + 1}", ExportWarning, stacklevel=2)
     return path
 
 
@@ -669,6 +783,9 @@ def _table_from_reader(reader: c3dlib.Reader, xyz: np.ndarray, word: np.ndarray,
             "software": software[0] if software else None,
             "processor": PROCESSORS.get(int(reader._dtypes._proc_type)),
             "descriptions": {l: d for l, d in zip(labels, _strings(reader, "POINT", "DESCRIPTIONS")) if d}}
+    missing = _read_missing_cameras(reader, path)
+    if missing:
+        meta[MISSING_CAMERAS] = missing
     return table_from_dense(labels, frames, frames / fps, positions, meta, status=status, n_views=n_views,
                             residual=residual)
 
@@ -681,6 +798,9 @@ class C3dExporter(Exporter):
 
     def write(self, table: MarkerTable, path: str | os.PathLike, **options) -> Path:
         return write_c3d(table, path, **options)
+
+    def write_parts(self, parts: Iterable[MarkerTable], path: str | os.PathLike, n_frames: int, **options) -> Path:
+        return write_c3d_parts(parts, path, n_frames, **options)
 
     def read(self, path: str | os.PathLike) -> MarkerTable:
         return read_c3d(path)

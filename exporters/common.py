@@ -52,10 +52,20 @@ def frame_rate(table: MarkerTable, source: str | os.PathLike | None = None) -> f
 
 def warn_empty_markers(labels: Sequence[str], positions: np.ndarray, source: str | os.PathLike) -> None:
     """Warn about markers that have no finite sample at all (positions (F, D, 3))."""
-    empty = [label for label, ok in zip(labels, np.isfinite(positions).all(axis=2).any(axis=0)) if not ok]
+    warn_unseen(labels, sampled(positions), source)
+
+
+def sampled(positions: np.ndarray) -> np.ndarray:
+    """(D,) bool: markers with a finite sample in some frame of ``positions`` (F, D, 3)."""
+    return np.isfinite(positions).all(axis=2).any(axis=0)
+
+
+def warn_unseen(labels: Sequence[str], seen: np.ndarray, source: str | os.PathLike) -> None:
+    """Warn about the markers ``seen`` (D,) says have no finite sample at all."""
+    empty = [label for label, ok in zip(labels, seen) if not ok]
     if empty:
         warnings.warn(f"{source}: markers with no valid sample in any frame (all NaN): {empty}",
-                      ExportWarning, stacklevel=3)
+                      ExportWarning, stacklevel=4)
 
 
 def deduplicate_labels(labels: Sequence[str], source: str | os.PathLike) -> list[str]:

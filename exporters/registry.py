@@ -20,7 +20,9 @@ import importlib.metadata
 import logging
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
+
+import pandas as pd
 
 from spinemocap.fileio import InputError, atomic_path
 from spinemocap.markers import MarkerTable
@@ -54,6 +56,13 @@ class Exporter:
 
     def read(self, path: str | os.PathLike) -> MarkerTable:
         raise InputError(path, f"the {self.name!r} format cannot be read back")
+
+    def write_parts(self, parts: Iterable[MarkerTable], path: str | os.PathLike, n_frames: int,
+                    **options: Any) -> Path:
+        """Write a table given as consecutive ``parts`` (the same labels and meta, ``n_frames``
+        frames in all) as :meth:`write` writes their concatenation. This default joins them
+        first; formats that can write part by part (CSV, TRC, C3D) hold one part at a time."""
+        return self.write(joined(parts, path), path, **options)
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.name!r} {self.extensions}>"
@@ -119,6 +128,27 @@ def write(table: MarkerTable, path: str | os.PathLike, format: str | None = None
     with atomic_path(path) as tmp:  # a plugin without our base class: make it atomic anyway
         exporter.write(table, tmp, **options)
     return path
+
+
+def write_parts(parts: Iterable[MarkerTable], path: str | os.PathLike, n_frames: int, format: str | None = None,
+                **options: Any) -> Path:
+    """:func:`write` of a table given as consecutive ``parts`` (the same labels and meta,
+    ``n_frames`` frames in all): the same file, with one part in memory at a time where the format
+    writes part by part (the built-in ones; a plugin without ``write_parts`` gets them joined)."""
+    path = Path(path)
+    exporter = get(format or format_for_path(path))
+    if isinstance(exporter, Exporter):
+        return Path(exporter.write_parts(parts, path, n_frames, **options))
+    return write(joined(parts, path), path, format, **options)
+
+
+def joined(parts: Iterable[MarkerTable], path: str | os.PathLike) -> MarkerTable:
+    """One table of consecutive ``parts`` (the first part's meta); :class:`InputError` naming
+    ``path`` where there is none."""
+    tables = list(parts)
+    if not tables:
+        raise InputError(path, "marker table has no frames to write")
+    return MarkerTable(pd.concat([t.data for t in tables], ignore_index=True), dict(tables[0].meta))
 
 
 def read(path: str | os.PathLike, format: str | None = None) -> MarkerTable:

@@ -42,7 +42,9 @@ a benchmark can render and track without writing images to disk.
 
 from __future__ import annotations
 
+import logging
 import os
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
@@ -69,7 +71,9 @@ from .media import (  # noqa: F401  (moved to media; re-exported for existing im
 )
 from .reference import ReferenceObject
 from .tape import TapeSpec
-from .timebase import CameraClock, MediaTimes, common_frames, image_times, video_times
+from .timebase import CameraClock, MediaTimes, common_frames, image_times, partial_recordings, shared_span, video_times
+
+log = logging.getLogger(__name__)
 
 MANIFEST = "capture.toml"
 MEDIA = ("images", "video")
@@ -109,6 +113,8 @@ class Capture:
     source. ``docs/CAPTURE.md`` describes every key of ``capture.toml``.
 
     ``n_frames``: capture frames (frame ``i`` at ``start_s + i / fps`` s on the capture's clock);
+    a camera whose recording starts later or ends earlier reads None for the frames it lacks (the
+    other cameras are tracked there);
     ``camera_clocks``: the ``[camera.<name>]`` tables as given (cameras without one are on the
     capture's timing); ``start_s``: where capture frame 0 lies on the cameras' clocks, s;
     ``external_media``: paths may lead outside the folder; ``force_fps``: ``fps`` is used even
@@ -241,30 +247,65 @@ class Capture:
 
     def _source_clocks(self) -> list[CameraClock] | None:
         """:attr:`clocks` for the frame source: None where every camera's frame ``i`` is capture
-        frame ``i`` (default timing and exactly ``n_frames`` frames each); else clocks that name
-        every camera's media, so that the source pairs the frames by time."""
+        frame ``i`` (default timing: a camera holding fewer frames reads None for the ones it
+        lacks, see :meth:`check_recordings`); else clocks that name every camera's media, so that
+        the source pairs the frames by time."""
         clocks = self.clocks
         if all_default(clocks, self.fps):
-            counts = self.media_counts()
-            if all(n == self.n_frames for n in counts.values()):
-                return None
-            short = {name: n for name, n in counts.items() if 0 < n < self.n_frames and not self._gap_inside(name)}
-            if not short:   # images missing inside a numbered sequence: those frames read None
-                return None
-            for name, n in short.items():  # on one timing, frames past a camera's last are a mistake
-                what = "images" if self.media == "images" else "frames"
-                raise InputError(self.media_path(name), f"camera {name!r} has {n} {what}, capture.toml says "
-                                                        f"n_frames = {self.n_frames} (leave n_frames out for the span "
-                                                        "every camera recorded)")
+            return None
         return [replace(clock, media=clock.media or str(self.media_path(name).relative_to(self.root)))
                 for name, clock in zip(self.camera_names, clocks)]
 
-    def _gap_inside(self, name: str) -> bool:
-        """Do camera ``name``'s numbered images reach the last frame, so that the ones it lacks
-        are gaps inside the sequence (missing files) rather than a shorter recording?"""
-        if self.media != "images" or "{frame" not in self.image_pattern:
-            return False
-        return (self.root / self.image_pattern.format(camera=name, frame=self.n_frames - 1)).is_file()
+    def recorded_frames(self) -> tuple[list[int], list[int]]:
+        """Default timing (frame ``i`` of a camera is capture frame ``i``): per camera (rig order)
+        its first recorded frame and the frame after its last. Numbered images: their lowest and
+        highest numbers; a video: 0 and its count (``n_frames`` where its header does not say);
+        other images: 0 and their count."""
+        counts = self.media_counts()
+        starts, ends = [], []
+        for name in self.camera_names:
+            numbers = self._image_numbers(name) if self.media == "images" else []
+            if numbers:
+                starts.append(min(numbers))
+                ends.append(max(numbers) + 1)
+            else:
+                starts.append(0)
+                ends.append(counts[name] or (self.n_frames if self.media == "video" else 0))
+        return starts, ends
+
+    def _image_numbers(self, name: str) -> list[int]:
+        """The frame numbers of camera ``name``'s images that follow the image pattern (empty where
+        the pattern has no ``{frame}`` or the folder is missing)."""
+        if "{frame" not in self.image_pattern:
+            return []
+        sentinel = 987654321
+        expected = Path(self.image_pattern.format(camera=name, frame=sentinel))
+        before, _, after = expected.name.partition(str(sentinel))
+        folder = self.root / expected.parent
+        if not folder.is_dir():
+            return []
+        numbered = re.compile(re.escape(before) + r"(\d+)" + re.escape(after) + "$")
+        out = []
+        for entry in os.scandir(folder):
+            match = numbered.match(entry.name)
+            if match and self.image_pattern.format(camera=name, frame=int(match.group(1))) == str(
+                    expected.parent / entry.name):
+                out.append(int(match.group(1)))
+        return out
+
+    def check_recordings(self) -> list[str]:
+        """Cameras whose recordings do not cover every capture frame, one line each (warned by
+        :meth:`open`): the others carry those frames. :class:`InputError` naming ``capture.toml``
+        when ``n_frames`` exceeds every camera's recording. Default timing only (paired
+        cameras are checked by their frame source); missing media are left to the frame source."""
+        if not all_default(self.clocks, self.fps):
+            return []
+        starts, ends = self.recorded_frames()
+        recorded = [k for k, end in enumerate(ends) if end > 0]
+        if not recorded:
+            return []
+        return partial_recordings([self.camera_names[k] for k in recorded], [starts[k] for k in recorded],
+                                  [ends[k] for k in recorded], self.n_frames, self.root / MANIFEST)
 
     def media_counts(self) -> dict[str, int]:
         """Frames each camera's media holds (images in its folder; a video's count from its header,
@@ -334,8 +375,10 @@ class Capture:
         """Open a capture folder; :class:`InputError` naming the file for anything missing,
         mistyped, unknown or impossible in ``capture.toml`` or the rig (see
         :func:`capture_settings`), a path leading outside the folder (unless ``external_media``),
-        or a video whose rate is not the capture's (:meth:`check_rates`). Without ``n_frames`` the
-        capture spans the frames every camera recorded (on the capture's clock)."""
+        a video whose rate is not the capture's (:meth:`check_rates`), or an ``n_frames`` beyond
+        every camera's recording (:meth:`check_recordings`; a camera that starts late or ends early
+        is a logged warning). Without ``n_frames`` the capture spans the frames at least two
+        cameras recorded (on the capture's clock; :func:`~spinemocap.timebase.common_frames`)."""
         root = Path(root)
         manifest = root / MANIFEST
         if not root.is_dir():
@@ -362,8 +405,13 @@ class Capture:
         capture._check_paths()
         capture.check_rates()
         if n_frames is None:
-            capture.n_frames = common_frames(capture.media_times(), capture.clocks, capture.fps)
             capture.spans_recordings = True
+            if capture.media == "images" and all_default(capture.clocks, capture.fps):  # numbered: by their numbers
+                capture.n_frames = shared_span(capture.recorded_frames()[1])
+            else:
+                capture.n_frames = common_frames(capture.media_times(), capture.clocks, capture.fps)
+        for line in capture.check_recordings():
+            log.warning("%s: %s", capture.root, line)
         return capture
 
     def _check_paths(self) -> None:

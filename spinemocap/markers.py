@@ -10,12 +10,17 @@ label, see :mod:`spinemocap.track.quality`) and ``stretch`` (the tape's measured
 the dot over the roll's spec, 1 = as specified).
 
 Metadata travels in :attr:`MarkerTable.meta` (``fps``, ``units``, ``subject``, ``source`` ...).
+``meta['missing_cameras']`` (camera name -> the frames it had no image for, see
+:data:`MISSING_CAMERAS`) is written by every built-in format in its own way: a
+``missing_cameras`` column in CSV/Parquet, a ``MissingCameras`` header field in TRC, a
+``MISSING_CAMERAS`` parameter group in C3D (:func:`camera_gaps` gives the spans they store).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Final, Literal, Sequence
+from typing import Final, Iterable, Literal, Mapping, Sequence
+from urllib.parse import unquote
 
 import numpy as np
 import pandas as pd
@@ -34,6 +39,59 @@ MAX_FRAME = 2**31 - 1   # frame numbers beyond this are damaged values (C3D and 
 COLUMNS = ("frame", "time", "label", "x", "y", "z", "status", "n_views", "residual")
 QUALITY_COLUMNS = ("confidence", "stretch")
 ALL_COLUMNS = COLUMNS + QUALITY_COLUMNS
+#: ``meta`` key: camera name -> sorted frame numbers (the table's) in which that camera had no
+#: image (a recording that ends early or starts late, a damaged or missing frame); the dots of
+#: those frames were triangulated from the other cameras
+MISSING_CAMERAS = "missing_cameras"
+#: separator of the camera names in one frame's ``missing_cameras`` field (CSV/Parquet)
+CAMERA_SEPARATOR = ";"
+
+
+def camera_gaps(missing: Mapping[str, Iterable[int]], frames: Iterable[int] | None = None
+                ) -> list[tuple[str, int, int]]:
+    """``(camera, first, last)`` runs of consecutive frames (inclusive) in which each camera of
+    ``missing`` (camera -> frame numbers) had no image, by camera then first frame; ``frames``:
+    only those frames count (None: all)."""
+    kept = None if frames is None else {int(f) for f in frames}
+    out = []
+    for camera in sorted(missing):
+        numbers = sorted({int(f) for f in missing[camera] if kept is None or int(f) in kept})
+        for k, frame in enumerate(numbers):
+            if k and frame == numbers[k - 1] + 1:
+                out[-1] = (camera, out[-1][1], frame)
+            else:
+                out.append((camera, frame, frame))
+    return out
+
+
+def missing_from_gaps(gaps: Iterable[tuple[str, int, int]]) -> dict[str, list[int]]:
+    """:func:`camera_gaps` back into camera -> sorted frame numbers."""
+    out: dict[str, set[int]] = {}
+    for camera, first, last in gaps:
+        out.setdefault(str(camera), set()).update(range(int(first), int(last) + 1))
+    return {camera: sorted(frames) for camera, frames in sorted(out.items())}
+
+
+def missing_per_frame(missing: Mapping[str, Iterable[int]], frames: Sequence[int]) -> list[str]:
+    """For each of ``frames``, the cameras that had no image in it, joined by
+    :data:`CAMERA_SEPARATOR` (``""``: none; a ``%`` or ``;`` in a name written as ``%25``, ``%3B``)."""
+    where: dict[int, list[str]] = {}
+    for camera in sorted(missing):
+        for frame in missing[camera]:
+            where.setdefault(int(frame), []).append(camera.replace("%", "%25").replace(CAMERA_SEPARATOR, "%3B"))
+    return [CAMERA_SEPARATOR.join(where.get(int(f), [])) for f in frames]
+
+
+def missing_from_frames(frames: Sequence[int], fields: Sequence[object]) -> dict[str, list[int]]:
+    """:func:`missing_per_frame` read back: frame numbers and their fields (empty, NaN or None:
+    no camera missing) -> camera -> sorted frame numbers."""
+    out: dict[str, set[int]] = {}
+    for frame, text in zip(frames, fields):
+        if isinstance(text, str) and text:
+            for camera in text.split(CAMERA_SEPARATOR):
+                if camera:
+                    out.setdefault(unquote(camera), set()).add(int(frame))
+    return {camera: sorted(numbers) for camera, numbers in sorted(out.items())}
 
 
 @dataclass

@@ -20,7 +20,15 @@ import cv2
 import numpy as np
 
 from .fileio import InputError, atomic_path
-from .timebase import CameraClock, DroppedFrames, FramePairing, image_times, pair_cameras, video_times
+from .timebase import (
+    CameraClock,
+    DroppedFrames,
+    FramePairing,
+    image_times,
+    pair_cameras,
+    partial_recordings,
+    video_times,
+)
 
 log = logging.getLogger(__name__)
 
@@ -118,7 +126,7 @@ class ImageFolderSource(FrameSource):
             if not timed and count > self.n_frames:
                 raise InputError(folder, f"camera {cam!r} has {count} images, capture.toml says n_frames = {self.n_frames}")
             if not timed and count < self.n_frames:
-                log.warning("%s: camera %r has %d of %d images; the tracker goes on without it where one is missing",
+                log.info("%s: camera %r has %d of %d images; the tracker goes on without it where one is missing",
                             folder, cam, count, self.n_frames)
             if timed:
                 if count == 0:
@@ -130,6 +138,7 @@ class ImageFolderSource(FrameSource):
         if timed:
             assert clocks is not None and fps is not None
             self.pairing = pair_cameras(self.camera_names, times, clocks, fps, self.n_frames)
+            check_pairing(self.pairing, self.root)
 
     def path(self, camera: str, frame: int) -> Path:
         """The image file of camera ``camera``'s own frame ``frame`` (its slot on its clock)."""
@@ -159,6 +168,17 @@ class ImageFolderSource(FrameSource):
             self.unreadable[name][frame] = exc.problem
             return None
         return check_image_size(image, self.sizes[camera], name, path)
+
+
+def check_pairing(pairing: FramePairing, root: Path) -> None:
+    """Warn (logged) about each camera whose recording starts after capture frame 0 or ends
+    before the last; :class:`InputError` naming ``root``'s ``capture.toml`` when no camera
+    recorded the last capture frame (see :func:`~spinemocap.timebase.partial_recordings`)."""
+    recorded = pairing.slots >= 0
+    starts = [int(np.argmax(row)) if row.any() else pairing.n_frames for row in recorded]
+    ends = [int(pairing.n_frames - np.argmax(row[::-1])) if row.any() else 0 for row in recorded]
+    for line in partial_recordings(pairing.camera_names, starts, ends, pairing.n_frames, root / "capture.toml"):
+        log.warning("%s: %s", root, line)
 
 
 def all_default(clocks: Sequence[CameraClock], fps: float | None) -> bool:
@@ -339,12 +359,13 @@ class VideoSource(FrameSource):
                 if count and count > self.n_frames:
                     raise InputError(path, f"video has {count} frames, capture.toml says n_frames = {self.n_frames}")
                 if count and count < self.n_frames:
-                    log.warning("%s: the video of camera %r has %d of %d frames; the tracker goes on without it after",
+                    log.info("%s: the video of camera %r has %d of %d frames; the tracker goes on without it after",
                                 path, cam, count, self.n_frames)
                     self._ends_at[k] = count
             if timed:
                 assert fps is not None
                 self.pairing = pair_cameras(self.camera_names, times, clocks, fps, self.n_frames)
+                check_pairing(self.pairing, self.root)
         except BaseException:
             self.close()  # the cameras' videos opened so far
             raise

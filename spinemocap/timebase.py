@@ -184,8 +184,47 @@ def pair_cameras(camera_names: Sequence[str], times: Sequence[MediaTimes], clock
     return FramePairing(tuple(camera_names), slots, tuple(d for t in times for d in t.dropped))
 
 
+#: cameras a capture frame needs to be worth tracking (a dot is triangulated from two views)
+MIN_CAMERAS = 2
+
+
+def recording_ends(times: Sequence[MediaTimes], clocks: Sequence[CameraClock], capture_fps: float) -> list[int]:
+    """Per camera, the capture frame after the last one its recording shows (its last frame at
+    ``timestamp - offset_s`` on the capture's clock)."""
+    return [int(np.floor((float(t.timestamps_s[-1]) - clock.offset_s) * capture_fps + 1e-6)) + 1
+            for t, clock in zip(times, clocks)]
+
+
 def common_frames(times: Sequence[MediaTimes], clocks: Sequence[CameraClock], capture_fps: float) -> int:
-    """Capture frames from 0 to the earliest end of a camera's recording on the capture clock
-    (a camera's last frame at ``timestamp - offset_s``), at least 1."""
-    ends = [float(t.timestamps_s[-1]) - clock.offset_s for t, clock in zip(times, clocks)]
-    return max(1, int(np.floor(min(ends) * capture_fps + 1e-6)) + 1)
+    """Capture frames from 0 to the end of the recordings that :data:`MIN_CAMERAS` cameras
+    share (all cameras where fewer), at least 1: a camera whose recording ends earlier is left out
+    of the frames after its end, the others are tracked there."""
+    return shared_span(recording_ends(times, clocks, capture_fps))
+
+
+def partial_recordings(camera_names: Sequence[str], starts: Sequence[int], ends: Sequence[int], n_frames: int,
+                       where: str | os.PathLike) -> list[str]:
+    """The cameras whose recordings do not cover capture frames ``0..n_frames-1`` (each camera's
+    ``starts``/``ends``: its first recorded capture frame and the one after its last), one line
+    each, saying that the other cameras carry those frames; :class:`InputError` naming ``where``
+    when no camera recorded the last frame (``n_frames`` beyond every recording)."""
+    if max(ends) < n_frames:
+        longest = int(np.argmax(ends))
+        raise InputError(where, f"n_frames = {n_frames} but no camera recorded that many frames (the longest, "
+                                f"{camera_names[longest]!r}, ends at frame {ends[longest]}): set n_frames = "
+                                f"{ends[longest]} or fewer, or leave n_frames out (the span the cameras recorded)")
+    lines = []
+    for name, start, end in zip(camera_names, starts, ends):
+        lacking = ([f"frames 0-{start - 1} (its recording starts late)"] if start > 0 else []) + (
+            [f"frames {end}-{n_frames - 1} (its recording ends early)"] if end < n_frames else [])
+        if lacking:
+            lines.append(f"camera {name!r} has no images for capture {' and '.join(lacking)}: the other cameras are "
+                         "tracked there, and the marker files record the camera as missing in those frames")
+    return lines
+
+
+def shared_span(ends: Sequence[int]) -> int:
+    """Capture frames from 0 to where fewer than :data:`MIN_CAMERAS` cameras still record
+    (``ends``: each camera's end, :func:`recording_ends`), at least 1."""
+    ordered = sorted(int(e) for e in ends)
+    return max(1, ordered[-min(MIN_CAMERAS, len(ordered))])

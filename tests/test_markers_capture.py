@@ -75,9 +75,11 @@ def test_capture_errors_name_the_problem(tmp_path):
     with pytest.raises(InputError, match="not a capture folder"):
         Capture.open(tmp_path)
     _write_capture(tmp_path)
-    (tmp_path / "images/cam1/000001.png").unlink()
-    with pytest.raises(InputError, match="cam1.*1 images.*n_frames = 2"):
-        Capture.open(tmp_path).frame_source()
+    (tmp_path / "images/cam1/000001.png").unlink()      # cam1's recording ends early: the others go on
+    assert Capture.open(tmp_path).frame_source().read(1)[1] is None
+    (tmp_path / "images/cam0/000001.png").unlink()      # no camera recorded frame 1
+    with pytest.raises(InputError, match=r"n_frames = 2 but no camera recorded that many frames.*set n_frames = 1"):
+        Capture.open(tmp_path)
     (tmp_path / "images/cam0/000001.png").write_bytes(b"not a png")
     with pytest.raises(InputError, match="000001.png.*corrupt"):
         read_image(tmp_path / "images/cam0/000001.png")

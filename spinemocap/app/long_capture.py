@@ -14,7 +14,8 @@ sizes and times, frames, chunking, mode, detector, settings). A rerun with the s
 the saved chunks and tracks the rest; a different plan starts over. When every chunk is done the
 marker set is written (:func:`~spinemocap.app.results.write_markers`) and ``.chunks`` removed.
 A chunk is a deterministic function of its frames, so the output does not depend on where a run
-was interrupted.
+was interrupted. One chunk is held in memory at a time, while tracking and while writing the
+marker files from the saved chunks, so memory does not grow with the capture's length.
 """
 
 from __future__ import annotations
@@ -33,11 +34,19 @@ from tqdm import tqdm
 
 from ..capture import MANIFEST, Capture
 from ..fileio import InputError, atomic_path, atomic_write, check_writable
-from ..markers import MarkerTable
+from ..markers import MISSING_CAMERAS, MarkerTable, missing_from_frames, missing_per_frame
 from ..track.config import TrackerConfig
 from ..track.quality import is_flagged
-from .results import write_markers
-from .run import NO_TAPE_SHARE, NoTapeFound, TrackingMode, detector_example, select_frames, track_source
+from .results import write_marker_parts
+from .run import (
+    NO_TAPE_SHARE,
+    NoTapeFound,
+    TrackingMode,
+    detector_example,
+    frame_ranges,
+    select_frames,
+    track_source,
+)
 from .streaming import SpeedOptions
 
 log = logging.getLogger(__name__)
@@ -45,7 +54,8 @@ log = logging.getLogger(__name__)
 CHUNK_DIR = ".chunks"
 PLAN = "plan.json"
 #: arrays a saved chunk holds, (F, ...) over its own frames
-CHUNK_ARRAYS = ("frames", "positions", "status", "n_views", "residual", "confidence", "stretch", "flags")
+CHUNK_ARRAYS = ("frames", "positions", "status", "n_views", "residual", "confidence", "stretch", "flags",
+                "missing_cameras")
 #: median distance (mm) between two chunks' positions of a label on their shared frames above
 #: which the two labellings disagree (the tape's dots are >= ~15 mm apart)
 CONTINUITY_TOLERANCE_MM = 5.0
@@ -81,9 +91,12 @@ class Chunking:
 
 @dataclass
 class ChunkedResult:
-    """A capture tracked in chunks: the marker table, and what the tracker could not vouch for."""
+    """A capture tracked in chunks (its markers are in the output folder): how many frames, the
+    marker statuses counted, the cameras missing in frames, and what the tracker could not vouch for."""
 
-    table: MarkerTable
+    n_frames: int = 0
+    status_counts: dict[str, int] = field(default_factory=dict)
+    missing_cameras: dict[str, list[int]] = field(default_factory=dict)
     flagged_frames: list[int] = field(default_factory=list)
     flags: dict[str, int] = field(default_factory=dict)
     relabelled_chunks: list[int] = field(default_factory=list)
@@ -100,12 +113,15 @@ class ChunkedResult:
         if self.discontinuous_chunks:
             lines.append(f"WARNING chunks {self.discontinuous_chunks}: labels do not continue the chunk before; "
                          "their frames are flagged (confidence 0)")
+        for camera, frames in sorted(self.missing_cameras.items()):
+            lines.append(f"camera {camera} had no image in {len(frames)} of {self.n_frames} frames "
+                         f"({frame_ranges(frames)}); the other cameras were used there")
         if self.flagged_frames:
             kinds = ", ".join(f"{k} {v}" for k, v in sorted(self.flags.items()))
-            lines.append(f"WARNING {len(self.flagged_frames)} of {self.table.n_frames} frames flagged (labels not "
+            lines.append(f"WARNING {len(self.flagged_frames)} of {self.n_frames} frames flagged (labels not "
                          f"vouched for: {kinds}); see the confidence column of markers.csv")
         else:
-            lines.append(f"no frame flagged ({self.table.n_frames} frames)")
+            lines.append(f"no frame flagged ({self.n_frames} frames)")
         return "\n".join(lines)
 
 
@@ -122,6 +138,8 @@ def track_in_chunks(
 ) -> ChunkedResult:
     """Track a capture folder chunk by chunk into ``out_dir`` (see the module docstring): the
     same outputs as :func:`spinemocap.app.run.track_capture`, resumable after a stop or a kill.
+    Memory does not grow with the capture's length: one chunk is held at a time, in tracking
+    and in writing the marker files (:func:`~spinemocap.app.results.write_marker_parts`).
 
     Raises:
         InputError: a bad capture or frame selection, an output folder that cannot be written.
@@ -134,41 +152,63 @@ def track_in_chunks(
     plan = _plan(capture, frame_range, chunking, mode, detector, config)
     chunk_dir = _chunk_dir(out, plan)
     spans = chunking.spans(frame_range)
-    result = ChunkedResult(table=MarkerTable.from_arrays(capture.tape.labels, np.zeros((0, len(capture.tape.labels), 3)),
-                                                         capture.fps), n_chunks=len(spans))
-    saved: list[dict[str, np.ndarray]] = []
+    result = ChunkedResult(n_frames=len(frame_range), n_chunks=len(spans))
+    paths = [chunk_dir / f"chunk_{k:05d}.npz" for k in range(len(spans))]
+    previous: dict[str, np.ndarray] | None = None
     bar = tqdm(total=len(frame_range), desc="long capture", unit="frame", disable=not progress)
     try:
         for k, (tracked_from, first, stop) in enumerate(spans):
-            path = chunk_dir / f"chunk_{k:05d}.npz"
-            chunk = _load_chunk(path)
+            chunk = _load_chunk(paths[k])
             if chunk is not None:
                 result.resumed_chunks += 1
             else:
                 chunk = _track_chunk(capture, range(tracked_from, stop), first, mode, config, detector, speed)
-                if saved:
-                    _continue_labels(k, chunk, saved[-1], capture.tape.labels, result)
-                _save_chunk(path, {name: chunk[name] for name in CHUNK_ARRAYS})
-            saved.append({name: chunk[name] for name in CHUNK_ARRAYS})
+                if previous is not None:
+                    _continue_labels(k, chunk, previous, capture.tape.labels, result)
+                _save_chunk(paths[k], {name: chunk[name] for name in CHUNK_ARRAYS})
+            previous = {name: chunk[name] for name in CHUNK_ARRAYS}
             bar.update(stop - first)
     finally:
         bar.close()
-    result.table = _table(saved, capture)
-    unsolved = sum("unsolved" in str(f).split(";") for chunk in saved for f in chunk["flags"])
+    unsolved = _tally(paths, result)
     if unsolved > NO_TAPE_SHARE * len(frame_range):  # a lost tape is not a result: nothing written over one
         raise NoTapeFound(capture.root, f"no tape found in {unsolved} of {len(frame_range)} frames: check the "
                                         f"detector with `spinemocap detector run "
                                         f"{detector_example(capture, frame_range[0])}`")
-    for chunk in saved:
+    write_marker_parts(lambda: (_table(_saved_chunk(path), capture, result.missing_cameras) for path in paths),
+                       len(frame_range), out)
+    shutil.rmtree(chunk_dir, ignore_errors=True)
+    return result
+
+
+def _saved_chunk(path: Path) -> dict[str, np.ndarray]:
+    chunk = _load_chunk(path)
+    if chunk is None:
+        raise InputError(path, "a saved chunk went missing or was damaged while the marker files were written; "
+                               "run the same command again")
+    return chunk
+
+
+def _tally(paths: Sequence[Path], result: ChunkedResult) -> int:
+    """Statuses, missing cameras, flagged frames and flags of the saved chunks into ``result``,
+    one chunk at a time; returns the frames without a solution."""
+    unsolved = 0
+    missing: dict[str, list[int]] = {}
+    for path in paths:
+        chunk = _saved_chunk(path)
+        for status, count in zip(*np.unique(chunk["status"], return_counts=True)):
+            result.status_counts[str(status)] = result.status_counts.get(str(status), 0) + int(count)
+        for camera, frames in missing_from_frames(chunk["frames"].tolist(), chunk["missing_cameras"].tolist()).items():
+            missing.setdefault(camera, []).extend(frames)
         for frame, flags in zip(chunk["frames"], chunk["flags"]):
             names = [f for f in str(flags).split(";") if f]
+            unsolved += "unsolved" in names
             if is_flagged(names) or "unsolved" in names:
                 result.flagged_frames.append(int(frame))
             for name in set(names):
                 result.flags[name] = result.flags.get(name, 0) + 1
-    write_markers(result.table, out)
-    shutil.rmtree(chunk_dir, ignore_errors=True)
-    return result
+    result.missing_cameras = missing
+    return unsolved
 
 
 def _plan(capture: Capture, frames: range, chunking: Chunking, mode: str, detector: str,
@@ -215,9 +255,11 @@ def _track_chunk(capture: Capture, tracked: range, first: int, mode: TrackingMod
     arrays = tracked_result.table.to_arrays()
     keep = slice(first - tracked.start, None)
     flags = np.array([";".join(f.flags if f.solved else [*f.flags, "unsolved"]) for f in tracked_result.frames])
-    chunk = {name: arrays[name][keep] for name in CHUNK_ARRAYS if name != "flags"}
+    chunk = {name: arrays[name][keep] for name in CHUNK_ARRAYS if name in arrays}
     chunk["status"] = chunk["status"].astype(str)
     chunk["flags"] = flags[keep]
+    chunk["missing_cameras"] = np.array(missing_per_frame(tracked_result.missing_cameras(),
+                                                          chunk["frames"].tolist()), dtype=str)
     chunk["warmup_frames"] = arrays["frames"][: first - tracked.start]
     chunk["warmup_positions"] = arrays["positions"][: first - tracked.start]
     return chunk
@@ -318,11 +360,12 @@ def _load_chunk(path: Path) -> dict[str, np.ndarray] | None:
         return None
 
 
-def _table(chunks: list[dict[str, np.ndarray]], capture: Capture) -> MarkerTable:
-    """The chunks' frames as one marker table (mm, world Z up)."""
-    joined = {name: np.concatenate([c[name] for c in chunks]) for name in CHUNK_ARRAYS}
-    return MarkerTable.from_arrays(capture.tape.labels, joined["positions"], capture.fps,
-                                   status=joined["status"].astype(object), n_views=joined["n_views"],
-                                   residual=joined["residual"], first_frame=int(joined["frames"][0]),
-                                   confidence=joined["confidence"], stretch=joined["stretch"],
-                                   meta={"subject": capture.subject.get("id", ""), "source": str(capture.root)})
+def _table(chunk: dict[str, np.ndarray], capture: Capture, missing: dict[str, list[int]]) -> MarkerTable:
+    """A saved chunk's frames as a marker table (mm, world Z up); ``missing``: the whole
+    capture's missing cameras (the marker files' headers hold them all)."""
+    return MarkerTable.from_arrays(capture.tape.labels, chunk["positions"], capture.fps,
+                                   status=chunk["status"].astype(object), n_views=chunk["n_views"],
+                                   residual=chunk["residual"], first_frame=int(chunk["frames"][0]),
+                                   confidence=chunk["confidence"], stretch=chunk["stretch"],
+                                   meta={"subject": capture.subject.get("id", ""), "source": str(capture.root),
+                                         MISSING_CAMERAS: missing})

@@ -17,6 +17,7 @@ import shutil
 import time
 import uuid
 from pathlib import Path
+from typing import Callable, Iterable
 
 import exporters
 
@@ -46,7 +47,16 @@ class TrackingStopped(Exception):
 
 
 def write_markers(table: MarkerTable, out_dir: str | Path) -> list[Path]:
-    """``markers.csv``, ``markers.trc`` and ``markers.c3d`` in ``out_dir``, consistent as a set.
+    """``markers.csv``, ``markers.trc`` and ``markers.c3d`` of ``table`` in ``out_dir``, as one set
+    (:func:`write_marker_parts`)."""
+    return write_marker_parts(lambda: [table], table.n_frames, out_dir)
+
+
+def write_marker_parts(parts: Callable[[], Iterable[MarkerTable]], n_frames: int, out_dir: str | Path) -> list[Path]:
+    """``markers.csv``, ``markers.trc`` and ``markers.c3d`` in ``out_dir``, consistent as a set,
+    of a table given in consecutive parts: ``parts()`` yields them anew for each file (the same
+    labels and meta, ``n_frames`` frames in all), and each file is written one part at a time, so
+    a long capture's set needs the memory of one part.
 
     All three are written into a staging folder first (a failing writer leaves the previous set
     untouched); then the manifest ``markers.manifest.json`` is removed, the files are renamed
@@ -62,16 +72,16 @@ def write_markers(table: MarkerTable, out_dir: str | Path) -> list[Path]:
     staging = temp_name(out / "markers", suffix="")
     with writing(out, "marker files"):
         staging.mkdir()
-        return _write_set(table, out, staging)
+        return _write_set(parts, n_frames, out, staging)
 
 
-def _write_set(table: MarkerTable, out: Path, staging: Path) -> list[Path]:
+def _write_set(parts: Callable[[], Iterable[MarkerTable]], n_frames: int, out: Path, staging: Path) -> list[Path]:
     """Stage the set in ``staging``, swap it into ``out``, write the manifest last."""
     try:
         staged = []
         for name in RESULT_FILES:
             try:
-                exporters.write(table, staging / name)
+                exporters.write_parts(parts(), staging / name, n_frames)
             except OutputError:     # a full disk: said for the results folder by write_markers
                 raise
             except InputError as exc:  # name the file the user asked for, not the staging folder's

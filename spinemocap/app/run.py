@@ -24,7 +24,7 @@ from ..camera import Rig
 from ..capture import Capture, FrameSource
 from ..fileio import InputError, atomic_write, check_writable, strict_json
 from ..frames import parse_frames
-from ..markers import MarkerTable
+from ..markers import MISSING_CAMERAS, MarkerTable
 from ..reference import ReferenceObject
 from ..tape import TapeSpec
 from ..track.config import TrackerConfig
@@ -425,6 +425,7 @@ def track_source(
     unreadable = {camera: reasons for camera, reasons in getattr(source, "unreadable", {}).items() if reasons}
     if unreadable:
         result.detector_info["unreadable"] = unreadable
+    result.table.meta[MISSING_CAMERAS] = result.missing_cameras()  # into the marker files
     return result
 
 

@@ -160,14 +160,16 @@ def run_chunked(args: argparse.Namespace, config, speed) -> int:
     result = track_in_chunks(args.capture, args.out, Chunking(args.chunk_frames, args.warmup_frames), mode=args.mode,
                              config=config, detector=args.detector, frames=args.frames,
                              progress=not args.no_progress, speed=speed)
-    table = result.table
     elapsed = time.perf_counter() - start
-    counts = table.data["status"].value_counts()
-    print(f"tracked {table.n_frames} frames in {elapsed:.1f} s: " + ", ".join(f"{counts.get(s, 0)} {s}" for s in STATUSES))
+    counts = result.status_counts
+    print(f"tracked {result.n_frames} frames in {elapsed:.1f} s: "
+          + ", ".join(f"{counts.get(s, 0)} {s}" for s in STATUSES))
     print(f"markers written to {Path(args.out) / 'markers.csv'} (+ .trc, .c3d)")
     print(result.summary())
     if Capture.open(args.capture).has_groundtruth:
-        print(accuracy_summary(table, args.capture))
+        from spinemocap.app.results import read_results
+
+        print(accuracy_summary(read_results(args.out), args.capture))
     return 0
 
 

@@ -43,15 +43,17 @@ def lab(tmp_path):
     return folder, videos
 
 
-def test_init_reads_counts_and_rates_from_the_files_and_spans_the_shortest(lab, tmp_path):
+def test_init_reads_counts_and_rates_from_the_files_and_spans_what_two_cameras_recorded(lab, tmp_path):
     folder, videos = lab
     result = init_capture(tmp_path / "cap", folder / "rig.toml", media=videos)
     capture = result.capture
-    assert capture.fps == FPS and capture.n_frames == 5 and capture.external_media
+    assert capture.fps == FPS and capture.n_frames == 6 and capture.external_media
     assert [result.probes[n].n_frames for n in capture.camera_names] == [6, 5, 6]
     source = capture.frame_source()
     means = [float(image.mean()) for image in source.read(4)]
     np.testing.assert_allclose(means, 100.0, atol=3)  # every camera's fifth frame
+    last = source.read(5)                             # cam2's recording ended: the others go on
+    assert last[1] is None and [float(last[k].mean()) for k in (0, 2)] == pytest.approx([120.0, 120.0], abs=3)
     manifest = read_toml(tmp_path / "cap" / "capture.toml")
     assert manifest["camera"]["cam2"]["media"] == str(videos[1].resolve())
 
@@ -169,10 +171,12 @@ def test_n_frames_is_optional_and_a_part_of_the_videos_may_be_used(lab, tmp_path
     folder, videos = lab
     cap = init_capture(tmp_path / "cap", folder / "rig.toml", media=videos).root
     assert "n_frames" not in read_toml(cap / "capture.toml")["capture"]  # found on opening
-    assert Capture.open(cap).n_frames == 5  # the common span
+    assert Capture.open(cap).n_frames == 6  # cam1 and cam3 recorded 6 frames, cam2 5
     set_camera_offsets(cap, {"cam1": 0.04})  # cam1 started a frame earlier: its last frame is sooner
-    assert Capture.open(cap).n_frames == 5 and Capture.open(cap).clocks[0].offset_s == 0.04
-    set_camera_offsets(cap, {"cam2": 0.04})  # the shortest one too: the span shrinks with it
+    assert Capture.open(cap).n_frames == 5 and Capture.open(cap).clocks[0].offset_s == 0.04  # cam3 alone at 5
+    set_camera_offsets(cap, {"cam3": 0.08})  # cam1 and cam2 still reach frame 4 together
+    assert Capture.open(cap).n_frames == 5
+    set_camera_offsets(cap, {"cam1": 0.08})  # now only cam2 does
     assert Capture.open(cap).n_frames == 4
     _manifest_with(cap, lambda d: d["capture"].__setitem__("n_frames", 2))
     capture = Capture.open(cap)
@@ -190,7 +194,7 @@ def test_paths_outside_the_folder_need_external_media(lab, tmp_path):
     assert not copied.external_media and copied.camera_clocks["cam1"].media == "videos/cam1.mp4"
     (copied.root / "videos").rename(tmp_path / "disk2")  # media on another disk, linked into the folder
     (copied.root / "videos").symlink_to(tmp_path / "disk2")
-    assert Capture.open(copied.root).n_frames == 5
+    assert Capture.open(copied.root).n_frames == 6
 
 
 def test_a_foreign_calibration_as_the_rig_names_the_command_that_converts_it(lab, tmp_path):

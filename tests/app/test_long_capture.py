@@ -91,3 +91,33 @@ def test_a_killed_run_resumes_with_the_uninterrupted_output(capture, tmp_path, c
     errors = [np.linalg.norm(table.loc[(f, label), ["x", "y", "z"]].to_numpy(float) - truth["dots"][f, d])
               for f in range(9) for d, label in enumerate(labels)]
     assert np.nanmax(errors) < 3.0
+
+
+def test_a_table_written_in_parts_gives_the_same_files_as_written_whole(tmp_path):
+    """The chunked run writes its marker files one saved chunk at a time: byte for byte the files
+    of the whole table (missing cameras and flagged frames included)."""
+    from spinemocap.app.results import write_marker_parts, write_markers
+    from spinemocap.markers import MarkerTable
+
+    rng = np.random.default_rng(3)
+    positions = rng.normal(0, 200, (40, 5, 3))
+    positions[4:11, 2] = np.nan
+    status = np.where(rng.random((40, 5)) < 0.2, "inferred", "observed")
+    table = MarkerTable.from_arrays(list("abcde"), positions, 100.0, status=status, n_views=rng.integers(2, 5, (40, 5)),
+                                    residual=rng.random((40, 5)), confidence=rng.random((40, 5)), first_frame=7,
+                                    meta={"missing_cameras": {"cam2": [8, 9, 10, 30], "cam4": [46]}, "subject": "S"})
+    write_markers(table, tmp_path / "whole")
+    cuts = [7, 20, 21, 47]
+    write_marker_parts(lambda: [table.select(frames=range(a, b)) for a, b in zip(cuts, cuts[1:])], 40,
+                       tmp_path / "parts")
+    for name in ("markers.csv", "markers.trc", "markers.c3d"):
+        assert (tmp_path / "whole" / name).read_bytes() == (tmp_path / "parts" / name).read_bytes(), name
+    with pytest.raises(Exception, match="41 announced"):
+        write_marker_parts(lambda: [table], 41, tmp_path / "short")
+
+
+def test_the_memory_benchmark_plays_a_short_capture_forward_and_back():
+    from spinemocap.bench.long_capture import pingpong
+
+    assert [pingpong(k, 4) for k in range(10)] == [0, 1, 2, 3, 2, 1, 0, 1, 2, 3]   # no jump at the turns
+    assert [pingpong(k, 1) for k in range(3)] == [0, 0, 0]

@@ -99,14 +99,14 @@ def test_a_failing_writer_leaves_the_previous_set_whole(tmp_path, monkeypatch):
     out = tmp_path / "res"
     write_markers(_table(), out)
     before = results_run_id(out)
-    real = exporters.write
+    real = exporters.write_parts
 
-    def failing(table, path, *args, **kwargs):
+    def failing(parts, path, *args, **kwargs):
         if Path(path).suffix == ".c3d":
             raise OSError("disk full")
-        return real(table, path, *args, **kwargs)
+        return real(parts, path, *args, **kwargs)
 
-    monkeypatch.setattr(exporters, "write", failing)
+    monkeypatch.setattr(exporters, "write_parts", failing)
     with pytest.raises(OSError, match="disk full"):
         write_markers(_table(3.0), out)
     assert results_run_id(out) == before and not list(out.glob(".~*"))
