@@ -126,7 +126,8 @@ def write_csv_parts(parts: Iterable[MarkerTable], path: str | os.PathLike, n_fra
                 writer.close()
         if writer is None:
             raise InputError(path, "marker table has no frames to write")
-    warn_unseen(labels, seen, path)
+    if seen is not None:  # None: no part held a frame (refused above)
+        warn_unseen(labels, seen, path)
     return path
 
 

@@ -176,7 +176,8 @@ def write_trc_parts(parts: Iterable[MarkerTable], path: str | os.PathLike, n_fra
             written += F
         if written != n_frames:
             raise ValueError(f"{path}: the parts hold {written} frames, not the {n_frames} announced")
-    warn_unseen(labels, seen, path)
+    if seen is not None:  # None: no part held a frame (refused above)
+        warn_unseen(labels, seen, path)
     return path
 
 

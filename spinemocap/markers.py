@@ -53,7 +53,7 @@ def camera_gaps(missing: Mapping[str, Iterable[int]], frames: Iterable[int] | No
     ``missing`` (camera -> frame numbers) had no image, by camera then first frame; ``frames``:
     only those frames count (None: all)."""
     kept = None if frames is None else {int(f) for f in frames}
-    out = []
+    out: list[tuple[str, int, int]] = []
     for camera in sorted(missing):
         numbers = sorted({int(f) for f in missing[camera] if kept is None or int(f) in kept})
         for k, frame in enumerate(numbers):

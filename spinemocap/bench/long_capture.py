@@ -7,18 +7,18 @@ in its own process (:func:`measure_run`), its resident set size (RSS, the proces
 sampled as it runs, next to the frames the saved chunks hold. Peak RSS flat in the length is the
 claim; the samples give RSS against the frames done within a run too.
 
-    python -m spinemocap.bench.long_capture BASE_CAPTURE OUT_DIR --lengths 600 2400 6000
+    spinemocap bench long-capture BASE_CAPTURE OUT_DIR --lengths 600 2400 6000
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -160,28 +160,19 @@ def load_runs(path: Path) -> list[RunMemory]:
     return [RunMemory(**run) for run in json.loads(Path(path).read_text())]
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("base", type=Path, help="a short rendered image capture with masks")
-    parser.add_argument("out", type=Path, help="folder for the looped captures, outputs and results")
-    parser.add_argument("--lengths", type=int, nargs="+", default=[600, 2400, 6000])
-    parser.add_argument("--chunk-frames", type=int, default=300)
-    parser.add_argument("--peer", type=Path, help="a previous run's long_capture_memory.json, drawn beside")
-    args = parser.parse_args(argv)
-    runs = []
-    for n in args.lengths:
-        capture = looped_capture(args.base, args.out / f"capture_{n}", n)
-        run = measure_run(capture, args.out / f"tracked_{n}", args.chunk_frames)
+def run_benchmark(base: Path, out: Path, lengths: Sequence[int], chunk_frames: int = 300,
+                  peer: Path | None = None, say: Callable[[str], None] = print) -> list[RunMemory]:
+    """Track a looped capture of each length in ``lengths`` (frames) from ``base`` in chunks of
+    ``chunk_frames``; write ``out``/long_capture_memory.json (after every run) and .png (``peer``:
+    a previous run's JSON drawn beside); returns the runs."""
+    runs: list[RunMemory] = []
+    for n in lengths:
+        capture = looped_capture(base, out / f"capture_{n}", n)
+        run = measure_run(capture, out / f"tracked_{n}", chunk_frames)
         runs.append(run)
-        print(f"{n} frames: peak RSS {run.peak_rss_mb:.0f} MiB, {run.wall_s:.0f} s", flush=True)
+        say(f"{n} frames: peak RSS {run.peak_rss_mb:.0f} MiB, {run.wall_s:.0f} s")
         shutil.rmtree(capture)
-        with atomic_write(args.out / "long_capture_memory.json") as handle:
+        with atomic_write(out / "long_capture_memory.json") as handle:
             json.dump([asdict(r) for r in runs], handle)
-    plot(runs, args.out / "long_capture_memory.png", load_runs(args.peer) if args.peer else None)
-    peaks = np.array([r.peak_rss_mb for r in runs])
-    print(f"peak RSS {peaks.min():.0f}..{peaks.max():.0f} MiB over {args.lengths} frames")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    plot(runs, out / "long_capture_memory.png", load_runs(peer) if peer else None)
+    return runs
