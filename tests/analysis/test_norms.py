@@ -13,6 +13,7 @@ import tomllib
 
 from spinemocap.analysis.norms import MOVEMENTS, load_norms, norms_path, subject_profile
 from spinemocap.app.report import REFERENCE_COLUMNS, _reference_html, _view_links, reference_table
+from spinemocap.app.trial_summary import TrialSummary
 from spinemocap.camera import Camera, Rig
 from spinemocap.capture import Capture
 from spinemocap.fileio import InputError
@@ -160,6 +161,12 @@ def test_placement_and_subject_profile():
     assert bad.age is None and bad.sex is None and len(bad.problems) == 2
 
 
+def _summary(key: str, subject: str, capture) -> TrialSummary:
+    """A tracked trial's summary as the batch writes it (only its identity matters here)."""
+    return TrialSummary(key=key, subject=subject, condition="flex", trial=key.rsplit("/", 1)[-1],
+                        capture=str(capture), source="tracked", status="ok", reason="", out_dir=str(capture))
+
+
 def _trial_row(key: str, subject: str, **values) -> dict:
     row = {"key": key, "subject": subject, "status": "ok"}
     row.update({column: np.nan for _, column, _ in REFERENCE_COLUMNS})
@@ -185,9 +192,8 @@ def test_reference_table_from_trials(tmp_path):
         _trial_row("S01/flex/2", "S01", flexion_from_neutral_deg=52.0),
         _trial_row("S02/flex/1", "S02", flexion_from_neutral_deg=80.0),
     ])
-    results = [{"key": "S01/flex/1", "subject": "S01", "capture": captures["a"]},
-               {"key": "S02/flex/1", "subject": "S02", "capture": captures["b"]},
-               {"key": "S01/flex/2", "subject": "S01", "capture": captures["c"]}]
+    results = [_summary("S01/flex/1", "S01", captures["a"]), _summary("S02/flex/1", "S02", captures["b"]),
+               _summary("S01/flex/2", "S01", captures["c"])]
     table = reference_table(trials, results)
     norms = load_norms()
     assert set(table["source"]) <= set(norms.sources) and (table["source"] != "").all()
@@ -228,7 +234,7 @@ def test_report_shows_the_band_it_used_and_marks_a_value_outside_it(tmp_path):
                  ("c", {"id": "U45", "age": 45}))}
     # 70 deg: above the women's band (52-68) but inside the men's (55-71) and the pooled span (40-70)
     trials = pd.DataFrame([_trial_row(f"{s}/flex/1", s, flexion_from_neutral_deg=70.0) for s in ("W25", "M25", "U45")])
-    results = [{"key": f"{s}/flex/1", "subject": s, "capture": captures[c]}
+    results = [_summary(f"{s}/flex/1", s, captures[c])
                for s, c in (("W25", "a"), ("M25", "b"), ("U45", "c"))]
     table = reference_table(trials, results, banded)
     flexion = table[table["movement"] == "flexion"].set_index("subject")
@@ -262,7 +268,7 @@ def test_shipped_file_gives_a_young_woman_the_most_specific_span_and_marks_a_val
     extension_inside = (expected["extension"].low_deg + expected["extension"].high_deg) / 2
     trials = pd.DataFrame([_trial_row("W25/flex/1", "W25", flexion_from_neutral_deg=flexion_outside,
                                       extension_from_neutral_deg=extension_inside)])
-    table = reference_table(trials, [{"key": "W25/flex/1", "subject": "W25", "capture": capture}])
+    table = reference_table(trials, [_summary("W25/flex/1", "W25", capture)])
     rows = table.set_index("movement")
     for movement, value in expected.items():
         row = rows.loc[movement]

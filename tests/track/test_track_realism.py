@@ -15,6 +15,7 @@ import pytest
 from tape_scenes import SPEC, blobs, rig_behind, tape_on_back
 
 from spinemocap.app.run import TrackingWarning, run_tracking
+from spinemocap.app.trial_summary import TrialSummary
 from spinemocap.camera import Rig
 from spinemocap.track.config import TrackerConfig
 from spinemocap.track.continuity import relabel_rows, row_shift
@@ -265,7 +266,8 @@ def test_the_report_lists_flagged_frames_from_markers_csv(tmp_path):
     table = MarkerTable.from_arrays(SPEC.labels, dots, 100.0, status=status, confidence=confidence,
                                     stretch=np.ones(dots.shape[:2]))
     exporters.write(table, tmp_path / "markers.csv")
-    results = [{"key": "s1/t1", "status": "ok", "source": "tracked", "out_dir": str(tmp_path)}]
+    results = [TrialSummary(key="s1/t1", subject="s1", condition="", trial="t1", capture=str(tmp_path),
+                            source="tracked", status="ok", reason="", out_dir=str(tmp_path))]
     quality = tracking_quality_table(results)
     assert quality.to_dict("records") == [{"key": "s1/t1", "flagged_frames": 1, "of_frames": 4, "frames": "1",
                                           "median_stretch": 1.0}]
