@@ -47,7 +47,7 @@ class BlobParams:
     max_area: float = 2.2
     max_major: float = 1.7         # longest ellipse axis <= max_major * d
     min_axis_ratio: float = 0.1    # minor / major axis (oblique views flatten dots)
-    min_oblique_major: float = 0.6  # a flattened blob with a major axis >= this * d is a dot seen obliquely
+    min_oblique_major: float = 0.4  # a flattened blob this * d long is a dot seen obliquely (the threshold trims its thin ends)
     min_fill: float = 0.65         # area / ellipse area from moments (rejects ragged shapes)
     merge_distance: float = 0.5    # centres closer than merge_distance * d are one dot
     min_ring_on_tape: float = 0.6  # share of the ring around a blob that must lie on the tape
