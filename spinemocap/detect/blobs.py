@@ -12,8 +12,9 @@ Per region:
 3. dot contrast = 99.5th percentile of the smoothed top-hat on the tape; no dots when it is weak
    or not well above the tape's own texture (median top-hat); threshold at half the contrast;
 4. dot size: given, or the blobs' median long axis (the mask-width guess shrinks in oblique views);
-5. keep blobs whose area, axes and fill fit a dot, whose surrounding ring lies on the tape, and
-   which do not touch the frame border;
+5. keep blobs whose area (against a dot seen as obliquely as the blob: :func:`foreshortening`),
+   axes and fill fit a dot, whose surrounding ring lies on the tape, and which do not touch the
+   frame border;
 6. centre = centroid of the top-hat over the blob plus a rim, scaled by the blob's own interior
    level and clipped to [0, 1]: the inside weighs 1 (shading cannot pull it), anti-aliased rim
    pixels weigh their coverage (the sub-pixel part);
