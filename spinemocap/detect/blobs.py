@@ -12,8 +12,9 @@ Per region:
 3. dot contrast = 99.5th percentile of the smoothed top-hat on the tape; no dots when it is weak
    or not well above the tape's own texture (median top-hat); threshold at half the contrast;
 4. dot size: given, or the blobs' median long axis (the mask-width guess shrinks in oblique views);
-5. keep blobs whose area, axes and fill fit a dot, whose surrounding ring lies on the tape, and
-   which do not touch the frame border;
+5. keep blobs whose area (against a dot seen as obliquely as the blob: :func:`foreshortening`),
+   axes and fill fit a dot, whose surrounding ring lies on the tape, and which do not touch the
+   frame border;
 6. centre = centroid of the top-hat over the blob plus a rim, scaled by the blob's own interior
    level and clipped to [0, 1]: the inside weighs 1 (shading cannot pull it), anti-aliased rim
    pixels weigh their coverage (the sub-pixel part);
@@ -43,10 +44,11 @@ class BlobParams:
     """Tuning of :func:`find_dots`; sizes are fractions of the expected dot diameter ``d``."""
 
     margin: float = 0.3            # mask grown by margin * d (dots on the mask's edge count)
-    min_area: float = 0.15         # blob area in units of the expected dot area pi d^2 / 4
+    min_area: float = 0.15         # blob area in units of the expected area of a dot seen at the blob's obliquity
     max_area: float = 2.2
     max_major: float = 1.7         # longest ellipse axis <= max_major * d
-    min_axis_ratio: float = 0.25   # minor / major axis (oblique views flatten dots)
+    min_axis_ratio: float = 0.1    # minor / major axis (oblique views flatten dots)
+    min_oblique_major: float = 0.4  # a flattened blob this * d long is a dot seen obliquely (the threshold trims its thin ends)
     min_fill: float = 0.65         # area / ellipse area from moments (rejects ragged shapes)
     merge_distance: float = 0.5    # centres closer than merge_distance * d are one dot
     min_ring_on_tape: float = 0.6  # share of the ring around a blob that must lie on the tape
@@ -408,7 +410,7 @@ def _region_dots(
     major, minor = blobs.ellipse_axes(np.maximum(0, x - rim), np.maximum(0, y - rim))
     with np.errstate(divide="ignore", invalid="ignore"):
         fill = area / (math.pi * major * minor / 4.0)
-    candidate = ((p.min_area * dot_area <= area) & (area <= p.max_area * dot_area)
+    candidate = ((area >= p.min_area * dot_area * foreshortening(major, minor, d, p)) & (area <= p.max_area * dot_area)
                  & ~(major > p.max_major * d) & ~(minor < p.min_axis_ratio * major) & ~(fill < p.min_fill))
     candidate[0] = False
     # Each candidate's support: its pixels and the background within the rim of it (pixels of
@@ -442,6 +444,18 @@ def _region_dots(
     mean_contrast = (mean_smooth[i] - floor) / scale
     scores = _confidences(area[i] / dot_area, minor[i] / major[i], fill[i], mean_contrast / 0.8)
     return merge_close(centres, scores, p.merge_distance * d)
+
+
+def foreshortening(major: np.ndarray, minor: np.ndarray, d: float, p: BlobParams) -> np.ndarray:
+    """Per blob, the share of a face-on dot's area (``pi d^2 / 4``) that a dot seen as this
+    blob covers: a circle seen at angle a from face-on is an ellipse whose major axis keeps the
+    diameter and whose minor axis and area shrink by cos a. ``major``, ``minor``: the blobs'
+    ellipse axes (px), ``d`` the expected dot diameter (px). A blob whose major axis is at least
+    ``p.min_oblique_major * d`` is taken for such an ellipse (its axis ratio, at most 1); a
+    shorter one (a speck, a fragment) counts as face-on (1)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.minimum(minor / major, 1.0)
+    return np.where((major >= p.min_oblique_major * d) & (ratio > 0), ratio, 1.0)
 
 
 def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

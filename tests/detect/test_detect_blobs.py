@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from spinemocap.detect.blobs import estimate_dot_diameter, fill_holes, find_dots
+from spinemocap.detect.blobs import BlobParams, estimate_dot_diameter, fill_holes, find_dots
 from spinemocap.detect.drawn import draw_sample
 
 
@@ -83,3 +83,35 @@ def test_full_resolution_frame():
 def test_mask_shape_mismatch_is_an_error():
     with pytest.raises(ValueError, match="mask shape"):
         find_dots(np.zeros((10, 10, 3), np.uint8), np.zeros((10, 11), bool))
+
+
+def _tape_with_oblique_dot_and_speck(d: float, axis_ratio: float, speck_diameter: float) -> tuple[np.ndarray, np.ndarray]:
+    """Dark tape (grey 70) with two face-on dots of diameter ``d`` px, a dot seen obliquely (an
+    ellipse of major axis ``d`` and ``axis_ratio``, tilted 30 deg) at (140, 60) and a round speck
+    of ``speck_diameter`` at (210, 60); anti-aliased by drawing at 8x and shrinking."""
+    s, h, w = 8, 120, 260
+    big = np.full((h * s, w * s), 70, np.uint8)
+    for centre, axes, angle in (((30, 40), (d, d), 0), ((80, 40), (d, d), 0),
+                                ((140, 60), (d, d * axis_ratio), 30), ((210, 60), (speck_diameter, speck_diameter), 0)):
+        cv2.ellipse(big, ((centre[0] * s, centre[1] * s), (axes[0] * s, axes[1] * s), angle), 210, -1, cv2.LINE_AA)
+    mask = np.zeros((h, w), bool)
+    mask[10:110, 5:255] = True
+    return cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA), mask
+
+
+def test_an_obliquely_seen_dot_is_found_and_a_speck_of_its_area_is_not():
+    d, axis_ratio = 24.0, 0.2
+    # The detector's smoothing and half-contrast threshold keep ~60 % of so thin an ellipse: the
+    # speck has the area of the ellipse's blob, below the face-on floor (0.15 of a dot's area).
+    speck = d * np.sqrt(0.6 * axis_ratio)
+    image, mask = _tape_with_oblique_dot_and_speck(d, axis_ratio, speck)
+    uv, _ = find_dots(image, mask, expected_dot_px=d)
+    near = lambda x, y: np.linalg.norm(uv - [x, y], axis=1) < 2  # noqa: E731
+    assert near(30, 40).sum() == 1 and near(80, 40).sum() == 1
+    assert near(140, 60).sum() == 1, "the dot seen obliquely is missed"
+    assert not near(210, 60).any(), "the round speck passed for a dot"
+    assert len(uv) == 3
+    # one area floor for all blobs (a face-on dot's) loses the oblique dot
+    face_on_only = BlobParams(min_axis_ratio=0.25, min_oblique_major=np.inf)
+    uv, _ = find_dots(image, mask, expected_dot_px=d, params=face_on_only)
+    assert len(uv) == 2

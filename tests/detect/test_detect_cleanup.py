@@ -57,12 +57,14 @@ def _reference_region_dots(grey, filled, region, d, p, touches_border, size_from
     centres, scores = [], []
     for i in range(1, n):
         x, y, bw, bh, area = stats[i]
-        if not p.min_area * dot_area <= area <= p.max_area * dot_area:
-            continue
         ys, xs = slice(max(0, y - rim), y + bh + rim), slice(max(0, x - rim), x + bw + rim)
         window = labels[ys, xs]
         blob = window == i
         major, minor = _ellipse_shape(blob)
+        # a blob at least min_oblique_major * d long: a dot seen obliquely, its area shrunk by its axis ratio
+        seen_share = min(minor / major, 1.0) if major >= p.min_oblique_major * d else 1.0
+        if not p.min_area * dot_area * seen_share <= area <= p.max_area * dot_area:
+            continue
         fill = area / (math.pi * major * minor / 4.0)
         if major > p.max_major * d or minor < p.min_axis_ratio * major or fill < p.min_fill:
             continue
