@@ -13,8 +13,9 @@ Per region:
    or not well above the tape's own texture (median top-hat); threshold at half the contrast;
 4. dot size: given, or the blobs' median long axis (the mask-width guess shrinks in oblique views);
 5. keep blobs whose area (against a dot seen as obliquely as the blob: :func:`foreshortening`),
-   axes and fill fit a dot, whose surrounding ring lies on the tape, and which do not touch the
-   frame border;
+   axes and fill fit a dot, whose surrounding ring lies on the tape, which do not border a bright
+   area the kernel fits in (the top-hat carves rim slivers off a bright disc larger than a dot,
+   such as a lamp's LED), and which do not touch the frame border;
 6. centre = centroid of the top-hat over the blob plus a rim, scaled by the blob's own interior
    level and clipped to [0, 1]: the inside weighs 1 (shading cannot pull it), anti-aliased rim
    pixels weigh their coverage (the sub-pixel part);
@@ -424,6 +425,7 @@ def _region_dots(
            slice(int(cx.min()), int((cx + stats[c, cv2.CC_STAT_WIDTH]).max())))
     ring = _ring_pixels(labels, candidate, _disc(2 * rim - 1), box)
     ring_share = blobs.ring_share(ring, filled)
+    carved = _carved_from_larger_area(blobs, labels, candidate, box, grey, tophat, filled, 0.5 * contrast)
     level = blobs.percentiles(tophat, 60) - floor
     sums = blobs.weighted_sums(ring, candidate, tophat, floor, np.maximum(level, 1e-3))
     mean_smooth = blobs.means(smooth)
@@ -433,7 +435,8 @@ def _region_dots(
     i = np.flatnonzero(candidate)
     bw, bh = stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]
     total = sums[i, 0]
-    i = i[~(ring_share[i] < p.min_ring_on_tape) & ~np.asarray(touches_border(y[i], x[i], bh, bw), bool) & ~(total <= 0)]
+    i = i[~(ring_share[i] < p.min_ring_on_tape) & ~carved[i] & ~np.asarray(touches_border(y[i], x[i], bh, bw), bool)
+          & ~(total <= 0)]
     if not len(i):
         return np.zeros((0, 2)), np.zeros(0)
     # Sub-pixel centre: top-hat intensity (floor removed, clipped) over the blob plus a rim, so
@@ -444,6 +447,21 @@ def _region_dots(
     mean_contrast = (mean_smooth[i] - floor) / scale
     scores = _confidences(area[i] / dot_area, minor[i] / major[i], fill[i], mean_contrast / 0.8)
     return merge_close(centres, scores, p.merge_distance * d)
+
+
+def _carved_from_larger_area(blobs: "_Blobs", labels: np.ndarray, candidate: np.ndarray, box: tuple[slice, slice],
+                             grey: np.ndarray, tophat: np.ndarray, filled: np.ndarray, half_contrast: float) -> np.ndarray:
+    """Per label: a candidate blob that borders (8-connected), on the tape mask ``filled``, a
+    pixel of a bright area the top-hat's kernel fits in: its opening (``grey`` less ``tophat``)
+    exceeds the blob's own by ``half_contrast`` (the threshold that cut the blobs).
+
+    A hole in the tape is enclosed by tape, whose opening is the tape's level; the square top-hat
+    also keeps the rim segments of a bright disc larger than a dot (a lamp, an LED ring's lights)
+    where no square fits, and each borders the disc's bright inside."""
+    ys, xs, owner = _ring_pixels(labels, candidate, np.ones((3, 3), np.uint8), box)
+    blob_opening = blobs.means(grey) - blobs.means(tophat)
+    lit = (grey[ys, xs].astype(np.float32) - tophat[ys, xs] > blob_opening[owner] + half_contrast) & filled[ys, xs]
+    return np.bincount(owner, weights=lit, minlength=blobs.n) > 0
 
 
 def foreshortening(major: np.ndarray, minor: np.ndarray, d: float, p: BlobParams) -> np.ndarray:

@@ -115,3 +115,27 @@ def test_an_obliquely_seen_dot_is_found_and_a_speck_of_its_area_is_not():
     face_on_only = BlobParams(min_axis_ratio=0.25, min_oblique_major=np.inf)
     uv, _ = find_dots(image, mask, expected_dot_px=d, params=face_on_only)
     assert len(uv) == 2
+
+
+def _dark_panel_with_dots_and_a_lamp(d: float, lamp_diameter: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
+    """A dark panel (the mask covers all of it) with a row of bright dots of diameter ``d`` and one
+    bright disc (a lamp) of ``lamp_diameter``; returns (grey, mask, dot centres (N, 2), lamp centre)."""
+    grey = np.full((120, 200), 30, np.uint8)
+    dots = np.array([(30 + 2.5 * d * k, 40) for k in range(4)], float)
+    for u, v in dots:
+        cv2.circle(grey, (int(u), int(v)), int(d / 2), 230, -1, cv2.LINE_AA)
+    lamp = (100, 90)
+    cv2.circle(grey, lamp, int(lamp_diameter / 2), 230, -1, cv2.LINE_AA)
+    return grey, np.ones(grey.shape, bool), dots, lamp
+
+
+def test_slivers_the_top_hat_carves_off_a_bright_disc_larger_than_a_dot_are_not_dots():
+    # The square top-hat (1.4 d + 2 wide) keeps the rim segments of a larger disc where no square
+    # fits; their rings hold the disc's bright inside, so they are not holes in the tape.
+    d = 8.0
+    for lamp_diameter in (2.2 * d, 3.0 * d):
+        grey, mask, dots, lamp = _dark_panel_with_dots_and_a_lamp(d, lamp_diameter)
+        uv, _ = find_dots(grey, mask, expected_dot_px=d)
+        assert len(uv) == len(dots)
+        assert np.abs(np.sort(uv[:, 0]) - dots[:, 0]).max() < 0.6
+        assert np.all(np.hypot(uv[:, 0] - lamp[0], uv[:, 1] - lamp[1]) > lamp_diameter / 2 + d)

@@ -72,6 +72,11 @@ def _reference_region_dots(grey, filled, region, d, p, touches_border, size_from
         ring = support & ~blob
         if ring.any() and filled[ys, xs][ring].mean() < p.min_ring_on_tape:
             continue
+        # a pixel next to it on the tape lies in a bright area the kernel fits in
+        opening = grey[ys, xs] - tophat[ys, xs]
+        beside = cv2.dilate(blob.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & (window == 0)
+        if (beside & filled[ys, xs] & (opening > float(opening[blob].mean()) + 0.5 * contrast)).any():
+            continue
         if touches_border(y, x, bh, bw):
             continue
         level = float(np.percentile(tophat[ys, xs][blob], 60)) - floor
