@@ -10,8 +10,9 @@ one camera image there, writes its grey image (MRF2's evidence) next to it in th
 returns the dots plus the tape mask as its bounding box and the crop inside it (the mask is empty
 elsewhere), so only a few kB travel back through the pool's pipe.
 
-Detection of a frame ends before the next one's starts (sequence-mode prediction needs the
-previous frame solved). The reading thread copies the next frames into a ring of blocks while a
+With prediction, detection of a frame ends before the next one's starts (sequence-mode
+prediction needs the previous frame solved); frames searched in full may be detected at once
+(:meth:`CameraProcesses.detect` may be called from several threads). The reading thread copies the next frames into a ring of blocks while a
 frame is detected (:meth:`CameraProcesses.stage`), so the copy is off the tracker's path. Workers ignore SIGINT (the
 parent stops them: Ctrl-C ends the run in the parent, which terminates its workers) and exit by
 themselves when the parent dies.
@@ -116,7 +117,7 @@ class CameraProcesses:
     of boxes to search or None (the full two-stage search, stage 1 on that image alone), and
     returns :class:`ViewDots` exactly as ``Detector.detect`` in this process would. A reading
     thread may copy frames into shared memory ahead of detection with :meth:`stage` (a ring of
-    ``staged`` blocks: at most ``staged - 1`` frames staged ahead of the one being detected).
+    ``staged`` blocks: as many frames staged or in detection at once).
     Raises :class:`ProcessesUnavailable` when the processes cannot start; :meth:`close` stops them
     and frees the shared memory (also on Ctrl-C)."""
 
@@ -128,6 +129,7 @@ class CameraProcesses:
         self._direct = _Block()          # frames not staged are copied here when detected
         self._last: _Block | None = None  # the block of the last detection
         self._lock = threading.Lock()
+        self._direct_lock = threading.Lock()  # one frame at a time in the direct block
         self._closed = False
         self.startup_s = self.cpu_s = float("nan")  # start-up wall s; workers' CPU s after it (at close)
         self.calls, self.slowest_s = 0, 0.0  # detect() calls; sum over them of the slowest worker's seconds
@@ -186,22 +188,26 @@ class CameraProcesses:
         """Detect the images of ``cameras`` (indices into ``images``, one BGR uint8 image per
         camera), camera ``cameras[k]`` in the boxes ``boxes[k]`` (None: the full search); one
         :class:`ViewDots` per entry of ``cameras``. ``copy=False``: the last detection's block
-        already holds these images (a second pass over the same frame)."""
+        already holds these images (a second pass over the same frame). Staged frames may be
+        detected from several threads at once; frames that are not staged take turns."""
         if isinstance(images, StagedImages) and images.owner is self:
-            block = images.block
-        elif copy or self._last is None:
-            block = self._direct
-            block.fill(images)
-        else:
-            block = self._last
+            return self._detect_in(images.block, cameras, boxes)
+        with self._direct_lock:
+            if copy or self._last is None:
+                self._direct.fill(images)
+                return self._detect_in(self._direct, cameras, boxes)
+            return self._detect_in(self._last, cameras, boxes)
+
+    def _detect_in(self, block: _Block, cameras: Sequence[int], boxes: Sequence[list[Box] | None]) -> list[ViewDots]:
         self._last = block
         memory = block.memory
         assert memory is not None
         futures = [self._workers().submit(_worker_detect, memory.name, block.layout[c], c, None if b is None else list(b))
                    for c, b in zip(cameras, boxes)]
         results = [future.result() for future in futures]
-        self.calls += 1
-        self.slowest_s += max((r[-1] for r in results), default=0.0)
+        with self._lock:
+            self.calls += 1
+            self.slowest_s += max((r[-1] for r in results), default=0.0)
         return [self._view_dots(block, c, result[:-1]) for c, result in zip(cameras, results)]
 
     def _view_dots(self, block: _Block, camera: int, result: tuple) -> ViewDots:

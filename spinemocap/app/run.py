@@ -45,7 +45,14 @@ from ..track.template import tape_frames
 from ..views import ViewDots
 from .reference import observe_reference, pose_doubt, source_images
 from .results import TrackingStopped, write_markers
-from .streaming import CaptureDetector, DetectionRoute, SpeedOptions, detected_ahead, prefetched_frames
+from .streaming import (
+    CaptureDetector,
+    DetectionRoute,
+    SpeedOptions,
+    detected_ahead,
+    detected_at_once,
+    prefetched_frames,
+)
 
 log = logging.getLogger(__name__)
 
@@ -368,6 +375,9 @@ def source_views(source: FrameSource, frames: Sequence[int], detect: CaptureDete
     frames_in = prefetched_frames(source, frames, mask_dir if read_masks else None,
                                   workers=speed.n_workers(len(source.camera_names)), prefetch=speed.prefetch,
                                   stage=detect.stage if detect.parallel == "processes" else None)
+    if speed.frames_at_once > 1:
+        yield from detected_at_once(frames_in, detect, speed.frames_at_once)
+        return
     if speed.lookahead > 0 and detect.streams:
         yield from detect.stream(frames_in, speed.lookahead)
         return

@@ -39,6 +39,7 @@ import queue
 import threading
 import time
 import warnings
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -122,9 +123,15 @@ class SpeedOptions:
         refresh_settled_every: with ``refresh="camera"``, the period of a *settled* camera (its
             last search found at least the dots of the one before, its box at least
             ``SETTLED_EDGE_PX`` inside the image); 0: ``refresh_every``.
+        frames_at_once: frames detected at the same time, their camera images sharing the
+            workers (then ``workers`` 0 means one per CPU core, not capped at the cameras; with
+            ``parallel="processes"`` each worker a process of its own). Needs ``predict=False``:
+            every frame is searched in full, so no frame waits for another's solution and the
+            views are those of one frame at a time, whatever the timing. 1: one frame at a time.
 
     Raises:
-        InputError: a negative ``lookahead``, an unknown ``refresh`` or a period below 1.
+        InputError: a negative ``lookahead``, an unknown ``refresh``, a period below 1, or
+            ``frames_at_once`` below 1 or above 1 with prediction on.
     """
 
     workers: int = 0
@@ -144,6 +151,7 @@ class SpeedOptions:
     precision: str = "auto"
     refresh: str = "frame"
     refresh_settled_every: int = 0
+    frames_at_once: int = 1
 
     def __post_init__(self) -> None:
         if self.lookahead < 0:
@@ -153,13 +161,21 @@ class SpeedOptions:
         if self.refresh_every < 1 or self.refresh_settled_every < 0:
             raise InputError("--refresh-every", f"must be 1 or more (settled: 0 or more), got {self.refresh_every}, "
                              f"{self.refresh_settled_every}")
+        if self.frames_at_once < 1:
+            raise InputError("--frames-at-once", f"must be 1 or more, got {self.frames_at_once}")
+        if self.frames_at_once > 1 and self.predict:
+            raise InputError("--frames-at-once", "frames detected at once are each searched in full: "
+                             "turn prediction off (--no-predict)")
 
     def camera_period(self, settled: bool) -> int:
         """Frames between a camera's full searches (``refresh="camera"``)."""
         return self.refresh_settled_every if settled and self.refresh_settled_every > 0 else self.refresh_every
 
     def n_workers(self, n_cameras: int) -> int:
-        return max(1, min(n_cameras, self.workers or os.cpu_count() or 1))
+        """Processes or threads for ``n_cameras`` cameras: ``workers`` (0: one per CPU core), at
+        most one per camera unless several frames are detected at once."""
+        wanted = self.workers or os.cpu_count() or 1
+        return max(1, wanted if self.frames_at_once > 1 else min(n_cameras, wanted))
 
 
 SERIAL = SpeedOptions(workers=1, parallel="threads", prefetch=0, predict=False, batch=False, device="cpu", opencv_threads=None,
@@ -322,6 +338,43 @@ def detected_ahead(frames_in: Iterator[tuple[int, list[np.ndarray | None], list[
         thread.join()
 
 
+def detected_at_once(frames_in: Iterator[tuple[int, list[np.ndarray | None], list[np.ndarray | None] | None]],
+                     detect: "CaptureDetector", at_once: int) -> Iterator[tuple[int, list, float]]:
+    """Yield ``(frame, views, wait_ms)`` for the tracker, in order, with up to ``at_once`` frames
+    detected at the same time (``SpeedOptions.frames_at_once``: their camera images share the
+    detector's workers). Every frame is searched in full (``detect`` must not predict), so the
+    views are those of detecting the frames one after the other. Memory stays bounded: at most
+    ``at_once`` frames are held beyond the reader's. ``wait_ms``: the time the tracker waited for
+    the frame (reading not hidden by the prefetching, plus detection). Errors of the reader or
+    detector are raised here; closing the generator waits for the detections under way."""
+    if detect.predicts:
+        raise ValueError("frames detected at once must be searched in full (prediction off)")
+    pool = ThreadPoolExecutor(max(1, at_once), thread_name_prefix="detect-frame")
+    pending: deque = deque()
+    frames_in = iter(frames_in)
+    try:
+        more = True
+        while True:
+            t0 = time.perf_counter()
+            while more and len(pending) < at_once:
+                item = next(frames_in, None)
+                if item is None:
+                    more = False
+                    break
+                frame, images, masks = item
+                pending.append((frame, pool.submit(detect, frame, images, masks if detect.needs_masks else None)))
+            if not pending:
+                return
+            frame, future = pending.popleft()
+            views = future.result()
+            yield frame, views, 1000 * (time.perf_counter() - t0)
+    finally:
+        for _, future in pending:
+            future.cancel()
+        pool.shutdown(wait=True)
+        _close(frames_in)
+
+
 # ---------------------------------------------------------------------- detection
 class CaptureDetector:
     """``(frame, images, masks) -> [ViewDots per camera]`` for one rig (see the module docstring).
@@ -400,7 +453,8 @@ class CaptureDetector:
         from ..detect.detector import resolve_device
 
         device = resolve_device(self.options.device) if self.name == "net" else "cpu"
-        staged = self.options.prefetch + 2 if self.options.prefetch > 0 else 0  # see CameraProcesses.stage
+        # see CameraProcesses.stage: the frames in detection, those queued by the reader and the one it stages
+        staged = self.options.prefetch + self.options.frames_at_once + 1 if self.options.prefetch > 0 else 0
         try:
             return CameraProcesses(self.name, self._n, device, staged=staged,
                                    precision=self.options.precision if self.name == "net" else "float32",
@@ -469,7 +523,7 @@ class CaptureDetector:
         if not self.predicts:
             if self.detector is not None and self.detector.searches_boxes and self.options.batch:
                 return self._full(images, range(len(images)))
-            self.searches["full"] += len(images)
+            self._count("full", len(images))
             return self._run(images, range(len(images)), [None] * len(images))
         plan = self._plan(frame)
         if self._cameras_whole_in_pool():
@@ -516,11 +570,15 @@ class CaptureDetector:
                 if masks is None or masks[c] is None:
                     raise InputError(None, "detector 'mask' needs tape masks (synthetic captures have masks/)")
                 return _dots_in_mask(c, image, masks[c])
-            with self._searches_lock:
-                self.searches["full"] += 1
+            self._count("full", 1)
             return self._detect(c, image, None)
 
         return self._map(view, range(len(images)))
+
+    def _count(self, route: DetectionRoute, images: int) -> None:
+        """Count ``images`` camera images searched by ``route`` (frames may be detected at once)."""
+        with self._searches_lock:
+            self.searches[route] += images
 
     def _note_missing(self, camera: int, frame: int) -> None:
         with self._searches_lock:
@@ -591,7 +649,7 @@ class CaptureDetector:
             views = self._run(images, cameras, [None] * len(cameras), copy)
         else:
             views = self._run(images, cameras, self._loaded_detector().tape_boxes([images[c] for c in cameras]))
-        self.searches["full"] += len(cameras)
+        self._count("full", len(cameras))
         if self.predicts and len(cameras) == len(images):  # what prediction starts from (unused without it)
             self._remember(views)
         return views

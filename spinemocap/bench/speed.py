@@ -42,6 +42,7 @@ from ..track.evaluate import evaluate_tracking
 # "Not worse": mean error within this of the peer's (sub-pixel differences of the predicted
 # boxes' masks move a few dot centres by ~0.01 px), and no more swaps or unsolved frames.
 ACCURACY_TOLERANCE_MM = 0.01
+SAME_ACCURACY_MM = 0.02  # the GPU path's mean and p95 error within this of the CPU path's
 GOALS_FPS = {"in_memory_cpu2": 10.0, "video_cpu2": 5.0, "gpu": 100.0}
 REPLAYED = ("dots", "visible", "dot_normals", "keypoints")  # per-frame ground truth (replayed alike)
 FFV1_FRAMES = 10  # frames of the previous video format decoded as the decoding peer
@@ -185,7 +186,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
                          serial_peer: bool = True, speed: SpeedOptions | None = None, sensor_noise: float = 0.0,
                          progress: bool = True, say: Callable[[str], None] = print, cpu_peer: bool = True,
                          parallel_peer: bool = True, video_frames: int = 0, workdir: Path | None = None,
-                         lookahead_peer: bool = False) -> dict:
+                         lookahead_peer: bool = False, default_peer: bool = True, budget: bool = True) -> dict:
     """In-memory speed of an existing synthetic capture (e.g. a few frames carried to a machine
     that cannot render): its frames played forward and backward (:func:`replay_order`) for
     ``frames`` frames, the ground truth replayed alike; the new pipeline and the serial peer.
@@ -196,7 +197,10 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
     ``video_frames`` > 0: the first so many replayed frames (noise included) are also written as
     lossless UT Video into ``workdir`` (reused when there) and tracked from it, in both modes.
     ``lookahead_peer``: also the same pipeline with the other ``lookahead`` (0 when ``speed``
-    looks ahead, else 1; :func:`lookahead_numbers`).
+    looks ahead, else 1; :func:`lookahead_numbers`). ``default_peer``: when ``speed`` detects
+    several frames at once, also the pipeline's default options on the same device
+    (``in_memory_default``: one frame at a time, predicted boxes). ``budget``: the detection's
+    time per camera image by step, one image after the other (:func:`detection_budget`).
     Ground-truth masks are not replayed (the serial peer reads none here)."""
     from ..detect.detector import resolve_device
 
@@ -216,6 +220,8 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         configs.append((f"in_memory_{other}", replace(speed, parallel=other)))
     if lookahead_peer:
         configs.append((f"in_memory_lookahead{_peer_lookahead(speed)}", replace(speed, lookahead=_peer_lookahead(speed))))
+    if default_peer and speed.frames_at_once > 1:
+        configs.append(("in_memory_default", SpeedOptions(device=speed.device)))
     if device != "cpu" and cpu_peer:
         configs.append(("in_memory_cpu", replace(speed, device="cpu")))
     if serial_peer:
@@ -244,6 +250,12 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         say("detecting every source frame on the CPU and on the GPU (same dots?) ...")
         check = dots_on_devices(decoded, device)
         say(f"  {check}")
+    steps = None
+    if budget and detector == "net":
+        say(f"detection's time per camera image by step (network on {device}, one image at a time) ...")
+        steps = detection_budget(decoded, device, speed.precision)
+        say(f"  {steps}")
+    default = by_name.get("in_memory_default")
     return {
         "preset": f"capture {capture.name} replayed", "source_frames": capture.n_frames, "frames": frames,
         "sensor_noise": sensor_noise, "cameras": len(capture.rig), "image_size": list(capture.rig[0].size),
@@ -253,6 +265,9 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         "accuracy_not_worse": _not_worse(new, peer) if peer else None,
         "speedup_vs_cpu": new["fps"] / cpu["fps"] if cpu else None,
         "accuracy_not_worse_vs_cpu": _not_worse(new, cpu) if cpu else None,
+        "same_accuracy_as_cpu": same_accuracy(new, cpu) if cpu else None,
+        "speedup_vs_default": new["fps"] / default["fps"] if default else None,
+        "detection_budget_ms": steps,
         "parallel": parallel,
         "speedup_processes_vs_threads": (in_processes["fps"] / in_threads["fps"]
                                          if in_processes and in_threads else None),
@@ -373,6 +388,53 @@ def dots_on_devices(frames: list[list[np.ndarray]], device: str, match_px: float
             counts["images_identical"] += int(len(a) == len(b) and not differing
                                               and (not len(a) or float(near_a.max()) == 0.0))
     return counts
+
+
+def same_accuracy(run: dict, reference: dict, tolerance_mm: float = SAME_ACCURACY_MM) -> dict:
+    """``run``'s accuracy against ``reference``'s (e.g. the GPU path against the CPU path): the
+    differences of the mean and 95th-percentile errors (mm) and of the label swaps, and
+    ``same``: both within ``tolerance_mm`` and no more swaps or unsolved frames."""
+    mean = run["mean_error_mm"] - reference["mean_error_mm"]
+    p95 = run["p95_error_mm"] - reference["p95_error_mm"]
+    return {"mean_difference_mm": mean, "p95_difference_mm": p95,
+            "label_swaps": run["label_swaps"], "reference_label_swaps": reference["label_swaps"],
+            "same": bool(abs(mean) <= tolerance_mm and abs(p95) <= tolerance_mm
+                         and run["label_swaps"] <= reference["label_swaps"]
+                         and run["frames_without_solution"] <= reference["frames_without_solution"])}
+
+
+BUDGET_STEPS = ("network_stage1", "boxes", "network_stage2", "cleanup_and_dots", "instances_and_lattice", "grey_and_rest")
+
+
+def detection_budget(frames: list[list[np.ndarray]], device: str, precision: str = "auto") -> dict[str, float]:
+    """Mean wall ms per camera image of each step of the full two-stage search (one image after
+    the other, one thread, after one image of warm-up), keyed by :data:`BUDGET_STEPS`, plus
+    ``total``: stage 1's network pass and its boxes, stage 2's network passes, the
+    full-resolution clean-up that finds the dots, the kept instances and the lattice test, and
+    the grey conversion. ``frames``: per frame one BGR image per camera; ``device``: where the
+    network runs."""
+    from ..detect import Detector
+
+    detector = Detector("net", device=device, precision=precision)
+    images = [image for frame in frames for image in frame]
+    detector.detect(images[0], camera=0)  # warm-up: first-call set-up on the device
+    sums = dict.fromkeys(BUDGET_STEPS, 0.0)
+    for image in images:
+        n0, t0 = detector.network_s, time.perf_counter()
+        boxes = detector.tape_boxes([image])[0]
+        n1, t1 = detector.network_s, time.perf_counter()
+        detector.detect(image, camera=0, boxes=boxes)
+        n2, t2 = detector.network_s, time.perf_counter()
+        timings = detector.last_timings
+        sums["network_stage1"] += n1 - n0
+        sums["boxes"] += (t1 - t0) - (n1 - n0)
+        sums["network_stage2"] += n2 - n1
+        sums["cleanup_and_dots"] += timings["cleanup_s"] - (n2 - n1)
+        sums["instances_and_lattice"] += timings["segment_s"] - timings["cleanup_s"]
+        sums["grey_and_rest"] += (t2 - t1) - timings["segment_s"]
+    out = {step: 1000 * total / len(images) for step, total in sums.items()}
+    out["total"] = sum(out.values())
+    return out
 
 
 def _not_worse(new: dict, peer: dict) -> bool:
@@ -662,6 +724,17 @@ def format_report(numbers: dict) -> str:
     if numbers.get("speedup_vs_cpu") is not None:
         lines.append(f"  network on {numbers['device']}: {numbers['speedup_vs_cpu']:.2f}x the same pipeline's frames/s "
                      f"on the CPU; accuracy not worse: {numbers['accuracy_not_worse_vs_cpu']}")
+    if numbers.get("same_accuracy_as_cpu"):
+        same = numbers["same_accuracy_as_cpu"]
+        lines.append(f"  accuracy against the CPU path: mean {same['mean_difference_mm']:+.4f} mm, p95 "
+                     f"{same['p95_difference_mm']:+.4f} mm, swaps {same['label_swaps']} vs {same['reference_label_swaps']}: "
+                     f"{'same' if same['same'] else 'NOT the same'} (within {SAME_ACCURACY_MM} mm)")
+    if numbers.get("speedup_vs_default") is not None:
+        lines.append(f"  {numbers['speed_options']['frames_at_once']} frames at once: {numbers['speedup_vs_default']:.2f}x the "
+                     f"frames/s of the pipeline's defaults on the same device")
+    if numbers.get("detection_budget_ms"):
+        lines.append("  detection per camera image, one at a time (ms): "
+                     + ", ".join(f"{k} {v:.1f}" for k, v in numbers["detection_budget_ms"].items()))
     if numbers.get("device_check"):
         lines.append(f"  dots, GPU vs CPU (full search of every source image): {numbers['device_check']}")
     if numbers.get("speedup_vs_serial_in_memory") is not None:

@@ -36,6 +36,11 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
                         "--workdir) and track them from it")
     add_refresh_arguments(p)
     p.add_argument("--no-predict", action="store_true", help="full detector search in every frame")
+    p.add_argument("--frames-at-once", type=int, default=1,
+                   help="frames detected at the same time, each searched in full (implies --no-predict; --workers 0 "
+                        "then means one per CPU core); with --capture the pipeline's defaults run as the peer")
+    p.add_argument("--no-budget", action="store_true",
+                   help="with --capture: skip the detection's time per camera image by step")
     p.add_argument("--no-serial", action="store_true", help="skip the serial pipeline (the peer)")
     p.add_argument("--no-video", action="store_true", help="skip the video run")
     p.add_argument("--video-codec", default="utvideo", choices=("utvideo", "rawvideo"),
@@ -76,15 +81,15 @@ def run(args: argparse.Namespace) -> int:
     if args.precision is not None:
         chosen["precision"] = args.precision
     chosen.update(refresh_options(args))
-    speed = SpeedOptions(workers=args.workers, parallel=args.parallel,
-                         predict=not args.no_predict, device=args.device, opencv_threads=args.opencv_threads or None,
-                         **chosen)
+    speed = SpeedOptions(workers=args.workers, parallel=args.parallel, frames_at_once=args.frames_at_once,
+                         predict=not args.no_predict and args.frames_at_once <= 1, device=args.device,
+                         opencv_threads=args.opencv_threads or None, **chosen)
     if args.capture:
         numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_serial,
                                        speed, args.sensor_noise, progress=not args.no_progress,
                                        cpu_peer=not args.no_cpu_peer, parallel_peer=not args.no_parallel_peer,
                                        video_frames=args.video_frames, workdir=args.workdir,
-                                       lookahead_peer=not args.no_lookahead_peer)
+                                       lookahead_peer=not args.no_lookahead_peer, budget=not args.no_budget)
     else:
         numbers = run_speed_benchmark(args.preset, args.frames, args.occlusion, args.mode, args.detector, args.seed,
                                       args.workdir, serial_peer=not args.no_serial, video=not args.no_video,

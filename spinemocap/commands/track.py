@@ -62,6 +62,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "after frame t is solved, the exact serial order; 1: while frame t is solved, predicting "
                         "its tape boxes from frame t-1; default: the pipeline's)")
     add_refresh_arguments(p)
+    p.add_argument("--frames-at-once", type=int, default=1,
+                   help="frames detected at the same time, each searched in full (no predicted boxes): for a machine "
+                        "with more cores than cameras; --workers 0 then means one per CPU core (default 1)")
     p.add_argument("--opencv-threads", type=int, default=1,
                    help="OpenCV's own threads per camera thread while the cameras are detected in parallel "
                         "(default 1; 0: OpenCV's setting, one per core)")
@@ -114,7 +117,8 @@ def run_track(args: argparse.Namespace) -> int:
         chosen["precision"] = args.precision
     chosen.update(refresh_options(args))
     speed = SERIAL if args.serial else SpeedOptions(workers=args.workers, parallel=args.parallel,
-                                                    device=args.device,
+                                                    device=args.device, frames_at_once=args.frames_at_once,
+                                                    predict=args.frames_at_once <= 1,
                                                     opencv_threads=args.opencv_threads or None, **chosen)
     if args.chunk_frames is not None:
         return run_chunked(args, config, speed)

@@ -128,6 +128,9 @@ class NetSegmenter:
             raise InputError(None, "network runtime 'onnxruntime' runs float32 on the CPU only "
                                    f"(asked: {precision} on {self.device})")
         self.runtime = "onnxruntime" if self.onnx is not None else "torch"
+        # wall seconds spent in the network's passes so far, the copies to and from the device
+        # included (the copy back waits for the device): the detection budget's network share
+        self.network_s = 0.0
 
     def _onnx_session(self, threads: int | None, auto: bool) -> OnnxUNet:
         """The ONNX Runtime session in ``self.precision``; int8 chosen by ``auto`` falls back to
@@ -155,15 +158,19 @@ class NetSegmenter:
 
     def _logits_batch(self, views: np.ndarray) -> np.ndarray:
         """Logits (B, h, w) of equally sized BGR views (B, h, w, 3) in one network pass."""
+        start = time.perf_counter()
         padded, (h, w) = pad_to_multiple(np.moveaxis(views, 0, 2), self.model.stride)
         padded = np.moveaxis(padded, 2, 0)
         if self.onnx is not None:
-            return self.onnx(padded)[:, :h, :w]
-        with torch.inference_mode():
-            # the uint8 pixels travel to the device (a quarter of float32's bytes), converted there
-            pixels = torch.from_numpy(np.ascontiguousarray(padded)).to(self.device)
-            out = self.model(to_tensor(pixels).to(self.dtype))[:, 0, :h, :w]
-            return out.float().cpu().numpy()
+            logits = self.onnx(padded)[:, :h, :w]
+        else:
+            with torch.inference_mode():
+                # the uint8 pixels travel to the device (a quarter of float32's bytes), converted there
+                pixels = torch.from_numpy(np.ascontiguousarray(padded)).to(self.device)
+                out = self.model(to_tensor(pixels).to(self.dtype))[:, 0, :h, :w]
+                logits = out.float().cpu().numpy()
+        self.network_s += time.perf_counter() - start
+        return logits
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
         self._use_threads()
@@ -364,6 +371,7 @@ class Detector:
             raise ValueError("only the 'net' detector searches given boxes")
         t = time.perf_counter()
         found = self._segment.segment_boxes(image_bgr, boxes, grey)
+        self.last_timings["cleanup_s"] = time.perf_counter() - t  # network passes of stage 2 included
         if found.box is None:
             mask = kept_instances(found.mask)
         else:  # the same instances, labelled within the searched boxes (the mask is empty outside them)
@@ -376,6 +384,11 @@ class Detector:
             uv, confidence = uv[on_tape], confidence[on_tape]
         self.last_timings["segment_s"] = time.perf_counter() - t
         return MaskDots(mask, uv, confidence)
+
+    @property
+    def network_s(self) -> float:
+        """Wall seconds this detector has spent in network passes (0 for ``classical``)."""
+        return self._segment.network_s if isinstance(self._segment, NetSegmenter) else 0.0
 
     @property
     def searches_boxes(self) -> bool:

@@ -852,3 +852,99 @@ def test_the_benchmarks_machine_record_names_the_arithmetic_auto_resolves_to(mon
         monkeypatch.setattr("spinemocap.detect.segnet.cpu_has_vnni", lambda v=vnni: v)
         info = speed_bench.machine_info()
         assert info["cpu_vnni"] is vnni and info["auto_precision"] == expected
+
+
+# ---------------------------------------------------------------- several frames detected at once
+class _SlowRecorder(_Recorder):
+    """A :class:`_Recorder` whose detection takes ``seconds`` and that counts the frames being
+    detected at the same time (the most at once in ``most``)."""
+
+    predicts = False
+
+    def __init__(self, done: list, seconds: float, fail: int = -1):
+        import threading
+
+        super().__init__(done, fail)
+        self.seconds, self.now, self.most = seconds, 0, 0
+        self._lock = threading.Lock()
+
+    def __call__(self, frame, images, masks):
+        import time
+
+        with self._lock:
+            self.now += 1
+            self.most = max(self.most, self.now)
+        try:
+            time.sleep(self.seconds * (1 + (frame % 3 == 0)))  # some frames slower: out-of-order ends
+            return super().__call__(frame, images, masks)
+        finally:
+            with self._lock:
+                self.now -= 1
+
+
+def test_frames_detected_at_once_come_in_order_with_at_most_that_many_under_way():
+    import threading
+
+    from spinemocap.app.streaming import detected_at_once
+
+    frames = [(f, [np.zeros((2, 2, 3), np.uint8)], None) for f in range(10)]
+    detect = _SlowRecorder([], 0.02)
+    got = [frame for frame, views, wait_ms in detected_at_once(iter(frames), detect, 4) if views == [frame]]
+    assert got == list(range(10))
+    assert 2 <= detect.most <= 4  # frames overlapped, never more than asked
+    with pytest.raises(InputError, match="frame5.png"):
+        for _ in detected_at_once(iter(frames), _SlowRecorder([], 0.01, fail=5), 3):
+            pass
+    assert not any(t.name.startswith("detect-frame") for t in threading.enumerate())
+
+
+@pytest.mark.parametrize("parallel", ["threads", "processes"])
+def test_frames_detected_at_once_give_the_output_of_one_frame_at_a_time(parallel):
+    # every frame searched in full: the tracked dots cannot depend on which frame ended first
+    from spinemocap.bench.speed import MemorySource
+
+    scene, images = _rendered("tiny", 5)
+    source = MemorySource(images, scene.rig.names)
+
+    def track(options):
+        return track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"],
+                            progress=False, speed=options)
+
+    one = track(SpeedOptions(workers=2, predict=False, device="cpu"))
+    at_once = track(SpeedOptions(workers=3, predict=False, device="cpu", frames_at_once=3, parallel=parallel))
+    a, b = one.table.to_arrays(), at_once.table.to_arrays()
+    np.testing.assert_array_equal(a["positions"], b["positions"])
+    assert (a["status"] == b["status"]).all()
+    assert one.detector_searches == at_once.detector_searches == {**one.detector_searches, "full": 5 * len(scene.rig)}
+    assert at_once.detector_info["workers"] == 3  # workers not capped at one per camera
+    assert at_once.detector_info["parallel"] == parallel
+
+
+def test_frames_at_once_need_prediction_off_and_at_least_one_frame(tmp_path, capsys):
+    with pytest.raises(InputError, match="--no-predict"):
+        SpeedOptions(frames_at_once=2)
+    with pytest.raises(InputError, match="1 or more"):
+        SpeedOptions(frames_at_once=0, predict=False)
+    assert SpeedOptions(frames_at_once=4, predict=False, workers=5).n_workers(2) == 5  # not capped at the cameras
+    assert SpeedOptions(workers=5).n_workers(2) == 2
+
+
+def test_detection_budget_splits_a_camera_images_time_into_its_steps():
+    from spinemocap.bench.speed import BUDGET_STEPS, detection_budget
+
+    _, images = _rendered("tiny", 1)
+    steps = detection_budget(images, "cpu", "float32")
+    assert set(steps) == {*BUDGET_STEPS, "total"}
+    assert steps["network_stage1"] > 0 and steps["network_stage2"] > 0 and steps["cleanup_and_dots"] > 0
+    assert min(steps.values()) >= 0
+    assert steps["total"] == pytest.approx(sum(steps[s] for s in BUDGET_STEPS))
+
+
+def test_same_accuracy_holds_within_the_tolerance_and_fails_outside_it():
+    from spinemocap.bench.speed import SAME_ACCURACY_MM, same_accuracy
+
+    cpu = {"mean_error_mm": 0.40, "p95_error_mm": 0.80, "label_swaps": 0, "frames_without_solution": 0}
+    close = {**cpu, "mean_error_mm": 0.40 + SAME_ACCURACY_MM / 2}
+    assert same_accuracy(close, cpu)["same"]
+    assert not same_accuracy({**cpu, "p95_error_mm": 0.80 + 2 * SAME_ACCURACY_MM}, cpu)["same"]
+    assert not same_accuracy({**cpu, "label_swaps": 1}, cpu)["same"]
