@@ -44,7 +44,7 @@ from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterator, Literal, Sequence
+from typing import TYPE_CHECKING, Callable, Iterator, Literal, Sequence, cast
 
 import cv2
 import numpy as np
@@ -508,10 +508,11 @@ class CaptureDetector:
                  ) -> list[ViewDots]:
         """The views of capture frame ``frame``: one per camera, an empty one for a camera whose
         image is None (it has no frame there; recorded in :attr:`missing`)."""
-        present = [image for image in images if image is not None]
-        if len(present) < len(images):
+        if any(image is None for image in images):
             return self._with_missing(frame, images, masks)
-        return self._every_camera(frame, present, masks)
+        # the list itself, not a copy: images staged in the camera processes' shared memory are
+        # detected there without a second copy (and frames detected at once need not take turns)
+        return self._every_camera(frame, cast("list[np.ndarray]", images), masks)
 
     def _every_camera(self, frame: int, images: list[np.ndarray], masks: list[np.ndarray | None] | None
                       ) -> list[ViewDots]:

@@ -920,6 +920,22 @@ def test_frames_detected_at_once_give_the_output_of_one_frame_at_a_time(parallel
     assert at_once.detector_info["parallel"] == parallel
 
 
+def test_images_staged_by_the_reader_are_detected_in_shared_memory_without_a_second_copy(small_studio):
+    scene, images = small_studio
+    detect = CaptureDetector("net", scene.rig, SpeedOptions(workers=2, parallel="processes", predict=False))
+    serial = CaptureDetector("net", scene.rig, SpeedOptions(workers=1, predict=False))
+    try:
+        assert detect.parallel == "processes"
+        staged = detect.stage(list(images[0]))
+        views = detect(0, staged, None)
+        processes = detect._processes
+        assert processes is not None and processes._direct.memory is None  # the staged block served
+        assert _same_dots(views, serial(0, list(images[0]), None)) == 0.0
+    finally:
+        detect.close()
+        serial.close()
+
+
 def test_frames_at_once_need_prediction_off_and_at_least_one_frame(tmp_path, capsys):
     with pytest.raises(InputError, match="--no-predict"):
         SpeedOptions(frames_at_once=2)
