@@ -185,7 +185,7 @@ def _run(args) -> int:
     import cv2
     import numpy as np
 
-    from ..app.run import parse_frames
+    from ..frames import parse_frames
     from ..capture import MANIFEST, Capture
     from ..detect import Detector
     from ..detect.overlay import draw_detections

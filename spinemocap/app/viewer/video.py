@@ -31,6 +31,7 @@ from ...frames import parse_frames
 from ...media import VideoWriter
 from ..streaming import prefetched_frames
 from .layout import GRID_NAME
+from .scene3d import playback_rate
 from .tracked import CLASS_COLOURS_BGR, CLASS_WORDS, DotClass, TrackedDots, read_tracked
 
 #: Longest image side of the per-camera videos when no scale is given: at most this (px), the
@@ -264,14 +265,6 @@ def selected_frames(tracked: TrackedDots, frames: str | None, n_frames: int, sou
     return chosen
 
 
-def playback_fps(capture_fps: float, frames: list[int]) -> float:
-    """Frame rate of a video of capture ``frames`` that plays in recorded time: the capture's rate
-    divided by the mean spacing of the frames (``100:400:2`` at 100 fps -> 50 fps)."""
-    if len(frames) < 2:
-        return capture_fps
-    return capture_fps * (len(frames) - 1) / (frames[-1] - frames[0])
-
-
 def write_videos(capture_dir: str | os.PathLike, results: str | os.PathLike, out_dir: str | os.PathLike,
                  frames: str | None = None, scale: float | None = None, grid: bool = True,
                  progress: bool = True) -> VideoResult:
@@ -293,7 +286,7 @@ def write_videos(capture_dir: str | os.PathLike, results: str | os.PathLike, out
         raise InputError("--scale", f"scale {scale} must be a number in (0, 4]")
     factor = auto_scale([c.size for c in cameras]) if scale is None else float(scale)
     sizes = {c.name: even_size(c.size, factor) for c in cameras}
-    fps = playback_fps(capture.fps, chosen)
+    fps = playback_rate(np.asarray(chosen) / capture.fps, capture.fps)  # recorded time for A:B:S
     names: dict[str, str] = {}
     for camera in cameras:
         names[camera.name] = video_name(camera.name, set(names.values()))

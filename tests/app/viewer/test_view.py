@@ -26,7 +26,6 @@ from spinemocap.app.viewer.video import (
     OverlayStyle,
     auto_scale,
     grid_layout,
-    playback_fps,
     resize_image,
     scale_pixels,
     selected_frames,
@@ -102,7 +101,6 @@ def test_selected_frames_reads_the_one_frame_syntax(tracked_capture):
     assert selected_frames(tracked, "2,0", capture.n_frames) == [0, 2]
     with pytest.raises(InputError, match="--frames.*step 0"):
         selected_frames(tracked, "0:3:0", capture.n_frames)
-    assert playback_fps(100.0, [0, 2, 4]) == 50.0 and playback_fps(100.0, [7]) == 100.0
 
 
 def test_read_tracked_classes(tracked_capture):
