@@ -4,7 +4,6 @@ that the body does not hide, tape markers on the tape's 2-dot rows with one on e
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from spinemocap.bodymodel.virtual_vicon import (
     ViconCameraRing,
