@@ -84,7 +84,28 @@ def check_image_size(image: np.ndarray, size: tuple[int, int] | None, camera: st
     return image
 
 
-class ImageFolderSource(FrameSource):
+class _StoredFrames:
+    """The state an image-folder and a video source share: the capture folder ``root``, the
+    cameras in rig order, ``n_frames``, the rig's (width, height) per camera (``sizes``; None: not
+    checked), each camera's :class:`~spinemocap.timebase.CameraClock` (``clocks``; default: the
+    capture's timing), whether the clocks leave the capture's timing (:attr:`timed`), the frame
+    pairing (set by a timed source) and :attr:`unreadable`."""
+
+    def __init__(self, root: Path, camera_names: Sequence[str], n_frames: int,
+                 sizes: Sequence[tuple[int, int]] | None, clocks: Sequence[CameraClock] | None,
+                 fps: float | None):
+        self.root = Path(root)
+        self.camera_names = list(camera_names)
+        self.n_frames = int(n_frames)
+        self.sizes: list[tuple[int, int] | None] = list(sizes) if sizes is not None else [None] * len(self.camera_names)
+        self.clocks = list(clocks) if clocks is not None else [CameraClock()] * len(self.camera_names)
+        self.timed = not all_default(self.clocks, fps)
+        self.pairing: FramePairing | None = None
+        #: camera name -> {capture frame: why its image could not be read} (missing file, damaged data)
+        self.unreadable: dict[str, dict[int, str]] = {cam: {} for cam in self.camera_names}
+
+
+class ImageFolderSource(_StoredFrames, FrameSource):
     """Frames stored as one image file per camera and frame. ``sizes``: the rig's (width,
     height) per camera; every image read is checked against it.
 
@@ -99,19 +120,12 @@ class ImageFolderSource(FrameSource):
     def __init__(self, root: Path, camera_names: Sequence[str], n_frames: int, pattern: str,
                  sizes: Sequence[tuple[int, int]] | None = None, clocks: Sequence[CameraClock] | None = None,
                  fps: float | None = None):
-        self.root = Path(root)
-        self.camera_names = list(camera_names)
-        self.n_frames = int(n_frames)
+        super().__init__(root, camera_names, n_frames, sizes, clocks, fps)
         self.pattern = pattern
-        self.sizes = list(sizes) if sizes is not None else [None] * len(self.camera_names)
         self._files: list[list[Path] | None] = [None] * len(self.camera_names)
-        self.pairing: FramePairing | None = None
-        #: camera name -> {capture frame: why its image could not be read} (missing file, damaged image)
-        self.unreadable: dict[str, dict[int, str]] = {cam: {} for cam in self.camera_names}
-        timed = clocks is not None and not all_default(clocks, fps)
+        timed = self.timed
         times = []
-        for k, cam in enumerate(self.camera_names):
-            clock = clocks[k] if clocks is not None else CameraClock()
+        for k, (cam, clock) in enumerate(zip(self.camera_names, self.clocks)):
             if clock.media is not None:
                 folder = self.root / clock.media
                 if not folder.is_dir():
@@ -136,8 +150,8 @@ class ImageFolderSource(FrameSource):
                     raise InputError(self.root / "capture.toml", f"camera {cam!r} has no frame rate: set fps")
                 times.append(image_times(count, rate, cam))
         if timed:
-            assert clocks is not None and fps is not None
-            self.pairing = pair_cameras(self.camera_names, times, clocks, fps, self.n_frames)
+            assert fps is not None
+            self.pairing = pair_cameras(self.camera_names, times, self.clocks, fps, self.n_frames)
             check_pairing(self.pairing, self.root)
 
     def path(self, camera: str, frame: int) -> Path:
@@ -316,7 +330,7 @@ def _bgr(decoded, out: np.ndarray | None = None) -> np.ndarray:
     return cv2.merge([b, g, r], out) if out is not None else cv2.merge([b, g, r])
 
 
-class VideoSource(FrameSource):
+class VideoSource(_StoredFrames, FrameSource):
     """Frames stored as one video per camera (:class:`VideoDecoder` each); sequential reads are
     cheap, jumps seek.
 
@@ -332,19 +346,12 @@ class VideoSource(FrameSource):
     def __init__(self, root: Path, camera_names: Sequence[str], n_frames: int, pattern: str,
                  sizes: Sequence[tuple[int, int]] | None = None, clocks: Sequence[CameraClock] | None = None,
                  fps: float | None = None):
-        self.root = Path(root)
-        self.camera_names = list(camera_names)
-        self.n_frames = int(n_frames)
-        self.sizes = list(sizes) if sizes is not None else [None] * len(camera_names)
-        clocks = list(clocks) if clocks is not None else [CameraClock()] * len(self.camera_names)
-        timed = not all_default(clocks, fps)
+        super().__init__(root, camera_names, n_frames, sizes, clocks, fps)
+        clocks, timed = self.clocks, self.timed
         self.paths = [self.root / (clock.media or pattern.format(camera=cam))
                       for cam, clock in zip(self.camera_names, clocks)]
         self._rates = [clock.fps for clock in clocks]
         self._decoders: list[VideoDecoder | None] = [None] * len(self.paths)
-        self.pairing: FramePairing | None = None
-        #: camera name -> {capture frame: why its frame could not be decoded}
-        self.unreadable: dict[str, dict[int, str]] = {cam: {} for cam in self.camera_names}
         self._ends_at: list[int | None] = [None] * len(self.paths)  # the first slot a camera's video lacks
         try:
             times = []

@@ -151,7 +151,7 @@ def test_an_inconsistent_problem_is_an_input_error():
     with pytest.raises(InputError, match="nothing to adjust"):
         RigAdjustment(rig)
     with pytest.raises(InputError, match="backend"):
-        RigAdjustment(rig, points=points, settings=AdjustmentSettings(backend="g2o"))  # type: ignore[arg-type]
+        RigAdjustment(rig, points=points, settings=AdjustmentSettings(backend="g2o"))  # type: ignore[arg-type]  # an unknown backend on purpose
     with pytest.raises(InputError, match="reference camera 5"):
         RigAdjustment(rig, points=points, settings=AdjustmentSettings(reference=5))
     with pytest.raises(InputError, match="velocities"):

@@ -18,6 +18,7 @@ measures the pipeline's own error (spline, frames) without any skin.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -153,12 +154,39 @@ def bench_analytic(frames: int = 60, rows: int = 13) -> dict:
     return results
 
 
-def bench_batch(trials: int = 16, frames: int = 300, workers: int = 2, progress: bool = False) -> dict:
+@dataclasses.dataclass(frozen=True)
+class BatchBenchResult:
+    """One study run by each engine (``serial``, ``process_pool``, ``dask_localcluster``):
+    ``seconds`` wall time per engine; ``identical_results`` whether every trial's ``angles.csv`` is
+    the same byte for byte on all engines."""
+
+    trials: int
+    frames: int
+    workers: int
+    identical_results: bool
+    seconds: dict[str, float]
+
+    @property
+    def trials_per_s(self) -> dict[str, float]:
+        return {engine: self.trials / s for engine, s in self.seconds.items()}
+
+    @property
+    def speedup_vs_serial(self) -> dict[str, float]:
+        """Each engine's speed over the serial run's (> 1: faster)."""
+        return {engine: self.seconds["serial"] / s for engine, s in self.seconds.items()}
+
+    def to_dict(self) -> dict:
+        """The numbers, JSON-ready (rates rounded to 0.01)."""
+        return {**dataclasses.asdict(self),
+                "trials_per_s": {k: round(v, 2) for k, v in self.trials_per_s.items()},
+                "speedup_vs_serial": {k: round(v, 2) for k, v in self.speedup_vs_serial.items()}}
+
+
+def bench_batch(trials: int = 16, frames: int = 300, workers: int = 2, progress: bool = False) -> BatchBenchResult:
     """Wall time of one batch (analytic-rod captures, ground-truth source) run three ways on the
     same study: in this process, on a local process pool of ``workers``, and on a Dask
     ``LocalCluster`` of ``workers`` single-threaded worker processes. Every run starts from an
-    empty output folder (``force``), so all three do the same work; ``identical_results`` says
-    whether every trial's ``angles.csv`` is the same byte for byte in all three."""
+    empty output folder (``force``), so all three do the same work."""
     import tempfile
     from pathlib import Path
 
@@ -188,11 +216,9 @@ def bench_batch(trials: int = 16, frames: int = 300, workers: int = 2, progress:
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
             timed("dask_localcluster", scheduler=cluster.scheduler_address)
     first = next(iter(angles.values()))
-    return {"trials": trials, "frames": frames, "workers": workers,
-            "identical_results": len(first) == trials and all(a == first for a in angles.values()),
-            "seconds": {k: round(v, 2) for k, v in timings.items()},
-            "trials_per_s": {k: round(trials / v, 2) for k, v in timings.items()},
-            "speedup_vs_serial": {k: round(timings["serial"] / v, 2) for k, v in timings.items()}}
+    return BatchBenchResult(trials, frames, workers,
+                            identical_results=len(first) == trials and all(a == first for a in angles.values()),
+                            seconds={k: round(v, 2) for k, v in timings.items()})
 
 
 # ---------------------------------------------------------------------------------- the lab's angle

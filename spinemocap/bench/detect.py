@@ -166,7 +166,7 @@ def simple_blob_detector(dot_px: float):
     import cv2
 
     area = np.pi * dot_px ** 2 / 4
-    p = cv2.SimpleBlobDetector_Params()  # type: ignore[attr-defined]
+    p = cv2.SimpleBlobDetector.Params()
     p.blobColor = 255
     p.minThreshold, p.maxThreshold, p.thresholdStep = 10, 240, 10
     p.filterByArea, p.minArea, p.maxArea = True, 0.15 * area, 2.2 * area
@@ -174,7 +174,7 @@ def simple_blob_detector(dot_px: float):
     p.filterByInertia, p.minInertiaRatio = True, 0.25
     p.filterByConvexity, p.minConvexity = True, 0.8
     p.minDistBetweenBlobs = 0.5 * dot_px
-    return cv2.SimpleBlobDetector_create(p)  # type: ignore[attr-defined]
+    return cv2.SimpleBlobDetector.create(p)
 
 
 # ---------------------------------------------------------------------------------- data

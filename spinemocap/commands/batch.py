@@ -64,14 +64,14 @@ def run_bench(args: argparse.Namespace) -> int:
     from ..fileio import atomic_write
 
     result = bench_batch(args.trials, args.frames, args.workers)
-    for name, seconds in result["seconds"].items():
-        print(f"{name:<20}{seconds:>8.2f} s  {result['trials_per_s'][name]:>6.2f} trials/s  "
-              f"x{result['speedup_vs_serial'][name]:.2f} vs serial")
-    print(f"every trial's angles identical on all three: {'yes' if result['identical_results'] else 'NO'}")
+    for name, seconds in result.seconds.items():
+        print(f"{name:<20}{seconds:>8.2f} s  {result.trials_per_s[name]:>6.2f} trials/s  "
+              f"x{result.speedup_vs_serial[name]:.2f} vs serial")
+    print(f"every trial's angles identical on all three: {'yes' if result.identical_results else 'NO'}")
     if args.json:
         with atomic_write(args.json) as handle:
-            json.dump(result, handle, indent=1)
-    return 0 if result["identical_results"] else 1
+            json.dump(result.to_dict(), handle, indent=1)
+    return 0 if result.identical_results else 1
 
 
 def _terminate_as_interrupt(signum, frame) -> None:

@@ -30,7 +30,7 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..bench.realism import format_table, run_realism_benchmark, save, sweep
+    from ..bench.realism import format_table, run_realism_benchmark, save, sweep, verdict
     from ..fileio import InputError
 
     cases = sweep()
@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
                                     after_case=lambda partial: save(partial, args.json, None))
     save(numbers, args.json, args.plot)
     print(format_table(numbers))
-    for goal, state in numbers["verdict"].items():
-        print(f"goal {goal}: {'met' if state['met'] else 'NOT met'} ({state.get('value', state.get('swaps'))})")
+    for goal, judged in verdict(numbers["cases"]).items():
+        print(f"goal {goal}: {'met' if judged.met else 'NOT met'} ({judged.numbers()})")
     print(f"numbers written to {args.json}" + (f", plot to {args.plot}" if args.plot else ""))
     return 0

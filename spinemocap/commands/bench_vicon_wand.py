@@ -36,6 +36,11 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..bench.vicon_wand import run_benchmark
+    from ..fileio import InputError
+
+    if args.frames < 2 or not args.fps > 0 or not args.wand_seconds > 0 or args.dot_noise < 0:
+        raise InputError("spinemocap bench vicon-wand", "--frames must be >= 2, --fps and --wand-seconds positive, "
+                                                        "--dot-noise >= 0")
 
     run_benchmark(args.levels, args.preset, args.frames, args.fps, args.size, args.wand_seconds, args.dot_noise,
                   args.seed, args.json, progress=not args.no_progress, motion=args.motion)

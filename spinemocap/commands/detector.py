@@ -185,11 +185,11 @@ def _run(args) -> int:
     import cv2
     import numpy as np
 
-    from ..app.run import parse_frames
     from ..capture import MANIFEST, Capture
     from ..detect import Detector
     from ..detect.overlay import draw_detections
     from ..fileio import InputError, atomic_path, atomic_write
+    from ..frames import parse_frames
     from ..media import VideoDecoder, read_image
 
     options = {"weights": args.weights} if args.name == "net" and args.weights else {}

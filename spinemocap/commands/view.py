@@ -20,11 +20,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(.csv, .trc, .c3d)")
     p.add_argument("--out", type=Path, default=None,
                    help="output folder (default: RESULTS/view, or beside a marker file)")
-    p.add_argument("--frames", default=None, metavar="A:B", help="capture frames A..B-1 (default: all tracked)")
+    p.add_argument("--frames", default=None, metavar="SELECTION",
+                   help="capture frames to draw: A:B (B exclusive), A:B:S every S-th (the video still plays in "
+                        "recorded time), N, or a comma list, e.g. 100:400:2 (default: all tracked)")
     p.add_argument("--scale", type=float, default=None,
                    help="resize factor of the camera images (default: 1/2, 1/3, ... as needed for a "
                         "longest side of at most 1280 px, e.g. 1224x800 from 2448x1600)")
-    p.add_argument("--step", type=int, default=1, help="draw every N-th frame (default 1)")
     p.add_argument("--no-video", action="store_true", help="write only the 3D viewer")
     p.add_argument("--no-grid", action="store_true", help="no grid video of all cameras")
     p.set_defaults(func=run_view)
@@ -44,7 +45,7 @@ def run_view(args: argparse.Namespace) -> int:
     out = args.out or default_out(args.results)
     if not args.no_video:
         result = write_videos(args.capture, args.results, out, frames=args.frames, scale=args.scale,
-                              step=args.step, grid=not args.no_grid)
+                              grid=not args.no_grid)
         for camera, path in result.cameras.items():
             print(f"  {camera:<12} {path}  ({result.sizes[camera][0]}x{result.sizes[camera][1]})")
         if result.grid is not None:
@@ -57,7 +58,7 @@ def run_view(args: argparse.Namespace) -> int:
         from ..capture import Capture
 
         capture = Capture.open(args.capture)
-        frames = selected_frames(read_tracked(args.results, capture.tape), args.frames, capture.n_frames, args.step)
+        frames = selected_frames(read_tracked(args.results, capture.tape), args.frames, capture.n_frames)
     start = time.perf_counter()
     page = write_viewer(args.capture, args.results, out / VIEWER_NAME, frames=frames)
     print(f"3D viewer: {page}  ({time.perf_counter() - start:.1f} s; open it in a browser)")

@@ -60,7 +60,8 @@ def paint_room(size: tuple[int, int], seed: int, items: tuple[str, ...] | None =
 
 def _colour(rng: np.random.Generator, lo: int, hi: int, tint: float = 12.0) -> tuple[int, int, int]:
     base = rng.uniform(lo, hi)
-    return tuple(int(np.clip(base + rng.normal(0, tint), 0, 255)) for _ in range(3))  # type: ignore[return-value]
+    red, green, blue = (int(np.clip(base + rng.normal(0, tint), 0, 255)) for _ in range(3))
+    return red, green, blue
 
 
 def _wall_and_floor(w: int, h: int, rng: np.random.Generator) -> np.ndarray:

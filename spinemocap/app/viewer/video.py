@@ -31,6 +31,7 @@ from ...frames import parse_frames
 from ...media import VideoWriter
 from ..streaming import prefetched_frames
 from .layout import GRID_NAME
+from .scene3d import playback_rate
 from .tracked import CLASS_COLOURS_BGR, CLASS_WORDS, DotClass, TrackedDots, read_tracked
 
 #: Longest image side of the per-camera videos when no scale is given: at most this (px), the
@@ -249,16 +250,15 @@ def video_name(camera: str, taken: set[str]) -> str:
     return name
 
 
-def selected_frames(tracked: TrackedDots, frames: str | None, n_frames: int, step: int,
-                    source: str = "--frames") -> list[int]:
-    """Capture frames to draw: the tracked frames inside ``frames`` (see
-    :func:`spinemocap.frames.parse_frames`), every ``step``-th. :class:`InputError` when none."""
-    if step < 1:
-        raise InputError("--step", f"step {step} must be a whole number >= 1")
+def selected_frames(tracked: TrackedDots, frames: str | None, n_frames: int, source: str = "--frames") -> list[int]:
+    """Capture frames to draw: the tracked frames inside the selection ``frames`` (the syntax of
+    :func:`spinemocap.frames.parse_frames`, e.g. ``100:400:2``; ``None``: every tracked frame).
+    Raises :class:`InputError` naming ``source`` for a selection not of the syntax, naming the
+    results when it keeps no tracked frame."""
     wanted: set[int] | range = range(n_frames)
     if frames:
         wanted = set(parse_frames(frames, n_frames, source))
-    chosen = [int(f) for f in tracked.frames if f in wanted][::step]
+    chosen = [int(f) for f in tracked.frames if f in wanted]
     if not chosen:
         raise InputError(tracked.source, f"no tracked frame in {frames or 'the capture'} (the results hold "
                                          f"frames {int(tracked.frames[0])}..{int(tracked.frames[-1])})")
@@ -266,26 +266,27 @@ def selected_frames(tracked: TrackedDots, frames: str | None, n_frames: int, ste
 
 
 def write_videos(capture_dir: str | os.PathLike, results: str | os.PathLike, out_dir: str | os.PathLike,
-                 frames: str | None = None, scale: float | None = None, step: int = 1, grid: bool = True,
+                 frames: str | None = None, scale: float | None = None, grid: bool = True,
                  progress: bool = True) -> VideoResult:
     """Per camera ``out_dir/<camera>.mp4`` and (``grid``) ``out_dir/all_cameras.mp4``: the
     capture's frames with ``results`` (a results folder or marker file) drawn on them.
 
-    ``frames``: "A:B" (capture frame numbers, B exclusive); ``step``: every N-th frame (the
-    video plays at the capture's rate / N, so time runs as recorded); ``scale``: the images'
+    ``frames``: a selection of capture frames (:func:`spinemocap.frames.parse_frames`: ``A:B``, B
+    exclusive; ``A:B:S`` every S-th frame, the video then plays at the capture's rate / S, so time
+    runs as recorded); ``scale``: the images'
     resize factor (default :func:`auto_scale`: the longest side at most :data:`AUTO_LONG_SIDE`
     px). Frames are read only through :meth:`Capture.frame_source`. Videos are written atomically: an error leaves the
     folder's earlier videos as they were."""
     capture = Capture.open(capture_dir)
     tracked = read_tracked(results, capture.tape)
-    chosen = selected_frames(tracked, frames, capture.n_frames, step)
+    chosen = selected_frames(tracked, frames, capture.n_frames)
     out = check_writable(out_dir, "video output folder")
     cameras = list(capture.rig)
     if scale is not None and not (np.isfinite(scale) and 0 < scale <= 4):
         raise InputError("--scale", f"scale {scale} must be a number in (0, 4]")
     factor = auto_scale([c.size for c in cameras]) if scale is None else float(scale)
     sizes = {c.name: even_size(c.size, factor) for c in cameras}
-    fps = capture.fps / step
+    fps = playback_rate(np.asarray(chosen) / capture.fps, capture.fps)  # recorded time for A:B:S
     names: dict[str, str] = {}
     for camera in cameras:
         names[camera.name] = video_name(camera.name, set(names.values()))

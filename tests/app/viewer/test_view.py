@@ -28,6 +28,7 @@ from spinemocap.app.viewer.video import (
     grid_layout,
     resize_image,
     scale_pixels,
+    selected_frames,
     write_videos,
 )
 from spinemocap.camera import Camera, Rig
@@ -89,6 +90,17 @@ def tracked_capture(tmp_path_factory):
     results = root / "results"
     write_markers(table, results)
     return capture_dir, results
+
+
+def test_selected_frames_reads_the_one_frame_syntax(tracked_capture):
+    capture_dir, results = tracked_capture
+    capture = Capture.open(capture_dir)
+    tracked = read_tracked(results, capture.tape)
+    assert selected_frames(tracked, None, capture.n_frames) == [0, 1, 2]
+    assert selected_frames(tracked, "0:3:2", capture.n_frames) == [0, 2]
+    assert selected_frames(tracked, "2,0", capture.n_frames) == [0, 2]
+    with pytest.raises(InputError, match="--frames.*step 0"):
+        selected_frames(tracked, "0:3:0", capture.n_frames)
 
 
 def test_read_tracked_classes(tracked_capture):
@@ -247,10 +259,17 @@ def test_view_command_writes_videos_and_viewer(tracked_capture, tmp_path, capsys
     capture_dir, results = tracked_capture
     copy = tmp_path / "results"
     shutil.copytree(results, copy)
-    assert main(["view", str(capture_dir), str(copy), "--frames", "1:3", "--step", "1", "--scale", "0.5"]) == 0
+    assert main(["view", str(capture_dir), str(copy), "--frames", "1:3", "--scale", "0.5"]) == 0
     found = view_outputs(copy)
     assert {"grid", "viewer"} <= set(found) and sum(k.startswith("camera:") for k in found) == 3
     assert len(_decoded_frames(found["grid"])) == 2
+    # every 2nd frame: half as many frames, played at half the capture's rate (recorded time)
+    assert main(["view", str(capture_dir), str(copy), "--frames", "0:3:2", "--scale", "0.5", "--no-grid"]) == 0
+    fps = Capture.open(capture_dir).fps
+    for key in (k for k in view_outputs(copy) if k.startswith("camera:")):
+        assert len(_decoded_frames(view_outputs(copy)[key])) == 2
+        with av.open(str(view_outputs(copy)[key])) as container:
+            assert float(container.streams.video[0].average_rate) == pytest.approx(fps / 2)
     out = capsys.readouterr().out
     assert "frames/s" in out and VIEWER_NAME in out
     assert main(["view", str(capture_dir), str(copy), "--frames", "5:9"]) == 2  # no tracked frame there
