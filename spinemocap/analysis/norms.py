@@ -9,7 +9,8 @@ published span), never diagnosed: the sources measured other people with other i
 Each value has a ``scope``: ``band`` (the figures of one age group, and of one sex or both, as
 the source tabulates them) or ``pooled`` (a span over the source's whole age range). A band
 applies only to a subject whose age is known and inside it (and whose sex matches, unless the
-band is for both sexes); a pooled value applies to any age in its range or an unknown age. The
+band is for both sexes); a pooled value applies to any age in its range or an unknown age. Ages
+compare in completed years, as sources tabulate them (a subject aged 29.5 is in "20-29"). The
 most specific value that applies comes first (:meth:`Norms.for_subject`): a band before the
 pooled fallback, one sex before both, a narrower age range before a wider one.
 
@@ -19,7 +20,9 @@ Subject metadata: ``[subject]`` in ``capture.toml`` may give ``age`` (years) and
 
 from __future__ import annotations
 
+import math
 import os
+import re
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -36,6 +39,9 @@ SCOPES: tuple[str, ...] = get_args(Scope)
 NORMS_FILE = "lumbar_rom_norms.toml"
 SEX_WORDS = {"female": "female", "f": "female", "woman": "female", "male": "male", "m": "male", "man": "male"}
 MAX_AGE = 120
+#: A band names the table of its source it was read from ("Table 2"): figures come from a table's
+#: text, never from a graph.
+BAND_TABLE = re.compile(r"\bTable \d+")
 
 
 @dataclass(frozen=True)
@@ -68,13 +74,14 @@ class ReferenceValue:
     scope: str = "pooled"
 
     def covers(self, age: float | None, sex: str | None) -> bool:
-        """True when this value applies to a subject of ``age`` and ``sex`` (None: unknown). A
-        band needs a known age inside it; a pooled value takes an unknown age too. A value for
-        one sex needs the subject's sex to be that one."""
+        """True when this value applies to a subject of ``age`` (years) and ``sex`` (None:
+        unknown). The age counts in completed years against both ends of the range (29.5 is in
+        20-29, 30 is not). A band needs a known age inside it; a pooled value takes an unknown
+        age too. A value for one sex needs the subject's sex to be that one."""
         if age is None:
             age_ok = self.scope == "pooled"
         else:
-            age_ok = self.age_min <= age <= self.age_max
+            age_ok = self.age_min <= math.floor(age) <= self.age_max
         sex_ok = self.sex == "any" or (sex is not None and self.sex == sex)
         return age_ok and sex_ok
 
@@ -127,7 +134,8 @@ class Norms:
 
 def load_norms(path: str | os.PathLike | None = None) -> Norms:
     """The norms file (default: the one shipped with the package); :class:`InputError` naming
-    it for a value without a known source, an unknown movement or sex, or an empty span."""
+    it for a value without a known source, an unknown movement or sex, an empty span, or a band
+    that does not name the source's table it was read from."""
     if path is None:
         with resources.as_file(resources.files(__package__).joinpath(NORMS_FILE)) as shipped:
             return _parse(read_toml(shipped), str(shipped))
@@ -165,6 +173,10 @@ def _reference(entry: dict, sources: dict[str, Source]) -> ReferenceValue:
     if not (0 <= value.low_deg <= value.high_deg and value.age_min <= value.age_max) or not value.quote.strip():
         raise ValueError(f"{value.movement} from {value.source.key}: needs 0 <= low_deg <= high_deg, "
                          "age_min <= age_max and the source's words (quote)")
+    if value.scope == "band" and not BAND_TABLE.search(f"{value.statistic} {value.quote}"):
+        raise ValueError(f"band {value.movement} {value.sex} {value.age_min:g}-{value.age_max:g} from "
+                         f"{value.source.key}: name the source's table its figures were read from "
+                         "(e.g. 'Table 2') in statistic")
     return value
 
 

@@ -71,7 +71,7 @@ age_max = 39
 scope = "band"
 low_deg = 52.0
 high_deg = 68.0
-statistic = "mean +- 2 SD"
+statistic = "Table 2, mean +- 2 SD"
 quote = "women 20-39 years: 60 (4) deg, i.e. 52-68"
 
 [[reference]]
@@ -83,7 +83,7 @@ age_max = 39
 scope = "band"
 low_deg = 55.0
 high_deg = 71.0
-statistic = "mean +- 2 SD"
+statistic = "Table 2, mean +- 2 SD"
 quote = "men 20-39 years: 63 (4) deg, i.e. 55-71"
 
 [[reference]]
@@ -95,7 +95,7 @@ age_max = 90
 scope = "band"
 low_deg = 30.0
 high_deg = 50.0
-statistic = "range"
+statistic = "Table 3, range"
 quote = "60-90 years, both sexes: 30-50 deg"
 """
 
@@ -113,9 +113,9 @@ def test_age_and_sex_select_the_band_and_the_pooled_span_is_the_fallback(tmp_pat
     assert (man.scope, man.sex, man.low_deg, man.high_deg) == ("band", "male", 55.0, 71.0)
     assert woman.applies_to() == "female, 20-39 years (age band)"
     assert [v.scope for v in norms.for_subject("flexion", 25.0, "female")] == ["band", "pooled"]
-    # a band's ends are inclusive: 20 and 39 are in, 39.5 and 40 are not
-    assert first(20.0, "female").scope == first(39.0, "female").scope == "band"
-    assert first(39.5, "female").scope == first(40.0, "female").scope == "pooled"
+    # ages count in completed years, both ends included: 20, 39 and 39.5 are in "20-39", 19.9 and 40 not
+    assert first(20.0, "female").scope == first(39.0, "female").scope == first(39.5, "female").scope == "band"
+    assert first(19.9, "female").scope == first(40.0, "female").scope == "pooled"
     # no band for 45-year-olds, nor for a 25-year-old of unknown sex: the pooled span applies
     for age, sex in ((45.0, "female"), (45.0, "male"), (25.0, None)):
         fallback = first(age, sex)
@@ -145,6 +145,10 @@ def test_a_value_without_a_known_source_is_refused(tmp_path):
         load_norms(path)
     path.write_text(norms_path().read_text().replace('scope = "pooled"\n', "", 1))
     with pytest.raises(InputError, match="missing or unknown key 'scope'"):
+        load_norms(path)
+    # a band must name the source's table its figures were read from
+    path.write_text(BANDED.replace('statistic = "Table 3, range"', 'statistic = "range read off Figure 2"'))
+    with pytest.raises(InputError, match=r"norms\.toml.*flexion any 60-90 from example.*Table 2"):
         load_norms(path)
 
 
@@ -255,24 +259,30 @@ def test_report_shows_the_band_it_used_and_marks_a_value_outside_it(tmp_path):
     assert "warn" not in man[0] and "male, 20-39 years (age band)" in man[0]
 
 
-def test_shipped_file_gives_a_young_woman_the_most_specific_span_and_marks_a_value_outside_it(tmp_path):
+@pytest.mark.parametrize(("age", "sex"), [(25, "female"), (52.5, "male"), (70, None)])
+def test_shipped_file_gives_each_subject_the_most_specific_span_and_marks_a_value_outside_it(tmp_path, age, sex):
     norms = load_norms()
-    # what the shipped file holds for a 25-year-old woman, most specific first
-    expected = {m: norms.for_subject(m, 25.0, "female")[0] for m in ("flexion", "extension")}
+    raw = tomllib.loads(norms_path().read_text())["reference"]
+    # what the shipped file holds for this subject, most specific first
+    expected = {m: norms.for_subject(m, float(age), sex)[0] for m in ("flexion", "extension")}
     for value in expected.values():
-        bands = [v for v in norms.values if v.movement == value.movement and v.scope == "band"
-                 and v.sex in ("female", "any") and v.age_min <= 25.0 <= v.age_max]
-        assert (value.scope == "band") == bool(bands)  # the 20-29 female band wins wherever one is entered
-    capture = _capture_with_subject(tmp_path / "w25", {"id": "W25", "age": 25, "sex": "female"})
+        # the file's own entries, read without the loader: a band of the subject's completed years
+        # and sex (or both sexes) wins wherever one is entered, one sex before both
+        bands = [e for e in raw if e["movement"] == value.movement and e["scope"] == "band"
+                 and e["sex"] in (sex, "any") and e["age_min"] <= int(age) <= e["age_max"]]
+        assert (value.scope == "band") == bool(bands)
+        if any(e["sex"] == sex for e in bands):
+            assert value.sex == sex
+    capture = _capture_with_subject(tmp_path / "s", {"id": "S", "age": age} | ({"sex": sex} if sex else {}))
     flexion_outside = expected["flexion"].high_deg + 10.0
     extension_inside = (expected["extension"].low_deg + expected["extension"].high_deg) / 2
-    trials = pd.DataFrame([_trial_row("W25/flex/1", "W25", flexion_from_neutral_deg=flexion_outside,
+    trials = pd.DataFrame([_trial_row("S/flex/1", "S", flexion_from_neutral_deg=flexion_outside,
                                       extension_from_neutral_deg=extension_inside)])
-    table = reference_table(trials, [_summary("W25/flex/1", "W25", capture)])
+    table = reference_table(trials, [_summary("S/flex/1", "S", capture)])
     rows = table.set_index("movement")
     for movement, value in expected.items():
         row = rows.loc[movement]
-        assert (row["age"], row["sex"]) == (25.0, "female")
+        assert (row["age"], row["sex"]) == (float(age), sex or "not given")
         assert row["reference_applies_to"] == value.applies_to() and row["source"] == value.source.key
         assert (row["reference_low_deg"], row["reference_high_deg"]) == (value.low_deg, value.high_deg)
     assert (rows.loc["flexion", "placement"], rows.loc["extension", "placement"]) == ("above", "within")
