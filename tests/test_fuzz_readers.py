@@ -1,4 +1,4 @@
-"""Issue 12: seeded fuzzing of every text/table format the project reads (C3D: test_c3d_fuzz.py).
+"""Seeded fuzzing of every text/table format the project reads (C3D: test_c3d_fuzz.py).
 
 Each case damages a valid seed file (bit flips, truncation, line deletion/duplication, numbers
 replaced by nan/inf/huge/nothing, TOML values and XML attributes of the wrong type, invalid

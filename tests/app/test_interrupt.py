@@ -1,4 +1,4 @@
-"""Issue 12: Ctrl-C during a real `spinemocap batch` subprocess stops it within seconds, records
+"""Ctrl-C during a real `spinemocap batch` subprocess stops it within seconds, records
 the unfinished trials as interrupted, leaves no worker behind, and a rerun resumes; killing the
 batch process (SIGKILL) leaves no orphan worker either."""
 

@@ -1,4 +1,4 @@
-"""Issue 12: outputs stay whole. Atomic writes get the umask's permissions (not mkstemp's 0600)
+"""Outputs stay whole. Atomic writes get the umask's permissions (not mkstemp's 0600)
 and leave nothing behind; temporary files of a killed process are removed by the next write;
 markers.csv/.trc/.c3d form one set with a manifest, a mix of two runs is detected."""
 

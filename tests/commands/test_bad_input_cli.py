@@ -1,4 +1,4 @@
-"""Issue 12: impossible input is refused with exit code 2 and a message naming the file, never a
+"""Impossible input is refused with exit code 2 and a message naming the file, never a
 traceback; damaged marker samples are read as missing with a warning naming the file and how many;
 outputs are checked for writing before the work starts."""
 

@@ -1,4 +1,4 @@
-"""Issue 19: our C3D reader reads every valid file ezc3d reads, point by point the same.
+"""Our C3D reader reads every valid file ezc3d reads, point by point the same.
 
 The corpus is written by the project itself (tests/c3d_corpus.py writes the bytes; the ``c3d``
 package writes the Intel files it can), one file per variant: integer and float data,

@@ -1,4 +1,4 @@
-"""Issue 12, C3D part: damaged C3D files end in the project's InputError naming the file, or in
+"""Damaged C3D files end in the project's InputError naming the file, or in
 data that passes validation (finite coordinates within a sane bound, NaN exactly where missing,
 consistent shapes); absurd, NaN and infinite coordinates are read as missing with a warning
 naming the file and how many. Seeded fuzzing with tests/fuzzing.py."""

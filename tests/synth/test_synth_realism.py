@@ -234,7 +234,7 @@ def test_groundtruth_places_s1_and_t12_l1_on_the_tape():
 
 
 def test_default_capture_has_a_finite_s1_to_t12_l1_lumbar_angle_over_full_flexion():
-    """Issue 17: the default studio tape starts at S1, so the standard lumbar angle S1 -> T12/L1
+    """The default studio tape starts at S1, so the standard lumbar angle S1 -> T12/L1
     is finite in every frame of a full flexion, lordotic at rest and growing with the flexion."""
     from spinemocap.analysis.angles import compute_angles
     from spinemocap.analysis.levels import LevelMap
