@@ -79,11 +79,21 @@ def _table(df: pd.DataFrame, path: Path, meta: dict) -> MarkerTable:
         table = MarkerTable(df, meta)
         if "fps" not in table.meta and table.n_frames > 1:
             table.meta["fps"] = round(table.fps, 9)
+        elif "fps" not in table.meta and table.n_frames == 1:
+            table.meta.update(_one_frame_rate(table))
         table = checked_table(table, path)
         arrays = table.to_arrays()
         table = _complete(table, arrays, path)
     warn_empty_markers(list(arrays["labels"]), arrays["positions"], path)
     return table
+
+
+def _one_frame_rate(table: MarkerTable) -> dict:
+    """``{"fps": ...}`` of a one-frame table whose time is its frame number over the frame rate
+    (as the tracker writes it: frame k at k / fps s), else ``{}`` (frame 0 at 0 s tells no rate)."""
+    frame = float(table.data["frame"].iloc[0])
+    time = float(table.data["time"].iloc[0])
+    return {"fps": round(frame / time, 9)} if frame > 0 and np.isfinite(time) and time > 0 else {}
 
 
 def _complete(table: MarkerTable, arrays: dict, path: Path) -> MarkerTable:

@@ -69,3 +69,13 @@ def test_a_table_written_in_parts_reads_back_as_the_whole(tmp_path):
     path = write_parts(parts, tmp_path / "m.csv", n_frames=6)
     np.testing.assert_array_equal(read_csv(path).positions(), whole.positions())
     np.testing.assert_array_equal(joined(iter(parts), path).positions(), whole.positions())
+
+
+def test_a_one_frame_csv_reads_back_with_its_frame_rate_from_its_frame_and_time(tmp_path):
+    one = MarkerTable.from_arrays(LABELS, np.ones((1, 3, 3)), fps=50.0, first_frame=7)
+    back = read_csv(write_csv(one, tmp_path / "one.csv"))
+    assert back.fps == 50.0 and back.n_frames == 1
+    np.testing.assert_array_equal(back.to_arrays()["positions"], one.to_arrays()["positions"])
+    first = MarkerTable.from_arrays(LABELS, np.ones((1, 3, 3)), fps=50.0)  # frame 0 at 0 s: no rate to read
+    with pytest.raises(InputError, match="first.csv: .*frame rate"):
+        read_csv(write_csv(first, tmp_path / "first.csv"))
