@@ -26,6 +26,10 @@ parallel, and detection by prediction in sequence mode.
   its own (no camera waits for the slowest camera of a frame); otherwise :func:`detected_ahead`
   detects whole frames in a background thread. Both give the same output. ``lookahead=0`` (the
   default) keeps the exact serial order.
+- With ``SpeedOptions.frames_at_once`` > 1 (prediction off) :func:`detected_at_once` detects that
+  many frames at the same time, each searched in full, their camera images spread over the
+  workers (one per core, processes or threads): for machines with more cores than cameras. The
+  views are those of one frame at a time.
 
 :data:`SERIAL` is the serial pipeline (one camera after the other, no prefetching, masks read
 whenever the capture has them, the full search in every frame): the speed benchmark's peer.
