@@ -237,11 +237,11 @@ def wear_clothing(body, items: tuple[str, ...], tape_bottom_z_mm: float, rng: np
         colour = GARMENT_COLOURS[int(rng.integers(len(GARMENT_COLOURS)))]
         if item == "shorts":
             top = tape_bottom_z_mm - rng.uniform(15, 70)
-            out.append((Garment(body, top - 300.0, top, torso_half_width_mm=190.0, offset_mm=6.0), colour))
+            out.append((Garment(body, top - 300.0, top, torso_half_width_mm=190.0), colour))
         else:
             level = rng.uniform(heights["T10"], heights["T6"])
             width = rng.uniform(18, 40)
-            out.append((Garment(body, level - width / 2, level + width / 2, offset_mm=4.0), colour))
+            out.append((Garment(body, level - width / 2, level + width / 2), colour))
     return out
 
 

@@ -607,8 +607,7 @@ class Scene:
             centres, radii = self.balls.at(self.times[frame] + offset)
             uv[cams] = uv_c
             for c in cams:  # a rolling shutter sees each dot when its row is read
-                if self._shutter(int(c), float(self.times[frame] + offset), self.fps).row_weights is not None:
-                    uv[c] = self._rolling_shutter_uv(int(c), float(self.times[frame] + offset))
+                uv[c] = self._rolling_shutter_uv(int(c), float(self.times[frame] + offset), uv[c])
             visible[cams] = dot_visibility(rig, dots_c, normals_c, uv_c, self._occluding_mesh(v_c, n_c), centres,
                                            radii, self.tape.dot_diameter_mm / 2)
             if n_ref:
@@ -621,12 +620,18 @@ class Scene:
             out["reference_visible"] = reference_visible
         return out
 
-    def _rolling_shutter_uv(self, camera: int, time_s: float) -> np.ndarray:
-        """(D, 2) where camera ``camera``'s rolling shutter, its middle row read at ``time_s``,
-        sees the dots (each when its row is read)."""
-        cam, half = self.rig[camera], 0.5 * float(self.readout_s[camera])
-        return rolling_shutter_uv(cam.project, self.posed_tape(time_s=time_s - half).dots(),
-                                  self.posed_tape(time_s=time_s + half).dots(), cam.size[1])
+    def _rolling_shutter_uv(self, camera: int, time_s: float, uv: np.ndarray) -> np.ndarray:
+        """(D, 2) where camera ``camera`` sees the dots in its frame at ``time_s`` (its middle
+        row's instant): ``uv`` (D, 2), their projections at that instant, for a global shutter
+        (or one too short for them to move); under a rolling shutter each where it was when its
+        row was read, between the same instants the render blends."""
+        shutter = self._shutter(camera, time_s, self.fps)
+        if shutter.row_weights is None or self.camera_looks is None:
+            return uv
+        cam = self.rig[camera]
+        at_instants = np.stack([cam.project(self.posed_tape(time_s=t).dots()) for t in shutter.instants])
+        return rolling_shutter_uv(np.array(shutter.instants), at_instants,
+                                  time_s + self.camera_looks[camera].row_times(cam.size[1]))
 
     @cached_property
     def groundtruth(self) -> dict[str, np.ndarray]:

@@ -10,7 +10,6 @@ is where the dot was when its own row was read (:func:`rolling_shutter_uv`).
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,15 +74,25 @@ def exposed(images: list[np.ndarray], masks: list[np.ndarray], weights: np.ndarr
     return acc, cover >= 0.5
 
 
-def rolling_shutter_uv(project: Callable[[np.ndarray], np.ndarray], start_mm: np.ndarray, end_mm: np.ndarray,
-                       height: int, iterations: int = 6) -> np.ndarray:
-    """(D, 2) image positions (px) of D points seen by a rolling shutter whose top row is read
-    when they are at ``start_mm`` (D, 3) and its bottom row (``height`` - 1) when at ``end_mm``
-    (moving linearly in between): each point where it was when its own row was read (fixed-point
-    iteration; ``project`` maps (D, 3) mm to (D, 2) px)."""
-    start_mm, end_mm = np.asarray(start_mm, float), np.asarray(end_mm, float)
-    uv = project(0.5 * (start_mm + end_mm))
+def rolling_shutter_uv(instants: np.ndarray, uv_at_instants: np.ndarray, row_times: np.ndarray,
+                       iterations: int = 8) -> np.ndarray:
+    """(D, 2) image positions (px) of D points seen by a rolling shutter: each where it was when
+    its own row was read. ``uv_at_instants`` (N, D, 2) their projections at the rendered
+    ``instants`` (N,) s (increasing), between which they move linearly (as the rows' blend of the
+    instants' images does, :func:`row_weights`); ``row_times`` (H,) when each row is read, s.
+    Fixed-point iteration from the projection at the middle row's time."""
+    instants, uv_at_instants = np.asarray(instants, float), np.asarray(uv_at_instants, float)
+    rows = np.arange(len(row_times), dtype=float)
+
+    def at(times: np.ndarray) -> np.ndarray:
+        position = np.interp(times, instants, np.arange(len(instants), dtype=float))
+        lower = np.minimum(np.floor(position).astype(int), len(instants) - 2) if len(instants) > 1 else np.zeros(len(times), int)
+        frac = (position - lower)[:, None] if len(instants) > 1 else np.zeros((len(times), 1))
+        upper = np.minimum(lower + 1, len(instants) - 1)
+        points = np.arange(uv_at_instants.shape[1])
+        return (1 - frac) * uv_at_instants[lower, points] + frac * uv_at_instants[upper, points]
+
+    uv = at(np.full(uv_at_instants.shape[1], float(np.interp((len(rows) - 1) / 2, rows, row_times))))
     for _ in range(iterations):
-        frac = np.clip(np.nan_to_num(uv[:, 1] / max(height - 1, 1), nan=0.5), 0.0, 1.0)
-        uv = project(start_mm + frac[:, None] * (end_mm - start_mm))
+        uv = at(np.interp(np.nan_to_num(uv[:, 1], nan=(len(rows) - 1) / 2), rows, row_times))
     return uv
