@@ -638,7 +638,8 @@ class Scene:
         """Exact ground truth, same keys as ``groundtruth.npz``:
 
         ``labels`` (D,) str; ``dots`` (F, D, 3) mm; ``dot_normals`` (F, D, 3) outward unit normals;
-        ``visible`` (F, C, D) bool; ``uv`` (F, C, D, 2) distorted pixels; ``fps``; ``times`` (F,) s;
+        ``visible`` (F, C, D) bool; ``uv`` (F, C, D, 2) distorted pixels (under a rolling shutter where
+        each dot was when its row was read; ``visible`` at the frame's instant); ``fps``; ``times`` (F,) s;
         ``angles_deg`` (F, 3) applied [flexion, lateral bending, axial rotation] (signs in
         :mod:`spinemocap.synth.motions`), ``angle_names``; ``keypoints`` (F, 8, 3) mm: back
         skin landmarks a keypoint tracker follows for the plane baselines, named by

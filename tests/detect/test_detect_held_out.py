@@ -28,10 +28,13 @@ def test_training_refuses_every_part_of_the_held_out_family(tmp_path, monkeypatc
 
 def test_the_lab_training_mix_varies_the_look_and_never_holds_the_held_out_tape():
     rng = np.random.default_rng(0)
-    drawn = [training_data.lab_appearance(SynthConfig.preset("tiny"), rng) for _ in range(60)]
+    drawn = [training_data.lab_appearance(SynthConfig.preset("tiny", seed=k), rng) for k in range(60)]
     colours = {c.tape_colour for c in drawn}
     assert HELD_OUT_FAMILY["tape_colour"] not in colours and len(colours) == len(TAPE_COLOURS) - 1
     assert {c.backdrop for c in drawn} == {"plain", "room"} and {c.camera_look for c in drawn} == {"ideal", "lab"}
+    # the tape's roll and finish, the skin's marks and clothing vary too
+    assert len({c.tape_roll for c in drawn}) > 2 and len({c.tape_finish for c in drawn}) == 3
+    assert {m for c in drawn for m in c.skin_marks} and {i for c in drawn for i in c.clothing}
     for config in drawn:
         refuse_held_out(config)
 
