@@ -13,8 +13,9 @@ lab has: ``capture.toml``'s nominal tape spec and the written (perturbed) rig.
 
 ``held-out look (lab)`` renders the detection benchmark's held-out appearance family (the
 tape colour no training set holds, painted lab rooms, lab camera looks: ``bench detect --sets
-held-out``) at the ``lab`` level; its goal is the issue's: mean error <= 1 mm and no wrong label
-among the dot-frames the tracker vouches for (``vouched_swaps``).
+held-out``) at the ``lab`` level; its goal: mean error <= 1 mm and no wrong label among the
+dot-frames the tracker vouches for (``vouched_swaps``). ``held-out look, woven tape, marked skin,
+shorts (lab)`` adds a lab's subject (:data:`LAB_SUBJECT`) to it.
 
 ``calibration 2.0 px + reference`` adds the studio's L-frame beside the subject
 (:mod:`spinemocap.synth.reference`): its ``--refine-rig`` holds the L-frame's markers (found in
@@ -78,10 +79,15 @@ def sweep() -> list[Case]:
                                                              "calibration_error_px": 1.0}),
               Case("forehand (lab)", "motion", {"realism": "lab", "motion": "forehand"})]
     cases.append(Case(HELD_OUT_CASE, "appearance", {"realism": "lab", **held_out_look()}))
+    cases.append(Case(HELD_OUT_CASE_SUBJECT, "appearance", {"realism": "lab", **held_out_look(), **LAB_SUBJECT}))
     return cases
 
 
 HELD_OUT_CASE = "held-out look (lab)"
+HELD_OUT_CASE_SUBJECT = "held-out look, woven tape, marked skin, shorts (lab)"
+# a lab's subject the studio renders beyond the plain one: woven tape, hair, freckles, moles and a
+# sweaty sheen on the skin, shorts below the tape
+LAB_SUBJECT = {"tape_finish": "weave", "skin_marks": ("hair", "freckles", "moles", "sweat"), "clothing": ("shorts",)}
 
 
 def held_out_look() -> dict:

@@ -190,6 +190,7 @@ class SportsBraBand(Garment):
             raise ValueError(f"the sports-bra band at height {level_z_mm:.0f} mm misses the torso") from None
 
 
+SPORTS_BRA_RGB = (0.15, 0.25, 0.55)  # the sports-bra band's colour
 ClothingItem = Literal["shorts", "bra_strap"]
 CLOTHING_ITEMS: tuple[str, ...] = get_args(ClothingItem)
 GARMENT_COLOURS = ((0.05, 0.05, 0.06), (0.92, 0.92, 0.90), (0.45, 0.47, 0.50), (0.10, 0.16, 0.40),
@@ -199,19 +200,18 @@ GARMENT_COLOURS = ((0.05, 0.05, 0.06), (0.92, 0.92, 0.90), (0.45, 0.47, 0.50), (
 class Clothing:
     """Garments worn together, as one mesh: ``faces`` (M, 3), per-vertex ``colours`` (N, 3) RGB
     0..1 (None when no garment has its own colour: the renderer's band colour; a garment
-    without one takes ``default_colour``); :meth:`vertices` poses them.
+    without one takes :data:`SPORTS_BRA_RGB`); :meth:`vertices` poses them.
     Garments hide the tape like any solid: the scene draws them black in the tape mask and casts
     the dots' visibility rays against them."""
 
-    def __init__(self, garments: list[tuple[Garment, tuple[float, float, float] | None]],
-                 default_colour: tuple[float, float, float] = (0.15, 0.25, 0.55)):
+    def __init__(self, garments: list[tuple[Garment, tuple[float, float, float] | None]]):
         self.garments = [g for g, _ in garments]
         sizes = [g.n_points for g in self.garments]
         offsets = np.cumsum([0] + sizes[:-1])
         self.faces = np.concatenate([g.faces + o for g, o in zip(self.garments, offsets)])
         colours = [c for _, c in garments]
         self.colours = (None if all(c is None for c in colours) else
-                        np.concatenate([np.tile(c if c is not None else default_colour, (n, 1))
+                        np.concatenate([np.tile(c if c is not None else SPORTS_BRA_RGB, (n, 1))
                                         for c, n in zip(colours, sizes)]))
 
     def vertices(self, body_vertices: np.ndarray, body_normals: np.ndarray) -> np.ndarray:

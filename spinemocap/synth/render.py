@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from ..camera import Camera
+from .occluders import SPORTS_BRA_RGB
 from .reference import ReferenceMeshes
 
 NEAR_MM, FAR_MM = 50.0, 50_000.0
@@ -59,7 +60,7 @@ class Appearance:
     background_rgb: tuple[float, float, float] = (0.35, 0.36, 0.38)
     reference_frame_rgb: tuple[float, float, float] = (0.20, 0.20, 0.21)  # dark anodised aluminium
     reference_marker_rgb: tuple[float, float, float] = (0.95, 0.95, 0.95)  # retro-reflective, lit by the camera
-    band_rgb: tuple[float, float, float] = (0.15, 0.25, 0.55)
+    band_rgb: tuple[float, float, float] = SPORTS_BRA_RGB
     light_position: tuple[float, float, float] = (0.0, 3000.0, 3000.0)
     light_intensity: float = 0.9
     fill_intensity: float = 0.35
