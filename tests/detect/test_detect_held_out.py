@@ -43,6 +43,9 @@ def test_the_held_out_set_shows_the_held_out_family_at_the_lab_level():
     held = bench.TEST_SETS[bench.HELD_OUT]
     assert (held.tape_colour, held.backdrop, held.camera_look) == (HELD_OUT_FAMILY["tape_colour"], "room", "lab")
     assert held.realism == "lab" and bench.HELD_OUT in bench.DEFAULT_SETS
+    with_subject = bench.TEST_SETS[bench.HELD_OUT_SUBJECT]  # the same look on a lab's subject
+    assert (with_subject.tape_colour, with_subject.backdrop, with_subject.camera_look, with_subject.realism) == (
+        held.tape_colour, held.backdrop, held.camera_look, held.realism) and with_subject.subject == "lab"
     offsets = [test.seed_offset for test in bench.TEST_SETS.values()]
     assert len(set(offsets)) == len(offsets)  # no two sets share scenes
 
