@@ -18,7 +18,7 @@ from tqdm import tqdm
 from ..detect.dataset import save_shard, views_of
 from ..fileio import atomic_path
 from ..synth import SynthConfig, build_scene
-from ..synth.appearance import TAPE_COLOURS
+from ..synth.appearance import TAPE_COLOURS, lab_subject
 from ..synth.motions import MOTIONS
 
 log = logging.getLogger(__name__)
@@ -84,12 +84,15 @@ def random_scene_config(rng: np.random.Generator, seed: int, layouts=("tiny", "a
 def lab_appearance(config: SynthConfig, rng: np.random.Generator) -> SynthConfig:
     """``config`` with a lab's appearance drawn from ``rng``: a tape colour of
     :data:`TAPE_COLOURS` less :data:`HELD_OUT_FAMILY`'s (half black), a painted room behind the
-    subject in half the scenes, the ``lab`` camera look in two thirds."""
+    subject in half the scenes, the ``lab`` camera look in two thirds (H.264 / H.265, rolling
+    shutters among them); and from the scene's own stream the tape's roll and finish, the skin's
+    marks and clothing (:func:`~spinemocap.synth.appearance.lab_subject`)."""
     colours = [c for c in TAPE_COLOURS if c != HELD_OUT_FAMILY["tape_colour"]]
     others = [c for c in colours if c != "black"]
     colour = "black" if rng.random() < 0.5 else str(rng.choice(others))
+    subject = lab_subject(np.random.default_rng([config.seed, 79]))
     return dataclasses.replace(config, tape_colour=colour, backdrop="room" if rng.random() < 0.5 else "plain",
-                               camera_look="lab" if rng.random() < 2 / 3 else "ideal")
+                               camera_look="lab" if rng.random() < 2 / 3 else "ideal", **subject)
 
 
 def vary_appearance(scene, rng: np.random.Generator) -> None:

@@ -9,6 +9,8 @@ Test sets (bodies, seeds and so lighting never used in training: seeds from
   data), in front of painted lab rooms, through the ``lab`` camera look (lamp colour, flicker,
   exposure, defocus, 4:2:0, JPEG and H.264), both drawn from held-out seeds; the artificial
   layout at the ``lab`` realism level with light occlusion;
+- ``held-out+subject``: the same with a lab's subject drawn per scene
+  (:func:`spinemocap.synth.appearance.lab_subject`: tape roll and finish, skin marks, clothing);
 - ``tape-free``: images without any tape (:mod:`spinemocap.bench.tape_free`: scikit-image's
   photographs and painted lab rooms): false dots per 100 images and the largest tape region.
 
@@ -43,7 +45,7 @@ import platform
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Literal
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -54,6 +56,7 @@ from ..capture import to_grey
 from ..detect import find_dots
 from ..fileio import atomic_path, atomic_write
 from ..synth import SynthConfig, build_scene
+from ..synth.appearance import lab_subject
 from ..synth.occluders import segments_blocked_by_spheres
 from ..synth.visibility import rim_points
 from ..timing import StageTimer
@@ -66,6 +69,7 @@ MAX_WALL_HIDDEN = 0.25  # unoccluded: the tape's wall hides less than this share
 VIEW_ANGLE_BINS_DEG = (0, 45, 60, 70, 78)
 SEQUENCE_FRAMES = 200  # 2 s of the 'mixed' motion; test frames are spread over it (varied poses)
 HELD_OUT = "held-out"
+HELD_OUT_SUBJECT = "held-out+subject"
 
 
 @dataclass
@@ -82,6 +86,7 @@ class TestSet:
     backdrop: str = "plain"
     camera_look: str = "ideal"
     seed_offset: int = 0  # the set's scenes: seeds HELD_OUT_SEED_BASE + 100 k + 10 attempt + seed_offset
+    subject: Literal["plain", "lab"] = "plain"  # lab: the tape's roll and finish, skin marks, clothing drawn per scene
 
 
 TEST_SETS = {
@@ -93,11 +98,14 @@ TEST_SETS = {
     # camera looks of held-out seeds
     HELD_OUT: TestSet(HELD_OUT, "artificial", scenes=3, frames=2, blur=0.0, occlusion="light", realism="lab",
                       tape_colour=HELD_OUT_FAMILY["tape_colour"], backdrop="room", camera_look="lab", seed_offset=3),
+    HELD_OUT_SUBJECT: TestSet(HELD_OUT_SUBJECT, "artificial", scenes=3, frames=2, blur=0.0, occlusion="light",
+                              realism="lab", tape_colour=HELD_OUT_FAMILY["tape_colour"], backdrop="room",
+                              camera_look="lab", seed_offset=4, subject="lab"),
 }
 TAPE_FREE = "tape-free"
 TAPE_FREE_ROOMS = 60
 LATTICE_CASES = 300  # random wall-bar grids and tapes for the lattice test alone
-DEFAULT_SETS = ["studio", "blur+balls", HELD_OUT, TAPE_FREE]
+DEFAULT_SETS = ["studio", "blur+balls", HELD_OUT, HELD_OUT_SUBJECT, TAPE_FREE]
 
 
 # ---------------------------------------------------------------------------------- scoring
@@ -186,10 +194,11 @@ def held_out_scene(test: TestSet, k: int, attempts: int = 5):
         seed = HELD_OUT_SEED_BASE + 100 * k + 10 * attempt + test.seed_offset
         rng = np.random.default_rng([seed, 99])
         phenotype = {key: float(rng.uniform(0.1, 0.9)) for key in ("gender", "age", "muscle", "weight", "height")}
+        subject: dict = dict(lab_subject(np.random.default_rng([seed, 98]))) if test.subject == "lab" else {}
         cfg = SynthConfig.preset(test.preset, frames=SEQUENCE_FRAMES, seed=seed, phenotype=phenotype,
                                  blur=test.blur, occlusion=test.occlusion, skin_tone=float(rng.uniform(0, 1)),
                                  supersample=test.supersample, realism=test.realism, tape_colour=test.tape_colour,
-                                 backdrop=test.backdrop, camera_look=test.camera_look)
+                                 backdrop=test.backdrop, camera_look=test.camera_look, **subject)
         try:
             return build_scene(cfg), cfg
         except ValueError as exc:

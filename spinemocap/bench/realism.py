@@ -11,6 +11,12 @@ solution. Calibration cases also score the new tracker after ``--refine-rig`` (t
 bundle-adjusted on the tracked dots, observed dots re-triangulated). The tracker is handed what a
 lab has: ``capture.toml``'s nominal tape spec and the written (perturbed) rig.
 
+``held-out look (lab)`` renders the detection benchmark's held-out appearance family (the
+tape colour no training set holds, painted lab rooms, lab camera looks: ``bench detect --sets
+held-out``) at the ``lab`` level; its goal: mean error <= 1 mm and no wrong label among the
+dot-frames the tracker vouches for (``vouched_swaps``). ``held-out look, woven tape, marked skin,
+shorts (lab)`` adds a lab's subject (:data:`LAB_SUBJECT`) to it.
+
 ``calibration 2.0 px + reference`` adds the studio's L-frame beside the subject
 (:mod:`spinemocap.synth.reference`): its ``--refine-rig`` holds the L-frame's markers (found in
 the rendered images with the given rig) as control points, and scores the refinement without
@@ -34,10 +40,11 @@ from ..fileio import atomic_path, atomic_write
 from ..markers import MISSING
 from ..synth import SynthConfig, build_scene
 from ..track.config import TrackerConfig
-from ..track.evaluate import evaluate_tracking
+from ..track.evaluate import evaluate_tracking, label_swaps
 from ..track.quality import flagged_from_confidence
 from ..track.rig_check import CalibrationWarning
 from ..track.rig_refine import ReferenceFitError, RigRefineConfig, refine_rig
+from .detect import HELD_OUT, TEST_SETS
 from .frame_error import shape_error_mm, truth_of
 
 
@@ -56,7 +63,8 @@ def sweep() -> list[Case]:
     """The sweep: tension 0/10/20/30 % with skin strain, 30 % with skin strain off, calibration
     error 0.5/1/2/3 px (with and without --refine-rig), sync error 1/3 ms, full flexion (at the
     ``lab`` level, and with 20 % tension and 1 px calibration error) and the forehand at the
-    ``lab`` level, and ``lab`` itself (the ``ideal`` case = 0 of every factor)."""
+    ``lab`` level, the held-out appearance family at the ``lab`` level (:func:`held_out_look`), and
+    ``lab`` itself (the ``ideal`` case = 0 of every factor)."""
     cases = [Case("ideal", "baseline", {"realism": "ideal"}), Case("lab", "all", {"realism": "lab"})]
     cases += [Case(f"tension {int(100 * t)} % + skin", "tension", {"realism": "skin", "tape_tension": t})
               for t in (0.0, 0.1, 0.2, 0.3)]
@@ -70,12 +78,29 @@ def sweep() -> list[Case]:
               Case("flexion, 20 % tension, 1 px", "motion", {"realism": "lab", "motion": "flexion", "tape_tension": 0.2,
                                                              "calibration_error_px": 1.0}),
               Case("forehand (lab)", "motion", {"realism": "lab", "motion": "forehand"})]
+    cases.append(Case(HELD_OUT_CASE, "appearance", {"realism": "lab", **held_out_look()}))
+    cases.append(Case(HELD_OUT_CASE_SUBJECT, "appearance", {"realism": "lab", **held_out_look(), **LAB_SUBJECT}))
     return cases
+
+
+HELD_OUT_CASE = "held-out look (lab)"
+HELD_OUT_CASE_SUBJECT = "held-out look, woven tape, marked skin, shorts (lab)"
+# a lab's subject the studio renders beyond the plain one: woven tape, hair, freckles, moles and a
+# sweaty sheen on the skin, shorts below the tape
+LAB_SUBJECT = {"tape_finish": "weave", "skin_marks": ("hair", "freckles", "moles", "sweat"), "clothing": ("shorts",)}
+
+
+def held_out_look() -> dict:
+    """The studio settings of ``bench detect``'s held-out appearance family (tape colour, backdrop,
+    camera look), the one definition of it."""
+    held = TEST_SETS[HELD_OUT]
+    return {"tape_colour": held.tape_colour, "backdrop": held.backdrop, "camera_look": held.camera_look}
 
 
 GOALS = {"swaps": "0 swaps up to 30 % tension with skin strain and 2 px calibration error",
          "lab_mean_mm": 1.0, "refined_2px_mean_mm": 1.0,
-         "flagged_dot_share": 0.05}  # in every case up to full flexion, 20 % tension and 1 px calibration error
+         "flagged_dot_share": 0.05,  # in every case up to full flexion, 20 % tension and 1 px calibration error
+         "held_out_mean_mm": 1.0}  # and no wrong label among the vouched-for dot-frames
 
 
 def _render(scene, detect, n_frames: int, progress: bool) -> list:
@@ -105,21 +130,38 @@ def _score(table, gt: dict, spacing: float, result) -> dict:
     quality = result.quality()
     return {"mean_mm": ev.mean_error_mm, "p95_mm": ev.p95_error_mm, "swaps": ev.label_swaps,
             "flagged_frames": len(quality["flagged_frames"]), "flagged_dot_share": flagged_dot_share(table),
-            "vouched_mean_mm": vouched_error_mm(table, gt), "flags": quality["flags"],
+            "vouched_mean_mm": vouched_error_mm(table, gt), "vouched_swaps": vouched_swaps(table, gt, spacing),
+            "flags": quality["flags"],
             "unsolved_frames": ev.frames_without_solution, "stretch_along": quality["stretch_along"],
             "gate_px": quality["gate_px"], "ms_per_frame": ev.total_ms_per_frame}
 
 
-def vouched_error_mm(table, gt: dict) -> float:
-    """Mean error (mm) of the dot-frames the tracker vouches for (not flagged, not missing)."""
+def _vouched(table, gt: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The table's (F, D, 3) positions, their (F, D, 3) true dots and the (F, D) dot-frames the
+    tracker vouches for (not flagged, not missing)."""
     arrays = table.to_arrays()
     labels = [str(x) for x in gt["labels"]]
     truth = np.asarray(gt["dots"], float)[arrays["frames"]][:, [labels.index(str(lab)) for lab in arrays["labels"]]]
     status = arrays["status"]
     doubted = flagged_from_confidence(status.reshape(-1, 1), arrays["confidence"].reshape(-1, 1)).reshape(status.shape)
-    vouched = ~doubted & (status != MISSING)
-    error = np.linalg.norm(arrays["positions"] - truth, axis=2)[vouched]
+    return arrays["positions"], truth, ~doubted & (status != MISSING)
+
+
+def vouched_error_mm(table, gt: dict) -> float:
+    """Mean error (mm) of the dot-frames the tracker vouches for (not flagged, not missing)."""
+    positions, truth, vouched = _vouched(table, gt)
+    error = np.linalg.norm(positions - truth, axis=2)[vouched]
     return float(error.mean()) if error.size else float("nan")
+
+
+def vouched_swaps(table, gt: dict, spacing_mm: float) -> int:
+    """Wrong labels among the dot-frames the tracker vouches for: each nearer another true dot
+    than its own (:func:`spinemocap.track.evaluate.label_swaps`, the tape's closest dot spacing
+    ``spacing_mm``)."""
+    positions, truth, vouched = _vouched(table, gt)
+    if not vouched.any():
+        return 0
+    return int((label_swaps(positions, truth, spacing_mm) & vouched).sum())
 
 
 def run_case(case: Case, frames: int, fps: float | None, preset: str, occlusion: str, detector: str,
@@ -221,8 +263,9 @@ def run_realism_benchmark(cases: list[Case], frames: int = 200, fps: float | Non
 @dataclass(frozen=True)
 class GoalVerdict:
     """One goal against the cases run: ``met``, and what it was judged on: a single ``value`` (mm),
-    or per case the numbers ``by_case`` (case name -> swapped dot-frames or flagged share), named
-    ``judged_on`` ("swaps" or "shares") in the JSON."""
+    or per case the numbers ``by_case`` (case name -> swapped dot-frames or flagged share; for the
+    held-out look its mean error and wrong vouched-for labels), named ``judged_on`` ("swaps",
+    "shares" or "held_out") in the JSON."""
 
     met: bool
     value: float | None = None
@@ -253,6 +296,12 @@ def verdict(rows: list[dict]) -> dict[str, GoalVerdict]:
         shares = {r["case"]: r["new"]["flagged_dot_share"] for r in flag_rows}
         out["flagged_dot_share"] = GoalVerdict(all(v <= GOALS["flagged_dot_share"] for v in shares.values()),
                                                by_case=shares, judged_on="shares")
+    held = next((r for r in rows if r["case"] == HELD_OUT_CASE), None)
+    if held:
+        value, wrong = held["new"]["mean_mm"], held["new"].get("vouched_swaps")
+        out["held_out"] = GoalVerdict(value <= GOALS["held_out_mean_mm"] and wrong == 0,
+                                      by_case={"mean_mm": value, "vouched_swaps": float("nan") if wrong is None else wrong},
+                                      judged_on="held_out")
     lab = next((r for r in rows if r["case"] == "lab"), None)
     if lab:
         out["lab_mean_mm"] = GoalVerdict(lab["new"]["mean_mm"] <= GOALS["lab_mean_mm"], value=lab["new"]["mean_mm"])

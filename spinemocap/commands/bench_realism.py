@@ -12,7 +12,8 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
         "realism", help="tracker vs taping tension, skin strain, calibration and sync error",
         description="Render the artificial preset once per case (tension 0/10/20/30 %% with skin strain, "
                     "calibration error 0.5/1/2/3 px with and without --refine-rig, sync error 1/3 ms, full "
-                    "flexion and the forehand at the lab level, lab and ideal), track it in sequence mode "
+                    "flexion and the forehand at the lab level, the held-out look of bench detect (blue tape, painted "
+                    "rooms, lab cameras) at the lab level, lab and ideal), track it in sequence mode "
                     "with the shipped detector, and score the tracker and its peer without stretch estimation "
                     "(nominal spacing, fixed 2 px gate) on the same frames.")
     p.add_argument("--json", type=Path, required=True, help="results file")

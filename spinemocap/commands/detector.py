@@ -51,8 +51,10 @@ def register(subparsers) -> None:
     t.add_argument("--frames-per-scene", type=int, default=2)
     t.add_argument("--data-seed", type=int, default=0, help="studio seeds data_seed*1000 + scene")
     t.add_argument("--appearance", choices=("studio", "lab"), default="studio",
-                   help="studio: dark tapes on plain backgrounds; lab: also beige, pink and red tape, painted lab "
-                        "rooms and lab camera looks (never the benchmark's held-out blue tape)")
+                   help="studio: dark tapes on plain backgrounds; lab: also beige, pink and red tape, other rolls "
+                        "(hole sizes, spacings), woven and printed tape, skin marks (hair, freckles, moles, sweat, "
+                        "tattoos), shorts and bra straps, painted lab rooms and lab camera looks (H.264/H.265, rolling "
+                        "shutters; never the benchmark's held-out blue tape)")
     t.set_defaults(func=_train)
 
     f = sub.add_parser("finetune", help="fine-tune on a lab's labelled images (PNG masks or COCO polygons)")

@@ -13,6 +13,11 @@ log = logging.getLogger(__name__)
 TAPE_COLOUR_NAMES = ("black", "beige", "blue", "pink", "red")
 BACKDROP_NAMES = ("plain", "room")
 CAMERA_LOOK_NAMES = ("ideal", "lab")
+TAPE_ROLL_NAMES = ("standard", "small_holes", "large_holes", "close_rows", "wide_rows")
+TAPE_FINISH_NAMES = ("smooth", "weave", "printed")
+SKIN_MARK_NAMES = ("hair", "freckles", "moles", "sweat", "tattoo")
+CLOTHING_NAMES = ("shorts", "bra_strap")
+CODEC_NAMES = ("none", "jpeg", "h264", "h265")
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -28,6 +33,17 @@ def _numbers(text: str) -> tuple[float, ...]:
         return tuple(float(x) for x in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, one per camera, got {text!r}") from None
+
+
+def _names(vocabulary: tuple[str, ...]):
+    """An argparse type: comma-separated names of ``vocabulary`` (empty: none)."""
+    def parse(text: str) -> tuple[str, ...]:
+        names = tuple(n.strip() for n in text.split(",") if n.strip())
+        unknown = [n for n in names if n not in vocabulary]
+        if unknown:
+            raise argparse.ArgumentTypeError(f"unknown {', '.join(unknown)}; choose any of {', '.join(vocabulary)}")
+        return names
+    return parse
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -100,7 +116,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "wall bars, treadmill, posters, lights, camera strobes), one view per camera")
     p.add_argument("--camera-look", choices=CAMERA_LOOK_NAMES,
                    help="light and camera: ideal (default) or lab (per camera a seeded mix of lamp colour, mains "
-                        "flicker, auto-exposure, defocus, 4:2:0 chroma, JPEG or H.264 at sports-camera bitrates)")
+                        "flicker, auto-exposure, defocus, 4:2:0 chroma, JPEG, H.264 or H.265 at sports-camera bitrates, "
+                        "rolling shutters)")
+    p.add_argument("--tape-roll", choices=TAPE_ROLL_NAMES,
+                   help="the perforated roll: standard (10 mm holes, rows 25 mm apart, columns 15 mm; default), "
+                        "small_holes (7 mm), large_holes (12 mm), close_rows (20 mm rows, 14 mm columns) or wide_rows "
+                        "(30 mm rows, 16 mm columns); capture.toml gives the tracker the roll's layout")
+    p.add_argument("--tape-finish", choices=TAPE_FINISH_NAMES,
+                   help="the tape's surface: smooth (default), weave (cotton weave) or printed (stripes, camouflage or "
+                        "lettering in a contrasting ink)")
+    p.add_argument("--skin-marks", type=_names(SKIN_MARK_NAMES), metavar="MARK,...",
+                   help="marks on the subject's skin, any of hair, freckles, moles, sweat (a sheen), tattoo; they lie "
+                        "under the tape and show through its holes")
+    p.add_argument("--clothing", type=_names(CLOTHING_NAMES), metavar="ITEM,...",
+                   help="garments, any of shorts (waistband just below the tape) and bra_strap (a sports bra's back "
+                        "band between T10 and T6); where they cross the tape they hide it in the images, masks and "
+                        "ground-truth visibility")
+    p.add_argument("--rolling-shutter", type=float, metavar="MS",
+                   help="every camera's rolling-shutter readout, top row to bottom row (0 = global shutter; default: "
+                        "the camera look's); groundtruth.npz uv holds where each dot was when its row was read")
+    p.add_argument("--camera-codec", choices=CODEC_NAMES,
+                   help="every camera's frames through this codec (default: the camera look's)")
     p.add_argument("--phenotype", action="append", default=[], metavar="KEY=VALUE",
                    help="anny phenotype value in [0, 1] (repeatable): gender (or sex; 0 male, 1 female), age "
                         "(0 newborn, 0.5 young adult, 1 old), muscle, weight, height, proportions")
@@ -138,6 +174,8 @@ def config_from_args(args: argparse.Namespace):
         "reference": args.reference or None, "camera_offsets_s": args.camera_offsets, "camera_fps": args.camera_fps,
         "drop_frames": args.drop_frames, "clap": args.clap or None,
         "tape_colour": args.tape_colour, "backdrop": args.backdrop, "camera_look": args.camera_look,
+        "tape_roll": args.tape_roll, "tape_finish": args.tape_finish, "skin_marks": args.skin_marks,
+        "clothing": args.clothing, "rolling_shutter_ms": args.rolling_shutter, "camera_codec": args.camera_codec,
         "phenotype": phenotype or None, "name": args.out.name,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -136,16 +137,15 @@ def _sphere_faces(resolution: int, n: int) -> np.ndarray:
     return cached[: n * len(_unit_sphere(resolution)[1])]
 
 
-class SportsBraBand:
-    """A band around the chest (the paper's jogging-bra occlusion), bound to the skin.
+class Garment:
+    """A piece of clothing bound to the skin: the torso (arms excluded by ``|x| <
+    torso_half_width_mm``) between the heights ``z_low_mm`` and ``z_high_mm`` of the rest mesh,
+    giving straight edges; every vertex is bound to the body triangle it lies on (barycentric
+    coordinates) and floated ``offset_mm`` off the skin, so the garment moves and stretches with
+    the body. Raises ValueError when the slab misses the torso."""
 
-    Built on the rest mesh: the torso (arms excluded by ``|x| < torso_half_width_mm``) is clipped
-    to a ``width_mm`` high slab centred at ``level_z_mm``, giving straight band edges; every band
-    vertex is bound to the body triangle it lies on (barycentric coordinates) and floated
-    ``BAND_OFFSET_MM`` off the skin, so the band moves and stretches with the body.
-    """
-
-    def __init__(self, body, level_z_mm: float, width_mm: float = 60.0, torso_half_width_mm: float = 175.0):
+    def __init__(self, body, z_low_mm: float, z_high_mm: float, torso_half_width_mm: float = 175.0,
+                 offset_mm: float | None = None):
         import pyvista as pv
 
         from ..skin import SkinBinding, barycentric
@@ -153,27 +153,96 @@ class SportsBraBand:
         faces_vtk = np.column_stack([np.full(len(body.faces), 3), body.faces]).ravel()
         mesh = pv.PolyData(body.rest_vertices, faces_vtk)
         centroid = body.rest_vertices[body.faces].mean(axis=1)
-        near = (np.abs(centroid[:, 2] - level_z_mm) < width_mm) & (np.abs(centroid[:, 0]) < torso_half_width_mm)
+        middle, half = (z_low_mm + z_high_mm) / 2, (z_high_mm - z_low_mm) / 2
+        near = (np.abs(centroid[:, 2] - middle) < 2 * half) & (np.abs(centroid[:, 0]) < torso_half_width_mm)
         torso = mesh.extract_cells(np.flatnonzero(near)).extract_surface(algorithm=None)
         torso["body_face"] = np.flatnonzero(near)[torso.cell_data["vtkOriginalCellIds"]]
-        slab = torso.clip("z", origin=(0, 0, level_z_mm + width_mm / 2), invert=True)
-        slab = slab.clip("-z", origin=(0, 0, level_z_mm - width_mm / 2), invert=True).triangulate()
+        slab = torso.clip("z", origin=(0, 0, z_high_mm), invert=True)
+        slab = slab.clip("-z", origin=(0, 0, z_low_mm), invert=True).triangulate()
         slab = slab.extract_surface(algorithm=None).triangulate()
         if slab.n_cells == 0:
-            raise ValueError(f"the sports-bra band at height {level_z_mm:.0f} mm misses the torso")
+            raise ValueError(f"the garment between heights {z_low_mm:.0f} and {z_high_mm:.0f} mm misses the torso")
         self.faces = slab.faces.reshape(-1, 4)[:, 1:]
         points = np.asarray(slab.points, float)
-        # every band vertex lies on the body triangle of the cell it came from
+        self.n_points = len(points)
+        # every vertex lies on the body triangle of the cell it came from
         owner = np.full(len(points), -1)
         for cell, tri in zip(np.asarray(slab.cell_data["body_face"]), self.faces):
             owner[tri] = cell
         self.binding = SkinBinding(owner, barycentric(body.rest_vertices[body.faces[owner]], points))
         self._body_faces = body.faces
+        self.offset_mm = BAND_OFFSET_MM if offset_mm is None else float(offset_mm)
 
     def vertices(self, body_vertices: np.ndarray, body_normals: np.ndarray) -> np.ndarray:
-        """(N, 3) posed band vertices, ``BAND_OFFSET_MM`` off the skin."""
+        """(N, 3) posed garment vertices, ``offset_mm`` off the skin."""
         p = self.binding.surface_points(body_vertices, self._body_faces)
-        return p + BAND_OFFSET_MM * self.binding.normals(body_normals, self._body_faces)
+        return p + self.offset_mm * self.binding.normals(body_normals, self._body_faces)
+
+
+class SportsBraBand(Garment):
+    """A band around the chest (the paper's jogging-bra occlusion): a ``width_mm`` high
+    :class:`Garment` centred at ``level_z_mm``, ``BAND_OFFSET_MM`` off the skin."""
+
+    def __init__(self, body, level_z_mm: float, width_mm: float = 60.0, torso_half_width_mm: float = 175.0):
+        try:
+            super().__init__(body, level_z_mm - width_mm / 2, level_z_mm + width_mm / 2, torso_half_width_mm)
+        except ValueError:
+            raise ValueError(f"the sports-bra band at height {level_z_mm:.0f} mm misses the torso") from None
+
+
+SPORTS_BRA_RGB = (0.15, 0.25, 0.55)  # the sports-bra band's colour
+ClothingItem = Literal["shorts", "bra_strap"]
+CLOTHING_ITEMS: tuple[str, ...] = get_args(ClothingItem)
+GARMENT_COLOURS = ((0.05, 0.05, 0.06), (0.92, 0.92, 0.90), (0.45, 0.47, 0.50), (0.10, 0.16, 0.40),
+                   (0.85, 0.40, 0.55), (0.60, 0.10, 0.12), (0.20, 0.35, 0.22))
+
+
+class Clothing:
+    """Garments worn together, as one mesh: ``faces`` (M, 3), per-vertex ``colours`` (N, 3) RGB
+    0..1 (None when no garment has its own colour: the renderer's band colour; a garment
+    without one takes :data:`SPORTS_BRA_RGB`); :meth:`vertices` poses them.
+    Garments hide the tape like any solid: the scene draws them black in the tape mask and casts
+    the dots' visibility rays against them."""
+
+    def __init__(self, garments: list[tuple[Garment, tuple[float, float, float] | None]]):
+        self.garments = [g for g, _ in garments]
+        sizes = [g.n_points for g in self.garments]
+        offsets = np.cumsum([0] + sizes[:-1])
+        self.faces = np.concatenate([g.faces + o for g, o in zip(self.garments, offsets)])
+        colours = [c for _, c in garments]
+        self.colours = (None if all(c is None for c in colours) else
+                        np.concatenate([np.tile(c if c is not None else SPORTS_BRA_RGB, (n, 1))
+                                        for c, n in zip(colours, sizes)]))
+
+    def vertices(self, body_vertices: np.ndarray, body_normals: np.ndarray) -> np.ndarray:
+        """(N, 3) posed vertices of every garment, in order."""
+        return np.concatenate([g.vertices(body_vertices, body_normals) for g in self.garments])
+
+
+def wear_clothing(body, items: tuple[str, ...], tape_bottom_z_mm: float, rng: np.random.Generator) -> list[tuple[Garment, tuple[float, float, float]]]:
+    """The garments ``items`` (:data:`CLOTHING_ITEMS`) on the rest ``body``, drawn from ``rng``:
+    ``shorts`` whose waistband lies 15-70 mm below the tape's lower end (``tape_bottom_z_mm``, the
+    rest height of its first row's dots) and reach 300 mm down; a sports bra's back ``bra_strap``
+    18-40 mm wide across the back somewhere between T10 and T6 (over the tape: it hides the rows it
+    crosses, as in a lab). Each in a colour of :data:`GARMENT_COLOURS`. Raises ValueError for an
+    unknown item."""
+    unknown = [i for i in items if i not in CLOTHING_ITEMS]
+    if unknown:
+        raise ValueError(f"unknown clothing {unknown}; choose from {list(CLOTHING_ITEMS)}")
+    out = []
+    heights = body.level_heights()
+    for item in CLOTHING_ITEMS:
+        if item not in items:
+            continue
+        colour = GARMENT_COLOURS[int(rng.integers(len(GARMENT_COLOURS)))]
+        if item == "shorts":
+            top = tape_bottom_z_mm - rng.uniform(15, 70)
+            out.append((Garment(body, top - 300.0, top, torso_half_width_mm=190.0), colour))
+        else:
+            level = rng.uniform(heights["T10"], heights["T6"])
+            width = rng.uniform(18, 40)
+            out.append((Garment(body, level - width / 2, level + width / 2), colour))
+    return out
 
 
 BAND_OFFSET_MM = 8.0  # the band stands off the skin (fabric thickness + it bridges the tape)

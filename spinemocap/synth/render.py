@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from ..camera import Camera
+from .occluders import SPORTS_BRA_RGB
 from .reference import ReferenceMeshes
 
 NEAR_MM, FAR_MM = 50.0, 50_000.0
@@ -59,10 +60,32 @@ class Appearance:
     background_rgb: tuple[float, float, float] = (0.35, 0.36, 0.38)
     reference_frame_rgb: tuple[float, float, float] = (0.20, 0.20, 0.21)  # dark anodised aluminium
     reference_marker_rgb: tuple[float, float, float] = (0.95, 0.95, 0.95)  # retro-reflective, lit by the camera
-    band_rgb: tuple[float, float, float] = (0.15, 0.25, 0.55)
+    band_rgb: tuple[float, float, float] = SPORTS_BRA_RGB
     light_position: tuple[float, float, float] = (0.0, 3000.0, 3000.0)
     light_intensity: float = 0.9
     fill_intensity: float = 0.35
+    skin_specular: float = 0.08
+    skin_specular_power: float = 10.0
+
+
+@dataclass(frozen=True)
+class MeshTexture:
+    """An RGB uint8 ``image`` (H, W, 3) laid on a mesh by per-vertex texture ``coordinates``
+    (N, 2) in [0, 1]; the mesh is drawn in the image's colours (bilinear, mipmapped), lit as
+    without it."""
+
+    image: np.ndarray
+    coordinates: np.ndarray
+
+    def material(self, mesh) -> dict:
+        """The ``add_mesh`` keywords that draw ``mesh`` (its texture coordinates set here) in this
+        texture."""
+        import pyvista as pv
+
+        mesh.active_texture_coordinates = np.asarray(self.coordinates, np.float32)
+        texture = pv.Texture(np.ascontiguousarray(self.image))
+        texture.interpolate, texture.mipmap, texture.repeat = True, True, False
+        return {"color": (1.0, 1.0, 1.0), "texture": texture}
 
 
 @dataclass
@@ -82,10 +105,14 @@ class CameraRenderer:
     def __init__(self, camera: Camera, body_faces: np.ndarray, tape_faces_holes: np.ndarray,
                  tape_faces_solid: np.ndarray, appearance: Appearance,
                  band_faces: np.ndarray | None = None, supersample: int = 1,
-                 reference: ReferenceMeshes | None = None):
+                 reference: ReferenceMeshes | None = None, band_colours: np.ndarray | None = None,
+                 skin_texture: MeshTexture | None = None, tape_texture: MeshTexture | None = None):
         """``reference``: a static reference object (:mod:`spinemocap.synth.reference`) drawn in
         every image: its bars lit like the scene, its markers as uniform bright discs (ambient
-        light only: retro-reflectors under the camera's ring light); black in the tape mask."""
+        light only: retro-reflectors under the camera's ring light); black in the tape mask.
+        ``band_colours``: (N, 3) RGB 0..1 per band vertex (garments of several colours; None:
+        ``appearance.band_rgb``); ``skin_texture`` / ``tape_texture``: the body's and the tape's
+        (holed strip's) colours as textures (None: their appearance colours)."""
         import pyvista as pv
 
         from .occluders import sphere_mesh
@@ -105,16 +132,23 @@ class CameraRenderer:
         self.tape = pv.PolyData(np.zeros((n_tape, 3)), faces_to_vtk(tape_faces_holes))
         self.tape_solid = pv.PolyData(np.zeros((n_tape, 3)), faces_to_vtk(tape_faces_solid))
         skin = dict(color=appearance.skin_rgb, smooth_shading=False, ambient=0.15, diffuse=0.85,
-                    specular=0.08, specular_power=10)
+                    specular=appearance.skin_specular, specular_power=appearance.skin_specular_power)
+        if skin_texture is not None:
+            skin.update(skin_texture.material(self.body))
         self.body_actor = self.plotter.add_mesh(self.body, **skin)
         self.body_actor.GetProperty().SetInterpolationToGouraud()  # uses the per-frame normals
-        self.tape_actor = self.plotter.add_mesh(self.tape, color=appearance.tape_rgb, ambient=0.2,
-                                                diffuse=0.8, specular=0.25, specular_power=20)
+        tape = dict(color=appearance.tape_rgb, ambient=0.2, diffuse=0.8, specular=0.25, specular_power=20)
+        if tape_texture is not None:
+            tape.update(tape_texture.material(self.tape))
+        self.tape_actor = self.plotter.add_mesh(self.tape, **tape)
         self.band = self.band_actor = None
         if band_faces is not None and len(band_faces):
             self.band = pv.PolyData(np.zeros((int(band_faces.max()) + 1, 3)), faces_to_vtk(band_faces))
-            self.band_actor = self.plotter.add_mesh(self.band, color=appearance.band_rgb,
-                                                    ambient=0.2, diffuse=0.8)
+            colour: dict = {"color": appearance.band_rgb}
+            if band_colours is not None:
+                self.band.point_data["colours"] = np.clip(np.asarray(band_colours) * 255 + 0.5, 0, 255).astype(np.uint8)
+                colour = {"scalars": "colours", "rgb": True}
+            self.band_actor = self.plotter.add_mesh(self.band, ambient=0.2, diffuse=0.8, **colour)
         self.occluder_actor: Any = None
         self.reference_meshes: list[Any] = []  # static: the reference object's frame and markers
         self.reference_actors: list[Any] = []

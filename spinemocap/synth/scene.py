@@ -27,21 +27,46 @@ import numpy as np
 from ..camera import Rig
 from ..skin import vertex_normals
 from ..tape import TapeSpec
-from .appearance import BACKDROPS, CAMERA_LOOKS, TAPE_COLOURS, behind_subject, camera_looks, room_view
+from .appearance import (
+    BACKDROPS,
+    CAMERA_LOOKS,
+    CODECS,
+    TAPE_COLOURS,
+    TAPE_ROLLS,
+    behind_subject,
+    camera_looks,
+    roll_layout,
+    room_view,
+)
 from .body import ANGLE_NAMES, LEVELS, PHENOTYPE_KEYS, Body
 from .lab_errors import clock_offsets_s, perturb_rig
 from .motions import MOTIONS, spine_motion
 from .occluders import (
+    CLOTHING_ITEMS,
     OCCLUSION_LEVELS,
+    Clothing,
     FallingBalls,
+    Garment,
     SportsBraBand,
     balls_for,
     sphere_mesh,
+    wear_clothing,
 )
 from .reference import ReferenceMeshes, reference_meshes, studio_reference
-from .render import Appearance, CameraRenderer, SceneMeshes
+from .render import Appearance, CameraRenderer, MeshTexture, SceneMeshes
 from .rigs import LAYOUTS, arc_rig
+from .shutter import Shutter, exposed, rolling_shutter_uv, row_weights
 from .skin_strain import SkinStrain
+from .surfaces import (
+    DRY_SPECULAR,
+    SKIN_MARKS,
+    SWEAT_SPECULAR,
+    TAPE_FINISHES,
+    SurfaceLook,
+    skin_extent,
+    skin_texture,
+    tape_texture,
+)
 from .tape_on_skin import (
     SYNTH_TAPE_THICKNESS_MM,
     BackChart,
@@ -126,6 +151,15 @@ class SynthConfig:
     ``reference``: an L-frame of five markers stands beside the subject in view of the cameras
     (:mod:`spinemocap.synth.reference`): rendered in the images, its design and pose written to
     ``reference.toml`` (what a lab enters), its markers' true projections in the ground truth.
+    Appearance (:mod:`spinemocap.synth.appearance`, :mod:`spinemocap.synth.surfaces`):
+    ``tape_colour``, ``tape_roll`` (hole diameter and spacing; ``capture.toml`` names the roll's
+    layout, so the tracker knows it), ``tape_finish``, ``skin_marks`` (any of hair, freckles,
+    moles, sweat, tattoo: on the skin, under the tape), ``clothing`` (any of shorts, bra_strap:
+    solids that hide the tape in the mask and the visibility where they cross it), ``backdrop``,
+    ``camera_look``; ``rolling_shutter_ms`` sets every camera's readout time (None: the camera
+    look's; rows are exposed one after the other, the ground truth's ``uv`` is where each dot was
+    when its row was read, ``visible`` at the frame's instant) and ``camera_codec`` every
+    camera's codec (None: the camera look's).
     """
 
     layout: str = "tiny"  # the preset whose camera layout is used (rigs.LAYOUTS)
@@ -162,6 +196,12 @@ class SynthConfig:
     tape_colour: str = "black"  # appearance.TAPE_COLOURS
     backdrop: str = "plain"  # appearance.BACKDROPS: the renderer's uniform background or a painted lab room
     camera_look: str = "ideal"  # appearance.CAMERA_LOOKS: light and camera effects after the sensor (ideal: none)
+    tape_roll: str = "standard"  # appearance.TAPE_ROLLS: hole diameter, row pitch and column spacing
+    tape_finish: str = "smooth"  # surfaces.TAPE_FINISHES
+    skin_marks: tuple[str, ...] = ()  # surfaces.SKIN_MARKS
+    clothing: tuple[str, ...] = ()  # occluders.CLOTHING_ITEMS
+    rolling_shutter_ms: float | None = None  # every camera's readout (None: the camera look's)
+    camera_codec: str | None = None  # appearance.CODECS for every camera (None: the camera look's)
 
     def __post_init__(self) -> None:
         self.size = (int(self.size[0]), int(self.size[1]))
@@ -227,8 +267,28 @@ class SynthConfig:
             problems.append(f"unknown backdrop {self.backdrop!r} (choose from {list(BACKDROPS)})")
         if self.camera_look not in CAMERA_LOOKS:
             problems.append(f"unknown camera_look {self.camera_look!r} (choose from {list(CAMERA_LOOKS)})")
+        problems += self._surface_problems()
         if problems:
             raise ValueError("invalid synthetic studio settings: " + "; ".join(problems))
+
+    def _surface_problems(self) -> list[str]:
+        problems = []
+        if self.tape_roll not in TAPE_ROLLS:
+            problems.append(f"unknown tape_roll {self.tape_roll!r} (choose from {list(TAPE_ROLLS)})")
+        if self.tape_finish not in TAPE_FINISHES:
+            problems.append(f"unknown tape_finish {self.tape_finish!r} (choose from {list(TAPE_FINISHES)})")
+        for name, vocabulary in (("skin_marks", SKIN_MARKS), ("clothing", CLOTHING_ITEMS)):
+            values = (getattr(self, name),) if isinstance(getattr(self, name), str) else tuple(getattr(self, name))
+            unknown = [v for v in values if v not in vocabulary]
+            if unknown:
+                problems.append(f"unknown {name} {unknown} (choose any of {list(vocabulary)})")
+            setattr(self, name, tuple(v for v in vocabulary if v in values))  # vocabulary order, no repeats
+        if self.rolling_shutter_ms is not None and not 0 <= self.rolling_shutter_ms <= 100:
+            problems.append(f"rolling_shutter_ms (the readout from the top row to the bottom row) must lie in [0, 100] "
+                            f"(got {self.rolling_shutter_ms})")
+        if self.camera_codec is not None and self.camera_codec not in CODECS:
+            problems.append(f"unknown camera_codec {self.camera_codec!r} (choose from {list(CODECS)})")
+        return problems
 
     def realism_setting(self, name: RealismSetting) -> float:
         """The lab-error setting ``name``: the field where set, else the realism level's value."""
@@ -286,7 +346,7 @@ class SynthConfig:
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["size"] = list(self.size)
-        for name in ("camera_offsets_s", "camera_fps"):
+        for name in ("camera_offsets_s", "camera_fps", "skin_marks", "clothing"):
             if d[name] is not None:
                 d[name] = list(d[name])
         return {k: v for k, v in d.items() if v is not None}
@@ -330,15 +390,16 @@ def cached_back_chart(phenotype: tuple) -> BackChart:
 
 @functools.lru_cache(maxsize=8)
 def cached_tape_on_skin(phenotype: tuple, rows: int | None, start_level: str,
-                        tension: TapeTension | None = None) -> TapeOnSkin:
-    """The tape laid on a body (cached); ``rows`` None: enough rows to pass T12/L1 by
-    :data:`ROWS_PAST_THORACOLUMBAR` rows."""
+                        tension: TapeTension | None = None, roll: str = "standard") -> TapeOnSkin:
+    """The tape of the :data:`~spinemocap.synth.appearance.TAPE_ROLLS` ``roll`` laid on a body
+    (cached); ``rows`` None: enough rows to pass T12/L1 by :data:`ROWS_PAST_THORACOLUMBAR` rows."""
     body, chart, tension = cached_body(phenotype), cached_back_chart(phenotype), tension or TapeTension()
+    layout = roll_layout(roll)
     if rows is None:
-        probe = TapeSpec(n_rows=1, thickness_mm=SYNTH_TAPE_THICKNESS_MM)
+        probe = TapeSpec(n_rows=1, thickness_mm=SYNTH_TAPE_THICKNESS_MM, **layout)
         s0 = chart.arc_at_height(body.level_heights()[start_level])
         rows = rows_to_pass(chart, probe, s0, tension, body.junction_height("L1", "T12"), ROWS_PAST_THORACOLUMBAR)
-    spec = TapeSpec(n_rows=rows, thickness_mm=SYNTH_TAPE_THICKNESS_MM)
+    spec = TapeSpec(n_rows=rows, thickness_mm=SYNTH_TAPE_THICKNESS_MM, **layout)
     return TapeOnSkin(body, spec, start_level, tension, chart)
 
 
@@ -352,7 +413,7 @@ class Scene:
         self.body = cached_body(tuple(sorted(config.phenotype.items())))
         tension = TapeTension(config.tape_tension, self.rng_seed) if config.tape_tension else TapeTension()
         self.tape_on_skin = cached_tape_on_skin(tuple(sorted(config.phenotype.items())), config.rows, config.tape_start,
-                                                tension)
+                                                tension, config.tape_roll)
         self.tape = self.tape_on_skin.spec
         self.skin = SkinStrain.for_subject(self.rng_seed, config.realism_setting("skin_strain"))
         self.labels: list[str] = list(self.tape.labels)
@@ -387,18 +448,25 @@ class Scene:
         self.reference_meshes: ReferenceMeshes | None = (reference_meshes(self.reference)
                                                          if self.reference is not None else None)
         self.balls = FallingBalls.generate(config.n_balls, config.duration_s, self.target, rng)
-        self.band = SportsBraBand(self.body, self.body.level_heights()[config.band_level]) if config.band else None
+        self.band = self._clothing(rest_dots)
         tone = config.skin_tone if config.skin_tone is not None else rng.uniform(0.0, 0.8)
         skin = (1 - tone) * SKIN_LIGHT + tone * SKIN_DARK
+        self.surfaces = SurfaceLook(config.tape_finish, config.skin_marks)
+        specular, power = SWEAT_SPECULAR if self.surfaces.sweaty else DRY_SPECULAR
         self.appearance = Appearance(
             skin_rgb=(float(skin[0]), float(skin[1]), float(skin[2])),
             tape_rgb=TAPE_COLOURS[config.tape_colour],
             light_position=(float(rng.uniform(-1500, 1500)), float(rng.uniform(2000, 3500)), float(rng.uniform(2200, 3200))),
             light_intensity=float(rng.uniform(0.75, 1.0)),
             fill_intensity=float(rng.uniform(0.25, 0.45)),
+            skin_specular=specular, skin_specular_power=power,
         )
         self.skin_tone = float(tone)
-        self.camera_looks = camera_looks(config.camera_look, config.cameras, self.rng_seed, config.fps)
+        self.camera_looks = camera_looks(config.camera_look, config.cameras, self.rng_seed, config.fps,
+                                         config.rolling_shutter_ms, config.camera_codec)
+        # (C,) each camera's rolling-shutter readout, s (0: a global shutter)
+        self.readout_s = np.array([look.readout_ms * 1e-3 for look in self.camera_looks] if self.camera_looks
+                                  else np.zeros(len(self.rig)))
         self._renderers: list[CameraRenderer] | None = None
         self._pool: ThreadPoolExecutor | None = None
         self._still_windows: dict[tuple, list] = {}  # camera_image_at's last still scene's windows
@@ -538,6 +606,8 @@ class Scene:
             uv_c = rig.project(dots_c)
             centres, radii = self.balls.at(self.times[frame] + offset)
             uv[cams] = uv_c
+            for c in cams:  # a rolling shutter sees each dot when its row is read
+                uv[c] = self._rolling_shutter_uv(int(c), float(self.times[frame] + offset), uv[c])
             visible[cams] = dot_visibility(rig, dots_c, normals_c, uv_c, self._occluding_mesh(v_c, n_c), centres,
                                            radii, self.tape.dot_diameter_mm / 2)
             if n_ref:
@@ -550,12 +620,26 @@ class Scene:
             out["reference_visible"] = reference_visible
         return out
 
+    def _rolling_shutter_uv(self, camera: int, time_s: float, uv: np.ndarray) -> np.ndarray:
+        """(D, 2) where camera ``camera`` sees the dots in its frame at ``time_s`` (its middle
+        row's instant): ``uv`` (D, 2), their projections at that instant, for a global shutter
+        (or one too short for them to move); under a rolling shutter each where it was when its
+        row was read, between the same instants the render blends."""
+        shutter = self._shutter(camera, time_s, self.fps)
+        if shutter.row_weights is None or self.camera_looks is None:
+            return uv
+        cam = self.rig[camera]
+        at_instants = np.stack([cam.project(self.posed_tape(time_s=t).dots()) for t in shutter.instants])
+        return rolling_shutter_uv(np.array(shutter.instants), at_instants,
+                                  time_s + self.camera_looks[camera].row_times(cam.size[1]))
+
     @cached_property
     def groundtruth(self) -> dict[str, np.ndarray]:
         """Exact ground truth, same keys as ``groundtruth.npz``:
 
         ``labels`` (D,) str; ``dots`` (F, D, 3) mm; ``dot_normals`` (F, D, 3) outward unit normals;
-        ``visible`` (F, C, D) bool; ``uv`` (F, C, D, 2) distorted pixels; ``fps``; ``times`` (F,) s;
+        ``visible`` (F, C, D) bool; ``uv`` (F, C, D, 2) distorted pixels (under a rolling shutter where
+        each dot was when its row was read; ``visible`` at the frame's instant); ``fps``; ``times`` (F,) s;
         ``angles_deg`` (F, 3) applied [flexion, lateral bending, axial rotation] (signs in
         :mod:`spinemocap.synth.motions`), ``angle_names``; ``keypoints`` (F, 8, 3) mm: back
         skin landmarks a keypoint tracker follows for the plane baselines, named by
@@ -639,13 +723,38 @@ class Scene:
     def renderers(self) -> list[CameraRenderer]:
         if self._renderers is None:
             strip = self.tape_on_skin.strip
+            skin, tape = self._textures()
             self._renderers = [
                 CameraRenderer(cam, self.body.faces, strip.faces_holes, strip.faces_solid, self.appearance,
                                band_faces=None if self.band is None else self.band.faces, supersample=self.config.supersample,
-                               reference=self.reference_meshes)
+                               reference=self.reference_meshes, band_colours=None if self.band is None else self.band.colours,
+                               skin_texture=skin, tape_texture=tape)
                 for cam in self.rig
             ]
         return self._renderers
+
+    def _textures(self) -> tuple[MeshTexture | None, MeshTexture | None]:
+        """The skin's and the tape's textures (:mod:`spinemocap.synth.surfaces`) in the appearance's
+        colours as they are now (None: a uniform colour)."""
+        heights = self.body.level_heights()
+        skin = skin_texture(self.surfaces.painted_marks, self.appearance.skin_rgb, skin_extent(heights["S1"], heights["C7"]),
+                            float(self.target[0]), self.rng_seed)
+        strip = self.tape_on_skin.strip
+        tape = tape_texture(self.surfaces.finish, self.appearance.tape_rgb, self.tape.width_mm,
+                            (float(strip.uv[:, 1].min()), float(strip.uv[:, 1].max())), self.rng_seed)
+        return (None if skin is None else MeshTexture(skin.image, skin.coordinates(self.body.rest_vertices[:, [0, 2]])),
+                None if tape is None else MeshTexture(tape.image, tape.coordinates(strip.uv)))
+
+    def _clothing(self, rest_dots: np.ndarray) -> Clothing | None:
+        """The sports-bra band (``config.band``) and the garments of ``config.clothing`` (seeded
+        colours and places) as one mesh; None when there is neither."""
+        garments: list[tuple[Garment, tuple[float, float, float] | None]] = []
+        if self.config.band:
+            garments.append((SportsBraBand(self.body, self.body.level_heights()[self.config.band_level]), None))
+        if self.config.clothing:
+            garments += wear_clothing(self.body, self.config.clothing, float(rest_dots[:, 2].min()),
+                                      np.random.default_rng([self.rng_seed, 13]))
+        return Clothing(garments) if garments else None
 
     def render(self, frame: int, with_masks: bool = True, reference: bool = False) -> RenderedFrame:
         """Render one frame in every camera (each at its own clock's time): BGR images (with blur
@@ -664,39 +773,42 @@ class Scene:
             return self._render_reference(frame, with_masks)
         pool = self._develop_pool()
         developing = []
-        shared: dict[float, list[SceneMeshes]] = {}
+        shared: dict[tuple[float, ...], list[SceneMeshes]] = {}
         for c, renderer in enumerate(self.renderers):
-            meshes = self._camera_meshes(frame, c, shared)
-            windows = [renderer.render_window(meshes[0])]
-            mask_window = renderer.render_mask_window(meshes[0]) if with_masks else None
-            windows += [renderer.render_window(m) for m in meshes[1:]]
-            developing.append(pool.submit(self._develop, frame, c, windows, mask_window, with_masks))
+            offset = float(self.sync_offsets_s[c])
+            shutter = self._shutter(c, float(self.times[frame]) + offset, self.fps)
+            meshes = self._instant_meshes(frame, offset, shutter.instants, shared)
+            windows, mask_windows = [], []
+            for k, instant in enumerate(meshes):
+                windows.append(renderer.render_window(instant))
+                if with_masks and (k == 0 or shutter.row_weights is not None):  # the geometry just loaded
+                    mask_windows.append(renderer.render_mask_window(instant))
+            developing.append(pool.submit(self._develop, frame, c, windows, mask_windows, with_masks, shutter.row_weights))
         developed = [job.result() for job in developing]
         return RenderedFrame([image for image, _ in developed], [mask for _, mask in developed])
 
-    def _camera_meshes(self, frame: int, camera: int, shared: dict[float, list[SceneMeshes]]) -> list[SceneMeshes]:
-        """The geometry camera ``camera`` sees during frame ``frame`` on its own clock: the frame
-        instant first, then the motion-blur instants; ``shared`` holds the frame's geometry per
-        clock offset (s), so cameras on the same clock pose once."""
-        offset = float(self.sync_offsets_s[camera])
-        if offset not in shared:
-            instants = self._exposure_instants(frame, offset)
-            shared[offset] = [self.meshes(frame, offset_s=offset)] + [self.meshes(time_s=t) for t in instants[1:]]
-        return shared[offset]
+    def _instant_meshes(self, frame: int, offset_s: float, instants: tuple[float, ...],
+                        shared: dict[tuple[float, ...], list[SceneMeshes]]) -> list[SceneMeshes]:
+        """The geometry of ``instants`` (s; the frame's instant on a clock ``offset_s`` ahead is
+        posed from the frame's cached chunk); ``shared`` holds each set of instants' geometry, so
+        cameras on the same clock pose once."""
+        if instants not in shared:
+            frame_instant = float(self.times[frame]) + offset_s
+            shared[instants] = [self.meshes(frame, offset_s=offset_s) if t == frame_instant else self.meshes(time_s=t)
+                                for t in instants]
+        return shared[instants]
 
     def _develop(self, frame: int, camera: int, windows: list[tuple[np.ndarray, int, int]],
-                 mask_window: tuple[np.ndarray, int, int] | None, with_mask: bool) -> tuple[np.ndarray, np.ndarray | None]:
+                 mask_windows: list[tuple[np.ndarray, int, int] | None], with_mask: bool,
+                 row_weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """Rendered windows of one camera (:meth:`CameraRenderer.render_window`, the frame instant
-        then the exposure's) -> BGR image (lens, exposure average, sensor) and tape mask. No VTK:
-        safe on a worker thread."""
+        then the exposure's) -> BGR image (lens, exposure average or rolling shutter, sensor) and
+        tape mask (from ``mask_windows``: one, or one per instant under a rolling shutter with
+        ``row_weights`` (H, instants)). No VTK: safe on a worker thread."""
         renderer = self.renderers[camera]
-        rgb: np.ndarray = renderer.image_through_lens(windows[0])
-        if len(windows) > 1:
-            acc = rgb.astype(np.float32)
-            for window in windows[1:]:
-                acc += renderer.image_through_lens(window)
-            rgb = acc / len(windows)
-        mask = renderer.mask_through_lens(mask_window) if with_mask else None
+        images = [renderer.image_through_lens(window) for window in windows]
+        masks = [renderer.mask_through_lens(window) for window in mask_windows] if with_mask else []
+        rgb, mask = exposed(images, masks, row_weights)
         return self._look(self._sensor(self._backdrop(rgb, camera), frame, camera), frame, camera), mask
 
     def _look(self, image_bgr: np.ndarray, frame: int, camera: int) -> np.ndarray:
@@ -721,27 +833,45 @@ class Scene:
     def _render_reference(self, frame: int, with_masks: bool) -> RenderedFrame:
         """:meth:`render` in its reference form: one thread, reference lens, mask and sensor."""
         images, masks = [], []
-        shared: dict[float, list[SceneMeshes]] = {}
+        shared: dict[tuple[float, ...], list[SceneMeshes]] = {}
         for c, renderer in enumerate(self.renderers):
-            meshes = self._camera_meshes(frame, c, shared)
-            rgb, mask = renderer.render_reference(meshes[0], with_mask=with_masks)
-            if len(meshes) > 1:
-                acc = rgb.astype(np.float32)
-                for m in meshes[1:]:
-                    acc += renderer.render_reference(m, with_mask=False)[0]
-                rgb = acc / len(meshes)
+            offset = float(self.sync_offsets_s[c])
+            shutter = self._shutter(c, float(self.times[frame]) + offset, self.fps)
+            meshes = self._instant_meshes(frame, offset, shutter.instants, shared)
+            rendered = [renderer.render_reference(m, with_mask=with_masks and (k == 0 or shutter.row_weights is not None))
+                        for k, m in enumerate(meshes)]
+            rgb, mask = exposed([image for image, _ in rendered], [m for _, m in rendered if m is not None],
+                                shutter.row_weights)
             images.append(self._look(self._sensor_reference(self._backdrop(rgb, c), frame, c), frame, c))
             masks.append(mask)
         return RenderedFrame(images, masks)
 
-    def _exposure_instants(self, frame: int, offset_s: float = 0.0) -> list[float]:
-        """The frame time (on a clock ``offset_s`` ahead) first, then sub-frame instants spread
-        over the exposure (motion blur)."""
-        t = float(self.times[frame]) + offset_s
-        if self.config.blur <= 0:
-            return [t]
-        half = 0.5 * self.config.blur / self.fps
-        return [t] + [float(x) for x in np.linspace(t - half, t + half, 7) if abs(x - t) > 1e-12]
+    def _shutter(self, camera: int, time_s: float, fps: float) -> Shutter:
+        """When camera ``camera`` exposes its frame at ``time_s`` s (``fps``: its frame rate, for
+        the motion blur's exposure): the frame instant and the blur's sub-frame instants; under a
+        rolling shutter whose readout moves the dots by 0.3 px or more, instants spread over the
+        readout (and the exposure) with each row's weights on them."""
+        exposure = self.config.blur / fps
+        blur = [time_s]
+        if exposure > 0:
+            half = 0.5 * exposure
+            blur += [float(x) for x in np.linspace(time_s - half, time_s + half, 7) if abs(x - time_s) > 1e-12]
+        readout = float(self.readout_s[camera])
+        if readout <= 0 or self.camera_looks is None:
+            return Shutter(tuple(blur))
+        cam = self.rig[camera]
+        span = (time_s - 0.5 * (readout + exposure), time_s + 0.5 * (readout + exposure))
+        ends = [cam.project(self.posed_tape(time_s=t).dots()) for t in span]
+        motion_px = float(np.nanmax(np.linalg.norm(ends[1] - ends[0], axis=1)))
+        if not motion_px >= 0.3:
+            return Shutter(tuple(blur))
+        # at most about a pixel of motion between instants (16 at most), 7 across a blurred exposure
+        n = int(np.clip(np.ceil(motion_px) + 1, 2, 16))
+        if exposure > 0:
+            n = int(np.clip(max(n, np.ceil(7 * (readout + exposure) / exposure)), 2, 16))
+        instants = np.linspace(span[0], span[1], n)
+        rows = time_s + self.camera_looks[camera].row_times(cam.size[1])
+        return Shutter(tuple(float(t) for t in instants), row_weights(instants, rows, exposure))
 
     def _sensor(self, rgb: np.ndarray, frame: int, camera: int) -> np.ndarray:
         """Sensor noise (seeded per frame and camera) and conversion to BGR uint8; ``rgb`` (H, W, 3)
@@ -775,10 +905,8 @@ class Scene:
         """The BGR uint8 image camera ``camera`` (rig order) takes at capture time ``time_s`` s as
         its own frame ``slot`` (which seeds the sensor noise), at ``camera_fps`` frames/s (the
         motion blur's exposure)."""
-        instants = [time_s]
-        if self.config.blur > 0:
-            half = 0.5 * self.config.blur / camera_fps
-            instants += [float(x) for x in np.linspace(time_s - half, time_s + half, 7) if abs(x - time_s) > 1e-12]
+        shutter = self._shutter(camera, time_s, camera_fps)
+        instants = shutter.instants
         renderer = self.renderers[camera]
         # a still scene (the same pose, no ball in the air: a recording's lead-in before the motion
         # starts) renders the same windows; only the sensor noise differs from frame to frame
@@ -789,7 +917,7 @@ class Scene:
             windows = [renderer.render_window(self.meshes(time_s=t)) for t in instants]
             if still:
                 self._still_windows = {key: windows}
-        image, _ = self._develop(slot, camera, windows, None, False)
+        image, _ = self._develop(slot, camera, windows, [], False, shutter.row_weights)
         return image
 
     def frame_source(self) -> SceneFrameSource:

@@ -28,10 +28,13 @@ def test_training_refuses_every_part_of_the_held_out_family(tmp_path, monkeypatc
 
 def test_the_lab_training_mix_varies_the_look_and_never_holds_the_held_out_tape():
     rng = np.random.default_rng(0)
-    drawn = [training_data.lab_appearance(SynthConfig.preset("tiny"), rng) for _ in range(60)]
+    drawn = [training_data.lab_appearance(SynthConfig.preset("tiny", seed=k), rng) for k in range(60)]
     colours = {c.tape_colour for c in drawn}
     assert HELD_OUT_FAMILY["tape_colour"] not in colours and len(colours) == len(TAPE_COLOURS) - 1
     assert {c.backdrop for c in drawn} == {"plain", "room"} and {c.camera_look for c in drawn} == {"ideal", "lab"}
+    # the tape's roll and finish, the skin's marks and clothing vary too
+    assert len({c.tape_roll for c in drawn}) > 2 and len({c.tape_finish for c in drawn}) == 3
+    assert {m for c in drawn for m in c.skin_marks} and {i for c in drawn for i in c.clothing}
     for config in drawn:
         refuse_held_out(config)
 
@@ -40,6 +43,9 @@ def test_the_held_out_set_shows_the_held_out_family_at_the_lab_level():
     held = bench.TEST_SETS[bench.HELD_OUT]
     assert (held.tape_colour, held.backdrop, held.camera_look) == (HELD_OUT_FAMILY["tape_colour"], "room", "lab")
     assert held.realism == "lab" and bench.HELD_OUT in bench.DEFAULT_SETS
+    with_subject = bench.TEST_SETS[bench.HELD_OUT_SUBJECT]  # the same look on a lab's subject
+    assert (with_subject.tape_colour, with_subject.backdrop, with_subject.camera_look, with_subject.realism) == (
+        held.tape_colour, held.backdrop, held.camera_look, held.realism) and with_subject.subject == "lab"
     offsets = [test.seed_offset for test in bench.TEST_SETS.values()]
     assert len(set(offsets)) == len(offsets)  # no two sets share scenes
 

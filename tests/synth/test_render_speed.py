@@ -55,6 +55,18 @@ def test_fast_render_with_motion_blur_equals_reference_render(lab_scene, monkeyp
     assert_same_frames(lab_scene.render(1), lab_scene.render(1, reference=True))
 
 
+def test_fast_render_with_a_rolling_shutter_equals_reference_render(lab_scene, monkeypatch):
+    from spinemocap.synth.appearance import CameraLook
+
+    cameras = len(lab_scene.rig)
+    monkeypatch.setattr(lab_scene, "camera_looks", [CameraLook(readout_ms=80.0)] * cameras)
+    monkeypatch.setattr(lab_scene, "readout_s", np.full(cameras, 0.08))
+    rolling = [lab_scene._shutter(c, float(lab_scene.times[1]), lab_scene.fps).row_weights is not None
+               for c in range(cameras)]
+    assert any(rolling)  # the rows blend several instants
+    assert_same_frames(lab_scene.render(1), lab_scene.render(1, reference=True))
+
+
 @pytest.mark.parametrize("noise", [0.0, 3.0])
 @pytest.mark.parametrize("dtype", [np.uint8, np.float32])
 def test_sensor_equals_reference_byte_for_byte(lab_scene, monkeypatch, noise, dtype):
