@@ -82,10 +82,9 @@ def marker_table(labels: Sequence[str], times: np.ndarray, metres: np.ndarray):
     osim = require_opensim()
     F, D = metres.shape[:2]
     table = osim.TimeSeriesTableVec3()
-    names = osim.StdVectorString()
-    for label in labels:
-        names.append(str(label))
-    table.setColumnLabels(names)
+    # a plain list: SWIG converts it to the std::vector itself, whichever of OpenSim's modules
+    # defined the StdVectorString proxy class
+    table.setColumnLabels([str(label) for label in labels])
     for f in range(F):
         row = osim.RowVectorVec3(D)
         for d in range(D):
@@ -410,10 +409,7 @@ def write_ik_outputs(folder: Path, solution: IKSolution, motion: str = "ik.mot",
 def _write_sto(osim, path: Path, times: np.ndarray, labels: Sequence[str], values: np.ndarray,
                meta: dict[str, str]) -> None:
     table = osim.TimeSeriesTable()
-    names = osim.StdVectorString()
-    for label in labels:
-        names.append(str(label))
-    table.setColumnLabels(names)
+    table.setColumnLabels([str(label) for label in labels])  # a plain list, as in marker_table
     for f, t in enumerate(times):
         row = osim.RowVector(len(labels))
         for c in range(len(labels)):
