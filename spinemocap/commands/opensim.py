@@ -43,8 +43,8 @@ def register(subparsers) -> None:
                    help="IK weight of a prior pulling every level's lateral bending and axial rotation toward the "
                         "static posture (per rad^2; default 0 = off; larger weights trade range for stability)")
     p.add_argument("--accuracy", type=float,
-                   help="IK solver accuracy (default: OpenSim's, 1e-5; tighter reads a trunk twist more fully, at "
-                        "~10-20x the time per frame for each tenth)")
+                   help="IK solver accuracy (default: OpenSim's, 1e-5; tighter reads a trunk twist more fully but "
+                        "forward bending with slipping skin less well, at ~10-50x the time per frame for each tenth)")
     p.add_argument("--model", type=Path, help="attach the markers to this lab model (.osim) instead of building one")
     p.add_argument("--bodies", type=Path, help="with --model: TOML mapping vertebrae to the model's bodies, "
                                                "e.g. L3 = \"lumbar3\"")

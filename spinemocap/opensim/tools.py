@@ -32,8 +32,9 @@ INFERRED_SD_MM = 10.0
 # IK solver accuracy (the SimTK assembler's tolerance; OpenSim's default). The solver stops once
 # this is met, short of the optimum along the directions the markers hardly see: a twist shared
 # between the pelvis and the levels is under-read by an amount that depends on the start (about
-# 0.6 of a studio trunk twist read at 1e-5, 0.87 at 1e-6, 0.95 at 1e-7), and each tenth costs
-# ~10-20x the time per frame on a capture with skin slip.
+# 0.6 of a studio trunk twist read at 1e-5, 0.87 at 1e-6, 0.95 at 1e-7); but nearer the optimum
+# the skin-slip model reads forward bending worse (studio flexion RMSE 1.3 -> 3.5 deg at 1e-6), and
+# each tenth costs ~10-50x the time per frame on a capture with skin slip.
 IK_ACCURACY = 1e-5
 
 
