@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from ..opensim.tools import OBSERVED_SD_MM
+from ..opensim.tools import IK_ACCURACY, OBSERVED_SD_MM
 
 MOTIONS = ("flexion", "lateral", "rotation", "mixed")
 AXES = ("flexion", "lateral", "rotation")
@@ -56,11 +56,12 @@ BODY_MODEL_DEPTH = "the studio body's spine joints (anny) under the tape rows, s
 def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[str] = ("groundtruth", "tracked"),
                           frames: int = 100, fps: float = 100 / 3, rows: int = 13, tracked_frames: int | None = None,
                           cache: Path | None = None, progress: bool = True, realism: str = "lab",
-                          seeds: Sequence[int] = (0,)) -> dict:
+                          seeds: Sequence[int] = (0,), accuracy: float = IK_ACCURACY) -> dict:
     """Every (seed, motion, source) scored (see the module docstring; runs keyed
     ``<motion>/seed<seed>``), the headline numbers and the goals; ``cache``: folder to keep and
     reuse the tracked markers; ``realism``: the studio's level (``lab``: tension, skin strain,
-    tracking through the lab's inexact rig)."""
+    tracking through the lab's inexact rig); ``accuracy``: the IK solver accuracy of every IK
+    method (:attr:`spinemocap.opensim.OpenSimSettings.accuracy`)."""
     from tqdm import tqdm
 
     from ..opensim import require_opensim
@@ -72,12 +73,13 @@ def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[st
     for seed, motion, source in tqdm(jobs, desc="subjects x motions x sources", disable=not progress):
         n = (tracked_frames or frames) if source == "tracked" else frames
         results[source][f"{motion}/seed{seed}"] = bench_motion(motion, source, n, fps, rows, progress, cache,
-                                                               realism, seed)
+                                                               realism, seed, accuracy)
     return {
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
         "date": time.strftime("%Y-%m-%d"),
         "goals": GOALS,
         "realism": realism,
+        "ik_accuracy": accuracy,
         **headline(results),
         "sources": results,
         "wall_s": round(time.time() - started, 1),
@@ -109,9 +111,10 @@ def headline(results: dict) -> dict:
 
 
 def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, progress: bool,
-                 cache: Path | None = None, realism: str = "lab", seed: int = 0) -> dict:
-    """One studio motion of one subject (``seed``) from one marker source: IK with and without the
-    skin model and the geometric angles scored."""
+                 cache: Path | None = None, realism: str = "lab", seed: int = 0,
+                 accuracy: float = IK_ACCURACY) -> dict:
+    """One studio motion of one subject (``seed``) from one marker source: IK (solver ``accuracy``)
+    with and without the skin model and the geometric angles scored."""
     from ..analysis.angles import AngleSettings, compute_angles
     from ..analysis.levels import LevelMap
     from ..markers import MarkerTable
@@ -136,7 +139,7 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     for method, overrides in (("ik", {}), ("ik_one_start", ONE_START), ("ik_rigid", RIGID)):
         with tempfile.TemporaryDirectory() as tmp:
             # the static trial is the neutral first frame: the studio's motions start moving at once
-            settings = replace(OpenSimSettings(static_frames=1, depth_scale=depth_scale,
+            settings = replace(OpenSimSettings(static_frames=1, depth_scale=depth_scale, accuracy=accuracy,
                                                depth_source=BODY_MODEL_DEPTH), **overrides)
             result = run_opensim(markers, tape, levels, data["up"], data["facing"], Path(tmp) / "opensim",
                                  settings=settings)

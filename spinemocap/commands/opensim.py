@@ -42,7 +42,9 @@ def register(subparsers) -> None:
     p.add_argument("--prior-weight", type=float, default=0.0,
                    help="IK weight of a prior pulling every level's lateral bending and axial rotation toward the "
                         "static posture (per rad^2; default 0 = off; larger weights trade range for stability)")
-    p.add_argument("--accuracy", type=float, default=1e-5, help="IK solver accuracy (default 1e-5)")
+    p.add_argument("--accuracy", type=float,
+                   help="IK solver accuracy (default: OpenSim's, 1e-5; tighter reads a trunk twist more fully but "
+                        "forward bending with slipping skin less well, at ~10-50x the time per frame for each tenth)")
     p.add_argument("--model", type=Path, help="attach the markers to this lab model (.osim) instead of building one")
     p.add_argument("--bodies", type=Path, help="with --model: TOML mapping vertebrae to the model's bodies, "
                                                "e.g. L3 = \"lumbar3\"")
@@ -55,8 +57,10 @@ def run_opensim_command(args: argparse.Namespace) -> int:
 
     source = args.depth_source or (
         OpenSimSettings.depth_source if args.depth_scale == 1.0 else f"given: {args.depth_scale:g} x the published depths")
-    settings = OpenSimSettings(static_frames=args.static_frames, accuracy=args.accuracy, depth_scale=args.depth_scale,
+    settings = OpenSimSettings(static_frames=args.static_frames, depth_scale=args.depth_scale,
                                depth_source=source, coupling=args.coupling, prior_weight=args.prior_weight)
+    if args.accuracy is not None:
+        settings = replace(settings, accuracy=args.accuracy)
     if args.rigid_skin:
         settings = replace(settings, slip=None, normalise_tilt=False)
     result, levels_from = opensim_capture(args.results, args.capture, args.out, args.levels, args.static,
@@ -102,6 +106,7 @@ def register_bench(subparsers) -> None:
     p.add_argument("--realism", default="lab", choices=("ideal", "skin", "lab"),
                    help="studio realism level (default lab: tape tension, skin strain, the lab's inexact rig)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="studio subjects (seeds), default 0")
+    p.add_argument("--accuracy", type=float, help="IK solver accuracy of every IK method (default: the pipeline's)")
     p.add_argument("--json", type=Path, help="write the numbers here")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_bench)
@@ -110,15 +115,18 @@ def register_bench(subparsers) -> None:
 def run_bench(args: argparse.Namespace) -> int:
     from ..bench.opensim import format_table, run_opensim_benchmark
     from ..fileio import atomic_write, strict_json
+    from ..opensim.tools import IK_ACCURACY
+
+    accuracy = IK_ACCURACY if args.accuracy is None else args.accuracy
 
     report = run_opensim_benchmark(args.motions, args.sources, args.frames, args.fps, args.rows,
                                    args.tracked_frames, args.cache, not args.no_progress, realism=args.realism,
-                                   seeds=args.seeds)
+                                   seeds=args.seeds, accuracy=accuracy)
     report["command"] = " ".join(
         ["spinemocap bench opensim", f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
          f"--realism {args.realism}",
          "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources),
-         "--seeds " + " ".join(str(s) for s in args.seeds)]
+         "--seeds " + " ".join(str(s) for s in args.seeds), f"--accuracy {accuracy:g}"]
         + ([f"--tracked-frames {args.tracked_frames}"] if args.tracked_frames else []))
     print(format_table(report["sources"]))
     for source, methods in report["headline"].items():

@@ -63,6 +63,7 @@ from .geometry import (
 from .model import DOF, RANGE_FACTOR, ModelPlan, annotate_slips, body_name, build_model, plan_model
 from .skin_model import SlipPrior, normalise_row_tilt, slip_coordinate, slip_rows
 from .tools import (
+    IK_ACCURACY,
     INFERRED_SD_MM,
     OBSERVED_SD_MM,
     marker_locations,
@@ -97,7 +98,7 @@ PROJECT_NAME = {"extension": "flexion", "lateral_bending": "lateral", "axial_rot
 @dataclass(frozen=True)
 class OpenSimSettings:
     """``static_frames``: frames from the start averaged as the static trial (when no static file);
-    ``accuracy``: IK solver accuracy (OpenSim's default 1e-5); ``depth_scale``: factor on the
+    ``accuracy``: IK solver accuracy (:data:`tools.IK_ACCURACY`, OpenSim's default); ``depth_scale``: factor on the
     published skin-to-vertebral-body depths (1 = the published adult values, scaled to the
     subject's column length by the tape), ``depth_source``: where that depth comes from (written
     to ``summary.json``); ``coupling``: see :func:`spinemocap.opensim.model.plan_model`;
@@ -109,7 +110,7 @@ class OpenSimSettings:
     pose, the lower objective kept (:func:`tools.solve_ik`)."""
 
     static_frames: int = 10
-    accuracy: float = 1e-5
+    accuracy: float = IK_ACCURACY
     depth_scale: float = 1.0
     depth_source: str = PUBLISHED_DEPTHS
     coupling: str = "rows"  # see spinemocap.opensim.model.plan_model

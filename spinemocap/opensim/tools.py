@@ -29,6 +29,13 @@ INFERRED_CONFIDENCE = 0.6  # label confidence of an inferred dot when the table 
 # the tape model or filled in time): on the studio's deep bends inferred dots were 2-40 mm off
 OBSERVED_SD_MM = 1.0
 INFERRED_SD_MM = 10.0
+# IK solver accuracy (the SimTK assembler's tolerance; OpenSim's default). The solver stops once
+# this is met, short of the optimum along the directions the markers hardly see: a twist shared
+# between the pelvis and the levels is under-read by an amount that depends on the start (about
+# 0.6 of a studio trunk twist read at 1e-5, 0.87 at 1e-6, 0.95 at 1e-7); but nearer the optimum
+# the skin-slip model reads forward bending worse (studio flexion RMSE 1.3 -> 3.5 deg at 1e-6), and
+# each tenth costs ~10-50x the time per frame on a capture with skin slip.
+IK_ACCURACY = 1e-5
 
 
 def require_opensim():
@@ -289,7 +296,7 @@ class IKSolution:
 
 
 def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positions_mm: np.ndarray,
-             weights: np.ndarray, priors: dict[str, float] | None = None, accuracy: float = 1e-5,
+             weights: np.ndarray, priors: dict[str, float] | None = None, accuracy: float = IK_ACCURACY,
              restart: bool = True, observed: np.ndarray | None = None) -> IKSolution:
     """OpenSim's ``InverseKinematicsSolver`` on every frame of ``positions_mm`` (F, D, 3; OpenSim
     ground, mm; NaN = missing), each marker weighted per frame by ``weights`` (F, D) and each frame
