@@ -275,6 +275,7 @@ def test_batch_with_opensim_shows_ik_beside_the_tape_angles(tmp_path):
     assert "OpenSim IK: marker RMS" in page
 
 
+@pytest.mark.slow
 @needs_opensim
 def test_a_tighter_ik_accuracy_reads_the_studio_twist_more_fully(tmp_path):
     # the studio's trunk twist (rotation motion, lab level, frames at 0, 0.75, 1.5, 2.25 s: the
