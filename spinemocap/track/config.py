@@ -248,7 +248,8 @@ class StatusConfig:
     neighbour's point lies a dot spacing off); ``detached_max_dots``, the largest group of
     observed dots joined to the rest of the observed tape by no solid edge whose labels are
     doubted (:func:`spinemocap.track.lattice.detached_groups`: fewer dots than two whole rows
-    fit a column or row beside their own as well)."""
+    fit a column or row beside their own as well); the inferred dots beside such a dot are marked
+    with it."""
 
     observe_radius_mm: float = 7.0
     min_views: int = 2
