@@ -240,7 +240,16 @@ class StatusConfig:
     origin lies rather than by their errors (on the studio's ``lab`` capture the DLT points of
     the same blobs were 0.86 mm off on average, the ray points 0.35 mm, as the points of least
     reprojection error; a camera seeing the tape at a grazing angle pulled the DLT points most).
-    False: the candidate's point."""
+    False: the candidate's point. Two checks of an observed dot's label against the other
+    observed dots alone (beyond the paper; 0 = off; the dot is marked and its frame flagged, see
+    :mod:`spinemocap.track.quality`): ``observed_lattice_limit`` x the smallest dot spacing, the
+    farthest an observed dot may lie from where the other observed dots' lattice puts it
+    (:func:`spinemocap.track.lattice.off_observed_lattice`; a dot matched to its row
+    neighbour's point lies a dot spacing off); ``detached_max_dots``, the largest group of
+    observed dots joined to the rest of the observed tape by no solid edge whose labels are
+    doubted (:func:`spinemocap.track.lattice.detached_groups`: fewer dots than two whole rows
+    fit a column or row beside their own as well); the inferred dots beside such a dot are marked
+    with it."""
 
     observe_radius_mm: float = 7.0
     min_views: int = 2
@@ -251,6 +260,8 @@ class StatusConfig:
     unanchored_rows: int = 2
     anchor_ends: bool = True
     ray_points: bool = True
+    observed_lattice_limit: float = 0.5
+    detached_max_dots: int = 4
 
 
 @dataclass
@@ -330,7 +341,8 @@ class TrackerConfig:
         return dataclasses.replace(
             config, stretch=dataclasses.replace(config.stretch, adaptive=False),
             rig=dataclasses.replace(config.rig, adaptive_gate=False),
-            status=dataclasses.replace(config.status, lattice_check=False, unanchored_rows=0, anchor_ends=False),
+            status=dataclasses.replace(config.status, lattice_check=False, unanchored_rows=0, anchor_ends=False,
+                                      observed_lattice_limit=0.0, detached_max_dots=0),
             sequence=dataclasses.replace(config.sequence, keep_identity=False, smooth_trusted_only=False,
                                          follow_hidden_rows=False, pin_identity=False))
 

@@ -19,6 +19,8 @@ half the smallest dot spacing, where a dot is nearer its neighbour's place than 
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from ..tape import TapeGraph
 
@@ -130,3 +132,42 @@ def rows_beyond(anchored: np.ndarray, graph: TapeGraph) -> np.ndarray:
         return np.full(len(rows), n_rows, np.int64)
     lo, hi = int(rows[anchored].min()), int(rows[anchored].max())
     return np.maximum(lo - rows, 0) + np.maximum(rows - hi, 0)
+
+
+def off_observed_lattice(uv: np.ndarray, positions: np.ndarray, observed: np.ndarray, limit_mm: float,
+                         sigma_mm: float = 20.0) -> np.ndarray:
+    """(D,) bool: ``observed`` (D,) bool dots farther than ``limit_mm`` from where the *other
+    observed* dots' lattice puts them (:func:`affine_from_neighbours` on the flat tape ``uv``
+    (D, 2) mm, ``positions`` (D, 3) mm). Inferred dots take no part: the model places them
+    together with a dot matched to its neighbour's point, and the block then agrees with itself.
+    Dots that cannot be predicted (fewer than 3 other observed dots) are not judged."""
+    observed = np.asarray(observed, bool) & np.isfinite(positions).all(axis=1)
+    out = np.zeros(len(positions), bool)
+    idx = np.flatnonzero(observed)
+    if len(idx) < 4:
+        return out
+    prediction = affine_from_neighbours(uv, positions, observed, idx, sigma_mm)
+    with np.errstate(invalid="ignore"):
+        out[idx] = np.linalg.norm(positions[idx] - prediction, axis=1) > limit_mm
+    return out
+
+
+def detached_groups(observed: np.ndarray, solid_edges: np.ndarray, max_dots: int) -> np.ndarray:
+    """(D,) bool: ``observed`` (D,) bool dots in a group of at most ``max_dots`` observed dots that
+    the tape's ``solid_edges`` (E, 2) join to each other but to no observed dot of the largest
+    group (a row of unseen dots lies between). Such a group's labels come from the model's
+    placement across the gap alone: a group smaller than two whole rows fits a column or a row
+    beside its own as well as its own."""
+    observed = np.asarray(observed, bool)
+    out = np.zeros(len(observed), bool)
+    if max_dots <= 0 or observed.sum() < 2:
+        return out
+    both = solid_edges[observed[solid_edges[:, 0]] & observed[solid_edges[:, 1]]]
+    n = len(observed)
+    adjacency = coo_matrix((np.ones(len(both)), (both[:, 0], both[:, 1])), shape=(n, n))
+    _, group = connected_components(adjacency, directed=False)
+    sizes = np.bincount(group[observed], minlength=n)
+    largest = int(np.argmax(sizes))
+    small = sizes <= max_dots
+    out[observed] = (group[observed] != largest) & small[group[observed]]
+    return out

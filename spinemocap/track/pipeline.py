@@ -35,7 +35,14 @@ from .config import TrackerConfig
 from .continuity import row_centres
 from .edges import build_edges
 from .evidence import build_evidence
-from .lattice import affine_from_neighbours, beyond_known_rows, off_lattice, rows_beyond
+from .lattice import (
+    affine_from_neighbours,
+    beyond_known_rows,
+    detached_groups,
+    off_lattice,
+    off_observed_lattice,
+    rows_beyond,
+)
 from .lp import select_edges
 from .mrf1 import fit_mrf1
 from .mrf2 import TemplateEvidenceScore, refine_mrf2
@@ -57,7 +64,8 @@ class FrameResult:
     ``flags``: quality flags (:mod:`spinemocap.track.quality`); ``stretch``: the dot spacing the
     frame was solved with (ratio to the roll's spec); ``gate_px``: the candidate gate used; ``relocated``: dots the lattice check moved (see
     :meth:`FrameTracker.relocate_off_lattice`); ``unanchored``: inferred dots far beyond the
-    observed rows (see :meth:`FrameTracker.assign_status`)."""
+    observed rows (see :meth:`FrameTracker.assign_status`); ``unsupported``: observed dots whose
+    label the other observed dots do not bear out (see :meth:`FrameTracker.assign_status`)."""
 
     positions: np.ndarray
     status: np.ndarray
@@ -74,6 +82,7 @@ class FrameResult:
     relocated: np.ndarray | None = None  # (D,) bool: moved back onto the tape's lattice (quality)
     extrapolated: np.ndarray | None = None  # (D,) bool: relocated, no candidate, beyond the known rows
     unanchored: np.ndarray | None = None  # (D,) bool: inferred, >= unanchored_rows beyond the observed rows
+    unsupported: np.ndarray | None = None  # (D,) bool: observed, its label not borne out by the other observed dots
 
     @property
     def solved(self) -> bool:
@@ -88,6 +97,8 @@ class FrameResult:
             out["dot_extrapolated"] = self.extrapolated
         if self.unanchored is not None and self.unanchored.any():
             out["dot_unanchored"] = self.unanchored
+        if self.unsupported is not None and self.unsupported.any():
+            out["dot_unsupported"] = self.unsupported
         return out
 
     @classmethod
@@ -207,7 +218,9 @@ class FrameTracker:
         moved to it (:meth:`relocate_off_lattice`). Inferred dots ``status.unanchored_rows`` or
         more rows beyond the outermost observed rows (the tape's end seen by no camera pair, so
         placed and labelled by the model's extrapolation alone) are marked ``unanchored``, after
-        :meth:`anchor_tape_ends` (``status.anchor_ends``) looked for their points."""
+        :meth:`anchor_tape_ends` (``status.anchor_ends``) looked for their points. Observed dots
+        off the other observed dots' lattice or in a small group detached from them are marked
+        ``unsupported`` (:meth:`_unsupported`)."""
         cfg = self.config.status
         usable = np.nonzero(cloud.n_views >= cfg.min_views)[0] if len(cloud) else np.zeros(0, np.int64)
         match = match_points(model, cloud.points[usable] if len(usable) else np.zeros((0, 3)),
@@ -237,7 +250,7 @@ class FrameTracker:
             pixels[seen] = cloud.pixels[source[seen]]
         result = FrameResult(positions, status, n_views, residual, pixels=pixels, relocated=relocated,
                              extrapolated=relocated & ~seen & beyond_known_rows(relocated, positions, self.graph),
-                             unanchored=self._unanchored(status))
+                             unanchored=self._unanchored(status), unsupported=self._unsupported(positions, status))
         result.flags.extend(result.dot_flags())
         return result
 
@@ -287,6 +300,24 @@ class FrameTracker:
         if rows <= 0:
             return np.zeros(len(status), bool)
         return (status == INFERRED) & (rows_beyond(status == OBSERVED, self.graph) >= rows)
+
+    def _unsupported(self, positions: np.ndarray, status: np.ndarray) -> np.ndarray:
+        """(D,) bool: observed dots whose label the other observed dots do not bear out: off
+        their lattice (``status.observed_lattice_limit``) or in a small detached group
+        (``status.detached_max_dots``), see :class:`~spinemocap.track.config.StatusConfig`;
+        and the inferred dots joined to such a dot by a solid tape edge."""
+        cfg = self.config.status
+        observed = status == OBSERVED
+        edges = self.graph.solid_edges
+        out = detached_groups(observed, edges, cfg.detached_max_dots)
+        if cfg.observed_lattice_limit > 0:
+            limit = cfg.observed_lattice_limit * float(self.graph.rest_length_mm.min())
+            out |= off_observed_lattice(self.graph.uv_mm, positions, observed, limit, cfg.lattice_sigma_mm)
+        # the inferred dots beside such a dot were laid by the same model, around the same point
+        beside = np.zeros_like(out)
+        beside[edges[out[edges[:, 0]], 1]] = True
+        beside[edges[out[edges[:, 1]], 0]] = True
+        return out | (beside & (status == INFERRED))
 
     def _placed(self, model: np.ndarray, cloud: CandidateCloud, source: np.ndarray,
                 fallback: np.ndarray | None = None, normals: list[np.ndarray] | None = None) -> np.ndarray:

@@ -27,7 +27,14 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
   side only: its place is an extrapolation along the tape, possibly a dot spacing off);
   ``dot_unanchored`` 0.5 (an inferred dot two or more rows beyond the last row with an observed
   dot: the tape's end seen by no camera pair, placed and labelled by the model alone, which
-  misses there by half a dot spacing or more, see :func:`spinemocap.track.lattice.rows_beyond`).
+  misses there by half a dot spacing or more, see :func:`spinemocap.track.lattice.rows_beyond`);
+  ``dot_unsupported`` 0.5 (an observed dot whose label the other observed dots do not bear out:
+  more than half a dot spacing from where their lattice puts it, or in a group of a few observed
+  dots that no solid edge joins to the rest of the observed tape; also the inferred dots beside
+  such a dot, laid by the same model around the same point; a triangulated point with a low
+  residual is no proof of its label: matched to its row neighbour's point, a dot reprojects
+  perfectly, and the dots the model infers around it follow it, see
+  :func:`spinemocap.track.lattice.off_observed_lattice` and :func:`~spinemocap.track.lattice.detached_groups`).
 
 A frame is *flagged* when it holds any flag but the mild ``stretch_carried``, ``lp_relaxed`` and
 ``dot_relocated`` (frequent under occlusion or a poor rig, and the relocated dots land within
@@ -58,6 +65,7 @@ DOT_FLAG_FACTORS = {
     "dot_relocated": 0.8,
     "dot_extrapolated": 0.5,
     "dot_unanchored": 0.5,
+    "dot_unsupported": 0.5,
 }
 MILD_FLAGS = frozenset({"stretch_carried", "lp_relaxed", "dot_relocated"})
 STATUS_FACTORS: dict[str, float] = {OBSERVED: 1.0, INFERRED: 0.6, MISSING: 0.0}

@@ -36,6 +36,7 @@ from .continuity import other_shifts, relabel_rows, row_shift, shift_is_unambigu
 from .edges import edge_bounds
 from .lattice import affine_from_neighbours, rows_beyond
 from .pipeline import FrameResult, FrameTracker, match_points
+from .quality import DOT_FLAG_FACTORS
 from .stretch import StretchEstimate
 from .types import CandidateCloud
 
@@ -158,7 +159,7 @@ class SequenceTracker:
         with timer("status"):
             kept = self.tracker.assign_status(model, cloud)
         kept.route, kept.lp_status = result.route, result.lp_status
-        dot_level = {"unlabelled_dots", "dot_relocated", "dot_extrapolated", "dot_unanchored"}  # the re-solve's, not kept's
+        dot_level = {"unlabelled_dots", *DOT_FLAG_FACTORS}  # the re-solve's, not kept's
         kept.flags = [f for f in result.flags if f not in dot_level] + kept.flags + ["identity_kept"]
         kept.note = f"the re-solve moved the labels by {shift} row(s); the previous identity was kept"
         kept.stretch, kept.gate_px = result.stretch, result.gate_px

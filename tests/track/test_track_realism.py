@@ -201,6 +201,77 @@ def test_an_end_dot_placed_by_extrapolation_flags_the_frame():
     assert flagged_from_confidence(np.array(result.status)[None], confidence[None])[0]  # markers.csv tells it
 
 
+def _column_shifted(dots: np.ndarray, shifted: np.ndarray, step: tuple[str, str]) -> np.ndarray:
+    """The truth with the ``shifted`` (D,) bool dots moved by one column (from dot ``step[0]``'s
+    place to ``step[1]``'s): a model that laid an end of the tape a column aside."""
+    model = dots.copy()
+    model[shifted] += dots[SPEC.graph.index(step[1])] - dots[SPEC.graph.index(step[0])]
+    return model
+
+
+def _unchecked_tracker(rig: Rig) -> FrameTracker:
+    config = TrackerConfig()
+    return FrameTracker(rig, SPEC, dataclasses.replace(
+        config, status=dataclasses.replace(config.status, observed_lattice_limit=0.0, detached_max_dots=0)))
+
+
+def _vouched_swaps(result, dots: np.ndarray) -> np.ndarray:
+    """(D,) bool: dots given a neighbour's place whose confidence does not doubt them."""
+    confidence = label_confidence(result.status, result.flags, result.dot_flags())
+    doubted = flagged_from_confidence(np.array(result.status)[:, None], confidence[:, None])
+    swapped = label_swaps(result.positions[None], dots[None], float(SPEC.graph.rest_length_mm.min()))[0]
+    return swapped & ~doubted & (result.status != "missing")
+
+
+def test_a_lone_observed_dot_on_its_row_neighbours_point_is_not_vouched_for():
+    """The held-out look's frame 21: two cameras saw the tape, the sacral rows barely; the model
+    laid them a column aside and R02L took R02C's point (two views, 0.2 px residual), the
+    inferred dots around it following. The other observed dots' lattice puts R02L a dot
+    spacing away."""
+    rig = rig_behind(2)
+    dots = tape_on_back(SPEC)
+    rows = SPEC.graph.row
+    seen = (rows >= 3) | np.isin(np.arange(len(dots)), [SPEC.graph.index("R02C"), SPEC.graph.index("R03R")])
+    views = blobs(rig, dots, noise_px=0.2, hidden=np.repeat(~seen[None], len(rig), axis=0))
+    model = _column_shifted(dots, rows <= 1, ("R02L", "R02C"))
+    lone = SPEC.graph.index("R02L")
+    unchecked = _unchecked_tracker(rig)
+    before = unchecked.assign_status(model, unchecked.candidates(views))
+    swapped = _vouched_swaps(before, dots)  # R02L, and the inferred R01L and R02C laid beside it
+    assert before.status[lone] == "observed" and swapped[lone] and (before.status[swapped] == "inferred").sum() == 2
+    tracker = FrameTracker(rig, SPEC)
+    result = tracker.assign_status(model, tracker.candidates(views))
+    assert result.unsupported[lone] and "dot_unsupported" in result.flags and is_flagged(result.flags)
+    assert not _vouched_swaps(result, dots).any()
+    # the observed dots on their own points are not doubted, the inferred ones beside R02L are
+    assert (result.status[result.unsupported] == "inferred").sum() == result.unsupported.sum() - 1
+
+
+def test_a_small_group_of_observed_dots_beyond_an_unseen_row_is_not_vouched_for():
+    """The held-out look's frame 8: row 11 unseen by any camera pair, two dots of row 12 seen by
+    three; the carried model had moved the rows beyond the gap a column aside, R12L and R12C took
+    R12C's and R12R's points and agree with each other (and with the inferred dots around them)."""
+    rig = rig_behind()
+    dots = tape_on_back(SPEC)
+    rows = SPEC.graph.row
+    seen = (rows <= 9) | np.isin(np.arange(len(dots)), [SPEC.graph.index("R12C"), SPEC.graph.index("R12R")])
+    views = blobs(rig, dots, noise_px=0.2, hidden=np.repeat(~seen[None], len(rig), axis=0))
+    model = _column_shifted(dots, rows >= 10, ("R12L", "R12C"))
+    group = [SPEC.graph.index("R12L"), SPEC.graph.index("R12C")]
+    unchecked = _unchecked_tracker(rig)
+    before = unchecked.assign_status(model, unchecked.candidates(views))
+    swapped = _vouched_swaps(before, dots)  # the group, and inferred dots laid beside it
+    assert swapped[group].all() and (before.status[swapped] == "inferred").sum() == swapped.sum() - 2
+    tracker = FrameTracker(rig, SPEC)
+    result = tracker.assign_status(model, tracker.candidates(views))
+    assert result.unsupported[group].all() and is_flagged(result.flags)
+    assert (result.status[result.unsupported] == "observed").sum() == 2  # rows 1-10 on their points are not doubted
+    assert not _vouched_swaps(result, dots).any()
+    # every dot seen on its own point: nothing is doubted
+    whole = tracker.assign_status(dots, tracker.candidates(blobs(rig, dots, noise_px=0.2)))
+    assert not whole.unsupported.any() and not is_flagged(whole.flags)
+
+
 def test_relabel_rows_maps_a_two_row_shift_back_exactly():
     dots = tape_on_back(SPEC)
     shifted = relabel_rows(dots, SPEC.graph, -2)  # labels moved two rows toward the sacrum
