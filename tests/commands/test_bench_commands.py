@@ -54,3 +54,13 @@ def test_bench_detect_refuses_missing_weights_before_rendering(parse, tmp_path):
     with pytest.raises(InputError, match="w.pt"):
         bench_detect.run(args)
     assert not (tmp_path / "d.json").exists()
+
+
+def test_bench_adapt_needs_its_work_folder_and_results_file(parse, capsys):
+    from spinemocap.commands import bench_adapt
+
+    args = parse("bench", "adapt", "--work", "w", "--json", "a.json", "--frames", 12, "--epochs", 2)
+    assert args.func is bench_adapt.run and (args.frames, args.epochs, args.steps) == (12, 2, 30)
+    with pytest.raises(SystemExit) as exit_:
+        parse("bench", "adapt", "--work", "w")
+    assert exit_.value.code == 2 and "--json" in capsys.readouterr().err
