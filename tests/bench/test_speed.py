@@ -37,6 +37,14 @@ def _same_dots(a, b) -> float:
     return worst
 
 
+def _tracked_from_memory(scene, images, options, mode="sequence"):
+    """``images`` (per frame, one image per camera) of ``scene`` tracked from memory with ``options``."""
+    from spinemocap.bench.speed import MemorySource
+
+    return track_source(MemorySource(images, scene.rig.names), scene.rig, scene.tape, scene.fps,
+                        up=scene.subject()["up"], mode=mode, progress=False, speed=options)
+
+
 def _prediction_vs_full(scene, images):
     gt = scene.groundtruth["dots"]
     full = CaptureDetector("net", scene.rig, SpeedOptions(predict=False, workers=1))
@@ -77,17 +85,9 @@ def test_prediction_finds_the_full_search_dots_on_a_small_studio(small_studio):
 
 @pytest.mark.parametrize("parallel", ["threads", "processes"])
 def test_parallel_path_gives_the_serial_output(parallel):
-    from spinemocap.bench.speed import MemorySource
-
     scene, images = _rendered("tiny", 3)
-    source = MemorySource(images, scene.rig.names)
-
-    def track(options):
-        return track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"],
-                            progress=False, speed=options)
-
-    serial = track(SpeedOptions(workers=1, prefetch=0))
-    parallel_run = track(SpeedOptions(workers=3, prefetch=2, parallel=parallel))
+    serial = _tracked_from_memory(scene, images, SpeedOptions(workers=1, prefetch=0))
+    parallel_run = _tracked_from_memory(scene, images, SpeedOptions(workers=3, prefetch=2, parallel=parallel))
     assert serial.detector_info["parallel"] == "serial"
     assert parallel_run.detector_info["parallel"] == parallel  # it did run in parallel (no fallback)
     a, b = serial.table.to_arrays(), parallel_run.table.to_arrays()
@@ -372,18 +372,11 @@ def test_replay_benchmark_runs_both_parallel_modes_from_memory_and_video(tmp_pat
 def test_detection_ahead_without_prediction_gives_the_serial_output():
     # lookahead 1: frame t+1 detected while the tracker solves frame t; without prediction
     # (per-frame mode) nothing depends on the tracker, so the output is the serial one exactly
-    from spinemocap.bench.speed import MemorySource
-
     scene, images = _rendered("tiny", 3)
-    source = MemorySource(images, scene.rig.names)
-
-    def track(options, mode):
-        return track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"], mode=mode,
-                            progress=False, speed=options)
-
     for mode in ("paper", "sequence"):
         options = SpeedOptions(workers=2, predict=mode == "sequence")
-        serial, ahead = track(options, mode), track(replace(options, lookahead=1), mode)
+        serial = _tracked_from_memory(scene, images, options, mode)
+        ahead = _tracked_from_memory(scene, images, replace(options, lookahead=1), mode)
         a, b = serial.table.to_arrays(), ahead.table.to_arrays()
         if mode == "paper":
             np.testing.assert_array_equal(a["positions"], b["positions"])
@@ -901,17 +894,10 @@ def test_frames_detected_at_once_come_in_order_with_at_most_that_many_under_way(
 @pytest.mark.parametrize("parallel", ["threads", "processes"])
 def test_frames_detected_at_once_give_the_output_of_one_frame_at_a_time(parallel):
     # every frame searched in full: the tracked dots cannot depend on which frame ended first
-    from spinemocap.bench.speed import MemorySource
-
     scene, images = _rendered("tiny", 5)
-    source = MemorySource(images, scene.rig.names)
-
-    def track(options):
-        return track_source(source, scene.rig, scene.tape, scene.fps, up=scene.subject()["up"],
-                            progress=False, speed=options)
-
-    one = track(SpeedOptions(workers=2, predict=False, device="cpu"))
-    at_once = track(SpeedOptions(workers=3, predict=False, device="cpu", frames_at_once=3, parallel=parallel))
+    one = _tracked_from_memory(scene, images, SpeedOptions(workers=2, predict=False, device="cpu"))
+    at_once = _tracked_from_memory(scene, images, SpeedOptions(workers=3, predict=False, device="cpu",
+                                                               frames_at_once=3, parallel=parallel))
     a, b = one.table.to_arrays(), at_once.table.to_arrays()
     np.testing.assert_array_equal(a["positions"], b["positions"])
     assert (a["status"] == b["status"]).all()
@@ -964,3 +950,19 @@ def test_same_accuracy_holds_within_the_tolerance_and_fails_outside_it():
     assert same_accuracy(close, cpu)["same"]
     assert not same_accuracy({**cpu, "p95_error_mm": 0.80 + 2 * SAME_ACCURACY_MM}, cpu)["same"]
     assert not same_accuracy({**cpu, "label_swaps": 1}, cpu)["same"]
+
+
+def test_replay_benchmark_runs_the_pipelines_defaults_beside_frames_at_once(tmp_path):
+    from spinemocap.bench.speed import format_report, run_replay_benchmark
+    from spinemocap.synth import SynthConfig, write_capture
+
+    root = write_capture(SynthConfig.preset("tiny", frames=2), tmp_path / "capture", progress=False)
+    numbers = run_replay_benchmark(root, 4, serial_peer=False, parallel_peer=False, progress=False, say=lambda _: None,
+                                   speed=SpeedOptions(workers=2, predict=False, frames_at_once=2, device="cpu"))
+    runs = {r["run"]: r for r in numbers["runs"]}
+    assert set(runs) == {"in_memory", "in_memory_default"}
+    assert runs["in_memory_default"]["detector_searches"]["predicted"] > 0  # the defaults predict boxes
+    assert runs["in_memory"]["detector_searches"]["predicted"] == 0
+    assert numbers["speedup_vs_default"] == pytest.approx(runs["in_memory"]["fps"] / runs["in_memory_default"]["fps"])
+    assert set(numbers["detection_budget_ms"]) >= {"network_stage1", "cleanup_and_dots", "total"}
+    assert "2 frames at once" in format_report(numbers)
