@@ -27,10 +27,16 @@ Relaxation: when the program is infeasible (occluded dots, missed blobs) ``n`` i
 and re-solved, as the paper says; after ``max_step_relaxations`` unit steps the largest feasible
 ``n`` is found by one cardinality solve instead, so heavy occlusion does not cost dozens of
 solves. Every relaxation is logged.
+
+Time limit: a solve that reaches ``LPConfig.time_limit_s`` ends with the best selection found in
+that time, not one proven optimal, and a solve that found none by then counts as infeasible (``n``
+is lowered). Both depend on the machine's speed and load, so the frame says so
+(``FeasibleSet.time_limited``, the quality flag ``lp_time_limited``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 
 import numpy as np
@@ -61,6 +67,7 @@ class EdgeSelectionProgram:
         self.lo = config.min_neighbours if config.min_neighbours is not None else lo
         self.hi = config.max_neighbours if config.max_neighbours is not None else hi
         self.n_initial = tape.n_target_edges
+        self.time_limited = False  # a solve stopped at the time limit (see module)
         self.model = self._build()
         self.solver = pyo.SolverFactory(config.solver)
         if not self.solver.available():
@@ -123,13 +130,26 @@ class EdgeSelectionProgram:
         self.model.n.set_value(n)
         result = self.solver.solve(self.model, load_solutions=False, **self._time_limit_kwargs())
         term = result.solver.termination_condition
-        if term == TerminationCondition.optimal or (
-            term == TerminationCondition.maxTimeLimit and len(result.solution) > 0
-        ):
-            self.model.solutions.load_from(result)
+        timed_out = self._note_time_limit(term)
+        if term == TerminationCondition.optimal or (timed_out and len(result.solution) > 0):
+            self._load(result)
             self.termination = str(term)
             return True
         return False
+
+    def _note_time_limit(self, term: TerminationCondition) -> bool:
+        """Whether a solve ended at the time limit; remembered in :attr:`time_limited`."""
+        timed_out = term == TerminationCondition.maxTimeLimit
+        if timed_out:
+            log.debug("LP stopped at its %.1f s time limit", self.config.time_limit_s)
+        self.time_limited |= timed_out
+        return timed_out
+
+    def _load(self, result) -> None:
+        """Load a solve's solution; a time-limited one is flagged on the frame instead of Pyomo's
+        warning about loading an aborted solve."""
+        with _quiet_pyomo_load():
+            self.model.solutions.load_from(result)
 
     def _time_limit_kwargs(self) -> dict:
         return {"timelimit": self.config.time_limit_s,
@@ -144,9 +164,10 @@ class EdgeSelectionProgram:
         m.card = pyo.Objective(expr=sum(m.x[e] for e in m.E), sense=pyo.maximize)
         try:
             result = self.solver.solve(m, load_solutions=False, **self._time_limit_kwargs())
+            self._note_time_limit(result.solver.termination_condition)
             if len(result.solution) == 0:
                 return 0
-            m.solutions.load_from(result)
+            self._load(result)
             return int(round(sum(pyo.value(m.x[e]) for e in m.E)))
         finally:
             m.del_component(m.card)
@@ -190,7 +211,20 @@ class EdgeSelectionProgram:
             n_target=n,
             n_target_initial=self.n_initial,
             status="optimal" if n == self.n_initial else "relaxed",
+            time_limited=self.time_limited,
         )
+
+
+@contextlib.contextmanager
+def _quiet_pyomo_load():
+    """Pyomo's ``pyomo.core`` logger at ERROR for the duration (it warns on every time-limited load)."""
+    logger = logging.getLogger("pyomo.core")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 def select_edges(cloud: CandidateCloud, edge_cloud: EdgeCloud, tape: TapeSpec,

@@ -61,7 +61,8 @@ class FrameResult:
     ``status`` (D,) str, ``n_views`` (D,) int, ``residual`` (D,) px RMS reprojection error
     (NaN for inferred/missing); ``stage_ms`` per stage; ``route``: ``full`` (LP + MRFs),
     ``carried`` (sequence mode: the previous solution explained the frame), ``failed``;
-    ``flags``: quality flags (:mod:`spinemocap.track.quality`); ``stretch``: the dot spacing the
+    ``lp_time_limited``: the LP behind the frame stopped at its time limit (see
+    :attr:`FeasibleSet.time_limited`); ``flags``: quality flags (:mod:`spinemocap.track.quality`); ``stretch``: the dot spacing the
     frame was solved with (ratio to the roll's spec); ``gate_px``: the candidate gate used; ``relocated``: dots the lattice check moved (see
     :meth:`FrameTracker.relocate_off_lattice`); ``unanchored``: inferred dots far beyond the
     observed rows (see :meth:`FrameTracker.assign_status`); ``unsupported``: observed dots whose
@@ -74,6 +75,7 @@ class FrameResult:
     stage_ms: dict[str, float] = field(default_factory=dict)
     route: FrameRoute = "full"
     lp_status: LpStatus = ""
+    lp_time_limited: bool = False
     note: str = ""
     flags: list[str] = field(default_factory=list)
     stretch: StretchEstimate | None = None
@@ -104,7 +106,7 @@ class FrameResult:
     @classmethod
     def missing(cls, n_dots: int, stage_ms: dict, note: str) -> "FrameResult":
         return cls(np.full((n_dots, 3), np.nan), np.full(n_dots, MISSING, dtype=object),
-                   np.zeros(n_dots, np.int64), np.full(n_dots, np.nan), stage_ms, "failed", "", note)
+                   np.zeros(n_dots, np.int64), np.full(n_dots, np.nan), stage_ms, "failed", "", note=note)
 
 
 def match_points(model: np.ndarray, points: np.ndarray, radius_mm: float) -> np.ndarray:
@@ -404,6 +406,8 @@ class FrameTracker:
             flags.append("stretch_carried")
         if result.lp_status == "relaxed":
             flags.append("lp_relaxed")
+        if result.lp_time_limited:
+            flags.append("lp_time_limited")
         if unlabelled_dots(result.positions, cloud.points, cloud.n_views, self.frame_tape(stretch).graph,
                            self.config.status.observe_radius_mm) >= 2:
             flags.append("unlabelled_dots")
@@ -464,5 +468,5 @@ class FrameTracker:
             model = self.refine(mrf1.positions, views, feasible.points, evidence=evidence, tape=tape)
         with timer("status"):
             result = self.assign_status(model, cloud)
-        result.stage_ms, result.lp_status = stage_ms, feasible.status
+        result.stage_ms, result.lp_status, result.lp_time_limited = stage_ms, feasible.status, feasible.time_limited
         return result

@@ -20,6 +20,9 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
   farther than any row pitch measured in the frame's points); ``unsolved`` 0.5 (the frame had no solution: its dots,
   where given, were interpolated in time between solved frames); ``stretch_carried`` 0.9 (this frame's spacing could not be
   measured, an earlier frame's was used); ``lp_relaxed`` 0.9 (the LP had to drop edges);
+  ``lp_time_limited`` 0.95 (the LP stopped at its time limit: its edges, or the count it settled
+  on, are the best found in that time and may differ on a slower or busier machine; raise
+  ``[lp] time_limit_s`` to search longer);
 - per-dot flags (factor on the dots concerned only; the frame lists the flag): ``dot_relocated``
   0.8 (the dot sat off its tape neighbours' lattice, matched to a ghost or a neighbour's point
   under a poor rig, and was moved back onto it: :mod:`spinemocap.track.lattice`);
@@ -36,10 +39,11 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
   perfectly, and the dots the model infers around it follow it, see
   :func:`spinemocap.track.lattice.off_observed_lattice` and :func:`~spinemocap.track.lattice.detached_groups`).
 
-A frame is *flagged* when it holds any flag but the mild ``stretch_carried``, ``lp_relaxed`` and
-``dot_relocated`` (frequent under occlusion or a poor rig, and the relocated dots land within
-~2 mm of their truth). In ``markers.csv`` a flagged frame shows as a dot whose confidence is
-below 0.6 x its status factor (mild factors multiply to >= 0.648, doubting ones give <= 0.5).
+A frame is *flagged* when it holds any flag but the mild ``stretch_carried``, ``lp_relaxed``,
+``lp_time_limited`` and ``dot_relocated`` (frequent under occlusion or a poor rig, the relocated
+dots land within ~2 mm of their truth, and the later stages check the LP's labels as they check
+any). In ``markers.csv`` a flagged frame shows as a dot whose confidence is below 0.6 x its status
+factor (mild factors multiply to >= 0.61, doubting ones give <= 0.5).
 """
 
 from __future__ import annotations
@@ -60,6 +64,7 @@ FLAG_FACTORS = {
     "unsolved": 0.5,
     "stretch_carried": 0.9,
     "lp_relaxed": 0.9,
+    "lp_time_limited": 0.95,
 }
 DOT_FLAG_FACTORS = {
     "dot_relocated": 0.8,
@@ -67,7 +72,7 @@ DOT_FLAG_FACTORS = {
     "dot_unanchored": 0.5,
     "dot_unsupported": 0.5,
 }
-MILD_FLAGS = frozenset({"stretch_carried", "lp_relaxed", "dot_relocated"})
+MILD_FLAGS = frozenset({"stretch_carried", "lp_relaxed", "lp_time_limited", "dot_relocated"})
 STATUS_FACTORS: dict[str, float] = {OBSERVED: 1.0, INFERRED: 0.6, MISSING: 0.0}
 
 

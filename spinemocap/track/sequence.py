@@ -158,7 +158,7 @@ class SequenceTracker:
             model = self.tracker.refine(model, views, cloud.points[usable], tape=tape)
         with timer("status"):
             kept = self.tracker.assign_status(model, cloud)
-        kept.route, kept.lp_status = result.route, result.lp_status
+        kept.route, kept.lp_status, kept.lp_time_limited = result.route, result.lp_status, result.lp_time_limited
         dot_level = {"unlabelled_dots", *DOT_FLAG_FACTORS}  # the re-solve's, not kept's
         kept.flags = [f for f in result.flags if f not in dot_level] + kept.flags + ["identity_kept"]
         kept.note = f"the re-solve moved the labels by {shift} row(s); the previous identity was kept"

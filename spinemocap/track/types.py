@@ -58,7 +58,9 @@ class FeasibleSet:
     ``points``/``normals``: (K, 3); ``edges``: (L, 2) indices into ``points``; ``source_index``:
     (K,) index of each point in the candidate cloud; ``n_target``: edge count finally required
     (after relaxation); ``n_target_initial``: Eq. 1's value; ``status``: ``optimal`` at Eq. 1's
-    count, else ``relaxed``."""
+    count, else ``relaxed``; ``time_limited``: a solve behind this set (or behind the count it
+    settled on) stopped at the LP's time limit, so the set is the best found in time, not proven
+    optimal (:mod:`spinemocap.track.lp`)."""
 
     points: np.ndarray
     normals: np.ndarray
@@ -67,6 +69,7 @@ class FeasibleSet:
     n_target: int
     n_target_initial: int
     status: LpStatus = "optimal"
+    time_limited: bool = False
 
     def __len__(self) -> int:
         return len(self.points)

@@ -26,8 +26,9 @@ from spinemocap.track.candidates import (
 from spinemocap.track.config import LPConfig, SequenceConfig, TrackerConfig
 from spinemocap.track.edges import build_edges
 from spinemocap.track.evaluate import label_swaps, plane_baseline, plane_baselines
-from spinemocap.track.lp import neighbour_bounds, select_edges
+from spinemocap.track.lp import EdgeSelectionProgram, neighbour_bounds, select_edges
 from spinemocap.track.pipeline import FrameTracker
+from spinemocap.track.quality import MILD_FLAGS, flagged_from_confidence, is_flagged, label_confidence
 from spinemocap.track.sequence import fill_and_smooth
 from spinemocap.track.types import CandidateCloud
 from spinemocap.views import ViewDots
@@ -164,6 +165,43 @@ def test_lp_relaxes_the_target_when_dots_are_missing(scene, caplog):
     assert any("relaxing" in r.message or "lowered" in r.message for r in caplog.records)
     _, dist = nearest_dot(feasible.points, dots)
     assert dist.max() < 2.0
+
+
+def test_lp_says_when_a_solve_stopped_at_its_time_limit(scene):
+    rig, dots = scene
+    cloud = build_candidates(rig, blobs(rig, dots, noise_px=0.2, seed=4))
+    edges = build_edges(cloud, SPEC)
+    unhurried = EdgeSelectionProgram(cloud, edges, SPEC, LPConfig())
+    feasible = unhurried.solve()
+    assert feasible is not None and not feasible.time_limited and not unhurried.time_limited
+    # no time at all: no solve can finish, so no count is proven infeasible either
+    hurried = EdgeSelectionProgram(cloud, edges, SPEC, LPConfig(time_limit_s=0.0))
+    assert hurried.solve() is None
+    assert hurried.time_limited
+
+
+def test_a_time_limited_lp_is_a_mild_flag_on_the_frame(scene):
+    rig, dots = scene
+    views = blobs(rig, dots, noise_px=0.2, seed=5)
+    tracker = FrameTracker(rig, SPEC)
+    solved = tracker.solve(views)
+    assert "lp_time_limited" not in solved.flags
+    cloud = tracker.candidates(views)
+    limited = tracker.add_quality(dataclasses.replace(solved, flags=[], lp_time_limited=True), cloud,
+                                  tracker.measure_stretch(cloud))
+    assert "lp_time_limited" in limited.flags and not is_flagged(limited.flags)
+    confidence = label_confidence(limited.status, limited.flags, limited.dot_flags())
+    assert np.allclose(confidence, 0.95 * label_confidence(solved.status, solved.flags, solved.dot_flags()))
+
+
+def test_mild_flags_together_never_read_as_flagged_in_the_marker_file():
+    status = np.array([["observed", "inferred"]])
+    mild_frame = sorted(MILD_FLAGS - {"dot_relocated"})
+    everywhere = {"dot_relocated": np.array([True, True])}
+    mild = label_confidence(status[0], mild_frame, everywhere)[None]
+    assert not flagged_from_confidence(status, mild).any()
+    doubting = label_confidence(status[0], mild_frame + ["identity_kept"], everywhere)[None]
+    assert flagged_from_confidence(status, doubting).all()
 
 
 def test_lp_reports_no_tape_for_an_empty_cloud():
