@@ -129,11 +129,11 @@ def _score(table, gt: dict, spacing: float, result) -> dict:
     ev = evaluate_tracking(table, gt, spacing, result.stage_ms())
     quality = result.quality()
     return {"mean_mm": ev.mean_error_mm, "p95_mm": ev.p95_error_mm, "swaps": ev.label_swaps,
-            "flagged_frames": len(quality["flagged_frames"]), "flagged_dot_share": flagged_dot_share(table),
+            "flagged_frames": len(quality.flagged_frames), "flagged_dot_share": flagged_dot_share(table),
             "vouched_mean_mm": vouched_error_mm(table, gt), "vouched_swaps": vouched_swaps(table, gt, spacing),
-            "flags": quality["flags"],
-            "unsolved_frames": ev.frames_without_solution, "stretch_along": quality["stretch_along"],
-            "gate_px": quality["gate_px"], "ms_per_frame": ev.total_ms_per_frame}
+            "flags": quality.flags, "unsolved_frames": ev.frames_without_solution,
+            "stretch_along": list(quality.stretch_along) if quality.stretch_along is not None else None,
+            "gate_px": quality.gate_px, "ms_per_frame": ev.total_ms_per_frame}
 
 
 def _vouched(table, gt: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
