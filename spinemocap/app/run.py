@@ -48,6 +48,7 @@ from .results import TrackingStopped, write_markers
 from .streaming import (
     CaptureDetector,
     DetectionRoute,
+    DetectorInfo,
     SpeedOptions,
     detected_ahead,
     detected_at_once,
@@ -151,7 +152,7 @@ class TrackResult:
     calibration_warning: str | None = None
     refinement: RigRefinement | None = None
     detector_searches: dict[DetectionRoute, int] = field(default_factory=dict)  # camera images per detection route
-    detector_info: dict = field(default_factory=dict)  # CaptureDetector.info: parallel mode, workers' start-up and CPU
+    detector_info: DetectorInfo | None = None  # how the cameras were detected (None: views given, not detected)
 
     def stage_ms(self) -> dict[str, float]:
         """Mean time per stage per frame (ms), over all frames."""
@@ -202,12 +203,13 @@ class TrackResult:
     def missing_cameras(self) -> dict[str, list[int]]:
         """Camera name -> the capture frames it had no image for (its clock, a dropped, missing or
         damaged frame, a recording that ends early); the tracker used the other cameras there."""
-        missing = {str(k): sorted(int(f) for f in v) for k, v in self.detector_info.get("missing_frames", {}).items()}
+        given = self.detector_info.missing_frames if self.detector_info is not None else {}
+        missing = {str(k): sorted(int(f) for f in v) for k, v in given.items()}
         return {camera: frames for camera, frames in sorted(missing.items()) if frames}
 
     def missing_camera_lines(self) -> list[str]:
         """One line per camera with frames it had no image for, its frames as ranges and why."""
-        reasons = self.detector_info.get("unreadable", {})
+        reasons = self.detector_info.unreadable if self.detector_info is not None else {}
         lines = []
         for camera, frames in self.missing_cameras().items():
             why = sorted({str(r) for r in reasons.get(camera, {}).values()})
@@ -463,10 +465,8 @@ def track_source(
         views.close()  # a detection running ahead of the tracker ends before its detector closes
         detect.close()
     result.detector_searches = dict(detect.searches)
-    result.detector_info = dict(detect.info)
     unreadable = {camera: reasons for camera, reasons in getattr(source, "unreadable", {}).items() if reasons}
-    if unreadable:
-        result.detector_info["unreadable"] = unreadable
+    result.detector_info = replace(detect.info, unreadable=unreadable)
     result.table.meta[MISSING_CAMERAS] = result.missing_cameras()  # into the marker files
     return result
 

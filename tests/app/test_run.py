@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from spinemocap.app.run import TrackQuality, TrackResult
+from spinemocap.app.streaming import DetectorInfo
 from spinemocap.markers import MarkerTable
 from spinemocap.tape import TapeSpec
 from spinemocap.track.pipeline import FrameResult
@@ -29,7 +30,8 @@ def _result() -> TrackResult:
     frames = [_solved(n, 1.10, 2.0, []), _solved(n, 1.20, 3.0, ["lp_relaxed"]),
               _solved(n, 1.50, 4.0, ["unlabelled_dots"]), FrameResult.missing(n, {}, "no dots")]
     table = MarkerTable.from_arrays(tape.labels, np.zeros((4, n, 3)), fps=50.0, first_frame=10)
-    return TrackResult(table, frames, detector_info={"missing_frames": {"cam2": [12], "cam1": []}})
+    info = DetectorInfo("threads", 2, missing_frames={"cam2": [12], "cam1": []}, unreadable={"cam2": {12: "damaged"}})
+    return TrackResult(table, frames, detector_info=info)
 
 
 def test_quality_vouches_only_for_unflagged_frames_and_measures_on_them():
@@ -59,4 +61,4 @@ def test_quality_without_measured_frames_says_none():
 def test_summary_reports_the_spacing_and_the_flagged_frames():
     summary = _result().summary()
     assert "+15 % along the tape vs the roll's spec (frames +10 .. +20 %), -2 % across" in summary
-    assert "WARNING 2 of 4 frames flagged" in summary and "camera cam2 had no image in 1 of 4 frames" in summary
+    assert "WARNING 2 of 4 frames flagged" in summary and "camera cam2 had no image in 1 of 4 frames (frame 12); the other cameras were used there: damaged" in summary
