@@ -1018,3 +1018,42 @@ def test_speed_numbers_are_written_as_one_json_object_with_the_lookahead_keys_in
     assert "1.50x the frames/s of the exact serial order" in format_report(numbers)
     without = replace(numbers, lookahead_comparison=None)
     assert "speedup_lookahead_in_memory" not in without.to_dict()  # no peer ran: no keys
+
+
+def test_a_replayed_run_on_a_gpu_reports_its_cpu_peer_and_the_dots_on_both_devices(tmp_path):
+    import json
+
+    from spinemocap.bench.speed import (
+        GOALS_FPS,
+        DeviceDots,
+        MachineInfo,
+        ReplayedSpeed,
+        format_report,
+        same_accuracy,
+        save,
+    )
+
+    machine = MachineInfo(cpu_cores=16, cpu_model="x", cpu_vnni=True, auto_precision="int8", load_average_1min=0.1,
+                          torch="2", torch_threads=16, gpu="GPU", cuda="12", cudnn_allow_tf32=True)
+    gpu, cpu = _speed_run(fps=40.0, mean_error_mm=0.41), _speed_run(run="in_memory_cpu", fps=8.0, mean_error_mm=0.40)
+    dots = DeviceDots(images=6, dots_cpu=300, dots_device=300, unmatched_cpu=0, unmatched_device=0, max_px=0.02,
+                      mask_pixels_differing=5, images_identical=4)
+    numbers = ReplayedSpeed(
+        preset="capture c replayed", source_frames=3, frames=10, sensor_noise=0.0, cameras=6, image_size=[2448, 1600],
+        mode="sequence", detector="net", device="cuda", machine=machine, speed_options=SpeedOptions(device="cuda"),
+        fps_in_memory=40.0, fps_png=None, fps_video=None, speedup_vs_serial=None, accuracy_not_worse=None,
+        speedup_vs_cpu=5.0, accuracy_not_worse_vs_cpu=True, same_accuracy_as_cpu=same_accuracy(gpu, cpu),
+        speedup_vs_default=None, detection_budget_ms={"network_stage1": 1.5, "total": 3.0}, parallel="threads",
+        speedup_processes_vs_threads=None, same_output_processes_threads=None, device_check=dots,
+        lookahead_comparison=None, accuracy_tolerance_mm=0.01, runs=[gpu, cpu], goals_fps=GOALS_FPS)
+    report = format_report(numbers)
+    assert "network on cuda: 5.00x the same pipeline's frames/s on the CPU" in report
+    assert "mean +0.0100 mm" in report and ": same (within" in report
+    assert "network_stage1 1.5, total 3.0" in report and "'max_px': 0.02" in report
+    save(numbers, tmp_path / "speed.json")
+    saved = json.loads((tmp_path / "speed.json").read_text())
+    assert saved["same_accuracy_as_cpu"] == {"mean_difference_mm": pytest.approx(0.01), "p95_difference_mm": 0.0,
+                                             "label_swaps": 0, "reference_label_swaps": 0, "same": True}
+    assert list(saved["device_check"]) == ["images", "dots_cpu", "dots_device", "unmatched_cpu", "unmatched_device",
+                                           "max_px", "mask_pixels_differing", "images_identical"]
+    assert list(saved)[:3] == ["preset", "source_frames", "frames"] and list(saved)[-2:] == ["runs", "goals_fps"]
