@@ -75,7 +75,8 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..app.streaming import SpeedOptions
-    from ..bench.speed import SpeedNumbers, format_report, plot_stages, run_replay_benchmark, run_speed_benchmark, save
+    from ..bench.speed import format_report, plot_stages, run_replay_benchmark, run_speed_benchmark, save
+    from ..bench.speed_results import SpeedNumbers
 
     chosen: dict = {} if args.lookahead is None else {"lookahead": args.lookahead}  # else the pipeline's defaults
     if args.precision is not None:

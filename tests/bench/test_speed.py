@@ -28,7 +28,7 @@ def _rendered(preset: str, frames: int, **overrides):
 
 def _speed_run(**fields):
     """A :class:`~spinemocap.bench.speed.SpeedRun` of 4 frames, error-free unless ``fields`` say otherwise."""
-    from spinemocap.bench.speed import SpeedRun
+    from spinemocap.bench.speed_results import SpeedRun
 
     run = SpeedRun(run="in_memory", frames=4, wall_s=2.0, fps=2.0, cpu_s_per_frame=0.5, cores_used=1.0,
                    main_thread_cpu_s_per_frame=0.4, workers_cpu_s_per_frame=0.0, parallel="threads", workers=2,
@@ -982,15 +982,8 @@ def test_replay_benchmark_runs_the_pipelines_defaults_beside_frames_at_once(tmp_
 def test_speed_numbers_are_written_as_one_json_object_with_the_lookahead_keys_in_place(tmp_path):
     import json
 
-    from spinemocap.bench.speed import (
-        GOALS_FPS,
-        DecodeSpeed,
-        LookaheadComparison,
-        MachineInfo,
-        RenderedSpeed,
-        format_report,
-        save,
-    )
+    from spinemocap.bench.speed import GOALS_FPS, format_report, save
+    from spinemocap.bench.speed_results import DecodeSpeed, LookaheadComparison, MachineInfo, RenderedSpeed
 
     machine = MachineInfo(cpu_cores=2, cpu_model="x", cpu_vnni=False, auto_precision="float32", load_average_1min=0.5,
                           torch="2", torch_threads=2, gpu=None, cuda=None, cudnn_allow_tf32=None)
@@ -1023,15 +1016,8 @@ def test_speed_numbers_are_written_as_one_json_object_with_the_lookahead_keys_in
 def test_a_replayed_run_on_a_gpu_reports_its_cpu_peer_and_the_dots_on_both_devices(tmp_path):
     import json
 
-    from spinemocap.bench.speed import (
-        GOALS_FPS,
-        DeviceDots,
-        MachineInfo,
-        ReplayedSpeed,
-        format_report,
-        same_accuracy,
-        save,
-    )
+    from spinemocap.bench.speed import GOALS_FPS, format_report, same_accuracy, save
+    from spinemocap.bench.speed_results import DeviceDots, MachineInfo, ReplayedSpeed
 
     machine = MachineInfo(cpu_cores=16, cpu_model="x", cpu_vnni=True, auto_precision="int8", load_average_1min=0.1,
                           torch="2", torch_threads=16, gpu="GPU", cuda="12", cudnn_allow_tf32=True)
