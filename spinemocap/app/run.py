@@ -287,15 +287,15 @@ class TrackResult:
             before, after = self.refinement.before_px["all"], self.refinement.after_px["all"]
             lines.append(f"rig refined on {self.refinement.n_points} tracked dot-frames: reprojection RMS "
                          f"{before:.2f} -> {after:.2f} px (rig_refined.toml, rig_refine.json)")
-            uncertainty = self.refinement.extra.get("frame_uncertainty_mm", float("nan"))
-            frame = self.refinement.extra.get("world_frame", {})
-            if frame.get("source") == "reference":
-                lines.append(f"world frame from the reference object {frame['name']!r}: {len(frame['markers_used'])} "
-                             f"markers, {frame['observations']} camera views, fit {frame['fit_rms_px']:.2f} px RMS, "
-                             f"markers re-triangulated {frame['fit_rms_mm']:.2f} mm RMS from the design (the given rig "
-                             f"had them {frame['given_frame_offset_mm']:.1f} mm off)")
-                if frame.get("pose_warning"):
-                    lines.append("WARNING " + frame["pose_warning"])
+            uncertainty = self.refinement.frame_uncertainty_mm
+            frame = self.refinement.reference
+            if frame is not None:
+                lines.append(f"world frame from the reference object {frame.name!r}: {len(frame.markers_used)} "
+                             f"markers, {frame.observations} camera views, fit {frame.fit_rms_px:.2f} px RMS, "
+                             f"markers re-triangulated {frame.fit_rms_mm:.2f} mm RMS from the design (the given rig "
+                             f"had them {frame.given_frame_offset_mm:.1f} mm off)")
+                if frame.pose_warning:
+                    lines.append("WARNING " + frame.pose_warning)
             elif np.isfinite(uncertainty):
                 lines.append(f"absolute positions keep about {uncertainty:.1f} mm of the given rig's world-frame error "
                              "(no residual sees it; distances and angles do not)")
@@ -539,8 +539,8 @@ def track_capture_result(
         except ReferenceFitError as exc:
             raise InputError(reference_path, str(exc)) from None
         doubt = pose_doubt(result.refinement)
-        if doubt:
-            result.refinement.extra["world_frame"]["pose_warning"] = doubt
+        if doubt and result.refinement.reference is not None:
+            result.refinement.reference.pose_warning = doubt
             warnings.warn(doubt, CalibrationWarning, stacklevel=2)
         write_refinement(result.refinement, out_dir)
         result.table = apply_refined_rig(result, result.refinement, capture.tape)

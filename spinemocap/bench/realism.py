@@ -206,13 +206,14 @@ def _refined_row(result, rig, scene, gt: dict, spacing: float, control) -> dict:
     except (ValueError, ReferenceFitError) as exc:
         return {"error": str(exc)}
     refined = dataclasses.replace(result, table=apply_refined_rig(result, refinement, scene.tape))
-    frame = refinement.extra["world_frame"]
+    frame = refinement.reference
     return {**_score(refined.table, gt, spacing, refined), "rig_rms_before_px": refinement.before_px["all"],
             "rig_rms_after_px": refinement.after_px["all"],
-            "frame_uncertainty_mm": refinement.extra["frame_uncertainty_mm"],
-            "shape_mm": _shape_error(refined.table, gt), "world_frame": frame["source"],
-            **({"reference_fit_px": frame["fit_rms_px"], "reference_fit_mm": frame["fit_rms_mm"],
-                "given_frame_offset_mm": frame["given_frame_offset_mm"]} if frame["source"] == "reference" else {})}
+            "frame_uncertainty_mm": refinement.frame_uncertainty_mm,
+            "shape_mm": _shape_error(refined.table, gt),
+            "world_frame": "reference" if frame is not None else "given rig",
+            **({"reference_fit_px": frame.fit_rms_px, "reference_fit_mm": frame.fit_rms_mm,
+                "given_frame_offset_mm": frame.given_frame_offset_mm} if frame is not None else {})}
 
 
 def _shape_error(table, gt: dict) -> float:
