@@ -140,4 +140,4 @@ def test_detector_gives_a_camera_without_an_image_an_empty_view():
     finally:
         detect.close()
     assert len(views) == 2 and len(views[1]) == 0 and views[1].camera == 1
-    assert detect.missing == {1: [7]} and detect.info["missing_frames"] == {"1": [7]}
+    assert detect.missing == {1: [7]} and detect.info.missing_frames == {"1": [7]}

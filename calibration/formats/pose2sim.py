@@ -17,9 +17,18 @@ import numpy as np
 from spinemocap.camera import Camera, Rig
 from spinemocap.fileio import InputError, read_toml, reading, write_toml
 
+#: The entries every camera table needs; a table holding any camera entry is a camera table.
+REQUIRED_KEYS = ("matrix", "size", "rotation", "translation")
+CAMERA_KEYS = frozenset({*REQUIRED_KEYS, "distortions", "fisheye"})
+
 
 def is_pose2sim(data: dict) -> bool:
-    return any(isinstance(v, dict) and "matrix" in v for v in data.values())
+    """True when ``data`` (a parsed TOML file) holds a Pose2Sim/Anipose camera table."""
+    return any(_is_camera_table(v) for v in data.values())
+
+
+def _is_camera_table(entry: object) -> bool:
+    return isinstance(entry, dict) and not CAMERA_KEYS.isdisjoint(entry)
 
 
 def rig_from_pose2sim(data: dict, source: str | os.PathLike | None = None) -> Rig:
@@ -30,8 +39,13 @@ def rig_from_pose2sim(data: dict, source: str | os.PathLike | None = None) -> Ri
 def _rig(data: dict, source: str | os.PathLike | None) -> Rig:
     cameras = []
     for key, entry in data.items():
-        if not (isinstance(entry, dict) and "matrix" in entry):
+        if not _is_camera_table(entry):
             continue
+        missing = [name for name in REQUIRED_KEYS if name not in entry]
+        if missing:  # never dropped: a rig without one of its cameras would look whole
+            raise InputError(source, f"camera table [{key}] ({entry.get('name', key)!r}) lacks "
+                                     f"{', '.join(repr(name) for name in missing)}: every camera needs 'matrix' (3x3 K, "
+                                     "px), 'size' ([w, h] px), 'rotation' (Rodrigues vector) and 'translation' (m)")
         try:
             if entry.get("fisheye", False):
                 raise InputError(source, f"[{key}] is a fisheye camera; only the pinhole model is supported")
@@ -52,7 +66,8 @@ def _rig(data: dict, source: str | os.PathLike | None) -> Rig:
                 raise
             raise InputError(source, f"[{key}]: missing or bad field ({exc})") from exc
     if not cameras:
-        raise InputError(source, "no camera tables with a 'matrix' entry (not a Pose2Sim/Anipose calibration)")
+        raise InputError(source, "no camera tables (with 'matrix', 'size', 'rotation', 'translation'): not a "
+                                 "Pose2Sim/Anipose calibration")
     return Rig(cameras)
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -15,10 +16,10 @@ import exporters
 from ..bodymodel import load_model
 from ..bodymodel.fit import FitOptions, MarkerFitter
 from ..bodymodel.markersets import place_markers, read_mapping
-from ..bodymodel.results import write_fit
+from ..bodymodel.results import BodyFitSummary, write_fit
 from ..bodymodel.tape import lay_tape
 from ..capture import Capture
-from ..fileio import InputError, atomic_write, strict_json
+from ..fileio import InputError
 from ..frames import parse_frames
 from ..markers import MarkerTable
 from ..tape import TapeSpec
@@ -82,7 +83,7 @@ def fit_marker_file(markers: str | os.PathLike, out: str | os.PathLike, model_na
                     static: str | os.PathLike | None = None, frames: str | None = None,
                     mapping: str | os.PathLike | None = None, key_frames: int = 5,
                     save_vertices: bool = False, progress: bool = True,
-                    tape_capture: str | os.PathLike | None = None, tape_start: str = "L4") -> dict:
+                    tape_capture: str | os.PathLike | None = None, tape_start: str = "L4") -> BodyFitSummary:
     """Fit and write ``out``/body.npz, summary.json, residuals.csv, residuals.png (and, with
     ``tape_capture`` (a capture folder or a tape TOML), that tape laid on the fitted body:
     tape_dots.c3d/.csv); returns
@@ -128,8 +129,7 @@ def fit_marker_file(markers: str | os.PathLike, out: str | os.PathLike, model_na
             raise InputError(tape_capture, f"cannot lay its tape on the fitted body: {exc}") from exc
         exporters.write(reference, Path(out) / "tape_dots.c3d")
         exporters.write(reference, Path(out) / "tape_dots.csv")
-        summary["tape_dots"] = str(Path(out) / "tape_dots.c3d")
-        summary["tape_row_levels"] = reference.meta["row_levels"]
-        with atomic_write(Path(out) / "summary.json") as handle:
-            handle.write(strict_json(summary, indent=2))
+        summary = replace(summary, tape_dots=str(Path(out) / "tape_dots.c3d"),
+                          tape_row_levels=reference.meta["row_levels"])
+        summary.write(out)
     return summary

@@ -59,14 +59,14 @@ def pose_doubt(refinement: RigRefinement) -> str | None:
     """A warning when the reference's world frame lies farther from the given rig's than the given
     rig's own residuals make plausible (a pose in the reference file shifted as a whole fits the
     markers perfectly and moves the world with it), else None."""
-    frame = refinement.extra.get("world_frame", {})
-    if frame.get("source") != "reference":
+    frame = refinement.reference
+    if frame is None:
         return None
-    offset = frame["given_frame_offset_mm"]
-    expected = refinement.extra["frame_uncertainty_from_residuals_mm"]
+    offset = frame.given_frame_offset_mm
+    expected = refinement.frame_uncertainty_from_residuals_mm
     limit = max(POSE_DOUBT_FACTOR * expected, POSE_DOUBT_MIN_MM)
     if np.isfinite(offset) and offset > limit:
-        return (f"{frame['name']}: the given rig places the reference's markers {offset:.1f} mm from where the reference "
+        return (f"{frame.name}: the given rig places the reference's markers {offset:.1f} mm from where the reference "
                 f"file says they are, more than its residuals make plausible (~{expected:.1f} mm, limit {limit:.1f} mm): "
                 "the world frame now follows the reference file; check its pose (translation_mm, rotation)")
     return None

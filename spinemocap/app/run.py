@@ -14,7 +14,7 @@ import time
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterable, Literal, Sequence
+from typing import Any, Callable, Iterable, Literal, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -48,6 +48,7 @@ from .results import TrackingStopped, write_markers
 from .streaming import (
     CaptureDetector,
     DetectionRoute,
+    DetectorInfo,
     SpeedOptions,
     detected_ahead,
     detected_at_once,
@@ -108,6 +109,39 @@ def make_detector(name: str, rig: Rig | None = None, speed: SpeedOptions | None 
 
 
 # ---------------------------------------------------------------------- sequences
+@dataclass(frozen=True)
+class TrackQuality:
+    """What the tracker can vouch for in a tracked sequence (:meth:`TrackResult.quality`).
+
+    ``flagged_frames``: capture frame numbers whose labels are not vouched for (a quality flag of
+    :mod:`spinemocap.track.quality`, or unsolved); ``flags``: frames per condition (``tape not
+    found`` and each quality flag); ``stretch_along``: (min, median, max) over the vouched-for
+    frames of the measured dot spacing along the tape over the roll's spec (ratio), None when no
+    frame measured it; ``stretch_across``: the median ratio across the tape (None likewise);
+    ``gate_px``: the median candidate gate (px; None when no frame set one); ``rig_rms_px``: camera
+    name -> the rig's reprojection RMS on the capture's dots (px; None when not measured);
+    ``calibration_warning``: the tracker's warning about the rig, None when none;
+    ``missing_cameras``: camera name -> the frames it had no image for."""
+
+    flagged_frames: list[int]
+    flags: dict[str, int]
+    stretch_along: tuple[float, float, float] | None
+    stretch_across: float | None
+    gate_px: float | None
+    rig_rms_px: dict[str, float] | None
+    calibration_warning: str | None
+    missing_cameras: dict[str, list[int]]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object (keys in field order; ``stretch_along`` a list)."""
+        return {"flagged_frames": list(self.flagged_frames), "flags": dict(self.flags),
+                "stretch_along": list(self.stretch_along) if self.stretch_along is not None else None,
+                "stretch_across": self.stretch_across, "gate_px": self.gate_px,
+                "rig_rms_px": dict(self.rig_rms_px) if self.rig_rms_px is not None else None,
+                "calibration_warning": self.calibration_warning,
+                "missing_cameras": {camera: list(frames) for camera, frames in self.missing_cameras.items()}}
+
+
 @dataclass
 class TrackResult:
     """A tracked sequence: the marker table plus per-frame diagnostics."""
@@ -118,7 +152,7 @@ class TrackResult:
     calibration_warning: str | None = None
     refinement: RigRefinement | None = None
     detector_searches: dict[DetectionRoute, int] = field(default_factory=dict)  # camera images per detection route
-    detector_info: dict = field(default_factory=dict)  # CaptureDetector.info: parallel mode, workers' start-up and CPU
+    detector_info: DetectorInfo | None = None  # how the cameras were detected (None: views given, not detected)
 
     def stage_ms(self) -> dict[str, float]:
         """Mean time per stage per frame (ms), over all frames."""
@@ -169,12 +203,13 @@ class TrackResult:
     def missing_cameras(self) -> dict[str, list[int]]:
         """Camera name -> the capture frames it had no image for (its clock, a dropped, missing or
         damaged frame, a recording that ends early); the tracker used the other cameras there."""
-        missing = {str(k): sorted(int(f) for f in v) for k, v in self.detector_info.get("missing_frames", {}).items()}
+        given = self.detector_info.missing_frames if self.detector_info is not None else {}
+        missing = {str(k): sorted(int(f) for f in v) for k, v in given.items()}
         return {camera: frames for camera, frames in sorted(missing.items()) if frames}
 
     def missing_camera_lines(self) -> list[str]:
         """One line per camera with frames it had no image for, its frames as ranges and why."""
-        reasons = self.detector_info.get("unreadable", {})
+        reasons = self.detector_info.unreadable if self.detector_info is not None else {}
         lines = []
         for camera, frames in self.missing_cameras().items():
             why = sorted({str(r) for r in reasons.get(camera, {}).values()})
@@ -206,25 +241,24 @@ class TrackResult:
             return None
         return f"no tape found in {missing} of {len(self.frames)} frames"
 
-    def quality(self) -> dict:
-        """Numbers for summaries and JSON: flagged frames, flag counts, the spacing measured
-        (ratio to the roll's spec) and the rig's residuals."""
+    def quality(self) -> TrackQuality:
+        """What the tracker vouches for, for summaries and JSON (:class:`TrackQuality`)."""
         measured = [f.stretch for f in self.frames if f.solved and not is_flagged(f.flags)
                     and f.stretch is not None and f.stretch.source == "data"]  # never from frames not vouched for
         along = [m.along for m in measured]
         across = [m.across for m in measured]
         gates = [f.gate_px for f in self.frames if np.isfinite(f.gate_px)]
         res = self.rig_residuals
-        return {
-            "flagged_frames": self.flagged_frames(),
-            "flags": self.flag_counts(),
-            "stretch_along": [float(np.min(along)), float(np.median(along)), float(np.max(along))] if along else None,
-            "stretch_across": float(np.median(across)) if across else None,
-            "gate_px": float(np.median(gates)) if gates else None,
-            "rig_rms_px": ({n: float(r) for n, r in zip(res.cameras, res.rms_px)} if res is not None else None),
-            "calibration_warning": self._calibration_warning(),
-            "missing_cameras": self.missing_cameras(),
-        }
+        return TrackQuality(
+            flagged_frames=self.flagged_frames(),
+            flags=self.flag_counts(),
+            stretch_along=(float(np.min(along)), float(np.median(along)), float(np.max(along))) if along else None,
+            stretch_across=float(np.median(across)) if across else None,
+            gate_px=float(np.median(gates)) if gates else None,
+            rig_rms_px=({n: float(r) for n, r in zip(res.cameras, res.rms_px)} if res is not None else None),
+            calibration_warning=self._calibration_warning(),
+            missing_cameras=self.missing_cameras(),
+        )
 
     def _calibration_warning(self) -> str | None:
         """The tracker's calibration warning; after ``--refine-rig`` its advice to refine is
@@ -239,34 +273,34 @@ class TrackResult:
         """What the tracker can and cannot vouch for, in a few lines (end of ``spinemocap track``)."""
         q = self.quality()
         lines = []
-        if q["stretch_along"]:
-            lo, med, hi = q["stretch_along"]
+        if q.stretch_along and q.stretch_across is not None:  # both come from the same frames
+            lo, med, hi = q.stretch_along
             lines.append(f"tape spacing measured: {100 * (med - 1):+.0f} % along the tape vs the roll's spec "
                          f"(frames {100 * (lo - 1):+.0f} .. {100 * (hi - 1):+.0f} %), "
-                         f"{100 * (q['stretch_across'] - 1):+.0f} % across")
+                         f"{100 * (q.stretch_across - 1):+.0f} % across")
         if self.rig_residuals is not None:
             lines.append("rig residuals on the capture's dots: " + self.rig_residuals.describe()
-                         + (f"; candidate gate {q['gate_px']:.1f} px" if q["gate_px"] else ""))
-        if q["calibration_warning"]:
-            lines.append("WARNING " + q["calibration_warning"])
+                         + (f"; candidate gate {q.gate_px:.1f} px" if q.gate_px else ""))
+        if q.calibration_warning:
+            lines.append("WARNING " + q.calibration_warning)
         if self.refinement is not None:
             before, after = self.refinement.before_px["all"], self.refinement.after_px["all"]
             lines.append(f"rig refined on {self.refinement.n_points} tracked dot-frames: reprojection RMS "
                          f"{before:.2f} -> {after:.2f} px (rig_refined.toml, rig_refine.json)")
-            uncertainty = self.refinement.extra.get("frame_uncertainty_mm", float("nan"))
-            frame = self.refinement.extra.get("world_frame", {})
-            if frame.get("source") == "reference":
-                lines.append(f"world frame from the reference object {frame['name']!r}: {len(frame['markers_used'])} "
-                             f"markers, {frame['observations']} camera views, fit {frame['fit_rms_px']:.2f} px RMS, "
-                             f"markers re-triangulated {frame['fit_rms_mm']:.2f} mm RMS from the design (the given rig "
-                             f"had them {frame['given_frame_offset_mm']:.1f} mm off)")
-                if frame.get("pose_warning"):
-                    lines.append("WARNING " + frame["pose_warning"])
+            uncertainty = self.refinement.frame_uncertainty_mm
+            frame = self.refinement.reference
+            if frame is not None:
+                lines.append(f"world frame from the reference object {frame.name!r}: {len(frame.markers_used)} "
+                             f"markers, {frame.observations} camera views, fit {frame.fit_rms_px:.2f} px RMS, "
+                             f"markers re-triangulated {frame.fit_rms_mm:.2f} mm RMS from the design (the given rig "
+                             f"had them {frame.given_frame_offset_mm:.1f} mm off)")
+                if frame.pose_warning:
+                    lines.append("WARNING " + frame.pose_warning)
             elif np.isfinite(uncertainty):
                 lines.append(f"absolute positions keep about {uncertainty:.1f} mm of the given rig's world-frame error "
                              "(no residual sees it; distances and angles do not)")
         lines += self.missing_camera_lines()
-        flagged = q["flagged_frames"]
+        flagged = q.flagged_frames
         if flagged:
             lines.append(f"WARNING {len(flagged)} of {len(self.frames)} frames flagged (labels not vouched for; the "
                          f"confidence column of markers.csv, every frame in {TRACKING_LOG}):")
@@ -431,10 +465,8 @@ def track_source(
         views.close()  # a detection running ahead of the tracker ends before its detector closes
         detect.close()
     result.detector_searches = dict(detect.searches)
-    result.detector_info = dict(detect.info)
     unreadable = {camera: reasons for camera, reasons in getattr(source, "unreadable", {}).items() if reasons}
-    if unreadable:
-        result.detector_info["unreadable"] = unreadable
+    result.detector_info = replace(detect.info, unreadable=unreadable)
     result.table.meta[MISSING_CAMERAS] = result.missing_cameras()  # into the marker files
     return result
 
@@ -507,8 +539,8 @@ def track_capture_result(
         except ReferenceFitError as exc:
             raise InputError(reference_path, str(exc)) from None
         doubt = pose_doubt(result.refinement)
-        if doubt:
-            result.refinement.extra["world_frame"]["pose_warning"] = doubt
+        if doubt and result.refinement.reference is not None:
+            result.refinement.reference.pose_warning = doubt
             warnings.warn(doubt, CalibrationWarning, stacklevel=2)
         write_refinement(result.refinement, out_dir)
         result.table = apply_refined_rig(result, result.refinement, capture.tape)

@@ -46,7 +46,7 @@ import warnings
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterator, Literal, Sequence, cast
 
@@ -82,6 +82,27 @@ def resolve_parallel(mode: str) -> str:
     if mode not in PARALLEL:
         raise InputError(None, f"unknown parallel mode {mode!r} (choose {', '.join(PARALLEL)})")
     return mode
+
+
+@dataclass
+class DetectorInfo:
+    """How a capture's cameras were detected (:attr:`CaptureDetector.info`, filled in while it runs).
+
+    ``parallel``: ``serial``, ``threads``, ``processes`` or ``threads (fallback from processes)``;
+    ``workers``: camera threads or processes. With worker processes, once closed: their start-up
+    (``startup_s``, wall s), the CPU seconds they used after it (``workers_cpu_s``: this process's
+    CPU clock misses them) and the slowest camera's time per detection pass (``slowest_camera_ms``);
+    None otherwise. ``missing_frames``: camera name -> capture frames it had no image for;
+    ``unreadable``: camera name -> frame -> why its image could not be read (the source's record,
+    added by the tracking run)."""
+
+    parallel: str
+    workers: int
+    startup_s: float | None = None
+    workers_cpu_s: float | None = None
+    slowest_camera_ms: float | None = None
+    missing_frames: dict[str, list[int]] = field(default_factory=dict)
+    unreadable: dict[str, dict[int, str]] = field(default_factory=dict)
 
 
 class ParallelFallbackWarning(UserWarning):
@@ -417,9 +438,7 @@ class CaptureDetector:
             self._processes = self._start_processes()
         if self._n > 1 and self._processes is None:
             self._start_threads()
-        # how the cameras ran: parallel mode and workers; with processes their start-up (wall s)
-        # and the CPU s they used after it (set by close: this process's CPU clock misses them)
-        self.info: dict = {"parallel": self.parallel, "workers": self._n}
+        self.info = DetectorInfo(self.parallel, self._n)
         self._observed: dict[int, np.ndarray | None] = {}  # frame -> its solved dots (D, 3), None: unsolved
         self._boxes: dict[int, Box] = {}             # camera -> last frame's tape box
         self._counts: dict[int, int] = {}            # camera -> dots found in the last frame
@@ -429,7 +448,7 @@ class CaptureDetector:
         self._first: int | None = None               # the first frame detected (by prediction's rules)
         self.searches: dict[DetectionRoute, int] = {"full": 0, "predicted": 0, "fallback": 0, "refresh": 0}  # images per route
         self._searches_lock = threading.Lock()
-        # camera index -> capture frames it had no image for (its clock, a drop); also info["missing_frames"]
+        # camera index -> capture frames it had no image for (its clock, a drop); also info.missing_frames
         # by camera name (the rig's; without a rig the index as text)
         self.missing: dict[int, list[int]] = {}
 
@@ -492,10 +511,10 @@ class CaptureDetector:
         if self._processes is not None:
             self._processes.close()
             processes = self._processes
-            self.info.update(startup_s=processes.startup_s, workers_cpu_s=processes.cpu_s,
-                             # per detection pass, the slowest camera's time in its worker (ms): what
-                             # the pass costs at best; the rest of detect's time is the round trip
-                             slowest_camera_ms=1000 * processes.slowest_s / max(processes.calls, 1))
+            self.info.startup_s, self.info.workers_cpu_s = processes.startup_s, processes.cpu_s
+            # per detection pass, the slowest camera's time in its worker (ms): what the pass
+            # costs at best; the rest of detect's time is the round trip
+            self.info.slowest_camera_ms = 1000 * processes.slowest_s / max(processes.calls, 1)
             self._processes = None
         if self._pool is not None:
             self._pool.shutdown(wait=True)
@@ -589,7 +608,7 @@ class CaptureDetector:
         with self._searches_lock:
             self.missing.setdefault(camera, []).append(int(frame))
             names = self.rig.names if self.rig is not None else [str(c) for c in range(max(self.missing) + 1)]
-            self.info["missing_frames"] = {names[c]: list(frames) for c, frames in sorted(self.missing.items())}
+            self.info.missing_frames = {names[c]: list(frames) for c, frames in sorted(self.missing.items())}
 
     def _cameras_whole_in_pool(self) -> bool:
         """Does a frame's every camera run whole (box, search, fallback) in the camera threads?
@@ -673,7 +692,7 @@ class CaptureDetector:
                 why = "a camera worker process died" if isinstance(exc, BrokenProcessPool) else "camera worker processes"
                 self._fall_back(f"{why} ({exc})")
                 self._start_threads()
-                self.info["parallel"] = "threads (fallback from processes)"
+                self.info.parallel = "threads (fallback from processes)"
         return self._map(lambda k: self._detect(cameras[k], images[cameras[k]], boxes[k]), range(len(cameras)))
 
     def _detect(self, camera: int, image: np.ndarray, boxes: list[Box] | None) -> ViewDots:

@@ -129,11 +129,11 @@ def _score(table, gt: dict, spacing: float, result) -> dict:
     ev = evaluate_tracking(table, gt, spacing, result.stage_ms())
     quality = result.quality()
     return {"mean_mm": ev.mean_error_mm, "p95_mm": ev.p95_error_mm, "swaps": ev.label_swaps,
-            "flagged_frames": len(quality["flagged_frames"]), "flagged_dot_share": flagged_dot_share(table),
+            "flagged_frames": len(quality.flagged_frames), "flagged_dot_share": flagged_dot_share(table),
             "vouched_mean_mm": vouched_error_mm(table, gt), "vouched_swaps": vouched_swaps(table, gt, spacing),
-            "flags": quality["flags"],
-            "unsolved_frames": ev.frames_without_solution, "stretch_along": quality["stretch_along"],
-            "gate_px": quality["gate_px"], "ms_per_frame": ev.total_ms_per_frame}
+            "flags": quality.flags, "unsolved_frames": ev.frames_without_solution,
+            "stretch_along": list(quality.stretch_along) if quality.stretch_along is not None else None,
+            "gate_px": quality.gate_px, "ms_per_frame": ev.total_ms_per_frame}
 
 
 def _vouched(table, gt: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -206,13 +206,14 @@ def _refined_row(result, rig, scene, gt: dict, spacing: float, control) -> dict:
     except (ValueError, ReferenceFitError) as exc:
         return {"error": str(exc)}
     refined = dataclasses.replace(result, table=apply_refined_rig(result, refinement, scene.tape))
-    frame = refinement.extra["world_frame"]
+    frame = refinement.reference
     return {**_score(refined.table, gt, spacing, refined), "rig_rms_before_px": refinement.before_px["all"],
             "rig_rms_after_px": refinement.after_px["all"],
-            "frame_uncertainty_mm": refinement.extra["frame_uncertainty_mm"],
-            "shape_mm": _shape_error(refined.table, gt), "world_frame": frame["source"],
-            **({"reference_fit_px": frame["fit_rms_px"], "reference_fit_mm": frame["fit_rms_mm"],
-                "given_frame_offset_mm": frame["given_frame_offset_mm"]} if frame["source"] == "reference" else {})}
+            "frame_uncertainty_mm": refinement.frame_uncertainty_mm,
+            "shape_mm": _shape_error(refined.table, gt),
+            "world_frame": "reference" if frame is not None else "given rig",
+            **({"reference_fit_px": frame.fit_rms_px, "reference_fit_mm": frame.fit_rms_mm,
+                "given_frame_offset_mm": frame.given_frame_offset_mm} if frame is not None else {})}
 
 
 def _shape_error(table, gt: dict) -> float:

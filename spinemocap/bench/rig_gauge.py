@@ -133,16 +133,16 @@ def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig |
     given_table, refined_table = table_with(given), table_with(refinement.rig)
     observed = result.table.to_arrays()["status"] == OBSERVED
     fit = cloud_gauge(refined_table.positions()[observed], given_table.positions()[observed])
-    closest = closest_gauge(refinement.rig, given, np.array(list(refinement.extra["centre_prior_mm"].values())),
-                            np.array(list(refinement.extra["rotation_prior_deg"].values())))
+    closest = closest_gauge(refinement.rig, given, np.array(list(refinement.centre_prior_mm.values())),
+                            np.array(list(refinement.rotation_prior_deg.values())))
     sized = refine_rig(given, result.pixels(), result.table.positions(), scene.fps, RESIDUAL_PRIORS)
     row = {"given": mean_error_mm(given_table, scene.truth), "refined": mean_error_mm(refined_table, scene.truth),
            "residual_priors": mean_error_mm(table_with(sized.rig), scene.truth),
            "cloud_gauge": mean_error_mm(table_with(refinement.rig.transformed(*fit)), scene.truth),
            "closest_cameras": mean_error_mm(table_with(refinement.rig.transformed(*closest)), scene.truth),
            "refined_shape": shape_error_mm(refined_table, scene.truth),
-           "frame_uncertainty": refinement.extra["frame_uncertainty_mm"],
-           "residual_priors_frame_uncertainty": sized.extra["frame_uncertainty_mm"],
+           "frame_uncertainty": refinement.frame_uncertainty_mm,
+           "residual_priors_frame_uncertainty": sized.frame_uncertainty_mm,
            "rig_rms_before_px": refinement.before_px["all"], "rig_rms_after_px": refinement.after_px["all"]}
     if scene.reference is not None:
         row.update(score_with_reference(scene, given, config, table_with))
@@ -161,10 +161,11 @@ def score_with_reference(scene: TrackedScene, given: Rig, config: RigRefineConfi
     except ReferenceFitError as exc:
         return {"reference_error": str(exc)}
     table = table_with(refinement.rig)
-    frame = refinement.extra["world_frame"]
+    frame = refinement.reference
+    assert frame is not None  # refined with control points
     return {"reference": mean_error_mm(table, scene.truth), "reference_shape": shape_error_mm(table, scene.truth),
-            "reference_fit_px": frame["fit_rms_px"], "reference_fit_mm": frame["fit_rms_mm"],
-            "reference_observations": frame["observations"], "given_frame_offset_mm": frame["given_frame_offset_mm"],
+            "reference_fit_px": frame.fit_rms_px, "reference_fit_mm": frame.fit_rms_mm,
+            "reference_observations": frame.observations, "given_frame_offset_mm": frame.given_frame_offset_mm,
             "reference_rig_rms_after_px": refinement.after_px["all"]}
 
 

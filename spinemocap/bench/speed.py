@@ -13,7 +13,8 @@ memory during the run above the memory before it (sampled every 20 ms), the dete
 (predicted box / full search) and the accuracy against the ground truth, so a faster run that got
 worse shows it. ``speedup_vs_serial`` is the pipeline's fps over the serial one's on the
 same frames and source (PNG, the capture's own format); ``speedup_vs_serial_in_memory`` the
-same from memory, where at most ``memory_frames`` decoded frames are held and replayed.
+same from memory, where at most ``memory_frames`` decoded frames are held and replayed. The
+numbers are the dataclasses of :mod:`spinemocap.bench.speed_results`.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import tempfile
 import threading
 import time
 import warnings
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -38,6 +39,17 @@ from ..app.streaming import SERIAL, SpeedOptions, resolve_parallel
 from ..capture import VIDEO_CODEC, VIDEO_CODECS, VIDEO_PATTERN, Capture, FrameSource, VideoWriter
 from ..fileio import InputError, atomic_write, read_toml, write_toml
 from ..track.evaluate import evaluate_tracking
+from .speed_results import (
+    DecodeSpeed,
+    DeviceDots,
+    LookaheadComparison,
+    MachineInfo,
+    RenderedSpeed,
+    ReplayedSpeed,
+    SameAccuracy,
+    SpeedNumbers,
+    SpeedRun,
+)
 
 # "Not worse": mean error within this of the peer's (sub-pixel differences of the predicted
 # boxes' masks move a few dot centres by ~0.01 px), and no more swaps or unsolved frames.
@@ -186,7 +198,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
                          serial_peer: bool = True, speed: SpeedOptions | None = None, sensor_noise: float = 0.0,
                          progress: bool = True, say: Callable[[str], None] = print, cpu_peer: bool = True,
                          parallel_peer: bool = True, video_frames: int = 0, workdir: Path | None = None,
-                         lookahead_peer: bool = False, default_peer: bool = True, budget: bool = True) -> dict:
+                         lookahead_peer: bool = False, default_peer: bool = True, budget: bool = True) -> ReplayedSpeed:
     """In-memory speed of an existing synthetic capture (e.g. a few frames carried to a machine
     that cannot render): its frames played forward and backward (:func:`replay_order`) for
     ``frames`` frames, the ground truth replayed alike; the new pipeline and the serial peer.
@@ -235,13 +247,13 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         timed = _timed_run(replayed, capture, options, mode, detector, progress, masks=False)
         runs.append(_summary(name, timed, capture, gt, options))
         positions[name] = timed.result.table.to_arrays()["positions"]
-        say(f"  {runs[-1]['fps']:.2f} frames/s, {runs[-1]['cpu_s_per_frame']:.3f} CPU s/frame, "
-            f"mean error {runs[-1]['mean_error_mm']:.3f} mm")
+        say(f"  {runs[-1].fps:.2f} frames/s, {runs[-1].cpu_s_per_frame:.3f} CPU s/frame, "
+            f"mean error {runs[-1].mean_error_mm:.3f} mm")
     fps_video = None
     if video_frames > 0:
         fps_video = _replayed_video_runs(capture, replayed, gt, video_frames, workdir, speed, mode, detector,
                                          progress, say, runs, parallel_peer)
-    by_name = {r["run"]: r for r in runs}
+    by_name = {r.run: r for r in runs}
     new, peer, cpu = by_name["in_memory"], by_name.get("in_memory_serial"), by_name.get("in_memory_cpu")
     by_mode = {parallel: by_name["in_memory"], other: by_name.get(f"in_memory_{other}")}
     in_processes, in_threads = by_mode["processes"], by_mode["threads"]
@@ -249,35 +261,34 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
     if cpu is not None:
         say("detecting every source frame on the CPU and on the GPU (same dots?) ...")
         check = dots_on_devices(decoded, device)
-        say(f"  {check}")
+        say(f"  {check.to_dict()}")
     steps = None
     if budget and detector == "net":
         say(f"detection's time per camera image by step (network on {device}, one image at a time) ...")
         steps = detection_budget(decoded, device, speed.precision)
         say(f"  {steps}")
     default = by_name.get("in_memory_default")
-    return {
-        "preset": f"capture {capture.name} replayed", "source_frames": capture.n_frames, "frames": frames,
-        "sensor_noise": sensor_noise, "cameras": len(capture.rig), "image_size": list(capture.rig[0].size),
-        "mode": mode, "detector": detector, "device": device, "machine": machine_info(),
-        "speed_options": asdict(speed), "fps_in_memory": new["fps"], "fps_png": None, "fps_video": fps_video,
-        "speedup_vs_serial": new["fps"] / peer["fps"] if peer else None,
-        "accuracy_not_worse": _not_worse(new, peer) if peer else None,
-        "speedup_vs_cpu": new["fps"] / cpu["fps"] if cpu else None,
-        "accuracy_not_worse_vs_cpu": _not_worse(new, cpu) if cpu else None,
-        "same_accuracy_as_cpu": same_accuracy(new, cpu) if cpu else None,
-        "speedup_vs_default": new["fps"] / default["fps"] if default else None,
-        "detection_budget_ms": steps,
-        "parallel": parallel,
-        "speedup_processes_vs_threads": (in_processes["fps"] / in_threads["fps"]
-                                         if in_processes and in_threads else None),
+    return ReplayedSpeed(
+        preset=f"capture {capture.name} replayed", source_frames=capture.n_frames, frames=frames,
+        sensor_noise=sensor_noise, cameras=len(capture.rig), image_size=list(capture.rig[0].size),
+        mode=mode, detector=detector, device=device, machine=machine_info(),
+        speed_options=speed, fps_in_memory=new.fps, fps_png=None, fps_video=fps_video,
+        speedup_vs_serial=new.fps / peer.fps if peer else None,
+        accuracy_not_worse=_not_worse(new, peer) if peer else None,
+        speedup_vs_cpu=new.fps / cpu.fps if cpu else None,
+        accuracy_not_worse_vs_cpu=_not_worse(new, cpu) if cpu else None,
+        same_accuracy_as_cpu=same_accuracy(new, cpu) if cpu else None,
+        speedup_vs_default=new.fps / default.fps if default else None,
+        detection_budget_ms=steps,
+        parallel=parallel,
+        speedup_processes_vs_threads=(in_processes.fps / in_threads.fps if in_processes and in_threads else None),
         # bit for bit the same tracked positions with the cameras in processes as in threads
-        "same_output_processes_threads": (bool(np.array_equal(positions["in_memory"], positions[f"in_memory_{other}"],
-                                                              equal_nan=True)) if by_mode[other] else None),
-        "device_check": check,
-        **lookahead_numbers(runs, speed, positions),
-        "accuracy_tolerance_mm": ACCURACY_TOLERANCE_MM, "runs": runs, "goals_fps": GOALS_FPS,
-    }
+        same_output_processes_threads=(bool(np.array_equal(positions["in_memory"], positions[f"in_memory_{other}"],
+                                                           equal_nan=True)) if by_mode[other] else None),
+        device_check=check,
+        lookahead_comparison=lookahead_numbers(runs, speed, positions),
+        accuracy_tolerance_mm=ACCURACY_TOLERANCE_MM, runs=runs, goals_fps=GOALS_FPS,
+    )
 
 
 def _peer_lookahead(speed: SpeedOptions) -> int:
@@ -285,14 +296,16 @@ def _peer_lookahead(speed: SpeedOptions) -> int:
     return 0 if speed.lookahead > 0 else 1
 
 
-def lookahead_numbers(runs: list[dict], speed: SpeedOptions, positions: dict[str, np.ndarray]) -> dict:
-    """The in-memory run against its peer with the other lookahead (when it ran): the frames/s
-    ratio of detection ahead (lookahead > 0) over the exact serial order (0), the CPU per frame of
-    each, accuracy not worse, and the largest distance (mm) between the two runs' tracked dots."""
+def lookahead_numbers(runs: list[SpeedRun], speed: SpeedOptions,
+                      positions: dict[str, np.ndarray]) -> LookaheadComparison | None:
+    """The in-memory run against its peer with the other lookahead (None when that did not run):
+    the frames/s ratio of detection ahead (lookahead > 0) over the exact serial order (0), the CPU
+    per frame of each, accuracy not worse, and the largest distance (mm) between the two runs'
+    tracked dots (:class:`LookaheadComparison`)."""
     peer_name = f"in_memory_lookahead{_peer_lookahead(speed)}"
-    by_name = {r["run"]: r for r in runs}
+    by_name = {r.run: r for r in runs}
     if peer_name not in by_name or "in_memory" not in by_name:
-        return {}
+        return None
     ahead, exact = (by_name["in_memory"], by_name[peer_name]) if speed.lookahead > 0 else (by_name[peer_name], by_name["in_memory"])
     a, b = positions.get("in_memory"), positions.get(peer_name)
     differ = share = same_missing = None
@@ -302,18 +315,19 @@ def lookahead_numbers(runs: list[dict], speed: SpeedOptions, positions: dict[str
         differ = float(distance.max()) if both.any() else 0.0
         share = float(np.mean(distance > 0.1)) if both.any() else 0.0
         same_missing = bool(np.array_equal(np.isnan(a), np.isnan(b)))
-    return {"speedup_lookahead_in_memory": ahead["fps"] / exact["fps"],
-            "cpu_s_per_frame_lookahead": ahead["cpu_s_per_frame"], "cpu_s_per_frame_exact": exact["cpu_s_per_frame"],
-            "lookahead_accuracy_not_worse": _not_worse(ahead, exact),
-            "lookahead_max_difference_mm": differ,
-            # share of the (frame, dot) positions tracked in both that moved by more than 0.1 mm
-            "lookahead_share_over_0p1mm": share,
-            "lookahead_same_missing": same_missing}
+    return LookaheadComparison(
+        speedup_lookahead_in_memory=ahead.fps / exact.fps,
+        cpu_s_per_frame_lookahead=ahead.cpu_s_per_frame, cpu_s_per_frame_exact=exact.cpu_s_per_frame,
+        lookahead_accuracy_not_worse=_not_worse(ahead, exact),
+        lookahead_max_difference_mm=differ,
+        # share of the (frame, dot) positions tracked in both that moved by more than 0.1 mm
+        lookahead_share_over_0p1mm=share,
+        lookahead_same_missing=same_missing)
 
 
 def _replayed_video_runs(capture: Capture, replayed: MemorySource, gt: dict, n_frames: int, workdir: Path | None,
                          speed: SpeedOptions, mode: TrackingMode, detector: str, progress: bool, say: Callable[[str], None],
-                         runs: list[dict], parallel_peer: bool) -> float:
+                         runs: list[SpeedRun], parallel_peer: bool) -> float:
     """Track the first ``n_frames`` replayed frames from a lossless UT Video copy (``video`` with
     ``speed``, and ``video_<other mode>`` with the cameras in the other parallel mode); returns the fps."""
     video_dir = Path(workdir or tempfile.mkdtemp(prefix="spinemocap-speed-")) / f"video_replayed{n_frames}"
@@ -329,11 +343,11 @@ def _replayed_video_runs(capture: Capture, replayed: MemorySource, gt: dict, n_f
         say(f"tracking: {name} ...")
         runs.append(_summary(name, _timed_run(video.frame_source(), video, options, mode, detector, progress,
                                               masks=False), video))
-        say(f"  {runs[-1]['fps']:.2f} frames/s, {runs[-1]['cpu_s_per_frame']:.3f} CPU s/frame")
-    return runs[-len(configs)]["fps"]
+        say(f"  {runs[-1].fps:.2f} frames/s, {runs[-1].cpu_s_per_frame:.3f} CPU s/frame")
+    return runs[-len(configs)].fps
 
 
-def machine_info() -> dict:
+def machine_info() -> MachineInfo:
     """CPU cores and model, whether the CPU has VNNI and the network arithmetic ``precision="auto"``
     resolves to on it (int8 on VNNI CPUs: the CPU numbers of two machines compare only with the same
     arithmetic), load, torch's version and threads, and the GPU torch sees (or None)."""
@@ -351,15 +365,15 @@ def machine_info() -> dict:
             model = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), model)
     except OSError:
         pass
-    return {"cpu_cores": os.cpu_count(), "cpu_model": model, "cpu_vnni": cpu_has_vnni(),
-            "auto_precision": auto_precision(), "load_average_1min": os.getloadavg()[0],
-            "torch": torch.__version__, "torch_threads": torch.get_num_threads(),
-            "gpu": torch.cuda.get_device_name(0) if cuda else None,
-            "cuda": torch.version.cuda if cuda else None,
-            "cudnn_allow_tf32": bool(torch.backends.cudnn.allow_tf32) if cuda else None}
+    return MachineInfo(cpu_cores=os.cpu_count(), cpu_model=model, cpu_vnni=cpu_has_vnni(),
+                       auto_precision=auto_precision(), load_average_1min=os.getloadavg()[0],
+                       torch=torch.__version__, torch_threads=torch.get_num_threads(),
+                       gpu=torch.cuda.get_device_name(0) if cuda else None,
+                       cuda=torch.version.cuda if cuda else None,
+                       cudnn_allow_tf32=bool(torch.backends.cudnn.allow_tf32) if cuda else None)
 
 
-def dots_on_devices(frames: list[list[np.ndarray]], device: str, match_px: float = 1.0) -> dict:
+def dots_on_devices(frames: list[list[np.ndarray]], device: str, match_px: float = 1.0) -> DeviceDots:
     """Full two-stage detection of every image of ``frames`` (per frame, one BGR image per camera)
     with the network on the CPU and on ``device``: dots per side, dots of one side with no dot of
     the other within ``match_px``, the largest distance (px) between matched dots, and the number
@@ -368,7 +382,8 @@ def dots_on_devices(frames: list[list[np.ndarray]], device: str, match_px: float
 
     on_cpu, on_device = Detector("net", device="cpu"), Detector("net", device=device)
     counts = {"images": 0, "dots_cpu": 0, "dots_device": 0, "unmatched_cpu": 0, "unmatched_device": 0,
-              "max_px": 0.0, "mask_pixels_differing": 0, "images_identical": 0}
+              "mask_pixels_differing": 0, "images_identical": 0}
+    max_px = 0.0
     for images in frames:
         for camera, image in enumerate(images):
             a, b = on_cpu.detect(image, camera=camera), on_device.detect(image, camera=camera)
@@ -383,24 +398,24 @@ def dots_on_devices(frames: list[list[np.ndarray]], device: str, match_px: float
             counts["unmatched_cpu"] += int(np.count_nonzero(near_a > match_px))
             counts["unmatched_device"] += int(np.count_nonzero(near_b > match_px))
             matched = near_a[near_a <= match_px]
-            counts["max_px"] = max(counts["max_px"], float(matched.max()) if len(matched) else 0.0)
+            max_px = max(max_px, float(matched.max()) if len(matched) else 0.0)
             counts["mask_pixels_differing"] += differing
             counts["images_identical"] += int(len(a) == len(b) and not differing
                                               and (not len(a) or float(near_a.max()) == 0.0))
-    return counts
+    return DeviceDots(max_px=max_px, **counts)
 
 
-def same_accuracy(run: dict, reference: dict, tolerance_mm: float = SAME_ACCURACY_MM) -> dict:
+def same_accuracy(run: SpeedRun, reference: SpeedRun, tolerance_mm: float = SAME_ACCURACY_MM) -> SameAccuracy:
     """``run``'s accuracy against ``reference``'s (e.g. the GPU path against the CPU path): the
     differences of the mean and 95th-percentile errors (mm) and of the label swaps, and
     ``same``: both within ``tolerance_mm`` and no more swaps or unsolved frames."""
-    mean = run["mean_error_mm"] - reference["mean_error_mm"]
-    p95 = run["p95_error_mm"] - reference["p95_error_mm"]
-    return {"mean_difference_mm": mean, "p95_difference_mm": p95,
-            "label_swaps": run["label_swaps"], "reference_label_swaps": reference["label_swaps"],
-            "same": bool(abs(mean) <= tolerance_mm and abs(p95) <= tolerance_mm
-                         and run["label_swaps"] <= reference["label_swaps"]
-                         and run["frames_without_solution"] <= reference["frames_without_solution"])}
+    mean = run.mean_error_mm - reference.mean_error_mm
+    p95 = run.p95_error_mm - reference.p95_error_mm
+    return SameAccuracy(mean_difference_mm=mean, p95_difference_mm=p95,
+                        label_swaps=run.label_swaps, reference_label_swaps=reference.label_swaps,
+                        same=bool(abs(mean) <= tolerance_mm and abs(p95) <= tolerance_mm
+                                  and run.label_swaps <= reference.label_swaps
+                                  and run.frames_without_solution <= reference.frames_without_solution))
 
 
 BUDGET_STEPS = ("network_stage1", "boxes", "network_stage2", "cleanup_and_dots", "instances_and_lattice", "grey_and_rest")
@@ -437,10 +452,10 @@ def detection_budget(frames: list[list[np.ndarray]], device: str, precision: str
     return out
 
 
-def _not_worse(new: dict, peer: dict) -> bool:
-    return (new["mean_error_mm"] <= peer["mean_error_mm"] + ACCURACY_TOLERANCE_MM
-            and new["label_swaps"] <= peer["label_swaps"]
-            and new["frames_without_solution"] <= peer["frames_without_solution"])
+def _not_worse(new: SpeedRun, peer: SpeedRun) -> bool:
+    return (new.mean_error_mm <= peer.mean_error_mm + ACCURACY_TOLERANCE_MM
+            and new.label_swaps <= peer.label_swaps
+            and new.frames_without_solution <= peer.frames_without_solution)
 
 
 @dataclass
@@ -473,14 +488,14 @@ def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode:
     # camera worker processes: their start-up (importing torch, loading the network: seconds, once
     # per run, not per frame) is not timed; the CPU they used after it is added to this process's
     info = result.detector_info
-    if np.isfinite(info.get("startup_s", np.nan)):
-        wall -= info["startup_s"]
-    if np.isfinite(info.get("workers_cpu_s", np.nan)):
-        cpu_s += info["workers_cpu_s"]
+    if info is not None and info.startup_s is not None and np.isfinite(info.startup_s):
+        wall -= info.startup_s
+    if info is not None and info.workers_cpu_s is not None and np.isfinite(info.workers_cpu_s):
+        cpu_s += info.workers_cpu_s
     return TimedRun(result, wall, memory.peak_mib, cpu_s, main_thread_cpu_s)
 
 
-def decode_speed(source: FrameSource, n_frames: int, workers: int) -> dict:
+def decode_speed(source: FrameSource, n_frames: int, workers: int) -> DecodeSpeed:
     """Decoding alone (every camera's image of each of the first ``n_frames`` frames, cameras in
     ``workers`` threads, no detection): ``fps`` (wall) and ``cpu_s_per_frame`` (this process, all
     threads): the ceiling the source sets on tracking speed."""
@@ -490,7 +505,7 @@ def decode_speed(source: FrameSource, n_frames: int, workers: int) -> dict:
     for _ in prefetched_frames(source, range(n_frames), workers=workers, prefetch=0):
         pass
     wall = time.perf_counter() - start
-    return {"frames": n_frames, "fps": n_frames / wall, "cpu_s_per_frame": (time.process_time() - cpu) / n_frames}
+    return DecodeSpeed(frames=n_frames, fps=n_frames / wall, cpu_s_per_frame=(time.process_time() - cpu) / n_frames)
 
 
 def replayed_groundtruth(capture: Capture, order: list[int]) -> dict:
@@ -503,31 +518,32 @@ def replayed_groundtruth(capture: Capture, order: list[int]) -> dict:
 
 
 def _summary(name: str, timed: TimedRun, capture: Capture, gt: dict | None = None,
-             options: SpeedOptions | None = None) -> dict:
+             options: SpeedOptions | None = None) -> SpeedRun:
     result, wall, peak_mib = timed.result, timed.wall_s, timed.peak_mib
+    info = result.detector_info
     gt = gt if gt is not None else capture.groundtruth()
     acc = evaluate_tracking(result.table, gt, float(capture.tape.graph.rest_length_mm.min()), result.stage_ms())
     n = len(result.frames)
-    return {
-        "run": name, "frames": n, "wall_s": wall, "fps": n / wall if wall > 0 else float("nan"),
+    return SpeedRun(
+        run=name, frames=n, wall_s=wall, fps=n / wall if wall > 0 else float("nan"),
         # CPU seconds of this process (all threads) per frame: less sensitive than wall time to
         # other programs on a shared machine; cores / this = fps on an idle machine at best
-        "cpu_s_per_frame": timed.cpu_s / max(n, 1),
+        cpu_s_per_frame=timed.cpu_s / max(n, 1),
         # cores busy on average = CPU s per frame x frames/s
-        "cores_used": timed.cpu_s / wall if wall > 0 else float("nan"),
+        cores_used=timed.cpu_s / wall if wall > 0 else float("nan"),
         # CPU s per frame of the thread that runs the tracker (with lookahead 0 it also drives
         # detection), and of the camera worker processes: where the CPU goes
-        "main_thread_cpu_s_per_frame": timed.main_thread_cpu_s / max(n, 1),
-        "workers_cpu_s_per_frame": result.detector_info.get("workers_cpu_s", 0.0) / max(n, 1),
-        "parallel": result.detector_info.get("parallel"), "workers": result.detector_info.get("workers"),
-        "lookahead": options.lookahead if options is not None else None,
-        "workers_startup_s": result.detector_info.get("startup_s"),
-        "slowest_camera_ms": result.detector_info.get("slowest_camera_ms"),
-        "stage_ms": result.stage_ms(), "peak_memory_mib": peak_mib, "routes": result.routes(),
-        "detector_searches": result.detector_searches,
-        "mean_error_mm": acc.mean_error_mm, "p95_error_mm": acc.p95_error_mm,
-        "label_swaps": acc.label_swaps, "frames_without_solution": acc.frames_without_solution,
-    }
+        main_thread_cpu_s_per_frame=timed.main_thread_cpu_s / max(n, 1),
+        workers_cpu_s_per_frame=(info.workers_cpu_s or 0.0) / max(n, 1) if info is not None else 0.0,
+        parallel=info.parallel if info is not None else None, workers=info.workers if info is not None else None,
+        lookahead=options.lookahead if options is not None else None,
+        workers_startup_s=info.startup_s if info is not None else None,
+        slowest_camera_ms=info.slowest_camera_ms if info is not None else None,
+        stage_ms=result.stage_ms(), peak_memory_mib=peak_mib, routes=result.routes(),
+        detector_searches=dict(result.detector_searches),
+        mean_error_mm=acc.mean_error_mm, p95_error_mm=acc.p95_error_mm,
+        label_swaps=acc.label_swaps, frames_without_solution=acc.frames_without_solution,
+    )
 
 
 def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: str = "none",
@@ -536,7 +552,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                         in_memory: bool = True, speed: SpeedOptions | None = None, progress: bool = True,
                         say: Callable[[str], None] = print, realism: str = "lab", memory_frames: int = 30,
                         parallel_peer: bool = False, lookahead_peer: bool = False,
-                        video_codec: str = VIDEO_CODEC) -> dict:
+                        video_codec: str = VIDEO_CODEC) -> RenderedSpeed:
     """Render ``frames`` frames of the synthetic ``preset`` and time tracking them (see the module
     docstring). ``serial_peer``: also run the serial pipeline (the peer); ``workdir``: where the
     capture folders go (a temporary folder, removed afterwards, when None); ``realism``: the
@@ -566,18 +582,18 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
                 f"to PNG (not timed) ...")
             write_capture(config, png_dir, progress=progress)
         capture = Capture.open(png_dir)
-        runs = []
+        runs: list[SpeedRun] = []
 
         positions: dict[str, np.ndarray] = {}
 
-        def run(name: str, source: FrameSource, options: SpeedOptions, gt: dict | None = None) -> dict:
+        def run(name: str, source: FrameSource, options: SpeedOptions, gt: dict | None = None) -> SpeedRun:
             say(f"tracking: {name} ...")
             timed = _timed_run(source, capture, options, mode, detector, progress)
             summary = _summary(name, timed, capture, gt, options)
             positions[name] = timed.result.table.to_arrays()["positions"]
             runs.append(summary)
-            say(f"  {summary['fps']:.2f} frames/s, {summary['cpu_s_per_frame']:.2f} CPU s/frame, "
-                f"mean error {summary['mean_error_mm']:.3f} mm")
+            say(f"  {summary.fps:.2f} frames/s, {summary.cpu_s_per_frame:.2f} CPU s/frame, "
+                f"mean error {summary.mean_error_mm:.3f} mm")
             return summary
 
         say("warming up (2 frames, not timed: model loading, first-call set-up) ...")
@@ -624,43 +640,43 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
             if lookahead_peer:
                 peer_speed = replace(speed, lookahead=_peer_lookahead(speed))
                 run(f"video_lookahead{peer_speed.lookahead}", Capture.open(video_dir).frame_source(), peer_speed)
-        say(f"  decoding alone: {decoding}")
+        alone = {name: decoded.to_dict() for name, decoded in decoding.items()}
+        say(f"  decoding alone: {alone}")
         png = run("png", capture.frame_source(), speed)
         peer = run("png_serial", capture.frame_source(), SERIAL) if serial_peer else None
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
-    numbers = {
-        "preset": preset, "realism": realism, "frames": frames, "cameras": config.cameras, "image_size": list(config.size),
-        "occlusion": occlusion, "mode": mode, "detector": detector, "machine": machine_info(),
-        "speed_options": asdict(speed),
-        "fps_png": png["fps"],
-        "fps_video": vid["fps"] if vid else None,
-        "video_codec": video_codec if vid else None,
-        "fps_in_memory": mem["fps"] if mem else None,
-        "speedup_vs_serial": png["fps"] / peer["fps"] if peer else None,
-        "speedup_vs_serial_in_memory": mem["fps"] / mem_peer["fps"] if mem and mem_peer else None,
-        "cpu_ratio_vs_serial_in_memory": (mem_peer["cpu_s_per_frame"] / mem["cpu_s_per_frame"]
-                                            if mem and mem_peer else None),
-        "accuracy_not_worse": _not_worse(png, peer) if peer else None,
-        "accuracy_not_worse_in_memory": _not_worse(mem, mem_peer) if mem and mem_peer else None,
-        "accuracy_tolerance_mm": ACCURACY_TOLERANCE_MM,
-        "memory_frames": memory_frames,
-        **lookahead_numbers(runs, speed, positions),
-        "decode_only": decoding,
-        "runs": runs,
-        "goals_fps": GOALS_FPS,
-    }
-    return numbers
+    return RenderedSpeed(
+        preset=preset, realism=realism, frames=frames, cameras=config.cameras, image_size=list(config.size),
+        occlusion=occlusion, mode=mode, detector=detector, machine=machine_info(),
+        speed_options=speed,
+        fps_png=png.fps,
+        fps_video=vid.fps if vid else None,
+        video_codec=video_codec if vid else None,
+        fps_in_memory=mem.fps if mem else None,
+        speedup_vs_serial=png.fps / peer.fps if peer else None,
+        speedup_vs_serial_in_memory=mem.fps / mem_peer.fps if mem and mem_peer else None,
+        cpu_ratio_vs_serial_in_memory=mem_peer.cpu_s_per_frame / mem.cpu_s_per_frame if mem and mem_peer else None,
+        accuracy_not_worse=_not_worse(png, peer) if peer else None,
+        accuracy_not_worse_in_memory=_not_worse(mem, mem_peer) if mem and mem_peer else None,
+        accuracy_tolerance_mm=ACCURACY_TOLERANCE_MM,
+        memory_frames=memory_frames,
+        lookahead_comparison=lookahead_numbers(runs, speed, positions),
+        decode_only=decoding,
+        runs=runs,
+        goals_fps=GOALS_FPS,
+    )
 
 
-def save(numbers: dict, path: Path) -> None:
+def save(numbers: SpeedNumbers, path: Path) -> None:
+    """Write ``numbers`` to ``path`` as JSON (their :meth:`to_dict`)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(path) as fh:
-        json.dump(numbers, fh, indent=2, default=float)
+        json.dump(numbers.to_dict(), fh, indent=2, default=float)
 
 
-def plot_stages(numbers: dict, path: Path) -> Path:
+def plot_stages(numbers: SpeedNumbers, path: Path) -> Path:
     """Stacked bars of each run's time per stage (ms per frame, wall) with the frame budget of
     the goal that applies (100 frames/s on a GPU, else 10 on two cores) as a line; a PNG."""
     import matplotlib
@@ -668,21 +684,21 @@ def plot_stages(numbers: dict, path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    runs = numbers["runs"]
-    stages = list(runs[0]["stage_ms"]) if runs else []
-    on_gpu = numbers.get("device", "cpu") != "cpu"
+    runs = numbers.runs
+    stages = list(runs[0].stage_ms) if runs else []
+    on_gpu = isinstance(numbers, ReplayedSpeed) and numbers.device != "cpu"
     budget_ms = 1000.0 / GOALS_FPS["gpu" if on_gpu else "in_memory_cpu2"]
     fig, ax = plt.subplots(figsize=(9, 1.6 + 0.5 * len(runs)))
     left = np.zeros(len(runs))
     for stage in stages:
-        ms = np.array([r["stage_ms"][stage] for r in runs])
-        ax.barh([r["run"] for r in runs], ms, left=left, label=stage)
+        ms = np.array([r.stage_ms[stage] for r in runs])
+        ax.barh([r.run for r in runs], ms, left=left, label=stage)
         left += ms
     ax.axvline(budget_ms, color="k", linestyle="--", label=f"goal: {1000 / budget_ms:.0f} frames/s")
     ax.set_xlabel("ms per frame (wall)")
-    machine = numbers["machine"]
-    ax.set_title(f"{numbers['preset']}: {numbers['cameras']} cameras, {machine['cpu_cores']} cores, "
-                 f"GPU {machine['gpu'] or 'none'}", fontsize=9)
+    machine = numbers.machine
+    ax.set_title(f"{numbers.preset}: {numbers.cameras} cameras, {machine.cpu_cores} cores, "
+                 f"GPU {machine.gpu or 'none'}", fontsize=9)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -692,53 +708,72 @@ def plot_stages(numbers: dict, path: Path) -> Path:
     return path
 
 
-def format_report(numbers: dict) -> str:
-    """A table of the runs: fps, per-stage ms, peak memory, accuracy."""
-    stages = list(numbers["runs"][0]["stage_ms"]) if numbers["runs"] else []
+def format_report(numbers: SpeedNumbers) -> str:
+    """A table of the runs: fps, per-stage ms, peak memory, accuracy; then the comparisons."""
+    runs, machine = numbers.runs, numbers.machine
+    rendered = numbers if isinstance(numbers, RenderedSpeed) else None
+    replayed = numbers if isinstance(numbers, ReplayedSpeed) else None
+    stages = list(runs[0].stage_ms) if runs else []
     head = f"  {'run':<18}{'fps':>7}{'cpu s/f':>8}{'cores':>6}{'peak MiB':>10}{'err mm':>8}{'swaps':>6}  " + " ".join(f"{s:>10}" for s in stages)
-    lines = [f"\nspeed: {numbers['preset']} x {numbers['frames']} frames, {numbers['cameras']} cameras "
-             f"{numbers['image_size'][0]}x{numbers['image_size'][1]}, mode {numbers['mode']}, detector "
-             f"{numbers['detector']}; {numbers['machine']['cpu_cores']} CPU cores (load {numbers['machine']['load_average_1min']:.1f}), "
-             f"GPU {numbers['machine']['gpu'] or 'none'}", head]
-    for r in numbers["runs"]:
-        lines.append(f"  {r['run']:<18}{r['fps']:>7.2f}{r['cpu_s_per_frame']:>8.2f}{r['cores_used']:>6.2f}{r['peak_memory_mib']:>10.0f}{r['mean_error_mm']:>8.3f}"
-                     f"{r['label_swaps']:>6}  " + " ".join(f"{r['stage_ms'][s]:>10.0f}" for s in stages))
-    if numbers.get("decode_only"):
+    lines = [f"\nspeed: {numbers.preset} x {numbers.frames} frames, {numbers.cameras} cameras "
+             f"{numbers.image_size[0]}x{numbers.image_size[1]}, mode {numbers.mode}, detector "
+             f"{numbers.detector}; {machine.cpu_cores} CPU cores (load {machine.load_average_1min:.1f}), "
+             f"GPU {machine.gpu or 'none'}", head]
+    for r in runs:
+        lines.append(f"  {r.run:<18}{r.fps:>7.2f}{r.cpu_s_per_frame:>8.2f}{r.cores_used:>6.2f}{r.peak_memory_mib:>10.0f}{r.mean_error_mm:>8.3f}"
+                     f"{r.label_swaps:>6}  " + " ".join(f"{r.stage_ms[s]:>10.0f}" for s in stages))
+    if rendered is not None and rendered.decode_only:
         lines.append("  decoding alone (no detection): "
-                     + ", ".join(f"{k} {v['fps']:.2f} fps / {v['cpu_s_per_frame']:.2f} CPU s per frame"
-                                 for k, v in numbers["decode_only"].items()))
-    if numbers["speedup_vs_serial"] is not None:
-        source = "PNG" if numbers.get("fps_png") is not None else "in memory"
-        lines.append(f"  speedup vs the serial pipeline ({source}): {numbers['speedup_vs_serial']:.2f}x; "
-                     f"accuracy not worse: {numbers['accuracy_not_worse']}")
-    if numbers.get("speedup_processes_vs_threads") is not None:
-        lines.append(f"  cameras in processes: {numbers['speedup_processes_vs_threads']:.2f}x the frames/s of cameras in "
-                     f"threads (in memory; default here: {numbers['parallel']}); same tracked positions: "
-                     f"{numbers['same_output_processes_threads']}")
-    if numbers.get("speedup_lookahead_in_memory") is not None:
-        lines.append(f"  detection ahead of the tracker: {numbers['speedup_lookahead_in_memory']:.2f}x the frames/s of the "
-                     f"exact serial order (in memory; CPU s per frame {numbers['cpu_s_per_frame_lookahead']:.3f} vs "
-                     f"{numbers['cpu_s_per_frame_exact']:.3f}); accuracy not worse: {numbers['lookahead_accuracy_not_worse']}; "
-                     f"largest difference {numbers['lookahead_max_difference_mm']:.4f} mm, "
-                     f"{100 * numbers['lookahead_share_over_0p1mm']:.2f} % of dots > 0.1 mm")
-    if numbers.get("speedup_vs_cpu") is not None:
-        lines.append(f"  network on {numbers['device']}: {numbers['speedup_vs_cpu']:.2f}x the same pipeline's frames/s "
-                     f"on the CPU; accuracy not worse: {numbers['accuracy_not_worse_vs_cpu']}")
-    if numbers.get("same_accuracy_as_cpu"):
-        same = numbers["same_accuracy_as_cpu"]
-        lines.append(f"  accuracy against the CPU path: mean {same['mean_difference_mm']:+.4f} mm, p95 "
-                     f"{same['p95_difference_mm']:+.4f} mm, swaps {same['label_swaps']} vs {same['reference_label_swaps']}: "
-                     f"{'same' if same['same'] else 'NOT the same'} (within {SAME_ACCURACY_MM} mm)")
-    if numbers.get("speedup_vs_default") is not None:
-        lines.append(f"  {numbers['speed_options']['frames_at_once']} frames at once: {numbers['speedup_vs_default']:.2f}x the "
-                     f"frames/s of the pipeline's defaults on the same device")
-    if numbers.get("detection_budget_ms"):
-        lines.append("  detection per camera image, one at a time (ms): "
-                     + ", ".join(f"{k} {v:.1f}" for k, v in numbers["detection_budget_ms"].items()))
-    if numbers.get("device_check"):
-        lines.append(f"  dots, GPU vs CPU (full search of every source image): {numbers['device_check']}")
-    if numbers.get("speedup_vs_serial_in_memory") is not None:
-        lines.append(f"  in memory: {numbers['speedup_vs_serial_in_memory']:.2f}x the serial pipeline's frames/s, "
-                     f"{numbers['cpu_ratio_vs_serial_in_memory']:.2f}x less CPU per frame; "
-                     f"accuracy not worse: {numbers['accuracy_not_worse_in_memory']}")
+                     + ", ".join(f"{k} {v.fps:.2f} fps / {v.cpu_s_per_frame:.2f} CPU s per frame"
+                                 for k, v in rendered.decode_only.items()))
+    if numbers.speedup_vs_serial is not None:
+        source = "PNG" if numbers.fps_png is not None else "in memory"
+        lines.append(f"  speedup vs the serial pipeline ({source}): {numbers.speedup_vs_serial:.2f}x; "
+                     f"accuracy not worse: {numbers.accuracy_not_worse}")
+    if replayed is not None and replayed.speedup_processes_vs_threads is not None:
+        lines.append(f"  cameras in processes: {replayed.speedup_processes_vs_threads:.2f}x the frames/s of cameras in "
+                     f"threads (in memory; default here: {replayed.parallel}); same tracked positions: "
+                     f"{replayed.same_output_processes_threads}")
+    ahead = numbers.lookahead_comparison
+    if ahead is not None:
+        lines.append(f"  detection ahead of the tracker: {ahead.speedup_lookahead_in_memory:.2f}x the frames/s of the "
+                     f"exact serial order (in memory; CPU s per frame {ahead.cpu_s_per_frame_lookahead:.3f} vs "
+                     f"{ahead.cpu_s_per_frame_exact:.3f}); accuracy not worse: {ahead.lookahead_accuracy_not_worse}; "
+                     + _differences(ahead))
+    if replayed is not None:
+        lines += _device_lines(replayed)
+    if rendered is not None and rendered.speedup_vs_serial_in_memory is not None:
+        lines.append(f"  in memory: {rendered.speedup_vs_serial_in_memory:.2f}x the serial pipeline's frames/s, "
+                     f"{rendered.cpu_ratio_vs_serial_in_memory:.2f}x less CPU per frame; "
+                     f"accuracy not worse: {rendered.accuracy_not_worse_in_memory}")
     return "\n".join(lines)
+
+
+def _differences(ahead: LookaheadComparison) -> str:
+    differ, share = ahead.lookahead_max_difference_mm, ahead.lookahead_share_over_0p1mm
+    if differ is None or share is None:
+        return "the two runs' tracked dots differ in shape"
+    return f"largest difference {differ:.4f} mm, {100 * share:.2f} % of dots > 0.1 mm"
+
+
+def _device_lines(numbers: ReplayedSpeed) -> list[str]:
+    """The replayed capture's comparisons with the CPU and the pipeline's defaults, the detection's
+    time per step and the dots on both devices."""
+    lines = []
+    if numbers.speedup_vs_cpu is not None:
+        lines.append(f"  network on {numbers.device}: {numbers.speedup_vs_cpu:.2f}x the same pipeline's frames/s "
+                     f"on the CPU; accuracy not worse: {numbers.accuracy_not_worse_vs_cpu}")
+    same = numbers.same_accuracy_as_cpu
+    if same is not None:
+        lines.append(f"  accuracy against the CPU path: mean {same.mean_difference_mm:+.4f} mm, p95 "
+                     f"{same.p95_difference_mm:+.4f} mm, swaps {same.label_swaps} vs {same.reference_label_swaps}: "
+                     f"{'same' if same.same else 'NOT the same'} (within {SAME_ACCURACY_MM} mm)")
+    if numbers.speedup_vs_default is not None:
+        lines.append(f"  {numbers.speed_options.frames_at_once} frames at once: {numbers.speedup_vs_default:.2f}x the "
+                     f"frames/s of the pipeline's defaults on the same device")
+    if numbers.detection_budget_ms:
+        lines.append("  detection per camera image, one at a time (ms): "
+                     + ", ".join(f"{k} {v:.1f}" for k, v in numbers.detection_budget_ms.items()))
+    if numbers.device_check is not None:
+        lines.append(f"  dots, GPU vs CPU (full search of every source image): {numbers.device_check.to_dict()}")
+    return lines

@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..app.run import TrackingMode, TrackingWarning, make_detector, run_tracking
+from ..app.run import TrackingMode, TrackingWarning, TrackQuality, make_detector, run_tracking
 from ..fileio import atomic_path, atomic_write
 from ..markers import MarkerTable
 from ..synth import SynthConfig, build_scene
@@ -60,7 +60,7 @@ class TrackBenchRun:
     balls: int
     mode: TrackingMode
     realism: str
-    quality: dict
+    quality: TrackQuality
     detector: str
     cameras: int
     rows: int | None
@@ -86,7 +86,7 @@ class TrackBenchResult:
     @property
     def numbers(self) -> dict:
         """Every number, JSON-ready: the accuracy's (:meth:`TrackingAccuracy.to_dict`), then the run's."""
-        return {**self.accuracy.to_dict(), **dataclasses.asdict(self.run)}
+        return {**self.accuracy.to_dict(), **dataclasses.asdict(self.run), "quality": self.run.quality.to_dict()}
 
     def save(self, path: Path) -> Path:
         """Write the numbers to ``path`` (JSON) and the per-frame error plot beside it; returns the plot's path."""
@@ -182,7 +182,7 @@ def format_report(result: TrackBenchResult) -> str:
     lines.append(_row("label swaps (dot-frames)", None, acc.label_swaps))
     lines.append(_row("frames without a solution", None, acc.frames_without_solution))
     lines.append(_row("  unsolved before gap filling", None, run.frames_failed_before_gap_fill))
-    lines.append(_row("flagged frames (labels not vouched for)", None, len(run.quality["flagged_frames"])))
+    lines.append(_row("flagged frames (labels not vouched for)", None, len(run.quality.flagged_frames)))
     lines.append(f"  goal: <= {run.goal_mm} mm, zero swaps, every frame solved; routes {run.routes}, "
                  f"LP relaxed in {run.lp_relaxed_frames} frames")
     if acc.stage_ms is not None:

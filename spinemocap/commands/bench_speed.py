@@ -76,6 +76,7 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..app.streaming import SpeedOptions
     from ..bench.speed import format_report, plot_stages, run_replay_benchmark, run_speed_benchmark, save
+    from ..bench.speed_results import SpeedNumbers
 
     chosen: dict = {} if args.lookahead is None else {"lookahead": args.lookahead}  # else the pipeline's defaults
     if args.precision is not None:
@@ -84,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
     speed = SpeedOptions(workers=args.workers, parallel=args.parallel, frames_at_once=args.frames_at_once,
                          predict=not args.no_predict and args.frames_at_once <= 1, device=args.device,
                          opencv_threads=args.opencv_threads or None, **chosen)
+    numbers: SpeedNumbers
     if args.capture:
         numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_serial,
                                        speed, args.sensor_noise, progress=not args.no_progress,

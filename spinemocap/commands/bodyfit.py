@@ -39,13 +39,13 @@ def run_bodyfit(args: argparse.Namespace) -> int:
                               args.frames, args.mapping, args.key_frames, args.save_vertices,
                               progress=not args.no_progress, tape_capture=args.tape_capture,
                               tape_start=args.tape_start)
-    print(f"{args.model} fit of {len(summary['markers'])} markers over {summary['n_frames']} frames: marker RMS "
-          f"{summary['marker_rms_mm']:.2f} mm" + (f", trunk markers {summary['trunk_marker_rms_mm']:.2f} mm"
-                                                   if summary["trunk_marker_rms_mm"] is not None else ""))
-    if summary["markers_flagged"]:
-        print(f"WARNING: markers the body could not explain (RMS > 20 mm): {', '.join(summary['markers_flagged'])}")
-    if summary["frames_without_fit"]:
-        print(f"WARNING: {len(summary['frames_without_fit'])} frames had too few markers and keep the previous pose")
+    print(f"{args.model} fit of {len(summary.markers)} markers over {summary.n_frames} frames: marker RMS "
+          f"{summary.marker_rms_mm:.2f} mm" + (f", trunk markers {summary.trunk_marker_rms_mm:.2f} mm"
+                                               if summary.trunk_marker_rms_mm is not None else ""))
+    if summary.markers_flagged:
+        print(f"WARNING: markers the body could not explain (RMS > 20 mm): {', '.join(summary.markers_flagged)}")
+    if summary.frames_without_fit:
+        print(f"WARNING: {len(summary.frames_without_fit)} frames had too few markers and keep the previous pose")
     print("note: the body fit is a baseline, not a truth (free marker offsets hide a misplaced back surface)")
     print(f"wrote {args.out}/body.npz, summary.json, residuals.csv, residuals.png"
           + (", tape_dots.c3d, tape_dots.csv" if args.tape_capture else ""))

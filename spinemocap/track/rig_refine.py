@@ -55,7 +55,8 @@ the problem solved again (``outliers_dropped`` in the report).
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -136,9 +137,47 @@ class ReferenceFitError(ValueError):
 
 
 @dataclass
+class ReferenceFrame:
+    """The world frame a reference object's markers fixed (:func:`reference_fit`): the object's
+    ``name``, the markers used and the cameras that saw each, the observations, each marker's
+    reprojection RMS under the refined rig (px) and its re-triangulated distance from the design
+    (mm), their overall RMS (``fit_rms_px``, ``fit_rms_mm``), the limit (px) and the markers beyond
+    it (``bad_markers``), ``given_frame_offset_mm``: how far the given rig's own triangulation of
+    the markers lies from the design (mean, mm), and ``pose_warning``: the caller's doubt about the
+    reference's pose (None: none)."""
+
+    name: str
+    markers_used: list[str]
+    cameras_per_marker: dict[str, int]
+    observations: int
+    marker_rms_px: dict[str, float]
+    marker_error_mm: dict[str, float]
+    fit_rms_px: float
+    fit_rms_mm: float
+    limit_px: float
+    bad_markers: list[str]
+    given_frame_offset_mm: float
+    pose_warning: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report's ``world_frame`` object: ``source`` ``reference``, the fields in order
+        (``pose_warning`` only when there is one)."""
+        data = dataclasses.asdict(self)
+        warning = data.pop("pose_warning")
+        return {"source": "reference", **data, **({"pose_warning": warning} if warning is not None else {})}
+
+
+@dataclass
 class RigRefinement:
-    """The refined rig with the residuals (distorted px RMS, per camera and overall) before and
-    after, the clock offsets (ms, per camera; zeros without ``sync``) and the problem size."""
+    """The refined rig with the residuals (distorted px RMS, per camera and ``all``) before and
+    after, the clock offsets (ms, per camera; zeros without ``sync``), the problem size (points,
+    observations, frames used, outliers dropped) and the solver; per camera the distance (mm)
+    between the refined and the given rig once the gauge is removed, the priors that held the
+    cameras near their calibration (centre mm, rotation deg), the focal scale and how far the
+    camera moved (mm). ``reference``: the world frame a reference object fixed (None: the given
+    rig's). ``frame_uncertainty_mm``: the world-frame error the refined rig keeps (mm; from the
+    reference's fit, else the larger of the estimates from the disagreement and from the given
+    rig's residuals, both kept)."""
 
     rig: Rig
     before_px: dict[str, float]
@@ -146,11 +185,31 @@ class RigRefinement:
     sync_offsets_ms: dict[str, float]
     n_points: int
     n_observations: int
-    extra: dict = field(default_factory=dict)
+    frames_used: int
+    solver: str
+    outliers_dropped: int
+    given_rig_disagreement_mm: dict[str, float]
+    reference: ReferenceFrame | None
+    frame_uncertainty_mm: float
+    frame_uncertainty_from_disagreement_mm: float
+    frame_uncertainty_from_residuals_mm: float
+    centre_prior_mm: dict[str, float]
+    rotation_prior_deg: dict[str, float]
+    focal_scale: dict[str, float]
+    camera_moved_mm: dict[str, float]
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
+        """``rig_refine.json``'s object (``world_frame``: the reference's, or ``{"source": "given rig"}``)."""
         return {"before_px": self.before_px, "after_px": self.after_px, "sync_offsets_ms": self.sync_offsets_ms,
-                "n_points": self.n_points, "n_observations": self.n_observations, **self.extra}
+                "n_points": self.n_points, "n_observations": self.n_observations, "frames_used": self.frames_used,
+                "solver": self.solver, "outliers_dropped": self.outliers_dropped,
+                "given_rig_disagreement_mm": self.given_rig_disagreement_mm,
+                "world_frame": self.reference.to_dict() if self.reference is not None else {"source": "given rig"},
+                "frame_uncertainty_mm": self.frame_uncertainty_mm,
+                "frame_uncertainty_from_disagreement_mm": self.frame_uncertainty_from_disagreement_mm,
+                "frame_uncertainty_from_residuals_mm": self.frame_uncertainty_from_residuals_mm,
+                "centre_prior_mm": self.centre_prior_mm, "rotation_prior_deg": self.rotation_prior_deg,
+                "focal_scale": self.focal_scale, "camera_moved_mm": self.camera_moved_mm}
 
 
 @dataclass
@@ -274,34 +333,32 @@ def _refine(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float, con
     refined = Rig([dataclasses.replace(c, K=adjusted.K, R=adjusted.R, t=adjusted.t) for c, adjusted in zip(rig, fit.rig)])
     disagreement = given_rig_disagreement_mm(refined, rig, sigma_centre, np.degrees(sigma_rotation))
     frame_uncertainty = max(frame_uncertainty_mm(disagreement), given_error.frame_uncertainty_mm())
-    world_frame: dict = {"source": "given rig"}
+    world_frame: ReferenceFrame | None = None
     if control is not None:
         limit = max(config.reference_limit_px, outlier_factor * robust_rms(after))
         world_frame = reference_fit(refined, rig, control, limit)
-        if world_frame["bad_markers"]:
+        if world_frame.bad_markers:
             raise ReferenceFitError(
-                f"{control.name}: the refined rig cannot fit markers {world_frame['bad_markers']} where the reference's "
+                f"{control.name}: the refined rig cannot fit markers {world_frame.bad_markers} where the reference's "
                 f"design and pose put them (reprojection RMS per marker, px: "
-                + ", ".join(f"{k} {v:.2f}" for k, v in world_frame["marker_rms_px"].items())
+                + ", ".join(f"{k} {v:.2f}" for k, v in world_frame.marker_rms_px.items())
                 + f"; limit {limit:.2f} px): check the design (marker positions, mm) and pose in the reference file, "
                 "or that nothing else was taken for these markers")
-        frame_uncertainty = world_frame["fit_rms_mm"]
+        frame_uncertainty = world_frame.fit_rms_mm
     return RigRefinement(
         rig=refined, before_px=_per_camera_rms(before, obs_cam, rig), after_px=_per_camera_rms(after, obs_cam, rig),
         sync_offsets_ms={n: float(1000 * fit.clock_offsets_s[i]) for i, n in enumerate(rig.names)}, n_points=P,
-        n_observations=M,
-        extra={"frames_used": int(len(frames)), "solver": "scipy least_squares (trf, huber)",
-               "outliers_dropped": int(M - keep.sum()),
-               "given_rig_disagreement_mm": dict(zip(rig.names, disagreement.tolist())),
-               "world_frame": world_frame,
-               "frame_uncertainty_mm": frame_uncertainty,
-               "frame_uncertainty_from_disagreement_mm": frame_uncertainty_mm(disagreement),
-               "frame_uncertainty_from_residuals_mm": given_error.frame_uncertainty_mm(),
-               "centre_prior_mm": dict(zip(rig.names, sigma_centre.tolist())),
-               "rotation_prior_deg": dict(zip(rig.names, np.degrees(sigma_rotation).tolist())),
-               "focal_scale": {n: float(fit.focal_scale[i]) for i, n in enumerate(rig.names)},
-               "camera_moved_mm": {n: float(np.linalg.norm(refined[i].center - rig[i].center))
-                                   for i, n in enumerate(rig.names)}},
+        n_observations=M, frames_used=int(len(frames)), solver="scipy least_squares (trf, huber)",
+        outliers_dropped=int(M - keep.sum()),
+        given_rig_disagreement_mm=dict(zip(rig.names, disagreement.tolist())),
+        reference=world_frame,
+        frame_uncertainty_mm=frame_uncertainty,
+        frame_uncertainty_from_disagreement_mm=frame_uncertainty_mm(disagreement),
+        frame_uncertainty_from_residuals_mm=given_error.frame_uncertainty_mm(),
+        centre_prior_mm=dict(zip(rig.names, sigma_centre.tolist())),
+        rotation_prior_deg=dict(zip(rig.names, np.degrees(sigma_rotation).tolist())),
+        focal_scale={n: float(fit.focal_scale[i]) for i, n in enumerate(rig.names)},
+        camera_moved_mm={n: float(np.linalg.norm(refined[i].center - rig[i].center)) for i, n in enumerate(rig.names)},
     )
 
 
@@ -332,13 +389,12 @@ def _undistorted(rig: Rig, pixels: np.ndarray, used: np.ndarray) -> np.ndarray:
     return out
 
 
-def reference_fit(refined: Rig, given: Rig, control: ControlPoints, limit_px: float) -> dict:
-    """How well ``refined`` fits the reference's markers (the report's ``world_frame``):
-    per-marker reprojection RMS (px) and re-triangulated distance from the design (mm), their
-    overall RMS (``fit_rms_px``, ``fit_rms_mm``), the markers beyond ``limit_px``
-    (``bad_markers``), and ``given_frame_offset_mm``: how far the given rig's own triangulation
-    of the markers lies from the design (mean, mm; the given rig's world-frame error at the
-    reference, or a reference pose shifted as a whole)."""
+def reference_fit(refined: Rig, given: Rig, control: ControlPoints, limit_px: float) -> ReferenceFrame:
+    """How well ``refined`` fits the reference's markers (the report's ``world_frame``,
+    :class:`ReferenceFrame`): per-marker reprojection RMS (px) and re-triangulated distance from
+    the design (mm), their overall RMS, the markers beyond ``limit_px``, and how far the given
+    rig's own triangulation of the markers lies from the design (the given rig's world-frame
+    error at the reference, or a reference pose shifted as a whole)."""
     cam, marker, uv = control.observations()
     errors = np.array([float(np.linalg.norm(refined[c].project(control.world_mm[m][None])[0] - p))
                        for c, m, p in zip(cam, marker, uv)])
@@ -349,19 +405,19 @@ def reference_fit(refined: Rig, given: Rig, control: ControlPoints, limit_px: fl
     miss = np.linalg.norm(refined_xyz - control.world_mm, axis=1)
     given_miss = np.linalg.norm(given_xyz - control.world_mm, axis=1)
     seen = np.isfinite(control.pixels).all(axis=2)
-    return {
-        "source": "reference", "name": control.name,
-        "markers_used": [control.labels[m] for m in np.unique(marker)],
-        "cameras_per_marker": dict(zip(control.labels, seen.sum(axis=0).tolist())),
-        "observations": int(len(cam)),
-        "marker_rms_px": per_marker_px,
-        "marker_error_mm": {lb: float(d) for lb, d in zip(control.labels, miss) if np.isfinite(d)},
-        "fit_rms_px": float(np.sqrt(np.mean(errors**2))),
-        "fit_rms_mm": float(np.sqrt(np.nanmean(miss**2))) if np.isfinite(miss).any() else float("nan"),
-        "limit_px": float(limit_px),
-        "bad_markers": [lb for lb, v in per_marker_px.items() if v > limit_px],
-        "given_frame_offset_mm": float(np.nanmean(given_miss)) if np.isfinite(given_miss).any() else float("nan"),
-    }
+    return ReferenceFrame(
+        name=control.name,
+        markers_used=[control.labels[m] for m in np.unique(marker)],
+        cameras_per_marker=dict(zip(control.labels, seen.sum(axis=0).tolist())),
+        observations=int(len(cam)),
+        marker_rms_px=per_marker_px,
+        marker_error_mm={lb: float(d) for lb, d in zip(control.labels, miss) if np.isfinite(d)},
+        fit_rms_px=float(np.sqrt(np.mean(errors**2))),
+        fit_rms_mm=float(np.sqrt(np.nanmean(miss**2))) if np.isfinite(miss).any() else float("nan"),
+        limit_px=float(limit_px),
+        bad_markers=[lb for lb, v in per_marker_px.items() if v > limit_px],
+        given_frame_offset_mm=float(np.nanmean(given_miss)) if np.isfinite(given_miss).any() else float("nan"),
+    )
 
 
 @dataclass

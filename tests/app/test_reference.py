@@ -59,10 +59,10 @@ def test_the_reference_pins_the_world_frame_of_a_perturbed_rig():
         pinned = refine_rig(given, pixels, start, 100.0, RigRefineConfig(), control)
         without.append(mean_error(plain.rig, pixels, poses))
         with_reference.append(mean_error(pinned.rig, pixels, poses))
-        frame = pinned.extra["world_frame"]
-        assert frame["source"] == "reference" and plain.extra["world_frame"]["source"] == "given rig"
-        assert frame["fit_rms_px"] < 0.15 and not frame["bad_markers"] and frame["observations"] == 4 * 5
-        assert pinned.extra["frame_uncertainty_mm"] == frame["fit_rms_mm"] < 0.2
+        frame = pinned.reference
+        assert frame is not None and plain.reference is None
+        assert frame.fit_rms_px < 0.15 and not frame.bad_markers and frame.observations == 4 * 5
+        assert pinned.frame_uncertainty_mm == frame.fit_rms_mm < 0.2
     assert np.mean(without) > 3 * floor  # the given rig's frame error, kept by the dots-only refinement
     assert np.mean(with_reference) < 0.2 * np.mean(without)
     assert max(with_reference) < 2.5 * floor
@@ -109,7 +109,7 @@ def test_a_pose_shifted_as_a_whole_fits_but_is_doubted():
     assert pose_doubt(good) is None
     moved = refine_rig(given, pixels, start, 100.0, RigRefineConfig(),
                        ControlPoints(shifted.labels, shifted.world_mm, seen.pixels, shifted.name))
-    assert moved.extra["world_frame"]["fit_rms_px"] < 0.15  # no residual sees a shifted pose
+    assert moved.reference is not None and moved.reference.fit_rms_px < 0.15  # no residual sees a shifted pose
     message = pose_doubt(moved)
     assert message is not None and "check its pose" in message
 

@@ -39,14 +39,14 @@ def test_the_priors_follow_the_given_rigs_calibration_error():
     for level in (0.5, 3.0):
         given = perturb_rig(true_rig, poses.reshape(-1, 3), level, np.random.default_rng(1))[0]
         refinement = refine_rig(given, pixels, poses, 100.0, RigRefineConfig(centre_prior_mm=None, rotation_prior_deg=None))
-        centre = np.array(list(refinement.extra["centre_prior_mm"].values()))
-        rotation = np.radians(list(refinement.extra["rotation_prior_deg"].values()))
+        centre = np.array(list(refinement.centre_prior_mm.values()))
+        rotation = np.radians(list(refinement.rotation_prior_deg.values()))
         distance = np.array([np.linalg.norm(cam.center - poses.reshape(-1, 3).mean(axis=0)) for cam in given])
         assert np.allclose(centre / (rotation * distance), 1.0, atol=0.1)
         widths[level] = rotation
     assert 3.0 < np.median(widths[3.0] / widths[0.5]) < 10.0
     fixed = refine_rig(given, pixels, poses, 100.0, RigRefineConfig())  # the default: fixed widths
-    assert set(fixed.extra["centre_prior_mm"].values()) == {20.0}
+    assert set(fixed.centre_prior_mm.values()) == {20.0}
 
 
 def test_refinement_leaves_only_the_world_frame():

@@ -26,6 +26,18 @@ def _rendered(preset: str, frames: int, **overrides):
     return scene, images
 
 
+def _speed_run(**fields):
+    """A :class:`~spinemocap.bench.speed.SpeedRun` of 4 frames, error-free unless ``fields`` say otherwise."""
+    from spinemocap.bench.speed_results import SpeedRun
+
+    run = SpeedRun(run="in_memory", frames=4, wall_s=2.0, fps=2.0, cpu_s_per_frame=0.5, cores_used=1.0,
+                   main_thread_cpu_s_per_frame=0.4, workers_cpu_s_per_frame=0.0, parallel="threads", workers=2,
+                   lookahead=0, workers_startup_s=None, slowest_camera_ms=None, stage_ms={"detect": 100.0},
+                   peak_memory_mib=40.0, routes={"full": 4}, detector_searches={"full": 12}, mean_error_mm=0.0,
+                   p95_error_mm=0.0, label_swaps=0, frames_without_solution=0)
+    return replace(run, **fields)
+
+
 def _same_dots(a, b) -> float:
     """Largest distance (px) between matched dots of two ViewDots lists; inf when counts differ."""
     worst = 0.0
@@ -88,8 +100,8 @@ def test_parallel_path_gives_the_serial_output(parallel):
     scene, images = _rendered("tiny", 3)
     serial = _tracked_from_memory(scene, images, SpeedOptions(workers=1, prefetch=0))
     parallel_run = _tracked_from_memory(scene, images, SpeedOptions(workers=3, prefetch=2, parallel=parallel))
-    assert serial.detector_info["parallel"] == "serial"
-    assert parallel_run.detector_info["parallel"] == parallel  # it did run in parallel (no fallback)
+    assert serial.detector_info.parallel == "serial"
+    assert parallel_run.detector_info.parallel == parallel  # it did run in parallel (no fallback)
     a, b = serial.table.to_arrays(), parallel_run.table.to_arrays()
     np.testing.assert_array_equal(a["positions"], b["positions"])
     assert (a["status"] == b["status"]).all()
@@ -125,8 +137,8 @@ def test_camera_processes_give_the_serial_views_on_a_small_studio(small_studio):
     finally:
         serial.close()
         processes.close()
-    assert processes.info["workers_cpu_s"] > 0  # the workers' CPU is measured (bench speed adds it)
-    assert processes.info["slowest_camera_ms"] > 0
+    assert (processes.info.workers_cpu_s or 0) > 0  # the workers' CPU is measured (bench speed adds it)
+    assert (processes.info.slowest_camera_ms or 0) > 0
 
 
 def test_camera_threads_give_the_serial_views_on_a_small_studio(small_studio):
@@ -358,13 +370,13 @@ def test_replay_benchmark_runs_both_parallel_modes_from_memory_and_video(tmp_pat
     numbers = run_replay_benchmark(root, 5, serial_peer=False, speed=SpeedOptions(workers=2, parallel="threads"),
                                    sensor_noise=3.0, progress=False, say=lambda _: None, video_frames=3,
                                    workdir=tmp_path / "work")
-    runs = {r["run"]: r for r in numbers["runs"]}
+    runs = {r.run: r for r in numbers.runs}
     assert set(runs) == {"in_memory", "in_memory_processes", "video", "video_processes"}
-    assert runs["in_memory"]["parallel"] == "threads" and runs["in_memory_processes"]["parallel"] == "processes"
-    assert runs["in_memory_processes"]["workers_startup_s"] > 0  # not timed, but reported
-    assert numbers["same_output_processes_threads"] is True
-    assert numbers["speedup_processes_vs_threads"] > 0 and numbers["fps_video"] > 0
-    assert runs["video"]["frames"] == 3 and runs["in_memory"]["frames"] == 5
+    assert runs["in_memory"].parallel == "threads" and runs["in_memory_processes"].parallel == "processes"
+    assert (runs["in_memory_processes"].workers_startup_s or 0) > 0  # not timed, but reported
+    assert numbers.same_output_processes_threads is True
+    assert (numbers.speedup_processes_vs_threads or 0) > 0 and (numbers.fps_video or 0) > 0
+    assert runs["video"].frames == 3 and runs["in_memory"].frames == 5
     assert "cameras in processes" in format_report(numbers)
 
 
@@ -493,8 +505,7 @@ def test_lookahead_numbers_compare_the_run_ahead_with_the_exact_order():
     from spinemocap.bench.speed import lookahead_numbers
 
     def run(name, fps, cpu, error):
-        return {"run": name, "fps": fps, "cpu_s_per_frame": cpu, "mean_error_mm": error, "label_swaps": 0,
-                "frames_without_solution": 0}
+        return _speed_run(run=name, fps=fps, cpu_s_per_frame=cpu, mean_error_mm=error)
 
     exact = np.zeros((4, 2, 3))
     ahead = exact.copy()
@@ -503,17 +514,17 @@ def test_lookahead_numbers_compare_the_run_ahead_with_the_exact_order():
     runs = [run("in_memory", 3.0, 0.2, 0.50), run("in_memory_lookahead0", 2.0, 0.18, 0.50)]
     numbers = lookahead_numbers(runs, SpeedOptions(lookahead=1),
                                 {"in_memory": ahead, "in_memory_lookahead0": exact})
-    assert numbers["speedup_lookahead_in_memory"] == pytest.approx(1.5)
-    assert numbers["cpu_s_per_frame_lookahead"] == 0.2 and numbers["cpu_s_per_frame_exact"] == 0.18
-    assert numbers["lookahead_max_difference_mm"] == pytest.approx(0.5)
-    assert numbers["lookahead_share_over_0p1mm"] == pytest.approx(1 / 7)
-    assert numbers["lookahead_accuracy_not_worse"] and numbers["lookahead_same_missing"]
+    assert numbers is not None and numbers.speedup_lookahead_in_memory == pytest.approx(1.5)
+    assert numbers.cpu_s_per_frame_lookahead == 0.2 and numbers.cpu_s_per_frame_exact == 0.18
+    assert numbers.lookahead_max_difference_mm == pytest.approx(0.5)
+    assert numbers.lookahead_share_over_0p1mm == pytest.approx(1 / 7)
+    assert numbers.lookahead_accuracy_not_worse and numbers.lookahead_same_missing
     # the default (lookahead 0) with lookahead 1 as the peer: the ratio the other way round
     runs = [run("in_memory", 2.0, 0.18, 0.50), run("in_memory_lookahead1", 3.0, 0.2, 0.60)]
     numbers = lookahead_numbers(runs, SpeedOptions(), {"in_memory": exact, "in_memory_lookahead1": ahead})
-    assert numbers["speedup_lookahead_in_memory"] == pytest.approx(1.5)
-    assert not numbers["lookahead_accuracy_not_worse"]  # 0.1 mm worse on average
-    assert lookahead_numbers(runs[:1], SpeedOptions(), {}) == {}  # no peer ran
+    assert numbers is not None and numbers.speedup_lookahead_in_memory == pytest.approx(1.5)
+    assert not numbers.lookahead_accuracy_not_worse  # 0.1 mm worse on average
+    assert lookahead_numbers(runs[:1], SpeedOptions(), {}) is None  # no peer ran
 
 
 def test_a_negative_lookahead_is_refused_by_the_options_and_both_commands(tmp_path, capsys):
@@ -844,7 +855,7 @@ def test_the_benchmarks_machine_record_names_the_arithmetic_auto_resolves_to(mon
         monkeypatch.setattr(detector_module, "cpu_has_vnni", lambda v=vnni: v)
         monkeypatch.setattr("spinemocap.detect.segnet.cpu_has_vnni", lambda v=vnni: v)
         info = speed_bench.machine_info()
-        assert info["cpu_vnni"] is vnni and info["auto_precision"] == expected
+        assert info.cpu_vnni is vnni and info.auto_precision == expected
 
 
 # ---------------------------------------------------------------- several frames detected at once
@@ -902,8 +913,8 @@ def test_frames_detected_at_once_give_the_output_of_one_frame_at_a_time(parallel
     np.testing.assert_array_equal(a["positions"], b["positions"])
     assert (a["status"] == b["status"]).all()
     assert one.detector_searches == at_once.detector_searches == {**one.detector_searches, "full": 5 * len(scene.rig)}
-    assert at_once.detector_info["workers"] == 3  # workers not capped at one per camera
-    assert at_once.detector_info["parallel"] == parallel
+    assert at_once.detector_info.workers == 3  # workers not capped at one per camera
+    assert at_once.detector_info.parallel == parallel
 
 
 def test_images_staged_by_the_reader_are_detected_in_shared_memory_without_a_second_copy(small_studio):
@@ -945,11 +956,11 @@ def test_detection_budget_splits_a_camera_images_time_into_its_steps():
 def test_same_accuracy_holds_within_the_tolerance_and_fails_outside_it():
     from spinemocap.bench.speed import SAME_ACCURACY_MM, same_accuracy
 
-    cpu = {"mean_error_mm": 0.40, "p95_error_mm": 0.80, "label_swaps": 0, "frames_without_solution": 0}
-    close = {**cpu, "mean_error_mm": 0.40 + SAME_ACCURACY_MM / 2}
-    assert same_accuracy(close, cpu)["same"]
-    assert not same_accuracy({**cpu, "p95_error_mm": 0.80 + 2 * SAME_ACCURACY_MM}, cpu)["same"]
-    assert not same_accuracy({**cpu, "label_swaps": 1}, cpu)["same"]
+    cpu = _speed_run(mean_error_mm=0.40, p95_error_mm=0.80)
+    close = replace(cpu, mean_error_mm=0.40 + SAME_ACCURACY_MM / 2)
+    assert same_accuracy(close, cpu).same
+    assert not same_accuracy(replace(cpu, p95_error_mm=0.80 + 2 * SAME_ACCURACY_MM), cpu).same
+    assert not same_accuracy(replace(cpu, label_swaps=1), cpu).same
 
 
 def test_replay_benchmark_runs_the_pipelines_defaults_beside_frames_at_once(tmp_path):
@@ -959,10 +970,76 @@ def test_replay_benchmark_runs_the_pipelines_defaults_beside_frames_at_once(tmp_
     root = write_capture(SynthConfig.preset("tiny", frames=2), tmp_path / "capture", progress=False)
     numbers = run_replay_benchmark(root, 4, serial_peer=False, parallel_peer=False, progress=False, say=lambda _: None,
                                    speed=SpeedOptions(workers=2, predict=False, frames_at_once=2, device="cpu"))
-    runs = {r["run"]: r for r in numbers["runs"]}
+    runs = {r.run: r for r in numbers.runs}
     assert set(runs) == {"in_memory", "in_memory_default"}
-    assert runs["in_memory_default"]["detector_searches"]["predicted"] > 0  # the defaults predict boxes
-    assert runs["in_memory"]["detector_searches"]["predicted"] == 0
-    assert numbers["speedup_vs_default"] == pytest.approx(runs["in_memory"]["fps"] / runs["in_memory_default"]["fps"])
-    assert set(numbers["detection_budget_ms"]) >= {"network_stage1", "cleanup_and_dots", "total"}
+    assert runs["in_memory_default"].detector_searches["predicted"] > 0  # the defaults predict boxes
+    assert runs["in_memory"].detector_searches["predicted"] == 0
+    assert numbers.speedup_vs_default == pytest.approx(runs["in_memory"].fps / runs["in_memory_default"].fps)
+    assert set(numbers.detection_budget_ms or {}) >= {"network_stage1", "cleanup_and_dots", "total"}
     assert "2 frames at once" in format_report(numbers)
+
+
+def test_speed_numbers_are_written_as_one_json_object_with_the_lookahead_keys_in_place(tmp_path):
+    import json
+
+    from spinemocap.bench.speed import GOALS_FPS, format_report, save
+    from spinemocap.bench.speed_results import DecodeSpeed, LookaheadComparison, MachineInfo, RenderedSpeed
+
+    machine = MachineInfo(cpu_cores=2, cpu_model="x", cpu_vnni=False, auto_precision="float32", load_average_1min=0.5,
+                          torch="2", torch_threads=2, gpu=None, cuda=None, cudnn_allow_tf32=None)
+    ahead = LookaheadComparison(speedup_lookahead_in_memory=1.5, cpu_s_per_frame_lookahead=0.5,
+                                cpu_s_per_frame_exact=0.4, lookahead_accuracy_not_worse=True,
+                                lookahead_max_difference_mm=0.0, lookahead_share_over_0p1mm=0.0,
+                                lookahead_same_missing=True)
+    numbers = RenderedSpeed(
+        preset="tiny", realism="lab", frames=4, cameras=3, image_size=[480, 360], occlusion="none", mode="sequence",
+        detector="net", machine=machine, speed_options=SpeedOptions(), fps_png=2.0, fps_video=None, video_codec=None,
+        fps_in_memory=None, speedup_vs_serial=None, speedup_vs_serial_in_memory=None,
+        cpu_ratio_vs_serial_in_memory=None, accuracy_not_worse=None, accuracy_not_worse_in_memory=None,
+        accuracy_tolerance_mm=0.01, memory_frames=30, lookahead_comparison=ahead,
+        decode_only={"png": DecodeSpeed(frames=4, fps=30.0, cpu_s_per_frame=0.01)}, runs=[_speed_run(run="png")],
+        goals_fps=GOALS_FPS)
+    save(numbers, tmp_path / "speed.json")
+    saved = json.loads((tmp_path / "speed.json").read_text())
+    assert list(saved)[20:26] == ["memory_frames", "speedup_lookahead_in_memory", "cpu_s_per_frame_lookahead",
+                                  "cpu_s_per_frame_exact", "lookahead_accuracy_not_worse",
+                                  "lookahead_max_difference_mm"]
+    assert list(saved)[-3:] == ["decode_only", "runs", "goals_fps"] and "lookahead_comparison" not in saved
+    assert saved["machine"]["cpu_cores"] == 2 and saved["speed_options"]["parallel"] == "threads"
+    assert saved["decode_only"] == {"png": {"frames": 4, "fps": 30.0, "cpu_s_per_frame": 0.01}}
+    assert saved["runs"][0]["run"] == "png" and saved["runs"][0]["stage_ms"] == {"detect": 100.0}
+    assert "1.50x the frames/s of the exact serial order" in format_report(numbers)
+    without = replace(numbers, lookahead_comparison=None)
+    assert "speedup_lookahead_in_memory" not in without.to_dict()  # no peer ran: no keys
+
+
+def test_a_replayed_run_on_a_gpu_reports_its_cpu_peer_and_the_dots_on_both_devices(tmp_path):
+    import json
+
+    from spinemocap.bench.speed import GOALS_FPS, format_report, same_accuracy, save
+    from spinemocap.bench.speed_results import DeviceDots, MachineInfo, ReplayedSpeed
+
+    machine = MachineInfo(cpu_cores=16, cpu_model="x", cpu_vnni=True, auto_precision="int8", load_average_1min=0.1,
+                          torch="2", torch_threads=16, gpu="GPU", cuda="12", cudnn_allow_tf32=True)
+    gpu, cpu = _speed_run(fps=40.0, mean_error_mm=0.41), _speed_run(run="in_memory_cpu", fps=8.0, mean_error_mm=0.40)
+    dots = DeviceDots(images=6, dots_cpu=300, dots_device=300, unmatched_cpu=0, unmatched_device=0, max_px=0.02,
+                      mask_pixels_differing=5, images_identical=4)
+    numbers = ReplayedSpeed(
+        preset="capture c replayed", source_frames=3, frames=10, sensor_noise=0.0, cameras=6, image_size=[2448, 1600],
+        mode="sequence", detector="net", device="cuda", machine=machine, speed_options=SpeedOptions(device="cuda"),
+        fps_in_memory=40.0, fps_png=None, fps_video=None, speedup_vs_serial=None, accuracy_not_worse=None,
+        speedup_vs_cpu=5.0, accuracy_not_worse_vs_cpu=True, same_accuracy_as_cpu=same_accuracy(gpu, cpu),
+        speedup_vs_default=None, detection_budget_ms={"network_stage1": 1.5, "total": 3.0}, parallel="threads",
+        speedup_processes_vs_threads=None, same_output_processes_threads=None, device_check=dots,
+        lookahead_comparison=None, accuracy_tolerance_mm=0.01, runs=[gpu, cpu], goals_fps=GOALS_FPS)
+    report = format_report(numbers)
+    assert "network on cuda: 5.00x the same pipeline's frames/s on the CPU" in report
+    assert "mean +0.0100 mm" in report and ": same (within" in report
+    assert "network_stage1 1.5, total 3.0" in report and "'max_px': 0.02" in report
+    save(numbers, tmp_path / "speed.json")
+    saved = json.loads((tmp_path / "speed.json").read_text())
+    assert saved["same_accuracy_as_cpu"] == {"mean_difference_mm": pytest.approx(0.01), "p95_difference_mm": 0.0,
+                                             "label_swaps": 0, "reference_label_swaps": 0, "same": True}
+    assert list(saved["device_check"]) == ["images", "dots_cpu", "dots_device", "unmatched_cpu", "unmatched_device",
+                                           "max_px", "mask_pixels_differing", "images_identical"]
+    assert list(saved)[:3] == ["preset", "source_frames", "frames"] and list(saved)[-2:] == ["runs", "goals_fps"]

@@ -72,3 +72,25 @@ def test_damaged_pose2sim_and_vicon_files_are_refused_naming_them(tmp_path):
     xcp.write_text("<Cameras><Camera")
     with pytest.raises(InputError, match="rig.xcp"):
         read_xcp(xcp)
+
+
+@pytest.mark.parametrize("gone", [("matrix",), ("rotation", "translation")])
+def test_a_pose2sim_camera_table_lacking_an_entry_is_refused_not_dropped(tmp_path, gone):
+    from calibration.formats import read_rig
+    from spinemocap.fileio import write_toml
+
+    path = tmp_path / "Calib.toml"
+    write_pose2sim(_rig(), path)
+    data = read_toml(path)
+    for key in gone:
+        del data["cam_02"][key]
+    write_toml(path, data)
+    name = data["cam_02"]["name"]
+    lacking = ", ".join(repr(key) for key in gone)
+    with pytest.raises(InputError, match=rf"Calib\.toml.*\[cam_02\] \('{name}'\) lacks {lacking}"):
+        read_rig(path)  # the rig of the other three cameras is never returned
+    for key in gone:
+        del data["cam_01"][key], data["cam_03"][key], data["cam_04"][key]
+    write_toml(path, data)
+    with pytest.raises(InputError, match=rf"\[cam_01\] .* lacks {lacking}"):
+        read_rig(path)  # no camera has it: still read as a Pose2Sim file, not as ours

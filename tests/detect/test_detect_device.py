@@ -64,10 +64,10 @@ def test_device_check_counts_identical_dots_as_identical(drawn_images):
     from spinemocap.bench.speed import dots_on_devices
 
     check = dots_on_devices([drawn_images[:2], drawn_images[2:]], "cpu")
-    assert check["images"] == 3 and check["images_identical"] == 3
-    assert check["dots_cpu"] == check["dots_device"] > 0
-    assert check["unmatched_cpu"] == check["unmatched_device"] == check["mask_pixels_differing"] == 0
-    assert check["max_px"] == 0.0
+    assert check.images == 3 and check.images_identical == 3
+    assert check.dots_cpu == check.dots_device > 0
+    assert check.unmatched_cpu == check.unmatched_device == check.mask_pixels_differing == 0
+    assert check.max_px == 0.0
 
 
 def test_opencv_threads_apply_while_cameras_run_in_parallel_and_are_restored():

@@ -95,6 +95,6 @@ def test_calibration_warning_points_to_the_refinement_once_refined(capture, tmp_
     result.calibration_warning = f"calibration: camera(s) cam1 reproject the capture's own dots with 2.10 px RMS; {REFINE_ADVICE}"
     refined = result.summary()
     assert REFINE_ADVICE not in refined and "the rig was refined on these dots (--refine-rig" in refined
-    assert result.quality()["calibration_warning"] in refined
+    assert result.quality().calibration_warning in refined
     result.refinement = None  # not refined: the advice stays
     assert REFINE_ADVICE in result.summary()
