@@ -61,11 +61,12 @@ from .geometry import (
     to_opensim,
 )
 from .model import DOF, RANGE_FACTOR, ModelPlan, annotate_slips, body_name, build_model, plan_model
-from .skin_model import SlipPrior, normalise_row_tilt, slip_coordinate, slip_rows
+from .skin_model import SlipPrior, geometric_slips, normalise_row_tilt, slip_coordinate, slip_rows
 from .tools import (
     IK_ACCURACY,
     INFERRED_SD_MM,
     OBSERVED_SD_MM,
+    CoordinateGoal,
     marker_locations,
     marker_weights,
     mean_weights,
@@ -272,7 +273,7 @@ def place_markers(work: Path, labels: list[str], placed: np.ndarray, static: Sta
 def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: TapeMarkers, frames: np.ndarray,
                        accuracy: float, priors: dict[str, float] | None = None,
                        positions: np.ndarray | None = None, restart: bool = True,
-                       inferred_sd_mm: float = INFERRED_SD_MM) -> float:
+                       inferred_sd_mm: float = INFERRED_SD_MM, goals: dict[str, CoordinateGoal] | None = None) -> float:
     """``markers_opensim.trc`` (the given frames, the ``placed`` dots named ``labels``; the
     markers as given, or ``positions`` (F, D, 3) mm in their place: the skin-corrected ones),
     ``setup_ik.xml`` on ``model.osim`` (one mean weight per marker: a re-run in the GUI), and IK
@@ -286,9 +287,32 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
     write_ik_setup(work, "model.osim", "markers_opensim.trc", (float(times[0]), float(times[-1])), labels,
                    mean_weights(weights), "ik.mot", accuracy, priors)
     solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy, restart,
-                        data.status[frames][:, placed] == "observed")
+                        data.status[frames][:, placed] == "observed",
+                        {name: CoordinateGoal(g.values[frames], g.weights[frames]) for name, g in (goals or {}).items()})
     write_ik_outputs(work, solution)
     return solution.seconds
+
+
+def _slip_goals(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, placed: _Placed,
+                prior: SlipPrior | None) -> dict[str, CoordinateGoal]:
+    """Per-frame IK goals (m) of the slipping rows: the slip the tape shows
+    (:func:`skin_model.geometric_slips`, relative to the mean of the pinned rows) with weight
+    :attr:`SlipPrior.estimate_weight`; 0 with :attr:`SlipPrior.weight` where it is unknown, or
+    in every frame when ``prior.estimate_sd_mm`` is None. Empty without slip."""
+    if prior is None or not placed.slipping:
+        return {}
+    F = len(positions)
+    geometry = placed.geometry
+    pinned = sorted({int(r) for r in placed.marker_rows} - set(placed.slipping))
+    slips = np.full((F, tape.n_rows), np.nan)
+    if prior.estimate_sd_mm is not None:
+        slips = geometric_slips(positions, static, tape, geometry.depth[geometry.row_body], pinned[0])
+        with np.errstate(all="ignore"):
+            slips = slips - np.nanmean(slips[:, pinned], axis=1, keepdims=True)
+    known = np.isfinite(slips)
+    weights = np.where(known, prior.estimate_weight, prior.weight)
+    values = np.clip(np.where(known, slips, 0.0), -prior.limit_mm, prior.limit_mm) / 1000.0
+    return {slip_coordinate(r): CoordinateGoal(values[:, r], weights[:, r]) for r in placed.slipping}
 
 
 def _priors(plan: ModelPlan, settings: OpenSimSettings, slipping: list[int]) -> dict[str, float]:
@@ -296,7 +320,7 @@ def _priors(plan: ModelPlan, settings: OpenSimSettings, slipping: list[int]) -> 
     (:class:`skin_model.SlipPrior`) and, when ``settings.prior_weight`` > 0, a weak one on every
     independent per-level lateral bending and axial rotation (they choose among the distributions
     the markers cannot tell apart)."""
-    out = {slip_coordinate(r): settings.slip.weight for r in slipping} if settings.slip is not None else {}
+    out: dict[str, float] = {}
     if settings.prior_weight > 0:
         dependent = {d for d, _, _ in plan.couplers}
         out.update({j.coordinate(dof): settings.prior_weight for j in plan.driven
@@ -337,9 +361,11 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
         positions, tilt_turn = data.positions, None
         if settings.normalise_tilt:
             positions, tilt_turn = normalise_row_tilt(data.positions, st.positions, tape)
+        slip_goals = _slip_goals(positions, st.positions, tape, placed, settings.slip)
         ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
                                         settings.accuracy, _priors(placed.plan, settings, placed.slipping),
-                                        positions, settings.restart_from_static, settings.inferred_sd_mm)
+                                        positions, settings.restart_from_static, settings.inferred_sd_mm,
+                                        slip_goals)
         angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
         weights = mean_weights(data.weights(settings.inferred_sd_mm)[:, placed.placed])
         summary = _summary(data, placed, angles, flags, ik_seconds, facing_error, weights, settings, osim)

@@ -44,11 +44,19 @@ class SlipPrior:
     limit_mm: float = 80.0
     pinned: int = 2
     marker_sd_mm: float = 1.0
+    # SD (mm) of the goal around the slip the tape's own lengthening shows (geometric_slips) in the
+    # frames where it is known; None = every frame's goal is 0 with SD sd_mm
+    estimate_sd_mm: float | None = 3.0
 
     @property
     def weight(self) -> float:
         """IK coordinate-goal weight (per m^2, beside marker errors in m^2)."""
         return (self.marker_sd_mm / self.sd_mm) ** 2
+
+    @property
+    def estimate_weight(self) -> float:
+        """IK coordinate-goal weight (per m^2) of the goal at the geometric estimate."""
+        return (self.marker_sd_mm / (self.estimate_sd_mm or self.sd_mm)) ** 2
 
 
 def slip_coordinate(row: int) -> str:
@@ -119,6 +127,51 @@ def row_tilt(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarra
     across = _unit(axis - along[..., None] * tangent)
     normal = _unit(np.cross(across, tangent))
     return np.arcsin(np.clip(along, -1.0, 1.0)), tangent, normal
+
+
+def _flexion_turns(centre: np.ndarray, across: np.ndarray) -> np.ndarray:
+    """(..., R-1) forward-bending turn (rad) of the midline from each row to the next: the angle
+    from the lower row's tangent to the upper one's about the pair's mean L->R axis (``across``,
+    (..., R, 3)), both tangents projected onto the plane across it; positive = the upper tangent
+    tipped toward the front (the tangent turned about -right). NaN where a tangent is unknown."""
+    tangent = _midline_tangents(centre)
+    axis = _unit(across[..., :-1, :] + across[..., 1:, :])
+
+    def flat(t: np.ndarray) -> np.ndarray:
+        return t - np.sum(t * axis, axis=-1, keepdims=True) * axis
+
+    lower, upper = flat(tangent[..., :-1, :]), flat(tangent[..., 1:, :])
+    sine = np.sum(np.cross(lower, upper) * axis, axis=-1)
+    return -np.arctan2(sine, np.sum(lower * upper, axis=-1))
+
+
+def geometric_slips(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, depth_mm: np.ndarray,
+                    reference: int) -> np.ndarray:
+    """(F, R) skin slip (mm, cranial positive) of every row against its vertebra, relative to row
+    ``reference``, from the tape alone: the midline's lengthening from ``reference`` to the row
+    (sum of the row-centre steps) minus what the vertebrae lengthen the skin by when bent forward
+    (the skin lies ``depth_mm`` (R,) behind the joint centres, so a forward turn of the midline
+    by ``a`` rad between two rows lengthens it by depth x ``a``; sideways bending and twisting
+    leave the midline's length alone). ``positions`` (F, D, 3), ``static`` (D, 3): OpenSim
+    ground, mm. NaN where the row, a row between it and ``reference`` or a tangent is unseen;
+    0 at ``reference``."""
+    def lengthening(pos: np.ndarray) -> np.ndarray:
+        left, right = row_sides(pos, tape)
+        centre = 0.5 * (left + right)
+        step = np.linalg.norm(np.diff(centre, axis=-2), axis=-1)  # (..., R-1) row r -> r+1
+        depth = 0.5 * (depth_mm[:-1] + depth_mm[1:])
+        rigid = depth * _flexion_turns(centre, _unit(right - left))
+        return step, rigid
+
+    step, rigid = lengthening(positions)
+    step0, rigid0 = lengthening(static[None])
+    stretch = (step - step0) - (rigid - rigid0)  # (F, R-1): the skin's own slip from row r to r+1
+    out = np.full(positions.shape[:1] + (tape.n_rows,), np.nan)
+    out[:, reference] = 0.0
+    out[:, reference + 1:] = np.cumsum(stretch[:, reference:], axis=1)
+    below = np.cumsum(stretch[:, :reference][:, ::-1], axis=1)[:, ::-1]
+    out[:, :reference] = -below
+    return out
 
 
 def normalise_row_tilt(positions: np.ndarray, static: np.ndarray, tape: TapeSpec) -> tuple[np.ndarray, np.ndarray]:

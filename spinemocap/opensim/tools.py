@@ -295,17 +295,28 @@ class IKSolution:
     observed_rms_mm: np.ndarray  # (F,) marker RMS over the observed (measured) samples only
 
 
+@dataclass(frozen=True)
+class CoordinateGoal:
+    """A coordinate goal that changes from frame to frame: ``values`` (F,) in the coordinate's
+    units (rad, m) and ``weights`` (F,) per unit^2, beside marker errors in m^2."""
+
+    values: np.ndarray
+    weights: np.ndarray
+
+
 def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positions_mm: np.ndarray,
              weights: np.ndarray, priors: dict[str, float] | None = None, accuracy: float = IK_ACCURACY,
-             restart: bool = True, observed: np.ndarray | None = None) -> IKSolution:
+             restart: bool = True, observed: np.ndarray | None = None,
+             goals: dict[str, CoordinateGoal] | None = None) -> IKSolution:
     """OpenSim's ``InverseKinematicsSolver`` on every frame of ``positions_mm`` (F, D, 3; OpenSim
     ground, mm; NaN = missing), each marker weighted per frame by ``weights`` (F, D) and each frame
     started from the previous frame's solution (the first from the model's default pose, where it
     was built: the static trial) and, with ``restart``, from the default pose too, keeping the
     solution with the lower objective. ``observed`` (F, D) bool: the measured samples, over which
     ``observed_rms_mm`` is taken (default: all present). ``priors``: {coordinate: weight} of coordinate goals toward the
-    coordinate's default value (weight per unit^2, beside marker errors in m^2). Coordinates the
-    model clamps stay inside their ranges."""
+    coordinate's default value (weight per unit^2, beside marker errors in m^2); ``goals``: coordinate
+    goals whose value and weight change per frame (:class:`CoordinateGoal`). Coordinates the model
+    clamps stay inside their ranges."""
     osim = require_opensim()
     model = osim.Model(str(model_file))
     state = model.initSystem()
@@ -318,15 +329,15 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
     for d, label in enumerate(labels):  # the first frame's weights, updated frame by frame (NaN: ignored)
         weight_set.cloneAndAppend(osim.MarkerWeight(str(label), float(weights[0, d]) if present[0, d] else 1.0))
     reference = osim.MarkersReference(table, weight_set)
-    goals = osim.SimTKArrayCoordinateReference()
+    references = osim.SimTKArrayCoordinateReference()
     coords = model.getCoordinateSet()
-    for name, weight in (priors or {}).items():
-        goal = osim.CoordinateReference(name, osim.Constant(coords.get(name).getDefaultValue()))
-        goal.setWeight(float(weight))
-        goals.push_back(goal)
-    solver = osim.InverseKinematicsSolver(model, reference, goals)
-    goal_weights = [(coords.get(name), float(weight), coords.get(name).getDefaultValue())
-                    for name, weight in (priors or {}).items()]
+    constant = {name: (coords.get(name).getDefaultValue(), float(weight)) for name, weight in (priors or {}).items()}
+    per_frame = goals or {}
+    for name, (value, weight) in {**constant, **{n: _goal_at(g, 0) for n, g in per_frame.items()}}.items():
+        goal = osim.CoordinateReference(name, osim.Constant(value))
+        goal.setWeight(weight)
+        references.push_back(goal)
+    solver = osim.InverseKinematicsSolver(model, reference, references)
     solver.setAccuracy(float(accuracy))
     column = {label: d for d, label in enumerate(labels)}
     coordinate_list = [coords.get(i) for i in range(coords.getSize())]
@@ -343,6 +354,10 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
             for name in order:
                 d = column[name]
                 solver.updateMarkerWeight(name, float(weights[f, d]) if present[f, d] else 1.0)
+            for name, goal in per_frame.items():
+                solver.updateCoordinateReference(name, *_goal_at(goal, f))
+        goal_weights = [(coords.get(name), weight, value) for name, (value, weight) in
+                        {**constant, **{n: _goal_at(g, f) for n, g in per_frame.items()}}.items()]
         # a full solve from the coordinates held in the state: the previous frame's solution (the
         # first frame's from the default pose, the static trial's); Assembler::track's few steps
         # stopped short of the solution at 12 frames/s
@@ -369,13 +384,18 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
                       rms, worst, count, time.perf_counter() - started, observed_rms)
 
 
+def _goal_at(goal: CoordinateGoal, frame: int) -> tuple[float, float]:
+    return float(goal.values[frame]), float(goal.weights[frame])
+
+
 def _ik_cost(solver, state, goal_weights: list, marker_weights: np.ndarray) -> float:
-    """The IK objective at ``state``: weighted squared marker errors (m^2) plus the coordinate goals'."""
+    """The IK objective at ``state``: weighted squared marker errors (m^2) plus the coordinate goals'
+    (``goal_weights``: (coordinate, weight, goal value))."""
     squared = require_opensim().SimTKArrayDouble()
     solver.computeCurrentSquaredMarkerErrors(squared)
     err = np.array([squared.getElt(i) for i in range(squared.size())])
     cost = float(np.nansum(marker_weights * err))
-    return cost + sum(w * (c.getValue(state) - default) ** 2 for c, w, default in goal_weights)
+    return cost + sum(w * (c.getValue(state) - goal) ** 2 for c, w, goal in goal_weights)
 
 
 def _better_of_two_starts(solver, state, coordinate_list: list, from_previous: np.ndarray, goal_weights: list,
