@@ -43,8 +43,8 @@ def register(subparsers) -> None:
                    help="IK weight of a prior pulling every level's lateral bending and axial rotation toward the "
                         "static posture (per rad^2; default 0 = off; larger weights trade range for stability)")
     p.add_argument("--accuracy", type=float,
-                   help="IK solver accuracy (default: OpenSim's, 1e-5; tighter reads a trunk twist more fully but "
-                        "forward bending with slipping skin less well, at ~10-50x the time per frame for each tenth)")
+                   help="IK solver accuracy (default 1e-6, a tenth of OpenSim's: a trunk twist is read more fully; "
+                        "each further tenth costs several times the time per frame)")
     p.add_argument("--model", type=Path, help="attach the markers to this lab model (.osim) instead of building one")
     p.add_argument("--bodies", type=Path, help="with --model: TOML mapping vertebrae to the model's bodies, "
                                                "e.g. L3 = \"lumbar3\"")
@@ -107,26 +107,32 @@ def register_bench(subparsers) -> None:
                    help="studio realism level (default lab: tape tension, skin strain, the lab's inexact rig)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="studio subjects (seeds), default 0")
     p.add_argument("--accuracy", type=float, help="IK solver accuracy of every IK method (default: the pipeline's)")
+    p.add_argument("--methods", nargs="+",
+                   help="IK methods to run (default all; the geometric peer always runs): ik = the pipeline, "
+                        "ik_zero_slip_prior = every slip's goal at 0 at OpenSim's default accuracy, ik_one_start, "
+                        "ik_rigid (see spinemocap/bench/opensim.py)")
     p.add_argument("--json", type=Path, help="write the numbers here")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_bench)
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    from ..bench.opensim import format_table, run_opensim_benchmark
+    from ..bench.opensim import IK_METHODS, format_table, run_opensim_benchmark
     from ..fileio import atomic_write, strict_json
     from ..opensim.tools import IK_ACCURACY
 
     accuracy = IK_ACCURACY if args.accuracy is None else args.accuracy
+    methods = list(IK_METHODS) if args.methods is None else args.methods
 
     report = run_opensim_benchmark(args.motions, args.sources, args.frames, args.fps, args.rows,
                                    args.tracked_frames, args.cache, not args.no_progress, realism=args.realism,
-                                   seeds=args.seeds, accuracy=accuracy)
+                                   seeds=args.seeds, accuracy=accuracy, methods=methods)
     report["command"] = " ".join(
         ["spinemocap bench opensim", f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
          f"--realism {args.realism}",
          "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources),
-         "--seeds " + " ".join(str(s) for s in args.seeds), f"--accuracy {accuracy:g}"]
+         "--seeds " + " ".join(str(s) for s in args.seeds), f"--accuracy {accuracy:g}",
+         "--methods " + " ".join(methods)]
         + ([f"--tracked-frames {args.tracked_frames}"] if args.tracked_frames else []))
     print(format_table(report["sources"]))
     for source, methods in report["headline"].items():

@@ -7,7 +7,8 @@ renamed into place at the end):
 - ``model.osim``: after MarkerPlacer (markers moved onto the static trial),
 - ``markers_opensim.trc`` / ``markers_static.trc``: metres, OpenSim axes (X facing, Y up),
 - ``setup_scale.xml``, ``setup_ik.xml``, ``static_pose.mot`` (radians), ``ik.mot`` (degrees; skin
-  slips in metres), ``ik_marker_errors.sto`` (metres),
+  slips in metres), ``ik_marker_errors.sto`` (metres), ``skin_slip_goals.sto`` (the slip
+  coordinates' goal per frame, metres: the coordinate file of ``setup_ik.xml``),
 - ``spine_angles.csv``: per driven joint and summed per region, degrees, this project's signs
   (flexion = forward bending positive = -OpenSim extension; lateral bending toward the right
   positive; axial rotation toward the left positive), zero = the static posture,
@@ -18,7 +19,8 @@ facing is checked against the tape (:func:`geometry.check_facing`); the joint ce
 published skin-to-vertebral-body depths (:mod:`anatomy`) scaled to the subject by the tape, times
 ``settings.depth_scale`` (a measured depth, e.g. from imaging or a body model, enters there and is
 named by ``settings.depth_source``); every row's in-plane tilt is kept at its static angle and the
-rows above the pinned ones slip along their vertebrae (:mod:`skin_model`); the model is built
+rows above the pinned ones slip along their vertebrae, each slip's goal the one the tape's
+lengthening shows in that frame (:mod:`skin_model`); the model is built
 (:mod:`model`), MarkerPlacer moves its markers onto the static trial (slips held at 0) and the
 placement is checked against the anatomy (:func:`check_placement`); OpenSim's IK solver runs frame
 by frame (:func:`tools.solve_ik`: per-sample marker weights from the label confidence, inferred
@@ -61,7 +63,7 @@ from .geometry import (
     to_opensim,
 )
 from .model import DOF, RANGE_FACTOR, ModelPlan, annotate_slips, body_name, build_model, plan_model
-from .skin_model import SlipPrior, geometric_slips, normalise_row_tilt, slip_coordinate, slip_rows
+from .skin_model import SlipPrior, geometric_slips, normalise_row_tilt, prior_text, slip_coordinate, slip_rows
 from .tools import (
     IK_ACCURACY,
     INFERRED_SD_MM,
@@ -75,6 +77,7 @@ from .tools import (
     require_opensim,
     run_scale,
     solve_ik,
+    write_coordinate_goals,
     write_ik_outputs,
     write_ik_setup,
     write_scale_setup,
@@ -91,6 +94,7 @@ FLAG_RMS_MM = 4.0
 FLAG_MAX_MM = 10.0
 FLAG_MIN_MARKERS = 6
 LIMIT_MARGIN_DEG = 0.05
+SLIP_GOALS = "skin_slip_goals.sto"  # the slip coordinates' goal per frame (m), setup_ik.xml's coordinate file
 PUBLISHED_DEPTHS = "published skin-to-vertebral-body depths (spinemocap/opensim/anatomy.py) scaled to the tape"
 SIGN = {"extension": -1.0, "lateral_bending": 1.0, "axial_rotation": 1.0}  # OpenSim -> project
 PROJECT_NAME = {"extension": "flexion", "lateral_bending": "lateral", "axial_rotation": "rotation"}
@@ -284,11 +288,14 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
     times = data.times[frames]
     write_trc(work / "markers_opensim.trc", labels, times, chosen, data.fps)
     weights = data.weights(inferred_sd_mm)[frames][:, placed]
+    chosen_goals = {name: CoordinateGoal(g.values[frames], g.weights[frames]) for name, g in (goals or {}).items()}
+    if chosen_goals:
+        write_coordinate_goals(work / SLIP_GOALS, times, chosen_goals)
     write_ik_setup(work, "model.osim", "markers_opensim.trc", (float(times[0]), float(times[-1])), labels,
-                   mean_weights(weights), "ik.mot", accuracy, priors)
+                   mean_weights(weights), "ik.mot", accuracy, priors, SLIP_GOALS,
+                   {name: float(np.max(g.weights)) for name, g in chosen_goals.items()})
     solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy, restart,
-                        data.status[frames][:, placed] == "observed",
-                        {name: CoordinateGoal(g.values[frames], g.weights[frames]) for name, g in (goals or {}).items()})
+                        data.status[frames][:, placed] == "observed", chosen_goals)
     write_ik_outputs(work, solution)
     return solution.seconds
 
@@ -315,17 +322,15 @@ def _slip_goals(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, place
     return {slip_coordinate(r): CoordinateGoal(values[:, r], weights[:, r]) for r in placed.slipping}
 
 
-def _priors(plan: ModelPlan, settings: OpenSimSettings, slipping: list[int]) -> dict[str, float]:
-    """IK coordinate goals toward the static posture: the slip prior on every slipping row
-    (:class:`skin_model.SlipPrior`) and, when ``settings.prior_weight`` > 0, a weak one on every
-    independent per-level lateral bending and axial rotation (they choose among the distributions
-    the markers cannot tell apart)."""
-    out: dict[str, float] = {}
-    if settings.prior_weight > 0:
-        dependent = {d for d, _, _ in plan.couplers}
-        out.update({j.coordinate(dof): settings.prior_weight for j in plan.driven
-                    for dof in ("lateral_bending", "axial_rotation") if j.coordinate(dof) not in dependent})
-    return out
+def _priors(plan: ModelPlan, settings: OpenSimSettings) -> dict[str, float]:
+    """IK coordinate goals toward the static posture (the slips' goals are :func:`_slip_goals`):
+    when ``settings.prior_weight`` > 0, a weak one on every independent per-level lateral bending
+    and axial rotation (they choose among the distributions the markers cannot tell apart)."""
+    if settings.prior_weight <= 0:
+        return {}
+    dependent = {d for d, _, _ in plan.couplers}
+    return {j.coordinate(dof): settings.prior_weight for j in plan.driven
+            for dof in ("lateral_bending", "axial_rotation") if j.coordinate(dof) not in dependent}
 
 
 def prepare(markers: MarkerTable, tape: TapeSpec, up: npt.ArrayLike, facing: Sequence[float],
@@ -361,9 +366,10 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
         positions, tilt_turn = data.positions, None
         if settings.normalise_tilt:
             positions, tilt_turn = normalise_row_tilt(data.positions, st.positions, tape)
-        slip_goals = _slip_goals(positions, st.positions, tape, placed, settings.slip)
+        measured = np.where((data.status == "observed")[..., None], positions, np.nan)  # inferred dots are guesses
+        slip_goals = _slip_goals(measured, st.positions, tape, placed, settings.slip)
         ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
-                                        settings.accuracy, _priors(placed.plan, settings, placed.slipping),
+                                        settings.accuracy, _priors(placed.plan, settings),
                                         positions, settings.restart_from_static, settings.inferred_sd_mm,
                                         slip_goals)
         angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
@@ -412,8 +418,9 @@ def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt
     out["slip"] = {"model": "each row above the pinned ones on a body translating along its vertebra's superior "
                             "axis; coordinate <row>_skin_slip (m, 0 = static trial) solved by IK",
                    "pinned_rows": [f"R{r + 1:02d}" for r in pinned],
-                   "prior": f"Gaussian, mean 0, SD {prior.sd_mm:g} mm; clamped to +/-{prior.limit_mm:g} mm",
-                   "prior_weight_per_m2": prior.weight, "at_peak_mm": peak}
+                   "prior": f"{prior_text(prior)}; clamped to +/-{prior.limit_mm:g} mm",
+                   "prior_weight_per_m2": prior.weight, "estimate_weight_per_m2": prior.estimate_weight,
+                   "at_peak_mm": peak}
     return out
 
 

@@ -29,13 +29,15 @@ INFERRED_CONFIDENCE = 0.6  # label confidence of an inferred dot when the table 
 # the tape model or filled in time): on the studio's deep bends inferred dots were 2-40 mm off
 OBSERVED_SD_MM = 1.0
 INFERRED_SD_MM = 10.0
-# IK solver accuracy (the SimTK assembler's tolerance; OpenSim's default). The solver stops once
-# this is met, short of the optimum along the directions the markers hardly see: a twist shared
-# between the pelvis and the levels is under-read by an amount that depends on the start (about
-# 0.6 of a studio trunk twist read at 1e-5, 0.87 at 1e-6, 0.95 at 1e-7); but nearer the optimum
-# the skin-slip model reads forward bending worse (studio flexion RMSE 1.3 -> 3.5 deg at 1e-6), and
-# each tenth costs ~10-50x the time per frame on a capture with skin slip.
-IK_ACCURACY = 1e-5
+# IK solver accuracy (the SimTK assembler's tolerance), ten times tighter than OpenSim's default
+# (1e-5). The solver stops once this is met, short of the optimum along the directions the markers
+# hardly see: a twist shared between the pelvis and the levels is under-read by an amount that
+# depends on the start (about 0.6 of a studio trunk twist read at 1e-5, 0.87 at 1e-6, 0.95 at 1e-7).
+# Tightening it needs a well-posed skin model: with the slips' goals at 0 the markers hardly tell
+# slip from forward bending, and nearer the optimum forward bending was read worse (studio flexion
+# RMSE 1.3 -> 3.5 deg); with the goals at the slip the tape shows (pipeline._slip_goals) it is not.
+# Each tenth costs several times the time per frame.
+IK_ACCURACY = 1e-6
 
 
 def require_opensim():
@@ -150,9 +152,13 @@ def write_scale_setup(folder: Path, generic_model: str, static_trc: str, time_ra
 
 def write_ik_setup(folder: Path, model_file: str, trc: str, time_range: tuple[float, float],
                    labels: Sequence[str], weights: np.ndarray, output_motion: str, accuracy: float,
-                   priors: dict[str, float] | None = None) -> Path:
+                   priors: dict[str, float] | None = None, goal_file: str | None = None,
+                   goal_weights: dict[str, float] | None = None) -> Path:
     """``setup_ik.xml``: one marker task per label; errors reported to ``<name>_ik_marker_errors.sto``.
-    ``priors``: {coordinate: weight} of coordinate tasks pulling toward the default value (0)."""
+    ``priors``: {coordinate: weight} of coordinate tasks pulling toward the default value (0);
+    ``goal_weights``: {coordinate: weight} of coordinate tasks pulling toward the values in
+    ``goal_file`` (the tool's coordinate file, see :func:`write_coordinate_goals`; OpenSim's setup
+    holds one weight per task, so frames whose weight differs get this one in a re-run)."""
     osim = require_opensim()
     tool = osim.InverseKinematicsTool()
     tool.setName("spinemocap")
@@ -174,6 +180,17 @@ def write_ik_setup(folder: Path, model_file: str, trc: str, time_range: tuple[fl
         task.setWeight(float(weight))
         task.setValueType(osim.IKCoordinateTask.DefaultValue)
         tasks.cloneAndAppend(task)
+    for coordinate, weight in (goal_weights or {}).items():
+        task = osim.IKCoordinateTask()
+        task.setName(coordinate)
+        task.setApply(True)
+        task.setWeight(float(weight))
+        task.setValueType(osim.IKCoordinateTask.FromFile)
+        tasks.cloneAndAppend(task)
+    if goal_weights:
+        if goal_file is None:
+            raise ValueError("coordinate goals from a file need goal_file")
+        tool.setCoordinateFileName(goal_file)
     path = folder / "setup_ik.xml"
     tool.printToXML(str(path))
     return path
@@ -415,6 +432,15 @@ def _better_of_two_starts(solver, state, coordinate_list: list, from_previous: n
         c.setValue(state, float(value), False)
     solver.assemble(state)  # back onto the previous-start solution (already converged: one step)
     return np.array([c.getValue(state) for c in coordinate_list])
+
+
+def write_coordinate_goals(path: Path, times: np.ndarray, goals: dict[str, CoordinateGoal]) -> None:
+    """The goals' values per frame (coordinate units: m for translations) as an OpenSim storage
+    file, the coordinate file ``setup_ik.xml`` names for its ``FromFile`` coordinate tasks."""
+    osim = require_opensim()
+    names = list(goals)
+    _write_sto(osim, path, times, names, np.column_stack([goals[n].values for n in names]),
+               {"inDegrees": "no", "DataType": "double"})
 
 
 def write_ik_outputs(folder: Path, solution: IKSolution, motion: str = "ik.mot",

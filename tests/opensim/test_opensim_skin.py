@@ -73,6 +73,42 @@ def test_a_laterally_bent_tape_keeps_its_rows_square_to_the_midline():
     np.testing.assert_allclose(out, [_bend(lateral=20.0), _bend(twist=15.0)], atol=0.1)
 
 
+def _opensim_axes(dots: np.ndarray) -> np.ndarray:
+    from spinemocap.opensim.geometry import opensim_axes, to_opensim
+
+    return to_opensim(dots, opensim_axes(UP, FACING))
+
+
+def test_the_geometric_slip_is_the_skin_lengthening_less_depth_times_forward_turn():
+    from spinemocap.opensim.skin_model import geometric_slips
+
+    static = _opensim_axes(_bend())
+    depth = np.full(TAPE.n_rows, 40.0)
+    # bending sideways or twisting keeps the midline's length: no slip at any joint depth
+    sideways = _opensim_axes(np.array([_bend(lateral=20.0), _bend(twist=15.0)]))
+    assert np.abs(geometric_slips(sideways, static, TAPE, depth, 0)).max() < 0.2
+    # a forward bend of 30 deg between rows 1 and 11 (the rod keeps its length): skin over joints
+    # 40 mm deep must slide down by 40 mm x 30 deg against the vertebrae; a rod without depth not at all
+    bent = _opensim_axes(_bend(flexion=30.0))[None]
+    assert np.abs(geometric_slips(bent, static, TAPE, 0.0 * depth, 0)).max() < 0.2
+    slips = geometric_slips(bent, static, TAPE, depth, 0)[0]
+    assert slips[10:] == pytest.approx(-40.0 * np.radians(30.0), abs=0.5)
+    assert slips[0] == 0.0 and np.all(np.diff(slips[:11]) < 0.0)
+
+
+def test_a_known_slip_is_read_from_the_tape_and_a_row_unseen_in_a_frame_from_its_neighbours():
+    from spinemocap.opensim.skin_model import geometric_slips
+
+    dots, slip = _slipped(3)
+    hidden = dots.copy()
+    hidden[1, TAPE.graph.row == 6] = np.nan
+    hidden[2, TAPE.graph.row == 0] = np.nan  # the reference: that frame has no estimate
+    depth = np.full(TAPE.n_rows, 40.0)
+    estimate = geometric_slips(_opensim_axes(hidden), _opensim_axes(_bend()), TAPE, depth, 0)
+    np.testing.assert_allclose(estimate[:2], slip[:2], atol=0.2)  # rows slid along the static tangents
+    assert np.isnan(estimate[2]).all()
+
+
 def _run(markers: MarkerTable, out, up=UP, facing=FACING, **settings):
     from spinemocap.opensim import OpenSimSettings, run_opensim
 
@@ -124,15 +160,19 @@ def test_a_known_slip_is_solved_by_the_slip_coordinates_and_the_model_names_them
         assert c.getRangeMax() == pytest.approx(prior.limit_mm / 1000) and not c.getDefaultLocked()
         assert model.getMarkerSet().get(f"R{r + 1:02d}L").getParentFrameName().endswith(f"R{r + 1:02d}_skin")
     assert not model.getCoordinateSet().contains(slip_coordinate(1))  # pinned
-    # ... its prior named beside each coordinate and as an IK coordinate task in OpenSim's own setup
+    # ... its prior named beside each coordinate and as an IK coordinate task in OpenSim's own setup,
+    # whose goal per frame (the coordinate file) is the slip the tape shows: here the known one
     text = (result.out_dir / "model.osim").read_text()
-    assert text.count(f"SD {prior.sd_mm:g} mm") == TAPE.n_rows - 2
+    assert text.count(f"SD {prior.estimate_sd_mm:g} mm") == text.count(f"SD {prior.sd_mm:g} mm") == TAPE.n_rows - 2
     tool = osim.InverseKinematicsTool(str(result.out_dir / "setup_ik.xml"))
+    assert tool.getCoordinateFileName() == "skin_slip_goals.sto"
     tasks = tool.getIKTaskSet()
+    _, goal_labels, goals, _ = read_storage(result.out_dir / "skin_slip_goals.sto")
     for r in range(2, TAPE.n_rows):
-        task = tasks.get(slip_coordinate(r))
-        assert task.getConcreteClassName() == "IKCoordinateTask"
-        assert task.getWeight() == pytest.approx(prior.weight)
+        task = osim.IKCoordinateTask.safeDownCast(tasks.get(slip_coordinate(r)))
+        assert task.getValueType() == osim.IKCoordinateTask.FromFile
+        assert task.getWeight() == pytest.approx(prior.estimate_weight)
+        np.testing.assert_allclose(1000 * goals[:, goal_labels.index(slip_coordinate(r))], slip[:, r], atol=0.2)
 
 
 def _turn(points: np.ndarray, degrees: float) -> np.ndarray:
