@@ -303,9 +303,11 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
 def _slip_goals(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, placed: _Placed,
                 prior: SlipPrior | None) -> dict[str, CoordinateGoal]:
     """Per-frame IK goals (m) of the slipping rows: the slip the tape shows
-    (:func:`skin_model.geometric_slips`, relative to the mean of the pinned rows) with weight
-    :attr:`SlipPrior.estimate_weight`; 0 with :attr:`SlipPrior.weight` where it is unknown, or
-    in every frame when ``prior.estimate_sd_mm`` is None. Empty without slip."""
+    (:func:`skin_model.geometric_slips` from the measured dots, relative to the mean of the
+    pinned rows) with weight :attr:`SlipPrior.estimate_weight`; beyond the rows measured in a
+    frame the slip of the nearest measured row (it grows up the tape, so this is a floor), with the
+    wide :attr:`SlipPrior.weight`; 0 with that weight in frames without an estimate, or in every
+    frame when ``prior.estimate_sd_mm`` is None. Empty without slip."""
     if prior is None or not placed.slipping:
         return {}
     F = len(positions)
@@ -318,8 +320,20 @@ def _slip_goals(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, place
             slips = slips - np.nanmean(slips[:, pinned], axis=1, keepdims=True)
     known = np.isfinite(slips)
     weights = np.where(known, prior.estimate_weight, prior.weight)
-    values = np.clip(np.where(known, slips, 0.0), -prior.limit_mm, prior.limit_mm) / 1000.0
+    values = np.clip(_hold_nearest(slips), -prior.limit_mm, prior.limit_mm) / 1000.0
     return {slip_coordinate(r): CoordinateGoal(values[:, r], weights[:, r]) for r in placed.slipping}
+
+
+def _hold_nearest(values: np.ndarray) -> np.ndarray:
+    """(F, R) with each frame's NaNs beyond its finite values set to the nearest finite one (0 in a
+    frame without any)."""
+    out = np.zeros_like(values)
+    rows = np.arange(values.shape[1])
+    for f, row in enumerate(values):
+        known = np.isfinite(row)
+        if known.any():
+            out[f] = np.interp(rows, rows[known], row[known])
+    return out
 
 
 def _priors(plan: ModelPlan, settings: OpenSimSettings) -> dict[str, float]:

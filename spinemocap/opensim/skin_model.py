@@ -157,8 +157,8 @@ def geometric_slips(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, d
     twisting leave the midline's length alone). ``positions`` (F, D, 3), ``static`` (D, 3):
     OpenSim ground, mm, NaN = not to be used. In each frame only the rows seen there and in the
     static trial count (a gap is bridged by the chord, in both); a row inside a gap gets the slip
-    interpolated from its neighbours; NaN in frames without ``reference`` and beyond the highest
-    seen row (below ``reference``: the same sum downward, negative = caudal)."""
+    interpolated from its neighbours; NaN beyond the highest (lowest) seen row and in frames
+    without ``reference`` (below ``reference``: the same sum downward)."""
     left, right = row_sides(positions, tape)
     s_left, s_right = row_sides(static[None], tape)
     out = np.full(positions.shape[:1] + (tape.n_rows,), np.nan)
@@ -176,9 +176,8 @@ def geometric_slips(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, d
                    - _lengthening(before[0][index], before[1][index], before[2][index], depth))  # between seen rows
         along = np.concatenate([[0.0], np.cumsum(stretch)])
         along -= along[np.searchsorted(index, reference)]
-        inside = rows <= index[-1]
-        out[f, inside] = np.interp(rows[inside], index, along, left=np.nan)
-        out[f, : index[0]] = np.nan
+        inside = (rows >= index[0]) & (rows <= index[-1])
+        out[f, inside] = np.interp(rows[inside], index, along)
     return out
 
 

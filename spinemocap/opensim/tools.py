@@ -38,6 +38,15 @@ INFERRED_SD_MM = 10.0
 # RMSE 1.3 -> 3.5 deg); with the goals at the slip the tape shows (pipeline._slip_goals) it is not.
 # Each tenth costs several times the time per frame.
 IK_ACCURACY = 1e-6
+# A solve from far off (the static pose, see _better_of_two_starts) first runs to this accuracy
+# (OpenSim's default), then on to IK_ACCURACY: straight to 1e-6 from there took up to ~100x longer
+# on a studio capture bending three ways at once, to the same solution.
+START_ACCURACY = 1e-5
+# The solution from the static pose is kept unless the previous frame's start ends with an objective
+# lower by more than this share (1 = half the static start's): along the valleys the markers hardly
+# see the two starts end in different places a little apart in objective (up to ~20 % on a bent
+# rod), and choosing between them by that would make the angles depend on the path.
+FRESH_START_MARGIN = 1.0
 
 
 def require_opensim():
@@ -378,14 +387,14 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
         # a full solve from the coordinates held in the state: the previous frame's solution (the
         # first frame's from the default pose, the static trial's); Assembler::track's few steps
         # stopped short of the solution at 12 frames/s
-        solver.assemble(state)
+        _assemble(solver, state, accuracy, far=f == 0)
         if f == 0:
             order = [solver.getMarkerNameForIndex(i) for i in range(solver.getNumMarkersInUse())]
         values[f] = [c.getValue(state) for c in coordinate_list]
         in_order = [column[name] for name in order]
         if f > 0 and restart:
             values[f] = _better_of_two_starts(solver, state, coordinate_list, values[f], goal_weights,
-                                              np.where(present[f, in_order], weights[f, in_order], 0.0))
+                                              np.where(present[f, in_order], weights[f, in_order], 0.0), accuracy)
         solver.computeCurrentMarkerErrors(errors)
         err = np.array([errors.getElt(i) for i in range(errors.size())])
         used = present[f, in_order] & np.isfinite(err)
@@ -399,6 +408,16 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
     rotational = np.array([c.getMotionType() == osim.Coordinate.Rotational for c in coordinate_list])
     return IKSolution(np.asarray(times, float), [c.getName() for c in coordinate_list], values, rotational,
                       rms, worst, count, time.perf_counter() - started, observed_rms)
+
+
+def _assemble(solver, state, accuracy: float, far: bool) -> None:
+    """Solve from the coordinates in ``state`` to ``accuracy``; from ``far`` off, to
+    :data:`START_ACCURACY` first."""
+    if far and accuracy < START_ACCURACY:
+        solver.setAccuracy(START_ACCURACY)
+        solver.assemble(state)
+        solver.setAccuracy(float(accuracy))
+    solver.assemble(state)
 
 
 def _goal_at(goal: CoordinateGoal, frame: int) -> tuple[float, float]:
@@ -416,17 +435,22 @@ def _ik_cost(solver, state, goal_weights: list, marker_weights: np.ndarray) -> f
 
 
 def _better_of_two_starts(solver, state, coordinate_list: list, from_previous: np.ndarray, goal_weights: list,
-                          marker_weights: np.ndarray) -> np.ndarray:
-    """Solve the frame again from the default pose (the static trial) and keep whichever of the two
-    solutions has the lower objective; ``state`` is left at the kept one. Along the directions the
-    markers hardly see (a pelvis turn against the levels' axial rotations) a solve from the previous
-    frame stops wherever the solver's tolerance is met, so the solution would depend on the path."""
+                          marker_weights: np.ndarray, accuracy: float) -> np.ndarray:
+    """Solve the frame again from the default pose (the static trial) and keep that solution unless
+    the one from the previous frame has an objective lower by more than :data:`FRESH_START_MARGIN`
+    (a far bend the static start cannot reach); ``state`` is left at the kept one. Along the
+    directions the markers hardly see (a pelvis turn against the levels' axial rotations) a solve
+    from the previous frame stops wherever the solver's tolerance is met, so the solution would
+    depend on the path; where both starts end equally good, the static start's does not.
+    The solve from the default pose runs to :data:`START_ACCURACY` first, then to ``accuracy``."""
     cost_previous = _ik_cost(solver, state, goal_weights, marker_weights)
     for c in coordinate_list:
         c.setValue(state, c.getDefaultValue(), False)
-    solver.assemble(state)
+    for c, _, goal in goal_weights:  # a coordinate with a goal starts at it
+        c.setValue(state, goal, False)
+    _assemble(solver, state, accuracy, far=True)
     fresh = np.array([c.getValue(state) for c in coordinate_list])
-    if _ik_cost(solver, state, goal_weights, marker_weights) <= cost_previous:
+    if _ik_cost(solver, state, goal_weights, marker_weights) <= (1.0 + FRESH_START_MARGIN) * cost_previous:
         return fresh
     for c, value in zip(coordinate_list, from_previous):
         c.setValue(state, float(value), False)

@@ -172,7 +172,9 @@ def test_a_known_slip_is_solved_by_the_slip_coordinates_and_the_model_names_them
         task = osim.IKCoordinateTask.safeDownCast(tasks.get(slip_coordinate(r)))
         assert task.getValueType() == osim.IKCoordinateTask.FromFile
         assert task.getWeight() == pytest.approx(prior.estimate_weight)
-        np.testing.assert_allclose(1000 * goals[:, goal_labels.index(slip_coordinate(r))], slip[:, r], atol=0.2)
+        # rows slid along the static tangents turn the curving rod's discrete tangents a little: a few %
+        np.testing.assert_allclose(1000 * goals[:, goal_labels.index(slip_coordinate(r))], slip[:, r], rtol=0.1,
+                                   atol=0.1)
 
 
 def _turn(points: np.ndarray, degrees: float) -> np.ndarray:
