@@ -68,6 +68,7 @@ from .tools import (
     IK_ACCURACY,
     INFERRED_SD_MM,
     OBSERVED_SD_MM,
+    START_ACCURACY,
     CoordinateGoal,
     marker_locations,
     marker_weights,
@@ -294,7 +295,13 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
     write_ik_setup(work, "model.osim", "markers_opensim.trc", (float(times[0]), float(times[-1])), labels,
                    mean_weights(weights), "ik.mot", accuracy, priors, SLIP_GOALS,
                    {name: float(np.max(g.weights)) for name, g in chosen_goals.items()})
-    solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy, restart,
+    # a frame where a slipping row has no slip estimate is solved to OpenSim's default accuracy:
+    # there only guessed (inferred) dots place the rows above, and a tight solve chases the guesses
+    unknown = np.zeros(len(frames), bool)
+    for g in chosen_goals.values():
+        unknown |= g.weights < np.max(g.weights)
+    frame_accuracy = np.where(unknown, max(accuracy, START_ACCURACY), accuracy)
+    solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, frame_accuracy, restart,
                         data.status[frames][:, placed] == "observed", chosen_goals)
     write_ik_outputs(work, solution)
     return solution.seconds

@@ -331,7 +331,8 @@ class CoordinateGoal:
 
 
 def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positions_mm: np.ndarray,
-             weights: np.ndarray, priors: dict[str, float] | None = None, accuracy: float = IK_ACCURACY,
+             weights: np.ndarray, priors: dict[str, float] | None = None,
+             accuracy: float | np.ndarray = IK_ACCURACY,
              restart: bool = True, observed: np.ndarray | None = None,
              goals: dict[str, CoordinateGoal] | None = None) -> IKSolution:
     """OpenSim's ``InverseKinematicsSolver`` on every frame of ``positions_mm`` (F, D, 3; OpenSim
@@ -339,7 +340,8 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
     started from the previous frame's solution (the first from the model's default pose, where it
     was built: the static trial) and, with ``restart``, from the default pose too, keeping the
     solution with the lower objective. ``observed`` (F, D) bool: the measured samples, over which
-    ``observed_rms_mm`` is taken (default: all present). ``priors``: {coordinate: weight} of coordinate goals toward the
+    ``observed_rms_mm`` is taken (default: all present); ``accuracy``: the solver's, one or (F,)
+    per frame. ``priors``: {coordinate: weight} of coordinate goals toward the
     coordinate's default value (weight per unit^2, beside marker errors in m^2); ``goals``: coordinate
     goals whose value and weight change per frame (:class:`CoordinateGoal`). Coordinates the model
     clamps stay inside their ranges."""
@@ -364,7 +366,7 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
         goal.setWeight(weight)
         references.push_back(goal)
     solver = osim.InverseKinematicsSolver(model, reference, references)
-    solver.setAccuracy(float(accuracy))
+    frame_accuracy = np.broadcast_to(np.asarray(accuracy, float), (F,))
     column = {label: d for d, label in enumerate(labels)}
     coordinate_list = [coords.get(i) for i in range(coords.getSize())]
     values = np.zeros((F, len(coordinate_list)))
@@ -387,14 +389,16 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
         # a full solve from the coordinates held in the state: the previous frame's solution (the
         # first frame's from the default pose, the static trial's); Assembler::track's few steps
         # stopped short of the solution at 12 frames/s
-        _assemble(solver, state, accuracy, far=f == 0)
+        solver.setAccuracy(float(frame_accuracy[f]))
+        _assemble(solver, state, float(frame_accuracy[f]), far=f == 0)
         if f == 0:
             order = [solver.getMarkerNameForIndex(i) for i in range(solver.getNumMarkersInUse())]
         values[f] = [c.getValue(state) for c in coordinate_list]
         in_order = [column[name] for name in order]
         if f > 0 and restart:
             values[f] = _better_of_two_starts(solver, state, coordinate_list, values[f], goal_weights,
-                                              np.where(present[f, in_order], weights[f, in_order], 0.0), accuracy)
+                                              np.where(present[f, in_order], weights[f, in_order], 0.0),
+                                              float(frame_accuracy[f]))
         solver.computeCurrentMarkerErrors(errors)
         err = np.array([errors.getElt(i) for i in range(errors.size())])
         used = present[f, in_order] & np.isfinite(err)
