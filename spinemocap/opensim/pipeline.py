@@ -25,7 +25,8 @@ lengthening shows in that frame (:mod:`skin_model`); the model is built
 placement is checked against the anatomy (:func:`check_placement`); OpenSim's IK solver runs frame
 by frame (:func:`tools.solve_ik`: per-sample marker weights from the label confidence, inferred
 dots down-weighted as far less certain (:func:`tools.marker_weights`), each frame solved from the
-previous one's solution and from the static pose with the lower objective kept, joints clamped to
+previous one's solution and from the static pose, the static start's kept unless the other's objective
+is less than half, joints clamped to
 their published ranges). Missing
 samples stay NaN (skipped per frame); frames the result cannot vouch for are flagged in the CSV,
 the summary and the plot.
@@ -104,7 +105,8 @@ PROJECT_NAME = {"extension": "flexion", "lateral_bending": "lateral", "axial_rot
 @dataclass(frozen=True)
 class OpenSimSettings:
     """``static_frames``: frames from the start averaged as the static trial (when no static file);
-    ``accuracy``: IK solver accuracy (:data:`tools.IK_ACCURACY`, OpenSim's default); ``depth_scale``: factor on the
+    ``accuracy``: IK solver accuracy (:data:`tools.IK_ACCURACY`; frames where a slipping row has
+    no slip estimate are solved to at most :data:`tools.START_ACCURACY`); ``depth_scale``: factor on the
     published skin-to-vertebral-body depths (1 = the published adult values, scaled to the
     subject's column length by the tape), ``depth_source``: where that depth comes from (written
     to ``summary.json``); ``coupling``: see :func:`spinemocap.opensim.model.plan_model`;
@@ -113,7 +115,7 @@ class OpenSimSettings:
     (:func:`skin_model.normalise_row_tilt`); ``slip``: the rows' slip and its prior
     (:class:`skin_model.SlipPrior`), None = every marker fixed to its vertebra;
     ``restart_from_static``: every frame solved from the previous solution and from the static
-    pose, the lower objective kept (:func:`tools.solve_ik`)."""
+    pose, the static start's kept unless the other's objective is far lower (:func:`tools.solve_ik`)."""
 
     static_frames: int = 10
     accuracy: float = IK_ACCURACY
@@ -125,7 +127,7 @@ class OpenSimSettings:
     prior_weight: float = 0.0
     normalise_tilt: bool = True
     slip: SlipPrior | None = SlipPrior()
-    # every frame also solved from the static pose, keeping the lower objective (see tools.solve_ik)
+    # every frame also solved from the static pose, kept unless far worse (see tools.solve_ik)
     restart_from_static: bool = True
     # position SD (mm) of an inferred dot against an observed one's 1 mm (tools.marker_weights)
     inferred_sd_mm: float = INFERRED_SD_MM
@@ -276,16 +278,18 @@ def place_markers(work: Path, labels: list[str], placed: np.ndarray, static: Sta
 
 
 def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: TapeMarkers, frames: np.ndarray,
-                       accuracy: float, priors: dict[str, float] | None = None,
+                       accuracy: float | np.ndarray, priors: dict[str, float] | None = None,
                        positions: np.ndarray | None = None, restart: bool = True,
                        inferred_sd_mm: float = INFERRED_SD_MM, goals: dict[str, CoordinateGoal] | None = None) -> float:
     """``markers_opensim.trc`` (the given frames, the ``placed`` dots named ``labels``; the
     markers as given, or ``positions`` (F, D, 3) mm in their place: the skin-corrected ones),
     ``setup_ik.xml`` on ``model.osim`` (one mean weight per marker: a re-run in the GUI), and IK
     solved frame by frame (:func:`tools.solve_ik`) into ``ik.mot`` and ``ik_marker_errors.sto``;
-    returns IK seconds."""
+    returns IK seconds. ``accuracy``: the solver's, one or per frame of ``data`` (the setup file
+    holds the tightest)."""
     source = data.positions if positions is None else positions
     chosen = source[frames][:, placed]
+    accuracy = np.broadcast_to(np.asarray(accuracy, float), data.times.shape)  # per frame of data
     times = data.times[frames]
     write_trc(work / "markers_opensim.trc", labels, times, chosen, data.fps)
     weights = data.weights(inferred_sd_mm)[frames][:, placed]
@@ -293,15 +297,9 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
     if chosen_goals:
         write_coordinate_goals(work / SLIP_GOALS, times, chosen_goals)
     write_ik_setup(work, "model.osim", "markers_opensim.trc", (float(times[0]), float(times[-1])), labels,
-                   mean_weights(weights), "ik.mot", accuracy, priors, SLIP_GOALS,
+                   mean_weights(weights), "ik.mot", float(accuracy[frames].min()), priors, SLIP_GOALS,
                    {name: float(np.max(g.weights)) for name, g in chosen_goals.items()})
-    # a frame where a slipping row has no slip estimate is solved to OpenSim's default accuracy:
-    # there only guessed (inferred) dots place the rows above, and a tight solve chases the guesses
-    unknown = np.zeros(len(frames), bool)
-    for g in chosen_goals.values():
-        unknown |= g.weights < np.max(g.weights)
-    frame_accuracy = np.where(unknown, max(accuracy, START_ACCURACY), accuracy)
-    solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, frame_accuracy, restart,
+    solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy[frames], restart,
                         data.status[frames][:, placed] == "observed", chosen_goals)
     write_ik_outputs(work, solution)
     return solution.seconds
@@ -329,6 +327,17 @@ def _slip_goals(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, place
     weights = np.where(known, prior.estimate_weight, prior.weight)
     values = np.clip(_hold_nearest(slips), -prior.limit_mm, prior.limit_mm) / 1000.0
     return {slip_coordinate(r): CoordinateGoal(values[:, r], weights[:, r]) for r in placed.slipping}
+
+
+def _frame_accuracy(goals: dict[str, CoordinateGoal], settings: OpenSimSettings) -> float | np.ndarray:
+    """The IK accuracy of every frame: ``settings.accuracy``, but at most :data:`tools.START_ACCURACY`
+    (OpenSim's default) in a frame where a slipping row has no slip estimate: there only guessed
+    (inferred) dots place that row, and a tight solve chases the guesses."""
+    prior = settings.slip
+    if prior is None or prior.estimate_sd_mm is None or not goals:
+        return settings.accuracy
+    unknown = np.any([g.weights < prior.estimate_weight for g in goals.values()], axis=0)
+    return np.where(unknown, max(settings.accuracy, START_ACCURACY), settings.accuracy)
 
 
 def _hold_nearest(values: np.ndarray) -> np.ndarray:
@@ -390,7 +399,7 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
         measured = np.where((data.status == "observed")[..., None], positions, np.nan)  # inferred dots are guesses
         slip_goals = _slip_goals(measured, st.positions, tape, placed, settings.slip)
         ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
-                                        settings.accuracy, _priors(placed.plan, settings),
+                                        _frame_accuracy(slip_goals, settings), _priors(placed.plan, settings),
                                         positions, settings.restart_from_static, settings.inferred_sd_mm,
                                         slip_goals)
         angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
@@ -564,8 +573,11 @@ def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np
         "placement": placed.placement,
         "region_ranges_deg": ranges,
         "ik_accuracy": settings.accuracy,
+        "ik_accuracy_note": (f"frames where a slipping row has no slip estimate (its dots not measured) are solved to "
+                             f"{max(settings.accuracy, START_ACCURACY):g}") if settings.slip is not None else "",
         "ik": "OpenSim InverseKinematicsSolver frame by frame: each frame from the previous solution"
-              + (" and from the static pose, the lower objective kept" if settings.restart_from_static else "")
+              + (" and from the static pose, the static start's kept unless the other's objective is less than half"
+                 if settings.restart_from_static else "")
               + ", marker weights = label confidence squared per sample, an inferred dot's divided by "
               f"({settings.inferred_sd_mm:g} mm / {OBSERVED_SD_MM:g} mm)^2 (its assumed position SD against an "
               f"observed dot's), joints clamped to {RANGE_FACTOR:g} x their published ranges",

@@ -42,8 +42,8 @@ IK_ACCURACY = 1e-6
 # (OpenSim's default), then on to IK_ACCURACY: straight to 1e-6 from there took up to ~100x longer
 # on a studio capture bending three ways at once, to the same solution.
 START_ACCURACY = 1e-5
-# The solution from the static pose is kept unless the previous frame's start ends with an objective
-# lower by more than this share (1 = half the static start's): along the valleys the markers hardly
+# The solution from the static pose is kept unless its objective exceeds (1 + this) x the previous
+# frame's start's (1: twice): along the valleys the markers hardly
 # see the two starts end in different places a little apart in objective (up to ~20 % on a bent
 # rod), and choosing between them by that would make the angles depend on the path.
 FRESH_START_MARGIN = 1.0
@@ -339,7 +339,8 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
     ground, mm; NaN = missing), each marker weighted per frame by ``weights`` (F, D) and each frame
     started from the previous frame's solution (the first from the model's default pose, where it
     was built: the static trial) and, with ``restart``, from the default pose too, keeping the
-    solution with the lower objective. ``observed`` (F, D) bool: the measured samples, over which
+    static start's solution unless its objective exceeds (1 + :data:`FRESH_START_MARGIN`) x the
+    other's. ``observed`` (F, D) bool: the measured samples, over which
     ``observed_rms_mm`` is taken (default: all present); ``accuracy``: the solver's, one or (F,)
     per frame. ``priors``: {coordinate: weight} of coordinate goals toward the
     coordinate's default value (weight per unit^2, beside marker errors in m^2); ``goals``: coordinate
@@ -441,8 +442,8 @@ def _ik_cost(solver, state, goal_weights: list, marker_weights: np.ndarray) -> f
 def _better_of_two_starts(solver, state, coordinate_list: list, from_previous: np.ndarray, goal_weights: list,
                           marker_weights: np.ndarray, accuracy: float) -> np.ndarray:
     """Solve the frame again from the default pose (the static trial) and keep that solution unless
-    the one from the previous frame has an objective lower by more than :data:`FRESH_START_MARGIN`
-    (a far bend the static start cannot reach); ``state`` is left at the kept one. Along the
+    its objective exceeds (1 + :data:`FRESH_START_MARGIN`) x the previous frame's start's (a far
+    bend the static start cannot reach); ``state`` is left at the kept one. Along the
     directions the markers hardly see (a pelvis turn against the levels' axial rotations) a solve
     from the previous frame stops wherever the solver's tolerance is met, so the solution would
     depend on the path; where both starts end equally good, the static start's does not.
