@@ -17,12 +17,11 @@ For ``mixed`` all three angles are scored.
 The peer measures the same two rows with :func:`spinemocap.analysis.angles.compute_angles`.
 
 Methods per run (same markers, same rows): ``ik`` (the pipeline: row tilt normalised, rows
-slipping with their goal at the slip the tape's lengthening shows, each frame solved from the
-previous solution and from the static pose, inferred dots down-weighted), ``ik_zero_slip_prior``
-(the same with every slip's goal at 0, SD :attr:`~spinemocap.opensim.skin_model.SlipPrior.sd_mm`,
-solved at OpenSim's default accuracy :data:`OPENSIM_DEFAULT_ACCURACY` whatever ``accuracy`` says:
-the markers alone hardly tell slip from forward bending, so a tighter accuracy lets that model
-drift along the valley), ``ik_one_start`` (the same skin model, each frame solved from the
+slipping with their prior toward 0, each frame solved from the previous solution and from the
+static pose, inferred dots down-weighted), ``ik_slip_from_tape``
+(:func:`spinemocap.opensim.pipeline.slip_from_tape`: the slips' goals at the slip the tape's
+lengthening shows, solved to 1e-6 whatever ``accuracy`` says), ``ik_one_start`` (the pipeline's
+skin model, each frame solved from the
 previous solution only, inferred dots weighed as observed ones), ``ik_rigid`` (every marker fixed
 to its vertebra, tilt as measured, one start, inferred as observed: the pipeline without the skin
 model) and ``geometric``; ``methods`` picks the IK ones that run. Marker RMS is over the observed (measured) dots; ``marker_rms_all_mm``
@@ -44,20 +43,20 @@ from typing import Any
 
 import numpy as np
 
-from ..opensim.skin_model import SlipPrior
+from ..opensim.pipeline import slip_from_tape
 from ..opensim.tools import IK_ACCURACY, OBSERVED_SD_MM
 
 MOTIONS = ("flexion", "lateral", "rotation", "mixed")
 AXES = ("flexion", "lateral", "rotation")
 GOALS = {"marker_rms_mm": 2.0, "flexion_rmse_deg": 2.0, "lateral_rmse_deg": 2.0, "rotation_rmse_deg": 3.0}
-OPENSIM_DEFAULT_ACCURACY = 1e-5  # OpenSim's InverseKinematicsTool default
-# the peers: every slip's goal at 0 (OpenSim's default accuracy); the skin model with each frame
+# the peers: the slips' goals at the tape's slip (its own accuracy); the skin model with each frame
 # solved only from the previous solution and inferred dots weighed as observed ones; every marker
 # fixed to its vertebra (one start, inferred as observed)
-ZERO_SLIP_PRIOR: dict[str, Any] = {"slip": SlipPrior(estimate_sd_mm=None), "accuracy": OPENSIM_DEFAULT_ACCURACY}
+SLIP_FROM_TAPE: dict[str, Any] = {name: getattr(slip_from_tape(), name)
+                                  for name in ("slip", "accuracy", "fresh_start_margin")}
 ONE_START: dict[str, Any] = {"restart_from_static": False, "inferred_sd_mm": OBSERVED_SD_MM}
 RIGID: dict[str, Any] = {"slip": None, "normalise_tilt": False, **ONE_START}
-IK_METHODS: dict[str, dict[str, Any]] = {"ik": {}, "ik_zero_slip_prior": ZERO_SLIP_PRIOR, "ik_one_start": ONE_START,
+IK_METHODS: dict[str, dict[str, Any]] = {"ik": {}, "ik_slip_from_tape": SLIP_FROM_TAPE, "ik_one_start": ONE_START,
                                          "ik_rigid": RIGID}
 METHODS = (*IK_METHODS, "geometric")
 BODY_MODEL_DEPTH = "the studio body's spine joints (anny) under the tape rows, static trial"
@@ -72,7 +71,7 @@ def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[st
     ``<motion>/seed<seed>``), the headline numbers and the goals; ``cache``: folder to keep and
     reuse the tracked markers; ``realism``: the studio's level (``lab``: tension, skin strain,
     tracking through the lab's inexact rig); ``accuracy``: the IK solver accuracy of every IK
-    method but ``ik_zero_slip_prior`` (:attr:`spinemocap.opensim.OpenSimSettings.accuracy`);
+    method but ``ik_slip_from_tape`` (:attr:`spinemocap.opensim.OpenSimSettings.accuracy`);
     ``methods``: the IK methods to run (keys of :data:`IK_METHODS`; the geometric peer always runs)."""
     from ..fileio import InputError
 

@@ -41,7 +41,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -131,6 +131,17 @@ class OpenSimSettings:
     restart_from_static: bool = True
     # position SD (mm) of an inferred dot against an observed one's 1 mm (tools.marker_weights)
     inferred_sd_mm: float = INFERRED_SD_MM
+    # the static start's solution kept unless its objective exceeds (1 + this) x the previous start's
+    fresh_start_margin: float = 0.0
+
+
+def slip_from_tape(settings: OpenSimSettings = OpenSimSettings()) -> OpenSimSettings:
+    """``settings`` with the slips' goals at the slip the tape's lengthening shows
+    (:func:`skin_model.geometric_slips`, SD 3 mm), solved to 1e-6 (frames where a slipping row has
+    no estimate to :data:`tools.START_ACCURACY`), the static start kept unless the previous
+    frame's objective is less than half of its own."""
+    return replace(settings, slip=replace(settings.slip or SlipPrior(), estimate_sd_mm=3.0), accuracy=1e-6,
+                   fresh_start_margin=1.0)
 
 
 @dataclass
@@ -280,7 +291,8 @@ def place_markers(work: Path, labels: list[str], placed: np.ndarray, static: Sta
 def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: TapeMarkers, frames: np.ndarray,
                        accuracy: float | np.ndarray, priors: dict[str, float] | None = None,
                        positions: np.ndarray | None = None, restart: bool = True,
-                       inferred_sd_mm: float = INFERRED_SD_MM, goals: dict[str, CoordinateGoal] | None = None) -> float:
+                       inferred_sd_mm: float = INFERRED_SD_MM, goals: dict[str, CoordinateGoal] | None = None,
+                       fresh_start_margin: float = 0.0) -> float:
     """``markers_opensim.trc`` (the given frames, the ``placed`` dots named ``labels``; the
     markers as given, or ``positions`` (F, D, 3) mm in their place: the skin-corrected ones),
     ``setup_ik.xml`` on ``model.osim`` (one mean weight per marker: a re-run in the GUI), and IK
@@ -300,7 +312,7 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
                    mean_weights(weights), "ik.mot", float(accuracy[frames].min()), priors, SLIP_GOALS,
                    {name: float(np.max(g.weights)) for name, g in chosen_goals.items()})
     solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy[frames], restart,
-                        data.status[frames][:, placed] == "observed", chosen_goals)
+                        data.status[frames][:, placed] == "observed", chosen_goals, fresh_start_margin)
     write_ik_outputs(work, solution)
     return solution.seconds
 
@@ -401,7 +413,7 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
         ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
                                         _frame_accuracy(slip_goals, settings), _priors(placed.plan, settings),
                                         positions, settings.restart_from_static, settings.inferred_sd_mm,
-                                        slip_goals)
+                                        slip_goals, settings.fresh_start_margin)
         angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
         weights = mean_weights(data.weights(settings.inferred_sd_mm)[:, placed.placed])
         summary = _summary(data, placed, angles, flags, ik_seconds, facing_error, weights, settings, osim)

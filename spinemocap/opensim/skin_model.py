@@ -52,8 +52,8 @@ class SlipPrior:
     pinned: int = 2
     marker_sd_mm: float = 1.0
     # SD (mm) of the goal around the slip the tape's own lengthening shows (geometric_slips) in the
-    # frames where it is known; None = every frame's goal is 0 with SD sd_mm
-    estimate_sd_mm: float | None = 3.0
+    # frames where it is known (3 with --slip-from-tape); None = every frame's goal is 0 with SD sd_mm
+    estimate_sd_mm: float | None = None
 
     @property
     def weight(self) -> float:

@@ -29,24 +29,18 @@ INFERRED_CONFIDENCE = 0.6  # label confidence of an inferred dot when the table 
 # the tape model or filled in time): on the studio's deep bends inferred dots were 2-40 mm off
 OBSERVED_SD_MM = 1.0
 INFERRED_SD_MM = 10.0
-# IK solver accuracy (the SimTK assembler's tolerance), ten times tighter than OpenSim's default
-# (1e-5). The solver stops once this is met, short of the optimum along the directions the markers
-# hardly see: a twist shared between the pelvis and the levels is under-read by an amount that
-# depends on the start (about 0.6 of a studio trunk twist read at 1e-5, 0.87 at 1e-6, 0.95 at 1e-7).
-# Tightening it needs a well-posed skin model: with the slips' goals at 0 the markers hardly tell
-# slip from forward bending, and nearer the optimum forward bending was read worse (studio flexion
-# RMSE 1.3 -> 3.5 deg); with the goals at the slip the tape shows (pipeline._slip_goals) it is not.
-# Each tenth costs several times the time per frame.
-IK_ACCURACY = 1e-6
-# A solve from far off (the static pose, see _better_of_two_starts) first runs to this accuracy
-# (OpenSim's default), then on to IK_ACCURACY: straight to 1e-6 from there took up to ~100x longer
-# on a studio capture bending three ways at once, to the same solution.
+# IK solver accuracy (the SimTK assembler's tolerance; OpenSim's default). The solver stops once
+# this is met, short of the optimum along the directions the markers hardly see: a twist shared
+# between the pelvis and the levels is under-read by an amount that depends on the start (about
+# 0.6 of a studio trunk twist read at 1e-5, 0.87 at 1e-6, 0.95 at 1e-7); but nearer the optimum
+# the skin-slip model with its slips' goals at 0 reads forward bending worse (studio flexion RMSE
+# 1.3 -> 3.5 deg at 1e-6); with the goals at the slip the tape shows (SlipPrior.estimate_sd_mm) it
+# does not. Each tenth costs several times the time per frame.
+IK_ACCURACY = 1e-5
+# A solve from far off (the static pose, see _better_of_two_starts) first runs to this accuracy,
+# then on to a tighter one: straight to 1e-6 from there took up to ~100x longer on a studio capture
+# bending three ways at once, to the same solution.
 START_ACCURACY = 1e-5
-# The solution from the static pose is kept unless its objective exceeds (1 + this) x the previous
-# frame's start's (1: twice): along the valleys the markers hardly
-# see the two starts end in different places a little apart in objective (up to ~20 % on a bent
-# rod), and choosing between them by that would make the angles depend on the path.
-FRESH_START_MARGIN = 1.0
 
 
 def require_opensim():
@@ -334,12 +328,12 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
              weights: np.ndarray, priors: dict[str, float] | None = None,
              accuracy: float | np.ndarray = IK_ACCURACY,
              restart: bool = True, observed: np.ndarray | None = None,
-             goals: dict[str, CoordinateGoal] | None = None) -> IKSolution:
+             goals: dict[str, CoordinateGoal] | None = None, fresh_start_margin: float = 0.0) -> IKSolution:
     """OpenSim's ``InverseKinematicsSolver`` on every frame of ``positions_mm`` (F, D, 3; OpenSim
     ground, mm; NaN = missing), each marker weighted per frame by ``weights`` (F, D) and each frame
     started from the previous frame's solution (the first from the model's default pose, where it
     was built: the static trial) and, with ``restart``, from the default pose too, keeping the
-    static start's solution unless its objective exceeds (1 + :data:`FRESH_START_MARGIN`) x the
+    static start's solution unless its objective exceeds (1 + ``fresh_start_margin``) x the
     other's. ``observed`` (F, D) bool: the measured samples, over which
     ``observed_rms_mm`` is taken (default: all present); ``accuracy``: the solver's, one or (F,)
     per frame. ``priors``: {coordinate: weight} of coordinate goals toward the
@@ -399,7 +393,7 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
         if f > 0 and restart:
             values[f] = _better_of_two_starts(solver, state, coordinate_list, values[f], goal_weights,
                                               np.where(present[f, in_order], weights[f, in_order], 0.0),
-                                              float(frame_accuracy[f]))
+                                              float(frame_accuracy[f]), fresh_start_margin)
         solver.computeCurrentMarkerErrors(errors)
         err = np.array([errors.getElt(i) for i in range(errors.size())])
         used = present[f, in_order] & np.isfinite(err)
@@ -440,10 +434,11 @@ def _ik_cost(solver, state, goal_weights: list, marker_weights: np.ndarray) -> f
 
 
 def _better_of_two_starts(solver, state, coordinate_list: list, from_previous: np.ndarray, goal_weights: list,
-                          marker_weights: np.ndarray, accuracy: float) -> np.ndarray:
+                          marker_weights: np.ndarray, accuracy: float, margin: float) -> np.ndarray:
     """Solve the frame again from the default pose (the static trial) and keep that solution unless
-    its objective exceeds (1 + :data:`FRESH_START_MARGIN`) x the previous frame's start's (a far
-    bend the static start cannot reach); ``state`` is left at the kept one. Along the
+    its objective exceeds (1 + ``margin``) x the previous frame's start's (a far bend the static
+    start cannot reach; a margin keeps the choice from hanging on small differences along a valley
+    the markers hardly see); ``state`` is left at the kept one. Along the
     directions the markers hardly see (a pelvis turn against the levels' axial rotations) a solve
     from the previous frame stops wherever the solver's tolerance is met, so the solution would
     depend on the path; where both starts end equally good, the static start's does not.
@@ -455,7 +450,7 @@ def _better_of_two_starts(solver, state, coordinate_list: list, from_previous: n
         c.setValue(state, goal, False)
     _assemble(solver, state, accuracy, far=True)
     fresh = np.array([c.getValue(state) for c in coordinate_list])
-    if _ik_cost(solver, state, goal_weights, marker_weights) <= (1.0 + FRESH_START_MARGIN) * cost_previous:
+    if _ik_cost(solver, state, goal_weights, marker_weights) <= (1.0 + margin) * cost_previous:
         return fresh
     for c, value in zip(coordinate_list, from_previous):
         c.setValue(state, float(value), False)

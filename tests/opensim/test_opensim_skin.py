@@ -135,8 +135,14 @@ def test_a_known_slip_is_solved_by_the_slip_coordinates_and_the_model_names_them
     from spinemocap.opensim.skin_model import SlipPrior, slip_coordinate
     from spinemocap.opensim.tools import read_storage
 
+    from dataclasses import asdict
+
+    from spinemocap.opensim.pipeline import slip_from_tape
+
     dots, slip = _slipped()
-    result = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "out")
+    from_tape = {k: v for k, v in asdict(slip_from_tape()).items() if k in ("accuracy", "fresh_start_margin")}
+    result = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "out",
+                  slip=slip_from_tape().slip, **from_tape)
     times, labels, values, _ = read_storage(result.out_dir / "ik.mot")
     solved = np.column_stack([1000 * values[:, labels.index(slip_coordinate(r))] for r in range(2, TAPE.n_rows)])
     # mm; IK may share a little of a uniform lengthening with extension of the lordotic spine (both
@@ -153,7 +159,8 @@ def test_a_known_slip_is_solved_by_the_slip_coordinates_and_the_model_names_them
     # the model opens in OpenSim's API with its slip coordinates, clamped to the prior's limit ...
     model = osim.Model(str(result.out_dir / "model.osim"))
     model.initSystem()
-    prior = SlipPrior()
+    prior = slip_from_tape().slip
+    assert isinstance(prior, SlipPrior) and prior.estimate_sd_mm is not None
     for r in range(2, TAPE.n_rows):
         c = model.getCoordinateSet().get(slip_coordinate(r))
         assert c.getMotionType() == osim.Coordinate.Translational and c.getDefaultClamped()
