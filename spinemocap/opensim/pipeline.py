@@ -19,14 +19,14 @@ facing is checked against the tape (:func:`geometry.check_facing`); the joint ce
 published skin-to-vertebral-body depths (:mod:`anatomy`) scaled to the subject by the tape, times
 ``settings.depth_scale`` (a measured depth, e.g. from imaging or a body model, enters there and is
 named by ``settings.depth_source``); every row's in-plane tilt is kept at its static angle and the
-rows above the pinned ones slip along their vertebrae, each slip's goal the one the tape's
-lengthening shows in that frame (:mod:`skin_model`); the model is built
+rows above the pinned ones slip along their vertebrae (with :func:`slip_from_tape`, each slip's
+goal the one the tape's lengthening shows in that frame; :mod:`skin_model`); the model is built
 (:mod:`model`), MarkerPlacer moves its markers onto the static trial (slips held at 0) and the
 placement is checked against the anatomy (:func:`check_placement`); OpenSim's IK solver runs frame
 by frame (:func:`tools.solve_ik`: per-sample marker weights from the label confidence, inferred
 dots down-weighted as far less certain (:func:`tools.marker_weights`), each frame solved from the
-previous one's solution and from the static pose, the static start's kept unless the other's objective
-is less than half, joints clamped to
+previous one's solution and from the static pose, the static start's kept unless its objective is
+more than ``1 + settings.fresh_start_margin`` times the other's, joints clamped to
 their published ranges). Missing
 samples stay NaN (skipped per frame); frames the result cannot vouch for are flagged in the CSV,
 the summary and the plot.
@@ -115,7 +115,8 @@ class OpenSimSettings:
     (:func:`skin_model.normalise_row_tilt`); ``slip``: the rows' slip and its prior
     (:class:`skin_model.SlipPrior`), None = every marker fixed to its vertebra;
     ``restart_from_static``: every frame solved from the previous solution and from the static
-    pose, the static start's kept unless the other's objective is far lower (:func:`tools.solve_ik`)."""
+    pose, the static start's kept unless its objective exceeds ``1 + fresh_start_margin`` times the
+    other's (:func:`tools.solve_ik`)."""
 
     static_frames: int = 10
     accuracy: float = IK_ACCURACY
@@ -588,8 +589,8 @@ def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np
         "ik_accuracy_note": (f"frames where a slipping row has no slip estimate (its dots not measured) are solved to "
                              f"{max(settings.accuracy, START_ACCURACY):g}") if settings.slip is not None else "",
         "ik": "OpenSim InverseKinematicsSolver frame by frame: each frame from the previous solution"
-              + (" and from the static pose, the static start's kept unless the other's objective is less than half"
-                 if settings.restart_from_static else "")
+              + (f" and from the static pose, the static start's kept unless its objective exceeds "
+                 f"{1 + settings.fresh_start_margin:g} x the other's" if settings.restart_from_static else "")
               + ", marker weights = label confidence squared per sample, an inferred dot's divided by "
               f"({settings.inferred_sd_mm:g} mm / {OBSERVED_SD_MM:g} mm)^2 (its assumed position SD against an "
               f"observed dot's), joints clamped to {RANGE_FACTOR:g} x their published ranges",

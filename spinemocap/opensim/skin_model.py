@@ -14,13 +14,12 @@ vertebrae cannot follow the tape. Two assumptions, both stated in ``summary.json
 - **Slip** (:func:`slip_rows`): every row but the lowest ``pinned`` ones rides on a small body that
   translates along its vertebra's superior axis (the skin's tangent there); the translation is a
   model coordinate (``<row>_skin_slip``, m) that inverse kinematics solves in every frame, clamped
-  at :attr:`SlipPrior.limit_mm`. Its Gaussian prior is centred, frame by frame, on the slip the
-  tape itself shows (:func:`geometric_slips`: the midline's lengthening up to the row minus
-  what forward bending of the vertebrae, at the subject's joint depth, lengthens it by;
-  standard deviation :attr:`SlipPrior.estimate_sd_mm`), or on 0 (SD :attr:`SlipPrior.sd_mm`)
-  where that is unknown. Without it the markers hardly tell slip from forward bending (the
-  marker error is nearly flat along slip against flexion), and the solution would depend on
-  where the solver stops. The pinned rows (over the sacrum and the lowest lumbar levels, where
+  at :attr:`SlipPrior.limit_mm`, with a Gaussian prior toward 0 (SD :attr:`SlipPrior.sd_mm`) or,
+  with :attr:`SlipPrior.estimate_sd_mm` set, centred frame by frame on the slip the tape itself
+  shows (:func:`geometric_slips`: the midline's lengthening up to the row minus what forward
+  bending of the vertebrae, at the subject's joint depth, lengthens it by). The markers alone
+  hardly tell slip from forward bending (the marker error is nearly flat along slip against
+  flexion), so with the prior at 0 the solution depends on where the solver stops. The pinned rows (over the sacrum and the lowest lumbar levels, where
   the tape starts) carry the reference: slips are relative to their mean. This is the multibody
   kinematic optimisation with a soft-tissue model that Begon M et al. (2018) J Biomech Eng
   140:030801 review; OpenSim's moving path points exist only for muscle paths, so a sliding

@@ -132,12 +132,11 @@ def _slipped(frames: int = 8) -> tuple[np.ndarray, np.ndarray]:
 
 @needs_opensim
 def test_a_known_slip_is_solved_by_the_slip_coordinates_and_the_model_names_them(tmp_path):
-    from spinemocap.opensim.skin_model import SlipPrior, slip_coordinate
-    from spinemocap.opensim.tools import read_storage
-
     from dataclasses import asdict
 
     from spinemocap.opensim.pipeline import slip_from_tape
+    from spinemocap.opensim.skin_model import SlipPrior, slip_coordinate
+    from spinemocap.opensim.tools import read_storage
 
     dots, slip = _slipped()
     from_tape = {k: v for k, v in asdict(slip_from_tape()).items() if k in ("accuracy", "fresh_start_margin")}
@@ -251,12 +250,18 @@ def test_every_path_form_works_relative_with_spaces_and_read_only_inputs(tmp_pat
 
 
 @needs_opensim
-def test_the_same_dots_give_the_same_angles_on_the_way_out_and_back(tmp_path):
+@pytest.mark.parametrize("from_tape", [False, True])
+def test_the_same_dots_give_the_same_angles_on_the_way_out_and_back(tmp_path, from_tape):
+    from spinemocap.opensim.pipeline import slip_from_tape
+
     # a twist and lateral bend out and back: frames with equal dots must get equal angles (a solve
     # only from the previous frame's solution stops short along the directions the markers hardly see)
     amplitude = np.array([0.0, 0.5, 1.0, 0.5, 0.0])
     dots = np.array([_bend(flexion=20 * a, lateral=15 * a, twist=25 * a) for a in amplitude])
-    result = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "out")
+    options = slip_from_tape()
+    settings = {"slip": options.slip, "accuracy": options.accuracy,
+                "fresh_start_margin": options.fresh_start_margin} if from_tape else {}
+    result = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "out", **settings)
     columns = [c for c in result.angles.columns if c.endswith(("_flexion", "_lateral", "_rotation"))]
     angles = result.angles[columns].to_numpy()
     np.testing.assert_allclose(angles[3], angles[1], atol=0.1)
