@@ -17,11 +17,14 @@ For ``mixed`` all three angles are scored.
 The peer measures the same two rows with :func:`spinemocap.analysis.angles.compute_angles`.
 
 Methods per run (same markers, same rows): ``ik`` (the pipeline: row tilt normalised, rows
-slipping with their prior, each frame solved from the previous solution and from the static pose,
-inferred dots down-weighted), ``ik_one_start`` (the same skin model, each frame solved from the
+slipping with their prior toward 0, each frame solved from the previous solution and from the
+static pose, inferred dots down-weighted), ``ik_slip_from_tape``
+(:func:`spinemocap.opensim.pipeline.slip_from_tape`: the slips' goals at the slip the tape's
+lengthening shows, solved to 1e-6 whatever ``accuracy`` says), ``ik_one_start`` (the pipeline's
+skin model, each frame solved from the
 previous solution only, inferred dots weighed as observed ones), ``ik_rigid`` (every marker fixed
 to its vertebra, tilt as measured, one start, inferred as observed: the pipeline without the skin
-model) and ``geometric``. Marker RMS is over the observed (measured) dots; ``marker_rms_all_mm``
+model) and ``geometric``; ``methods`` picks the IK ones that run. Marker RMS is over the observed (measured) dots; ``marker_rms_all_mm``
 includes the inferred ones. Both IK runs place the joint centres at
 the studio body's own depth under the tape (:func:`body_model_depth_scale`: anny's spine joints,
 the depth a lab would take from imaging), named in their ``summary.json``. Subjects: one studio
@@ -40,28 +43,42 @@ from typing import Any
 
 import numpy as np
 
+from ..opensim.pipeline import slip_from_tape
 from ..opensim.tools import IK_ACCURACY, OBSERVED_SD_MM
 
 MOTIONS = ("flexion", "lateral", "rotation", "mixed")
 AXES = ("flexion", "lateral", "rotation")
-METHODS = ("ik", "ik_one_start", "ik_rigid", "geometric")
 GOALS = {"marker_rms_mm": 2.0, "flexion_rmse_deg": 2.0, "lateral_rmse_deg": 2.0, "rotation_rmse_deg": 3.0}
-# the peers: the skin model with each frame solved only from the previous solution and inferred dots
-# weighed as observed ones; every marker fixed to its vertebra (one start, inferred as observed)
+# the peers: the slips' goals at the tape's slip (its own accuracy); the skin model with each frame
+# solved only from the previous solution and inferred dots weighed as observed ones; every marker
+# fixed to its vertebra (one start, inferred as observed)
+SLIP_FROM_TAPE: dict[str, Any] = {name: getattr(slip_from_tape(), name)
+                                  for name in ("slip", "accuracy", "fresh_start_margin")}
 ONE_START: dict[str, Any] = {"restart_from_static": False, "inferred_sd_mm": OBSERVED_SD_MM}
 RIGID: dict[str, Any] = {"slip": None, "normalise_tilt": False, **ONE_START}
+IK_METHODS: dict[str, dict[str, Any]] = {"ik": {}, "ik_slip_from_tape": SLIP_FROM_TAPE, "ik_one_start": ONE_START,
+                                         "ik_rigid": RIGID}
+METHODS = (*IK_METHODS, "geometric")
 BODY_MODEL_DEPTH = "the studio body's spine joints (anny) under the tape rows, static trial"
 
 
 def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[str] = ("groundtruth", "tracked"),
                           frames: int = 100, fps: float = 100 / 3, rows: int = 13, tracked_frames: int | None = None,
                           cache: Path | None = None, progress: bool = True, realism: str = "lab",
-                          seeds: Sequence[int] = (0,), accuracy: float = IK_ACCURACY) -> dict:
+                          seeds: Sequence[int] = (0,), accuracy: float = IK_ACCURACY,
+                          methods: Sequence[str] = tuple(IK_METHODS)) -> dict:
     """Every (seed, motion, source) scored (see the module docstring; runs keyed
     ``<motion>/seed<seed>``), the headline numbers and the goals; ``cache``: folder to keep and
     reuse the tracked markers; ``realism``: the studio's level (``lab``: tension, skin strain,
     tracking through the lab's inexact rig); ``accuracy``: the IK solver accuracy of every IK
-    method (:attr:`spinemocap.opensim.OpenSimSettings.accuracy`)."""
+    method but ``ik_slip_from_tape`` (:attr:`spinemocap.opensim.OpenSimSettings.accuracy`);
+    ``methods``: the IK methods to run (keys of :data:`IK_METHODS`; the geometric peer always runs)."""
+    from ..fileio import InputError
+
+    unknown = sorted(set(methods) - set(IK_METHODS))
+    if unknown:
+        raise InputError("spinemocap bench opensim --methods", f"unknown IK methods {unknown}: choose from "
+                                                               f"{' '.join(IK_METHODS)}")
     from tqdm import tqdm
 
     from ..opensim import require_opensim
@@ -73,13 +90,14 @@ def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[st
     for seed, motion, source in tqdm(jobs, desc="subjects x motions x sources", disable=not progress):
         n = (tracked_frames or frames) if source == "tracked" else frames
         results[source][f"{motion}/seed{seed}"] = bench_motion(motion, source, n, fps, rows, progress, cache,
-                                                               realism, seed, accuracy)
+                                                               realism, seed, accuracy, methods)
     return {
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
         "date": time.strftime("%Y-%m-%d"),
         "goals": GOALS,
         "realism": realism,
         "ik_accuracy": accuracy,
+        "methods": [*methods, "geometric"],
         **headline(results),
         "sources": results,
         "wall_s": round(time.time() - started, 1),
@@ -92,7 +110,7 @@ def headline(results: dict) -> dict:
     out: dict = {}
     for source, runs in results.items():
         table: dict = {}
-        for method in METHODS:
+        for method in [m for m in METHODS if all(m in r for r in runs.values())]:
             row: dict = {}
             for axis in AXES:
                 values = [r[method][f"{axis}_rmse_deg"] for key, r in runs.items()
@@ -112,9 +130,9 @@ def headline(results: dict) -> dict:
 
 def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, progress: bool,
                  cache: Path | None = None, realism: str = "lab", seed: int = 0,
-                 accuracy: float = IK_ACCURACY) -> dict:
-    """One studio motion of one subject (``seed``) from one marker source: IK (solver ``accuracy``)
-    with and without the skin model and the geometric angles scored."""
+                 accuracy: float = IK_ACCURACY, methods: Sequence[str] = tuple(IK_METHODS)) -> dict:
+    """One studio motion of one subject (``seed``) from one marker source: the IK ``methods``
+    (:data:`IK_METHODS`; solver ``accuracy``) and the geometric angles scored."""
     from ..analysis.angles import AngleSettings, compute_angles
     from ..analysis.levels import LevelMap
     from ..markers import MarkerTable
@@ -136,7 +154,8 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     levels = LevelMap.from_row_levels(data["row_levels"], tape.n_rows)
     depth_scale = body_model_depth_scale(data, levels)
     ik: dict = {}
-    for method, overrides in (("ik", {}), ("ik_one_start", ONE_START), ("ik_rigid", RIGID)):
+    for method in methods:
+        overrides = IK_METHODS[method]
         with tempfile.TemporaryDirectory() as tmp:
             # the static trial is the neutral first frame: the studio's motions start moving at once
             settings = replace(OpenSimSettings(static_frames=1, depth_scale=depth_scale, accuracy=accuracy,
@@ -237,15 +256,15 @@ def tracked_markers(scene, progress: bool, cache: Path | None = None):
 
 
 def format_table(results: dict) -> str:
-    lines = [(f"{'source':<13}{'motion/subject':<16}{'method':<10}{'flex RMSE':>10}{'lat RMSE':>9}{'rot RMSE':>9}"
+    lines = [(f"{'source':<13}{'motion/subject':<16}{'method':<19}{'flex RMSE':>10}{'lat RMSE':>9}{'rot RMSE':>9}"
               f"{'R2 (scored)':>12}{'xtalk':>7}{'mkr RMS mm':>11}{'ms/frame':>9}")]
     for source, runs in results.items():
         for key, run in runs.items():
-            for method in METHODS:
+            for method in [m for m in METHODS if m in run]:
                 r = run[method]
                 r2 = [r[f"{a}_r2"] for a in AXES if f"{a}_r2" in r]
                 cells = [f"{r.get(f'{a}_rmse_deg', float('nan')):>9.2f}" for a in AXES]
-                lines.append(f"{source:<13}{key:<16}{method:<10}{cells[0]:>10}{cells[1]:>9}{cells[2]:>9}"
+                lines.append(f"{source:<13}{key:<16}{method:<19}{cells[0]:>10}{cells[1]:>9}{cells[2]:>9}"
                              f"{min(r2):>12.4f}{r.get('crosstalk_rms_deg', float('nan')):>7.2f}"
                              f"{r.get('marker_rms_mm', float('nan')):>11.2f}{r['ms_per_frame']:>9.1f}")
     return "\n".join(lines)

@@ -35,6 +35,10 @@ def register(subparsers) -> None:
     p.add_argument("--rigid-skin", action="store_true",
                    help="no skin model: every marker fixed to its vertebra, row tilt as measured (default: tilt kept "
                         "at the static angle, rows above the lowest two slip along their vertebrae)")
+    p.add_argument("--slip-from-tape", action="store_true",
+                   help="centre each slip's prior, frame by frame, on the slip the tape's own lengthening shows "
+                        "(SD 3 mm) and solve to 1e-6: reads a trunk twist fully, ~3-5x the time per frame "
+                        "(default: prior toward 0, SD 25 mm, OpenSim's accuracy)")
     p.add_argument("--coupling", choices=("rows", "region"), default="rows",
                    help="rows: couple a vertebra's rotations to its neighbour's only when no tape row lies over "
                         "it (default); region: couple lateral bending and axial rotation over each region, as "
@@ -43,8 +47,8 @@ def register(subparsers) -> None:
                    help="IK weight of a prior pulling every level's lateral bending and axial rotation toward the "
                         "static posture (per rad^2; default 0 = off; larger weights trade range for stability)")
     p.add_argument("--accuracy", type=float,
-                   help="IK solver accuracy (default: OpenSim's, 1e-5; tighter reads a trunk twist more fully but "
-                        "forward bending with slipping skin less well, at ~10-50x the time per frame for each tenth)")
+                   help="IK solver accuracy (default: OpenSim's, 1e-5, or 1e-6 with --slip-from-tape; tighter reads "
+                        "a trunk twist more fully, but forward bending with the slips' prior at 0 less well)")
     p.add_argument("--model", type=Path, help="attach the markers to this lab model (.osim) instead of building one")
     p.add_argument("--bodies", type=Path, help="with --model: TOML mapping vertebrae to the model's bodies, "
                                                "e.g. L3 = \"lumbar3\"")
@@ -54,11 +58,14 @@ def register(subparsers) -> None:
 def run_opensim_command(args: argparse.Namespace) -> int:
     from ..app.opensim import opensim_capture
     from ..opensim import OpenSimSettings
+    from ..opensim.pipeline import slip_from_tape
 
     source = args.depth_source or (
         OpenSimSettings.depth_source if args.depth_scale == 1.0 else f"given: {args.depth_scale:g} x the published depths")
     settings = OpenSimSettings(static_frames=args.static_frames, depth_scale=args.depth_scale,
                                depth_source=source, coupling=args.coupling, prior_weight=args.prior_weight)
+    if args.slip_from_tape:
+        settings = slip_from_tape(settings)
     if args.accuracy is not None:
         settings = replace(settings, accuracy=args.accuracy)
     if args.rigid_skin:
@@ -107,26 +114,32 @@ def register_bench(subparsers) -> None:
                    help="studio realism level (default lab: tape tension, skin strain, the lab's inexact rig)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="studio subjects (seeds), default 0")
     p.add_argument("--accuracy", type=float, help="IK solver accuracy of every IK method (default: the pipeline's)")
+    p.add_argument("--methods", nargs="+",
+                   help="IK methods to run (default all; the geometric peer always runs): ik = the pipeline, "
+                        "ik_slip_from_tape = the pipeline with --slip-from-tape, ik_one_start, "
+                        "ik_rigid (see spinemocap/bench/opensim.py)")
     p.add_argument("--json", type=Path, help="write the numbers here")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_bench)
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    from ..bench.opensim import format_table, run_opensim_benchmark
+    from ..bench.opensim import IK_METHODS, format_table, run_opensim_benchmark
     from ..fileio import atomic_write, strict_json
     from ..opensim.tools import IK_ACCURACY
 
     accuracy = IK_ACCURACY if args.accuracy is None else args.accuracy
+    methods = list(IK_METHODS) if args.methods is None else args.methods
 
     report = run_opensim_benchmark(args.motions, args.sources, args.frames, args.fps, args.rows,
                                    args.tracked_frames, args.cache, not args.no_progress, realism=args.realism,
-                                   seeds=args.seeds, accuracy=accuracy)
+                                   seeds=args.seeds, accuracy=accuracy, methods=methods)
     report["command"] = " ".join(
         ["spinemocap bench opensim", f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
          f"--realism {args.realism}",
          "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources),
-         "--seeds " + " ".join(str(s) for s in args.seeds), f"--accuracy {accuracy:g}"]
+         "--seeds " + " ".join(str(s) for s in args.seeds), f"--accuracy {accuracy:g}",
+         "--methods " + " ".join(methods)]
         + ([f"--tracked-frames {args.tracked_frames}"] if args.tracked_frames else []))
     print(format_table(report["sources"]))
     for source, methods in report["headline"].items():

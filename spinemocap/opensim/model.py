@@ -30,7 +30,8 @@ motion segment (:mod:`spinemocap.opensim.anatomy`): inverse kinematics cannot le
 Skin: a tape row that slips (:mod:`spinemocap.opensim.skin_model`) carries its markers on a body
 ``R06_skin`` joined to its vertebra by ``R06_skin_slip_joint``, a translation along the vertebra's
 superior axis (Y) with the coordinate ``R06_skin_slip`` (m, 0 = the static trial, clamped to the
-prior's limit); the model file notes each slip coordinate's prior beside it.
+prior's limit); the model file notes each slip coordinate's prior beside it (its goal per frame is
+``skin_slip_goals.sto``, the coordinate file of ``setup_ik.xml``).
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ from scipy.spatial.transform import Rotation
 
 from .anatomy import ANATOMY
 from .geometry import HEAD_NECK, SpineGeometry
-from .skin_model import SlipPrior, skin_body, slip_coordinate
+from .skin_model import SlipPrior, prior_text, skin_body, slip_coordinate
 
 DOF = ("extension", "lateral_bending", "axial_rotation")
 AXES = ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))  # Z, X, Y body-fixed
@@ -298,8 +299,7 @@ def annotate_slips(model_file, prior: SlipPrior, rows: list[int]) -> None:
         if name is not None and name in names:
             element.insert(0, ET.Comment(
                 f" skin slip of tape row {name[:3]} along its vertebra's superior axis (m, 0 = "
-                f"static trial); prior: Gaussian, mean 0, SD {prior.sd_mm:g} mm (IK coordinate goal of weight "
-                f"{prior.weight:.6g} per m^2, see setup_ik.xml); clamped to +/-{prior.limit_mm:g} mm; the rows "
+                f"static trial); prior: {prior_text(prior)}; clamped to +/-{prior.limit_mm:g} mm; the rows "
                 f"below the first slipping one are pinned to their vertebrae "))
     tree.write(model_file, encoding="UTF-8", xml_declaration=True)
 

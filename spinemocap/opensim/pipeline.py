@@ -7,7 +7,8 @@ renamed into place at the end):
 - ``model.osim``: after MarkerPlacer (markers moved onto the static trial),
 - ``markers_opensim.trc`` / ``markers_static.trc``: metres, OpenSim axes (X facing, Y up),
 - ``setup_scale.xml``, ``setup_ik.xml``, ``static_pose.mot`` (radians), ``ik.mot`` (degrees; skin
-  slips in metres), ``ik_marker_errors.sto`` (metres),
+  slips in metres), ``ik_marker_errors.sto`` (metres), ``skin_slip_goals.sto`` (the slip
+  coordinates' goal per frame, metres: the coordinate file of ``setup_ik.xml``),
 - ``spine_angles.csv``: per driven joint and summed per region, degrees, this project's signs
   (flexion = forward bending positive = -OpenSim extension; lateral bending toward the right
   positive; axial rotation toward the left positive), zero = the static posture,
@@ -18,12 +19,14 @@ facing is checked against the tape (:func:`geometry.check_facing`); the joint ce
 published skin-to-vertebral-body depths (:mod:`anatomy`) scaled to the subject by the tape, times
 ``settings.depth_scale`` (a measured depth, e.g. from imaging or a body model, enters there and is
 named by ``settings.depth_source``); every row's in-plane tilt is kept at its static angle and the
-rows above the pinned ones slip along their vertebrae (:mod:`skin_model`); the model is built
+rows above the pinned ones slip along their vertebrae (with :func:`slip_from_tape`, each slip's
+goal the one the tape's lengthening shows in that frame; :mod:`skin_model`); the model is built
 (:mod:`model`), MarkerPlacer moves its markers onto the static trial (slips held at 0) and the
 placement is checked against the anatomy (:func:`check_placement`); OpenSim's IK solver runs frame
 by frame (:func:`tools.solve_ik`: per-sample marker weights from the label confidence, inferred
 dots down-weighted as far less certain (:func:`tools.marker_weights`), each frame solved from the
-previous one's solution and from the static pose with the lower objective kept, joints clamped to
+previous one's solution and from the static pose, the static start's kept unless its objective is
+more than ``1 + settings.fresh_start_margin`` times the other's, joints clamped to
 their published ranges). Missing
 samples stay NaN (skipped per frame); frames the result cannot vouch for are flagged in the CSV,
 the summary and the plot.
@@ -38,7 +41,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -61,11 +64,13 @@ from .geometry import (
     to_opensim,
 )
 from .model import DOF, RANGE_FACTOR, ModelPlan, annotate_slips, body_name, build_model, plan_model
-from .skin_model import SlipPrior, normalise_row_tilt, slip_coordinate, slip_rows
+from .skin_model import SlipPrior, geometric_slips, normalise_row_tilt, prior_text, slip_coordinate, slip_rows
 from .tools import (
     IK_ACCURACY,
     INFERRED_SD_MM,
     OBSERVED_SD_MM,
+    START_ACCURACY,
+    CoordinateGoal,
     marker_locations,
     marker_weights,
     mean_weights,
@@ -74,6 +79,7 @@ from .tools import (
     require_opensim,
     run_scale,
     solve_ik,
+    write_coordinate_goals,
     write_ik_outputs,
     write_ik_setup,
     write_scale_setup,
@@ -90,6 +96,7 @@ FLAG_RMS_MM = 4.0
 FLAG_MAX_MM = 10.0
 FLAG_MIN_MARKERS = 6
 LIMIT_MARGIN_DEG = 0.05
+SLIP_GOALS = "skin_slip_goals.sto"  # the slip coordinates' goal per frame (m), setup_ik.xml's coordinate file
 PUBLISHED_DEPTHS = "published skin-to-vertebral-body depths (spinemocap/opensim/anatomy.py) scaled to the tape"
 SIGN = {"extension": -1.0, "lateral_bending": 1.0, "axial_rotation": 1.0}  # OpenSim -> project
 PROJECT_NAME = {"extension": "flexion", "lateral_bending": "lateral", "axial_rotation": "rotation"}
@@ -98,7 +105,8 @@ PROJECT_NAME = {"extension": "flexion", "lateral_bending": "lateral", "axial_rot
 @dataclass(frozen=True)
 class OpenSimSettings:
     """``static_frames``: frames from the start averaged as the static trial (when no static file);
-    ``accuracy``: IK solver accuracy (:data:`tools.IK_ACCURACY`, OpenSim's default); ``depth_scale``: factor on the
+    ``accuracy``: IK solver accuracy (:data:`tools.IK_ACCURACY`; frames where a slipping row has
+    no slip estimate are solved to at most :data:`tools.START_ACCURACY`); ``depth_scale``: factor on the
     published skin-to-vertebral-body depths (1 = the published adult values, scaled to the
     subject's column length by the tape), ``depth_source``: where that depth comes from (written
     to ``summary.json``); ``coupling``: see :func:`spinemocap.opensim.model.plan_model`;
@@ -107,7 +115,8 @@ class OpenSimSettings:
     (:func:`skin_model.normalise_row_tilt`); ``slip``: the rows' slip and its prior
     (:class:`skin_model.SlipPrior`), None = every marker fixed to its vertebra;
     ``restart_from_static``: every frame solved from the previous solution and from the static
-    pose, the lower objective kept (:func:`tools.solve_ik`)."""
+    pose, the static start's kept unless its objective exceeds ``1 + fresh_start_margin`` times the
+    other's (:func:`tools.solve_ik`)."""
 
     static_frames: int = 10
     accuracy: float = IK_ACCURACY
@@ -119,10 +128,21 @@ class OpenSimSettings:
     prior_weight: float = 0.0
     normalise_tilt: bool = True
     slip: SlipPrior | None = SlipPrior()
-    # every frame also solved from the static pose, keeping the lower objective (see tools.solve_ik)
+    # every frame also solved from the static pose, kept unless far worse (see tools.solve_ik)
     restart_from_static: bool = True
     # position SD (mm) of an inferred dot against an observed one's 1 mm (tools.marker_weights)
     inferred_sd_mm: float = INFERRED_SD_MM
+    # the static start's solution kept unless its objective exceeds (1 + this) x the previous start's
+    fresh_start_margin: float = 0.0
+
+
+def slip_from_tape(settings: OpenSimSettings = OpenSimSettings()) -> OpenSimSettings:
+    """``settings`` with the slips' goals at the slip the tape's lengthening shows
+    (:func:`skin_model.geometric_slips`, SD 3 mm), solved to 1e-6 (frames where a slipping row has
+    no estimate to :data:`tools.START_ACCURACY`), the static start kept unless the previous
+    frame's objective is less than half of its own."""
+    return replace(settings, slip=replace(settings.slip or SlipPrior(), estimate_sd_mm=3.0), accuracy=1e-6,
+                   fresh_start_margin=1.0)
 
 
 @dataclass
@@ -270,38 +290,90 @@ def place_markers(work: Path, labels: list[str], placed: np.ndarray, static: Sta
 
 
 def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: TapeMarkers, frames: np.ndarray,
-                       accuracy: float, priors: dict[str, float] | None = None,
+                       accuracy: float | np.ndarray, priors: dict[str, float] | None = None,
                        positions: np.ndarray | None = None, restart: bool = True,
-                       inferred_sd_mm: float = INFERRED_SD_MM) -> float:
+                       inferred_sd_mm: float = INFERRED_SD_MM, goals: dict[str, CoordinateGoal] | None = None,
+                       fresh_start_margin: float = 0.0) -> float:
     """``markers_opensim.trc`` (the given frames, the ``placed`` dots named ``labels``; the
     markers as given, or ``positions`` (F, D, 3) mm in their place: the skin-corrected ones),
     ``setup_ik.xml`` on ``model.osim`` (one mean weight per marker: a re-run in the GUI), and IK
     solved frame by frame (:func:`tools.solve_ik`) into ``ik.mot`` and ``ik_marker_errors.sto``;
-    returns IK seconds."""
+    returns IK seconds. ``accuracy``: the solver's, one or per frame of ``data`` (the setup file
+    holds the tightest)."""
     source = data.positions if positions is None else positions
     chosen = source[frames][:, placed]
+    accuracy = np.broadcast_to(np.asarray(accuracy, float), data.times.shape)  # per frame of data
     times = data.times[frames]
     write_trc(work / "markers_opensim.trc", labels, times, chosen, data.fps)
     weights = data.weights(inferred_sd_mm)[frames][:, placed]
+    chosen_goals = {name: CoordinateGoal(g.values[frames], g.weights[frames]) for name, g in (goals or {}).items()}
+    if chosen_goals:
+        write_coordinate_goals(work / SLIP_GOALS, times, chosen_goals)
     write_ik_setup(work, "model.osim", "markers_opensim.trc", (float(times[0]), float(times[-1])), labels,
-                   mean_weights(weights), "ik.mot", accuracy, priors)
-    solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy, restart,
-                        data.status[frames][:, placed] == "observed")
+                   mean_weights(weights), "ik.mot", float(accuracy[frames].min()), priors, SLIP_GOALS,
+                   {name: float(np.max(g.weights)) for name, g in chosen_goals.items()})
+    solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy[frames], restart,
+                        data.status[frames][:, placed] == "observed", chosen_goals, fresh_start_margin)
     write_ik_outputs(work, solution)
     return solution.seconds
 
 
-def _priors(plan: ModelPlan, settings: OpenSimSettings, slipping: list[int]) -> dict[str, float]:
-    """IK coordinate goals toward the static posture: the slip prior on every slipping row
-    (:class:`skin_model.SlipPrior`) and, when ``settings.prior_weight`` > 0, a weak one on every
-    independent per-level lateral bending and axial rotation (they choose among the distributions
-    the markers cannot tell apart)."""
-    out = {slip_coordinate(r): settings.slip.weight for r in slipping} if settings.slip is not None else {}
-    if settings.prior_weight > 0:
-        dependent = {d for d, _, _ in plan.couplers}
-        out.update({j.coordinate(dof): settings.prior_weight for j in plan.driven
-                    for dof in ("lateral_bending", "axial_rotation") if j.coordinate(dof) not in dependent})
+def _slip_goals(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, placed: _Placed,
+                prior: SlipPrior | None) -> dict[str, CoordinateGoal]:
+    """Per-frame IK goals (m) of the slipping rows: the slip the tape shows
+    (:func:`skin_model.geometric_slips` from the measured dots, relative to the mean of the
+    pinned rows) with weight :attr:`SlipPrior.estimate_weight`; beyond the rows measured in a
+    frame the slip of the nearest measured row (it grows up the tape, so this is a floor), with the
+    wide :attr:`SlipPrior.weight`; 0 with that weight in frames without an estimate, or in every
+    frame when ``prior.estimate_sd_mm`` is None. Empty without slip."""
+    if prior is None or not placed.slipping:
+        return {}
+    F = len(positions)
+    geometry = placed.geometry
+    pinned = sorted({int(r) for r in placed.marker_rows} - set(placed.slipping))
+    slips = np.full((F, tape.n_rows), np.nan)
+    if prior.estimate_sd_mm is not None:
+        slips = geometric_slips(positions, static, tape, geometry.depth[geometry.row_body], pinned[0])
+        with np.errstate(all="ignore"):
+            slips = slips - np.nanmean(slips[:, pinned], axis=1, keepdims=True)
+    known = np.isfinite(slips)
+    weights = np.where(known, prior.estimate_weight, prior.weight)
+    values = np.clip(_hold_nearest(slips), -prior.limit_mm, prior.limit_mm) / 1000.0
+    return {slip_coordinate(r): CoordinateGoal(values[:, r], weights[:, r]) for r in placed.slipping}
+
+
+def _frame_accuracy(goals: dict[str, CoordinateGoal], settings: OpenSimSettings) -> float | np.ndarray:
+    """The IK accuracy of every frame: ``settings.accuracy``, but at most :data:`tools.START_ACCURACY`
+    (OpenSim's default) in a frame where a slipping row has no slip estimate: there only guessed
+    (inferred) dots place that row, and a tight solve chases the guesses."""
+    prior = settings.slip
+    if prior is None or prior.estimate_sd_mm is None or not goals:
+        return settings.accuracy
+    unknown = np.any([g.weights < prior.estimate_weight for g in goals.values()], axis=0)
+    return np.where(unknown, max(settings.accuracy, START_ACCURACY), settings.accuracy)
+
+
+def _hold_nearest(values: np.ndarray) -> np.ndarray:
+    """(F, R) with each frame's NaNs beyond its finite values set to the nearest finite one (0 in a
+    frame without any)."""
+    out = np.zeros_like(values)
+    rows = np.arange(values.shape[1])
+    for f, row in enumerate(values):
+        known = np.isfinite(row)
+        if known.any():
+            out[f] = np.interp(rows, rows[known], row[known])
     return out
+
+
+def _priors(plan: ModelPlan, settings: OpenSimSettings) -> dict[str, float]:
+    """IK coordinate goals toward the static posture (the slips' goals are :func:`_slip_goals`):
+    when ``settings.prior_weight`` > 0, a weak one on every independent per-level lateral bending
+    and axial rotation (they choose among the distributions the markers cannot tell apart)."""
+    if settings.prior_weight <= 0:
+        return {}
+    dependent = {d for d, _, _ in plan.couplers}
+    return {j.coordinate(dof): settings.prior_weight for j in plan.driven
+            for dof in ("lateral_bending", "axial_rotation") if j.coordinate(dof) not in dependent}
 
 
 def prepare(markers: MarkerTable, tape: TapeSpec, up: npt.ArrayLike, facing: Sequence[float],
@@ -337,9 +409,12 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
         positions, tilt_turn = data.positions, None
         if settings.normalise_tilt:
             positions, tilt_turn = normalise_row_tilt(data.positions, st.positions, tape)
+        measured = np.where((data.status == "observed")[..., None], positions, np.nan)  # inferred dots are guesses
+        slip_goals = _slip_goals(measured, st.positions, tape, placed, settings.slip)
         ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
-                                        settings.accuracy, _priors(placed.plan, settings, placed.slipping),
-                                        positions, settings.restart_from_static, settings.inferred_sd_mm)
+                                        _frame_accuracy(slip_goals, settings), _priors(placed.plan, settings),
+                                        positions, settings.restart_from_static, settings.inferred_sd_mm,
+                                        slip_goals, settings.fresh_start_margin)
         angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
         weights = mean_weights(data.weights(settings.inferred_sd_mm)[:, placed.placed])
         summary = _summary(data, placed, angles, flags, ik_seconds, facing_error, weights, settings, osim)
@@ -386,8 +461,9 @@ def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt
     out["slip"] = {"model": "each row above the pinned ones on a body translating along its vertebra's superior "
                             "axis; coordinate <row>_skin_slip (m, 0 = static trial) solved by IK",
                    "pinned_rows": [f"R{r + 1:02d}" for r in pinned],
-                   "prior": f"Gaussian, mean 0, SD {prior.sd_mm:g} mm; clamped to +/-{prior.limit_mm:g} mm",
-                   "prior_weight_per_m2": prior.weight, "at_peak_mm": peak}
+                   "prior": f"{prior_text(prior)}; clamped to +/-{prior.limit_mm:g} mm",
+                   "prior_weight_per_m2": prior.weight, "estimate_weight_per_m2": prior.estimate_weight,
+                   "at_peak_mm": peak}
     return out
 
 
@@ -510,8 +586,11 @@ def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np
         "placement": placed.placement,
         "region_ranges_deg": ranges,
         "ik_accuracy": settings.accuracy,
+        "ik_accuracy_note": (f"frames where a slipping row has no slip estimate (its dots not measured) are solved to "
+                             f"{max(settings.accuracy, START_ACCURACY):g}") if settings.slip is not None else "",
         "ik": "OpenSim InverseKinematicsSolver frame by frame: each frame from the previous solution"
-              + (" and from the static pose, the lower objective kept" if settings.restart_from_static else "")
+              + (f" and from the static pose, the static start's kept unless its objective exceeds "
+                 f"{1 + settings.fresh_start_margin:g} x the other's" if settings.restart_from_static else "")
               + ", marker weights = label confidence squared per sample, an inferred dot's divided by "
               f"({settings.inferred_sd_mm:g} mm / {OBSERVED_SD_MM:g} mm)^2 (its assumed position SD against an "
               f"observed dot's), joints clamped to {RANGE_FACTOR:g} x their published ranges",

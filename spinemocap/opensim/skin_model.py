@@ -13,10 +13,14 @@ vertebrae cannot follow the tape. Two assumptions, both stated in ``summary.json
   the out-of-plane twist (axial rotation) is untouched.
 - **Slip** (:func:`slip_rows`): every row but the lowest ``pinned`` ones rides on a small body that
   translates along its vertebra's superior axis (the skin's tangent there); the translation is a
-  model coordinate (``<row>_skin_slip``, m) that inverse kinematics solves in every frame, with a
-  Gaussian prior toward 0 (standard deviation :attr:`SlipPrior.sd_mm`) and clamped at
-  :attr:`SlipPrior.limit_mm`. The pinned rows (over the sacrum and the lowest lumbar levels, where
-  the tape starts) carry the reference: slips are relative to them. This is the multibody
+  model coordinate (``<row>_skin_slip``, m) that inverse kinematics solves in every frame, clamped
+  at :attr:`SlipPrior.limit_mm`, with a Gaussian prior toward 0 (SD :attr:`SlipPrior.sd_mm`) or,
+  with :attr:`SlipPrior.estimate_sd_mm` set, centred frame by frame on the slip the tape itself
+  shows (:func:`geometric_slips`: the midline's lengthening up to the row minus what forward
+  bending of the vertebrae, at the subject's joint depth, lengthens it by). The markers alone
+  hardly tell slip from forward bending (the marker error is nearly flat along slip against
+  flexion), so with the prior at 0 the solution depends on where the solver stops. The pinned rows (over the sacrum and the lowest lumbar levels, where
+  the tape starts) carry the reference: slips are relative to their mean. This is the multibody
   kinematic optimisation with a soft-tissue model that Begon M et al. (2018) J Biomech Eng
   140:030801 review; OpenSim's moving path points exist only for muscle paths, so a sliding
   marker is a marker on a body on a joint.
@@ -36,19 +40,40 @@ from ..tape import TapeSpec
 
 @dataclass(frozen=True)
 class SlipPrior:
-    """The prior on a row's slip: ``sd_mm`` its standard deviation (the IK goal's weight is
-    (``marker_sd_mm`` / ``sd_mm``)^2 against a marker of weight 1), ``limit_mm`` the clamped range
-    (+/-), ``pinned`` the lowest seen rows without slip (the reference)."""
+    """The prior on a row's slip: centred on the geometric estimate (:func:`geometric_slips`)
+    with standard deviation ``estimate_sd_mm`` where the estimate is known, else on 0 with
+    ``sd_mm`` (the IK goal's weight is (``marker_sd_mm`` / SD)^2 against a marker of weight 1);
+    ``limit_mm`` the clamped range (+/-), ``pinned`` the lowest seen rows without slip (the
+    reference)."""
 
     sd_mm: float = 25.0
     limit_mm: float = 80.0
     pinned: int = 2
     marker_sd_mm: float = 1.0
+    # SD (mm) of the goal around the slip the tape's own lengthening shows (geometric_slips) in the
+    # frames where it is known (3 with --slip-from-tape); None = every frame's goal is 0 with SD sd_mm
+    estimate_sd_mm: float | None = None
 
     @property
     def weight(self) -> float:
         """IK coordinate-goal weight (per m^2, beside marker errors in m^2)."""
         return (self.marker_sd_mm / self.sd_mm) ** 2
+
+    @property
+    def estimate_weight(self) -> float:
+        """IK coordinate-goal weight (per m^2) of the goal at the geometric estimate."""
+        return (self.marker_sd_mm / (self.estimate_sd_mm or self.sd_mm)) ** 2
+
+
+def prior_text(prior: SlipPrior) -> str:
+    """The prior in words, for the model file and ``summary.json``."""
+    fallback = f"mean 0, SD {prior.sd_mm:g} mm (IK coordinate goal of weight {prior.weight:.6g} per m^2)"
+    if prior.estimate_sd_mm is None:
+        return f"Gaussian, {fallback}"
+    return (f"Gaussian around the slip the tape's lengthening shows in each frame (its midline's lengthening "
+            f"from the pinned rows minus joint depth x forward turn; skin_slip_goals.sto, m), SD "
+            f"{prior.estimate_sd_mm:g} mm (IK coordinate goal of weight {prior.estimate_weight:.6g} per m^2); "
+            f"where unknown {fallback}")
 
 
 def slip_coordinate(row: int) -> str:
@@ -119,6 +144,65 @@ def row_tilt(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarra
     across = _unit(axis - along[..., None] * tangent)
     normal = _unit(np.cross(across, tangent))
     return np.arcsin(np.clip(along, -1.0, 1.0)), tangent, normal
+
+
+def geometric_slips(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, depth_mm: np.ndarray,
+                    reference: int) -> np.ndarray:
+    """(F, R) skin slip (mm, cranial positive) of every row against its vertebra, relative to row
+    ``reference``, from the tape alone: the midline's lengthening from ``reference`` to the row
+    (the steps between the row centres) minus what the vertebrae lengthen the skin by when bent
+    forward (the skin lies ``depth_mm`` (R,) behind the joint centres, so a forward turn of the
+    midline by ``a`` rad between two rows lengthens it by depth x ``a``; sideways bending and
+    twisting leave the midline's length alone). ``positions`` (F, D, 3), ``static`` (D, 3):
+    OpenSim ground, mm, NaN = not to be used. In each frame only the rows seen there and in the
+    static trial count (a gap is bridged by the chord, in both); a row inside a gap gets the slip
+    interpolated from its neighbours; NaN beyond the highest (lowest) seen row and in frames
+    without ``reference`` (below ``reference``: the same sum downward)."""
+    left, right = row_sides(positions, tape)
+    s_left, s_right = row_sides(static[None], tape)
+    out = np.full(positions.shape[:1] + (tape.n_rows,), np.nan)
+    rows = np.arange(tape.n_rows)
+    for f in range(len(positions)):
+        now = _row_geometry(left[f], right[f])
+        seen = np.isfinite(now[0]).all(axis=1) & np.isfinite(now[1]).all(axis=1)
+        before = _row_geometry(np.where(seen[:, None], s_left[0], np.nan), np.where(seen[:, None], s_right[0], np.nan))
+        seen &= np.isfinite(before[0]).all(axis=1) & np.isfinite(before[1]).all(axis=1)
+        if not seen[reference] or seen.sum() < 2:
+            continue
+        index = np.flatnonzero(seen)
+        depth = depth_mm[index]
+        stretch = (_lengthening(now[0][index], now[1][index], now[2][index], depth)
+                   - _lengthening(before[0][index], before[1][index], before[2][index], depth))  # between seen rows
+        along = np.concatenate([[0.0], np.cumsum(stretch)])
+        along -= along[np.searchsorted(index, reference)]
+        inside = (rows >= index[0]) & (rows <= index[-1])
+        out[f, inside] = np.interp(rows[inside], index, along)
+    return out
+
+
+def _row_geometry(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(R, 3) row centres (NaN where the row or its midline tangent is unknown), unit L->R axes
+    and unit midline tangents of one frame's side dots (R, 3)."""
+    centre = 0.5 * (left + right)
+    tangent = _midline_tangents(centre)
+    centre = np.where(np.isfinite(tangent).all(axis=1, keepdims=True), centre, np.nan)
+    return centre, _unit(right - left), tangent
+
+
+def _lengthening(centre: np.ndarray, across: np.ndarray, tangent: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """(n - 1,) skin length between consecutive rows (n, 3) minus the skin's rigid part of it: the
+    step between the centres less the mean depth x the forward turn of the tangent (rad) about the
+    pair's mean L->R axis (both tangents projected across that axis; forward = the upper tangent
+    tipped toward the front, about -right)."""
+    step = np.linalg.norm(np.diff(centre, axis=0), axis=1)
+    axis = _unit(across[:-1] + across[1:])
+
+    def flat(t: np.ndarray) -> np.ndarray:
+        return t - np.sum(t * axis, axis=-1, keepdims=True) * axis
+
+    lower, upper = flat(tangent[:-1]), flat(tangent[1:])
+    turn = -np.arctan2(np.sum(np.cross(lower, upper) * axis, axis=-1), np.sum(lower * upper, axis=-1))
+    return step - 0.5 * (depth[:-1] + depth[1:]) * turn
 
 
 def normalise_row_tilt(positions: np.ndarray, static: np.ndarray, tape: TapeSpec) -> tuple[np.ndarray, np.ndarray]:

@@ -33,9 +33,14 @@ INFERRED_SD_MM = 10.0
 # this is met, short of the optimum along the directions the markers hardly see: a twist shared
 # between the pelvis and the levels is under-read by an amount that depends on the start (about
 # 0.6 of a studio trunk twist read at 1e-5, 0.87 at 1e-6, 0.95 at 1e-7); but nearer the optimum
-# the skin-slip model reads forward bending worse (studio flexion RMSE 1.3 -> 3.5 deg at 1e-6), and
-# each tenth costs ~10-50x the time per frame on a capture with skin slip.
+# the skin-slip model with its slips' goals at 0 reads forward bending worse (studio flexion RMSE
+# 1.3 -> 3.5 deg at 1e-6); with the goals at the slip the tape shows (SlipPrior.estimate_sd_mm) it
+# does not. Each tenth costs several times the time per frame.
 IK_ACCURACY = 1e-5
+# A solve from far off (the static pose, see _better_of_two_starts) first runs to this accuracy,
+# then on to a tighter one: straight to 1e-6 from there took up to ~100x longer on a studio capture
+# bending three ways at once, to the same solution.
+START_ACCURACY = 1e-5
 
 
 def require_opensim():
@@ -150,9 +155,13 @@ def write_scale_setup(folder: Path, generic_model: str, static_trc: str, time_ra
 
 def write_ik_setup(folder: Path, model_file: str, trc: str, time_range: tuple[float, float],
                    labels: Sequence[str], weights: np.ndarray, output_motion: str, accuracy: float,
-                   priors: dict[str, float] | None = None) -> Path:
+                   priors: dict[str, float] | None = None, goal_file: str | None = None,
+                   goal_weights: dict[str, float] | None = None) -> Path:
     """``setup_ik.xml``: one marker task per label; errors reported to ``<name>_ik_marker_errors.sto``.
-    ``priors``: {coordinate: weight} of coordinate tasks pulling toward the default value (0)."""
+    ``priors``: {coordinate: weight} of coordinate tasks pulling toward the default value (0);
+    ``goal_weights``: {coordinate: weight} of coordinate tasks pulling toward the values in
+    ``goal_file`` (the tool's coordinate file, see :func:`write_coordinate_goals`; OpenSim's setup
+    holds one weight per task, so frames whose weight differs get this one in a re-run)."""
     osim = require_opensim()
     tool = osim.InverseKinematicsTool()
     tool.setName("spinemocap")
@@ -174,6 +183,17 @@ def write_ik_setup(folder: Path, model_file: str, trc: str, time_range: tuple[fl
         task.setWeight(float(weight))
         task.setValueType(osim.IKCoordinateTask.DefaultValue)
         tasks.cloneAndAppend(task)
+    for coordinate, weight in (goal_weights or {}).items():
+        task = osim.IKCoordinateTask()
+        task.setName(coordinate)
+        task.setApply(True)
+        task.setWeight(float(weight))
+        task.setValueType(osim.IKCoordinateTask.FromFile)
+        tasks.cloneAndAppend(task)
+    if goal_weights:
+        if goal_file is None:
+            raise ValueError("coordinate goals from a file need goal_file")
+        tool.setCoordinateFileName(goal_file)
     path = folder / "setup_ik.xml"
     tool.printToXML(str(path))
     return path
@@ -295,17 +315,31 @@ class IKSolution:
     observed_rms_mm: np.ndarray  # (F,) marker RMS over the observed (measured) samples only
 
 
+@dataclass(frozen=True)
+class CoordinateGoal:
+    """A coordinate goal that changes from frame to frame: ``values`` (F,) in the coordinate's
+    units (rad, m) and ``weights`` (F,) per unit^2, beside marker errors in m^2."""
+
+    values: np.ndarray
+    weights: np.ndarray
+
+
 def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positions_mm: np.ndarray,
-             weights: np.ndarray, priors: dict[str, float] | None = None, accuracy: float = IK_ACCURACY,
-             restart: bool = True, observed: np.ndarray | None = None) -> IKSolution:
+             weights: np.ndarray, priors: dict[str, float] | None = None,
+             accuracy: float | np.ndarray = IK_ACCURACY,
+             restart: bool = True, observed: np.ndarray | None = None,
+             goals: dict[str, CoordinateGoal] | None = None, fresh_start_margin: float = 0.0) -> IKSolution:
     """OpenSim's ``InverseKinematicsSolver`` on every frame of ``positions_mm`` (F, D, 3; OpenSim
     ground, mm; NaN = missing), each marker weighted per frame by ``weights`` (F, D) and each frame
     started from the previous frame's solution (the first from the model's default pose, where it
     was built: the static trial) and, with ``restart``, from the default pose too, keeping the
-    solution with the lower objective. ``observed`` (F, D) bool: the measured samples, over which
-    ``observed_rms_mm`` is taken (default: all present). ``priors``: {coordinate: weight} of coordinate goals toward the
-    coordinate's default value (weight per unit^2, beside marker errors in m^2). Coordinates the
-    model clamps stay inside their ranges."""
+    static start's solution unless its objective exceeds (1 + ``fresh_start_margin``) x the
+    other's. ``observed`` (F, D) bool: the measured samples, over which
+    ``observed_rms_mm`` is taken (default: all present); ``accuracy``: the solver's, one or (F,)
+    per frame. ``priors``: {coordinate: weight} of coordinate goals toward the
+    coordinate's default value (weight per unit^2, beside marker errors in m^2); ``goals``: coordinate
+    goals whose value and weight change per frame (:class:`CoordinateGoal`). Coordinates the model
+    clamps stay inside their ranges."""
     osim = require_opensim()
     model = osim.Model(str(model_file))
     state = model.initSystem()
@@ -318,16 +352,16 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
     for d, label in enumerate(labels):  # the first frame's weights, updated frame by frame (NaN: ignored)
         weight_set.cloneAndAppend(osim.MarkerWeight(str(label), float(weights[0, d]) if present[0, d] else 1.0))
     reference = osim.MarkersReference(table, weight_set)
-    goals = osim.SimTKArrayCoordinateReference()
+    references = osim.SimTKArrayCoordinateReference()
     coords = model.getCoordinateSet()
-    for name, weight in (priors or {}).items():
-        goal = osim.CoordinateReference(name, osim.Constant(coords.get(name).getDefaultValue()))
-        goal.setWeight(float(weight))
-        goals.push_back(goal)
-    solver = osim.InverseKinematicsSolver(model, reference, goals)
-    goal_weights = [(coords.get(name), float(weight), coords.get(name).getDefaultValue())
-                    for name, weight in (priors or {}).items()]
-    solver.setAccuracy(float(accuracy))
+    constant = {name: (coords.get(name).getDefaultValue(), float(weight)) for name, weight in (priors or {}).items()}
+    per_frame = goals or {}
+    for name, (value, weight) in {**constant, **{n: _goal_at(g, 0) for n, g in per_frame.items()}}.items():
+        goal = osim.CoordinateReference(name, osim.Constant(value))
+        goal.setWeight(weight)
+        references.push_back(goal)
+    solver = osim.InverseKinematicsSolver(model, reference, references)
+    frame_accuracy = np.broadcast_to(np.asarray(accuracy, float), (F,))
     column = {label: d for d, label in enumerate(labels)}
     coordinate_list = [coords.get(i) for i in range(coords.getSize())]
     values = np.zeros((F, len(coordinate_list)))
@@ -343,17 +377,23 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
             for name in order:
                 d = column[name]
                 solver.updateMarkerWeight(name, float(weights[f, d]) if present[f, d] else 1.0)
+            for name, goal in per_frame.items():
+                solver.updateCoordinateReference(name, *_goal_at(goal, f))
+        goal_weights = [(coords.get(name), weight, value) for name, (value, weight) in
+                        {**constant, **{n: _goal_at(g, f) for n, g in per_frame.items()}}.items()]
         # a full solve from the coordinates held in the state: the previous frame's solution (the
         # first frame's from the default pose, the static trial's); Assembler::track's few steps
         # stopped short of the solution at 12 frames/s
-        solver.assemble(state)
+        solver.setAccuracy(float(frame_accuracy[f]))
+        _assemble(solver, state, float(frame_accuracy[f]), far=f == 0)
         if f == 0:
             order = [solver.getMarkerNameForIndex(i) for i in range(solver.getNumMarkersInUse())]
         values[f] = [c.getValue(state) for c in coordinate_list]
         in_order = [column[name] for name in order]
         if f > 0 and restart:
             values[f] = _better_of_two_starts(solver, state, coordinate_list, values[f], goal_weights,
-                                              np.where(present[f, in_order], weights[f, in_order], 0.0))
+                                              np.where(present[f, in_order], weights[f, in_order], 0.0),
+                                              float(frame_accuracy[f]), fresh_start_margin)
         solver.computeCurrentMarkerErrors(errors)
         err = np.array([errors.getElt(i) for i in range(errors.size())])
         used = present[f, in_order] & np.isfinite(err)
@@ -369,32 +409,62 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
                       rms, worst, count, time.perf_counter() - started, observed_rms)
 
 
+def _assemble(solver, state, accuracy: float, far: bool) -> None:
+    """Solve from the coordinates in ``state`` to ``accuracy``; from ``far`` off, to
+    :data:`START_ACCURACY` first."""
+    if far and accuracy < START_ACCURACY:
+        solver.setAccuracy(START_ACCURACY)
+        solver.assemble(state)
+        solver.setAccuracy(float(accuracy))
+    solver.assemble(state)
+
+
+def _goal_at(goal: CoordinateGoal, frame: int) -> tuple[float, float]:
+    return float(goal.values[frame]), float(goal.weights[frame])
+
+
 def _ik_cost(solver, state, goal_weights: list, marker_weights: np.ndarray) -> float:
-    """The IK objective at ``state``: weighted squared marker errors (m^2) plus the coordinate goals'."""
+    """The IK objective at ``state``: weighted squared marker errors (m^2) plus the coordinate goals'
+    (``goal_weights``: (coordinate, weight, goal value))."""
     squared = require_opensim().SimTKArrayDouble()
     solver.computeCurrentSquaredMarkerErrors(squared)
     err = np.array([squared.getElt(i) for i in range(squared.size())])
     cost = float(np.nansum(marker_weights * err))
-    return cost + sum(w * (c.getValue(state) - default) ** 2 for c, w, default in goal_weights)
+    return cost + sum(w * (c.getValue(state) - goal) ** 2 for c, w, goal in goal_weights)
 
 
 def _better_of_two_starts(solver, state, coordinate_list: list, from_previous: np.ndarray, goal_weights: list,
-                          marker_weights: np.ndarray) -> np.ndarray:
-    """Solve the frame again from the default pose (the static trial) and keep whichever of the two
-    solutions has the lower objective; ``state`` is left at the kept one. Along the directions the
-    markers hardly see (a pelvis turn against the levels' axial rotations) a solve from the previous
-    frame stops wherever the solver's tolerance is met, so the solution would depend on the path."""
+                          marker_weights: np.ndarray, accuracy: float, margin: float) -> np.ndarray:
+    """Solve the frame again from the default pose (the static trial) and keep that solution unless
+    its objective exceeds (1 + ``margin``) x the previous frame's start's (a far bend the static
+    start cannot reach; a margin keeps the choice from hanging on small differences along a valley
+    the markers hardly see); ``state`` is left at the kept one. Along the
+    directions the markers hardly see (a pelvis turn against the levels' axial rotations) a solve
+    from the previous frame stops wherever the solver's tolerance is met, so the solution would
+    depend on the path; where both starts end equally good, the static start's does not.
+    The solve from the default pose runs to :data:`START_ACCURACY` first, then to ``accuracy``."""
     cost_previous = _ik_cost(solver, state, goal_weights, marker_weights)
     for c in coordinate_list:
         c.setValue(state, c.getDefaultValue(), False)
-    solver.assemble(state)
+    for c, _, goal in goal_weights:  # a coordinate with a goal starts at it
+        c.setValue(state, goal, False)
+    _assemble(solver, state, accuracy, far=True)
     fresh = np.array([c.getValue(state) for c in coordinate_list])
-    if _ik_cost(solver, state, goal_weights, marker_weights) <= cost_previous:
+    if _ik_cost(solver, state, goal_weights, marker_weights) <= (1.0 + margin) * cost_previous:
         return fresh
     for c, value in zip(coordinate_list, from_previous):
         c.setValue(state, float(value), False)
     solver.assemble(state)  # back onto the previous-start solution (already converged: one step)
     return np.array([c.getValue(state) for c in coordinate_list])
+
+
+def write_coordinate_goals(path: Path, times: np.ndarray, goals: dict[str, CoordinateGoal]) -> None:
+    """The goals' values per frame (coordinate units: m for translations) as an OpenSim storage
+    file, the coordinate file ``setup_ik.xml`` names for its ``FromFile`` coordinate tasks."""
+    osim = require_opensim()
+    names = list(goals)
+    _write_sto(osim, path, times, names, np.column_stack([goals[n].values for n in names]),
+               {"inDegrees": "no", "DataType": "double"})
 
 
 def write_ik_outputs(folder: Path, solution: IKSolution, motion: str = "ik.mot",

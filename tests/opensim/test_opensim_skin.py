@@ -73,6 +73,42 @@ def test_a_laterally_bent_tape_keeps_its_rows_square_to_the_midline():
     np.testing.assert_allclose(out, [_bend(lateral=20.0), _bend(twist=15.0)], atol=0.1)
 
 
+def _opensim_axes(dots: np.ndarray) -> np.ndarray:
+    from spinemocap.opensim.geometry import opensim_axes, to_opensim
+
+    return to_opensim(dots, opensim_axes(UP, FACING))
+
+
+def test_the_geometric_slip_is_the_skin_lengthening_less_depth_times_forward_turn():
+    from spinemocap.opensim.skin_model import geometric_slips
+
+    static = _opensim_axes(_bend())
+    depth = np.full(TAPE.n_rows, 40.0)
+    # bending sideways or twisting keeps the midline's length: no slip at any joint depth
+    sideways = _opensim_axes(np.array([_bend(lateral=20.0), _bend(twist=15.0)]))
+    assert np.abs(geometric_slips(sideways, static, TAPE, depth, 0)).max() < 0.2
+    # a forward bend of 30 deg between rows 1 and 11 (the rod keeps its length): skin over joints
+    # 40 mm deep must slide down by 40 mm x 30 deg against the vertebrae; a rod without depth not at all
+    bent = _opensim_axes(_bend(flexion=30.0))[None]
+    assert np.abs(geometric_slips(bent, static, TAPE, 0.0 * depth, 0)).max() < 0.2
+    slips = geometric_slips(bent, static, TAPE, depth, 0)[0]
+    assert slips[10:] == pytest.approx(-40.0 * np.radians(30.0), abs=0.5)
+    assert slips[0] == 0.0 and np.all(np.diff(slips[:11]) < 0.0)
+
+
+def test_a_known_slip_is_read_from_the_tape_and_a_row_unseen_in_a_frame_from_its_neighbours():
+    from spinemocap.opensim.skin_model import geometric_slips
+
+    dots, slip = _slipped(3)
+    hidden = dots.copy()
+    hidden[1, TAPE.graph.row == 6] = np.nan
+    hidden[2, TAPE.graph.row == 0] = np.nan  # the reference: that frame has no estimate
+    depth = np.full(TAPE.n_rows, 40.0)
+    estimate = geometric_slips(_opensim_axes(hidden), _opensim_axes(_bend()), TAPE, depth, 0)
+    np.testing.assert_allclose(estimate[:2], slip[:2], atol=0.2)  # rows slid along the static tangents
+    assert np.isnan(estimate[2]).all()
+
+
 def _run(markers: MarkerTable, out, up=UP, facing=FACING, **settings):
     from spinemocap.opensim import OpenSimSettings, run_opensim
 
@@ -96,11 +132,16 @@ def _slipped(frames: int = 8) -> tuple[np.ndarray, np.ndarray]:
 
 @needs_opensim
 def test_a_known_slip_is_solved_by_the_slip_coordinates_and_the_model_names_them(tmp_path):
+    from dataclasses import asdict
+
+    from spinemocap.opensim.pipeline import slip_from_tape
     from spinemocap.opensim.skin_model import SlipPrior, slip_coordinate
     from spinemocap.opensim.tools import read_storage
 
     dots, slip = _slipped()
-    result = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "out")
+    from_tape = {k: v for k, v in asdict(slip_from_tape()).items() if k in ("accuracy", "fresh_start_margin")}
+    result = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "out",
+                  slip=slip_from_tape().slip, **from_tape)
     times, labels, values, _ = read_storage(result.out_dir / "ik.mot")
     solved = np.column_stack([1000 * values[:, labels.index(slip_coordinate(r))] for r in range(2, TAPE.n_rows)])
     # mm; IK may share a little of a uniform lengthening with extension of the lordotic spine (both
@@ -117,22 +158,29 @@ def test_a_known_slip_is_solved_by_the_slip_coordinates_and_the_model_names_them
     # the model opens in OpenSim's API with its slip coordinates, clamped to the prior's limit ...
     model = osim.Model(str(result.out_dir / "model.osim"))
     model.initSystem()
-    prior = SlipPrior()
+    prior = slip_from_tape().slip
+    assert isinstance(prior, SlipPrior) and prior.estimate_sd_mm is not None
     for r in range(2, TAPE.n_rows):
         c = model.getCoordinateSet().get(slip_coordinate(r))
         assert c.getMotionType() == osim.Coordinate.Translational and c.getDefaultClamped()
         assert c.getRangeMax() == pytest.approx(prior.limit_mm / 1000) and not c.getDefaultLocked()
         assert model.getMarkerSet().get(f"R{r + 1:02d}L").getParentFrameName().endswith(f"R{r + 1:02d}_skin")
     assert not model.getCoordinateSet().contains(slip_coordinate(1))  # pinned
-    # ... its prior named beside each coordinate and as an IK coordinate task in OpenSim's own setup
+    # ... its prior named beside each coordinate and as an IK coordinate task in OpenSim's own setup,
+    # whose goal per frame (the coordinate file) is the slip the tape shows: here the known one
     text = (result.out_dir / "model.osim").read_text()
-    assert text.count(f"SD {prior.sd_mm:g} mm") == TAPE.n_rows - 2
+    assert text.count(f"SD {prior.estimate_sd_mm:g} mm") == text.count(f"SD {prior.sd_mm:g} mm") == TAPE.n_rows - 2
     tool = osim.InverseKinematicsTool(str(result.out_dir / "setup_ik.xml"))
+    assert tool.getCoordinateFileName() == "skin_slip_goals.sto"
     tasks = tool.getIKTaskSet()
+    _, goal_labels, goals, _ = read_storage(result.out_dir / "skin_slip_goals.sto")
     for r in range(2, TAPE.n_rows):
-        task = tasks.get(slip_coordinate(r))
-        assert task.getConcreteClassName() == "IKCoordinateTask"
-        assert task.getWeight() == pytest.approx(prior.weight)
+        task = osim.IKCoordinateTask.safeDownCast(tasks.get(slip_coordinate(r)))
+        assert task.getValueType() == osim.IKCoordinateTask.FromFile
+        assert task.getWeight() == pytest.approx(prior.estimate_weight)
+        # rows slid along the static tangents turn the curving rod's discrete tangents a little: a few %
+        np.testing.assert_allclose(1000 * goals[:, goal_labels.index(slip_coordinate(r))], slip[:, r], rtol=0.1,
+                                   atol=0.1)
 
 
 def _turn(points: np.ndarray, degrees: float) -> np.ndarray:
@@ -202,12 +250,18 @@ def test_every_path_form_works_relative_with_spaces_and_read_only_inputs(tmp_pat
 
 
 @needs_opensim
-def test_the_same_dots_give_the_same_angles_on_the_way_out_and_back(tmp_path):
+@pytest.mark.parametrize("from_tape", [False, True])
+def test_the_same_dots_give_the_same_angles_on_the_way_out_and_back(tmp_path, from_tape):
+    from spinemocap.opensim.pipeline import slip_from_tape
+
     # a twist and lateral bend out and back: frames with equal dots must get equal angles (a solve
     # only from the previous frame's solution stops short along the directions the markers hardly see)
     amplitude = np.array([0.0, 0.5, 1.0, 0.5, 0.0])
     dots = np.array([_bend(flexion=20 * a, lateral=15 * a, twist=25 * a) for a in amplitude])
-    result = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "out")
+    options = slip_from_tape()
+    settings = {"slip": options.slip, "accuracy": options.accuracy,
+                "fresh_start_margin": options.fresh_start_margin} if from_tape else {}
+    result = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "out", **settings)
     columns = [c for c in result.angles.columns if c.endswith(("_flexion", "_lateral", "_rotation"))]
     angles = result.angles[columns].to_numpy()
     np.testing.assert_allclose(angles[3], angles[1], atol=0.1)
