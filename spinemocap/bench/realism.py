@@ -165,8 +165,9 @@ def vouched_swaps(table, gt: dict, spacing_mm: float) -> int:
 
 
 def run_case(case: Case, frames: int, fps: float | None, preset: str, occlusion: str, detector: str,
-             seed: int, progress: bool, say: Callable[[str], None]) -> dict:
-    """Render one case and score the new tracker and the peer on it."""
+             seed: int, progress: bool, say: Callable[[str], None], weights: Path | None = None) -> dict:
+    """Render one case and score the new tracker and the peer on it (``weights``: the ``net``
+    detector's weights file; None: the shipped ones)."""
     synth = SynthConfig.preset(preset, occlusion=occlusion, seed=seed, frames=frames,
                                **({"fps": fps} if fps else {}), **case.studio)
     scene = build_scene(synth)
@@ -174,7 +175,7 @@ def run_case(case: Case, frames: int, fps: float | None, preset: str, occlusion:
     say(f"[{case.name}] {synth.frames} frames at {synth.fps:g} fps, motion {synth.motion}, realism "
         f"{synth.realism}: tension {synth.tape_tension}, calibration {synth.calibration_error_px} px, "
         f"sync {synth.sync_error_ms} ms, skin strain {synth.skin_strain}")
-    views = _render(scene, make_detector(detector), synth.frames, progress)
+    views = _render(scene, make_detector(detector, weights=weights), synth.frames, progress)
     gt = scene.groundtruth
     spacing = float(scene.tape.graph.rest_length_mm.min())
     row: dict = {"case": case.name, "factor": case.factor, "studio": {k: v for k, v in case.studio.items()}}
@@ -238,8 +239,9 @@ def describe(row: dict) -> str:
 def run_realism_benchmark(cases: list[Case], frames: int = 200, fps: float | None = None, preset: str = "artificial",
                           occlusion: str = "light", detector: str = "net", seed: int = 0, progress: bool = True,
                           say: Callable[[str], None] = print,
-                          after_case: Callable[[dict], None] | None = None) -> dict:
-    """Every case of ``cases`` (see :func:`sweep`); returns the JSON-ready numbers.
+                          after_case: Callable[[dict], None] | None = None, weights: Path | None = None) -> dict:
+    """Every case of ``cases`` (see :func:`sweep`); returns the JSON-ready numbers. ``weights``:
+    the ``net`` detector's weights file (None: the shipped ones).
     ``after_case(numbers so far)`` is called after each case (the command saves them, so that a
     sweep of hours stopped midway keeps the cases it finished)."""
     import platform
@@ -249,13 +251,13 @@ def run_realism_benchmark(cases: list[Case], frames: int = 200, fps: float | Non
 
     def numbers() -> dict:
         return {"preset": preset, "occlusion": occlusion, "frames": frames, "fps": fps, "detector": detector,
-                "seed": seed, "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+                "seed": seed, "weights": str(weights) if weights else "shipped", "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
                 "wall_s": time.perf_counter() - start, "cases": rows, "goals": GOALS,
                 "verdict": {goal: judged.to_dict() for goal, judged in verdict(rows).items()},
                 "complete": len(rows) == len(cases)}
 
     for case in cases:
-        rows.append(run_case(case, frames, fps, preset, occlusion, detector, seed, progress, say))
+        rows.append(run_case(case, frames, fps, preset, occlusion, detector, seed, progress, say, weights))
         if after_case is not None:
             after_case(numbers())
     return numbers()

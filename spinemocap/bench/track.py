@@ -71,6 +71,7 @@ class TrackBenchRun:
     lp_relaxed_frames: int
     paper: dict
     goal_mm: float
+    weights: str = "shipped"  # the net detector's weights file
 
 
 @dataclass
@@ -101,12 +102,14 @@ class TrackBenchResult:
 def run_track_benchmark(preset: str = "artificial", occlusion: str = "none", frames: int | None = None,
                         mode: TrackingMode = "sequence", detector: str = "net", config: TrackerConfig | None = None,
                         seed: int = 0, progress: bool = True,
-                        say: Callable[[str], None] = print, realism: str = "lab") -> TrackBenchResult:
+                        say: Callable[[str], None] = print, realism: str = "lab",
+                        weights: Path | None = None) -> TrackBenchResult:
     """Render the synthetic sequence in-process, track it and score it against the ground truth.
 
     ``realism``: the studio's realism level (``lab`` by default: taping tension, Schober skin
     strain, calibration and sync error, sensor noise; ``ideal`` = no skin strain, exact set-up).
-    The tracker gets what a lab has: the roll's nominal tape spec and the written rig."""
+    The tracker gets what a lab has: the roll's nominal tape spec and the written rig. ``weights``:
+    the ``net`` detector's weights file (None: the shipped ones)."""
     config = config or TrackerConfig()
     synth = SynthConfig.preset(preset, occlusion=occlusion, seed=seed, realism=realism,
                                **({"frames": frames} if frames else {}))
@@ -117,7 +120,7 @@ def run_track_benchmark(preset: str = "artificial", occlusion: str = "none", fra
         f"{float(synth.sync_error_ms or 0):g} ms, noise {float(synth.noise or 0):g} ...")
     scene = build_scene(synth)
     rig = getattr(scene, "calibrated_rig", scene.rig)  # the rig a lab would have been given
-    detect = make_detector(detector)
+    detect = make_detector(detector, weights=weights)
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", TrackingWarning)
@@ -137,7 +140,7 @@ def run_track_benchmark(preset: str = "artificial", occlusion: str = "none", fra
         lp_relaxed_frames=sum(f.lp_status == "relaxed" for f in result.frames),
         paper={"error_mm": PAPER_ERROR_MM[occlusion], "plane_baselines_mm": PAPER_PLANES_MM,
                "visibility_histogram": PAPER_VISIBILITY[occlusion]},
-        goal_mm=GOAL_MM[occlusion],
+        goal_mm=GOAL_MM[occlusion], weights=str(weights) if weights else "shipped",
     )
     return TrackBenchResult(accuracy, run, result.table, gt)
 
@@ -157,7 +160,8 @@ def format_report(result: TrackBenchResult) -> str:
     occ = run.occlusion
     planes = acc.plane_baselines_mm or {}
     lines = [f"\nTable 1 (Artificial, mean error mm)   [{acc.frames} frames x {acc.dots} dots, "
-             f"mode {run.mode}, detector {run.detector}, tape thickness {run.tape_thickness_mm} mm, "
+             f"mode {run.mode}, detector {run.detector} (weights {run.weights}), "
+             f"tape thickness {run.tape_thickness_mm} mm, "
              f"studio realism '{run.realism}']",
              f"  {'':<34}{'paper':>12}{'ours':>12}"]
     for name in ("1-plane", "2-plane", "3-plane"):

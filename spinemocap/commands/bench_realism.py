@@ -26,6 +26,7 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--occlusion", default="light", choices=("none", "light", "heavy"))
     p.add_argument("--detector", choices=("net", "classical", "mask"), default="net")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--weights", type=Path, help="the net detector's weights file (default: shipped)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
 
@@ -41,9 +42,13 @@ def run(args: argparse.Namespace) -> int:
         if unknown:
             raise InputError("--cases", f"unknown cases {unknown}; choose from {list(known)}")
         cases = [known[n] for n in args.cases]
+    if args.weights is not None:
+        from ..detect.segnet import load_weights
+
+        load_weights(args.weights)  # a missing or foreign file is refused before any rendering
     numbers = run_realism_benchmark(cases, frames=args.frames, fps=args.fps, occlusion=args.occlusion,
                                     detector=args.detector, seed=args.seed, progress=not args.no_progress,
-                                    after_case=lambda partial: save(partial, args.json, None))
+                                    after_case=lambda partial: save(partial, args.json, None), weights=args.weights)
     save(numbers, args.json, args.plot)
     print(format_table(numbers))
     for goal, judged in verdict(numbers["cases"]).items():

@@ -19,6 +19,7 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--detector", choices=("net", "classical", "mask"), default="net",
                    help="tape/dot detector (default: the shipped network); 'mask' finds dots inside the "
                         "renderer's exact tape masks, isolating the tracker from tape segmentation")
+    p.add_argument("--weights", type=Path, help="the net detector's weights file (default: shipped)")
     p.add_argument("--config", type=Path, help="tracker settings (TOML)")
     p.add_argument("--seed", type=int, default=0, help="synthetic scene seed")
     p.add_argument("--realism", choices=("ideal", "skin", "lab"), default="lab",
@@ -35,8 +36,13 @@ def run(args: argparse.Namespace) -> int:
     from ..track.config import TrackerConfig
 
     config = TrackerConfig.from_toml(args.config) if args.config else TrackerConfig()
+    if args.weights is not None:
+        from ..detect.segnet import load_weights
+
+        load_weights(args.weights)  # a missing or foreign file is refused before any rendering
     result = run_track_benchmark(args.preset, args.occlusion, args.frames, args.mode, args.detector, config,
-                                 args.seed, progress=not args.no_progress, realism=args.realism)
+                                 args.seed, progress=not args.no_progress, realism=args.realism,
+                                 weights=args.weights)
     print(format_report(result))
     if args.json:
         plot = result.save(args.json)

@@ -36,6 +36,8 @@ def test_bench_view_times_a_made_capture(parse, capsys):
     (["bench", "realism", "--json", "r.json", "--cases", "no such case"], "--cases"),
     (["bench", "sync", "--scenarios", "nope", "--out", "s"], "--scenarios"),
     (["bench", "track", "--config", "missing.toml"], "missing.toml"),
+    (["bench", "track", "--weights", "missing.pt"], "missing.pt"),
+    (["bench", "realism", "--json", "r.json", "--weights", "missing.pt"], "missing.pt"),
     (["bench", "vicon-wand", "--frames", "0"], "bench vicon-wand"),
     (["bench", "long-capture", "no-base", "out"], "no-base"),
 ])
