@@ -176,20 +176,15 @@ def write_ik_setup(folder: Path, model_file: str, trc: str, time_range: tuple[fl
     # get_IKTaskSet().cloneAndAppend() silently adds nothing from Python: use the upd_ accessor
     tasks = tool.upd_IKTaskSet()
     _task_set(osim, labels, weights, tasks)
-    for coordinate, weight in (priors or {}).items():
-        task = osim.IKCoordinateTask()
-        task.setName(coordinate)
-        task.setApply(True)
-        task.setWeight(float(weight))
-        task.setValueType(osim.IKCoordinateTask.DefaultValue)
-        tasks.cloneAndAppend(task)
-    for coordinate, weight in (goal_weights or {}).items():
-        task = osim.IKCoordinateTask()
-        task.setName(coordinate)
-        task.setApply(True)
-        task.setWeight(float(weight))
-        task.setValueType(osim.IKCoordinateTask.FromFile)
-        tasks.cloneAndAppend(task)
+    for weights_by_coordinate, value_type in ((priors, osim.IKCoordinateTask.DefaultValue),
+                                              (goal_weights, osim.IKCoordinateTask.FromFile)):
+        for coordinate, weight in (weights_by_coordinate or {}).items():
+            task = osim.IKCoordinateTask()
+            task.setName(coordinate)
+            task.setApply(True)
+            task.setWeight(float(weight))
+            task.setValueType(value_type)
+            tasks.cloneAndAppend(task)
     if goal_weights:
         if goal_file is None:
             raise ValueError("coordinate goals from a file need goal_file")
