@@ -46,7 +46,7 @@ from ..analysis.neutral import neutral_from_angles, relative_to_neutral
 from ..camera import Rig
 from ..capture import Capture
 from ..crossval.agreement import agreement
-from ..crossval.compare import CrossValidation, cross_validate, set_angles, triad_rows
+from ..crossval.compare import CrossValidation, CrossValSummary, cross_validate, set_angles, triad_rows
 from ..crossval.register import RigToVicon, transform_between_rigs
 from ..fileio import InputError, atomic_write, strict_json
 from ..markers import MarkerTable
@@ -206,9 +206,9 @@ def crossval_files(tracked_path: str | os.PathLike, vicon_path: str | os.PathLik
                    out: str | os.PathLike, rig_vicon: str | os.PathLike | None = None,
                    marker_diameter_mm: float = 14.0, max_offset_s: float = 1.0,
                    reference_path: str | os.PathLike | None = None,
-                   levels_path: str | os.PathLike | None = None) -> tuple[CrossValidation, dict]:
-    """Run the cross-validation on files and write its outputs into ``out``; returns the result
-    and the summary written to summary.json. ``reference_path``: body-model dots in the Vicon frame
+                   levels_path: str | os.PathLike | None = None) -> CrossValidation:
+    """Run the cross-validation on files and write its outputs into ``out`` (summary.json,
+    merged.c3d, angles.csv, report.html); returns the result. ``reference_path``: body-model dots in the Vicon frame
     and clock (``spinemocap bodyfit --tape`` on the Vicon file: tape_dots.c3d), written as
     ``REF_*`` beside the tracked dots in merged.c3d and compared with them. ``levels_path``: the
     row-to-level map (default: the capture's, as the batch finds it)."""
@@ -229,15 +229,15 @@ def crossval_files(tracked_path: str | os.PathLike, vicon_path: str | os.PathLik
     except InputError as exc:
         if levels_path:
             raise
-        levels, result.summary["angles_skipped"] = None, str(exc)
+        levels, result.summary.angles_skipped = None, str(exc)
     if levels is not None and not triad_rows(v_labels, capture.tape):
-        levels, result.summary["angles_skipped"] = None, "the Vicon file has no triads (VT_RnnL/R) beside the tape"
+        levels, result.summary.angles_skipped = None, "the Vicon file has no triads (VT_RnnL/R) beside the tape"
     if levels is not None:
         crossval_angles(result, t_time, t_pos, t_labels, capture.tape, levels, capture.up, capture.facing)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    summary = dict(result.summary, tracked=str(tracked_path), vicon=str(vicon_path), capture=str(capture_path))
-    summary["angles_flagged"] = [n for n, a in summary["angles"].items() if not a["icc"] > ICC_FLAG]
+    summary = dict(result.summary.to_dict(), tracked=str(tracked_path), vicon=str(vicon_path),
+                   capture=str(capture_path), angles_flagged=result.summary.poorly_agreeing(ICC_FLAG))
     with atomic_write(out / "summary.json") as handle:
         handle.write(strict_json(summary, indent=2))
     beside_labels = [f"VICON_{label}" for label in result.vicon_labels]
@@ -255,8 +255,8 @@ def crossval_files(tracked_path: str | os.PathLike, vicon_path: str | os.PathLik
             handle.write(f"{t:.5f}," + ",".join(values) + "\n")
     angles = dict(result.angles)
     angles.update({f"{name} (tape vs body fit)": pair for name, pair in (result.reference_angles or {}).items()})
-    write_report(out / "report.html", summary, t_time, angles)
-    return result, summary
+    write_crossval_page(out / "report.html", result.summary, str(tracked_path), str(vicon_path), t_time, angles)
+    return result
 
 
 def _figure_html(fig) -> str:
@@ -265,8 +265,11 @@ def _figure_html(fig) -> str:
     return f'<img src="data:image/png;base64,{base64.b64encode(buffer.getvalue()).decode()}">'
 
 
-def write_report(path: Path, summary: dict, time_s: np.ndarray, angles: dict) -> None:
-    """HTML page: alignment, marker table, angle table, waveforms and Bland-Altman plots."""
+def write_crossval_page(path: Path, summary: CrossValSummary, tracked: str, vicon: str, time_s: np.ndarray,
+                        angles: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
+    """HTML page at ``path``: the files compared, alignment, marker table, angle table, and each
+    angle's waveforms (name -> (tape (F,), other (F,)) deg at ``time_s`` (F,) s) with its
+    Bland-Altman plot."""
     import html
 
     import matplotlib
@@ -276,50 +279,50 @@ def write_report(path: Path, summary: dict, time_s: np.ndarray, angles: dict) ->
 
     parts = ["<html><head><meta charset='utf-8'><title>spinemocap cross-validation</title></head><body>",
              "<h1>Tape vs Vicon cross-validation</h1>",
-             f"<p>Tracked: {html.escape(summary['tracked'])}<br>Vicon: {html.escape(summary['vicon'])}</p>",
-             "<h2>Frame and clock</h2><pre>" + html.escape(json.dumps(summary["alignment"], indent=1)) + "</pre>",
+             f"<p>Tracked: {html.escape(tracked)}<br>Vicon: {html.escape(vicon)}</p>",
+             "<h2>Frame and clock</h2><pre>" + html.escape(json.dumps(summary.alignment.to_dict(), indent=1)) + "</pre>",
              ("<h2>Markers on or beside the tape</h2><table border=1><tr><th>marker</th><th>RMSE (mm)</th>"
               "<th>nearest dot (mm)</th></tr>")]
-    for label, entry in summary["markers"].items():
-        rmse = f"{entry['rmse_mm']:.2f}" if "rmse_mm" in entry else ""
-        parts.append(f"<tr><td>{html.escape(label)}</td><td>{rmse}</td><td>{entry['nearest_dot_mm_mean']:.1f}</td></tr>")
+    for label, entry in summary.markers.items():
+        rmse = f"{entry.rmse_mm:.2f}" if entry.rmse_mm is not None else ""
+        parts.append(f"<tr><td>{html.escape(label)}</td><td>{rmse}</td><td>{entry.nearest_dot_mm_mean:.1f}</td></tr>")
     parts.append("</table><h2>Angles (tape - Vicon)</h2><table border=1><tr><th>angle</th><th>RMSE</th><th>bias</th>"
                  "<th>LoA</th><th>ICC(2,1)</th><th>CMC</th><th>n</th></tr>")
-    for name, s in summary["angles"].items():
-        parts.append(f"<tr><td>{name}</td><td>{s['rmse_deg']:.2f}</td><td>{s['bias_deg']:+.2f}</td>"
-                     f"<td>[{s['loa_low_deg']:+.2f}, {s['loa_high_deg']:+.2f}]</td><td>{s['icc']:.3f}</td>"
-                     f"<td>{s['cmc']:.3f}</td><td>{s['n']}</td></tr>")
-    convention = summary.get("angle_convention") or {}
+    for name, s in summary.angles.items():
+        parts.append(f"<tr><td>{name}</td><td>{s.rmse:.2f}</td><td>{s.bias:+.2f}</td>"
+                     f"<td>[{s.loa_low:+.2f}, {s.loa_high:+.2f}]</td><td>{s.icc:.3f}</td>"
+                     f"<td>{s.cmc:.3f}</td><td>{s.n}</td></tr>")
+    convention = summary.angle_convention or {}
     if convention:
         parts.append(f"</table><p>{html.escape(convention['definition'])}</p><ul>" + "".join(
             f"<li>Vicon frame at {html.escape(level)}: {html.escape(text)}</li>"
             for level, text in convention["vicon_frames"].items()) + "</ul>")
     else:
-        parts.append(f"</table><p>No angles: {html.escape(summary.get('angles_skipped', ''))}</p>")
-    if "reference" in summary:
-        r = summary["reference"]
+        parts.append(f"</table><p>No angles: {html.escape(summary.angles_skipped or '')}</p>")
+    if summary.reference is not None:
+        r = summary.reference
         parts.append("<h2>Body-model tape (REF_*) vs tracked dots</h2>"
-                     f"<p>dot distance mean {r['dot_distance_mean_mm']:.2f} mm, median {r['dot_distance_median_mm']:.2f} "
-                     f"mm, p95 {r['dot_distance_p95_mm']:.2f} mm over {r['n']} dot-frames</p><table border=1>"
+                     f"<p>dot distance mean {r.dot_distance_mean_mm:.2f} mm, median {r.dot_distance_median_mm:.2f} "
+                     f"mm, p95 {r.dot_distance_p95_mm:.2f} mm over {r.n} dot-frames</p><table border=1>"
                      "<tr><th>angle (tape - body fit)</th><th>RMSE</th><th>bias</th><th>ICC(2,1)</th><th>CMC</th></tr>")
-        for name, a in r["angles"].items():
-            parts.append(f"<tr><td>{name}</td><td>{a['rmse_deg']:.2f}</td><td>{a['bias_deg']:+.2f}</td>"
-                         f"<td>{a['icc']:.3f}</td><td>{a['cmc']:.3f}</td></tr>")
+        for name, a in r.angles.items():
+            parts.append(f"<tr><td>{name}</td><td>{a.rmse:.2f}</td><td>{a.bias:+.2f}</td>"
+                         f"<td>{a.icc:.3f}</td><td>{a.cmc:.3f}</td></tr>")
         parts.append("</table>")
     if angles:
         names = list(angles)
         fig, axes = plt.subplots(len(names), 2, figsize=(11, 2.4 * len(names)), constrained_layout=True)
         axes = np.atleast_2d(axes)
         for row, name in enumerate(names):
-            tape, vicon = angles[name]
+            tape, other = angles[name]
             axes[row, 0].plot(time_s, tape, label="tape")
-            axes[row, 0].plot(time_s, vicon, "--", label="body fit" if "body fit" in name else "Vicon")
+            axes[row, 0].plot(time_s, other, "--", label="body fit" if "body fit" in name else "Vicon")
             axes[row, 0].set_ylabel(f"{name} (deg)", fontsize=8)
             axes[row, 0].legend(fontsize=7)
-            mean, diff = (tape + vicon) / 2, tape - vicon
-            s = agreement(tape, vicon, "deg")
+            mean, diff = (tape + other) / 2, tape - other
+            s = agreement(tape, other, "deg")
             axes[row, 1].scatter(mean, diff, s=6)
-            for level, style in ((s["bias_deg"], "-"), (s["loa_low_deg"], "--"), (s["loa_high_deg"], "--")):
+            for level, style in ((s.bias, "-"), (s.loa_low, "--"), (s.loa_high, "--")):
                 axes[row, 1].axhline(level, color="k", ls=style, lw=0.8)
             axes[row, 1].set_xlabel("mean of tape and Vicon (deg)", fontsize=8)
             axes[row, 1].set_ylabel("difference (deg)", fontsize=8)

@@ -100,7 +100,8 @@ def crossval_numbers(seed: int, frames: int = 60, fps: float = 30.0, noise_mm: f
     return {"frames": frames, "fps": fps, "rows": rows, "dot_noise_mm": noise_mm,
             "clock_offset_true_ms": 1000 * s.clock_offset_s, "clock_offset_error_ms": 1000 * (a.offset_s - s.clock_offset_s),
             "transform_error_max_mm": float(np.linalg.norm(a.to_vicon(points) - (points @ s.R.T + s.t), axis=1).max()),
-            "angles": result.summary["angles"], "angle_convention": result.summary["angle_convention"]}
+            "angles": {name: stats.to_dict() for name, stats in result.summary.angles.items()},
+            "angle_convention": result.summary.angle_convention}
 
 
 def run_bodyfit_benchmark(preset: str = "artificial", frames: int = 10, misplacement_mm: float = 10.0,

@@ -81,8 +81,8 @@ def run_level(preset: str, realism: str, frames: int, fps: float, size: tuple[in
                 a = result.alignment
                 row[name] = dict(registration_errors(truth, a.scale * a.R, a.t, a.offset_s), estimated=a.estimated,
                                  scale=a.scale,
-                                 angles={k: {m: v[m] for m in ("rmse_deg", "bias_deg", "icc", "cmc")}
-                                         for k, v in result.summary["angles"].items()})
+                                 angles={k: {m: v.to_dict()[m] for m in ("rmse_deg", "bias_deg", "icc", "cmc")}
+                                         for k, v in result.summary.angles.items()})
     finally:
         scene.close()
     return row

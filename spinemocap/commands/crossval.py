@@ -34,25 +34,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_crossval(args: argparse.Namespace) -> int:
-    from ..app.crossval import crossval_files
+    from ..app.crossval import ICC_FLAG, crossval_files
     from .export import find_markers
 
-    result, summary = crossval_files(find_markers(args.tracked), args.vicon, args.capture, args.out, args.rig_vicon,
-                                     args.marker_diameter, args.max_offset, args.reference,
-                                     args.levels)
-    a = result.alignment
+    result = crossval_files(find_markers(args.tracked), args.vicon, args.capture, args.out, args.rig_vicon,
+                            args.marker_diameter, args.max_offset, args.reference, args.levels)
+    a, summary = result.alignment, result.summary
     print(f"clock offset (t_vicon - t_rgb) {1000 * a.offset_s:+.2f} ms; alignment residual {a.residual_mm:.2f} mm "
           f"over {a.n_frames} frames ({a.estimated} estimated)")
-    for name, stats in summary["angles"].items():
-        print(f"  {name:28s} RMSE {stats['rmse_deg']:5.2f} deg  bias {stats['bias_deg']:+5.2f}  LoA "
-              f"[{stats['loa_low_deg']:+.2f}, {stats['loa_high_deg']:+.2f}]  ICC {stats['icc']:.3f}  CMC {stats['cmc']:.3f}")
-    if "reference" in summary:
-        r = summary["reference"]
-        print(f"body-fit tape vs tracked dots: mean {r['dot_distance_mean_mm']:.2f} mm, median "
-              f"{r['dot_distance_median_mm']:.2f}, p95 {r['dot_distance_p95_mm']:.2f} mm over {r['n']} dot-frames")
-    if "angles_skipped" in summary:
-        print(f"WARNING: no angles compared: {summary['angles_skipped']}")
-    if summary["angles_flagged"]:
-        print(f"WARNING: poor agreement (ICC <= 0.75) for {', '.join(summary['angles_flagged'])}")
+    for name, stats in summary.angles.items():
+        print(f"  {name:28s} RMSE {stats.rmse:5.2f} deg  bias {stats.bias:+5.2f}  LoA "
+              f"[{stats.loa_low:+.2f}, {stats.loa_high:+.2f}]  ICC {stats.icc:.3f}  CMC {stats.cmc:.3f}")
+    if summary.reference is not None:
+        r = summary.reference
+        print(f"body-fit tape vs tracked dots: mean {r.dot_distance_mean_mm:.2f} mm, median "
+              f"{r.dot_distance_median_mm:.2f}, p95 {r.dot_distance_p95_mm:.2f} mm over {r.n} dot-frames")
+    if summary.angles_skipped is not None:
+        print(f"WARNING: no angles compared: {summary.angles_skipped}")
+    flagged = summary.poorly_agreeing(ICC_FLAG)
+    if flagged:
+        print(f"WARNING: poor agreement (ICC <= {ICC_FLAG}) for {', '.join(flagged)}")
     print(f"wrote {args.out}/summary.json, merged.c3d, angles.csv, report.html")
     return 0

@@ -4,6 +4,8 @@ multiple correlation (CMC) of the waveforms. Differences are ``a - b``; units th
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 
@@ -45,17 +47,38 @@ def cmc(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(ratio)) if ratio >= 0 else float("nan")
 
 
-def agreement(a: np.ndarray, b: np.ndarray, unit: str = "deg") -> dict[str, float]:
-    """``rmse_<unit>``, ``bias_<unit>`` (mean of a - b), ``loa_low_<unit>``/``loa_high_<unit>``
-    (bias -/+ 1.96 SD of the differences), ``icc`` (2,1), ``cmc`` and ``n`` samples."""
+@dataclass(frozen=True)
+class Agreement:
+    """Agreement of ``a`` with ``b`` over ``n`` paired samples (differences ``a - b``, in ``unit``):
+    ``rmse``, ``bias`` (mean difference), Bland-Altman limits ``loa_low`` / ``loa_high`` (bias -/+
+    1.96 SD of the differences), ``icc`` (2,1) and ``cmc`` (both unitless; NaN where undefined)."""
+
+    rmse: float
+    bias: float
+    loa_low: float
+    loa_high: float
+    icc: float
+    cmc: float
+    n: int
+    unit: str = "deg"
+
+    def to_dict(self) -> dict[str, float | int]:
+        """``rmse_<unit>``, ``bias_<unit>``, ``loa_low_<unit>``, ``loa_high_<unit>``, ``icc``,
+        ``cmc``, ``n``: the keys the summaries and benchmarks write."""
+        u = self.unit
+        return {f"rmse_{u}": self.rmse, f"bias_{u}": self.bias, f"loa_low_{u}": self.loa_low,
+                f"loa_high_{u}": self.loa_high, "icc": self.icc, "cmc": self.cmc, "n": self.n}
+
+
+def agreement(a: np.ndarray, b: np.ndarray, unit: str = "deg") -> Agreement:
+    """The :class:`Agreement` of paired samples ``a`` and ``b`` (any equal shapes, flattened;
+    pairs with a non-finite side are left out). No pair left gives NaN statistics and ``n`` 0."""
     a, b = _paired(a, b)
     d = a - b
     if len(d) == 0:
         nan = float("nan")
-        return {f"rmse_{unit}": nan, f"bias_{unit}": nan, f"loa_low_{unit}": nan, f"loa_high_{unit}": nan,
-                "icc": nan, "cmc": nan, "n": 0}
+        return Agreement(nan, nan, nan, nan, nan, nan, 0, unit)
     bias = float(d.mean())
     sd = float(d.std(ddof=1)) if len(d) > 1 else 0.0
-    return {f"rmse_{unit}": float(np.sqrt(np.mean(d ** 2))), f"bias_{unit}": bias,
-            f"loa_low_{unit}": bias - 1.96 * sd, f"loa_high_{unit}": bias + 1.96 * sd,
-            "icc": icc_2_1(a, b), "cmc": cmc(a, b), "n": len(d)}
+    return Agreement(rmse=float(np.sqrt(np.mean(d ** 2))), bias=bias, loa_low=bias - 1.96 * sd,
+                     loa_high=bias + 1.96 * sd, icc=icc_2_1(a, b), cmc=cmc(a, b), n=len(d), unit=unit)

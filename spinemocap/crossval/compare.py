@@ -10,28 +10,104 @@ angle definitions on both sides) and scored here by :func:`set_angles`. Units: m
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..fileio import InputError
 from ..tape import TapeSpec
-from .agreement import agreement
+from .agreement import Agreement, agreement
 from .register import Alignment, RigToVicon, estimate_alignment
 from .tape_markers import TAPE_MARKER, tape_marker_points
+
+
+@dataclass(frozen=True)
+class MarkerAgreement:
+    """One Vicon marker on or beside the tape: ``nearest_dot_mm_mean``, its mean distance to the
+    nearest tracked dot (mm); for a marker on the tape's centre line also ``rmse_mm`` (3D RMS
+    distance to the tape point it sits on), ``bias_mm`` (mean (3,) difference, rig frame) and ``n``
+    frames compared (all three None for the others)."""
+
+    nearest_dot_mm_mean: float
+    rmse_mm: float | None = None
+    bias_mm: list[float] | None = None
+    n: int | None = None
+
+    def to_dict(self) -> dict[str, object]:
+        out: dict[str, object] = {"nearest_dot_mm_mean": self.nearest_dot_mm_mean}
+        if self.rmse_mm is not None:
+            out.update(rmse_mm=self.rmse_mm, bias_mm=self.bias_mm, n=self.n)
+        return out
+
+
+@dataclass
+class ReferenceAgreement:
+    """Body-model dots against the tracked dots: distance mean / median / 95th percentile (mm) over
+    ``n`` dot-frames, and the angles of both (name -> :class:`Agreement`, tape minus body fit)."""
+
+    dot_distance_mean_mm: float
+    dot_distance_median_mm: float
+    dot_distance_p95_mm: float
+    n: int
+    angles: dict[str, Agreement] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, object]:
+        return {"dot_distance_mean_mm": self.dot_distance_mean_mm,
+                "dot_distance_median_mm": self.dot_distance_median_mm,
+                "dot_distance_p95_mm": self.dot_distance_p95_mm, "n": self.n,
+                "angles": {name: a.to_dict() for name, a in self.angles.items()}}
+
+
+@dataclass
+class CrossValSummary:
+    """What a cross-validation found: the ``alignment``, the centre-line markers it was estimated
+    from (``shared_markers``, at ``marker_height_mm`` above the tape), every Vicon marker on or
+    beside the tape (``markers``), the angles' agreement (name -> :class:`Agreement`, tape minus
+    Vicon) with how both sides were computed (``angle_convention``), the body-model ``reference``
+    where one was given, and ``angles_skipped``: why no angle was compared, where none was."""
+
+    alignment: Alignment
+    shared_markers: list[str]
+    marker_height_mm: float
+    markers: dict[str, MarkerAgreement]
+    angles: dict[str, Agreement] = field(default_factory=dict)
+    angle_convention: dict | None = None
+    reference: ReferenceAgreement | None = None
+    angles_skipped: str | None = None
+
+    def poorly_agreeing(self, icc_line: float) -> list[str]:
+        """The angles whose ICC(2,1) is not above ``icc_line`` (NaN included)."""
+        return [name for name, a in self.angles.items() if not a.icc > icc_line]
+
+    def to_dict(self) -> dict[str, object]:
+        """The JSON-ready summary (``summary.json``'s keys)."""
+        a = self.alignment
+        out: dict[str, object] = {
+            "alignment": a.to_dict(), "clock_offset_s": a.offset_s,
+            "transform": {"rotation": a.R.tolist(), "translation_mm": a.t.tolist(), "scale": a.scale},
+            "shared_markers": self.shared_markers, "marker_height_mm": self.marker_height_mm,
+            "markers": {label: m.to_dict() for label, m in self.markers.items()},
+            "angles": {name: s.to_dict() for name, s in self.angles.items()}}
+        if self.reference is not None:
+            out["reference"] = self.reference.to_dict()
+        if self.angle_convention is not None:
+            out["angle_convention"] = self.angle_convention
+        if self.angles_skipped is not None:
+            out["angles_skipped"] = self.angles_skipped
+        return out
 
 
 @dataclass
 class CrossValidation:
     """Result: the alignment, Vicon markers resampled into the rig frame at the tape's times
     (``vicon_labels``, ``vicon_rig`` (F, M, 3)), the angles of both systems (``angles``: name ->
-    (tape (F,), vicon (F,))) and the summary dictionary."""
+    (tape (F,), vicon (F,))) and the :class:`CrossValSummary`."""
 
     alignment: Alignment
     vicon_labels: list[str]
     vicon_rig: np.ndarray
     angles: dict[str, tuple[np.ndarray, np.ndarray]]
-    summary: dict
+    summary: CrossValSummary
     reference_rig: np.ndarray | None = None  # (F, D, 3) body-model dots (tape labels), rig frame
     reference_angles: dict[str, tuple[np.ndarray, np.ndarray]] | None = None  # name -> (tape, reference)
 
@@ -90,7 +166,7 @@ def cross_validate(tape_time: np.ndarray, tape_positions: np.ndarray, tape_label
     alignment = estimate_alignment(tape_time, expected, vicon_time, vicon_positions[:, columns], max_offset_s,
                                    transform)
     vicon_rig = alignment.to_rig(resample(vicon_time, vicon_positions, tape_time + alignment.offset_s))
-    markers = {}
+    markers: dict[str, MarkerAgreement] = {}
     dots = tape_positions[:, [tape_labels.index(label) for label in spec.graph.labels]]
     for k, label in enumerate(vicon_labels):
         d_dot = np.linalg.norm(vicon_rig[:, k, None] - dots, axis=2)
@@ -98,23 +174,15 @@ def cross_validate(tape_time: np.ndarray, tape_positions: np.ndarray, tape_label
         nearest[~np.isfinite(nearest)] = np.nan
         if not np.any(nearest < 80.0):
             continue  # not on or beside the tape
-        entry = {"nearest_dot_mm_mean": float(np.nanmean(nearest))}
         if label in shared:
             diff = vicon_rig[:, k] - expected[:, shared.index(label)]
             ok = np.isfinite(diff).all(axis=1)
-            entry.update(rmse_mm=float(np.sqrt(np.mean(np.sum(diff[ok] ** 2, axis=1)))),
-                         bias_mm=diff[ok].mean(axis=0).tolist(), n=int(ok.sum()))
-        markers[label] = entry
-    summary = {
-        "alignment": alignment.to_dict(),
-        "clock_offset_s": alignment.offset_s,
-        "transform": {"rotation": alignment.R.tolist(), "translation_mm": alignment.t.tolist(),
-                      "scale": alignment.scale},
-        "shared_markers": shared,
-        "marker_height_mm": height,
-        "markers": markers,
-        "angles": {},
-    }
+            markers[label] = MarkerAgreement(float(np.nanmean(nearest)),
+                                             float(np.sqrt(np.mean(np.sum(diff[ok] ** 2, axis=1)))),
+                                             diff[ok].mean(axis=0).tolist(), int(ok.sum()))
+        else:
+            markers[label] = MarkerAgreement(float(np.nanmean(nearest)))
+    summary = CrossValSummary(alignment, shared, height, markers)
     result = CrossValidation(alignment, list(vicon_labels), vicon_rig, {}, summary)
     if reference is not None:
         _compare_reference(result, reference, tape_time, tape_positions, tape_labels, spec)
@@ -128,12 +196,11 @@ def set_angles(result: CrossValidation, angles: dict[str, tuple[np.ndarray, np.n
     ``result`` and its summary; ``convention`` says how both sides were computed;
     ``reference_angles``: name -> (tape, body-model reference), scored likewise."""
     result.angles = dict(angles)
-    result.summary["angles"] = {name: agreement(a, b, "deg") for name, (a, b) in angles.items()}
-    result.summary["angle_convention"] = convention
-    if reference_angles is not None and "reference" in result.summary:
+    result.summary.angles = {name: agreement(a, b, "deg") for name, (a, b) in angles.items()}
+    result.summary.angle_convention = convention
+    if reference_angles is not None and result.summary.reference is not None:
         result.reference_angles = dict(reference_angles)
-        result.summary["reference"]["angles"] = {name: agreement(t, r, "deg")
-                                                 for name, (t, r) in reference_angles.items()}
+        result.summary.reference.angles = {name: agreement(t, r, "deg") for name, (t, r) in reference_angles.items()}
 
 
 def _compare_reference(result: CrossValidation, reference: tuple[np.ndarray, np.ndarray, list[str]],
@@ -151,9 +218,9 @@ def _compare_reference(result: CrossValidation, reference: tuple[np.ndarray, np.
     tracked = tape_positions[:, [tape_labels.index(label) for label in spec.graph.labels]]
     d = np.linalg.norm(ref_rig - tracked, axis=2)
     d = d[np.isfinite(d)]
-    stats: dict[str, object] = {"dot_distance_mean_mm": float(d.mean()) if len(d) else float("nan"),
-             "dot_distance_median_mm": float(np.median(d)) if len(d) else float("nan"),
-             "dot_distance_p95_mm": float(np.percentile(d, 95)) if len(d) else float("nan"), "n": int(len(d))}
-    stats["angles"] = {}
-    result.summary["reference"] = stats
+    if len(d):
+        stats = ReferenceAgreement(float(d.mean()), float(np.median(d)), float(np.percentile(d, 95)), int(len(d)))
+    else:
+        stats = ReferenceAgreement(float("nan"), float("nan"), float("nan"), 0)
+    result.summary.reference = stats
     result.reference_rig = ref_rig

@@ -17,10 +17,13 @@ def test_agreement_statistics_on_known_series():
     truth = 10 * np.sin(np.linspace(0, 6, 400))
     a = truth + 1.0 + rng.normal(0, 0.5, truth.shape)
     stats = agreement(a, truth)
-    assert stats["bias_deg"] == pytest.approx(1.0, abs=0.1)
-    assert stats["loa_high_deg"] - stats["loa_low_deg"] == pytest.approx(2 * 1.96 * 0.5, rel=0.1)
-    assert stats["rmse_deg"] == pytest.approx(np.sqrt(1.0 + 0.25), rel=0.05)
-    assert 0.9 < stats["icc"] < 1.0 and 0.95 < stats["cmc"] < 1.0
+    assert stats.bias == pytest.approx(1.0, abs=0.1)
+    assert stats.loa_high - stats.loa_low == pytest.approx(2 * 1.96 * 0.5, rel=0.1)
+    assert stats.rmse == pytest.approx(np.sqrt(1.0 + 0.25), rel=0.05)
+    assert 0.9 < stats.icc < 1.0 and 0.95 < stats.cmc < 1.0 and stats.n == len(truth)
+    assert stats.to_dict()["rmse_deg"] == stats.rmse and agreement(a, truth, "mm").to_dict()["bias_mm"] == stats.bias
+    empty = agreement(np.array([np.nan, 1.0]), np.array([2.0, np.nan]))  # no finite pair
+    assert empty.n == 0 and np.isnan(empty.rmse)
     assert icc_2_1(truth, truth) == pytest.approx(1.0) and cmc(truth, truth) == pytest.approx(1.0)
     assert icc_2_1(truth, -truth) < 0  # opposite waveforms do not agree
     assert np.isnan(cmc(truth, -truth))  # within-instant variance above the total: no real CMC
@@ -68,23 +71,24 @@ def test_crossval_recovers_clock_offset_and_transform(trial):
 
     levels = LevelMap.from_row_levels(scene.tape_on_skin.row_levels, scene.tape.n_rows)
     crossval_angles(result, scene.times, dots, scene.labels, scene.tape, levels)
-    angles = result.summary["angles"]
+    angles = result.summary.angles
     assert set(angles) == set(COMPARED)
     for stats in angles.values():
-        assert {"rmse_deg", "bias_deg", "loa_low_deg", "loa_high_deg", "icc", "cmc"} <= set(stats)
-    convention = result.summary["angle_convention"]
+        assert {"rmse_deg", "bias_deg", "loa_low_deg", "loa_high_deg", "icc", "cmc"} <= set(stats.to_dict())
+    convention = result.summary.angle_convention
+    assert convention is not None
     assert "T12/L1 relative to S1" in convention["definition"]
     assert "VT_R05L/R" in convention["vicon_frames"]["T12/L1"]
     for name in ("lumbar_flexion", "lumbar_lateral", "lumbar_rotation"):  # 15-20 deg of motion
-        assert angles[name]["rmse_deg"] < LUMBAR_RMSE_DEG[name] and angles[name]["icc"] > 0.95, name
+        assert angles[name].rmse < LUMBAR_RMSE_DEG[name] and angles[name].icc > 0.95, name
     # without the sacral triad the Plug-in Gait pelvis stands in for S1 (its offset removed by the neutral)
     keep = [k for k, label in enumerate(vicon.labels) if not label.startswith("VT_R01")]
     no_sacral = cross_validate(scene.times, dots, scene.labels, scene.tape, vicon.time_s, vicon.positions[:, keep],
                                [vicon.labels[k] for k in keep])
     crossval_angles(no_sacral, scene.times, dots, scene.labels, scene.tape, levels)
-    assert "Plug-in Gait pelvis" in no_sacral.summary["angle_convention"]["vicon_frames"]["S1"]
+    assert "Plug-in Gait pelvis" in (no_sacral.summary.angle_convention or {})["vicon_frames"]["S1"]
     for name in ("lumbar_flexion", "lumbar_lateral", "lumbar_rotation"):  # ICC 0.80 / 0.93 / 0.90
-        assert no_sacral.summary["angles"][name]["icc"] > 0.75, name
+        assert no_sacral.summary.angles[name].icc > 0.75, name
     # a wrong clock is found: shifting the Vicon clock by 100 ms shifts the estimate by 100 ms
     shifted = cross_validate(scene.times, dots, scene.labels, scene.tape, vicon.time_s + 0.1, vicon.positions,
                              vicon.labels)
