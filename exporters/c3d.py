@@ -63,6 +63,7 @@ from spinemocap.markers import (
     MISSING,
     MISSING_CAMERAS,
     OBSERVED,
+    DenseMarkers,
     MarkerTable,
     camera_gaps,
     missing_from_gaps,
@@ -260,21 +261,23 @@ def _read_missing_cameras(reader: c3dlib.Reader, path: Path) -> dict[str, list[i
         return {}
 
 
-def _with_reference(arrays: dict, reference: MarkerTable, prefix: str, path: Path) -> tuple[dict, list[str]]:
+def _with_reference(arrays: DenseMarkers, reference: MarkerTable, prefix: str, path: Path
+                    ) -> tuple[DenseMarkers, list[str]]:
     """Append reference markers (aligned on frame numbers, NaN where the reference lacks a
     frame) with ``prefix`` on their labels; return the arrays and the new labels' descriptions."""
     ref = dense_mm(reference, path)
-    frames = arrays["frames"]
-    F, R = len(frames), len(ref["labels"])
-    rows = np.searchsorted(ref["frames"], frames)
-    hit = (rows < len(ref["frames"])) & (ref["frames"][np.minimum(rows, len(ref["frames"]) - 1)] == frames)
-    out = dict(arrays)
+    frames = arrays.frames
+    F, R = len(frames), len(ref.labels)
+    rows = np.searchsorted(ref.frames, frames)
+    hit = (rows < len(ref.frames)) & (ref.frames[np.minimum(rows, len(ref.frames) - 1)] == frames)
+    joined: dict[str, np.ndarray] = {}
     for key, fill in (("positions", np.nan), ("status", MISSING), ("n_views", 0), ("residual", np.nan)):
-        extra = np.full((F, R) + ref[key].shape[2:], fill, dtype=ref[key].dtype)
-        extra[hit] = ref[key][rows[hit]]
-        out[key] = np.concatenate([arrays[key], extra], axis=1)
-    out["labels"] = np.concatenate([arrays["labels"], [prefix + str(l) for l in ref["labels"]]])
-    return out, [f"reference marker {l}" for l in ref["labels"]]
+        own, theirs = getattr(arrays, key), getattr(ref, key)
+        extra = np.full((F, R) + theirs.shape[2:], fill, dtype=theirs.dtype)
+        extra[hit] = theirs[rows[hit]]
+        joined[key] = np.concatenate([own, extra], axis=1)
+    labels = np.concatenate([arrays.labels, [prefix + str(l) for l in ref.labels]])
+    return replace(arrays, labels=labels, **joined), [f"reference marker {l}" for l in ref.labels]
 
 
 def write_c3d(table: MarkerTable, path: str | os.PathLike, units: str = "mm", residual_scale: float = 0.01,
@@ -307,20 +310,20 @@ def _point_block(table: MarkerTable, factor: float, residual_scale: float, refer
                  reference_prefix: str, path: Path) -> _PointBlock:
     arrays = dense_mm(table, path)
     given = table.meta.get("descriptions", {}) or {}
-    descriptions = [str(given.get(str(l), "")) for l in arrays["labels"]]
+    descriptions = [str(given.get(str(l), "")) for l in arrays.labels]
     if reference is not None:
         arrays, ref_descriptions = _with_reference(arrays, reference, reference_prefix, path)
         descriptions += ref_descriptions
-    positions = arrays["positions"]
+    positions = arrays.positions
     finite = np.isfinite(positions).all(axis=2)
-    word = encode_fourth_word(arrays["status"], arrays["n_views"], arrays["residual"], finite,
+    word = encode_fourth_word(arrays.status, arrays.n_views, arrays.residual, finite,
                               residual_scale, path)
     F, D = finite.shape
     block = np.zeros((F, D, 4), np.float32)
     valid = word >= 0
     block[..., :3][valid] = positions[valid] / factor
     block[..., 3] = word
-    return _PointBlock(block, arrays["frames"], [str(l) for l in arrays["labels"]], descriptions, finite.any(axis=0))
+    return _PointBlock(block, arrays.frames, [str(l) for l in arrays.labels], descriptions, finite.any(axis=0))
 
 
 def write_c3d_parts(parts: Iterable[MarkerTable], path: str | os.PathLike, n_frames: int, units: str = "mm",

@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import os
 import warnings
+from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
 import pandas as pd
 
 from spinemocap.fileio import InputError
-from spinemocap.markers import MAX_ABS_MM, MISSING, OBSERVED, MarkerTable
+from spinemocap.markers import MAX_ABS_MM, MISSING, OBSERVED, DenseMarkers, MarkerTable
 
 UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 
@@ -28,15 +29,15 @@ def mm_per_unit(units: str, source: str | os.PathLike | None) -> float:
     return UNITS_TO_MM[key]
 
 
-def dense_mm(table: MarkerTable, source: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
+def dense_mm(table: MarkerTable, source: str | os.PathLike | None = None) -> DenseMarkers:
     """:meth:`MarkerTable.to_arrays` with positions converted to mm from ``meta['units']`` and
     NaN wherever the status says ``missing``."""
     arrays = table.to_arrays()
-    if len(arrays["frames"]) == 0:
+    if len(arrays.frames) == 0:
         raise InputError(source, "marker table has no frames to write")
-    arrays["positions"] = arrays["positions"] * mm_per_unit(table.meta.get("units", "mm"), source)
-    arrays["positions"][arrays["status"] == MISSING] = np.nan
-    return arrays
+    positions = arrays.positions * mm_per_unit(table.meta.get("units", "mm"), source)
+    positions[arrays.status == MISSING] = np.nan
+    return replace(arrays, positions=positions)
 
 
 def frame_rate(table: MarkerTable, source: str | os.PathLike | None = None) -> float:

@@ -26,6 +26,7 @@ from spinemocap.markers import (
     COLUMNS,
     MISSING,
     MISSING_CAMERAS,
+    DenseMarkers,
     MarkerTable,
     missing_from_frames,
     missing_per_frame,
@@ -50,7 +51,7 @@ def _mm_frame(table: MarkerTable, path: Path) -> tuple[pd.DataFrame, np.ndarray]
     """The table's rows with coordinates in mm (whatever ``meta['units']`` said), and which
     markers have a finite sample (:func:`~exporters.common.sampled`)."""
     arrays = dense_mm(table, path)
-    seen = sampled(arrays["positions"])
+    seen = sampled(arrays.positions)
     df = table.data.loc[:, list(ALL_COLUMNS)].copy()
     df[["x", "y", "z"]] *= mm_per_unit(table.meta.get("units", "mm"), path)
     df["status"] = df["status"].astype(str)
@@ -84,7 +85,7 @@ def _table(df: pd.DataFrame, path: Path, meta: dict) -> MarkerTable:
         table = checked_table(table, path)
         arrays = table.to_arrays()
         table = _complete(table, arrays, path)
-    warn_empty_markers(list(arrays["labels"]), arrays["positions"], path)
+    warn_empty_markers(list(arrays.labels), arrays.positions, path)
     return table
 
 
@@ -96,15 +97,15 @@ def _one_frame_rate(table: MarkerTable) -> dict:
     return {"fps": round(frame / time, 9)} if frame > 0 and np.isfinite(time) and time > 0 else {}
 
 
-def _complete(table: MarkerTable, arrays: dict, path: Path) -> MarkerTable:
+def _complete(table: MarkerTable, arrays: DenseMarkers, path: Path) -> MarkerTable:
     """The table with a ``missing`` row for every (frame, label) the file lacks (warned)."""
-    F, D = arrays["positions"].shape[:2]
+    F, D = arrays.positions.shape[:2]
     absent = F * D - len(table.data)
     if not absent:
         return table
     warnings.warn(f"{path}: {absent} (frame, label) rows are absent; read as missing", ExportWarning, stacklevel=4)
-    return table_from_dense(list(arrays["labels"]), arrays["frames"], arrays["time"], arrays["positions"],
-                            table.meta, arrays["status"], arrays["n_views"], arrays["residual"])
+    return table_from_dense(list(arrays.labels), arrays.frames, arrays.time, arrays.positions,
+                            table.meta, arrays.status, arrays.n_views, arrays.residual)
 
 
 def write_csv(table: MarkerTable, path: str | os.PathLike) -> Path:

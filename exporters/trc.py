@@ -156,13 +156,13 @@ def write_trc_parts(parts: Iterable[MarkerTable], path: str | os.PathLike, n_fra
     with atomic_write(path, "w", newline="\n", encoding="utf-8") as handle:
         for table in parts:
             arrays = dense_mm(table, path)
-            labels = [str(l) for l in arrays["labels"]]
-            positions = arrays["positions"] / scale
+            labels = [str(l) for l in arrays.labels]
+            positions = arrays.positions / scale
             seen = sampled(positions) if seen is None else seen | sampled(positions)
             if opensim_axes:
                 positions = lab_to_opensim(positions, forward)
             fps = frame_rate(table, path)
-            frames, times = arrays["frames"], arrays["time"]
+            frames, times = arrays.frames, arrays.time
             if not np.isfinite(times).all():
                 times = frames / fps
             if not written:

@@ -94,6 +94,25 @@ def missing_from_frames(frames: Sequence[int], fields: Sequence[object]) -> dict
     return {camera: sorted(numbers) for camera, numbers in sorted(out.items())}
 
 
+@dataclass(frozen=True)
+class DenseMarkers:
+    """A marker table as dense arrays over its F frames and D labels: ``frames`` (F,) int,
+    ``time`` (F,) s, ``labels`` (D,) str, ``positions`` (F, D, 3) mm (NaN where missing),
+    ``status`` (F, D) str (:data:`MarkerStatus`; ``missing`` where the table has no row),
+    ``n_views`` (F, D) int (0 where no row), ``residual``, ``confidence`` and ``stretch`` (F, D)
+    (NaN where unknown; see the module docstring for their meaning)."""
+
+    frames: np.ndarray
+    time: np.ndarray
+    labels: np.ndarray
+    positions: np.ndarray
+    status: np.ndarray
+    n_views: np.ndarray
+    residual: np.ndarray
+    confidence: np.ndarray
+    stretch: np.ndarray
+
+
 @dataclass
 class MarkerTable:
     """Long-form marker table. Build with :meth:`from_arrays`; read back with :meth:`to_arrays`."""
@@ -207,46 +226,46 @@ class MarkerTable:
     def n_frames(self) -> int:
         return len(self.frames)
 
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        """Dense arrays: ``frames`` (F,), ``time`` (F,), ``labels`` (D,), ``positions`` (F, D, 3)
-        mm (NaN where missing), ``status`` (F, D) str, ``n_views`` (F, D), ``residual``,
-        ``confidence`` and ``stretch`` (F, D) (NaN where unknown)."""
+    def to_arrays(self) -> DenseMarkers:
+        """The table as :class:`DenseMarkers` (frames present in the table, labels in :attr:`labels`
+        order)."""
         labels = self.labels
         frames = self.frames
         fi = np.searchsorted(frames, self.data["frame"].to_numpy())
         li = pd.Index(labels).get_indexer(self.data["label"])
         F, D = len(frames), len(labels)
+
+        def grid(column: str) -> np.ndarray:
+            values = np.full((F, D), np.nan)
+            values[fi, li] = self.data[column].to_numpy()
+            return values
+
         pos = np.full((F, D, 3), np.nan)
         pos[fi, li] = self.data[["x", "y", "z"]].to_numpy()
         status = np.full((F, D), MISSING, dtype=object)
         status[fi, li] = self.data["status"].astype(str).to_numpy()
         n_views = np.zeros((F, D), np.int64)
         n_views[fi, li] = self.data["n_views"].to_numpy()
-        residual = np.full((F, D), np.nan)
-        residual[fi, li] = self.data["residual"].to_numpy()
-        quality = {}
-        for c in QUALITY_COLUMNS:
-            quality[c] = np.full((F, D), np.nan)
-            quality[c][fi, li] = self.data[c].to_numpy()
         time = np.full(F, np.nan)
         time[fi] = self.data["time"].to_numpy()
-        return {"frames": frames, "time": time, "labels": np.array(labels), "positions": pos,
-                "status": status, "n_views": n_views, "residual": residual, **quality}
+        return DenseMarkers(frames=frames, time=time, labels=np.array(labels), positions=pos, status=status,
+                            n_views=n_views, residual=grid("residual"), confidence=grid("confidence"),
+                            stretch=grid("stretch"))
 
     def dense(self) -> tuple[np.ndarray, np.ndarray]:
         """``(frames (F,), positions (F, D, 3) mm)`` over every frame from the first to the last
         (a frame absent from the table is a NaN row), labels in :attr:`labels` order."""
         arrays = self.to_arrays()
-        frames = np.asarray(arrays["frames"], int)
+        frames = np.asarray(arrays.frames, int)
         if not len(frames):
-            return frames, np.zeros((0, len(arrays["labels"]), 3))
-        points = np.full((frames[-1] - frames[0] + 1, len(arrays["labels"]), 3), np.nan)
-        points[frames - frames[0]] = arrays["positions"]
+            return frames, np.zeros((0, len(arrays.labels), 3))
+        points = np.full((frames[-1] - frames[0] + 1, len(arrays.labels), 3), np.nan)
+        points[frames - frames[0]] = arrays.positions
         return np.arange(frames[0], frames[-1] + 1), points
 
     def positions(self) -> np.ndarray:
         """(F, D, 3) positions in mm, NaN where missing, labels in :attr:`labels` order."""
-        return self.to_arrays()["positions"]
+        return self.to_arrays().positions
 
     def select(self, labels: Sequence[str] | None = None, frames: Sequence[int] | None = None) -> "MarkerTable":
         df = self.data

@@ -248,8 +248,8 @@ def assert_matches_c3d_package(path: str | Path) -> None:
         frames = np.stack([p for _, p, _ in c3dlib.Reader(handle).read_frames(check_nan=True)])
     arrays = exporters.read(path).to_arrays()
     invalid = frames[..., 3] < 0
-    assert np.array_equal(np.isnan(arrays["positions"][..., 0]), invalid)
-    assert np.array_equal(arrays["positions"][~invalid], frames[..., :3][~invalid])
-    assert np.allclose(arrays["residual"][~invalid], frames[..., 3][~invalid], rtol=1e-6)
+    assert np.array_equal(np.isnan(arrays.positions[..., 0]), invalid)
+    assert np.array_equal(arrays.positions[~invalid], frames[..., :3][~invalid])
+    assert np.allclose(arrays.residual[~invalid], frames[..., 3][~invalid], rtol=1e-6)
     views = np.array([int(c).bit_count() for c in frames[..., 4].ravel()]).reshape(invalid.shape)
-    assert np.array_equal(arrays["n_views"][~invalid], views[~invalid])
+    assert np.array_equal(arrays.n_views[~invalid], views[~invalid])

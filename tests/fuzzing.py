@@ -217,7 +217,7 @@ def marker_table_problems(table, max_abs_mm: float = 1e6, max_abs_other: float =
     times, rate, views and residuals."""
     out = []
     arrays = table.to_arrays()
-    pos, status, frames = arrays["positions"], arrays["status"], arrays["frames"]
+    pos, status, frames = arrays.positions, arrays.status, arrays.frames
     F, D = len(frames), len(table.labels)
     if pos.shape != (F, D, 3) or status.shape != (F, D) or len(table.data) != F * D:
         out.append(f"inconsistent shapes: positions {pos.shape}, status {status.shape}, {len(table.data)} rows "
@@ -243,9 +243,9 @@ def marker_table_problems(table, max_abs_mm: float = 1e6, max_abs_other: float =
         out.append(f"frame rate {fps!r}")
     if not np.isfinite(table.data["time"].to_numpy()).all():
         out.append("non-finite times")
-    if (arrays["n_views"] < 0).any():
+    if (arrays.n_views < 0).any():
         out.append("negative view counts")
-    residual = arrays["residual"]
+    residual = arrays.residual
     if not (np.isnan(residual) | (np.isfinite(residual) & (residual >= 0))).all():
         out.append("residuals neither NaN nor finite non-negative")
     return out

@@ -17,10 +17,10 @@ def test_marker_table_array_round_trip():
     table = MarkerTable.from_arrays(["R01L", "R01R", "R02L"], pos, fps=100, status=status,
                                     n_views=np.full((4, 3), 3))
     arr = table.to_arrays()
-    assert list(arr["labels"]) == ["R01L", "R01R", "R02L"]
-    assert np.allclose(arr["positions"], pos, equal_nan=True)
-    assert arr["status"][1, 2] == "missing" and arr["status"][2, 0] == "inferred"
-    assert np.allclose(arr["time"], np.arange(4) / 100)
+    assert list(arr.labels) == ["R01L", "R01R", "R02L"]
+    assert np.allclose(arr.positions, pos, equal_nan=True)
+    assert arr.status[1, 2] == "missing" and arr.status[2, 0] == "inferred"
+    assert np.allclose(arr.time, np.arange(4) / 100)
     assert table.completeness()["missing"] == pytest.approx(1 / 12)
 
 

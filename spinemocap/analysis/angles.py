@@ -116,14 +116,14 @@ def compute_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
     if settings.upper is None:
         settings = replace(settings, upper=list(levels.rows)[-1])
     arrays = markers.to_arrays()
-    F = len(arrays["frames"])
+    F = len(arrays.frames)
     rows, curves = midlines(markers, tape, settings)
 
     level_v, missing_level = _level_positions(levels, tape, settings)
     names = level_roles(settings, levels)
     at = {role: _frames_at_level(rows, curves, v, settings, names[role]) for role, v in level_v.items()}
 
-    table = pd.DataFrame({"frame": arrays["frames"], "time": arrays["time"]})
+    table = pd.DataFrame({"frame": arrays.frames, "time": arrays.time})
     notes: dict[str, dict[str, int]] = {}
 
     def put(group: str, values: np.ndarray, note: np.ndarray) -> None:
@@ -141,7 +141,7 @@ def compute_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
 
     table["rows_seen"] = rows.observed.sum(axis=1)
     table["curve_length_mm"] = [c.length_mm if c is not None else np.nan for c in curves]
-    status = arrays["status"]
+    status = arrays.status
     return SpineAngles(table=table, notes=notes, completeness=float(np.mean(status == OBSERVED)))
 
 
@@ -150,7 +150,7 @@ def midlines(markers: MarkerTable, tape: TapeSpec,
     """Row tracks and the per-frame midline curves (None where too few rows were seen) of a
     marker table: the first two steps of :func:`compute_angles`."""
     arrays = markers.to_arrays()
-    rows = row_tracks(arrays["positions"], list(arrays["labels"]), tape, markers.fps,
+    rows = row_tracks(arrays.positions, list(arrays.labels), tape, markers.fps,
                       settings.max_gap_s, settings.lowpass_hz)
     curves = [fit_midline(rows.v, rows.centre[f], rows.v[-1], settings.smoothing) for f in range(rows.n_frames)]
     return rows, curves

@@ -52,7 +52,7 @@ def segmental_angles(markers: MarkerTable, tape: TapeSpec, levels: LevelMap,
     settings = settings or AngleSettings()
     names = vertebrae_on_tape(levels)
     arrays = markers.to_arrays()
-    table = pd.DataFrame({"frame": arrays["frames"], "time": arrays["time"]})
+    table = pd.DataFrame({"frame": arrays.frames, "time": arrays.time})
     frames = level_frames(markers, tape, levels, names, settings)
     columns = {}
     for lower, upper in zip(names[:-1], names[1:]):

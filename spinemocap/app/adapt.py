@@ -104,18 +104,18 @@ def vouched_frames(table: MarkerTable, graph: TapeGraph, min_observed_share: flo
     :func:`spinemocap.track.quality.flagged_from_confidence`), with at least ``min_observed_share``
     of the tape's dots observed, its first and last row among them."""
     arrays = table.to_arrays()
-    index = [list(arrays["labels"]).index(label) if label in arrays["labels"] else -1 for label in graph.labels]
+    index = [list(arrays.labels).index(label) if label in arrays.labels else -1 for label in graph.labels]
     if min(index) < 0:
         missing = [label for label, i in zip(graph.labels, index) if i < 0]
         raise InputError(table.meta.get("source"), f"the marker table lacks the tape's dots {missing[:4]}; "
                                                    "give the results of tracking this capture")
-    status = arrays["status"][:, index]
+    status = arrays.status[:, index]
     observed = status == OBSERVED
-    flagged = flagged_from_confidence(status, arrays["confidence"][:, index])
+    flagged = flagged_from_confidence(status, arrays.confidence[:, index])
     rows = np.asarray(graph.row)
     ends = observed[:, rows == rows.min()].any(axis=1) & observed[:, rows == rows.max()].any(axis=1)
     keep = ~flagged & ends & (observed.mean(axis=1) >= min_observed_share)
-    return [int(f) for f in arrays["frames"][keep]]
+    return [int(f) for f in arrays.frames[keep]]
 
 
 def spread(frames: list[int], n: int) -> list[int]:
@@ -234,14 +234,14 @@ def capture_labels(capture: Capture, table: MarkerTable, frames: list[int], pixe
     least ``settings.min_confirmed_share`` of the labelled dots."""
     graph = capture.tape.graph
     arrays = table.to_arrays()
-    index = [list(arrays["labels"]).index(label) for label in graph.labels]
-    row_of = {int(f): k for k, f in enumerate(arrays["frames"])}
+    index = [list(arrays.labels).index(label) for label in graph.labels]
+    row_of = {int(f): k for k, f in enumerate(arrays.frames)}
     source = capture.frame_source()
     try:
         for frame in frames:
             k = row_of[frame]
-            points = arrays["positions"][k, index]
-            observed = (arrays["status"][k, index] == OBSERVED) & np.isfinite(points).all(axis=1)
+            points = arrays.positions[k, index]
+            observed = (arrays.status[k, index] == OBSERVED) & np.isfinite(points).all(axis=1)
             images = source.read(frame)
             for labels in frame_labels(capture.rig, capture.tape, points, observed, frame, settings):
                 image = images[labels.camera]

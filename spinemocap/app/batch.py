@@ -447,7 +447,7 @@ def _levels(job: TrialJob, capture: Capture) -> tuple[LevelMap, str]:
 def _pelvis_frames(c3d_file: str, markers: MarkerTable) -> np.ndarray:
     """Pelvis frames from a C3D's LASI/RASI/LPSI/RPSI, resampled onto the marker table's times."""
     times, traj = read_pelvis_c3d(c3d_file)
-    t = markers.to_arrays()["time"]
+    t = markers.to_arrays().time
     if t[-1] > times[-1] + 1e-6:
         raise InputError(c3d_file, f"C3D covers {times[-1]:.2f} s, the markers {t[-1]:.2f} s")
     resampled = {name: np.column_stack([np.interp(t, times, xyz[:, k]) for k in range(3)])

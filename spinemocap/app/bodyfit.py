@@ -40,7 +40,7 @@ def marker_arrays(path: str | os.PathLike, frames: str | None = None
     point_types = table.meta.get("point_types") or {}
     labels = [label for label in table.labels if label not in point_types]
     arrays = table.select(labels=labels).to_arrays()
-    frame_numbers, positions = arrays["frames"], arrays["positions"]
+    frame_numbers, positions = arrays.frames, arrays.positions
     if frames is not None:
         wanted = parse_frames(frames, int(frame_numbers[-1]) + 1, "frames")
         keep = np.isin(frame_numbers, wanted)
@@ -48,7 +48,7 @@ def marker_arrays(path: str | os.PathLike, frames: str | None = None
             raise InputError(path, f"frame selection {frames!r} keeps none of its frames "
                                    f"({frame_numbers[0]}..{frame_numbers[-1]})")
         frame_numbers, positions = frame_numbers[keep], positions[keep]
-    return list(arrays["labels"]), frame_numbers, positions, table.fps
+    return list(arrays.labels), frame_numbers, positions, table.fps
 
 
 def frame_step(frame_numbers: np.ndarray) -> int:

@@ -184,10 +184,10 @@ def _dense(table) -> tuple[np.ndarray, np.ndarray, list[str]]:
     point_types = table.meta.get("point_types") or {}
     labels = [label for label in table.labels if label not in point_types]
     arrays = table.select(labels=labels).to_arrays()
-    time = arrays["time"]  # the file's clock (C3D: frame / rate from its first frame)
+    time = arrays.time  # the file's clock (C3D: frame / rate from its first frame)
     if not np.isfinite(time).all():
-        time = arrays["frames"] / table.fps
-    return time, arrays["positions"], list(arrays["labels"])
+        time = arrays.frames / table.fps
+    return time, arrays.positions, list(arrays.labels)
 
 
 def rig_transform(capture_rig: Rig, vicon_rig_path: str | os.PathLike) -> RigToVicon:

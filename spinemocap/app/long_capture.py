@@ -255,13 +255,13 @@ def _track_chunk(capture: Capture, tracked: range, first: int, mode: TrackingMod
     arrays = tracked_result.table.to_arrays()
     keep = slice(first - tracked.start, None)
     flags = np.array([";".join(f.flags if f.solved else [*f.flags, "unsolved"]) for f in tracked_result.frames])
-    chunk = {name: arrays[name][keep] for name in CHUNK_ARRAYS if name in arrays}
+    chunk = {name: getattr(arrays, name)[keep] for name in CHUNK_ARRAYS if hasattr(arrays, name)}
     chunk["status"] = chunk["status"].astype(str)
     chunk["flags"] = flags[keep]
     chunk["missing_cameras"] = np.array(missing_per_frame(tracked_result.missing_cameras(),
                                                           chunk["frames"].tolist()), dtype=str)
-    chunk["warmup_frames"] = arrays["frames"][: first - tracked.start]
-    chunk["warmup_positions"] = arrays["positions"][: first - tracked.start]
+    chunk["warmup_frames"] = arrays.frames[: first - tracked.start]
+    chunk["warmup_positions"] = arrays.positions[: first - tracked.start]
     return chunk
 
 

@@ -238,12 +238,12 @@ def tracking_quality_table(results: list[TrialSummary]) -> pd.DataFrame:
         if "confidence" not in df.columns:
             continue
         arrays = MarkerTable(df, {"source": str(path)}).to_arrays()
-        flagged = arrays["frames"][flagged_from_confidence(arrays["status"], arrays["confidence"])]
+        flagged = arrays.frames[flagged_from_confidence(arrays.status, arrays.confidence)]
         if len(flagged):
             shown = ", ".join(str(int(f)) for f in flagged[:15]) + (" ..." if len(flagged) > 15 else "")
-            rows.append({"key": r.key, "flagged_frames": len(flagged), "of_frames": len(arrays["frames"]),
-                         "frames": shown, "median_stretch": float(np.nanmedian(arrays["stretch"]))
-                         if np.isfinite(arrays["stretch"]).any() else np.nan})
+            rows.append({"key": r.key, "flagged_frames": len(flagged), "of_frames": len(arrays.frames),
+                         "frames": shown, "median_stretch": float(np.nanmedian(arrays.stretch))
+                         if np.isfinite(arrays.stretch).any() else np.nan})
     return pd.DataFrame(rows, columns=["key", "flagged_frames", "of_frames", "frames", "median_stretch"])
 
 

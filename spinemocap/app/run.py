@@ -595,14 +595,14 @@ def apply_refined_rig(result: TrackResult, refinement: RigRefinement, tape: Tape
     """The result's table with its observed dots re-triangulated under the refined rig (the
     other dots follow them, see :func:`spinemocap.track.rig_refine.retriangulate`)."""
     arrays = result.table.to_arrays()
-    positions = arrays["positions"]
+    positions = arrays.positions
     normals = np.stack([tape_frames(p, tape.graph)[0] if np.isfinite(p).all() else np.zeros_like(p)
                         for p in positions])
-    moved = retriangulate(refinement.rig, result.pixels(), positions, arrays["status"], tape.thickness_mm, normals)
-    table = MarkerTable.from_arrays(list(arrays["labels"]), moved, result.table.fps, status=arrays["status"],
-                                    n_views=arrays["n_views"], residual=arrays["residual"],
-                                    first_frame=int(arrays["frames"][0]), confidence=arrays["confidence"],
-                                    stretch=arrays["stretch"], meta={**result.table.meta, "rig": "refined"})
+    moved = retriangulate(refinement.rig, result.pixels(), positions, arrays.status, tape.thickness_mm, normals)
+    table = MarkerTable.from_arrays(list(arrays.labels), moved, result.table.fps, status=arrays.status,
+                                    n_views=arrays.n_views, residual=arrays.residual,
+                                    first_frame=int(arrays.frames[0]), confidence=arrays.confidence,
+                                    stretch=arrays.stretch, meta={**result.table.meta, "rig": "refined"})
     return table
 
 

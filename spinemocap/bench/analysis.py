@@ -280,7 +280,7 @@ def skin_expectation(scene, truth: MarkerTable, levels: LevelMap, settings: Angl
     rest_frames = level_frames(truth, scene.tape, levels, names, settings)
     rest = {name: rest_frames[name][0][0] for name in names}
     rows = scene.tape.n_rows
-    rest_dots = truth.to_arrays()["positions"][0]
+    rest_dots = truth.to_arrays().positions[0]
     row_z = np.array([np.nanmean(rest_dots[scene.tape.graph.row == r, 2]) for r in range(rows)])
     chain = scene.body.spine_chain()[:, 2]
     joints = {name: float(skin_turn_joints(np.interp(levels.row_of(name), np.arange(1, rows + 1), row_z), chain))
@@ -437,7 +437,7 @@ def bench_lab_angles(motions=LAB_MOTIONS, frames: int = 30, fps: float = 10.0, r
             t0 = time.perf_counter()
             table = tracked_markers(scene, detector, progress=progress)
             track_s = time.perf_counter() - t0
-            truth_dots = {"dots": truth.to_arrays()["positions"], "labels": np.array(scene.labels)}
+            truth_dots = {"dots": truth.to_arrays().positions, "labels": np.array(scene.labels)}
             accuracy = evaluate_tracking(table, truth_dots, float(scene.tape.graph.rest_length_mm.min()))
             entry["tracked"] = score_lab_angles(compute_angles(table, scene.tape, levels, up, facing, settings).table,
                                                 expected)

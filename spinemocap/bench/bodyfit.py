@@ -118,7 +118,7 @@ def run_bodyfit_benchmark(preset: str = "artificial", frames: int = 10, misplace
     gt = track.groundtruth
     labels = list(gt["labels"])
     tracked = track.table.select(labels=labels).to_arrays()
-    tracked_pos = tracked["positions"][:, [list(tracked["labels"]).index(lab) for lab in labels]]
+    tracked_pos = tracked.positions[:, [list(tracked.labels).index(lab) for lab in labels]]
     tracker_err = np.linalg.norm(tracked_pos - gt["dots"][: len(tracked_pos)], axis=2)
     say("fitting the body model to the virtual Vicon markers ...")
     scene = build_scene(SynthConfig.preset(preset, occlusion="none", seed=seed, frames=frames))

@@ -67,11 +67,11 @@ def _ezc3d_peer(table: MarkerTable, folder: Path, repeat: int) -> dict[str, floa
     arrays = table.to_arrays()
     c = ezc3d.c3d()
     c["parameters"]["POINT"]["RATE"]["value"] = [table.fps]
-    c["parameters"]["POINT"]["LABELS"]["value"] = [str(l) for l in arrays["labels"]]
+    c["parameters"]["POINT"]["LABELS"]["value"] = [str(l) for l in arrays.labels]
     del c["parameters"]["POINT"]["UNITS"]          # ezc3d cannot write its own empty default
     c.add_parameter("POINT", "UNITS", ["mm"])
-    points = np.ones((4,) + arrays["positions"].shape[1::-1])
-    points[:3] = arrays["positions"].transpose(2, 1, 0)
+    points = np.ones((4,) + arrays.positions.shape[1::-1])
+    points[:3] = arrays.positions.transpose(2, 1, 0)
     c["data"]["points"] = points
     path = str(folder / "peer.c3d")
     return {"write_ms": _median_ms(lambda: c.write(path), repeat),

@@ -37,7 +37,7 @@ def cloud_gauge(points: np.ndarray, target: np.ndarray, with_scale: bool = True,
 def shape_error_mm(table: MarkerTable, truth: np.ndarray) -> float:
     """Mean error (mm) of the tracked dots after the best similarity onto the truth: what is left
     once the world frame (position, orientation, scale) is taken out."""
-    positions, status = table.positions(), table.to_arrays()["status"]
+    positions, status = table.positions(), table.to_arrays().status
     tracked = status != "missing"
     R, t, s = cloud_gauge(positions[tracked], truth[tracked])
     moved = s * positions[tracked] @ R.T + t
@@ -46,5 +46,5 @@ def shape_error_mm(table: MarkerTable, truth: np.ndarray) -> float:
 
 def mean_error_mm(table: MarkerTable, truth: np.ndarray) -> float:
     """Mean error (mm) over the tracked dot-frames."""
-    tracked = table.to_arrays()["status"] != "missing"
+    tracked = table.to_arrays().status != "missing"
     return float(np.nanmean(np.linalg.norm(table.positions()[tracked] - truth[tracked], axis=1)))

@@ -120,7 +120,7 @@ def flagged_dot_share(table) -> float:
     label-doubting confidence (:func:`spinemocap.track.quality.flagged_from_confidence` asked
     dot by dot: a flagged frame's dots and the doubted dots of an unflagged one)."""
     arrays = table.to_arrays()
-    status, confidence = arrays["status"], arrays["confidence"]
+    status, confidence = arrays.status, arrays.confidence
     doubted = flagged_from_confidence(status.reshape(-1, 1), confidence.reshape(-1, 1))
     return float(np.mean(doubted | (status.reshape(-1) == MISSING))) if status.size else float("nan")
 
@@ -141,10 +141,10 @@ def _vouched(table, gt: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     tracker vouches for (not flagged, not missing)."""
     arrays = table.to_arrays()
     labels = [str(x) for x in gt["labels"]]
-    truth = np.asarray(gt["dots"], float)[arrays["frames"]][:, [labels.index(str(lab)) for lab in arrays["labels"]]]
-    status = arrays["status"]
-    doubted = flagged_from_confidence(status.reshape(-1, 1), arrays["confidence"].reshape(-1, 1)).reshape(status.shape)
-    return arrays["positions"], truth, ~doubted & (status != MISSING)
+    truth = np.asarray(gt["dots"], float)[arrays.frames][:, [labels.index(str(lab)) for lab in arrays.labels]]
+    status = arrays.status
+    doubted = flagged_from_confidence(status.reshape(-1, 1), arrays.confidence.reshape(-1, 1)).reshape(status.shape)
+    return arrays.positions, truth, ~doubted & (status != MISSING)
 
 
 def vouched_error_mm(table, gt: dict) -> float:

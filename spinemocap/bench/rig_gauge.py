@@ -131,7 +131,7 @@ def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig |
         return apply_refined_rig(result, dataclasses.replace(refinement, rig=rig), scene.tape)
 
     given_table, refined_table = table_with(given), table_with(refinement.rig)
-    observed = result.table.to_arrays()["status"] == OBSERVED
+    observed = result.table.to_arrays().status == OBSERVED
     fit = cloud_gauge(refined_table.positions()[observed], given_table.positions()[observed])
     closest = closest_gauge(refinement.rig, given, np.array(list(refinement.centre_prior_mm.values())),
                             np.array(list(refinement.rotation_prior_deg.values())))

@@ -246,7 +246,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         say(f"tracking: {name} ...")
         timed = _timed_run(replayed, capture, options, mode, detector, progress, masks=False)
         runs.append(_summary(name, timed, capture, gt, options))
-        positions[name] = timed.result.table.to_arrays()["positions"]
+        positions[name] = timed.result.table.to_arrays().positions
         say(f"  {runs[-1].fps:.2f} frames/s, {runs[-1].cpu_s_per_frame:.3f} CPU s/frame, "
             f"mean error {runs[-1].mean_error_mm:.3f} mm")
     fps_video = None
@@ -590,7 +590,7 @@ def run_speed_benchmark(preset: str = "studio", frames: int = 100, occlusion: st
             say(f"tracking: {name} ...")
             timed = _timed_run(source, capture, options, mode, detector, progress)
             summary = _summary(name, timed, capture, gt, options)
-            positions[name] = timed.result.table.to_arrays()["positions"]
+            positions[name] = timed.result.table.to_arrays().positions
             runs.append(summary)
             say(f"  {summary.fps:.2f} frames/s, {summary.cpu_s_per_frame:.2f} CPU s/frame, "
                 f"mean error {summary.mean_error_mm:.3f} mm")

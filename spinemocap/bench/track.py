@@ -204,9 +204,9 @@ def plot_errors(table, gt: dict, path: Path, occlusion: str) -> None:
 
 
     arrays = table.to_arrays()
-    frames = arrays["frames"]
+    frames = arrays.frames
     truth = np.asarray(gt["dots"], float)[frames]
-    err = np.linalg.norm(arrays["positions"] - truth, axis=2)
+    err = np.linalg.norm(arrays.positions - truth, axis=2)
     fig, ax = plt.subplots(figsize=(9, 4))
     if "keypoints" in gt:
         kp = np.asarray(gt["keypoints"], float)[frames]

@@ -178,25 +178,25 @@ def tape_markers(markers: MarkerTable, tape: TapeSpec, axes: np.ndarray, source:
     """The tape's labels from a marker table (absent labels are missing throughout), rotated into
     OpenSim axes; missing samples are NaN, never zero."""
     arrays = markers.to_arrays()
-    present = {str(label): i for i, label in enumerate(arrays["labels"])}
+    present = {str(label): i for i, label in enumerate(arrays.labels)}
     labels = list(tape.labels)
     if not any(label in present for label in labels):
         raise InputError(source, f"no tape labels ({labels[0]}, {labels[1]}, ...) in this marker data")
-    F = len(arrays["frames"])
+    F = len(arrays.frames)
     positions = np.full((F, len(labels), 3), np.nan)
     status = np.full((F, len(labels)), "missing", dtype=object)
     confidence = np.full((F, len(labels)), np.nan)
     for d, label in enumerate(labels):
         if label in present:
-            positions[:, d] = arrays["positions"][:, present[label]]
-            status[:, d] = arrays["status"][:, present[label]]
-            confidence[:, d] = arrays["confidence"][:, present[label]]
+            positions[:, d] = arrays.positions[:, present[label]]
+            status[:, d] = arrays.status[:, present[label]]
+            confidence[:, d] = arrays.confidence[:, present[label]]
     positions[status == "missing"] = np.nan
     status[~np.isfinite(positions).all(axis=2)] = "missing"
-    times = arrays["time"]
+    times = arrays.time
     fps = float(markers.fps)
     if not np.isfinite(times).all():
-        times = arrays["frames"] / fps
+        times = arrays.frames / fps
     return TapeMarkers(labels, np.asarray(times, float), to_opensim(positions, axes), status, fps, confidence)
 
 

@@ -152,12 +152,12 @@ def evaluate_tracking(table: MarkerTable, groundtruth: dict, tape_min_spacing_mm
     studio (``dots`` (F, D, 3), ``visible`` (F, C, D), optional ``keypoints`` (F, 8, 3)); the
     table's frames index the ground truth."""
     arrays = table.to_arrays()
-    frames = arrays["frames"]
-    labels = list(arrays["labels"])
+    frames = arrays.frames
+    labels = list(arrays.labels)
     gt_labels = [str(x) for x in groundtruth.get("labels", labels)]
     order = [gt_labels.index(lab) for lab in labels]
     truth = np.asarray(groundtruth["dots"], float)[frames][:, order]
-    pos, status = arrays["positions"], arrays["status"]
+    pos, status = arrays.positions, arrays.status
     err = np.linalg.norm(pos - truth, axis=2)
     tracked = status != MISSING
     swaps = label_swaps(pos, truth, tape_min_spacing_mm) & tracked

@@ -181,7 +181,7 @@ def test_depth_error_growing_toward_the_midline_does_not_tilt_the_s1_tangent():
     # low). Row centres on the midline (u = 0) must leave the angles as on the clean tape.
     amplitude = 30.0 * np.sin(np.linspace(0, np.pi, 11))
     clean = _sequence(np.outer(amplitude, [1.0, 0.0, 0.0]), background=(-0.1, 0.0, 0.0))
-    dots = clean.to_arrays()["positions"]
+    dots = clean.to_arrays().positions
     u = TAPE.graph.uv_mm[:, 0]
     depth_mm = np.linspace(0.2, 1.2, len(amplitude))[:, None] * (1 - (u / 15.0) ** 2)[None, :]
     deeper = MarkerTable.from_arrays(TAPE.labels, dots + depth_mm[..., None] * _anterior_per_dot(dots), fps=100.0)

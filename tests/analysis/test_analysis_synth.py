@@ -74,8 +74,8 @@ def test_the_peer_scores_the_previous_row_centres():
     dots = bent_tape_dots(tape, uniform_bend(0, 300, np.array([30.0, 0, 0])))[None]
     dots[0, [k for k, label in enumerate(tape.labels) if label.endswith("C")], 1] += 1.0  # C dots 1 mm deeper
     peer = without_middle_dots(MarkerTable.from_arrays(tape.labels, dots, fps=10.0)).to_arrays()
-    assert not any(str(label).endswith("C") for label in peer["labels"])
-    centre = row_tracks(peer["positions"], list(peer["labels"]), tape, 10.0, lowpass_hz=None).centre[0]
+    assert not any(str(label).endswith("C") for label in peer.labels)
+    centre = row_tracks(peer.positions, list(peer.labels), tape, 10.0, lowpass_hz=None).centre[0]
     index = {label: k for k, label in enumerate(tape.labels)}
     midpoints = np.array([0.5 * (dots[0, index[f"R{r:02d}L"]] + dots[0, index[f"R{r:02d}R"]]) for r in range(1, 14)])
     assert centre == pytest.approx(midpoints)

@@ -103,8 +103,8 @@ def test_parallel_path_gives_the_serial_output(parallel):
     assert serial.detector_info.parallel == "serial"
     assert parallel_run.detector_info.parallel == parallel  # it did run in parallel (no fallback)
     a, b = serial.table.to_arrays(), parallel_run.table.to_arrays()
-    np.testing.assert_array_equal(a["positions"], b["positions"])
-    assert (a["status"] == b["status"]).all()
+    np.testing.assert_array_equal(a.positions, b.positions)
+    assert (a.status == b.status).all()
     assert serial.detector_searches == parallel_run.detector_searches
 
 
@@ -282,7 +282,7 @@ def test_masks_are_read_only_for_the_mask_detector(tmp_path):
     for png in (root / "masks").rglob("*.png"):
         png.write_bytes(b"not a png")
     table = track_capture(root, tmp_path / "out", detector="net", progress=False)
-    assert np.isfinite(table.to_arrays()["positions"]).any()
+    assert np.isfinite(table.to_arrays().positions).any()
     # ... the mask detector needs them and says which file is bad
     with pytest.raises(InputError, match="corrupt"):
         track_capture(root, tmp_path / "out", detector="mask", progress=False)
@@ -391,12 +391,12 @@ def test_detection_ahead_without_prediction_gives_the_serial_output():
         ahead = _tracked_from_memory(scene, images, replace(options, lookahead=1), mode)
         a, b = serial.table.to_arrays(), ahead.table.to_arrays()
         if mode == "paper":
-            np.testing.assert_array_equal(a["positions"], b["positions"])
-            assert (a["status"] == b["status"]).all()
+            np.testing.assert_array_equal(a.positions, b.positions)
+            assert (a.status == b.status).all()
             assert serial.detector_searches == ahead.detector_searches
         else:  # predicted boxes from one frame earlier: same dots here, up to rounding of the crops
-            np.testing.assert_allclose(a["positions"], b["positions"], atol=0.05)
-            assert (a["status"] == b["status"]).all()
+            np.testing.assert_allclose(a.positions, b.positions, atol=0.05)
+            assert (a.status == b.status).all()
 
 
 def test_prediction_from_two_frames_back_finds_the_full_search_dots_on_a_small_studio(small_studio):
@@ -636,8 +636,8 @@ def test_streamed_cameras_give_the_frame_by_frame_output(monkeypatch, mode):
         streamed = track(workers=3, lookahead=lookahead)
         assert where and all(name.startswith("detect_") for name in where)  # streamed, in the camera threads
         a, b = frame_by_frame.table.to_arrays(), streamed.table.to_arrays()
-        np.testing.assert_array_equal(a["positions"], b["positions"])
-        assert (a["status"] == b["status"]).all()
+        np.testing.assert_array_equal(a.positions, b.positions)
+        assert (a.status == b.status).all()
         assert frame_by_frame.detector_searches == streamed.detector_searches
         if mode == "sequence":
             assert streamed.detector_searches["predicted"] > 0
@@ -688,8 +688,8 @@ def test_refresh_frames_start_while_the_tracker_solves_the_frame_before(monkeypa
     assert all(done == frame and now is None for frame, _, done, now in started)  # each after the step before it
     threads = track(3)
     a, b = serial.table.to_arrays(), threads.table.to_arrays()
-    np.testing.assert_array_equal(a["positions"], b["positions"])
-    assert (a["status"] == b["status"]).all()
+    np.testing.assert_array_equal(a.positions, b.positions)
+    assert (a.status == b.status).all()
     assert [f.route for f in serial.frames] == [f.route for f in threads.frames]
     assert serial.detector_searches == threads.detector_searches and threads.detector_searches["predicted"] > 0
     refreshed = {frame for frame, name, *_ in started if name.startswith("detect-refresh")}
@@ -727,7 +727,7 @@ def test_camera_refresh_schedule_detects_no_frame_ahead_of_the_tracker(monkeypat
 
     serial, threads = track(1), track(3)
     a, b = serial.table.to_arrays(), threads.table.to_arrays()
-    np.testing.assert_array_equal(a["positions"], b["positions"])
+    np.testing.assert_array_equal(a.positions, b.positions)
     assert serial.detector_searches == threads.detector_searches and threads.detector_searches["predicted"] > 0
     assert not any(name.startswith("detect-refresh") for name in threads_seen)
 
@@ -910,8 +910,8 @@ def test_frames_detected_at_once_give_the_output_of_one_frame_at_a_time(parallel
     at_once = _tracked_from_memory(scene, images, SpeedOptions(workers=3, predict=False, device="cpu",
                                                                frames_at_once=3, parallel=parallel))
     a, b = one.table.to_arrays(), at_once.table.to_arrays()
-    np.testing.assert_array_equal(a["positions"], b["positions"])
-    assert (a["status"] == b["status"]).all()
+    np.testing.assert_array_equal(a.positions, b.positions)
+    assert (a.status == b.status).all()
     assert one.detector_searches == at_once.detector_searches == {**one.detector_searches, "full": 5 * len(scene.rig)}
     assert at_once.detector_info.workers == 3  # workers not capped at one per camera
     assert at_once.detector_info.parallel == parallel

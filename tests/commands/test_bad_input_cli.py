@@ -234,7 +234,7 @@ def test_absurd_samples_are_read_as_missing_with_a_warning_naming_the_file(suffi
     with pytest.warns(ExportWarning, match=rf"m\{suffix}: 1 of 18 samples have non-finite or absurd"):
         assert main(["-q", *_export(path, tmp_path)]) == 0
     back = exporters.read(tmp_path / "out.csv")
-    assert back.to_arrays()["status"][2, 1] == "missing" and np.isnan(back.positions()[2, 1]).all()
+    assert back.to_arrays().status[2, 1] == "missing" and np.isnan(back.positions()[2, 1]).all()
     assert back.problems() == []
 
 

@@ -22,8 +22,8 @@ class LabJsonExporter:
     def write(self, table, path, indent=None):
         arrays = table.to_arrays()
         frames = [[None if not np.isfinite(p).all() else [float(v) / 1000.0 for v in p] for p in row]
-                  for row in arrays["positions"]]
-        doc = {"labels": [str(l) for l in arrays["labels"]], "fps": table.fps, "first_frame": int(arrays["frames"][0]),
+                  for row in arrays.positions]
+        doc = {"labels": [str(l) for l in arrays.labels], "fps": table.fps, "first_frame": int(arrays.frames[0]),
                "frames": frames}
         with open(path, "w") as handle:
             if table.meta.get("explode_after_half"):  # lets a test make the write fail midway

@@ -85,7 +85,7 @@ def test_absurd_or_non_finite_coordinates_read_as_missing_with_a_warning(tmp_pat
     path = RawC3d(points, invalid=invalid).write(tmp_path / "damaged.c3d")
     with pytest.warns(ExportWarning, match=r"damaged\.c3d: 2 of 60 C3D samples have non-finite or absurd coordinates"):
         table = exporters.read(path)
-    status = table.to_arrays()["status"]
+    status = table.to_arrays().status
     assert status[4, 1] == "missing" and status[9, 2] == "missing"
     assert np.isnan(table.positions()[4, 1]).all()
     assert _problems(table) == []
@@ -106,7 +106,7 @@ def test_damaged_scale_of_an_integer_file_leaves_every_sample_missing_with_warni
     messages = " | ".join(str(w.message) for w in caught)
     assert re.search(r"scale\.c3d: 20 of 20 C3D samples have non-finite or absurd", messages)
     assert re.search(r"scale\.c3d: markers with no valid sample", messages)
-    assert set(table.to_arrays()["status"].ravel()) == {"missing"} and _problems(table) == []
+    assert set(table.to_arrays().status.ravel()) == {"missing"} and _problems(table) == []
 
 
 def test_cli_refuses_a_cut_c3d_naming_it_and_flags_absurd_samples(tmp_path, capsys):

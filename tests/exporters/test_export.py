@@ -69,8 +69,8 @@ def test_trc_round_trip_is_exact_to_written_precision(tmp_path, options):
     assert table.frames[0] == 7 and table.meta["fps"] == 100.0
     assert np.allclose(table.positions(), sample_table().positions(), atol=5e-4, equal_nan=True)
     arrays = table.to_arrays()
-    assert set(arrays["status"][np.isnan(arrays["positions"][..., 0])]) == {"missing"}
-    assert set(arrays["status"][~np.isnan(arrays["positions"][..., 0])]) == {"observed"}
+    assert set(arrays.status[np.isnan(arrays.positions[..., 0])]) == {"missing"}
+    assert set(arrays.status[~np.isnan(arrays.positions[..., 0])]) == {"observed"}
 
 
 def test_we_read_trc_written_by_opensim(tmp_path):
@@ -86,7 +86,7 @@ def test_we_read_trc_written_by_opensim(tmp_path):
     back = exporters.read(tmp_path / "osim.trc")
     assert back.labels == LABELS and back.fps == 100.0 and back.meta["trc_axes"] == "as in file"
     assert np.allclose(back.positions(), table.positions(), atol=5e-4, equal_nan=True)
-    assert back.to_arrays()["status"][5, 1] == "missing" and np.isnan(back.positions()[5:9, 1]).all()
+    assert back.to_arrays().status[5, 1] == "missing" and np.isnan(back.positions()[5:9, 1]).all()
 
 
 def test_opensim_axes_are_a_proper_rotation():
@@ -113,18 +113,18 @@ def test_c3d_and_ezc3d_agree_with_our_writer(tmp_path):
     table = sample_table(first_frame=10)
     path = exporters.write(table, tmp_path / "markers.c3d")
     arrays = table.to_arrays()
-    expected = arrays["positions"].astype(np.float32).astype(float)   # float32 on disk
-    missing = arrays["status"] == "missing"
+    expected = arrays.positions.astype(np.float32).astype(float)   # float32 on disk
+    missing = arrays.status == "missing"
 
     reader, frames = _c3d_package_frames(path)                        # (F, D, 5)
     assert [l.strip() for l in reader.point_labels] == LABELS
     assert reader.point_rate == 100.0 and reader.first_frame == 11 and reader.point_scale == pytest.approx(-0.01)
     assert np.array_equal(frames[..., 3] < 0, missing)                 # invalid = negative word
     assert np.array_equal(frames[..., :3][~missing], expected[~missing])
-    res_byte = np.clip(np.rint(arrays["residual"] / 0.01), 1, 255)
-    res_byte[arrays["status"] == "inferred"] = 0
+    res_byte = np.clip(np.rint(arrays.residual / 0.01), 1, 255)
+    res_byte[arrays.status == "inferred"] = 0
     assert np.allclose(frames[..., 3][~missing], (res_byte * np.float32(0.01))[~missing], atol=1e-6)
-    assert np.array_equal(frames[..., 4][~missing], ((1 << arrays["n_views"]) - 1)[~missing])
+    assert np.array_equal(frames[..., 4][~missing], ((1 << arrays.n_views) - 1)[~missing])
 
     c = ezc3d.c3d(str(path))
     points = c["data"]["points"][:3].transpose(2, 1, 0)               # (F, D, 3)
@@ -146,14 +146,14 @@ def test_c3d_round_trip_keeps_status_views_and_residuals(tmp_path):
     table = sample_table()
     back = exporters.read(exporters.write(table, tmp_path / "m.c3d")).to_arrays()
     arrays = table.to_arrays()
-    assert back["labels"].tolist() == LABELS and back["frames"].tolist() == arrays["frames"].tolist()
-    assert np.array_equal(back["status"], arrays["status"])
-    observed = arrays["status"] == "observed"
-    valid = arrays["status"] != "missing"
-    assert np.array_equal(back["n_views"][valid], arrays["n_views"][valid])
-    assert np.allclose(back["residual"][observed], arrays["residual"][observed], atol=0.005 + 1e-6)
-    assert np.allclose(back["positions"], arrays["positions"], atol=1e-3, equal_nan=True)
-    assert back["residual"][arrays["status"] == "inferred"].max() == 0.0
+    assert back.labels.tolist() == LABELS and back.frames.tolist() == arrays.frames.tolist()
+    assert np.array_equal(back.status, arrays.status)
+    observed = arrays.status == "observed"
+    valid = arrays.status != "missing"
+    assert np.array_equal(back.n_views[valid], arrays.n_views[valid])
+    assert np.allclose(back.residual[observed], arrays.residual[observed], atol=0.005 + 1e-6)
+    assert np.allclose(back.positions, arrays.positions, atol=1e-3, equal_nan=True)
+    assert back.residual[arrays.status == "inferred"].max() == 0.0
 
 
 def test_vectorised_decoder_matches_c3d_package(tmp_path):
@@ -217,7 +217,7 @@ def test_c3d_meters(tmp_path):
     path = exporters.write(table, tmp_path / "m.c3d", units="m")
     reader, frames = _c3d_package_frames(path)
     assert reader.get("POINT:UNITS").string_value.strip() == "m"
-    ok = table.to_arrays()["status"] != "missing"
+    ok = table.to_arrays().status != "missing"
     assert np.allclose(frames[..., :3][ok], table.positions()[ok] / 1000.0, rtol=1e-6)
     assert np.allclose(exporters.read(path).positions(), table.positions(), atol=1e-3, equal_nan=True)
 

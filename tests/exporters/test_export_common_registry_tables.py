@@ -75,7 +75,7 @@ def test_a_one_frame_csv_reads_back_with_its_frame_rate_from_its_frame_and_time(
     one = MarkerTable.from_arrays(LABELS, np.ones((1, 3, 3)), fps=50.0, first_frame=7)
     back = read_csv(write_csv(one, tmp_path / "one.csv"))
     assert back.fps == 50.0 and back.n_frames == 1
-    np.testing.assert_array_equal(back.to_arrays()["positions"], one.to_arrays()["positions"])
+    np.testing.assert_array_equal(back.to_arrays().positions, one.to_arrays().positions)
     first = MarkerTable.from_arrays(LABELS, np.ones((1, 3, 3)), fps=50.0)  # frame 0 at 0 s: no rate to read
     with pytest.raises(InputError, match="first.csv: .*frame rate"):
         read_csv(write_csv(first, tmp_path / "first.csv"))

@@ -83,7 +83,7 @@ def test_vicon_reexport_reads_back_identically(tmp_path):
     assert np.array_equal(points, table.positions(), equal_nan=True)
     assert c["header"]["points"]["first_frame"] == table.frames[0]
     back = exporters.read(path)
-    assert np.array_equal(back.to_arrays()["status"], table.to_arrays()["status"])
+    assert np.array_equal(back.to_arrays().status, table.to_arrays().status)
 
 
 def test_vicon_markers_to_opensim_trc_with_gaps(tmp_path):

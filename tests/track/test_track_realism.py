@@ -95,7 +95,7 @@ def test_tracker_keeps_every_label_with_30_percent_tension():
     positions = result.table.positions()
     assert not label_swaps(positions, truth, 15.0).any()
     assert np.nanmax(np.linalg.norm(positions - truth, axis=2)) < 1.5
-    stretch = result.table.to_arrays()["stretch"]  # markers.csv tells the tension
+    stretch = result.table.to_arrays().stretch  # markers.csv tells the tension
     assert np.nanmedian(stretch) == pytest.approx(np.median(row_stretch(truth[0], SPEC.graph)[0]), abs=0.02)
     # the tracker without stretch estimation (nominal spacing) loses the tape on the same frame
     with pytest.warns(TrackingWarning):
@@ -117,7 +117,7 @@ def test_tracker_keeps_every_label_with_a_2px_calibration_error_and_names_the_ca
     truth = np.stack(poses)
     assert all(f.solved for f in result.frames)
     assert not label_swaps(result.table.positions(), truth, 15.0).any()
-    assert (result.table.to_arrays()["status"] == "observed").mean() > 0.9
+    assert (result.table.to_arrays().status == "observed").mean() > 0.9
     assert result.frames[-1].gate_px > 2.0
 
 
@@ -401,7 +401,7 @@ def test_a_resolve_after_an_unsolved_frame_with_an_unseen_tape_end_is_flagged():
     assert not swapped[~last.unanchored].any()  # the rows seen keep their labels; the rest is flagged
     np.testing.assert_array_equal(last.unanchored, SPEC.graph.row >= SPEC.n_rows - 3)
     arrays = result.table.to_arrays()
-    assert flagged_from_confidence(arrays["status"], arrays["confidence"]).tolist() == [False, True, True]
+    assert flagged_from_confidence(arrays.status, arrays.confidence).tolist() == [False, True, True]
 
 
 def test_a_tape_end_the_model_left_off_its_points_is_anchored_back_on_them():

@@ -225,7 +225,7 @@ def test_a_frame_without_tape_gives_missing_rows_and_a_warning(scene):
     frames = [(0, blobs(rig, dots), 0.0), (1, empty, 0.0)]
     with pytest.warns(TrackingWarning, match="frame 1"):
         result = run_tracking(iter(frames), rig, SPEC, fps=10.0, mode="paper", progress=False)
-    status = result.table.to_arrays()["status"]
+    status = result.table.to_arrays().status
     assert (status[1] == "missing").all() and (status[0] == "observed").all()
     assert not result.frames[1].solved
 

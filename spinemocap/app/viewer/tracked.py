@@ -112,22 +112,22 @@ def read_tracked(results: str | os.PathLike, tape: TapeSpec) -> TrackedDots:
         raise InputError(path, "the marker file holds no frame")
     arrays = table.to_arrays()
     labels = tape.labels
-    foreign = sorted(set(arrays["labels"]) - set(labels))
+    foreign = sorted(set(arrays.labels) - set(labels))
     if foreign:
         raise InputError(path, f"labels {foreign[:6]} are not dots of the capture's tape ({len(labels)} dots "
                                f"{labels[0]}..{labels[-1]}): these results belong to another capture")
-    take = [list(arrays["labels"]).index(label) if label in arrays["labels"] else -1 for label in labels]
-    F, D = len(arrays["frames"]), len(labels)
+    take = [list(arrays.labels).index(label) if label in arrays.labels else -1 for label in labels]
+    F, D = len(arrays.frames), len(labels)
     positions = np.full((F, D, 3), np.nan)
     status = np.full((F, D), "missing", dtype=object)
     confidence = np.full((F, D), np.nan)
     for d, k in enumerate(take):
         if k >= 0:
-            positions[:, d] = arrays["positions"][:, k]
-            status[:, d] = arrays["status"][:, k]
-            confidence[:, d] = arrays["confidence"][:, k]
+            positions[:, d] = arrays.positions[:, k]
+            status[:, d] = arrays.status[:, k]
+            confidence[:, d] = arrays.confidence[:, k]
     return TrackedDots(
-        frames=np.asarray(arrays["frames"], np.int64), times=np.asarray(arrays["time"], float), labels=labels,
+        frames=np.asarray(arrays.frames, np.int64), times=np.asarray(arrays.time, float), labels=labels,
         positions=positions, classes=dot_classes(status, confidence), confidence=confidence,
         frame_flagged=flagged_from_confidence(status, confidence), row=np.asarray(tape.graph.row),
         source=str(path))
