@@ -11,6 +11,8 @@ Test sets (bodies, seeds and so lighting never used in training: seeds from
   layout at the ``lab`` realism level with light occlusion;
 - ``held-out+subject``: the same with a lab's subject drawn per scene
   (:func:`spinemocap.synth.appearance.lab_subject`: tape roll and finish, skin marks, clothing);
+- ``lab+people``: the training tape colour on a lab's subject in a painted room with two other
+  people standing in it, through the ``lab`` camera look, at the ``lab`` realism level;
 - ``tape-free``: images without any tape (:mod:`spinemocap.bench.tape_free`: scikit-image's
   photographs and painted lab rooms): false dots per 100 images and the largest tape region.
 
@@ -70,6 +72,7 @@ VIEW_ANGLE_BINS_DEG = (0, 45, 60, 70, 78)
 SEQUENCE_FRAMES = 200  # 2 s of the 'mixed' motion; test frames are spread over it (varied poses)
 HELD_OUT = "held-out"
 HELD_OUT_SUBJECT = "held-out+subject"
+WITH_PEOPLE = "lab+people"
 
 
 @dataclass
@@ -87,6 +90,7 @@ class TestSet:
     camera_look: str = "ideal"
     seed_offset: int = 0  # the set's scenes: seeds HELD_OUT_SEED_BASE + 100 k + 10 attempt + seed_offset
     subject: Literal["plain", "lab"] = "plain"  # lab: the tape's roll and finish, skin marks, clothing drawn per scene
+    bystanders: int = 0  # other people standing in the room backdrop
 
 
 TEST_SETS = {
@@ -101,11 +105,15 @@ TEST_SETS = {
     HELD_OUT_SUBJECT: TestSet(HELD_OUT_SUBJECT, "artificial", scenes=3, frames=2, blur=0.0, occlusion="light",
                               realism="lab", tape_colour=HELD_OUT_FAMILY["tape_colour"], backdrop="room",
                               camera_look="lab", seed_offset=4, subject="lab"),
+    # the training colour in a lab's room with two other people standing in it: skin, hair and
+    # clothing that are not the subject's
+    WITH_PEOPLE: TestSet(WITH_PEOPLE, "artificial", scenes=3, frames=2, blur=0.0, occlusion="light", realism="lab",
+                         backdrop="room", camera_look="lab", seed_offset=5, subject="lab", bystanders=2),
 }
 TAPE_FREE = "tape-free"
 TAPE_FREE_ROOMS = 60
 LATTICE_CASES = 300  # random wall-bar grids and tapes for the lattice test alone
-DEFAULT_SETS = ["studio", "blur+balls", HELD_OUT, HELD_OUT_SUBJECT, TAPE_FREE]
+DEFAULT_SETS = ["studio", "blur+balls", HELD_OUT, HELD_OUT_SUBJECT, WITH_PEOPLE, TAPE_FREE]
 
 
 # ---------------------------------------------------------------------------------- scoring
@@ -198,7 +206,8 @@ def held_out_scene(test: TestSet, k: int, attempts: int = 5):
         cfg = SynthConfig.preset(test.preset, frames=SEQUENCE_FRAMES, seed=seed, phenotype=phenotype,
                                  blur=test.blur, occlusion=test.occlusion, skin_tone=float(rng.uniform(0, 1)),
                                  supersample=test.supersample, realism=test.realism, tape_colour=test.tape_colour,
-                                 backdrop=test.backdrop, camera_look=test.camera_look, **subject)
+                                 backdrop=test.backdrop, bystanders=test.bystanders, camera_look=test.camera_look,
+                                 **subject)
         try:
             return build_scene(cfg), cfg
         except ValueError as exc:

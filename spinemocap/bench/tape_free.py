@@ -7,8 +7,10 @@ Two sources, neither holding any tape:
   in the package, none that would be downloaded);
 - rooms of motion-capture labs painted by :func:`spinemocap.synth.rooms.paint_room` (windows
   with blinds, curtains, doors, wall bars, treadmills, rails, posters with text, stripes and
-  checkerboards, ceiling lights, motion-capture camera strobes), at the studio's and the
-  sports cameras' sizes, with sensor noise and, in some, the studio's lens blur.
+  checkerboards, ceiling lights, motion-capture camera strobes), two in three with one or two
+  other people standing in them (skin, hair, clothing edges, a bare back with a bra strap and
+  moles), at the studio's and the sports cameras' sizes, with sensor noise and, in some, the
+  studio's lens blur.
 
 Scores per detector: false dots per 100 images (every dot is false), the share of images with
 any dot, and the largest tape region (a connected component of the tape mask) as a share of its
@@ -65,11 +67,12 @@ def as_bgr(image: np.ndarray) -> np.ndarray:
 
 def room_images(n: int, seed_base: int = ROOM_SEED_BASE, noise: float = 2.0) -> Iterator[tuple[str, np.ndarray]]:
     """``n`` painted lab rooms (:func:`paint_room`) at the sizes of :data:`ROOM_SIZES` in turn,
-    with Gaussian sensor noise of ``noise`` grey levels, every third one slightly defocused."""
+    with 0, 1 and 2 other people in turn, Gaussian sensor noise of ``noise`` grey levels, every
+    third one slightly defocused."""
     for k in range(n):
         seed = seed_base + k
         size = ROOM_SIZES[k % len(ROOM_SIZES)]
-        image = paint_room(size, seed).astype(np.float32)
+        image = paint_room(size, seed, people=(k // len(ROOM_SIZES)) % 3).astype(np.float32)
         if k % 3 == 2:
             image = cv2.GaussianBlur(image, (0, 0), 0.8)
         image += np.random.default_rng(seed).normal(0, noise, image.shape).astype(np.float32)

@@ -114,6 +114,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--backdrop", choices=BACKDROP_NAMES,
                    help="behind the subject: plain (default) or a painted motion-capture room (windows, blinds, "
                         "wall bars, treadmill, posters, lights, camera strobes), one view per camera")
+    p.add_argument("--bystanders", type=int,
+                   help="other people standing in the painted room (with --backdrop room; default 0): skin, hair "
+                        "and clothing that are not the subject's")
     p.add_argument("--camera-look", choices=CAMERA_LOOK_NAMES,
                    help="light and camera: ideal (default) or lab (per camera a seeded mix of lamp colour, mains "
                         "flicker, auto-exposure, defocus, 4:2:0 chroma, JPEG, H.264 or H.265 at sports-camera bitrates, "
@@ -173,7 +176,8 @@ def config_from_args(args: argparse.Namespace):
         "supersample": args.supersample, "seed": args.seed, "video": args.video or None,
         "reference": args.reference or None, "camera_offsets_s": args.camera_offsets, "camera_fps": args.camera_fps,
         "drop_frames": args.drop_frames, "clap": args.clap or None,
-        "tape_colour": args.tape_colour, "backdrop": args.backdrop, "camera_look": args.camera_look,
+        "tape_colour": args.tape_colour, "backdrop": args.backdrop, "bystanders": args.bystanders,
+        "camera_look": args.camera_look,
         "tape_roll": args.tape_roll, "tape_finish": args.tape_finish, "skin_marks": args.skin_marks,
         "clothing": args.clothing, "rolling_shutter_ms": args.rolling_shutter, "camera_codec": args.camera_codec,
         "phenotype": phenotype or None, "name": args.out.name,

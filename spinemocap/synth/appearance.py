@@ -5,7 +5,8 @@ room behind the subject.
   shades): ``black`` (the studio's tape so far), ``beige``, ``blue``, ``pink``, ``red``.
 - :data:`BACKDROPS`: ``plain`` (the renderer's uniform background) or ``room``: a painted
   motion-capture room (:func:`spinemocap.synth.rooms.paint_room`, one view per camera, seeded by
-  the scene and the camera) wherever the render shows the empty background; the subject, the
+  the scene and the camera, with other people standing in it where asked) wherever the render
+  shows the empty background; the subject, the
   tape and everything else drawn keep their pixels, and the tape mask and ground truth do not
   change.
 - :data:`TAPE_ROLLS`: perforated rolls as labs buy them, each a hole diameter, row pitch and
@@ -90,10 +91,12 @@ BACKDROPS: tuple[str, ...] = get_args(Backdrop)
 
 
 @functools.lru_cache(maxsize=16)
-def room_view(size: tuple[int, int], scene_seed: int, camera: int) -> np.ndarray:
-    """The room one camera sees behind the subject: RGB uint8 (H, W, 3) for ``size`` (width, height)
-    (cached: the same array for the same arguments; read it, do not change it)."""
-    bgr = paint_room(size, seed=int(np.random.default_rng([scene_seed, 7, camera]).integers(1 << 31)))
+def room_view(size: tuple[int, int], scene_seed: int, camera: int, people: int = 0) -> np.ndarray:
+    """The room one camera sees behind the subject, with ``people`` other people standing in it:
+    RGB uint8 (H, W, 3) for ``size`` (width, height) (cached: the same array for the same
+    arguments; read it, do not change it)."""
+    seed = int(np.random.default_rng([scene_seed, 7, camera]).integers(1 << 31))
+    bgr = paint_room(size, seed=seed, people=people)
     return np.ascontiguousarray(bgr[..., ::-1])
 
 

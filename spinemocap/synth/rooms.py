@@ -17,6 +17,12 @@ rows of bright spots). :func:`paint_room` paints one seeded room view (BGR uint8
 - ``strobe``: motion-capture cameras (dark bodies with a ring of bright infrared-strobe LEDs
   around the lens), as ceiling- or tripod-mounted cameras appear in another camera's view.
 
+Other people (``people``): the experimenter or the next subject standing in the room, front or
+back on, in a T-shirt or with a bare back (a sports bra's strap, moles), in shorts or trousers:
+skin, hair and clothing edges where the detector has seen only the subject's. They are painted
+over the furniture from their own random stream, so a seed's furniture is the same with or
+without them.
+
 Every item is drawn by OpenCV primitives from a ``numpy`` generator, so a seed gives the same
 room. Sizes scale with the image; nothing here knows about tape (the tape-free benchmark and the
 renderer's backdrops use it).
@@ -32,15 +38,21 @@ import numpy as np
 RoomItem = Literal["window", "curtain", "door", "wall_bars", "treadmill", "rails", "poster", "ceiling_light", "strobe"]
 ROOM_ITEMS: tuple[str, ...] = get_args(RoomItem)
 
+PEOPLE_STREAM = 13  # the people's random stream: seed's generator key beside the room's
+# skin (BGR) from light to dark, and hair colours
+_SKIN_LIGHT_BGR = np.array([173.0, 199.0, 237.0])
+_SKIN_DARK_BGR = np.array([51.0, 71.0, 107.0])
+_HAIR_BGR = ((20, 20, 25), (30, 45, 70), (60, 110, 170), (150, 160, 170), (25, 35, 50))
 _TEXT_WORDS = ("GAIT LAB", "EXIT", "NO RUNNING", "SPINE", "CALIBRATE", "LAB 2", "RESEARCH", "FIRE DOOR",
                "KEEP CLEAR", "MOTION", "Vicon", "SAFETY FIRST", "Room 1.14", "0123456789")
 
 
 def paint_room(size: tuple[int, int], seed: int, items: tuple[str, ...] | None = None,
-               n_items: int | None = None) -> np.ndarray:
+               n_items: int | None = None, people: int = 0) -> np.ndarray:
     """A room view of ``size`` (width, height) px as BGR uint8: a wall (uneven lighting), a floor,
-    and ``items`` (default: ``n_items`` picked from :data:`ROOM_ITEMS` by the seed; at least one
-    strobe camera or window in most rooms). Raises ValueError for an unknown item."""
+    ``items`` (default: ``n_items`` picked from :data:`ROOM_ITEMS` by the seed; at least one
+    strobe camera or window in most rooms) and ``people`` other people standing in it. Raises
+    ValueError for an unknown item or a negative count of people."""
     w, h = size
     rng = np.random.default_rng(seed)
     if items is None:
@@ -55,6 +67,11 @@ def paint_room(size: tuple[int, int], seed: int, items: tuple[str, ...] | None =
                 "strobe": _strobes}
     for item in items:
         painters[item](image, rng)
+    if people < 0:
+        raise ValueError(f"people must be >= 0 (got {people})")
+    crowd = np.random.default_rng([seed, PEOPLE_STREAM])
+    for _ in range(people):
+        _person(image, crowd)
     return image
 
 
@@ -257,3 +274,68 @@ def _strobes(image: np.ndarray, rng: np.random.Generator) -> None:
                            (255, 255, 255) if rng.random() < 0.8 else (180, 180, 255), -1, cv2.LINE_AA)
         if rng.random() < 0.5:  # a tripod or a ceiling clamp
             cv2.line(image, (cx, cy + int(1.8 * r)), (cx, min(h - 1, cy + int(6 * r))), (50, 50, 55), max(2, r // 5))
+
+
+def _person(image: np.ndarray, rng: np.random.Generator) -> None:
+    """A standing person, feet on the floor near the horizon, 45-95 % of the image tall, seen from
+    the front or the back: head and hair, neck, a T-shirt or a bare back (with a sports bra's strap
+    and a few moles), arms, shorts or trousers, legs and shoes; lit from one side."""
+    h, w = image.shape[:2]
+    before = image.copy()
+    tall = h * rng.uniform(0.45, 0.95)
+    unit = tall / 7.5  # the head's height: a standing adult is ~7.5 heads tall
+    cx, feet = rng.uniform(0.05, 0.95) * w, h * rng.uniform(0.8, 1.05)
+    tone = rng.uniform(0.0, 1.0)
+    skin = tuple(float(v) for v in (1 - tone) * _SKIN_LIGHT_BGR + tone * _SKIN_DARK_BGR)
+    hair = _HAIR_BGR[int(rng.integers(len(_HAIR_BGR)))]
+    shirt, legwear = _colour(rng, 20, 235, 60), _colour(rng, 15, 160, 40)
+    bare_back = rng.random() < 0.3
+    trousers = rng.random() < 0.5
+    lean = rng.normal(0.0, 0.04) * unit
+
+    def at(x_heads: float, y_heads: float) -> tuple[int, int]:  # body coordinates: heads from the feet up
+        return int(round(cx + x_heads * unit + lean * y_heads)), int(round(feet - y_heads * unit))
+
+    shoulder, hip, knee = 6.3, 3.9, 2.0
+    thick = max(2, int(0.42 * unit))
+    for side in (-1, 1):  # legs, then shoes
+        cv2.line(image, at(0.35 * side, hip), at(0.4 * side, knee), legwear if trousers else skin, thick, cv2.LINE_AA)
+        cv2.line(image, at(0.4 * side, knee), at(0.42 * side, 0.2), legwear if trousers else skin, int(thick * 0.85),
+                 cv2.LINE_AA)
+        cv2.ellipse(image, at(0.48 * side, 0.1), (max(2, int(0.35 * unit)), max(1, int(0.14 * unit))), 0, 0, 360,
+                    (30, 30, 35), -1, cv2.LINE_AA)
+    if not trousers:  # shorts over the thighs
+        cv2.fillConvexPoly(image, np.array([at(-0.85, hip + 0.2), at(0.85, hip + 0.2), at(0.85, hip - 1.1),
+                                            at(-0.85, hip - 1.1)], np.int32), legwear, cv2.LINE_AA)
+    torso = np.array([at(-1.0, shoulder), at(1.0, shoulder), at(0.8, hip), at(-0.8, hip)], np.int32)
+    cv2.fillConvexPoly(image, torso, skin if bare_back else shirt, cv2.LINE_AA)
+    cv2.rectangle(image, at(-0.85, hip + 0.25), at(0.85, hip - 0.05), legwear, -1)  # waistband
+    arm = max(2, int(0.3 * unit))
+    swing = rng.uniform(-0.25, 0.25, size=2)
+    for side, out in zip((-1, 1), swing):
+        elbow, hand = at(side * (1.15 + out), shoulder - 1.5), at(side * (1.2 + 1.5 * out), shoulder - 2.9)
+        cv2.line(image, at(side * 0.95, shoulder - 0.1), elbow, skin, arm, cv2.LINE_AA)
+        cv2.line(image, elbow, hand, skin, arm, cv2.LINE_AA)
+        if not bare_back:  # the T-shirt's sleeve
+            cv2.line(image, at(side * 0.95, shoulder - 0.1), at(side * (1.08 + 0.5 * out), shoulder - 0.8), shirt,
+                     int(arm * 1.3), cv2.LINE_AA)
+    if bare_back:
+        strap = _colour(rng, 10, 240, 60)
+        cv2.rectangle(image, at(-0.92, shoulder - 1.2), at(0.92, shoulder - 1.55), strap, -1)
+        for x_heads in (-0.45, 0.45):
+            cv2.line(image, at(x_heads, shoulder), at(x_heads * 1.1, shoulder - 1.2), strap, max(1, int(0.1 * unit)))
+        for _ in range(int(rng.integers(0, 6))):  # moles
+            cv2.circle(image, at(rng.uniform(-0.7, 0.7), rng.uniform(hip + 0.3, shoulder - 0.3)),
+                       max(1, int(0.04 * unit)), tuple(0.45 * c for c in skin), -1, cv2.LINE_AA)
+    cv2.line(image, at(0.0, shoulder - 0.1), at(0.0, shoulder + 0.45), skin, max(2, int(0.45 * unit)), cv2.LINE_AA)
+    head = at(0.0, shoulder + 0.95)
+    axes = (max(2, int(0.38 * unit)), max(2, int(0.5 * unit)))
+    cv2.ellipse(image, head, axes, 0, 0, 360, skin, -1, cv2.LINE_AA)
+    from_behind = rng.random() < 0.5
+    cv2.ellipse(image, head, (axes[0] + 1, axes[1] + 1), 0, 180 if not from_behind else 0,
+                360 if not from_behind else 360, hair, -1, cv2.LINE_AA)  # a hair cap, or the back of the head
+    # side light: the figure (the pixels just painted) darker towards one side
+    figure = np.any(image != before, axis=2)
+    light = np.clip((np.arange(w, dtype=np.float32) - cx) / (2.0 * unit), -1.0, 1.0) * rng.choice([-1.0, 1.0])
+    shade = 1.0 - rng.uniform(0.05, 0.15) * (1.0 + light)
+    image[figure] = np.clip(image.astype(np.float32) * shade[None, :, None], 0, 255).astype(np.uint8)[figure]

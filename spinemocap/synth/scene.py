@@ -156,7 +156,8 @@ class SynthConfig:
     layout, so the tracker knows it), ``tape_finish``, ``skin_marks`` (any of hair, freckles,
     moles, sweat, tattoo: on the skin, under the tape), ``clothing`` (any of shorts, bra_strap:
     solids that hide the tape in the mask and the visibility where they cross it), ``backdrop``,
-    ``camera_look``; ``rolling_shutter_ms`` sets every camera's readout time (None: the camera
+    ``bystanders`` (other people standing in the ``room`` backdrop, painted into each camera's
+    room view on their own: a 2D hard negative, not a second body in 3D), ``camera_look``; ``rolling_shutter_ms`` sets every camera's readout time (None: the camera
     look's; rows are exposed one after the other, the ground truth's ``uv`` is where each dot was
     when its row was read, ``visible`` at the frame's instant) and ``camera_codec`` every
     camera's codec (None: the camera look's).
@@ -195,6 +196,7 @@ class SynthConfig:
     clap: bool = False
     tape_colour: str = "black"  # appearance.TAPE_COLOURS
     backdrop: str = "plain"  # appearance.BACKDROPS: the renderer's uniform background or a painted lab room
+    bystanders: int = 0  # other people in the painted room (backdrop "room" only)
     camera_look: str = "ideal"  # appearance.CAMERA_LOOKS: light and camera effects after the sensor (ideal: none)
     tape_roll: str = "standard"  # appearance.TAPE_ROLLS: hole diameter, row pitch and column spacing
     tape_finish: str = "smooth"  # surfaces.TAPE_FINISHES
@@ -265,6 +267,9 @@ class SynthConfig:
             problems.append(f"unknown tape_colour {self.tape_colour!r} (choose from {list(TAPE_COLOURS)})")
         if self.backdrop not in BACKDROPS:
             problems.append(f"unknown backdrop {self.backdrop!r} (choose from {list(BACKDROPS)})")
+        if self.bystanders < 0 or (self.bystanders and self.backdrop != "room"):
+            problems.append(f"bystanders must be >= 0 and stand in the room backdrop (got {self.bystanders} with "
+                            f"backdrop {self.backdrop!r})")
         if self.camera_look not in CAMERA_LOOKS:
             problems.append(f"unknown camera_look {self.camera_look!r} (choose from {list(CAMERA_LOOKS)})")
         problems += self._surface_problems()
@@ -823,7 +828,8 @@ class Scene:
         if self.config.backdrop == "plain":
             return rgb
         renderer = self.renderers[camera]
-        return behind_subject(rgb, renderer.background_pixel(), room_view(renderer.camera.size, self.rng_seed, camera))
+        room = room_view(renderer.camera.size, self.rng_seed, camera, self.config.bystanders)
+        return behind_subject(rgb, renderer.background_pixel(), room)
 
     def _develop_pool(self) -> ThreadPoolExecutor:
         if self._pool is None:

@@ -84,6 +84,8 @@ def test_the_network_finds_no_tape_in_a_lab_room_and_keeps_a_drawn_tape(net):
     every = Detector("net", lattice=False)
     found = net.detect(room)
     assert len(found.uv) == 0 and not found.mask.any()
+    crowded = net.detect(paint_room((960, 540), seed=3, items=("treadmill", "window"), people=2))
+    assert len(crowded.uv) == 0  # other people's skin, hair and clothing edges are no tape
     sample = draw_sample(np.random.default_rng(5), size=(480, 360), px_per_mm=1.2)
     tape = net.detect(sample.image)
     plain = every.detect(sample.image)

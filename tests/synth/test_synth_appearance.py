@@ -23,6 +23,21 @@ def test_rooms_are_seeded_and_every_item_paints_something():
         paint_room((320, 240), 0, items=("sofa",))
 
 
+def test_other_people_stand_in_the_room_over_the_same_furniture():
+    empty = paint_room((640, 480), 12)
+    crowded = paint_room((640, 480), 12, people=2)
+    np.testing.assert_array_equal(crowded, paint_room((640, 480), 12, people=2))  # seeded
+    figures = np.any(crowded != empty, axis=2)
+    assert 0.03 < figures.mean() < 0.6  # two people, not the whole room repainted
+    rows, cols = np.nonzero(figures)
+    assert rows.max() - rows.min() > 0.4 * 480  # standing figures: tall, on the floor
+    assert np.any(paint_room((640, 480), 12, people=1) != crowded)
+    with pytest.raises(ValueError, match="people must be >= 0"):
+        paint_room((640, 480), 12, people=-1)
+    with pytest.raises(ValueError, match="bystanders"):
+        SynthConfig.preset("tiny", bystanders=1)  # no room to stand in
+
+
 def test_the_command_line_offers_the_studios_vocabularies():
     assert TAPE_COLOUR_NAMES == tuple(TAPE_COLOURS) and BACKDROP_NAMES == BACKDROPS
     with pytest.raises(ValueError, match="tape_colour"):
@@ -46,7 +61,8 @@ def test_backdrop_replaces_only_the_empty_background():
 def renders():
     """One tiny frame as the studio rendered it so far, in blue tape, and in front of a room."""
     out = {}
-    for key, options in {"plain": {}, "blue": {"tape_colour": "blue"}, "room": {"backdrop": "room"}}.items():
+    for key, options in {"plain": {}, "blue": {"tape_colour": "blue"}, "room": {"backdrop": "room"},
+                         "people": {"backdrop": "room", "bystanders": 2}}.items():
         scene = build_scene(SynthConfig.preset("tiny", frames=1, seed=21, noise=0.0, **options))
         out[key] = (scene.render(0), scene.frame_groundtruth(0))
         scene.close()
@@ -55,7 +71,7 @@ def renders():
 
 def test_tape_colour_and_room_change_the_render_and_keep_the_truth(renders):
     plain, truth = renders["plain"]
-    for key in ("blue", "room"):
+    for key in ("blue", "room", "people"):
         rendered, gt = renders[key]
         for name in truth:
             np.testing.assert_array_equal(gt[name], truth[name])
@@ -71,6 +87,8 @@ def test_tape_colour_and_room_change_the_render_and_keep_the_truth(renders):
             else:  # the background changes, the tape keeps its pixels
                 assert differs.mean() > 0.3
                 assert not differs[mask].any()
+    room, people = renders["room"][0], renders["people"][0]
+    assert any(np.any(a != b) for a, b in zip(people.images, room.images))  # the people stand in the room
 
 
 # ---------------------------------------------------------------------------------- camera looks
