@@ -84,14 +84,17 @@ def random_scene_config(rng: np.random.Generator, seed: int, layouts=("tiny", "a
 def lab_appearance(config: SynthConfig, rng: np.random.Generator) -> SynthConfig:
     """``config`` with a lab's appearance drawn from ``rng``: a tape colour of
     :data:`TAPE_COLOURS` less :data:`HELD_OUT_FAMILY`'s (half black), a painted room behind the
-    subject in half the scenes, the ``lab`` camera look in two thirds (H.264 / H.265, rolling
-    shutters among them); and from the scene's own stream the tape's roll and finish, the skin's
-    marks and clothing (:func:`~spinemocap.synth.appearance.lab_subject`)."""
+    subject in half the scenes (one or two other people standing in half of those rooms), the
+    ``lab`` camera look in two thirds (H.264 / H.265, rolling shutters among them); and from the
+    scene's own stream the tape's roll and finish, the skin's marks and clothing
+    (:func:`~spinemocap.synth.appearance.lab_subject`)."""
     colours = [c for c in TAPE_COLOURS if c != HELD_OUT_FAMILY["tape_colour"]]
     others = [c for c in colours if c != "black"]
     colour = "black" if rng.random() < 0.5 else str(rng.choice(others))
     subject = lab_subject(np.random.default_rng([config.seed, 79]))
-    return dataclasses.replace(config, tape_colour=colour, backdrop="room" if rng.random() < 0.5 else "plain",
+    backdrop = "room" if rng.random() < 0.5 else "plain"
+    people = int(np.random.default_rng([config.seed, 80]).choice(3, p=[0.5, 0.3, 0.2])) if backdrop == "room" else 0
+    return dataclasses.replace(config, tape_colour=colour, backdrop=backdrop, bystanders=people,
                                camera_look="lab" if rng.random() < 2 / 3 else "ideal", **subject)
 
 

@@ -35,6 +35,7 @@ def test_the_lab_training_mix_varies_the_look_and_never_holds_the_held_out_tape(
     # the tape's roll and finish, the skin's marks and clothing vary too
     assert len({c.tape_roll for c in drawn}) > 2 and len({c.tape_finish for c in drawn}) == 3
     assert {m for c in drawn for m in c.skin_marks} and {i for c in drawn for i in c.clothing}
+    assert {c.bystanders for c in drawn if c.backdrop == "room"} == {0, 1, 2}  # other people in some rooms
     for config in drawn:
         refuse_held_out(config)
 
