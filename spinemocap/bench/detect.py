@@ -107,7 +107,7 @@ TEST_SETS = {
                               camera_look="lab", seed_offset=4, subject="lab"),
     # the training colour in a lab's room with two other people standing in it: skin, hair and
     # clothing that are not the subject's
-    WITH_PEOPLE: TestSet(WITH_PEOPLE, "artificial", scenes=3, frames=2, blur=0.0, occlusion="light", realism="lab",
+    WITH_PEOPLE: TestSet(WITH_PEOPLE, "artificial", scenes=2, frames=2, blur=0.0, occlusion="light", realism="lab",
                          backdrop="room", camera_look="lab", seed_offset=5, subject="lab", bystanders=2),
 }
 TAPE_FREE = "tape-free"
