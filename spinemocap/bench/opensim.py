@@ -43,8 +43,9 @@ from typing import Any
 
 import numpy as np
 
-from ..opensim.pipeline import slip_from_tape
-from ..opensim.tools import IK_ACCURACY, OBSERVED_SD_MM
+from ..opensim.pipeline import slip_solved_as
+from ..opensim.skin_model import SlipFromTape
+from ..opensim.tools import OBSERVED_SD_MM
 
 MOTIONS = ("flexion", "lateral", "rotation", "mixed")
 AXES = ("flexion", "lateral", "rotation")
@@ -52,11 +53,15 @@ GOALS = {"marker_rms_mm": 2.0, "flexion_rmse_deg": 2.0, "lateral_rmse_deg": 2.0,
 # the peers: the slips' goals at the tape's slip (its own accuracy); the skin model with each frame
 # solved only from the previous solution and inferred dots weighed as observed ones; every marker
 # fixed to its vertebra (one start, inferred as observed)
-SLIP_FROM_TAPE: dict[str, Any] = {name: getattr(slip_from_tape(), name)
-                                  for name in ("slip", "accuracy", "fresh_start_margin")}
+def _slip_method(from_tape: SlipFromTape) -> dict[str, Any]:
+    return {name: getattr(slip_solved_as(from_tape), name) for name in ("slip", "accuracy", "fresh_start_margin")}
+
+
+
 ONE_START: dict[str, Any] = {"restart_from_static": False, "inferred_sd_mm": OBSERVED_SD_MM}
 RIGID: dict[str, Any] = {"slip": None, "normalise_tilt": False, **ONE_START}
-IK_METHODS: dict[str, dict[str, Any]] = {"ik": {}, "ik_slip_from_tape": SLIP_FROM_TAPE, "ik_one_start": ONE_START,
+IK_METHODS: dict[str, dict[str, Any]] = {"ik": {}, "ik_slip_goal": _slip_method("goal"),
+                                         "ik_slip_from_markers": _slip_method("off"), "ik_one_start": ONE_START,
                                          "ik_rigid": RIGID}
 METHODS = (*IK_METHODS, "geometric")
 BODY_MODEL_DEPTH = "the studio body's spine joints (anny) under the tape rows, static trial"
@@ -65,13 +70,13 @@ BODY_MODEL_DEPTH = "the studio body's spine joints (anny) under the tape rows, s
 def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[str] = ("groundtruth", "tracked"),
                           frames: int = 100, fps: float = 100 / 3, rows: int = 13, tracked_frames: int | None = None,
                           cache: Path | None = None, progress: bool = True, realism: str = "lab",
-                          seeds: Sequence[int] = (0,), accuracy: float = IK_ACCURACY,
+                          seeds: Sequence[int] = (0,), accuracy: float | None = None,
                           methods: Sequence[str] = tuple(IK_METHODS)) -> dict:
     """Every (seed, motion, source) scored (see the module docstring; runs keyed
     ``<motion>/seed<seed>``), the headline numbers and the goals; ``cache``: folder to keep and
     reuse the tracked markers; ``realism``: the studio's level (``lab``: tension, skin strain,
     tracking through the lab's inexact rig); ``accuracy``: the IK solver accuracy of every IK
-    method but ``ik_slip_from_tape`` (:attr:`spinemocap.opensim.OpenSimSettings.accuracy`);
+    method (:attr:`spinemocap.opensim.OpenSimSettings.accuracy`; None = each method's own);
     ``methods``: the IK methods to run (keys of :data:`IK_METHODS`; the geometric peer always runs)."""
     from ..fileio import InputError
 
@@ -130,7 +135,7 @@ def headline(results: dict) -> dict:
 
 def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, progress: bool,
                  cache: Path | None = None, realism: str = "lab", seed: int = 0,
-                 accuracy: float = IK_ACCURACY, methods: Sequence[str] = tuple(IK_METHODS)) -> dict:
+                 accuracy: float | None = None, methods: Sequence[str] = tuple(IK_METHODS)) -> dict:
     """One studio motion of one subject (``seed``) from one marker source: the IK ``methods``
     (:data:`IK_METHODS`; solver ``accuracy``) and the geometric angles scored."""
     from ..analysis.angles import AngleSettings, compute_angles
@@ -158,8 +163,10 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
         overrides = IK_METHODS[method]
         with tempfile.TemporaryDirectory() as tmp:
             # the static trial is the neutral first frame: the studio's motions start moving at once
-            settings = replace(OpenSimSettings(static_frames=1, depth_scale=depth_scale, accuracy=accuracy,
+            settings = replace(OpenSimSettings(static_frames=1, depth_scale=depth_scale,
                                                depth_source=BODY_MODEL_DEPTH), **overrides)
+            if accuracy is not None:
+                settings = replace(settings, accuracy=accuracy)
             result = run_opensim(markers, tape, levels, data["up"], data["facing"], Path(tmp) / "opensim",
                                  settings=settings)
             s = result.summary

@@ -126,9 +126,7 @@ def register_bench(subparsers) -> None:
 def run_bench(args: argparse.Namespace) -> int:
     from ..bench.opensim import IK_METHODS, format_table, run_opensim_benchmark
     from ..fileio import atomic_write, strict_json
-    from ..opensim.tools import IK_ACCURACY
-
-    accuracy = IK_ACCURACY if args.accuracy is None else args.accuracy
+    accuracy = args.accuracy
     methods = list(IK_METHODS) if args.methods is None else args.methods
 
     report = run_opensim_benchmark(args.motions, args.sources, args.frames, args.fps, args.rows,
@@ -138,8 +136,8 @@ def run_bench(args: argparse.Namespace) -> int:
         ["spinemocap bench opensim", f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
          f"--realism {args.realism}",
          "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources),
-         "--seeds " + " ".join(str(s) for s in args.seeds), f"--accuracy {accuracy:g}",
-         "--methods " + " ".join(methods)]
+         "--seeds " + " ".join(str(s) for s in args.seeds)]
+        + ([f"--accuracy {accuracy:g}"] if accuracy is not None else []) + ["--methods " + " ".join(methods)]
         + ([f"--tracked-frames {args.tracked_frames}"] if args.tracked_frames else []))
     print(format_table(report["sources"]))
     for source, methods in report["headline"].items():

@@ -64,7 +64,7 @@ from .geometry import (
     to_opensim,
 )
 from .model import DOF, RANGE_FACTOR, ModelPlan, annotate_slips, body_name, build_model, plan_model
-from .skin_model import SlipPrior, geometric_slips, normalise_row_tilt, prior_text, slip_coordinate, slip_rows
+from .skin_model import SlipFromTape, SlipPrior, geometric_slips, normalise_row_tilt, prior_text, slip_coordinate, slip_rows
 from .tools import (
     IK_ACCURACY,
     INFERRED_SD_MM,
@@ -100,6 +100,11 @@ SLIP_GOALS = "skin_slip_goals.sto"  # the slip coordinates' goal per frame (m), 
 PUBLISHED_DEPTHS = "published skin-to-vertebral-body depths (spinemocap/opensim/anatomy.py) scaled to the tape"
 SIGN = {"extension": -1.0, "lateral_bending": 1.0, "axial_rotation": 1.0}  # OpenSim -> project
 PROJECT_NAME = {"extension": "flexion", "lateral_bending": "lateral", "axial_rotation": "rotation"}
+# IK accuracy and fresh-start margin (OpenSimSettings) per use of the slip the tape shows: with the
+# slips held the solve is the spine's rotations only; a goal around the slip needs the tighter
+# accuracy to read a trunk twist, and a margin against choosing along the slip-against-flexion valley
+SLIP_SOLVER: dict[SlipFromTape, tuple[float, float]] = {"held": (1e-6, 1.0), "goal": (1e-6, 1.0),
+                                                       "off": (IK_ACCURACY, 0.0)}
 
 
 @dataclass(frozen=True)
@@ -119,7 +124,7 @@ class OpenSimSettings:
     other's (:func:`tools.solve_ik`)."""
 
     static_frames: int = 10
-    accuracy: float = IK_ACCURACY
+    accuracy: float = SLIP_SOLVER["held"][0]
     depth_scale: float = 1.0
     depth_source: str = PUBLISHED_DEPTHS
     coupling: str = "rows"  # see spinemocap.opensim.model.plan_model
@@ -133,16 +138,15 @@ class OpenSimSettings:
     # position SD (mm) of an inferred dot against an observed one's 1 mm (tools.marker_weights)
     inferred_sd_mm: float = INFERRED_SD_MM
     # the static start's solution kept unless its objective exceeds (1 + this) x the previous start's
-    fresh_start_margin: float = 0.0
+    fresh_start_margin: float = SLIP_SOLVER["held"][1]
 
 
-def slip_from_tape(settings: OpenSimSettings = OpenSimSettings()) -> OpenSimSettings:
-    """``settings`` with the slips' goals at the slip the tape's lengthening shows
-    (:func:`skin_model.geometric_slips`, SD 3 mm), solved to 1e-6 (frames where a slipping row has
-    no estimate to :data:`tools.START_ACCURACY`), the static start kept unless the previous
-    frame's objective is less than half of its own."""
-    return replace(settings, slip=replace(settings.slip or SlipPrior(), estimate_sd_mm=3.0), accuracy=1e-6,
-                   fresh_start_margin=1.0)
+def slip_solved_as(from_tape: SlipFromTape, settings: OpenSimSettings = OpenSimSettings()) -> OpenSimSettings:
+    """``settings`` with the slips using the slip the tape shows as ``from_tape`` says
+    (:data:`skin_model.SlipFromTape`), with the IK accuracy and start margin of :data:`SLIP_SOLVER`."""
+    accuracy, margin = SLIP_SOLVER[from_tape]
+    return replace(settings, slip=replace(settings.slip or SlipPrior(), from_tape=from_tape), accuracy=accuracy,
+                   fresh_start_margin=margin)
 
 
 @dataclass
@@ -306,7 +310,8 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
     times = data.times[frames]
     write_trc(work / "markers_opensim.trc", labels, times, chosen, data.fps)
     weights = data.weights(inferred_sd_mm)[frames][:, placed]
-    chosen_goals = {name: CoordinateGoal(g.values[frames], g.weights[frames]) for name, g in (goals or {}).items()}
+    chosen_goals = {name: CoordinateGoal(g.values[frames], g.weights[frames], None if g.held is None else g.held[frames])
+                    for name, g in (goals or {}).items()}
     if chosen_goals:
         write_coordinate_goals(work / SLIP_GOALS, times, chosen_goals)
     write_ik_setup(work, "model.osim", "markers_opensim.trc", (float(times[0]), float(times[-1])), labels,
@@ -322,24 +327,26 @@ def _slip_goals(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, place
                 prior: SlipPrior | None) -> dict[str, CoordinateGoal]:
     """Per-frame IK goals (m) of the slipping rows: the slip the tape shows
     (:func:`skin_model.geometric_slips` from the measured dots, relative to the mean of the
-    pinned rows) with weight :attr:`SlipPrior.estimate_weight`; beyond the rows measured in a
-    frame the slip of the nearest measured row (it grows up the tape, so this is a floor), with the
-    wide :attr:`SlipPrior.weight`; 0 with that weight in frames without an estimate, or in every
-    frame when ``prior.estimate_sd_mm`` is None. Empty without slip."""
+    pinned rows), held there (``prior.from_tape`` ``held``) or a goal of weight
+    :attr:`SlipPrior.estimate_weight` (``goal``); beyond the rows measured in a frame a goal at the
+    slip of the nearest measured row (it grows up the tape, so this is a floor) with the wide
+    :attr:`SlipPrior.weight`; 0 with that weight in frames without an estimate, or in every frame
+    with ``off``. Empty without slip."""
     if prior is None or not placed.slipping:
         return {}
     F = len(positions)
     geometry = placed.geometry
     pinned = sorted({int(r) for r in placed.marker_rows} - set(placed.slipping))
     slips = np.full((F, tape.n_rows), np.nan)
-    if prior.estimate_sd_mm is not None:
+    if prior.from_tape != "off":
         slips = geometric_slips(positions, static, tape, geometry.depth[geometry.row_body], pinned[0])
         with np.errstate(all="ignore"):
             slips = slips - np.nanmean(slips[:, pinned], axis=1, keepdims=True)
     known = np.isfinite(slips)
     weights = np.where(known, prior.estimate_weight, prior.weight)
     values = np.clip(_hold_nearest(slips), -prior.limit_mm, prior.limit_mm) / 1000.0
-    return {slip_coordinate(r): CoordinateGoal(values[:, r], weights[:, r]) for r in placed.slipping}
+    held = known if prior.from_tape == "held" else np.zeros_like(known)
+    return {slip_coordinate(r): CoordinateGoal(values[:, r], weights[:, r], held[:, r]) for r in placed.slipping}
 
 
 def _frame_accuracy(goals: dict[str, CoordinateGoal], settings: OpenSimSettings) -> float | np.ndarray:
@@ -347,7 +354,7 @@ def _frame_accuracy(goals: dict[str, CoordinateGoal], settings: OpenSimSettings)
     (OpenSim's default) in a frame where a slipping row has no slip estimate: there only guessed
     (inferred) dots place that row, and a tight solve chases the guesses."""
     prior = settings.slip
-    if prior is None or prior.estimate_sd_mm is None or not goals:
+    if prior is None or prior.from_tape == "off" or not goals:
         return settings.accuracy
     unknown = np.any([g.weights < prior.estimate_weight for g in goals.values()], axis=0)
     return np.where(unknown, max(settings.accuracy, START_ACCURACY), settings.accuracy)
