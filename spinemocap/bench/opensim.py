@@ -16,16 +16,16 @@ benchmarks score against one model.
 For ``mixed`` all three angles are scored.
 The peer measures the same two rows with :func:`spinemocap.analysis.angles.compute_angles`.
 
-Methods per run (same markers, same rows): ``ik`` (the pipeline: row tilt normalised, rows
-slipping with their prior toward 0, each frame solved from the previous solution and from the
-static pose, inferred dots down-weighted), ``ik_slip_from_tape``
-(:func:`spinemocap.opensim.pipeline.slip_from_tape`: the slips' goals at the slip the tape's
-lengthening shows, solved to 1e-6 whatever ``accuracy`` says), ``ik_one_start`` (the pipeline's
-skin model, each frame solved from the
+Methods per run (same markers, same rows): ``ik`` (the pipeline: row tilt normalised, each
+row's slip held at the one the tape's lengthening shows, each frame solved from the previous
+solution and from the static pose, inferred dots down-weighted), ``ik_slip_goal`` and
+``ik_slip_from_markers`` (:func:`spinemocap.opensim.pipeline.slip_solved_as` ``goal`` / ``off``:
+the slips solved with a goal at the tape's slip, or from the markers with a prior toward 0, each
+at its own accuracy), ``ik_one_start`` (the pipeline's skin model, each frame solved from the
 previous solution only, inferred dots weighed as observed ones), ``ik_rigid`` (every marker fixed
 to its vertebra, tilt as measured, one start, inferred as observed: the pipeline without the skin
-model) and ``geometric``; ``methods`` picks the IK ones that run. Marker RMS is over the observed (measured) dots; ``marker_rms_all_mm``
-includes the inferred ones. Both IK runs place the joint centres at
+model) and ``geometric``; ``methods`` picks the IK ones that run. Marker RMS is over the
+observed (measured) dots; ``marker_rms_all_mm`` includes the inferred ones. The IK runs place the joint centres at
 the studio body's own depth under the tape (:func:`body_model_depth_scale`: anny's spine joints,
 the depth a lab would take from imaging), named in their ``summary.json``. Subjects: one studio
 seed each (``seeds``).
@@ -50,14 +50,15 @@ from ..opensim.tools import OBSERVED_SD_MM
 MOTIONS = ("flexion", "lateral", "rotation", "mixed")
 AXES = ("flexion", "lateral", "rotation")
 GOALS = {"marker_rms_mm": 2.0, "flexion_rmse_deg": 2.0, "lateral_rmse_deg": 2.0, "rotation_rmse_deg": 3.0}
-# the peers: the slips' goals at the tape's slip (its own accuracy); the skin model with each frame
-# solved only from the previous solution and inferred dots weighed as observed ones; every marker
-# fixed to its vertebra (one start, inferred as observed)
+
+
 def _slip_method(from_tape: SlipFromTape) -> dict[str, Any]:
     return {name: getattr(slip_solved_as(from_tape), name) for name in ("slip", "accuracy", "fresh_start_margin")}
 
 
-
+# the peers: the slips solved with a goal at the tape's slip or from the markers alone (each at its own
+# accuracy); the skin model with each frame solved only from the previous solution and inferred dots
+# weighed as observed ones; every marker fixed to its vertebra (one start, inferred as observed)
 ONE_START: dict[str, Any] = {"restart_from_static": False, "inferred_sd_mm": OBSERVED_SD_MM}
 RIGID: dict[str, Any] = {"slip": None, "normalise_tilt": False, **ONE_START}
 IK_METHODS: dict[str, dict[str, Any]] = {"ik": {}, "ik_slip_goal": _slip_method("goal"),

@@ -8,7 +8,7 @@ renamed into place at the end):
 - ``markers_opensim.trc`` / ``markers_static.trc``: metres, OpenSim axes (X facing, Y up),
 - ``setup_scale.xml``, ``setup_ik.xml``, ``static_pose.mot`` (radians), ``ik.mot`` (degrees; skin
   slips in metres), ``ik_marker_errors.sto`` (metres), ``skin_slip_goals.sto`` (the slip
-  coordinates' goal per frame, metres: the coordinate file of ``setup_ik.xml``),
+  coordinates' value per frame, metres, held or a goal: the coordinate file of ``setup_ik.xml``),
 - ``spine_angles.csv``: per driven joint and summed per region, degrees, this project's signs
   (flexion = forward bending positive = -OpenSim extension; lateral bending toward the right
   positive; axial rotation toward the left positive), zero = the static posture,
@@ -19,8 +19,9 @@ facing is checked against the tape (:func:`geometry.check_facing`); the joint ce
 published skin-to-vertebral-body depths (:mod:`anatomy`) scaled to the subject by the tape, times
 ``settings.depth_scale`` (a measured depth, e.g. from imaging or a body model, enters there and is
 named by ``settings.depth_source``); every row's in-plane tilt is kept at its static angle and the
-rows above the pinned ones slip along their vertebrae (with :func:`slip_from_tape`, each slip's
-goal the one the tape's lengthening shows in that frame; :mod:`skin_model`); the model is built
+rows above the pinned ones slip along their vertebrae, each slip held in every frame at the one the
+tape's lengthening shows there where its dots are measured (or, see :func:`slip_solved_as`, pulled
+toward it, or solved from the markers; :mod:`skin_model`); the model is built
 (:mod:`model`), MarkerPlacer moves its markers onto the static trial (slips held at 0) and the
 placement is checked against the anatomy (:func:`check_placement`); OpenSim's IK solver runs frame
 by frame (:func:`tools.solve_ik`: per-sample marker weights from the label confidence, inferred
@@ -64,7 +65,15 @@ from .geometry import (
     to_opensim,
 )
 from .model import DOF, RANGE_FACTOR, ModelPlan, annotate_slips, body_name, build_model, plan_model
-from .skin_model import SlipFromTape, SlipPrior, geometric_slips, normalise_row_tilt, prior_text, slip_coordinate, slip_rows
+from .skin_model import (
+    SlipFromTape,
+    SlipPrior,
+    geometric_slips,
+    normalise_row_tilt,
+    prior_text,
+    slip_coordinate,
+    slip_rows,
+)
 from .tools import (
     IK_ACCURACY,
     INFERRED_SD_MM,
@@ -428,7 +437,7 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
         summary["depth"] = {"scale_on_published": settings.depth_scale, "source": settings.depth_source,
                             "depth_mm": {n: round(float(x), 1) for n, x in
                                          zip(placed.geometry.names, placed.geometry.depth)}}
-        summary["skin_model"] = _skin_summary(work / "ik.mot", placed, settings, tilt_turn)
+        summary["skin_model"] = _skin_summary(work / "ik.mot", placed, settings, tilt_turn, slip_goals)
         with atomic_write(work / "spine_angles.csv") as handle:
             handle.write(_angles_header(placed.plan))
             angles.to_csv(handle, index=False, float_format="%.4f")
@@ -444,9 +453,11 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
     return OpenSimResult(out_dir, angles, summary, placed.plan, placed.geometry, files)
 
 
-def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt_turn: np.ndarray | None) -> dict:
+def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt_turn: np.ndarray | None,
+                  goals: dict[str, CoordinateGoal]) -> dict:
     """The skin model's assumptions and what IK made of them: the tilt correction applied per row
-    (largest, deg) and per slipping row the slip (mm) at the frame where it peaks."""
+    (largest, deg), per slipping row the slip (mm) at the frame where it peaks, and the share of
+    the (frame, slipping row) pairs whose slip was held at the tape's."""
     out: dict = {"row_tilt": ("each row kept at its static in-plane angle to the tape midline (turned about its L-R "
                               "midpoint, about the tape normal)") if settings.normalise_tilt else "as measured"}
     if tilt_turn is not None:
@@ -457,6 +468,8 @@ def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt
     if settings.slip is None:
         out["slip"] = "none: every marker fixed to its vertebra"
         return out
+    held = [g.held for g in goals.values() if g.held is not None]
+    held_share = round(float(np.mean(held)), 4) if held else 0.0
     _, labels, values, _ = read_storage(motion)
     column = {label.split("/")[-2] if label.startswith("/") else label: i for i, label in enumerate(labels)}
     peak = {}
@@ -465,8 +478,12 @@ def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt
         peak[slip_coordinate(r)] = round(float(slip_mm[np.nanargmax(np.abs(slip_mm))]), 2)
     prior = settings.slip
     pinned = sorted({int(r) for r in placed.marker_rows} - set(placed.slipping))
+    use = {"held": "held in each frame at the slip the tape shows where its dots are measured (a locked coordinate), "
+                   "solved by IK elsewhere",
+           "goal": "solved by IK with a goal at the slip the tape shows", "off": "solved by IK from the markers"}
     out["slip"] = {"model": "each row above the pinned ones on a body translating along its vertebra's superior "
-                            "axis; coordinate <row>_skin_slip (m, 0 = static trial) solved by IK",
+                            f"axis; coordinate <row>_skin_slip (m, 0 = static trial) {use[settings.slip.from_tape]}",
+                   "from_tape": settings.slip.from_tape, "held_share": held_share,
                    "pinned_rows": [f"R{r + 1:02d}" for r in pinned],
                    "prior": f"{prior_text(prior)}; clamped to +/-{prior.limit_mm:g} mm",
                    "prior_weight_per_m2": prior.weight, "estimate_weight_per_m2": prior.estimate_weight,
@@ -600,7 +617,9 @@ def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np
                  f"{1 + settings.fresh_start_margin:g} x the other's" if settings.restart_from_static else "")
               + ", marker weights = label confidence squared per sample, an inferred dot's divided by "
               f"({settings.inferred_sd_mm:g} mm / {OBSERVED_SD_MM:g} mm)^2 (its assumed position SD against an "
-              f"observed dot's), joints clamped to {RANGE_FACTOR:g} x their published ranges",
+              f"observed dot's), joints clamped to {RANGE_FACTOR:g} x their published ranges"
+              + ("; each slip coordinate held (locked) where the tape shows its slip, so that frame's solve "
+                 "is the spine's rotations" if settings.slip is not None and settings.slip.from_tape == "held" else ""),
         "opensim_version": str(osim.GetVersion()),
         "units": {"angles": "deg", "marker errors": "mm", "trc": "m"},
         "signs": "flexion forward +, lateral toward right +, rotation toward left +, zero = static posture",

@@ -44,7 +44,6 @@ from scipy.spatial.transform import Rotation
 
 from ..tape import TapeSpec
 
-
 SlipFromTape = Literal["held", "goal", "off"]
 """How inverse kinematics uses the slip the tape shows (:func:`geometric_slips`): ``held`` at it
 (a prescribed coordinate), a ``goal`` around it, or ``off`` (a prior toward 0)."""
