@@ -38,7 +38,7 @@ def register(subparsers) -> None:
     p.add_argument("--slip-from-tape", choices=("held", "goal", "off"), default="held",
                    help="how IK uses each row's skin slip that the tape's own lengthening shows: held = each "
                         "frame's slip prescribed at it, IK solves the spine's rotations only (default; solved to "
-                        "1e-6); goal = a prior centred on it (SD 3 mm), slip and rotations solved together (to "
+                        "1e-7); goal = a prior centred on it (SD 3 mm), slip and rotations solved together (to "
                         "1e-6; the answer moves with rounding, e.g. in a world turned about the vertical); off = "
                         "slips solved from the markers with a prior toward 0 (SD 25 mm, OpenSim's accuracy 1e-5)")
     p.add_argument("--coupling", choices=("rows", "region"), default="rows",
@@ -49,7 +49,7 @@ def register(subparsers) -> None:
                    help="IK weight of a prior pulling every level's lateral bending and axial rotation toward the "
                         "static posture (per rad^2; default 0 = off; larger weights trade range for stability)")
     p.add_argument("--accuracy", type=float,
-                   help="IK solver accuracy (default: 1e-6, or OpenSim's 1e-5 with --slip-from-tape off; tighter reads "
+                   help="IK solver accuracy (default: 1e-7; 1e-6 with --slip-from-tape goal; OpenSim's 1e-5 with off; tighter reads "
                         "a trunk twist more fully, but forward bending with the slips' prior at 0 less well)")
     p.add_argument("--model", type=Path, help="attach the markers to this lab model (.osim) instead of building one")
     p.add_argument("--bodies", type=Path, help="with --model: TOML mapping vertebrae to the model's bodies, "

@@ -464,16 +464,19 @@ def _better_of_two_starts(frames: _FrameSolver, solver, state, frame: int, coord
     The solve from the default pose runs to :data:`START_ACCURACY` first, then to ``accuracy``."""
     goals = [(frames.coordinates[name], *_goal_at(goal, frame)[::-1]) for name, goal in frames.goals.items()]
     cost_previous = _ik_cost(solver, state, goals, marker_weights)
-    for c in coordinate_list:
-        c.setValue(state, c.getDefaultValue(), False)
+    for c in coordinate_list:  # a held (locked) coordinate keeps its value
+        if not c.getLocked(state):
+            c.setValue(state, c.getDefaultValue(), False)
     for c, _, goal in goals:  # a coordinate with a goal starts at it
-        c.setValue(state, goal, False)
+        if not c.getLocked(state):
+            c.setValue(state, goal, False)
     fresh_solver = _solve(frames, state, frame, accuracy, far=True)
     fresh = np.array([c.getValue(state) for c in coordinate_list])
     if _ik_cost(fresh_solver, state, goals, marker_weights) <= (1.0 + margin) * cost_previous:
         return fresh, fresh_solver
     for c, value in zip(coordinate_list, from_previous):
-        c.setValue(state, float(value), False)
+        if not c.getLocked(state):
+            c.setValue(state, float(value), False)
     solver = frames.solve(state, frame, accuracy)  # back onto the previous-start solution (already converged)
     return np.array([c.getValue(state) for c in coordinate_list]), solver
 
