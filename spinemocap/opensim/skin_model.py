@@ -24,8 +24,7 @@ vertebrae cannot follow the tape. Two assumptions, both stated in ``summary.json
   the nearest measured row's slip and SD :attr:`SlipPrior.sd_mm`. The markers alone hardly tell
   slip from forward bending (the marker error is nearly flat along slip against flexion): solved
   from the markers, the solution depends on where the solver stops, and so on rounding in its
-  path (a capture in a world turned about the vertical read up to 1.5 deg apart with ``goal``).
-  The pinned rows (over the sacrum and the lowest lumbar levels, where
+  path (:data:`spinemocap.opensim.tools.IK_ACCURACY`); held, it does not. The pinned rows (over the sacrum and the lowest lumbar levels, where
   the tape starts) carry the reference: slips are relative to their mean. This is the multibody
   kinematic optimisation with a soft-tissue model that Begon M et al. (2018) J Biomech Eng
   140:030801 review; OpenSim's moving path points exist only for muscle paths, so a sliding

@@ -29,13 +29,17 @@ INFERRED_CONFIDENCE = 0.6  # label confidence of an inferred dot when the table 
 # the tape model or filled in time): on the studio's deep bends inferred dots were 2-40 mm off
 OBSERVED_SD_MM = 1.0
 INFERRED_SD_MM = 10.0
-# IK solver accuracy (the SimTK assembler's tolerance; OpenSim's default). The solver stops once
-# this is met, short of the optimum along the directions the markers hardly see: a twist shared
-# between the pelvis and the levels is under-read by an amount that depends on the start (about
-# 0.6 of a studio trunk twist read at 1e-5, 0.87 at 1e-6, 0.95 at 1e-7); but nearer the optimum
-# the skin-slip model with its slips' goals at 0 reads forward bending worse (studio flexion RMSE
-# 1.3 -> 3.5 deg at 1e-6); with the goals at the slip the tape shows (SlipPrior.estimate_sd_mm) it
-# does not. Each tenth costs several times the time per frame.
+# IK solver accuracy (the SimTK assembler's tolerance; OpenSim's default). Its optimiser (L-BFGS-B)
+# stops once the objective's projected gradient is below this, or once an iteration lowers the
+# objective by less than ~2e-9 (a relative test floored at 1); the objective (half the weighted mean
+# squared marker error in m^2, plus the coordinate goals) is ~1e-9..1e-7 near a solution, so both
+# tests are absolute there: the solver stops short of the optimum along the directions the markers
+# hardly see, at a point that depends on its path. A twist shared between the pelvis and the levels is
+# under-read by an amount that depends on the start (about 0.6 of a studio trunk twist read at
+# 1e-5, 0.87 at 1e-6, 0.95 at 1e-7); nearer the optimum the skin-slip model with its slips solved
+# from the markers (SlipPrior.from_tape "off") reads forward bending worse (studio flexion RMSE
+# 1.3 -> 3.5 deg at 1e-6); with the slips held at the tape's it does not. Each tenth costs several
+# times the time per frame.
 IK_ACCURACY = 1e-5
 # A solve from far off (the static pose, see _better_of_two_starts) first runs to this accuracy,
 # then on to a tighter one: straight to 1e-6 from there took up to ~100x longer on a studio capture

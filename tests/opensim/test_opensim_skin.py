@@ -189,10 +189,9 @@ def test_a_known_slip_is_read_by_the_slip_coordinates_and_the_model_names_them(t
 
 @needs_opensim
 def test_a_coordinate_is_held_at_its_value_in_the_frames_that_say_so_and_solved_in_the_others(tmp_path):
+    from spinemocap.opensim.geometry import opensim_axes, to_opensim
     from spinemocap.opensim.skin_model import slip_coordinate
     from spinemocap.opensim.tools import CoordinateGoal, solve_ik
-
-    from spinemocap.opensim.geometry import opensim_axes, to_opensim
 
     dots, slip = _slipped()
     result = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "out")
