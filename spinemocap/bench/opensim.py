@@ -276,3 +276,40 @@ def format_table(results: dict) -> str:
                              f"{min(r2):>12.4f}{r.get('crosstalk_rms_deg', float('nan')):>7.2f}"
                              f"{r.get('marker_rms_mm', float('nan')):>11.2f}{r['ms_per_frame']:>9.1f}")
     return "\n".join(lines)
+
+
+def headline_plot_png(report: dict) -> bytes:
+    """Bars of the headline (:func:`headline`): per marker source, the worst RMSE over subjects of
+    each angle (deg) and the worst marker RMS (mm) per method, the goals as dashes; the median time
+    a frame per method in the legend."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    quantities = [*(f"{a}_rmse_deg_worst" for a in AXES), "marker_rms_mm_worst"]
+    goals = [GOALS[f"{a}_rmse_deg"] for a in AXES] + [GOALS["marker_rms_mm"]]
+    sources = list(report["headline"])
+    fig, axes = plt.subplots(1, len(sources), figsize=(6 * len(sources), 4.2), squeeze=False)
+    for ax, source in zip(axes[0], sources):
+        table = report["headline"][source]
+        methods = list(table)
+        width = 0.8 / len(methods)
+        for m, method in enumerate(methods):
+            times = [run[method]["ms_per_frame"] for run in report["sources"][source].values() if method in run]
+            heights = [table[method].get(q, np.nan) for q in quantities]
+            ax.bar(np.arange(len(quantities)) + (m - (len(methods) - 1) / 2) * width, heights, width,
+                   label=f"{method} ({np.median(times):.0f} ms/frame)")
+        for q, goal in enumerate(goals):
+            ax.hlines(goal, q - 0.45, q + 0.45, colors="k", linestyles="dashed", lw=1)
+        ax.set_xticks(range(len(quantities)),
+                      ["flexion RMSE\n(deg)", "lateral RMSE\n(deg)", "rotation RMSE\n(deg)", "marker RMS\n(mm)"])
+        ax.set_title(f"{source}: worst over subjects and motions (goals dashed)", fontsize=10)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    return buffer.getvalue()

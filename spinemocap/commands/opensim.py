@@ -121,12 +121,13 @@ def register_bench(subparsers) -> None:
                         "ik_one_start, "
                         "ik_rigid (see spinemocap/bench/opensim.py)")
     p.add_argument("--json", type=Path, help="write the numbers here")
+    p.add_argument("--plot", type=Path, help="write the headline (worst over subjects per method, goals) as a PNG here")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_bench)
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    from ..bench.opensim import IK_METHODS, format_table, run_opensim_benchmark
+    from ..bench.opensim import IK_METHODS, format_table, headline_plot_png, run_opensim_benchmark
     from ..fileio import atomic_write, strict_json
     accuracy = args.accuracy
     methods = list(IK_METHODS) if args.methods is None else args.methods
@@ -151,4 +152,8 @@ def run_bench(args: argparse.Namespace) -> int:
         with atomic_write(args.json) as handle:
             handle.write(strict_json(report))
         print(f"numbers: {args.json}")
+    if args.plot:
+        with atomic_write(args.plot, "wb") as handle:
+            handle.write(headline_plot_png(report))
+        print(f"plot: {args.plot}")
     return 0

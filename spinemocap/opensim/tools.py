@@ -352,10 +352,9 @@ class _FrameSolver:
         references = osim.SimTKArrayCoordinateReference()
         for name, goal in self.goals.items():
             value, weight = _goal_at(goal, frame)
-            held = goal.held_at(frame)
             coordinate = self.coordinates[name]
             coordinate.setLocked(state, False)  # a locked coordinate keeps its value
-            if held:
+            if goal.held_at(frame):
                 coordinate.setValue(state, value, False)
                 coordinate.setLocked(state, True)
             reference = osim.CoordinateReference(name, osim.Constant(value))
@@ -391,8 +390,7 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
     present = np.isfinite(metres).all(axis=2) & (weights > 0)
     metres = np.where(present[..., None], metres, np.nan)  # a sample of weight 0 is a missing one
     coords = model.getCoordinateSet()
-    every_frame = np.ones(F)
-    all_goals = {name: CoordinateGoal(np.full(F, coords.get(name).getDefaultValue()), float(weight) * every_frame)
+    all_goals = {name: CoordinateGoal(np.full(F, coords.get(name).getDefaultValue()), np.full(F, float(weight)))
                  for name, weight in (priors or {}).items()}
     all_goals.update(goals or {})
     frames = _FrameSolver(osim, model, marker_table(labels, times, metres), labels, weights, present, all_goals)

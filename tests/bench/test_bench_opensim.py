@@ -47,3 +47,13 @@ def test_an_unknown_method_is_a_clear_error():
 
     with pytest.raises(InputError, match="ik_slip_from_markers"):
         run_opensim_benchmark(motions=["flexion"], methods=["ik", "fastest"], progress=False)
+
+
+def test_the_headline_plot_is_a_png_of_every_method_that_ran():
+    from spinemocap.bench.opensim import headline_plot_png
+
+    runs = {"flexion/seed0": {"ik": _scores(1.2, 0.6), "ik_slip_goal": _scores(2.5, 0.9),
+                              "geometric": {"flexion_rmse_deg": 3.0, "flexion_r2": 0.9, "ms_per_frame": 1.0}}}
+    report = {**headline({"groundtruth": runs, "tracked": runs}), "sources": {"groundtruth": runs, "tracked": runs}}
+    png = headline_plot_png(report)
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
