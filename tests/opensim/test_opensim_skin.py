@@ -304,7 +304,17 @@ def test_an_inferred_dot_weighs_its_confidence_squared_over_its_position_uncerta
 
 
 @needs_opensim
-def test_inferred_dots_placed_far_off_barely_move_the_spine(tmp_path):
+@pytest.mark.parametrize("from_tape", [
+    pytest.param("held", marks=pytest.mark.xfail(strict=True, reason=(
+        "known gap: the rows whose right and middle dots are guessed show no slip; their slip's goal at the "
+        "nearest measured row's slip (SD 25 mm) outweighs their observed left dots, since OpenSim's IK divides the "
+        "marker term by the sum of the marker weights but not the coordinate goals: observed RMS 1.02 mm"))),
+    "off"])
+def test_inferred_dots_placed_far_off_barely_move_the_spine(tmp_path, from_tape):
+    from spinemocap.opensim.pipeline import slip_solved_as
+
+    options = slip_solved_as(from_tape)
+    settings = {"slip": options.slip, "accuracy": options.accuracy, "fresh_start_margin": options.fresh_start_margin}
     # the right and middle dots of the upper rows placed 25 mm too deep (a tape model's guess in a
     # deep bend) and marked inferred; the left ones observed
     amplitude = np.linspace(0.0, 1.0, 4)
@@ -318,9 +328,10 @@ def test_inferred_dots_placed_far_off_barely_move_the_spine(tmp_path):
     table = MarkerTable.from_arrays(TAPE.labels, guessed, fps=FPS, status=status)
     columns = ["lumbar_flexion", "thoracic_flexion", "lumbar_lateral", "thoracic_lateral", "lumbar_rotation",
                "thoracic_rotation"]
-    truth = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "truth").angles[columns].to_numpy()
-    result = _run(table, tmp_path / "out")
-    as_observed = _run(table, tmp_path / "as_observed", inferred_sd_mm=1.0).angles[columns].to_numpy()
+    exact = _run(MarkerTable.from_arrays(TAPE.labels, dots, fps=FPS), tmp_path / "truth", **settings)
+    truth = exact.angles[columns].to_numpy()
+    result = _run(table, tmp_path / "out", **settings)
+    as_observed = _run(table, tmp_path / "as_observed", inferred_sd_mm=1.0, **settings).angles[columns].to_numpy()
     error = np.abs(result.angles[columns].to_numpy() - truth)
     # the guesses would turn and bend the upper spine sideways by up to ~19 deg at full weight; the
     # flexion's share between the regions stays loosely determined on this rod either way
