@@ -16,16 +16,16 @@ benchmarks score against one model.
 For ``mixed`` all three angles are scored.
 The peer measures the same two rows with :func:`spinemocap.analysis.angles.compute_angles`.
 
-Methods per run (same markers, same rows): ``ik`` (the pipeline: row tilt normalised, rows
-slipping with their prior toward 0, each frame solved from the previous solution and from the
-static pose, inferred dots down-weighted), ``ik_slip_from_tape``
-(:func:`spinemocap.opensim.pipeline.slip_from_tape`: the slips' goals at the slip the tape's
-lengthening shows, solved to 1e-6 whatever ``accuracy`` says), ``ik_one_start`` (the pipeline's
-skin model, each frame solved from the
+Methods per run (same markers, same rows): ``ik`` (the pipeline: row tilt normalised, each
+row's slip held at the one the tape's lengthening shows, each frame solved from the previous
+solution and from the static pose, inferred dots down-weighted), ``ik_slip_goal`` and
+``ik_slip_from_markers`` (:func:`spinemocap.opensim.pipeline.slip_solved_as` ``goal`` / ``off``:
+the slips solved with a goal at the tape's slip, or from the markers with a prior toward 0, each
+at its own accuracy), ``ik_one_start`` (the pipeline's skin model, each frame solved from the
 previous solution only, inferred dots weighed as observed ones), ``ik_rigid`` (every marker fixed
 to its vertebra, tilt as measured, one start, inferred as observed: the pipeline without the skin
-model) and ``geometric``; ``methods`` picks the IK ones that run. Marker RMS is over the observed (measured) dots; ``marker_rms_all_mm``
-includes the inferred ones. Both IK runs place the joint centres at
+model) and ``geometric``; ``methods`` picks the IK ones that run. Marker RMS is over the
+observed (measured) dots; ``marker_rms_all_mm`` includes the inferred ones. The IK runs place the joint centres at
 the studio body's own depth under the tape (:func:`body_model_depth_scale`: anny's spine joints,
 the depth a lab would take from imaging), named in their ``summary.json``. Subjects: one studio
 seed each (``seeds``).
@@ -43,20 +43,26 @@ from typing import Any
 
 import numpy as np
 
-from ..opensim.pipeline import slip_from_tape
-from ..opensim.tools import IK_ACCURACY, OBSERVED_SD_MM
+from ..opensim.pipeline import slip_solved_as
+from ..opensim.skin_model import SlipFromTape
+from ..opensim.tools import OBSERVED_SD_MM
 
 MOTIONS = ("flexion", "lateral", "rotation", "mixed")
 AXES = ("flexion", "lateral", "rotation")
 GOALS = {"marker_rms_mm": 2.0, "flexion_rmse_deg": 2.0, "lateral_rmse_deg": 2.0, "rotation_rmse_deg": 3.0}
-# the peers: the slips' goals at the tape's slip (its own accuracy); the skin model with each frame
-# solved only from the previous solution and inferred dots weighed as observed ones; every marker
-# fixed to its vertebra (one start, inferred as observed)
-SLIP_FROM_TAPE: dict[str, Any] = {name: getattr(slip_from_tape(), name)
-                                  for name in ("slip", "accuracy", "fresh_start_margin")}
+
+
+def _slip_method(from_tape: SlipFromTape) -> dict[str, Any]:
+    return {name: getattr(slip_solved_as(from_tape), name) for name in ("slip", "accuracy", "fresh_start_margin")}
+
+
+# the peers: the slips solved with a goal at the tape's slip or from the markers alone (each at its own
+# accuracy); the skin model with each frame solved only from the previous solution and inferred dots
+# weighed as observed ones; every marker fixed to its vertebra (one start, inferred as observed)
 ONE_START: dict[str, Any] = {"restart_from_static": False, "inferred_sd_mm": OBSERVED_SD_MM}
 RIGID: dict[str, Any] = {"slip": None, "normalise_tilt": False, **ONE_START}
-IK_METHODS: dict[str, dict[str, Any]] = {"ik": {}, "ik_slip_from_tape": SLIP_FROM_TAPE, "ik_one_start": ONE_START,
+IK_METHODS: dict[str, dict[str, Any]] = {"ik": {}, "ik_slip_goal": _slip_method("goal"),
+                                         "ik_slip_from_markers": _slip_method("off"), "ik_one_start": ONE_START,
                                          "ik_rigid": RIGID}
 METHODS = (*IK_METHODS, "geometric")
 BODY_MODEL_DEPTH = "the studio body's spine joints (anny) under the tape rows, static trial"
@@ -65,13 +71,13 @@ BODY_MODEL_DEPTH = "the studio body's spine joints (anny) under the tape rows, s
 def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[str] = ("groundtruth", "tracked"),
                           frames: int = 100, fps: float = 100 / 3, rows: int = 13, tracked_frames: int | None = None,
                           cache: Path | None = None, progress: bool = True, realism: str = "lab",
-                          seeds: Sequence[int] = (0,), accuracy: float = IK_ACCURACY,
+                          seeds: Sequence[int] = (0,), accuracy: float | None = None,
                           methods: Sequence[str] = tuple(IK_METHODS)) -> dict:
     """Every (seed, motion, source) scored (see the module docstring; runs keyed
     ``<motion>/seed<seed>``), the headline numbers and the goals; ``cache``: folder to keep and
     reuse the tracked markers; ``realism``: the studio's level (``lab``: tension, skin strain,
     tracking through the lab's inexact rig); ``accuracy``: the IK solver accuracy of every IK
-    method but ``ik_slip_from_tape`` (:attr:`spinemocap.opensim.OpenSimSettings.accuracy`);
+    method (:attr:`spinemocap.opensim.OpenSimSettings.accuracy`; None = each method's own);
     ``methods``: the IK methods to run (keys of :data:`IK_METHODS`; the geometric peer always runs)."""
     from ..fileio import InputError
 
@@ -130,7 +136,7 @@ def headline(results: dict) -> dict:
 
 def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, progress: bool,
                  cache: Path | None = None, realism: str = "lab", seed: int = 0,
-                 accuracy: float = IK_ACCURACY, methods: Sequence[str] = tuple(IK_METHODS)) -> dict:
+                 accuracy: float | None = None, methods: Sequence[str] = tuple(IK_METHODS)) -> dict:
     """One studio motion of one subject (``seed``) from one marker source: the IK ``methods``
     (:data:`IK_METHODS`; solver ``accuracy``) and the geometric angles scored."""
     from ..analysis.angles import AngleSettings, compute_angles
@@ -158,8 +164,10 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
         overrides = IK_METHODS[method]
         with tempfile.TemporaryDirectory() as tmp:
             # the static trial is the neutral first frame: the studio's motions start moving at once
-            settings = replace(OpenSimSettings(static_frames=1, depth_scale=depth_scale, accuracy=accuracy,
+            settings = replace(OpenSimSettings(static_frames=1, depth_scale=depth_scale,
                                                depth_source=BODY_MODEL_DEPTH), **overrides)
+            if accuracy is not None:
+                settings = replace(settings, accuracy=accuracy)
             result = run_opensim(markers, tape, levels, data["up"], data["facing"], Path(tmp) / "opensim",
                                  settings=settings)
             s = result.summary
@@ -268,3 +276,40 @@ def format_table(results: dict) -> str:
                              f"{min(r2):>12.4f}{r.get('crosstalk_rms_deg', float('nan')):>7.2f}"
                              f"{r.get('marker_rms_mm', float('nan')):>11.2f}{r['ms_per_frame']:>9.1f}")
     return "\n".join(lines)
+
+
+def headline_plot_png(report: dict) -> bytes:
+    """Bars of the headline (:func:`headline`): per marker source, the worst RMSE over subjects of
+    each angle (deg) and the worst marker RMS (mm) per method, the goals as dashes; the median time
+    a frame per method in the legend."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    quantities = [*(f"{a}_rmse_deg_worst" for a in AXES), "marker_rms_mm_worst"]
+    goals = [GOALS[f"{a}_rmse_deg"] for a in AXES] + [GOALS["marker_rms_mm"]]
+    sources = list(report["headline"])
+    fig, axes = plt.subplots(1, len(sources), figsize=(6 * len(sources), 4.2), squeeze=False)
+    for ax, source in zip(axes[0], sources):
+        table = report["headline"][source]
+        methods = list(table)
+        width = 0.8 / len(methods)
+        for m, method in enumerate(methods):
+            times = [run[method]["ms_per_frame"] for run in report["sources"][source].values() if method in run]
+            heights = [table[method].get(q, np.nan) for q in quantities]
+            ax.bar(np.arange(len(quantities)) + (m - (len(methods) - 1) / 2) * width, heights, width,
+                   label=f"{method} ({np.median(times):.0f} ms/frame)")
+        for q, goal in enumerate(goals):
+            ax.hlines(goal, q - 0.45, q + 0.45, colors="k", linestyles="dashed", lw=1)
+        ax.set_xticks(range(len(quantities)),
+                      ["flexion RMSE\n(deg)", "lateral RMSE\n(deg)", "rotation RMSE\n(deg)", "marker RMS\n(mm)"])
+        ax.set_title(f"{source}: worst over subjects and motions (goals dashed)", fontsize=10)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    return buffer.getvalue()

@@ -35,10 +35,12 @@ def register(subparsers) -> None:
     p.add_argument("--rigid-skin", action="store_true",
                    help="no skin model: every marker fixed to its vertebra, row tilt as measured (default: tilt kept "
                         "at the static angle, rows above the lowest two slip along their vertebrae)")
-    p.add_argument("--slip-from-tape", action="store_true",
-                   help="centre each slip's prior, frame by frame, on the slip the tape's own lengthening shows "
-                        "(SD 3 mm) and solve to 1e-6: reads a trunk twist fully, ~3-5x the time per frame "
-                        "(default: prior toward 0, SD 25 mm, OpenSim's accuracy)")
+    p.add_argument("--slip-from-tape", choices=("held", "goal", "off"), default="held",
+                   help="how IK uses each row's skin slip that the tape's own lengthening shows: held = each "
+                        "frame's slip prescribed at it, IK solves the spine's rotations only (default; solved to "
+                        "1e-7); goal = a prior centred on it (SD 3 mm), slip and rotations solved together (to "
+                        "1e-6; the answer moves with rounding, e.g. in a world turned about the vertical); off = "
+                        "slips solved from the markers with a prior toward 0 (SD 25 mm, OpenSim's accuracy 1e-5)")
     p.add_argument("--coupling", choices=("rows", "region"), default="rows",
                    help="rows: couple a vertebra's rotations to its neighbour's only when no tape row lies over "
                         "it (default); region: couple lateral bending and axial rotation over each region, as "
@@ -47,7 +49,7 @@ def register(subparsers) -> None:
                    help="IK weight of a prior pulling every level's lateral bending and axial rotation toward the "
                         "static posture (per rad^2; default 0 = off; larger weights trade range for stability)")
     p.add_argument("--accuracy", type=float,
-                   help="IK solver accuracy (default: OpenSim's, 1e-5, or 1e-6 with --slip-from-tape; tighter reads "
+                   help="IK solver accuracy (default: 1e-7; 1e-6 with --slip-from-tape goal; OpenSim's 1e-5 with off; tighter reads "
                         "a trunk twist more fully, but forward bending with the slips' prior at 0 less well)")
     p.add_argument("--model", type=Path, help="attach the markers to this lab model (.osim) instead of building one")
     p.add_argument("--bodies", type=Path, help="with --model: TOML mapping vertebrae to the model's bodies, "
@@ -58,14 +60,13 @@ def register(subparsers) -> None:
 def run_opensim_command(args: argparse.Namespace) -> int:
     from ..app.opensim import opensim_capture
     from ..opensim import OpenSimSettings
-    from ..opensim.pipeline import slip_from_tape
+    from ..opensim.pipeline import slip_solved_as
 
     source = args.depth_source or (
         OpenSimSettings.depth_source if args.depth_scale == 1.0 else f"given: {args.depth_scale:g} x the published depths")
-    settings = OpenSimSettings(static_frames=args.static_frames, depth_scale=args.depth_scale,
-                               depth_source=source, coupling=args.coupling, prior_weight=args.prior_weight)
-    if args.slip_from_tape:
-        settings = slip_from_tape(settings)
+    settings = slip_solved_as(args.slip_from_tape, OpenSimSettings(
+        static_frames=args.static_frames, depth_scale=args.depth_scale, depth_source=source, coupling=args.coupling,
+        prior_weight=args.prior_weight))
     if args.accuracy is not None:
         settings = replace(settings, accuracy=args.accuracy)
     if args.rigid_skin:
@@ -116,19 +117,19 @@ def register_bench(subparsers) -> None:
     p.add_argument("--accuracy", type=float, help="IK solver accuracy of every IK method (default: the pipeline's)")
     p.add_argument("--methods", nargs="+",
                    help="IK methods to run (default all; the geometric peer always runs): ik = the pipeline, "
-                        "ik_slip_from_tape = the pipeline with --slip-from-tape, ik_one_start, "
+                        "ik_slip_goal / ik_slip_from_markers = the pipeline with --slip-from-tape goal / off, "
+                        "ik_one_start, "
                         "ik_rigid (see spinemocap/bench/opensim.py)")
     p.add_argument("--json", type=Path, help="write the numbers here")
+    p.add_argument("--plot", type=Path, help="write the headline (worst over subjects per method, goals) as a PNG here")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_bench)
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    from ..bench.opensim import IK_METHODS, format_table, run_opensim_benchmark
+    from ..bench.opensim import IK_METHODS, format_table, headline_plot_png, run_opensim_benchmark
     from ..fileio import atomic_write, strict_json
-    from ..opensim.tools import IK_ACCURACY
-
-    accuracy = IK_ACCURACY if args.accuracy is None else args.accuracy
+    accuracy = args.accuracy
     methods = list(IK_METHODS) if args.methods is None else args.methods
 
     report = run_opensim_benchmark(args.motions, args.sources, args.frames, args.fps, args.rows,
@@ -138,8 +139,8 @@ def run_bench(args: argparse.Namespace) -> int:
         ["spinemocap bench opensim", f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
          f"--realism {args.realism}",
          "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources),
-         "--seeds " + " ".join(str(s) for s in args.seeds), f"--accuracy {accuracy:g}",
-         "--methods " + " ".join(methods)]
+         "--seeds " + " ".join(str(s) for s in args.seeds)]
+        + ([f"--accuracy {accuracy:g}"] if accuracy is not None else []) + ["--methods " + " ".join(methods)]
         + ([f"--tracked-frames {args.tracked_frames}"] if args.tracked_frames else []))
     print(format_table(report["sources"]))
     for source, methods in report["headline"].items():
@@ -151,4 +152,8 @@ def run_bench(args: argparse.Namespace) -> int:
         with atomic_write(args.json) as handle:
             handle.write(strict_json(report))
         print(f"numbers: {args.json}")
+    if args.plot:
+        with atomic_write(args.plot, "wb") as handle:
+            handle.write(headline_plot_png(report))
+        print(f"plot: {args.plot}")
     return 0

@@ -8,7 +8,7 @@ renamed into place at the end):
 - ``markers_opensim.trc`` / ``markers_static.trc``: metres, OpenSim axes (X facing, Y up),
 - ``setup_scale.xml``, ``setup_ik.xml``, ``static_pose.mot`` (radians), ``ik.mot`` (degrees; skin
   slips in metres), ``ik_marker_errors.sto`` (metres), ``skin_slip_goals.sto`` (the slip
-  coordinates' goal per frame, metres: the coordinate file of ``setup_ik.xml``),
+  coordinates' value per frame, metres, held or a goal: the coordinate file of ``setup_ik.xml``),
 - ``spine_angles.csv``: per driven joint and summed per region, degrees, this project's signs
   (flexion = forward bending positive = -OpenSim extension; lateral bending toward the right
   positive; axial rotation toward the left positive), zero = the static posture,
@@ -19,8 +19,9 @@ facing is checked against the tape (:func:`geometry.check_facing`); the joint ce
 published skin-to-vertebral-body depths (:mod:`anatomy`) scaled to the subject by the tape, times
 ``settings.depth_scale`` (a measured depth, e.g. from imaging or a body model, enters there and is
 named by ``settings.depth_source``); every row's in-plane tilt is kept at its static angle and the
-rows above the pinned ones slip along their vertebrae (with :func:`slip_from_tape`, each slip's
-goal the one the tape's lengthening shows in that frame; :mod:`skin_model`); the model is built
+rows above the pinned ones slip along their vertebrae, each slip held in every frame at the one the
+tape's lengthening shows there where its dots are measured (or, see :func:`slip_solved_as`, pulled
+toward it, or solved from the markers; :mod:`skin_model`); the model is built
 (:mod:`model`), MarkerPlacer moves its markers onto the static trial (slips held at 0) and the
 placement is checked against the anatomy (:func:`check_placement`); OpenSim's IK solver runs frame
 by frame (:func:`tools.solve_ik`: per-sample marker weights from the label confidence, inferred
@@ -64,7 +65,15 @@ from .geometry import (
     to_opensim,
 )
 from .model import DOF, RANGE_FACTOR, ModelPlan, annotate_slips, body_name, build_model, plan_model
-from .skin_model import SlipPrior, geometric_slips, normalise_row_tilt, prior_text, slip_coordinate, slip_rows
+from .skin_model import (
+    SlipFromTape,
+    SlipPrior,
+    geometric_slips,
+    normalise_row_tilt,
+    prior_text,
+    slip_coordinate,
+    slip_rows,
+)
 from .tools import (
     IK_ACCURACY,
     INFERRED_SD_MM,
@@ -100,6 +109,15 @@ SLIP_GOALS = "skin_slip_goals.sto"  # the slip coordinates' goal per frame (m), 
 PUBLISHED_DEPTHS = "published skin-to-vertebral-body depths (spinemocap/opensim/anatomy.py) scaled to the tape"
 SIGN = {"extension": -1.0, "lateral_bending": 1.0, "axial_rotation": 1.0}  # OpenSim -> project
 PROJECT_NAME = {"extension": "flexion", "lateral_bending": "lateral", "axial_rotation": "rotation"}
+# IK accuracy and fresh-start margin (OpenSimSettings) per use of the slip the tape shows. The solver
+# stops on absolute tests (tools.IK_ACCURACY) on an objective of ~1e-9..1e-7 m^2, so along directions
+# the markers hardly see it stops where its path takes it: with the slips held (the solve is the
+# spine's rotations only) a world turned about the vertical, or a facing declared 30 deg off, moved
+# the studio's angles by up to 0.3 / 0.8 deg at 1e-6 and 0.12 deg at 1e-7 (~4x the time). A goal
+# around the slip needs 1e-6 to read a trunk twist, and a margin against choosing along the
+# slip-against-flexion valley.
+SLIP_SOLVER: dict[SlipFromTape, tuple[float, float]] = {"held": (1e-7, 1.0), "goal": (1e-6, 1.0),
+                                                       "off": (IK_ACCURACY, 0.0)}
 
 
 @dataclass(frozen=True)
@@ -119,7 +137,7 @@ class OpenSimSettings:
     other's (:func:`tools.solve_ik`)."""
 
     static_frames: int = 10
-    accuracy: float = IK_ACCURACY
+    accuracy: float = SLIP_SOLVER["held"][0]
     depth_scale: float = 1.0
     depth_source: str = PUBLISHED_DEPTHS
     coupling: str = "rows"  # see spinemocap.opensim.model.plan_model
@@ -133,16 +151,15 @@ class OpenSimSettings:
     # position SD (mm) of an inferred dot against an observed one's 1 mm (tools.marker_weights)
     inferred_sd_mm: float = INFERRED_SD_MM
     # the static start's solution kept unless its objective exceeds (1 + this) x the previous start's
-    fresh_start_margin: float = 0.0
+    fresh_start_margin: float = SLIP_SOLVER["held"][1]
 
 
-def slip_from_tape(settings: OpenSimSettings = OpenSimSettings()) -> OpenSimSettings:
-    """``settings`` with the slips' goals at the slip the tape's lengthening shows
-    (:func:`skin_model.geometric_slips`, SD 3 mm), solved to 1e-6 (frames where a slipping row has
-    no estimate to :data:`tools.START_ACCURACY`), the static start kept unless the previous
-    frame's objective is less than half of its own."""
-    return replace(settings, slip=replace(settings.slip or SlipPrior(), estimate_sd_mm=3.0), accuracy=1e-6,
-                   fresh_start_margin=1.0)
+def slip_solved_as(from_tape: SlipFromTape, settings: OpenSimSettings = OpenSimSettings()) -> OpenSimSettings:
+    """``settings`` with the slips using the slip the tape shows as ``from_tape`` says
+    (:data:`skin_model.SlipFromTape`), with the IK accuracy and start margin of :data:`SLIP_SOLVER`."""
+    accuracy, margin = SLIP_SOLVER[from_tape]
+    return replace(settings, slip=replace(settings.slip or SlipPrior(), from_tape=from_tape), accuracy=accuracy,
+                   fresh_start_margin=margin)
 
 
 @dataclass
@@ -306,7 +323,8 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
     times = data.times[frames]
     write_trc(work / "markers_opensim.trc", labels, times, chosen, data.fps)
     weights = data.weights(inferred_sd_mm)[frames][:, placed]
-    chosen_goals = {name: CoordinateGoal(g.values[frames], g.weights[frames]) for name, g in (goals or {}).items()}
+    chosen_goals = {name: CoordinateGoal(g.values[frames], g.weights[frames], None if g.held is None else g.held[frames])
+                    for name, g in (goals or {}).items()}
     if chosen_goals:
         write_coordinate_goals(work / SLIP_GOALS, times, chosen_goals)
     write_ik_setup(work, "model.osim", "markers_opensim.trc", (float(times[0]), float(times[-1])), labels,
@@ -322,24 +340,26 @@ def _slip_goals(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, place
                 prior: SlipPrior | None) -> dict[str, CoordinateGoal]:
     """Per-frame IK goals (m) of the slipping rows: the slip the tape shows
     (:func:`skin_model.geometric_slips` from the measured dots, relative to the mean of the
-    pinned rows) with weight :attr:`SlipPrior.estimate_weight`; beyond the rows measured in a
-    frame the slip of the nearest measured row (it grows up the tape, so this is a floor), with the
-    wide :attr:`SlipPrior.weight`; 0 with that weight in frames without an estimate, or in every
-    frame when ``prior.estimate_sd_mm`` is None. Empty without slip."""
+    pinned rows), held there (``prior.from_tape`` ``held``) or a goal of weight
+    :attr:`SlipPrior.estimate_weight` (``goal``); beyond the rows measured in a frame a goal at the
+    slip of the nearest measured row (it grows up the tape, so this is a floor) with the wide
+    :attr:`SlipPrior.weight`; 0 with that weight in frames without an estimate, or in every frame
+    with ``off``. Empty without slip."""
     if prior is None or not placed.slipping:
         return {}
     F = len(positions)
     geometry = placed.geometry
     pinned = sorted({int(r) for r in placed.marker_rows} - set(placed.slipping))
     slips = np.full((F, tape.n_rows), np.nan)
-    if prior.estimate_sd_mm is not None:
+    if prior.from_tape != "off":
         slips = geometric_slips(positions, static, tape, geometry.depth[geometry.row_body], pinned[0])
         with np.errstate(all="ignore"):
             slips = slips - np.nanmean(slips[:, pinned], axis=1, keepdims=True)
     known = np.isfinite(slips)
     weights = np.where(known, prior.estimate_weight, prior.weight)
     values = np.clip(_hold_nearest(slips), -prior.limit_mm, prior.limit_mm) / 1000.0
-    return {slip_coordinate(r): CoordinateGoal(values[:, r], weights[:, r]) for r in placed.slipping}
+    held = known if prior.from_tape == "held" else np.zeros_like(known)
+    return {slip_coordinate(r): CoordinateGoal(values[:, r], weights[:, r], held[:, r]) for r in placed.slipping}
 
 
 def _frame_accuracy(goals: dict[str, CoordinateGoal], settings: OpenSimSettings) -> float | np.ndarray:
@@ -347,7 +367,7 @@ def _frame_accuracy(goals: dict[str, CoordinateGoal], settings: OpenSimSettings)
     (OpenSim's default) in a frame where a slipping row has no slip estimate: there only guessed
     (inferred) dots place that row, and a tight solve chases the guesses."""
     prior = settings.slip
-    if prior is None or prior.estimate_sd_mm is None or not goals:
+    if prior is None or prior.from_tape == "off" or not goals:
         return settings.accuracy
     unknown = np.any([g.weights < prior.estimate_weight for g in goals.values()], axis=0)
     return np.where(unknown, max(settings.accuracy, START_ACCURACY), settings.accuracy)
@@ -421,7 +441,7 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
         summary["depth"] = {"scale_on_published": settings.depth_scale, "source": settings.depth_source,
                             "depth_mm": {n: round(float(x), 1) for n, x in
                                          zip(placed.geometry.names, placed.geometry.depth)}}
-        summary["skin_model"] = _skin_summary(work / "ik.mot", placed, settings, tilt_turn)
+        summary["skin_model"] = _skin_summary(work / "ik.mot", placed, settings, tilt_turn, slip_goals)
         with atomic_write(work / "spine_angles.csv") as handle:
             handle.write(_angles_header(placed.plan))
             angles.to_csv(handle, index=False, float_format="%.4f")
@@ -437,9 +457,11 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
     return OpenSimResult(out_dir, angles, summary, placed.plan, placed.geometry, files)
 
 
-def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt_turn: np.ndarray | None) -> dict:
+def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt_turn: np.ndarray | None,
+                  goals: dict[str, CoordinateGoal]) -> dict:
     """The skin model's assumptions and what IK made of them: the tilt correction applied per row
-    (largest, deg) and per slipping row the slip (mm) at the frame where it peaks."""
+    (largest, deg), per slipping row the slip (mm) at the frame where it peaks, and the share of
+    the (frame, slipping row) pairs whose slip was held at the tape's."""
     out: dict = {"row_tilt": ("each row kept at its static in-plane angle to the tape midline (turned about its L-R "
                               "midpoint, about the tape normal)") if settings.normalise_tilt else "as measured"}
     if tilt_turn is not None:
@@ -450,6 +472,8 @@ def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt
     if settings.slip is None:
         out["slip"] = "none: every marker fixed to its vertebra"
         return out
+    held = [g.held for g in goals.values() if g.held is not None]
+    held_share = round(float(np.mean(held)), 4) if held else 0.0
     _, labels, values, _ = read_storage(motion)
     column = {label.split("/")[-2] if label.startswith("/") else label: i for i, label in enumerate(labels)}
     peak = {}
@@ -458,8 +482,12 @@ def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt
         peak[slip_coordinate(r)] = round(float(slip_mm[np.nanargmax(np.abs(slip_mm))]), 2)
     prior = settings.slip
     pinned = sorted({int(r) for r in placed.marker_rows} - set(placed.slipping))
+    use = {"held": "held in each frame at the slip the tape shows where its dots are measured (a locked coordinate), "
+                   "solved by IK elsewhere",
+           "goal": "solved by IK with a goal at the slip the tape shows", "off": "solved by IK from the markers"}
     out["slip"] = {"model": "each row above the pinned ones on a body translating along its vertebra's superior "
-                            "axis; coordinate <row>_skin_slip (m, 0 = static trial) solved by IK",
+                            f"axis; coordinate <row>_skin_slip (m, 0 = static trial) {use[settings.slip.from_tape]}",
+                   "from_tape": settings.slip.from_tape, "held_share": held_share,
                    "pinned_rows": [f"R{r + 1:02d}" for r in pinned],
                    "prior": f"{prior_text(prior)}; clamped to +/-{prior.limit_mm:g} mm",
                    "prior_weight_per_m2": prior.weight, "estimate_weight_per_m2": prior.estimate_weight,
@@ -593,7 +621,9 @@ def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np
                  f"{1 + settings.fresh_start_margin:g} x the other's" if settings.restart_from_static else "")
               + ", marker weights = label confidence squared per sample, an inferred dot's divided by "
               f"({settings.inferred_sd_mm:g} mm / {OBSERVED_SD_MM:g} mm)^2 (its assumed position SD against an "
-              f"observed dot's), joints clamped to {RANGE_FACTOR:g} x their published ranges",
+              f"observed dot's), joints clamped to {RANGE_FACTOR:g} x their published ranges"
+              + ("; each slip coordinate held (locked) where the tape shows its slip, so that frame's solve "
+                 "is the spine's rotations" if settings.slip is not None and settings.slip.from_tape == "held" else ""),
         "opensim_version": str(osim.GetVersion()),
         "units": {"angles": "deg", "marker errors": "mm", "trc": "m"},
         "signs": "flexion forward +, lateral toward right +, rotation toward left +, zero = static posture",

@@ -13,13 +13,18 @@ vertebrae cannot follow the tape. Two assumptions, both stated in ``summary.json
   the out-of-plane twist (axial rotation) is untouched.
 - **Slip** (:func:`slip_rows`): every row but the lowest ``pinned`` ones rides on a small body that
   translates along its vertebra's superior axis (the skin's tangent there); the translation is a
-  model coordinate (``<row>_skin_slip``, m) that inverse kinematics solves in every frame, clamped
-  at :attr:`SlipPrior.limit_mm`, with a Gaussian prior toward 0 (SD :attr:`SlipPrior.sd_mm`) or,
-  with :attr:`SlipPrior.estimate_sd_mm` set, centred frame by frame on the slip the tape itself
-  shows (:func:`geometric_slips`: the midline's lengthening up to the row minus what forward
-  bending of the vertebrae, at the subject's joint depth, lengthens it by). The markers alone
-  hardly tell slip from forward bending (the marker error is nearly flat along slip against
-  flexion), so with the prior at 0 the solution depends on where the solver stops. The pinned rows (over the sacrum and the lowest lumbar levels, where
+  model coordinate (``<row>_skin_slip``, m), clamped at :attr:`SlipPrior.limit_mm`. The tape itself
+  shows each row's slip (:func:`geometric_slips`: the midline's lengthening up to the row minus
+  what forward bending of the vertebrae, at the subject's joint depth, lengthens it by); how IK
+  uses it is :attr:`SlipPrior.from_tape` (:data:`SlipFromTape`): ``held`` (each frame's slip
+  prescribed at it: the coordinate locked, inverse kinematics solves the spine's rotations only),
+  ``goal`` (a Gaussian prior centred on it, SD :attr:`SlipPrior.estimate_sd_mm`) or ``off`` (a
+  Gaussian prior toward 0, SD :attr:`SlipPrior.sd_mm`, the slip solved from the markers). Where a
+  row's slip is not shown in a frame (its dots not measured) the slip is solved, with a goal at
+  the nearest measured row's slip and SD :attr:`SlipPrior.sd_mm`. The markers alone hardly tell
+  slip from forward bending (the marker error is nearly flat along slip against flexion): solved
+  from the markers, the solution depends on where the solver stops, and so on rounding in its
+  path (:data:`spinemocap.opensim.tools.IK_ACCURACY`); held, it does not. The pinned rows (over the sacrum and the lowest lumbar levels, where
   the tape starts) carry the reference: slips are relative to their mean. This is the multibody
   kinematic optimisation with a soft-tissue model that Begon M et al. (2018) J Biomech Eng
   140:030801 review; OpenSim's moving path points exist only for muscle paths, so a sliding
@@ -31,49 +36,62 @@ Frames: every array here is in OpenSim ground (Y up), mm; rows are 0-based.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..tape import TapeSpec
 
+SlipFromTape = Literal["held", "goal", "off"]
+"""How inverse kinematics uses the slip the tape shows (:func:`geometric_slips`): ``held`` at it
+(a prescribed coordinate), a ``goal`` around it, or ``off`` (a prior toward 0)."""
+
 
 @dataclass(frozen=True)
 class SlipPrior:
-    """The prior on a row's slip: centred on the geometric estimate (:func:`geometric_slips`)
-    with standard deviation ``estimate_sd_mm`` where the estimate is known, else on 0 with
-    ``sd_mm`` (the IK goal's weight is (``marker_sd_mm`` / SD)^2 against a marker of weight 1);
-    ``limit_mm`` the clamped range (+/-), ``pinned`` the lowest seen rows without slip (the
-    reference)."""
+    """A row's slip: ``from_tape`` how the slip the tape shows is used (:data:`SlipFromTape`;
+    ``goal``: a Gaussian centred on it with standard deviation ``estimate_sd_mm``); where the tape
+    does not show it, or with ``off``, a Gaussian with ``sd_mm`` (around the nearest measured row's
+    slip, or 0 with ``off``); an IK goal's weight is (``marker_sd_mm`` / SD)^2 against a marker of
+    weight 1. ``limit_mm`` the clamped range (+/-), ``pinned`` the lowest seen rows without slip
+    (the reference)."""
 
     sd_mm: float = 25.0
     limit_mm: float = 80.0
     pinned: int = 2
     marker_sd_mm: float = 1.0
-    # SD (mm) of the goal around the slip the tape's own lengthening shows (geometric_slips) in the
-    # frames where it is known (3 with --slip-from-tape); None = every frame's goal is 0 with SD sd_mm
-    estimate_sd_mm: float | None = None
+    from_tape: SlipFromTape = "held"
+    # SD (mm) of the goal around the slip the tape shows, with from_tape "goal"
+    estimate_sd_mm: float = 3.0
 
     @property
     def weight(self) -> float:
-        """IK coordinate-goal weight (per m^2, beside marker errors in m^2)."""
+        """IK coordinate-goal weight (per m^2, beside marker errors in m^2) where the tape does not
+        show the slip."""
         return (self.marker_sd_mm / self.sd_mm) ** 2
 
     @property
     def estimate_weight(self) -> float:
-        """IK coordinate-goal weight (per m^2) of the goal at the geometric estimate."""
-        return (self.marker_sd_mm / (self.estimate_sd_mm or self.sd_mm)) ** 2
+        """IK coordinate-goal weight (per m^2) of the goal at the slip the tape shows (with
+        ``held``: the weight ``setup_ik.xml`` gives it, OpenSim's setup holding no per-frame lock)."""
+        return (self.marker_sd_mm / self.estimate_sd_mm) ** 2
 
 
 def prior_text(prior: SlipPrior) -> str:
     """The prior in words, for the model file and ``summary.json``."""
-    fallback = f"mean 0, SD {prior.sd_mm:g} mm (IK coordinate goal of weight {prior.weight:.6g} per m^2)"
-    if prior.estimate_sd_mm is None:
-        return f"Gaussian, {fallback}"
-    return (f"Gaussian around the slip the tape's lengthening shows in each frame (its midline's lengthening "
-            f"from the pinned rows minus joint depth x forward turn; skin_slip_goals.sto, m), SD "
-            f"{prior.estimate_sd_mm:g} mm (IK coordinate goal of weight {prior.estimate_weight:.6g} per m^2); "
-            f"where unknown {fallback}")
+    fallback = f"SD {prior.sd_mm:g} mm (IK coordinate goal of weight {prior.weight:.6g} per m^2)"
+    if prior.from_tape == "off":
+        return f"Gaussian, mean 0, {fallback}"
+    unknown = f"where a row's dots are not measured, Gaussian around the nearest measured row's slip, {fallback}"
+    shown = ("the slip the tape's lengthening shows in each frame (its midline's lengthening from the pinned rows "
+             "minus joint depth x forward turn; skin_slip_goals.sto, m)")
+    if prior.from_tape == "held":
+        return (f"held at {shown}: a prescribed (locked) coordinate in that frame's inverse kinematics "
+                f"(setup_ik.xml approximates it by a goal of SD {prior.estimate_sd_mm:g} mm, weight "
+                f"{prior.estimate_weight:.6g} per m^2); {unknown}")
+    return (f"Gaussian around {shown}, SD {prior.estimate_sd_mm:g} mm (IK coordinate goal of weight "
+            f"{prior.estimate_weight:.6g} per m^2); {unknown}")
 
 
 def slip_coordinate(row: int) -> str:

@@ -29,13 +29,17 @@ INFERRED_CONFIDENCE = 0.6  # label confidence of an inferred dot when the table 
 # the tape model or filled in time): on the studio's deep bends inferred dots were 2-40 mm off
 OBSERVED_SD_MM = 1.0
 INFERRED_SD_MM = 10.0
-# IK solver accuracy (the SimTK assembler's tolerance; OpenSim's default). The solver stops once
-# this is met, short of the optimum along the directions the markers hardly see: a twist shared
-# between the pelvis and the levels is under-read by an amount that depends on the start (about
-# 0.6 of a studio trunk twist read at 1e-5, 0.87 at 1e-6, 0.95 at 1e-7); but nearer the optimum
-# the skin-slip model with its slips' goals at 0 reads forward bending worse (studio flexion RMSE
-# 1.3 -> 3.5 deg at 1e-6); with the goals at the slip the tape shows (SlipPrior.estimate_sd_mm) it
-# does not. Each tenth costs several times the time per frame.
+# IK solver accuracy (the SimTK assembler's tolerance; OpenSim's default). Its optimiser (L-BFGS-B)
+# stops once the objective's projected gradient is below this, or once an iteration lowers the
+# objective by less than ~2e-9 (a relative test floored at 1); the objective (half the weighted mean
+# squared marker error in m^2, plus the coordinate goals) is ~1e-9..1e-7 near a solution, so both
+# tests are absolute there: the solver stops short of the optimum along the directions the markers
+# hardly see, at a point that depends on its path. A twist shared between the pelvis and the levels is
+# under-read by an amount that depends on the start (about 0.6 of a studio trunk twist read at
+# 1e-5, 0.87 at 1e-6, 0.95 at 1e-7); nearer the optimum the skin-slip model with its slips solved
+# from the markers (SlipPrior.from_tape "off") reads forward bending worse (studio flexion RMSE
+# 1.3 -> 3.5 deg at 1e-6); with the slips held at the tape's it does not. Each tenth costs several
+# times the time per frame.
 IK_ACCURACY = 1e-5
 # A solve from far off (the static pose, see _better_of_two_starts) first runs to this accuracy,
 # then on to a tighter one: straight to 1e-6 from there took up to ~100x longer on a studio capture
@@ -313,10 +317,53 @@ class IKSolution:
 @dataclass(frozen=True)
 class CoordinateGoal:
     """A coordinate goal that changes from frame to frame: ``values`` (F,) in the coordinate's
-    units (rad, m) and ``weights`` (F,) per unit^2, beside marker errors in m^2."""
+    units (rad, m) and ``weights`` (F,) per unit^2, beside marker errors in m^2; ``held`` (F,)
+    bool (None = never): frames where the coordinate is held at its value (OpenSim's locked,
+    prescribed coordinate, left out of the solve) instead of pulled toward it."""
 
     values: np.ndarray
     weights: np.ndarray
+    held: np.ndarray | None = None
+
+    def held_at(self, frame: int) -> bool:
+        """Whether the coordinate is held at its value in ``frame``."""
+        return self.held is not None and bool(self.held[frame])
+
+
+class _FrameSolver:
+    """A fresh ``InverseKinematicsSolver`` per solve of a frame: OpenSim drops the goal of a
+    coordinate once a solve has held it locked, so a solver is not reused across solves."""
+
+    def __init__(self, osim, model, table, labels: Sequence[str], weights: np.ndarray, present: np.ndarray,
+                 goals: dict[str, CoordinateGoal]):
+        self.osim, self.model, self.table, self.labels = osim, model, table, list(labels)
+        self.weights, self.present, self.goals = weights, present, goals
+        coords = model.getCoordinateSet()
+        self.coordinates = {name: coords.get(name) for name in goals}
+
+    def solve(self, state, frame: int, accuracy: float):
+        """Set the frame's held coordinates in ``state``, solve from the other coordinates there
+        to ``accuracy`` and return the solver (its marker errors are the frame's)."""
+        osim = self.osim
+        weight_set = osim.SetMarkerWeights()
+        for d, label in enumerate(self.labels):  # a missing sample's weight is ignored (NaN marker)
+            weight = float(self.weights[frame, d]) if self.present[frame, d] else 1.0
+            weight_set.cloneAndAppend(osim.MarkerWeight(str(label), weight))
+        references = osim.SimTKArrayCoordinateReference()
+        for name, goal in self.goals.items():
+            value, weight = _goal_at(goal, frame)
+            coordinate = self.coordinates[name]
+            coordinate.setLocked(state, False)  # a locked coordinate keeps its value
+            if goal.held_at(frame):
+                coordinate.setValue(state, value, False)
+                coordinate.setLocked(state, True)
+            reference = osim.CoordinateReference(name, osim.Constant(value))
+            reference.setWeight(weight)
+            references.push_back(reference)
+        solver = osim.InverseKinematicsSolver(self.model, osim.MarkersReference(self.table, weight_set), references)
+        solver.setAccuracy(float(accuracy))
+        solver.assemble(state)
+        return solver
 
 
 def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positions_mm: np.ndarray,
@@ -333,8 +380,8 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
     ``observed_rms_mm`` is taken (default: all present); ``accuracy``: the solver's, one or (F,)
     per frame. ``priors``: {coordinate: weight} of coordinate goals toward the
     coordinate's default value (weight per unit^2, beside marker errors in m^2); ``goals``: coordinate
-    goals whose value and weight change per frame (:class:`CoordinateGoal`). Coordinates the model
-    clamps stay inside their ranges."""
+    goals whose value and weight change per frame, or coordinates held per frame
+    (:class:`CoordinateGoal`). Coordinates the model clamps stay inside their ranges."""
     osim = require_opensim()
     model = osim.Model(str(model_file))
     state = model.initSystem()
@@ -342,20 +389,11 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
     metres = np.asarray(positions_mm, float) / 1000.0
     present = np.isfinite(metres).all(axis=2) & (weights > 0)
     metres = np.where(present[..., None], metres, np.nan)  # a sample of weight 0 is a missing one
-    table = marker_table(labels, times, metres)
-    weight_set = osim.SetMarkerWeights()
-    for d, label in enumerate(labels):  # the first frame's weights, updated frame by frame (NaN: ignored)
-        weight_set.cloneAndAppend(osim.MarkerWeight(str(label), float(weights[0, d]) if present[0, d] else 1.0))
-    reference = osim.MarkersReference(table, weight_set)
-    references = osim.SimTKArrayCoordinateReference()
     coords = model.getCoordinateSet()
-    constant = {name: (coords.get(name).getDefaultValue(), float(weight)) for name, weight in (priors or {}).items()}
-    per_frame = goals or {}
-    for name, (value, weight) in {**constant, **{n: _goal_at(g, 0) for n, g in per_frame.items()}}.items():
-        goal = osim.CoordinateReference(name, osim.Constant(value))
-        goal.setWeight(weight)
-        references.push_back(goal)
-    solver = osim.InverseKinematicsSolver(model, reference, references)
+    all_goals = {name: CoordinateGoal(np.full(F, coords.get(name).getDefaultValue()), np.full(F, float(weight)))
+                 for name, weight in (priors or {}).items()}
+    all_goals.update(goals or {})
+    frames = _FrameSolver(osim, model, marker_table(labels, times, metres), labels, weights, present, all_goals)
     frame_accuracy = np.broadcast_to(np.asarray(accuracy, float), (F,))
     column = {label: d for d, label in enumerate(labels)}
     coordinate_list = [coords.get(i) for i in range(coords.getSize())]
@@ -364,31 +402,20 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
     observed_rms = np.full(F, np.nan)
     measured = present if observed is None else present & np.asarray(observed, bool)
     errors = osim.SimTKArrayDouble()
-    order: list[str] = []
     started = time.perf_counter()
     for f in range(F):
         state.setTime(float(times[f]))
-        if f > 0:
-            for name in order:
-                d = column[name]
-                solver.updateMarkerWeight(name, float(weights[f, d]) if present[f, d] else 1.0)
-            for name, goal in per_frame.items():
-                solver.updateCoordinateReference(name, *_goal_at(goal, f))
-        goal_weights = [(coords.get(name), weight, value) for name, (value, weight) in
-                        {**constant, **{n: _goal_at(g, f) for n, g in per_frame.items()}}.items()]
         # a full solve from the coordinates held in the state: the previous frame's solution (the
         # first frame's from the default pose, the static trial's); Assembler::track's few steps
         # stopped short of the solution at 12 frames/s
-        solver.setAccuracy(float(frame_accuracy[f]))
-        _assemble(solver, state, float(frame_accuracy[f]), far=f == 0)
-        if f == 0:
-            order = [solver.getMarkerNameForIndex(i) for i in range(solver.getNumMarkersInUse())]
-        values[f] = [c.getValue(state) for c in coordinate_list]
+        solver = _solve(frames, state, f, float(frame_accuracy[f]), far=f == 0)
+        order = [solver.getMarkerNameForIndex(i) for i in range(solver.getNumMarkersInUse())]
         in_order = [column[name] for name in order]
+        values[f] = [c.getValue(state) for c in coordinate_list]
         if f > 0 and restart:
-            values[f] = _better_of_two_starts(solver, state, coordinate_list, values[f], goal_weights,
-                                              np.where(present[f, in_order], weights[f, in_order], 0.0),
-                                              float(frame_accuracy[f]), fresh_start_margin)
+            values[f], solver = _better_of_two_starts(frames, solver, state, f, coordinate_list, values[f],
+                                                      np.where(present[f, in_order], weights[f, in_order], 0.0),
+                                                      float(frame_accuracy[f]), fresh_start_margin)
         solver.computeCurrentMarkerErrors(errors)
         err = np.array([errors.getElt(i) for i in range(errors.size())])
         used = present[f, in_order] & np.isfinite(err)
@@ -404,53 +431,56 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
                       rms, worst, count, time.perf_counter() - started, observed_rms)
 
 
-def _assemble(solver, state, accuracy: float, far: bool) -> None:
-    """Solve from the coordinates in ``state`` to ``accuracy``; from ``far`` off, to
-    :data:`START_ACCURACY` first."""
+def _solve(frames: _FrameSolver, state, frame: int, accuracy: float, far: bool):
+    """Solve ``frame`` from the coordinates in ``state`` to ``accuracy`` (from ``far`` off, to
+    :data:`START_ACCURACY` first); returns the last solver."""
     if far and accuracy < START_ACCURACY:
-        solver.setAccuracy(START_ACCURACY)
-        solver.assemble(state)
-        solver.setAccuracy(float(accuracy))
-    solver.assemble(state)
+        frames.solve(state, frame, START_ACCURACY)
+    return frames.solve(state, frame, accuracy)
 
 
 def _goal_at(goal: CoordinateGoal, frame: int) -> tuple[float, float]:
     return float(goal.values[frame]), float(goal.weights[frame])
 
 
-def _ik_cost(solver, state, goal_weights: list, marker_weights: np.ndarray) -> float:
+def _ik_cost(solver, state, goals: list, marker_weights: np.ndarray) -> float:
     """The IK objective at ``state``: weighted squared marker errors (m^2) plus the coordinate goals'
-    (``goal_weights``: (coordinate, weight, goal value))."""
+    (``goals``: (coordinate, weight, goal value))."""
     squared = require_opensim().SimTKArrayDouble()
     solver.computeCurrentSquaredMarkerErrors(squared)
     err = np.array([squared.getElt(i) for i in range(squared.size())])
     cost = float(np.nansum(marker_weights * err))
-    return cost + sum(w * (c.getValue(state) - goal) ** 2 for c, w, goal in goal_weights)
+    return cost + sum(w * (c.getValue(state) - goal) ** 2 for c, w, goal in goals)
 
 
-def _better_of_two_starts(solver, state, coordinate_list: list, from_previous: np.ndarray, goal_weights: list,
-                          marker_weights: np.ndarray, accuracy: float, margin: float) -> np.ndarray:
-    """Solve the frame again from the default pose (the static trial) and keep that solution unless
+def _better_of_two_starts(frames: _FrameSolver, solver, state, frame: int, coordinate_list: list,
+                          from_previous: np.ndarray, marker_weights: np.ndarray, accuracy: float,
+                          margin: float) -> tuple[np.ndarray, object]:
+    """Solve ``frame`` again from the default pose (the static trial) and keep that solution unless
     its objective exceeds (1 + ``margin``) x the previous frame's start's (a far bend the static
     start cannot reach; a margin keeps the choice from hanging on small differences along a valley
-    the markers hardly see); ``state`` is left at the kept one. Along the
-    directions the markers hardly see (a pelvis turn against the levels' axial rotations) a solve
-    from the previous frame stops wherever the solver's tolerance is met, so the solution would
-    depend on the path; where both starts end equally good, the static start's does not.
+    the markers hardly see); ``state`` is left at the kept one, returned with its solver. Along
+    the directions the markers hardly see (a pelvis turn against the levels' axial rotations) a
+    solve from the previous frame stops wherever the solver's tolerance is met, so the solution
+    would depend on the path; where both starts end equally good, the static start's does not.
     The solve from the default pose runs to :data:`START_ACCURACY` first, then to ``accuracy``."""
-    cost_previous = _ik_cost(solver, state, goal_weights, marker_weights)
-    for c in coordinate_list:
-        c.setValue(state, c.getDefaultValue(), False)
-    for c, _, goal in goal_weights:  # a coordinate with a goal starts at it
-        c.setValue(state, goal, False)
-    _assemble(solver, state, accuracy, far=True)
+    goals = [(frames.coordinates[name], *_goal_at(goal, frame)[::-1]) for name, goal in frames.goals.items()]
+    cost_previous = _ik_cost(solver, state, goals, marker_weights)
+    for c in coordinate_list:  # a held (locked) coordinate keeps its value
+        if not c.getLocked(state):
+            c.setValue(state, c.getDefaultValue(), False)
+    for c, _, goal in goals:  # a coordinate with a goal starts at it
+        if not c.getLocked(state):
+            c.setValue(state, goal, False)
+    fresh_solver = _solve(frames, state, frame, accuracy, far=True)
     fresh = np.array([c.getValue(state) for c in coordinate_list])
-    if _ik_cost(solver, state, goal_weights, marker_weights) <= (1.0 + margin) * cost_previous:
-        return fresh
+    if _ik_cost(fresh_solver, state, goals, marker_weights) <= (1.0 + margin) * cost_previous:
+        return fresh, fresh_solver
     for c, value in zip(coordinate_list, from_previous):
-        c.setValue(state, float(value), False)
-    solver.assemble(state)  # back onto the previous-start solution (already converged: one step)
-    return np.array([c.getValue(state) for c in coordinate_list])
+        if not c.getLocked(state):
+            c.setValue(state, float(value), False)
+    solver = frames.solve(state, frame, accuracy)  # back onto the previous-start solution (already converged)
+    return np.array([c.getValue(state) for c in coordinate_list]), solver
 
 
 def write_coordinate_goals(path: Path, times: np.ndarray, goals: dict[str, CoordinateGoal]) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from spinemocap.bench.opensim import GOALS, IK_METHODS, SLIP_FROM_TAPE, format_table, headline
+from spinemocap.bench.opensim import GOALS, IK_METHODS, format_table, headline
 from spinemocap.fileio import InputError
 
 
@@ -14,33 +14,46 @@ def _scores(flexion: float, rms: float) -> dict:
 
 
 def test_the_headline_covers_the_methods_that_ran_and_judges_each_against_the_goals():
-    runs = {"flexion/seed0": {"ik": _scores(1.2, 0.6), "ik_slip_from_tape": _scores(2.5, 0.9),
+    runs = {"flexion/seed0": {"ik": _scores(1.2, 0.6), "ik_slip_goal": _scores(2.5, 0.9),
                               "geometric": {"flexion_rmse_deg": 3.0, "flexion_r2": 0.9, "ms_per_frame": 1.0}},
-            "flexion/seed1": {"ik": _scores(1.9, 2.4), "ik_slip_from_tape": _scores(1.0, 0.7),
+            "flexion/seed1": {"ik": _scores(1.9, 2.4), "ik_slip_goal": _scores(1.0, 0.7),
                               "geometric": {"flexion_rmse_deg": 1.5, "flexion_r2": 0.9, "ms_per_frame": 1.0}}}
     table = headline({"groundtruth": runs})["headline"]["groundtruth"]
-    assert list(table) == ["ik", "ik_slip_from_tape", "geometric"]  # only what ran
+    assert list(table) == ["ik", "ik_slip_goal", "geometric"]  # only what ran
     assert table["ik"]["flexion_rmse_deg_worst"] == 1.9 and table["ik"]["goals_met"]["flexion"]
     assert not table["ik"]["goals_met"]["marker_rms"]  # 2.4 mm over the 2 mm goal
-    assert table["ik_slip_from_tape"]["flexion_rmse_deg_worst"] > GOALS["flexion_rmse_deg"]
-    assert not table["ik_slip_from_tape"]["goals_met"]["flexion"]
+    assert table["ik_slip_goal"]["flexion_rmse_deg_worst"] > GOALS["flexion_rmse_deg"]
+    assert not table["ik_slip_goal"]["goals_met"]["flexion"]
     lines = format_table({"groundtruth": runs}).splitlines()
-    assert len(lines) == 1 + 2 * 3 and any("ik_slip_from_tape" in line for line in lines)
+    assert len(lines) == 1 + 2 * 3 and any("ik_slip_goal" in line for line in lines)
 
 
-def test_the_slip_from_tape_method_is_the_pipelines_option_of_that_name():
+def test_the_slip_methods_are_the_pipelines_uses_of_the_tapes_slip():
     from spinemocap.opensim import OpenSimSettings
-    from spinemocap.opensim.pipeline import slip_from_tape
+    from spinemocap.opensim.pipeline import SLIP_SOLVER, slip_solved_as
 
-    settings = slip_from_tape()
-    assert SLIP_FROM_TAPE["slip"].estimate_sd_mm == settings.slip.estimate_sd_mm == 3.0
-    assert SLIP_FROM_TAPE["accuracy"] == settings.accuracy < OpenSimSettings().accuracy
-    assert OpenSimSettings().slip.estimate_sd_mm is None and IK_METHODS["ik"] == {}
+    assert IK_METHODS["ik"] == {} and OpenSimSettings() == slip_solved_as("held")  # the default holds the slips
+    assert OpenSimSettings().slip.from_tape == "held"
+    for method, use in (("ik_slip_goal", "goal"), ("ik_slip_from_markers", "off")):
+        settings = slip_solved_as(use)
+        assert IK_METHODS[method]["slip"] == settings.slip and settings.slip.from_tape == use
+        assert (IK_METHODS[method]["accuracy"], IK_METHODS[method]["fresh_start_margin"]) == SLIP_SOLVER[use]
+    assert SLIP_SOLVER["off"][0] > SLIP_SOLVER["held"][0]  # the markers-only slips at OpenSim's looser default
 
 
 def test_an_unknown_method_is_a_clear_error():
     pytest.importorskip("opensim")
     from spinemocap.bench.opensim import run_opensim_benchmark
 
-    with pytest.raises(InputError, match="ik_slip_from_tape"):
+    with pytest.raises(InputError, match="ik_slip_from_markers"):
         run_opensim_benchmark(motions=["flexion"], methods=["ik", "fastest"], progress=False)
+
+
+def test_the_headline_plot_is_a_png_of_every_method_that_ran():
+    from spinemocap.bench.opensim import headline_plot_png
+
+    runs = {"flexion/seed0": {"ik": _scores(1.2, 0.6), "ik_slip_goal": _scores(2.5, 0.9),
+                              "geometric": {"flexion_rmse_deg": 3.0, "flexion_r2": 0.9, "ms_per_frame": 1.0}}}
+    report = {**headline({"groundtruth": runs, "tracked": runs}), "sources": {"groundtruth": runs, "tracked": runs}}
+    png = headline_plot_png(report)
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
