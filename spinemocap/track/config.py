@@ -245,7 +245,8 @@ class StatusConfig:
     :mod:`spinemocap.track.quality`): ``observed_lattice_limit`` x the smallest dot spacing, the
     farthest an observed dot may lie from where the other observed dots' lattice puts it
     (:func:`spinemocap.track.lattice.off_observed_lattice`; a dot matched to its row
-    neighbour's point lies a dot spacing off); ``detached_max_dots``, the largest group of
+    neighbour's point lies a dot spacing off; the worst dot found off is set aside and the rest
+    judged again without it); ``detached_max_dots``, the largest group of
     observed dots joined to the rest of the observed tape by no solid edge whose labels are
     doubted (:func:`spinemocap.track.lattice.detached_groups`: fewer dots than two whole rows
     fit a column or row beside their own as well); the inferred dots beside such a dot are marked
