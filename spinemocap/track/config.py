@@ -284,7 +284,8 @@ class SequenceConfig:
     two rows (the last 4 rows of 13 hidden: 4 rows, and a search up to 2 then relabelled it
     by 2 only, leaving every label 2 rows off); ``follow_hidden_rows``: after
     a full re-solve, unobserved rows beyond the observed ones move with their observed tape
-    neighbours from the prediction instead of the re-solve's mean-stretch placement;
+    neighbours from the prediction instead of the re-solve's mean-stretch placement (a dot so
+    moved more than half a dot spacing from the re-solve's place is marked ``dot_unanchored``);
     ``pin_identity``: until a frame's observed rows admit no other whole-row labelling (the
     first frame's labels are its own guess when an end of the tape is unseen), every frame is
     flagged ``identity_unsure`` and a carried frame leaving strong points unlabelled beyond an
