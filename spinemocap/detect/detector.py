@@ -41,7 +41,7 @@ from .lattice import tape_regions
 from .refine import RefineParams, components_touching, extend_along_tape
 from .segnet import RUNTIMES, InferenceUNet, OnnxUNet, cpu_has_vnni, load_weights, pad_to_multiple, to_tensor
 
-SHIPPED_WEIGHTS = "tape_unet.pt"
+SHIPPED_WEIGHTS = "tape_unet_lab_mix.pt"  # the default; tape_unet.pt, trained on the studio alone, ships beside it
 
 
 class MaskDots(NamedTuple):

@@ -245,7 +245,8 @@ class StatusConfig:
     :mod:`spinemocap.track.quality`): ``observed_lattice_limit`` x the smallest dot spacing, the
     farthest an observed dot may lie from where the other observed dots' lattice puts it
     (:func:`spinemocap.track.lattice.off_observed_lattice`; a dot matched to its row
-    neighbour's point lies a dot spacing off); ``detached_max_dots``, the largest group of
+    neighbour's point lies a dot spacing off; the worst dot found off is set aside and the rest
+    judged again without it); ``detached_max_dots``, the largest group of
     observed dots joined to the rest of the observed tape by no solid edge whose labels are
     doubted (:func:`spinemocap.track.lattice.detached_groups`: fewer dots than two whole rows
     fit a column or row beside their own as well); the inferred dots beside such a dot are marked
@@ -283,7 +284,8 @@ class SequenceConfig:
     two rows (the last 4 rows of 13 hidden: 4 rows, and a search up to 2 then relabelled it
     by 2 only, leaving every label 2 rows off); ``follow_hidden_rows``: after
     a full re-solve, unobserved rows beyond the observed ones move with their observed tape
-    neighbours from the prediction instead of the re-solve's mean-stretch placement;
+    neighbours from the prediction instead of the re-solve's mean-stretch placement (a dot so
+    moved more than half a dot spacing from the re-solve's place is marked ``dot_unanchored``);
     ``pin_identity``: until a frame's observed rows admit no other whole-row labelling (the
     first frame's labels are its own guess when an end of the tape is unseen), every frame is
     flagged ``identity_unsure`` and a carried frame leaving strong points unlabelled beyond an

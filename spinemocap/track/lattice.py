@@ -138,17 +138,30 @@ def off_observed_lattice(uv: np.ndarray, positions: np.ndarray, observed: np.nda
                          sigma_mm: float = 20.0) -> np.ndarray:
     """(D,) bool: ``observed`` (D,) bool dots farther than ``limit_mm`` from where the *other
     observed* dots' lattice puts them (:func:`affine_from_neighbours` on the flat tape ``uv``
-    (D, 2) mm, ``positions`` (D, 3) mm). Inferred dots take no part: the model places them
-    together with a dot matched to its neighbour's point, and the block then agrees with itself.
-    Dots that cannot be predicted (fewer than 3 other observed dots) are not judged."""
+    (D, 2) mm, ``positions`` (D, 3) mm), judged in passes: each pass judges the observed dots not
+    yet set aside against one another and sets the worst one beyond the limit aside, the next
+    pass judges the rest without it; a dot beyond the limit in any pass is returned. Inferred
+    dots take no part: the model places them together with a dot matched to its neighbour's
+    point, and the block then agrees with itself. Dots that cannot be predicted (fewer than 3
+    other observed dots) are not judged.
+
+    The passes: two wrong dots side by side (the end rows' only observed dots, both a column
+    aside) bear each other out; the worse of them is found, and without it the other lies a dot
+    spacing off the rest of the tape's lattice. The first pass alone is the all-at-once check,
+    so a dot it finds is always returned."""
     observed = np.asarray(observed, bool) & np.isfinite(positions).all(axis=1)
     out = np.zeros(len(positions), bool)
-    idx = np.flatnonzero(observed)
-    if len(idx) < 4:
-        return out
-    prediction = affine_from_neighbours(uv, positions, observed, idx, sigma_mm)
-    with np.errstate(invalid="ignore"):
-        out[idx] = np.linalg.norm(positions[idx] - prediction, axis=1) > limit_mm
+    support = observed.copy()
+    while support.sum() >= 4:
+        idx = np.flatnonzero(support)
+        prediction = affine_from_neighbours(uv, positions, support, idx, sigma_mm)
+        residual = np.linalg.norm(positions[idx] - prediction, axis=1)
+        residual[~np.isfinite(residual)] = -np.inf
+        off = residual > limit_mm
+        if not off.any():
+            break
+        out[idx[off]] = True
+        support[idx[int(np.argmax(residual))]] = False  # the worst bears out no other dot
     return out
 
 

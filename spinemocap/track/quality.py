@@ -30,10 +30,15 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
   side only: its place is an extrapolation along the tape, possibly a dot spacing off);
   ``dot_unanchored`` 0.5 (an inferred dot two or more rows beyond the last row with an observed
   dot: the tape's end seen by no camera pair, placed and labelled by the model alone, which
-  misses there by half a dot spacing or more, see :func:`spinemocap.track.lattice.rows_beyond`);
+  misses there by half a dot spacing or more, see :func:`spinemocap.track.lattice.rows_beyond`;
+  also an unseen dot beyond the observed rows that the sequence moved with the last frames'
+  motion more than half a dot spacing from the re-solve's place: the two disagree on which dot
+  lies there, see :meth:`spinemocap.track.sequence.SequenceTracker._hidden_rows_follow`);
   ``dot_unsupported`` 0.5 (an observed dot whose label the other observed dots do not bear out:
-  more than half a dot spacing from where their lattice puts it, or in a group of a few observed
-  dots that no solid edge joins to the rest of the observed tape; also the inferred dots beside
+  more than half a dot spacing from where their lattice puts it (judged again without each dot
+  found off, the worst first, so that two wrong dots do not bear each other out), or in a group
+  of a few observed dots that no solid edge joins to the rest of the observed tape; also the
+  inferred dots beside
   such a dot, laid by the same model around the same point; a triangulated point with a low
   residual is no proof of its label: matched to its row neighbour's point, a dot reprojects
   perfectly, and the dots the model infers around it follow it, see

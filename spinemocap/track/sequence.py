@@ -119,7 +119,10 @@ class SequenceTracker:
         displacement, ``sigma_mm`` on the tape), in place of the re-solve's placement. The
         re-solve lays hidden rows with the mean stretch of the rows it sees, which at full
         flexion (lumbar rows 20-30 % longer than thoracic ones) overshoots by a row within
-        three rows; the last frames saw them with their own stretch."""
+        three rows; the last frames saw them with their own stretch. A dot moved more than half
+        the smallest dot spacing from the re-solve's place is marked unanchored
+        (``result.unanchored``, flag ``dot_unanchored``): the last frames' labels there may be
+        wrong (a doubted frame's)."""
         predicted = self.predict()
         observed = result.status == OBSERVED
         hidden = ~observed & (rows_beyond(observed, self.tracker.graph) >= 1) & np.isfinite(predicted).all(axis=1)
@@ -129,7 +132,17 @@ class SequenceTracker:
         shift = result.positions[moved] - predicted[moved]
         gap = self.uv[hidden][:, None, :] - self.uv[moved][None, :, :]
         w = np.exp(-0.5 * (gap**2).sum(axis=2) / sigma_mm**2) + 1e-12
-        result.positions[hidden] = predicted[hidden] + (w @ shift) / w.sum(axis=1, keepdims=True)
+        followed = predicted[hidden] + (w @ shift) / w.sum(axis=1, keepdims=True)
+        # the re-solve and the last frames' motion disagree on these dots by more than half a dot
+        # spacing: one of them has the wrong dot there, and nothing observed tells which
+        limit = 0.5 * float(self.tracker.graph.rest_length_mm.min())
+        apart = np.zeros(len(hidden), bool)
+        apart[hidden] = ~(np.linalg.norm(followed - result.positions[hidden], axis=1) <= limit)
+        result.positions[hidden] = followed
+        if apart.any():
+            result.unanchored = apart if result.unanchored is None else result.unanchored | apart
+            if "dot_unanchored" not in result.flags:
+                result.flags.append("dot_unanchored")
 
     def _keep_identity(self, result: FrameResult, views, cloud: CandidateCloud, stretch: StretchEstimate,
                        stage_ms: dict) -> FrameResult:

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from spinemocap.detect.dataset import ViewSet, import_labelled, load_shards, read_coco_masks, split_of, views_of
+from spinemocap.detect.detector import shipped_weights_path
 from spinemocap.detect.drawn import draw_sample
 from spinemocap.detect.segnet import load_weights
 from spinemocap.detect.train import TrainSettings, train
@@ -107,7 +108,7 @@ def test_cli_finetune_from_shipped_weights_on_coco_labels(tmp_path, capsys):
                  "--epochs", "1", "--steps", "2", "--batch", "2", "--crop", "64", "--val-fraction", "0.3"]) == 0
     assert "validation IoU" in capsys.readouterr().out
     meta = json.loads((out / "weights.json").read_text())
-    assert meta["init_weights"].endswith("tape_unet.pt") and meta["data"]["kind"] == "lab"
+    assert meta["init_weights"].endswith(shipped_weights_path().name) and meta["data"]["kind"] == "lab"
     assert meta["command"].startswith("spinemocap detector finetune") and "--epochs 1" in meta["command"]
     det = Detector("net", weights=out / "weights.pt")
     assert det.segment(cv2.imread(str(images / "img00.png"))).shape == truth["img00.png"].shape

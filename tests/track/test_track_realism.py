@@ -272,6 +272,34 @@ def test_a_small_group_of_observed_dots_beyond_an_unseen_row_is_not_vouched_for(
     assert not whole.unsupported.any() and not is_flagged(whole.flags)
 
 
+def test_the_end_rows_lone_observed_dots_on_their_neighbours_points_are_not_vouched_for():
+    """A carried frame at the tape's top end: rows 12 and 13 hold one observed dot each, R12L on
+    R12C's point and R13L on R13R's (three views each, their row neighbours and R11L unseen by
+    any camera pair), the model's other dots of those rows half a column aside. The two wrong
+    dots bear each other out: the worse (R13L) is off the other observed dots' lattice, and
+    without it R12L lies a dot spacing off."""
+    rig = rig_behind()
+    dots = tape_on_back(SPEC)
+    rows = SPEC.graph.row
+    index = SPEC.graph.index
+    seen = (rows <= 9) | np.isin(np.arange(len(dots)), [index(x) for x in ("R11R", "R12C", "R13R")])
+    views = blobs(rig, dots, noise_px=0.2, hidden=np.repeat(~seen[None], len(rig), axis=0))
+    column = dots[index("R12C")] - dots[index("R12L")]
+    model = dots.copy()
+    model[index("R12L")], model[index("R13L")] = dots[index("R12C")], dots[index("R13R")]
+    model[[index("R12C"), index("R13R")]] += 0.5 * column
+    lone = [index("R12L"), index("R13L")]
+    unchecked = _unchecked_tracker(rig)
+    before = unchecked.assign_status(model, unchecked.candidates(views))
+    assert (before.status[lone] == "observed").all() and _vouched_swaps(before, dots)[lone].all()
+    tracker = FrameTracker(rig, SPEC)
+    result = tracker.assign_status(model, tracker.candidates(views))
+    assert result.unsupported[lone].all() and is_flagged(result.flags)
+    assert not _vouched_swaps(result, dots).any()
+    # the observed dots of rows 1-11 (row index 0-10), on their own points, are not doubted
+    assert not result.unsupported[(rows <= 10) & (result.status == "observed")].any()
+
+
 def test_relabel_rows_maps_a_two_row_shift_back_exactly():
     dots = tape_on_back(SPEC)
     shifted = relabel_rows(dots, SPEC.graph, -2)  # labels moved two rows toward the sacrum
