@@ -41,7 +41,8 @@ from .lattice import tape_regions
 from .refine import RefineParams, components_touching, extend_along_tape
 from .segnet import RUNTIMES, InferenceUNet, OnnxUNet, cpu_has_vnni, load_weights, pad_to_multiple, to_tensor
 
-SHIPPED_WEIGHTS = "tape_unet_lab_mix.pt"  # the default; tape_unet.pt, trained on the studio alone, ships beside it
+SHIPPED_WEIGHTS = "tape_unet_lab_mix.pt"  # the default: the studio's renders and the lab mix
+STUDIO_WEIGHTS = "tape_unet.pt"  # shipped beside the default: trained on the studio's renders alone
 
 
 class MaskDots(NamedTuple):
@@ -57,9 +58,10 @@ NAMES = ("net", "classical")
 PRECISIONS = ("float32", "bfloat16", "int8")  # of the network's arithmetic
 
 
-def shipped_weights_path() -> Path:
-    """Path of the weights shipped inside the package (spinemocap/detect/weights/)."""
-    return Path(str(resources.files("spinemocap.detect").joinpath("weights").joinpath(SHIPPED_WEIGHTS)))
+def shipped_weights_path(name: str = SHIPPED_WEIGHTS) -> Path:
+    """Path of a weights file shipped inside the package (spinemocap/detect/weights/; default: the
+    default weights, :data:`SHIPPED_WEIGHTS`)."""
+    return Path(str(resources.files("spinemocap.detect").joinpath("weights").joinpath(name)))
 
 
 class NetSegmenter:
