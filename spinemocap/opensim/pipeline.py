@@ -141,7 +141,7 @@ class OpenSimSettings:
     depth_scale: float = 1.0
     depth_source: str = PUBLISHED_DEPTHS
     coupling: str = "rows"  # see spinemocap.opensim.model.plan_model
-    # IK weight (per rad^2, beside marker errors in m^2) of a prior toward the static posture on every
+    # IK weight (per rad^2, beside marker errors in m^2 summed by weight) of a prior toward the static posture on every
     # level's lateral bending and axial rotation; 0 = off
     prior_weight: float = 0.0
     normalise_tilt: bool = True

@@ -165,7 +165,10 @@ def write_ik_setup(folder: Path, model_file: str, trc: str, time_range: tuple[fl
     ``priors``: {coordinate: weight} of coordinate tasks pulling toward the default value (0);
     ``goal_weights``: {coordinate: weight} of coordinate tasks pulling toward the values in
     ``goal_file`` (the tool's coordinate file, see :func:`write_coordinate_goals`; OpenSim's setup
-    holds one weight per task, so frames whose weight differs get this one in a re-run)."""
+    holds one weight per task, so frames whose weight differs get this one in a re-run). The
+    coordinate tasks' weights are written divided by the marker tasks' total weight: OpenSim's IK
+    averages the marker errors by weight but sums the coordinate tasks (see
+    :meth:`_FrameSolver.solve`)."""
     osim = require_opensim()
     tool = osim.InverseKinematicsTool()
     tool.setName("spinemocap")
@@ -180,13 +183,14 @@ def write_ik_setup(folder: Path, model_file: str, trc: str, time_range: tuple[fl
     # get_IKTaskSet().cloneAndAppend() silently adds nothing from Python: use the upd_ accessor
     tasks = tool.upd_IKTaskSet()
     _task_set(osim, labels, weights, tasks)
+    marker_total = float(np.clip(weights, 0.0, None).sum()) or 1.0
     for weights_by_coordinate, value_type in ((priors, osim.IKCoordinateTask.DefaultValue),
                                               (goal_weights, osim.IKCoordinateTask.FromFile)):
         for coordinate, weight in (weights_by_coordinate or {}).items():
             task = osim.IKCoordinateTask()
             task.setName(coordinate)
             task.setApply(True)
-            task.setWeight(float(weight))
+            task.setWeight(float(weight) / marker_total)
             task.setValueType(value_type)
             tasks.cloneAndAppend(task)
     if goal_weights:
@@ -317,7 +321,8 @@ class IKSolution:
 @dataclass(frozen=True)
 class CoordinateGoal:
     """A coordinate goal that changes from frame to frame: ``values`` (F,) in the coordinate's
-    units (rad, m) and ``weights`` (F,) per unit^2, beside marker errors in m^2; ``held`` (F,)
+    units (rad, m) and ``weights`` (F,) per unit^2, beside the frame's marker errors in m^2 summed by
+    weight (a goal of weight 1 per m^2 weighs as one marker of weight 1); ``held`` (F,)
     bool (None = never): frames where the coordinate is held at its value (OpenSim's locked,
     prescribed coordinate, left out of the solve) instead of pulled toward it."""
 
@@ -341,10 +346,20 @@ class _FrameSolver:
         coords = model.getCoordinateSet()
         self.coordinates = {name: coords.get(name) for name in goals}
 
+    def marker_weight_sum(self, frame: int) -> float:
+        """The total weight of the markers present in ``frame`` (1 where none is)."""
+        total = float(self.weights[frame][self.present[frame]].sum())
+        return total if total > 0 else 1.0
+
     def solve(self, state, frame: int, accuracy: float):
         """Set the frame's held coordinates in ``state``, solve from the other coordinates there
-        to ``accuracy`` and return the solver (its marker errors are the frame's)."""
+        to ``accuracy`` and return the solver (its marker errors are the frame's). OpenSim's IK
+        divides the weighted squared marker errors by the markers' total weight but adds each
+        coordinate goal's term as weighted: every goal's weight is divided by the frame's total
+        marker weight here, so that a goal weighs against the markers' weighted sum (a goal of
+        weight (marker SD / goal SD)^2 acts as a Gaussian prior of that SD)."""
         osim = self.osim
+        marker_total = self.marker_weight_sum(frame)
         weight_set = osim.SetMarkerWeights()
         for d, label in enumerate(self.labels):  # a missing sample's weight is ignored (NaN marker)
             weight = float(self.weights[frame, d]) if self.present[frame, d] else 1.0
@@ -358,7 +373,7 @@ class _FrameSolver:
                 coordinate.setValue(state, value, False)
                 coordinate.setLocked(state, True)
             reference = osim.CoordinateReference(name, osim.Constant(value))
-            reference.setWeight(weight)
+            reference.setWeight(weight / marker_total)
             references.push_back(reference)
         solver = osim.InverseKinematicsSolver(self.model, osim.MarkersReference(self.table, weight_set), references)
         solver.setAccuracy(float(accuracy))
@@ -379,7 +394,7 @@ def solve_ik(model_file: Path, labels: Sequence[str], times: np.ndarray, positio
     other's. ``observed`` (F, D) bool: the measured samples, over which
     ``observed_rms_mm`` is taken (default: all present); ``accuracy``: the solver's, one or (F,)
     per frame. ``priors``: {coordinate: weight} of coordinate goals toward the
-    coordinate's default value (weight per unit^2, beside marker errors in m^2); ``goals``: coordinate
+    coordinate's default value (weight per unit^2, beside marker errors in m^2 summed by weight); ``goals``: coordinate
     goals whose value and weight change per frame, or coordinates held per frame
     (:class:`CoordinateGoal`). Coordinates the model clamps stay inside their ranges."""
     osim = require_opensim()
@@ -444,13 +459,16 @@ def _goal_at(goal: CoordinateGoal, frame: int) -> tuple[float, float]:
 
 
 def _ik_cost(solver, state, goals: list, marker_weights: np.ndarray) -> float:
-    """The IK objective at ``state``: weighted squared marker errors (m^2) plus the coordinate goals'
-    (``goals``: (coordinate, weight, goal value))."""
+    """The objective OpenSim's IK minimises at ``state`` (see :meth:`_FrameSolver.solve`): weighted
+    squared marker errors (m^2) plus the coordinate goals' terms (``goals``: (coordinate, weight,
+    goal value)), divided by the markers' total weight (``marker_weights``: the solver's markers in
+    its order, 0 where missing)."""
     squared = require_opensim().SimTKArrayDouble()
     solver.computeCurrentSquaredMarkerErrors(squared)
     err = np.array([squared.getElt(i) for i in range(squared.size())])
     cost = float(np.nansum(marker_weights * err))
-    return cost + sum(w * (c.getValue(state) - goal) ** 2 for c, w, goal in goals)
+    total = float(marker_weights.sum())
+    return (cost + sum(w * (c.getValue(state) - goal) ** 2 for c, w, goal in goals)) / (total if total > 0 else 1.0)
 
 
 def _better_of_two_starts(frames: _FrameSolver, solver, state, frame: int, coordinate_list: list,
