@@ -47,7 +47,9 @@ def register(subparsers) -> None:
                         "the published lumbar models")
     p.add_argument("--prior-weight", type=float, default=0.0,
                    help="IK weight of a prior pulling every level's lateral bending and axial rotation toward the "
-                        "static posture (per rad^2; default 0 = off; larger weights trade range for stability)")
+                        "static posture (per rad^2, against the markers' weighted sum of squared errors in m^2: a weight "
+                        "of (marker SD / prior SD)^2 is a prior of that SD; default 0 = off; larger weights trade range "
+                        "for stability)")
     p.add_argument("--accuracy", type=float,
                    help="IK solver accuracy (default: 1e-7; 1e-6 with --slip-from-tape goal; OpenSim's 1e-5 with off; tighter reads "
                         "a trunk twist more fully, but forward bending with the slips' prior at 0 less well)")
