@@ -61,14 +61,14 @@ def paint_room(size: tuple[int, int], seed: int, items: tuple[str, ...] | None =
     unknown = [i for i in items if i not in ROOM_ITEMS]
     if unknown:
         raise ValueError(f"unknown room items {unknown}; choose from {list(ROOM_ITEMS)}")
+    if people < 0:
+        raise ValueError(f"people must be >= 0 (got {people})")
     image = _wall_and_floor(w, h, rng)
     painters = {"window": _window, "curtain": _curtain, "door": _door, "wall_bars": _wall_bars,
                 "treadmill": _treadmill, "rails": _rails, "poster": _poster, "ceiling_light": _ceiling_light,
                 "strobe": _strobes}
     for item in items:
         painters[item](image, rng)
-    if people < 0:
-        raise ValueError(f"people must be >= 0 (got {people})")
     crowd = np.random.default_rng([seed, PEOPLE_STREAM])
     for _ in range(people):
         _person(image, crowd)
@@ -331,9 +331,8 @@ def _person(image: np.ndarray, rng: np.random.Generator) -> None:
     head = at(0.0, shoulder + 0.95)
     axes = (max(2, int(0.38 * unit)), max(2, int(0.5 * unit)))
     cv2.ellipse(image, head, axes, 0, 0, 360, skin, -1, cv2.LINE_AA)
-    from_behind = rng.random() < 0.5
-    cv2.ellipse(image, head, (axes[0] + 1, axes[1] + 1), 0, 180 if not from_behind else 0,
-                360 if not from_behind else 360, hair, -1, cv2.LINE_AA)  # a hair cap, or the back of the head
+    from_behind = rng.random() < 0.5  # hair over the whole head, or a cap over its top half
+    cv2.ellipse(image, head, (axes[0] + 1, axes[1] + 1), 0, 0 if from_behind else 180, 360, hair, -1, cv2.LINE_AA)
     # side light: the figure (the pixels just painted) darker towards one side
     figure = np.any(image != before, axis=2)
     light = np.clip((np.arange(w, dtype=np.float32) - cx) / (2.0 * unit), -1.0, 1.0) * rng.choice([-1.0, 1.0])
