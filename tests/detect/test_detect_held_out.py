@@ -47,6 +47,9 @@ def test_the_held_out_set_shows_the_held_out_family_at_the_lab_level():
     with_subject = bench.TEST_SETS[bench.HELD_OUT_SUBJECT]  # the same look on a lab's subject
     assert (with_subject.tape_colour, with_subject.backdrop, with_subject.camera_look, with_subject.realism) == (
         held.tape_colour, held.backdrop, held.camera_look, held.realism) and with_subject.subject == "lab"
+    people = bench.TEST_SETS[bench.WITH_PEOPLE]  # the training colour in a room with other people
+    assert (people.backdrop, people.bystanders, people.realism) == ("room", 2, "lab") and people.tape_colour != held.tape_colour
+    assert bench.WITH_PEOPLE in bench.DEFAULT_SETS and all(t.bystanders == 0 for t in bench.TEST_SETS.values() if t is not people)
     offsets = [test.seed_offset for test in bench.TEST_SETS.values()]
     assert len(set(offsets)) == len(offsets)  # no two sets share scenes
 
