@@ -27,6 +27,7 @@ from ..frames import parse_frames
 from ..markers import MISSING_CAMERAS, MarkerTable
 from ..reference import ReferenceObject
 from ..tape import TapeSpec
+from ..track.ahead import FrameCandidates
 from ..track.config import TrackerConfig
 from ..track.pipeline import STAGES, FrameResult, FrameTracker
 from ..track.quality import is_flagged, label_confidence
@@ -43,6 +44,7 @@ from ..track.sequence import SequenceTracker, fill_and_smooth
 from ..track.stretch import row_stretch
 from ..track.template import tape_frames
 from ..views import ViewDots
+from .candidates_ahead import CandidatesAhead
 from .reference import observe_reference, pose_doubt, source_images
 from .results import TrackingStopped, write_markers
 from .streaming import (
@@ -153,6 +155,8 @@ class TrackResult:
     refinement: RigRefinement | None = None
     detector_searches: dict[DetectionRoute, int] = field(default_factory=dict)  # camera images per detection route
     detector_info: DetectorInfo | None = None  # how the cameras were detected (None: views given, not detected)
+    candidates_taken_ahead: int = 0  # frames whose candidate stage built ahead served the tracker
+    candidates_built_ahead: int = 0  # frames whose candidate stage was built ahead
 
     def stage_ms(self) -> dict[str, float]:
         """Mean time per stage per frame (ms), over all frames."""
@@ -325,6 +329,7 @@ def run_tracking(
     meta: dict | None = None,
     stop: Callable[[], bool] | None = None,
     on_frame: Callable[[int, FrameResult], None] | None = None,
+    ahead_for: Callable[[int], FrameCandidates | None] | None = None,
 ) -> TrackResult:
     """Track a sequence. ``views_per_frame`` yields ``(frame, views, detect_ms)``.
 
@@ -332,7 +337,9 @@ def run_tracking(
     solution gives ``missing`` rows and a :class:`TrackingWarning`, never an exception.
     ``stop``: asked before every frame; True ends the run with :class:`TrackingStopped`.
     ``on_frame(frame, result)`` is called after each frame, before the next is asked for
-    (detection by prediction learns the dots there)."""
+    (detection by prediction learns the dots there). ``ahead_for(frame)``: the frame's candidate
+    stage built ahead, or None (sequence mode; :mod:`spinemocap.app.candidates_ahead`); the time
+    waited for it counts as ``detect``."""
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}; choose from {MODES}")
     config = config or TrackerConfig()
@@ -343,9 +350,11 @@ def run_tracking(
     for frame, views, detect_ms in bar:
         if stop is not None and stop():
             raise TrackingStopped(f"tracking stopped before frame {frame}")
-        stage_ms = {"detect": detect_ms}
+        t0 = time.perf_counter()
+        ahead = ahead_for(frame) if ahead_for is not None and carry is not None else None
+        stage_ms = {"detect": detect_ms + 1000 * (time.perf_counter() - t0)}
         try:
-            result = carry.step(views, stage_ms) if carry else tracker.solve(views, stage_ms=stage_ms)
+            result = carry.step(views, stage_ms, ahead) if carry else tracker.solve(views, stage_ms=stage_ms)
         except InputError:
             raise
         except Exception as exc:  # one unsolvable frame must not end the sequence: report it missing
@@ -375,12 +384,21 @@ def run_tracking(
     calibration = tracker.monitor.warning() if tracker.monitor.measured else None
     if calibration:
         warnings.warn(calibration, CalibrationWarning, stacklevel=2)
-    out = TrackResult(table, results, residuals, calibration)
+    out = TrackResult(table, results, residuals, calibration, candidates_taken_ahead=tracker.ahead_used)
     unsolved = out.conditions().get("tape not found", [])
     if unsolved:  # one warning for all such frames, after the progress bar
         warnings.warn(f"tape not found in {len(unsolved)} of {len(results)} frames ({frame_ranges(unsolved)}); "
                       "their dots reported missing", TrackingWarning, stacklevel=2)
     return out
+
+
+def candidates_ahead(rig: Rig, tape: TapeSpec, config: TrackerConfig | None, speed: SpeedOptions,
+                     mode: TrackingMode, detect: CaptureDetector) -> CandidatesAhead | None:
+    """The workers that build the candidate stage ahead (``speed.candidate_workers`` > 0, sequence
+    mode, detection that does not predict from the tracked dots), else None."""
+    if speed.candidate_workers <= 0 or mode != "sequence" or detect.predicts:
+        return None
+    return CandidatesAhead(rig, tape, config, speed.candidate_workers, speed.candidate_depth)
 
 
 def select_frames(frames: str | Sequence[int] | None, n_frames: int) -> range:
@@ -454,16 +472,27 @@ def track_source(
         speed = replace(speed, predict=False)
     detect = make_detector(detector, rig, speed, weights if detector == "net" else None)
     views = source_views(source, frames, detect, speed, mask_dir)
+    ahead = candidates_ahead(rig, tape, config, speed, mode, detect)
+
+    def on_frame(frame: int, r: FrameResult) -> None:
+        detect.observe(frame, r.positions if r.solved else None)
+        if ahead is not None:
+            ahead.observe(frame, r)
+
     try:
         result = run_tracking(
-            views, rig, tape, fps, up=up, mode=mode,
+            ahead.frames(views) if ahead is not None else views, rig, tape, fps, up=up, mode=mode,
             config=config, progress=progress, n_frames=len(frames), meta={**(meta or {}), "detector": detector,
                                                           **({"detector_weights": str(weights)} if weights else {})},
-            on_frame=lambda frame, r: detect.observe(frame, r.positions if r.solved else None), stop=stop,
+            on_frame=on_frame, stop=stop, ahead_for=ahead.for_frame if ahead is not None else None,
         )
     finally:
+        if ahead is not None:
+            ahead.close()
         views.close()  # a detection running ahead of the tracker ends before its detector closes
         detect.close()
+    if ahead is not None:
+        result.candidates_built_ahead = ahead.built
     result.detector_searches = dict(detect.searches)
     unreadable = {camera: reasons for camera, reasons in getattr(source, "unreadable", {}).items() if reasons}
     result.detector_info = replace(detect.info, unreadable=unreadable)

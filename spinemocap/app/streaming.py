@@ -153,6 +153,10 @@ class SpeedOptions:
             ``parallel="processes"`` each worker a process of its own). Needs ``predict=False``:
             every frame is searched in full, so no frame waits for another's solution and the
             views are those of one frame at a time, whatever the timing. 1: one frame at a time.
+        candidate_workers: processes that build the tracker's candidate stage ahead of it
+            (:mod:`~spinemocap.app.candidates_ahead`; the same output); 0: the tracker builds it.
+            Used in sequence mode when detection does not predict (``predict=False``).
+        candidate_depth: frames the candidate stage is built ahead of the tracker.
 
     Raises:
         InputError: a negative ``lookahead``, an unknown ``refresh``, a period below 1, or
@@ -177,6 +181,8 @@ class SpeedOptions:
     refresh: str = "frame"
     refresh_settled_every: int = 0
     frames_at_once: int = 1
+    candidate_workers: int = 0
+    candidate_depth: int = 2
 
     def __post_init__(self) -> None:
         if self.lookahead < 0:
@@ -188,6 +194,9 @@ class SpeedOptions:
                              f"{self.refresh_settled_every}")
         if self.frames_at_once < 1:
             raise InputError("--frames-at-once", f"must be 1 or more, got {self.frames_at_once}")
+        if self.candidate_workers < 0 or self.candidate_depth < 1:
+            raise InputError("--candidate-workers", f"workers must be 0 or more and depth 1 or more, got "
+                             f"{self.candidate_workers} and {self.candidate_depth}")
         if self.frames_at_once > 1 and self.predict:
             raise InputError("--frames-at-once", "frames detected at once are each searched in full: "
                              "turn prediction off (--no-predict)")

@@ -234,6 +234,8 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         configs.append((f"in_memory_lookahead{_peer_lookahead(speed)}", replace(speed, lookahead=_peer_lookahead(speed))))
     if default_peer and speed.frames_at_once > 1:
         configs.append(("in_memory_default", SpeedOptions(device=speed.device)))
+    if speed.candidate_workers > 0:
+        configs.append(("in_memory_candidates_in_tracker", replace(speed, candidate_workers=0)))
     if device != "cpu" and cpu_peer:
         configs.append(("in_memory_cpu", replace(speed, device="cpu")))
     if serial_peer:
@@ -268,6 +270,7 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         steps = detection_budget(decoded, device, speed.precision)
         say(f"  {steps}")
     default = by_name.get("in_memory_default")
+    in_tracker = by_name.get("in_memory_candidates_in_tracker")
     return ReplayedSpeed(
         preset=f"capture {capture.name} replayed", source_frames=capture.n_frames, frames=frames,
         sensor_noise=sensor_noise, cameras=len(capture.rig), image_size=list(capture.rig[0].size),
@@ -279,6 +282,9 @@ def run_replay_benchmark(capture_dir: Path, frames: int, mode: TrackingMode = "s
         accuracy_not_worse_vs_cpu=_not_worse(new, cpu) if cpu else None,
         same_accuracy_as_cpu=same_accuracy(new, cpu) if cpu else None,
         speedup_vs_default=new.fps / default.fps if default else None,
+        speedup_candidates_ahead=new.fps / in_tracker.fps if in_tracker else None,
+        same_output_candidates_ahead=(bool(np.array_equal(positions["in_memory"], positions[in_tracker.run],
+                                                          equal_nan=True)) if in_tracker else None),
         detection_budget_ms=steps,
         parallel=parallel,
         speedup_processes_vs_threads=(in_processes.fps / in_threads.fps if in_processes and in_threads else None),
@@ -543,6 +549,7 @@ def _summary(name: str, timed: TimedRun, capture: Capture, gt: dict | None = Non
         detector_searches=dict(result.detector_searches),
         mean_error_mm=acc.mean_error_mm, p95_error_mm=acc.p95_error_mm,
         label_swaps=acc.label_swaps, frames_without_solution=acc.frames_without_solution,
+        candidates_built_ahead=result.candidates_built_ahead, candidates_taken_ahead=result.candidates_taken_ahead,
     )
 
 
@@ -771,6 +778,12 @@ def _device_lines(numbers: ReplayedSpeed) -> list[str]:
     if numbers.speedup_vs_default is not None:
         lines.append(f"  {numbers.speed_options.frames_at_once} frames at once: {numbers.speedup_vs_default:.2f}x the "
                      f"frames/s of the pipeline's defaults on the same device")
+    if numbers.speedup_candidates_ahead is not None:
+        run = next(r for r in numbers.runs if r.run == "in_memory")
+        lines.append(f"  candidates built ahead in {numbers.speed_options.candidate_workers} processes: "
+                     f"{numbers.speedup_candidates_ahead:.2f}x the frames/s of the tracker building them "
+                     f"({run.candidates_taken_ahead} of {run.frames} frames served); same dots: "
+                     f"{numbers.same_output_candidates_ahead}")
     if numbers.detection_budget_ms:
         lines.append("  detection per camera image, one at a time (ms): "
                      + ", ".join(f"{k} {v:.1f}" for k, v in numbers.detection_budget_ms.items()))

@@ -53,6 +53,8 @@ class SpeedRun(_JsonRecord):
     p95_error_mm: float
     label_swaps: int
     frames_without_solution: int
+    candidates_built_ahead: int = 0
+    candidates_taken_ahead: int = 0
 
 
 @dataclass(frozen=True)
@@ -182,7 +184,10 @@ class ReplayedSpeed(_JsonRecord):
     options, the device, frames/s in memory (and from video), the speedups over the serial
     pipeline, the CPU and the pipeline's defaults with accuracy not worse or the same, the
     detection's time per step, the parallel mode and processes vs threads, the dots on both
-    devices, the lookahead comparison (when it ran), every run and the goals (frames/s)."""
+    devices, the lookahead comparison (when it ran), every run and the goals (frames/s).
+    ``speedup_candidates_ahead``: with candidate workers, the frames/s over the same options with
+    the tracker building the candidates itself, and ``same_output_candidates_ahead`` whether the
+    two tracked bit for bit the same dots (None when that peer did not run)."""
 
     preset: str
     source_frames: int
@@ -204,6 +209,8 @@ class ReplayedSpeed(_JsonRecord):
     accuracy_not_worse_vs_cpu: bool | None
     same_accuracy_as_cpu: SameAccuracy | None
     speedup_vs_default: float | None
+    speedup_candidates_ahead: float | None
+    same_output_candidates_ahead: bool | None
     detection_budget_ms: dict[str, float] | None
     parallel: str
     speedup_processes_vs_threads: float | None

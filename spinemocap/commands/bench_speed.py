@@ -39,6 +39,10 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--frames-at-once", type=int, default=1,
                    help="frames detected at the same time, each searched in full (implies --no-predict; --workers 0 "
                         "then means one per CPU core); with --capture the pipeline's defaults run as the peer")
+    p.add_argument("--candidate-workers", type=int, default=0,
+                   help="processes that build the tracker's candidates a few frames ahead of it (the same output; "
+                        "needs --frames-at-once or --no-predict); with --capture the same options without them run "
+                        "as the peer (default 0: the tracker builds them)")
     p.add_argument("--no-budget", action="store_true",
                    help="with --capture: skip the detection's time per camera image by step")
     p.add_argument("--no-serial", action="store_true", help="skip the serial pipeline (the peer)")
@@ -84,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     chosen.update(refresh_options(args))
     speed = SpeedOptions(workers=args.workers, parallel=args.parallel, frames_at_once=args.frames_at_once,
                          predict=not args.no_predict and args.frames_at_once <= 1, device=args.device,
-                         opencv_threads=args.opencv_threads or None, **chosen)
+                         opencv_threads=args.opencv_threads or None, candidate_workers=args.candidate_workers,
+                         **chosen)
     numbers: SpeedNumbers
     if args.capture:
         numbers = run_replay_benchmark(args.capture, args.frames, args.mode, args.detector, not args.no_serial,

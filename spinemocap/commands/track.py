@@ -65,6 +65,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--frames-at-once", type=int, default=1,
                    help="frames detected at the same time, each searched in full (no predicted boxes): for a machine "
                         "with more cores than cameras; --workers 0 then means one per CPU core (default 1)")
+    p.add_argument("--candidate-workers", type=int, default=0,
+                   help="with --frames-at-once: processes that build the tracker's candidate points a few frames "
+                        "ahead of it (the same output; for a machine with cores to spare; default 0)")
     p.add_argument("--opencv-threads", type=int, default=1,
                    help="OpenCV's own threads per camera thread while the cameras are detected in parallel "
                         "(default 1; 0: OpenCV's setting, one per core)")
@@ -119,7 +122,8 @@ def run_track(args: argparse.Namespace) -> int:
     speed = SERIAL if args.serial else SpeedOptions(workers=args.workers, parallel=args.parallel,
                                                     device=args.device, frames_at_once=args.frames_at_once,
                                                     predict=args.frames_at_once <= 1,
-                                                    opencv_threads=args.opencv_threads or None, **chosen)
+                                                    opencv_threads=args.opencv_threads or None,
+                                                    candidate_workers=args.candidate_workers, **chosen)
     if args.chunk_frames is not None:
         return run_chunked(args, config, speed)
     start = time.perf_counter()

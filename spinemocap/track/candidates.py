@@ -114,6 +114,8 @@ class _Views:
         self._rms = np.zeros(0)
         self._ok = np.zeros(0, bool)
         self._th1: float | None = None
+        # (lo, hi]: the th1 values that decide every test made so far alike (one th1 per build)
+        self.th1_range = (-np.inf, np.inf)
 
     def fundamental(self, a: int, b: int) -> np.ndarray:
         """The fundamental matrix of cameras a and b (:func:`fundamental_matrix`), remembered per rig."""
@@ -163,6 +165,17 @@ class _Views:
         self._points, self._rms, self._ok = np.zeros((0, 3)), np.zeros(0), np.zeros(0, bool)
         self._th1 = th1
 
+    def decided(self, values: np.ndarray, th1: float) -> None:
+        """Narrow :attr:`th1_range` by tests ``value < th1`` just made on ``values`` (any shape;
+        NaN values, whose test fails for every th1, are ignored): the range keeps only the th1
+        values that decide each of them as ``th1`` did."""
+        values = np.asarray(values, float).ravel()
+        below = values[values < th1]
+        above = values[values >= th1]
+        lo, hi = self.th1_range
+        self.th1_range = (max(lo, float(below.max())) if len(below) else lo,
+                          min(hi, float(above.min())) if len(above) else hi)
+
     def _triangulate(self, blob_ids: np.ndarray, th1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         uv, used = self.gather(blob_ids)
         points = _triangulate_compact(self.P, uv, used)
@@ -171,8 +184,11 @@ class _Views:
         with np.errstate(invalid="ignore", divide="ignore"):
             ok = np.isfinite(points).all(axis=1) & ~(used & ~seen).any(axis=1)
             # np.nanmax / np.nanmean over the used views, without the nan-functions' overhead (same sums)
-            ok &= np.where(seen, err, 0.0).max(axis=1) < th1
+            worst = np.where(seen, err, 0.0).max(axis=1)
+            ok &= worst < th1
             rms = np.sqrt(np.where(seen, err**2, 0.0).sum(axis=1) / seen.sum(axis=1))
+        # rows failing for another reason (not finite, behind a camera) fail for every th1
+        self.decided(np.where(np.isfinite(points).all(axis=1) & ~(used & ~seen).any(axis=1), worst, np.nan), th1)
         return points, rms, ok
 
     def normals(self, points: np.ndarray, blob_ids: np.ndarray) -> np.ndarray:
@@ -266,6 +282,8 @@ def _pairwise_rows(views: _Views, config: CandidateConfig) -> tuple[np.ndarray, 
             F = views.fundamental(a, b)
             distance = epipolar_distance(F, views.uv[a], views.uv[b], views.homogeneous[a], views.homogeneous[b])
             ia, ib = np.nonzero(distance < epi_tol)
+            if config.epipolar_px is None:  # d < 2 th1 exactly when d / 2 < th1 (halving is exact)
+                views.decided(distance / 2.0, config.th1_px)
             ids = np.full((len(ia), C), -1, dtype=np.int64)
             ids[:, a], ids[:, b] = ia, ib
             rows.append(ids)
@@ -353,6 +371,16 @@ def suppress_dominated(ids: np.ndarray) -> np.ndarray:
 
 def build_candidates(rig: Rig, views: Sequence[ViewDots], config: CandidateConfig | None = None) -> CandidateCloud:
     """The candidate cloud P of one frame: points (mm), normals, blob ids per camera, residuals."""
+    return candidates_and_gate_range(rig, views, config)[0]
+
+
+def candidates_and_gate_range(rig: Rig, views: Sequence[ViewDots], config: CandidateConfig | None = None
+                              ) -> tuple[CandidateCloud, tuple[float, float]]:
+    """:func:`build_candidates`, and the gates (lo, hi] (px) that build the same cloud: every
+    test against ``th1_px`` (and against the epipolar tolerance 2 * th1 when ``epipolar_px`` is
+    None) comes out alike for any ``th1_px`` in that range, so the cloud is bit for bit the one
+    that a call with such a gate returns. A cloud built ahead with one gate thus serves a frame
+    whose gate is known only later."""
     config = config or CandidateConfig()
     if len(views) != len(rig):
         raise ValueError(f"{len(views)} views for a rig of {len(rig)} cameras")
@@ -371,8 +399,9 @@ def build_candidates(rig: Rig, views: Sequence[ViewDots], config: CandidateConfi
         keep = suppress_dominated(ids)
         ids, points, residual = ids[keep], points[keep], residual[keep]
     normals = v.normals(points, ids) if len(ids) else np.zeros((0, 3))
-    return CandidateCloud(points=points.reshape(-1, 3), normals=normals, blob_ids=ids, residual=residual,
-                          pixels=blob_pixels(views, ids))
+    cloud = CandidateCloud(points=points.reshape(-1, 3), normals=normals, blob_ids=ids, residual=residual,
+                           pixels=blob_pixels(views, ids))
+    return cloud, v.th1_range
 
 
 def blob_pixels(views: Sequence[ViewDots], ids: np.ndarray) -> np.ndarray:

@@ -30,6 +30,7 @@ from ..markers import INFERRED, MISSING, OBSERVED
 from ..tape import TapeSpec
 from ..timing import StageTimer
 from ..views import ViewDots
+from .ahead import FrameCandidates, stretch_points
 from .candidates import build_candidates
 from .config import TrackerConfig
 from .continuity import row_centres
@@ -48,7 +49,7 @@ from .mrf1 import fit_mrf1
 from .mrf2 import TemplateEvidenceScore, refine_mrf2
 from .quality import stretch_plausible, unlabelled_dots
 from .rig_check import RigMonitor
-from .stretch import StretchEstimate, estimate_stretch, row_stretch, stretched_spec
+from .stretch import StretchEstimate, StretchReading, read_stretch, row_stretch, stretched_spec
 from .template import tape_frames
 from .types import CandidateCloud, FeasibleSet, FrameRoute, LpStatus
 
@@ -138,28 +139,38 @@ class FrameTracker:
         self.monitor = RigMonitor(rig, self.config.candidates, self.config.rig)
         self.stretch = StretchEstimate.nominal()  # the last spacing measured on a frame
         self._pool: tuple[int, ThreadPoolExecutor] | None = None  # the evidence threads, started when first needed
+        self.ahead_used = 0  # frames whose candidate stage was built ahead (:meth:`candidates`)
 
     @property
     def n_dots(self) -> int:
         return self.graph.n_dots
 
     # ------------------------------------------------------------------ stages
-    def candidates(self, views: Sequence[ViewDots]) -> CandidateCloud:
+    def candidates(self, views: Sequence[ViewDots], ahead: FrameCandidates | None = None) -> CandidateCloud:
         """The candidate cloud with the rig-derived gate (the first frame probes the residuals
-        with a loose gate first); each frame's well-supported points update the residuals."""
-        if self.config.rig.adaptive_gate and not self.monitor.measured:
+        with a loose gate first); each frame's well-supported points update the residuals.
+        ``ahead``: the frame's candidate stage built ahead (:mod:`.ahead`), taken when it serves
+        this frame's gate (counted in :attr:`ahead_used`), else the cloud is built here."""
+        gate_ready = not self.config.rig.adaptive_gate or self.monitor.measured
+        if ahead is not None and gate_ready and ahead.serves(self.monitor.gate_px()):
+            self.ahead_used += 1
+            if self.config.rig.adaptive_gate:
+                self.monitor.add(ahead.residuals)
+            return ahead.cloud
+        if not gate_ready:
             self.monitor.probe(views)
         cloud = build_candidates(self.rig, views, self.monitor.candidate_config())
         if self.config.rig.adaptive_gate:
             self.monitor.update(views, cloud)
         return cloud
 
-    def measure_stretch(self, cloud: CandidateCloud) -> StretchEstimate:
+    def measure_stretch(self, cloud: CandidateCloud, reading: StretchReading | None = None) -> StretchEstimate:
         """The tape's dot spacing in this frame's points (>= 3-view points when there are enough,
-        ghosts rarely reach three views), falling back to the last measured one."""
-        strong = cloud.points[cloud.n_views >= 3] if len(cloud) else np.zeros((0, 3))
-        points = strong if len(strong) >= self.config.stretch.min_points else cloud.points
-        estimate = estimate_stretch(points, self.tape, self.config.stretch, fallback=self.stretch)
+        ghosts rarely reach three views), falling back to the last measured one. ``reading``:
+        the same points' reading made ahead (:class:`~.ahead.FrameCandidates`)."""
+        if reading is None:
+            reading = read_stretch(stretch_points(cloud, self.config.stretch.min_points), self.tape, self.config.stretch)
+        estimate = reading.estimate(self.stretch)
         if estimate.source == "data":
             self.stretch = estimate
         return estimate

@@ -71,6 +71,14 @@ def observation_errors(rig: Rig, views: Sequence[ViewDots], cloud: CandidateClou
     return out
 
 
+def frame_residuals(rig: Rig, views: Sequence[ViewDots], cloud: CandidateCloud,
+                    min_views: int) -> list[tuple[float, int] | None]:
+    """Per camera, the :func:`robust_rms` (distorted px) of one frame's :func:`observation_errors`
+    and their number, or None where the camera has fewer than three (too few to count)."""
+    return [(robust_rms(errors), len(errors)) if len(errors) >= 3 else None
+            for errors in observation_errors(rig, views, cloud, min_views)]
+
+
 def robust_rms(errors: np.ndarray) -> float:
     """RMS of 2D error norms from their median (insensitive to a few wrong pairings): for
     isotropic Gaussian errors median(|e|^2) = 1.386 sigma^2 and RMS(|e|) = sqrt(2) sigma."""
@@ -136,10 +144,14 @@ class RigMonitor:
 
     def update(self, views: Sequence[ViewDots], cloud: CandidateCloud) -> None:
         """Add one frame's residuals (the cloud built with the current gate)."""
-        for c, errors in enumerate(observation_errors(self.rig, views, cloud, self.config.min_views)):
-            if len(errors) >= 3:
-                self.history[c].append(robust_rms(errors))
-                self.counts[c] += len(errors)
+        self.add(frame_residuals(self.rig, views, cloud, self.config.min_views))
+
+    def add(self, residuals: Sequence[tuple[float, int] | None]) -> None:
+        """Add one frame's :func:`frame_residuals` (per camera)."""
+        for c, measured in enumerate(residuals):
+            if measured is not None:
+                self.history[c].append(measured[0])
+                self.counts[c] += measured[1]
 
     def probe(self, views: Sequence[ViewDots]) -> None:
         """First measurement: triangulate with the loose probe gate so that a poor rig's true

@@ -31,6 +31,7 @@ from ..markers import INFERRED, OBSERVED
 from ..tape import TapeSpec
 from ..timing import StageTimer
 from ..views import ViewDots
+from .ahead import FrameCandidates
 from .config import SequenceConfig
 from .continuity import other_shifts, relabel_rows, row_shift, shift_is_unambiguous
 from .edges import edge_bounds
@@ -63,11 +64,14 @@ class SequenceTracker:
         velocity = np.nan_to_num(self.last - self.before_last)
         return self.last + velocity
 
-    def step(self, views: list[ViewDots], stage_ms: dict) -> FrameResult:
+    def step(self, views: list[ViewDots], stage_ms: dict, ahead: FrameCandidates | None = None) -> FrameResult:
+        """Track one frame. ``ahead``: its candidate stage built ahead (taken where it serves,
+        :meth:`FrameTracker.candidates`)."""
         timer = StageTimer(stage_ms)
         with timer("candidates"):
-            cloud = self.tracker.candidates(views)
-            stretch = self.tracker.measure_stretch(cloud)
+            cloud = self.tracker.candidates(views, ahead)
+            reading = ahead.stretch if ahead is not None and cloud is ahead.cloud else None
+            stretch = self.tracker.measure_stretch(cloud, reading)
         tape = self.tracker.frame_tape(stretch)
         result = None
         if self.last is not None and self.config.skip_lp:

@@ -154,23 +154,50 @@ def estimate_stretch(points: np.ndarray, spec: TapeSpec, config: StretchConfig |
 
     Returns ``fallback`` (default: nominal) relabelled ``carried`` when the points are too few or
     not periodic enough to trust."""
+    return read_stretch(points, spec, config).estimate(fallback)
+
+
+@dataclass(frozen=True)
+class StretchReading:
+    """What one frame's points tell of the stretch, before the last frame's estimate (the
+    fallback) is known: :meth:`estimate` completes it. ``measured``: this frame's estimate
+    (``source`` ``data``), None when the points are too few, not periodic enough (``coherence``:
+    their periodogram peak, None when none was taken) or adaptive stretch is off (``adaptive``);
+    ``across_measured``: False when the estimate's across ratio is to come from the fallback."""
+
+    measured: StretchEstimate | None
+    coherence: float | None = None
+    across_measured: bool = True
+    adaptive: bool = True
+
+    def estimate(self, fallback: StretchEstimate | None = None) -> StretchEstimate:
+        """The frame's :class:`StretchEstimate` given the last one (``fallback``; default nominal)."""
+        if not self.adaptive:
+            return StretchEstimate.nominal()
+        fallback = fallback or StretchEstimate.nominal()
+        if self.measured is not None:
+            return self.measured if self.across_measured else dataclasses.replace(self.measured, across=fallback.across)
+        carried = dataclasses.replace(fallback, source="carried" if fallback.source != "nominal" else "nominal")
+        return carried if self.coherence is None else dataclasses.replace(carried, coherence=self.coherence)
+
+
+def read_stretch(points: np.ndarray, spec: TapeSpec, config: StretchConfig | None = None) -> StretchReading:
+    """The :class:`StretchReading` of candidate points (N, 3) mm against ``spec`` (see module)."""
     config = config or StretchConfig()
-    fallback = fallback or StretchEstimate.nominal()
     points = np.asarray(points, float).reshape(-1, 3)
     if not config.adaptive:
-        return StretchEstimate.nominal()
-    carried = dataclasses.replace(fallback, source="carried" if fallback.source != "nominal" else "nominal")
+        return StretchReading(None, adaptive=False)
     if len(points) < config.min_points:
-        return carried
+        return StretchReading(None)
     try:
         arc = _arc_coordinates(points)
     except (ValueError, np.linalg.LinAlgError):
-        return carried
+        return StretchReading(None)
     pitch, coherence = along_pitch(arc, spec.row_pitch_mm, config.along_range)
     if coherence < config.min_coherence:
-        return dataclasses.replace(carried, coherence=coherence)
+        return StretchReading(None, coherence=coherence)
     across = across_spacing(points, spec.column_spacing_mm, config.across_range)
-    across_ratio = float(np.clip(across / spec.column_spacing_mm, *config.across_range)) if across else fallback.across
+    across_ratio = float(np.clip(across / spec.column_spacing_mm, *config.across_range)) if across else 1.0
     rows = row_gaps(arc, spec.row_pitch_mm * config.along_range[0])
     if rows is not None:  # rows told apart: the mean pitch over the tape, and its local pitches
         local, along = rows[0] / spec.row_pitch_mm, rows[1] / spec.row_pitch_mm
@@ -178,12 +205,13 @@ def estimate_stretch(points: np.ndarray, spec: TapeSpec, config: StretchConfig |
         local, along = local_pitches(arc, pitch) / spec.row_pitch_mm, pitch / spec.row_pitch_mm
     local = local[(local > config.along_range[0] * 0.8) & (local < config.along_range[1] * 1.2)]
     along = float(np.clip(along, *config.along_range))
-    return StretchEstimate(
+    measured = StretchEstimate(
         along=along, across=across_ratio,
         along_min=float(min(local.min(), along)) if len(local) else along,
         along_max=float(max(local.max(), along)) if len(local) else along,
         coherence=coherence, source="data",
     )
+    return StretchReading(measured, across_measured=bool(across))
 
 
 def stretched_spec(spec: TapeSpec, estimate: StretchEstimate, quantum: float = 0.005) -> TapeSpec:

@@ -666,9 +666,9 @@ def test_refresh_frames_start_while_the_tracker_solves_the_frame_before(monkeypa
         started.append((frame, threading.current_thread().name, len(steps), solving["frame"]))
         return call(self, frame, frame_images, masks)
 
-    def spied_step(self, views, stage_ms):
+    def spied_step(self, views, stage_ms, ahead=None):
         solving["frame"] = len(steps)
-        out = step(self, views, stage_ms)
+        out = step(self, views, stage_ms, ahead)
         if len(steps) + 1 in (4, 8):
             time.sleep(0.3)  # a step long enough for the refresh's thread to start within it
         solving["frame"] = None
@@ -969,9 +969,13 @@ def test_replay_benchmark_runs_the_pipelines_defaults_beside_frames_at_once(tmp_
 
     root = write_capture(SynthConfig.preset("tiny", frames=2), tmp_path / "capture", progress=False)
     numbers = run_replay_benchmark(root, 4, serial_peer=False, parallel_peer=False, progress=False, say=lambda _: None,
-                                   speed=SpeedOptions(workers=2, predict=False, frames_at_once=2, device="cpu"))
+                                   speed=SpeedOptions(workers=2, predict=False, frames_at_once=2, device="cpu",
+                                                      candidate_workers=1))
     runs = {r.run: r for r in numbers.runs}
-    assert set(runs) == {"in_memory", "in_memory_default"}
+    assert set(runs) == {"in_memory", "in_memory_default", "in_memory_candidates_in_tracker"}
+    # the candidates built ahead: the same dots as the tracker building them, frames served
+    assert numbers.same_output_candidates_ahead is True
+    assert runs["in_memory"].candidates_taken_ahead >= 1 and runs["in_memory_candidates_in_tracker"].candidates_built_ahead == 0
     assert runs["in_memory_default"].detector_searches["predicted"] > 0  # the defaults predict boxes
     assert runs["in_memory"].detector_searches["predicted"] == 0
     assert numbers.speedup_vs_default == pytest.approx(runs["in_memory"].fps / runs["in_memory_default"].fps)
@@ -1021,21 +1025,25 @@ def test_a_replayed_run_on_a_gpu_reports_its_cpu_peer_and_the_dots_on_both_devic
 
     machine = MachineInfo(cpu_cores=16, cpu_model="x", cpu_vnni=True, auto_precision="int8", load_average_1min=0.1,
                           torch="2", torch_threads=16, gpu="GPU", cuda="12", cudnn_allow_tf32=True)
-    gpu, cpu = _speed_run(fps=40.0, mean_error_mm=0.41), _speed_run(run="in_memory_cpu", fps=8.0, mean_error_mm=0.40)
+    gpu = _speed_run(fps=40.0, mean_error_mm=0.41, candidates_built_ahead=4, candidates_taken_ahead=3)
+    cpu = _speed_run(run="in_memory_cpu", fps=8.0, mean_error_mm=0.40)
     dots = DeviceDots(images=6, dots_cpu=300, dots_device=300, unmatched_cpu=0, unmatched_device=0, max_px=0.02,
                       mask_pixels_differing=5, images_identical=4)
     numbers = ReplayedSpeed(
         preset="capture c replayed", source_frames=3, frames=10, sensor_noise=0.0, cameras=6, image_size=[2448, 1600],
-        mode="sequence", detector="net", device="cuda", machine=machine, speed_options=SpeedOptions(device="cuda"),
+        mode="sequence", detector="net", device="cuda", machine=machine,
+        speed_options=SpeedOptions(device="cuda", candidate_workers=3),
         fps_in_memory=40.0, fps_png=None, fps_video=None, speedup_vs_serial=None, accuracy_not_worse=None,
         speedup_vs_cpu=5.0, accuracy_not_worse_vs_cpu=True, same_accuracy_as_cpu=same_accuracy(gpu, cpu),
-        speedup_vs_default=None, detection_budget_ms={"network_stage1": 1.5, "total": 3.0}, parallel="threads",
+        speedup_vs_default=None, speedup_candidates_ahead=1.6, same_output_candidates_ahead=True,
+        detection_budget_ms={"network_stage1": 1.5, "total": 3.0}, parallel="threads",
         speedup_processes_vs_threads=None, same_output_processes_threads=None, device_check=dots,
         lookahead_comparison=None, accuracy_tolerance_mm=0.01, runs=[gpu, cpu], goals_fps=GOALS_FPS)
     report = format_report(numbers)
     assert "network on cuda: 5.00x the same pipeline's frames/s on the CPU" in report
     assert "mean +0.0100 mm" in report and ": same (within" in report
     assert "network_stage1 1.5, total 3.0" in report and "'max_px': 0.02" in report
+    assert "candidates built ahead in 3 processes: 1.60x" in report and "(3 of 4 frames served); same dots: True" in report
     save(numbers, tmp_path / "speed.json")
     saved = json.loads((tmp_path / "speed.json").read_text())
     assert saved["same_accuracy_as_cpu"] == {"mean_difference_mm": pytest.approx(0.01), "p95_difference_mm": 0.0,
