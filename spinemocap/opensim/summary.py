@@ -22,10 +22,11 @@ from ..fileio import InputError, reading
 from .skin_model import SlipFromTape
 
 JsonObject = dict[str, Any]
-#: What a summary that is not one raises while it is read (turned into :class:`InputError`).
-SUMMARY_ERRORS = (KeyError, TypeError, ValueError, AttributeError)
+# what parsing a file that is no summary raises (turned into InputError)
+_SUMMARY_ERRORS = (KeyError, TypeError, ValueError, AttributeError)
 #: What ``skin_model.slip`` says when every marker is fixed to its vertebra (no slip).
 NO_SLIP = "none: every marker fixed to its vertebra"
+
 
 def _number(value: float | None) -> float:
     """A JSON number; null (written for NaN) back to NaN."""
@@ -264,7 +265,7 @@ class SpineModelSummary(OpenSimSummary):
                        ik_accuracy=_number(data["ik_accuracy"]), ik_accuracy_note=str(data["ik_accuracy_note"]),
                        ik=str(data["ik"]), opensim_version=str(data["opensim_version"]),
                        depth=Depth.from_dict(data["depth"]), skin_model=SkinModelSummary.from_dict(data["skin_model"]))
-        except SUMMARY_ERRORS as exc:
+        except _SUMMARY_ERRORS as exc:
             raise _not_a_summary(source, exc) from exc
 
 
@@ -303,7 +304,7 @@ class LabModelSummary(OpenSimSummary):
         try:
             return cls(**_common_fields(data), model=str(data["model"]),
                        bodies_map={str(k): str(v) for k, v in data["bodies_map"].items()})
-        except SUMMARY_ERRORS as exc:
+        except _SUMMARY_ERRORS as exc:
             raise _not_a_summary(source, exc) from exc
 
 
