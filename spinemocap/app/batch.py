@@ -314,9 +314,9 @@ def _opensim(markers: MarkerTable, capture: Capture, levels: LevelMap, out: Path
     except InputError as exc:
         return OpenSimStep("failed", str(exc))
     s = result.summary
-    return OpenSimStep("ok", marker_rms_mm=s["marker_rms_mm"], marker_rms_mm_max=s["marker_rms_mm_max"],
-                       ms_per_frame=s["ms_per_frame"], flagged_frames=len(s["flagged_frames"]),
-                       driven_joints=tuple(s["driven_joints"]), out_dir=str(out))
+    return OpenSimStep("ok", marker_rms_mm=s.marker_rms_mm, marker_rms_mm_max=s.marker_rms_mm_max,
+                       ms_per_frame=s.ms_per_frame, flagged_frames=len(s.flagged_frames),
+                       driven_joints=tuple(s.driven_joints), out_dir=str(out))
 
 def write_shape(out: Path, markers: MarkerTable, capture: Capture, levels: LevelMap, settings: AngleSettings,
                 angles: pd.DataFrame) -> None:

@@ -171,12 +171,12 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
             result = run_opensim(markers, tape, levels, data["up"], data["facing"], Path(tmp) / "opensim",
                                  settings=settings)
             s = result.summary
-            slip = s["skin_model"]["slip"]
+            slip = s.skin_model.slip
             ik[method] = {**score(ik_angles(result, lo, hi), expected, axes),
-                          "marker_rms_mm": s["marker_rms_observed_mm"], "marker_rms_all_mm": s["marker_rms_mm"],
-                          "marker_rms_mm_max": s["marker_rms_mm_max"], "ms_per_frame": s["ms_per_frame"],
-                          "flagged_frames": len(s["flagged_frames"]), "driven_joints": len(s["driven_joints"]),
-                          "slip_at_peak_mm": slip["at_peak_mm"] if isinstance(slip, dict) else None}
+                          "marker_rms_mm": s.marker_rms_observed_mm, "marker_rms_all_mm": s.marker_rms_mm,
+                          "marker_rms_mm_max": s.marker_rms_mm_max, "ms_per_frame": s.ms_per_frame,
+                          "flagged_frames": len(s.flagged_frames), "driven_joints": len(s.driven_joints),
+                          "slip_at_peak_mm": slip.at_peak_mm if slip is not None else None}
     completeness = markers.completeness()
     t0 = time.perf_counter()
     geometric = compute_angles(markers, tape, LevelMap({LOW: lo, HIGH: hi}, tape.n_rows), up=data["up"],

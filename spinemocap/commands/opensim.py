@@ -63,6 +63,7 @@ def run_opensim_command(args: argparse.Namespace) -> int:
     from ..app.opensim import opensim_capture
     from ..opensim import OpenSimSettings
     from ..opensim.pipeline import slip_solved_as
+    from ..opensim.summary import SpineModelSummary
 
     source = args.depth_source or (
         OpenSimSettings.depth_source if args.depth_scale == 1.0 else f"given: {args.depth_scale:g} x the published depths")
@@ -77,17 +78,17 @@ def run_opensim_command(args: argparse.Namespace) -> int:
                                           args.model, args.bodies, settings)
     s = result.summary
     print(f"level map: {levels_from}")
-    print(f"{s['frames']} frames: marker RMS {s['marker_rms_mm']:.2f} mm mean, {s['marker_rms_mm_max']:.2f} mm worst "
-          f"frame; IK {s['ms_per_frame']:.1f} ms/frame; driven joints {', '.join(s['driven_joints'])}")
-    if "depth" in s:
-        print(f"joint centres {s['depth']['scale_on_published']:.2f} x the published depth under the skin "
-              f"({s['depth']['source']})")
-        slip = s["skin_model"].get("slip")
-        if isinstance(slip, dict):
-            print("skin slip at peak (mm): " + ", ".join(f"{k[:3]} {v:+.1f}" for k, v in slip["at_peak_mm"].items()))
-    for reason, count in s["flag_reasons"].items():
+    print(f"{s.frames} frames: marker RMS {s.marker_rms_mm:.2f} mm mean, {s.marker_rms_mm_max:.2f} mm worst "
+          f"frame; IK {s.ms_per_frame:.1f} ms/frame; driven joints {', '.join(s.driven_joints)}")
+    if isinstance(s, SpineModelSummary):
+        print(f"joint centres {s.depth.scale_on_published:.2f} x the published depth under the skin "
+              f"({s.depth.source})")
+        slip = s.skin_model.slip
+        if slip is not None:
+            print("skin slip at peak (mm): " + ", ".join(f"{k[:3]} {v:+.1f}" for k, v in slip.at_peak_mm.items()))
+    for reason, count in s.flag_reasons.items():
         print(f"  flagged {count} frames: {reason}")
-    for warning in s.get("warnings", []):
+    for warning in s.warnings:
         print(f"  warning: {warning}")
     for name in ("model.osim", "markers_opensim.trc", "setup_scale.xml", "setup_ik.xml", "ik.mot",
                  "ik_marker_errors.sto", "spine_angles.csv", "spine_angles.png", "summary.json"):

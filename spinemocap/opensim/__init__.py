@@ -7,6 +7,8 @@ Depends on the core modules only; the row-to-level map is passed in by the appli
 
 from .geometry import opensim_axes
 from .pipeline import OpenSimResult, OpenSimSettings, run_opensim
+from .summary import LabModelSummary, OpenSimSummary, SpineModelSummary, read_summary
 from .tools import require_opensim
 
-__all__ = ["OpenSimResult", "OpenSimSettings", "opensim_axes", "require_opensim", "run_opensim"]
+__all__ = ["LabModelSummary", "OpenSimResult", "OpenSimSettings", "OpenSimSummary", "SpineModelSummary",
+           "opensim_axes", "read_summary", "require_opensim", "run_opensim"]

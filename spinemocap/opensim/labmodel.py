@@ -32,7 +32,17 @@ from ..fileio import InputError, atomic_write, read_toml, strict_json
 from ..markers import MarkerTable
 from ..tape import TapeSpec
 from .geometry import CHAIN, HEAD_NECK, LevelRows, spine_geometry
-from .pipeline import OpenSimResult, OpenSimSettings, inverse_kinematics, place_markers, prepare, publish, work_folder
+from .pipeline import (
+    FLAG_RMS_MM,
+    OpenSimResult,
+    OpenSimSettings,
+    inverse_kinematics,
+    place_markers,
+    prepare,
+    publish,
+    work_folder,
+)
+from .summary import LabModelSummary
 from .tools import IK_ACCURACY, mean_weights, read_storage, require_opensim
 
 
@@ -50,7 +60,8 @@ def read_body_map(path: str | os.PathLike) -> dict[str, str]:
 def run_lab_model(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt.ArrayLike,
                   facing: Sequence[float], out_dir: str | os.PathLike, model_file: str | os.PathLike,
                   bodies_file: str | os.PathLike, static: MarkerTable | None = None,
-                  settings: OpenSimSettings | None = None, source: str | None = None) -> OpenSimResult:
+                  settings: OpenSimSettings | None = None,
+                  source: str | None = None) -> OpenSimResult[LabModelSummary]:
     """Attach, place and solve on the lab's model; same outputs as :func:`pipeline.run_opensim`
     (``settings.depth_scale`` places the vertebral centres; the lab's model has no skin slip; IK
     solved to ``settings.accuracy`` but at most :data:`tools.IK_ACCURACY`)."""
@@ -95,26 +106,23 @@ def run_lab_model(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: n
         ik_seconds = inverse_kinematics(work, labels, placed, data, np.arange(len(data.times)), accuracy)
         angles = _coordinates_table(work / "ik.mot", work / "ik_marker_errors.sto")
         rms = angles["marker_rms"].to_numpy()
-        flagged_frames = [int(f) for f in np.flatnonzero(rms > 4.0)]
-        summary = {
-            "frames": len(angles), "fps": data.fps, "model": str(model_file), "bodies_map": body_map,
-            "marker_rms_mm": float(np.nanmean(rms)), "marker_rms_mm_max": float(np.nanmax(rms)),
-            "ms_per_frame": 1000.0 * ik_seconds / max(len(angles), 1),
-            "flagged_frames": flagged_frames, "flag_reasons": {}, "warnings": [],
-            "driven_joints": [c for c in angles.columns if c not in ("frame", "time", "marker_rms", "marker_max")],
-            "markers_by_body": on_body, "facing_error_deg": facing_error,
-            "marker_weights": dict(zip(labels, np.round(mean_weights(data.weights()[:, placed]), 3).tolist())),
-            "units": {"angles": "deg (the lab model's rotational coordinates, OpenSim signs)", "marker errors": "mm"},
-        }
-        if flagged_frames:
-            summary["flag_reasons"] = {"marker RMS > 4 mm": len(flagged_frames)}
+        flagged_frames = [int(f) for f in np.flatnonzero(rms > FLAG_RMS_MM)]
+        summary = LabModelSummary(
+            frames=len(angles), fps=data.fps, model=str(model_file), bodies_map=body_map,
+            marker_rms_mm=float(np.nanmean(rms)), marker_rms_mm_max=float(np.nanmax(rms)),
+            ms_per_frame=1000.0 * ik_seconds / max(len(angles), 1), flagged_frames=flagged_frames,
+            flag_reasons={f"marker RMS > {FLAG_RMS_MM:g} mm": len(flagged_frames)} if flagged_frames else {},
+            warnings=[],
+            driven_joints=[c for c in angles.columns if c not in ("frame", "time", "marker_rms", "marker_max")],
+            markers_by_body=on_body, facing_error_deg=facing_error,
+            marker_weights=dict(zip(labels, np.round(mean_weights(data.weights()[:, placed]), 3).tolist())))
         with atomic_write(work / "spine_angles.csv") as handle:
             handle.write(f"# spinemocap opensim on the lab model {Path(model_file).name}: its own coordinates as "
                          "solved by IK. Units: time s; rotational coordinates deg, translational m; marker_rms, "
                          "marker_max mm. Signs: as the model defines them.\n")
             angles.to_csv(handle, index=False, float_format="%.4f")
         with atomic_write(work / "summary.json") as handle:
-            handle.write(strict_json(summary))
+            handle.write(strict_json(summary.to_dict()))
         files = publish(work, out_dir)
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -12,7 +12,7 @@ renamed into place at the end):
 - ``spine_angles.csv``: per driven joint and summed per region, degrees, this project's signs
   (flexion = forward bending positive = -OpenSim extension; lateral bending toward the right
   positive; axial rotation toward the left positive), zero = the static posture,
-- ``summary.json`` and ``spine_angles.png``.
+- ``summary.json`` (:class:`~spinemocap.opensim.summary.SpineModelSummary`) and ``spine_angles.png``.
 
 Steps: the static trial (first frames, or a separate trial) fixes the tape's rows; the declared
 facing is checked against the tape (:func:`geometry.check_facing`); the joint centres sit at the
@@ -44,6 +44,7 @@ import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Generic, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -74,6 +75,7 @@ from .skin_model import (
     slip_coordinate,
     slip_rows,
 )
+from .summary import Depth, OpenSimSummary, Placement, SkinModelSummary, SlipSummary, SpineModelSummary
 from .tools import (
     IK_ACCURACY,
     INFERRED_SD_MM,
@@ -162,13 +164,19 @@ def slip_solved_as(from_tape: SlipFromTape, settings: OpenSimSettings = OpenSimS
                    fresh_start_margin=margin)
 
 
+SummaryT = TypeVar("SummaryT", bound=OpenSimSummary)
+
+
 @dataclass
-class OpenSimResult:
-    """What :func:`run_opensim` wrote: the angle table, the summary and the file paths."""
+class OpenSimResult(Generic[SummaryT]):
+    """What a run wrote into ``out_dir``: the angle table, the summary (``summary.json``: a
+    :class:`~spinemocap.opensim.summary.SpineModelSummary` from :func:`run_opensim`, a
+    :class:`~spinemocap.opensim.summary.LabModelSummary` from a lab's model), the model plan, the
+    spine geometry and the files by name."""
 
     out_dir: Path
     angles: pd.DataFrame
-    summary: dict
+    summary: SummaryT
     plan: ModelPlan | None  # None on a lab's own model
     geometry: SpineGeometry
     files: dict[str, Path] = field(default_factory=dict)
@@ -244,7 +252,7 @@ class _Placed:
     labels: list[str]
     placed: np.ndarray  # tape dot indices in the model
     expected: np.ndarray  # (len(placed), 3) anatomical places, mm
-    placement: dict
+    placement: Placement
     slipping: list[int]  # tape rows (0-based) with a slip coordinate
     marker_rows: np.ndarray  # tape row (0-based) of each placed marker
 
@@ -418,7 +426,8 @@ def work_folder(out_dir: Path) -> Path:
 
 def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt.ArrayLike,
                 facing: Sequence[float], out_dir: str | os.PathLike, static: MarkerTable | None = None,
-                settings: OpenSimSettings = OpenSimSettings(), source: str | None = None) -> OpenSimResult:
+                settings: OpenSimSettings = OpenSimSettings(),
+                source: str | None = None) -> OpenSimResult[SpineModelSummary]:
     """Build, place and solve; see the module docstring. ``source`` names the input in errors."""
     osim = require_opensim()
     data, st, rows, facing_error = prepare(markers, tape, up, facing, static, settings, source)
@@ -437,11 +446,10 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
                                         slip_goals, settings.fresh_start_margin)
         angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
         weights = mean_weights(data.weights(settings.inferred_sd_mm)[:, placed.placed])
-        summary = _summary(data, placed, angles, flags, ik_seconds, facing_error, weights, settings, osim)
-        summary["depth"] = {"scale_on_published": settings.depth_scale, "source": settings.depth_source,
-                            "depth_mm": {n: round(float(x), 1) for n, x in
-                                         zip(placed.geometry.names, placed.geometry.depth)}}
-        summary["skin_model"] = _skin_summary(work / "ik.mot", placed, settings, tilt_turn, slip_goals)
+        depth = Depth(scale_on_published=settings.depth_scale, source=settings.depth_source,
+                      depth_mm={n: round(float(x), 1) for n, x in zip(placed.geometry.names, placed.geometry.depth)})
+        skin = _skin_summary(work / "ik.mot", placed, settings, tilt_turn, slip_goals)
+        summary = _summary(data, placed, angles, flags, ik_seconds, facing_error, weights, settings, osim, depth, skin)
         with atomic_write(work / "spine_angles.csv") as handle:
             handle.write(_angles_header(placed.plan))
             angles.to_csv(handle, index=False, float_format="%.4f")
@@ -450,7 +458,7 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
         with atomic_write(work / "spine_angles.png", "wb") as handle:
             handle.write(angles_plot_png(angles, summary))
         with atomic_write(work / "summary.json") as handle:
-            handle.write(strict_json(summary))
+            handle.write(strict_json(summary.to_dict()))
         files = publish(work, out_dir)
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -458,20 +466,19 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
 
 
 def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt_turn: np.ndarray | None,
-                  goals: dict[str, CoordinateGoal]) -> dict:
+                  goals: dict[str, CoordinateGoal]) -> SkinModelSummary:
     """The skin model's assumptions and what IK made of them: the tilt correction applied per row
     (largest, deg), per slipping row the slip (mm) at the frame where it peaks, and the share of
     the (frame, slipping row) pairs whose slip was held at the tape's."""
-    out: dict = {"row_tilt": ("each row kept at its static in-plane angle to the tape midline (turned about its L-R "
-                              "midpoint, about the tape normal)") if settings.normalise_tilt else "as measured"}
+    row_tilt = ("each row kept at its static in-plane angle to the tape midline (turned about its L-R midpoint, "
+                "about the tape normal)") if settings.normalise_tilt else "as measured"
+    tilt_correction = None
     if tilt_turn is not None:
         with np.errstate(all="ignore"):
             worst = np.nanmax(np.abs(tilt_turn), axis=0)
-        out["tilt_correction_max_deg"] = {f"R{r + 1:02d}": round(float(v), 2) for r, v in enumerate(worst)
-                                          if np.isfinite(v)}
+        tilt_correction = {f"R{r + 1:02d}": round(float(v), 2) for r, v in enumerate(worst) if np.isfinite(v)}
     if settings.slip is None:
-        out["slip"] = "none: every marker fixed to its vertebra"
-        return out
+        return SkinModelSummary(row_tilt, tilt_correction, None)
     held = [g.held for g in goals.values() if g.held is not None]
     held_share = round(float(np.mean(held)), 4) if held else 0.0
     _, labels, values, _ = read_storage(motion)
@@ -485,14 +492,14 @@ def _skin_summary(motion: Path, placed: _Placed, settings: OpenSimSettings, tilt
     use = {"held": "held in each frame at the slip the tape shows where its dots are measured (a locked coordinate), "
                    "solved by IK elsewhere",
            "goal": "solved by IK with a goal at the slip the tape shows", "off": "solved by IK from the markers"}
-    out["slip"] = {"model": "each row above the pinned ones on a body translating along its vertebra's superior "
-                            f"axis; coordinate <row>_skin_slip (m, 0 = static trial) {use[settings.slip.from_tape]}",
-                   "from_tape": settings.slip.from_tape, "held_share": held_share,
-                   "pinned_rows": [f"R{r + 1:02d}" for r in pinned],
-                   "prior": f"{prior_text(prior)}; clamped to +/-{prior.limit_mm:g} mm",
-                   "prior_weight_per_m2": prior.weight, "estimate_weight_per_m2": prior.estimate_weight,
-                   "at_peak_mm": peak}
-    return out
+    slip = SlipSummary(model="each row above the pinned ones on a body translating along its vertebra's superior "
+                             f"axis; coordinate <row>_skin_slip (m, 0 = static trial) {use[prior.from_tape]}",
+                       from_tape=prior.from_tape, held_share=held_share,
+                       pinned_rows=[f"R{r + 1:02d}" for r in pinned],
+                       prior=f"{prior_text(prior)}; clamped to +/-{prior.limit_mm:g} mm",
+                       prior_weight_per_m2=prior.weight, estimate_weight_per_m2=prior.estimate_weight,
+                       at_peak_mm=peak)
+    return SkinModelSummary(row_tilt, tilt_correction, slip)
 
 
 def publish(work: Path, out_dir: Path) -> dict[str, Path]:
@@ -507,7 +514,7 @@ def publish(work: Path, out_dir: Path) -> dict[str, Path]:
 
 
 def check_placement(model_file: Path, labels: list[str], expected_mm: np.ndarray,
-                    source: str | None = None) -> dict[str, float]:
+                    source: str | None = None) -> Placement:
     """Median and worst distance (mm) of the placed markers from their anatomical places, beside
     (lateral, body Z) and in front of/behind (depth, body X) the spine. Raises
     :class:`InputError` beyond :data:`PLACEMENT_LATERAL_MM` / :data:`PLACEMENT_DEPTH_MM`: the
@@ -515,13 +522,13 @@ def check_placement(model_file: Path, labels: list[str], expected_mm: np.ndarray
     placed = marker_locations(model_file, labels)
     offsets = np.array([placed[label][1] - expected_mm[i] for i, label in enumerate(labels) if label in placed])
     lateral, depth = np.abs(offsets[:, 2]), np.abs(offsets[:, 0])
-    result = {"lateral_median_mm": float(np.median(lateral)), "lateral_max_mm": float(lateral.max()),
-              "depth_median_mm": float(np.median(depth)), "depth_max_mm": float(depth.max()),
-              "vertical_median_mm": float(np.median(np.abs(offsets[:, 1])))}
-    if result["lateral_median_mm"] > PLACEMENT_LATERAL_MM or result["depth_median_mm"] > PLACEMENT_DEPTH_MM:
+    result = Placement(lateral_median_mm=float(np.median(lateral)), lateral_max_mm=float(lateral.max()),
+                       depth_median_mm=float(np.median(depth)), depth_max_mm=float(depth.max()),
+                       vertical_median_mm=float(np.median(np.abs(offsets[:, 1]))))
+    if result.lateral_median_mm > PLACEMENT_LATERAL_MM or result.depth_median_mm > PLACEMENT_DEPTH_MM:
         raise InputError(source, (
-            f"MarkerPlacer put the tape markers {result['lateral_median_mm']:.0f} mm beside and "
-            f"{result['depth_median_mm']:.0f} mm in front of/behind their places over the spine (median; limits "
+            f"MarkerPlacer put the tape markers {result.lateral_median_mm:.0f} mm beside and "
+            f"{result.depth_median_mm:.0f} mm in front of/behind their places over the spine (median; limits "
             f"{PLACEMENT_LATERAL_MM:.0f} / {PLACEMENT_DEPTH_MM:.0f} mm): [subject] up/facing in capture.toml or the "
             "level map do not fit this capture"))
     return result
@@ -575,7 +582,8 @@ def _angles_header(plan: ModelPlan) -> str:
 
 
 def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np.ndarray, ik_seconds: float,
-             facing_error: float, weights: np.ndarray, settings: OpenSimSettings, osim) -> dict:
+             facing_error: float, weights: np.ndarray, settings: OpenSimSettings, osim, depth: Depth,
+             skin: SkinModelSummary) -> SpineModelSummary:
     geometry, plan, labels = placed.geometry, placed.plan, placed.labels
     rms = angles["marker_rms"].to_numpy()
     flagged = np.flatnonzero(flags != "")
@@ -587,44 +595,44 @@ def _summary(data: TapeMarkers, placed: _Placed, angles: pd.DataFrame, flags: np
     for label in labels:
         name = body_name(geometry.names[geometry.row_body[int(label[1:3]) - 1]])
         bodies.setdefault(name, []).append(label)
-    ranges = {c: [float(np.nanmin(angles[c])), float(np.nanmax(angles[c]))]
+    ranges = {c: (float(np.nanmin(angles[c])), float(np.nanmax(angles[c])))
               for c in angles.columns if c.startswith(("lumbar_", "thoracic_"))}
-    return {
-        "frames": len(angles),
-        "fps": data.fps,
-        "marker_rms_mm": float(np.nanmean(rms)),
-        "marker_rms_mm_max": float(np.nanmax(rms)),
+    return SpineModelSummary(
+        frames=len(angles),
+        fps=data.fps,
+        marker_rms_mm=float(np.nanmean(rms)),
+        marker_rms_mm_max=float(np.nanmax(rms)),
         # over the measured dots only: inferred ones are placed, not measured, and weigh little in IK
-        "marker_rms_observed_mm": float(np.nanmean(angles["marker_rms_observed"])),
-        "marker_max_mm": float(np.nanmax(angles["marker_max"])),
-        "ms_per_frame": 1000.0 * ik_seconds / max(len(angles), 1),
-        "flagged_frames": [int(f) for f in flagged],
-        "flag_reasons": reasons,
-        "warnings": [],
-        "driven_joints": [j.name for j in plan.driven],
-        "welded_joints": [j.name for j in plan.joints if not j.driven],
-        "couplers": [{"dependent": d, "independent": i, "ratio": round(r, 4)} for d, i, r in plan.couplers],
-        "coordinates": plan.coordinates,
-        "markers_by_body": bodies,
-        "markers_not_placed": [label for label in data.labels if label not in set(labels)],
-        "marker_weights": {label: round(float(w), 3) for label, w in zip(labels, weights)},
-        "levels_mapped": geometry.mapped,
-        "scale_to_generic": geometry.scale,
-        "facing_error_deg": facing_error,
-        "placement": placed.placement,
-        "region_ranges_deg": ranges,
-        "ik_accuracy": settings.accuracy,
-        "ik_accuracy_note": (f"frames where a slipping row has no slip estimate (its dots not measured) are solved to "
-                             f"{max(settings.accuracy, START_ACCURACY):g}") if settings.slip is not None else "",
-        "ik": "OpenSim InverseKinematicsSolver frame by frame: each frame from the previous solution"
-              + (f" and from the static pose, the static start's kept unless its objective exceeds "
-                 f"{1 + settings.fresh_start_margin:g} x the other's" if settings.restart_from_static else "")
-              + ", marker weights = label confidence squared per sample, an inferred dot's divided by "
-              f"({settings.inferred_sd_mm:g} mm / {OBSERVED_SD_MM:g} mm)^2 (its assumed position SD against an "
-              f"observed dot's), joints clamped to {RANGE_FACTOR:g} x their published ranges"
-              + ("; each slip coordinate held (locked) where the tape shows its slip, so that frame's solve "
-                 "is the spine's rotations" if settings.slip is not None and settings.slip.from_tape == "held" else ""),
-        "opensim_version": str(osim.GetVersion()),
-        "units": {"angles": "deg", "marker errors": "mm", "trc": "m"},
-        "signs": "flexion forward +, lateral toward right +, rotation toward left +, zero = static posture",
-    }
+        marker_rms_observed_mm=float(np.nanmean(angles["marker_rms_observed"])),
+        marker_max_mm=float(np.nanmax(angles["marker_max"])),
+        ms_per_frame=1000.0 * ik_seconds / max(len(angles), 1),
+        flagged_frames=[int(f) for f in flagged],
+        flag_reasons=reasons,
+        warnings=[],
+        driven_joints=[j.name for j in plan.driven],
+        welded_joints=[j.name for j in plan.joints if not j.driven],
+        couplers=[(d, i, round(r, 4)) for d, i, r in plan.couplers],
+        coordinates=plan.coordinates,
+        markers_by_body=bodies,
+        markers_not_placed=[label for label in data.labels if label not in set(labels)],
+        marker_weights={label: round(float(w), 3) for label, w in zip(labels, weights)},
+        levels_mapped=geometry.mapped,
+        scale_to_generic=geometry.scale,
+        facing_error_deg=facing_error,
+        placement=placed.placement,
+        region_ranges_deg=ranges,
+        ik_accuracy=settings.accuracy,
+        ik_accuracy_note=(f"frames where a slipping row has no slip estimate (its dots not measured) are solved to "
+                          f"{max(settings.accuracy, START_ACCURACY):g}") if settings.slip is not None else "",
+        ik="OpenSim InverseKinematicsSolver frame by frame: each frame from the previous solution"
+           + (f" and from the static pose, the static start's kept unless its objective exceeds "
+              f"{1 + settings.fresh_start_margin:g} x the other's" if settings.restart_from_static else "")
+           + ", marker weights = label confidence squared per sample, an inferred dot's divided by "
+           f"({settings.inferred_sd_mm:g} mm / {OBSERVED_SD_MM:g} mm)^2 (its assumed position SD against an "
+           f"observed dot's), joints clamped to {RANGE_FACTOR:g} x their published ranges"
+           + ("; each slip coordinate held (locked) where the tape shows its slip, so that frame's solve "
+              "is the spine's rotations" if settings.slip is not None and settings.slip.from_tape == "held" else ""),
+        opensim_version=str(osim.GetVersion()),
+        depth=depth,
+        skin_model=skin,
+    )

@@ -6,8 +6,10 @@ import io
 
 import pandas as pd
 
+from .summary import OpenSimSummary
 
-def angles_plot_png(angles: pd.DataFrame, summary: dict) -> bytes:
+
+def angles_plot_png(angles: pd.DataFrame, summary: OpenSimSummary) -> bytes:
     """Region angles (deg) over time, one panel per motion, marker RMS (mm) below; flagged frames
     shaded."""
     import matplotlib
@@ -32,8 +34,8 @@ def angles_plot_png(angles: pd.DataFrame, summary: dict) -> bytes:
     for ax in axes:
         for time_s in t[flagged.to_numpy()]:
             ax.axvspan(time_s, time_s, color="r", alpha=0.3)
-    axes[0].set_title(f"OpenSim IK: marker RMS {summary['marker_rms_mm']:.2f} mm mean, "
-                      f"{len(summary['flagged_frames'])} flagged frames (red); zero = static posture")
+    axes[0].set_title(f"OpenSim IK: marker RMS {summary.marker_rms_mm:.2f} mm mean, "
+                      f"{len(summary.flagged_frames)} flagged frames (red); zero = static posture")
     fig.tight_layout()
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110)

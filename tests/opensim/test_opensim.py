@@ -88,7 +88,7 @@ def test_built_model_loads_and_initialises(studio, base_run):
     names = [model.getCoordinateSet().get(i).getName() for i in range(model.getNumCoordinates())]
     # the spine's coordinates, then one skin slip per row above the two pinned ones
     assert names == result.plan.coordinates + [f"R{r:02d}_skin_slip" for r in range(3, 14)]
-    assert list(result.summary["skin_model"]["slip"]["at_peak_mm"]) == names[-11:]
+    assert list(result.summary.skin_model.slip.at_peak_mm) == names[-11:]
     bodies = [model.getBodySet().get(i).getName() for i in range(model.getBodySet().getSize())]
     spine = [b for b in bodies if not b.endswith("_skin")]
     assert spine[:3] == ["pelvis", "sacrum", "L5"] and spine[-2:] == ["T1", "head_neck"]
@@ -99,9 +99,9 @@ def test_built_model_loads_and_initialises(studio, base_run):
     chain = [*CHAIN, HEAD_NECK]
     lowest, highest = chain.index(studio["row_levels"][0]), chain.index(studio["row_levels"][-1])
     joints = [joint_name(chain[k], chain[k - 1]) for k in range(1, len(chain))]
-    assert result.summary["driven_joints"] == joints[lowest:highest]
-    assert result.summary["welded_joints"] == joints[:lowest] + joints[highest:]
-    assert highest < len(chain) - 1 and joints[highest] in result.summary["welded_joints"]  # the tape ends below T1
+    assert result.summary.driven_joints == joints[lowest:highest]
+    assert result.summary.welded_joints == joints[:lowest] + joints[highest:]
+    assert highest < len(chain) - 1 and joints[highest] in result.summary.welded_joints  # the tape ends below T1
     model.realizePosition(state)
     # the setups are OpenSim's own and name one marker task per placed marker
     for setup in ("setup_scale.xml", "setup_ik.xml"):
@@ -130,12 +130,14 @@ def test_markers_land_on_the_vertebra_of_the_level_map(studio, tmp_path):
 
 @needs_opensim
 def test_ik_on_a_studio_capture_meets_the_marker_rms_bound(fitted_run):
+    from spinemocap.opensim.summary import read_summary
     from spinemocap.opensim.tools import read_storage
 
     result = fitted_run
     s = result.summary
-    assert s["marker_rms_mm"] <= 2.0 and s["marker_rms_mm_max"] <= 3.0
-    assert s["depth"]["scale_on_published"] == 1.0 and s["depth"]["depth_mm"]["L3"] > 50
+    assert s.marker_rms_mm <= 2.0 and s.marker_rms_mm_max <= 3.0
+    assert read_summary(result.out_dir / "summary.json") == s  # the file says what the run returned
+    assert s.depth.scale_on_published == 1.0 and s.depth.depth_mm["L3"] > 50
     angles = result.angles
     # the mixed motion bends forward: lumbar + thoracic flexion (project sign) grows from the static
     # pose (frame 0)
@@ -163,10 +165,10 @@ def test_turning_the_capture_about_the_vertical_leaves_the_angles_unchanged(stud
     # The two worlds differ by rounding alone; the solver stops on absolute tolerances along directions
     # the markers hardly see, so the angles agree within the stated bound (0.5 deg in every frame),
     # not to rounding (with the slips solved around a goal at the tape's they were 1.5 deg apart here)
-    assert base.summary["skin_model"]["slip"]["from_tape"] == "held"
+    assert base.summary.skin_model.slip.from_tape == "held"
     columns = [c for c in base.angles.columns if c.startswith(("lumbar_", "thoracic_"))]
     np.testing.assert_allclose(turned.angles[columns].to_numpy(), base.angles[columns].to_numpy(), atol=0.5)
-    assert turned.summary["marker_rms_mm"] == pytest.approx(base.summary["marker_rms_mm"], abs=0.01)
+    assert turned.summary.marker_rms_mm == pytest.approx(base.summary.marker_rms_mm, abs=0.01)
 
 
 @pytest.fixture(scope="module")
@@ -182,10 +184,10 @@ def test_a_subject_standing_a_little_turned_gets_its_own_sagittal_plane(studio, 
     # The command's defaults on the studio's default back (skin strain on). The two runs pose the
     # same problem in ground frames 30 deg apart; the placed markers below are the solver-free check.
     turned = declared_30_deg_off
-    assert turned.summary["facing_error_deg"] == pytest.approx(30.0, abs=1.0)
+    assert turned.summary.facing_error_deg == pytest.approx(30.0, abs=1.0)
     # the model is built in the tape's own sagittal plane: every marker lands at the same place on
     # the same vertebra whichever facing was declared
-    labels = list(fitted_run.summary["marker_weights"])
+    labels = list(fitted_run.summary.marker_weights)
     placed = marker_locations(fitted_run.out_dir / "model.osim", labels)
     placed_turned = marker_locations(turned.out_dir / "model.osim", labels)
     assert {k: v[0] for k, v in placed_turned.items()} == {k: v[0] for k, v in placed.items()}
@@ -223,8 +225,8 @@ def test_missing_samples_are_excluded_not_zero(studio, tmp_path):
     for f, d in holes:
         v = table.getRowAtIndex(f)[labels.index(studio["labels"][d])]
         assert all(np.isnan([v[0], v[1], v[2]]))
-    assert result.summary["marker_rms_mm"] <= 2.0  # zeros would put a marker a metre off
-    weights = result.summary["marker_weights"]
+    assert result.summary.marker_rms_mm <= 2.0  # zeros would put a marker a metre off
+    weights = result.summary.marker_weights
     # an inferred sample without a confidence weighs 0.6^2 (the tracker's confidence of an inferred dot)
     # over its position variance against an observed dot's
     from spinemocap.opensim.tools import INFERRED_SD_MM, OBSERVED_SD_MM
@@ -240,6 +242,7 @@ def test_missing_samples_are_excluded_not_zero(studio, tmp_path):
 @needs_opensim
 def test_markers_on_a_lab_model(studio, base_run, tmp_path):
     from spinemocap.opensim.labmodel import run_lab_model
+    from spinemocap.opensim.summary import LabModelSummary, read_summary
 
     lab = osim.Model(str(base_run.out_dir / "model_generic.osim"))  # stands in for a lab's model
     lab.updMarkerSet().clearAndDestroy()
@@ -250,9 +253,10 @@ def test_markers_on_a_lab_model(studio, base_run, tmp_path):
     result = run_lab_model(studio["markers"], studio["tape"], studio["levels"], studio["up"], studio["facing"],
                            tmp_path / "out", tmp_path / "lab.osim", tmp_path / "bodies.toml")
     s = result.summary
-    assert s["marker_rms_mm"] <= 2.0
+    assert s.marker_rms_mm <= 2.0
+    assert isinstance(s, LabModelSummary) and read_summary(tmp_path / "out" / "summary.json") == s
     # rows over unmapped vertebrae go to the nearest mapped one: L3's rows onto L4 or L2, T11's onto T12/T10
-    assert set(s["markers_by_body"]) == {"L4", "L2", "L1", "T12", "T10", "T8", "T6"}
+    assert set(s.markers_by_body) == {"L4", "L2", "L1", "T12", "T10", "T8", "T6"}
     assert "L2_L3_extension" in result.angles.columns and (tmp_path / "out" / "setup_ik.xml").is_file()
     with pytest.raises(InputError, match="not in"):
         (tmp_path / "bad.toml").write_text("L4 = 'no_such_body'\n")
@@ -305,5 +309,5 @@ def test_a_tighter_ik_accuracy_reads_the_studio_twist_more_fully(tmp_path):
         twist = ik_angles(result, lo, hi)[:, 2]
         peaks = np.abs(expected) > 5.0
         read[accuracy] = float(np.mean((twist - twist[0])[peaks] / expected[peaks]))
-        assert result.summary["ik_accuracy"] == accuracy
+        assert result.summary.ik_accuracy == accuracy
     assert read[1e-6] > 0.8 and read[1e-6] > read[IK_ACCURACY] + 0.1

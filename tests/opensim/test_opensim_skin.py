@@ -156,12 +156,12 @@ def test_a_known_slip_is_read_by_the_slip_coordinates_and_the_model_names_them(t
     regions = [c for c in result.angles.columns if c.startswith(("lumbar_", "thoracic_"))]
     assert np.abs(result.angles[regions].to_numpy()).max() < 0.5  # the skin slid; the spine barely moves
     s = result.summary
-    assert s["marker_rms_mm"] < 0.5
-    assert s["skin_model"]["slip"]["at_peak_mm"][slip_coordinate(12)] == pytest.approx(solved[:, -1].max(), abs=0.01)
-    assert s["skin_model"]["slip"]["pinned_rows"] == ["R01", "R02"]
-    assert s["skin_model"]["slip"]["from_tape"] == from_tape
-    assert s["skin_model"]["slip"]["held_share"] == (1.0 if from_tape == "held" else 0.0)
-    assert s["depth"]["scale_on_published"] == 1.0 and "published" in s["depth"]["source"]
+    assert s.marker_rms_mm < 0.5
+    assert s.skin_model.slip.at_peak_mm[slip_coordinate(12)] == pytest.approx(solved[:, -1].max(), abs=0.01)
+    assert s.skin_model.slip.pinned_rows == ["R01", "R02"]
+    assert s.skin_model.slip.from_tape == from_tape
+    assert s.skin_model.slip.held_share == (1.0 if from_tape == "held" else 0.0)
+    assert s.depth.scale_on_published == 1.0 and "published" in s.depth.source
     # the model opens in OpenSim's API with its slip coordinates, clamped to the prior's limit ...
     model = osim.Model(str(result.out_dir / "model.osim"))
     model.initSystem()
@@ -244,7 +244,7 @@ def test_a_world_turned_about_the_vertical_gives_the_same_angles_in_every_frame(
         for dof, rom in zip(("flexion", "lateral", "rotation"), j.rom_deg):
             assert np.abs(base.angles[f"{j.name}_{dof}"]).max() <= RANGE_FACTOR * rom + 1e-3
     # the flagged frames' dots weigh 0.5^2 in IK; the inferred dot 0.6^2 where the table had no confidence
-    weights = base.summary["marker_weights"]
+    weights = base.summary.marker_weights
     assert weights["R01L"] == pytest.approx((9 * 1.0 + 3 * 0.25) / 12, abs=1e-3)
 
 
@@ -340,4 +340,4 @@ def test_inferred_dots_placed_far_off_barely_move_the_spine(tmp_path, from_tape)
     assert error.max() < 0.5 * np.abs(as_observed - truth).max()
     assert error[:, 2:].max() < 2.0
     # the observed dots still fit; the RMS over all dots shows the inferred ones' misfit
-    assert result.summary["marker_rms_observed_mm"] < 1.0 < result.summary["marker_rms_mm"]
+    assert result.summary.marker_rms_observed_mm < 1.0 < result.summary.marker_rms_mm
