@@ -26,7 +26,7 @@ import os
 import signal
 import threading
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from multiprocessing import shared_memory
 from pathlib import Path
 from typing import Sequence
@@ -34,7 +34,7 @@ from typing import Sequence
 import numpy as np
 
 from ..views import ViewDots
-from .worker_processes import exit_with_parent, join_or_kill
+from .worker_processes import exit_with_parent, join_or_kill, processes_cpu_s
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +72,10 @@ class _Block:
         self.layout: list[tuple[Slot, Slot]] = []   # per camera: (image, grey) slots
         self._key: tuple = ()
 
-    def fill(self, images: Sequence[np.ndarray]) -> None:
+    def fill(self, images: Sequence[np.ndarray], copiers: ThreadPoolExecutor | None = None) -> None:
+        """Copy ``images`` into the block (made or made again for their shapes); ``copiers``:
+        threads that copy the cameras at the same time (a frame is tens of MB: one thread's copy
+        is bound by one core's memory bandwidth)."""
         key = tuple((im.shape, im.dtype.str) for im in images)
         if self.memory is None or key != self._key:
             self.free()
@@ -91,8 +94,13 @@ class _Block:
                                            f"needs {offset / 2**20:.0f} MiB")
             self.memory = shared_memory.SharedMemory(create=True, size=max(offset, 1))
             self.layout, self._key = layout, key
-        for im, (image_slot, _) in zip(images, self.layout):
-            np.copyto(_view(self.memory, image_slot, np.uint8), im)
+        memory = self.memory
+        copies = [(_view(memory, image_slot, np.uint8), im) for im, (image_slot, _) in zip(images, self.layout)]
+        if copiers is None or len(copies) < 2:
+            for target, im in copies:
+                np.copyto(target, im)
+        else:
+            list(copiers.map(lambda pair: np.copyto(*pair), copies))
 
     def free(self) -> None:
         if self.memory is not None:
@@ -131,6 +139,8 @@ class CameraProcesses:
         self._lock = threading.Lock()
         self._direct_lock = threading.Lock()  # one frame at a time in the direct block
         self._closed = False
+        # the reading thread's copies of staged frames, one thread per camera (at most 8)
+        self._copiers = ThreadPoolExecutor(min(8, max(1, os.cpu_count() or 1)), thread_name_prefix="stage-copy")
         self.startup_s = self.cpu_s = float("nan")  # start-up wall s; workers' CPU s after it (at close)
         self.calls, self.slowest_s = 0, 0.0  # detect() calls; sum over them of the slowest worker's seconds
         self._pool: ProcessPoolExecutor | None = None
@@ -178,7 +188,7 @@ class CameraProcesses:
             block = self._ring[self._next]
             self._next = (self._next + 1) % len(self._ring)
             try:
-                block.fill(images)
+                block.fill(images, self._copiers)
             except ProcessesUnavailable:  # no room: detect() copies the frame (and says so)
                 return list(images)
             return StagedImages(images, self, block)
@@ -194,7 +204,7 @@ class CameraProcesses:
             return self._detect_in(images.block, cameras, boxes)
         with self._direct_lock:
             if copy or self._last is None:
-                self._direct.fill(images)
+                self._direct.fill(images, self._copiers)
                 return self._detect_in(self._direct, cameras, boxes)
             return self._detect_in(self._last, cameras, boxes)
 
@@ -222,18 +232,7 @@ class CameraProcesses:
 
     def workers_cpu_s(self) -> float:
         """CPU seconds (user + system) the live workers have used so far (NaN without psutil)."""
-        try:
-            import psutil
-        except ImportError:  # pragma: no cover - psutil is a dependency
-            return float("nan")
-        total = 0.0
-        for pid in getattr(self, "pids", []):
-            try:
-                times = psutil.Process(pid).cpu_times()
-            except psutil.Error:
-                continue
-            total += times.user + times.system
-        return total
+        return processes_cpu_s(getattr(self, "pids", []))
 
     # ------------------------------------------------------------------ stopping
     def close(self) -> None:
@@ -253,6 +252,9 @@ class CameraProcesses:
             self._closed = True
             for block in [*self._ring, self._direct]:
                 block.free()
+        copiers = getattr(self, "_copiers", None)
+        if copiers is not None:
+            copiers.shutdown(wait=True)
 
 
 def _aligned(nbytes: int, to: int = 64) -> int:

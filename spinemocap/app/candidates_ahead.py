@@ -20,6 +20,7 @@ import time
 from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
 from typing import Iterable, Iterator
 
 import numpy as np
@@ -30,7 +31,7 @@ from ..track.ahead import FrameCandidates, frame_candidates
 from ..track.config import TrackerConfig
 from ..track.pipeline import FrameResult
 from ..views import ViewDots
-from .worker_processes import exit_with_parent
+from .worker_processes import exit_with_parent, processes_cpu_s
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +60,19 @@ def _worker_build(uv: list[np.ndarray], gate_px: float) -> FrameCandidates:
     return frame_candidates(rig, views, tape, config, gate_px)
 
 
+@dataclass(frozen=True)
+class AheadInfo:
+    """How the candidate workers ran: ``workers``; their start-up (``startup_s``, wall s) and the
+    CPU seconds they used after it (``workers_cpu_s``); frames ``built`` ahead (each frame once,
+    whatever was built again for a changed gate) and ``rebuilt`` (builds for a changed gate)."""
+
+    workers: int
+    startup_s: float
+    workers_cpu_s: float
+    built: int
+    rebuilt: int
+
+
 class CandidatesAhead:
     """``workers`` processes building the candidate stage of frames ``depth`` frames ahead.
 
@@ -73,14 +87,17 @@ class CandidatesAhead:
         self.gate_px: float | None = None  # the gate of the frame after the last tracked one
         self._pending: dict[int, tuple[Future, list[np.ndarray]]] = {}  # frame -> (build, its pixels)
         self.built = self.asked = 0
-        self.startup_s = 0.0
+        self.workers, self.startup_s, self.rebuilt = workers, 0.0, 0
+        self.cpu_s = float("nan")  # the workers' CPU seconds after their start-up (at close)
+        self._pids: list[int] = []
         self._pool: ProcessPoolExecutor | None = ProcessPoolExecutor(
             workers, mp_context=mp.get_context("spawn"), initializer=_worker_start,
             initargs=(os.getpid(), rig, tape, config or TrackerConfig()))
         started = time.perf_counter()
         try:  # every worker up before the first frame (their imports are seconds, once)
-            for call in [self._pool.submit(_worker_ready, 0.2) for _ in range(workers)]:
-                call.result(timeout=START_TIMEOUT_S)
+            self._pids = sorted({call.result(timeout=START_TIMEOUT_S)
+                                 for call in [self._pool.submit(_worker_ready, 0.2) for _ in range(workers)]})
+            self._cpu_at_start = processes_cpu_s(self._pids)
         except Exception as exc:  # the tracker builds every cloud itself
             log.warning("candidate workers could not start (%s: %s); the tracker builds the candidates", type(exc).__name__, exc)
             self.close()
@@ -150,6 +167,7 @@ class CandidatesAhead:
             if future.done() and future.exception() is None and future.result().serves(self.gate_px):
                 continue
             future.cancel()
+            self.rebuilt += 1
             self._build(frame, uv)
 
     def close(self) -> None:
@@ -158,5 +176,11 @@ class CandidatesAhead:
             future.cancel()
         self._pending.clear()
         if self._pool is not None:
+            self.cpu_s = processes_cpu_s(self._pids) - getattr(self, "_cpu_at_start", float("nan"))
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+
+    @property
+    def info(self) -> AheadInfo:
+        """How the workers ran so far (:class:`AheadInfo`; their CPU once closed)."""
+        return AheadInfo(self.workers, self.startup_s, self.cpu_s, self.built, self.rebuilt)

@@ -44,7 +44,7 @@ from ..track.sequence import SequenceTracker, fill_and_smooth
 from ..track.stretch import row_stretch
 from ..track.template import tape_frames
 from ..views import ViewDots
-from .candidates_ahead import CandidatesAhead
+from .candidates_ahead import AheadInfo, CandidatesAhead
 from .reference import observe_reference, pose_doubt, source_images
 from .results import TrackingStopped, write_markers
 from .streaming import (
@@ -156,7 +156,7 @@ class TrackResult:
     detector_searches: dict[DetectionRoute, int] = field(default_factory=dict)  # camera images per detection route
     detector_info: DetectorInfo | None = None  # how the cameras were detected (None: views given, not detected)
     candidates_taken_ahead: int = 0  # frames whose candidate stage built ahead served the tracker
-    candidates_built_ahead: int = 0  # frames whose candidate stage was built ahead
+    candidates_ahead: AheadInfo | None = None  # how the candidate workers ran (None: none ran)
 
     def stage_ms(self) -> dict[str, float]:
         """Mean time per stage per frame (ms), over all frames."""
@@ -492,7 +492,7 @@ def track_source(
         views.close()  # a detection running ahead of the tracker ends before its detector closes
         detect.close()
     if ahead is not None:
-        result.candidates_built_ahead = ahead.built
+        result.candidates_ahead = ahead.info
     result.detector_searches = dict(detect.searches)
     unreadable = {camera: reasons for camera, reasons in getattr(source, "unreadable", {}).items() if reasons}
     result.detector_info = replace(detect.info, unreadable=unreadable)

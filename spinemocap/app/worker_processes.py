@@ -32,3 +32,19 @@ def join_or_kill(processes: Iterable[BaseProcess], grace_s: float) -> None:
         if process.is_alive():
             process.kill()
             process.join(1.0)
+
+
+def processes_cpu_s(pids: Iterable[int]) -> float:
+    """CPU seconds (user + system) the live processes ``pids`` have used so far (NaN without psutil)."""
+    try:
+        import psutil
+    except ImportError:  # pragma: no cover - psutil is a dependency
+        return float("nan")
+    total = 0.0
+    for pid in pids:
+        try:
+            times = psutil.Process(pid).cpu_times()
+        except psutil.Error:
+            continue
+        total += times.user + times.system
+    return total

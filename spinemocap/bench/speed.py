@@ -498,6 +498,10 @@ def _timed_run(source: FrameSource, capture: Capture, speed: SpeedOptions, mode:
         wall -= info.startup_s
     if info is not None and info.workers_cpu_s is not None and np.isfinite(info.workers_cpu_s):
         cpu_s += info.workers_cpu_s
+    ahead = result.candidates_ahead  # the candidate workers likewise
+    if ahead is not None:
+        wall -= ahead.startup_s
+        cpu_s += ahead.workers_cpu_s if np.isfinite(ahead.workers_cpu_s) else 0.0
     return TimedRun(result, wall, memory.peak_mib, cpu_s, main_thread_cpu_s)
 
 
@@ -549,7 +553,8 @@ def _summary(name: str, timed: TimedRun, capture: Capture, gt: dict | None = Non
         detector_searches=dict(result.detector_searches),
         mean_error_mm=acc.mean_error_mm, p95_error_mm=acc.p95_error_mm,
         label_swaps=acc.label_swaps, frames_without_solution=acc.frames_without_solution,
-        candidates_built_ahead=result.candidates_built_ahead, candidates_taken_ahead=result.candidates_taken_ahead,
+        candidates_built_ahead=result.candidates_ahead.built if result.candidates_ahead else 0,
+        candidates_taken_ahead=result.candidates_taken_ahead,
     )
 
 
