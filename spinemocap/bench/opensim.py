@@ -123,6 +123,10 @@ def headline(results: dict) -> dict:
                           if key.split("/")[0] in (axis, "mixed") and f"{axis}_rmse_deg" in r[method]]
                 if values:
                     row[f"{axis}_rmse_deg_worst"] = float(np.max(values))
+                vouched = [r[method][f"{axis}_rmse_deg_vouched"] for key, r in runs.items()
+                           if key.split("/")[0] in (axis, "mixed") and f"{axis}_rmse_deg_vouched" in r[method]]
+                if vouched:  # the same over the frames none of whose markers is flagged
+                    row[f"{axis}_rmse_deg_vouched_worst"] = float(np.nanmax(vouched))
             if method != "geometric":
                 row["marker_rms_mm_worst"] = float(np.max([r[method]["marker_rms_mm"] for r in runs.values()]))
             row["goals_met"] = {axis: row[f"{axis}_rmse_deg_worst"] <= GOALS[f"{axis}_rmse_deg"]
@@ -160,6 +164,7 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     levels = LevelMap.from_row_levels(data["row_levels"], tape.n_rows)
     depth_scale = body_model_depth_scale(data, levels)
     ik: dict = {}
+    vouched: np.ndarray | None = None  # (F,) frames without a flagged marker (from the IK runs' summary)
     for method in methods:
         overrides = IK_METHODS[method]
         with tempfile.TemporaryDirectory() as tmp:
@@ -172,7 +177,9 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
                                  settings=settings)
             s = result.summary
             slip = s.skin_model.slip
-            ik[method] = {**score(ik_angles(result, lo, hi), expected, axes),
+            vouched = np.ones(len(applied), bool)
+            vouched[s.flagged_frames] = False  # positions of the frames with a flagged marker
+            ik[method] = {**score(ik_angles(result, lo, hi), expected, axes, vouched),
                           "marker_rms_mm": s.marker_rms_observed_mm, "marker_rms_all_mm": s.marker_rms_mm,
                           "marker_rms_mm_max": s.marker_rms_mm_max, "ms_per_frame": s.ms_per_frame,
                           "flagged_frames": len(s.flagged_frames), "driven_joints": len(s.driven_joints),
@@ -189,7 +196,7 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
         "applied_peak_deg": {a: float(np.abs(applied[:, i]).max()) for i, a in enumerate(AXES)},
         "observed_share": completeness["observed"], "depth_scale": depth_scale,
         **ik,
-        "geometric": {**score(peer, expected, axes), "ms_per_frame": geometric_ms},
+        "geometric": {**score(peer, expected, axes, vouched), "ms_per_frame": geometric_ms},
     }
 
 
@@ -229,9 +236,12 @@ def ik_angles(result, lo: int, hi: int) -> np.ndarray:
     return cardan_angles(R[:, 0], R[:, 1])
 
 
-def score(measured: np.ndarray, expected_change: np.ndarray, axes: list[int]) -> dict:
+def score(measured: np.ndarray, expected_change: np.ndarray, axes: list[int],
+          vouched: np.ndarray | None = None) -> dict:
     """RMSE, R^2 and gain of the change from frame 0 on the scored ``axes``; crosstalk (RMS, deg)
-    on the others (single-axis motions)."""
+    on the others (single-axis motions). ``vouched`` (F,) bool: the frames no marker of which is
+    flagged; the scored axes' RMSE over them is added as ``<axis>_rmse_deg_vouched`` (NaN when
+    there are none) with their number, ``vouched_frames``."""
     from .analysis import fit_stats
 
     change = measured - measured[0]
@@ -240,6 +250,11 @@ def score(measured: np.ndarray, expected_change: np.ndarray, axes: list[int]) ->
         stats = fit_stats(change[:, i], expected_change[:, i])
         out.update({f"{AXES[i]}_{k}": v for k, v in (("rmse_deg", stats["rmse_deg"]), ("r2", stats["r2"]),
                                                      ("gain", stats["gain"]))})
+        if vouched is not None:
+            error = change[vouched, i] - expected_change[vouched, i]
+            out[f"{AXES[i]}_rmse_deg_vouched"] = float(np.sqrt(np.nanmean(error**2))) if vouched.any() else float("nan")
+    if vouched is not None:
+        out["vouched_frames"] = int(vouched.sum())
     others = [i for i in range(3) if i not in axes]
     if others:
         out["crosstalk_rms_deg"] = float(np.sqrt(np.nanmean((change[:, others] - expected_change[:, others]) ** 2)))

@@ -57,3 +57,23 @@ def test_the_headline_plot_is_a_png_of_every_method_that_ran():
     report = {**headline({"groundtruth": runs, "tracked": runs}), "sources": {"groundtruth": runs, "tracked": runs}}
     png = headline_plot_png(report)
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
+
+
+def test_the_frames_without_a_flagged_marker_are_scored_apart_and_the_goals_judge_all_frames():
+    import numpy as np
+
+    from spinemocap.bench.opensim import score
+
+    expected = np.zeros((6, 3))
+    expected[:, 0] = np.linspace(0.0, 50.0, 6)
+    measured = expected.copy()
+    measured[3:5, 0] += 10.0  # the bend's peak off by 10 deg where the markers are flagged
+    vouched = np.array([True, True, True, False, False, True])
+    out = score(measured, expected, [0], vouched)
+    assert out["flexion_rmse_deg_vouched"] == pytest.approx(0.0) and out["vouched_frames"] == 4
+    assert out["flexion_rmse_deg"] == pytest.approx(np.sqrt(200.0 / 6))
+    assert "flexion_rmse_deg_vouched" not in score(measured, expected, [0])
+    runs = {"flexion/seed0": {"ik": {**_scores(out["flexion_rmse_deg"], 0.6), "flexion_rmse_deg_vouched": 0.0}}}
+    row = headline({"tracked": runs})["headline"]["tracked"]["ik"]
+    assert row["flexion_rmse_deg_vouched_worst"] == 0.0
+    assert not row["goals_met"]["flexion"]  # the goal is judged on every frame
