@@ -31,11 +31,13 @@ from ..track.ahead import FrameCandidates, frame_candidates
 from ..track.config import TrackerConfig
 from ..track.pipeline import FrameResult
 from ..views import ViewDots
-from .worker_processes import exit_with_parent, processes_cpu_s
+from .worker_processes import exit_with_parent, join_or_kill, processes_cpu_s
 
 log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 120.0  # workers import the tracker (seconds on a loaded machine)
+BUILD_TIMEOUT_S = 60.0   # one frame's build takes milliseconds: a worker this late is stuck
+STOP_GRACE_S = 2.0       # stopped workers get this long before they are killed
 FrameViews = tuple[int, list[ViewDots], float]  # (frame, views, ms waited), as run_tracking takes them
 
 _WORKER: tuple[Rig, TapeSpec, TrackerConfig] | None = None  # in a worker: what every frame shares
@@ -125,8 +127,6 @@ class CandidatesAhead:
             yield frame, views, waited + 1000 * (time.perf_counter() - t0)
 
     def _submit(self, frame: int, views: list[ViewDots]) -> None:
-        if self._pool is None or self.gate_px is None:
-            return
         self._build(frame, [np.asarray(view.uv, float) for view in views])
 
     def _build(self, frame: int, uv: list[np.ndarray]) -> None:
@@ -149,8 +149,8 @@ class CandidatesAhead:
             return None
         future = pending[0]
         try:
-            built = future.result()
-        except Exception as exc:  # a worker died: the tracker builds the clouds from here on
+            built = future.result(timeout=BUILD_TIMEOUT_S)
+        except Exception as exc:  # a worker died or hangs: the tracker builds the clouds from here on
             self._give_up(exc)
             return None
         self.built += 1
@@ -177,7 +177,12 @@ class CandidatesAhead:
         self._pending.clear()
         if self._pool is not None:
             self.cpu_s = processes_cpu_s(self._pids) - getattr(self, "_cpu_at_start", float("nan"))
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            processes = list((getattr(self._pool, "_processes", None) or {}).values())
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            for process in processes:  # a hung worker must not hold the run
+                if process.is_alive():
+                    process.terminate()
+            join_or_kill(processes, STOP_GRACE_S)
             self._pool = None
 
     @property
