@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..fileio import InputError
+from ..markers import INFERRED, MISSING, OBSERVED
 
 INFERRED_CONFIDENCE = 0.6  # label confidence of an inferred dot when the table has none (observed: 1)
 # Position uncertainty (SD, mm) of an observed (triangulated) dot and of an inferred one (placed by
@@ -75,12 +76,12 @@ def marker_weights(status: np.ndarray, confidence: np.ndarray | None = None,
     its position was placed by the tape model or filled in time, not measured, and is that much
     less certain."""
     status = np.asarray(status)
-    fallback = np.where(status == "observed", 1.0, np.where(status == "inferred", INFERRED_CONFIDENCE, 0.0))
+    fallback = np.where(status == OBSERVED, 1.0, np.where(status == INFERRED, INFERRED_CONFIDENCE, 0.0))
     if confidence is None:
         confidence = np.full(status.shape, np.nan)
     known = np.clip(np.where(np.isfinite(confidence), confidence, fallback), 0.0, 1.0)
-    precision = np.where(status == "inferred", (OBSERVED_SD_MM / inferred_sd_mm) ** 2, 1.0)
-    return np.where(status == "missing", 0.0, known**2 * precision)
+    precision = np.where(status == INFERRED, (OBSERVED_SD_MM / inferred_sd_mm) ** 2, 1.0)
+    return np.where(status == MISSING, 0.0, known**2 * precision)
 
 
 def mean_weights(weights: np.ndarray) -> np.ndarray:

@@ -207,10 +207,8 @@ class EvidenceConfig:
     """MRF2's image evidence: ``downscale`` of the cost images (1 = full resolution); ``threads``:
     the cameras' cost images are built by this many threads of the tracker's own (1, the default:
     one after another in the calling thread). Each image is built alone (OpenCV and numpy release
-    the GIL for most of the work), so the same images either way. Two threads did not pay on a
-    loaded 2-core machine: the same CPU, and the evidence alone built in half the wall time when a
-    core was free, but a whole run's wall time was not
-    lower under load."""
+    the GIL for most of the work), so the same images either way. More threads spend the same CPU
+    and shorten the wall time only where a core is free."""
 
     downscale: float = 1.0
     threads: int = 1
