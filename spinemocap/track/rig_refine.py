@@ -317,8 +317,8 @@ def _refine(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float, con
                                     exact_steps=control is not None, backend="scipy"))
     before = adjustment.initial().point_errors_px
     # the Huber scale starts at the given rig's own residual level: with every residual far in
-    # the loss's linear part (a 3 px rig against a 1 px scale) the solver stalled on its first
-    # steps and returned the given rig unchanged
+    # the loss's linear part (a 3 px rig against a 1 px scale) the solver stalls on its first
+    # steps and returns the given rig unchanged
     fit = adjustment.solve(loss_scale_px=max(config.loss_scale_px, robust_rms(before)))
     # a blob paired with the wrong dot now and then (a few px off whatever the rig): drop the
     # observations far beyond the fitted residuals' spread and solve again
