@@ -211,7 +211,7 @@ def _tally(paths: Sequence[Path], result: ChunkedResult) -> int:
     return unsolved
 
 
-def _plan(capture: Capture, frames: range, chunking: Chunking, mode: str, detector: str,
+def _plan(capture: Capture, frames: range, chunking: Chunking, mode: TrackingMode, detector: str,
           config: TrackerConfig) -> dict:
     """What the chunks are tracked from: a rerun reuses saved chunks only for the same plan."""
     files = sorted(p for p in capture.root.rglob("*") if p.is_file() and CHUNK_DIR not in p.parts)
