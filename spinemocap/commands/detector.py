@@ -18,9 +18,9 @@ import logging
 import shlex
 from pathlib import Path
 
-log = logging.getLogger(__name__)
+from ..media import VIDEO_SUFFIXES
 
-VIDEO_SUFFIXES = (".mkv", ".mp4", ".avi", ".mov", ".webm", ".m4v", ".mts", ".ts")  # decoded by PyAV
+log = logging.getLogger(__name__)
 
 
 def _train_options(p: argparse.ArgumentParser, epochs: int, lr: float) -> None:
@@ -184,60 +184,10 @@ def _finetune(args) -> int:
 
 
 def _run(args) -> int:
-    import cv2
-    import numpy as np
-
-    from ..capture import MANIFEST, Capture
+    from ..app.detector_run import detect_inputs
     from ..detect import Detector
-    from ..detect.overlay import draw_detections
-    from ..fileio import InputError, atomic_path, atomic_write
-    from ..frames import parse_frames
-    from ..media import VideoDecoder, read_image
 
     options = {"weights": args.weights} if args.name == "net" and args.weights else {}
-    detector = Detector(args.name, **options)
-
-    def views(path: Path):
-        """(name, BGR image) of each image an input gives: a file, a video's or a capture's frames."""
-        if path.is_dir():
-            if not (path / MANIFEST).is_file():
-                raise InputError(path, f"a folder given to 'detector run' must be a capture (with {MANIFEST})")
-            capture = Capture.open(path)
-            source = capture.frame_source()
-            try:
-                for frame in parse_frames(args.frames, capture.n_frames):
-                    for camera, image in zip(capture.camera_names, source.read(frame)):
-                        yield f"{capture.name}_{camera}_f{frame:06d}", image
-            finally:
-                close = getattr(source, "close", None)
-                if close:
-                    close()
-        elif path.suffix.lower() in VIDEO_SUFFIXES:
-            decoder = VideoDecoder(path)
-            try:
-                n = decoder.n_frames or 1
-                for frame in parse_frames(args.frames, n):
-                    yield f"{path.stem}_f{frame:06d}", decoder.read(frame)
-            finally:
-                decoder.close()
-        else:
-            yield path.stem, read_image(path)
-
-    if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
-    for path in args.inputs:
-        for name, image in views(path):
-            dots = detector.detect(image, expected_dot_px=args.dot_px)
-            share = 100.0 * float(np.count_nonzero(dots.tape_mask)) / dots.tape_mask.size
-            print(f"{name}: {len(dots)} dots, tape mask {int(np.count_nonzero(dots.tape_mask))} px ({share:.2f} % of the image)")
-            if args.out is None:
-                continue
-            with atomic_write(args.out / f"{name}_dots.csv") as handle:
-                handle.write("u_px,v_px,confidence\n")
-                for (u, v), c in zip(dots.uv, dots.confidence):
-                    handle.write(f"{u:.3f},{v:.3f},{c:.3f}\n")
-            overlay = draw_detections(image, dots.tape_mask, dots.uv, dots.confidence, name)
-            with atomic_path(args.out / f"{name}_overlay.png") as tmp:
-                if not cv2.imwrite(str(tmp), overlay):
-                    raise InputError(args.out, "the overlay could not be written (is the folder writable?)")
+    for found in detect_inputs(Detector(args.name, **options), args.inputs, args.frames, args.dot_px, args.out):
+        print(f"{found.name}: {len(found.dots)} dots, tape mask {found.tape_px} px ({found.tape_share:.2f} % of the image)")
     return 0
