@@ -85,8 +85,9 @@ def register_bench(subparsers) -> None:
                     "top level) angles from the tracked markers and from the ground-truth markers (the ceiling) "
                     "and scores their change from neutral against the applied motion (see "
                     "spinemocap/bench/analysis.py for the expected angles). The tracked markers are also scored with "
-                    "the previous row centres (plain L-R midpoints, source tracked_lr_midpoints: the peer). An "
-                    "analytic bent rod (the pipeline's own error) and the older mid-bone benchmark run beside it.")
+                    "row centres taken as plain L-R midpoints (source tracked_lr_midpoints: the peer). An analytic "
+                    "bent rod (the pipeline's own error) and the mid-bone benchmark on ground-truth markers run "
+                    "beside it.")
     p.add_argument("--frames", type=int, default=30, help="frames per motion (default 30)")
     p.add_argument("--fps", type=float, default=10.0, help="frame rate (default 10: 3 s of motion)")
     p.add_argument("--rows", type=int, default=13, help="tape rows (default 13, the paper's tape, from S1)")
