@@ -14,13 +14,10 @@ Training is resumable: run the same command again with the same ``--out``. Use t
 from __future__ import annotations
 
 import argparse
-import logging
 import shlex
 from pathlib import Path
 
 from ..media import VIDEO_SUFFIXES
-
-log = logging.getLogger(__name__)
 
 
 def _train_options(p: argparse.ArgumentParser, epochs: int, lr: float) -> None:
@@ -141,43 +138,22 @@ def _command(args) -> str:
 
 
 def _train(args) -> int:
-    from ..app.training_data import SynthDataSettings, generate_synthetic
-    from ..detect.dataset import load_shards
-    from ..detect.train import train
+    from ..app.training_data import SynthDataSettings, train_on_studio
 
-    folders = args.data or [args.out / "data"]
     synth = SynthDataSettings(scenes=args.scenes, frames_per_scene=args.frames_per_scene, seed=args.data_seed,
                               appearance=args.appearance)
-    generate_synthetic(folders[0], synth)
-    train_views, val_views = load_shards(folders[0])
-    for extra in folders[1:]:
-        more_train, more_val = load_shards(extra)
-        train_views.extend(more_train)
-        val_views.extend(more_val)
-    log.info("%d training views, %d validation views from %s", len(train_views), len(val_views), folders)
-    meta = train(train_views, val_views, args.out, _settings(args), init_weights=args.weights,
-                 provenance={"command": _command(args), "data": {"kind": "synthetic studio", **synth.to_dict(),
-                                                             "folders": [str(f) for f in folders],
-                                                             "train_views": len(train_views), "val_views": len(val_views)}})
+    meta = train_on_studio(args.out, _settings(args), synth, args.data or (), args.weights,
+                           provenance={"command": _command(args)})
     print(f"best epoch {meta['best_epoch']}: validation IoU {meta['val_iou']:.4f}; weights: {args.out / 'weights.pt'}")
     return 0
 
 
 def _finetune(args) -> int:
-    from ..detect.dataset import import_labelled, load_shards
-    from ..detect.detector import shipped_weights_path
-    from ..detect.train import train
+    from ..app.training_data import finetune_on_images
 
-    data = args.out / "data"
-    n_train, n_val = import_labelled(data, args.images, masks=args.masks, coco=args.coco,
-                                     val_fraction=args.val_fraction, seed=args.seed)
-    train_views, val_views = load_shards(data)
-    init = args.weights or shipped_weights_path()
-    meta = train(train_views, val_views, args.out, _settings(args), init_weights=init,
-                 provenance={"command": _command(args), "data": {"kind": "lab", "images": str(args.images),
-                                                             "masks": str(args.masks) if args.masks else None,
-                                                             "coco": str(args.coco) if args.coco else None,
-                                                             "train_images": n_train, "val_images": n_val}})
+    meta, n_train, n_val = finetune_on_images(args.out, _settings(args), args.images, args.masks, args.coco,
+                                              args.val_fraction, args.seed, args.weights,
+                                              provenance={"command": _command(args)})
     print(f"{n_train} training / {n_val} validation images; best epoch {meta['best_epoch']}: "
           f"validation IoU {meta['val_iou']:.4f}; weights: {args.out / 'weights.pt'}")
     return 0
