@@ -90,7 +90,7 @@ def tracking_scores(capture_dir: Path, out: Path) -> dict:
             result = track_capture_result(capture_dir, out, progress=False)
     except NoTapeFound as exc:
         return {"error": exc.problem}
-    accuracy = evaluate_tracking(result.table, capture.groundtruth(), float(capture.tape.graph.rest_length_mm.min()))
+    accuracy = evaluate_tracking(result.table, capture.groundtruth(), capture.tape.graph.min_spacing_mm)
     arrays = result.table.to_arrays()
     observed = arrays.status == OBSERVED
     return {"mean_mm": accuracy.mean_error_mm, "p95_mm": accuracy.p95_error_mm,
