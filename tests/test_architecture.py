@@ -290,3 +290,10 @@ def test_every_module_is_exercised_by_a_test_of_its_folder():
     untested = sorted(module for module in MODULES if module not in NOT_IMPORTED and module != API
                       and module not in imported.get(mirrored_test_folder(module), set()))
     assert not untested, f"modules no test of their mirrored folder imports: {untested}"
+
+
+def test_test_file_names_are_unique():
+    """pytest imports each test file by its name alone (the test folders are no packages): two files
+    of one name in different folders stop the collection."""
+    names = [path.name for path in (ROOT / "tests").rglob("test_*.py")]
+    assert not {name for name in names if names.count(name) > 1}
