@@ -18,11 +18,10 @@ from tqdm import tqdm
 
 from spinemocap.camera import Camera
 from spinemocap.fileio import InputError
+from spinemocap.media import IMAGE_SUFFIXES, VIDEO_SUFFIXES
 
 from .boards import BoardDetection, BoardSpec, detect_board, view_problem
 
-IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
-VIDEO_SUFFIXES = {".mp4", ".mkv", ".avi", ".mov", ".m4v", ".webm"}
 MIN_VIEWS = 4
 ViewKey = Hashable  # a view: an image name, or a frame key of a recording
 
@@ -67,7 +66,7 @@ def iter_images(source: str | os.PathLike | Sequence[str | os.PathLike], max_vid
     files: list[Path] = []
     for path in paths:
         if path.is_dir():
-            files += sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES | VIDEO_SUFFIXES)
+            files += sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES + VIDEO_SUFFIXES)
         elif path.is_file():
             files.append(path)
         else:

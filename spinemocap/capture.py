@@ -182,7 +182,7 @@ class Capture:
         path = self.groundtruth_path
         if not path.is_file():
             raise InputError(path, "no ground truth (groundtruth.npz) in this capture; "
-                             "only synthetic captures have it -- use --source tracked")
+                             "only synthetic captures have it; use the tracked markers instead")
         try:
             with np.load(path, allow_pickle=False) as data:
                 return {k: data[k] for k in data.files}

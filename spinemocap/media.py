@@ -43,6 +43,9 @@ VIDEO_CODECS = {"utvideo": "gbrp", "rawvideo": "bgr24"}
 # labelled videos of the studio capture (6 cameras at 1224x800 and their grid) 0.6x the encoding
 # CPU time of ``superfast`` and 0.65x its size, the dots and labels as sharp.
 VIEWING_CODECS = {"libx264": "yuv420p"}
+# File suffixes (lower case) read as still images (OpenCV) and as videos (PyAV)
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+VIDEO_SUFFIXES = (".mkv", ".mp4", ".avi", ".mov", ".webm", ".m4v", ".mts", ".ts")
 VIEWING_OPTIONS = {"libx264": {"crf": "20", "preset": "ultrafast"}}
 # A VideoDecoder's BGR arrays kept for reuse once the caller drops them (a new 11.75 MB array makes
 # the kernel zero its pages again on every frame): the most frames of one camera held at once

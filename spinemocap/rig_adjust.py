@@ -54,6 +54,8 @@ IntrinsicsMode = Literal["fixed", "focal", "full"]
 #: ``ceres``: Ceres through pycolmap where the problem fits it, scipy otherwise; ``scipy``: scipy
 Backend = Literal["ceres", "scipy"]
 BACKENDS: tuple[Backend, ...] = ("ceres", "scipy")
+#: the solver that produced an :class:`AdjustedRig` (``start``: the unsolved start)
+SolvedBy = Literal["start", "ceres", "scipy"]
 INTRINSIC_COUNTS: dict[IntrinsicsMode, int] = {"fixed": 0, "focal": 1, "full": 8}
 CERES_MAX_ITERATIONS = 100
 
@@ -144,7 +146,7 @@ class AdjustedRig:
     point_errors_px: np.ndarray
     target_errors_px: np.ndarray
     control_errors_px: np.ndarray
-    backend: str
+    backend: SolvedBy
     vector: np.ndarray = field(repr=False)  # the solver's parameters, to start another solve from
 
 
@@ -315,7 +317,7 @@ class RigAdjustment:
                           shape=(row, len(self._x0))).tocsr()
 
     # ------------------------------------------------------------------ solving
-    def _state(self, x: np.ndarray, backend: str) -> AdjustedRig:
+    def _state(self, x: np.ndarray, backend: SolvedBy) -> AdjustedRig:
         cams, targets, X = self._unpack(x)
         K, dist, focal = self._intrinsics(cams)
         rig = Rig([Camera(cam.name, np.array([[K[c, 0], K[c, 4], K[c, 2]], [0.0, K[c, 1], K[c, 3]], [0.0, 0.0, 1.0]]),

@@ -216,6 +216,11 @@ class TapeGraph:
         except ValueError:
             raise KeyError(f"no dot labelled {label!r} on a {self.spec.n_rows}-row tape") from None
 
+    @property
+    def min_spacing_mm(self) -> float:
+        """The tape's closest two dots (mm, unstretched): the shortest edge's rest length."""
+        return float(self.rest_length_mm.min())
+
     def solid_length_bounds_mm(self) -> tuple[float, float]:
         """(th3, th4): the range of solid-edge lengths widened by the stretch tolerance."""
         lengths = self.rest_length_mm[self.solid]

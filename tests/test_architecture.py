@@ -236,3 +236,64 @@ def test_tests_mirror_the_package_tree():
     test_folders = {str(p.parent.relative_to(ROOT / "tests")) for p in (ROOT / "tests").rglob("test_*.py")}
     strays = sorted(test_folders - {"."} - package_folders() - helper_folders)
     assert not strays, f"test folders that mirror no package: {strays}"
+
+
+def _reexports() -> dict[tuple[str, str], str]:
+    """(package, name) -> the submodule of that package a package's ``__init__`` imports the name from."""
+    out = {}
+    for module, path in MODULES.items():
+        if path.name != "__init__.py":
+            continue
+        for node in ast.parse(path.read_text(), str(path)).body:
+            if isinstance(node, ast.ImportFrom) and node.level == 1 and node.module:
+                for alias in node.names:
+                    out[(module, alias.asname or alias.name)] = f"{module}.{node.module}"
+    return out
+
+
+def test_mirrored_test_folder():
+    assert mirrored_test_folder("spinemocap.track.lp") == ROOT / "tests" / "track"
+    assert mirrored_test_folder("spinemocap.app.viewer.video") == ROOT / "tests" / "app" / "viewer"
+    assert mirrored_test_folder("spinemocap.geometry") == ROOT / "tests"
+    assert mirrored_test_folder("calibration.formats.vicon") == ROOT / "tests" / "calibration"
+
+
+def mirrored_test_folder(module: str) -> Path:
+    """Where the tests of ``module`` sit: ``tests/<its folder under spinemocap/>``; a core module's
+    at the top of ``tests/``; every module of ``calibration`` / ``exporters`` in ``tests/calibration`` /
+    ``tests/exporters``."""
+    path = MODULES[module].relative_to(ROOT)
+    if path.parts[0] != "spinemocap":
+        return ROOT / "tests" / path.parts[0]
+    return ROOT / "tests" / Path(*path.parts[1:-1])
+
+
+# run as a program (tests/test_package_main.py runs it), or a folder of data (the shipped weights)
+NOT_IMPORTED = {"spinemocap.__main__", "spinemocap.detect.weights"}
+
+
+def test_every_module_is_exercised_by_a_test_of_its_folder():
+    """Each module is imported (directly, or by the name its package re-exports from it) by a
+    ``test_*.py`` in the folder that mirrors its own."""
+    reexports = _reexports()
+    imported: dict[Path, set[str]] = {}
+    for test in (ROOT / "tests").rglob("test_*.py"):
+        names = set()
+        for node in ast.walk(ast.parse(test.read_text(), str(test))):
+            if isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                names |= {reexports.get((node.module, alias.name), f"{node.module}.{alias.name}") for alias in node.names}
+                names.add(node.module)
+            elif isinstance(node, ast.Import):
+                names |= {alias.name for alias in node.names}
+        parents = {name.rsplit(".", k)[0] for name in names for k in range(1, name.count(".") + 1)}
+        imported.setdefault(test.parent, set()).update(names | parents)  # a package: through its modules
+    untested = sorted(module for module in MODULES if module not in NOT_IMPORTED and module != API
+                      and module not in imported.get(mirrored_test_folder(module), set()))
+    assert not untested, f"modules no test of their mirrored folder imports: {untested}"
+
+
+def test_test_file_names_are_unique():
+    """pytest imports each test file by its name alone (the test folders are no packages): two files
+    of one name in different folders stop the collection."""
+    names = [path.name for path in (ROOT / "tests").rglob("test_*.py")]
+    assert not {name for name in names if names.count(name) > 1}

@@ -8,7 +8,6 @@ independent validation (tests/fuzzing.py). ``make fuzz`` runs >= 10,000 cases pe
 
 from __future__ import annotations
 
-import os
 from functools import partial
 from pathlib import Path
 
@@ -27,6 +26,7 @@ from fuzzing import (
     marker_table_problems,
     run_fuzz,
 )
+from repo_paths import SHARED
 
 import exporters
 from calibration.formats import read_rig, write_rig
@@ -38,7 +38,6 @@ from spinemocap.capture import Capture, VideoSource, VideoWriter
 from spinemocap.markers import MarkerTable
 from spinemocap.tape import TapeSpec
 
-SHARED = Path(os.environ.get("SPINEMOCAP_SHARED", "/work/shared"))
 QCA = SHARED / "data" / "calibration" / "pose2sim_demo" / "Calib.qca.txt"
 DEFAULT_CASES = 300
 N_ROWS = 9

@@ -74,3 +74,11 @@ def test_toml_round_trip_and_errors(tmp_path):
     (tmp_path / "bad.toml").write_text("[tape]\nn_rowz = 3\n")
     with pytest.raises(InputError, match="bad.toml.*n_rowz"):
         TapeSpec.from_toml(tmp_path / "bad.toml")
+
+
+@pytest.mark.parametrize("n_rows", [5, 9, 13])
+def test_min_spacing_is_the_closest_pair_of_dots(n_rows):
+    graph = TapeSpec(n_rows=n_rows).graph
+    uv = graph.uv_mm
+    pairs = np.linalg.norm(uv[:, None] - uv[None], axis=2) + np.diag(np.full(len(uv), np.inf))
+    assert graph.min_spacing_mm == pytest.approx(pairs.min())

@@ -26,9 +26,10 @@ from tqdm import tqdm
 from calibration.boards import MAX_BLUR_SIGMA_PX, BoardDetection, BoardSpec, Facing, detect_board, view_problem
 from calibration.extrinsics import ExtrinsicsResult, calibrate_extrinsics
 from calibration.formats import read_rig
-from calibration.intrinsics import IMAGE_SUFFIXES, VIDEO_SUFFIXES, calibrate_from_detections
+from calibration.intrinsics import calibrate_from_detections
 from spinemocap.camera import Rig
 from spinemocap.fileio import InputError, atomic_path
+from spinemocap.media import IMAGE_SUFFIXES, VIDEO_SUFFIXES
 from spinemocap.rig_adjust import Backend
 
 FramePairing = Literal["index", "time"]

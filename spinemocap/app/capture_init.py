@@ -29,7 +29,7 @@ import numpy as np
 from ..camera import Camera, Rig
 from ..capture import MANIFEST, RATE_TOLERANCE, Capture
 from ..fileio import InputError
-from ..media import VideoDecoder, read_image
+from ..media import IMAGE_SUFFIXES, VideoDecoder, read_image
 from ..tape import TapeSpec
 from ..timebase import CameraClock, common_frames, image_times, video_times
 
@@ -39,7 +39,6 @@ SIZE_FIXES: tuple[SizeFix, ...] = ("crop", "crop-centre", "scale")
 # Encoders code whole blocks of 16 (H.264) or 8 pixels and crop the rest: a calibration and its
 # camera's video may differ by up to this many rows or columns
 MAX_CROP_PX = 16
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,7 @@ from tqdm import tqdm
 
 from ..capture import MANIFEST, Capture
 from ..fileio import InputError, atomic_path, atomic_write, check_writable
-from ..markers import MISSING_CAMERAS, MarkerTable, missing_from_frames, missing_per_frame
+from ..markers import MISSING, MISSING_CAMERAS, MarkerTable, missing_from_frames, missing_per_frame
 from ..track.config import TrackerConfig
 from ..track.quality import is_flagged
 from .results import write_marker_parts
@@ -211,7 +211,7 @@ def _tally(paths: Sequence[Path], result: ChunkedResult) -> int:
     return unsolved
 
 
-def _plan(capture: Capture, frames: range, chunking: Chunking, mode: str, detector: str,
+def _plan(capture: Capture, frames: range, chunking: Chunking, mode: TrackingMode, detector: str,
           config: TrackerConfig) -> dict:
     """What the chunks are tracked from: a rerun reuses saved chunks only for the same plan."""
     files = sorted(p for p in capture.root.rglob("*") if p.is_file() and CHUNK_DIR not in p.parts)
@@ -329,7 +329,7 @@ def _continue_labels(k: int, chunk: dict[str, np.ndarray], previous: dict[str, n
             values = chunk[name][:, np.maximum(index, 0)].copy()
             missing = index < 0
             if name == "status":
-                values[:, missing] = "missing"
+                values[:, missing] = MISSING
             elif name == "positions":
                 values[:, missing] = np.nan
             else:

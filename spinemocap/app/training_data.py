@@ -1,6 +1,7 @@
-"""Synthetic training data for the tape network (``spinemocap detector generate|train``): random
-studio scenes rendered by :mod:`spinemocap.synth`, cut into the network's views by
-:mod:`spinemocap.detect.dataset` and saved as shards. Application layer: it joins two domain
+"""Training data for the tape network and its training (``spinemocap detector train|finetune``):
+random studio scenes rendered by :mod:`spinemocap.synth`, cut into the network's views by
+:mod:`spinemocap.detect.dataset` and saved as shards, or a lab's labelled images turned into
+shards; then :func:`spinemocap.detect.train.train` on them. Application layer: it joins two domain
 packages (synth renders, detect learns)."""
 
 from __future__ import annotations
@@ -10,16 +11,19 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Any, Literal, Sequence
 
 import numpy as np
 from tqdm import tqdm
 
-from ..detect.dataset import save_shard, views_of
+from ..detect.dataset import import_labelled, load_shards, save_shard, views_of
 from ..fileio import atomic_path
 from ..synth import SynthConfig, build_scene
 from ..synth.appearance import TAPE_COLOURS, lab_subject
 from ..synth.motions import MOTIONS
+
+if TYPE_CHECKING:
+    from ..detect.train import TrainSettings
 
 log = logging.getLogger(__name__)
 
@@ -143,6 +147,51 @@ def generate_synthetic(out: Path, settings: SynthDataSettings, progress: bool = 
         split = "val" if k >= settings.scenes - n_val else "train"
         save_shard(path, views, split, {"seed": seed, "config": cfg.to_dict()})
     return out
+
+
+def train_on_studio(out: Path, settings: TrainSettings, synth: SynthDataSettings, data: Sequence[Path] = (),
+                    weights: Path | None = None, provenance: dict[str, Any] | None = None,
+                    progress: bool = True) -> dict[str, Any]:
+    """Render the studio's training data into the first folder of ``data`` (default ``out/data``;
+    shards already there are kept), take the shards of every folder of ``data`` as they are, and
+    train into ``out`` (from ``weights``, else from random weights; resumable). Returns the
+    exported metadata (``out/weights.json``), ``provenance`` and the data's description in it."""
+    from ..detect.train import train
+
+    folders = list(data) or [Path(out) / "data"]
+    generate_synthetic(folders[0], synth, progress)
+    train_views, val_views = load_shards(folders[0])
+    for extra in folders[1:]:
+        more_train, more_val = load_shards(extra)
+        train_views.extend(more_train)
+        val_views.extend(more_val)
+    log.info("%d training views, %d validation views from %s", len(train_views), len(val_views), folders)
+    described = {"kind": "synthetic studio", **synth.to_dict(), "folders": [str(f) for f in folders],
+                 "train_views": len(train_views), "val_views": len(val_views)}
+    return train(train_views, val_views, out, settings, init_weights=weights,
+                 provenance={**(provenance or {}), "data": described}, progress=progress)
+
+
+def finetune_on_images(out: Path, settings: TrainSettings, images: Path, masks: Path | None = None,
+                       coco: Path | None = None, val_fraction: float = 0.24, seed: int = 0,
+                       weights: Path | None = None, provenance: dict[str, Any] | None = None,
+                       progress: bool = True) -> tuple[dict[str, Any], int, int]:
+    """Fine-tune the network (``weights``, default the shipped ones) on a lab's labelled
+    ``images`` (PNG ``masks`` or ``coco`` polygons; :func:`spinemocap.detect.dataset.import_labelled`
+    into ``out/data``, ``val_fraction`` of them for validation, split by ``seed``) into ``out``.
+    Returns the exported metadata (``out/weights.json``) and the training and validation image
+    counts."""
+    from ..detect.detector import shipped_weights_path
+    from ..detect.train import train
+
+    data = Path(out) / "data"
+    n_train, n_val = import_labelled(data, images, masks=masks, coco=coco, val_fraction=val_fraction, seed=seed)
+    train_views, val_views = load_shards(data)
+    described = {"kind": "lab", "images": str(images), "masks": str(masks) if masks else None,
+                 "coco": str(coco) if coco else None, "train_images": n_train, "val_images": n_val}
+    meta = train(train_views, val_views, out, settings, init_weights=weights or shipped_weights_path(),
+                 provenance={**(provenance or {}), "data": described}, progress=progress)
+    return meta, n_train, n_val
 
 
 # ---------------------------------------------------------------------------------- lab data

@@ -31,6 +31,7 @@ from ..camera import Camera
 from ..capture import MANIFEST, Capture, set_detector_weights
 from ..detect.detector import STUDIO_WEIGHTS, shipped_weights_path
 from ..fileio import atomic_write
+from ..markers import OBSERVED
 from ..synth import SynthConfig
 from ..synth.writer import write_capture
 from ..track.evaluate import evaluate_tracking
@@ -89,9 +90,9 @@ def tracking_scores(capture_dir: Path, out: Path) -> dict:
             result = track_capture_result(capture_dir, out, progress=False)
     except NoTapeFound as exc:
         return {"error": exc.problem}
-    accuracy = evaluate_tracking(result.table, capture.groundtruth(), float(capture.tape.graph.rest_length_mm.min()))
+    accuracy = evaluate_tracking(result.table, capture.groundtruth(), capture.tape.graph.min_spacing_mm)
     arrays = result.table.to_arrays()
-    observed = arrays.status == "observed"
+    observed = arrays.status == OBSERVED
     return {"mean_mm": accuracy.mean_error_mm, "p95_mm": accuracy.p95_error_mm,
             "observed_mean_mm": accuracy.observed.mean, "swaps": accuracy.label_swaps,
             "flagged_frames": len(result.flagged_frames()), "unsolved_frames": accuracy.frames_without_solution,

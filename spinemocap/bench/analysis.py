@@ -438,7 +438,7 @@ def bench_lab_angles(motions=LAB_MOTIONS, frames: int = 30, fps: float = 10.0, r
             table = tracked_markers(scene, detector, progress=progress)
             track_s = time.perf_counter() - t0
             truth_dots = {"dots": truth.to_arrays().positions, "labels": np.array(scene.labels)}
-            accuracy = evaluate_tracking(table, truth_dots, float(scene.tape.graph.rest_length_mm.min()))
+            accuracy = evaluate_tracking(table, truth_dots, scene.tape.graph.min_spacing_mm)
             entry["tracked"] = score_lab_angles(compute_angles(table, scene.tape, levels, up, facing, settings).table,
                                                 expected)
             entry[PEER_SOURCE] = score_lab_angles(

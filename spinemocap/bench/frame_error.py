@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import umeyama
-from ..markers import MarkerTable
+from ..markers import MISSING, MarkerTable
 
 
 def truth_of(table: MarkerTable, groundtruth: dict) -> np.ndarray:
@@ -38,7 +38,7 @@ def shape_error_mm(table: MarkerTable, truth: np.ndarray) -> float:
     """Mean error (mm) of the tracked dots after the best similarity onto the truth: what is left
     once the world frame (position, orientation, scale) is taken out."""
     positions, status = table.positions(), table.to_arrays().status
-    tracked = status != "missing"
+    tracked = status != MISSING
     R, t, s = cloud_gauge(positions[tracked], truth[tracked])
     moved = s * positions[tracked] @ R.T + t
     return float(np.nanmean(np.linalg.norm(moved - truth[tracked], axis=1)))
@@ -46,5 +46,5 @@ def shape_error_mm(table: MarkerTable, truth: np.ndarray) -> float:
 
 def mean_error_mm(table: MarkerTable, truth: np.ndarray) -> float:
     """Mean error (mm) over the tracked dot-frames."""
-    tracked = table.to_arrays().status != "missing"
+    tracked = table.to_arrays().status != MISSING
     return float(np.nanmean(np.linalg.norm(table.positions()[tracked] - truth[tracked], axis=1)))

@@ -177,7 +177,7 @@ def run_case(case: Case, frames: int, fps: float | None, preset: str, occlusion:
         f"sync {synth.sync_error_ms} ms, skin strain {synth.skin_strain}")
     views = _render(scene, make_detector(detector, weights=weights), synth.frames, progress)
     gt = scene.groundtruth
-    spacing = float(scene.tape.graph.rest_length_mm.min())
+    spacing = scene.tape.graph.min_spacing_mm
     row: dict = {"case": case.name, "factor": case.factor, "studio": {k: v for k, v in case.studio.items()}}
     for name, config in (("new", TrackerConfig()), ("peer", TrackerConfig.nominal_unchecked())):
         with warnings.catch_warnings():

@@ -129,8 +129,7 @@ def run_track_benchmark(preset: str = "artificial", occlusion: str = "none", fra
                               progress=progress, n_frames=synth.frames)
     wall = time.perf_counter() - start
     gt = scene.groundtruth
-    min_spacing = float(scene.tape.graph.rest_length_mm.min())
-    accuracy = evaluate_tracking(result.table, gt, min_spacing, result.stage_ms())
+    accuracy = evaluate_tracking(result.table, gt, scene.tape.graph.min_spacing_mm, result.stage_ms())
     run = TrackBenchRun(
         preset=preset, occlusion=occlusion, balls=synth.n_balls, mode=mode, realism=realism,
         quality=result.quality(),

@@ -54,8 +54,8 @@ def _missing_files_error(model_type: str, model_path: str | os.PathLike | None) 
     return InputError(
         model_path or "model_path",
         f"no {model_type.upper()} model file: these files are licence-gated ({LICENCE[model_type]}) and not "
-        "shipped with spinemocap; register, download the model and pass --model-path to the .npz/.pkl file "
-        "(or to a folder holding smpl/, smplh/, smplx/ subfolders). Use chumpy-free files.")
+        "shipped with spinemocap; register, download the model and give its path (model_path): the .npz/.pkl "
+        "file or a folder holding smpl/, smplh/, smplx/ subfolders. Use chumpy-free files.")
 
 
 def load_smplx_module(model_type: str, model_path: str | os.PathLike | None, gender: str = "neutral"):

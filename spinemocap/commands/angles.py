@@ -33,45 +33,21 @@ def register(subparsers) -> None:
 
 
 def run_angles(args: argparse.Namespace) -> int:
-    import exporters
+    from ..app.angles import marker_file_angles
 
-    from ..analysis.angles import AngleSettings, compute_angles
-    from ..analysis.levels import LevelMap
-    from ..analysis.neutral import neutral_from_angles, neutral_summary
-    from ..app.report import angles_plot_png
-    from ..fileio import InputError
-    from ..tape import TapeSpec
-    from .export import find_markers
-
-    markers = exporters.read(find_markers(args.markers))
-    rows = [int(label[1:3]) for label in markers.labels if len(label) == 4 and label[0] == "R" and label[1:3].isdigit()]
-    if not rows:
-        raise InputError(args.markers, "no tape labels (R01L, R02C, ...) in this marker file")
-    tape = TapeSpec(n_rows=max(rows) if max(rows) % 2 else max(rows) + 1)
-    levels = LevelMap.from_toml(args.levels, tape.n_rows)
-    settings = AngleSettings(lower=args.lumbar[0], thoracolumbar=args.lumbar[1])
-    result = compute_angles(markers, tape, levels, up=args.up, facing=args.facing, settings=settings)
-    if args.neutral:
-        static = compute_angles(exporters.read(args.neutral), tape, levels, up=args.up, facing=args.facing,
-                                settings=settings)
-        neutral = neutral_from_angles(static.table, first_s=None, source=f"the static trial {args.neutral.name}")
-    else:
-        neutral = neutral_from_angles(result.table)
-    out = args.out or args.markers.with_name(args.markers.stem + "_angles.csv")
-    with atomic_write(out) as handle:
-        result.table.to_csv(handle, index=False, float_format="%.4f")
-    with atomic_write(out.with_suffix(".png"), "wb") as handle:
-        handle.write(angles_plot_png(result.table, neutral))
-    stats = neutral_summary(result.table, neutral)
-    print(f"{len(result.table)} frames, {100 * result.completeness:.0f}% of dots observed; neutral: {neutral.source}")
+    found = marker_file_angles(args.markers, args.levels, args.out, tuple(args.lumbar), args.up, args.facing,
+                               args.neutral)
+    stats = found.from_neutral
+    print(f"{len(found.angles.table)} frames, {100 * found.angles.completeness:.0f}% of dots observed; "
+          f"neutral: {found.neutral.source}")
     print(f"lumbar flexion from neutral {stats['lumbar_flexion_pos_from_neutral']:.1f} deg, extension from neutral "
           f"{stats['lumbar_flexion_neg_from_neutral']:.1f} deg, ROM {stats['lumbar_flexion_rom']:.1f} deg "
           f"(absolute {stats['lumbar_flexion_min']:.1f}..{stats['lumbar_flexion_max']:.1f} deg, "
           f"{stats['lumbar_flexion_neutral']:.1f} at neutral)")
-    for group, reasons in result.notes.items():
+    for group, reasons in found.angles.notes.items():
         for reason, count in reasons.items():
             print(f"  {group} angles NaN in {count} frames: {reason}")
-    print(f"angles: {out}\nplot:   {out.with_suffix('.png')}")
+    print(f"angles: {found.table_path}\nplot:   {found.plot_path}")
     return 0
 
 
@@ -85,8 +61,9 @@ def register_bench(subparsers) -> None:
                     "top level) angles from the tracked markers and from the ground-truth markers (the ceiling) "
                     "and scores their change from neutral against the applied motion (see "
                     "spinemocap/bench/analysis.py for the expected angles). The tracked markers are also scored with "
-                    "the previous row centres (plain L-R midpoints, source tracked_lr_midpoints: the peer). An "
-                    "analytic bent rod (the pipeline's own error) and the older mid-bone benchmark run beside it.")
+                    "row centres taken as plain L-R midpoints (source tracked_lr_midpoints: the peer). An analytic "
+                    "bent rod (the pipeline's own error) and the mid-bone benchmark on ground-truth markers run "
+                    "beside it.")
     p.add_argument("--frames", type=int, default=30, help="frames per motion (default 30)")
     p.add_argument("--fps", type=float, default=10.0, help="frame rate (default 10: 3 s of motion)")
     p.add_argument("--rows", type=int, default=13, help="tape rows (default 13, the paper's tape, from S1)")

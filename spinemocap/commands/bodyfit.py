@@ -64,7 +64,7 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, help="save every number to this JSON file")
     p.add_argument("--no-peer", action="store_true",
-                   help="skip the peer fit (the earlier per-frame path: autograd through all bones)")
+                   help="skip the peer fit (per frame, autograd through all bones)")
     p.add_argument("--crossval-rows", type=int, default=9, help="tape rows of the cross-validation trial (default 9)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_bench_bodyfit)

@@ -35,7 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_crossval(args: argparse.Namespace) -> int:
     from ..app.crossval import ICC_FLAG, crossval_files
-    from .export import find_markers
+    from ..app.results import find_markers
 
     result = crossval_files(find_markers(args.tracked), args.vicon, args.capture, args.out, args.rig_vicon,
                             args.marker_diameter, args.max_offset, args.reference, args.levels)

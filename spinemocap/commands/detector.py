@@ -14,13 +14,10 @@ Training is resumable: run the same command again with the same ``--out``. Use t
 from __future__ import annotations
 
 import argparse
-import logging
 import shlex
 from pathlib import Path
 
-log = logging.getLogger(__name__)
-
-VIDEO_SUFFIXES = (".mkv", ".mp4", ".avi", ".mov", ".webm", ".m4v", ".mts", ".ts")  # decoded by PyAV
+from ..media import VIDEO_SUFFIXES
 
 
 def _train_options(p: argparse.ArgumentParser, epochs: int, lr: float) -> None:
@@ -141,103 +138,32 @@ def _command(args) -> str:
 
 
 def _train(args) -> int:
-    from ..app.training_data import SynthDataSettings, generate_synthetic
-    from ..detect.dataset import load_shards
-    from ..detect.train import train
+    from ..app.training_data import SynthDataSettings, train_on_studio
 
-    folders = args.data or [args.out / "data"]
     synth = SynthDataSettings(scenes=args.scenes, frames_per_scene=args.frames_per_scene, seed=args.data_seed,
                               appearance=args.appearance)
-    generate_synthetic(folders[0], synth)
-    train_views, val_views = load_shards(folders[0])
-    for extra in folders[1:]:
-        more_train, more_val = load_shards(extra)
-        train_views.extend(more_train)
-        val_views.extend(more_val)
-    log.info("%d training views, %d validation views from %s", len(train_views), len(val_views), folders)
-    meta = train(train_views, val_views, args.out, _settings(args), init_weights=args.weights,
-                 provenance={"command": _command(args), "data": {"kind": "synthetic studio", **synth.to_dict(),
-                                                             "folders": [str(f) for f in folders],
-                                                             "train_views": len(train_views), "val_views": len(val_views)}})
+    meta = train_on_studio(args.out, _settings(args), synth, args.data or (), args.weights,
+                           provenance={"command": _command(args)})
     print(f"best epoch {meta['best_epoch']}: validation IoU {meta['val_iou']:.4f}; weights: {args.out / 'weights.pt'}")
     return 0
 
 
 def _finetune(args) -> int:
-    from ..detect.dataset import import_labelled, load_shards
-    from ..detect.detector import shipped_weights_path
-    from ..detect.train import train
+    from ..app.training_data import finetune_on_images
 
-    data = args.out / "data"
-    n_train, n_val = import_labelled(data, args.images, masks=args.masks, coco=args.coco,
-                                     val_fraction=args.val_fraction, seed=args.seed)
-    train_views, val_views = load_shards(data)
-    init = args.weights or shipped_weights_path()
-    meta = train(train_views, val_views, args.out, _settings(args), init_weights=init,
-                 provenance={"command": _command(args), "data": {"kind": "lab", "images": str(args.images),
-                                                             "masks": str(args.masks) if args.masks else None,
-                                                             "coco": str(args.coco) if args.coco else None,
-                                                             "train_images": n_train, "val_images": n_val}})
+    meta, n_train, n_val = finetune_on_images(args.out, _settings(args), args.images, args.masks, args.coco,
+                                              args.val_fraction, args.seed, args.weights,
+                                              provenance={"command": _command(args)})
     print(f"{n_train} training / {n_val} validation images; best epoch {meta['best_epoch']}: "
           f"validation IoU {meta['val_iou']:.4f}; weights: {args.out / 'weights.pt'}")
     return 0
 
 
 def _run(args) -> int:
-    import cv2
-    import numpy as np
-
-    from ..capture import MANIFEST, Capture
+    from ..app.detector_run import detect_inputs
     from ..detect import Detector
-    from ..detect.overlay import draw_detections
-    from ..fileio import InputError, atomic_path, atomic_write
-    from ..frames import parse_frames
-    from ..media import VideoDecoder, read_image
 
     options = {"weights": args.weights} if args.name == "net" and args.weights else {}
-    detector = Detector(args.name, **options)
-
-    def views(path: Path):
-        """(name, BGR image) of each image an input gives: a file, a video's or a capture's frames."""
-        if path.is_dir():
-            if not (path / MANIFEST).is_file():
-                raise InputError(path, f"a folder given to 'detector run' must be a capture (with {MANIFEST})")
-            capture = Capture.open(path)
-            source = capture.frame_source()
-            try:
-                for frame in parse_frames(args.frames, capture.n_frames):
-                    for camera, image in zip(capture.camera_names, source.read(frame)):
-                        yield f"{capture.name}_{camera}_f{frame:06d}", image
-            finally:
-                close = getattr(source, "close", None)
-                if close:
-                    close()
-        elif path.suffix.lower() in VIDEO_SUFFIXES:
-            decoder = VideoDecoder(path)
-            try:
-                n = decoder.n_frames or 1
-                for frame in parse_frames(args.frames, n):
-                    yield f"{path.stem}_f{frame:06d}", decoder.read(frame)
-            finally:
-                decoder.close()
-        else:
-            yield path.stem, read_image(path)
-
-    if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
-    for path in args.inputs:
-        for name, image in views(path):
-            dots = detector.detect(image, expected_dot_px=args.dot_px)
-            share = 100.0 * float(np.count_nonzero(dots.tape_mask)) / dots.tape_mask.size
-            print(f"{name}: {len(dots)} dots, tape mask {int(np.count_nonzero(dots.tape_mask))} px ({share:.2f} % of the image)")
-            if args.out is None:
-                continue
-            with atomic_write(args.out / f"{name}_dots.csv") as handle:
-                handle.write("u_px,v_px,confidence\n")
-                for (u, v), c in zip(dots.uv, dots.confidence):
-                    handle.write(f"{u:.3f},{v:.3f},{c:.3f}\n")
-            overlay = draw_detections(image, dots.tape_mask, dots.uv, dots.confidence, name)
-            with atomic_path(args.out / f"{name}_overlay.png") as tmp:
-                if not cv2.imwrite(str(tmp), overlay):
-                    raise InputError(args.out, "the overlay could not be written (is the folder writable?)")
+    for found in detect_inputs(Detector(args.name, **options), args.inputs, args.frames, args.dot_px, args.out):
+        print(f"{found.name}: {len(found.dots)} dots, tape mask {found.tape_px} px ({found.tape_share:.2f} % of the image)")
     return 0

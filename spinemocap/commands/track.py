@@ -187,14 +187,10 @@ def accuracy_summary(table, capture_dir: Path) -> str:
 
     capture = Capture.open(capture_dir)
     groundtruth_path = capture.groundtruth_path
-    ev = evaluate_tracking(table, capture.groundtruth(), min_dot_spacing_mm(capture.tape))
+    ev = evaluate_tracking(table, capture.groundtruth(), capture.tape.graph.min_spacing_mm)
     obs, inf = ev.observed, ev.inferred
     return (f"accuracy vs ground truth ({groundtruth_path.name}): mean {ev.mean_error_mm:.2f} mm, "
             f"median {ev.median_error_mm:.2f} mm, p95 {ev.p95_error_mm:.2f} mm; "
             f"observed {obs.mean:.2f} mm (n={obs.n}), inferred {inf.mean:.2f} mm (n={inf.n}); "
             f"label swaps {ev.label_swaps}; frames without solution {ev.frames_without_solution}")
 
-
-def min_dot_spacing_mm(tape) -> float:
-    """Smallest rest distance between two dots of the tape (mm)."""
-    return float(tape.graph.rest_length_mm.min())

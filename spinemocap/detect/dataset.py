@@ -30,13 +30,13 @@ import numpy as np
 
 from ..capture import read_image
 from ..fileio import InputError, atomic_path
+from ..media import IMAGE_SUFFIXES
 
 log = logging.getLogger(__name__)
 
 WORK_WIDTH = 256          # stage-1 frame width and stage-2 crop long side, px
 CROP_PAD = 0.5            # stage-2 crop: tape box grown by this fraction of its size on each side
 AREA_PRESTEP = 2          # frame_view's integer area step before the final area resize (1: none)
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
 # ---------------------------------------------------------------------------------- views

@@ -267,16 +267,17 @@ def auto_precision(device: str = "auto", runtime: str = "auto") -> str:
 
 def resolve_device(device: str = "auto") -> str:
     """``auto`` -> ``cuda`` when torch sees a CUDA GPU, else ``cpu``; ``cpu`` and ``cuda[:N]`` pass
-    through. InputError for another name, or ``cuda`` where torch sees no CUDA GPU."""
+    through. InputError naming the parameter ``device`` for another name, or ``cuda`` where
+    torch sees no CUDA GPU."""
     if device == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
     if device == "cpu":
         return device
     if not device.startswith("cuda"):
-        raise InputError(None, f"unknown device {device!r} (choose auto, cpu or cuda)")
+        raise InputError("device", f"unknown device {device!r} (choose auto, cpu or cuda)")
     if not torch.cuda.is_available():
-        raise InputError(None, f"device {device!r} asked for, but torch sees no CUDA GPU "
-                               f"(torch {torch.__version__}); use --device cpu or auto")
+        raise InputError("device", f"device {device!r} asked for, but torch sees no CUDA GPU "
+                                   f"(torch {torch.__version__}); choose cpu or auto")
     return device
 
 

@@ -51,7 +51,7 @@ import numpy.typing as npt
 import pandas as pd
 
 from ..fileio import InputError, atomic_write, strict_json
-from ..markers import MarkerTable
+from ..markers import MISSING, OBSERVED, MarkerTable
 from ..tape import TapeSpec
 from .geometry import (
     LevelRows,
@@ -209,15 +209,15 @@ def tape_markers(markers: MarkerTable, tape: TapeSpec, axes: np.ndarray, source:
         raise InputError(source, f"no tape labels ({labels[0]}, {labels[1]}, ...) in this marker data")
     F = len(arrays.frames)
     positions = np.full((F, len(labels), 3), np.nan)
-    status = np.full((F, len(labels)), "missing", dtype=object)
+    status = np.full((F, len(labels)), MISSING, dtype=object)
     confidence = np.full((F, len(labels)), np.nan)
     for d, label in enumerate(labels):
         if label in present:
             positions[:, d] = arrays.positions[:, present[label]]
             status[:, d] = arrays.status[:, present[label]]
             confidence[:, d] = arrays.confidence[:, present[label]]
-    positions[status == "missing"] = np.nan
-    status[~np.isfinite(positions).all(axis=2)] = "missing"
+    positions[status == MISSING] = np.nan
+    status[~np.isfinite(positions).all(axis=2)] = MISSING
     times = arrays.time
     fps = float(markers.fps)
     if not np.isfinite(times).all():
@@ -339,7 +339,7 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
                    mean_weights(weights), "ik.mot", float(accuracy[frames].min()), priors, SLIP_GOALS,
                    {name: float(np.max(g.weights)) for name, g in chosen_goals.items()})
     solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy[frames], restart,
-                        data.status[frames][:, placed] == "observed", chosen_goals, fresh_start_margin)
+                        data.status[frames][:, placed] == OBSERVED, chosen_goals, fresh_start_margin)
     write_ik_outputs(work, solution)
     return solution.seconds
 
@@ -438,7 +438,7 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
         positions, tilt_turn = data.positions, None
         if settings.normalise_tilt:
             positions, tilt_turn = normalise_row_tilt(data.positions, st.positions, tape)
-        measured = np.where((data.status == "observed")[..., None], positions, np.nan)  # inferred dots are guesses
+        measured = np.where((data.status == OBSERVED)[..., None], positions, np.nan)  # inferred dots are guesses
         slip_goals = _slip_goals(measured, st.positions, tape, placed, settings.slip)
         ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
                                         _frame_accuracy(slip_goals, settings), _priors(placed.plan, settings),

@@ -23,27 +23,22 @@ from pathlib import Path
 import numpy as np
 
 from ..fileio import InputError
+from ..markers import INFERRED, MISSING, OBSERVED
 
 INFERRED_CONFIDENCE = 0.6  # label confidence of an inferred dot when the table has none (observed: 1)
 # Position uncertainty (SD, mm) of an observed (triangulated) dot and of an inferred one (placed by
-# the tape model or filled in time): on the studio's deep bends inferred dots were 2-40 mm off
+# the tape model or filled in time: on deep bends several to tens of mm off)
 OBSERVED_SD_MM = 1.0
 INFERRED_SD_MM = 10.0
-# IK solver accuracy (the SimTK assembler's tolerance; OpenSim's default). Its optimiser (L-BFGS-B)
-# stops once the objective's projected gradient is below this, or once an iteration lowers the
-# objective by less than ~2e-9 (a relative test floored at 1); the objective (half the weighted mean
-# squared marker error in m^2, plus the coordinate goals) is ~1e-9..1e-7 near a solution, so both
-# tests are absolute there: the solver stops short of the optimum along the directions the markers
-# hardly see, at a point that depends on its path. A twist shared between the pelvis and the levels is
-# under-read by an amount that depends on the start (about 0.6 of a studio trunk twist read at
-# 1e-5, 0.87 at 1e-6, 0.95 at 1e-7); nearer the optimum the skin-slip model with its slips solved
-# from the markers (SlipPrior.from_tape "off") reads forward bending worse (studio flexion RMSE
-# 1.3 -> 3.5 deg at 1e-6); with the slips held at the tape's it does not. Each tenth costs several
-# times the time per frame.
+# IK solver accuracy (the SimTK assembler's tolerance; OpenSim's default). Near a solution its
+# stopping tests are absolute, so it stops short of the optimum along the directions the markers
+# hardly see (a twist shared by the pelvis and the levels is under-read); a tighter accuracy costs
+# several times the time per frame and reads forward bending worse with the slips solved from the
+# markers (docs/decisions/0005-ik-solver-accuracy.md).
 IK_ACCURACY = 1e-5
 # A solve from far off (the static pose, see _better_of_two_starts) first runs to this accuracy,
-# then on to a tighter one: straight to 1e-6 from there took up to ~100x longer on a studio capture
-# bending three ways at once, to the same solution.
+# then on to a tighter one when one is asked (far faster than going straight there, to the same
+# solution).
 START_ACCURACY = 1e-5
 
 
@@ -75,12 +70,12 @@ def marker_weights(status: np.ndarray, confidence: np.ndarray | None = None,
     its position was placed by the tape model or filled in time, not measured, and is that much
     less certain."""
     status = np.asarray(status)
-    fallback = np.where(status == "observed", 1.0, np.where(status == "inferred", INFERRED_CONFIDENCE, 0.0))
+    fallback = np.where(status == OBSERVED, 1.0, np.where(status == INFERRED, INFERRED_CONFIDENCE, 0.0))
     if confidence is None:
         confidence = np.full(status.shape, np.nan)
     known = np.clip(np.where(np.isfinite(confidence), confidence, fallback), 0.0, 1.0)
-    precision = np.where(status == "inferred", (OBSERVED_SD_MM / inferred_sd_mm) ** 2, 1.0)
-    return np.where(status == "missing", 0.0, known**2 * precision)
+    precision = np.where(status == INFERRED, (OBSERVED_SD_MM / inferred_sd_mm) ** 2, 1.0)
+    return np.where(status == MISSING, 0.0, known**2 * precision)
 
 
 def mean_weights(weights: np.ndarray) -> np.ndarray:

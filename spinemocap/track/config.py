@@ -143,13 +143,13 @@ class MRF2Config:
     slice_width_mm: float = 3.0
     width_decay: float = 0.8
     temperature: float = 0.05
-    # Eq. 9 P_mobility. Off: in MRF2 a neighbour's spot is itself a bright dot, so dots jumped onto
-    # neighbours (heavy-occlusion frames: p95 error 3.4 -> 74 mm with it on)
+    # Eq. 9 P_mobility. Off: in MRF2 a neighbour's spot is itself a bright dot, so with it dots
+    # jump onto their neighbours, most of all under heavy occlusion
     mobility: bool = False
     knn: int = 2  # nearest feasible points as proposals, when feasible points are given
-    # beyond the paper: L-BFGS on the same energy after particle BP. Off by default: on the
-    # synthetic studio it moved dots from the (sub-pixel blob) feasible points toward slightly
-    # biased evidence minima (0.27 -> 0.32 mm mean on clean frames); useful without knn proposals.
+    # beyond the paper: L-BFGS on the same energy after particle BP. Off by default: it moves dots
+    # from the (sub-pixel blob) feasible points toward slightly biased evidence minima; useful
+    # without knn proposals.
     polish: bool = False
     polish_steps: int = 3
     polish_max_step_mm: float = 3.0  # per-dot move limit of the polish from the PBP result
@@ -207,10 +207,8 @@ class EvidenceConfig:
     """MRF2's image evidence: ``downscale`` of the cost images (1 = full resolution); ``threads``:
     the cameras' cost images are built by this many threads of the tracker's own (1, the default:
     one after another in the calling thread). Each image is built alone (OpenCV and numpy release
-    the GIL for most of the work), so the same images either way. Two threads did not pay on a
-    loaded 2-core machine: the same CPU, and the evidence alone built in half the wall time when a
-    core was free, but a whole run's wall time was not
-    lower under load."""
+    the GIL for most of the work), so the same images either way. More threads spend the same CPU
+    and shorten the wall time only where a core is free."""
 
     downscale: float = 1.0
     threads: int = 1
@@ -237,9 +235,8 @@ class StatusConfig:
     output point is the least-squares point of its blobs' rays (the sum of its squared distances
     from them, mm; :func:`spinemocap.geometry.triangulate_rays`), not its candidate's DLT point:
     the DLT's rows, normalised as 4-vectors in world mm, weight the cameras by where the world's
-    origin lies rather than by their errors (on the studio's ``lab`` capture the DLT points of
-    the same blobs were 0.86 mm off on average, the ray points 0.35 mm, as the points of least
-    reprojection error; a camera seeing the tape at a grazing angle pulled the DLT points most).
+    origin lies rather than by their errors, so a camera seeing the tape at a grazing angle pulls
+    the DLT points most (docs/decisions/0001-ray-points-for-observed-dots.md).
     False: the candidate's point. Two checks of an observed dot's label against the other
     observed dots alone (beyond the paper; 0 = off; the dot is marked and its frame flagged, see
     :mod:`spinemocap.track.quality`): ``observed_lattice_limit`` x the smallest dot spacing, the

@@ -611,7 +611,7 @@ class TemplateEvidenceScore:
 @contextmanager
 def _torch_single_thread() -> Iterator[None]:
     """MRF2's tensors are small (thousands of elements): torch's intra-op thread pool costs far
-    more than it gains there (20x slower on a busy 2-core machine), so run single-threaded.
+    more than it gains there, most of all on a busy machine, so run single-threaded.
     Set only when it differs: a ``torch.set_num_threads`` call, even to the same count, slows the
     network passes after it (see ``detect.detector``), and the detector already runs one thread."""
     before = torch.get_num_threads()

@@ -324,7 +324,7 @@ class FrameTracker:
         edges = self.graph.solid_edges
         out = detached_groups(observed, edges, cfg.detached_max_dots)
         if cfg.observed_lattice_limit > 0:
-            limit = cfg.observed_lattice_limit * float(self.graph.rest_length_mm.min())
+            limit = cfg.observed_lattice_limit * self.graph.min_spacing_mm
             out |= off_observed_lattice(self.graph.uv_mm, positions, observed, limit, cfg.lattice_sigma_mm)
         # the inferred dots beside such a dot were laid by the same model, around the same point
         beside = np.zeros_like(out)
@@ -384,7 +384,7 @@ class FrameTracker:
         observe radius when the model or the sequence's prediction strayed; the tape around it
         says where the dot must be (see :mod:`spinemocap.track.lattice`)."""
         cfg = self.config.status
-        limit = cfg.lattice_limit * float(self.graph.rest_length_mm.min())
+        limit = cfg.lattice_limit * self.graph.min_spacing_mm
         outlier, prediction = off_lattice(self.graph.uv_mm, positions, limit, cfg.lattice_sigma_mm)
         outlier &= np.isfinite(prediction).all(axis=1)
         source = source.copy()

@@ -64,6 +64,7 @@ from scipy.optimize import least_squares
 
 from ..camera import Rig
 from ..geometry import triangulate_dlt
+from ..markers import OBSERVED
 from ..rig_adjust import AdjustmentSettings, CameraPriors, FixedPoints, FreePoints, RigAdjustment
 from .candidates import reprojection_errors
 from .rig_check import robust_rms
@@ -79,11 +80,10 @@ class RigRefineConfig:
     fixed widths for every camera (default 20 mm, 0.5 deg), or None: each camera's widths from
     its own residual on the capture's dots, ``prior_scale`` x that residual (at least
     ``min_prior_px``) turned into an angle (/ focal length) and a centre shift (x the camera's
-    distance to the dots), see :func:`residual_priors` (measured, not better on average:
-    module docstring). With a reference object: ``reference_weight`` scales its markers'
-    residuals (each is a median over frames, ~0.05 px against ~0.13 px for a dot: 3 measured
-    better than 1 and 10 on a rendered capture), ``reference_limit_px`` the least fit beyond
-    which a marker makes :class:`ReferenceFitError`."""
+    distance to the dots), see :func:`residual_priors` and the module docstring. With a reference
+    object: ``reference_weight`` scales its markers' residuals (each is a median over frames,
+    ~0.05 px against ~0.13 px for a dot), ``reference_limit_px`` the least fit
+    beyond which a marker makes :class:`ReferenceFitError`."""
 
     max_frames: int = 120
     focal: bool = True
@@ -276,10 +276,9 @@ def refine_rig(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float,
         raise ReferenceFitError("; ".join(problems))
     # the solve starts with the given rig (and its dots) shifted onto the reference: the mean
     # offset of the given rig's triangulation of the markers from their known places. From the
-    # given frame itself the solver's sparse steps crept along the dots' flat gauge directions
-    # and stopped short of a frame 5-15 mm away; a start rotated by the similarity fitted on the
-    # markers (or on a dots-only refinement) converged worse than a shift (on a
-    # rendered 2 px capture: 0.31-0.36 mm against 0.44-0.87 mm)
+    # given frame itself the solver's sparse steps creep along the dots' flat gauge directions
+    # and stop short of a frame some mm away; a start rotated by the similarity fitted on the
+    # markers (or on a dots-only refinement) converges worse than a shift
     seen = _triangulate_markers(rig, control)
     ok = np.isfinite(seen).all(axis=1)
     shift = (control.world_mm[ok] - seen[ok]).mean(axis=0)
@@ -318,8 +317,8 @@ def _refine(rig: Rig, pixels: np.ndarray, positions: np.ndarray, fps: float, con
                                     exact_steps=control is not None, backend="scipy"))
     before = adjustment.initial().point_errors_px
     # the Huber scale starts at the given rig's own residual level: with every residual far in
-    # the loss's linear part (a 3 px rig against a 1 px scale) the solver stalled on its first
-    # steps and returned the given rig unchanged
+    # the loss's linear part (a 3 px rig against a 1 px scale) the solver stalls on its first
+    # steps and returns the given rig unchanged
     fit = adjustment.solve(loss_scale_px=max(config.loss_scale_px, robust_rms(before)))
     # a blob paired with the wrong dot now and then (a few px off whatever the rig): drop the
     # observations far beyond the fitted residuals' spread and solve again
@@ -551,7 +550,7 @@ def retriangulate(rig: Rig, pixels: np.ndarray, positions: np.ndarray, status: n
     P = np.stack([c.projection_matrix for c in rig])
     for f in range(len(positions)):
         used = np.isfinite(pixels[f]).all(axis=2)  # (D, C)
-        obs = (status[f] == "observed") & (used.sum(axis=1) >= 2)
+        obs = (status[f] == OBSERVED) & (used.sum(axis=1) >= 2)
         if not obs.any():
             continue
         undist = _undistorted(rig, pixels[f], used & obs[:, None])

@@ -139,7 +139,7 @@ class SequenceTracker:
         followed = predicted[hidden] + (w @ shift) / w.sum(axis=1, keepdims=True)
         # the re-solve and the last frames' motion disagree on these dots by more than half a dot
         # spacing: one of them has the wrong dot there, and nothing observed tells which
-        limit = 0.5 * float(self.tracker.graph.rest_length_mm.min())
+        limit = 0.5 * self.tracker.graph.min_spacing_mm
         apart = np.zeros(len(hidden), bool)
         apart[hidden] = ~(np.linalg.norm(followed - result.positions[hidden], axis=1) <= limit)
         result.positions[hidden] = followed

@@ -4,7 +4,6 @@ reproduces the studio's dots; the real Nexus files fit (skipped when ../shared i
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,8 +12,6 @@ from repo_paths import SHARED
 from spinemocap.tape import TapeSpec
 
 VICON = SHARED / "data" / "vicon"
-if not VICON.is_dir():
-    VICON = Path("/work/shared/data/vicon")
 
 
 @pytest.fixture(scope="module")

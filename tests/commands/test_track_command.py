@@ -5,11 +5,9 @@ from __future__ import annotations
 
 import re
 
-import numpy as np
 import pytest
 
 from spinemocap.app.results import read_results
-from spinemocap.capture import Capture
 from spinemocap.commands import track as track_command
 from spinemocap.fileio import InputError
 
@@ -26,12 +24,6 @@ def test_track_writes_every_frame_and_prints_its_accuracy(tiny_capture, tracked,
     out = capsys.readouterr().out
     assert "tracked 2 frames" in out and "accuracy vs ground truth" in out
     assert read_results(tmp_path / "two").n_frames == 2
-
-
-def test_the_closest_dots_of_the_tape_are_its_spacing(tiny_capture):
-    tape = Capture.open(tiny_capture).tape
-    spacing = track_command.min_dot_spacing_mm(tape)
-    assert spacing == pytest.approx(float(np.min(tape.graph.rest_length_mm))) and spacing > 5.0
 
 
 @pytest.mark.parametrize("flags, named", [

@@ -33,7 +33,8 @@ def test_cuda_without_a_gpu_is_an_input_error(capsys):
         resolve_device("gpu")
     # on the command line: a message and exit code 2, before any capture is read
     assert main(["bench", "speed", "--capture", "/nonexistent", "--device", "cuda", "--no-progress"]) == 2
-    assert "sees no CUDA GPU" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--device: device 'cuda' asked for" in err and "sees no CUDA GPU" in err  # the parameter shown as its flag
 
 
 def test_uint8_tensor_converts_like_the_numpy_image():

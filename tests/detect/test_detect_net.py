@@ -116,8 +116,8 @@ def test_unknown_detector_name():
 
 def test_growing_stage2_box_pastes_the_mask_of_the_final_box(monkeypatch):
     """A tape running out of every box makes the box grow max_grow times; the mask pasted into
-    the frame must be the one computed for the final box (regression: it was the previous
-    box's, a broadcast error on bent tapes)."""
+    the frame must be the one computed for the final box, not an earlier box's (a broadcast
+    error on bent tapes)."""
     from spinemocap.detect.detector import NetSegmenter
 
     seg = NetSegmenter(max_grow=1)

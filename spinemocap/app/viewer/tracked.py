@@ -21,7 +21,7 @@ import exporters
 
 from ...capture import Capture
 from ...fileio import InputError
-from ...markers import INFERRED, OBSERVED, MarkerTable
+from ...markers import INFERRED, MISSING, OBSERVED, MarkerTable
 from ...tape import TapeSpec
 from ...track.quality import flagged_from_confidence
 from ..levels import find_level_map
@@ -119,7 +119,7 @@ def read_tracked(results: str | os.PathLike, tape: TapeSpec) -> TrackedDots:
     take = [list(arrays.labels).index(label) if label in arrays.labels else -1 for label in labels]
     F, D = len(arrays.frames), len(labels)
     positions = np.full((F, D, 3), np.nan)
-    status = np.full((F, D), "missing", dtype=object)
+    status = np.full((F, D), MISSING, dtype=object)
     confidence = np.full((F, D), np.nan)
     for d, k in enumerate(take):
         if k >= 0:
