@@ -85,7 +85,7 @@ class FrameResult:
     gate_px: float = float("nan")
     pixels: np.ndarray | None = None  # (D, C, 2) distorted px of the blobs of observed dots
     relocated: np.ndarray | None = None  # (D,) bool: moved back onto the tape's lattice (quality)
-    extrapolated: np.ndarray | None = None  # (D,) bool: relocated, no candidate, beyond the known rows
+    extrapolated: np.ndarray | None = None  # (D,) bool: relocated, no candidate, beyond the rows of observed dots kept in place
     unanchored: np.ndarray | None = None  # (D,) bool: inferred, >= unanchored_rows beyond the observed rows
     unsupported: np.ndarray | None = None  # (D,) bool: observed, its label not borne out by the other observed dots
     end_misplaced: np.ndarray | None = None  # (D,) bool: in an unobserved end row beside an implausible row pitch
@@ -267,7 +267,7 @@ class FrameTracker:
         if cloud.pixels is not None:
             pixels[seen] = cloud.pixels[source[seen]]
         result = FrameResult(positions, status, n_views, residual, pixels=pixels, relocated=relocated,
-                             extrapolated=relocated & ~seen & beyond_known_rows(relocated, positions, self.graph),
+                             extrapolated=relocated & ~seen & beyond_known_rows(relocated | ~seen, positions, self.graph),
                              unanchored=self._unanchored(status), unsupported=self._unsupported(positions, status))
         result.flags.extend(result.dot_flags())
         return result

@@ -26,8 +26,9 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
 - per-dot flags (factor on the dots concerned only; the frame lists the flag): ``dot_relocated``
   0.8 (the dot sat off its tape neighbours' lattice, matched to a ghost or a neighbour's point
   under a poor rig, and was moved back onto it: :mod:`spinemocap.track.lattice`);
-  ``dot_extrapolated`` 0.5 (such a dot found no candidate point and its neighbours lie on one
-  side only: its place is an extrapolation along the tape, possibly a dot spacing off);
+  ``dot_extrapolated`` 0.5 (such a dot found no candidate point and its observed neighbours
+  (kept in place) lie on one side only: its place is an extrapolation along the tape, possibly a
+  dot spacing off; the inferred dots beyond it are the model's, no evidence of its place);
   ``dot_unanchored`` 0.5 (an inferred dot two or more rows beyond the last row with an observed
   dot: the tape's end seen by no camera pair, placed and labelled by the model alone, which
   misses there by half a dot spacing or more, see :func:`spinemocap.track.lattice.rows_beyond`;
