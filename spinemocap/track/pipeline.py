@@ -47,7 +47,7 @@ from .lattice import (
 from .lp import select_edges
 from .mrf1 import fit_mrf1
 from .mrf2 import TemplateEvidenceScore, refine_mrf2
-from .quality import stretch_plausible, unlabelled_dots
+from .quality import implausible_pitches, stretch_plausible, unlabelled_dots, unobserved_ends_beside
 from .rig_check import RigMonitor
 from .stretch import StretchEstimate, StretchReading, read_stretch, row_stretch, stretched_spec
 from .template import tape_frames
@@ -67,7 +67,9 @@ class FrameResult:
     frame was solved with (ratio to the roll's spec); ``gate_px``: the candidate gate used; ``relocated``: dots the lattice check moved (see
     :meth:`FrameTracker.relocate_off_lattice`); ``unanchored``: inferred dots far beyond the
     observed rows (see :meth:`FrameTracker.assign_status`); ``unsupported``: observed dots whose
-    label the other observed dots do not bear out (see :meth:`FrameTracker.assign_status`)."""
+    label the other observed dots do not bear out (see :meth:`FrameTracker.assign_status`);
+    ``end_misplaced``: unobserved end rows beside an implausible row pitch (see
+    :meth:`FrameTracker.add_quality`)."""
 
     positions: np.ndarray
     status: np.ndarray
@@ -83,9 +85,10 @@ class FrameResult:
     gate_px: float = float("nan")
     pixels: np.ndarray | None = None  # (D, C, 2) distorted px of the blobs of observed dots
     relocated: np.ndarray | None = None  # (D,) bool: moved back onto the tape's lattice (quality)
-    extrapolated: np.ndarray | None = None  # (D,) bool: relocated, no candidate, beyond the known rows
+    extrapolated: np.ndarray | None = None  # (D,) bool: relocated, no candidate, beyond the rows of observed dots kept in place
     unanchored: np.ndarray | None = None  # (D,) bool: inferred, >= unanchored_rows beyond the observed rows
     unsupported: np.ndarray | None = None  # (D,) bool: observed, its label not borne out by the other observed dots
+    end_misplaced: np.ndarray | None = None  # (D,) bool: in an unobserved end row beside an implausible row pitch
 
     @property
     def solved(self) -> bool:
@@ -102,6 +105,8 @@ class FrameResult:
             out["dot_unanchored"] = self.unanchored
         if self.unsupported is not None and self.unsupported.any():
             out["dot_unsupported"] = self.unsupported
+        if self.end_misplaced is not None and self.end_misplaced.any():
+            out["dot_end_misplaced"] = self.end_misplaced
         return out
 
     @classmethod
@@ -262,7 +267,7 @@ class FrameTracker:
         if cloud.pixels is not None:
             pixels[seen] = cloud.pixels[source[seen]]
         result = FrameResult(positions, status, n_views, residual, pixels=pixels, relocated=relocated,
-                             extrapolated=relocated & ~seen & beyond_known_rows(relocated, positions, self.graph),
+                             extrapolated=relocated & ~seen & beyond_known_rows(relocated | ~seen, positions, self.graph),
                              unanchored=self._unanchored(status), unsupported=self._unsupported(positions, status))
         result.flags.extend(result.dot_flags())
         return result
@@ -408,7 +413,11 @@ class FrameTracker:
         return source, outlier
 
     def add_quality(self, result: FrameResult, cloud: CandidateCloud, stretch: StretchEstimate) -> FrameResult:
-        """Flags of a solved frame (see :mod:`spinemocap.track.quality`) and its spacing/gate."""
+        """Flags of a solved frame (see :mod:`spinemocap.track.quality`) and its spacing/gate. A
+        solved row pitch outside the plausible range flags the frame ``stretch_implausible``,
+        unless every such pitch lies beside an unobserved end row
+        (:func:`~spinemocap.track.quality.unobserved_ends_beside`): then the dots of those end
+        rows are marked ``end_misplaced`` (flag ``dot_end_misplaced``)."""
         result.stretch, result.gate_px = stretch, self.monitor.gate_px()
         if not result.solved:
             return result
@@ -423,11 +432,18 @@ class FrameTracker:
                            self.config.status.observe_radius_mm) >= 2:
             flags.append("unlabelled_dots")
         lo, hi = self.config.stretch.along_range
-        if not stretch_plausible(row_stretch(result.positions, self.graph)[0], (lo * 0.85, hi * 1.15)):
-            flags.append("stretch_implausible")
-        elif stretch.source == "data" and not stretch_plausible(self._solved_row_pitches(result.positions),
-                                                                (stretch.along_min * 0.85, stretch.along_max * 1.15)):
-            flags.append("stretch_implausible")  # rows closer/farther than any pitch seen in the points
+        tape_range = (lo * 0.85, hi * 1.15)
+        measured = (stretch.along_min * 0.85, stretch.along_max * 1.15) if stretch.source == "data" else None
+        pitches = self._solved_row_pitches(result.positions)
+        if not stretch_plausible(row_stretch(result.positions, self.graph)[0], tape_range) or (
+                measured is not None and not stretch_plausible(pitches, measured)):
+            misplaced = unobserved_ends_beside(implausible_pitches(pitches, tape_range, measured),
+                                               result.status == OBSERVED, self.graph)
+            if misplaced is None:
+                flags.append("stretch_implausible")  # a pitch that bears on the observed rows' labels
+            else:
+                result.end_misplaced = misplaced
+                flags.append("dot_end_misplaced")
         return result
 
     def _solved_row_pitches(self, positions: np.ndarray) -> np.ndarray:

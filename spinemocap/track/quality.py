@@ -26,8 +26,9 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
 - per-dot flags (factor on the dots concerned only; the frame lists the flag): ``dot_relocated``
   0.8 (the dot sat off its tape neighbours' lattice, matched to a ghost or a neighbour's point
   under a poor rig, and was moved back onto it: :mod:`spinemocap.track.lattice`);
-  ``dot_extrapolated`` 0.5 (such a dot found no candidate point and its neighbours lie on one
-  side only: its place is an extrapolation along the tape, possibly a dot spacing off);
+  ``dot_extrapolated`` 0.5 (such a dot found no candidate point and its observed neighbours
+  (kept in place) lie on one side only: its place is an extrapolation along the tape, possibly a
+  dot spacing off; the inferred dots beyond it are the model's, no evidence of its place);
   ``dot_unanchored`` 0.5 (an inferred dot two or more rows beyond the last row with an observed
   dot: the tape's end seen by no camera pair, placed and labelled by the model alone, which
   misses there by half a dot spacing or more, see :func:`spinemocap.track.lattice.rows_beyond`;
@@ -43,6 +44,12 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
   residual is no proof of its label: matched to its row neighbour's point, a dot reprojects
   perfectly, and the dots the model infers around it follow it, see
   :func:`spinemocap.track.lattice.off_observed_lattice` and :func:`~spinemocap.track.lattice.detached_groups`).
+  ``dot_end_misplaced`` 0.5 (the dots of the rows beyond the outermost observed rows, the tape's
+  end seen by no camera pair, on a side where the solved row pitch leaves the plausible range
+  (as ``stretch_implausible`` judges it) while every pitch between rows with an observed dot
+  stays within it: the model misplaced the unseen end, and only its dots are in doubt; a
+  pitch beside an observed row's or a hidden middle row's is the frame's ``stretch_implausible``,
+  since a row carrying its neighbour's label shows there, see :func:`unobserved_ends_beside`).
 
 A frame is *flagged* when it holds any flag but the mild ``stretch_carried``, ``lp_relaxed``,
 ``lp_time_limited`` and ``dot_relocated`` (frequent under occlusion or a poor rig, the relocated
@@ -76,6 +83,7 @@ DOT_FLAG_FACTORS = {
     "dot_extrapolated": 0.5,
     "dot_unanchored": 0.5,
     "dot_unsupported": 0.5,
+    "dot_end_misplaced": 0.5,
 }
 MILD_FLAGS = frozenset({"stretch_carried", "lp_relaxed", "lp_time_limited", "dot_relocated"})
 STATUS_FACTORS: dict[str, float] = {OBSERVED: 1.0, INFERRED: 0.6, MISSING: 0.0}
@@ -129,6 +137,43 @@ def stretch_plausible(along: np.ndarray, bounds: tuple[float, float]) -> bool:
     finite = np.asarray(along, float)
     finite = finite[np.isfinite(finite)]
     return bool(not len(finite) or ((finite >= bounds[0]) & (finite <= bounds[1])).all())
+
+
+def implausible_pitches(pitches: np.ndarray, tape_range: tuple[float, float],
+                        measured_range: tuple[float, float] | None = None) -> np.ndarray:
+    """(n_rows - 1,) bool: the solved row pitches (``pitches``, ratio to the spec's, NaN where a
+    row is missing) outside ``tape_range`` (what a kinesiology tape can take) or outside
+    ``measured_range`` (the pitches the frame's points show, when measured)."""
+    pitches = np.asarray(pitches, float)
+    with np.errstate(invalid="ignore"):
+        out = (pitches < tape_range[0]) | (pitches > tape_range[1])
+        if measured_range is not None:
+            out |= (pitches < measured_range[0]) | (pitches > measured_range[1])
+    return out
+
+
+def unobserved_ends_beside(implausible: np.ndarray, observed: np.ndarray, graph: TapeGraph) -> np.ndarray | None:
+    """(D,) bool: the dots of the end rows beyond the outermost rows holding an ``observed`` (D,)
+    bool dot, on each side where an ``implausible`` (n_rows - 1,) bool pitch (between rows ``k``
+    and ``k + 1``) lies, when every implausible pitch touches such a row; None when some
+    implausible pitch lies between rows within the observed span (a row carrying its
+    neighbour's label, or a hidden row between observed ones whose pitches tell a skipped row:
+    the observed labels are in doubt) or when no pitch is implausible.
+
+    Beyond the outermost observed rows every row is placed by the model alone: a pitch there,
+    or between the last observed row and the first unseen one, says where the model laid the
+    unseen end, not which label an observed dot carries."""
+    implausible = np.asarray(implausible, bool)
+    observed = np.asarray(observed, bool)
+    if not implausible.any() or not observed.any():
+        return None
+    rows = np.asarray(graph.row)
+    lo, hi = int(rows[observed].min()), int(rows[observed].max())
+    gaps = np.flatnonzero(implausible)  # gap k joins rows k and k + 1
+    if ((gaps >= lo) & (gaps < hi)).any():
+        return None
+    below, above = bool((gaps < lo).any()), bool((gaps >= hi).any())
+    return (below & (rows < lo)) | (above & (rows > hi))
 
 
 def flagged_from_confidence(status: np.ndarray, confidence: np.ndarray) -> np.ndarray:

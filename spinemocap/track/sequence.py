@@ -4,7 +4,9 @@ frame to frame.
 Per frame (``mode = "sequence"``):
 1. predict every dot from the last two solved frames (constant velocity);
 2. if the predicted dots find candidate points (>= 2 views) within ``match_radius_mm`` for at
-   least ``min_explained`` of the dots, and the matched dots keep tape-like solid-edge lengths,
+   least ``min_explained`` of the dots (a dot the last frame inferred, whose prediction is the
+   model's place moved on, may instead find its point where this frame's matched dots' lattice
+   puts it), and the matched dots keep tape-like solid-edge lengths,
    the previous solution "explains" the frame: the LP and MRF1 are skipped, matched dots take
    their triangulated points and the others follow their observed tape neighbours (a locally
    weighted affine map from the flat tape to 3D), then MRF2 refines them on the images;
@@ -50,6 +52,7 @@ class SequenceTracker:
         self.config: SequenceConfig = tracker.config.sequence
         self.last: np.ndarray | None = None  # (D, 3) dots of the last solved frame
         self.before_last: np.ndarray | None = None
+        self.last_observed: np.ndarray | None = None  # (D,) bool: the last solved frame's observed dots
         self.uv = tracker.graph.uv_mm
         self.solid = tracker.graph.solid_edges
         self.pinned = False  # the identity told by the observed rows (no other labelling fits them)
@@ -189,10 +192,11 @@ class SequenceTracker:
             usable = np.nonzero(cloud.n_views >= 2)[0] if len(cloud) else np.zeros(0, np.int64)
             match = match_points(predicted, cloud.points[usable], self.config.match_radius_mm)
             seen = match >= 0
-            if seen.mean() < self.config.min_explained:
-                return None
             positions = predicted.copy()
             positions[seen] = cloud.points[usable[match[seen]]]
+            seen |= self._match_inferred_on_lattice(positions, seen, cloud.points[usable], match)
+            if seen.mean() < self.config.min_explained:
+                return None
             if not self._tape_like(positions, seen, edge_bounds(tape, self.tracker.config.edges)):
                 return None
             positions[~seen] = self._follow_neighbours(positions, predicted, seen)
@@ -203,6 +207,32 @@ class SequenceTracker:
             result = self.tracker.assign_status(positions, cloud)
         result.route, result.lp_status = "carried", "skipped"
         return result
+
+    def _match_inferred_on_lattice(self, positions: np.ndarray, seen: np.ndarray, points: np.ndarray,
+                                   match: np.ndarray) -> np.ndarray:
+        """(D,) bool: the dots the last frame inferred that found no point near their prediction
+        (``seen`` (D,) bool: the dots matched, ``match`` (D,) their index in ``points`` (N, 3) mm,
+        -1 none), lie between the matched rows or one row beyond them, and find an unclaimed
+        point within ``match_radius_mm`` of where the matched dots' lattice puts them
+        (:func:`.lattice.affine_from_neighbours`, weights of ``status.lattice_sigma_mm``; the
+        lattice holds a row out, not several). ``positions`` (D, 3) mm and ``match`` are updated
+        in place for them. An inferred dot's prediction is the model's place moved by a velocity
+        made of two such places: off by more than the radius at a tape end the cameras lose,
+        though its point is there; the lattice of the dots tracked beside it is not."""
+        found = np.zeros(len(seen), bool)
+        if self.last_observed is None or seen.sum() < 3:
+            return found
+        targets = np.flatnonzero(~seen & ~self.last_observed & (rows_beyond(seen, self.tracker.graph) <= 1))
+        free = np.setdiff1d(np.arange(len(points)), match[seen])
+        if not len(targets) or not len(free):
+            return found
+        where = affine_from_neighbours(self.uv, positions, seen, targets, self.tracker.config.status.lattice_sigma_mm)
+        extra = match_points(where, points[free], self.config.match_radius_mm)
+        hit = extra >= 0
+        match[targets[hit]] = free[extra[hit]]
+        positions[targets[hit]] = points[free[extra[hit]]]
+        found[targets[hit]] = True
+        return found
 
     def _tape_like(self, positions: np.ndarray, seen: np.ndarray, bounds: tuple[float, float]) -> bool:
         """Solid edges between matched dots all have lengths within ``bounds`` (th3, th4)."""
@@ -229,6 +259,7 @@ class SequenceTracker:
         # across an accepted relabelling the labels' velocity is rows, not motion
         self.before_last = None if "relabelled" in result.flags else self.last
         self.last = result.positions.copy()
+        self.last_observed = result.status == OBSERVED
 
 
 def fill_and_smooth(positions: np.ndarray, status: np.ndarray, config: SequenceConfig,

@@ -110,6 +110,34 @@ def test_a_row_closer_to_its_neighbour_than_any_pitch_in_the_points_flags_the_fr
     assert "stretch_implausible" in tracker.add_quality(result, cloud, stretch).flags
 
 
+def test_an_implausible_pitch_beside_the_unseen_end_rows_doubts_only_their_dots():
+    """The last two rows seen by no camera, the model laid the last one 0.6 pitch too far (a
+    flexed back's end extrapolated with the wrong stretch): its dots and the unseen row before
+    it are doubted, the observed rows keep confidence 1.0 and the frame holds no
+    ``stretch_implausible``. The same pitch at a row unseen between observed rows (it may tell
+    a skipped row: the labels beyond it) flags the frame."""
+    rig = rig_behind()
+    dots = tape_on_back(SPEC)
+    tracker = FrameTracker(rig, SPEC)
+    stretch = tracker.measure_stretch(tracker.candidates(blobs(rig, dots, noise_px=0.2)))
+    for unseen_rows, moved_row, doubts_frame in (((11, 12), 12, False), ((6,), 6, True)):
+        unseen = np.isin(SPEC.graph.row, unseen_rows)
+        cloud = tracker.candidates(blobs(rig, dots, noise_px=0.2, hidden=np.tile(unseen, (len(rig), 1))))
+        result = tracker.assign_status(dots, cloud)
+        assert (result.status[unseen] == "inferred").all() and (result.status[~unseen] == "observed").all()
+        result.positions[SPEC.graph.row == moved_row] += [0.0, 0.0, 0.6 * SPEC.row_pitch_mm]
+        flags = tracker.add_quality(result, cloud, stretch).flags
+        assert ("stretch_implausible" in flags) == doubts_frame
+        assert is_flagged(flags)
+        confidence = label_confidence(result.status, flags, result.dot_flags())
+        if doubts_frame:
+            assert confidence.max() <= 0.5
+        else:
+            np.testing.assert_array_equal(result.end_misplaced, unseen)
+            assert "dot_end_misplaced" in flags
+            assert confidence[unseen].max() <= 0.3 and confidence[~unseen].min() == 1.0
+
+
 def test_a_capture_that_starts_with_the_tape_end_unseen_doubts_every_label_until_the_rows_show():
     """The first frame of a capture (no previous identity) sees all but the last three rows of
     the flexed tape: a labelling two rows toward the sacrum explains its points as well (the

@@ -201,6 +201,28 @@ def test_an_end_dot_placed_by_extrapolation_flags_the_frame():
     assert flagged_from_confidence(np.array(result.status)[None], confidence[None])[0]  # markers.csv tells it
 
 
+def test_a_relocated_dot_beyond_the_observed_rows_is_extrapolated_whatever_the_model_laid_beyond():
+    """The last three rows seen by no camera, the model laid the first of them 15 mm off its
+    neighbours' lattice: the dot is put back where the lattice extrapolates it, a place the
+    model's rows beyond it (inferred, no evidence) do not bear out, so its label is doubted
+    (``dot_extrapolated``); the rows observed keep confidence 1.0."""
+    rig = rig_behind()
+    dots = tape_on_back(SPEC)
+    unseen = SPEC.graph.row >= SPEC.n_rows - 3
+    d = np.flatnonzero(SPEC.graph.row == SPEC.n_rows - 3)[0]
+    tracker = FrameTracker(rig, SPEC)
+    model = dots.copy()
+    model[d] += [0.0, 15.0, 0.0]
+    result = tracker.assign_status(model, tracker.candidates(blobs(rig, dots, noise_px=0.2, hidden=np.tile(unseen, (len(rig), 1)))))
+    assert (result.status[unseen] == "inferred").all() and (result.status[~unseen] == "observed").all()
+    assert result.relocated[d] and result.extrapolated[d] and result.extrapolated.sum() == 1
+    assert not result.unanchored[d]  # one row out: the unanchored check leaves it
+    confidence = label_confidence(result.status, result.flags, result.dot_flags())
+    assert confidence[d] == pytest.approx(0.6 * 0.8 * 0.5)
+    assert flagged_from_confidence(np.array(result.status)[None, [d]], confidence[None, [d]])[0]
+    assert confidence[~unseen].min() == 1.0
+
+
 def _column_shifted(dots: np.ndarray, shifted: np.ndarray, step: tuple[str, str]) -> np.ndarray:
     """The truth with the ``shifted`` (D,) bool dots moved by one column (from dot ``step[0]``'s
     place to ``step[1]``'s): a model that laid an end of the tape a column aside."""
