@@ -159,8 +159,9 @@ class SpeedOptions:
         candidate_depth: frames the candidate stage is built ahead of the tracker.
 
     Raises:
-        InputError: a negative ``lookahead``, an unknown ``refresh``, a period below 1, or
-            ``frames_at_once`` below 1 or above 1 with prediction on.
+        InputError: a negative ``lookahead``, an unknown ``refresh``, a period below 1,
+            ``frames_at_once`` below 1 or above 1 with prediction on, or candidate workers
+            below 0 or with prediction on.
     """
 
     workers: int = 0
@@ -197,6 +198,9 @@ class SpeedOptions:
         if self.candidate_workers < 0 or self.candidate_depth < 1:
             raise InputError("--candidate-workers", f"workers must be 0 or more and depth 1 or more, got "
                              f"{self.candidate_workers} and {self.candidate_depth}")
+        if self.candidate_workers > 0 and self.predict:
+            raise InputError("--candidate-workers", "the candidate workers build frames ahead of the tracker, which "
+                             "prediction cannot wait for: turn prediction off (--frames-at-once N or --no-predict)")
         if self.frames_at_once > 1 and self.predict:
             raise InputError("--frames-at-once", "frames detected at once are each searched in full: "
                              "turn prediction off (--no-predict)")

@@ -76,7 +76,15 @@ def test_a_dying_worker_leaves_the_tracker_to_build_the_rest(scene, caplog):
     assert ahead.built < len(views) - 1
 
 
-def test_bad_worker_counts_are_refused(scene):
+def test_bad_worker_counts_and_workers_with_prediction_are_refused(scene):
+    from spinemocap.app.streaming import SpeedOptions
+    from spinemocap.fileio import InputError
+
     rig, _, _ = scene
     with pytest.raises(ValueError, match="workers and depth"):
         CandidatesAhead(rig, SPEC, None, workers=0)
+    with pytest.raises(InputError, match="turn prediction off"):
+        SpeedOptions(candidate_workers=2)  # prediction waits for each solved frame: nothing to build ahead
+    with pytest.raises(InputError, match="0 or more"):
+        SpeedOptions(candidate_workers=-1, predict=False)
+    assert SpeedOptions(candidate_workers=2, predict=False, frames_at_once=4).candidate_workers == 2

@@ -1032,7 +1032,7 @@ def test_a_replayed_run_on_a_gpu_reports_its_cpu_peer_and_the_dots_on_both_devic
     numbers = ReplayedSpeed(
         preset="capture c replayed", source_frames=3, frames=10, sensor_noise=0.0, cameras=6, image_size=[2448, 1600],
         mode="sequence", detector="net", device="cuda", machine=machine,
-        speed_options=SpeedOptions(device="cuda", candidate_workers=3),
+        speed_options=SpeedOptions(device="cuda", predict=False, frames_at_once=12, candidate_workers=3),
         fps_in_memory=40.0, fps_png=None, fps_video=None, speedup_vs_serial=None, accuracy_not_worse=None,
         speedup_vs_cpu=5.0, accuracy_not_worse_vs_cpu=True, same_accuracy_as_cpu=same_accuracy(gpu, cpu),
         speedup_vs_default=None, speedup_candidates_ahead=1.6, same_output_candidates_ahead=True,
