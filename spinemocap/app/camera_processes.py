@@ -139,7 +139,7 @@ class CameraProcesses:
         self._lock = threading.Lock()
         self._direct_lock = threading.Lock()  # one frame at a time in the direct block
         self._closed = False
-        # the reading thread's copies of staged frames, one thread per camera (at most 8)
+        # the reading thread's copies of staged frames: the cameras copied at once, up to 8 threads (cores)
         self._copiers = ThreadPoolExecutor(min(8, max(1, os.cpu_count() or 1)), thread_name_prefix="stage-copy")
         self.startup_s = self.cpu_s = float("nan")  # start-up wall s; workers' CPU s after it (at close)
         self.calls, self.slowest_s = 0, 0.0  # detect() calls; sum over them of the slowest worker's seconds

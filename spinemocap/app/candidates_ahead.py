@@ -80,7 +80,8 @@ class CandidatesAhead:
 
     Use :meth:`frames` on the tracker's views, :meth:`for_frame` for the tracker's ``ahead``
     argument and :meth:`observe` after each tracked frame (it learns the gate there); then
-    :meth:`close`. ``built`` / ``asked``: frames built ahead / asked for."""
+    :meth:`close`. ``built``: frames whose build ahead the tracker received; ``pids``: the
+    workers' process ids."""
 
     def __init__(self, rig: Rig, tape: TapeSpec, config: TrackerConfig | None, workers: int, depth: int = 2):
         if workers < 1 or depth < 1:
@@ -88,18 +89,18 @@ class CandidatesAhead:
         self.depth = depth
         self.gate_px: float | None = None  # the gate of the frame after the last tracked one
         self._pending: dict[int, tuple[Future, list[np.ndarray]]] = {}  # frame -> (build, its pixels)
-        self.built = self.asked = 0
+        self.built = 0
         self.workers, self.startup_s, self.rebuilt = workers, 0.0, 0
         self.cpu_s = float("nan")  # the workers' CPU seconds after their start-up (at close)
-        self._pids: list[int] = []
+        self.pids: list[int] = []
         self._pool: ProcessPoolExecutor | None = ProcessPoolExecutor(
             workers, mp_context=mp.get_context("spawn"), initializer=_worker_start,
             initargs=(os.getpid(), rig, tape, config or TrackerConfig()))
         started = time.perf_counter()
         try:  # every worker up before the first frame (their imports are seconds, once)
-            self._pids = sorted({call.result(timeout=START_TIMEOUT_S)
+            self.pids = sorted({call.result(timeout=START_TIMEOUT_S)
                                  for call in [self._pool.submit(_worker_ready, 0.2) for _ in range(workers)]})
-            self._cpu_at_start = processes_cpu_s(self._pids)
+            self._cpu_at_start = processes_cpu_s(self.pids)
         except Exception as exc:  # the tracker builds every cloud itself
             log.warning("candidate workers could not start (%s: %s); the tracker builds the candidates", type(exc).__name__, exc)
             self.close()
@@ -143,7 +144,6 @@ class CandidatesAhead:
 
     def for_frame(self, frame: int) -> FrameCandidates | None:
         """The frame's candidate stage built ahead (waits for it), or None where none was built."""
-        self.asked += 1
         pending = self._pending.pop(frame, None)
         if pending is None:
             return None
@@ -176,7 +176,7 @@ class CandidatesAhead:
             future.cancel()
         self._pending.clear()
         if self._pool is not None:
-            self.cpu_s = processes_cpu_s(self._pids) - getattr(self, "_cpu_at_start", float("nan"))
+            self.cpu_s = processes_cpu_s(self.pids) - getattr(self, "_cpu_at_start", float("nan"))
             processes = list((getattr(self._pool, "_processes", None) or {}).values())
             self._pool.shutdown(wait=False, cancel_futures=True)
             for process in processes:  # a hung worker must not hold the run

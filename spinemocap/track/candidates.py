@@ -98,7 +98,7 @@ class _Views:
     rounds ask again for the rows they keep, and for the same merged unions round after round
     (triangulation is per row, so a remembered result is bit for bit the one a new call gives)."""
 
-    def __init__(self, rig: Rig, views: Sequence[ViewDots]):
+    def __init__(self, rig: Rig, views: Sequence[ViewDots], record_gate_range: bool = False):
         self.P, self.centers, self._fundamental = _rig_constants(rig)
         self.uv = [cam.undistort_points(v.uv) if len(v) else np.zeros((0, 2)) for cam, v in zip(rig, views)]
         self.homogeneous = [np.column_stack([uv, np.ones(len(uv))]) for uv in self.uv]  # for the epipolar search
@@ -114,7 +114,9 @@ class _Views:
         self._rms = np.zeros(0)
         self._ok = np.zeros(0, bool)
         self._th1: float | None = None
-        # (lo, hi]: the th1 values that decide every test made so far alike (one th1 per build)
+        # (lo, hi]: the th1 values that decide every test made so far alike (one th1 per build),
+        # kept only when asked for (:func:`candidates_and_gate_range`)
+        self.record_gate_range = record_gate_range
         self.th1_range = (-np.inf, np.inf)
 
     def fundamental(self, a: int, b: int) -> np.ndarray:
@@ -168,7 +170,9 @@ class _Views:
     def decided(self, values: np.ndarray, th1: float) -> None:
         """Narrow :attr:`th1_range` by tests ``value < th1`` just made on ``values`` (any shape;
         NaN values, whose test fails for every th1, are ignored): the range keeps only the th1
-        values that decide each of them as ``th1`` did."""
+        values that decide each of them as ``th1`` did. Nothing is kept unless ``record_gate_range``."""
+        if not self.record_gate_range:
+            return
         values = np.asarray(values, float).ravel()
         below = values[values < th1]
         above = values[values >= th1]
@@ -182,13 +186,13 @@ class _Views:
         err = reprojection_errors(self.P, points, uv, used)
         seen = used & ~np.isnan(err)  # the used views with a reprojection (in front of the camera)
         with np.errstate(invalid="ignore", divide="ignore"):
-            ok = np.isfinite(points).all(axis=1) & ~(used & ~seen).any(axis=1)
+            valid = np.isfinite(points).all(axis=1) & ~(used & ~seen).any(axis=1)
             # np.nanmax / np.nanmean over the used views, without the nan-functions' overhead (same sums)
             worst = np.where(seen, err, 0.0).max(axis=1)
-            ok &= worst < th1
+            ok = valid & (worst < th1)
             rms = np.sqrt(np.where(seen, err**2, 0.0).sum(axis=1) / seen.sum(axis=1))
         # rows failing for another reason (not finite, behind a camera) fail for every th1
-        self.decided(np.where(np.isfinite(points).all(axis=1) & ~(used & ~seen).any(axis=1), worst, np.nan), th1)
+        self.decided(np.where(valid, worst, np.nan), th1)
         return points, rms, ok
 
     def normals(self, points: np.ndarray, blob_ids: np.ndarray) -> np.ndarray:
@@ -371,7 +375,7 @@ def suppress_dominated(ids: np.ndarray) -> np.ndarray:
 
 def build_candidates(rig: Rig, views: Sequence[ViewDots], config: CandidateConfig | None = None) -> CandidateCloud:
     """The candidate cloud P of one frame: points (mm), normals, blob ids per camera, residuals."""
-    return candidates_and_gate_range(rig, views, config)[0]
+    return _build(_Views(rig, views), views, config or CandidateConfig())
 
 
 def candidates_and_gate_range(rig: Rig, views: Sequence[ViewDots], config: CandidateConfig | None = None
@@ -381,10 +385,14 @@ def candidates_and_gate_range(rig: Rig, views: Sequence[ViewDots], config: Candi
     None) comes out alike for any ``th1_px`` in that range, so the cloud is bit for bit the one
     that a call with such a gate returns. A cloud built ahead with one gate thus serves a frame
     whose gate is known only later."""
-    config = config or CandidateConfig()
-    if len(views) != len(rig):
-        raise ValueError(f"{len(views)} views for a rig of {len(rig)} cameras")
-    v = _Views(rig, views)
+    v = _Views(rig, views, record_gate_range=True)
+    return _build(v, views, config or CandidateConfig()), v.th1_range
+
+
+def _build(v: _Views, views: Sequence[ViewDots], config: CandidateConfig) -> CandidateCloud:
+    """The candidate search on ``v`` (the frame's undistorted blobs; ``views`` its views)."""
+    if len(views) != v.n_cameras:
+        raise ValueError(f"{len(views)} views for a rig of {v.n_cameras} cameras")
     # the rows carry their (remembered) points and residuals along: equal rows, equal values
     ids, points, residual = _pairwise_rows(v, config)
     distinct = _unique_row_index(ids)
@@ -399,9 +407,8 @@ def candidates_and_gate_range(rig: Rig, views: Sequence[ViewDots], config: Candi
         keep = suppress_dominated(ids)
         ids, points, residual = ids[keep], points[keep], residual[keep]
     normals = v.normals(points, ids) if len(ids) else np.zeros((0, 3))
-    cloud = CandidateCloud(points=points.reshape(-1, 3), normals=normals, blob_ids=ids, residual=residual,
-                           pixels=blob_pixels(views, ids))
-    return cloud, v.th1_range
+    return CandidateCloud(points=points.reshape(-1, 3), normals=normals, blob_ids=ids, residual=residual,
+                          pixels=blob_pixels(views, ids))
 
 
 def blob_pixels(views: Sequence[ViewDots], ids: np.ndarray) -> np.ndarray:
