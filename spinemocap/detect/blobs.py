@@ -11,6 +11,8 @@ Per region:
    shading and the large bright skin around the tape (so it never merges with an edge dot);
 3. dot contrast = 99.5th percentile of the smoothed top-hat on the tape; no dots when it is weak
    or not well above the tape's own texture (median top-hat); threshold at half the contrast;
+   spots fainter than that (above a quarter of it) and apart from the blobs are cut at half their
+   own peak (a dot seen nearly edge-on is a dim sliver: :func:`_add_faint_spots`);
 4. dot size: given, or the blobs' median long axis (the mask-width guess shrinks in oblique views);
 5. keep blobs whose area (against a dot seen as obliquely as the blob: :func:`foreshortening`),
    axes and fill fit a dot, whose surrounding ring lies on the tape, which do not border a bright
