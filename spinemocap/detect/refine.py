@@ -8,7 +8,8 @@ pixels of the box:
 
 1. :func:`keep_dotted`: mask components that carry no dot are dropped;
 2. :func:`extend_along_tape`: dark regions touching the mask join it when they look like more
-   of the same tape (dots not yet found, at the tape's density, mostly dark, no wider than it).
+   of the same tape (dots not yet found, at the tape's density, mostly dark, no wider than it);
+   dark: nearer the tape's own level than the skin's (:attr:`RefineParams.extend_dark_share`).
    Skin-coloured occluders (balls, arms) are not dark, and dark background or shaded skin has
    no dots at the tape's density, so neither joins;
 3. :func:`snap_to_edges`: pixels within a few px of the outline are re-decided by a local
@@ -59,6 +60,7 @@ class RefineParams:
     min_dark_share: float = 0.6     # extend: share of its pixels darker than the threshold
     max_width_ratio: float = 1.3    # extend: its width <= this x the tape's width
     max_area_per_dot: float = 3.0   # extend: its area <= this x (new dots + 1) x tape area per dot
+    extend_dark_share: float = 0.3  # extend: dark = below the tape's level + this x (skin's level - tape's)
     min_contrast: float = 20.0      # grey levels the tape must be darker than the skin, else no change
 
 
@@ -188,10 +190,14 @@ def dark_threshold(grey: np.ndarray, mask: np.ndarray, params: RefineParams) -> 
     return _midway(_levels(grey, mask, params.band_px, params.min_contrast))
 
 
-def _midway(samples: _Levels | None) -> float | None:
+def _midway(samples: _Levels | None, share: float = 0.5) -> float | None:
+    """The grey level ``share`` of the way from the tape's median level to the skin's (None
+    without samples)."""
     if samples is None:
         return None
-    return 0.5 * (float(samples.tape_median) + float(samples.ring_median))
+    if share == 0.5:
+        return 0.5 * (float(samples.tape_median) + float(samples.ring_median))
+    return float(samples.tape_median) + share * (float(samples.ring_median) - float(samples.tape_median))
 
 
 _REMAP_MAX_SIDE = 32766  # cv2.remap's maps are below SHRT_MAX px a side
@@ -381,7 +387,10 @@ def extend_along_tape(crop: np.ndarray, mask: np.ndarray, params: RefineParams |
         base_area = int(np.count_nonzero(base[base_box])) if base_box is not None else 0
         snapped = components_touching(snapped, base, snapped_within)
         samples = _kept_levels(grey, samples, base, base_box, p)
-    threshold = _midway(samples)
+    # The tape's continuation is as dark as the tape: a threshold midway to the skin would also
+    # take a mid-grey backdrop beside the tape's end (where the tape runs over the body's outline),
+    # and the piece joined with it is then far wider than the tape.
+    threshold = _midway(samples, p.extend_dark_share)
     if threshold is None:
         return Extended(base, *answer, snapped)
     # The tape's width from the distances to its edge, in the mask's box and a 2 px frame: the

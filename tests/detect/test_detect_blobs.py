@@ -139,3 +139,35 @@ def test_slivers_the_top_hat_carves_off_a_bright_disc_larger_than_a_dot_are_not_
         assert len(uv) == len(dots)
         assert np.abs(np.sort(uv[:, 0]) - dots[:, 0]).max() < 0.6
         assert np.all(np.hypot(uv[:, 0] - lamp[0], uv[:, 1] - lamp[1]) > lamp_diameter / 2 + d)
+
+
+def _tape_with_a_dim_edge_on_dot(d: float, level: int) -> tuple[np.ndarray, np.ndarray]:
+    """A dark tape (grey 30, the mask covers it) with three face-on dots (grey 210) and, at (150,
+    60), a dot seen nearly edge-on: an ellipse d x d/4 at grey ``level`` (the light grazes its
+    skin); and a round speck of the same grey, d/4 across, at (210, 60). Anti-aliased, 8x
+    supersampled."""
+    s, (h, w) = 8, (120, 260)
+    big = np.full((h * s, w * s), 30, np.uint8)
+    for centre in ((30, 40), (80, 40), (130, 30)):
+        cv2.circle(big, (centre[0] * s, centre[1] * s), int(d / 2 * s), 210, -1, cv2.LINE_AA)
+    cv2.ellipse(big, ((150 * s, 60 * s), (d * s, d / 4 * s), 10), level, -1, cv2.LINE_AA)
+    cv2.circle(big, (210 * s, 60 * s), int(d / 8 * s), level, -1, cv2.LINE_AA)
+    mask = np.zeros((h, w), bool)
+    mask[10:110, 5:255] = True
+    return cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA), mask
+
+
+def test_a_dim_dot_seen_edge_on_is_found_apart_from_the_face_on_dots_without_moving_them():
+    d = 12.0
+    image, mask = _tape_with_a_dim_edge_on_dot(d, level=110)
+    uv, conf = find_dots(image, mask, expected_dot_px=d)
+    near = lambda x, y: np.linalg.norm(uv - [x, y], axis=1) < 1.0  # noqa: E731
+    assert near(150, 60).sum() == 1, "the dim edge-on dot is missed"
+    assert not (np.linalg.norm(uv - [210, 60], axis=1) < d).any(), "the dim speck passed for a dot"
+    assert len(uv) == 4
+    # the region's threshold alone (half the face-on dots' contrast) loses it, and finds the
+    # face-on dots at the very same places
+    only_bright, conf_bright = find_dots(image, mask, expected_dot_px=d, params=BlobParams(faint_share=0.5))
+    assert len(only_bright) == 3 and not (np.linalg.norm(only_bright - [150, 60], axis=1) < d).any()
+    face_on = ~(np.linalg.norm(uv - [150, 60], axis=1) < d)
+    assert np.array_equal(uv[face_on], only_bright) and np.array_equal(conf[face_on], conf_bright)

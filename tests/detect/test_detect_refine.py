@@ -116,3 +116,29 @@ def test_a_tape_grown_along_the_dark_region_reports_the_new_regions_dots_and_sna
     assert len(out.uv) == len(drawn.uv) and len(out.confidence) == len(out.uv)
     distance = np.linalg.norm(out.uv[:, None] - np.asarray(drawn.uv)[None], axis=2)
     assert distance.min(axis=1).max() < 1.0 and distance.min(axis=0).max() < 1.0  # each drawn dot found once
+
+
+@pytest.mark.parametrize("share", [0.3, 0.45])
+def test_extension_follows_the_tape_to_its_end_against_a_mid_grey_backdrop(drawn, share):
+    # the tape runs over the body's outline into a backdrop darker than midway between the tape and
+    # the skin (a grey studio wall beside a black tape): the network saw only the lower half; the
+    # upper half joins, the backdrop does not
+    from spinemocap.detect.refine import RefineParams
+
+    ys = np.flatnonzero(drawn.mask.any(axis=1))
+    tape_colour = np.median(drawn.image[drawn.mask], axis=0)
+    skin_colour = np.median(drawn.image[~drawn.mask & (np.arange(640)[:, None] > 100)], axis=0)
+    backdrop = np.zeros_like(drawn.mask)
+    backdrop[: ys[0] + 8] = True  # the tape's first few px lie on it
+    backdrop &= ~drawn.mask
+    image = drawn.image.copy()
+    image[backdrop] = np.round(tape_colour + share * (skin_colour - tape_colour)).astype(np.uint8)
+    cut = drawn.mask.copy()
+    cut[: ys[0] + (ys[-1] - ys[0]) // 2] = False
+    out = extend_along_tape(image, cut)
+    assert iou(out.snapped, drawn.mask) > 0.97
+    assert (out.mask & backdrop).sum() < 0.01 * drawn.mask.sum()
+    assert len(out.uv) == len(drawn.uv)
+    # a threshold midway to the skin takes the backdrop with the tape's end: too wide, nothing joins
+    midway = extend_along_tape(image, cut, RefineParams(extend_dark_share=0.5))
+    assert iou(midway.snapped, drawn.mask) < 0.6
