@@ -390,7 +390,7 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
             from ..app.run import track_capture
         except ImportError as exc:
             raise InputError(capture.root, f"the tracker is not available in this installation ({exc}); "
-                             "use --source groundtruth for synthetic captures") from exc
+                             "use `source='groundtruth'` for synthetic captures") from exc
         track_capture(capture.root, Path(job.out_dir), mode="sequence", detector=job.detector, progress=False,
                       stop=_stop_check(job.stop_event))
     return read_markers_csv(path)

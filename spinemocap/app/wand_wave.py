@@ -155,7 +155,7 @@ def write_wand_wave(scene, setup: ViconSetup, out: str | os.PathLike, seconds: f
     :data:`MIN_SEEN_SHARE` of the frames (e.g. the ``tiny`` preset, whose 3 narrow views overlap
     only in a volume smaller than the wand)."""
     if not seconds > 0:
-        raise InputError("--wand-seconds", f"must be positive (got {seconds:g}); 0 turns the wand wave off")
+        raise InputError("seconds", f"must be positive (got {seconds:g}); 0 turns the wand wave off")
     wand = WandSpec()
     seed = int(scene.rng_seed)
     plan = plan_wave(scene.rig, scene.target, wand, scene.fps, seconds, seed)
