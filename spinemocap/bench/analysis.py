@@ -41,26 +41,44 @@ COLUMNS = ("lumbar_flexion", "lumbar_lateral", "lumbar_rotation")
 LOW, HIGH = "L3", "T12/L1"
 
 
-def fit_stats(measured: np.ndarray, expected: np.ndarray) -> dict[str, float]:
-    """Agreement of ``measured`` with ``expected`` (deg, NaN frames skipped): RMSE, bias (mean
-    of measured - expected), Bland-Altman 95 % limits of agreement (bias -/+ 1.96 SD of the
-    differences), R^2 (coefficient of determination against y = x), the fitted gain and the
-    share of frames with a measured value (``valid``)."""
+@dataclasses.dataclass(frozen=True)
+class FitStats:
+    """Agreement of a measured angle with the expected one (:func:`fit_stats`; NaN frames
+    skipped): ``rmse_deg``, ``bias_deg`` (mean of measured - expected), the Bland-Altman 95 %
+    limits of agreement ``loa_low_deg`` / ``loa_high_deg`` (bias -/+ 1.96 SD of the differences),
+    ``r2`` (coefficient of determination against y = x), ``gain`` (least-squares slope through
+    0), ``frames`` scored and ``valid`` (share of frames with a measured value, 0-1)."""
+
+    rmse_deg: float
+    bias_deg: float
+    loa_low_deg: float
+    loa_high_deg: float
+    r2: float
+    gain: float
+    frames: int
+    valid: float
+
+    def to_dict(self) -> dict[str, float]:
+        """The JSON object: the fields in order."""
+        return dataclasses.asdict(self)
+
+
+def fit_stats(measured: np.ndarray, expected: np.ndarray) -> FitStats:
+    """Agreement of ``measured`` (F,) with ``expected`` (F,), both deg (see :class:`FitStats`)."""
     ok = np.isfinite(measured) & np.isfinite(expected)
     m, e = measured[ok], expected[ok]
     if not ok.any():
         nan = float("nan")
-        return {"rmse_deg": nan, "bias_deg": nan, "loa_low_deg": nan, "loa_high_deg": nan, "r2": nan,
-                "gain": nan, "frames": 0, "valid": 0.0}
+        return FitStats(nan, nan, nan, nan, nan, nan, frames=0, valid=0.0)
     residual = m - e
     total = np.sum((e - e.mean()) ** 2)
     bias = float(residual.mean())
     spread = 1.96 * float(residual.std(ddof=1)) if len(residual) > 1 else float("nan")
-    return {"rmse_deg": float(np.sqrt(np.mean(residual**2))), "bias_deg": bias,
-            "loa_low_deg": bias - spread, "loa_high_deg": bias + spread,
-            "r2": float(1 - np.sum(residual**2) / total) if total > 0 else float("nan"),
-            "gain": float(np.dot(m, e) / np.dot(e, e)) if np.dot(e, e) > 0 else float("nan"),
-            "frames": int(ok.sum()), "valid": float(ok.mean()) if len(ok) else 0.0}
+    return FitStats(rmse_deg=float(np.sqrt(np.mean(residual**2))), bias_deg=bias,
+                    loa_low_deg=bias - spread, loa_high_deg=bias + spread,
+                    r2=float(1 - np.sum(residual**2) / total) if total > 0 else float("nan"),
+                    gain=float(np.dot(m, e) / np.dot(e, e)) if np.dot(e, e) > 0 else float("nan"),
+                    frames=int(ok.sum()), valid=float(ok.mean()) if len(ok) else 0.0)
 
 
 def _score(table, expected_change: np.ndarray, axis: int) -> dict:
@@ -69,7 +87,7 @@ def _score(table, expected_change: np.ndarray, axis: int) -> dict:
     from their expected change (zero for the studio's single-axis motions)."""
     measured = table[list(COLUMNS)].to_numpy(float)
     change = measured - measured[0]
-    out = fit_stats(change[:, axis], expected_change[:, axis])
+    out: dict = fit_stats(change[:, axis], expected_change[:, axis]).to_dict()
     others = np.delete(change - expected_change, axis, axis=1)
     out["crosstalk_rms_deg"] = float(np.sqrt(np.nanmean(others**2)))
     out["crosstalk_peak_deg"] = float(np.nanmax(np.abs(others)))
@@ -354,7 +372,7 @@ def score_lab_angles(table: pd.DataFrame, expected: dict[str, np.ndarray]) -> di
     for column in LAB_ANGLES:
         group, axis = column.split("_")[0], ("flexion", "lateral", "rotation").index(column.split("_")[1])
         values = change[column].to_numpy(float)
-        out[column] = fit_stats(values, expected[group][:, axis])
+        out[column] = fit_stats(values, expected[group][:, axis]).to_dict()
         out[column]["expected_peak_deg"] = float(np.nanmax(np.abs(expected[group][:, axis])))
         out[column]["change"] = [round(float(v), 3) if np.isfinite(v) else None for v in values]
     return out

@@ -248,8 +248,8 @@ def score(measured: np.ndarray, expected_change: np.ndarray, axes: list[int],
     out: dict = {}
     for i in axes:
         stats = fit_stats(change[:, i], expected_change[:, i])
-        out.update({f"{AXES[i]}_{k}": v for k, v in (("rmse_deg", stats["rmse_deg"]), ("r2", stats["r2"]),
-                                                     ("gain", stats["gain"]))})
+        out.update({f"{AXES[i]}_{k}": v for k, v in (("rmse_deg", stats.rmse_deg), ("r2", stats.r2),
+                                                     ("gain", stats.gain))})
         if vouched is not None:
             error = change[vouched, i] - expected_change[vouched, i]
             out[f"{AXES[i]}_rmse_deg_vouched"] = float(np.sqrt(np.nanmean(error**2))) if vouched.any() else float("nan")

@@ -53,12 +53,12 @@ def test_bland_altman_limits_and_bias():
     expected = np.linspace(0.0, 30.0, 50)
     offsets = np.where(np.arange(50) % 2, 1.0, -1.0)  # +-1 deg around a +2 deg bias
     stats = fit_stats(expected + 2.0 + offsets, expected)
-    assert stats["bias_deg"] == pytest.approx(2.0)
+    assert stats.bias_deg == pytest.approx(2.0)
     spread = 1.96 * np.std(offsets, ddof=1)
-    assert stats["loa_low_deg"] == pytest.approx(2.0 - spread) and stats["loa_high_deg"] == pytest.approx(2.0 + spread)
-    assert stats["rmse_deg"] == pytest.approx(np.sqrt(5.0))
+    assert stats.loa_low_deg == pytest.approx(2.0 - spread) and stats.loa_high_deg == pytest.approx(2.0 + spread)
+    assert stats.rmse_deg == pytest.approx(np.sqrt(5.0))
     missing = fit_stats(np.full(5, np.nan), np.arange(5.0))
-    assert missing["frames"] == 0 and missing["valid"] == 0.0 and np.isnan(missing["rmse_deg"])
+    assert missing.frames == 0 and missing.valid == 0.0 and np.isnan(missing.rmse_deg)
 
 
 def test_the_peer_scores_the_previous_row_centres():
