@@ -45,9 +45,9 @@ import json
 import logging
 import platform
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Any, Callable, Literal
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -161,20 +161,42 @@ class DotScore:
             rest = rest[~near_hidden]
         self.fp += len(rest)
 
-    def summary(self) -> dict:
+    def summary(self) -> DotSummary:
         e = np.asarray(self.errors)
         edges = VIEW_ANGLE_BINS_DEG
-        return {
-            "recall": self.tp / max(self.tp + self.fn, 1),
-            "recall_unoccluded": self.unoccluded[0] / max(self.unoccluded[1], 1),
-            "unoccluded_dots": self.unoccluded[1],
-            "recall_by_view_angle": {f"{edges[k]}-{edges[k + 1]} deg": {"recall": f / n if n else None, "dots": int(n)}
-                                     for k, (f, n) in enumerate(self.by_angle)},
-            "precision": self.tp / max(self.tp + self.fp, 1),
-            "centroid_rms_px": float(np.sqrt(np.mean(e ** 2))) if len(e) else float("nan"),
-            "centroid_p95_px": float(np.percentile(e, 95)) if len(e) else float("nan"),
-            "true_positives": self.tp, "false_positives": self.fp, "missed": self.fn,
-        }
+        return DotSummary(
+            recall=self.tp / max(self.tp + self.fn, 1),
+            recall_unoccluded=self.unoccluded[0] / max(self.unoccluded[1], 1),
+            unoccluded_dots=self.unoccluded[1],
+            recall_by_view_angle={f"{edges[k]}-{edges[k + 1]} deg": {"recall": f / n if n else None, "dots": int(n)}
+                                  for k, (f, n) in enumerate(self.by_angle)},
+            precision=self.tp / max(self.tp + self.fp, 1),
+            centroid_rms_px=float(np.sqrt(np.mean(e ** 2))) if len(e) else float("nan"),
+            centroid_p95_px=float(np.percentile(e, 95)) if len(e) else float("nan"),
+            true_positives=self.tp, false_positives=self.fp, missed=self.fn)
+
+
+@dataclass(frozen=True)
+class DotSummary:
+    """A detector's dots against the truth over a test set (:meth:`DotScore.summary`): recall
+    over all visible dots and over the unoccluded ones (with their number), recall per view-angle
+    bin ("A-B deg" -> recall, None without dots, and dots), precision, centroid RMS and 95th
+    percentile (px), true and false positives and missed dots."""
+
+    recall: float
+    recall_unoccluded: float
+    unoccluded_dots: int
+    recall_by_view_angle: dict[str, dict[str, float | int | None]]
+    precision: float
+    centroid_rms_px: float
+    centroid_p95_px: float
+    true_positives: int
+    false_positives: int
+    missed: int
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: the fields in order."""
+        return asdict(self)
 
 
 def simple_blob_detector(dot_px: float):
@@ -333,7 +355,7 @@ def run_detect_benchmark(sets: list[str] | None = None, scenes: int | None = Non
             "images": n_images, "image_size": list(cfg.size), "preset": test.preset, "blur": test.blur,
             "occlusion": test.occlusion, "supersample": test.supersample, "scenes": n_scenes, "frames_per_scene": test.frames,
             "mask_iou": {name: i / max(u, 1) for name, (i, u) in iou.items()},
-            "dots": {name: s.summary() for name, s in scores.items()},
+            "dots": {name: s.summary().to_dict() for name, s in scores.items()},
             "time": {f"{k}_ms_per_camera_frame": v for k, v in timer.mean_ms().items()},
         }
         by_set[set_name] = summary
@@ -350,7 +372,8 @@ def run_tape_free(detectors: dict, rooms: int | None = None) -> dict:
     bar.close()
     return {"tape_free": True, "rooms": n_rooms, "goal": {"max_false_dots_per_100_images": MAX_FALSE_DOTS_PER_100,
                                                           "max_region_share": MAX_REGION_SHARE},
-            "detectors": scores, "lattice_test": score_lattice(LATTICE_CASES)}
+            "detectors": {name: score.to_dict() for name, score in scores.items()},
+            "lattice_test": score_lattice(LATTICE_CASES)}
 
 
 def format_tape_free(s: dict) -> str:
