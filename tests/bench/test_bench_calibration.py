@@ -40,6 +40,10 @@ def test_the_studio_session_rig_turns_the_cameras_it_names():
     shifted[0].t[:] = shifted[0].t + shifted[0].R @ np.array([0.0, 0.0, 5.0])
     score = score_rig(shifted, rig)  # one camera 5 mm off: the rigid fit of the centres spreads it
     assert 0.5 < score.worst_centre_mm < 5.0 and score.comparison.worst_baseline_error > 0
+    written = score.to_dict()
+    assert list(written) == ["centre_error_mm", "rotation_error_deg", "worst_baseline_error", "worst_rotation_diff_deg"]
+    assert written["centre_error_mm"] == score.centre_error_mm
+    assert written["worst_baseline_error"] == score.comparison.worst_baseline_error
 
 
 def _board(seed: int, ceres_mm: float, scipy_s: float) -> BoardRow:
