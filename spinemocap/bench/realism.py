@@ -100,10 +100,11 @@ def held_out_look() -> dict:
     return {"tape_colour": held.tape_colour, "backdrop": held.backdrop, "camera_look": held.camera_look}
 
 
-GOALS = {"swaps": "0 swaps up to 30 % tension with skin strain and 2 px calibration error",
-         "lab_mean_mm": 1.0, "refined_2px_mean_mm": 1.0,
-         "flagged_dot_share": 0.05,  # in every case up to full flexion, 20 % tension and 1 px calibration error
-         "held_out_mean_mm": 1.0}  # and no wrong label among the vouched-for dot-frames
+GOALS: dict[str, Any] = {
+    "swaps": "0 swaps up to 30 % tension with skin strain and 2 px calibration error",
+    "lab_mean_mm": 1.0, "refined_2px_mean_mm": 1.0,
+    "flagged_dot_share": 0.05,  # in every case up to full flexion, 20 % tension and 1 px calibration error
+    "held_out_mean_mm": 1.0}  # and no wrong label among the vouched-for dot-frames
 
 
 def _render(scene, detect, n_frames: int, progress: bool) -> list:
@@ -134,7 +135,7 @@ class TrackerScore:
     percentile error (mm), swapped dot-frames, flagged frames and the share of dot-frames flagged
     or missing (0-1), the mean error (mm) and swaps of the dot-frames it vouches for, frames per
     quality flag, frames without a solution, the tape's stretch along (min, median, max; None
-    without vouched-for frames), the median candidate gate (px) and ms per frame. Results read
+    without vouched-for frames), the median candidate gate (px) and ms per frame (None: not timed). Results read
     back from files written before the vouched-for numbers existed hold None there."""
 
     mean_mm: float
@@ -148,7 +149,7 @@ class TrackerScore:
     unsolved_frames: int
     stretch_along: list[float] | None
     gate_px: float | None
-    ms_per_frame: float
+    ms_per_frame: float | None
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON object: the fields in order."""
@@ -157,7 +158,8 @@ class TrackerScore:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TrackerScore:
         """A score read back from a results file (keys it lacks: None)."""
-        return cls(**{f.name: data.get(f.name) for f in fields(cls)})
+        values: dict[str, Any] = {f.name: data.get(f.name) for f in fields(cls)}
+        return cls(**values)
 
 
 @dataclass(frozen=True)
@@ -195,7 +197,7 @@ class RefinedScore:
         """A refinement read back from a results file (one that failed: :class:`RefinementFailure`)."""
         if "error" in data:
             return RefinementFailure(str(data["error"]))
-        refinement = {f.name: data.get(f.name) for f in fields(cls)[1:]}
+        refinement: dict[str, Any] = {f.name: data.get(f.name) for f in fields(cls)[1:]}
         refinement["world_frame"] = data.get("world_frame", "given rig")  # files older than the reference
         return cls(TrackerScore.from_dict(data), **refinement)
 
