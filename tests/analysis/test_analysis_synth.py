@@ -39,14 +39,18 @@ def test_lumbar_s1_t12l1_angles_follow_the_studio_motions_on_ground_truth():
     for motion, goal in TRACKED_GOALS_DEG.items():
         assert scores[f"groundtruth_{motion}_rmse_deg"] <= goal, (motion, scores)
         own = LAB_ANGLES[MOTION_AXIS[motion]]
-        truth = results[motion]["groundtruth"]
-        assert truth[own]["r2"] >= 0.95 and truth[own]["expected_peak_deg"] > 9.0, (motion, truth[own])
+        truth = results[motion].groundtruth
+        assert truth[own].fit.r2 >= 0.95 and truth[own].expected_peak_deg > 9.0, (motion, truth[own])
         for other in ("lumbar_flexion", "lumbar_lateral", "lumbar_rotation"):
-            assert truth[other]["rmse_deg"] <= goal, (motion, other, truth[other])
-    mixed = results["mixed"]["groundtruth"]
+            assert truth[other].fit.rmse_deg <= goal, (motion, other, truth[other])
+    mixed = results["mixed"].groundtruth
     for column, goal in (("lumbar_flexion", 2.0), ("lumbar_lateral", 3.0), ("lumbar_rotation", 3.0)):
-        assert mixed[column]["rmse_deg"] <= goal and mixed[column]["r2"] >= 0.95, (column, mixed[column])
-    assert results["flexion"]["levels"]["lumbar"] == ["S1", "T12/L1"]
+        assert mixed[column].fit.rmse_deg <= goal and mixed[column].fit.r2 >= 0.95, (column, mixed[column])
+    assert results["flexion"].levels["lumbar"] == ["S1", "T12/L1"]
+    assert results["flexion"].tracked is None and "tracked" not in results["flexion"].to_dict()
+    written = results["flexion"].to_dict()
+    assert list(written) == ["levels", "skin_turn_joints", "applied_peak_deg", "groundtruth", "wall_s", "expected"]
+    assert list(written["groundtruth"]["lumbar_flexion"])[-3:] == ["valid", "expected_peak_deg", "change"]
 
 
 def test_bland_altman_limits_and_bias():
