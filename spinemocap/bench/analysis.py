@@ -82,18 +82,51 @@ def fit_stats(measured: np.ndarray, expected: np.ndarray) -> FitStats:
                     frames=int(ok.sum()), valid=float(ok.mean()) if len(ok) else 0.0)
 
 
-def _score(table, expected_change: np.ndarray, axis: int) -> dict:
+@dataclasses.dataclass(frozen=True)
+class AxisAgreement:
+    """The lumbar angles' change from frame 0 against the expected change (:func:`_score`): the
+    agreement on the motion's own axis (:class:`FitStats`), the other two angles' deviation from
+    their expected change (crosstalk RMS and peak, deg) and the expected change's peak (deg)."""
+
+    fit: FitStats
+    crosstalk_rms_deg: float
+    crosstalk_peak_deg: float
+    expected_peak_deg: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: the agreement's keys, then the crosstalk and the expected peak."""
+        return {**self.fit.to_dict(), "crosstalk_rms_deg": self.crosstalk_rms_deg,
+                "crosstalk_peak_deg": self.crosstalk_peak_deg, "expected_peak_deg": self.expected_peak_deg}
+
+
+@dataclasses.dataclass(frozen=True)
+class StudioMotionAgreement:
+    """One studio motion on ground-truth markers (:func:`bench_studio`): the agreement, the two
+    benchmark rows (1-based), the share of the spine's joints between them, the applied motion's
+    peak (deg) and the angle computation's ms per frame."""
+
+    agreement: AxisAgreement
+    rows: list[int]
+    joint_share: float
+    applied_peak_deg: float
+    ms_per_frame: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.agreement.to_dict(), "rows": self.rows, "joint_share": self.joint_share,
+                "applied_peak_deg": self.applied_peak_deg, "ms_per_frame": self.ms_per_frame}
+
+
+def _score(table, expected_change: np.ndarray, axis: int) -> AxisAgreement:
     """Scores of the change from frame 0 of the lumbar angles against ``expected_change``
     (F, 3): fit statistics on the motion's ``axis``; crosstalk = the other two angles' deviation
     from their expected change (zero for the studio's single-axis motions)."""
     measured = table[list(COLUMNS)].to_numpy(float)
     change = measured - measured[0]
-    out: dict = fit_stats(change[:, axis], expected_change[:, axis]).to_dict()
     others = np.delete(change - expected_change, axis, axis=1)
-    out["crosstalk_rms_deg"] = float(np.sqrt(np.nanmean(others**2)))
-    out["crosstalk_peak_deg"] = float(np.nanmax(np.abs(others)))
-    out["expected_peak_deg"] = float(np.max(np.abs(expected_change[:, axis])))
-    return out
+    return AxisAgreement(fit_stats(change[:, axis], expected_change[:, axis]),
+                         crosstalk_rms_deg=float(np.sqrt(np.nanmean(others**2))),
+                         crosstalk_peak_deg=float(np.nanmax(np.abs(others))),
+                         expected_peak_deg=float(np.max(np.abs(expected_change[:, axis]))))
 
 
 def mid_bone_rows(row_heights: np.ndarray, joint_heights: np.ndarray) -> tuple[int, int, int]:
@@ -129,11 +162,11 @@ def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0
 
 
 def bench_studio(frames: int = 60, fps: float = 20.0, rows: int = 13, seed: int = 0,
-                 progress: bool = True) -> dict:
+                 progress: bool = True) -> dict[str, StudioMotionAgreement]:
     """The three studio motions on ground-truth markers; see the module docstring."""
     from tqdm import tqdm
 
-    results = {}
+    results: dict[str, StudioMotionAgreement] = {}
     for axis, motion in enumerate(tqdm(MOTIONS, desc="studio motions", disable=not progress)):
         data = studio_motion(motion, frames, fps, rows, seed)
         lo, hi = data["rows"]
@@ -146,13 +179,14 @@ def bench_studio(frames: int = 60, fps: float = 20.0, rows: int = 13, seed: int 
         applied = data["applied"] - data["applied"][0]
         expected = np.zeros_like(applied)
         expected[:, axis] = data["share"] * applied[:, axis]
-        results[motion] = {**_score(table, expected, axis), "rows": [lo, hi],
-                           "joint_share": data["share"], "applied_peak_deg": float(np.abs(applied[:, axis]).max()),
-                           "ms_per_frame": 1000 * elapsed / frames}
+        results[motion] = StudioMotionAgreement(_score(table, expected, axis), rows=[lo, hi],
+                                                joint_share=data["share"],
+                                                applied_peak_deg=float(np.abs(applied[:, axis]).max()),
+                                                ms_per_frame=1000 * elapsed / frames)
     return results
 
 
-def bench_analytic(frames: int = 60, rows: int = 13) -> dict:
+def bench_analytic(frames: int = 60, rows: int = 13) -> dict[str, AxisAgreement]:
     """The peer with an exact answer: a lordotic rod (-0.1 deg/mm everywhere) bent by up to 50
     deg (sine over time) with a smooth profile along the whole tape, measured between rows 2 and
     9; expected = Cardan angles of the rod's exact turn between those rows."""
@@ -161,7 +195,7 @@ def bench_analytic(frames: int = 60, rows: int = 13) -> dict:
     v_lo, v_hi = tape.row_pitch_mm, 8 * tape.row_pitch_mm
     amplitude = 50.0 * np.sin(np.linspace(0, 2 * np.pi, frames))
     background = np.array([-0.1, 0.0, 0.0])
-    results = {}
+    results: dict[str, AxisAgreement] = {}
     for axis, motion in enumerate(MOTIONS):
         bends = [smooth_bend(0.0, tape.length_mm, np.eye(3)[axis] * a, background) for a in amplitude]
         dots = np.array([bent_tape_dots(tape, bend) for bend in bends])

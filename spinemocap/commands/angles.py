@@ -107,8 +107,11 @@ def run_bench(args: argparse.Namespace) -> int:
         "lab_angles": {motion: entry.to_dict() for motion, entry in lab.items()},
     }
     if not args.no_peers:
-        results["analytic_rod"] = bench_analytic(args.frames, args.rows)
-        results["studio_mid_bone_groundtruth"] = bench_studio(args.frames, args.fps, args.rows, progress=False)
+        results["analytic_rod"] = {motion: agreement.to_dict()
+                                   for motion, agreement in bench_analytic(args.frames, args.rows).items()}
+        results["studio_mid_bone_groundtruth"] = {
+            motion: agreement.to_dict()
+            for motion, agreement in bench_studio(args.frames, args.fps, args.rows, progress=False).items()}
     results["wall_s"] = round(time.time() - started, 1)
     print(f"{'motion':<10}{'angle':<19}{'source':<21}{'RMSE':>6}{'bias':>7}{'LoA low':>8}{'LoA high':>9}"
           f"{'R^2':>7}{'valid':>7}{'expected pk':>12}")

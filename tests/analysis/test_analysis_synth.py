@@ -20,7 +20,8 @@ from spinemocap.bench.analysis import (
 def test_pipeline_is_exact_on_the_analytic_rod():
     # no skin, no body model: what is left is the spline/frame pipeline's own error
     for motion, r in bench_analytic(frames=20).items():
-        assert r["rmse_deg"] < 0.1 and r["crosstalk_peak_deg"] < 0.1, motion
+        assert r.fit.rmse_deg < 0.1 and r.crosstalk_peak_deg < 0.1, motion
+        assert list(r.to_dict())[-3:] == ["crosstalk_rms_deg", "crosstalk_peak_deg", "expected_peak_deg"]
 
 
 def test_mid_bone_rows_pick_rows_inside_bone_segments():
