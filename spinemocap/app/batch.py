@@ -253,7 +253,7 @@ def check_trial(job: TrialJob) -> str | None:
                 if close is not None:
                     close()
         elif not capture.has_groundtruth:
-            raise InputError(capture.groundtruth_path, "no ground truth to take the markers from (--source groundtruth)")
+            raise InputError(capture.groundtruth_path, "no ground truth to take the markers from (`source='groundtruth'`)")
         _levels(job, capture)
         if job.trial.c3d_file and not Path(job.trial.c3d_file).is_file():
             raise InputError(job.trial.c3d_file, "pelvis C3D file not found")

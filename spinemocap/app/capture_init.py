@@ -71,16 +71,17 @@ class SizeMismatch:
     scale: float = 1.0
 
     def explain(self) -> str:
-        """One sentence for a person: what differs, the likely cause, the fix's flag."""
+        """One sentence for a person: what differs, the likely cause, the fix (the parameter
+        ``fix_size``, written `fix_size=...` for the command line to show as its flag)."""
         (w, h), (cw, ch) = self.video, self.calibration
         said = f"camera {self.camera!r}: its recording is {w}x{h} px but the calibration says {cw}x{ch} px"
         if self.kind == "crop":
             return (f"{said}: {abs(cw - w)} columns and {abs(ch - h)} rows apart, as a video encoder crops a frame to "
-                    "its coding blocks (1088 -> 1080 rows). --fix-size crop keeps the principal point (the rows or "
-                    "columns cut at the bottom/right, as H.264/H.265 encoders do), --fix-size crop-centre moves it "
+                    "its coding blocks (1088 -> 1080 rows). `fix_size=crop` keeps the principal point (the rows or "
+                    "columns cut at the bottom/right, as H.264/H.265 encoders do), `fix_size=crop-centre` moves it "
                     "by half the difference (a centred crop)")
         if self.kind == "scale":
-            return (f"{said}: the same image scaled by {self.scale:g}. --fix-size scale scales the focal lengths "
+            return (f"{said}: the same image scaled by {self.scale:g}. `fix_size=scale` scales the focal lengths "
                     "and the principal point by it")
         return (f"{said}, neither an encoder crop (up to {MAX_CROP_PX} px) nor a whole-number scale: this calibration "
                 "is of another sensor mode or camera; calibrate the camera at the size it recorded")
