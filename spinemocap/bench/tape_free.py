@@ -209,7 +209,21 @@ def tape_dots(rng: np.random.Generator) -> np.ndarray:
     return _view(np.delete(bent, missing, axis=0), rng, 0.3)
 
 
-def score_lattice(n: int, seed: int = LATTICE_SEED) -> dict:
+@dataclass(frozen=True)
+class LatticeScore:
+    """The lattice test on random views (:func:`score_lattice`): views of each kind, wall-bar
+    grids and tapes it accepts (any dot kept), and the share of the tapes' dots it keeps (0-1)."""
+
+    cases: int
+    wall_bars_accepted: int
+    tapes_accepted: int
+    tape_dots_kept: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def score_lattice(n: int, seed: int = LATTICE_SEED) -> LatticeScore:
     """The lattice test (:func:`spinemocap.detect.lattice.tape_regions` on a mask covering every
     dot) on ``n`` wall-bar grids (:func:`wall_bar_dots`) and ``n`` tapes (:func:`tape_dots`):
     how many of each it accepts (any dot kept) and the share of tape dots it keeps."""
@@ -228,5 +242,5 @@ def score_lattice(n: int, seed: int = LATTICE_SEED) -> dict:
             if kind == "tapes":
                 kept_dots += int(keep.sum())
                 total_dots += len(dots)
-    return {"cases": n, "wall_bars_accepted": accepted["wall_bars"], "tapes_accepted": accepted["tapes"],
-            "tape_dots_kept": kept_dots / max(total_dots, 1)}
+    return LatticeScore(cases=n, wall_bars_accepted=accepted["wall_bars"], tapes_accepted=accepted["tapes"],
+                        tape_dots_kept=kept_dots / max(total_dots, 1))

@@ -29,8 +29,9 @@ def test_the_largest_region_and_the_lattice_test():
     mask[5:9, 5:9] = True
     assert largest_region_share(mask) == 0.16 and largest_region_share(np.zeros((3, 3), bool)) == 0.0
     lattice = score_lattice(20)
-    assert lattice["cases"] == 20 and lattice["tapes_accepted"] > lattice["wall_bars_accepted"]
-    assert 0.5 < lattice["tape_dots_kept"] <= 1.0
+    assert lattice.cases == 20 and lattice.tapes_accepted > lattice.wall_bars_accepted
+    assert 0.5 < lattice.tape_dots_kept <= 1.0
+    assert list(lattice.to_dict()) == ["cases", "wall_bars_accepted", "tapes_accepted", "tape_dots_kept"]
 
 
 def test_a_tape_free_summary_counts_false_dots_and_keeps_the_worst_images():
