@@ -12,6 +12,7 @@ import argparse
 import importlib
 import logging
 import pkgutil
+import re
 import sys
 import warnings
 from typing import Sequence
@@ -24,7 +25,10 @@ log = logging.getLogger("spinemocap")
 
 # Errors of the library name the parameter (InputError's source); on the command line they name its
 # flag: the flag whose destination is the parameter, else the one this table gives.
-PARAMETER_FLAGS = {"backend": "--ba", "sources": "--videos", "model_type": "--model"}
+PARAMETER_FLAGS = {"backend": "--ba", "sources": "--videos", "model_type": "--model", "mapping": "--map",
+                   "named": "--video", "offsets": "--offset", "predict": "--no-predict"}
+# A parameter named inside a problem text (see InputError): `name` or `name=value`.
+PARAMETER_MENTION = re.compile(r"`([A-Za-z_]\w*)(?:=([^`\s]+))?`")
 
 
 def _command_modules():
@@ -74,6 +78,32 @@ def flag_of(parameter: str, parsers: Sequence[argparse.ArgumentParser]) -> str |
     return alias if alias in flags.values() else None
 
 
+def with_flags(problem: str, parsers: Sequence[argparse.ArgumentParser]) -> str:
+    """``problem`` as a command-line user reads it: each parameter it names (`name` or
+    `name=value`) written as the flag of the options of ``parsers``: ``--flag`` (a value True or
+    False: the flag alone, PARAMETER_FLAGS naming the flag that turns an option off) or ``--flag
+    value`` (quotes dropped). A parameter without a flag there stays as written."""
+    def rendered(mention: re.Match[str]) -> str:
+        name, value = mention.groups()
+        flag = flag_of(name, parsers)
+        if flag is None:
+            return mention.group(0)
+        if value is None or value in ("True", "False"):
+            return flag
+        return f"{flag} {value.strip(chr(39) + chr(34))}"
+
+    return PARAMETER_MENTION.sub(rendered, problem)
+
+
+def error_text(exc: InputError, parsers: Sequence[argparse.ArgumentParser]) -> str:
+    """The line ``main`` prints for ``exc`` (without the program's name): its source as the
+    parameter's flag where it names one of ``parsers``' options, and its problem
+    :func:`with_flags`."""
+    problem = with_flags(exc.problem, parsers)
+    source = (flag_of(exc.source, parsers) or exc.source) if exc.source else None
+    return f"{source}: {problem}" if source else problem
+
+
 def add_global_flags(parser: argparse.ArgumentParser, default) -> None:
     """``-v``/``--verbose`` and ``-q``/``--quiet`` on ``parser``; a command's copies default to
     ``argparse.SUPPRESS`` so that they do not undo the same flag given before the command."""
@@ -108,8 +138,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except InputError as exc:
-        flag = flag_of(exc.source, invoked_parsers(parser, args)) if exc.source else None
-        print(f"spinemocap: error: {flag}: {exc.problem}" if flag else f"spinemocap: error: {exc}", file=sys.stderr)
+        print(f"spinemocap: error: {error_text(exc, invoked_parsers(parser, args))}", file=sys.stderr)
         return int(getattr(exc, "exit_code", 2))  # 2: bad input; a subclass may name its own status
     except KeyboardInterrupt:
         print("spinemocap: interrupted", file=sys.stderr)

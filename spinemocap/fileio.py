@@ -36,7 +36,12 @@ READ_ERRORS: tuple[type[BaseException], ...] = (
 
 
 class InputError(ValueError):
-    """Bad input data: the message names the file (or object) and the problem."""
+    """Bad input data: the message names the file (or object) and the problem.
+
+    ``source``: the file, object or parameter at fault (a parameter by its Python name, e.g.
+    ``"fix_size"``; the command line shows its flag). ``problem``: what is wrong and how to fix it;
+    a parameter it names is written in backticks, `name` or `name=value` (e.g. "use
+    `method='motion'`"), which the command line shows as the flag (``--method motion``)."""
 
     def __init__(self, source: str | os.PathLike | None, problem: str):
         self.source = str(source) if source is not None else None

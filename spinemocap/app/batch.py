@@ -253,7 +253,7 @@ def check_trial(job: TrialJob) -> str | None:
                 if close is not None:
                     close()
         elif not capture.has_groundtruth:
-            raise InputError(capture.groundtruth_path, "no ground truth to take the markers from (--source groundtruth)")
+            raise InputError(capture.groundtruth_path, "no ground truth to take the markers from (`source='groundtruth'`)")
         _levels(job, capture)
         if job.trial.c3d_file and not Path(job.trial.c3d_file).is_file():
             raise InputError(job.trial.c3d_file, "pelvis C3D file not found")
@@ -390,7 +390,7 @@ def _markers(job: TrialJob, capture: Capture, inputs: list[Path]) -> MarkerTable
             from ..app.run import track_capture
         except ImportError as exc:
             raise InputError(capture.root, f"the tracker is not available in this installation ({exc}); "
-                             "use --source groundtruth for synthetic captures") from exc
+                             "use `source='groundtruth'` for synthetic captures") from exc
         track_capture(capture.root, Path(job.out_dir), mode="sequence", detector=job.detector, progress=False,
                       stop=_stop_check(job.stop_event))
     return read_markers_csv(path)

@@ -105,7 +105,7 @@ def fit_marker_file(markers: str | os.PathLike, out: str | os.PathLike, model_na
     kept, vertices = place_markers(model.rest(), labels, rules)
     if len(kept) < 4:
         raise InputError(markers, f"only {len(kept)} of its {len(labels)} marker labels are known ({kept}); "
-                                  "pass --mapping FILE to name the others")
+                                  "pass `mapping=FILE` to name the others")
     skipped = [label for label in labels if label not in kept]
     if skipped:
         log.info("markers not used (unknown labels): %s", ", ".join(skipped))

@@ -24,8 +24,9 @@ import numpy as np
 from tqdm import tqdm
 
 from calibration.boards import MAX_BLUR_SIGMA_PX, BoardDetection, BoardSpec, Facing, detect_board, view_problem
+from calibration.check import plot_residuals, save_residuals
 from calibration.extrinsics import ExtrinsicsResult, calibrate_extrinsics
-from calibration.formats import read_rig
+from calibration.formats import read_rig, write_rig
 from calibration.intrinsics import calibrate_from_detections
 from spinemocap.camera import Rig
 from spinemocap.fileio import InputError, atomic_path
@@ -306,6 +307,7 @@ class SessionCalibration:
     session: BoardSession
     intrinsics_report: str
     result: ExtrinsicsResult
+    floor_frames: list | None = None  # frame keys of the board on the floor; None: the first camera's frame
 
     def summary(self) -> str:
         parts = [self.session.summary()]
@@ -348,7 +350,36 @@ def calibrate_recordings(views: Sequence[str | os.PathLike], board: BoardSpec, i
         intrinsics, report = intrinsics_from_session(session, used)
     result = calibrate_extrinsics(intrinsics, used, session.detections(), floor_frame=floor_frames,
                                   refine_intrinsics=refine_intrinsics, progress=progress, backend=backend)
-    return SessionCalibration(session, report, result)
+    return SessionCalibration(session, report, result, floor_frames)
+
+
+@dataclass(frozen=True)
+class CalibrationFiles:
+    """The files :func:`write_calibration` wrote, paths as given: the rig, its reprojection
+    residuals (``RIG.residuals.npz``, read back by ``calibrate check``), the residual plot (PNG)
+    and the picture of the cameras and board poses in 3D (``RIG.rig3d.png``)."""
+
+    rig: str
+    residuals: str
+    residual_plot: str
+    rig_3d: str
+
+
+def write_calibration(calibrated: SessionCalibration, out: str | os.PathLike, rig_format: str | None = None,
+                      residual_plot: str | os.PathLike | None = None) -> CalibrationFiles:
+    """Write a board calibration's rig to ``out`` (``.toml``, ``rig_format`` "spinemocap" or
+    "pose2sim", or ``.xcp``), its residuals beside it, the residual plot (default
+    ``OUT.residuals.png``) and the 3D picture (``OUT.rig3d.png``; drawn with the world's Z up
+    when the board lay on the floor, else with the first camera's image up)."""
+    result, rig_path = calibrated.result, os.fspath(out)
+    write_rig(result.rig, rig_path, rig_format)
+    residuals = save_residuals(rig_path, result.residuals)
+    plot = os.fspath(residual_plot) if residual_plot else f"{rig_path}.residuals.png"
+    plot_residuals(result.rig, result.residuals, plot)
+    up = None if calibrated.floor_frames is not None else -result.rig[0].R[1]
+    board = calibrated.session.read_as or calibrated.session.board
+    plot_rig_3d(result.rig, board, result.board_poses, f"{rig_path}.rig3d.png", up=up)
+    return CalibrationFiles(rig_path, str(residuals), plot, f"{rig_path}.rig3d.png")
 
 
 def load_view_detections(folders: Sequence[str | os.PathLike], rig: Rig, board: BoardSpec,

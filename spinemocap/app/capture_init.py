@@ -71,16 +71,17 @@ class SizeMismatch:
     scale: float = 1.0
 
     def explain(self) -> str:
-        """One sentence for a person: what differs, the likely cause, the fix's flag."""
+        """One sentence for a person: what differs, the likely cause, the fix (the parameter
+        ``fix_size``, written `fix_size=...` for the command line to show as its flag)."""
         (w, h), (cw, ch) = self.video, self.calibration
         said = f"camera {self.camera!r}: its recording is {w}x{h} px but the calibration says {cw}x{ch} px"
         if self.kind == "crop":
             return (f"{said}: {abs(cw - w)} columns and {abs(ch - h)} rows apart, as a video encoder crops a frame to "
-                    "its coding blocks (1088 -> 1080 rows). --fix-size crop keeps the principal point (the rows or "
-                    "columns cut at the bottom/right, as H.264/H.265 encoders do), --fix-size crop-centre moves it "
+                    "its coding blocks (1088 -> 1080 rows). `fix_size=crop` keeps the principal point (the rows or "
+                    "columns cut at the bottom/right, as H.264/H.265 encoders do), `fix_size=crop-centre` moves it "
                     "by half the difference (a centred crop)")
         if self.kind == "scale":
-            return (f"{said}: the same image scaled by {self.scale:g}. --fix-size scale scales the focal lengths "
+            return (f"{said}: the same image scaled by {self.scale:g}. `fix_size=scale` scales the focal lengths "
                     "and the principal point by it")
         return (f"{said}, neither an encoder crop (up to {MAX_CROP_PX} px) nor a whole-number scale: this calibration "
                 "is of another sensor mode or camera; calibrate the camera at the size it recorded")
@@ -110,7 +111,7 @@ def probe_media(path: str | Path, fps: float | None = None) -> MediaProbe:
         if not files:
             raise InputError(path, f"image folder holds no images ({', '.join(IMAGE_SUFFIXES)})")
         if fps is None:
-            raise InputError(path, "an image folder carries no frame rate: give it with --fps")
+            raise InputError(path, "an image folder carries no frame rate: give it with `fps`")
         image = read_image(files[0])
         times = image_times(len(files), fps)
         return MediaProbe(path, "images", len(files), float(fps), (image.shape[1], image.shape[0]), times.duration_s)
@@ -168,7 +169,7 @@ def match_cameras(rig_names: Sequence[str], media: Sequence[Path], mapping: dict
     for camera, given in mapping.items():
         hits = [p for p in left if given in (p.name, str(p)) or Path(given).resolve() == p.resolve()]
         if len(hits) != 1:
-            raise InputError("--map", f"{camera}={given}: {'no' if not hits else 'more than one'} recording of "
+            raise InputError("mapping", f"{camera}={given}: {'no' if not hits else 'more than one'} recording of "
                                       f"{_listing(media)} is {given!r}")
         chosen[camera] = hits[0]
         left.remove(hits[0])
@@ -187,7 +188,7 @@ def match_cameras(rig_names: Sequence[str], media: Sequence[Path], mapping: dict
     if problems:
         raise InputError("camera names", "; ".join(problems) + f". The calibration's cameras: {', '.join(rig_names)}; "
                          f"the recordings: {_listing(media or list(named.values()))}. Name each recording's camera with "
-                         "--map CAMERA=FILE (or give --video CAMERA=PATH)")
+                         "`mapping` (CAMERA=FILE), or give `named` recordings (CAMERA=PATH)")
     return {name: chosen[name] for name in rig_names if name in chosen}
 
 
@@ -219,7 +220,7 @@ def fixed_camera(camera: Camera, mismatch: SizeMismatch, fix: SizeFix) -> Camera
     (pixel centres at integer coordinates: c' = (c + 0.5) s - 0.5). InputError when ``fix`` does
     not fit the mismatch."""
     if mismatch.kind is None or (mismatch.kind == "scale") != (fix == "scale"):
-        raise InputError("--fix-size", f"--fix-size {fix} does not fit: {mismatch.explain()}")
+        raise InputError("fix_size", f"`fix_size={fix}` does not fit: {mismatch.explain()}")
     K = camera.K.copy()
     if fix == "crop-centre":
         K[0, 2] -= (mismatch.calibration[0] - mismatch.video[0]) / 2.0
@@ -268,7 +269,7 @@ def init_capture(out: str | Path, calibration: str | Path, *, media: Sequence[st
 
     root = Path(out)
     if (root / MANIFEST).exists() and not force:
-        raise InputError(root / MANIFEST, "a capture is already here; choose a new folder or pass --force to replace it")
+        raise InputError(root / MANIFEST, "a capture is already here; choose a new folder or pass `force=True` to replace it")
     rig = read_rig(calibration)
     paths = [Path(p) for p in media]
     given = {name: Path(p) for name, p in (named or {}).items()}
@@ -279,25 +280,25 @@ def init_capture(out: str | Path, calibration: str | Path, *, media: Sequence[st
         raise InputError("media", "give every camera a video or every camera an image folder, not both")
     for name in offsets or {}:
         if name not in probes:
-            raise InputError("--offset", f"{name}: no camera of that name has a recording ({', '.join(probes)})")
+            raise InputError("offsets", f"{name}: no camera of that name has a recording ({', '.join(probes)})")
     cameras, fixes = _fit_sizes(rig, probes, fix_size, calibration)
     rate = float(fps) if fps else min(p.fps for p in probes.values())
-    start_s = parse_time(start, rate, "--start") if start else 0.0
+    start_s = parse_time(start, rate, "start") if start else 0.0
     clocks = {name: CameraClock(offset_s=float((offsets or {}).get(name, 0.0)),
                                 fps=None if abs(p.fps - rate) <= 1e-6 * rate else p.fps,
                                 media=str(p.path.resolve()))
               for name, p in probes.items()}
     for name, probe in probes.items():  # capture time of each recording's end, from --start
         if probe.duration_s - clocks[name].offset_s - start_s <= 0:
-            raise InputError("--start", f"{start} lies after the end of camera {name!r}'s recording "
+            raise InputError("start", f"{start} lies after the end of camera {name!r}'s recording "
                                         f"({probe.duration_s:.3f} s on its clock)")
     span = common_frames([_times(p) for p in probes.values()],
                          [replace(c, offset_s=c.offset_s + start_s) for c in clocks.values()], rate)
     n_frames = span
     if end is not None:
-        n_frames = int(round((parse_time(end, rate, "--end") - start_s) * rate))
+        n_frames = int(round((parse_time(end, rate, "end") - start_s) * rate))
         if not 1 <= n_frames <= span:
-            raise InputError("--end", f"{end} leaves {n_frames} frames after --start; the recordings hold {span} "
+            raise InputError("end", f"{end} leaves {n_frames} frames after `start`; the recordings hold {span} "
                                       f"frames at {rate:g} frames/s from there")
     root.mkdir(parents=True, exist_ok=True)
     if copy:

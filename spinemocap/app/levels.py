@@ -33,4 +33,4 @@ def find_level_map(capture: Capture, trial_file: str | os.PathLike | None = None
         return (LevelMap.from_row_levels(row_levels, n_rows, source=str(capture.groundtruth_path)),
                 f"{capture.groundtruth_path} (row_levels)")
     raise InputError(folder, "no row-to-level map: put levels.toml in the trial or subject "
-                     "folder, a [levels] table in capture.toml, or pass --levels")
+                     "folder, a [levels] table in capture.toml, or pass `levels`")

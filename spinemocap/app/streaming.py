@@ -187,23 +187,23 @@ class SpeedOptions:
 
     def __post_init__(self) -> None:
         if self.lookahead < 0:
-            raise InputError("--lookahead", f"must be 0 or more, got {self.lookahead}")
+            raise InputError("lookahead", f"must be 0 or more, got {self.lookahead}")
         if self.refresh not in REFRESH:
-            raise InputError("--refresh", f"unknown refresh schedule {self.refresh!r} (choose {', '.join(REFRESH)})")
+            raise InputError("refresh", f"unknown refresh schedule {self.refresh!r} (choose {', '.join(REFRESH)})")
         if self.refresh_every < 1 or self.refresh_settled_every < 0:
-            raise InputError("--refresh-every", f"must be 1 or more (settled: 0 or more), got {self.refresh_every}, "
+            raise InputError("refresh_every", f"must be 1 or more (settled: 0 or more), got {self.refresh_every}, "
                              f"{self.refresh_settled_every}")
         if self.frames_at_once < 1:
-            raise InputError("--frames-at-once", f"must be 1 or more, got {self.frames_at_once}")
+            raise InputError("frames_at_once", f"must be 1 or more, got {self.frames_at_once}")
         if self.candidate_workers < 0 or self.candidate_depth < 1:
-            raise InputError("--candidate-workers", f"workers must be 0 or more and depth 1 or more, got "
+            raise InputError("candidate_workers", f"workers must be 0 or more and depth 1 or more, got "
                              f"{self.candidate_workers} and {self.candidate_depth}")
         if self.candidate_workers > 0 and self.predict:
-            raise InputError("--candidate-workers", "the candidate workers build frames ahead of the tracker, which "
-                             "prediction cannot wait for: turn prediction off (--frames-at-once N or --no-predict)")
+            raise InputError("candidate_workers", "the candidate workers build frames ahead of the tracker, which "
+                             "prediction cannot wait for: turn prediction off (`frames_at_once=N` or `predict=False`)")
         if self.frames_at_once > 1 and self.predict:
-            raise InputError("--frames-at-once", "frames detected at once are each searched in full: "
-                             "turn prediction off (--no-predict)")
+            raise InputError("frames_at_once", "frames detected at once are each searched in full: "
+                             "turn prediction off (`predict=False`)")
 
     def camera_period(self, settled: bool) -> int:
         """Frames between a camera's full searches (``refresh="camera"``)."""

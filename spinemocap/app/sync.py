@@ -529,7 +529,7 @@ def estimate_offsets(capture: Capture, method: Method = "auto", detector: str = 
     if method in ("audio", "auto"):
         estimate = estimate_audio(capture, max_offset_s)
         if estimate is None and method == "audio":
-            raise InputError(capture.root, "the capture has no audio on every camera's video: use --method motion")
+            raise InputError(capture.root, "the capture has no audio on every camera's video: use `method='motion'`")
         if estimate is not None and (method == "audio" or estimate.found.all()):
             return estimate
     dots = detect_camera_dots(capture, detector, seconds, progress)

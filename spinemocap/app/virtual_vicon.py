@@ -101,7 +101,7 @@ def write_scene_vicon(scene, out: str | os.PathLike, setup: ViconSetup | None = 
     from .wand_wave import write_wand_wave
 
     if wand_seconds < 0:
-        raise InputError("--wand-seconds", f"must be positive (got {wand_seconds:g}); 0 turns the wand wave off")
+        raise InputError("wand_seconds", f"must be positive (got {wand_seconds:g}); 0 turns the wand wave off")
     setup = setup or ViconSetup()
     vicon = record_scene(scene, setup, progress=progress)
     wave = write_wand_wave(scene, setup, out, wand_seconds, progress) if wand_seconds > 0 else None

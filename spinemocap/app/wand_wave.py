@@ -155,7 +155,7 @@ def write_wand_wave(scene, setup: ViconSetup, out: str | os.PathLike, seconds: f
     :data:`MIN_SEEN_SHARE` of the frames (e.g. the ``tiny`` preset, whose 3 narrow views overlap
     only in a volume smaller than the wand)."""
     if not seconds > 0:
-        raise InputError("--wand-seconds", f"must be positive (got {seconds:g}); 0 turns the wand wave off")
+        raise InputError("seconds", f"must be positive (got {seconds:g}); 0 turns the wand wave off")
     wand = WandSpec()
     seed = int(scene.rng_seed)
     plan = plan_wave(scene.rig, scene.target, wand, scene.fps, seconds, seed)
@@ -222,7 +222,28 @@ def wand_readme(capture: Path, cameras: list[str], plan: WavePlan, setup: ViconS
         f"--rig-vicon {capture}/{WAND_DIR}/rig_vicon.toml", ""])
 
 
-def registration_errors(groundtruth: dict, R: np.ndarray, t: np.ndarray, offset_s: float | None = None) -> dict:
+@dataclass(frozen=True)
+class RegistrationErrors:
+    """An estimated rig -> Vicon transform against the truth (:func:`registration_errors`):
+    rotation error (deg), mean and largest point error (mm) over the capture's true dots, and the
+    clock offset's error (ms; None when no offset was estimated)."""
+
+    rotation_error_deg: float
+    point_error_mean_mm: float
+    point_error_max_mm: float
+    offset_error_ms: float | None = None
+
+    def to_dict(self) -> dict[str, float]:
+        """The JSON object (``offset_error_ms`` only when estimated)."""
+        out = {"rotation_error_deg": self.rotation_error_deg, "point_error_mean_mm": self.point_error_mean_mm,
+               "point_error_max_mm": self.point_error_max_mm}
+        if self.offset_error_ms is not None:
+            out["offset_error_ms"] = self.offset_error_ms
+        return out
+
+
+def registration_errors(groundtruth: dict, R: np.ndarray, t: np.ndarray,
+                        offset_s: float | None = None) -> RegistrationErrors:
     """How far an estimated rig -> Vicon transform ``X_v = R X + t`` (and clock offset, s) is from
     the truth in ``groundtruth`` (``vicon_R``, ``vicon_t_mm``, ``vicon_clock_offset_s``): rotation
     error (deg), mean and max point error (mm) over the capture's true dots (every frame), offset
@@ -231,8 +252,7 @@ def registration_errors(groundtruth: dict, R: np.ndarray, t: np.ndarray, offset_
     points = np.asarray(groundtruth["dots"], float).reshape(-1, 3)
     points = points[np.isfinite(points).all(axis=1)]
     error = np.linalg.norm(points @ R.T + t - (points @ R_true.T + t_true), axis=1)
-    out = {"rotation_error_deg": float(np.degrees(Rotation.from_matrix(R @ R_true.T).magnitude())),
-           "point_error_mean_mm": float(error.mean()), "point_error_max_mm": float(error.max())}
-    if offset_s is not None:
-        out["offset_error_ms"] = float(1000 * (offset_s - float(groundtruth["vicon_clock_offset_s"])))
-    return out
+    offset = None if offset_s is None else float(1000 * (offset_s - float(groundtruth["vicon_clock_offset_s"])))
+    return RegistrationErrors(rotation_error_deg=float(np.degrees(Rotation.from_matrix(R @ R_true.T).magnitude())),
+                              point_error_mean_mm=float(error.mean()), point_error_max_mm=float(error.max()),
+                              offset_error_ms=offset)

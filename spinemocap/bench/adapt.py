@@ -19,8 +19,9 @@ import json
 import platform
 import time
 import warnings
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -44,7 +45,91 @@ SHIFTED = {"tape_colour": "red", "skin_tone": 0.7, "realism": "lab"}
 SEEN_SEED, UNSEEN_SEED = 0, 1
 
 
-def detection_scores(capture: Capture, weights: Path | None, step: int = 2) -> dict:
+@dataclass(frozen=True)
+class DetectionScore:
+    """The ``net`` detector's dots against a capture's truth (:func:`detection_scores`): recall,
+    precision, and the dots found, missed and found where no visible dot is."""
+
+    recall: float
+    precision: float
+    dots_found: int
+    dots_missed: int
+    false_dots: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class TrackingScore:
+    """``track`` of a capture against its truth (:func:`tracking_scores`): mean and 95th
+    percentile error, mean error of the observed dots (mm), swapped dot-frames, flagged and
+    unsolved frames, and the share of dot-frames observed (0-1)."""
+
+    mean_mm: float
+    p95_mm: float
+    observed_mean_mm: float
+    swaps: int
+    flagged_frames: int
+    unsolved_frames: int
+    observed_share: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class TrackingFailure:
+    """``track`` found no tape: its problem, recorded in the row."""
+
+    error: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class AdaptRow:
+    """One capture ("adapted on" or "unseen") with one set of weights ("start" or "adapted"): the
+    detection and the tracking scores."""
+
+    capture: str
+    weights: str
+    detection: DetectionScore
+    tracking: TrackingScore | TrackingFailure
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: capture, weights, the detection's keys, then ``tracking``."""
+        return {"capture": self.capture, "weights": self.weights, **self.detection.to_dict(),
+                "tracking": self.tracking.to_dict()}
+
+
+@dataclass(frozen=True)
+class AdaptNumbers:
+    """``bench adapt``'s numbers (:func:`run_adapt_benchmark`): the shifted appearance, preset,
+    frames per capture, frame step of the detection scores, the starting weights, the training
+    settings, the adapted labels (frames, views, views skipped, dots, studio views), the machine,
+    the wall seconds and every row."""
+
+    appearance: dict[str, Any]
+    preset: str
+    frames: int
+    step: int
+    start_weights: str
+    train: dict[str, int]
+    labels: dict[str, int]
+    machine: str
+    wall_s: float
+    rows: list[AdaptRow]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object ``--json`` writes."""
+        return {"appearance": self.appearance, "preset": self.preset, "frames": self.frames, "step": self.step,
+                "start_weights": self.start_weights, "train": self.train, "labels": self.labels,
+                "machine": self.machine, "wall_s": self.wall_s, "rows": [row.to_dict() for row in self.rows]}
+
+
+def detection_scores(capture: Capture, weights: Path | None, step: int = 2) -> DetectionScore:
     """Dot recall and precision of the ``net`` detector with ``weights`` (None: shipped) on every
     ``step``-th frame of a studio capture (see the module)."""
     from ..detect import Detector
@@ -77,11 +162,11 @@ def detection_scores(capture: Capture, weights: Path | None, step: int = 2) -> d
         close = getattr(source, "close", None)
         if close is not None:
             close()
-    return {"recall": found / max(found + missed, 1), "precision": found / max(found + false, 1),
-            "dots_found": found, "dots_missed": missed, "false_dots": false}
+    return DetectionScore(recall=found / max(found + missed, 1), precision=found / max(found + false, 1),
+                          dots_found=found, dots_missed=missed, false_dots=false)
 
 
-def tracking_scores(capture_dir: Path, out: Path) -> dict:
+def tracking_scores(capture_dir: Path, out: Path) -> TrackingScore | TrackingFailure:
     """``track`` of a studio capture (its ``detector_weights`` if named) scored against its ground truth."""
     capture = Capture.open(capture_dir)
     try:
@@ -89,19 +174,19 @@ def tracking_scores(capture_dir: Path, out: Path) -> dict:
             warnings.simplefilter("ignore", TrackingWarning)
             result = track_capture_result(capture_dir, out, progress=False)
     except NoTapeFound as exc:
-        return {"error": exc.problem}
+        return TrackingFailure(exc.problem)
     accuracy = evaluate_tracking(result.table, capture.groundtruth(), capture.tape.graph.min_spacing_mm)
     arrays = result.table.to_arrays()
     observed = arrays.status == OBSERVED
-    return {"mean_mm": accuracy.mean_error_mm, "p95_mm": accuracy.p95_error_mm,
-            "observed_mean_mm": accuracy.observed.mean, "swaps": accuracy.label_swaps,
-            "flagged_frames": len(result.flagged_frames()), "unsolved_frames": accuracy.frames_without_solution,
-            "observed_share": float(observed.mean())}
+    return TrackingScore(mean_mm=accuracy.mean_error_mm, p95_mm=accuracy.p95_error_mm,
+                         observed_mean_mm=accuracy.observed.mean, swaps=accuracy.label_swaps,
+                         flagged_frames=len(result.flagged_frames()),
+                         unsolved_frames=accuracy.frames_without_solution, observed_share=float(observed.mean()))
 
 
 def run_adapt_benchmark(work: Path, frames: int = 30, epochs: int = 4, steps: int = 30, studio_scenes: int = 6,
                         appearance: dict | None = None, step: int = 2, progress: bool = True,
-                        say: Callable[[str], None] = print, start_weights: Path | None = None) -> dict:
+                        say: Callable[[str], None] = print, start_weights: Path | None = None) -> AdaptNumbers:
     """Render, adapt and score (see the module) in the folder ``work``; returns the JSON-ready
     numbers. ``start_weights``: the weights the lab has before adapting, the peer scored beside the adapted
     ones (default: the studio-only weights, which the shifted appearance shifts)."""
@@ -131,37 +216,39 @@ def run_adapt_benchmark(work: Path, frames: int = 30, epochs: int = 4, steps: in
                 tracking = tracking_scores(root, work / "tracked" / f"{root.name}_{label}")
             finally:
                 (root / MANIFEST).write_text(manifest)
-            row = {"capture": name, "weights": label, **detection, "tracking": tracking}
+            row = AdaptRow(name, label, detection, tracking)
             rows.append(row)
             say(describe(row))
-    return {"appearance": appearance, "preset": "tiny", "frames": frames, "step": step, "start_weights": str(start_weights),
-            "train": {"epochs": epochs, "steps": steps, "studio_scenes": studio_scenes},
-            "labels": {"frames": len(adapted.frames), "views": adapted.views, "views_skipped": adapted.views_skipped,
-                       "dots": adapted.dots, "studio_views": adapted.studio_views},
-            "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
-            "wall_s": time.perf_counter() - start, "rows": rows}
+    return AdaptNumbers(appearance=appearance, preset="tiny", frames=frames, step=step, start_weights=str(start_weights),
+                        train={"epochs": epochs, "steps": steps, "studio_scenes": studio_scenes},
+                        labels={"frames": len(adapted.frames), "views": adapted.views,
+                                "views_skipped": adapted.views_skipped, "dots": adapted.dots,
+                                "studio_views": adapted.studio_views},
+                        machine=f"{platform.machine()} {platform.processor() or ''}".strip(),
+                        wall_s=time.perf_counter() - start, rows=rows)
 
 
-def describe(row: dict) -> str:
-    t = row["tracking"]
-    tracked = (f"{t['mean_mm']:.2f} mm mean (p95 {t['p95_mm']:.2f}), {t['swaps']} swaps, {t['flagged_frames']} flagged, "
-               f"{t['unsolved_frames']} unsolved" if "mean_mm" in t else t["error"])
-    return (f"{row['capture']:>10} / {row['weights']:<7}: recall {row['recall']:.3f}, precision {row['precision']:.3f}; "
-            f"tracked {tracked}")
+def describe(row: AdaptRow) -> str:
+    t = row.tracking
+    tracked = (f"{t.mean_mm:.2f} mm mean (p95 {t.p95_mm:.2f}), {t.swaps} swaps, {t.flagged_frames} flagged, "
+               f"{t.unsolved_frames} unsolved" if isinstance(t, TrackingScore) else t.error)
+    return (f"{row.capture:>10} / {row.weights:<7}: recall {row.detection.recall:.3f}, precision "
+            f"{row.detection.precision:.3f}; tracked {tracked}")
 
 
-def format_table(numbers: dict) -> str:
+def format_table(numbers: AdaptNumbers) -> str:
     lines = ["| capture | weights | dot recall | dot precision | tracked mean / p95 mm | swaps | flagged frames | unsolved |",
              "|---|---|---|---|---|---|---|---|"]
-    for r in numbers["rows"]:
-        t = r["tracking"]
-        tracked = (f"{t['mean_mm']:.2f} / {t['p95_mm']:.2f} | {t['swaps']} | {t['flagged_frames']} | {t['unsolved_frames']}"
-                   if "mean_mm" in t else f"{t['error']} | - | - | all")
-        lines.append(f"| {r['capture']} | {r['weights']} | {r['recall']:.3f} | {r['precision']:.3f} | {tracked} |")
+    for r in numbers.rows:
+        t = r.tracking
+        tracked = (f"{t.mean_mm:.2f} / {t.p95_mm:.2f} | {t.swaps} | {t.flagged_frames} | {t.unsolved_frames}"
+                   if isinstance(t, TrackingScore) else f"{t.error} | - | - | all")
+        lines.append(f"| {r.capture} | {r.weights} | {r.detection.recall:.3f} | {r.detection.precision:.3f} | {tracked} |")
     return "\n".join(lines)
 
 
-def save(numbers: dict, path: Path) -> None:
+def save(numbers: AdaptNumbers, path: Path) -> None:
+    """The numbers as indented JSON (atomic; the folder made if needed)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(path) as handle:
-        json.dump(numbers, handle, indent=2, default=float)
+        json.dump(numbers.to_dict(), handle, indent=2, default=float)

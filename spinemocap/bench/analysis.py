@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -41,40 +42,91 @@ COLUMNS = ("lumbar_flexion", "lumbar_lateral", "lumbar_rotation")
 LOW, HIGH = "L3", "T12/L1"
 
 
-def fit_stats(measured: np.ndarray, expected: np.ndarray) -> dict[str, float]:
-    """Agreement of ``measured`` with ``expected`` (deg, NaN frames skipped): RMSE, bias (mean
-    of measured - expected), Bland-Altman 95 % limits of agreement (bias -/+ 1.96 SD of the
-    differences), R^2 (coefficient of determination against y = x), the fitted gain and the
-    share of frames with a measured value (``valid``)."""
+@dataclasses.dataclass(frozen=True)
+class FitStats:
+    """Agreement of a measured angle with the expected one (:func:`fit_stats`; NaN frames
+    skipped): ``rmse_deg``, ``bias_deg`` (mean of measured - expected), the Bland-Altman 95 %
+    limits of agreement ``loa_low_deg`` / ``loa_high_deg`` (bias -/+ 1.96 SD of the differences),
+    ``r2`` (coefficient of determination against y = x), ``gain`` (least-squares slope through
+    0), ``frames`` scored and ``valid`` (share of frames with a measured value, 0-1)."""
+
+    rmse_deg: float
+    bias_deg: float
+    loa_low_deg: float
+    loa_high_deg: float
+    r2: float
+    gain: float
+    frames: int
+    valid: float
+
+    def to_dict(self) -> dict[str, float]:
+        """The JSON object: the fields in order."""
+        return dataclasses.asdict(self)
+
+
+def fit_stats(measured: np.ndarray, expected: np.ndarray) -> FitStats:
+    """Agreement of ``measured`` (F,) with ``expected`` (F,), both deg (see :class:`FitStats`)."""
     ok = np.isfinite(measured) & np.isfinite(expected)
     m, e = measured[ok], expected[ok]
     if not ok.any():
         nan = float("nan")
-        return {"rmse_deg": nan, "bias_deg": nan, "loa_low_deg": nan, "loa_high_deg": nan, "r2": nan,
-                "gain": nan, "frames": 0, "valid": 0.0}
+        return FitStats(nan, nan, nan, nan, nan, nan, frames=0, valid=0.0)
     residual = m - e
     total = np.sum((e - e.mean()) ** 2)
     bias = float(residual.mean())
     spread = 1.96 * float(residual.std(ddof=1)) if len(residual) > 1 else float("nan")
-    return {"rmse_deg": float(np.sqrt(np.mean(residual**2))), "bias_deg": bias,
-            "loa_low_deg": bias - spread, "loa_high_deg": bias + spread,
-            "r2": float(1 - np.sum(residual**2) / total) if total > 0 else float("nan"),
-            "gain": float(np.dot(m, e) / np.dot(e, e)) if np.dot(e, e) > 0 else float("nan"),
-            "frames": int(ok.sum()), "valid": float(ok.mean()) if len(ok) else 0.0}
+    return FitStats(rmse_deg=float(np.sqrt(np.mean(residual**2))), bias_deg=bias,
+                    loa_low_deg=bias - spread, loa_high_deg=bias + spread,
+                    r2=float(1 - np.sum(residual**2) / total) if total > 0 else float("nan"),
+                    gain=float(np.dot(m, e) / np.dot(e, e)) if np.dot(e, e) > 0 else float("nan"),
+                    frames=int(ok.sum()), valid=float(ok.mean()) if len(ok) else 0.0)
 
 
-def _score(table, expected_change: np.ndarray, axis: int) -> dict:
+@dataclasses.dataclass(frozen=True)
+class AxisAgreement:
+    """The lumbar angles' change from frame 0 against the expected change (:func:`_score`): the
+    agreement on the motion's own axis (:class:`FitStats`), the other two angles' deviation from
+    their expected change (crosstalk RMS and peak, deg) and the expected change's peak (deg)."""
+
+    fit: FitStats
+    crosstalk_rms_deg: float
+    crosstalk_peak_deg: float
+    expected_peak_deg: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: the agreement's keys, then the crosstalk and the expected peak."""
+        return {**self.fit.to_dict(), "crosstalk_rms_deg": self.crosstalk_rms_deg,
+                "crosstalk_peak_deg": self.crosstalk_peak_deg, "expected_peak_deg": self.expected_peak_deg}
+
+
+@dataclasses.dataclass(frozen=True)
+class StudioMotionAgreement:
+    """One studio motion on ground-truth markers (:func:`bench_studio`): the agreement, the two
+    benchmark rows (1-based), the share of the spine's joints between them, the applied motion's
+    peak (deg) and the angle computation's ms per frame."""
+
+    agreement: AxisAgreement
+    rows: list[int]
+    joint_share: float
+    applied_peak_deg: float
+    ms_per_frame: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.agreement.to_dict(), "rows": self.rows, "joint_share": self.joint_share,
+                "applied_peak_deg": self.applied_peak_deg, "ms_per_frame": self.ms_per_frame}
+
+
+def _score(table, expected_change: np.ndarray, axis: int) -> AxisAgreement:
     """Scores of the change from frame 0 of the lumbar angles against ``expected_change``
     (F, 3): fit statistics on the motion's ``axis``; crosstalk = the other two angles' deviation
     from their expected change (zero for the studio's single-axis motions)."""
     measured = table[list(COLUMNS)].to_numpy(float)
     change = measured - measured[0]
-    out = fit_stats(change[:, axis], expected_change[:, axis])
     others = np.delete(change - expected_change, axis, axis=1)
-    out["crosstalk_rms_deg"] = float(np.sqrt(np.nanmean(others**2)))
-    out["crosstalk_peak_deg"] = float(np.nanmax(np.abs(others)))
-    out["expected_peak_deg"] = float(np.max(np.abs(expected_change[:, axis])))
-    return out
+    return AxisAgreement(fit_stats(change[:, axis], expected_change[:, axis]),
+                         crosstalk_rms_deg=float(np.sqrt(np.nanmean(others**2))),
+                         crosstalk_peak_deg=float(np.nanmax(np.abs(others))),
+                         expected_peak_deg=float(np.max(np.abs(expected_change[:, axis]))))
 
 
 def mid_bone_rows(row_heights: np.ndarray, joint_heights: np.ndarray) -> tuple[int, int, int]:
@@ -110,11 +162,11 @@ def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0
 
 
 def bench_studio(frames: int = 60, fps: float = 20.0, rows: int = 13, seed: int = 0,
-                 progress: bool = True) -> dict:
+                 progress: bool = True) -> dict[str, StudioMotionAgreement]:
     """The three studio motions on ground-truth markers; see the module docstring."""
     from tqdm import tqdm
 
-    results = {}
+    results: dict[str, StudioMotionAgreement] = {}
     for axis, motion in enumerate(tqdm(MOTIONS, desc="studio motions", disable=not progress)):
         data = studio_motion(motion, frames, fps, rows, seed)
         lo, hi = data["rows"]
@@ -127,13 +179,14 @@ def bench_studio(frames: int = 60, fps: float = 20.0, rows: int = 13, seed: int 
         applied = data["applied"] - data["applied"][0]
         expected = np.zeros_like(applied)
         expected[:, axis] = data["share"] * applied[:, axis]
-        results[motion] = {**_score(table, expected, axis), "rows": [lo, hi],
-                           "joint_share": data["share"], "applied_peak_deg": float(np.abs(applied[:, axis]).max()),
-                           "ms_per_frame": 1000 * elapsed / frames}
+        results[motion] = StudioMotionAgreement(_score(table, expected, axis), rows=[lo, hi],
+                                                joint_share=data["share"],
+                                                applied_peak_deg=float(np.abs(applied[:, axis]).max()),
+                                                ms_per_frame=1000 * elapsed / frames)
     return results
 
 
-def bench_analytic(frames: int = 60, rows: int = 13) -> dict:
+def bench_analytic(frames: int = 60, rows: int = 13) -> dict[str, AxisAgreement]:
     """The peer with an exact answer: a lordotic rod (-0.1 deg/mm everywhere) bent by up to 50
     deg (sine over time) with a smooth profile along the whole tape, measured between rows 2 and
     9; expected = Cardan angles of the rod's exact turn between those rows."""
@@ -142,7 +195,7 @@ def bench_analytic(frames: int = 60, rows: int = 13) -> dict:
     v_lo, v_hi = tape.row_pitch_mm, 8 * tape.row_pitch_mm
     amplitude = 50.0 * np.sin(np.linspace(0, 2 * np.pi, frames))
     background = np.array([-0.1, 0.0, 0.0])
-    results = {}
+    results: dict[str, AxisAgreement] = {}
     for axis, motion in enumerate(MOTIONS):
         bends = [smooth_bend(0.0, tape.length_mm, np.eye(3)[axis] * a, background) for a in amplitude]
         dots = np.array([bent_tape_dots(tape, bend) for bend in bends])
@@ -343,24 +396,94 @@ def tracked_markers(scene, detector: str = "net", mode: TrackingMode = "sequence
     return result.table
 
 
-def score_lab_angles(table: pd.DataFrame, expected: dict[str, np.ndarray]) -> dict[str, dict]:
+@dataclasses.dataclass(frozen=True)
+class AngleScore:
+    """One angle's change from the neutral first frame against the expected change
+    (:func:`score_lab_angles`): the agreement (:class:`FitStats`), the expected change's peak
+    (deg) and the measured change per frame (deg, rounded to 0.001; None where not measured)."""
+
+    fit: FitStats
+    expected_peak_deg: float
+    change: list[float | None]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: the agreement's keys, then ``expected_peak_deg`` and ``change``."""
+        return {**self.fit.to_dict(), "expected_peak_deg": self.expected_peak_deg, "change": self.change}
+
+
+def score_lab_angles(table: pd.DataFrame, expected: dict[str, np.ndarray]) -> dict[str, AngleScore]:
     """Agreement (:func:`fit_stats`) of each angle's change from the first (neutral) frame with
-    the expected change, per angle column of :data:`LAB_ANGLES`; ``change`` holds the measured
-    change per frame (deg, None where NaN)."""
+    the expected change, per angle column of :data:`LAB_ANGLES`."""
     from ..analysis.neutral import neutral_from_angles, relative_to_neutral
 
     change = relative_to_neutral(table, neutral_from_angles(table, first_s=0.0))
-    out: dict[str, dict] = {}
+    out: dict[str, AngleScore] = {}
     for column in LAB_ANGLES:
         group, axis = column.split("_")[0], ("flexion", "lateral", "rotation").index(column.split("_")[1])
         values = change[column].to_numpy(float)
-        out[column] = fit_stats(values, expected[group][:, axis])
-        out[column]["expected_peak_deg"] = float(np.nanmax(np.abs(expected[group][:, axis])))
-        out[column]["change"] = [round(float(v), 3) if np.isfinite(v) else None for v in values]
+        out[column] = AngleScore(fit_stats(values, expected[group][:, axis]),
+                                 expected_peak_deg=float(np.nanmax(np.abs(expected[group][:, axis]))),
+                                 change=[round(float(v), 3) if np.isfinite(v) else None for v in values])
     return out
 
 
-def lab_angles_plot_png(results: dict) -> bytes:
+@dataclasses.dataclass(frozen=True)
+class LabTracking:
+    """The tracked markers of one motion against the studio's truth: mean and 95th-percentile
+    error (mm), swapped dot-frames, frames with a swap, frames without a solution, and seconds
+    of rendering, detection and tracking per frame."""
+
+    mean_error_mm: float
+    p95_error_mm: float
+    label_swaps: int
+    frames_with_swaps: int
+    frames_without_solution: int
+    s_per_frame: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class LabMotionAngles:
+    """One studio motion of ``bench angles`` (:func:`bench_lab_angles`): the levels of each angle
+    group and the joints whose skin turn the expectation counts, the applied motion's peak per
+    axis (deg), the scores per angle column on ground-truth markers and, when tracked, on the
+    tracked markers and on them with the L-R midpoint row centres (the peer), the tracking's
+    accuracy, the wall seconds and the expected change per angle group ((F, 3) deg as lists)."""
+
+    levels: dict[str, list[str]]
+    skin_turn_joints: dict[str, float]
+    applied_peak_deg: list[float]
+    groundtruth: dict[str, AngleScore]
+    wall_s: float
+    expected: dict[str, list[list[float]]]
+    tracked: dict[str, AngleScore] | None = None
+    lr_midpoints: dict[str, AngleScore] | None = None
+    tracking: LabTracking | None = None
+
+    def scores(self, source: str) -> dict[str, AngleScore] | None:
+        """The scores per angle column of ``source`` ("groundtruth", "tracked" or
+        :data:`PEER_SOURCE`); None when that source did not run."""
+        return {"groundtruth": self.groundtruth, "tracked": self.tracked, PEER_SOURCE: self.lr_midpoints}[source]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object (the tracked sources and the tracking only when tracked)."""
+        def scored(scores: dict[str, AngleScore]) -> dict[str, Any]:
+            return {column: score.to_dict() for column, score in scores.items()}
+
+        out: dict[str, Any] = {"levels": self.levels, "skin_turn_joints": self.skin_turn_joints,
+                               "applied_peak_deg": self.applied_peak_deg, "groundtruth": scored(self.groundtruth)}
+        if self.tracked is not None:
+            out["tracked"] = scored(self.tracked)
+        if self.lr_midpoints is not None:
+            out[PEER_SOURCE] = scored(self.lr_midpoints)
+        if self.tracking is not None:
+            out["tracking"] = self.tracking.to_dict()
+        return {**out, "wall_s": self.wall_s, "expected": self.expected}
+
+
+def lab_angles_plot_png(results: dict[str, LabMotionAngles]) -> bytes:
     """PNG: per motion (columns) the lumbar angle on the motion's axis (all three for the mixed
     motion) over time, expected vs ground-truth vs tracked markers (top), and the Bland-Altman
     plot of the tracked markers with bias and 95 % limits of agreement (bottom)."""
@@ -378,21 +501,22 @@ def lab_angles_plot_png(results: dict) -> bytes:
         entry, top, bottom = results[motion], axes[0, k], axes[1, k]
         columns = [LAB_ANGLES[MOTION_AXIS[motion]]] if motion in MOTION_AXIS else list(colours)
         for column in columns:
-            expected = np.asarray(entry["expected"]["lumbar"], float)[:, LAB_ANGLES.index(column)]
+            expected = np.asarray(entry.expected["lumbar"], float)[:, LAB_ANGLES.index(column)]
             top.plot(expected, color=colours[column], lw=2.5, alpha=0.35, label=f"{column} applied")
-            top.plot(_floats(entry["groundtruth"][column]["change"]), color=colours[column], ls=":", lw=1.2,
+            top.plot(_floats(entry.groundtruth[column].change), color=colours[column], ls=":", lw=1.2,
                      label="ground-truth markers")
-            source = "tracked" if "tracked" in entry else "groundtruth"
-            measured = _floats(entry[source][column]["change"])
+            source = "tracked" if entry.tracked is not None else "groundtruth"
+            stats = (entry.tracked or entry.groundtruth)[column]
+            measured = _floats(stats.change)
             top.plot(measured, color=colours[column], lw=1.2, marker=".", ms=3, label=f"{source} markers")
             mean, diff = 0.5 * (measured + expected), measured - expected
             bottom.scatter(mean, diff, s=8, color=colours[column])
-            stats = entry[source][column]
-            for y, style in ((stats["bias_deg"], "-"), (stats["loa_low_deg"], "--"), (stats["loa_high_deg"], "--")):
+            for y, style in ((stats.fit.bias_deg, "-"), (stats.fit.loa_low_deg, "--"), (stats.fit.loa_high_deg, "--")):
                 bottom.axhline(y, color=colours[column], ls=style, lw=0.8)
         top.set_title(f"{motion}: change from neutral (deg)", fontsize=9)
         top.set_xlabel("frame", fontsize=8)
-        bottom.set_title(f"Bland-Altman, {'tracked' if 'tracked' in entry else 'ground-truth'} markers", fontsize=9)
+        bottom.set_title(f"Bland-Altman, {'tracked' if entry.tracked is not None else 'ground-truth'} markers",
+                         fontsize=9)
         bottom.set_xlabel("mean of measured and applied (deg)", fontsize=8)
         bottom.axhline(0, color="0.6", lw=0.5)
         for ax in (top, bottom):
@@ -413,7 +537,7 @@ def _floats(values: list) -> np.ndarray:
 
 def bench_lab_angles(motions=LAB_MOTIONS, frames: int = 30, fps: float = 10.0, rows: int = 13,
                      realism: str = "lab", detector: str = "net", tracked: bool = True, seed: int = 0,
-                     progress: bool = True, say=print) -> dict:
+                     progress: bool = True, say=print) -> dict[str, LabMotionAngles]:
     """Lumbar (S1 -> T12/L1) and thoracic angles against the studio's applied motion, on
     ground-truth markers (the ceiling) and, with ``tracked``, on tracked markers; per motion the
     agreement of every angle (:func:`score_lab_angles`), the tracking accuracy (mean error,
@@ -421,7 +545,7 @@ def bench_lab_angles(motions=LAB_MOTIONS, frames: int = 30, fps: float = 10.0, r
     from ..track.evaluate import evaluate_tracking
 
     settings = AngleSettings(lower="S1", thoracolumbar="T12/L1")
-    results: dict = {}
+    results: dict[str, LabMotionAngles] = {}
     for motion in motions:
         started = time.perf_counter()
         scene = lab_scene(motion, frames, fps, rows, realism, seed)
@@ -429,9 +553,10 @@ def bench_lab_angles(motions=LAB_MOTIONS, frames: int = 30, fps: float = 10.0, r
                                         fps=fps)
         levels, expected, info = lab_expectation(scene, truth, settings)
         up, facing = scene.subject()["up"], scene.subject()["facing"]
-        entry = {**info, "applied_peak_deg": np.abs(scene.angles_deg).max(axis=0).round(2).tolist(),
-                 "groundtruth": score_lab_angles(compute_angles(truth, scene.tape, levels, up, facing, settings).table,
-                                                 expected)}
+        groundtruth = score_lab_angles(compute_angles(truth, scene.tape, levels, up, facing, settings).table, expected)
+        tracked_scores: dict[str, AngleScore] | None = None
+        lr_midpoints: dict[str, AngleScore] | None = None
+        tracking: LabTracking | None = None
         if tracked:
             say(f"{motion}: rendering, detecting ({detector}) and tracking {frames} frames ...")
             t0 = time.perf_counter()
@@ -439,22 +564,24 @@ def bench_lab_angles(motions=LAB_MOTIONS, frames: int = 30, fps: float = 10.0, r
             track_s = time.perf_counter() - t0
             truth_dots = {"dots": truth.to_arrays().positions, "labels": np.array(scene.labels)}
             accuracy = evaluate_tracking(table, truth_dots, scene.tape.graph.min_spacing_mm)
-            entry["tracked"] = score_lab_angles(compute_angles(table, scene.tape, levels, up, facing, settings).table,
-                                                expected)
-            entry[PEER_SOURCE] = score_lab_angles(
+            tracked_scores = score_lab_angles(compute_angles(table, scene.tape, levels, up, facing, settings).table,
+                                              expected)
+            lr_midpoints = score_lab_angles(
                 compute_angles(without_middle_dots(table), scene.tape, levels, up, facing, settings).table, expected)
-            entry["tracking"] = {"mean_error_mm": accuracy.mean_error_mm, "p95_error_mm": accuracy.p95_error_mm,
-                                 "label_swaps": accuracy.label_swaps, "frames_with_swaps": accuracy.frames_with_swaps,
-                                 "frames_without_solution": accuracy.frames_without_solution,
-                                 "s_per_frame": track_s / frames}
-        entry["wall_s"] = time.perf_counter() - started
-        entry["expected"] = {g: v.round(3).tolist() for g, v in expected.items()}
+            tracking = LabTracking(mean_error_mm=accuracy.mean_error_mm, p95_error_mm=accuracy.p95_error_mm,
+                                   label_swaps=accuracy.label_swaps, frames_with_swaps=accuracy.frames_with_swaps,
+                                   frames_without_solution=accuracy.frames_without_solution,
+                                   s_per_frame=track_s / frames)
+        results[motion] = LabMotionAngles(
+            levels=info["levels"], skin_turn_joints=info["skin_turn_joints"],
+            applied_peak_deg=np.abs(scene.angles_deg).max(axis=0).round(2).tolist(), groundtruth=groundtruth,
+            wall_s=time.perf_counter() - started, expected={g: v.round(3).tolist() for g, v in expected.items()},
+            tracked=tracked_scores, lr_midpoints=lr_midpoints, tracking=tracking)
         scene.close()
-        results[motion] = entry
     return results
 
 
-def headline(results: dict) -> dict[str, float]:
+def headline(results: dict[str, LabMotionAngles]) -> dict[str, float]:
     """The headline JSON keys: ``tracked_<motion>_rmse_deg`` and ``groundtruth_<motion>_rmse_deg``
     (lumbar angle on the motion's own axis) for the single-axis motions present, and the peer's
     ``tracked_lr_midpoints_<motion>_rmse_deg``."""
@@ -464,6 +591,7 @@ def headline(results: dict) -> dict[str, float]:
             continue
         column = LAB_ANGLES[axis]
         for source in ("tracked", "groundtruth", PEER_SOURCE):
-            if source in results[motion]:
-                out[f"{source}_{motion}_rmse_deg"] = results[motion][source][column]["rmse_deg"]
+            scores = results[motion].scores(source)
+            if scores is not None:
+                out[f"{source}_{motion}_rmse_deg"] = scores[column].fit.rmse_deg
     return out

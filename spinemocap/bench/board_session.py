@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -184,7 +185,9 @@ class RigScore:
     def worst_centre_mm(self) -> float:
         return max(self.centre_error_mm.values())
 
-    def as_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: per camera errors, then the worst pair's baseline ratio error and
+        relative rotation difference (deg)."""
         return {"centre_error_mm": self.centre_error_mm, "rotation_error_deg": self.rotation_error_deg,
                 "worst_baseline_error": self.comparison.worst_baseline_error,
                 "worst_rotation_diff_deg": self.comparison.worst_rotation_deg}
@@ -204,7 +207,34 @@ def score_rig(estimated: Rig, truth: Rig) -> RigScore:
 
 
 # ---------------------------------------------------------------------- benchmark
-def session_row(size: tuple[int, int], n_frames: int, seed: int, folder: Path) -> dict:
+@dataclass(frozen=True)
+class SessionRow:
+    """One studio board session calibrated from its videos (:func:`session_row`): image size
+    (px), frames, frame rate, seed, the board variant that read it, usable views and left-out
+    reasons (counts) per camera, reprojection RMS per camera (px), our rig's score and the peer's
+    (the initial pose graph), and seconds of rendering plus writing and of calibration."""
+
+    size: list[int]
+    frames: int
+    fps: float
+    seed: int
+    read_as: str
+    usable_views: dict[str, int]
+    left_out: dict[str, dict[str, int]]
+    rms_px: dict[str, float]
+    ours: RigScore
+    peer_initial_pose_graph: RigScore
+    seconds: dict[str, float]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: the fields in order, the scores as :meth:`RigScore.to_dict`."""
+        return {"size": self.size, "frames": self.frames, "fps": self.fps, "seed": self.seed, "read_as": self.read_as,
+                "usable_views": self.usable_views, "left_out": self.left_out, "rms_px": self.rms_px,
+                "ours": self.ours.to_dict(), "peer_initial_pose_graph": self.peer_initial_pose_graph.to_dict(),
+                "seconds": self.seconds}
+
+
+def session_row(size: tuple[int, int], n_frames: int, seed: int, folder: Path) -> SessionRow:
     """Render, write and calibrate one studio session from its videos alone (board options and
     intrinsics found), scored against the truth; the peer in the same run: the initial pose
     graph alone (consensus spanning tree, no adjustment) with each camera's own OpenCV intrinsics."""
@@ -226,17 +256,18 @@ def session_row(size: tuple[int, int], n_frames: int, seed: int, folder: Path) -
     intrinsics, _ = intrinsics_from_session(calibrated.session, used)
     poses, _, _, _ = initial_pose_graph(intrinsics, used, calibrated.session.detections())
     start = Rig([Camera(c.name, c.K, c.dist, R, t, c.size) for c, (R, t) in zip(intrinsics, poses)])
-    ours, peer = score_rig(result.rig, session.rig), score_rig(start, session.rig)
-    return {"size": list(size), "frames": n_frames, "fps": session.fps, "seed": seed,
-            "read_as": str(used), "usable_views": {c.name: len(c.usable) for c in calibrated.session.cameras},
-            "left_out": {c.name: dict(c.reasons()) for c in calibrated.session.cameras},
-            "rms_px": result.rms_px, "ours": ours.as_dict(), "peer_initial_pose_graph": peer.as_dict(),
-            "seconds": {"render_and_write": t_render, "calibrate": t_calibrate}}
+    return SessionRow(size=list(size), frames=n_frames, fps=session.fps, seed=seed, read_as=str(used),
+                      usable_views={c.name: len(c.usable) for c in calibrated.session.cameras},
+                      left_out={c.name: dict(c.reasons()) for c in calibrated.session.cameras},
+                      rms_px=result.rms_px, ours=score_rig(result.rig, session.rig),
+                      peer_initial_pose_graph=score_rig(start, session.rig),
+                      seconds={"render_and_write": t_render, "calibrate": t_calibrate})
 
 
 def run_session_benchmark(size: tuple[int, int] = (960, 540), n_frames: int = 96, seeds: tuple[int, ...] = (0, 1),
-                          out: str | os.PathLike = "bench_calibration_session.json") -> dict:
-    """:func:`session_row` per seed; prints a table and writes the rows (and the machine) as JSON."""
+                          out: str | os.PathLike = "bench_calibration_session.json") -> list[SessionRow]:
+    """:func:`session_row` per seed; prints a table and writes the rows (and the machine) as JSON
+    (``{"machine": ..., "rows": [...]}``); returns the rows."""
     import json
     import platform
     import tempfile
@@ -252,13 +283,13 @@ def run_session_benchmark(size: tuple[int, int] = (960, 540), n_frames: int = 96
     print(f"{'seed':>5}{'centre mm':>11}{'rot deg':>9}{'baseline %':>12}{'rel rot deg':>13}{'RMS px':>8}"
           f"{'peer centre':>13}{'peer rel rot':>14}{'s':>6}")
     for row in rows:
-        o, p = row["ours"], row["peer_initial_pose_graph"]
-        print(f"{row['seed']:>5}{max(o['centre_error_mm'].values()):>11.3f}{max(o['rotation_error_deg'].values()):>9.3f}"
-              f"{100 * o['worst_baseline_error']:>12.3f}{o['worst_rotation_diff_deg']:>13.3f}"
-              f"{max(row['rms_px'].values()):>8.3f}{max(p['centre_error_mm'].values()):>13.3f}"
-              f"{p['worst_rotation_diff_deg']:>14.3f}{row['seconds']['calibrate']:>6.1f}")
-    report = {"machine": f"{platform.machine()}, {os.cpu_count()} CPUs", "rows": rows}
+        o, p = row.ours, row.peer_initial_pose_graph
+        print(f"{row.seed:>5}{o.worst_centre_mm:>11.3f}{max(o.rotation_error_deg.values()):>9.3f}"
+              f"{100 * o.comparison.worst_baseline_error:>12.3f}{o.comparison.worst_rotation_deg:>13.3f}"
+              f"{max(row.rms_px.values()):>8.3f}{p.worst_centre_mm:>13.3f}"
+              f"{p.comparison.worst_rotation_deg:>14.3f}{row.seconds['calibrate']:>6.1f}")
+    report = {"machine": f"{platform.machine()}, {os.cpu_count()} CPUs", "rows": [row.to_dict() for row in rows]}
     with atomic_write(out) as handle:
         json.dump(report, handle, indent=1)
     print(f"wrote {out}")
-    return report
+    return rows

@@ -45,9 +45,9 @@ import json
 import logging
 import platform
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Any, Callable, Literal
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -62,7 +62,14 @@ from ..synth.appearance import lab_subject
 from ..synth.occluders import segments_blocked_by_spheres
 from ..synth.visibility import rim_points
 from ..timing import StageTimer
-from .tape_free import MAX_FALSE_DOTS_PER_100, MAX_REGION_SHARE, score_lattice, score_tape_free
+from .tape_free import (
+    MAX_FALSE_DOTS_PER_100,
+    MAX_REGION_SHARE,
+    LatticeScore,
+    TapeFreeSummary,
+    score_lattice,
+    score_tape_free,
+)
 
 log = logging.getLogger(__name__)
 
@@ -161,20 +168,42 @@ class DotScore:
             rest = rest[~near_hidden]
         self.fp += len(rest)
 
-    def summary(self) -> dict:
+    def summary(self) -> DotSummary:
         e = np.asarray(self.errors)
         edges = VIEW_ANGLE_BINS_DEG
-        return {
-            "recall": self.tp / max(self.tp + self.fn, 1),
-            "recall_unoccluded": self.unoccluded[0] / max(self.unoccluded[1], 1),
-            "unoccluded_dots": self.unoccluded[1],
-            "recall_by_view_angle": {f"{edges[k]}-{edges[k + 1]} deg": {"recall": f / n if n else None, "dots": int(n)}
-                                     for k, (f, n) in enumerate(self.by_angle)},
-            "precision": self.tp / max(self.tp + self.fp, 1),
-            "centroid_rms_px": float(np.sqrt(np.mean(e ** 2))) if len(e) else float("nan"),
-            "centroid_p95_px": float(np.percentile(e, 95)) if len(e) else float("nan"),
-            "true_positives": self.tp, "false_positives": self.fp, "missed": self.fn,
-        }
+        return DotSummary(
+            recall=self.tp / max(self.tp + self.fn, 1),
+            recall_unoccluded=self.unoccluded[0] / max(self.unoccluded[1], 1),
+            unoccluded_dots=self.unoccluded[1],
+            recall_by_view_angle={f"{edges[k]}-{edges[k + 1]} deg": {"recall": f / n if n else None, "dots": int(n)}
+                                  for k, (f, n) in enumerate(self.by_angle)},
+            precision=self.tp / max(self.tp + self.fp, 1),
+            centroid_rms_px=float(np.sqrt(np.mean(e ** 2))) if len(e) else float("nan"),
+            centroid_p95_px=float(np.percentile(e, 95)) if len(e) else float("nan"),
+            true_positives=self.tp, false_positives=self.fp, missed=self.fn)
+
+
+@dataclass(frozen=True)
+class DotSummary:
+    """A detector's dots against the truth over a test set (:meth:`DotScore.summary`): recall
+    over all visible dots and over the unoccluded ones (with their number), recall per view-angle
+    bin ("A-B deg" -> recall, None without dots, and dots), precision, centroid RMS and 95th
+    percentile (px), true and false positives and missed dots."""
+
+    recall: float
+    recall_unoccluded: float
+    unoccluded_dots: int
+    recall_by_view_angle: dict[str, dict[str, float | int | None]]
+    precision: float
+    centroid_rms_px: float
+    centroid_p95_px: float
+    true_positives: int
+    false_positives: int
+    missed: int
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: the fields in order."""
+        return asdict(self)
 
 
 def simple_blob_detector(dot_px: float):
@@ -258,8 +287,9 @@ def dot_view_conditions(scene, frame: int, gt: dict) -> tuple[np.ndarray, np.nda
 
 # ---------------------------------------------------------------------------------- run
 def run_detect_benchmark(sets: list[str] | None = None, scenes: int | None = None, weights: Path | None = None,
-                         threads: int = 1, say: Callable[[str], None] = print, rooms: int | None = None) -> dict:
-    """Score the detectors and the peer on the held-out test sets; returns every number (JSON-ready).
+                         threads: int = 1, say: Callable[[str], None] = print,
+                         rooms: int | None = None) -> DetectResults:
+    """Score the detectors and the peer on the held-out test sets; returns every number.
     ``scenes`` overrides each set's scene count, ``rooms`` the tape-free set's painted rooms; ``say`` gets each set's table as it is done."""
     from ..detect import Detector  # loads torch
 
@@ -268,8 +298,8 @@ def run_detect_benchmark(sets: list[str] | None = None, scenes: int | None = Non
         options["weights"] = weights
     detectors = {"net": Detector("net", **options), "net (every region)": Detector("net", lattice=False, **options),
                  "classical": Detector("classical")}
-    by_set: dict[str, dict] = {}
-    results = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "sets": by_set}
+    by_set: dict[str, SetResult | TapeFreeResult] = {}
+    results = DetectResults(f"{platform.machine()} {platform.processor() or ''}".strip(), by_set)
     for set_name in sets or DEFAULT_SETS:
         if set_name == TAPE_FREE:
             by_set[TAPE_FREE] = tape_free = run_tape_free(detectors, rooms)
@@ -329,101 +359,150 @@ def run_detect_benchmark(sets: list[str] | None = None, scenes: int | None = Non
                 bar.update(1)
             scene.close()
         bar.close()
-        summary = {
-            "images": n_images, "image_size": list(cfg.size), "preset": test.preset, "blur": test.blur,
-            "occlusion": test.occlusion, "supersample": test.supersample, "scenes": n_scenes, "frames_per_scene": test.frames,
-            "mask_iou": {name: i / max(u, 1) for name, (i, u) in iou.items()},
-            "dots": {name: s.summary() for name, s in scores.items()},
-            "time": {f"{k}_ms_per_camera_frame": v for k, v in timer.mean_ms().items()},
-        }
+        summary = SetResult(
+            images=n_images, image_size=list(cfg.size), preset=test.preset, blur=test.blur, occlusion=test.occlusion,
+            supersample=test.supersample, scenes=n_scenes, frames_per_scene=test.frames,
+            mask_iou={name: i / max(u, 1) for name, (i, u) in iou.items()},
+            dots={name: s.summary() for name, s in scores.items()},
+            time={f"{k}_ms_per_camera_frame": v for k, v in timer.mean_ms().items()})
         by_set[set_name] = summary
         say(format_set(set_name, summary))
     return results
 
 
-def run_tape_free(detectors: dict, rooms: int | None = None) -> dict:
+@dataclass(frozen=True)
+class SetResult:
+    """One test set with tape: camera images scored and their size (px), the set's preset, blur,
+    occlusion and supersampling, scenes and frames per scene, each detector's mask IoU with the
+    true tape, each method's dots (:class:`DotSummary`) and the mean ms per camera-frame of each
+    stage (keys ``<stage>_ms_per_camera_frame``)."""
+
+    images: int
+    image_size: list[int]
+    preset: str
+    blur: float
+    occlusion: str
+    supersample: int
+    scenes: int
+    frames_per_scene: int
+    mask_iou: dict[str, float]
+    dots: dict[str, DotSummary]
+    time: dict[str, float]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: the fields in order."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class TapeFreeResult:
+    """The ``tape-free`` set (:func:`run_tape_free`): painted rooms, the goals, each detector's
+    false detections and the lattice test alone."""
+
+    rooms: int
+    detectors: dict[str, TapeFreeSummary]
+    lattice_test: LatticeScore
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object (``"tape_free": true`` first, then the rooms and the goals)."""
+        return {"tape_free": True, "rooms": self.rooms,
+                "goal": {"max_false_dots_per_100_images": MAX_FALSE_DOTS_PER_100, "max_region_share": MAX_REGION_SHARE},
+                "detectors": {name: score.to_dict() for name, score in self.detectors.items()},
+                "lattice_test": self.lattice_test.to_dict()}
+
+
+@dataclass(frozen=True)
+class DetectResults:
+    """``bench detect``'s numbers (:func:`run_detect_benchmark`): the machine and each test set's
+    result, in the order run."""
+
+    machine: str
+    sets: dict[str, SetResult | TapeFreeResult]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"machine": self.machine, "sets": {name: result.to_dict() for name, result in self.sets.items()}}
+
+
+def run_tape_free(detectors: dict, rooms: int | None = None) -> TapeFreeResult:
     """The ``tape-free`` set: each detector's false detections (:func:`score_tape_free`) over
     scikit-image's photographs and ``rooms`` painted rooms (default :data:`TAPE_FREE_ROOMS`)."""
     n_rooms = rooms or TAPE_FREE_ROOMS
     bar = tqdm(desc=f"bench detect [{TAPE_FREE}]", unit="image")
     scores = score_tape_free(detectors, n_rooms, progress=lambda _: bar.update(1))
     bar.close()
-    return {"tape_free": True, "rooms": n_rooms, "goal": {"max_false_dots_per_100_images": MAX_FALSE_DOTS_PER_100,
-                                                          "max_region_share": MAX_REGION_SHARE},
-            "detectors": scores, "lattice_test": score_lattice(LATTICE_CASES)}
+    return TapeFreeResult(n_rooms, scores, score_lattice(LATTICE_CASES))
 
 
-def format_tape_free(s: dict) -> str:
+def format_tape_free(s: TapeFreeResult) -> str:
     """The tape-free set's table, as printed."""
-    first = next(iter(s["detectors"].values()))
-    lines = [f"\n== {TAPE_FREE}: {first['images']} images without tape ({s['rooms']} painted lab rooms), goal "
+    first = next(iter(s.detectors.values()))
+    lines = [f"\n== {TAPE_FREE}: {first.images} images without tape ({s.rooms} painted lab rooms), goal "
              f"<= {MAX_FALSE_DOTS_PER_100:g} false dot per 100 images, no tape region above "
              f"{100 * MAX_REGION_SHARE:g} % of its image",
              f"{'detector':24s} {'false dots':>10s} {'per 100':>8s} {'images w/ dots':>14s} {'largest region %':>16s} "
              f"{'goal':>5s} {'ms/image':>9s}"]
-    for name, d in s["detectors"].items():
-        lines.append(f"{name:24s} {d['false_dots']:10d} {d['false_dots_per_100_images']:8.1f} {d['images_with_dots']:14d} "
-                     f"{100 * d['largest_region_share']:16.3f} {'met' if d['goal_met'] else 'not':>5s} {d['ms_per_image']:9.0f}")
-    lat = s.get("lattice_test")
-    if lat:
-        lines.append(f"the lattice test alone on {lat['cases']} random views each: wall-bar grids kept as tape "
-                     f"{lat['wall_bars_accepted']}, tapes kept {lat['tapes_accepted']} ({100 * lat['tape_dots_kept']:.1f} % of their dots)")
+    for name, d in s.detectors.items():
+        lines.append(f"{name:24s} {d.false_dots:10d} {d.false_dots_per_100_images:8.1f} {d.images_with_dots:14d} "
+                     f"{100 * d.largest_region_share:16.3f} {'met' if d.goal_met else 'not':>5s} {d.ms_per_image:9.0f}")
+    lat = s.lattice_test
+    lines.append(f"the lattice test alone on {lat.cases} random views each: wall-bar grids kept as tape "
+                 f"{lat.wall_bars_accepted}, tapes kept {lat.tapes_accepted} ({100 * lat.tape_dots_kept:.1f} % of their dots)")
     return "\n".join(lines)
 
 
-def save(results: dict, path: Path) -> None:
+def save(results: DetectResults, path: Path) -> None:
     """The numbers as JSON (atomic)."""
     with atomic_write(path) as handle:
-        json.dump(results, handle, indent=2)
+        json.dump(results.to_dict(), handle, indent=2)
 
 
-def plot(results: dict, path: Path) -> None:
+def plot(results: DetectResults, path: Path) -> None:
     """One row per test set: recall/precision, centroid RMS, time per camera-frame, per method."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    sets = {name: s for name, s in results["sets"].items() if "dots" in s}  # the sets with tape
+    sets = {name: s for name, s in results.sets.items() if isinstance(s, SetResult)}  # the sets with tape
     fig, axes = plt.subplots(len(sets), 3, figsize=(16, 4.4 * len(sets)), squeeze=False)
     for row, (name, s) in zip(axes, sets.items()):
-        methods = list(s["dots"])
+        methods = list(s.dots)
         y = np.arange(len(methods))
         bars = {"recall (visible)": "recall", "recall (unoccluded)": "recall_unoccluded", "precision": "precision"}
         for k, (label, key) in enumerate(bars.items()):
-            row[0].barh(y + 0.27 * (k - 1), [s["dots"][m][key] for m in methods], 0.27, label=label)
-        lowest = min(d[key] for d in s["dots"].values() for key in bars.values())
+            row[0].barh(y + 0.27 * (k - 1), [getattr(s.dots[m], key) for m in methods], 0.27, label=label)
+        lowest = min(getattr(d, key) for d in s.dots.values() for key in bars.values())
         row[0].set_xlim(min(0.9, lowest) - 0.01, 1.0)
         row[0].axvline(0.99, color="k", lw=0.8, ls="--")
         row[0].legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=3, fontsize=8)
-        row[1].barh(y, [s["dots"][m]["centroid_rms_px"] for m in methods], 0.6)
+        row[1].barh(y, [s.dots[m].centroid_rms_px for m in methods], 0.6)
         row[1].axvline(0.2, color="k", lw=0.8, ls="--")
         row[1].set_xlabel("centroid error RMS (px)")
         for ax in row[:2]:
             ax.set_yticks(y, methods)
-        row[0].set_title(f"{name}: {s['images']} images {s['image_size'][0]}x{s['image_size'][1]}")
-        times = {k.replace("_ms_per_camera_frame", ""): v for k, v in s["time"].items() if "total" in k}
+        row[0].set_title(f"{name}: {s.images} images {s.image_size[0]}x{s.image_size[1]}")
+        times = {k.replace("_ms_per_camera_frame", ""): v for k, v in s.time.items() if "total" in k}
         row[2].barh(np.arange(len(times)), list(times.values()), 0.6)
         row[2].set_yticks(np.arange(len(times)), list(times))
         row[2].set_xlabel("ms per camera-frame (mask + dots)")
-        row[2].set_title("mask IoU: " + ", ".join(f"{k} {v:.3f}" for k, v in s["mask_iou"].items()), fontsize=10)
+        row[2].set_title("mask IoU: " + ", ".join(f"{k} {v:.3f}" for k, v in s.mask_iou.items()), fontsize=10)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90)
     plt.close(fig)
 
 
-def format_set(name: str, s: dict) -> str:
+def format_set(name: str, s: SetResult) -> str:
     """One test set's table, as printed."""
-    lines = [f"\n== {name}: {s['images']} camera images {s['image_size'][0]}x{s['image_size'][1]}, "
-             f"blur {s['blur']}, occlusion {s['occlusion']}",
-             "mask IoU: " + ", ".join(f"{k} {v:.3f}" for k, v in s["mask_iou"].items())]
-    n_unoccluded = next(iter(s["dots"].values()))["unoccluded_dots"]
+    lines = [f"\n== {name}: {s.images} camera images {s.image_size[0]}x{s.image_size[1]}, "
+             f"blur {s.blur}, occlusion {s.occlusion}",
+             "mask IoU: " + ", ".join(f"{k} {v:.3f}" for k, v in s.mask_iou.items())]
+    n_unoccluded = next(iter(s.dots.values())).unoccluded_dots
     lines.append(f"{'dots':32s} {'recall':>7s} {'unocc.':>7s} {'precision':>9s} {'RMS px':>7s} {'p95 px':>7s}   "
                  f"(unoccluded: {n_unoccluded} of the visible dots)")
-    for k, d in s["dots"].items():
-        lines.append(f"{k:32s} {d['recall']:7.4f} {d['recall_unoccluded']:7.4f} {d['precision']:9.4f} "
-                     f"{d['centroid_rms_px']:7.3f} {d['centroid_p95_px']:7.3f}")
+    for k, d in s.dots.items():
+        lines.append(f"{k:32s} {d.recall:7.4f} {d.recall_unoccluded:7.4f} {d.precision:9.4f} "
+                     f"{d.centroid_rms_px:7.3f} {d.centroid_p95_px:7.3f}")
     lines.append("time per camera-frame: " + ", ".join(
-        f"{k.replace('_ms_per_camera_frame', '')} {v:.1f} ms" for k, v in s["time"].items()))
+        f"{k.replace('_ms_per_camera_frame', '')} {v:.1f} ms" for k, v in s.time.items()))
     return "\n".join(lines)

@@ -37,7 +37,7 @@ import platform
 import tempfile
 import time
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -72,7 +72,7 @@ def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[st
                           frames: int = 100, fps: float = 100 / 3, rows: int = 13, tracked_frames: int | None = None,
                           cache: Path | None = None, progress: bool = True, realism: str = "lab",
                           seeds: Sequence[int] = (0,), accuracy: float | None = None,
-                          methods: Sequence[str] = tuple(IK_METHODS)) -> dict:
+                          methods: Sequence[str] = tuple(IK_METHODS)) -> OpenSimBenchReport:
     """Every (seed, motion, source) scored (see the module docstring; runs keyed
     ``<motion>/seed<seed>``), the headline numbers and the goals; ``cache``: folder to keep and
     reuse the tracked markers; ``realism``: the studio's level (``lab``: tension, skin strain,
@@ -97,45 +97,95 @@ def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[st
         n = (tracked_frames or frames) if source == "tracked" else frames
         results[source][f"{motion}/seed{seed}"] = bench_motion(motion, source, n, fps, rows, progress, cache,
                                                                realism, seed, accuracy, methods)
-    return {
-        "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
-        "date": time.strftime("%Y-%m-%d"),
-        "goals": GOALS,
-        "realism": realism,
-        "ik_accuracy": accuracy,
-        "methods": [*methods, "geometric"],
-        **headline(results),
-        "sources": results,
-        "wall_s": round(time.time() - started, 1),
-    }
+    return OpenSimBenchReport(
+        machine=f"{platform.machine()} {platform.processor() or ''}".strip(), date=time.strftime("%Y-%m-%d"),
+        realism=realism, ik_accuracy=accuracy, methods=[*methods, "geometric"], headline=headline(results),
+        sources=results, wall_s=round(time.time() - started, 1))
 
 
-def headline(results: dict) -> dict:
-    """Per source: the worst RMSE over subjects of each angle on its own single-axis motion and on
-    ``mixed``, the worst marker RMS, per method; and whether each goal is met."""
-    out: dict = {}
+@dataclass(frozen=True)
+class MethodHeadline:
+    """One method on one marker source, worst over subjects (:func:`headline`): per angle
+    (``flexion``, ``lateral``, ``rotation``) the worst RMSE (deg) over its own single-axis motion
+    and ``mixed``, the same over the frames without a flagged marker where they were scored, the
+    worst marker RMS (mm; None for the geometric angles, which fit no markers) and the goals met
+    (per angle, and ``marker_rms``)."""
+
+    rmse_deg_worst: dict[str, float]
+    rmse_deg_vouched_worst: dict[str, float]
+    marker_rms_mm_worst: float | None
+    goals_met: dict[str, bool]
+
+    def numbers(self) -> dict[str, float]:
+        """The numbers as the JSON names them (``<angle>_rmse_deg_worst``,
+        ``<angle>_rmse_deg_vouched_worst``, ``marker_rms_mm_worst``), angle by angle."""
+        out: dict[str, float] = {}
+        for axis in AXES:
+            if axis in self.rmse_deg_worst:
+                out[f"{axis}_rmse_deg_worst"] = self.rmse_deg_worst[axis]
+            if axis in self.rmse_deg_vouched_worst:
+                out[f"{axis}_rmse_deg_vouched_worst"] = self.rmse_deg_vouched_worst[axis]
+        if self.marker_rms_mm_worst is not None:
+            out["marker_rms_mm_worst"] = self.marker_rms_mm_worst
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: :meth:`numbers`, then ``goals_met``."""
+        return {**self.numbers(), "goals_met": dict(self.goals_met)}
+
+
+@dataclass(frozen=True)
+class OpenSimBenchReport:
+    """``bench opensim``'s numbers (:func:`run_opensim_benchmark`): the machine, date, realism
+    level, IK solver accuracy (None: each method's own) and methods run; the headline per marker
+    source and method; every run's scores (source -> ``<motion>/seed<seed>`` -> method -> the
+    numbers :func:`bench_motion` gives) and the wall seconds."""
+
+    machine: str
+    date: str
+    realism: str
+    ik_accuracy: float | None
+    methods: list[str]
+    headline: dict[str, dict[str, MethodHeadline]]
+    sources: dict[str, dict[str, dict[str, Any]]]
+    wall_s: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object (the goals after the date)."""
+        return {"machine": self.machine, "date": self.date, "goals": GOALS, "realism": self.realism,
+                "ik_accuracy": self.ik_accuracy, "methods": self.methods,
+                "headline": {source: {method: row.to_dict() for method, row in table.items()}
+                             for source, table in self.headline.items()},
+                "sources": self.sources, "wall_s": self.wall_s}
+
+
+def headline(results: dict) -> dict[str, dict[str, MethodHeadline]]:
+    """Per source and method (those that ran on every run): the worst RMSE over subjects of each
+    angle on its own single-axis motion and on ``mixed``, the worst marker RMS, and whether each
+    goal is met."""
+    out: dict[str, dict[str, MethodHeadline]] = {}
     for source, runs in results.items():
-        table: dict = {}
+        table: dict[str, MethodHeadline] = {}
         for method in [m for m in METHODS if all(m in r for r in runs.values())]:
-            row: dict = {}
+            worst: dict[str, float] = {}
+            vouched_worst: dict[str, float] = {}
             for axis in AXES:
                 values = [r[method][f"{axis}_rmse_deg"] for key, r in runs.items()
                           if key.split("/")[0] in (axis, "mixed") and f"{axis}_rmse_deg" in r[method]]
                 if values:
-                    row[f"{axis}_rmse_deg_worst"] = float(np.max(values))
+                    worst[axis] = float(np.max(values))
                 vouched = [r[method][f"{axis}_rmse_deg_vouched"] for key, r in runs.items()
                            if key.split("/")[0] in (axis, "mixed") and f"{axis}_rmse_deg_vouched" in r[method]]
                 if vouched:  # the same over the frames none of whose markers is flagged
-                    row[f"{axis}_rmse_deg_vouched_worst"] = float(np.nanmax(vouched))
-            if method != "geometric":
-                row["marker_rms_mm_worst"] = float(np.max([r[method]["marker_rms_mm"] for r in runs.values()]))
-            row["goals_met"] = {axis: row[f"{axis}_rmse_deg_worst"] <= GOALS[f"{axis}_rmse_deg"]
-                                for axis in AXES if f"{axis}_rmse_deg_worst" in row}
-            if "marker_rms_mm_worst" in row:
-                row["goals_met"]["marker_rms"] = row["marker_rms_mm_worst"] <= GOALS["marker_rms_mm"]
-            table[method] = row
+                    vouched_worst[axis] = float(np.nanmax(vouched))
+            marker = (float(np.max([r[method]["marker_rms_mm"] for r in runs.values()]))
+                      if method != "geometric" else None)
+            goals = {axis: value <= GOALS[f"{axis}_rmse_deg"] for axis, value in worst.items()}
+            if marker is not None:
+                goals["marker_rms"] = marker <= GOALS["marker_rms_mm"]
+            table[method] = MethodHeadline(worst, vouched_worst, marker, goals)
         out[source] = table
-    return {"headline": out}
+    return out
 
 
 def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, progress: bool,
@@ -248,8 +298,8 @@ def score(measured: np.ndarray, expected_change: np.ndarray, axes: list[int],
     out: dict = {}
     for i in axes:
         stats = fit_stats(change[:, i], expected_change[:, i])
-        out.update({f"{AXES[i]}_{k}": v for k, v in (("rmse_deg", stats["rmse_deg"]), ("r2", stats["r2"]),
-                                                     ("gain", stats["gain"]))})
+        out.update({f"{AXES[i]}_{k}": v for k, v in (("rmse_deg", stats.rmse_deg), ("r2", stats.r2),
+                                                     ("gain", stats.gain))})
         if vouched is not None:
             error = change[vouched, i] - expected_change[vouched, i]
             out[f"{AXES[i]}_rmse_deg_vouched"] = float(np.sqrt(np.nanmean(error**2))) if vouched.any() else float("nan")
@@ -293,7 +343,7 @@ def format_table(results: dict) -> str:
     return "\n".join(lines)
 
 
-def headline_plot_png(report: dict) -> bytes:
+def headline_plot_png(report: OpenSimBenchReport) -> bytes:
     """Bars of the headline (:func:`headline`): per marker source, the worst RMSE over subjects of
     each angle (deg) and the worst marker RMS (mm) per method, the goals as dashes; the median time
     a frame per method in the legend."""
@@ -306,15 +356,15 @@ def headline_plot_png(report: dict) -> bytes:
 
     quantities = [*(f"{a}_rmse_deg_worst" for a in AXES), "marker_rms_mm_worst"]
     goals = [GOALS[f"{a}_rmse_deg"] for a in AXES] + [GOALS["marker_rms_mm"]]
-    sources = list(report["headline"])
+    sources = list(report.headline)
     fig, axes = plt.subplots(1, len(sources), figsize=(6 * len(sources), 4.2), squeeze=False)
     for ax, source in zip(axes[0], sources):
-        table = report["headline"][source]
+        table = report.headline[source]
         methods = list(table)
         width = 0.8 / len(methods)
         for m, method in enumerate(methods):
-            times = [run[method]["ms_per_frame"] for run in report["sources"][source].values() if method in run]
-            heights = [table[method].get(q, np.nan) for q in quantities]
+            times = [run[method]["ms_per_frame"] for run in report.sources[source].values() if method in run]
+            heights = [table[method].numbers().get(q, np.nan) for q in quantities]
             ax.bar(np.arange(len(quantities)) + (m - (len(methods) - 1) / 2) * width, heights, width,
                    label=f"{method} ({np.median(times):.0f} ms/frame)")
         for q, goal in enumerate(goals):

@@ -28,9 +28,9 @@ from __future__ import annotations
 import json
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable, Literal
 
 import numpy as np
 
@@ -57,6 +57,9 @@ class Case:
     factor: str
     studio: dict = field(default_factory=dict)
     refine: bool = False
+
+
+WorldFrame = Literal["reference", "given rig"]  # the frame a refined rig is in
 
 
 def sweep() -> list[Case]:
@@ -97,10 +100,11 @@ def held_out_look() -> dict:
     return {"tape_colour": held.tape_colour, "backdrop": held.backdrop, "camera_look": held.camera_look}
 
 
-GOALS = {"swaps": "0 swaps up to 30 % tension with skin strain and 2 px calibration error",
-         "lab_mean_mm": 1.0, "refined_2px_mean_mm": 1.0,
-         "flagged_dot_share": 0.05,  # in every case up to full flexion, 20 % tension and 1 px calibration error
-         "held_out_mean_mm": 1.0}  # and no wrong label among the vouched-for dot-frames
+GOALS: dict[str, Any] = {
+    "swaps": "0 swaps up to 30 % tension with skin strain and 2 px calibration error",
+    "lab_mean_mm": 1.0, "refined_2px_mean_mm": 1.0,
+    "flagged_dot_share": 0.05,  # in every case up to full flexion, 20 % tension and 1 px calibration error
+    "held_out_mean_mm": 1.0}  # and no wrong label among the vouched-for dot-frames
 
 
 def _render(scene, detect, n_frames: int, progress: bool) -> list:
@@ -125,15 +129,135 @@ def flagged_dot_share(table) -> float:
     return float(np.mean(doubted | (status.reshape(-1) == MISSING))) if status.size else float("nan")
 
 
-def _score(table, gt: dict, spacing: float, result) -> dict:
+@dataclass(frozen=True)
+class TrackerScore:
+    """One tracker's result on a case against the ground truth (:func:`_score`): mean and 95th
+    percentile error (mm), swapped dot-frames, flagged frames and the share of dot-frames flagged
+    or missing (0-1), the mean error (mm) and swaps of the dot-frames it vouches for, frames per
+    quality flag, frames without a solution, the tape's stretch along (min, median, max; None
+    without vouched-for frames), the median candidate gate (px) and ms per frame (None: not timed). Results read
+    back from files written before the vouched-for numbers existed hold None there."""
+
+    mean_mm: float
+    p95_mm: float
+    swaps: int
+    flagged_frames: int
+    flagged_dot_share: float | None
+    vouched_mean_mm: float | None
+    vouched_swaps: int | None
+    flags: dict[str, int]
+    unsolved_frames: int
+    stretch_along: list[float] | None
+    gate_px: float | None
+    ms_per_frame: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: the fields in order."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrackerScore:
+        """A score read back from a results file (keys it lacks: None)."""
+        values: dict[str, Any] = {f.name: data.get(f.name) for f in fields(cls)}
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class RefinedScore:
+    """The new tracker after ``--refine-rig`` (:func:`_refined_row`): its score, the rig's
+    reprojection RMS before and after (px), the world frame's uncertainty and the error left once
+    the world frame is taken out (mm), which frame the refined rig is in ("reference" or "given
+    rig") and, in the reference's frame, the reference's fit (px, mm) and how far the given rig's
+    frame lies from it (mm)."""
+
+    score: TrackerScore
+    rig_rms_before_px: float
+    rig_rms_after_px: float
+    frame_uncertainty_mm: float
+    shape_mm: float
+    world_frame: WorldFrame
+    reference_fit_px: float | None = None
+    reference_fit_mm: float | None = None
+    given_frame_offset_mm: float | None = None
+
+    @property
+    def mean_mm(self) -> float:
+        return self.score.mean_mm
+
+    def to_dict(self) -> dict[str, Any]:
+        """The score's keys, then the refinement's; the reference's only in its frame."""
+        reference = {"reference_fit_px": self.reference_fit_px, "reference_fit_mm": self.reference_fit_mm,
+                     "given_frame_offset_mm": self.given_frame_offset_mm} if self.world_frame == "reference" else {}
+        return {**self.score.to_dict(), "rig_rms_before_px": self.rig_rms_before_px,
+                "rig_rms_after_px": self.rig_rms_after_px, "frame_uncertainty_mm": self.frame_uncertainty_mm,
+                "shape_mm": self.shape_mm, "world_frame": self.world_frame, **reference}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RefinedScore | RefinementFailure:
+        """A refinement read back from a results file (one that failed: :class:`RefinementFailure`)."""
+        if "error" in data:
+            return RefinementFailure(str(data["error"]))
+        refinement: dict[str, Any] = {f.name: data.get(f.name) for f in fields(cls)[1:]}
+        refinement["world_frame"] = data.get("world_frame", "given rig")  # files older than the reference
+        return cls(TrackerScore.from_dict(data), **refinement)
+
+
+@dataclass(frozen=True)
+class RefinementFailure:
+    """A ``--refine-rig`` that failed on the case, recorded with its reason, not hidden."""
+
+    error: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"error": self.error}
+
+
+@dataclass(frozen=True)
+class CaseResult:
+    """One case of the sweep (:func:`run_case`): its name, factor and studio settings, the new
+    tracker's score and the peer's, and for calibration cases the new tracker after
+    ``--refine-rig`` (and, with a reference, the refinement without its control points)."""
+
+    case: str
+    factor: str
+    studio: dict[str, Any]
+    new: TrackerScore
+    peer: TrackerScore
+    new_refined: RefinedScore | RefinementFailure | None = None
+    new_refined_without_reference: RefinedScore | RefinementFailure | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: case, factor, studio, new, the refinements present, peer."""
+        out: dict[str, Any] = {"case": self.case, "factor": self.factor, "studio": dict(self.studio),
+                               "new": self.new.to_dict()}
+        if self.new_refined_without_reference is not None:
+            out["new_refined_without_reference"] = self.new_refined_without_reference.to_dict()
+        if self.new_refined is not None:
+            out["new_refined"] = self.new_refined.to_dict()
+        out["peer"] = self.peer.to_dict()
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> CaseResult:
+        """A case read back from a results file (``bench realism --json``)."""
+        def refined(key: str) -> RefinedScore | RefinementFailure | None:
+            return RefinedScore.from_dict(data[key]) if key in data else None
+
+        return cls(case=data["case"], factor=data["factor"], studio=dict(data["studio"]),
+                   new=TrackerScore.from_dict(data["new"]), peer=TrackerScore.from_dict(data["peer"]),
+                   new_refined=refined("new_refined"),
+                   new_refined_without_reference=refined("new_refined_without_reference"))
+
+
+def _score(table, gt: dict, spacing: float, result) -> TrackerScore:
     ev = evaluate_tracking(table, gt, spacing, result.stage_ms())
     quality = result.quality()
-    return {"mean_mm": ev.mean_error_mm, "p95_mm": ev.p95_error_mm, "swaps": ev.label_swaps,
-            "flagged_frames": len(quality.flagged_frames), "flagged_dot_share": flagged_dot_share(table),
-            "vouched_mean_mm": vouched_error_mm(table, gt), "vouched_swaps": vouched_swaps(table, gt, spacing),
-            "flags": quality.flags, "unsolved_frames": ev.frames_without_solution,
-            "stretch_along": list(quality.stretch_along) if quality.stretch_along is not None else None,
-            "gate_px": quality.gate_px, "ms_per_frame": ev.total_ms_per_frame}
+    return TrackerScore(mean_mm=ev.mean_error_mm, p95_mm=ev.p95_error_mm, swaps=ev.label_swaps,
+                        flagged_frames=len(quality.flagged_frames), flagged_dot_share=flagged_dot_share(table),
+                        vouched_mean_mm=vouched_error_mm(table, gt), vouched_swaps=vouched_swaps(table, gt, spacing),
+                        flags=quality.flags, unsolved_frames=ev.frames_without_solution,
+                        stretch_along=list(quality.stretch_along) if quality.stretch_along is not None else None,
+                        gate_px=quality.gate_px, ms_per_frame=ev.total_ms_per_frame)
 
 
 def _vouched(table, gt: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -165,7 +289,7 @@ def vouched_swaps(table, gt: dict, spacing_mm: float) -> int:
 
 
 def run_case(case: Case, frames: int, fps: float | None, preset: str, occlusion: str, detector: str,
-             seed: int, progress: bool, say: Callable[[str], None], weights: Path | None = None) -> dict:
+             seed: int, progress: bool, say: Callable[[str], None], weights: Path | None = None) -> CaseResult:
     """Render one case and score the new tracker and the peer on it (``weights``: the ``net``
     detector's weights file; None: the shipped ones)."""
     synth = SynthConfig.preset(preset, occlusion=occlusion, seed=seed, frames=frames,
@@ -178,26 +302,30 @@ def run_case(case: Case, frames: int, fps: float | None, preset: str, occlusion:
     views = _render(scene, make_detector(detector, weights=weights), synth.frames, progress)
     gt = scene.groundtruth
     spacing = scene.tape.graph.min_spacing_mm
-    row: dict = {"case": case.name, "factor": case.factor, "studio": {k: v for k, v in case.studio.items()}}
+    scores: dict[str, TrackerScore] = {}
+    refined: RefinedScore | RefinementFailure | None = None
+    without_reference: RefinedScore | RefinementFailure | None = None
     for name, config in (("new", TrackerConfig()), ("peer", TrackerConfig.nominal_unchecked())):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", TrackingWarning)
             warnings.simplefilter("ignore", CalibrationWarning)
             result = run_tracking(iter(views), rig, scene.tape, scene.fps, up=scene.subject()["up"],
                                   mode="sequence", config=config, progress=False, n_frames=len(views))
-        row[name] = _score(result.table, gt, spacing, result)
+        scores[name] = _score(result.table, gt, spacing, result)
         if name == "new" and case.refine:
             control = None
             if scene.reference is not None:
                 picks = np.unique(np.linspace(0, len(views) - 1, min(REFERENCE_FRAMES, len(views))).round().astype(int))
                 control = observe_reference(rig, scene.reference, [[v.image for v in views[k][1]] for k in picks])
-                row["new_refined_without_reference"] = _refined_row(result, rig, scene, gt, spacing, None)
-            row["new_refined"] = _refined_row(result, rig, scene, gt, spacing, control)
+                without_reference = _refined_row(result, rig, scene, gt, spacing, None)
+            refined = _refined_row(result, rig, scene, gt, spacing, control)
+    row = CaseResult(case=case.name, factor=case.factor, studio=dict(case.studio), new=scores["new"],
+                     peer=scores["peer"], new_refined=refined, new_refined_without_reference=without_reference)
     say("  " + describe(row))
     return row
 
 
-def _refined_row(result, rig, scene, gt: dict, spacing: float, control) -> dict:
+def _refined_row(result, rig, scene, gt: dict, spacing: float, control) -> RefinedScore | RefinementFailure:
     """The new tracker's result after ``--refine-rig`` (with the reference's ``control`` points
     when given), scored; a refinement that fails is recorded, not hidden."""
     import dataclasses
@@ -205,16 +333,17 @@ def _refined_row(result, rig, scene, gt: dict, spacing: float, control) -> dict:
     try:
         refinement = refine_rig(rig, result.pixels(), result.table.positions(), scene.fps, RigRefineConfig(), control)
     except (ValueError, ReferenceFitError) as exc:
-        return {"error": str(exc)}
+        return RefinementFailure(str(exc))
     refined = dataclasses.replace(result, table=apply_refined_rig(result, refinement, scene.tape))
     frame = refinement.reference
-    return {**_score(refined.table, gt, spacing, refined), "rig_rms_before_px": refinement.before_px["all"],
-            "rig_rms_after_px": refinement.after_px["all"],
-            "frame_uncertainty_mm": refinement.frame_uncertainty_mm,
-            "shape_mm": _shape_error(refined.table, gt),
-            "world_frame": "reference" if frame is not None else "given rig",
-            **({"reference_fit_px": frame.fit_rms_px, "reference_fit_mm": frame.fit_rms_mm,
-                "given_frame_offset_mm": frame.given_frame_offset_mm} if frame is not None else {})}
+    return RefinedScore(_score(refined.table, gt, spacing, refined), rig_rms_before_px=refinement.before_px["all"],
+                        rig_rms_after_px=refinement.after_px["all"],
+                        frame_uncertainty_mm=refinement.frame_uncertainty_mm,
+                        shape_mm=_shape_error(refined.table, gt),
+                        world_frame="reference" if frame is not None else "given rig",
+                        reference_fit_px=frame.fit_rms_px if frame is not None else None,
+                        reference_fit_mm=frame.fit_rms_mm if frame is not None else None,
+                        given_frame_offset_mm=frame.given_frame_offset_mm if frame is not None else None)
 
 
 def _shape_error(table, gt: dict) -> float:
@@ -223,38 +352,81 @@ def _shape_error(table, gt: dict) -> float:
     return shape_error_mm(table, truth_of(table, gt))
 
 
-def describe(row: dict) -> str:
+def _scored(row: CaseResult) -> list[tuple[str, TrackerScore, RefinedScore | None]]:
+    """The row's scores as printed: (key, score, the refinement it came from) for the new tracker,
+    its refinements that did not fail and the peer."""
+    out: list[tuple[str, TrackerScore, RefinedScore | None]] = [("new", row.new, None)]
+    for key, refined in (("new_refined", row.new_refined),
+                         ("new_refined_without_reference", row.new_refined_without_reference)):
+        if isinstance(refined, RefinedScore):
+            out.append((key, refined.score, refined))
+    return [*out, ("peer", row.peer, None)]
+
+
+def describe(row: CaseResult) -> str:
     parts = []
-    for key in ("new", "new_refined", "new_refined_without_reference", "peer"):
-        r = row.get(key)
-        if r and "mean_mm" in r:
-            parts.append(f"{key}: {r['mean_mm']:.2f} mm (p95 {r['p95_mm']:.2f}), {r['swaps']} swaps, "
-                         f"{r['flagged_frames']} flagged ({100 * r.get('flagged_dot_share', np.nan):.1f} % of "
-                         f"dot-frames; vouched-for {r.get('vouched_mean_mm', np.nan):.2f} mm), {r['unsolved_frames']} unsolved"
-                         + (f", {r['shape_mm']:.2f} mm with the world frame taken out (frame uncertainty "
-                            f"{r['frame_uncertainty_mm']:.2f} mm)" if "shape_mm" in r else ""))
+    for key, r, refined in _scored(row):
+        parts.append(f"{key}: {r.mean_mm:.2f} mm (p95 {r.p95_mm:.2f}), {r.swaps} swaps, "
+                     f"{r.flagged_frames} flagged ({100 * _number(r.flagged_dot_share):.1f} % of "
+                     f"dot-frames; vouched-for {_number(r.vouched_mean_mm):.2f} mm), {r.unsolved_frames} unsolved"
+                     + (f", {refined.shape_mm:.2f} mm with the world frame taken out (frame uncertainty "
+                        f"{refined.frame_uncertainty_mm:.2f} mm)" if refined is not None else ""))
     return "; ".join(parts)
+
+
+def _number(value: float | None) -> float:
+    return float("nan") if value is None else value
+
+
+@dataclass(frozen=True)
+class RealismNumbers:
+    """``bench realism``'s numbers (:func:`run_realism_benchmark`): the set-up (preset, occlusion,
+    frames per case, frame rate, detector, seed, weights, machine), the wall seconds so far, every
+    case run, the goals and their verdicts, and whether every case asked for has run."""
+
+    preset: str
+    occlusion: str
+    frames: int
+    fps: float | None
+    detector: str
+    seed: int
+    weights: str
+    machine: str
+    wall_s: float
+    cases: list[CaseResult]
+    complete: bool
+
+    @property
+    def verdict(self) -> dict[str, GoalVerdict]:
+        return verdict(self.cases)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object ``--json`` writes."""
+        return {"preset": self.preset, "occlusion": self.occlusion, "frames": self.frames, "fps": self.fps,
+                "detector": self.detector, "seed": self.seed, "weights": self.weights, "machine": self.machine,
+                "wall_s": self.wall_s, "cases": [c.to_dict() for c in self.cases], "goals": GOALS,
+                "verdict": {goal: judged.to_dict() for goal, judged in self.verdict.items()},
+                "complete": self.complete}
 
 
 def run_realism_benchmark(cases: list[Case], frames: int = 200, fps: float | None = None, preset: str = "artificial",
                           occlusion: str = "light", detector: str = "net", seed: int = 0, progress: bool = True,
                           say: Callable[[str], None] = print,
-                          after_case: Callable[[dict], None] | None = None, weights: Path | None = None) -> dict:
-    """Every case of ``cases`` (see :func:`sweep`); returns the JSON-ready numbers. ``weights``:
-    the ``net`` detector's weights file (None: the shipped ones).
-    ``after_case(numbers so far)`` is called after each case (the command saves them, so that a
-    sweep of hours stopped midway keeps the cases it finished)."""
+                          after_case: Callable[[RealismNumbers], None] | None = None,
+                          weights: Path | None = None) -> RealismNumbers:
+    """Every case of ``cases`` (see :func:`sweep`). ``weights``: the ``net`` detector's weights
+    file (None: the shipped ones). ``after_case(numbers so far)`` is called after each case (the
+    command saves them, so that a sweep of hours stopped midway keeps the cases it finished)."""
     import platform
 
     start = time.perf_counter()
-    rows: list[dict] = []
+    rows: list[CaseResult] = []
 
-    def numbers() -> dict:
-        return {"preset": preset, "occlusion": occlusion, "frames": frames, "fps": fps, "detector": detector,
-                "seed": seed, "weights": str(weights) if weights else "shipped", "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
-                "wall_s": time.perf_counter() - start, "cases": rows, "goals": GOALS,
-                "verdict": {goal: judged.to_dict() for goal, judged in verdict(rows).items()},
-                "complete": len(rows) == len(cases)}
+    def numbers() -> RealismNumbers:
+        return RealismNumbers(preset=preset, occlusion=occlusion, frames=frames, fps=fps, detector=detector, seed=seed,
+                              weights=str(weights) if weights else "shipped",
+                              machine=f"{platform.machine()} {platform.processor() or ''}".strip(),
+                              wall_s=time.perf_counter() - start, cases=list(rows), complete=len(rows) == len(cases))
 
     for case in cases:
         rows.append(run_case(case, frames, fps, preset, occlusion, detector, seed, progress, say, weights))
@@ -284,53 +456,51 @@ class GoalVerdict:
         return self.value if self.by_case is None else self.by_case
 
 
-def verdict(rows: list[dict]) -> dict[str, GoalVerdict]:
+def verdict(rows: list[CaseResult]) -> dict[str, GoalVerdict]:
     """The goals against the rows present: met / not met with the numbers judged."""
     out: dict[str, GoalVerdict] = {}
-    swap_rows = [r for r in rows if (r["factor"] == "tension" and r["studio"].get("tape_tension", 0) <= 0.3)
-                 or (r["factor"] == "calibration" and r["studio"].get("calibration_error_px", 0) <= 2.0)
-                 or r["factor"] in ("baseline", "all")]
+    swap_rows = [r for r in rows if (r.factor == "tension" and r.studio.get("tape_tension", 0) <= 0.3)
+                 or (r.factor == "calibration" and r.studio.get("calibration_error_px", 0) <= 2.0)
+                 or r.factor in ("baseline", "all")]
     if swap_rows:
-        swaps = {r["case"]: r["new"]["swaps"] for r in swap_rows}
+        swaps: dict[str, float] = {r.case: r.new.swaps for r in swap_rows}
         out["zero_swaps"] = GoalVerdict(all(v == 0 for v in swaps.values()), by_case=swaps, judged_on="swaps")
-    flag_rows = [r for r in rows if r["studio"].get("tape_tension", 0) <= 0.2 and r["studio"].get("calibration_error_px", 0) <= 1.0
-                 and r["studio"].get("sync_error_ms", 0) <= 1.0 and "flagged_dot_share" in r["new"]]
+    flag_rows = [r for r in rows if r.studio.get("tape_tension", 0) <= 0.2 and r.studio.get("calibration_error_px", 0) <= 1.0
+                 and r.studio.get("sync_error_ms", 0) <= 1.0 and r.new.flagged_dot_share is not None]
     if flag_rows:
-        shares = {r["case"]: r["new"]["flagged_dot_share"] for r in flag_rows}
+        shares = {r.case: _number(r.new.flagged_dot_share) for r in flag_rows}
         out["flagged_dot_share"] = GoalVerdict(all(v <= GOALS["flagged_dot_share"] for v in shares.values()),
                                                by_case=shares, judged_on="shares")
-    held = next((r for r in rows if r["case"] == HELD_OUT_CASE), None)
+    held = next((r for r in rows if r.case == HELD_OUT_CASE), None)
     if held:
-        value, wrong = held["new"]["mean_mm"], held["new"].get("vouched_swaps")
+        value, wrong = held.new.mean_mm, held.new.vouched_swaps
         out["held_out"] = GoalVerdict(value <= GOALS["held_out_mean_mm"] and wrong == 0,
                                       by_case={"mean_mm": value, "vouched_swaps": float("nan") if wrong is None else wrong},
                                       judged_on="held_out")
-    lab = next((r for r in rows if r["case"] == "lab"), None)
+    lab = next((r for r in rows if r.case == "lab"), None)
     if lab:
-        out["lab_mean_mm"] = GoalVerdict(lab["new"]["mean_mm"] <= GOALS["lab_mean_mm"], value=lab["new"]["mean_mm"])
+        out["lab_mean_mm"] = GoalVerdict(lab.new.mean_mm <= GOALS["lab_mean_mm"], value=lab.new.mean_mm)
     for key, with_reference in (("refined_2px_mean_mm", False), ("refined_2px_reference_mean_mm", True)):
-        two = next((r for r in rows if r["factor"] == "calibration" and r["studio"].get("calibration_error_px") == 2.0
-                    and bool(r["studio"].get("reference")) == with_reference), None)
-        if two and "mean_mm" in two.get("new_refined", {}):
-            value = two["new_refined"]["mean_mm"]
+        two = next((r for r in rows if r.factor == "calibration" and r.studio.get("calibration_error_px") == 2.0
+                    and bool(r.studio.get("reference")) == with_reference), None)
+        if two and isinstance(two.new_refined, RefinedScore):
+            value = two.new_refined.mean_mm
             out[key] = GoalVerdict(value <= GOALS["refined_2px_mean_mm"], value=value)
     return out
 
 
-def format_table(numbers: dict) -> str:
+def format_table(numbers: RealismNumbers) -> str:
     """A Markdown table of every case (new tracker, --refine-rig where scored, peer)."""
+    labels = {"new": "new", "new_refined": "new + --refine-rig",
+              "new_refined_without_reference": "new + --refine-rig, reference ignored", "peer": "before (peer)"}
     lines = ["| case | tracker | mean mm | p95 mm | vouched-for mean mm | swapped dot-frames | flagged frames "
              "| flagged dot-frames % | unsolved |",
              "|---|---|---|---|---|---|---|---|---|"]
-    for r in numbers["cases"]:
-        for key, label in (("new", "new"), ("new_refined", "new + --refine-rig"),
-                           ("new_refined_without_reference", "new + --refine-rig, reference ignored"),
-                           ("peer", "before (peer)")):
-            s = r.get(key)
-            if s and "mean_mm" in s:
-                lines.append(f"| {r['case']} | {label} | {s['mean_mm']:.2f} | {s['p95_mm']:.2f} | "
-                             f"{s.get('vouched_mean_mm', np.nan):.2f} | {s['swaps']} | {s['flagged_frames']} | "
-                             f"{100 * s.get('flagged_dot_share', np.nan):.1f} | {s['unsolved_frames']} |")
+    for r in numbers.cases:
+        for key, s, _ in _scored(r):
+            lines.append(f"| {r.case} | {labels[key]} | {s.mean_mm:.2f} | {s.p95_mm:.2f} | "
+                         f"{_number(s.vouched_mean_mm):.2f} | {s.swaps} | {s.flagged_frames} | "
+                         f"{100 * _number(s.flagged_dot_share):.1f} | {s.unsolved_frames} |")
     return "\n".join(lines)
 
 

@@ -46,7 +46,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -121,7 +121,90 @@ def calibrations(scene: TrackedScene, level_px: float, count: int) -> list[Rig]:
     return rigs
 
 
-def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig | None = None) -> dict:
+@dataclass(frozen=True)
+class ReferenceGauge:
+    """``--refine-rig`` with the scene's reference object as control points
+    (:func:`score_with_reference`): mean error and shape error (mm), the markers' fit (px, mm) and
+    observations, how far the given rig's frame lies from the reference's (mm) and the refined
+    rig's reprojection RMS (px)."""
+
+    reference: float
+    reference_shape: float
+    reference_fit_px: float
+    reference_fit_mm: float
+    reference_observations: int
+    given_frame_offset_mm: float
+    reference_rig_rms_after_px: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class ReferenceNotUsed:
+    """A reference whose markers could not be used: the reason, recorded, not hidden."""
+
+    reference_error: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class CalibrationGauges:
+    """Every gauge's mean error (mm) for one given rig (:func:`score_calibration`): the given rig,
+    ``--refine-rig``, the refinement with residual-sized priors, the cloud and closest-cameras
+    gauges, the refined shape (world frame taken out), the reported frame uncertainty (mm) of the
+    refinement and of the residual-sized one, the rig's reprojection RMS before and after (px),
+    and the refinement with the reference where the scene has one."""
+
+    given: float
+    refined: float
+    residual_priors: float
+    cloud_gauge: float
+    closest_cameras: float
+    refined_shape: float
+    frame_uncertainty: float
+    residual_priors_frame_uncertainty: float
+    rig_rms_before_px: float
+    rig_rms_after_px: float
+    with_reference: ReferenceGauge | ReferenceNotUsed | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: the gauges, then the reference's numbers (or its error) where it was tried."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "with_reference"}
+        return {**out, **(self.with_reference.to_dict() if self.with_reference is not None else {})}
+
+
+@dataclass(frozen=True)
+class GaugeRow:
+    """One seeded calibration: the scene's seed, the calibration error level (px), the rig's
+    number at that level, and its gauges."""
+
+    seed: int
+    level_px: float
+    rig: int
+    gauges: CalibrationGauges
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"seed": self.seed, "level_px": self.level_px, "rig": self.rig, **self.gauges.to_dict()}
+
+    def value(self, key: str) -> float | None:
+        """The number named ``key`` in the JSON (a gauge, ``refined_shape``, ``frame_uncertainty``
+        or a key of :data:`REFERENCE_KEYS`); None where it was not measured."""
+        reference = self.gauges.with_reference
+        if key in REFERENCE_KEYS:
+            return getattr(reference, key) if isinstance(reference, ReferenceGauge) else None
+        return float(getattr(self.gauges, key))
+
+    @property
+    def reference_error(self) -> str | None:
+        """Why the reference could not be used (None: used, or none in the scene)."""
+        reference = self.gauges.with_reference
+        return reference.reference_error if isinstance(reference, ReferenceNotUsed) else None
+
+
+def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig | None = None) -> CalibrationGauges:
     """Every gauge's mean error (mm) for one given rig (see module)."""
     config = config or RigRefineConfig()
     result = scene.result
@@ -136,21 +219,21 @@ def score_calibration(scene: TrackedScene, given: Rig, config: RigRefineConfig |
     closest = closest_gauge(refinement.rig, given, np.array(list(refinement.centre_prior_mm.values())),
                             np.array(list(refinement.rotation_prior_deg.values())))
     sized = refine_rig(given, result.pixels(), result.table.positions(), scene.fps, RESIDUAL_PRIORS)
-    row = {"given": mean_error_mm(given_table, scene.truth), "refined": mean_error_mm(refined_table, scene.truth),
-           "residual_priors": mean_error_mm(table_with(sized.rig), scene.truth),
-           "cloud_gauge": mean_error_mm(table_with(refinement.rig.transformed(*fit)), scene.truth),
-           "closest_cameras": mean_error_mm(table_with(refinement.rig.transformed(*closest)), scene.truth),
-           "refined_shape": shape_error_mm(refined_table, scene.truth),
-           "frame_uncertainty": refinement.frame_uncertainty_mm,
-           "residual_priors_frame_uncertainty": sized.frame_uncertainty_mm,
-           "rig_rms_before_px": refinement.before_px["all"], "rig_rms_after_px": refinement.after_px["all"]}
-    if scene.reference is not None:
-        row.update(score_with_reference(scene, given, config, table_with))
-    return row
+    return CalibrationGauges(
+        given=mean_error_mm(given_table, scene.truth), refined=mean_error_mm(refined_table, scene.truth),
+        residual_priors=mean_error_mm(table_with(sized.rig), scene.truth),
+        cloud_gauge=mean_error_mm(table_with(refinement.rig.transformed(*fit)), scene.truth),
+        closest_cameras=mean_error_mm(table_with(refinement.rig.transformed(*closest)), scene.truth),
+        refined_shape=shape_error_mm(refined_table, scene.truth),
+        frame_uncertainty=refinement.frame_uncertainty_mm,
+        residual_priors_frame_uncertainty=sized.frame_uncertainty_mm,
+        rig_rms_before_px=refinement.before_px["all"], rig_rms_after_px=refinement.after_px["all"],
+        with_reference=(score_with_reference(scene, given, config, table_with) if scene.reference is not None
+                        else None))
 
 
 def score_with_reference(scene: TrackedScene, given: Rig, config: RigRefineConfig,
-                         table_with: Callable[[Rig], MarkerTable]) -> dict:
+                         table_with: Callable[[Rig], MarkerTable]) -> ReferenceGauge | ReferenceNotUsed:
     """``--refine-rig`` with the scene's reference object as control points, found with the
     ``given`` rig (see module); a reference that cannot be used is recorded, not hidden."""
     assert scene.reference is not None and scene.reference_images is not None
@@ -159,90 +242,126 @@ def score_with_reference(scene: TrackedScene, given: Rig, config: RigRefineConfi
     try:
         refinement = refine_rig(given, result.pixels(), result.table.positions(), scene.fps, config, control)
     except ReferenceFitError as exc:
-        return {"reference_error": str(exc)}
+        return ReferenceNotUsed(str(exc))
     table = table_with(refinement.rig)
     frame = refinement.reference
     assert frame is not None  # refined with control points
-    return {"reference": mean_error_mm(table, scene.truth), "reference_shape": shape_error_mm(table, scene.truth),
-            "reference_fit_px": frame.fit_rms_px, "reference_fit_mm": frame.fit_rms_mm,
-            "reference_observations": frame.observations, "given_frame_offset_mm": frame.given_frame_offset_mm,
-            "reference_rig_rms_after_px": refinement.after_px["all"]}
+    return ReferenceGauge(reference=mean_error_mm(table, scene.truth), reference_shape=shape_error_mm(table, scene.truth),
+                          reference_fit_px=frame.fit_rms_px, reference_fit_mm=frame.fit_rms_mm,
+                          reference_observations=frame.observations, given_frame_offset_mm=frame.given_frame_offset_mm,
+                          reference_rig_rms_after_px=refinement.after_px["all"])
+
+
+@dataclass(frozen=True)
+class GaugeNumbers:
+    """``bench gauge``'s numbers (:func:`run_gauge_benchmark`): the scene seeds, calibration error
+    levels (px), rigs per level, frames and frame rate, detector, the error of the rig the scenes
+    are tracked with (px), whether the reference was rendered, the machine, the wall seconds,
+    every row and the per-level summary (:func:`summarize`)."""
+
+    seeds: list[int]
+    levels_px: list[float]
+    rigs_per_level: int
+    frames: int
+    fps: float
+    detector: str
+    tracked_with_px: float
+    reference: bool
+    machine: str
+    wall_s: float
+    rows: list[GaugeRow]
+
+    @property
+    def summary(self) -> dict[str, dict[str, Any]]:
+        return summarize(self.rows)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object ``--json`` writes."""
+        return {"seeds": self.seeds, "levels_px": self.levels_px, "rigs_per_level": self.rigs_per_level,
+                "frames": self.frames, "fps": self.fps, "detector": self.detector,
+                "tracked_with_px": self.tracked_with_px, "reference": self.reference, "machine": self.machine,
+                "wall_s": self.wall_s, "rows": [row.to_dict() for row in self.rows], "summary": self.summary}
 
 
 def run_gauge_benchmark(seeds: Sequence[int], levels: Sequence[float], rigs: int, frames: int = 30, fps: float = 25.0,
                         detector: str = "net", progress: bool = True, say: Callable[[str], None] = print,
-                        after_scene: Callable[[dict], None] | None = None, reference: bool = False) -> dict:
-    """Every scene of ``seeds`` x every level of ``levels`` (px) x ``rigs`` seeded calibrations;
-    returns the JSON-ready numbers (rows and per-level summaries). ``after_scene(numbers so
-    far)`` is called after each scene (the command saves them). ``reference``: scenes with the
-    studio's L-frame, each calibration also refined with it (see module)."""
+                        after_scene: Callable[[GaugeNumbers], None] | None = None,
+                        reference: bool = False) -> GaugeNumbers:
+    """Every scene of ``seeds`` x every level of ``levels`` (px) x ``rigs`` seeded calibrations
+    (see :class:`GaugeNumbers`). ``after_scene(numbers so far)`` is called after each scene (the
+    command saves them). ``reference``: scenes with the studio's L-frame, each calibration also
+    refined with it (see module)."""
     import platform
 
     from tqdm import tqdm
 
     start = time.perf_counter()
-    rows: list[dict] = []
+    rows: list[GaugeRow] = []
 
-    def numbers() -> dict:
-        return {"seeds": list(seeds), "levels_px": list(levels), "rigs_per_level": rigs, "frames": frames, "fps": fps,
-                "detector": detector, "tracked_with_px": TRACKED_WITH_PX, "reference": reference,
-                "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
-                "wall_s": time.perf_counter() - start, "rows": rows, "summary": summarize(rows)}
+    def numbers() -> GaugeNumbers:
+        return GaugeNumbers(seeds=list(seeds), levels_px=list(levels), rigs_per_level=rigs, frames=frames, fps=fps,
+                            detector=detector, tracked_with_px=TRACKED_WITH_PX, reference=reference,
+                            machine=f"{platform.machine()} {platform.processor() or ''}".strip(),
+                            wall_s=time.perf_counter() - start, rows=list(rows))
 
     for seed in seeds:
         say(f"[scene {seed}] render + track {frames} frames at {fps:g} fps with its {TRACKED_WITH_PX:g} px rig")
         scene = track_scene(seed, frames, fps, detector, progress, reference=reference)
         jobs = [(level, k, rig) for level in levels for k, rig in enumerate(calibrations(scene, level, rigs))]
         for level, k, rig in tqdm(jobs, desc=f"scene {seed}: refine", unit="rig", disable=not progress, leave=False):
-            rows.append({"seed": seed, "level_px": level, "rig": k, **score_calibration(scene, rig)})
-            say(f"  {level:g} px, rig {k}: " + ", ".join(f"{key} {rows[-1][key]:.2f}" for key in (*GAUGES, "reference")
-                                                         if key in rows[-1]) + " mm"
-                + (f"; reference not used: {rows[-1]['reference_error']}" if "reference_error" in rows[-1] else ""))
+            row = GaugeRow(seed, level, k, score_calibration(scene, rig))
+            rows.append(row)
+            shown = {key: row.value(key) for key in (*GAUGES, "reference")}
+            say(f"  {level:g} px, rig {k}: " + ", ".join(f"{key} {value:.2f}" for key, value in shown.items()
+                                                         if value is not None) + " mm"
+                + (f"; reference not used: {row.reference_error}" if row.reference_error is not None else ""))
         if after_scene is not None:
             after_scene(numbers())
     return numbers()
 
 
-def summarize(rows: list[dict]) -> dict:
-    """Per level: mean, median and worst of each gauge, the shape error and the reported frame
-    uncertainty, and how often the refined dots beat the given rig's and the residual-sized priors'."""
+def summarize(rows: list[GaugeRow]) -> dict[str, dict[str, Any]]:
+    """Per level ("2" for 2.0 px): mean, median, worst and count of each gauge, the shape error,
+    the reported frame uncertainty and the reference's numbers, the rigs (``n``), and how often the
+    refined dots beat the given rig's and the residual-sized priors', stay within 1 mm, and (where
+    a reference was tried) how often it did and was not used."""
     out = {}
-    for level in sorted({r["level_px"] for r in rows}):
-        sel = [r for r in rows if r["level_px"] == level]
-        stats: dict[str, dict[str, float] | int] = {}
+    for level in sorted({r.level_px for r in rows}):
+        sel = [r for r in rows if r.level_px == level]
+        stats: dict[str, Any] = {}
         for key in (*GAUGES, "refined_shape", "frame_uncertainty", *REFERENCE_KEYS):
-            v = np.array([r[key] for r in sel if key in r], float)
+            v = np.array([value for r in sel if (value := r.value(key)) is not None], float)
             if len(v):
                 stats[key] = {"mean": float(np.mean(v)), "median": float(np.median(v)), "max": float(np.max(v)),
                               "n": len(v)}
         stats["n"] = len(sel)
-        stats["refined_better_than_given"] = int(sum(r["refined"] < r["given"] for r in sel))
-        stats["refined_better_than_residual_priors"] = int(sum(r["refined"] < r["residual_priors"] for r in sel))
-        stats["refined_at_most_1mm"] = int(sum(r["refined"] <= 1.0 for r in sel))
-        if any("reference" in r or "reference_error" in r for r in sel):
-            stats["reference_at_most_1mm"] = int(sum(r.get("reference", np.inf) <= 1.0 for r in sel))
-            stats["reference_not_used"] = int(sum("reference_error" in r for r in sel))
+        stats["refined_better_than_given"] = int(sum(r.gauges.refined < r.gauges.given for r in sel))
+        stats["refined_better_than_residual_priors"] = int(sum(r.gauges.refined < r.gauges.residual_priors for r in sel))
+        stats["refined_at_most_1mm"] = int(sum(r.gauges.refined <= 1.0 for r in sel))
+        if any(r.gauges.with_reference is not None for r in sel):
+            stats["reference_at_most_1mm"] = int(sum(value <= 1.0 for r in sel if (value := r.value("reference")) is not None))
+            stats["reference_not_used"] = int(sum(r.reference_error is not None for r in sel))
         out[f"{level:g}"] = stats
     return out
 
 
-def format_table(numbers: dict) -> str:
-    """A Markdown table: per level, mean (median, worst) mm of each gauge."""
+def format_table(summary: dict[str, dict[str, Any]]) -> str:
+    """A Markdown table of :func:`summarize`'s ``summary``: per level, mean (median, worst) mm of each gauge."""
     lines = ["| calibration error | rigs | given rig (no refinement) | `--refine-rig` | frame removed (shape) | "
              "reported frame uncertainty | peer: residual-sized priors | peer: cloud gauge | peer: closest cameras | "
              "refined <= 1.0 mm |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    for level, s in numbers["summary"].items():
+    for level, s in summary.items():
         cells = [f"{s[k]['mean']:.2f} ({s[k]['median']:.2f}, {s[k]['max']:.2f})"
                  for k in ("given", "refined", "refined_shape", "frame_uncertainty", "residual_priors", "cloud_gauge",
                            "closest_cameras")]
         lines.append(f"| {level} px | {s['n']} | " + " | ".join(cells) + f" | {s['refined_at_most_1mm']} of {s['n']} |")
-    if any("reference" in s for s in numbers["summary"].values()):
+    if any("reference" in s for s in summary.values()):
         lines += ["", "| calibration error | rigs | `--refine-rig` without the reference | with the reference (L-frame) | "
                       "with it, frame removed (shape) | markers' fit px | markers' fit mm | given rig's frame at the "
                       "reference, mm | with reference <= 1.0 mm | reference not used |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
-        for level, s in numbers["summary"].items():
+        for level, s in summary.items():
             if "reference" not in s:
                 continue
             cells = [f"{s[k]['mean']:.2f} ({s[k]['median']:.2f}, {s[k]['max']:.2f})" for k in ("refined", *REFERENCE_KEYS)]
@@ -252,7 +371,8 @@ def format_table(numbers: dict) -> str:
 
 
 def plot(numbers: dict, path: Path) -> None:
-    """Each calibration's mean error per gauge against its level (dots), means joined by lines."""
+    """Each calibration's mean error per gauge against its level (dots), means joined by lines;
+    ``numbers``: the JSON object (:meth:`GaugeNumbers.to_dict`, as saved)."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -20,8 +20,8 @@ image: the goal is <= 1 false dot per 100 images and no region above 0.1 % of it
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
-from typing import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from typing import Any, Callable, Iterator
 
 import cv2
 import numpy as np
@@ -112,14 +112,37 @@ class TapeFreeScore:
         if len(uv) or share > MAX_REGION_SHARE:
             self.worst.append((name, len(uv), share))
 
-    def summary(self) -> dict:
+    def summary(self) -> TapeFreeSummary:
         per_100 = 100.0 * self.false_dots / max(self.images, 1)
-        return {"images": self.images, "false_dots": self.false_dots, "false_dots_per_100_images": per_100,
-                "images_with_dots": self.images_with_dots, "largest_region_share": self.largest_region_share,
-                "images_with_region_above_goal": self.images_with_large_region,
-                "goal_met": per_100 <= MAX_FALSE_DOTS_PER_100 and self.largest_region_share <= MAX_REGION_SHARE,
-                "ms_per_image": float(np.mean(self.ms)) if self.ms else 0.0,
-                "worst": sorted(self.worst, key=lambda t: (-t[1], -t[2]))[:10]}
+        return TapeFreeSummary(
+            images=self.images, false_dots=self.false_dots, false_dots_per_100_images=per_100,
+            images_with_dots=self.images_with_dots, largest_region_share=self.largest_region_share,
+            images_with_region_above_goal=self.images_with_large_region,
+            goal_met=per_100 <= MAX_FALSE_DOTS_PER_100 and self.largest_region_share <= MAX_REGION_SHARE,
+            ms_per_image=float(np.mean(self.ms)) if self.ms else 0.0,
+            worst=sorted(self.worst, key=lambda t: (-t[1], -t[2]))[:10])
+
+
+@dataclass(frozen=True)
+class TapeFreeSummary:
+    """One detector over the tape-free images (:meth:`TapeFreeScore.summary`): images, false dots
+    (in all and per 100 images), images with any dot, the largest tape region's share of its image
+    (0-1) and the images whose region is above :data:`MAX_REGION_SHARE`, whether the goal is met,
+    mean ms per image, and the ten worst images (name, dots, largest region share)."""
+
+    images: int
+    false_dots: int
+    false_dots_per_100_images: float
+    images_with_dots: int
+    largest_region_share: float
+    images_with_region_above_goal: int
+    goal_met: bool
+    ms_per_image: float
+    worst: list[tuple[str, int, float]]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: the fields in order."""
+        return asdict(self)
 
 
 def largest_region_share(mask: np.ndarray) -> float:
@@ -131,7 +154,7 @@ def largest_region_share(mask: np.ndarray) -> float:
 
 
 def score_tape_free(detectors: dict, rooms: int, with_skimage: bool = True,
-                    progress: Callable[[str], None] | None = None) -> dict:
+                    progress: Callable[[str], None] | None = None) -> dict[str, TapeFreeSummary]:
     """Each of ``detectors`` (name -> object with ``detect(image)`` returning dots ``uv`` and a
     ``mask``) over :func:`tape_free_images`: per detector :meth:`TapeFreeScore.summary`."""
     scores = {name: TapeFreeScore() for name in detectors}
@@ -186,7 +209,21 @@ def tape_dots(rng: np.random.Generator) -> np.ndarray:
     return _view(np.delete(bent, missing, axis=0), rng, 0.3)
 
 
-def score_lattice(n: int, seed: int = LATTICE_SEED) -> dict:
+@dataclass(frozen=True)
+class LatticeScore:
+    """The lattice test on random views (:func:`score_lattice`): views of each kind, wall-bar
+    grids and tapes it accepts (any dot kept), and the share of the tapes' dots it keeps (0-1)."""
+
+    cases: int
+    wall_bars_accepted: int
+    tapes_accepted: int
+    tape_dots_kept: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def score_lattice(n: int, seed: int = LATTICE_SEED) -> LatticeScore:
     """The lattice test (:func:`spinemocap.detect.lattice.tape_regions` on a mask covering every
     dot) on ``n`` wall-bar grids (:func:`wall_bar_dots`) and ``n`` tapes (:func:`tape_dots`):
     how many of each it accepts (any dot kept) and the share of tape dots it keeps."""
@@ -205,5 +242,5 @@ def score_lattice(n: int, seed: int = LATTICE_SEED) -> dict:
             if kind == "tapes":
                 kept_dots += int(keep.sum())
                 total_dots += len(dots)
-    return {"cases": n, "wall_bars_accepted": accepted["wall_bars"], "tapes_accepted": accepted["tapes"],
-            "tape_dots_kept": kept_dots / max(total_dots, 1)}
+    return LatticeScore(cases=n, wall_bars_accepted=accepted["wall_bars"], tapes_accepted=accepted["tapes"],
+                        tape_dots_kept=kept_dots / max(total_dots, 1))

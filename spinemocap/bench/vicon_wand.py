@@ -63,7 +63,7 @@ def run_level(preset: str, realism: str, frames: int, fps: float, size: tuple[in
             reg = coregister(scene.calibrated_rig, frames_iter, scene.fps, read_vicon_wand(folder / VICON_WAND_FILE,
                                                                                           WandSpec()), progress=progress)
             row["coregister_s"] = time.perf_counter() - t0
-            row["wand"] = dict(registration_errors(truth, reg.scale * reg.R, reg.t, reg.offset_s),
+            row["wand"] = dict(registration_errors(truth, reg.scale * reg.R, reg.t, reg.offset_s).to_dict(),
                                n_frames=reg.n_frames, scale=reg.scale,
                                residual_rms_mm=float(np.sqrt(np.mean(np.square(list(reg.residual_mm.values()))))))
             rng = np.random.default_rng([seed, 5])
@@ -79,7 +79,7 @@ def run_level(preset: str, realism: str, frames: int, fps: float, size: tuple[in
                 crossval_angles(result, scene.times, noisy, scene.labels, scene.tape, levels, subject["up"],
                                 subject["facing"])
                 a = result.alignment
-                row[name] = dict(registration_errors(truth, a.scale * a.R, a.t, a.offset_s), estimated=a.estimated,
+                row[name] = dict(registration_errors(truth, a.scale * a.R, a.t, a.offset_s).to_dict(), estimated=a.estimated,
                                  scale=a.scale,
                                  angles={k: {m: v.to_dict()[m] for m in ("rmse_deg", "bias_deg", "icc", "cmc")}
                                          for k, v in result.summary.angles.items()})

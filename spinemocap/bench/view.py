@@ -12,7 +12,9 @@ import os
 import resource
 import tempfile
 import time
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -55,26 +57,56 @@ def cpu_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def run(capture: Path, results: Path, out: Path, scale: float | None) -> dict:
+@dataclass(frozen=True)
+class ViewRun:
+    """One run of ``bench view`` (:func:`run_benchmark`): the capture (its folder, or the made one's
+    WIDTHxHEIGHTxCAMERAS) and the run's number; capture frames and cameras written, the video sizes
+    (px), wall seconds and capture frames per second of the videos, their CPU seconds (this
+    process, x264's threads included) and frames per CPU second, the 3D viewer's wall seconds, the
+    videos' size (MiB) and the machine's 1-minute load average, times rounded to 0.01."""
+
+    capture: str
+    run: int
+    frames: int
+    cameras: int
+    sizes: list[tuple[int, int]]
+    video_s: float
+    frames_per_s: float
+    video_cpu_s: float
+    frames_per_cpu_s: float
+    viewer_s: float
+    video_MiB: float
+    load_1min: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object the command prints: the fields in order."""
+        return asdict(self)
+
+
+def run(capture: Path, results: Path, out: Path, scale: float | None, label: str | None = None,
+        number: int = 0) -> ViewRun:
+    """Write ``capture``'s labelled videos and 3D viewer of ``results`` into ``out`` (``scale``:
+    as ``spinemocap view --scale``) and time them; ``label``: the capture's name in the result
+    (default its folder), ``number``: the run's."""
     cpu = cpu_seconds()
     video = write_videos(capture, results, out, scale=scale, progress=False)
     video_cpu = cpu_seconds() - cpu
     start = time.perf_counter()
     write_viewer(capture, results, out / "tape3d.html")
     html_s = time.perf_counter() - start
-    return {"frames": len(video.frames), "cameras": len(video.cameras), "sizes": sorted(set(video.sizes.values())),
-            "video_s": round(video.seconds, 2), "frames_per_s": round(video.frames_per_s, 2),
-            "video_cpu_s": round(video_cpu, 2), "frames_per_cpu_s": round(len(video.frames) / video_cpu, 2),
-            "viewer_s": round(html_s, 2),
-            "video_MiB": round(sum(p.stat().st_size for p in [*video.cameras.values(), video.grid] if p is not None)
-                               / 2**20, 2),
-            "load_1min": round(os.getloadavg()[0], 2)}
+    return ViewRun(capture=label or str(capture), run=number, frames=len(video.frames), cameras=len(video.cameras),
+                   sizes=sorted(set(video.sizes.values())), video_s=round(video.seconds, 2),
+                   frames_per_s=round(video.frames_per_s, 2), video_cpu_s=round(video_cpu, 2),
+                   frames_per_cpu_s=round(len(video.frames) / video_cpu, 2), viewer_s=round(html_s, 2),
+                   video_MiB=round(sum(p.stat().st_size for p in [*video.cameras.values(), video.grid]
+                                       if p is not None) / 2**20, 2),
+                   load_1min=round(os.getloadavg()[0], 2))
 
 
 def run_benchmark(capture: Path | None, results: Path | None, made: str | None, frames: int,
-                  scale: float | None, repeat: int) -> list[dict]:
+                  scale: float | None, repeat: int) -> list[ViewRun]:
     """``repeat`` runs on ``capture``/``results``, or on a capture ``made`` = "WIDTHxHEIGHTxCAMERAS"
-    of ``frames`` frames; one dict per run (see the module docstring)."""
+    of ``frames`` frames (see the module docstring)."""
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
         if made:
@@ -82,5 +114,5 @@ def run_benchmark(capture: Path | None, results: Path | None, made: str | None, 
             capture, results = made_capture(Path(tmp), width, height, cameras, frames)
         assert capture is not None and results is not None
         for k in range(repeat):
-            runs.append({"capture": made or str(capture), "run": k, **run(capture, results, Path(tmp) / f"v{k}", scale)})
+            runs.append(run(capture, results, Path(tmp) / f"v{k}", scale, made or str(capture), k))
     return runs

@@ -104,28 +104,32 @@ def run_bench(args: argparse.Namespace) -> int:
         "date": time.strftime("%Y-%m-%d"),
         **headline(lab),
         "goals_tracked_rmse_deg": TRACKED_GOALS_DEG,
-        "lab_angles": lab,
+        "lab_angles": {motion: entry.to_dict() for motion, entry in lab.items()},
     }
     if not args.no_peers:
-        results["analytic_rod"] = bench_analytic(args.frames, args.rows)
-        results["studio_mid_bone_groundtruth"] = bench_studio(args.frames, args.fps, args.rows, progress=False)
+        results["analytic_rod"] = {motion: agreement.to_dict()
+                                   for motion, agreement in bench_analytic(args.frames, args.rows).items()}
+        results["studio_mid_bone_groundtruth"] = {
+            motion: agreement.to_dict()
+            for motion, agreement in bench_studio(args.frames, args.fps, args.rows, progress=False).items()}
     results["wall_s"] = round(time.time() - started, 1)
     print(f"{'motion':<10}{'angle':<19}{'source':<21}{'RMSE':>6}{'bias':>7}{'LoA low':>8}{'LoA high':>9}"
           f"{'R^2':>7}{'valid':>7}{'expected pk':>12}")
     for motion, entry in lab.items():
-        for column, r in entry["groundtruth"].items():
+        for column, r in entry.groundtruth.items():
             for source in ("tracked", PEER_SOURCE, "groundtruth"):
-                if source not in entry or r["expected_peak_deg"] < 2.0 and column.startswith("thoracic"):
+                scores = entry.scores(source)
+                if scores is None or r.expected_peak_deg < 2.0 and column.startswith("thoracic"):
                     continue
-                s = entry[source][column]
-                r2 = f"{s['r2']:>7.3f}" if s["expected_peak_deg"] >= 2.0 else f"{'-':>7}"  # no R^2 of crosstalk
-                print(f"{motion:<10}{column:<19}{source:<21}{s['rmse_deg']:>6.2f}{s['bias_deg']:>7.2f}"
-                      f"{s['loa_low_deg']:>8.2f}{s['loa_high_deg']:>9.2f}{r2}{s['valid']:>7.2f}"
-                      f"{s['expected_peak_deg']:>12.1f}")
-        if "tracking" in entry:
-            t = entry["tracking"]
-            print(f"{motion:<10}tracking: mean error {t['mean_error_mm']:.2f} mm, {t['label_swaps']} swapped dot-frames "
-                  f"in {t['frames_with_swaps']} frames, {t['s_per_frame']:.1f} s per frame")
+                s, fit = scores[column], scores[column].fit
+                r2 = f"{fit.r2:>7.3f}" if s.expected_peak_deg >= 2.0 else f"{'-':>7}"  # no R^2 of crosstalk
+                print(f"{motion:<10}{column:<19}{source:<21}{fit.rmse_deg:>6.2f}{fit.bias_deg:>7.2f}"
+                      f"{fit.loa_low_deg:>8.2f}{fit.loa_high_deg:>9.2f}{r2}{fit.valid:>7.2f}"
+                      f"{s.expected_peak_deg:>12.1f}")
+        if entry.tracking is not None:
+            t = entry.tracking
+            print(f"{motion:<10}tracking: mean error {t.mean_error_mm:.2f} mm, {t.label_swaps} swapped dot-frames "
+                  f"in {t.frames_with_swaps} frames, {t.s_per_frame:.1f} s per frame")
     for motion, goal in TRACKED_GOALS_DEG.items():
         key = f"tracked_{motion}_rmse_deg"
         if key in results:

@@ -41,8 +41,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("bench gauge", "--rigs must be >= 1, --frames >= 2 and every level in (0, 20] px")
     numbers = run_gauge_benchmark(args.seeds, args.levels, args.rigs, frames=args.frames, fps=args.fps,
                                   detector=args.detector, progress=not args.no_progress,
-                                  after_scene=lambda partial: save(partial, args.json, None), reference=args.reference)
-    save(numbers, args.json, args.plot, plot)
-    print(format_table(numbers))
+                                  after_scene=lambda partial: save(partial.to_dict(), args.json, None),
+                                  reference=args.reference)
+    save(numbers.to_dict(), args.json, args.plot, plot)
+    print(format_table(numbers.summary))
     print(f"numbers written to {args.json}" + (f", plot to {args.plot}" if args.plot else ""))
     return 0

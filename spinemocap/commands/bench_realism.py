@@ -32,7 +32,7 @@ def register_bench(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..bench.realism import format_table, run_realism_benchmark, save, sweep, verdict
+    from ..bench.realism import format_table, run_realism_benchmark, save, sweep
     from ..fileio import InputError
 
     cases = sweep()
@@ -48,10 +48,11 @@ def run(args: argparse.Namespace) -> int:
         load_weights(args.weights)  # a missing or foreign file is refused before any rendering
     numbers = run_realism_benchmark(cases, frames=args.frames, fps=args.fps, occlusion=args.occlusion,
                                     detector=args.detector, seed=args.seed, progress=not args.no_progress,
-                                    after_case=lambda partial: save(partial, args.json, None), weights=args.weights)
-    save(numbers, args.json, args.plot)
+                                    after_case=lambda partial: save(partial.to_dict(), args.json, None),
+                                    weights=args.weights)
+    save(numbers.to_dict(), args.json, args.plot)
     print(format_table(numbers))
-    for goal, judged in verdict(numbers["cases"]).items():
+    for goal, judged in numbers.verdict.items():
         print(f"goal {goal}: {'met' if judged.met else 'NOT met'} ({judged.numbers()})")
     print(f"numbers written to {args.json}" + (f", plot to {args.plot}" if args.plot else ""))
     return 0

@@ -29,5 +29,5 @@ def run(args: argparse.Namespace) -> int:
     if not args.made and (args.capture is None or args.results is None):
         raise InputError("--capture", "give --capture and --results, or --made WIDTHxHEIGHTxCAMERAS")
     for result in run_benchmark(args.capture, args.results, args.made, args.frames, args.scale, args.repeat):
-        print(json.dumps(result), flush=True)
+        print(json.dumps(result.to_dict()), flush=True)
     return 0

@@ -151,10 +151,8 @@ def _intrinsics(args: argparse.Namespace) -> int:
 
 def _extrinsics(args: argparse.Namespace) -> int:
     from calibration.boards import MAX_BLUR_SIGMA_PX, BoardSpec
-    from calibration.check import plot_residuals, save_residuals
-    from calibration.formats import write_rig
 
-    from ..app.calibrate import calibrate_recordings, plot_rig_3d, read_cameras
+    from ..app.calibrate import calibrate_recordings, read_cameras, write_calibration
 
     floor = parse_frames(",".join(args.floor_frames), parameter="--floor-frames") if args.floor_frames else None
     board = BoardSpec.parse(args.board)
@@ -163,14 +161,8 @@ def _extrinsics(args: argparse.Namespace) -> int:
     calibrated = calibrate_recordings(args.views, board, intrinsics, args.pair_by, args.max_frames,
                                       floor, not args.fixed_intrinsics, args.ba, max_blur)
     print(calibrated.summary())
-    result = calibrated.result
-    write_rig(result.rig, args.out, args.format)
-    save_residuals(args.out, result.residuals)
-    plot = args.plot or f"{args.out}.residuals.png"
-    plot_residuals(result.rig, result.residuals, plot)
-    up = None if args.floor_frames else -result.rig[0].R[1]  # no floor: the first camera's image up
-    plot_rig_3d(result.rig, calibrated.session.read_as or board, result.board_poses, f"{args.out}.rig3d.png", up=up)
-    print(f"wrote {args.out}, {plot} and {args.out}.rig3d.png")
+    files = write_calibration(calibrated, args.out, args.format, args.plot)
+    print(f"wrote {files.rig}, {files.residual_plot} and {files.rig_3d}")
     return 0
 
 

@@ -138,22 +138,22 @@ def run_bench(args: argparse.Namespace) -> int:
     report = run_opensim_benchmark(args.motions, args.sources, args.frames, args.fps, args.rows,
                                    args.tracked_frames, args.cache, not args.no_progress, realism=args.realism,
                                    seeds=args.seeds, accuracy=accuracy, methods=methods)
-    report["command"] = " ".join(
+    command = " ".join(
         ["spinemocap bench opensim", f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
          f"--realism {args.realism}",
          "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources),
          "--seeds " + " ".join(str(s) for s in args.seeds)]
         + ([f"--accuracy {accuracy:g}"] if accuracy is not None else []) + ["--methods " + " ".join(methods)]
         + ([f"--tracked-frames {args.tracked_frames}"] if args.tracked_frames else []))
-    print(format_table(report["sources"]))
-    for source, methods in report["headline"].items():
-        for method, row in methods.items():
+    print(format_table(report.sources))
+    for source, table in report.headline.items():
+        for method, row in table.items():
             print(f"worst over subjects ({source}, {method}): " + ", ".join(
-                f"{k} {v:.2f}" for k, v in row.items() if k != "goals_met")
-                + "; goals " + ", ".join(f"{k} {'met' if ok else 'NOT met'}" for k, ok in row["goals_met"].items()))
+                f"{k} {v:.2f}" for k, v in row.numbers().items())
+                + "; goals " + ", ".join(f"{k} {'met' if ok else 'NOT met'}" for k, ok in row.goals_met.items()))
     if args.json:
         with atomic_write(args.json) as handle:
-            handle.write(strict_json(report))
+            handle.write(strict_json({**report.to_dict(), "command": command}))
         print(f"numbers: {args.json}")
     if args.plot:
         with atomic_write(args.plot, "wb") as handle:

@@ -20,7 +20,8 @@ from spinemocap.bench.analysis import (
 def test_pipeline_is_exact_on_the_analytic_rod():
     # no skin, no body model: what is left is the spline/frame pipeline's own error
     for motion, r in bench_analytic(frames=20).items():
-        assert r["rmse_deg"] < 0.1 and r["crosstalk_peak_deg"] < 0.1, motion
+        assert r.fit.rmse_deg < 0.1 and r.crosstalk_peak_deg < 0.1, motion
+        assert list(r.to_dict())[-3:] == ["crosstalk_rms_deg", "crosstalk_peak_deg", "expected_peak_deg"]
 
 
 def test_mid_bone_rows_pick_rows_inside_bone_segments():
@@ -39,26 +40,30 @@ def test_lumbar_s1_t12l1_angles_follow_the_studio_motions_on_ground_truth():
     for motion, goal in TRACKED_GOALS_DEG.items():
         assert scores[f"groundtruth_{motion}_rmse_deg"] <= goal, (motion, scores)
         own = LAB_ANGLES[MOTION_AXIS[motion]]
-        truth = results[motion]["groundtruth"]
-        assert truth[own]["r2"] >= 0.95 and truth[own]["expected_peak_deg"] > 9.0, (motion, truth[own])
+        truth = results[motion].groundtruth
+        assert truth[own].fit.r2 >= 0.95 and truth[own].expected_peak_deg > 9.0, (motion, truth[own])
         for other in ("lumbar_flexion", "lumbar_lateral", "lumbar_rotation"):
-            assert truth[other]["rmse_deg"] <= goal, (motion, other, truth[other])
-    mixed = results["mixed"]["groundtruth"]
+            assert truth[other].fit.rmse_deg <= goal, (motion, other, truth[other])
+    mixed = results["mixed"].groundtruth
     for column, goal in (("lumbar_flexion", 2.0), ("lumbar_lateral", 3.0), ("lumbar_rotation", 3.0)):
-        assert mixed[column]["rmse_deg"] <= goal and mixed[column]["r2"] >= 0.95, (column, mixed[column])
-    assert results["flexion"]["levels"]["lumbar"] == ["S1", "T12/L1"]
+        assert mixed[column].fit.rmse_deg <= goal and mixed[column].fit.r2 >= 0.95, (column, mixed[column])
+    assert results["flexion"].levels["lumbar"] == ["S1", "T12/L1"]
+    assert results["flexion"].tracked is None and "tracked" not in results["flexion"].to_dict()
+    written = results["flexion"].to_dict()
+    assert list(written) == ["levels", "skin_turn_joints", "applied_peak_deg", "groundtruth", "wall_s", "expected"]
+    assert list(written["groundtruth"]["lumbar_flexion"])[-3:] == ["valid", "expected_peak_deg", "change"]
 
 
 def test_bland_altman_limits_and_bias():
     expected = np.linspace(0.0, 30.0, 50)
     offsets = np.where(np.arange(50) % 2, 1.0, -1.0)  # +-1 deg around a +2 deg bias
     stats = fit_stats(expected + 2.0 + offsets, expected)
-    assert stats["bias_deg"] == pytest.approx(2.0)
+    assert stats.bias_deg == pytest.approx(2.0)
     spread = 1.96 * np.std(offsets, ddof=1)
-    assert stats["loa_low_deg"] == pytest.approx(2.0 - spread) and stats["loa_high_deg"] == pytest.approx(2.0 + spread)
-    assert stats["rmse_deg"] == pytest.approx(np.sqrt(5.0))
+    assert stats.loa_low_deg == pytest.approx(2.0 - spread) and stats.loa_high_deg == pytest.approx(2.0 + spread)
+    assert stats.rmse_deg == pytest.approx(np.sqrt(5.0))
     missing = fit_stats(np.full(5, np.nan), np.arange(5.0))
-    assert missing["frames"] == 0 and missing["valid"] == 0.0 and np.isnan(missing["rmse_deg"])
+    assert missing.frames == 0 and missing.valid == 0.0 and np.isnan(missing.rmse_deg)
 
 
 def test_the_peer_scores_the_previous_row_centres():

@@ -64,9 +64,9 @@ def test_init_start_and_end_choose_a_part_in_seconds_or_frames(lab, tmp_path):
     assert capture.start_s == pytest.approx(0.04) and capture.n_frames == 3
     means = [float(image.mean()) for image in capture.frame_source().read(0)]
     np.testing.assert_allclose(means, 40.0, atol=3)  # capture frame 0 = the recordings' frame 1
-    with pytest.raises(InputError, match="--start.*after the end of camera 'cam2'"):
+    with pytest.raises(InputError, match="start: 0.2s lies after the end of camera 'cam2'"):
         init_capture(tmp_path / "late", folder / "rig.toml", media=videos, start="0.2s")
-    with pytest.raises(InputError, match="--end.*leaves 7 frames"):
+    with pytest.raises(InputError, match="end: 7 leaves 7 frames after `start`"):
         init_capture(tmp_path / "long", folder / "rig.toml", media=videos, end="7")
 
 
@@ -85,7 +85,7 @@ def test_name_matching_errors_list_both_sides_and_map_fixes_them(lab, tmp_path):
     message = str(error.value)
     assert "left.mp4 names no camera" in message
     assert "The calibration's cameras: cam1, cam2, cam3" in message and "left.mp4, take3_cam2.mp4" in message
-    assert "--map CAMERA=FILE" in message
+    assert "`mapping` (CAMERA=FILE)" in message and error.value.source == "camera names"
     capture = init_capture(tmp_path / "cap", folder / "rig.toml", media=renamed, mapping={"cam1": "left.mp4"}).capture
     assert capture.camera_names == ["cam1", "cam2", "cam3"]
     assert capture.camera_clocks["cam1"].media.endswith("left.mp4")
@@ -226,7 +226,7 @@ def test_a_tape_spec_and_images_need_their_own_values(tmp_path):
             cv2.imwrite(str(tmp_path / "imgs" / name / f"img_{k:03d}.png"), image)
     small_rig().to_toml(tmp_path / "rig.toml")
     media = sorted((tmp_path / "imgs").iterdir())
-    with pytest.raises(InputError, match="give it with --fps"):
+    with pytest.raises(InputError, match="give it with `fps`"):
         init_capture(tmp_path / "cap", tmp_path / "rig.toml", media=media)
     capture = init_capture(tmp_path / "cap", tmp_path / "rig.toml", media=media, fps=30,
                            tape=TapeSpec(n_rows=7)).capture

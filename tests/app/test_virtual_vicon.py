@@ -110,8 +110,8 @@ def test_calibrate_wand_recovers_the_transform_and_offset_and_crossval_uses_it(s
     truth = dict(np.load(out / "groundtruth.npz"))
     R, t, scale = rig_transform(scene.calibrated_rig, rig_vicon)
     errors = registration_errors(truth, scale * R, t, offset_ms / 1000)
-    assert abs(errors["offset_error_ms"]) < 0.5
-    assert errors["rotation_error_deg"] < 0.05 and errors["point_error_max_mm"] < 1.0, errors
+    assert errors.offset_error_ms is not None and abs(errors.offset_error_ms) < 0.5
+    assert errors.rotation_error_deg < 0.05 and errors.point_error_max_mm < 1.0, errors
 
     noisy = dots + np.random.default_rng(1).normal(0.0, 0.1, dots.shape)
     exporters.write(MarkerTable.from_arrays(scene.labels, noisy, scene.fps), tmp_path / "tracked.c3d")
@@ -144,3 +144,20 @@ def test_bench_vicon_wand_scores_the_wand_and_both_crossval_alignments_against_t
     assert out.with_suffix(".png").stat().st_size > 0
     table = capsys.readouterr().out
     assert all(method in table for method in ("wand", "crossval_rig_vicon", "crossval_markers"))
+
+
+def test_registration_errors_measure_a_known_turn_shift_and_clock_offset():
+    from scipy.spatial.transform import Rotation
+
+    from spinemocap.app.wand_wave import registration_errors
+
+    truth = {"vicon_R": np.eye(3), "vicon_t_mm": np.zeros(3), "vicon_clock_offset_s": 0.010,
+             "dots": np.array([[[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]], [[np.nan] * 3, [0.0, 100.0, 0.0]]])}
+    turn = Rotation.from_euler("z", 0.5, degrees=True).as_matrix()
+    errors = registration_errors(truth, turn, np.array([0.0, 0.0, 2.0]), offset_s=0.0125)
+    assert errors.rotation_error_deg == pytest.approx(0.5)
+    assert errors.point_error_mean_mm > 2.0 and errors.point_error_max_mm == pytest.approx(
+        np.hypot(2.0, 2 * 100.0 * np.sin(np.radians(0.25))))
+    assert errors.offset_error_ms == pytest.approx(2.5)
+    assert list(registration_errors(truth, np.eye(3), np.zeros(3)).to_dict()) == [
+        "rotation_error_deg", "point_error_mean_mm", "point_error_max_mm"]  # no offset estimated, none written

@@ -13,11 +13,11 @@ def test_fit_stats_of_a_biased_measurement():
     measured = expected + 1.0
     measured[3] = np.nan
     stats = fit_stats(measured, expected)
-    assert stats["rmse_deg"] == pytest.approx(1.0) and stats["bias_deg"] == pytest.approx(1.0)
-    assert stats["loa_low_deg"] == pytest.approx(1.0) and stats["loa_high_deg"] == pytest.approx(1.0)
-    assert stats["frames"] == 20 and stats["valid"] == pytest.approx(20 / 21)
-    assert stats["r2"] == pytest.approx(1 - 20 / np.sum((np.delete(expected, 3) - np.delete(expected, 3).mean()) ** 2))
-    assert fit_stats(np.full(3, np.nan), np.zeros(3))["frames"] == 0
+    assert stats.rmse_deg == pytest.approx(1.0) and stats.bias_deg == pytest.approx(1.0)
+    assert stats.loa_low_deg == pytest.approx(1.0) and stats.loa_high_deg == pytest.approx(1.0)
+    assert stats.frames == 20 and stats.valid == pytest.approx(20 / 21)
+    assert stats.r2 == pytest.approx(1 - 20 / np.sum((np.delete(expected, 3) - np.delete(expected, 3).mean()) ** 2))
+    assert fit_stats(np.full(3, np.nan), np.zeros(3)).frames == 0
 
 
 def test_the_batch_result_gives_rates_and_speed_ups():

@@ -24,9 +24,10 @@ def test_scores_count_misses_and_false_dots_but_not_hidden_dots():
     pred = np.array([[10.2, 10.0], [90.1, 90.0], [200.0, 200.0]])
     score.add(pred, gt, hidden, unoccluded=np.array([True, False]), view_angle_deg=np.array([10.0, 80.0]))
     summary = score.summary()
-    assert (summary["true_positives"], summary["missed"], summary["false_positives"]) == (1, 1, 1)
-    assert summary["recall"] == 0.5 and summary["precision"] == 0.5 and summary["recall_unoccluded"] == 1.0
-    assert summary["centroid_rms_px"] == pytest.approx(0.2)
+    assert (summary.true_positives, summary.missed, summary.false_positives) == (1, 1, 1)
+    assert summary.recall == 0.5 and summary.precision == 0.5 and summary.recall_unoccluded == 1.0
+    assert summary.centroid_rms_px == pytest.approx(0.2)
+    assert list(summary.to_dict())[:3] == ["recall", "recall_unoccluded", "unoccluded_dots"]
 
 
 def test_the_tape_wall_hides_more_of_a_hole_the_more_oblique_the_view():

@@ -18,12 +18,15 @@ def test_the_headline_covers_the_methods_that_ran_and_judges_each_against_the_go
                               "geometric": {"flexion_rmse_deg": 3.0, "flexion_r2": 0.9, "ms_per_frame": 1.0}},
             "flexion/seed1": {"ik": _scores(1.9, 2.4), "ik_slip_goal": _scores(1.0, 0.7),
                               "geometric": {"flexion_rmse_deg": 1.5, "flexion_r2": 0.9, "ms_per_frame": 1.0}}}
-    table = headline({"groundtruth": runs})["headline"]["groundtruth"]
+    table = headline({"groundtruth": runs})["groundtruth"]
     assert list(table) == ["ik", "ik_slip_goal", "geometric"]  # only what ran
-    assert table["ik"]["flexion_rmse_deg_worst"] == 1.9 and table["ik"]["goals_met"]["flexion"]
-    assert not table["ik"]["goals_met"]["marker_rms"]  # 2.4 mm over the 2 mm goal
-    assert table["ik_slip_goal"]["flexion_rmse_deg_worst"] > GOALS["flexion_rmse_deg"]
-    assert not table["ik_slip_goal"]["goals_met"]["flexion"]
+    assert table["ik"].rmse_deg_worst == {"flexion": 1.9} and table["ik"].goals_met["flexion"]
+    assert not table["ik"].goals_met["marker_rms"]  # 2.4 mm over the 2 mm goal
+    assert table["ik_slip_goal"].rmse_deg_worst["flexion"] > GOALS["flexion_rmse_deg"]
+    assert not table["ik_slip_goal"].goals_met["flexion"]
+    assert table["ik"].to_dict() == {"flexion_rmse_deg_worst": 1.9, "marker_rms_mm_worst": 2.4,
+                                     "goals_met": {"flexion": True, "marker_rms": False}}
+    assert table["geometric"].marker_rms_mm_worst is None and "marker_rms" not in table["geometric"].goals_met
     lines = format_table({"groundtruth": runs}).splitlines()
     assert len(lines) == 1 + 2 * 3 and any("ik_slip_goal" in line for line in lines)
 
@@ -50,11 +53,13 @@ def test_an_unknown_method_is_a_clear_error():
 
 
 def test_the_headline_plot_is_a_png_of_every_method_that_ran():
-    from spinemocap.bench.opensim import headline_plot_png
+    from spinemocap.bench.opensim import OpenSimBenchReport, headline_plot_png
 
     runs = {"flexion/seed0": {"ik": _scores(1.2, 0.6), "ik_slip_goal": _scores(2.5, 0.9),
                               "geometric": {"flexion_rmse_deg": 3.0, "flexion_r2": 0.9, "ms_per_frame": 1.0}}}
-    report = {**headline({"groundtruth": runs, "tracked": runs}), "sources": {"groundtruth": runs, "tracked": runs}}
+    report = OpenSimBenchReport("x86_64", "2026-01-01", "lab", None, ["ik", "ik_slip_goal", "geometric"],
+                                headline({"groundtruth": runs, "tracked": runs}), {"groundtruth": runs, "tracked": runs},
+                                1.0)
     png = headline_plot_png(report)
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
 
@@ -74,6 +79,7 @@ def test_the_frames_without_a_flagged_marker_are_scored_apart_and_the_goals_judg
     assert out["flexion_rmse_deg"] == pytest.approx(np.sqrt(200.0 / 6))
     assert "flexion_rmse_deg_vouched" not in score(measured, expected, [0])
     runs = {"flexion/seed0": {"ik": {**_scores(out["flexion_rmse_deg"], 0.6), "flexion_rmse_deg_vouched": 0.0}}}
-    row = headline({"tracked": runs})["headline"]["tracked"]["ik"]
-    assert row["flexion_rmse_deg_vouched_worst"] == 0.0
-    assert not row["goals_met"]["flexion"]  # the goal is judged on every frame
+    row = headline({"tracked": runs})["tracked"]["ik"]
+    assert row.rmse_deg_vouched_worst["flexion"] == 0.0 and list(row.numbers()) == [
+        "flexion_rmse_deg_worst", "flexion_rmse_deg_vouched_worst", "marker_rms_mm_worst"]
+    assert not row.goals_met["flexion"]  # the goal is judged on every frame

@@ -7,23 +7,27 @@ import numpy as np
 import pytest
 
 from spinemocap.bench.bodyfit import _stats
+from spinemocap.bench.sync import CaptureSync, OffsetErrors, SyncNumbers
 from spinemocap.bench.sync import format_table as sync_table
 from spinemocap.bench.vicon_wand import format_table as wand_table
 
 
-def _method(worst: float) -> dict:
-    return {"error_ms": [0.0, worst], "stderr_ms": [0.0, 0.01], "max_abs_error_100fps_ms": worst,
-            "max_abs_error_ms": worst, "pairs_as_truth": 1.0}
+def _method(worst: float) -> OffsetErrors:
+    return OffsetErrors(offset_ms=[0.0, 12.5 + worst], error_ms=[0.0, worst], stderr_ms=[0.0, 0.01],
+                        max_abs_error_100fps_ms=worst, max_abs_error_ms=worst, found=[True, True], pairs_as_truth=1.0)
 
 
 def test_the_sync_verdict_follows_the_worst_error_on_100_fps_cameras():
-    scenario = {"cameras": ["cam1", "cam2"], "camera_fps": [100, 100], "true_offset_ms": [0.0, 12.5],
-                "motion": _method(0.4), "motion_no_bias_term": _method(7.0), "dropped_rendered": [],
-                "dropped_found": []}
-    text = sync_table({"goal_ms": 1.0, "detector": "classical", "realism": "lab", "scenarios": {"s": scenario}})
+    scenario = CaptureSync(cameras=["cam1", "cam2"], camera_fps=[100, 100], true_offset_ms=[0.0, 12.5], audio_s=0.1,
+                           detect_s=1.0, motion_s=0.5,
+                           methods={"motion": _method(0.4), "motion_no_bias_term": _method(7.0)},
+                           dropped_rendered=[], dropped_found=[])
+    text = sync_table(SyncNumbers(1.0, "classical", "lab", {"s": scenario}))
     assert "motion: worst |error| on 100 fps cameras 0.400 ms (goal met)" in text
     assert "motion_no_bias_term: worst |error| on 100 fps cameras 7.000 ms (goal NOT met)" in text
     assert "audio:" not in text  # a method not run is not reported
+    assert list(scenario.to_dict()) == ["cameras", "camera_fps", "true_offset_ms", "audio_s", "detect_s", "motion_s",
+                                        "motion", "motion_no_bias_term", "dropped_rendered", "dropped_found", "render_s"]
 
 
 def test_the_wand_table_shows_a_failed_method_with_its_reason():

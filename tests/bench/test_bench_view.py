@@ -14,5 +14,6 @@ def test_a_made_capture_is_timed_end_to_end(tmp_path):
     assert opened.n_frames == 3 and [c.size for c in opened.rig] == [(96, 64), (96, 64)]
     assert read_results(results).n_frames == 3
     numbers = run(capture, results, tmp_path / "view", scale=1.0)
-    assert numbers["frames"] == 3 and numbers["cameras"] == 2 and numbers["sizes"] == [(96, 64)]
-    assert (tmp_path / "view" / "tape3d.html").is_file() and numbers["video_MiB"] > 0
+    assert numbers.frames == 3 and numbers.cameras == 2 and numbers.sizes == [(96, 64)]
+    assert (tmp_path / "view" / "tape3d.html").is_file() and numbers.video_MiB > 0
+    assert numbers.capture == str(capture) and list(numbers.to_dict())[:3] == ["capture", "run", "frames"]

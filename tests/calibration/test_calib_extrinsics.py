@@ -113,7 +113,7 @@ def test_full_size_sessions_meet_the_bounds_for_several_seeds(seed):
     set-up): the bounds hold for every seed, not only for the default test's."""
     from spinemocap.bench.calibration import board_stage
 
-    result = board_stage(1024, 20, 24, seed, backends=("ceres",))["ours_ba"]
-    assert result["focal_pct"] < 0.2
-    assert result["centre_mm"] < 2.0
-    assert result["rotation_deg"] < 0.1
+    result = board_stage(1024, 20, 24, seed, backends=("ceres",)).ours_ba.errors
+    assert result.focal_pct < 0.2
+    assert result.centre_mm < 2.0
+    assert result.rotation_deg < 0.1

@@ -7,7 +7,7 @@ import pytest
 from calibration.boards import BoardSpec
 from calibration.extrinsics import bundle_adjust
 from calibration.wand import WandSpec
-from spinemocap.cli import build_parser, flag_of, invoked_parsers, main
+from spinemocap.cli import build_parser, flag_of, invoked_parsers, main, with_flags
 from spinemocap.fileio import InputError
 
 
@@ -39,3 +39,35 @@ def test_the_cli_prints_the_flag(tmp_path, capsys):
                  "--board", "hexagon:3", "--out", str(tmp_path / "rig.toml")]) == 2
     err = capsys.readouterr().err
     assert "error: --board: cannot parse board 'hexagon:3'" in err
+
+
+def test_parameters_named_in_a_problem_become_the_commands_flags():
+    parser = build_parser()
+    init = invoked_parsers(parser, parser.parse_args(["capture", "init", "out", "--videos", "v", "--calibration", "r"]))
+    speed = invoked_parsers(parser, parser.parse_args(["bench", "speed"]))
+    rendered = with_flags("`fix_size=crop` does not fit; pass `force=True`; name it with `mapping` or `named`; "
+                          "give it with `fps`; `method='motion'`", init)
+    assert rendered == ("--fix-size crop does not fit; pass --force; name it with --map or --video; "
+                        "give it with --fps; `method='motion'`")  # no --method in capture init: the library's words
+    assert with_flags("turn prediction off (`frames_at_once=N` or `predict=False`)", speed) == \
+        "turn prediction off (--frames-at-once N or --no-predict)"
+
+
+def test_the_application_names_parameters_and_the_cli_their_flags(tmp_path, capsys):
+    from spinemocap.app.capture_init import init_capture
+    from spinemocap.app.streaming import SpeedOptions
+
+    (tmp_path / "cap").mkdir()
+    (tmp_path / "cap" / "capture.toml").write_text("")
+    with pytest.raises(InputError) as existing:
+        init_capture(tmp_path / "cap", tmp_path / "rig.toml", media=[])
+    with pytest.raises(InputError) as predicted:
+        SpeedOptions(frames_at_once=2)
+    assert "`force=True`" in existing.value.problem and predicted.value.source == "frames_at_once"
+    assert "--" not in str(existing.value) + str(predicted.value)
+
+    assert main(["capture", "init", str(tmp_path / "cap"), "--videos", "v.mp4", "--calibration", "r.toml"]) == 2
+    assert "choose a new folder or pass --force to replace it" in capsys.readouterr().err
+    assert main(["bench", "speed", "--preset", "tiny", "--candidate-workers", "1"]) == 2
+    assert "error: --candidate-workers: the candidate workers build frames ahead of the tracker, which prediction " \
+           "cannot wait for: turn prediction off (--frames-at-once N or --no-predict)" in capsys.readouterr().err

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from spinemocap.cli import main
 from spinemocap.commands import view as view_command
 from spinemocap.fileio import InputError
 
@@ -18,6 +19,8 @@ def test_the_viewer_alone_is_written_where_asked(tiny_capture, tracked, parse, t
     assert view_command.default_out(tracked) == tracked / "view"
 
 
-def test_frames_outside_the_capture_are_refused_by_the_flag(tiny_capture, tracked, parse, tmp_path):
-    with pytest.raises(InputError, match="--frames: frame selection '5:9' selects no frame of the 3"):
+def test_frames_outside_the_capture_are_refused_by_the_flag(tiny_capture, tracked, parse, tmp_path, capsys):
+    with pytest.raises(InputError, match="frames: frame selection '5:9' selects no frame of the 3"):
         view_command.run_view(parse("view", tiny_capture, tracked, "--no-video", "--frames", "5:9", "--out", tmp_path))
+    assert main(["view", str(tiny_capture), str(tracked), "--no-video", "--frames", "5:9", "--out", str(tmp_path)]) == 2
+    assert "error: --frames: frame selection '5:9' selects no frame of the 3" in capsys.readouterr().err

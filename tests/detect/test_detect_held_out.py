@@ -71,9 +71,11 @@ def test_the_benchmark_scores_the_held_out_family(monkeypatch):
     assert b > r and blue[2] > blue[0]  # the tape shows blue
     assert np.unique(image[~tape].reshape(-1, 3), axis=0).shape[0] > 1000  # a room, not a plain backdrop
     results = bench.run_detect_benchmark([tiny.name], say=lambda _: None)
-    dots = results["sets"][tiny.name]["dots"]
+    tiny_set = results.sets[tiny.name]
+    assert isinstance(tiny_set, bench.SetResult)
+    dots = tiny_set.dots
     for name in ("net", "classical", "SimpleBlobDetector"):
         d = dots[name]
-        assert d["true_positives"] + d["missed"] > 20  # every visible dot of the three views counted
-        assert 0 <= d["recall"] <= 1 and 0 <= d["precision"] <= 1
-    assert dots["blobs in exact mask"]["recall"] > 0.8  # the render's dots are where the truth says
+        assert d.true_positives + d.missed > 20  # every visible dot of the three views counted
+        assert 0 <= d.recall <= 1 and 0 <= d.precision <= 1
+    assert dots["blobs in exact mask"].recall > 0.8  # the render's dots are where the truth says

@@ -146,5 +146,5 @@ def test_the_lattice_test_keeps_tapes_and_drops_most_wall_bars():
     from spinemocap.bench.tape_free import score_lattice
 
     score = score_lattice(40)
-    assert score["tapes_accepted"] >= 0.75 * score["cases"] and score["tape_dots_kept"] >= 0.75
-    assert score["wall_bars_accepted"] <= 0.25 * score["cases"]
+    assert score.tapes_accepted >= 0.75 * score.cases and score.tape_dots_kept >= 0.75
+    assert score.wall_bars_accepted <= 0.25 * score.cases

@@ -100,7 +100,7 @@ def test_unknown_refresh_schedules_and_periods_are_refused_by_the_options_and_bo
 
     with pytest.raises(InputError, match="refresh"):
         SpeedOptions(refresh="sometimes")
-    with pytest.raises(InputError, match="refresh-every"):
+    with pytest.raises(InputError, match="refresh_every"):
         SpeedOptions(refresh_every=0)
     for argv in (["track", str(tmp_path), "--out", str(tmp_path / "o"), "--refresh", "camera", "--refresh-every", "0"],
                  ["bench", "speed", "--preset", "tiny", "--refresh", "camera", "--refresh-every", "0"]):

@@ -250,7 +250,7 @@ def video_name(camera: str, taken: set[str]) -> str:
     return name
 
 
-def selected_frames(tracked: TrackedDots, frames: str | None, n_frames: int, source: str = "--frames") -> list[int]:
+def selected_frames(tracked: TrackedDots, frames: str | None, n_frames: int, source: str = "frames") -> list[int]:
     """Capture frames to draw: the tracked frames inside the selection ``frames`` (the syntax of
     :func:`spinemocap.frames.parse_frames`, e.g. ``100:400:2``; ``None``: every tracked frame).
     Raises :class:`InputError` naming ``source`` for a selection not of the syntax, naming the
@@ -283,7 +283,7 @@ def write_videos(capture_dir: str | os.PathLike, results: str | os.PathLike, out
     out = check_writable(out_dir, "video output folder")
     cameras = list(capture.rig)
     if scale is not None and not (np.isfinite(scale) and 0 < scale <= 4):
-        raise InputError("--scale", f"scale {scale} must be a number in (0, 4]")
+        raise InputError("scale", f"scale {scale} must be a number in (0, 4]")
     factor = auto_scale([c.size for c in cameras]) if scale is None else float(scale)
     sizes = {c.name: even_size(c.size, factor) for c in cameras}
     fps = playback_rate(np.asarray(chosen) / capture.fps, capture.fps)  # recorded time for A:B:S
