@@ -28,6 +28,8 @@ from calibration.check import plot_residuals, save_residuals
 from calibration.extrinsics import ExtrinsicsResult, calibrate_extrinsics
 from calibration.formats import read_rig, write_rig
 from calibration.intrinsics import calibrate_from_detections
+from calibration.wand import WandSpec, detect_wand_views, synchronized_frames
+from calibration.wandwave import WandWaveResult, calibrate_wand_wave, plot_length_error
 from spinemocap.camera import Rig
 from spinemocap.fileio import InputError, atomic_path
 from spinemocap.media import IMAGE_SUFFIXES, VIDEO_SUFFIXES
@@ -380,6 +382,44 @@ def write_calibration(calibrated: SessionCalibration, out: str | os.PathLike, ri
     board = calibrated.session.read_as or calibrated.session.board
     plot_rig_3d(result.rig, board, result.board_poses, f"{rig_path}.rig3d.png", up=up)
     return CalibrationFiles(rig_path, str(residuals), plot, f"{rig_path}.rig3d.png")
+
+
+@dataclass(frozen=True)
+class WandWaveFiles:
+    """The files :func:`write_wand_wave` wrote, paths as given: the rig, its reprojection
+    residuals (``RIG.residuals.npz``), the residual plot and the wand-length error plot (PNG)."""
+
+    rig: str
+    residuals: str
+    residual_plot: str
+    length_plot: str
+
+
+def calibrate_wand_wave_videos(videos: Sequence[str | os.PathLike], intrinsics: Rig, wand: WandSpec,
+                               floor_frames: list[int] | None = None, backend: Backend = "ceres",
+                               refine_intrinsics: bool = True) -> WandWaveResult:
+    """A rig from one wand-wave video (or image folder) per ``intrinsics`` camera, in rig order:
+    frames streamed in step (the shortest recording decides the length), the wand's markers
+    found in each, then :func:`calibration.wandwave.calibrate_wand_wave` (``floor_frames``:
+    frames where the wand lies on the floor; None: the first camera's frame is the world)."""
+    frames, _ = synchronized_frames(videos, len(intrinsics))
+    views = detect_wand_views(frames, wand)
+    return calibrate_wand_wave(intrinsics, views, wand, floor_frames, backend=backend,
+                               refine_intrinsics=refine_intrinsics)
+
+
+def write_wand_wave(result: WandWaveResult, out: str | os.PathLike, rig_format: str | None = None,
+                    length_plot: str | os.PathLike | None = None) -> WandWaveFiles:
+    """Write a wand wave's rig to ``out`` (format as :func:`write_calibration`), its residuals
+    beside it, the residual plot (``OUT.residuals.png``) and the wand-length error plot (default
+    ``OUT.wand_length.png``)."""
+    rig_path = os.fspath(out)
+    write_rig(result.rig, rig_path, rig_format)
+    residuals = save_residuals(rig_path, result.residuals)
+    plot_residuals(result.rig, result.residuals, f"{rig_path}.residuals.png")
+    length = os.fspath(length_plot) if length_plot else f"{rig_path}.wand_length.png"
+    plot_length_error(result, length)
+    return WandWaveFiles(rig_path, str(residuals), f"{rig_path}.residuals.png", length)
 
 
 def load_view_detections(folders: Sequence[str | os.PathLike], rig: Rig, board: BoardSpec,

@@ -167,27 +167,16 @@ def _extrinsics(args: argparse.Namespace) -> int:
 
 
 def _wand_wave(args: argparse.Namespace) -> int:
-    from calibration.check import plot_residuals, save_residuals
-    from calibration.formats import write_rig
-    from calibration.wand import WandSpec, detect_wand_views, synchronized_frames
-    from calibration.wandwave import calibrate_wand_wave, plot_length_error
+    from calibration.wand import WandSpec
+
+    from ..app.calibrate import calibrate_wand_wave_videos, read_cameras, write_wand_wave
 
     floor = parse_frames(args.floor_frames, parameter="--floor-frames") if args.floor_frames else None
-    wand = WandSpec.parse(args.wand)
-    from ..app.calibrate import read_cameras
-
-    intrinsics = read_cameras(args.intrinsics)
-    frames, _ = synchronized_frames(args.videos, len(intrinsics))
-    views = detect_wand_views(frames, wand)
-    result = calibrate_wand_wave(intrinsics, views, wand, floor, backend=args.ba,
-                                 refine_intrinsics=not args.fixed_intrinsics)
+    result = calibrate_wand_wave_videos(args.videos, read_cameras(args.intrinsics), WandSpec.parse(args.wand), floor,
+                                        backend=args.ba, refine_intrinsics=not args.fixed_intrinsics)
     print(result.summary())
-    write_rig(result.rig, args.out, args.format)
-    save_residuals(args.out, result.residuals)
-    plot_residuals(result.rig, result.residuals, f"{args.out}.residuals.png")
-    plot = args.plot or f"{args.out}.wand_length.png"
-    plot_length_error(result, plot)
-    print(f"wrote {args.out}, {plot} and {args.out}.residuals.png")
+    files = write_wand_wave(result, args.out, args.format, args.plot)
+    print(f"wrote {files.rig}, {files.length_plot} and {files.residual_plot}")
     return 0
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from calibration.check import load_residuals
 from calibration.wand import WandSpec, detect_wand_views, identify_linear_wand
 from calibration.wandwave import calibrate_wand_wave
 from spinemocap.bench.calibration_scenes import make_ring_rig, render_wand_calibration
@@ -92,6 +93,9 @@ def test_synth_calibration_and_wand_wave_cli(tmp_path, capsys):
     for true, est in zip(truth, rig):
         assert np.linalg.norm(est.center - true.center) < 3.0
     assert (tmp_path / "rig.toml.wand_length.png").stat().st_size > 10_000
+    assert (tmp_path / "rig.toml.residuals.png").stat().st_size > 10_000
+    residuals = load_residuals(rig_out)
+    assert residuals is not None and set(residuals) == set(truth.names)
     # the same session's checkerboard frames through `calibrate extrinsics`
     board_rig = tmp_path / "board.toml"
     code = main(["calibrate", "extrinsics", "--intrinsics", str(out / "rig_true.toml"), "--views",
