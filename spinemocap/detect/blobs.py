@@ -12,7 +12,7 @@ Per region:
 3. dot contrast = 99.5th percentile of the smoothed top-hat on the tape; no dots when it is weak
    or not well above the tape's own texture (median top-hat); threshold at half the contrast;
    spots fainter than that (above a quarter of it) and apart from the blobs are cut at half their
-   own peak (a dot seen nearly edge-on is a dim sliver: :func:`_add_faint_spots`);
+   own peak and kept where they are slivers (a dot seen nearly edge-on: :func:`_add_faint_spots`);
 4. dot size: given, or the blobs' median long axis (the mask-width guess shrinks in oblique views);
 5. keep blobs whose area (against a dot seen as obliquely as the blob: :func:`foreshortening`),
    axes and fill fit a dot, whose surrounding ring lies on the tape, which do not border a bright
@@ -58,6 +58,7 @@ class BlobParams:
     min_contrast: float = 8.0      # grey levels; weaker "dots" are noise
     min_contrast_to_texture: float = 5.0  # dot contrast / median top-hat over the tape
     faint_share: float = 0.25      # spots above this x the contrast, apart from the dots, are cut at half their own peak (0.5: none)
+    faint_max_axis_ratio: float = 0.5  # ... and kept only as slivers (minor / major axis): a dot seen over 60 deg from face-on
     dot_to_width: float = DEFAULT_DOT_TO_WIDTH
 
 
@@ -458,11 +459,13 @@ def _add_faint_spots(binary: np.ndarray, smooth: np.ndarray, region: np.ndarray,
     """Adds to ``binary`` (bool, in place; the smoothed top-hat ``smooth`` above half the
     region's ``contrast``, in ``region``) each spot of ``region`` brighter than
     ``p.faint_share * contrast`` that lies apart from ``binary``'s blobs (more than a third of
-    the dot size ``d``, so that it never joins one), cut at half its own peak.
+    the dot size ``d``, so that it never joins one), cut at half its own peak, where what is
+    left is a sliver (minor / major axis at most ``p.faint_max_axis_ratio``).
 
     A dot seen nearly edge-on (70-78 deg from face-on) is a sliver a few px wide, on skin that
     the light grazes: its smoothed peak falls under half the face-on dots' contrast, which would
-    lose it whole. Cut at half its own peak, it keeps the outline the blob tests judge."""
+    lose it whole. Cut at half its own peak, it keeps the outline the blob tests judge. A dot seen
+    that obliquely is always a sliver, so a rounder faint spot is something else."""
     if not p.faint_share < 0.5:
         return
     apart = 2 * math.ceil(d / 3) + 1  # a square: OpenCV dilates by it in two 1D passes
@@ -479,7 +482,26 @@ def _add_faint_spots(binary: np.ndarray, smooth: np.ndarray, region: np.ndarray,
     peak = np.zeros(n, np.float32)
     np.maximum.at(peak, lab, smooth[ys, xs])
     bright = smooth[ys, xs] > np.float32(0.5) * peak[lab]
-    binary[ys[bright], xs[bright]] = True
+    ys, xs, lab = ys[bright], xs[bright], lab[bright]
+    sliver = _axis_ratios(ys, xs, lab, n) <= p.faint_max_axis_ratio
+    keep = sliver[lab]
+    binary[ys[keep], xs[keep]] = True
+
+
+def _axis_ratios(ys: np.ndarray, xs: np.ndarray, lab: np.ndarray, n: int) -> np.ndarray:
+    """(n,) minor / major axis of each label's moment ellipse over the pixels (``ys``, ``xs``)
+    labelled ``lab`` (a pixel's own variance 1/12 per axis as the floor; 1 for an empty label)."""
+    fx, fy = xs.astype(np.float64), ys.astype(np.float64)
+    count = np.bincount(lab, minlength=n).astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mx, my = np.bincount(lab, fx, n) / count, np.bincount(lab, fy, n) / count
+        cxx = np.bincount(lab, fx * fx, n) / count - mx * mx
+        cyy = np.bincount(lab, fy * fy, n) / count - my * my
+        cxy = np.bincount(lab, fx * fy, n) / count - mx * my
+        half_gap = np.sqrt(((cxx - cyy) / 2) ** 2 + cxy ** 2)
+        major = np.maximum((cxx + cyy) / 2 + half_gap, 1 / 12)
+        minor = np.maximum((cxx + cyy) / 2 - half_gap, 1 / 12)
+        return np.where(count > 0, np.sqrt(minor / major), 1.0)
 
 
 def _carved_from_larger_area(blobs: "_Blobs", labels: np.ndarray, candidate: np.ndarray, box: tuple[slice, slice],

@@ -171,3 +171,14 @@ def test_a_dim_dot_seen_edge_on_is_found_apart_from_the_face_on_dots_without_mov
     assert len(only_bright) == 3 and not (np.linalg.norm(only_bright - [150, 60], axis=1) < d).any()
     face_on = ~(np.linalg.norm(uv - [150, 60], axis=1) < d)
     assert np.array_equal(uv[face_on], only_bright) and np.array_equal(conf[face_on], conf_bright)
+
+
+def test_a_dim_round_spot_is_not_taken_for_a_dot_seen_edge_on():
+    d = 12.0
+    image, mask = _tape_with_a_dim_edge_on_dot(d, level=110)
+    cv2.circle(image, (200, 95), int(d / 2), 110, -1, cv2.LINE_AA)  # a round blotch of the tape's print, as dim
+    uv, _ = find_dots(image, mask, expected_dot_px=d)
+    assert (np.linalg.norm(uv - [150, 60], axis=1) < 1.0).sum() == 1, "the dim edge-on dot is missed"
+    assert not (np.linalg.norm(uv - [200, 95], axis=1) < d).any(), "a round dim spot passed for an oblique dot"
+    any_shape, _ = find_dots(image, mask, expected_dot_px=d, params=BlobParams(faint_max_axis_ratio=1.0))
+    assert (np.linalg.norm(any_shape - [200, 95], axis=1) < 1.5).sum() == 1  # the sliver test is what refuses it
