@@ -19,7 +19,7 @@ import json
 import platform
 import time
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -37,6 +37,7 @@ from ..synth import SynthConfig
 from ..synth.writer import write_capture
 from ..track.evaluate import evaluate_tracking
 from .detect import match
+from .records import JsonRecord
 
 #: The shifted appearance: red tape on darker skin (the studio-only weights :data:`STUDIO_WEIGHTS`
 #: find about two thirds of its dots; the default lab-mix weights learnt red tape), at the ``lab``
@@ -46,7 +47,7 @@ SEEN_SEED, UNSEEN_SEED = 0, 1
 
 
 @dataclass(frozen=True)
-class DetectionScore:
+class DetectionScore(JsonRecord):
     """The ``net`` detector's dots against a capture's truth (:func:`detection_scores`): recall,
     precision, and the dots found, missed and found where no visible dot is."""
 
@@ -56,12 +57,10 @@ class DetectionScore:
     dots_missed: int
     false_dots: int
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 @dataclass(frozen=True)
-class TrackingScore:
+class TrackingScore(JsonRecord):
     """``track`` of a capture against its truth (:func:`tracking_scores`): mean and 95th
     percentile error, mean error of the observed dots (mm), swapped dot-frames, flagged and
     unsolved frames, and the share of dot-frames observed (0-1)."""
@@ -74,18 +73,14 @@ class TrackingScore:
     unsolved_frames: int
     observed_share: float
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 @dataclass(frozen=True)
-class TrackingFailure:
+class TrackingFailure(JsonRecord):
     """``track`` found no tape: its problem, recorded in the row."""
 
     error: str
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 @dataclass(frozen=True)

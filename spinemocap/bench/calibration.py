@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import platform
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from datetime import date
 from typing import Any, Hashable, Iterable
 
@@ -35,12 +35,13 @@ from spinemocap.rig_adjust import Backend
 
 from ..app.c3d_inputs import read_vicon_wand, write_vicon_wand_c3d
 from .calibration_scenes import make_ring_rig, render_calibration_session, render_wand_calibration, render_wand_wave
+from .records import JsonRecord
 
 BOARD = "charuco:6x5:120"
 
 
 @dataclass(frozen=True)
-class RigErrors:
+class RigErrors(JsonRecord):
     """A calibrated rig against the truth, worst camera of each: focal length (%), camera centre
     (mm) and orientation (deg)."""
 
@@ -48,8 +49,6 @@ class RigErrors:
     centre_mm: float
     rotation_deg: float
 
-    def to_dict(self) -> dict[str, float]:
-        return asdict(self)
 
 
 @dataclass(frozen=True)
@@ -129,7 +128,7 @@ class WandWaveRow:
 
 
 @dataclass(frozen=True)
-class ViconWandRow:
+class ViconWandRow(JsonRecord):
     """The Vicon wand co-registration (:func:`wand_stage`): seed, frames and frames with the whole
     wand identified; the clock offset's error (ms) of the correlation-only peer and of ours; the
     registration's rotation (deg), translation (mm) and scale; the worst marker RMS (mm); seconds
@@ -146,8 +145,6 @@ class ViconWandRow:
     max_marker_rms_mm: float
     seconds: dict[str, float]
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def rig_errors(truth: Rig, estimate: Rig) -> RigErrors:
@@ -250,7 +247,7 @@ def wand_stage(seed: int, tmp_c3d: str) -> ViconWandRow:
 
 
 @dataclass(frozen=True)
-class CalibrationHeadline:
+class CalibrationHeadline(JsonRecord):
     """The worst case over seeds (:func:`headline`): ChArUco (Ceres), checkerboard and wand-wave
     centre (mm) and rotation (deg) errors, the wand length's RMS (mm), the bundle adjustment's
     seconds and errors per backend, Ceres's speed-up over scipy, and the goals met."""
@@ -271,8 +268,6 @@ class CalibrationHeadline:
     ba_speedup_ceres_vs_scipy: float
     goals: dict[str, bool]
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 @dataclass(frozen=True)

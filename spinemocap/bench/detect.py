@@ -45,7 +45,7 @@ import json
 import logging
 import platform
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Literal
 
@@ -62,6 +62,7 @@ from ..synth.appearance import lab_subject
 from ..synth.occluders import segments_blocked_by_spheres
 from ..synth.visibility import rim_points
 from ..timing import StageTimer
+from .records import JsonRecord
 from .tape_free import (
     MAX_FALSE_DOTS_PER_100,
     MAX_REGION_SHARE,
@@ -184,7 +185,7 @@ class DotScore:
 
 
 @dataclass(frozen=True)
-class DotSummary:
+class DotSummary(JsonRecord):
     """A detector's dots against the truth over a test set (:meth:`DotScore.summary`): recall
     over all visible dots and over the unoccluded ones (with their number), recall per view-angle
     bin ("A-B deg" -> recall, None without dots, and dots), precision, centroid RMS and 95th
@@ -201,9 +202,6 @@ class DotSummary:
     false_positives: int
     missed: int
 
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON object: the fields in order."""
-        return asdict(self)
 
 
 def simple_blob_detector(dot_px: float):
@@ -371,7 +369,7 @@ def run_detect_benchmark(sets: list[str] | None = None, scenes: int | None = Non
 
 
 @dataclass(frozen=True)
-class SetResult:
+class SetResult(JsonRecord):
     """One test set with tape: camera images scored and their size (px), the set's preset, blur,
     occlusion and supersampling, scenes and frames per scene, each detector's mask IoU with the
     true tape, each method's dots (:class:`DotSummary`) and the mean ms per camera-frame of each
@@ -389,9 +387,6 @@ class SetResult:
     dots: dict[str, DotSummary]
     time: dict[str, float]
 
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON object: the fields in order."""
-        return asdict(self)
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import time
 import warnings
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Callable, Literal
 
@@ -46,6 +46,7 @@ from ..track.rig_check import CalibrationWarning
 from ..track.rig_refine import ReferenceFitError, RigRefineConfig, refine_rig
 from .detect import HELD_OUT, TEST_SETS
 from .frame_error import shape_error_mm, truth_of
+from .records import JsonRecord
 
 
 @dataclass(frozen=True)
@@ -130,7 +131,7 @@ def flagged_dot_share(table) -> float:
 
 
 @dataclass(frozen=True)
-class TrackerScore:
+class TrackerScore(JsonRecord):
     """One tracker's result on a case against the ground truth (:func:`_score`): mean and 95th
     percentile error (mm), swapped dot-frames, flagged frames and the share of dot-frames flagged
     or missing (0-1), the mean error (mm) and swaps of the dot-frames it vouches for, frames per
@@ -151,9 +152,6 @@ class TrackerScore:
     gate_px: float | None
     ms_per_frame: float | None
 
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON object: the fields in order."""
-        return asdict(self)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TrackerScore:

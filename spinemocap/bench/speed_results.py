@@ -11,18 +11,11 @@ from typing import Any
 
 from ..app.run import TrackingMode
 from ..app.streaming import DetectionRoute, SpeedOptions
+from .records import JsonRecord
 
 
 @dataclass(frozen=True)
-class _JsonRecord:
-    """A result written as one JSON object: its fields in order, nested results as objects."""
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-
-@dataclass(frozen=True)
-class SpeedRun(_JsonRecord):
+class SpeedRun(JsonRecord):
     """One timed run of the benchmark (an entry of ``runs``): its name and frames, ``wall_s``
     (the camera workers' start-up excluded) and ``fps``; CPU seconds per frame of this process
     and its camera workers (``cpu_s_per_frame``), of the tracker's thread and of the workers
@@ -58,7 +51,7 @@ class SpeedRun(_JsonRecord):
 
 
 @dataclass(frozen=True)
-class DecodeSpeed(_JsonRecord):
+class DecodeSpeed(JsonRecord):
     """Decoding alone (:func:`decode_speed`): frames decoded, frames per second (wall) and CPU
     seconds per frame."""
 
@@ -68,7 +61,7 @@ class DecodeSpeed(_JsonRecord):
 
 
 @dataclass(frozen=True)
-class SameAccuracy(_JsonRecord):
+class SameAccuracy(JsonRecord):
     """A run's accuracy against a reference run's (:func:`same_accuracy`): the differences of
     the mean and 95th-percentile errors (mm), both runs' label swaps, and ``same``."""
 
@@ -80,7 +73,7 @@ class SameAccuracy(_JsonRecord):
 
 
 @dataclass(frozen=True)
-class LookaheadComparison(_JsonRecord):
+class LookaheadComparison(JsonRecord):
     """The run detecting ahead of the tracker against the exact serial order
     (:func:`lookahead_numbers`): the frames/s ratio, CPU seconds per frame of each, accuracy not
     worse, the largest distance (mm) between their tracked dots, the share of dots tracked in
@@ -96,7 +89,7 @@ class LookaheadComparison(_JsonRecord):
 
 
 @dataclass(frozen=True)
-class MachineInfo(_JsonRecord):
+class MachineInfo(JsonRecord):
     """The machine a benchmark ran on (:func:`machine_info`)."""
 
     cpu_cores: int | None
@@ -112,7 +105,7 @@ class MachineInfo(_JsonRecord):
 
 
 @dataclass(frozen=True)
-class DeviceDots(_JsonRecord):
+class DeviceDots(JsonRecord):
     """Dots found with the network on the CPU and on another device (:func:`dots_on_devices`):
     camera images, dots per side, dots of one side with no dot of the other within the match
     distance, the largest distance (px) between matched dots, mask pixels that differ, and images
@@ -128,7 +121,7 @@ class DeviceDots(_JsonRecord):
     images_identical: int
 
 
-def _flattened(record: _JsonRecord, nested: str) -> dict[str, Any]:
+def _flattened(record: JsonRecord, nested: str) -> dict[str, Any]:
     """``record``'s fields as a JSON object, the keys of its field ``nested`` (a result or None)
     in that field's place."""
     out: dict[str, Any] = {}
@@ -141,7 +134,7 @@ def _flattened(record: _JsonRecord, nested: str) -> dict[str, Any]:
 
 
 @dataclass(frozen=True)
-class RenderedSpeed(_JsonRecord):
+class RenderedSpeed(JsonRecord):
     """``bench speed`` on a rendered studio scene (:func:`run_speed_benchmark`): the scene and
     options, the frames/s from PNG, lossless video and memory, the speedups and CPU ratio over
     the serial pipeline with accuracy not worse, the lookahead comparison (when it ran),
@@ -179,7 +172,7 @@ class RenderedSpeed(_JsonRecord):
 
 
 @dataclass(frozen=True)
-class ReplayedSpeed(_JsonRecord):
+class ReplayedSpeed(JsonRecord):
     """``bench speed --capture`` (:func:`run_replay_benchmark`): the capture replayed and the
     options, the device, frames/s in memory (and from video), the speedups over the serial
     pipeline, the CPU and the pipeline's defaults with accuracy not worse or the same, the

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +26,7 @@ from ..capture import Capture
 from ..fileio import read_toml
 from ..synth import SynthConfig, write_capture
 from ..timebase import CameraClock, pair_cameras
+from .records import JsonRecord
 
 GOAL_MS = 1.0  # |offset error| on 100 frames/s cameras
 # name -> the studio settings that differ from the tiny preset's
@@ -39,7 +40,7 @@ SCENARIOS: dict[str, dict] = {
 
 
 @dataclass(frozen=True)
-class OffsetErrors:
+class OffsetErrors(JsonRecord):
     """One estimate of a capture's offsets against the truth (per camera, in the capture's camera
     order): the estimated offsets, their errors and standard errors (ms), the largest error on the
     100 fps cameras other than the reference (None: no such camera) and on all (ms), which cameras
@@ -53,8 +54,6 @@ class OffsetErrors:
     found: list[bool]
     pairs_as_truth: float
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 @dataclass(frozen=True)

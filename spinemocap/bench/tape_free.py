@@ -20,14 +20,15 @@ image: the goal is <= 1 false dot per 100 images and no region above 0.1 % of it
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
-from typing import Any, Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Callable, Iterator
 
 import cv2
 import numpy as np
 
 from ..detect.blobs import labelled_components
 from ..synth.rooms import paint_room
+from .records import JsonRecord
 
 # skimage.data loaders whose files ship inside the package (no download)
 SKIMAGE_IMAGES = ("astronaut", "brick", "camera", "cell", "chelsea", "checkerboard", "clock", "coffee", "coins",
@@ -124,7 +125,7 @@ class TapeFreeScore:
 
 
 @dataclass(frozen=True)
-class TapeFreeSummary:
+class TapeFreeSummary(JsonRecord):
     """One detector over the tape-free images (:meth:`TapeFreeScore.summary`): images, false dots
     (in all and per 100 images), images with any dot, the largest tape region's share of its image
     (0-1) and the images whose region is above :data:`MAX_REGION_SHARE`, whether the goal is met,
@@ -140,9 +141,6 @@ class TapeFreeSummary:
     ms_per_image: float
     worst: list[tuple[str, int, float]]
 
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON object: the fields in order."""
-        return asdict(self)
 
 
 def largest_region_share(mask: np.ndarray) -> float:
@@ -210,7 +208,7 @@ def tape_dots(rng: np.random.Generator) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class LatticeScore:
+class LatticeScore(JsonRecord):
     """The lattice test on random views (:func:`score_lattice`): views of each kind, wall-bar
     grids and tapes it accepts (any dot kept), and the share of the tapes' dots it keeps (0-1)."""
 
@@ -219,8 +217,6 @@ class LatticeScore:
     tapes_accepted: int
     tape_dots_kept: float
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def score_lattice(n: int, seed: int = LATTICE_SEED) -> LatticeScore:

@@ -12,9 +12,8 @@ import os
 import resource
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -26,6 +25,8 @@ from spinemocap.camera import Camera, Rig
 from spinemocap.capture import Capture
 from spinemocap.markers import MarkerTable
 from spinemocap.tape import TapeSpec
+
+from .records import JsonRecord
 
 
 def made_capture(root: Path, width: int, height: int, n_cameras: int, n_frames: int) -> tuple[Path, Path]:
@@ -58,7 +59,7 @@ def cpu_seconds() -> float:
 
 
 @dataclass(frozen=True)
-class ViewRun:
+class ViewRun(JsonRecord):
     """One run of ``bench view`` (:func:`run_benchmark`): the capture (its folder, or the made one's
     WIDTHxHEIGHTxCAMERAS) and the run's number; capture frames and cameras written, the video sizes
     (px), wall seconds and capture frames per second of the videos, their CPU seconds (this
@@ -78,9 +79,6 @@ class ViewRun:
     video_MiB: float
     load_1min: float
 
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON object the command prints: the fields in order."""
-        return asdict(self)
 
 
 def run(capture: Path, results: Path, out: Path, scale: float | None, label: str | None = None,
