@@ -21,7 +21,7 @@ PACKAGES = ("spinemocap", "calibration", "exporters")
 # core: small modules of shared types and helpers; they import only each other
 CORE = {f"spinemocap.{name}" for name in
         ("version", "camera", "tape", "markers", "capture", "media", "timebase", "views", "geometry", "fileio", "timing",
-         "skin", "reference", "frames", "rig_adjust")}
+         "skin", "reference", "frames", "rig_adjust", "anatomy")}
 # unit (module prefix) -> layer
 UNITS = {
     "spinemocap.detect": "domain",

@@ -33,7 +33,7 @@ from ..app.batch import run_batch
 from ..app.run import TrackingMode
 from ..markers import MarkerTable
 from ..synth import SynthConfig, build_scene
-from ..synth.body import SPINE_BONES
+from ..synth.body import SPINE_BONES, JointDepth
 from ..tape import TapeSpec
 
 MOTIONS = ("flexion", "lateral", "rotation")
@@ -143,13 +143,15 @@ def mid_bone_rows(row_heights: np.ndarray, joint_heights: np.ndarray) -> tuple[i
 
 
 def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0,
-                  realism: str | None = None) -> dict:
+                  realism: str | None = None, joint_depth: JointDepth = "anny") -> dict:
     """Ground-truth dots of a studio motion (no rendering), the applied angles, the benchmark
     rows, the rows' nearest vertebral levels and the scene (to render and track it);
-    ``realism``: the studio's level (None: ``SynthConfig``'s default)."""
+    ``realism``: the studio's level (None: ``SynthConfig``'s default); ``joint_depth``: where the
+    studio's spine bends under the skin (:data:`spinemocap.synth.body.JointDepth`)."""
 
     levels = {} if realism is None else {"realism": realism}
-    config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed, **levels)
+    config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed,
+                                joint_depth=joint_depth, **levels)
     scene = build_scene(config)
     dots = np.array([scene.frame_dots(f) for f in range(scene.n_frames)])  # the studio's truth, skin strain included
     graph = scene.tape.graph

@@ -46,6 +46,7 @@ import numpy as np
 from ..opensim.pipeline import slip_solved_as
 from ..opensim.skin_model import SlipFromTape
 from ..opensim.tools import OBSERVED_SD_MM
+from ..synth.body import JointDepth
 
 MOTIONS = ("flexion", "lateral", "rotation", "mixed")
 AXES = ("flexion", "lateral", "rotation")
@@ -65,20 +66,23 @@ IK_METHODS: dict[str, dict[str, Any]] = {"ik": {}, "ik_slip_goal": _slip_method(
                                          "ik_slip_from_markers": _slip_method("off"), "ik_one_start": ONE_START,
                                          "ik_rigid": RIGID}
 METHODS = (*IK_METHODS, "geometric")
-BODY_MODEL_DEPTH = "the studio body's spine joints (anny) under the tape rows, static trial"
+BODY_MODEL_DEPTH = "the studio body's spine joints under the tape rows, static trial"
 
 
 def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[str] = ("groundtruth", "tracked"),
                           frames: int = 100, fps: float = 100 / 3, rows: int = 13, tracked_frames: int | None = None,
                           cache: Path | None = None, progress: bool = True, realism: str = "lab",
                           seeds: Sequence[int] = (0,), accuracy: float | None = None,
-                          methods: Sequence[str] = tuple(IK_METHODS)) -> OpenSimBenchReport:
+                          methods: Sequence[str] = tuple(IK_METHODS),
+                          joint_depth: JointDepth = "anny") -> OpenSimBenchReport:
     """Every (seed, motion, source) scored (see the module docstring; runs keyed
     ``<motion>/seed<seed>``), the headline numbers and the goals; ``cache``: folder to keep and
     reuse the tracked markers; ``realism``: the studio's level (``lab``: tension, skin strain,
     tracking through the lab's inexact rig); ``accuracy``: the IK solver accuracy of every IK
     method (:attr:`spinemocap.opensim.OpenSimSettings.accuracy`; None = each method's own);
-    ``methods``: the IK methods to run (keys of :data:`IK_METHODS`; the geometric peer always runs)."""
+    ``methods``: the IK methods to run (keys of :data:`IK_METHODS`; the geometric peer always runs);
+    ``joint_depth``: where the studio's spine bends under the skin
+    (:data:`spinemocap.synth.body.JointDepth`)."""
     from ..fileio import InputError
 
     unknown = sorted(set(methods) - set(IK_METHODS))
@@ -96,11 +100,11 @@ def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[st
     for seed, motion, source in tqdm(jobs, desc="subjects x motions x sources", disable=not progress):
         n = (tracked_frames or frames) if source == "tracked" else frames
         results[source][f"{motion}/seed{seed}"] = bench_motion(motion, source, n, fps, rows, progress, cache,
-                                                               realism, seed, accuracy, methods)
+                                                               realism, seed, accuracy, methods, joint_depth)
     return OpenSimBenchReport(
         machine=f"{platform.machine()} {platform.processor() or ''}".strip(), date=time.strftime("%Y-%m-%d"),
         realism=realism, ik_accuracy=accuracy, methods=[*methods, "geometric"], headline=headline(results),
-        sources=results, wall_s=round(time.time() - started, 1))
+        sources=results, wall_s=round(time.time() - started, 1), joint_depth=joint_depth)
 
 
 @dataclass(frozen=True)
@@ -139,7 +143,7 @@ class OpenSimBenchReport:
     """``bench opensim``'s numbers (:func:`run_opensim_benchmark`): the machine, date, realism
     level, IK solver accuracy (None: each method's own) and methods run; the headline per marker
     source and method; every run's scores (source -> ``<motion>/seed<seed>`` -> method -> the
-    numbers :func:`bench_motion` gives) and the wall seconds."""
+    numbers :func:`bench_motion` gives), the wall seconds and the studio's joint depth."""
 
     machine: str
     date: str
@@ -149,6 +153,7 @@ class OpenSimBenchReport:
     headline: dict[str, dict[str, MethodHeadline]]
     sources: dict[str, dict[str, dict[str, Any]]]
     wall_s: float
+    joint_depth: str = "anny"
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON object (the goals after the date)."""
@@ -156,7 +161,7 @@ class OpenSimBenchReport:
                 "ik_accuracy": self.ik_accuracy, "methods": self.methods,
                 "headline": {source: {method: row.to_dict() for method, row in table.items()}
                              for source, table in self.headline.items()},
-                "sources": self.sources, "wall_s": self.wall_s}
+                "sources": self.sources, "wall_s": self.wall_s, "joint_depth": self.joint_depth}
 
 
 def headline(results: dict) -> dict[str, dict[str, MethodHeadline]]:
@@ -190,7 +195,8 @@ def headline(results: dict) -> dict[str, dict[str, MethodHeadline]]:
 
 def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, progress: bool,
                  cache: Path | None = None, realism: str = "lab", seed: int = 0,
-                 accuracy: float | None = None, methods: Sequence[str] = tuple(IK_METHODS)) -> dict:
+                 accuracy: float | None = None, methods: Sequence[str] = tuple(IK_METHODS),
+                 joint_depth: JointDepth = "anny") -> dict:
     """One studio motion of one subject (``seed``) from one marker source: the IK ``methods``
     (:data:`IK_METHODS`; solver ``accuracy``) and the geometric angles scored."""
     from ..analysis.angles import AngleSettings, compute_angles
@@ -199,11 +205,12 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     from ..opensim import OpenSimSettings, run_opensim
     from .analysis import HIGH, LOW, expected_between_rows, studio_motion
 
-    data = studio_motion(motion, frames, fps, rows, seed=seed, realism=realism)
+    data = studio_motion(motion, frames, fps, rows, seed=seed, realism=realism, joint_depth=joint_depth)
     tape = data["tape"]
     if source == "tracked":
+        depth = "" if joint_depth == "anny" else f"_{joint_depth}"
         markers = tracked_markers(data["scene"], progress,
-                                  cache and cache / f"markers_{motion}_{frames}_{fps:.4g}_{realism}_seed{seed}.csv")
+                                  cache and cache / f"markers_{motion}_{frames}_{fps:.4g}_{realism}{depth}_seed{seed}.csv")
     else:
         markers = MarkerTable.from_arrays(data["labels"], data["dots"], fps=fps)
     applied = data["applied"] - data["applied"][0]

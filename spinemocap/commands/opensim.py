@@ -117,6 +117,9 @@ def register_bench(subparsers) -> None:
     p.add_argument("--realism", default="lab", choices=("ideal", "skin", "lab"),
                    help="studio realism level (default lab: tape tension, skin strain, the lab's inexact rig)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="studio subjects (seeds), default 0")
+    p.add_argument("--joint-depth", default="anny", choices=("anny", "anatomical"),
+                   help="where the studio's spine bends under the skin: anny (the body model's joints; default) or "
+                        "anatomical (the published depth of the vertebral bodies; see spinemocap synth --help)")
     p.add_argument("--accuracy", type=float, help="IK solver accuracy of every IK method (default: the pipeline's)")
     p.add_argument("--methods", nargs="+",
                    help="IK methods to run (default all; the geometric peer always runs): ik = the pipeline, "
@@ -137,10 +140,10 @@ def run_bench(args: argparse.Namespace) -> int:
 
     report = run_opensim_benchmark(args.motions, args.sources, args.frames, args.fps, args.rows,
                                    args.tracked_frames, args.cache, not args.no_progress, realism=args.realism,
-                                   seeds=args.seeds, accuracy=accuracy, methods=methods)
+                                   seeds=args.seeds, accuracy=accuracy, methods=methods, joint_depth=args.joint_depth)
     command = " ".join(
         ["spinemocap bench opensim", f"--frames {args.frames}", f"--fps {args.fps:.4g}", f"--rows {args.rows}",
-         f"--realism {args.realism}",
+         f"--realism {args.realism}", f"--joint-depth {args.joint_depth}",
          "--motions " + " ".join(args.motions), "--sources " + " ".join(args.sources),
          "--seeds " + " ".join(str(s) for s in args.seeds)]
         + ([f"--accuracy {accuracy:g}"] if accuracy is not None else []) + ["--methods " + " ".join(methods)]

@@ -18,6 +18,7 @@ TAPE_FINISH_NAMES = ("smooth", "weave", "printed")
 SKIN_MARK_NAMES = ("hair", "freckles", "moles", "sweat", "tattoo")
 CLOTHING_NAMES = ("shorts", "bra_strap")
 CODEC_NAMES = ("none", "jpeg", "h264", "h265")
+JOINT_DEPTH_NAMES = ("anny", "anatomical")  # spinemocap.synth.body.JOINT_DEPTHS
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -125,6 +126,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="the perforated roll: standard (10 mm holes, rows 25 mm apart, columns 15 mm; default), "
                         "small_holes (7 mm), large_holes (12 mm), close_rows (20 mm rows, 14 mm columns) or wide_rows "
                         "(30 mm rows, 16 mm columns); capture.toml gives the tracker the roll's layout")
+    p.add_argument("--joint-depth", choices=JOINT_DEPTH_NAMES,
+                   help="where the spine bends under the skin: anny (the body model's joints, 28-40 mm under the back; "
+                        "default) or anatomical (moved to the published depth of the vertebral bodies, 53-76 mm, so that "
+                        "the skin's slide over the vertebrae in flexion takes a real back's share)")
     p.add_argument("--tape-finish", choices=TAPE_FINISH_NAMES,
                    help="the tape's surface: smooth (default), weave (cotton weave) or printed (stripes, camouflage or "
                         "lettering in a contrasting ink)")
@@ -180,7 +185,7 @@ def config_from_args(args: argparse.Namespace):
         "camera_look": args.camera_look,
         "tape_roll": args.tape_roll, "tape_finish": args.tape_finish, "skin_marks": args.skin_marks,
         "clothing": args.clothing, "rolling_shutter_ms": args.rolling_shutter, "camera_codec": args.camera_codec,
-        "phenotype": phenotype or None, "name": args.out.name,
+        "phenotype": phenotype or None, "joint_depth": args.joint_depth, "name": args.out.name,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}
     if args.balls is not None:

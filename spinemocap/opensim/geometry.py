@@ -7,7 +7,7 @@ right). All arrays in this module after :func:`to_opensim` are in that frame, st
 Geometry (:func:`spine_geometry`): the static tape's midline (row centres, a cubic in arc length)
 gives the skin point of every vertebral level the level map places; levels beyond the map are
 continued along the midline's end tangent with the generic centre spacings of
-:mod:`spinemocap.opensim.anatomy`, scaled by the ratio of the tape's arc length between the
+:mod:`spinemocap.anatomy`, scaled by the ratio of the tape's arc length between the
 outermost mapped vertebrae to the generic spacing between them. Each vertebral body centre sits
 ``skin_depth x scale`` in front of its skin point, along the anterior axis of the subject's
 sagittal plane. That plane is the tape's own (:func:`tape_front`: tangent x L->R, horizontal),
@@ -27,9 +27,9 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
+from ..anatomy import ANATOMY, VERTEBRAE, centre_spacing, skin_depth
 from ..fileio import InputError
 from ..tape import TapeSpec
-from .anatomy import ANATOMY, VERTEBRAE, centre_spacing, skin_depth
 
 # caudal -> cranial: the model's chain of vertebral bodies (the pelvis carries S1)
 CHAIN = tuple(reversed(VERTEBRAE))  # S1, L5, ..., T1

@@ -16,7 +16,7 @@ Zero is the static trial's posture (the model is built in it). Only joints the t
 carry coordinates: a joint gets them when tape markers sit on bodies both below and above it;
 the others are ``WeldJoint`` s (a locked coordinate still costs IK time; a weld costs nothing).
 Coupling (``CoordinateCouplerConstraint`` s with the ratios of the published ranges of motion,
-:mod:`spinemocap.opensim.anatomy`), see :func:`plan_model`: by default only a vertebra the tape
+:mod:`spinemocap.anatomy`), see :func:`plan_model`: by default only a vertebra the tape
 cannot resolve on its own (no full row of dots over it) has its rotations coupled to its
 neighbour's; ``coupling="region"`` couples every level's lateral bending and axial rotation per
 region (lumbar: L5/S1 ... T12/L1; thoracic: T11/T12 ... C7/T1) as the published lumbar and
@@ -25,7 +25,7 @@ get a weak prior toward the static posture in the IK set-up
 (:func:`spinemocap.opensim.pipeline._priors`).
 
 Ranges: every driven coordinate is clamped to :data:`RANGE_FACTOR` x the published range of its
-motion segment (:mod:`spinemocap.opensim.anatomy`): inverse kinematics cannot leave it.
+motion segment (:mod:`spinemocap.anatomy`): inverse kinematics cannot leave it.
 
 Skin: a tape row that slips (:mod:`spinemocap.opensim.skin_model`) carries its markers on a body
 ``R06_skin`` joined to its vertebra by ``R06_skin_slip_joint``, a translation along the vertebra's
@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .anatomy import ANATOMY
+from ..anatomy import ANATOMY
 from .geometry import HEAD_NECK, SpineGeometry
 from .skin_model import SlipPrior, prior_text, skin_body, slip_coordinate
 

@@ -16,7 +16,7 @@ renamed into place at the end):
 
 Steps: the static trial (first frames, or a separate trial) fixes the tape's rows; the declared
 facing is checked against the tape (:func:`geometry.check_facing`); the joint centres sit at the
-published skin-to-vertebral-body depths (:mod:`anatomy`) scaled to the subject by the tape, times
+published skin-to-vertebral-body depths (:mod:`spinemocap.anatomy`) scaled to the subject by the tape, times
 ``settings.depth_scale`` (a measured depth, e.g. from imaging or a body model, enters there and is
 named by ``settings.depth_source``); every row's in-plane tilt is kept at its static angle and the
 rows above the pinned ones slip along their vertebrae, each slip held in every frame at the one the
@@ -108,7 +108,7 @@ FLAG_MAX_MM = 10.0
 FLAG_MIN_MARKERS = 6
 LIMIT_MARGIN_DEG = 0.05
 SLIP_GOALS = "skin_slip_goals.sto"  # the slip coordinates' goal per frame (m), setup_ik.xml's coordinate file
-PUBLISHED_DEPTHS = "published skin-to-vertebral-body depths (spinemocap/opensim/anatomy.py) scaled to the tape"
+PUBLISHED_DEPTHS = "published skin-to-vertebral-body depths (spinemocap/anatomy.py) scaled to the tape"
 SIGN = {"extension": -1.0, "lateral_bending": 1.0, "axial_rotation": 1.0}  # OpenSim -> project
 PROJECT_NAME = {"extension": "flexion", "lateral_bending": "lateral", "axial_rotation": "rotation"}
 # IK accuracy and fresh-start margin (OpenSimSettings) per use of the slip the tape shows. The solver

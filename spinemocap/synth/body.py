@@ -10,22 +10,40 @@ axes about the bone's head. Each of the five bones takes one fifth of the comman
 angles recorded as ground truth are measured back from the posed skeleton (see
 :func:`spine_angles_from_rotation`), so they are exact even where the per-bone split composes to
 slightly different totals.
+
+Where the spine bends under the skin (:data:`JointDepth`): at anny's own joints, or at joints
+moved forward to the published depth of the vertebral bodies, where the rigid part of the back
+skin's lengthening in flexion (depth x angle) takes a real back's share and the skin's slide over
+the vertebrae is the smaller rest.
 """
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
+from typing import Literal
 
 import numpy as np
 
-from ..skin import SURFACE_LEVELS, anny_model, surface_level_heights
+from ..anatomy import VERTEBRAE, centre_spacing, skin_depth
+from ..skin import SURFACE_LEVELS, anny_model, cast_onto_skin, surface_level_heights
 
 log = logging.getLogger(__name__)
 
 SPINE_BONES = ("spine05", "spine04", "spine03", "spine02", "spine01")
 PHENOTYPE_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")
 ANGLE_NAMES = ("flexion", "lateral_bending", "axial_rotation")
+
+#: Where the studio's spine bends under the skin: ``anny`` (anny's own joints, 28-40 mm under the
+#: back skin, shallower than a real back's vertebral bodies) or ``anatomical`` (each spine joint
+#: moved forward to the published skin-to-vertebral-body depth of its level, 53-76 mm on a generic
+#: adult, scaled to the body; :meth:`Body.anatomical_joint_depths`).
+JointDepth = Literal["anny", "anatomical"]
+JOINT_DEPTHS: tuple[JointDepth, ...] = ("anny", "anatomical")
+# the anthropometry table's column from the sacrum up, and the surface levels it lacks
+ANATOMY_LEVELS = tuple(reversed(VERTEBRAE))
+ANATOMY_ALIAS = {"S2": "S1", "C7": "T1"}
 
 # Vertebral levels from the sacrum (S2) to the vertebra prominens (C7): the core's one level table,
 # placed on anny from published surface anatomy by :func:`spinemocap.skin.surface_level_heights`
@@ -73,19 +91,31 @@ def spine_angles_from_rotation(R: np.ndarray) -> np.ndarray:
 class Body:
     """An anny body of one phenotype: rest mesh, spine chain and posing. Lengths in mm."""
 
-    def __init__(self, phenotype: dict[str, float] | None = None):
+    def __init__(self, phenotype: dict[str, float] | None = None, joint_depth: JointDepth = "anny"):
         import torch
 
-        self.model = anny_model()
+        if joint_depth not in JOINT_DEPTHS:
+            raise ValueError(f"unknown joint depth {joint_depth!r} (choose from {list(JOINT_DEPTHS)})")
+        # a body that moves its joints edits its own copy of the shared model (50 MB, 0.2 s)
+        self.model = anny_model() if joint_depth == "anny" else copy.deepcopy(anny_model())
         self.phenotype = {k: 0.5 for k in PHENOTYPE_KEYS}
         self.phenotype.update(phenotype or {})
+        self.joint_depth = joint_depth
         self.bone_labels = list(self.model.bone_labels)
         self._spine_index = [self.bone_labels.index(b) for b in SPINE_BONES]
         self._torch = torch
         self._top = self.bone_labels.index(SPINE_BONES[-1])
+        self._set_rest()
+        if joint_depth == "anatomical":
+            # the rest mesh moves by ~1-2 mm when the joints do, so a second pass meets the target
+            for _ in range(2):
+                self._deepen_spine_joints(np.maximum(self.anatomical_joint_depths() - self.spine_joint_depths(), 0.0))
+
+    def _set_rest(self) -> None:
+        """The rest pose from the model as it stands: mesh, faces, bone heads (mm, studio frame)."""
         # The neutral pose (identity deltas = anny's reference pose, arms down) is the "rest"
         # pose of the studio: the tape is laid on it and angles are measured from it.
-        with torch.no_grad():
+        with self._torch.no_grad():
             out = self._forward(np.zeros((1, 3)))
         neutral = out["vertices"][0].double().numpy() * 1000.0
         self.floor_offset = np.array([0.0, 0.0, -neutral[:, 2].min()])
@@ -94,6 +124,14 @@ class Body:
         heads = out["bone_poses"][0, :, :3, 3].double().numpy() * 1000.0 + self.floor_offset
         self.rest_bone_heads = {name: heads[i] for i, name in enumerate(self.bone_labels)}
         self._neutral_top = out["bone_poses"][0, self._top, :3, :3].double().numpy()
+
+    def _deepen_spine_joints(self, forward_mm: np.ndarray) -> None:
+        """Move the heads of :data:`SPINE_BONES` forward (``-Y``) by ``forward_mm`` (5,) mm in the
+        model's template, so that the spine bends about them, and rebuild the rest pose."""
+        heads = self.model.template_bone_heads.clone()  # metres
+        heads[self._spine_index, 1] -= self._torch.as_tensor(forward_mm / 1000.0, dtype=heads.dtype)
+        self.model.template_bone_heads = heads
+        self._set_rest()
 
     # ------------------------------------------------------------------ posing
     def _pose_parameters(self, angles_deg: np.ndarray):
@@ -140,6 +178,25 @@ class Body:
         the ``neck01`` head (cervico-thoracic junction)."""
         names = list(SPINE_BONES) + ["neck01"]
         return np.array([self.rest_bone_heads[n] for n in names])
+
+    def spine_joint_depths(self) -> np.ndarray:
+        """(5,) depth (mm) of each :data:`SPINE_BONES` head under the back skin at rest: from the
+        joint backward (``+Y``) to the first skin met coming from behind."""
+        heads = np.array([self.rest_bone_heads[n] for n in SPINE_BONES])
+        behind = heads + np.array([0.0, 100.0, 0.0])  # the ray runs from 200 mm behind the joint to it
+        _, hits = cast_onto_skin(self.rest_vertices, self.faces, behind, np.tile([0.0, -1.0, 0.0], (len(heads), 1)))
+        return hits[:, 1] - heads[:, 1]
+
+    def anatomical_joint_depths(self) -> np.ndarray:
+        """(5,) published skin-to-vertebral-body-centre depth (mm, :func:`spinemocap.anatomy.skin_depth`)
+        of the vertebra at each :data:`SPINE_BONES` head's rest height (S2 counts as S1, C7 as T1),
+        scaled to this body by its S1-T1 height over the generic column's S1-T1 centre distance."""
+        heights = self.level_heights()
+        generic = sum(centre_spacing(upper, lower) for lower, upper in zip(ANATOMY_LEVELS[:-1], ANATOMY_LEVELS[1:]))
+        scale = (heights["T1"] - heights["S1"]) / generic
+        names = [ANATOMY_ALIAS.get(level, level) for level in
+                 (self.nearest_level(self.rest_bone_heads[n][2]) for n in SPINE_BONES)]
+        return scale * np.array([skin_depth(name) for name in names])
 
     def level_heights(self) -> dict[str, float]:
         """Rest height z (mm) of each vertebral level in :data:`LEVELS`: S2 at the PSIS, C7 at

@@ -38,7 +38,7 @@ from .appearance import (
     roll_layout,
     room_view,
 )
-from .body import ANGLE_NAMES, LEVELS, PHENOTYPE_KEYS, Body
+from .body import ANGLE_NAMES, JOINT_DEPTHS, LEVELS, PHENOTYPE_KEYS, Body, JointDepth
 from .lab_errors import clock_offsets_s, perturb_rig
 from .motions import MOTIONS, spine_motion
 from .occluders import (
@@ -122,7 +122,9 @@ class SynthConfig:
     the random lens distortion (0 = ideal pinhole); ``skin_tone`` runs from 0 (light) to 1
     (dark), None picks one from the seed; ``phenotype`` holds anny's parameters in [0, 1]
     (anny's convention: gender 0 = male .. 1 = female; age 0 = newborn .. 0.5 = young adult ..
-    1 = old; muscle, weight, height, proportions; ``sex`` is an alias of gender).
+    1 = old; muscle, weight, height, proportions; ``sex`` is an alias of gender); ``joint_depth``
+    where the spine bends under the skin (:data:`spinemocap.synth.body.JointDepth`: anny's joints,
+    or moved to the published depth of the vertebral bodies).
     ``tape_start``: the vertebral level (S2..T1) of the tape's first row, S1 by default; ``rows``
     None picks the smallest odd count that passes the T12/L1 junction by
     :data:`ROWS_PAST_THORACOLUMBAR` rows on this body (at rest, with the tension), fewer (at
@@ -204,6 +206,7 @@ class SynthConfig:
     clothing: tuple[str, ...] = ()  # occluders.CLOTHING_ITEMS
     rolling_shutter_ms: float | None = None  # every camera's readout (None: the camera look's)
     camera_codec: str | None = None  # appearance.CODECS for every camera (None: the camera look's)
+    joint_depth: JointDepth = "anny"  # body.JOINT_DEPTHS: where the spine bends under the skin
 
     def __post_init__(self) -> None:
         self.size = (int(self.size[0]), int(self.size[1]))
@@ -242,6 +245,8 @@ class SynthConfig:
             problems.append("noise and distortion must be >= 0")
         if self.skin_tone is not None and not 0 <= self.skin_tone <= 1:
             problems.append(f"skin_tone must lie in [0, 1] (got {self.skin_tone})")
+        if self.joint_depth not in JOINT_DEPTHS:
+            problems.append(f"unknown joint depth {self.joint_depth!r} (choose from {list(JOINT_DEPTHS)})")
         unknown = set(self.phenotype) - set(PHENOTYPE_KEYS)
         if unknown:
             problems.append(f"unknown phenotype keys {sorted(unknown)} (known: {list(PHENOTYPE_KEYS)} and 'sex')")
@@ -382,23 +387,25 @@ class SceneFrameSource:
 
 
 @functools.lru_cache(maxsize=4)
-def cached_body(phenotype: tuple) -> Body:
-    """One :class:`Body` per phenotype and process (posing is cheap, building is not)."""
-    return Body(dict(phenotype))
+def cached_body(phenotype: tuple, joint_depth: JointDepth = "anny") -> Body:
+    """One :class:`Body` per phenotype, joint depth and process (posing is cheap, building is not)."""
+    return Body(dict(phenotype), joint_depth)
 
 
 @functools.lru_cache(maxsize=4)
-def cached_back_chart(phenotype: tuple) -> BackChart:
+def cached_back_chart(phenotype: tuple, joint_depth: JointDepth = "anny") -> BackChart:
     """The taut strip's chart over a body's back, cached: it casts ~20k rays (seconds)."""
-    return back_chart(cached_body(phenotype))
+    return back_chart(cached_body(phenotype, joint_depth))
 
 
 @functools.lru_cache(maxsize=8)
 def cached_tape_on_skin(phenotype: tuple, rows: int | None, start_level: str,
-                        tension: TapeTension | None = None, roll: str = "standard") -> TapeOnSkin:
+                        tension: TapeTension | None = None, roll: str = "standard",
+                        joint_depth: JointDepth = "anny") -> TapeOnSkin:
     """The tape of the :data:`~spinemocap.synth.appearance.TAPE_ROLLS` ``roll`` laid on a body
     (cached); ``rows`` None: enough rows to pass T12/L1 by :data:`ROWS_PAST_THORACOLUMBAR` rows."""
-    body, chart, tension = cached_body(phenotype), cached_back_chart(phenotype), tension or TapeTension()
+    body, chart = cached_body(phenotype, joint_depth), cached_back_chart(phenotype, joint_depth)
+    tension = tension or TapeTension()
     layout = roll_layout(roll)
     if rows is None:
         probe = TapeSpec(n_rows=1, thickness_mm=SYNTH_TAPE_THICKNESS_MM, **layout)
@@ -415,10 +422,11 @@ class Scene:
         self.config = config
         self.rng_seed = int(config.seed)
         rng = np.random.default_rng([self.rng_seed, 1])
-        self.body = cached_body(tuple(sorted(config.phenotype.items())))
+        phenotype = tuple(sorted(config.phenotype.items()))
+        self.body = cached_body(phenotype, config.joint_depth)
         tension = TapeTension(config.tape_tension, self.rng_seed) if config.tape_tension else TapeTension()
-        self.tape_on_skin = cached_tape_on_skin(tuple(sorted(config.phenotype.items())), config.rows, config.tape_start,
-                                                tension, config.tape_roll)
+        self.tape_on_skin = cached_tape_on_skin(phenotype, config.rows, config.tape_start, tension, config.tape_roll,
+                                                config.joint_depth)
         self.tape = self.tape_on_skin.spec
         self.skin = SkinStrain.for_subject(self.rng_seed, config.realism_setting("skin_strain"))
         self.labels: list[str] = list(self.tape.labels)

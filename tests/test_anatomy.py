@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spinemocap.opensim.anatomy import ANATOMY, centre_spacing, skin_depth
+from spinemocap.anatomy import ANATOMY, centre_spacing, skin_depth
 
 LEVELS = [f"T{k}" for k in range(1, 13)] + [f"L{k}" for k in range(1, 6)] + ["S1"]
 
