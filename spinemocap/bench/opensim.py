@@ -83,8 +83,7 @@ def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[st
 
     unknown = sorted(set(methods) - set(IK_METHODS))
     if unknown:
-        raise InputError("spinemocap bench opensim --methods", f"unknown IK methods {unknown}: choose from "
-                                                               f"{' '.join(IK_METHODS)}")
+        raise InputError("methods", f"unknown IK methods {unknown}: choose from {' '.join(IK_METHODS)}")
     from tqdm import tqdm
 
     from ..opensim import require_opensim
