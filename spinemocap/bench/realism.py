@@ -1,7 +1,7 @@
 """The realism benchmark (``spinemocap bench realism``): the tracker on a studio as hard
-as a real back, one factor at a time and all together at the ``lab`` level, beside the tracker
-as it was before (the roll's nominal dot spacing, the fixed 2 px candidate gate, no label
-continuity check: :meth:`TrackerConfig.nominal_unchecked`) on the very same rendered frames.
+as a real back, one factor at a time and all together at the ``lab`` level, beside its peer, the
+tracker without its adaptations (the roll's nominal dot spacing, the fixed 2 px candidate gate, no
+label continuity check: :meth:`TrackerConfig.nominal_unchecked`), on the very same rendered frames.
 
 Each case renders the ``artificial`` preset (4 cameras, light occlusion unless told) with the
 shipped detector, tracks it in sequence mode with both trackers and scores them against the
