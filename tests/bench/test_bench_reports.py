@@ -8,9 +8,11 @@ import dataclasses
 import numpy as np
 import pytest
 
+from spinemocap.app.wand_wave import RegistrationErrors
 from spinemocap.bench.bodyfit import BodyFitBenchmark, BodyFitRun, CrossValNumbers, DotErrors, dot_errors, format_report
 from spinemocap.bench.sync import CaptureSync, OffsetErrors, SyncNumbers
 from spinemocap.bench.sync import format_table as sync_table
+from spinemocap.bench.vicon_wand import NOT_FILMABLE, CrossValRegistration, WandLevel, WandRegistration
 from spinemocap.bench.vicon_wand import format_table as wand_table
 from spinemocap.crossval.agreement import Agreement
 
@@ -33,13 +35,30 @@ def test_the_sync_verdict_follows_the_worst_error_on_100_fps_cameras():
                                         "motion", "motion_no_bias_term", "dropped_rendered", "dropped_found", "render_s"]
 
 
-def test_the_wand_table_shows_a_failed_method_with_its_reason():
-    ok = {"offset_error_ms": -0.067, "rotation_error_deg": 0.025, "point_error_mean_mm": 0.24,
-          "point_error_max_mm": 0.32, "angles": {"lumbar_flexion": {"rmse_deg": 1.0, "icc": 0.9}}}
-    text = wand_table([{"realism": "lab", "vicon_occluded_share": 0.1, "wand": ok, "crossval_rig_vicon": ok,
-                        "crossval_markers": "failed: too few markers"}])
+def _wand_level(**methods) -> WandLevel:
+    return WandLevel(realism="lab", preset="artificial", motion="mixed", frames=10, fps=30.0, size=[480, 360],
+                     cameras=4, record_and_wand_s=4.5, vicon_occluded_share=0.1, vicon_markers_with_gaps=["VT_R07"],
+                     **methods)
+
+
+def test_the_wand_table_shows_a_failed_method_with_its_reason_and_the_json_keeps_its_keys():
+    errors = RegistrationErrors(rotation_error_deg=0.025, point_error_mean_mm=0.24, point_error_max_mm=0.32,
+                                offset_error_ms=-0.067)
+    wand = WandRegistration(errors, n_frames=79, scale=1.0, residual_rms_mm=0.33)
+    crossval = CrossValRegistration(errors, estimated="offset", scale=1.0,
+                                    angles={"lumbar_flexion": {"rmse_deg": 1.0, "bias_deg": 0.1, "icc": 0.9, "cmc": 0.95}})
+    row = _wand_level(wand=wand, coregister_s=1.9, crossval_rig_vicon=crossval,
+                      crossval_markers="failed: too few markers")
+    text = wand_table([row])
     assert "lab    wand" in text and "-0.067" in text and "lumbar_flexion 1.00 / 0.900" in text
     assert "crossval_markers          failed: too few markers" in text
+    assert list(row.to_dict()) == ["realism", "preset", "motion", "frames", "fps", "size", "cameras", "record_and_wand_s",
+                                   "vicon_occluded_share", "vicon_markers_with_gaps", "coregister_s", "wand",
+                                   "crossval_rig_vicon", "crossval_markers"]
+    assert list(row.to_dict()["wand"]) == ["rotation_error_deg", "point_error_mean_mm", "point_error_max_mm",
+                                           "offset_error_ms", "n_frames", "scale", "residual_rms_mm"]
+    unfilmed = _wand_level(wand=NOT_FILMABLE).to_dict()
+    assert list(unfilmed)[-2:] == ["vicon_markers_with_gaps", "wand"] and unfilmed["wand"] == NOT_FILMABLE
 
 
 def test_body_fit_error_statistics_skip_missing_dots():
