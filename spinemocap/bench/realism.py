@@ -137,7 +137,7 @@ class TrackerScore(JsonRecord):
     or missing (0-1), the mean error (mm) and swaps of the dot-frames it vouches for, frames per
     quality flag, frames without a solution, the tape's stretch along (min, median, max; None
     without vouched-for frames), the median candidate gate (px) and ms per frame (None: not timed). Results read
-    back from files written before the vouched-for numbers existed hold None there."""
+    back from files without the vouched-for numbers hold None there."""
 
     mean_mm: float
     p95_mm: float

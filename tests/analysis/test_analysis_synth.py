@@ -68,7 +68,7 @@ def test_bland_altman_limits_and_bias():
 
 def test_the_peer_scores_the_previous_row_centres():
     # bench angles' peer (tracked_lr_midpoints) is the tracked table without its C dots: the row
-    # centres are then the plain L-R midpoints, as before the midline correction
+    # centres are then the plain L-R midpoints, without the midline correction
     from spinemocap.analysis.bent_tape import bent_tape_dots, uniform_bend
     from spinemocap.analysis.curve import row_tracks
     from spinemocap.bench.analysis import without_middle_dots
