@@ -100,6 +100,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("spinemocap: interrupted", file=sys.stderr)
         return 130
+    finally:
+        show_flags_of([])  # the command is over: the library's texts read as written again
 
 
 if __name__ == "__main__":

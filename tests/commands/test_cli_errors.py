@@ -10,7 +10,7 @@ import pytest
 from calibration.boards import BoardSpec
 from calibration.extrinsics import bundle_adjust
 from calibration.wand import WandSpec
-from spinemocap.cli import build_parser, main
+from spinemocap.cli import build_parser, main, plain_warning
 from spinemocap.commands._flags import FlagNames, flag_of, invoked_parsers, show_flags_of, shown, with_flags
 from spinemocap.fileio import InputError
 
@@ -75,6 +75,7 @@ def test_the_application_names_parameters_and_the_cli_their_flags(tmp_path, caps
     assert main(["bench", "speed", "--preset", "tiny", "--candidate-workers", "1"]) == 2
     assert "error: --candidate-workers: the candidate workers build frames ahead of the tracker, which prediction " \
            "cannot wait for: turn prediction off (--frames-at-once N or --no-predict)" in capsys.readouterr().err
+    assert shown("`predict=False`") == "`predict=False`"  # after the command: the library's words again
 
 
 def _parsers(*argv: str):
@@ -117,6 +118,8 @@ def test_the_running_command_renders_printed_and_logged_texts():
         assert shown("try more `seconds`") == "try more --seconds"
         logger.warning("only %d %% seen: use `method='audio'`", 40)
         assert handler.messages == ["only 40 % seen: use --method audio"]
+        show_flags_of(_parsers("bench", "speed"))
+        assert plain_warning("turn `predict=False`", UserWarning, "x.py", 1) == "spinemocap: warning: turn --no-predict\n"
     finally:
         logger.removeHandler(handler)
         show_flags_of([])
