@@ -12,23 +12,16 @@ import argparse
 import importlib
 import logging
 import pkgutil
-import re
 import sys
 import warnings
 from typing import Sequence
 
 from . import commands
+from .commands._flags import flag_of, invoked_parsers, show_flags_of, shown, with_flags
 from .fileio import InputError
 from .version import __version__
 
 log = logging.getLogger("spinemocap")
-
-# Errors of the library name the parameter (InputError's source); on the command line they name its
-# flag: the flag whose destination is the parameter, else the one this table gives.
-PARAMETER_FLAGS = {"backend": "--ba", "sources": "--videos", "model_type": "--model", "mapping": "--map",
-                   "named": "--video", "offsets": "--offset", "predict": "--no-predict"}
-# A parameter named inside a problem text (see InputError): `name` or `name=value`.
-PARAMETER_MENTION = re.compile(r"`([A-Za-z_]\w*)(?:=([^`\s]+))?`")
 
 
 def _command_modules():
@@ -55,44 +48,6 @@ def build_parser() -> argparse.ArgumentParser:
     for command in _subparsers(parser):  # the global flags also after a command's name
         add_global_flags(command, argparse.SUPPRESS)
     return parser
-
-
-def invoked_parsers(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[argparse.ArgumentParser]:
-    """The parser and the sub-command parsers ``args`` went through, outermost first."""
-    chain = [parser]
-    while True:
-        subs = [a for a in chain[-1]._actions if isinstance(a, argparse._SubParsersAction)]
-        chosen = getattr(args, subs[0].dest, None) if subs else None
-        if not subs or chosen not in subs[0].choices:
-            return chain
-        chain.append(subs[0].choices[chosen])
-
-
-def flag_of(parameter: str, parsers: Sequence[argparse.ArgumentParser]) -> str | None:
-    """The long flag of ``parameter`` among the options of ``parsers`` (None: not an option there)."""
-    flags = {action.dest: long[0] for p in parsers for action in p._actions
-             if (long := [o for o in action.option_strings if o.startswith("--")])}
-    if parameter in flags:
-        return flags[parameter]
-    alias = PARAMETER_FLAGS.get(parameter)
-    return alias if alias in flags.values() else None
-
-
-def with_flags(problem: str, parsers: Sequence[argparse.ArgumentParser]) -> str:
-    """``problem`` as a command-line user reads it: each parameter it names (`name` or
-    `name=value`) written as the flag of the options of ``parsers``: ``--flag`` (a value True or
-    False: the flag alone, PARAMETER_FLAGS naming the flag that turns an option off) or ``--flag
-    value`` (quotes dropped). A parameter without a flag there stays as written."""
-    def rendered(mention: re.Match[str]) -> str:
-        name, value = mention.groups()
-        flag = flag_of(name, parsers)
-        if flag is None:
-            return mention.group(0)
-        if value is None or value in ("True", "False"):
-            return flag
-        return f"{flag} {value.strip(chr(39) + chr(34))}"
-
-    return PARAMETER_MENTION.sub(rendered, problem)
 
 
 def error_text(exc: InputError, parsers: Sequence[argparse.ArgumentParser]) -> str:
@@ -126,7 +81,7 @@ def _subparsers(parser: argparse.ArgumentParser):
 
 def plain_warning(message, category, filename, lineno, line=None) -> str:
     """A Python warning as a person reads it: the message, without the source file and line."""
-    return f"spinemocap: warning: {message}\n"
+    return f"spinemocap: warning: {shown(str(message))}\n"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -134,15 +89,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    parsers = invoked_parsers(parser, args)
+    show_flags_of(parsers)  # parameters named in printed, logged and warned texts read as flags
     warnings.formatwarning = plain_warning  # also in the batch's worker processes (forked from here)
     try:
         return int(args.func(args) or 0)
     except InputError as exc:
-        print(f"spinemocap: error: {error_text(exc, invoked_parsers(parser, args))}", file=sys.stderr)
+        print(f"spinemocap: error: {error_text(exc, parsers)}", file=sys.stderr)
         return int(getattr(exc, "exit_code", 2))  # 2: bad input; a subclass may name its own status
     except KeyboardInterrupt:
         print("spinemocap: interrupted", file=sys.stderr)
         return 130
+    finally:
+        show_flags_of([])  # the command is over: the library's texts read as written again
 
 
 if __name__ == "__main__":

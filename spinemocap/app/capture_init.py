@@ -332,7 +332,7 @@ def _fit_sizes(rig: Rig, probes: dict[str, MediaProbe], fix: SizeFix | None,
         else:
             cameras.append(fixed_camera(camera, mismatch, fix))
             fixes.append(f"camera {name!r}: calibration {mismatch.calibration[0]}x{mismatch.calibration[1]} -> "
-                         f"{mismatch.video[0]}x{mismatch.video[1]} px (--fix-size {fix})")
+                         f"{mismatch.video[0]}x{mismatch.video[1]} px (`fix_size={fix}`)")
     if problems:
         raise InputError(calibration, "; ".join(problems))
     return cameras, fixes

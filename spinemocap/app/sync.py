@@ -558,7 +558,7 @@ def format_estimate(estimate: SyncEstimate) -> str:
     if uncertain:
         lines.append(f"WARNING: the offsets of {', '.join(uncertain)} are uncertain by more than "
                      f"{1000 * UNCERTAIN_S:g} ms (little motion across the views in the frames read: try more "
-                     "--seconds, or --method audio with a clap)")
+                     "`seconds`, or `method='audio'` with a clap)")
     missing = [n for n, ok in zip(estimate.camera_names, estimate.found) if not ok]
     if missing:
         lines.append(f"WARNING: no trustworthy offset for {', '.join(missing)} (too little shared motion or sound); "

@@ -195,8 +195,8 @@ class TrialSummary:
                        warnings=tuple(data.get("warnings", ())), elapsed_s=data.get("elapsed_s"))
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InputError(os.path.join(out_dir, "summary.json"),
-                             f"not a trial summary ({type(exc).__name__}: {exc}); run `spinemocap batch` "
-                             "again with --force to write it anew") from exc
+                             f"not a trial summary ({type(exc).__name__}: {exc}); run `spinemocap batch --force` "
+                             "to write it anew") from exc
 
 
 @dataclass(frozen=True)

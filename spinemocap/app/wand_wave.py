@@ -161,8 +161,8 @@ def write_wand_wave(scene, setup: ViconSetup, out: str | os.PathLike, seconds: f
     plan = plan_wave(scene.rig, scene.target, wand, scene.fps, seconds, seed)
     if plan.seen_share < MIN_SEEN_SHARE:
         log.warning("no wand wave: the whole T-wand (360 x 400 mm) is in view of two cameras in only %.0f %% of "
-                    "the frames wherever it is waved; use more cameras, wider views (e.g. --preset artificial or "
-                    "studio) or --wand-seconds 0", 100 * plan.seen_share)
+                    "the frames wherever it is waved; use more cameras, wider views (e.g. `preset=artificial` or "
+                    "`preset=studio`) or `wand_seconds=0`", 100 * plan.seen_share)
         return None
     nominal = np.arange(plan.n_frames) / plan.fps
     world = wave_markers(wand, plan, nominal, seed)

@@ -34,6 +34,7 @@ from ..app.run import TrackingMode
 from ..markers import MarkerTable
 from ..synth import SynthConfig, build_scene
 from ..synth.body import SPINE_BONES, JointDepth
+from ..synth.scene import Scene
 from ..tape import TapeSpec
 
 MOTIONS = ("flexion", "lateral", "rotation")
@@ -142,12 +143,44 @@ def mid_bone_rows(row_heights: np.ndarray, joint_heights: np.ndarray) -> tuple[i
     return lo + 1, hi + 1, joints
 
 
+@dataclasses.dataclass(frozen=True)
+class StudioMotion:
+    """A studio motion's ground truth (:func:`studio_motion`): the exact dots ``dots`` (F, D, 3)
+    mm (world frame, skin strain included) with their ``labels``, the ``tape``, the applied spine
+    angles ``applied`` (F, 3) deg (flexion, lateral, rotation), the benchmark's two tape ``rows``
+    (1-based, low then high), the ``share`` of the spine's joints between them, the frame rate
+    ``fps``, the subject's ``up`` and ``facing`` directions (world), each row's nearest vertebral
+    level ``row_levels`` and the ``scene`` (to render and track it)."""
+
+    dots: np.ndarray
+    labels: list[str]
+    tape: TapeSpec
+    applied: np.ndarray
+    rows: tuple[int, int]
+    share: float
+    fps: float
+    up: list[float]
+    facing: list[float]
+    row_levels: list[str]
+    scene: Scene
+
+    @property
+    def markers(self) -> MarkerTable:
+        """The exact dots as a marker table."""
+        return MarkerTable.from_arrays(self.labels, self.dots, fps=self.fps)
+
+    @property
+    def levels(self) -> LevelMap:
+        """The rows' vertebral levels as a level map."""
+        return LevelMap.from_row_levels(self.row_levels, self.tape.n_rows)
+
+
 def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0,
-                  realism: str | None = None, joint_depth: JointDepth = "anny") -> dict:
-    """Ground-truth dots of a studio motion (no rendering), the applied angles, the benchmark
-    rows, the rows' nearest vertebral levels and the scene (to render and track it);
-    ``realism``: the studio's level (None: ``SynthConfig``'s default); ``joint_depth``: where the
-    studio's spine bends under the skin (:data:`spinemocap.synth.body.JointDepth`)."""
+                  realism: str | None = None, joint_depth: JointDepth = "anny") -> StudioMotion:
+    """Ground-truth dots of a studio ``motion`` of ``frames`` frames at ``fps`` on a ``rows``-row
+    tape (no rendering; see :class:`StudioMotion`); ``realism``: the studio's level (None:
+    ``SynthConfig``'s default); ``joint_depth``: where the studio's spine bends under the skin
+    (:data:`spinemocap.synth.body.JointDepth`)."""
 
     levels = {} if realism is None else {"realism": realism}
     config = SynthConfig.preset("artificial", motion=motion, frames=frames, fps=fps, rows=rows, seed=seed,
@@ -157,10 +190,9 @@ def studio_motion(motion: str, frames: int, fps: float, rows: int, seed: int = 0
     graph = scene.tape.graph
     row_z = np.array([dots[0][graph.row == r, 2].mean() for r in range(rows)])
     lo, hi, joints = mid_bone_rows(row_z, scene.body.spine_chain()[:, 2])
-    return {"dots": dots, "labels": scene.labels, "tape": scene.tape, "applied": scene.angles_deg,
-            "rows": (lo, hi), "share": joints / len(SPINE_BONES), "fps": fps,
-            "up": scene.subject()["up"], "facing": scene.subject()["facing"],
-            "row_levels": list(scene.tape_on_skin.row_levels), "scene": scene}
+    return StudioMotion(dots=dots, labels=scene.labels, tape=scene.tape, applied=scene.angles_deg, rows=(lo, hi),
+                        share=joints / len(SPINE_BONES), fps=fps, up=scene.subject()["up"],
+                        facing=scene.subject()["facing"], row_levels=list(scene.tape_on_skin.row_levels), scene=scene)
 
 
 def bench_studio(frames: int = 60, fps: float = 20.0, rows: int = 13, seed: int = 0,
@@ -171,18 +203,18 @@ def bench_studio(frames: int = 60, fps: float = 20.0, rows: int = 13, seed: int 
     results: dict[str, StudioMotionAgreement] = {}
     for axis, motion in enumerate(tqdm(MOTIONS, desc="studio motions", disable=not progress)):
         data = studio_motion(motion, frames, fps, rows, seed)
-        lo, hi = data["rows"]
+        lo, hi = data.rows
         levels = LevelMap({LOW: lo, HIGH: hi}, rows)
-        markers = MarkerTable.from_arrays(data["labels"], data["dots"], fps=fps)
+        markers = MarkerTable.from_arrays(data.labels, data.dots, fps=fps)
         start = time.perf_counter()
-        table = compute_angles(markers, data["tape"], levels, up=data["up"], facing=data["facing"],
+        table = compute_angles(markers, data.tape, levels, up=data.up, facing=data.facing,
                                settings=AngleSettings(lower=LOW, thoracolumbar=HIGH)).table
         elapsed = time.perf_counter() - start
-        applied = data["applied"] - data["applied"][0]
+        applied = data.applied - data.applied[0]
         expected = np.zeros_like(applied)
-        expected[:, axis] = data["share"] * applied[:, axis]
+        expected[:, axis] = data.share * applied[:, axis]
         results[motion] = StudioMotionAgreement(_score(table, expected, axis), rows=[lo, hi],
-                                                joint_share=data["share"],
+                                                joint_share=data.share,
                                                 applied_peak_deg=float(np.abs(applied[:, axis]).max()),
                                                 ms_per_frame=1000 * elapsed / frames)
     return results

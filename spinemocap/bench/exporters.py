@@ -15,15 +15,51 @@ import tempfile
 import time
 import warnings
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
 from exporters import read, write
 from spinemocap.fileio import InputError, atomic_write
 from spinemocap.markers import MarkerTable
+
+
+@dataclass(frozen=True)
+class FileTiming:
+    """Median milliseconds to write and to read one file; ``bytes``: its size (ours; None for a
+    peer, whose file is not ours to size)."""
+
+    write_ms: float
+    read_ms: float
+    bytes: int | None = None
+
+    def to_dict(self) -> dict[str, float | int]:
+        """``write_ms``, ``read_ms`` and, where known, ``bytes``."""
+        timing: dict[str, float | int] = {"write_ms": self.write_ms, "read_ms": self.read_ms}
+        if self.bytes is not None:
+            timing["bytes"] = self.bytes
+        return timing
+
+
+@dataclass(frozen=True)
+class ExportBenchmark:
+    """``spinemocap bench export``'s numbers: the table's ``frames`` and ``markers``, the
+    ``repeat`` each median is taken over, and each file's timing by name (``ours_trc``,
+    ``ours_c3d``, ``ours_csv``, ``ours_parquet``, ``ezc3d_c3d``, ``opensim_trc``)."""
+
+    frames: int
+    markers: int
+    repeat: int
+    timings: dict[str, FileTiming]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object ``export_bench.json`` holds: frames, markers, repeat, then one object
+        per file."""
+        return {"frames": self.frames, "markers": self.markers, "repeat": self.repeat,
+                **{name: timing.to_dict() for name, timing in self.timings.items()}}
 
 
 def synthetic_table(n_frames: int, n_markers: int, fps: float = 100.0, gap_share: float = 0.05,
@@ -46,18 +82,18 @@ def _median_ms(fn: Callable[[], object], repeat: int) -> float:
     return 1000.0 * statistics.median(times)
 
 
-def _opensim_peer(trc_path: str, folder: str, repeat: int) -> dict[str, float]:
+def _opensim_peer(trc_path: str, folder: str, repeat: int) -> FileTiming:
     """OpenSim's TRC reader and writer on ``trc_path`` (our file, same data). Runs in its own
     process: opensim's and ezc3d's SWIG string vectors clash once both are loaded."""
     import opensim as osim
 
     table = osim.TimeSeriesTableVec3(trc_path)
     path = str(Path(folder) / "peer.trc")
-    return {"write_ms": _median_ms(lambda: osim.TRCFileAdapter.write(table, path), repeat),
-            "read_ms": _median_ms(lambda: osim.TimeSeriesTableVec3(path), repeat)}
+    return FileTiming(write_ms=_median_ms(lambda: osim.TRCFileAdapter.write(table, path), repeat),
+                      read_ms=_median_ms(lambda: osim.TimeSeriesTableVec3(path), repeat))
 
 
-def _ezc3d_peer(table: MarkerTable, folder: Path, repeat: int) -> dict[str, float]:
+def _ezc3d_peer(table: MarkerTable, folder: Path, repeat: int) -> FileTiming:
     try:
         import ezc3d
     except ImportError as exc:
@@ -74,36 +110,37 @@ def _ezc3d_peer(table: MarkerTable, folder: Path, repeat: int) -> dict[str, floa
     points[:3] = arrays.positions.transpose(2, 1, 0)
     c["data"]["points"] = points
     path = str(folder / "peer.c3d")
-    return {"write_ms": _median_ms(lambda: c.write(path), repeat),
-            "read_ms": _median_ms(lambda: ezc3d.c3d(path), repeat)}
+    return FileTiming(write_ms=_median_ms(lambda: c.write(path), repeat),
+                      read_ms=_median_ms(lambda: ezc3d.c3d(path), repeat))
 
 
 def run_export_benchmark(n_frames: int = 548, n_markers: int = 32, repeat: int = 5,
-                         out: Path | None = None) -> dict:
-    """Median write/read times (ms) of ours and the peers; printed as a table, saved as JSON."""
+                         out: Path | None = None) -> ExportBenchmark:
+    """Median write/read times (ms) of ours and the peers; printed as a table, saved as JSON
+    (``out/export_bench.json``)."""
     table = synthetic_table(n_frames, n_markers)
-    results: dict = {"frames": n_frames, "markers": n_markers, "repeat": repeat}
+    timings: dict[str, FileTiming] = {}
     with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore")
         folder = Path(tmp)
         for fmt in ("trc", "c3d", "csv", "parquet"):
             path = folder / f"ours.{fmt}"
-            results[f"ours_{fmt}"] = {"write_ms": _median_ms(partial(write, table, path), repeat),
-                                     "read_ms": _median_ms(partial(read, path), repeat),
-                                     "bytes": path.stat().st_size}
-        results["ezc3d_c3d"] = _ezc3d_peer(table, folder, repeat)
+            timings[f"ours_{fmt}"] = FileTiming(write_ms=_median_ms(partial(write, table, path), repeat),
+                                                read_ms=_median_ms(partial(read, path), repeat),
+                                                bytes=path.stat().st_size)
+        timings["ezc3d_c3d"] = _ezc3d_peer(table, folder, repeat)
         if importlib.util.find_spec("opensim") is None:  # not imported here: see _opensim_peer
             raise InputError("spinemocap bench export", "its TRC peer, OpenSim's Python package, is not "
                              "installed: pip install 'spinemocap[bench]' (`make` installs it)")
         with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
-            results["opensim_trc"] = pool.submit(_opensim_peer, str(folder / "ours.trc"), tmp, repeat).result()
+            timings["opensim_trc"] = pool.submit(_opensim_peer, str(folder / "ours.trc"), tmp, repeat).result()
+    results = ExportBenchmark(frames=n_frames, markers=n_markers, repeat=repeat, timings=timings)
     print(f"{n_frames} frames x {n_markers} markers, median of {repeat} (ms)")
     print(f"{'':14s} {'write':>9s} {'read':>9s}")
-    for key, value in results.items():
-        if isinstance(value, dict):
-            print(f"{key:14s} {value['write_ms']:9.1f} {value['read_ms']:9.1f}")
+    for key, value in timings.items():
+        print(f"{key:14s} {value.write_ms:9.1f} {value.read_ms:9.1f}")
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         with atomic_write(out / "export_bench.json") as handle:
-            json.dump(results, handle, indent=2)
+            json.dump(results.to_dict(), handle, indent=2)
     return results

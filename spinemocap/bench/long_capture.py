@@ -124,7 +124,7 @@ def measure_run(capture: Path, out: Path, chunk_frames: int, detector: str = "ma
 
 
 def plot(runs: list[RunMemory], path: Path, peer: list[RunMemory] | None = None, peer_name: str = "peer") -> None:
-    """Peak RSS against length (and a ``peer``'s runs, e.g. the previous version's, dashed), and
+    """Peak RSS against length (and a ``peer``'s runs, e.g. another build's, dashed), and
     RSS against frames done within each of ``runs``."""
     import matplotlib
 

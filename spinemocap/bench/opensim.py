@@ -39,7 +39,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -47,6 +47,10 @@ from ..opensim.pipeline import slip_solved_as
 from ..opensim.skin_model import SlipFromTape
 from ..opensim.tools import OBSERVED_SD_MM
 from ..synth.body import JointDepth
+
+if TYPE_CHECKING:  # bench.analysis loads the batch and the tracker: imported where it runs
+    from ..analysis.levels import LevelMap
+    from .analysis import StudioMotion
 
 MOTIONS = ("flexion", "lateral", "rotation", "mixed")
 AXES = ("flexion", "lateral", "rotation")
@@ -87,8 +91,7 @@ def run_opensim_benchmark(motions: Sequence[str] = MOTIONS, sources: Sequence[st
 
     unknown = sorted(set(methods) - set(IK_METHODS))
     if unknown:
-        raise InputError("spinemocap bench opensim --methods", f"unknown IK methods {unknown}: choose from "
-                                                               f"{' '.join(IK_METHODS)}")
+        raise InputError("methods", f"unknown IK methods {unknown}: choose from {' '.join(IK_METHODS)}")
     from tqdm import tqdm
 
     from ..opensim import require_opensim
@@ -206,19 +209,19 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     from .analysis import HIGH, LOW, expected_between_rows, studio_motion
 
     data = studio_motion(motion, frames, fps, rows, seed=seed, realism=realism, joint_depth=joint_depth)
-    tape = data["tape"]
+    tape = data.tape
     if source == "tracked":
         depth = "" if joint_depth == "anny" else f"_{joint_depth}"
-        markers = tracked_markers(data["scene"], progress,
+        markers = tracked_markers(data.scene, progress,
                                   cache and cache / f"markers_{motion}_{frames}_{fps:.4g}_{realism}{depth}_seed{seed}.csv")
     else:
-        markers = MarkerTable.from_arrays(data["labels"], data["dots"], fps=fps)
-    applied = data["applied"] - data["applied"][0]
+        markers = MarkerTable.from_arrays(data.labels, data.dots, fps=fps)
+    applied = data.applied - data.applied[0]
     axes = [AXES.index(motion)] if motion in AXES else [0, 1, 2]
-    lo, hi = data["rows"]
-    truth = MarkerTable.from_arrays(data["labels"], data["dots"], fps=fps)
-    expected = expected_between_rows(data["scene"], truth, lo, hi)
-    levels = LevelMap.from_row_levels(data["row_levels"], tape.n_rows)
+    lo, hi = data.rows
+    truth = MarkerTable.from_arrays(data.labels, data.dots, fps=fps)
+    expected = expected_between_rows(data.scene, truth, lo, hi)
+    levels = LevelMap.from_row_levels(data.row_levels, tape.n_rows)
     depth_scale = body_model_depth_scale(data, levels)
     ik: dict = {}
     vouched: np.ndarray | None = None  # (F,) frames without a flagged marker (from the IK runs' summary)
@@ -230,7 +233,7 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
                                                depth_source=BODY_MODEL_DEPTH), **overrides)
             if accuracy is not None:
                 settings = replace(settings, accuracy=accuracy)
-            result = run_opensim(markers, tape, levels, data["up"], data["facing"], Path(tmp) / "opensim",
+            result = run_opensim(markers, tape, levels, data.up, data.facing, Path(tmp) / "opensim",
                                  settings=settings)
             s = result.summary
             slip = s.skin_model.slip
@@ -243,13 +246,13 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
                           "slip_at_peak_mm": slip.at_peak_mm if slip is not None else None}
     completeness = markers.completeness()
     t0 = time.perf_counter()
-    geometric = compute_angles(markers, tape, LevelMap({LOW: lo, HIGH: hi}, tape.n_rows), up=data["up"],
-                               facing=data["facing"], settings=AngleSettings(lower=LOW, thoracolumbar=HIGH)).table
+    geometric = compute_angles(markers, tape, LevelMap({LOW: lo, HIGH: hi}, tape.n_rows), up=data.up,
+                               facing=data.facing, settings=AngleSettings(lower=LOW, thoracolumbar=HIGH)).table
     geometric_ms = 1000 * (time.perf_counter() - t0) / len(geometric)
     peer = geometric[["lumbar_flexion", "lumbar_lateral", "lumbar_rotation"]].to_numpy(float)
     bodies = [result.geometry.names[result.geometry.row_body[r - 1]] for r in (lo, hi)]
     return {
-        "seed": seed, "frames": len(applied), "rows": [lo, hi], "vertebrae": bodies, "joint_share": data["share"],
+        "seed": seed, "frames": len(applied), "rows": [lo, hi], "vertebrae": bodies, "joint_share": data.share,
         "applied_peak_deg": {a: float(np.abs(applied[:, i]).max()) for i, a in enumerate(AXES)},
         "observed_share": completeness["observed"], "depth_scale": depth_scale,
         **ik,
@@ -257,17 +260,17 @@ def bench_motion(motion: str, source: str, frames: int, fps: float, rows: int, p
     }
 
 
-def body_model_depth_scale(data: dict, levels) -> float:
+def body_model_depth_scale(data: StudioMotion, levels: LevelMap) -> float:
     """Depth of the studio body's spine joints under the tape as a factor on the published
     depths the model would use: the median over the static (first-frame) rows of the distance
     from the row's L-R midpoint to anny's spine-joint polyline, over the published depth of the
     vertebra under the row scaled to the tape (:func:`spinemocap.opensim.geometry.spine_geometry`)."""
     from ..opensim.geometry import opensim_axes, row_frames, spine_geometry, to_opensim
 
-    axes = opensim_axes(data["up"], data["facing"])
-    rows = row_frames(to_opensim(data["dots"][0], axes), data["tape"])
+    axes = opensim_axes(data.up, data.facing)
+    rows = row_frames(to_opensim(data.dots[0], axes), data.tape)
     geometry = spine_geometry(rows, levels, 1.0)
-    chain = to_opensim(data["scene"].body.spine_chain(), axes)
+    chain = to_opensim(data.scene.body.spine_chain(), axes)
     ratios = []
     for r in np.flatnonzero(rows.seen):
         ratios.append(_distance_to_polyline(rows.centre[r], chain) / geometry.depth[geometry.row_body[r]])

@@ -1,7 +1,7 @@
 """The realism benchmark (``spinemocap bench realism``): the tracker on a studio as hard
-as a real back, one factor at a time and all together at the ``lab`` level, beside the tracker
-as it was before (the roll's nominal dot spacing, the fixed 2 px candidate gate, no label
-continuity check: :meth:`TrackerConfig.nominal_unchecked`) on the very same rendered frames.
+as a real back, one factor at a time and all together at the ``lab`` level, beside its peer, the
+tracker without its adaptations (the roll's nominal dot spacing, the fixed 2 px candidate gate, no
+label continuity check: :meth:`TrackerConfig.nominal_unchecked`), on the very same rendered frames.
 
 Each case renders the ``artificial`` preset (4 cameras, light occlusion unless told) with the
 shipped detector, tracks it in sequence mode with both trackers and scores them against the
@@ -137,7 +137,7 @@ class TrackerScore(JsonRecord):
     or missing (0-1), the mean error (mm) and swaps of the dot-frames it vouches for, frames per
     quality flag, frames without a solution, the tape's stretch along (min, median, max; None
     without vouched-for frames), the median candidate gate (px) and ms per frame (None: not timed). Results read
-    back from files written before the vouched-for numbers existed hold None there."""
+    back from files without the vouched-for numbers hold None there."""
 
     mean_mm: float
     p95_mm: float

@@ -18,6 +18,7 @@ import json
 import os
 import platform
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -25,6 +26,7 @@ import numpy as np
 
 from ..fileio import InputError, atomic_write
 from ..synth.scene import SynthConfig, build_scene
+from .records import JsonRecord
 
 # Paper Table 2: dot-frames of the 548-frame, 32-dot Artificial sequence seen by 4/3/2/1/0 cameras.
 PAPER_TABLE2 = {
@@ -60,8 +62,81 @@ def _read_png(path: Path) -> np.ndarray:
     return image
 
 
+@dataclass(frozen=True)
+class RenderTiming(JsonRecord):
+    """One preset's render timing (:func:`time_render_paths`). Seconds are per frame (all cameras,
+    images and masks written); ``*_rounds`` every round's wall-clock seconds per frame, the
+    un-suffixed numbers the fastest round; ``*_cpu_s_per_frame`` CPU seconds of the process (all
+    threads); ``speedup``: reference / current wall-clock seconds; ``image_*_abs_diff``: grey
+    levels between the two renderers' images; ``clocks``: distinct camera clocks whose meshes were
+    posed; ``load_average``: the 1-minute load before and after each round (None where the OS does
+    not say)."""
+
+    preset: str
+    realism: str
+    occlusion: str
+    balls: int
+    cameras: int
+    size: list[int]
+    frames: int
+    rounds: int
+    setup_s: float
+    reference_s_per_frame: float
+    fast_s_per_frame: float
+    speedup: float
+    reference_s_per_frame_rounds: list[float]
+    fast_s_per_frame_rounds: list[float]
+    reference_cpu_s_per_frame: float
+    fast_cpu_s_per_frame: float
+    image_max_abs_diff: int
+    image_mean_abs_diff: float
+    masks_identical: bool
+    groundtruth_s_per_frame: float
+    groundtruth_cpu_s_per_frame: float
+    visibility_cpu_s_per_frame: float
+    meshes_cpu_s_per_frame: float
+    clocks: int
+    load_average: list[float | None]
+
+
+@dataclass(frozen=True)
+class AtomicWrites(JsonRecord):
+    """CPU milliseconds per atomic write of ``bytes`` bytes into one folder of ``files`` files: the
+    mean over the first 100 writes and over the last 100 (:func:`time_atomic_writes`)."""
+
+    files: int
+    bytes: int
+    first_100_cpu_ms: float
+    last_100_cpu_ms: float
+
+
+@dataclass(frozen=True)
+class VisibilityRow(JsonRecord):
+    """One occlusion level of the visibility table: dot-frames seen by 4/3/2/1/0 cameras
+    (``counts``), their shares and the paper's (%), and the largest share difference (points)."""
+
+    level: str
+    counts: list[int]
+    share_percent: list[float]
+    paper_share_percent: list[float]
+    max_abs_diff_points: float
+
+
+@dataclass(frozen=True)
+class RenderBenchmark(JsonRecord):
+    """``spinemocap bench render``'s numbers (``render_benchmark.json``): the machine, each preset's
+    timing, the atomic writes and the visibility table (empty when ``visibility_frames`` is 0)."""
+
+    machine: str
+    cpus: int | None
+    timing: list[RenderTiming]
+    atomic_writes: AtomicWrites
+    visibility_frames: int
+    visibility: list[VisibilityRow]
+
+
 def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds: int = 2,
-                      workdir: Path | None = None, occlusion: str = "none") -> dict:
+                      workdir: Path | None = None, occlusion: str = "none") -> RenderTiming:
     """Seconds per frame to render ``frames`` frames of a preset and write them as a capture does
     (images and tape masks as PNG), for the reference renderer (the reference path:
     one thread, files written one after the other) and the current one, in the same process on
@@ -117,16 +192,17 @@ def time_render_paths(preset: str, frames: int = 3, realism: str = "lab", rounds
     meshes_cpu_per_frame = (time.process_time() - c0) / frames
     scene.close()
     reference_s, fast_s = min(seconds["reference"]), min(seconds["fast"])
-    return {"preset": preset, "realism": realism, "occlusion": occlusion, "balls": scene.config.n_balls, "cameras": len(scene.rig), "size": list(scene.rig[0].size),
-            "frames": frames, "rounds": rounds, "setup_s": setup,
-            "reference_s_per_frame": reference_s, "fast_s_per_frame": fast_s, "speedup": reference_s / fast_s,
-            "reference_s_per_frame_rounds": seconds["reference"], "fast_s_per_frame_rounds": seconds["fast"],
-            "reference_cpu_s_per_frame": min(cpu_seconds["reference"]), "fast_cpu_s_per_frame": min(cpu_seconds["fast"]),
-            "image_max_abs_diff": max(d for d, _ in diffs), "image_mean_abs_diff": float(np.mean([m for _, m in diffs])),
-            "masks_identical": bool(masks_equal), "groundtruth_s_per_frame": gt_per_frame,
-            "groundtruth_cpu_s_per_frame": gt_cpu_per_frame, "visibility_cpu_s_per_frame": visibility_cpu[0] / frames,
-            "meshes_cpu_s_per_frame": meshes_cpu_per_frame, "clocks": int(len(np.unique(scene.sync_offsets_s))),
-            "load_average": loads}
+    return RenderTiming(
+        preset=preset, realism=realism, occlusion=occlusion, balls=scene.config.n_balls, cameras=len(scene.rig),
+        size=list(scene.rig[0].size), frames=frames, rounds=rounds, setup_s=setup,
+        reference_s_per_frame=reference_s, fast_s_per_frame=fast_s, speedup=reference_s / fast_s,
+        reference_s_per_frame_rounds=seconds["reference"], fast_s_per_frame_rounds=seconds["fast"],
+        reference_cpu_s_per_frame=min(cpu_seconds["reference"]), fast_cpu_s_per_frame=min(cpu_seconds["fast"]),
+        image_max_abs_diff=max(d for d, _ in diffs), image_mean_abs_diff=float(np.mean([m for _, m in diffs])),
+        masks_identical=bool(masks_equal), groundtruth_s_per_frame=gt_per_frame,
+        groundtruth_cpu_s_per_frame=gt_cpu_per_frame, visibility_cpu_s_per_frame=visibility_cpu[0] / frames,
+        meshes_cpu_s_per_frame=meshes_cpu_per_frame, clocks=int(len(np.unique(scene.sync_offsets_s))),
+        load_average=loads)
 
 
 @contextlib.contextmanager
@@ -157,7 +233,7 @@ def _visibility_cpu_time() -> Iterator[list[float]]:
             setattr(scene_module, name, inner)
 
 
-def time_atomic_writes(folder: Path, files: int = 3000, size: int = 200_000) -> dict:
+def time_atomic_writes(folder: Path, files: int = 3000, size: int = 200_000) -> AtomicWrites:
     """CPU milliseconds per :func:`spinemocap.fileio.atomic_write` of ``size`` bytes (a PNG's
     order) into one folder: the first 100 writes and the last 100 of ``files`` (does writing slow
     down as the folder fills?)."""
@@ -169,8 +245,8 @@ def time_atomic_writes(folder: Path, files: int = 3000, size: int = 200_000) -> 
         with atomic_write(folder / f"{i:06d}.png", "wb") as handle:
             handle.write(payload)
         cpu_ms.append((time.process_time() - c0) * 1000)
-    return {"files": files, "bytes": size, "first_100_cpu_ms": float(np.mean(cpu_ms[:100])),
-            "last_100_cpu_ms": float(np.mean(cpu_ms[-100:]))}
+    return AtomicWrites(files=files, bytes=size, first_100_cpu_ms=float(np.mean(cpu_ms[:100])),
+                        last_100_cpu_ms=float(np.mean(cpu_ms[-100:])))
 
 
 def _load_average() -> float | None:
@@ -206,7 +282,7 @@ def plot_table(table: dict[str, np.ndarray], path: Path) -> None:
 
 
 def run_render_benchmark(frames: int, visibility_frames: int, out: Path, presets=("artificial", "studio"),
-                         realism: str = "lab", rounds: int = 2, occlusion: str = "none") -> dict:
+                         realism: str = "lab", rounds: int = 2, occlusion: str = "none") -> RenderBenchmark:
     """``spinemocap bench render``: render speed per preset against the reference renderer, and the
     visibility table (skipped with ``visibility_frames`` 0)."""
     out.mkdir(parents=True, exist_ok=True)
@@ -217,37 +293,37 @@ def run_render_benchmark(frames: int, visibility_frames: int, out: Path, presets
               f"the reference renderer and this one alternating, {rounds} rounds) ...")
         timing = time_render_paths(preset, frames, realism, rounds, workdir=out, occlusion=occlusion)
         timings.append(timing)
-        print(f"  {timing['cameras']} cameras {timing['size'][0]}x{timing['size'][1]}: reference renderer "
-              f"{timing['reference_s_per_frame']:.2f} s/frame ({timing['reference_cpu_s_per_frame']:.2f} CPU s), "
-              f"this one {timing['fast_s_per_frame']:.2f} s/frame ({timing['fast_cpu_s_per_frame']:.2f} CPU s): "
-              f"{timing['speedup']:.2f}x; images differ by max {timing['image_max_abs_diff']} / mean "
-              f"{timing['image_mean_abs_diff']:.1e} grey levels, masks "
-              f"{'identical' if timing['masks_identical'] else 'DIFFER'}; ground truth "
-              f"{timing['groundtruth_s_per_frame'] * 1000:.0f} ms/frame "
-              f"({timing['groundtruth_cpu_s_per_frame'] * 1000:.0f} CPU ms, visibility "
-              f"{timing['visibility_cpu_s_per_frame'] * 1000:.0f}); meshes of {timing['clocks']} clocks "
-              f"{timing['meshes_cpu_s_per_frame'] * 1000:.0f} CPU ms/frame; load {timing['load_average']}")
+        print(f"  {timing.cameras} cameras {timing.size[0]}x{timing.size[1]}: reference renderer "
+              f"{timing.reference_s_per_frame:.2f} s/frame ({timing.reference_cpu_s_per_frame:.2f} CPU s), "
+              f"this one {timing.fast_s_per_frame:.2f} s/frame ({timing.fast_cpu_s_per_frame:.2f} CPU s): "
+              f"{timing.speedup:.2f}x; images differ by max {timing.image_max_abs_diff} / mean "
+              f"{timing.image_mean_abs_diff:.1e} grey levels, masks "
+              f"{'identical' if timing.masks_identical else 'DIFFER'}; ground truth "
+              f"{timing.groundtruth_s_per_frame * 1000:.0f} ms/frame "
+              f"({timing.groundtruth_cpu_s_per_frame * 1000:.0f} CPU ms, visibility "
+              f"{timing.visibility_cpu_s_per_frame * 1000:.0f}); meshes of {timing.clocks} clocks "
+              f"{timing.meshes_cpu_s_per_frame * 1000:.0f} CPU ms/frame; load {timing.load_average}")
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="bench-writes-", dir=out) as tmp:
         writes = time_atomic_writes(Path(tmp))
-    print(f"atomic writes into one folder of {writes['files']} files: {writes['first_100_cpu_ms']:.2f} CPU ms per "
-          f"write (first 100), {writes['last_100_cpu_ms']:.2f} (last 100)")
-    rows = []
+    print(f"atomic writes into one folder of {writes.files} files: {writes.first_100_cpu_ms:.2f} CPU ms per "
+          f"write (first 100), {writes.last_100_cpu_ms:.2f} (last 100)")
+    rows: list[VisibilityRow] = []
     if visibility_frames > 0:
         print(f"visibility table on the artificial preset ({visibility_frames} frames) ...")
         table = visibility_table(visibility_frames)
         rows = _print_visibility_table(table)
         plot_table(table, out / "visibility_table.png")
-    result = {"machine": f"{platform.machine()} {platform.processor()}".strip(), "cpus": os.cpu_count(),
-              "timing": timings, "atomic_writes": writes, "visibility_frames": visibility_frames, "visibility": rows}
+    result = RenderBenchmark(machine=f"{platform.machine()} {platform.processor()}".strip(), cpus=os.cpu_count(),
+                             timing=timings, atomic_writes=writes, visibility_frames=visibility_frames, visibility=rows)
     with atomic_write(out / "render_benchmark.json", "w") as handle:
-        json.dump(result, handle, indent=2)
+        json.dump(result.to_dict(), handle, indent=2)
     print(f"wrote {out / 'render_benchmark.json'}" + (f" and {out / 'visibility_table.png'}" if rows else ""))
     return result
 
 
-def _print_visibility_table(table: dict[str, np.ndarray]) -> list[dict]:
+def _print_visibility_table(table: dict[str, np.ndarray]) -> list[VisibilityRow]:
     rows = []
     print(f"  {'level':<6} {'balls':>6} | " + " ".join(f"{k} cams".rjust(15) for k in (4, 3, 2, 1, 0)))
     for level, counts in table.items():
@@ -255,9 +331,9 @@ def _print_visibility_table(table: dict[str, np.ndarray]) -> list[dict]:
         paper = PAPER_TABLE2[level] / PAPER_TABLE2[level].sum() * 100
         cells = " ".join(f"{s:5.1f}% ({p:4.1f}%)".rjust(15) for s, p in zip(share, paper))
         print(f"  {level:<6} {PAPER_BALLS[level]:>6} | {cells}")
-        rows.append({"level": level, "counts": counts.tolist(), "share_percent": share.round(2).tolist(),
-                     "paper_share_percent": paper.round(2).tolist(),
-                     "max_abs_diff_points": float(np.abs(share - paper).max())})
+        rows.append(VisibilityRow(level=level, counts=counts.tolist(), share_percent=share.round(2).tolist(),
+                                  paper_share_percent=paper.round(2).tolist(),
+                                  max_abs_diff_points=float(np.abs(share - paper).max())))
     print("  (paper's Table 2 shares in brackets)")
     return rows
 
@@ -266,8 +342,44 @@ def _print_visibility_table(table: dict[str, np.ndarray]) -> list[dict]:
 ENVELOPE_MOTIONS = ("flexion", "mixed", "lateral", "rotation", "forehand")
 
 
+@dataclass(frozen=True)
+class EnvelopeRow(JsonRecord):
+    """What the tape goes through at one realism ``level`` and ``motion`` (:func:`realism_envelope`):
+    the peak spine angles (deg, per axis), stretch against the roll's spec (1 = spec) between
+    consecutive rows, over the whole tape and across it (min and max over frames), the
+    modified-Schober growth of the lowest 150 mm (mm), the lab's calibration error (px RMS) and
+    sync error (ms RMS), and the whole-tape stretch per frame."""
+
+    level: str
+    motion: str
+    rows: int
+    peak_angles_deg: list[float]
+    row_stretch_min: float
+    row_stretch_max: float
+    tape_stretch_min: float
+    tape_stretch_max: float
+    width_stretch_min: float
+    width_stretch_max: float
+    schober_growth_mm: float
+    calibration_rms_px: float
+    sync_rms_ms: float
+    tape_stretch_series: list[float]
+
+
+@dataclass(frozen=True)
+class StudioEnvelope(JsonRecord):
+    """``spinemocap bench studio``'s numbers (``studio_envelope.json``): the machine, the frames
+    and frame rate of each motion, the wall-clock seconds and one row per level and motion."""
+
+    machine: str
+    frames: int
+    fps: float
+    wall_s: float
+    rows: list[EnvelopeRow]
+
+
 def realism_envelope(levels=("ideal", "skin", "lab"), motions=ENVELOPE_MOTIONS, frames: int = 60,
-                     fps: float = 20.0, seed: int = 0, progress: bool = True) -> list[dict]:
+                     fps: float = 20.0, seed: int = 0, progress: bool = True) -> list[EnvelopeRow]:
     """What the tape on the ``artificial`` preset goes through at each realism level and motion:
     the stretch against the roll's spec between consecutive rows (``row_stretch``), over the
     whole tape and across it, the modified-Schober growth of the lowest 150 mm, and the lab's
@@ -284,35 +396,35 @@ def realism_envelope(levels=("ideal", "skin", "lab"), motions=ENVELOPE_MOTIONS, 
         spacing, pitch = layout["row_spacing_mm"], scene.tape.row_pitch_mm
         whole = spacing.sum(axis=1) / (spacing.shape[1] * pitch)
         lumbar = spacing[:, :6].sum(axis=1)  # the six lowest gaps from S1: 150 mm of spec
-        rows.append({
-            "level": level, "motion": motion, "rows": scene.tape.n_rows,
-            "peak_angles_deg": np.abs(scene.angles_deg).max(axis=0).round(1).tolist(),
-            "row_stretch_min": float(layout["row_stretch"].min()), "row_stretch_max": float(layout["row_stretch"].max()),
-            "tape_stretch_min": float(whole.min()), "tape_stretch_max": float(whole.max()),
-            "width_stretch_min": float(layout["width_stretch"].min()),
-            "width_stretch_max": float(layout["width_stretch"].max()),
-            "schober_growth_mm": float(lumbar.max() - lumbar[0]),
-            "calibration_rms_px": float(scene.calibration_rms_px.mean()),
-            "sync_rms_ms": float(np.sqrt(np.mean(scene.sync_offsets_s**2)) * 1000),
-            "tape_stretch_series": whole.round(4).tolist(),
-        })
+        rows.append(EnvelopeRow(
+            level=level, motion=motion, rows=scene.tape.n_rows,
+            peak_angles_deg=np.abs(scene.angles_deg).max(axis=0).round(1).tolist(),
+            row_stretch_min=float(layout["row_stretch"].min()), row_stretch_max=float(layout["row_stretch"].max()),
+            tape_stretch_min=float(whole.min()), tape_stretch_max=float(whole.max()),
+            width_stretch_min=float(layout["width_stretch"].min()),
+            width_stretch_max=float(layout["width_stretch"].max()),
+            schober_growth_mm=float(lumbar.max() - lumbar[0]),
+            calibration_rms_px=float(scene.calibration_rms_px.mean()),
+            sync_rms_ms=float(np.sqrt(np.mean(scene.sync_offsets_s**2)) * 1000),
+            tape_stretch_series=whole.round(4).tolist(),
+        ))
         scene.close()
     return rows
 
 
-def plot_envelope(rows: list[dict], fps: float, path: Path) -> None:
+def plot_envelope(rows: list[EnvelopeRow], fps: float, path: Path) -> None:
     """Whole-tape stretch against the spec over time, one panel per motion, one line per level."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    motions = list(dict.fromkeys(r["motion"] for r in rows))
+    motions = list(dict.fromkeys(r.motion for r in rows))
     fig, axes = plt.subplots(1, len(motions), figsize=(3.2 * len(motions), 3.2), sharey=True)
     for ax, motion in zip(np.atleast_1d(axes), motions):
-        for r in (r for r in rows if r["motion"] == motion):
-            series = np.asarray(r["tape_stretch_series"])
-            ax.plot(np.arange(len(series)) / fps, 100 * (series - 1), label=r["level"])
+        for r in (r for r in rows if r.motion == motion):
+            series = np.asarray(r.tape_stretch_series)
+            ax.plot(np.arange(len(series)) / fps, 100 * (series - 1), label=r.level)
         ax.set_title(motion)
         ax.set_xlabel("time (s)")
         ax.axhline(0, color="grey", lw=0.5)
@@ -324,7 +436,7 @@ def plot_envelope(rows: list[dict], fps: float, path: Path) -> None:
     plt.close(fig)
 
 
-def run_studio_benchmark(frames: int, fps: float, out: Path, progress: bool = True) -> dict:
+def run_studio_benchmark(frames: int, fps: float, out: Path, progress: bool = True) -> StudioEnvelope:
     """``spinemocap bench studio``: the realism envelope table, JSON and plot."""
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -332,14 +444,14 @@ def run_studio_benchmark(frames: int, fps: float, out: Path, progress: bool = Tr
     print(f"{'level':<6} {'motion':<9} {'row stretch':>14} {'tape stretch':>14} {'width':>13} "
           f"{'Schober mm':>10} {'calib px':>8} {'sync ms':>7}")
     for r in rows:
-        print(f"{r['level']:<6} {r['motion']:<9} {r['row_stretch_min']:6.3f}..{r['row_stretch_max']:5.3f} "
-              f"{r['tape_stretch_min']:6.3f}..{r['tape_stretch_max']:5.3f} {r['width_stretch_min']:5.3f}.."
-              f"{r['width_stretch_max']:5.3f} {r['schober_growth_mm']:10.1f} {r['calibration_rms_px']:8.2f} "
-              f"{r['sync_rms_ms']:7.2f}")
+        print(f"{r.level:<6} {r.motion:<9} {r.row_stretch_min:6.3f}..{r.row_stretch_max:5.3f} "
+              f"{r.tape_stretch_min:6.3f}..{r.tape_stretch_max:5.3f} {r.width_stretch_min:5.3f}.."
+              f"{r.width_stretch_max:5.3f} {r.schober_growth_mm:10.1f} {r.calibration_rms_px:8.2f} "
+              f"{r.sync_rms_ms:7.2f}")
     plot_envelope(rows, fps, out / "studio_envelope.png")
-    result = {"machine": f"{platform.machine()} {platform.processor()}".strip(), "frames": frames, "fps": fps,
-              "wall_s": time.perf_counter() - t0, "rows": rows}
+    result = StudioEnvelope(machine=f"{platform.machine()} {platform.processor()}".strip(), frames=frames, fps=fps,
+                            wall_s=time.perf_counter() - t0, rows=rows)
     with atomic_write(out / "studio_envelope.json", "w") as handle:
-        json.dump(result, handle, indent=2)
+        json.dump(result.to_dict(), handle, indent=2)
     print(f"wrote {out / 'studio_envelope.json'} and {out / 'studio_envelope.png'}")
     return result

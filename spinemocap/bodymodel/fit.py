@@ -44,8 +44,8 @@ class FitOptions:
     min_markers: int = 4
     fit_offsets: bool = True
     # per-frame pose Jacobian: "kernel" = the backend's pose kernel (anny: analytic, numpy, the
-    # posed bones only); "autodiff" = the earlier path, one batched forward-mode pass through the
-    # whole torch skeleton (kept as the benchmark's peer)
+    # posed bones only); "autodiff" = one batched forward-mode pass through the whole torch
+    # skeleton (the benchmark's peer)
     pose_jacobian: str = "kernel"
 
 
@@ -229,7 +229,7 @@ class MarkerFitter:
 
     def _fit_pose_autodiff(self, observed: np.ndarray, shape: np.ndarray, offsets: np.ndarray, x0: np.ndarray,
                            iterations: int | None = None) -> tuple[np.ndarray, float]:
-        """:meth:`fit_pose` with the earlier Jacobian: one batched forward-mode autograd pass
+        """:meth:`fit_pose` with the autograd Jacobian: one batched forward-mode autograd pass
         through the backend's torch path (all of anny's 104 bones)."""
         import torch
 

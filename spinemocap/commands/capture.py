@@ -78,6 +78,7 @@ def run_init(args: argparse.Namespace) -> int:
     from ..app.capture_init import init_capture
     from ..fileio import read_toml, reading
     from ..tape import TapeSpec
+    from ._flags import shown
 
     tape = None
     if args.tape is not None:
@@ -96,7 +97,7 @@ def run_init(args: argparse.Namespace) -> int:
         print(f"  {name}: {probe.path} ({probe.n_frames} frames, {probe.fps:g} frames/s, "
               f"{probe.size[0]}x{probe.size[1]} px{dropped})")
     for fix in result.fixes:
-        print(f"  calibration fixed: {fix}")
+        print(f"  calibration fixed: {shown(fix)}")
     if result.unused_cameras:
         print(f"  cameras of the calibration without a recording (left out): {', '.join(result.unused_cameras)}")
     print(f"next: spinemocap track {result.root} --out {result.root / 'tracked'}")

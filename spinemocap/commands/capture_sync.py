@@ -39,13 +39,14 @@ def run_sync(args: argparse.Namespace) -> int:
     from ..app.sync import estimate_offsets, format_estimate, write_offsets
     from ..capture import Capture
     from ..fileio import InputError
+    from ._flags import shown
 
     if not (args.seconds > 0 and args.max_offset > 0):
         raise InputError("spinemocap capture sync", "--seconds and --max-offset must be positive")
     capture = Capture.open(args.capture)
     estimate = estimate_offsets(capture, args.method, args.detector, args.seconds, args.max_offset,
                                 progress=not args.no_progress)
-    print(format_estimate(estimate))
+    print(shown(format_estimate(estimate)))
     if args.write:
         path = write_offsets(capture, estimate)
         print(f"offsets written to {path}")

@@ -235,7 +235,7 @@ def _dlt_newton(P: np.ndarray, uv: np.ndarray, used: np.ndarray, steps: int = 4)
     (``lambda_0``: the first eigenvalue estimate) times the stationarity residual
     ``A1^T A v - lambda X`` computed from ``A``. ``G`` only steers the steps; the point they
     settle at is set by the residuals, so it is as accurate as ``A`` allows (the eigenvector of
-    ``A^T A`` itself, squared condition, was 1.7e-8 mm off)."""
+    ``A^T A`` itself carries the squared condition number)."""
     rows_u = uv[:, :, 0:1] * P[None, :, 2, :] - P[None, :, 0, :]  # (N, C, 4)
     rows_v = uv[:, :, 1:2] * P[None, :, 2, :] - P[None, :, 1, :]
     A = np.concatenate([rows_u, rows_v], axis=1) * np.tile(used, (1, 2))[:, :, None]

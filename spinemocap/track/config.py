@@ -278,8 +278,8 @@ class SequenceConfig:
     against the previous frame is overruled (previous identity kept, frame flagged) unless the
     evidence is unambiguous (see :mod:`spinemocap.track.continuity`). By default every shift
     is searched: with one end of the tape unseen a re-solve can slide the template by more than
-    two rows (the last 4 rows of 13 hidden: 4 rows, and a search up to 2 then relabelled it
-    by 2 only, leaving every label 2 rows off); ``follow_hidden_rows``: after
+    two rows (4 rows with the last 4 of 13 hidden), and a narrower search would leave every label
+    off by the rows it cannot reach; ``follow_hidden_rows``: after
     a full re-solve, unobserved rows beyond the observed ones move with their observed tape
     neighbours from the prediction instead of the re-solve's mean-stretch placement (a dot so
     moved more than half a dot spacing from the re-solve's place is marked ``dot_unanchored``);

@@ -66,9 +66,9 @@ def test_bland_altman_limits_and_bias():
     assert missing.frames == 0 and missing.valid == 0.0 and np.isnan(missing.rmse_deg)
 
 
-def test_the_peer_scores_the_previous_row_centres():
+def test_the_peer_scores_plain_left_right_midpoint_row_centres():
     # bench angles' peer (tracked_lr_midpoints) is the tracked table without its C dots: the row
-    # centres are then the plain L-R midpoints, as before the midline correction
+    # centres are then the plain L-R midpoints, without the midline correction
     from spinemocap.analysis.bent_tape import bent_tape_dots, uniform_bend
     from spinemocap.analysis.curve import row_tracks
     from spinemocap.bench.analysis import without_middle_dots

@@ -124,7 +124,7 @@ def test_init_refuses_a_size_mismatch_with_the_fix_and_applies_it(lab, tmp_path,
     assert "camera 'cam1': its recording is 64x48 px but the calibration says 64x56 px" in err
     assert "--fix-size crop" in err and not (tmp_path / "cap" / "capture.toml").exists()
     assert main([*args, "--fix-size", "crop"]) == 0
-    assert "calibration fixed: camera 'cam1': calibration 64x56 -> 64x48 px" in capsys.readouterr().out
+    assert "calibration fixed: camera 'cam1': calibration 64x56 -> 64x48 px (--fix-size crop)" in capsys.readouterr().out
     assert Rig.from_toml(tmp_path / "cap" / "rig.toml")[0].size == SIZE
     assert main(args) == 2 and "already here" in capsys.readouterr().err  # never over a capture
 

@@ -48,8 +48,9 @@ def test_an_unknown_method_is_a_clear_error():
     pytest.importorskip("opensim")
     from spinemocap.bench.opensim import run_opensim_benchmark
 
-    with pytest.raises(InputError, match="ik_slip_from_markers"):
+    with pytest.raises(InputError, match="ik_slip_from_markers") as unknown:
         run_opensim_benchmark(motions=["flexion"], methods=["ik", "fastest"], progress=False)
+    assert unknown.value.source == "methods"  # the parameter; the command line shows --methods
 
 
 def test_the_headline_plot_is_a_png_of_every_method_that_ran():

@@ -19,7 +19,8 @@ def test_views_histogram_counts_dot_frames_by_cameras_seeing_them():
 
 def test_atomic_writes_are_timed_and_land(tmp_path):
     numbers = time_atomic_writes(tmp_path / "w", files=120, size=1000)
-    assert numbers["files"] == 120 and numbers["first_100_cpu_ms"] >= 0 and numbers["last_100_cpu_ms"] >= 0
+    assert numbers.files == 120 and numbers.first_100_cpu_ms >= 0 and numbers.last_100_cpu_ms >= 0
+    assert list(numbers.to_dict()) == ["files", "bytes", "first_100_cpu_ms", "last_100_cpu_ms"]
     assert len(list((tmp_path / "w").iterdir())) == 120
 
 

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import logging
+
+import numpy as np
 import pytest
 
 from calibration.boards import BoardSpec
 from calibration.extrinsics import bundle_adjust
 from calibration.wand import WandSpec
-from spinemocap.cli import build_parser, flag_of, invoked_parsers, main, with_flags
+from spinemocap.cli import build_parser, main, plain_warning
+from spinemocap.commands._flags import FlagNames, flag_of, invoked_parsers, show_flags_of, shown, with_flags
 from spinemocap.fileio import InputError
 
 
@@ -71,3 +75,51 @@ def test_the_application_names_parameters_and_the_cli_their_flags(tmp_path, caps
     assert main(["bench", "speed", "--preset", "tiny", "--candidate-workers", "1"]) == 2
     assert "error: --candidate-workers: the candidate workers build frames ahead of the tracker, which prediction " \
            "cannot wait for: turn prediction off (--frames-at-once N or --no-predict)" in capsys.readouterr().err
+    assert shown("`predict=False`") == "`predict=False`"  # after the command: the library's words again
+
+
+def _parsers(*argv: str):
+    parser = build_parser()
+    return invoked_parsers(parser, parser.parse_args(list(argv)))
+
+
+def test_texts_the_application_prints_or_logs_name_parameters_and_read_as_flags():
+    from spinemocap.app.sync import SyncEstimate, format_estimate
+
+    estimate = SyncEstimate(("cam1", "cam2"), np.array([0.0, 0.01]), np.array([0.0, 0.005]), "motion")
+    table = format_estimate(estimate)
+    assert "try more `seconds`, or `method='audio'` with a clap" in table and "--" not in table
+    assert "try more --seconds, or --method audio with a clap" in with_flags(table, _parsers("capture", "sync", "c"))
+    synth = _parsers("synth", "out", "--vicon")
+    assert with_flags("(e.g. `preset=artificial` or `preset=studio`) or `wand_seconds=0`", synth) == \
+        "(e.g. --preset artificial or --preset studio) or --wand-seconds 0"
+    assert flag_of("methods", _parsers("bench", "opensim")) == "--methods"
+    assert flag_of("fix_size", _parsers("capture", "init", "o", "--videos", "v", "--calibration", "r")) == "--fix-size"
+
+
+class Collected(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__()
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage())
+
+
+def test_the_running_command_renders_printed_and_logged_texts():
+    show_flags_of([])
+    assert shown("try more `seconds`") == "try more `seconds`"  # no command running: the library's words
+    handler = Collected()
+    handler.addFilter(FlagNames())
+    logger = logging.getLogger("spinemocap.test_flags")
+    logger.addHandler(handler)
+    try:
+        show_flags_of(_parsers("capture", "sync", "c"))
+        assert shown("try more `seconds`") == "try more --seconds"
+        logger.warning("only %d %% seen: use `method='audio'`", 40)
+        assert handler.messages == ["only 40 % seen: use --method audio"]
+        show_flags_of(_parsers("bench", "speed"))
+        assert plain_warning("turn `predict=False`", UserWarning, "x.py", 1) == "spinemocap: warning: turn --no-predict\n"
+    finally:
+        logger.removeHandler(handler)
+        show_flags_of([])

@@ -188,8 +188,8 @@ def test_transform_from_the_wand_calibrated_rig():
 def test_crossval_recovers_the_clock_and_frame_on_a_13_row_tape():
     """A 13-row tape (triads at R01, R07, R13), exact dots: the Vicon's tape markers sit where
     crossval expects them from the dots (the bench's trial: the studio's dots with skin strain, as
-    the Vicon's markers ride the strained skin; unstrained dots missed R07/R13 by 8.6/12.2 mm RMSE,
-    and the clock by ~30 ms), so offset < 1 ms and transform < 1 mm."""
+    the Vicon's markers ride the strained skin; unstrained dots would miss the triads by several
+    mm and the clock by tens of ms), so offset < 1 ms and transform < 1 mm."""
     torch = pytest.importorskip("torch")
     torch.set_num_threads(1)
     from spinemocap.bench.bodyfit import crossval_trial

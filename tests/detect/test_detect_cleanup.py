@@ -233,8 +233,8 @@ def test_ring_pixels_are_each_blobs_own_dilation():
 
 # ---------------------------------------------------------------- the dots, the levels, the masks
 def _detect_comparing_blob_passes(images, monkeypatch) -> tuple[int, float, float]:
-    """Detect ``images`` with the shipped network; every region's blob pass is also done the
-    old way. Returns (dots, largest px difference, largest confidence difference)."""
+    """Detect ``images`` with the shipped network; every region's blob pass is also done by the
+    plain reference pass. Returns (dots, largest px difference, largest confidence difference)."""
     from spinemocap.detect import Detector
 
     real = blobs._region_dots

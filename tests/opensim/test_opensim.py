@@ -46,14 +46,10 @@ needs_opensim = pytest.mark.skipif(osim is None, reason="opensim not installed: 
 def studio():
     import torch
 
-    from spinemocap.analysis.levels import LevelMap
     from spinemocap.bench.analysis import studio_motion
 
     torch.set_num_threads(1)
-    data = studio_motion("mixed", FRAMES, FPS, 13)
-    data["levels"] = LevelMap.from_row_levels(data["row_levels"], 13)
-    data["markers"] = MarkerTable.from_arrays(data["labels"], data["dots"], fps=FPS)
-    return data
+    return studio_motion("mixed", FRAMES, FPS, 13)
 
 
 def _run(studio, tmp_path, markers=None, up=None, facing=None, levels=None, **settings):
@@ -61,8 +57,8 @@ def _run(studio, tmp_path, markers=None, up=None, facing=None, levels=None, **se
 
     settings.setdefault("depth_scale", 0.5)
     settings.setdefault("static_frames", 1)  # the neutral first frame (the motion starts at once)
-    return run_opensim(markers or studio["markers"], studio["tape"], levels or studio["levels"],
-                       studio["up"] if up is None else up, studio["facing"] if facing is None else facing,
+    return run_opensim(markers or studio.markers, studio.tape, levels or studio.levels,
+                       studio.up if up is None else up, studio.facing if facing is None else facing,
                        tmp_path / "out", settings=OpenSimSettings(**settings))
 
 
@@ -93,11 +89,11 @@ def test_built_model_loads_and_initialises(studio, base_run):
     spine = [b for b in bodies if not b.endswith("_skin")]
     assert spine[:3] == ["pelvis", "sacrum", "L5"] and spine[-2:] == ["T1", "head_neck"]
     assert [b for b in bodies if b.endswith("_skin")] == [f"R{r:02d}_skin" for r in range(3, 14)]
-    assert model.getMarkerSet().getSize() == len(studio["labels"])
+    assert model.getMarkerSet().getSize() == len(studio.labels)
     # joints outside the taped span are welds: coordinates only between the vertebrae under the
     # tape's first and last rows (the studio lays the tape from S1 by default: then L5/S1 is driven)
     chain = [*CHAIN, HEAD_NECK]
-    lowest, highest = chain.index(studio["row_levels"][0]), chain.index(studio["row_levels"][-1])
+    lowest, highest = chain.index(studio.row_levels[0]), chain.index(studio.row_levels[-1])
     joints = [joint_name(chain[k], chain[k - 1]) for k in range(1, len(chain))]
     assert result.summary.driven_joints == joints[lowest:highest]
     assert result.summary.welded_joints == joints[:lowest] + joints[highest:]
@@ -106,7 +102,7 @@ def test_built_model_loads_and_initialises(studio, base_run):
     # the setups are OpenSim's own and name one marker task per placed marker
     for setup in ("setup_scale.xml", "setup_ik.xml"):
         tasks = ET.parse(result.out_dir / setup).getroot().iter("IKMarkerTask")
-        assert sorted(t.get("name") for t in tasks) == sorted(studio["labels"])
+        assert sorted(t.get("name") for t in tasks) == sorted(studio.labels)
     osim.ScaleTool(str(result.out_dir / "setup_scale.xml"))
     osim.InverseKinematicsTool(str(result.out_dir / "setup_ik.xml"))
 
@@ -118,7 +114,7 @@ def test_markers_land_on_the_vertebra_of_the_level_map(studio, tmp_path):
 
     levels = LevelMap({"L4": 1, "L1": 10, "T10": 13}, 13)  # L3 at row 4, L2 at 7, T12 11, T11 12
     result = _run(studio, tmp_path, levels=levels, slip=None)  # rigid: every marker on its vertebra's body
-    placed = marker_locations(result.out_dir / "model.osim", studio["labels"])
+    placed = marker_locations(result.out_dir / "model.osim", studio.labels)
     expected = {"R01L": "L4", "R02C": "L4", "R04C": "L3", "R06R": "L2", "R08L": "L2", "R10C": "L1",
                 "R12C": "T11", "R13R": "T10"}
     assert {label: placed[label][0] for label in expected} == expected
@@ -159,8 +155,8 @@ def _turn(points: np.ndarray, degrees: float) -> np.ndarray:
 @needs_opensim
 def test_turning_the_capture_about_the_vertical_leaves_the_angles_unchanged(studio, base_run, tmp_path):
     base = base_run
-    turned_markers = MarkerTable.from_arrays(studio["labels"], _turn(studio["dots"], 130.0), fps=FPS)
-    turned = _run(studio, tmp_path / "b", markers=turned_markers, facing=_turn(studio["facing"], 130.0))
+    turned_markers = MarkerTable.from_arrays(studio.labels, _turn(studio.dots, 130.0), fps=FPS)
+    turned = _run(studio, tmp_path / "b", markers=turned_markers, facing=_turn(studio.facing, 130.0))
     # the command's default: each row's slip held at the tape's, so that IK solves the rotations only.
     # The two worlds differ by rounding alone; the solver stops on absolute tolerances along directions
     # the markers hardly see, so the angles agree within the stated bound (0.5 deg in every frame),
@@ -174,7 +170,7 @@ def test_turning_the_capture_about_the_vertical_leaves_the_angles_unchanged(stud
 @pytest.fixture(scope="module")
 def declared_30_deg_off(studio, tmp_path_factory):
     """The command's defaults with ``facing`` declared 30 deg off the data."""
-    return _run(studio, tmp_path_factory.mktemp("turned30"), facing=_turn(studio["facing"], 30.0), depth_scale=1.0)
+    return _run(studio, tmp_path_factory.mktemp("turned30"), facing=_turn(studio.facing, 30.0), depth_scale=1.0)
 
 
 @needs_opensim
@@ -211,19 +207,19 @@ def test_a_facing_wrong_for_the_data_is_a_clear_error(studio, tmp_path, facing):
 
 @needs_opensim
 def test_missing_samples_are_excluded_not_zero(studio, tmp_path):
-    dots = studio["dots"].copy()
+    dots = studio.dots.copy()
     status = np.full(dots.shape[:2], "observed", dtype=object)
     holes = [(3, 5), (4, 5), (6, 20), (FRAMES - 1, 31)]  # after the static frames
     for f, d in holes:
         dots[f, d] = np.nan
     status[2:, 12] = "inferred"
-    markers = MarkerTable.from_arrays(studio["labels"], dots, fps=FPS, status=status)
+    markers = MarkerTable.from_arrays(studio.labels, dots, fps=FPS, status=status)
     # holes after the static frames
     result = _run(studio, tmp_path, markers=markers, static_frames=2)
     table = osim.TimeSeriesTableVec3(str(result.out_dir / "markers_opensim.trc"))
     labels = list(table.getColumnLabels())
     for f, d in holes:
-        v = table.getRowAtIndex(f)[labels.index(studio["labels"][d])]
+        v = table.getRowAtIndex(f)[labels.index(studio.labels[d])]
         assert all(np.isnan([v[0], v[1], v[2]]))
     assert result.summary.marker_rms_mm <= 2.0  # zeros would put a marker a metre off
     weights = result.summary.marker_weights
@@ -232,11 +228,11 @@ def test_missing_samples_are_excluded_not_zero(studio, tmp_path):
     from spinemocap.opensim.tools import INFERRED_SD_MM, OBSERVED_SD_MM
 
     inferred = 0.36 * (OBSERVED_SD_MM / INFERRED_SD_MM) ** 2
-    assert weights[studio["labels"][5]] == 1.0 and weights[studio["labels"][12]] == pytest.approx(
+    assert weights[studio.labels[5]] == 1.0 and weights[studio.labels[12]] == pytest.approx(
         (2 + inferred * (FRAMES - 2)) / FRAMES, abs=1e-3)
     ik = ET.parse(result.out_dir / "setup_ik.xml").getroot()
-    task = next(t for t in ik.iter("IKMarkerTask") if t.get("name") == studio["labels"][12])
-    assert float(task.find("weight").text) == pytest.approx(weights[studio["labels"][12]], abs=1e-3)
+    task = next(t for t in ik.iter("IKMarkerTask") if t.get("name") == studio.labels[12])
+    assert float(task.find("weight").text) == pytest.approx(weights[studio.labels[12]], abs=1e-3)
 
 
 @needs_opensim
@@ -250,7 +246,7 @@ def test_markers_on_a_lab_model(studio, base_run, tmp_path):
     lab.printToXML(str(tmp_path / "lab.osim"))
     (tmp_path / "bodies.toml").write_text("[bodies]\nL4 = 'L4'\nL2 = 'L2'\nL1 = 'L1'\nT12 = 'T12'\nT10 = 'T10'\n"
                                           "T8 = 'T8'\nT6 = 'T6'\n")
-    result = run_lab_model(studio["markers"], studio["tape"], studio["levels"], studio["up"], studio["facing"],
+    result = run_lab_model(studio.markers, studio.tape, studio.levels, studio.up, studio.facing,
                            tmp_path / "out", tmp_path / "lab.osim", tmp_path / "bodies.toml")
     s = result.summary
     assert s.marker_rms_mm <= 2.0
@@ -260,7 +256,7 @@ def test_markers_on_a_lab_model(studio, base_run, tmp_path):
     assert "L2_L3_extension" in result.angles.columns and (tmp_path / "out" / "setup_ik.xml").is_file()
     with pytest.raises(InputError, match="not in"):
         (tmp_path / "bad.toml").write_text("L4 = 'no_such_body'\n")
-        run_lab_model(studio["markers"], studio["tape"], studio["levels"], studio["up"], studio["facing"],
+        run_lab_model(studio.markers, studio.tape, studio.levels, studio.up, studio.facing,
                       tmp_path / "out2", tmp_path / "lab.osim", tmp_path / "bad.toml")
 
 
@@ -297,14 +293,14 @@ def test_a_tighter_ik_accuracy_reads_the_studio_twist_more_fully(tmp_path):
     from spinemocap.opensim.tools import IK_ACCURACY
 
     data = studio_motion("rotation", 4, 4 / 3, 13, realism="lab")
-    markers = MarkerTable.from_arrays(data["labels"], data["dots"], fps=4 / 3)
-    lo, hi = data["rows"]
-    expected = expected_between_rows(data["scene"], markers, lo, hi)[:, 2]
-    levels = LevelMap.from_row_levels(data["row_levels"], 13)
+    markers = MarkerTable.from_arrays(data.labels, data.dots, fps=4 / 3)
+    lo, hi = data.rows
+    expected = expected_between_rows(data.scene, markers, lo, hi)[:, 2]
+    levels = LevelMap.from_row_levels(data.row_levels, 13)
     read = {}
     for accuracy in (IK_ACCURACY, 1e-6):
         settings = OpenSimSettings(static_frames=1, depth_scale=0.6, accuracy=accuracy)
-        result = run_opensim(markers, data["tape"], levels, data["up"], data["facing"], tmp_path / f"{accuracy:g}",
+        result = run_opensim(markers, data.tape, levels, data.up, data.facing, tmp_path / f"{accuracy:g}",
                              settings=settings)
         twist = ik_angles(result, lo, hi)[:, 2]
         peaks = np.abs(expected) > 5.0

@@ -1,4 +1,4 @@
-"""The studio's faster ground truth and writes give the same results as before: visibility with
+"""The studio's fast ground truth and writes give the results of their plain references: visibility with
 the cell locator built only on the triangles that can block a ray (all of a mesh's rays in one
 query) equals the whole-mesh locator casting ray by ray; ``sphere_mesh`` from its cached template
 equals the mesh built from scratch; atomic writes list a folder for stale temporaries once per

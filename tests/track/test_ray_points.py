@@ -1,10 +1,9 @@
 """Observed dots' output points: the least-squares point of their blobs' rays (``StatusConfig.ray_points``).
 
 The candidates' DLT, its rows normalised as 4-vectors in world mm, weights each camera by where
-the world's origin lies rather than by its error: on the studio's ``lab`` capture the DLT points
-of the tracker's own blobs were 0.86 mm off on average, their rays' points 0.35 mm (those of least
-reprojection error too), and camera 0, coming into view at a grazing angle, made the DLT points
-worse. A ray's distance does not depend on the world frame."""
+the world's origin lies rather than by its error, so a camera seeing the tape at a grazing angle
+pulls its points off; a ray's distance does not depend on the world frame (the reasons and numbers:
+``docs/decisions/0001-ray-points-for-observed-dots.md``)."""
 
 from __future__ import annotations
 

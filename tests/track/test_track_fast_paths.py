@@ -607,8 +607,8 @@ def test_mrf2_image_costs_in_place_are_the_expressions_bit_for_bit(cost_cap, dis
 
 def _evidence_reference(image, mask, downscale=1.0, blur_sigma_px=None, outside_slope=0.05, dot_to_width=0.2,
                         crop_margin_px=64.0):
-    """``build_evidence`` as written before: the whole frame converted to grey first, the mask's
-    columns searched over all rows, a fresh array per operation."""
+    """``build_evidence`` written plainly, the reference the fast path must equal: the whole frame
+    converted to grey first, the mask's columns searched over all rows, a fresh array per operation."""
     import cv2
 
     from spinemocap.track.evidence import EvidenceImage, estimate_dot_radius_px
@@ -689,7 +689,7 @@ def test_evidence_from_the_colour_window_is_the_whole_frames_grey_bit_for_bit(op
             assert got.cost.dtype == reference.cost.dtype == np.float32
             np.testing.assert_array_equal(got.cost.view(np.int32), reference.cost.view(np.int32))
             assert (got.outside_cost, got.origin, got.scale) == (reference.outside_cost, reference.origin, reference.scale)
-        colour_reference = _evidence_reference(image, mask, **options)  # the old colour path: the same
+        colour_reference = _evidence_reference(image, mask, **options)  # the reference on the colour image: the same
         np.testing.assert_array_equal(colour_reference.cost, reference.cost)
 
 
