@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spinemocap.synth import SynthConfig, build_scene
+from spinemocap.synth import SynthConfig
 from spinemocap.synth.body import SPINE_BONES
-from spinemocap.synth.scene import cached_body
+from spinemocap.synth.scene import cached_body, cached_tape_on_skin
+from spinemocap.synth.skin_strain import SkinStrain
 
 FULL_FLEXION = np.array([[0.0, 0.0, 0.0], [70.0, 0.0, 0.0]])
 
@@ -52,19 +53,19 @@ def test_deeper_joints_lengthen_the_back_skin_more_in_flexion(bodies):
     assert growth[1] > growth[0] + 15.0, growth  # ~25 mm deeper x 1.2 rad of bend between the joints
 
 
-def test_the_tape_follows_the_schober_strain_at_either_depth():
-    growth = {}
-    for depth in ("anny", "anatomical"):
-        scene = build_scene(SynthConfig.preset("tiny", frames=1, motion="neutral", seed=1, joint_depth=depth))
-        vertices, angles = scene.body.pose(FULL_FLEXION)
-        gaps = []
+def test_the_tape_follows_the_schober_strain_at_either_depth(bodies):
+    skin = SkinStrain.for_subject(1)
+    for body in bodies:
+        tape = cached_tape_on_skin((), None, "S1", None, "standard", body.joint_depth)
+        assert tape.row_levels[0] == "S1"
+        vertices, angles = body.pose(FULL_FLEXION)
+        lumbar = []  # the six lowest row gaps: the modified Schober test's 15 cm from S1
         for v, a in zip(vertices.astype(float), angles):
-            dots = scene.tape_on_skin.pose(v, None, scene.skin, a).dots()
-            graph = scene.tape.graph
-            centres = np.array([dots[graph.row == r].mean(axis=0) for r in range(7)])
-            gaps.append(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum())
-        growth[depth] = gaps[1] / gaps[0] - 1
-        assert abs(growth[depth] - scene.skin.lumbar_gain) < 0.03, (depth, growth[depth])
+            dots = tape.pose(v, None, skin, a).dots()
+            centres = np.array([dots[tape.spec.graph.row == r].mean(axis=0) for r in range(7)])
+            lumbar.append(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum())
+        growth = lumbar[1] / lumbar[0] - 1
+        assert abs(growth - skin.lumbar_gain) < 0.03, (body.joint_depth, growth)
     assert SynthConfig.preset("tiny", joint_depth="anatomical").to_dict()["joint_depth"] == "anatomical"
     with pytest.raises(ValueError, match="joint depth"):
         SynthConfig.preset("tiny", joint_depth="deep")
