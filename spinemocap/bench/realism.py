@@ -67,8 +67,9 @@ def sweep() -> list[Case]:
     """The sweep: tension 0/10/20/30 % with skin strain, 30 % with skin strain off, calibration
     error 0.5/1/2/3 px (with and without --refine-rig), sync error 1/3 ms, full flexion (at the
     ``lab`` level, and with 20 % tension and 1 px calibration error) and the forehand at the
-    ``lab`` level, the held-out appearance family at the ``lab`` level (:func:`held_out_look`), and
-    ``lab`` itself (the ``ideal`` case = 0 of every factor)."""
+    ``lab`` level, the held-out appearance family at the ``lab`` level (:func:`held_out_look`),
+    ``lab`` and its full flexion on a spine bending at the published depth of the vertebral bodies
+    (``joint_depth="anatomical"``), and ``lab`` itself (the ``ideal`` case = 0 of every factor)."""
     cases = [Case("ideal", "baseline", {"realism": "ideal"}), Case("lab", "all", {"realism": "lab"})]
     cases += [Case(f"tension {int(100 * t)} % + skin", "tension", {"realism": "skin", "tape_tension": t})
               for t in (0.0, 0.1, 0.2, 0.3)]
@@ -84,6 +85,10 @@ def sweep() -> list[Case]:
               Case("forehand (lab)", "motion", {"realism": "lab", "motion": "forehand"})]
     cases.append(Case(HELD_OUT_CASE, "appearance", {"realism": "lab", **held_out_look()}))
     cases.append(Case(HELD_OUT_CASE_SUBJECT, "appearance", {"realism": "lab", **held_out_look(), **LAB_SUBJECT}))
+    cases += [Case("lab, anatomical joint depth", "anatomy", {"realism": "lab", "joint_depth": "anatomical"}),
+              Case("flexion, 20 % tension, 1 px, anatomical joint depth", "anatomy",
+                   {"realism": "lab", "motion": "flexion", "tape_tension": 0.2, "calibration_error_px": 1.0,
+                    "joint_depth": "anatomical"})]
     return cases
 
 
