@@ -12,8 +12,8 @@ Per region:
 3. dot contrast = 99.5th percentile of the smoothed top-hat on the tape; no dots when it is weak
    or not well above the tape's own texture (median top-hat); threshold at half the contrast;
    spots fainter than that (above a quarter of it) and apart from the blobs are cut at half their
-   own peak and kept where they are slivers that end the face-on dots' lattice along their short
-   axis (a dot seen nearly edge-on: :func:`_add_faint_spots`, :func:`_ends_the_lattice`);
+   own peak and kept where they are slivers beside dots that are themselves foreshortened (a dot
+   seen nearly edge-on: :func:`_add_faint_spots`, :func:`_beside_oblique_dots`);
 4. dot size: given, or the blobs' median long axis (the mask-width guess shrinks in oblique views);
 5. keep blobs whose area (against a dot seen as obliquely as the blob: :func:`foreshortening`),
    axes and fill fit a dot, whose surrounding ring lies on the tape, which do not border a bright
@@ -61,8 +61,9 @@ class BlobParams:
     min_contrast_to_texture: float = 5.0  # dot contrast / median top-hat over the tape
     faint_share: float = 0.25      # spots above this x the contrast, apart from the dots, are cut at half their own peak (0.5: none)
     faint_max_axis_ratio: float = 0.5  # ... and kept only as slivers (minor / major axis): a dot seen over 60 deg from face-on
-    faint_lattice_reach: float = 4.0  # ... with a face-on dot within this * d (inf: no lattice test, :func:`_ends_the_lattice`)
-    faint_max_ahead: float = 0.5   # ... and none more than this * d beyond it along its short axis
+    faint_max_neighbour_axis_ratio: float = 0.6  # ... beside dots seen obliquely: the median minor / major axis of
+                                                 # its nearest blobs at most this (1: no test, :func:`_beside_oblique_dots`)
+    faint_neighbours: int = 3      # ... of this many nearest blobs above half the contrast
     dot_to_width: float = DEFAULT_DOT_TO_WIDTH
 
 
@@ -464,8 +465,8 @@ def _add_faint_spots(binary: np.ndarray, smooth: np.ndarray, region: np.ndarray,
     region's ``contrast``, in ``region``) each spot of ``region`` brighter than
     ``p.faint_share * contrast`` that lies apart from ``binary``'s blobs (more than a third of
     the dot size ``d``, so that it never joins one), cut at half its own peak, where what is
-    left is a sliver (minor / major axis at most ``p.faint_max_axis_ratio``) that ends the
-    lattice of ``binary``'s blobs along its short axis (:func:`_ends_the_lattice`).
+    left is a sliver (minor / major axis at most ``p.faint_max_axis_ratio``) beside blobs of
+    ``binary`` that are foreshortened too (:func:`_beside_oblique_dots`).
 
     A dot seen nearly edge-on (70-78 deg from face-on) is a sliver a few px wide, on skin that
     the light grazes: its smoothed peak falls under half the face-on dots' contrast, which would
@@ -490,22 +491,19 @@ def _add_faint_spots(binary: np.ndarray, smooth: np.ndarray, region: np.ndarray,
     ys, xs, lab = ys[bright], xs[bright], lab[bright]
     shapes = _moment_ellipses(ys, xs, lab, n)
     sliver = shapes.axis_ratio <= p.faint_max_axis_ratio
-    if math.isfinite(p.faint_lattice_reach) and sliver.any():
+    if p.faint_max_neighbour_axis_ratio < 1 and sliver.any():
         candidates = np.flatnonzero(sliver)
-        sliver[candidates] = _ends_the_lattice(shapes.centre[candidates], shapes.minor_axis[candidates],
-                                               _blob_centres(binary), d, p)
+        sliver[candidates] = _beside_oblique_dots(shapes.centre[candidates], _dot_shapes(binary, d, p), p)
     keep = sliver[lab]
     binary[ys[keep], xs[keep]] = True
 
 
 class _Ellipses(NamedTuple):
     """Per label (n,): ``axis_ratio`` minor / major axis of its moment ellipse (1 for an empty
-    label), ``centre`` (n, 2) px (x, y; NaN for an empty label) and ``minor_axis`` (n, 2) the
-    unit direction of its short axis (x, y; either sign)."""
+    label) and ``centre`` (n, 2) px (x, y; NaN for an empty label)."""
 
     axis_ratio: np.ndarray
     centre: np.ndarray
-    minor_axis: np.ndarray
 
 
 def _moment_ellipses(ys: np.ndarray, xs: np.ndarray, lab: np.ndarray, n: int) -> _Ellipses:
@@ -521,43 +519,35 @@ def _moment_ellipses(ys: np.ndarray, xs: np.ndarray, lab: np.ndarray, n: int) ->
         half_gap = np.sqrt(((cxx - cyy) / 2) ** 2 + cxy ** 2)
         major = np.maximum((cxx + cyy) / 2 + half_gap, 1 / 12)
         minor = np.maximum((cxx + cyy) / 2 - half_gap, 1 / 12)
-        ratio = np.where(count > 0, np.sqrt(minor / major), 1.0)
-    across = 0.5 * np.arctan2(2 * cxy, cxx - cyy) + math.pi / 2  # the major axis turned by 90 deg
-    return _Ellipses(ratio, np.stack([mx, my], axis=1), np.stack([np.cos(across), np.sin(across)], axis=1))
+        return _Ellipses(np.where(count > 0, np.sqrt(minor / major), 1.0), np.stack([mx, my], axis=1))
 
 
-def _blob_centres(binary: np.ndarray) -> np.ndarray:
-    """(M, 2) px (x, y): the centroid of each 8-connected blob of ``binary`` (bool)."""
+def _dot_shapes(binary: np.ndarray, d: float, p: BlobParams) -> _Ellipses:
+    """The moment ellipses of the 8-connected blobs of ``binary`` (bool) that cover at least
+    ``p.min_area`` of a face-on dot of diameter ``d`` px (the blob tests' floor; specks left out)."""
     n, labels, area = labelled_components(binary)
     ys, xs = _nonzero(binary)
-    lab = labels[ys, xs]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        centres = np.stack([np.bincount(lab, xs, n), np.bincount(lab, ys, n)], axis=1) / area[:, None]
-    return centres[1:]
+    shapes = _moment_ellipses(ys, xs, labels[ys, xs], n)
+    dots = np.flatnonzero(area >= p.min_area * math.pi * d * d / 4)
+    dots = dots[dots > 0]  # label 0: the background
+    return _Ellipses(shapes.axis_ratio[dots], shapes.centre[dots])
 
 
-def _ends_the_lattice(centre: np.ndarray, minor_axis: np.ndarray, dots: np.ndarray, d: float,
-                      p: BlobParams) -> np.ndarray:
-    """Per faint sliver (K,): at least one of ``dots`` (M, 2) px (x, y; the region's blobs
-    above half its contrast, the face-on dots) lies within ``p.faint_lattice_reach * d`` of its
-    ``centre`` (K, 2) px, and none of those lies more than ``p.faint_max_ahead * d`` beyond it
-    along its ``minor_axis`` (K, 2) unit vectors, taken pointing away from their mean. ``d``:
-    the expected dot diameter (px).
+def _beside_oblique_dots(centre: np.ndarray, dots: _Ellipses, p: BlobParams) -> np.ndarray:
+    """Per faint sliver (K,) at ``centre`` (K, 2) px (x, y): the median axis ratio (minor / major)
+    of the ``p.faint_neighbours`` ``dots`` nearest it (fewer where there are fewer) is at most
+    ``p.faint_max_neighbour_axis_ratio``; False where there is no dot.
 
-    A dot seen nearly edge-on is squeezed along the direction in which the tape turns away from
-    the camera, and there the tape soon passes out of sight: the face-on dots beside it lie
-    behind it or across (its own row), none ahead. The faint slivers that are not dots lie
-    between face-on dots along their short axis (the tape's print between two rows, the shaded
-    rim of a ball over the tape) or far from any (a mask spilt onto the room)."""
-    if not len(dots):
+    A dot seen nearly edge-on lies where the tape turns away from the camera, and the rows beside
+    it are seen obliquely too: their dots are ellipses (a ratio of 0.6: 53 deg from face-on).
+    The faint slivers that are not dots lie beside round, face-on dots: the tape's print between
+    two rows, the shaded rim of a ball over the tape, a spot where the mask spills onto the room."""
+    if not len(dots.axis_ratio):
         return np.zeros(len(centre), bool)
-    offset = dots[None] - centre[:, None]  # (K, M, 2)
-    near = np.hypot(offset[..., 0], offset[..., 1]) <= p.faint_lattice_reach * d
-    along = np.einsum("kmi,ki->km", offset, minor_axis)
-    mean = np.where(near, along, 0.0).sum(axis=1) / np.maximum(near.sum(axis=1), 1)
-    along *= np.where(mean > 0, -1.0, 1.0)[:, None]  # positive: ahead, away from the dots
-    ahead = np.where(near, along, -np.inf).max(axis=1)
-    return near.any(axis=1) & (ahead <= p.faint_max_ahead * d)
+    k = min(p.faint_neighbours, len(dots.axis_ratio))
+    gap = dots.centre[None] - centre[:, None]  # (K, M, 2)
+    nearest = np.argsort(np.hypot(gap[..., 0], gap[..., 1]), axis=1)[:, :k]
+    return np.median(dots.axis_ratio[nearest], axis=1) <= p.faint_max_neighbour_axis_ratio
 
 
 def _carved_from_larger_area(blobs: "_Blobs", labels: np.ndarray, candidate: np.ndarray, box: tuple[slice, slice],
