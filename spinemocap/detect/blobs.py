@@ -500,10 +500,12 @@ def _add_faint_spots(binary: np.ndarray, smooth: np.ndarray, region: np.ndarray,
 
 class _Ellipses(NamedTuple):
     """Per label (n,): ``axis_ratio`` minor / major axis of its moment ellipse (1 for an empty
-    label) and ``centre`` (n, 2) px (x, y; NaN for an empty label)."""
+    label), ``centre`` (n, 2) px (x, y; NaN for an empty label) and ``major`` the full major
+    axis (px)."""
 
     axis_ratio: np.ndarray
     centre: np.ndarray
+    major: np.ndarray
 
 
 def _moment_ellipses(ys: np.ndarray, xs: np.ndarray, lab: np.ndarray, n: int) -> _Ellipses:
@@ -519,18 +521,19 @@ def _moment_ellipses(ys: np.ndarray, xs: np.ndarray, lab: np.ndarray, n: int) ->
         half_gap = np.sqrt(((cxx - cyy) / 2) ** 2 + cxy ** 2)
         major = np.maximum((cxx + cyy) / 2 + half_gap, 1 / 12)
         minor = np.maximum((cxx + cyy) / 2 - half_gap, 1 / 12)
-        return _Ellipses(np.where(count > 0, np.sqrt(minor / major), 1.0), np.stack([mx, my], axis=1))
+        return _Ellipses(np.where(count > 0, np.sqrt(minor / major), 1.0), np.stack([mx, my], axis=1), 4 * np.sqrt(major))
 
 
 def _dot_shapes(binary: np.ndarray, d: float, p: BlobParams) -> _Ellipses:
-    """The moment ellipses of the 8-connected blobs of ``binary`` (bool) that cover at least
-    ``p.min_area`` of a face-on dot of diameter ``d`` px (the blob tests' floor; specks left out)."""
+    """The moment ellipses of the 8-connected blobs of ``binary`` (bool) of a dot's size: at least
+    ``p.min_area`` of a face-on dot of diameter ``d`` px, their major axis at most ``p.max_major *
+    d`` (the blob tests' bounds; specks and long streaks left out)."""
     n, labels, area = labelled_components(binary)
     ys, xs = _nonzero(binary)
     shapes = _moment_ellipses(ys, xs, labels[ys, xs], n)
-    dots = np.flatnonzero(area >= p.min_area * math.pi * d * d / 4)
+    dots = np.flatnonzero((area >= p.min_area * math.pi * d * d / 4) & (shapes.major <= p.max_major * d))
     dots = dots[dots > 0]  # label 0: the background
-    return _Ellipses(shapes.axis_ratio[dots], shapes.centre[dots])
+    return _Ellipses(shapes.axis_ratio[dots], shapes.centre[dots], shapes.major[dots])
 
 
 def _beside_oblique_dots(centre: np.ndarray, dots: _Ellipses, p: BlobParams) -> np.ndarray:
