@@ -63,7 +63,7 @@ class BlobParams:
     faint_max_axis_ratio: float = 0.5  # ... and kept only as slivers (minor / major axis): a dot seen over 60 deg from face-on
     faint_max_neighbour_axis_ratio: float = 0.6  # ... beside dots seen obliquely: the median minor / major axis of
                                                  # its nearest blobs at most this (1: no test, :func:`_beside_oblique_dots`)
-    faint_neighbours: int = 3      # ... of this many nearest blobs above half the contrast
+    faint_neighbours: int = 3      # ... of this many nearest blobs above half the contrast, of a dot's size
     dot_to_width: float = DEFAULT_DOT_TO_WIDTH
 
 
