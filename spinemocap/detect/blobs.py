@@ -12,7 +12,8 @@ Per region:
 3. dot contrast = 99.5th percentile of the smoothed top-hat on the tape; no dots when it is weak
    or not well above the tape's own texture (median top-hat); threshold at half the contrast;
    spots fainter than that (above a quarter of it) and apart from the blobs are cut at half their
-   own peak and kept where they are slivers (a dot seen nearly edge-on: :func:`_add_faint_spots`);
+   own peak and kept where they are slivers beside dots that are themselves foreshortened (a dot
+   seen nearly edge-on: :func:`_add_faint_spots`, :func:`_beside_oblique_dots`);
 4. dot size: given, or the blobs' median long axis (the mask-width guess shrinks in oblique views);
 5. keep blobs whose area (against a dot seen as obliquely as the blob: :func:`foreshortening`),
    axes and fill fit a dot, whose surrounding ring lies on the tape, which do not border a bright
@@ -31,6 +32,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -59,6 +61,9 @@ class BlobParams:
     min_contrast_to_texture: float = 5.0  # dot contrast / median top-hat over the tape
     faint_share: float = 0.25      # spots above this x the contrast, apart from the dots, are cut at half their own peak (0.5: none)
     faint_max_axis_ratio: float = 0.5  # ... and kept only as slivers (minor / major axis): a dot seen over 60 deg from face-on
+    faint_max_neighbour_axis_ratio: float = 0.6  # ... beside dots seen obliquely: the median minor / major axis of
+                                                 # its nearest blobs at most this (1: no test, :func:`_beside_oblique_dots`)
+    faint_neighbours: int = 3      # ... of this many nearest blobs above half the contrast, of a dot's size
     dot_to_width: float = DEFAULT_DOT_TO_WIDTH
 
 
@@ -460,7 +465,8 @@ def _add_faint_spots(binary: np.ndarray, smooth: np.ndarray, region: np.ndarray,
     region's ``contrast``, in ``region``) each spot of ``region`` brighter than
     ``p.faint_share * contrast`` that lies apart from ``binary``'s blobs (more than a third of
     the dot size ``d``, so that it never joins one), cut at half its own peak, where what is
-    left is a sliver (minor / major axis at most ``p.faint_max_axis_ratio``).
+    left is a sliver (minor / major axis at most ``p.faint_max_axis_ratio``) beside blobs of
+    ``binary`` that are foreshortened too (:func:`_beside_oblique_dots`).
 
     A dot seen nearly edge-on (70-78 deg from face-on) is a sliver a few px wide, on skin that
     the light grazes: its smoothed peak falls under half the face-on dots' contrast, which would
@@ -483,14 +489,28 @@ def _add_faint_spots(binary: np.ndarray, smooth: np.ndarray, region: np.ndarray,
     np.maximum.at(peak, lab, smooth[ys, xs])
     bright = smooth[ys, xs] > np.float32(0.5) * peak[lab]
     ys, xs, lab = ys[bright], xs[bright], lab[bright]
-    sliver = _axis_ratios(ys, xs, lab, n) <= p.faint_max_axis_ratio
+    shapes = _moment_ellipses(ys, xs, lab, n)
+    sliver = shapes.axis_ratio <= p.faint_max_axis_ratio
+    if p.faint_max_neighbour_axis_ratio < 1 and sliver.any():
+        candidates = np.flatnonzero(sliver)
+        sliver[candidates] = _beside_oblique_dots(shapes.centre[candidates], _dot_shapes(binary, d, p), p)
     keep = sliver[lab]
     binary[ys[keep], xs[keep]] = True
 
 
-def _axis_ratios(ys: np.ndarray, xs: np.ndarray, lab: np.ndarray, n: int) -> np.ndarray:
-    """(n,) minor / major axis of each label's moment ellipse over the pixels (``ys``, ``xs``)
-    labelled ``lab`` (a pixel's own variance 1/12 per axis as the floor; 1 for an empty label)."""
+class _Ellipses(NamedTuple):
+    """Per label (n,): ``axis_ratio`` minor / major axis of its moment ellipse (1 for an empty
+    label), ``centre`` (n, 2) px (x, y; NaN for an empty label) and ``major`` the full major
+    axis (px)."""
+
+    axis_ratio: np.ndarray
+    centre: np.ndarray
+    major: np.ndarray
+
+
+def _moment_ellipses(ys: np.ndarray, xs: np.ndarray, lab: np.ndarray, n: int) -> _Ellipses:
+    """The moment ellipse of each label over the pixels (``ys``, ``xs``) labelled ``lab`` (a
+    pixel's own variance 1/12 per axis as the floor)."""
     fx, fy = xs.astype(np.float64), ys.astype(np.float64)
     count = np.bincount(lab, minlength=n).astype(np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -501,7 +521,36 @@ def _axis_ratios(ys: np.ndarray, xs: np.ndarray, lab: np.ndarray, n: int) -> np.
         half_gap = np.sqrt(((cxx - cyy) / 2) ** 2 + cxy ** 2)
         major = np.maximum((cxx + cyy) / 2 + half_gap, 1 / 12)
         minor = np.maximum((cxx + cyy) / 2 - half_gap, 1 / 12)
-        return np.where(count > 0, np.sqrt(minor / major), 1.0)
+        return _Ellipses(np.where(count > 0, np.sqrt(minor / major), 1.0), np.stack([mx, my], axis=1), 4 * np.sqrt(major))
+
+
+def _dot_shapes(binary: np.ndarray, d: float, p: BlobParams) -> _Ellipses:
+    """The moment ellipses of the 8-connected blobs of ``binary`` (bool) of a dot's size: at least
+    ``p.min_area`` of a face-on dot of diameter ``d`` px, their major axis at most ``p.max_major *
+    d`` (the blob tests' bounds; specks and long streaks left out)."""
+    n, labels, area = labelled_components(binary)
+    ys, xs = _nonzero(binary)
+    shapes = _moment_ellipses(ys, xs, labels[ys, xs], n)
+    dots = np.flatnonzero((area >= p.min_area * math.pi * d * d / 4) & (shapes.major <= p.max_major * d))
+    dots = dots[dots > 0]  # label 0: the background
+    return _Ellipses(shapes.axis_ratio[dots], shapes.centre[dots], shapes.major[dots])
+
+
+def _beside_oblique_dots(centre: np.ndarray, dots: _Ellipses, p: BlobParams) -> np.ndarray:
+    """Per faint sliver (K,) at ``centre`` (K, 2) px (x, y): the median axis ratio (minor / major)
+    of the ``p.faint_neighbours`` ``dots`` nearest it (fewer where there are fewer) is at most
+    ``p.faint_max_neighbour_axis_ratio``; False where there is no dot.
+
+    A dot seen nearly edge-on lies where the tape turns away from the camera, and the rows beside
+    it are seen obliquely too: their dots are ellipses (a ratio of 0.6: 53 deg from face-on).
+    The faint slivers that are not dots lie beside round, face-on dots: the tape's print between
+    two rows, the shaded rim of a ball over the tape, a spot where the mask spills onto the room."""
+    if not len(dots.axis_ratio):
+        return np.zeros(len(centre), bool)
+    k = min(p.faint_neighbours, len(dots.axis_ratio))
+    gap = dots.centre[None] - centre[:, None]  # (K, M, 2)
+    nearest = np.argsort(np.hypot(gap[..., 0], gap[..., 1]), axis=1)[:, :k]
+    return np.median(dots.axis_ratio[nearest], axis=1) <= p.faint_max_neighbour_axis_ratio
 
 
 def _carved_from_larger_area(blobs: "_Blobs", labels: np.ndarray, candidate: np.ndarray, box: tuple[slice, slice],

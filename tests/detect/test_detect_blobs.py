@@ -157,17 +157,23 @@ def _tape_with_a_dim_edge_on_dot(d: float, level: int) -> tuple[np.ndarray, np.n
     return cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA), mask
 
 
+# The two tests below judge the faint cut and the sliver shape alone: their face-on dots are round
+# discs, so the test of the sliver's neighbours (below them) is off.
+SHAPE_ONLY = BlobParams(faint_max_neighbour_axis_ratio=1.0)
+
+
 def test_a_dim_dot_seen_edge_on_is_found_apart_from_the_face_on_dots_without_moving_them():
     d = 12.0
     image, mask = _tape_with_a_dim_edge_on_dot(d, level=110)
-    uv, conf = find_dots(image, mask, expected_dot_px=d)
+    uv, conf = find_dots(image, mask, expected_dot_px=d, params=SHAPE_ONLY)
     near = lambda x, y: np.linalg.norm(uv - [x, y], axis=1) < 1.0  # noqa: E731
     assert near(150, 60).sum() == 1, "the dim edge-on dot is missed"
     assert not (np.linalg.norm(uv - [210, 60], axis=1) < d).any(), "the dim speck passed for a dot"
     assert len(uv) == 4
     # the region's threshold alone (half the face-on dots' contrast) loses it, and finds the
     # face-on dots at the very same places
-    only_bright, conf_bright = find_dots(image, mask, expected_dot_px=d, params=BlobParams(faint_share=0.5))
+    only_bright, conf_bright = find_dots(image, mask, expected_dot_px=d,
+                                         params=BlobParams(faint_share=0.5, faint_max_neighbour_axis_ratio=1.0))
     assert len(only_bright) == 3 and not (np.linalg.norm(only_bright - [150, 60], axis=1) < d).any()
     face_on = ~(np.linalg.norm(uv - [150, 60], axis=1) < d)
     assert np.array_equal(uv[face_on], only_bright) and np.array_equal(conf[face_on], conf_bright)
@@ -177,8 +183,42 @@ def test_a_dim_round_spot_is_not_taken_for_a_dot_seen_edge_on():
     d = 12.0
     image, mask = _tape_with_a_dim_edge_on_dot(d, level=110)
     cv2.circle(image, (200, 95), int(d / 2), 110, -1, cv2.LINE_AA)  # a round blotch of the tape's print, as dim
-    uv, _ = find_dots(image, mask, expected_dot_px=d)
+    uv, _ = find_dots(image, mask, expected_dot_px=d, params=SHAPE_ONLY)
     assert (np.linalg.norm(uv - [150, 60], axis=1) < 1.0).sum() == 1, "the dim edge-on dot is missed"
     assert not (np.linalg.norm(uv - [200, 95], axis=1) < d).any(), "a round dim spot passed for an oblique dot"
-    any_shape, _ = find_dots(image, mask, expected_dot_px=d, params=BlobParams(faint_max_axis_ratio=1.0))
+    any_shape, _ = find_dots(image, mask, expected_dot_px=d,
+                             params=BlobParams(faint_max_axis_ratio=1.0, faint_max_neighbour_axis_ratio=1.0))
     assert (np.linalg.norm(any_shape - [200, 95], axis=1) < 1.5).sum() == 1  # the sliver test is what refuses it
+
+
+def _tape_turning_away_with_two_dim_slivers(d: float) -> tuple[np.ndarray, np.ndarray, dict[str, tuple[float, float]]]:
+    """A dark tape (grey 30) running along x that turns away from the camera at its right end:
+    rows of dots (grey 210; 3 and 2 dots across, 1.5 d apart) at x = 30 and 60 seen face-on
+    (discs), at x = 84 and 102 foreshortened along x (ellipses d/2 x d). Two dim slivers (d/4 x d,
+    grey 110, long axis across the tape): ``edge-on`` beyond the last row (a dot seen nearly
+    edge-on) and ``print`` beside the first row's outer dot, half-way to the next row. Anti-aliased,
+    8x supersampled; the mask covers the tape."""
+    s, (h, w) = 8, (100, 160)
+    big = np.full((h * s, w * s), 30, np.uint8)
+    centre = 50.0
+    for k, (x, along) in enumerate(((30.0, d), (60.0, d), (84.0, d / 2), (102.0, d / 2))):
+        for a in ((-1.5, 0.0, 1.5) if k % 2 == 0 else (-0.75, 0.75)):
+            cv2.ellipse(big, ((x * s, (centre + a * d) * s), (along * s, d * s), 0), 210, -1, cv2.LINE_AA)
+    slivers = {"edge-on": (116.0, centre), "print": (45.0, centre + 1.9 * d)}
+    for u, v in slivers.values():
+        cv2.ellipse(big, ((u * s, v * s), (d / 4 * s, d * s), 0), 110, -1, cv2.LINE_AA)
+    mask = np.zeros((h, w), bool)
+    mask[int(centre - 2.5 * d):int(centre + 2.5 * d), 10:140] = True
+    return cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA), mask, slivers
+
+
+def test_a_dim_sliver_is_a_dot_only_beside_dots_seen_obliquely():
+    d = 12.0
+    image, mask, slivers = _tape_turning_away_with_two_dim_slivers(d)
+    uv, _ = find_dots(image, mask, expected_dot_px=d)
+    near = {name: int((np.linalg.norm(uv - xy, axis=1) < 1.5).sum()) for name, xy in slivers.items()}
+    assert near == {"edge-on": 1, "print": 0}
+    assert len(uv) == 3 + 2 + 3 + 2 + 1  # the four rows and the edge-on dot
+    # without the neighbours' test the print passes for a dot too: it is what refuses it
+    every_sliver, _ = find_dots(image, mask, expected_dot_px=d, params=BlobParams(faint_max_neighbour_axis_ratio=1.0))
+    assert all((np.linalg.norm(every_sliver - xy, axis=1) < 1.5).sum() == 1 for xy in slivers.values())
