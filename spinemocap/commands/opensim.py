@@ -9,6 +9,8 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
+from .synth import JOINT_DEPTH_NAMES
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -117,7 +119,7 @@ def register_bench(subparsers) -> None:
     p.add_argument("--realism", default="lab", choices=("ideal", "skin", "lab"),
                    help="studio realism level (default lab: tape tension, skin strain, the lab's inexact rig)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="studio subjects (seeds), default 0")
-    p.add_argument("--joint-depth", default="anny", choices=("anny", "anatomical"),
+    p.add_argument("--joint-depth", default="anny", choices=JOINT_DEPTH_NAMES,
                    help="where the studio's spine bends under the skin: anny (the body model's joints; default) or "
                         "anatomical (the published depth of the vertebral bodies; see spinemocap synth --help)")
     p.add_argument("--accuracy", type=float, help="IK solver accuracy of every IK method (default: the pipeline's)")

@@ -84,3 +84,17 @@ def test_the_frames_without_a_flagged_marker_are_scored_apart_and_the_goals_judg
     assert row.rmse_deg_vouched_worst["flexion"] == 0.0 and list(row.numbers()) == [
         "flexion_rmse_deg_worst", "flexion_rmse_deg_vouched_worst", "marker_rms_mm_worst"]
     assert not row.goals_met["flexion"]  # the goal is judged on every frame
+
+
+def test_the_ik_runs_take_the_depth_of_the_studio_bodys_own_joints():
+    """The model's joint centres sit where the studio's spine bends: well short of the published
+    depth on anny's joints, at it (within a few percent) on the anatomical joint depth."""
+    from spinemocap.bench.analysis import studio_motion
+    from spinemocap.bench.opensim import body_model_depth_scale
+
+    scales = {}
+    for depth in ("anny", "anatomical"):
+        data = studio_motion("flexion", 2, 10.0, 13, joint_depth=depth)
+        assert data.scene.body.joint_depth == depth
+        scales[depth] = body_model_depth_scale(data, data.levels)
+    assert scales["anny"] < 0.75 and 0.95 < scales["anatomical"] < 1.1, scales

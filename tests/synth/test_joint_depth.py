@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from spinemocap.commands.synth import JOINT_DEPTH_NAMES
 from spinemocap.synth import SynthConfig
-from spinemocap.synth.body import SPINE_BONES
+from spinemocap.synth.body import JOINT_DEPTHS, SPINE_BONES
 from spinemocap.synth.scene import cached_body, cached_tape_on_skin
 from spinemocap.synth.skin_strain import SkinStrain
 
@@ -67,6 +68,7 @@ def test_the_tape_follows_the_schober_strain_at_either_depth(bodies):
         growth = lumbar[1] / lumbar[0] - 1
         assert abs(growth - skin.lumbar_gain) < 0.03, (body.joint_depth, growth)
     assert SynthConfig.preset("tiny", joint_depth="anatomical").to_dict()["joint_depth"] == "anatomical"
+    assert JOINT_DEPTH_NAMES == JOINT_DEPTHS  # the command line's choices (spelt out: it starts without numpy)
     with pytest.raises(ValueError, match="joint depth"):
         SynthConfig.preset("tiny", joint_depth="deep")
 
