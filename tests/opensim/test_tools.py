@@ -1,4 +1,5 @@
-"""OpenSim's IK driven frame by frame (spinemocap/opensim/tools.py): the coordinate goals' weights."""
+"""OpenSim's IK driven frame by frame (spinemocap/opensim/tools.py): the coordinate goals' weights
+and the clamped ranges."""
 
 from __future__ import annotations
 
@@ -10,8 +11,9 @@ import pytest
 MARKERS = 6  # on one body that slides along ground's x
 
 
-def _slider_model(path: Path) -> Path:
-    """A body on a slider along x (coordinate ``slide``, m) carrying :data:`MARKERS` markers."""
+def _slider_model(path: Path, range_mm: float | None = None) -> Path:
+    """A body on a slider along x (coordinate ``slide``, m) carrying :data:`MARKERS` markers;
+    ``range_mm``: the slide clamped to +/- that range."""
     import opensim as osim
 
     model = osim.Model()
@@ -20,6 +22,10 @@ def _slider_model(path: Path) -> Path:
     model.addBody(body)
     joint = osim.SliderJoint("slider", model.getGround(), body)
     joint.updCoordinate().setName("slide")
+    if range_mm is not None:
+        joint.updCoordinate().setRangeMin(-range_mm / 1000.0)
+        joint.updCoordinate().setRangeMax(range_mm / 1000.0)
+        joint.updCoordinate().set_clamped(True)
     model.addJoint(joint)
     for m in range(MARKERS):
         model.addMarker(osim.Marker(f"M{m}", body, osim.Vec3(0.0, 0.05 * m, 0.02 * (m % 2))))
@@ -48,3 +54,21 @@ def test_a_coordinate_goal_of_sd_s_weighs_as_a_prior_of_sd_s_against_the_markers
     expected_mm = shift_mm * precision_markers / (precision_markers + precision_goal)
     slide_mm = 1000.0 * solution.values[0, solution.coordinates.index("slide")]
     assert slide_mm == pytest.approx(expected_mm, abs=0.01 * shift_mm)
+
+
+@pytest.mark.parametrize(("shift_mm", "expected_mm"), [(3.0, 3.0), (8.0, 5.0), (-8.0, -5.0)])
+def test_a_clamped_coordinate_is_solved_freely_inside_its_range_and_held_at_its_end_outside(
+        tmp_path, shift_mm, expected_mm):
+    pytest.importorskip("opensim")
+    from spinemocap.opensim.tools import quiet_opensim, solve_ik
+
+    quiet_opensim()
+    model = _slider_model(tmp_path / "slider.osim", range_mm=5.0)
+    static = np.array([[0.0, 50.0 * m, 20.0 * (m % 2)] for m in range(MARKERS)])
+    positions = np.stack([static, static + [shift_mm, 0.0, 0.0]])  # the static pose, then the shift
+    solution = solve_ik(model, [f"M{m}" for m in range(MARKERS)], np.arange(2.0), positions,
+                        np.ones((2, MARKERS)), accuracy=1e-9)
+    slide_mm = 1000.0 * solution.values[:, solution.coordinates.index("slide")]
+    assert slide_mm[0] == pytest.approx(0.0, abs=0.01)
+    assert slide_mm[1] == pytest.approx(expected_mm, abs=0.01)
+    assert solution.marker_rms_mm[1] == pytest.approx(abs(shift_mm - expected_mm), abs=0.01)
