@@ -340,8 +340,8 @@ class _FrameSolver:
         self.weights, self.present, self.goals = weights, present, goals
         coords = model.getCoordinateSet()
         self.coordinates = {name: coords.get(name) for name in goals}
-        every = [coords.get(i) for i in range(coords.getSize())]
-        self.clamped = [c for c in every if c.get_clamped()]  # the model's ranges
+        self.every = [coords.get(i) for i in range(coords.getSize())]
+        self.clamped = [c for c in self.every if c.get_clamped()]  # the model's ranges
 
     def marker_weight_sum(self, frame: int) -> float:
         """The total weight of the markers present in ``frame`` (1 where none is)."""
@@ -354,18 +354,21 @@ class _FrameSolver:
         coordinate inside its range. The solve runs without the ranges first and again with them
         only where a coordinate left its range: with the coupled joints' constraints the solver
         is an interior-point one, which, given the ranges, can take a hundred times longer to
-        reach the same solution inside them."""
+        reach the same solution inside them. Where a coordinate leaves its range, the solve with
+        the ranges starts again from ``state`` as it was given (the unclamped solution may lie in
+        another valley)."""
+        start = [c.getValue(state) for c in self.every]
         for coordinate in self.clamped:
             coordinate.setClamped(state, False)
         solver = self._assemble(state, frame, accuracy)
-        outside = [c for c in self.clamped if not c.getRangeMin() <= c.getValue(state) <= c.getRangeMax()]
+        inside = all(c.getRangeMin() <= c.getValue(state) <= c.getRangeMax() for c in self.clamped)
         for coordinate in self.clamped:
             coordinate.setClamped(state, True)
-        if not outside:
+        if inside:
             return solver
-        for coordinate in outside:  # from the nearest point inside the ranges
-            value = float(np.clip(coordinate.getValue(state), coordinate.getRangeMin(), coordinate.getRangeMax()))
-            coordinate.setValue(state, value, False)
+        for coordinate, value in zip(self.every, start):
+            if not coordinate.getLocked(state):
+                coordinate.setValue(state, value, False)
         return self._assemble(state, frame, accuracy)
 
     def _assemble(self, state, frame: int, accuracy: float):
