@@ -103,7 +103,7 @@ def run_lab_model(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: n
         # no skin slips on a lab's model: at most OpenSim's accuracy (the held slips' 1e-7 took ~15 s a
         # frame on the studio's spine carrying the tape's markers as a lab model)
         accuracy = max(settings.accuracy, IK_ACCURACY)
-        ik_seconds = inverse_kinematics(work, labels, placed, data, np.arange(len(data.times)), accuracy)
+        ik_seconds, _ = inverse_kinematics(work, labels, placed, data, np.arange(len(data.times)), accuracy)
         angles = _coordinates_table(work / "ik.mot", work / "ik_marker_errors.sto")
         rms = angles["marker_rms"].to_numpy()
         flagged_frames = [int(f) for f in np.flatnonzero(rms > FLAG_RMS_MM)]

@@ -82,6 +82,7 @@ from .tools import (
     OBSERVED_SD_MM,
     START_ACCURACY,
     CoordinateGoal,
+    IKSolution,
     marker_locations,
     marker_weights,
     mean_weights,
@@ -107,6 +108,8 @@ FLAG_RMS_MM = 4.0
 FLAG_MAX_MM = 10.0
 FLAG_MIN_MARKERS = 6
 LIMIT_MARGIN_DEG = 0.05
+# the longest run of frames whose markers IK cannot fit that is solved again toward the frames around it
+SHORT_DOUBTFUL_RUN = 2
 SLIP_GOALS = "skin_slip_goals.sto"  # the slip coordinates' goal per frame (m), setup_ik.xml's coordinate file
 PUBLISHED_DEPTHS = "published skin-to-vertebral-body depths (spinemocap/anatomy.py) scaled to the tape"
 SIGN = {"extension": -1.0, "lateral_bending": 1.0, "axial_rotation": 1.0}  # OpenSim -> project
@@ -136,7 +139,9 @@ class OpenSimSettings:
     (:class:`skin_model.SlipPrior`), None = every marker fixed to its vertebra;
     ``restart_from_static``: every frame solved from the previous solution and from the static
     pose, the static start's kept unless its objective exceeds ``1 + fresh_start_margin`` times the
-    other's (:func:`tools.solve_ik`)."""
+    other's (:func:`tools.solve_ik`); ``doubtful_prior_deg``: a frame whose markers IK cannot fit
+    in a short run (:func:`short_doubtful_runs`) is solved again with a prior of this SD toward
+    the posture of the frames around it (:func:`toward_neighbours`; 0 = off)."""
 
     static_frames: int = 10
     accuracy: float = SLIP_SOLVER["held"][0]
@@ -154,6 +159,10 @@ class OpenSimSettings:
     inferred_sd_mm: float = INFERRED_SD_MM
     # the static start's solution kept unless its objective exceeds (1 + this) x the previous start's
     fresh_start_margin: float = SLIP_SOLVER["held"][1]
+    # SD (deg) of the prior toward the neighbouring frames' posture on a frame whose markers IK
+    # cannot fit (:func:`doubtful_frames`), solved again with it; 0 = off. A level's posture
+    # changes by a few tenths of a degree between frames at 12 frames/s and more
+    doubtful_prior_deg: float = 0.5
 
 
 def slip_solved_as(from_tape: SlipFromTape, settings: OpenSimSettings = OpenSimSettings()) -> OpenSimSettings:
@@ -318,12 +327,14 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
                        accuracy: float | np.ndarray, priors: dict[str, float] | None = None,
                        positions: np.ndarray | None = None, restart: bool = True,
                        inferred_sd_mm: float = INFERRED_SD_MM, goals: dict[str, CoordinateGoal] | None = None,
-                       fresh_start_margin: float = 0.0) -> float:
+                       fresh_start_margin: float = 0.0, doubtful_prior_deg: float = 0.0) -> tuple[float, np.ndarray]:
     """``markers_opensim.trc`` (the given frames, the ``placed`` dots named ``labels``; the
     markers as given, or ``positions`` (F, D, 3) mm in their place: the skin-corrected ones),
     ``setup_ik.xml`` on ``model.osim`` (one mean weight per marker: a re-run in the GUI), and IK
     solved frame by frame (:func:`tools.solve_ik`) into ``ik.mot`` and ``ik_marker_errors.sto``;
-    returns IK seconds. ``accuracy``: the solver's, one or per frame of ``data`` (the setup file
+    with ``doubtful_prior_deg`` > 0, short runs of frames whose markers it cannot fit solved again
+    toward their neighbours' posture (:func:`short_doubtful_runs`, :func:`toward_neighbours`). Returns IK seconds and (F,) bool: the
+    frames solved again. ``accuracy``: the solver's, one or per frame of ``data`` (the setup file
     holds the tightest)."""
     source = data.positions if positions is None else positions
     chosen = source[frames][:, placed]
@@ -338,10 +349,56 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
     write_ik_setup(work, "model.osim", "markers_opensim.trc", (float(times[0]), float(times[-1])), labels,
                    mean_weights(weights), "ik.mot", float(accuracy[frames].min()), priors, SLIP_GOALS,
                    {name: float(np.max(g.weights)) for name, g in chosen_goals.items()})
+    observed = data.status[frames][:, placed] == OBSERVED
     solution = solve_ik(work / "model.osim", labels, times, chosen, weights, priors, accuracy[frames], restart,
-                        data.status[frames][:, placed] == OBSERVED, chosen_goals, fresh_start_margin)
+                        observed, chosen_goals, fresh_start_margin)
+    again = short_doubtful_runs(doubtful_frames(solution)) if doubtful_prior_deg > 0 else np.zeros(len(times), bool)
+    if again.any():
+        redo = np.flatnonzero(again)
+        redo_goals = {name: CoordinateGoal(g.values[redo], g.weights[redo], None if g.held is None else g.held[redo])
+                      for name, g in chosen_goals.items()}
+        redo_goals.update(toward_neighbours(solution, again, doubtful_prior_deg))
+        solution = solution.with_frames(redo, solve_ik(work / "model.osim", labels, times[redo], chosen[redo],
+                                                       weights[redo], priors, accuracy[frames][redo], restart,
+                                                       observed[redo], redo_goals, fresh_start_margin))
     write_ik_outputs(work, solution)
-    return solution.seconds
+    return solution.seconds, again
+
+
+def doubtful_frames(solution: IKSolution) -> np.ndarray:
+    """(F,) bool: the frames whose markers IK cannot fit, as :func:`spine_angles` flags them: marker
+    RMS above :data:`FLAG_RMS_MM`, a marker above :data:`FLAG_MAX_MM` or fewer than
+    :data:`FLAG_MIN_MARKERS` markers."""
+    with np.errstate(invalid="ignore"):
+        return ((solution.marker_rms_mm > FLAG_RMS_MM) | (solution.marker_max_mm > FLAG_MAX_MM)
+                | (solution.markers < FLAG_MIN_MARKERS))
+
+
+def short_doubtful_runs(doubtful: np.ndarray, longest: int = SHORT_DOUBTFUL_RUN) -> np.ndarray:
+    """(F,) bool: the ``doubtful`` frames (F,) bool in runs of at most ``longest`` frames with a
+    frame that is not doubtful before or after them. A longer run (a deep bend the markers fit
+    badly throughout) is no gap between known postures, and is left as solved."""
+    short = np.zeros(len(doubtful), bool)
+    if doubtful.all():
+        return short
+    edges = np.flatnonzero(np.diff(np.r_[0, doubtful.astype(int), 0]))
+    for start, stop in zip(edges[::2], edges[1::2]):
+        short[start:stop] = stop - start <= longest
+    return short
+
+
+def toward_neighbours(solution: IKSolution, doubtful: np.ndarray, prior_deg: float) -> dict[str, CoordinateGoal]:
+    """IK goals for the ``doubtful`` frames (F,) bool of ``solution`` (at least one frame not
+    doubtful), in their order: every rotational coordinate pulled toward its value interpolated in
+    time between the nearest frames on either side that are not doubtful (the nearest one's
+    beyond the last), as a Gaussian prior of SD ``prior_deg`` against the markers' 1 mm
+    (:data:`tools.OBSERVED_SD_MM`). A frame the markers under-determine (a row seen one column
+    off, most dots inferred) then keeps the posture of the frames around it where its own markers
+    do not say otherwise."""
+    frames, sure = np.flatnonzero(doubtful), np.flatnonzero(~doubtful)
+    weight = (OBSERVED_SD_MM / 1000.0 / np.radians(prior_deg)) ** 2  # per rad^2, beside marker errors in m^2
+    return {name: CoordinateGoal(np.interp(frames, sure, solution.values[sure, c]), np.full(len(frames), weight))
+            for c, name in enumerate(solution.coordinates) if solution.rotational[c]}
 
 
 def _slip_goals(positions: np.ndarray, static: np.ndarray, tape: TapeSpec, placed: _Placed,
@@ -440,11 +497,11 @@ def run_opensim(markers: MarkerTable, tape: TapeSpec, levels: LevelRows, up: npt
             positions, tilt_turn = normalise_row_tilt(data.positions, st.positions, tape)
         measured = np.where((data.status == OBSERVED)[..., None], positions, np.nan)  # inferred dots are guesses
         slip_goals = _slip_goals(measured, st.positions, tape, placed, settings.slip)
-        ik_seconds = inverse_kinematics(work, placed.labels, placed.placed, data, np.arange(len(data.times)),
-                                        _frame_accuracy(slip_goals, settings), _priors(placed.plan, settings),
-                                        positions, settings.restart_from_static, settings.inferred_sd_mm,
-                                        slip_goals, settings.fresh_start_margin)
-        angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data)
+        ik_seconds, toward_others = inverse_kinematics(
+            work, placed.labels, placed.placed, data, np.arange(len(data.times)), _frame_accuracy(slip_goals, settings),
+            _priors(placed.plan, settings), positions, settings.restart_from_static, settings.inferred_sd_mm,
+            slip_goals, settings.fresh_start_margin, settings.doubtful_prior_deg)
+        angles, flags = spine_angles(work / "ik.mot", work / "ik_marker_errors.sto", placed.plan, data, toward_others)
         weights = mean_weights(data.weights(settings.inferred_sd_mm)[:, placed.placed])
         depth = Depth(scale_on_published=settings.depth_scale, source=settings.depth_source,
                       depth_mm={n: round(float(x), 1) for n, x in zip(placed.geometry.names, placed.geometry.depth)})
@@ -534,9 +591,11 @@ def check_placement(model_file: Path, labels: list[str], expected_mm: np.ndarray
     return result
 
 
-def spine_angles(motion: Path, errors: Path, plan: ModelPlan, data: TapeMarkers) -> tuple[pd.DataFrame, np.ndarray]:
+def spine_angles(motion: Path, errors: Path, plan: ModelPlan, data: TapeMarkers,
+                 toward_others: np.ndarray | None = None) -> tuple[pd.DataFrame, np.ndarray]:
     """Per-frame angle table (deg, project signs) from IK's ``.mot``, with marker RMS/max (mm)
-    and a ``flag`` column; returns it and the flagged frames' reasons."""
+    and a ``flag`` column; returns it and the flagged frames' reasons. ``toward_others`` (F,)
+    bool: frames solved toward their neighbours' posture (:func:`toward_neighbours`), flagged so."""
     times, labels, values, degrees = read_storage(motion)
     if not degrees:
         values = np.degrees(values)  # every spine coordinate is rotational
@@ -564,7 +623,9 @@ def spine_angles(motion: Path, errors: Path, plan: ModelPlan, data: TapeMarkers)
     for mask, why in ((rms > FLAG_RMS_MM, f"marker RMS > {FLAG_RMS_MM:g} mm"),
                       (worst > FLAG_MAX_MM, f"a marker > {FLAG_MAX_MM:g} mm off"),
                       (n_markers[: len(times)] < FLAG_MIN_MARKERS, f"fewer than {FLAG_MIN_MARKERS} markers"),
-                      (at_limit, f"a joint at its range limit ({RANGE_FACTOR:g} x published)")):
+                      (at_limit, f"a joint at its range limit ({RANGE_FACTOR:g} x published)"),
+                      (np.zeros(len(times), bool) if toward_others is None else toward_others,
+                       "solved toward the neighbouring frames' posture")):
         reasons[mask] = [f"{r}; {why}" if r else why for r in reasons[mask]]
     table["flag"] = reasons
     return table, reasons

@@ -17,7 +17,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -311,6 +311,16 @@ class IKSolution:
     markers: np.ndarray
     seconds: float
     observed_rms_mm: np.ndarray  # (F,) marker RMS over the observed (measured) samples only
+
+    def with_frames(self, frames: np.ndarray, other: IKSolution) -> IKSolution:
+        """This solution with its ``frames`` (indices, in order) replaced by ``other``, a solution
+        of those frames alone on the same model; ``seconds`` add up."""
+        values, rms, worst = self.values.copy(), self.marker_rms_mm.copy(), self.marker_max_mm.copy()
+        markers, observed = self.markers.copy(), self.observed_rms_mm.copy()
+        values[frames], rms[frames], worst[frames] = other.values, other.marker_rms_mm, other.marker_max_mm
+        markers[frames], observed[frames] = other.markers, other.observed_rms_mm
+        return replace(self, values=values, marker_rms_mm=rms, marker_max_mm=worst, markers=markers,
+                       observed_rms_mm=observed, seconds=self.seconds + other.seconds)
 
 
 @dataclass(frozen=True)

@@ -235,6 +235,35 @@ def test_missing_samples_are_excluded_not_zero(studio, tmp_path):
     assert float(task.find("weight").text) == pytest.approx(weights[studio.labels[12]], abs=1e-3)
 
 
+def _columns_off(studio, frame: int, rows: tuple[int, ...]) -> MarkerTable:
+    """The studio's markers with ``rows`` of ``frame`` seen a row's width to the right (rows
+    labelled two columns off)."""
+    dots = studio.dots.copy()
+    for row in rows:
+        columns = [d for d, label in enumerate(studio.labels) if label.startswith(f"R{row:02d}")]
+        left, right = studio.labels.index(f"R{row:02d}L"), studio.labels.index(f"R{row:02d}R")
+        dots[frame, columns] += dots[frame, right] - dots[frame, left]
+    return MarkerTable.from_arrays(studio.labels, dots, fps=FPS)
+
+
+@needs_opensim
+def test_a_frame_whose_markers_ik_cannot_fit_keeps_its_neighbours_posture_and_is_flagged(studio, base_run,
+                                                                                         tmp_path):
+    frame, columns = 6, [c for c in base_run.angles.columns if c.startswith(("lumbar_", "thoracic_"))]
+    markers = _columns_off(studio, frame, (10, 11, 12))
+    toward = _run(studio, tmp_path / "toward", markers=markers)
+    alone = _run(studio, tmp_path / "alone", markers=markers, doubtful_prior_deg=0.0)
+    assert alone.summary.flagged_frames == [frame] == toward.summary.flagged_frames
+    assert "solved toward the neighbouring frames' posture" in toward.angles["flag"][frame]
+    assert "neighbouring" not in alone.angles["flag"][frame]
+    truth = base_run.angles[columns].to_numpy()[frame]
+    error_toward = np.abs(toward.angles[columns].to_numpy()[frame] - truth).max()
+    error_alone = np.abs(alone.angles[columns].to_numpy()[frame] - truth).max()
+    assert error_toward < 0.5 * error_alone
+    others = np.arange(FRAMES) != frame  # the frames IK fits are solved once, as without the prior
+    np.testing.assert_array_equal(toward.angles[columns].to_numpy()[others], alone.angles[columns].to_numpy()[others])
+
+
 @needs_opensim
 def test_markers_on_a_lab_model(studio, base_run, tmp_path):
     from spinemocap.opensim.labmodel import run_lab_model
@@ -307,3 +336,14 @@ def test_a_tighter_ik_accuracy_reads_the_studio_twist_more_fully(tmp_path):
         read[accuracy] = float(np.mean((twist - twist[0])[peaks] / expected[peaks]))
         assert result.summary.ik_accuracy == accuracy
     assert read[1e-6] > 0.8 and read[1e-6] > read[IK_ACCURACY] + 0.1
+
+
+def test_only_short_runs_of_doubtful_frames_are_solved_toward_their_neighbours():
+    from spinemocap.opensim.pipeline import SHORT_DOUBTFUL_RUN, short_doubtful_runs
+
+    doubtful = np.zeros(20, bool)
+    doubtful[[0, 4, 5]] = True  # runs of 1 and 2 frames (one at the start)
+    doubtful[9:9 + SHORT_DOUBTFUL_RUN + 1] = True  # a longer run: a deep bend fitted badly throughout
+    again = short_doubtful_runs(doubtful)
+    np.testing.assert_array_equal(np.flatnonzero(again), [0, 4, 5])
+    assert not short_doubtful_runs(np.ones(2, bool)).any()  # no frame to take a posture from
