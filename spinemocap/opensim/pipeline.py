@@ -28,7 +28,9 @@ by frame (:func:`tools.solve_ik`: per-sample marker weights from the label confi
 dots down-weighted as far less certain (:func:`tools.marker_weights`), each frame solved from the
 previous one's solution and from the static pose, the static start's kept unless its objective is
 more than ``1 + settings.fresh_start_margin`` times the other's, joints clamped to
-their published ranges). Missing
+their published ranges); a short run of frames whose markers IK cannot fit (a row labelled a
+column off) is solved again with a prior toward the posture of the frames around it
+(:func:`toward_neighbours`) and flagged so. Missing
 samples stay NaN (skipped per frame); frames the result cannot vouch for are flagged in the CSV,
 the summary and the plot.
 
