@@ -22,7 +22,9 @@ Per region:
 6. centre = centroid of the top-hat over the blob plus a rim, scaled by the blob's own interior
    level and clipped to [0, 1]: the inside weighs 1 (shading cannot pull it), anti-aliased rim
    pixels weigh their coverage (the sub-pixel part);
-7. merge blobs closer than half a dot diameter, so one dot never yields two blobs.
+7. drop blobs unlike the blobs around them (:func:`_unlike_neighbours`): much shorter than
+   their neighbours, or a sliver beside round dots (the tape's print, weave and specks);
+8. merge blobs closer than half a dot diameter, so one dot never yields two blobs.
 
 Coordinates: pixel centres at integer positions (OpenCV convention), ``uv = (x, y)`` in px.
 """
@@ -64,6 +66,13 @@ class BlobParams:
     faint_max_neighbour_axis_ratio: float = 0.6  # ... beside dots seen obliquely: the median minor / major axis of
                                                  # its nearest blobs at most this (1: no test, :func:`_beside_oblique_dots`)
     faint_neighbours: int = 3      # ... of this many nearest blobs above half the contrast, of a dot's size
+    # Each blob against its ``neighbours`` nearest blobs that pass the tests above (the tape's
+    # print, its weave and specks on it are pieces shorter or flatter than the holes around them;
+    # :func:`_unlike_neighbours`):
+    min_major_to_neighbours: float = 0.6  # longest axis >= this x their median longest axis (0: no test)
+    sliver_max_axis_ratio: float = 0.4    # a blob this flat (minor / major) is a dot only beside dots seen
+                                          # obliquely (faint_max_neighbour_axis_ratio; 0: no test)
+    neighbours: int = 3                   # (a region with no more blobs than this: no test)
     dot_to_width: float = DEFAULT_DOT_TO_WIDTH
 
 
@@ -447,6 +456,8 @@ def _region_dots(
     total = sums[i, 0]
     i = i[~(ring_share[i] < p.min_ring_on_tape) & ~carved[i] & ~np.asarray(touches_border(y[i], x[i], bh, bw), bool)
           & ~(total <= 0)]
+    if len(i) > p.neighbours:
+        i = i[~_unlike_neighbours(np.stack([blobs.sx[i], blobs.sy[i]], axis=1) / blobs.s1[i, None], major[i], minor[i], p)]
     if not len(i):
         return np.zeros((0, 2)), np.zeros(0)
     # Sub-pixel centre: top-hat intensity (floor removed, clipped) over the blob plus a rim, so
@@ -551,6 +562,36 @@ def _beside_oblique_dots(centre: np.ndarray, dots: _Ellipses, p: BlobParams) -> 
     gap = dots.centre[None] - centre[:, None]  # (K, M, 2)
     nearest = np.argsort(np.hypot(gap[..., 0], gap[..., 1]), axis=1)[:, :k]
     return np.median(dots.axis_ratio[nearest], axis=1) <= p.faint_max_neighbour_axis_ratio
+
+
+def _unlike_neighbours(centre: np.ndarray, major: np.ndarray, minor: np.ndarray, p: BlobParams) -> np.ndarray:
+    """Per blob (N,) of a region: True where it is unlike its ``p.neighbours`` nearest other blobs
+    (centres ``centre`` (N, 2) px, ellipse axes ``major``, ``minor`` (N,) px): its long axis is
+    shorter than ``p.min_major_to_neighbours`` x their median long axis, or it is a sliver (minor
+    / major at most ``p.sliver_max_axis_ratio``) whose neighbours are not seen obliquely (their
+    median axis ratio above ``p.faint_max_neighbour_axis_ratio``). False for all when there are
+    not that many other blobs (a piece of tape showing a few dots, some cut by the piece's edge,
+    tells nothing about its holes' shape).
+
+    A hole seen from any side is an ellipse whose long axis is the hole's diameter: foreshortening
+    shortens its other axis only, and holes side by side are seen at nearly the same scale and
+    slant (the tape is smooth), so they keep nearly the same long axis and axis ratio. A letter's
+    stroke, a thread of the weave or a speck on the tape is a piece far shorter than the holes
+    around it, or a sliver between round holes."""
+    n = len(centre)
+    k = p.neighbours
+    if n <= k or k < 1:
+        return np.zeros(n, bool)
+    gap = centre[None] - centre[:, None]  # (N, N, 2)
+    distance = np.hypot(gap[..., 0], gap[..., 1])
+    np.fill_diagonal(distance, np.inf)  # a blob is not its own neighbour
+    nearest = np.argsort(distance, axis=1)[:, :k]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        axis_ratio = np.where(major > 0, minor / major, 1.0)
+    short = major < p.min_major_to_neighbours * np.median(major[nearest], axis=1)
+    round_around = np.median(axis_ratio[nearest], axis=1) > p.faint_max_neighbour_axis_ratio
+    sliver = (axis_ratio <= p.sliver_max_axis_ratio) & round_around
+    return short | sliver
 
 
 def _carved_from_larger_area(blobs: "_Blobs", labels: np.ndarray, candidate: np.ndarray, box: tuple[slice, slice],

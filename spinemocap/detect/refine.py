@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple, overload
 
 import cv2
@@ -513,7 +513,11 @@ def _looks_like_tape(crop: np.ndarray, region: np.ndarray, dark: np.ndarray, kno
         return False
     if 2.0 * cv2.distanceTransform(region.view(np.uint8), cv2.DIST_L2, 5).max() > p.max_width_ratio * width:
         return False
-    new, _ = find_dots(crop, region, None, blob_params)
+    # every dot-like blob counts: the region is cut at its outline, so the dots straddling its join
+    # with the tape are cut pieces that the neighbours' test would refuse (the joined mask's dots
+    # are found again with it)
+    new, _ = find_dots(crop, region, None, replace(blob_params or BlobParams(), min_major_to_neighbours=0.0,
+                                                   sliver_max_axis_ratio=0.0))
     if len(new) and len(known_dots):  # dots on the known tape's edge are found again: skip them
         new = new[np.linalg.norm(new[:, None] - known_dots[None], axis=2).min(axis=1) > 0.5 * d]
     return (len(new) >= p.min_new_dots and len(new) / area >= p.min_density_ratio / area_per_dot

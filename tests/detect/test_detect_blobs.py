@@ -222,3 +222,50 @@ def test_a_dim_sliver_is_a_dot_only_beside_dots_seen_obliquely():
     # without the neighbours' test the print passes for a dot too: it is what refuses it
     every_sliver, _ = find_dots(image, mask, expected_dot_px=d, params=BlobParams(faint_max_neighbour_axis_ratio=1.0))
     assert all((np.linalg.norm(every_sliver - xy, axis=1) < 1.5).sum() == 1 for xy in slivers.values())
+
+
+def _printed_tape_turning_away(d: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, tuple[float, float]]]:
+    """A dark tape (grey 30) along x with staggered rows of holes (grey 210; 3 and 2 across, 1.5 d
+    apart): face-on discs at x = 30, 60, 90, then foreshortened along x where the tape turns away
+    (ellipses d/2 x d at x = 114, d/3 x d at x = 132); printed in light ink (grey 200) between
+    the face-on rows: the word "PRO" (0.6 d high) at (45, 50) and a stripe's dash (1.2 d x d/4, across
+    the tape) at (75, 50). Anti-aliased (8x supersampled), then blurred as a lens blurs it (sigma
+    1 px); the mask covers the tape. Returns (grey, mask, hole centres (N, 2) px, the print's
+    centres {"word": (x, y), "dash": (x, y)})."""
+    s, (h, w), centre = 8, (100, 160), 50.0
+    big = np.full((h * s, w * s), 30, np.uint8)
+    holes = []
+    for k, (x, along) in enumerate(((30.0, d), (60.0, d), (90.0, d), (114.0, d / 2), (132.0, d / 3))):
+        for a in ((-1.5, 0.0, 1.5) if k % 2 == 0 else (-0.75, 0.75)):
+            cv2.ellipse(big, ((x * s, (centre + a * d) * s), (along * s, d * s), 0), 210, -1, cv2.LINE_AA)
+            holes.append((x, centre + a * d))
+    word = (45.0, centre)
+    scale, thickness = 0.6 * d * s / 22, s  # FONT_HERSHEY_SIMPLEX capitals are ~22 px high at scale 1
+    (tw, th), _ = cv2.getTextSize("PRO", cv2.FONT_HERSHEY_SIMPLEX, scale, thickness)
+    cv2.putText(big, "PRO", (int(word[0] * s - tw / 2), int(word[1] * s + th / 2)), cv2.FONT_HERSHEY_SIMPLEX,
+                scale, 200, thickness, cv2.LINE_AA)
+    dash = (75.0, centre)
+    cv2.ellipse(big, ((dash[0] * s, dash[1] * s), (d / 4 * s, 1.2 * d * s), 0), 200, -1, cv2.LINE_AA)
+    grey = cv2.GaussianBlur(cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA), (0, 0), 1.0)
+    mask = np.zeros((h, w), bool)
+    mask[int(centre - 2.5 * d):int(centre + 2.5 * d), 10:150] = True
+    return grey, mask, np.array(holes), {"word": word, "dash": dash}
+
+
+def test_the_tapes_print_is_refused_and_the_holes_seen_obliquely_kept():
+    d = 12.0
+    grey, mask, holes, prints = _printed_tape_turning_away(d)
+    uv, _ = find_dots(grey, mask, expected_dot_px=d)
+    assert np.linalg.norm(holes[:, None] - uv[None], axis=2).min(axis=1).max() < 1.0, "a hole is missed"
+    assert len(uv) == len(holes), "the print passed for a dot"
+
+    def passed(params: BlobParams) -> set[str]:
+        found, _ = find_dots(grey, mask, expected_dot_px=d, params=params)
+        assert np.linalg.norm(holes[:, None] - found[None], axis=2).min(axis=1).max() < 1.0
+        return {name for name, xy in prints.items() if (np.linalg.norm(found - xy, axis=1) < d / 2).any()}
+
+    # each piece of print passes for a dot without the test that refuses it: the word's piece is
+    # far shorter than the holes around it, the dash a sliver between round holes
+    assert passed(BlobParams(min_major_to_neighbours=0.0, sliver_max_axis_ratio=0.0)) == {"word", "dash"}
+    assert passed(BlobParams(min_major_to_neighbours=0.0)) == {"word"}
+    assert passed(BlobParams(sliver_max_axis_ratio=0.0)) == {"dash"}
