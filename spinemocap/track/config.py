@@ -246,8 +246,11 @@ class StatusConfig:
     judged again without it); ``detached_max_dots``, the largest group of
     observed dots joined to the rest of the observed tape by no solid edge whose labels are
     doubted (:func:`spinemocap.track.lattice.detached_groups`: fewer dots than two whole rows
-    fit a column or row beside their own as well); the inferred dots beside such a dot are marked
-    with it."""
+    fit a column or row beside their own as well); ``crowded_limit`` x the smallest dot spacing,
+    the nearest another labelled dot (observed or inferred) may lie to an observed one
+    (:func:`spinemocap.track.lattice.crowded_labels`: labels a column off beside the model's
+    own dot there, where a staggered tape's rows fit a column aside as well as their own);
+    the inferred dots beside such a dot are marked with it."""
 
     observe_radius_mm: float = 7.0
     min_views: int = 2
@@ -260,6 +263,7 @@ class StatusConfig:
     ray_points: bool = True
     observed_lattice_limit: float = 0.5
     detached_max_dots: int = 4
+    crowded_limit: float = 0.5
 
 
 @dataclass
@@ -341,7 +345,7 @@ class TrackerConfig:
             config, stretch=dataclasses.replace(config.stretch, adaptive=False),
             rig=dataclasses.replace(config.rig, adaptive_gate=False),
             status=dataclasses.replace(config.status, lattice_check=False, unanchored_rows=0, anchor_ends=False,
-                                      observed_lattice_limit=0.0, detached_max_dots=0),
+                                      observed_lattice_limit=0.0, detached_max_dots=0, crowded_limit=0.0),
             sequence=dataclasses.replace(config.sequence, keep_identity=False, smooth_trusted_only=False,
                                          follow_hidden_rows=False, pin_identity=False))
 

@@ -165,6 +165,24 @@ def off_observed_lattice(uv: np.ndarray, positions: np.ndarray, observed: np.nda
     return out
 
 
+def crowded_labels(positions: np.ndarray, observed: np.ndarray, rows: np.ndarray, limit_mm: float) -> np.ndarray:
+    """(D,) bool: every dot of a row (``rows`` (D,) int) where an ``observed`` (D,) bool dot has
+    another labelled dot (any finite row of ``positions`` (D, 3) mm, observed or inferred) nearer
+    than ``limit_mm``, or is that other dot. Two dots of a tape never lie within half its smallest
+    spacing of each other; labels that do were put a column aside (on a staggered tape, rows
+    shifted by a column keep every edge length to the rows beside them) next to the model's own
+    dot for the column they took, and the rest of their row moved with them."""
+    finite = np.isfinite(positions).all(axis=1)
+    out = np.zeros(len(positions), bool)
+    if limit_mm <= 0 or not (observed & finite).any() or finite.sum() < 2:
+        return out
+    idx = np.flatnonzero(finite)
+    dist = np.linalg.norm(positions[idx][:, None, :] - positions[idx][None, :, :], axis=2)
+    np.fill_diagonal(dist, np.inf)
+    close = (dist < limit_mm) & (observed[idx][:, None] | observed[idx][None, :])  # one of the pair observed
+    return np.isin(rows, rows[idx[close.any(axis=1)]])
+
+
 def detached_groups(observed: np.ndarray, solid_edges: np.ndarray, max_dots: int) -> np.ndarray:
     """(D,) bool: ``observed`` (D,) bool dots in a group of at most ``max_dots`` observed dots that
     the tape's ``solid_edges`` (E, 2) join to each other but to no observed dot of the largest

@@ -39,6 +39,7 @@ from .evidence import build_evidence
 from .lattice import (
     affine_from_neighbours,
     beyond_known_rows,
+    crowded_labels,
     detached_groups,
     off_lattice,
     off_observed_lattice,
@@ -321,9 +322,10 @@ class FrameTracker:
 
     def _unsupported(self, positions: np.ndarray, status: np.ndarray) -> np.ndarray:
         """(D,) bool: observed dots whose label the other observed dots do not bear out: off
-        their lattice (``status.observed_lattice_limit``) or in a small detached group
-        (``status.detached_max_dots``), see :class:`~spinemocap.track.config.StatusConfig`;
-        and the inferred dots joined to such a dot by a solid tape edge."""
+        their lattice (``status.observed_lattice_limit``), in a small detached group
+        (``status.detached_max_dots``) or crowding another labelled dot (``status.crowded_limit``,
+        with that dot), see :class:`~spinemocap.track.config.StatusConfig`; and the inferred dots
+        joined to such a dot by a solid tape edge."""
         cfg = self.config.status
         observed = status == OBSERVED
         edges = self.graph.solid_edges
@@ -331,6 +333,7 @@ class FrameTracker:
         if cfg.observed_lattice_limit > 0:
             limit = cfg.observed_lattice_limit * self.graph.min_spacing_mm
             out |= off_observed_lattice(self.graph.uv_mm, positions, observed, limit, cfg.lattice_sigma_mm)
+        out |= crowded_labels(positions, observed, self.graph.row, cfg.crowded_limit * self.graph.min_spacing_mm)
         # the inferred dots beside such a dot were laid by the same model, around the same point
         beside = np.zeros_like(out)
         beside[edges[out[edges[:, 0]], 1]] = True

@@ -38,8 +38,9 @@ labels may be wrong, and each dot a label confidence in [0, 1]:
   ``dot_unsupported`` 0.5 (an observed dot whose label the other observed dots do not bear out:
   more than half a dot spacing from where their lattice puts it (judged again without each dot
   found off, the worst first, so that two wrong dots do not bear each other out), or in a group
-  of a few observed dots that no solid edge joins to the rest of the observed tape; also the
-  inferred dots beside
+  of a few observed dots that no solid edge joins to the rest of the observed tape, or within
+  half the smallest dot spacing of another labelled dot (with that dot: a row labelled a
+  column aside, beside the model's own dot for the column it took); also the inferred dots beside
   such a dot, laid by the same model around the same point; a triangulated point with a low
   residual is no proof of its label: matched to its row neighbour's point, a dot reprojects
   perfectly, and the dots the model infers around it follow it, see

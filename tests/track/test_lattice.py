@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from tape_scenes import SPEC, tape_on_back
 
-from spinemocap.track.lattice import affine_from_neighbours, off_observed_lattice
+from spinemocap.track.lattice import affine_from_neighbours, crowded_labels, off_observed_lattice
 
 GRAPH = SPEC.graph
 LIMIT_MM = 0.5 * float(GRAPH.rest_length_mm.min())  # the tracker's default: half the smallest dot spacing
@@ -41,3 +41,24 @@ def test_a_tape_on_its_own_places_is_borne_out_under_occlusion():
     for observed in (np.ones(GRAPH.n_dots, bool), rows >= 3, rows <= 9, (rows <= 4) | (rows >= 7), column > -10.0,
                      column < 10.0):
         assert not off_observed_lattice(GRAPH.uv_mm, dots, observed, LIMIT_MM).any()
+
+
+def test_upper_rows_labelled_a_column_aside_crowd_the_model_s_own_dots():
+    """Rows 10-13 observed a column to the right (each dot on its right neighbour's place), their
+    right-hand dots left where the model put them (inferred): every edge length to row 9 is kept
+    (a staggered tape), but two labels sit on one dot."""
+    dots = tape_on_back(SPEC)
+    index, rows = GRAPH.index, GRAPH.row
+    positions, observed = dots.copy(), np.ones(GRAPH.n_dots, bool)
+    moved = []
+    for row in range(10, 14):
+        names = [n for n in ("L", "C", "R") if f"R{row:02d}{n}" in GRAPH.labels]
+        for left, right in zip(names, names[1:]):
+            positions[index(f"R{row:02d}{left}")] = dots[index(f"R{row:02d}{right}")]
+            moved.append(index(f"R{row:02d}{left}"))
+        observed[index(f"R{row:02d}R")] = False  # the model's own dot for the column taken
+    crowded = crowded_labels(positions, observed, rows, LIMIT_MM)
+    np.testing.assert_array_equal(crowded, rows >= 9)  # rows R10-R13 (0-based 9-12) moved, whole
+    assert len(moved) >= 6
+    assert not crowded_labels(dots, observed, rows, LIMIT_MM).any()  # every dot on its own place
+    assert not crowded_labels(positions, observed, rows, 0.0).any()  # 0 turns the check off
