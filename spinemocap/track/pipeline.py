@@ -271,7 +271,21 @@ class FrameTracker:
                              extrapolated=relocated & ~seen & beyond_known_rows(relocated | ~seen, positions, self.graph),
                              unanchored=self._unanchored(status), unsupported=self._unsupported(positions, status))
         result.flags.extend(result.dot_flags())
+        self.mark_crowded(result)
         return result
+
+    def mark_crowded(self, result: FrameResult) -> None:
+        """Mark unsupported (``result.unsupported``, flag ``dot_unsupported``) every dot of a row
+        where an observed dot lies within ``status.crowded_limit`` x the smallest dot spacing of
+        another labelled dot (:func:`.lattice.crowded_labels`), on ``result``'s positions as
+        they stand (a sequence's hidden rows move after the frame's own solve)."""
+        limit = self.config.status.crowded_limit * self.graph.min_spacing_mm
+        crowded = crowded_labels(result.positions, result.status == OBSERVED, self.graph.row, limit)
+        if not crowded.any():
+            return
+        result.unsupported = crowded if result.unsupported is None else result.unsupported | crowded
+        if "dot_unsupported" not in result.flags:
+            result.flags.append("dot_unsupported")
 
     def anchor_tape_ends(self, positions: np.ndarray, cloud: CandidateCloud,
                          source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -322,10 +336,9 @@ class FrameTracker:
 
     def _unsupported(self, positions: np.ndarray, status: np.ndarray) -> np.ndarray:
         """(D,) bool: observed dots whose label the other observed dots do not bear out: off
-        their lattice (``status.observed_lattice_limit``), in a small detached group
-        (``status.detached_max_dots``) or crowding another labelled dot (``status.crowded_limit``,
-        with that dot), see :class:`~spinemocap.track.config.StatusConfig`; and the inferred dots
-        joined to such a dot by a solid tape edge."""
+        their lattice (``status.observed_lattice_limit``) or in a small detached group
+        (``status.detached_max_dots``), see :class:`~spinemocap.track.config.StatusConfig`;
+        and the inferred dots joined to such a dot by a solid tape edge."""
         cfg = self.config.status
         observed = status == OBSERVED
         edges = self.graph.solid_edges
@@ -333,7 +346,6 @@ class FrameTracker:
         if cfg.observed_lattice_limit > 0:
             limit = cfg.observed_lattice_limit * self.graph.min_spacing_mm
             out |= off_observed_lattice(self.graph.uv_mm, positions, observed, limit, cfg.lattice_sigma_mm)
-        out |= crowded_labels(positions, observed, self.graph.row, cfg.crowded_limit * self.graph.min_spacing_mm)
         # the inferred dots beside such a dot were laid by the same model, around the same point
         beside = np.zeros_like(out)
         beside[edges[out[edges[:, 0]], 1]] = True
