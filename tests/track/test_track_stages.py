@@ -341,3 +341,34 @@ def test_observed_dots_move_in_by_the_tape_thickness(scene):
     shift = thick.positions - plain.positions
     assert np.allclose(np.linalg.norm(shift, axis=1), 1.0, atol=1e-6)
     assert (shift[:, 1] < -0.9).all()  # into the body: the back faces +Y, toward the cameras
+
+
+def test_a_row_labelled_a_column_aside_beside_the_model_s_dot_is_not_vouched_for():
+    from spinemocap.markers import INFERRED, OBSERVED
+    from spinemocap.track.pipeline import FrameResult
+    from spinemocap.track.quality import label_confidence
+
+    graph, tracker = SPEC.graph, FrameTracker(rig_behind(), SPEC)
+    dots = tape_on_back(SPEC)
+    n = graph.n_dots
+
+    def frame(positions: np.ndarray, status: np.ndarray) -> FrameResult:
+        return FrameResult(positions, status, np.full(n, 2), np.zeros(n))
+
+    status = np.full(n, OBSERVED, dtype=object)
+    clean = frame(dots.copy(), status.copy())
+    tracker.mark_crowded(clean)
+    assert clean.unsupported is None and clean.flags == []
+    shifted, moved_rows = dots.copy(), graph.row >= 9  # rows R10-R13: each dot on its right neighbour's place
+    for row in range(10, 14):
+        names = [c for c in ("L", "C", "R") if f"R{row:02d}{c}" in graph.labels]
+        for left, right in zip(names, names[1:]):
+            shifted[graph.index(f"R{row:02d}{left}")] = dots[graph.index(f"R{row:02d}{right}")]
+        status[graph.index(f"R{row:02d}R")] = INFERRED  # the model's own dot for the column taken
+    aside = frame(shifted, status)
+    tracker.mark_crowded(aside)
+    np.testing.assert_array_equal(aside.unsupported, moved_rows)
+    assert aside.flags == ["dot_unsupported"]
+    confidence = label_confidence(aside.status, aside.flags, aside.dot_flags())
+    assert (confidence[moved_rows & (status == OBSERVED)] <= 0.5).all()
+    assert (confidence[~moved_rows] == 1.0).all()
