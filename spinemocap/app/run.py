@@ -371,6 +371,9 @@ def run_tracking(
     if carry is not None and len(results):
         doubted = np.repeat([[is_flagged(r.flags) or not r.solved] for r in results], tracker.n_dots, axis=1)
         positions, status = fill_and_smooth(positions, status, config.sequence, doubted)
+        for result, frame_positions, frame_status in zip(results, positions, status):
+            if result.solved:  # the followed, filled and smoothed dots may crowd a row put a column aside
+                tracker.mark_crowded(result, frame_positions, frame_status)
     first = frame_ids[0] if frame_ids else 0
     if frame_ids and frame_ids != list(range(first, first + len(frame_ids))):
         raise ValueError("frames must be consecutive")

@@ -274,13 +274,17 @@ class FrameTracker:
         self.mark_crowded(result)
         return result
 
-    def mark_crowded(self, result: FrameResult) -> None:
+    def mark_crowded(self, result: FrameResult, positions: np.ndarray | None = None,
+                     status: np.ndarray | None = None) -> None:
         """Mark unsupported (``result.unsupported``, flag ``dot_unsupported``) every dot of a row
         where an observed dot lies within ``status.crowded_limit`` x the smallest dot spacing of
-        another labelled dot (:func:`.lattice.crowded_labels`), on ``result``'s positions as
-        they stand (a sequence's hidden rows move after the frame's own solve)."""
+        another labelled dot (:func:`.lattice.crowded_labels`), judged on ``positions`` (D, 3) mm
+        and ``status`` (D,) as they are reported (default ``result``'s own: a sequence fills and
+        smooths its unobserved dots after each frame's solve)."""
         limit = self.config.status.crowded_limit * self.graph.min_spacing_mm
-        crowded = crowded_labels(result.positions, result.status == OBSERVED, self.graph.row, limit)
+        positions = result.positions if positions is None else positions
+        observed = (result.status if status is None else status) == OBSERVED
+        crowded = crowded_labels(positions, observed, self.graph.row, limit)
         if not crowded.any():
             return
         result.unsupported = crowded if result.unsupported is None else result.unsupported | crowded

@@ -118,7 +118,6 @@ class SequenceTracker:
             result = self._keep_identity(result, views, cloud, stretch, stage_ms)
         if self.config.follow_hidden_rows and "relabelled" not in result.flags:
             self._hidden_rows_follow(result)
-            self.tracker.mark_crowded(result)  # the followed rows may now crowd a label put a column aside
         return result
 
     def _hidden_rows_follow(self, result: FrameResult, sigma_mm: float = 30.0) -> None:
