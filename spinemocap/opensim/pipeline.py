@@ -378,14 +378,13 @@ def doubtful_frames(solution: IKSolution) -> np.ndarray:
 
 def short_doubtful_runs(doubtful: np.ndarray, longest: int = SHORT_DOUBTFUL_RUN) -> np.ndarray:
     """(F,) bool: the ``doubtful`` frames (F,) bool in runs of at most ``longest`` frames with a
-    frame that is not doubtful before or after them. A longer run (a deep bend the markers fit
-    badly throughout) is no gap between known postures, and is left as solved."""
+    frame that is not doubtful on either side. A longer run (a deep bend the markers fit badly
+    throughout) is no gap between known postures, nor is a run at either end of the trial, and
+    either is left as solved."""
     short = np.zeros(len(doubtful), bool)
-    if doubtful.all():
-        return short
     edges = np.flatnonzero(np.diff(np.r_[0, doubtful.astype(int), 0]))
     for start, stop in zip(edges[::2], edges[1::2]):
-        short[start:stop] = stop - start <= longest
+        short[start:stop] = stop - start <= longest and start > 0 and stop < len(doubtful)
     return short
 
 
