@@ -344,8 +344,7 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
     times = data.times[frames]
     write_trc(work / "markers_opensim.trc", labels, times, chosen, data.fps)
     weights = data.weights(inferred_sd_mm)[frames][:, placed]
-    chosen_goals = {name: CoordinateGoal(g.values[frames], g.weights[frames], None if g.held is None else g.held[frames])
-                    for name, g in (goals or {}).items()}
+    chosen_goals = {name: goal.at(frames) for name, goal in (goals or {}).items()}
     if chosen_goals:
         write_coordinate_goals(work / SLIP_GOALS, times, chosen_goals)
     write_ik_setup(work, "model.osim", "markers_opensim.trc", (float(times[0]), float(times[-1])), labels,
@@ -357,8 +356,7 @@ def inverse_kinematics(work: Path, labels: list[str], placed: np.ndarray, data: 
     again = short_doubtful_runs(doubtful_frames(solution)) if doubtful_prior_deg > 0 else np.zeros(len(times), bool)
     if again.any():
         redo = np.flatnonzero(again)
-        redo_goals = {name: CoordinateGoal(g.values[redo], g.weights[redo], None if g.held is None else g.held[redo])
-                      for name, g in chosen_goals.items()}
+        redo_goals = {name: goal.at(redo) for name, goal in chosen_goals.items()}
         redo_goals.update(toward_neighbours(solution, again, doubtful_prior_deg))
         solution = solution.with_frames(redo, solve_ik(work / "model.osim", labels, times[redo], chosen[redo],
                                                        weights[redo], priors, accuracy[frames][redo], restart,

@@ -339,6 +339,10 @@ class CoordinateGoal:
         """Whether the coordinate is held at its value in ``frame``."""
         return self.held is not None and bool(self.held[frame])
 
+    def at(self, frames: np.ndarray) -> CoordinateGoal:
+        """The goal over ``frames`` (indices or a bool mask of the goal's frames), in their order."""
+        return CoordinateGoal(self.values[frames], self.weights[frames], None if self.held is None else self.held[frames])
+
 
 class _FrameSolver:
     """A fresh ``InverseKinematicsSolver`` per solve of a frame: OpenSim drops the goal of a

@@ -173,9 +173,8 @@ def crowded_labels(positions: np.ndarray, observed: np.ndarray, rows: np.ndarray
     shifted by a column keep every edge length to the rows beside them) next to the model's own
     dot for the column they took, and the rest of their row moved with them."""
     finite = np.isfinite(positions).all(axis=1)
-    out = np.zeros(len(positions), bool)
     if limit_mm <= 0 or not (observed & finite).any() or finite.sum() < 2:
-        return out
+        return np.zeros(len(positions), bool)
     idx = np.flatnonzero(finite)
     dist = np.linalg.norm(positions[idx][:, None, :] - positions[idx][None, :, :], axis=2)
     np.fill_diagonal(dist, np.inf)
